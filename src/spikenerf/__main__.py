@@ -1,0 +1,5 @@
+"""``python -m spikenerf`` runs the CLI."""
+
+from spikenerf.cli import main
+
+main()

@@ -1,0 +1,85 @@
+"""The ``spikenerf`` command: a click group whose subcommands load lazily (``spikenerf --help`` stays fast).
+
+Each subcommand lives in ``spikenerf.cli.<name>`` as a click command named ``command``. Any
+:class:`~spikenerf.core.errors.InputError` becomes one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from spikenerf import __version__
+from spikenerf.core.errors import InputError
+
+#: subcommand -> (module, one-line help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("spikenerf.cli.simulate", "Render a scene along a fast path and simulate a spike camera."),
+    "info": ("spikenerf.cli.info", "Summarise a dataset folder, a run folder or a .dat spike file."),
+    "reconstruct": ("spikenerf.cli.reconstruct", "Reconstruct images from a .dat spike stream (TFP/TFI)."),
+    "train": ("spikenerf.cli.train", "Train a radiance field on a spike dataset."),
+    "render": ("spikenerf.cli.render", "Render images, depth, video and novel spike streams from a run."),
+    "eval": ("spikenerf.cli.evaluate", "Evaluate a run on held-out views (PSNR, SSIM, LPIPS)."),
+    "benchmark": ("spikenerf.cli.benchmark", "Reproduce the paper's Table I and Table II."),
+    "demo": ("spikenerf.cli.demo", "Run the whole pipeline on the embedded default scene."),
+}
+
+
+class LazyGroup(click.Group):
+    """A group that imports a subcommand's module only when that subcommand runs."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(SUBCOMMANDS)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in SUBCOMMANDS:
+            return None
+        module_name, short_help = SUBCOMMANDS[cmd_name]
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as err:
+            if err.name != module_name:
+                raise
+            return _not_available(cmd_name, short_help)
+        command: click.Command = module.command
+        command.name = cmd_name
+        return command
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        with formatter.section("Commands"):
+            formatter.write_dl([(name, help_) for name, (_, help_) in SUBCOMMANDS.items()])
+
+
+def _not_available(name: str, short_help: str) -> click.Command:
+    @click.command(name=name, help=short_help, context_settings={"ignore_unknown_options": True})
+    @click.argument("args", nargs=-1, type=click.UNPROCESSED)
+    def stub(args: tuple[str, ...]) -> None:
+        click.echo(f"spikenerf {name}: not available yet in this version", err=True)
+        sys.exit(1)
+
+    return stub
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="spikenerf")
+def cli() -> None:
+    """spikenerf: spike cameras, from simulation to Spike-NeRF novel views and novel spike streams."""
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: run the group; InputError → one line on stderr, exit code 2."""
+    try:
+        cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
+    except InputError as err:
+        click.echo(f"spikenerf: error: {err}", err=True)
+        sys.exit(2)
+    except click.exceptions.Abort:
+        click.echo("spikenerf: aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as err:
+        err.show()
+        sys.exit(err.exit_code)
+    except click.exceptions.Exit as err:
+        sys.exit(err.exit_code)

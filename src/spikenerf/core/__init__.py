@@ -1,0 +1,1 @@
+"""Lowest layer: errors, colour transforms, atomic file writes and device selection (no other imports)."""

@@ -1,0 +1,46 @@
+"""Colour conventions: linear radiance, luminance, and sRGB encoding for display (numpy or torch)."""
+
+from __future__ import annotations
+
+from typing import TypeVar
+
+import numpy as np
+import torch
+
+Array = TypeVar("Array", np.ndarray, torch.Tensor)
+
+#: Rec. 601 luma weights applied to *linear* RGB, the design's gray convention.
+GRAY_WEIGHTS = (0.299, 0.587, 0.114)
+
+
+def rgb_to_gray(rgb: Array, channel_axis: int = 0) -> Array:
+    """Linear RGB to linear gray, 0.299R + 0.587G + 0.114B.
+
+    Args:
+        rgb: (..., 3, ...) with the colour axis at ``channel_axis``.
+    Returns:
+        The same shape with the colour axis removed.
+    """
+    r, g, b = (
+        rgb.select(channel_axis, i) if isinstance(rgb, torch.Tensor) else np.take(rgb, i, channel_axis)
+        for i in range(3)
+    )
+    return GRAY_WEIGHTS[0] * r + GRAY_WEIGHTS[1] * g + GRAY_WEIGHTS[2] * b
+
+
+def srgb_encode(linear: Array) -> Array:
+    """Linear [0, 1] to sRGB-encoded [0, 1] display values (IEC 61966-2-1); input is clipped to [0, 1]."""
+    if isinstance(linear, torch.Tensor):
+        x = linear.clamp(0.0, 1.0)
+        return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+    x = np.clip(linear, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 1e-12) ** (1 / 2.4) - 0.055)
+
+
+def srgb_decode(encoded: Array) -> Array:
+    """sRGB-encoded [0, 1] to linear [0, 1] (the inverse of :func:`srgb_encode`)."""
+    if isinstance(encoded, torch.Tensor):
+        x = encoded.clamp(0.0, 1.0)
+        return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    x = np.clip(encoded, 0.0, 1.0)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)

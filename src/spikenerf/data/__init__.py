@@ -1,0 +1,1 @@
+"""Dataset folder I/O, the simulate pipeline, rays, training targets and samplers."""

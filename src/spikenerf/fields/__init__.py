@@ -1,0 +1,1 @@
+"""Radiance fields: the fast grid field and the vanilla NeRF MLP."""

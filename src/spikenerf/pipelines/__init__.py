@@ -1,0 +1,1 @@
+"""Pipelines composed of all layers: demo, benchmark tables, HTML report."""

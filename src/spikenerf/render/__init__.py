@@ -1,0 +1,1 @@
+"""Renderers: volume rendering and the spiking volume renderer."""

@@ -1,0 +1,1 @@
+"""Scenes: camera trajectories, the optional Blender backend, image-sequence import."""

@@ -1,0 +1,43 @@
+"""The CLI skeleton: help, version, unknown commands and the InputError → exit 2 contract."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from spikenerf.cli import SUBCOMMANDS, main
+from spikenerf.core.errors import InputError
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "spikenerf", *args], capture_output=True, text=True)
+
+
+def test_help_lists_every_design_subcommand() -> None:
+    out = _run("--help")
+    assert out.returncode == 0
+    for name in ["simulate", "info", "reconstruct", "train", "render", "eval", "benchmark", "demo"]:
+        assert name in SUBCOMMANDS
+        assert name in out.stdout
+
+
+def test_unknown_command_exits_2() -> None:
+    assert _run("no-such-command").returncode == 2
+
+
+def test_input_error_is_one_line_and_exit_2(monkeypatch, capsys) -> None:
+    import click
+
+    import spikenerf.cli as cli_module
+
+    @click.command()
+    def boom() -> None:
+        raise InputError("expected 3 fields, found 2", path="x/transforms.json")
+
+    monkeypatch.setattr(cli_module.LazyGroup, "get_command", lambda self, ctx, name: boom)
+    try:
+        main(["boom"])
+    except SystemExit as exit_:
+        assert exit_.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "spikenerf: error: x/transforms.json: expected 3 fields, found 2"
