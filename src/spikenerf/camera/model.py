@@ -1,13 +1,32 @@
-"""Integrate-and-fire spike camera model (numpy or torch)."""
+"""Integrate-and-fire spike camera model (numpy or torch): colour modes, noise presets, streaming simulation.
+
+Units: intensity is linear radiance integrated over one readout step (25 µs at 40 kHz); 1.0 = white, i.e.
+a white pixel gathers exactly one threshold φ = 1.0 per step. See docs/camera.md.
+"""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from typing import TypeVar
 
 import numpy as np
 import torch
 
+from spikenerf.camera.noise import NoiseProcess, RealisticNoise
+from spikenerf.core.color import rgb_to_gray
+from spikenerf.core.device import resolve_device
+from spikenerf.core.errors import InputError
+
 Array = TypeVar("Array", np.ndarray, torch.Tensor)
+
+COLORS = ("gray", "rgb", "bayer")
+NOISES = ("ideal", "realistic")
+#: The colour filter array of the ``bayer`` mode: (0,0)=R, (0,1)=G, (1,0)=G, (1,1)=B.
+BAYER_PATTERN = "RGGB"
+#: Steps buffered on the device before a copy to host memory in :func:`simulate`.
+_CHUNK = 256
 
 
 def fire(accumulator: Array, intensity: Array, threshold: float | Array = 1.0) -> tuple[Array, Array]:
@@ -30,3 +49,317 @@ def fire(accumulator: Array, intensity: Array, threshold: float | Array = 1.0) -
     else:
         acc = acc - spikes.astype(acc.dtype) * threshold
     return spikes, acc
+
+
+def fire_(
+    accumulator: Array, intensity: Array, threshold: float | Array, spikes: Array, scratch: Array
+) -> Array:
+    """In-place :func:`fire` on float32 buffers: the same rule and bit-identical results, no allocation.
+
+    No autograd: tensors must not require grad (the camera detaches its input).
+
+    Args:
+        accumulator: (..., H, W) float32, updated in place.
+        intensity: broadcastable to the accumulator.
+        threshold: φ as a float32-representable float, or a float32 array of the accumulator's shape.
+        spikes: bool buffer of the accumulator's shape, overwritten with this step's spikes.
+        scratch: float32 buffer of the accumulator's shape, overwritten.
+    Returns:
+        ``spikes``.
+    """
+    if isinstance(accumulator, torch.Tensor) and accumulator.device.type != "cpu":
+        accumulator.add_(intensity)
+        torch.ge(accumulator, threshold, out=spikes)
+        accumulator.sub_(torch.mul(spikes, threshold, out=scratch))
+    else:  # numpy, or CPU tensors through zero-copy numpy views (torch's CPU bool kernels are slower)
+        accumulator, intensity, threshold, scratch, out = (
+            x.numpy() if isinstance(x, torch.Tensor) else x
+            for x in (accumulator, intensity, threshold, scratch, spikes)
+        )
+        if not isinstance(threshold, np.ndarray):
+            threshold = np.float32(threshold)  # keeps the loops in float32
+        np.add(accumulator, intensity, out=accumulator)
+        np.greater_equal(accumulator, threshold, out=out)
+        np.copyto(scratch, out)  # 1.0 / 0.0; much faster than a masked subtract (where=spikes)
+        if isinstance(threshold, np.ndarray) or threshold != 1:
+            np.multiply(scratch, threshold, out=scratch)
+        np.subtract(accumulator, scratch, out=accumulator)
+    return spikes
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Spike camera settings.
+
+    Attributes:
+        threshold: φ, intensity units (1.0 = one white step).
+        color: ``gray`` (one stream), ``rgb`` (three per-channel streams) or ``bayer`` (RGGB mosaic).
+        noise: ``ideal`` or ``realistic`` (see :class:`~spikenerf.camera.noise.RealisticNoise`).
+        seed: seeds the initial accumulator and all noise.
+        warmup: steps simulated on the first frame and discarded before the first recorded step.
+    """
+
+    threshold: float = 1.0
+    color: str = "gray"
+    noise: str = "ideal"
+    seed: int = 0
+    warmup: int = 0
+
+    def __post_init__(self) -> None:
+        t = self.threshold
+        number = isinstance(t, (int, float, np.integer, np.floating)) and not isinstance(t, bool)
+        if not number or not math.isfinite(t) or not 0 < np.float32(t) < np.inf:
+            raise InputError(f"camera config field 'threshold' must be a finite number > 0, got {t!r}")
+        if self.color not in COLORS:
+            raise InputError(
+                f"camera config field 'color' must be one of {'|'.join(COLORS)}, got {self.color!r}"
+            )
+        if self.noise not in NOISES:
+            raise InputError(
+                f"camera config field 'noise' must be one of {'|'.join(NOISES)}, got {self.noise!r}"
+            )
+        for name in ("seed", "warmup"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise InputError(f"camera config field {name!r} must be an integer ≥ 0, got {v!r}")
+
+
+def bayer_channel_index(height: int, width: int) -> np.ndarray:
+    """The RGGB colour filter array: int64 (H, W), 0 = R, 1 = G, 2 = B; (0,0)=R, (0,1)=G, (1,0)=G, (1,1)=B."""
+    index = np.ones((height, width), dtype=np.int64)
+    index[0::2, 0::2] = 0
+    index[1::2, 1::2] = 2
+    return index
+
+
+def bayer_mosaic(rgb: Array) -> Array:
+    """Sample (..., 3, H, W) RGB through the RGGB filter array: (..., H, W), same type and dtype."""
+    if rgb.ndim < 3 or rgb.shape[-3] != 3:
+        raise InputError(f"bayer_mosaic needs an RGB array of shape (..., 3, H, W), got {tuple(rgb.shape)}")
+    out = (
+        torch.empty_like(rgb[..., 0, :, :])
+        if isinstance(rgb, torch.Tensor)
+        else np.empty_like(rgb[..., 0, :, :])
+    )
+    out[..., 0::2, 0::2] = rgb[..., 0, 0::2, 0::2]
+    out[..., 0::2, 1::2] = rgb[..., 1, 0::2, 1::2]
+    out[..., 1::2, 0::2] = rgb[..., 1, 1::2, 0::2]
+    out[..., 1::2, 1::2] = rgb[..., 2, 1::2, 1::2]
+    return out
+
+
+def _resolve(device: str | torch.device | None) -> torch.device | None:
+    if device is None:
+        return None
+    if not isinstance(device, (str, torch.device)):
+        raise InputError(f"device must be None (numpy), a string or a torch.device, got {device!r}")
+    return resolve_device(str(device))
+
+
+class SpikeCamera:
+    """A spike camera of ``height × width`` pixels: feed one step of intensity, get that step's spikes.
+
+    ``device=None`` runs on numpy; a torch device (``"cpu"``, ``"cuda"``, ``"auto"``) runs on torch tensors.
+    The ideal model gives identical spikes on both for the same seed.
+
+    Args:
+        height, width: sensor size in pixels.
+        config: :class:`CameraConfig`.
+        device: None for numpy, else a torch device or its name.
+        noise_params: parameters of the ``realistic`` preset (default :class:`RealisticNoise`).
+    """
+
+    def __init__(
+        self,
+        height: int,
+        width: int,
+        config: CameraConfig | None = None,
+        device: str | torch.device | None = None,
+        noise_params: RealisticNoise | None = None,
+    ) -> None:
+        for name, v in (("height", height), ("width", width)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+                raise InputError(f"spike camera {name} must be a positive integer, got {v!r}")
+        self.config = config if config is not None else CameraConfig()
+        self.height, self.width = int(height), int(width)
+        self.device = _resolve(device)
+        self.spike_shape: tuple[int, ...] = (
+            (3, self.height, self.width) if self.config.color == "rgb" else (self.height, self.width)
+        )
+        phi = np.float32(self.config.threshold)
+        init_seed, pattern_seed, temporal_seed = np.random.SeedSequence(self.config.seed).spawn(3)
+        init = np.random.default_rng(init_seed).random(self.spike_shape, dtype=np.float32) * phi
+        self._initial = np.minimum(init, np.nextafter(phi, np.float32(0)))
+        self._acc = self._backend(self._initial)
+        self._scratch = self._backend(np.zeros(self.spike_shape, np.float32))
+        self._threshold: float = float(phi)
+        self._noise: NoiseProcess | None = None
+        if self.config.noise == "realistic":
+            params = noise_params if noise_params is not None else RealisticNoise()
+            patterns = params.draw_patterns(self.spike_shape, float(phi), pattern_seed)
+            self._noise = NoiseProcess(params, patterns, temporal_seed, self.device, float(phi))
+        self._steps = 0
+        self._warm = self.config.warmup == 0
+
+    def _backend(self, x: np.ndarray) -> np.ndarray | torch.Tensor:
+        return x.copy() if self.device is None else torch.from_numpy(x.copy()).to(self.device)
+
+    @property
+    def accumulator(self) -> np.ndarray | torch.Tensor:
+        """A copy of the accumulator now: float32 (H, W) or (3, H, W), intensity units."""
+        return self._acc.clone() if isinstance(self._acc, torch.Tensor) else self._acc.copy()
+
+    @property
+    def initial_accumulator(self) -> np.ndarray | torch.Tensor:
+        """The seeded accumulator before any step (warm-up included): uniform in [0, φ), float32."""
+        return self._backend(self._initial)
+
+    @property
+    def steps(self) -> int:
+        """Number of recorded steps so far (warm-up steps not counted)."""
+        return self._steps
+
+    def new_spikes(self, steps: int | None = None) -> np.ndarray | torch.Tensor:
+        """An uninitialised bool buffer of the spike shape, with a leading ``steps`` axis when given."""
+        shape = self.spike_shape if steps is None else (steps, *self.spike_shape)
+        if self.device is None:
+            return np.empty(shape, dtype=bool)
+        return torch.empty(shape, dtype=torch.bool, device=self.device)
+
+    def step(self, intensity: np.ndarray | torch.Tensor, out: np.ndarray | torch.Tensor | None = None):
+        """Integrate one step and fire.
+
+        Args:
+            intensity: linear radiance of this step (1.0 = white): (H, W) gray or (3, H, W) RGB, or
+                sub-frames (S, H, W) / (S, 1, H, W) / (S, 3, H, W) that are averaged. A 3-D input whose first
+                axis is 3 is RGB. ``gray`` accepts gray or RGB (converted by ``rgb_to_gray``);
+                ``rgb`` and ``bayer`` need RGB.
+            out: optional bool buffer of the spike shape to write into (see :meth:`new_spikes`).
+        Returns:
+            bool spikes: (H, W) for gray and bayer, (3, H, W) for rgb; numpy or torch like the camera.
+        """
+        x = self._prepare(intensity)
+        if out is None:
+            out = self.new_spikes()
+        elif tuple(out.shape) != self.spike_shape or out.dtype not in (np.bool_, torch.bool):
+            raise InputError(f"out must be a bool buffer of shape {self.spike_shape}, got {tuple(out.shape)}")
+        if not self._warm:
+            for _ in range(self.config.warmup):
+                self._advance(x, out)
+            self._warm = True
+        self._advance(x, out)
+        self._steps += 1
+        return out
+
+    def _advance(self, x: np.ndarray | torch.Tensor, spikes: np.ndarray | torch.Tensor) -> None:
+        if self._noise is None:
+            fire_(self._acc, x, self._threshold, spikes, self._scratch)
+            return
+        charge = self._noise.charge(x)
+        fire_(self._acc, charge, self._noise.thresholds(), spikes, self._scratch)
+        self._noise.after_spikes(spikes)
+
+    def _prepare(self, intensity: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+        """Validate one step's input; convert it to a float32 backend array of the accumulator's shape."""
+        if self.device is None:
+            if isinstance(intensity, torch.Tensor):
+                intensity = intensity.detach().cpu().numpy()
+            x = np.asarray(intensity, dtype=np.float32)
+        elif isinstance(intensity, torch.Tensor):
+            x = intensity.detach().to(device=self.device, dtype=torch.float32)
+        else:
+            a = np.asarray(intensity, dtype=np.float32)
+            x = torch.from_numpy(a if a.flags.writeable else a.copy()).to(self.device)
+        shape = tuple(x.shape)
+        if x.ndim < 2 or x.ndim > 4 or shape[-2:] != (self.height, self.width):
+            raise InputError(
+                f"intensity must be (H, W), (3, H, W), (S, H, W) or (S, C, H, W) with H×W = "
+                f"{self.height}×{self.width}, got shape {shape}"
+            )
+        if (x.ndim == 4 and shape[1] not in (1, 3)) or shape[0] == 0:
+            raise InputError(f"intensity sub-frames must be (S≥1, 1|3, H, W), got shape {shape}")
+        rgb = (x.ndim == 3 and shape[0] == 3) or (x.ndim == 4 and shape[1] == 3)
+        if x.ndim == 4 or (x.ndim == 3 and not rgb):
+            x = _mean_first(x)
+            if x.ndim == 3 and not rgb:
+                x = x[0]
+        if self.config.color == "gray":
+            return rgb_to_gray(x, channel_axis=0) if rgb else x
+        if not rgb:
+            raise InputError(
+                f"color mode {self.config.color!r} needs RGB intensity (3, H, W) or (S, 3, H, W), got {shape}"
+            )
+        return x if self.config.color == "rgb" else bayer_mosaic(x)
+
+
+def _mean_first(x: Array) -> Array:
+    """Mean over axis 0 as a sequential float32 sum divided by S (identical on numpy and torch)."""
+    total = x[0].clone() if isinstance(x, torch.Tensor) else x[0].copy()
+    for s in range(1, x.shape[0]):
+        total += x[s]
+    if x.shape[0] > 1:
+        total /= x.shape[0]
+    return total
+
+
+def simulate_iter(
+    frames: Iterable,
+    height: int,
+    width: int,
+    config: CameraConfig | None = None,
+    device: str | torch.device | None = None,
+    noise_params: RealisticNoise | None = None,
+) -> Iterator:
+    """Stream spikes: one bool (H, W) or (3, H, W) array per input frame; memory does not grow with T.
+
+    ``frames`` yields one step each, in any form :meth:`SpikeCamera.step` accepts.
+    """
+    camera = SpikeCamera(height, width, config, device, noise_params)
+    for frame in frames:
+        yield camera.step(frame)
+
+
+def simulate(
+    frames: Iterable,
+    height: int,
+    width: int,
+    config: CameraConfig | None = None,
+    device: str | torch.device | None = None,
+    progress: bool = False,
+    noise_params: RealisticNoise | None = None,
+) -> np.ndarray:
+    """Simulate a whole stream: bool (T, H, W) for gray/bayer or (T, 3, H, W) for rgb, as numpy.
+
+    Args:
+        frames: T steps of intensity (see :meth:`SpikeCamera.step`), any iterable.
+        progress: show a tqdm progress bar.
+    """
+    camera = SpikeCamera(height, width, config, device, noise_params)
+    total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
+    if progress:
+        from tqdm import tqdm
+
+        frames = tqdm(frames, total=total, desc="spike camera", unit="step")
+    if device is None and total is not None:
+        out = np.empty((total, *camera.spike_shape), dtype=bool)
+        for t, frame in enumerate(frames):
+            if t >= total:
+                raise InputError(f"frames yielded more than its length {total}")
+            camera.step(frame, out=out[t])
+        return out[: camera.steps]
+    chunks: list[np.ndarray] = []
+    buf = camera.new_spikes(_CHUNK)
+    n = 0
+    for frame in frames:
+        camera.step(frame, out=buf[n])
+        n += 1
+        if n == _CHUNK:
+            chunks.append(_host_copy(buf))
+            n = 0
+    if n or not chunks:
+        chunks.append(_host_copy(buf[:n]))
+    return np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
+
+
+def _host_copy(x: np.ndarray | torch.Tensor) -> np.ndarray:
+    return x.cpu().numpy().copy() if isinstance(x, torch.Tensor) else x.copy()

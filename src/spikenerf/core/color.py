@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
-from typing import TypeVar
+import sys
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
-import torch
 
-Array = TypeVar("Array", np.ndarray, torch.Tensor)
+if TYPE_CHECKING:
+    import torch
+
+Array = TypeVar("Array", np.ndarray, "torch.Tensor")
+
+
+def _is_tensor(x: Any) -> bool:
+    """True for a torch tensor, without importing torch (numpy-only callers stay fast to start)."""
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(x, torch.Tensor)
+
 
 #: Rec. 601 luma weights applied to *linear* RGB, the design's gray convention.
 GRAY_WEIGHTS = (0.299, 0.587, 0.114)
@@ -22,25 +32,26 @@ def rgb_to_gray(rgb: Array, channel_axis: int = 0) -> Array:
         The same shape with the colour axis removed.
     """
     r, g, b = (
-        rgb.select(channel_axis, i) if isinstance(rgb, torch.Tensor) else np.take(rgb, i, channel_axis)
-        for i in range(3)
+        rgb.select(channel_axis, i) if _is_tensor(rgb) else np.take(rgb, i, channel_axis) for i in range(3)
     )
     return GRAY_WEIGHTS[0] * r + GRAY_WEIGHTS[1] * g + GRAY_WEIGHTS[2] * b
 
 
 def srgb_encode(linear: Array) -> Array:
     """Linear [0, 1] to sRGB-encoded [0, 1] display values (IEC 61966-2-1); input is clipped to [0, 1]."""
-    if isinstance(linear, torch.Tensor):
+    if _is_tensor(linear):
         x = linear.clamp(0.0, 1.0)
-        return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+        return sys.modules["torch"].where(
+            x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055
+        )
     x = np.clip(linear, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 1e-12) ** (1 / 2.4) - 0.055)
 
 
 def srgb_decode(encoded: Array) -> Array:
     """sRGB-encoded [0, 1] to linear [0, 1] (the inverse of :func:`srgb_encode`)."""
-    if isinstance(encoded, torch.Tensor):
+    if _is_tensor(encoded):
         x = encoded.clamp(0.0, 1.0)
-        return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+        return sys.modules["torch"].where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
     x = np.clip(encoded, 0.0, 1.0)
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)

@@ -1,0 +1,43 @@
+"""Shared table printing for the benchmark scripts: every row compares ours with a reference run in the same
+process, so the ratio is meaningful even on a busy machine."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass
+class Row:
+    """One comparison: a throughput of ours against a reference measured in the same run."""
+
+    name: str
+    ours: float
+    reference: float
+    unit: str
+    reference_name: str
+
+    @property
+    def ratio(self) -> float:
+        return self.ours / self.reference if self.reference else float("nan")
+
+
+def best_seconds(fn: Callable[[], object], repeats: int = 3) -> float:
+    """The best wall time of ``repeats`` calls of ``fn`` (seconds)."""
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def format_table(rows: list[Row]) -> str:
+    """A markdown table: name, ours, reference, unit, ratio."""
+    lines = ["| benchmark | ours | reference | unit | ratio |", "|---|---:|---:|---|---:|"]
+    for r in rows:
+        lines.append(
+            f"| {r.name} | {r.ours:,.3g} | {r.reference:,.3g} ({r.reference_name}) | {r.unit} | {r.ratio:.2f}× |"
+        )
+    return "\n".join(lines)

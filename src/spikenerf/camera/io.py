@@ -1,0 +1,306 @@
+"""SpikeCV ``.dat`` spike files: memory-mapped reading, atomic writing, frame counting and chunked streaming.
+
+Layout (SpikeCV, the ecosystem standard): no header; frames concatenated, ``H·W/8`` bytes each; pixel ``p`` of
+the row-major *stored* frame is bit ``p % 8`` (LSB first) of byte ``p // 8``; rows are stored bottom-up, so a
+reader flips them vertically. ``layout="topdown"`` (the Spike-NeRF paper code) stores rows top-down and is
+only used when asked for. Raw sps10 camera files store 416 columns per row, of which the trailing 16
+(columns 400–415) are not pixels; ``raw_width=416`` strips them (SpikeCV's ``with_head`` option).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from spikenerf.core.atomic import atomic_path
+from spikenerf.core.errors import InputError
+
+if TYPE_CHECKING:
+    import torch
+
+LAYOUTS = ("spikecv", "topdown")
+#: the suffixes of the three per-channel files of an RGB stream: ``{prefix}_r.dat`` etc.
+RGB_SUFFIXES = ("r", "g", "b")
+#: frames decoded or encoded per block when streaming (bounds memory, keeps numpy calls large)
+CHUNK_FRAMES = 256
+
+
+def is_tensor(x: Any) -> bool:
+    """Whether ``x`` is a torch tensor, without importing torch (a tensor implies torch is loaded)."""
+    torch_module = sys.modules.get("torch")
+    return torch_module is not None and isinstance(x, torch_module.Tensor)
+
+
+def as_numpy(x: Any) -> np.ndarray:
+    """A numpy array (a torch tensor is detached and moved to the CPU; no copy when already there)."""
+    return x.detach().cpu().numpy() if is_tensor(x) else np.asarray(x)
+
+
+def frame_bytes(height: int, width: int, raw_width: int | None = None, path: str | Path | None = None) -> int:
+    """Bytes per stored frame, ``H·W_stored/8``; InputError when the sizes are bad or H·W % 8 != 0."""
+    stored = _stored_width(width, raw_width, path)
+    if height <= 0 or width <= 0:
+        raise InputError(f"height and width must be positive, found {height}×{width}", path=path)
+    if (height * stored) % 8:
+        raise InputError(
+            f"H·W must be a multiple of 8 for a .dat file, found {height}×{stored} = {height * stored} "
+            f"(remainder {(height * stored) % 8})",
+            path=path,
+        )
+    return height * stored // 8
+
+
+def count_frames(path: str | Path, height: int, width: int, raw_width: int | None = None) -> int:
+    """The number of frames in a ``.dat`` file; InputError if the size is not a whole number of frames."""
+    path = _existing_file(path)
+    fb = frame_bytes(height, width, raw_width, path)
+    size = path.stat().st_size
+    if size % fb:
+        raise InputError(
+            f"file size {size} bytes is not a multiple of the frame size {fb} bytes "
+            f"({height}×{_stored_width(width, raw_width, path)} pixels / 8): {size // fb} whole frames "
+            f"and a remainder of {size % fb} bytes (wrong --height/--width, or a truncated file?)",
+            path=path,
+        )
+    return size // fb
+
+
+def resolve_frames(frames: slice | int | None, total: int, path: str | Path | None = None) -> range:
+    """A frame selection as a ``range`` of indices into a ``total``-frame stream, checked strictly.
+
+    ``None`` selects all frames; an int ``i`` selects ``i:i+1``; negative indices count from the end (as in
+    Python); unlike Python slicing, a start/stop outside ``[0, total]``, a non-positive step or an empty
+    selection is an InputError.
+    """
+    if frames is None:
+        return range(total)
+    if isinstance(frames, (int, np.integer)) and not isinstance(frames, bool):
+        i = int(frames) + total if frames < 0 else int(frames)
+        if not 0 <= i < total:
+            raise InputError(
+                f"frame {frames} is outside the {total}-frame stream (valid 0..{total - 1})", path
+            )
+        return range(i, i + 1)
+    if not isinstance(frames, slice):
+        raise InputError(f"frames must be a slice, an int or None, found {type(frames).__name__}", path=path)
+    step = 1 if frames.step is None else int(frames.step)
+    if step <= 0:
+        raise InputError(f"frame step must be positive, found {step}", path=path)
+    start = 0 if frames.start is None else int(frames.start)
+    stop = total if frames.stop is None else int(frames.stop)
+    start, stop = (start + total if start < 0 else start), (stop + total if stop < 0 else stop)
+    if not 0 <= start < stop <= total:
+        raise InputError(
+            f"frame range {frames.start}:{frames.stop} is empty or outside the {total}-frame stream "
+            f"(need 0 <= start < stop <= {total})",
+            path=path,
+        )
+    return range(start, stop, step)
+
+
+def read_dat(
+    path: str | Path,
+    height: int,
+    width: int,
+    frames: slice | int | None = None,
+    layout: str = "spikecv",
+    raw_width: int | None = None,
+) -> np.ndarray:
+    """Read (a range of) a ``.dat`` spike file through a memory map: only the selected frames are read.
+
+    Args:
+        path: the ``.dat`` file.
+        height, width: the frame size in pixels (``width`` after stripping, see ``raw_width``).
+        frames: a slice (or one index) of frames; ``None`` reads all. Out-of-range → InputError.
+        layout: ``"spikecv"`` (rows stored bottom-up) or ``"topdown"``.
+        raw_width: the stored row width when it exceeds ``width`` (416 for raw 250×400 sps10 files); the
+            trailing ``raw_width - width`` columns of each stored row are dropped.
+    Returns:
+        uint8 (T, H, W) of 0/1, C-contiguous, row 0 at the top of the image.
+    """
+    path = _existing_file(path)
+    _check_layout(layout, path)
+    total = count_frames(path, height, width, raw_width)
+    selected = resolve_frames(frames, total, path)
+    stored = _stored_width(width, raw_width, path)
+    if total == 0:
+        return np.zeros((0, height, width), np.uint8)
+    fb = frame_bytes(height, width, raw_width, path)
+    mm = np.memmap(
+        path, np.uint8, "r", offset=selected.start * fb, shape=(selected.stop - selected.start, fb)
+    )
+    try:
+        out = decode_frames(mm[:: selected.step], height, width, layout, stored)
+    finally:
+        del mm
+    return out
+
+
+def iter_dat(
+    path: str | Path,
+    height: int,
+    width: int,
+    chunk_frames: int = CHUNK_FRAMES,
+    frames: slice | None = None,
+    layout: str = "spikecv",
+    raw_width: int | None = None,
+) -> Iterator[tuple[int, np.ndarray]]:
+    """Stream a ``.dat`` file in chunks of at most ``chunk_frames`` frames (contiguous selections only).
+
+    Yields:
+        ``(first_index, spikes)`` with spikes uint8 (n, H, W), as :func:`read_dat` would return them.
+    """
+    path = _existing_file(path)
+    if chunk_frames <= 0:
+        raise InputError(f"chunk_frames must be positive, found {chunk_frames}", path=path)
+    selected = resolve_frames(frames, count_frames(path, height, width, raw_width), path)
+    if selected.step != 1:
+        raise InputError(f"iter_dat streams contiguous ranges only, found step {selected.step}", path=path)
+    for start in range(selected.start, selected.stop, chunk_frames):
+        stop = min(start + chunk_frames, selected.stop)
+        yield start, read_dat(path, height, width, slice(start, stop), layout, raw_width)
+
+
+def decode_frames(
+    raw: np.ndarray, height: int, width: int, layout: str = "spikecv", raw_width: int | None = None
+) -> np.ndarray:
+    """Unpack stored frames (T, H·W_stored/8) uint8 into uint8 (T, H, W) 0/1 spikes (see module doc)."""
+    _check_layout(layout)
+    stored = width if raw_width is None else raw_width
+    n = raw.shape[0]
+    if stored % 8 == 0:
+        # Flip the packed rows (1/8 of the data), then unpack: flat when nothing is stripped (the fast path).
+        rows = raw.reshape(n, height, stored // 8)
+        if layout == "spikecv":
+            rows = np.ascontiguousarray(rows[:, ::-1])
+        if stored == width:
+            return np.unpackbits(rows.reshape(-1), bitorder="little").reshape(n, height, width)
+        return np.unpackbits(rows, axis=-1, count=width, bitorder="little")
+    bits = np.unpackbits(raw, axis=-1, bitorder="little").reshape(n, height, stored)[:, :, :width]
+    return np.ascontiguousarray(bits[:, ::-1] if layout == "spikecv" else bits)
+
+
+def encode_frames(spikes: np.ndarray, layout: str = "spikecv") -> np.ndarray:
+    """Pack uint8/bool (T, H, W) 0/1 spikes into stored frames uint8 (T, H·W/8) (see module doc)."""
+    _check_layout(layout)
+    n, height, width = spikes.shape
+    if layout == "spikecv" and width % 8 == 0:
+        # Pack flat (the fast path), then flip the packed rows (1/8 of the data).
+        packed = np.packbits(spikes.reshape(-1), bitorder="little").reshape(n, height, width // 8)
+        return np.ascontiguousarray(packed[:, ::-1]).reshape(n, -1)
+    frames = spikes[:, ::-1] if layout == "spikecv" else spikes
+    return np.packbits(frames.reshape(n, -1), axis=-1, bitorder="little")
+
+
+def write_dat(
+    path: str | Path,
+    spikes: np.ndarray | torch.Tensor | Iterable[np.ndarray | torch.Tensor],
+    layout: str = "spikecv",
+) -> int:
+    """Write spikes to a ``.dat`` file atomically (nothing is left behind on error).
+
+    Args:
+        path: the output file.
+        spikes: bool or 0/1-valued (T, H, W) array or tensor, or an iterable of such chunks of equal H, W
+            (streamed: the whole stream never needs to be in memory).
+        layout: ``"spikecv"`` (default) or ``"topdown"``.
+    Returns:
+        The number of frames written.
+    """
+    _check_layout(layout, path)
+    chunks = [spikes] if isinstance(spikes, np.ndarray) or is_tensor(spikes) else spikes
+    written, shape = 0, None
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        for chunk in chunks:
+            arr = _as_binary(chunk, path)
+            if shape is None:
+                shape = arr.shape[1:]
+                frame_bytes(*shape, path=path)
+            elif arr.shape[1:] != shape:
+                raise InputError(
+                    f"chunk frame size {arr.shape[1:]} differs from the first chunk's {shape}", path
+                )
+            for start in range(0, arr.shape[0], CHUNK_FRAMES):
+                fh.write(encode_frames(arr[start : start + CHUNK_FRAMES], layout).data)
+            written += arr.shape[0]
+    return written
+
+
+def rgb_paths(prefix: str | Path) -> list[Path]:
+    """The three per-channel files of an RGB stream: ``{prefix}_r.dat``, ``_g.dat``, ``_b.dat``."""
+    prefix = Path(prefix)
+    return [prefix.with_name(f"{prefix.name}_{c}.dat") for c in RGB_SUFFIXES]
+
+
+def write_dat_rgb(
+    prefix: str | Path, spikes: np.ndarray | torch.Tensor, layout: str = "spikecv"
+) -> list[Path]:
+    """Write a per-channel RGB stream (T, 3, H, W) as three gray ``.dat`` files; returns their paths."""
+    if spikes.ndim != 4 or spikes.shape[1] != 3:
+        raise InputError(f"RGB spikes must be (T, 3, H, W), found shape {tuple(spikes.shape)}", path=prefix)
+    paths = rgb_paths(prefix)
+    for c, p in enumerate(paths):
+        write_dat(p, spikes[:, c], layout)
+    return paths
+
+
+def read_dat_rgb(
+    prefix: str | Path,
+    height: int,
+    width: int,
+    frames: slice | int | None = None,
+    layout: str = "spikecv",
+    raw_width: int | None = None,
+) -> np.ndarray:
+    """Read the three files written by :func:`write_dat_rgb` into uint8 (T, 3, H, W)."""
+    paths = rgb_paths(prefix)
+    counts = [count_frames(p, height, width, raw_width) for p in paths]
+    if len(set(counts)) != 1:
+        raise InputError(f"the r, g, b files hold different frame counts {counts}", path=prefix)
+    return np.stack([read_dat(p, height, width, frames, layout, raw_width) for p in paths], axis=1)
+
+
+def _as_binary(chunk: np.ndarray | torch.Tensor, path: str | Path) -> np.ndarray:
+    """A (T, H, W) chunk as a numpy bool/uint8 array; InputError on other shapes or non-0/1 values."""
+    arr = as_numpy(chunk)
+    if arr.ndim != 3:
+        hint = " (use write_dat_rgb for (T, 3, H, W) streams)" if arr.ndim == 4 else ""
+        raise InputError(f"spikes must be (T, H, W), found shape {arr.shape}{hint}", path=path)
+    if arr.dtype == np.bool_ or arr.size == 0:
+        return arr
+    if arr.dtype == np.uint8 and arr.max() <= 1:  # the common case, checked in one cheap pass
+        return arr
+    bad = (arr != 0) & (arr != 1)
+    if bad.any():
+        first = arr[np.unravel_index(np.argmax(bad), arr.shape)]
+        raise InputError(
+            f"spikes must be binary (0/1 or bool), found {int(bad.sum())} other values (e.g. {first!r})",
+            path=path,
+        )
+    return arr.astype(np.uint8, copy=False)
+
+
+def _stored_width(width: int, raw_width: int | None, path: str | Path | None = None) -> int:
+    if raw_width is None:
+        return width
+    if raw_width < width:
+        raise InputError(f"raw_width {raw_width} is smaller than the image width {width}", path=path)
+    return raw_width
+
+
+def _check_layout(layout: str, path: str | Path | None = None) -> None:
+    if layout not in LAYOUTS:
+        raise InputError(f"layout must be one of {', '.join(LAYOUTS)}, found {layout!r}", path=path)
+
+
+def _existing_file(path: str | Path) -> Path:
+    path = Path(path)
+    if not path.exists():
+        raise InputError("spike file not found", path=path)
+    if not path.is_file():
+        raise InputError("expected a .dat file, found a directory or special file", path=path)
+    return path

@@ -1,0 +1,46 @@
+"""``spikenerf benchmark``: the paper's Table I and Table II, resumable, as md, csv, json and html."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from spikenerf.core.errors import InputError
+
+
+@click.command(help="Reproduce Table I (comparison) and Table II (ablation) on the built-in scenes.")
+@click.option("--scenes", default="all", show_default=True, help="'all' or comma-separated scene names.")
+@click.option(
+    "--methods", default="all", show_default=True,
+    help="'all', 'table1', 'table2' or comma-separated variants (spike-nerf, spike-nerf-no-mask, "
+    "spike-nerf-no-spike-loss, nerf-recon, nerf-blur, nerf-blur-aware, nerf-gt).",
+)  # fmt: skip
+@click.option("--color", default="gray,rgb", show_default=True, help="gray, rgb or gray,rgb.")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Benchmark folder (resumable).")
+@click.option("--size", type=int, default=100, show_default=True, help="Image width = height in pixels.")
+@click.option("--frames", type=int, default=1000, show_default=True, help="Spike steps on the orbit.")
+@click.option("--iters", type=int, help="Training iterations per run [default: the trainer's].")
+@click.option("--field", type=click.Choice(["grid", "mlp"]), default="grid", show_default=True)
+@click.option("--device", default="auto", show_default=True, help="auto, cpu or cuda.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--test-views", type=int, default=8, show_default=True)
+@click.option("--no-render", is_flag=True, help="Skip rendering test views (no report figures).")
+def command(
+    scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
+    field: str, device: str, seed: int, test_views: int, no_render: bool,
+) -> None:  # fmt: skip
+    from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants, run_benchmark
+
+    colors = [c.strip() for c in color.split(",") if c.strip()]
+    if not colors or any(c not in ("gray", "rgb") for c in colors):
+        raise InputError(f"--color: expected gray, rgb or gray,rgb, got {color!r}")
+    if size < 8 or frames < 2:
+        raise InputError(f"--size must be ≥ 8 and --frames ≥ 2, got {size} and {frames}")
+    cfg = BenchmarkConfig(
+        scenes=resolve_scenes(scenes), variants=resolve_variants(methods), colors=colors, out=out,
+        size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
+        test_views=test_views, render=not no_render,
+    )  # fmt: skip
+    run_benchmark(cfg)
+    click.echo(f"wrote {out}/table1.md, table2.md, results.csv, results.json")

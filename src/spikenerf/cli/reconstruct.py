@@ -1,0 +1,158 @@
+"""``spikenerf reconstruct``: TFP/TFI images from a ``.dat`` stream, as PNG (sRGB), NPY (linear) or a folder.
+
+Only the frames a result depends on are read (memory-mapped): the requested range plus the TFP window margin;
+TFI widens its margin until every pixel's surrounding intervals are known (see ``reconstruct_frames``).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import click
+import numpy as np
+
+from spikenerf.core.atomic import atomic_path, write_bytes_atomic
+from spikenerf.core.errors import InputError
+
+DEFAULT_WINDOW = 41
+#: output frames reconstructed per block (bounds memory; one progress-bar step)
+BLOCK_FRAMES = 128
+_FRAME_PNG = re.compile(r"^\d{5}\.png$")
+
+
+def parse_range(text: str) -> slice:
+    """``"A:B"`` (either side may be empty, negatives count from the end) as a slice."""
+    match = re.fullmatch(r"\s*(-?\d*)\s*:\s*(-?\d*)\s*", text)
+    if not match:
+        raise InputError(f"--frames must look like A:B (e.g. 100:200), found {text!r}")
+    start, stop = (int(g) if g else None for g in match.groups())
+    return slice(start, stop)
+
+
+def to_png_bytes(image: np.ndarray) -> bytes:
+    """Linear intensity (H, W) → 8-bit sRGB-encoded PNG bytes (values clipped to [0, 1])."""
+    import imageio.v3 as iio
+
+    from spikenerf.core.color import srgb_encode  # imported here: it loads torch (seconds) for PNGs only
+
+    encoded = np.round(srgb_encode(image.astype(np.float64)) * 255.0).astype(np.uint8)
+    return iio.imwrite("<bytes>", encoded, extension=".png")
+
+
+def output_kind(out: Path) -> str:
+    """``"png"``, ``"npy"`` or ``"dir"`` from the --out path; other suffixes are an InputError."""
+    if out.is_dir() or out.suffix == "":
+        return "dir"
+    if out.suffix.lower() in (".png", ".npy"):
+        return out.suffix.lower()[1:]
+    raise InputError(
+        f"--out must end in .png or .npy, or name a folder; found suffix {out.suffix!r}", path=out
+    )
+
+
+def check_out_dir(out: Path) -> None:
+    """A folder output replaces ``out`` whole, so it must be absent, empty or a previous frame folder."""
+    if out.exists() and not out.is_dir():
+        raise InputError("--out names an existing file, expected a folder (or a .png/.npy path)", path=out)
+    if out.is_dir():
+        strangers = [p.name for p in out.iterdir() if not _FRAME_PNG.match(p.name)]
+        if strangers:
+            raise InputError(
+                f"--out folder is not empty and holds {len(strangers)} entries that are not frame PNGs "
+                f"(e.g. {strangers[0]!r}); refusing to replace it",
+                path=out,
+            )
+
+
+def blocks(frames: range, method: str) -> Iterator[range]:
+    """Blocks of output frames: TFP in blocks of BLOCK_FRAMES, TFI in one block (its margin is shared)."""
+    size = BLOCK_FRAMES if method == "tfp" else max(1, len(frames))
+    for a in range(frames.start, frames.stop, size):
+        yield range(a, min(a + size, frames.stop))
+
+
+@click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI).")
+@click.argument("spikes", type=click.Path(path_type=Path))
+@click.option("--height", type=int, required=True, help="Frame height in pixels.")
+@click.option("--width", type=int, required=True, help="Frame width in pixels.")
+@click.option("--method", type=click.Choice(["tfp", "tfi"]), required=True)
+@click.option("--window", type=int, help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}].")
+@click.option("--frame", type=int, help="One frame index: .npy gets shape (H, W).")
+@click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")
+@click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
+@click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
+@click.option("--threshold", type=float, default=1.0, show_default=True, help="The camera threshold φ.")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="FILE.png, FILE.npy or a folder.")
+def command(
+    spikes: Path,
+    height: int,
+    width: int,
+    method: str,
+    window: int | None,
+    frame: int | None,
+    frame_range: str | None,
+    layout: str,
+    raw_width: int | None,
+    threshold: float,
+    out: Path,
+) -> None:
+    from tqdm import tqdm
+
+    from spikenerf.camera.io import count_frames, read_dat, resolve_frames
+    from spikenerf.camera.reconstruct import reconstruct_frames
+
+    if method == "tfi" and window is not None:
+        raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
+    window = DEFAULT_WINDOW if window is None else window
+    if frame is not None and frame_range is not None:
+        raise InputError("give either --frame I or --frames A:B, not both")
+    total = count_frames(spikes, height, width, raw_width)
+    if total == 0:
+        raise InputError("the spike file holds no frames", path=spikes)
+    selection = frame if frame is not None else parse_range(frame_range) if frame_range else None
+    frames = resolve_frames(selection, total, spikes)
+    kind = output_kind(out)
+    if kind == "png" and len(frames) != 1:
+        raise InputError(
+            f"a .png holds one frame but {len(frames)} are selected; use --frame I, or --out a folder",
+            path=out,
+        )
+    if kind == "dir":
+        check_out_dir(out)
+
+    def read(a: int, b: int) -> np.ndarray:
+        return read_dat(spikes, height, width, slice(a, b), layout, raw_width)
+
+    def images() -> Iterator[tuple[range, np.ndarray]]:
+        for block in blocks(frames, method):
+            yield block, reconstruct_frames(read, total, block.start, block.stop, method, window, threshold)
+
+    bar = tqdm(
+        total=len(frames), unit="frame", desc=f"{method} {spikes.name}", disable=len(frames) < 32 or None
+    )
+    with bar:
+        if kind == "png":
+            (_, image), *_ = images()
+            write_bytes_atomic(out, to_png_bytes(image[0]))
+        elif kind == "npy" and frame is not None:
+            (_, image), *_ = images()
+            with atomic_path(out) as tmp, open(tmp, "wb") as fh:
+                np.save(fh, image[0])
+        elif kind == "npy":
+            with atomic_path(out) as tmp:
+                dest = np.lib.format.open_memmap(tmp, "w+", np.float32, (len(frames), height, width))
+                for block, image in images():
+                    dest[block.start - frames.start : block.stop - frames.start] = image
+                    bar.update(len(block))
+                dest.flush()
+                del dest
+        else:
+            with atomic_path(out) as tmp:
+                tmp.mkdir()
+                for block, image in images():
+                    for index, frame_image in zip(block, image, strict=True):
+                        (tmp / f"{index:05d}.png").write_bytes(to_png_bytes(frame_image))
+                        bar.update(1)
+    click.echo(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''}, {method})")

@@ -1,0 +1,65 @@
+"""``spikenerf render``: images, depth, a video and (``--spikes``) a novel-view spike stream from a run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command(help="Render images, depth, a video and novel-view spike streams from a trained run.")
+@click.argument("run", type=click.Path(path_type=Path))
+@click.option(
+    "--trajectory", default="test", show_default=True,
+    help="test (held-out views), orbit (a closed orbit like the training path) or a transforms.json FILE "
+    "with frames[].transform_matrix.",
+)  # fmt: skip
+@click.option("--spikes", is_flag=True, help="Also fire a novel-view spike stream (.dat + TFP preview).")
+@click.option("--fps-video", type=float, default=30.0, show_default=True, help="Frame rate of the mp4.")
+@click.option("--orbit-frames", type=int, default=120, show_default=True, help="Views on the orbit video.")
+@click.option(
+    "--spike-steps", type=int,
+    help="Spike steps along the orbit [default: the dataset's]; test/FILE: one step per pose.",
+)  # fmt: skip
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the spike accumulators' start.")
+@click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda.")
+@click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
+@click.option("--chunk", type=int, default=8192, show_default=True, help="Rays per render call.")
+@click.option("--quiet", is_flag=True, help="No progress bars.")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder.")
+def command(
+    run: Path,
+    trajectory: str,
+    spikes: bool,
+    fps_video: float,
+    orbit_frames: int,
+    spike_steps: int | None,
+    seed: int,
+    device: str,
+    dataset: Path | None,
+    chunk: int,
+    quiet: bool,
+    out: Path,
+) -> None:
+    from spikenerf.core.errors import InputError
+    from spikenerf.eval.video import render_run
+
+    if chunk < 1:
+        raise InputError(f"--chunk must be ≥ 1, found {chunk}")
+    if not run.is_dir():
+        raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
+    render_run(
+        run,
+        out,
+        trajectory=trajectory,
+        spikes=spikes,
+        fps_video=fps_video,
+        orbit_frames=orbit_frames,
+        spike_steps=spike_steps,
+        seed=seed,
+        device=device,
+        dataset_root=dataset,
+        chunk=chunk,
+        progress=not quiet,
+        log=click.echo,
+    )

@@ -1,0 +1,219 @@
+"""``spikenerf simulate``: render a scene along a fast path, simulate spike cameras, write a dataset."""
+
+from __future__ import annotations
+
+import shlex
+from pathlib import Path
+from typing import Any
+
+import click
+
+from spikenerf.core.errors import InputError
+
+DEFAULT_SIZE = 200
+DEFAULT_STEPS = 1000
+DEFAULT_TEST_VIEWS = 8
+ORBIT_OPTIONS = ("frames", "duration", "radius", "elevation", "turns")
+
+
+def _colors(color: str) -> tuple[str, ...]:
+    return ("gray", "rgb", "bayer") if color == "all" else (color,)
+
+
+def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
+    """Number of spike steps from ``--frames`` / ``--duration`` (default 1000 steps)."""
+    if fps <= 0:
+        raise InputError(f"--fps must be positive, found {fps:g}")
+    if duration is not None:
+        n = round(duration * fps)
+        if frames is not None and frames != n:
+            raise InputError(
+                f"--frames {frames} and --duration {duration:g} s at {fps:g} Hz ({n} steps) disagree"
+            )
+        frames = n
+    frames = DEFAULT_STEPS if frames is None else frames
+    if frames < 1:
+        raise InputError(f"--frames must be ≥ 1, found {frames}")
+    return frames
+
+
+@click.command(help="Render a scene along a fast path and simulate a spike camera into a dataset folder.")
+@click.option("--scene", help="A named scene (see --list-scenes), e.g. analytic-orbs.")
+@click.option("--blend", type=click.Path(path_type=Path), help="A user .blend file (needs Blender).")
+@click.option(
+    "--sequence", type=click.Path(path_type=Path), help="transforms.json of an image sequence + poses."
+)
+@click.option("--sequence-range", help="A:B, a slice of the sequence's listed frames.")
+@click.option("--out", type=click.Path(path_type=Path), help="The dataset folder to write.")
+@click.option(
+    "--width", type=int, help=f"Frame width in pixels [default: {DEFAULT_SIZE}; sequences: native]."
+)
+@click.option(
+    "--height", type=int, help=f"Frame height in pixels [default: {DEFAULT_SIZE}; sequences: native]."
+)
+@click.option("--frames", type=int, help=f"Spike steps on the orbit [default: {DEFAULT_STEPS}].")
+@click.option("--fps", type=float, default=40000.0, show_default=True, help="Spike readout rate (Hz).")
+@click.option(
+    "--color", type=click.Choice(["gray", "rgb", "bayer", "all"]), default="gray", show_default=True
+)
+@click.option("--threshold", type=float, default=1.0, show_default=True, help="Spike threshold φ.")
+@click.option("--noise", type=click.Choice(["ideal", "realistic"]), default="ideal", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Camera (and render) seed.")
+@click.option(
+    "--warmup", type=int, default=0, show_default=True, help="Camera warm-up steps on the first frame."
+)
+@click.option(
+    "--spp", type=int, help="Samples per pixel [default: Blender 16, analytic 4 (2×2 supersampling)]."
+)
+@click.option("--test-views", type=int, help=f"Held-out views off the orbit [default: {DEFAULT_TEST_VIEWS}].")
+@click.option("--eval-views", type=click.Path(path_type=Path), help="transforms.json of held-out test poses.")
+@click.option(
+    "--radius", type=float, help="Orbit radius [default: analytic 4; Blender: the scene fits the view]."
+)
+@click.option("--elevation", type=float, help="Orbit elevation in degrees [default: 30].")
+@click.option("--turns", type=float, help="Full turns over the path [default: 1].")
+@click.option("--duration", type=float, help="Path duration in seconds [default: frames / fps = 0.025].")
+@click.option("--steps-per-frame", type=int, help="Sequences: spike steps per source image [default: 1].")
+@click.option(
+    "--interpolate", is_flag=True, help="Sequences: blend between source images instead of holding."
+)
+@click.option(
+    "--gt-every", type=int, default=10, show_default=True, help="Store the sharp render every k steps."
+)
+@click.option(
+    "--blur-fps", type=float, default=400.0, show_default=True, help="Conventional camera fps (0 = none)."
+)
+@click.option("--list-scenes", is_flag=True, help="List the named scenes and exit.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
+@click.option("--no-progress", is_flag=True, help="Hide the progress bars.")
+def command(**kw: Any) -> None:
+    from spikenerf.scenes import registry
+
+    if kw["list_scenes"]:
+        click.echo(registry.format_scene_list())
+        return
+    chosen = [name for name in ("scene", "blend", "sequence") if kw[name] is not None]
+    if len(chosen) != 1:
+        raise InputError(f"give exactly one of --scene, --blend, --sequence (found {len(chosen)})")
+    if kw["out"] is None:
+        raise InputError("--out DIR is required (the dataset folder to write)")
+    if kw["test_views"] is not None and kw["eval_views"] is not None:
+        raise InputError("give either --test-views N or --eval-views transforms.json, not both")
+    for name in ("width", "height", "spp", "test_views", "steps_per_frame"):
+        if kw[name] is not None and (kw[name] < 1 if name != "test_views" else kw[name] < 0):
+            raise InputError(
+                f"--{name.replace('_', '-')} must be ≥ {0 if name == 'test_views' else 1}, found {kw[name]}"
+            )
+    if (Path(kw["out"]).exists() or Path(kw["out"]).is_symlink()) and not kw["overwrite"]:
+        raise InputError("output already exists; pass --overwrite to replace it", path=kw["out"])
+    source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
+    from spikenerf.data.simulate import SimulateOptions, simulate_dataset
+
+    options = SimulateOptions(
+        colors=_colors(str(kw["color"])),
+        threshold=float(kw["threshold"]),
+        noise=str(kw["noise"]),
+        seed=int(kw["seed"]),
+        warmup=int(kw["warmup"]),
+        gt_every=int(kw["gt_every"]),
+        blur_fps=float(kw["blur_fps"]),
+        overwrite=bool(kw["overwrite"]),
+        command=_command_line(kw),
+        extra=extra,
+    )
+    out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"])
+    k = source.intrinsics
+    click.echo(
+        f"wrote {out}: {len(source.trajectory)} steps at {source.trajectory.fps:g} Hz, "
+        f"{k.width}×{k.height}, {', '.join(options.colors)}"
+    )
+
+
+def _command_line(kw: dict) -> str:
+    """The options given on the command line, as a shell command (recorded in ``config.yaml``)."""
+    ctx = click.get_current_context()
+    parts = ["spikenerf", "simulate"]
+    for name, value in kw.items():
+        if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE:
+            flag = "--" + name.replace("_", "-")
+            parts += [flag] if value is True else [flag, str(value)]
+    return shlex.join(parts)
+
+
+def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
+    """A named scene or .blend on an orbit (with its novel test views) and the config entries it adds."""
+    import numpy as np
+
+    from spikenerf.scenes.trajectory import novel_views, orbit
+
+    if kw["sequence_range"] is not None or kw["steps_per_frame"] is not None or kw["interpolate"]:
+        raise InputError("--sequence-range, --steps-per-frame and --interpolate apply to --sequence only")
+    fps = float(kw["fps"])
+    steps = _orbit_steps(kw["frames"], kw["duration"], fps)
+    scene = kw["scene"] if kw["scene"] is not None else kw["blend"]
+    default_radius, center = registry.default_orbit(scene, int(kw["seed"]))
+    radius = default_radius if kw["radius"] is None else float(kw["radius"])
+    elevation = registry.DEFAULT_ELEVATION if kw["elevation"] is None else float(kw["elevation"])
+    turns = 1.0 if kw["turns"] is None else float(kw["turns"])
+    if radius <= 0:
+        raise InputError(f"--radius must be positive, found {radius:g}")
+    trajectory = orbit(radius, elevation, turns=turns, duration=steps / fps, fps=fps, center=center)
+    if kw["eval_views"] is not None:
+        from spikenerf.data.dataset import read_pose_file
+
+        test_poses = read_pose_file(kw["eval_views"])
+    else:
+        count = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
+        test_poses = novel_views(radius, count, center=center) if count else np.zeros((0, 4, 4))
+    width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
+    height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
+    source = registry.make_scene_source(
+        scene, width, height, trajectory, test_poses, kw["spp"], int(kw["seed"])
+    )
+    extra = {
+        "trajectory": {
+            "kind": "orbit",
+            "radius": radius,
+            "center": list(center),
+            "elevation_deg": elevation,
+            "turns": turns,
+            "duration_s": steps / fps,
+        }
+    }
+    settings = getattr(source, "settings", None)  # the Blender backend keeps spp in its render settings
+    spp = getattr(settings, "spp", None) or getattr(source, "supersample", 0) ** 2 or kw["spp"]
+    extra["spp"] = spp if spp is None else int(spp)
+    return source, extra
+
+
+def _sequence_source(kw: dict) -> tuple[Any, dict]:
+    """An image sequence with poses (its own trajectory and optional eval views)."""
+    given = [f"--{name}" for name in (*ORBIT_OPTIONS, "test_views", "spp") if kw[name] is not None]
+    if given:
+        raise InputError(
+            f"{', '.join(given)} do not apply to --sequence (its poses come from the file; "
+            "use --sequence-range, --steps-per-frame and --eval-views)"
+        )
+    from spikenerf.scenes.sequence import SequenceSource, parse_range
+
+    frame_range = None if kw["sequence_range"] is None else parse_range(str(kw["sequence_range"]))
+    source = SequenceSource(
+        Path(kw["sequence"]),
+        width=kw["width"],
+        height=kw["height"],
+        frame_range=frame_range,
+        steps_per_frame=1 if kw["steps_per_frame"] is None else int(kw["steps_per_frame"]),
+        interpolate=bool(kw["interpolate"]),
+        eval_views=kw["eval_views"],
+        fps=float(kw["fps"]),
+    )
+    extra = {
+        "trajectory": {
+            "kind": "sequence",
+            "transforms": str(kw["sequence"]),
+            "range": kw["sequence_range"],
+            "steps_per_frame": kw["steps_per_frame"] or 1,
+            "interpolate": bool(kw["interpolate"]),
+        }
+    }
+    return source, extra

@@ -1,0 +1,465 @@
+"""The dataset folder written by ``spikenerf simulate`` and read by ``spikenerf train`` (docs/formats.md).
+
+``DIR/transforms.json`` (one frame per spike step), ``config.yaml``, ``spikes_<mode>.dat`` files, ``gt/``,
+``blur/`` + ``transforms_blur.json`` and ``test/`` + ``transforms_test.json``. Images are 16-bit PNGs of
+sRGB-encoded linear radiance clipped to [0, 1]; every array handed out is linear.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import imageio.v3 as iio
+import numpy as np
+import yaml
+
+from spikenerf.camera.io import count_frames, encode_frames, read_dat, rgb_paths
+from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
+from spikenerf.core.color import srgb_decode, srgb_encode
+from spikenerf.core.errors import InputError
+from spikenerf.scenes.image_io import decode_png16
+from spikenerf.scenes.trajectory import Intrinsics, Trajectory
+
+TRANSFORMS, TRANSFORMS_BLUR, TRANSFORMS_TEST, CONFIG = (
+    "transforms.json",
+    "transforms_blur.json",
+    "transforms_test.json",
+    "config.yaml",
+)
+MODES = ("gray", "rgb", "bayer")
+
+
+def spike_files(mode: str) -> list[str]:
+    """File names of one colour mode's stream: one file, or ``spikes_rgb_{r,g,b}.dat`` for ``rgb``."""
+    if mode not in MODES:
+        raise InputError(f"colour mode must be one of {', '.join(MODES)}, found {mode!r}")
+    return [p.name for p in rgb_paths("spikes_rgb")] if mode == "rgb" else [f"spikes_{mode}.dat"]
+
+
+# ----------------------------------------------------------------------------------------------- images
+_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _chunk(kind: bytes, body: bytes) -> bytes:
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+def _png(width: int, height: int, depth: int, ctype: int, scanlines: bytes, level: int = 6) -> bytes:
+    ihdr = struct.pack(">IIBBBBB", width, height, depth, ctype, 0, 0, 0)
+    return (
+        _SIGNATURE
+        + _chunk(b"IHDR", ihdr)
+        + _chunk(b"IDAT", zlib.compress(scanlines, level))
+        + _chunk(b"IEND", b"")
+    )
+
+
+def encode_png16(image: np.ndarray) -> bytes:
+    """A 16-bit RGB PNG (Up-filtered rows) of display values in [0, 1] (H, W, 3), rounded to 1/65535."""
+    q = np.round(np.clip(image, 0.0, 1.0) * 65535.0).astype(">u2")
+    h, w, c = q.shape
+    rows = q.reshape(h, w * c).view(np.uint8)  # big-endian bytes, 2·W·C per row
+    up = np.diff(rows, axis=0, prepend=np.zeros((1, rows.shape[1]), np.uint8))  # uint8 wraps: PNG "Up"
+    return _png(w, h, 16, 2, np.concatenate([np.full((h, 1), 2, np.uint8), up], axis=1).tobytes())
+
+
+def write_image(path: str | Path, linear: np.ndarray) -> None:
+    """Write linear radiance (H, W, 3) atomically as a 16-bit PNG of its sRGB encoding (clipped to [0, 1])."""
+    write_bytes_atomic(path, encode_png16(srgb_encode(np.asarray(linear, dtype=np.float64))))
+
+
+def read_display(path: Path) -> np.ndarray:
+    """An image file's display values in [0, 1]: float64 (H, W, 3) (16-bit exactly, 8-bit via imageio)."""
+    try:
+        data = path.read_bytes()
+        if data[:8] == _SIGNATURE and len(data) > 24 and data[24] == 16:
+            arr = decode_png16(data, path)
+        else:
+            arr = np.asarray(iio.imread(data))
+    except (OSError, ValueError) as err:
+        if isinstance(err, InputError):
+            raise
+        raise InputError(f"cannot read image ({err})", path=path) from err
+    arr = arr[..., None] if arr.ndim == 2 else arr
+    if arr.ndim != 3 or arr.dtype not in (np.uint8, np.uint16):
+        raise InputError(
+            f"expected an 8/16-bit gray or RGB(A) image, found {arr.dtype} {arr.shape}", path=path
+        )
+    x = arr.astype(np.float64) / np.iinfo(arr.dtype).max
+    return np.repeat(x[..., :1], 3, -1) if x.shape[-1] <= 2 else x[..., :3]  # alpha is dropped
+
+
+def load_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Read an image as linear RGB (H, W, 3) float32; ``size = (H, W)`` is checked when given."""
+    image = read_display(path)
+    if size is not None and image.shape[:2] != size:
+        raise InputError(
+            f"image is {image.shape[0]}×{image.shape[1]} (H×W), expected {size[0]}×{size[1]}", path
+        )
+    return srgb_decode(image).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------ containers
+@dataclass(frozen=True)
+class PosedImages:
+    """Images with poses: poses (N, 4, 4) float32 c2w, images (N, H, W, 3) float32 linear,
+    steps (N,) int64 spike steps or None, step_ranges (N, 2) int64 exposure ``[start, end)`` or None."""
+
+    poses: np.ndarray
+    images: np.ndarray
+    steps: np.ndarray | None = None
+    step_ranges: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
+@dataclass(frozen=True)
+class SpikeDataset:
+    """A loaded dataset folder (see :func:`load_dataset`); spike streams are read on demand."""
+
+    root: Path
+    intrinsics: Intrinsics
+    trajectory: Trajectory
+    threshold: float
+    scene_box: np.ndarray
+    near: float
+    far: float
+    config: dict
+    modes: list[str]
+    gt: PosedImages
+    blur: PosedImages | None
+    test: PosedImages
+
+    def spikes(self, mode: str | None = None, frames: slice | int | None = None) -> np.ndarray:
+        """uint8 0/1 spikes of ``mode`` (default: the first): (T, H, W) gray/bayer, (T, 3, H, W) rgb.
+
+        ``frames`` selects a range of steps; only those are read from the memory-mapped file.
+        """
+        mode = self.modes[0] if mode is None else mode
+        if mode not in self.modes:
+            raise InputError(
+                f"colour mode {mode!r} is not in this dataset (has {', '.join(self.modes)})", self.root
+            )
+        h, w = self.intrinsics.height, self.intrinsics.width
+        streams = [read_dat(self.root / name, h, w, frames) for name in spike_files(mode)]
+        return np.stack(streams, axis=1) if mode == "rgb" else streams[0]
+
+
+def near_far(poses: np.ndarray, scene_box: np.ndarray) -> tuple[float, float]:
+    """Ray bounds that enclose the box's bounding sphere from every camera centre of ``poses`` (N, 4, 4)."""
+    center, radius = scene_box.mean(0), float(np.linalg.norm(scene_box[1] - scene_box[0]) / 2)
+    dist = np.linalg.norm(np.asarray(poses)[:, :3, 3] - center, axis=-1)
+    return max(float(dist.min()) - radius, 0.05), float(dist.max()) + radius
+
+
+# -------------------------------------------------------------------------------------------- writing
+def _matrix(pose: np.ndarray) -> list[list[float]]:
+    return [[float(v) for v in row] for row in np.asarray(pose, dtype=np.float64)]
+
+
+def _dump(header: dict, frames: list[dict]) -> str:
+    """JSON with the header indented and one line per frame (1000-step files stay readable)."""
+    head = "".join(f"  {json.dumps(key)}: {json.dumps(value)},\n" for key, value in header.items())
+    body = ",\n".join("    " + json.dumps(f) for f in frames)
+    return f'{{\n{head}  "frames": [\n{body}\n  ]\n}}\n'
+
+
+class DatasetWriter:
+    """Writes a dataset folder (the ``simulate`` pipeline streams into it).
+
+    Args:
+        root: the folder (created). intrinsics: the camera. fps: spike readout rate (Hz).
+        scene_box: (2, 3) bounds. near, far: ray bounds in scene units.
+    """
+
+    def __init__(
+        self, root: Path, intrinsics: Intrinsics, fps: float, scene_box: np.ndarray, near: float, far: float
+    ) -> None:
+        self.root, self.intrinsics, self.fps = Path(root), intrinsics, float(fps)
+        self.scene_box, self.near, self.far = np.asarray(scene_box, dtype=np.float64), float(near), float(far)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.gt_paths: dict[int, str] = {}
+        self.blur_frames: list[dict] = []
+        self.test_frames: list[dict] = []
+
+    def header(self, **extra: Any) -> dict:
+        """Camera and scene fields shared by the three transforms files."""
+        k = self.intrinsics
+        camera = {
+            "camera_angle_x": k.camera_angle_x,
+            "w": k.width,
+            "h": k.height,
+            "fl_x": k.fl_x,
+            "fl_y": k.fl_y,
+        }
+        scene = {"fps": self.fps, "scene_box": self.scene_box.tolist(), "near": self.near, "far": self.far}
+        return {**camera, "cx": k.cx, "cy": k.cy, **scene, **extra}
+
+    def start_spikes(self, modes: list[str]) -> None:
+        """Create (truncate) the spike files of ``modes``."""
+        for mode in modes:
+            for name in spike_files(mode):
+                (self.root / name).write_bytes(b"")
+
+    def append_spikes(self, mode: str, spikes: np.ndarray) -> None:
+        """Append steps to a mode's files: bool (n, H, W) gray/bayer or (n, 3, H, W) rgb."""
+        channels = [spikes[:, c] for c in range(3)] if mode == "rgb" else [spikes]
+        for name, stream in zip(spike_files(mode), channels, strict=True):
+            with open(self.root / name, "ab") as fh:
+                fh.write(encode_frames(np.asarray(stream)).tobytes())
+
+    def add_gt(self, step: int, image: np.ndarray) -> None:
+        """Store the sharp render (H, W, 3) linear of ``step`` as ``gt/NNNNN.png``."""
+        rel = f"gt/{step:05d}.png"
+        write_image(self.root / rel, image)
+        self.gt_paths[int(step)] = rel
+
+    def add_blur(self, image: np.ndarray, pose: np.ndarray, step_start: int, step_end: int) -> None:
+        """Store a conventional frame exposed over steps ``[step_start, step_end)``; pose at mid-exposure."""
+        rel = f"blur/{len(self.blur_frames):05d}.png"
+        write_image(self.root / rel, image)
+        frame = {"file_path": rel, "transform_matrix": _matrix(pose), "step_start": int(step_start)}
+        mid = (step_start + step_end - 1) / 2  # the mean time of the renders in the exposure
+        self.blur_frames.append({**frame, "step_end": int(step_end), "time": mid / self.fps})
+
+    def add_test(self, image: np.ndarray, pose: np.ndarray) -> None:
+        """Store a held-out view (H, W, 3) linear with its pose (4, 4)."""
+        rel = f"test/{len(self.test_frames):05d}.png"
+        write_image(self.root / rel, image)
+        self.test_frames.append({"file_path": rel, "transform_matrix": _matrix(pose)})
+
+    def finish(self, trajectory: Trajectory, config: dict, blur_fps: float | None) -> None:
+        """Write the side files, ``config.yaml`` and, last, ``transforms.json``."""
+        if blur_fps:
+            write_text_atomic(
+                self.root / TRANSFORMS_BLUR, _dump(self.header(fps=float(blur_fps)), self.blur_frames)
+            )
+        write_text_atomic(self.root / TRANSFORMS_TEST, _dump(self.header(), self.test_frames))
+        write_text_atomic(self.root / CONFIG, yaml.safe_dump(config, sort_keys=False))
+        frames = []
+        for pose, time, step in zip(trajectory.poses, trajectory.times, trajectory.steps, strict=True):
+            frame = {"step": int(step), "time": float(time), "transform_matrix": _matrix(pose)}
+            if int(step) in self.gt_paths:
+                frame["file_path"] = self.gt_paths[int(step)]
+            frames.append(frame)
+        write_text_atomic(self.root / TRANSFORMS, _dump(self.header(), frames))
+
+
+# -------------------------------------------------------------------------------------------- loading
+def _read_json(path: Path) -> dict:
+    if not path.is_file():
+        raise InputError("missing file (not a dataset folder written by `spikenerf simulate`?)", path=path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"malformed JSON ({err})", path=path) from err
+    if not isinstance(data, dict):
+        raise InputError(f"expected a JSON object at the top level, found {type(data).__name__}", path=path)
+    return data
+
+
+def _number(obj: dict, key: str, path: Path, where: str = "", positive: bool = False) -> float:
+    if key not in obj:
+        raise InputError(f"missing field {where}{key!r}", path=path)
+    v = obj[key]
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    if not ok or (positive and v <= 0):
+        kind = "a positive number" if positive else "a finite number"
+        raise InputError(f"field {where}{key!r}: expected {kind}, found {v!r}", path=path)
+    return float(v)
+
+
+def _pose(obj: dict, path: Path, where: str) -> np.ndarray:
+    if "transform_matrix" not in obj:
+        raise InputError(f"missing field {where}'transform_matrix'", path=path)
+    try:
+        m = np.asarray(obj["transform_matrix"], dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise InputError(
+            f"field {where}'transform_matrix': expected a 4×4 list of numbers ({err})", path
+        ) from err
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        found = f"shape {m.shape}" if m.shape != (4, 4) else "NaN/inf values"
+        raise InputError(
+            f"field {where}'transform_matrix': expected a finite 4×4 matrix, found {found}", path
+        )
+    return m
+
+
+def _file(root: Path, obj: dict, path: Path, where: str) -> Path:
+    rel = obj.get("file_path")
+    if not isinstance(rel, str) or not rel:
+        raise InputError(
+            f"field {where}'file_path': expected a relative path string, found {rel!r}", path=path
+        )
+    target = (root / rel).resolve()
+    if Path(rel).is_absolute() or not target.is_relative_to(root.resolve()):
+        raise InputError(f"field {where}'file_path' {rel!r} escapes the dataset folder {root}", path=path)
+    if not target.is_file():
+        raise InputError(f"field {where}'file_path': image {rel!r} not found", path=path)
+    return target
+
+
+def _frames(data: dict, path: Path) -> list[dict]:
+    frames = data.get("frames")
+    if not isinstance(frames, list) or not all(isinstance(f, dict) for f in frames):
+        raise InputError("field 'frames': expected a list of objects", path=path)
+    return frames
+
+
+def _check_camera(data: dict, path: Path, k: Intrinsics | None) -> Intrinsics:
+    w, h = (_number(data, key, path, positive=True) for key in ("w", "h"))
+    if w != int(w) or h != int(h):
+        raise InputError(f"fields 'w', 'h': expected integers, found {w}, {h}", path=path)
+    if all(key in data for key in ("fl_x", "fl_y", "cx", "cy")):
+        fl_x, fl_y = (_number(data, key, path, positive=True) for key in ("fl_x", "fl_y"))
+        found = Intrinsics(int(w), int(h), fl_x, fl_y, _number(data, "cx", path), _number(data, "cy", path))
+    else:
+        found = Intrinsics.from_fov(int(w), int(h), _number(data, "camera_angle_x", path, positive=True))
+    if k is not None and (found.width, found.height) != (k.width, k.height):
+        raise InputError(
+            f"image size {found.width}×{found.height} differs from transforms.json's "
+            f"{k.width}×{k.height} (W×H)",
+            path=path,
+        )
+    return found
+
+
+def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | None:
+    path = root / name
+    if not path.exists():
+        return None
+    data = _read_json(path)
+    _check_camera(data, path, k)
+    poses, images, ranges = [], [], []
+    for i, f in enumerate(_frames(data, path)):
+        where = f"frames[{i}]."
+        poses.append(_pose(f, path, where))
+        images.append(load_image(_file(root, f, path, where), (k.height, k.width)))
+        if blur:
+            s0, s1 = (_number(f, key, path, where) for key in ("step_start", "step_end"))
+            if not (s0 == int(s0) and s1 == int(s1) and 0 <= s0 < s1):
+                raise InputError(
+                    f"fields {where}step_start/step_end: expected integers 0 ≤ a < b, found {s0}, {s1}",
+                    path=path,
+                )
+            ranges.append((int(s0), int(s1)))
+    return _stack(k, poses, images, None, ranges if blur else None)
+
+
+def _stack(
+    k: Intrinsics, poses: list, images: list, steps: list | None = None, ranges: list | None = None
+) -> PosedImages:
+    """PosedImages from lists (float32 poses and images, int64 steps and ranges)."""
+    n = len(poses)
+    return PosedImages(
+        np.asarray(poses, np.float32).reshape(n, 4, 4),
+        np.asarray(images, np.float32).reshape(n, k.height, k.width, 3),
+        None if steps is None else np.asarray(steps, np.int64).reshape(n),
+        None if ranges is None else np.asarray(ranges, np.int64).reshape(n, 2),
+    )
+
+
+def load_dataset(root: str | Path) -> SpikeDataset:
+    """Load and validate a dataset folder (every problem is an InputError naming the file and field).
+
+    Returns:
+        A :class:`SpikeDataset`: per-step trajectory, intrinsics, threshold, scene box, near/far, the config,
+        the colour modes present, GT renders (with their steps), blur frames (or None) and test views.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError("dataset folder not found", path=root)
+    tpath = root / TRANSFORMS
+    data = _read_json(tpath)
+    k = _check_camera(data, tpath, None)
+    fps = _number(data, "fps", tpath, positive=True)
+    near, far = _number(data, "near", tpath, positive=True), _number(data, "far", tpath, positive=True)
+    if near >= far:
+        raise InputError(f"fields 'near', 'far': expected near < far, found {near}, {far}", path=tpath)
+    try:
+        box = np.asarray(data.get("scene_box"), dtype=np.float64)
+    except (TypeError, ValueError):
+        box = np.zeros(0)
+    if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
+        raise InputError(
+            f"field 'scene_box': expected [[min x,y,z],[max x,y,z]], found {data.get('scene_box')!r}",
+            path=tpath,
+        )
+    frames = _frames(data, tpath)
+    if not frames:
+        raise InputError("field 'frames' is empty: expected one frame per spike step", path=tpath)
+    poses, times, steps, gt_poses, gt_images, gt_steps = [], [], [], [], [], []
+    for i, f in enumerate(frames):
+        where = f"frames[{i}]."
+        poses.append(_pose(f, tpath, where))
+        times.append(_number(f, "time", tpath, where))
+        step = _number(f, "step", tpath, where)
+        if step != int(step) or (steps and step <= steps[-1]):
+            raise InputError(f"field {where}'step': expected increasing integers, found {step}", path=tpath)
+        steps.append(int(step))
+        if "file_path" in f:
+            gt_images.append(load_image(_file(root, f, tpath, where), (k.height, k.width)))
+            gt_poses.append(poses[-1])
+            gt_steps.append(int(step))
+    traj = Trajectory(np.stack(poses), np.asarray(times), np.asarray(steps, np.int64), fps)
+    config = _load_config(root, k, fps)
+    modes = list(config["colors"])
+    for mode in modes:
+        for name in spike_files(mode):
+            n = count_frames(root / name, k.height, k.width)
+            if n != len(frames):
+                raise InputError(f"holds {n} steps but transforms.json has {len(frames)} frames", root / name)
+    return SpikeDataset(
+        root=root,
+        intrinsics=k,
+        trajectory=traj,
+        threshold=float(config["threshold"]),
+        scene_box=box,
+        near=near,
+        far=far,
+        config=config,
+        modes=modes,
+        gt=_stack(k, gt_poses, gt_images, gt_steps),
+        blur=_posed(root, TRANSFORMS_BLUR, k, blur=True),
+        test=_posed(root, TRANSFORMS_TEST, k, blur=False) or _stack(k, [], []),
+    )
+
+
+def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
+    path = root / CONFIG
+    if not path.is_file():
+        raise InputError("missing file (not a dataset folder written by `spikenerf simulate`?)", path=path)
+    try:
+        config = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as err:
+        raise InputError(f"malformed YAML ({err})", path=path) from err
+    if not isinstance(config, dict):
+        raise InputError(f"expected a mapping at the top level, found {type(config).__name__}", path=path)
+    for key, want in (("spike_h", k.height), ("spike_w", k.width), ("fps", fps)):
+        if _number(config, key, path, positive=True) != want:
+            raise InputError(f"field {key!r} is {config[key]}, but transforms.json says {want}", path=path)
+    _number(config, "threshold", path, positive=True)
+    colors = config.get("colors")
+    if not isinstance(colors, list) or not colors or any(c not in MODES for c in colors):
+        raise InputError(
+            f"field 'colors': expected a non-empty list of {'/'.join(MODES)}, found {colors!r}", path
+        )
+    return config
+
+
+def read_pose_file(path: str | Path) -> np.ndarray:
+    """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``)."""
+    path = Path(path)
+    data = _read_json(path)
+    poses = [_pose(f, path, f"frames[{i}].") for i, f in enumerate(_frames(data, path))]
+    if not poses:
+        raise InputError("field 'frames' is empty: expected at least one pose", path=path)
+    return np.stack(poses)

@@ -1,0 +1,99 @@
+"""Seeded, resumable samplers: random rays over (image, pixel) and contiguous step windows for the spike loss.
+
+Each sampler owns a ``torch.Generator`` and exposes ``state_dict``/``load_state_dict`` holding only tensors
+and ints, so a checkpoint loaded with ``torch.load(..., weights_only=True)`` resumes the exact same stream.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from spikenerf.core.errors import InputError
+
+
+def _generator(seed: int) -> torch.Generator:
+    gen = torch.Generator()
+    gen.manual_seed(int(seed))
+    return gen
+
+
+class RaySampler:
+    """Uniform random rays over all (image, pixel) pairs of K images of H × W pixels.
+
+    Args:
+        num_images: K. height, width: image size in pixels. seed: generator seed.
+    """
+
+    def __init__(self, num_images: int, height: int, width: int, seed: int = 0) -> None:
+        if num_images < 1 or height < 1 or width < 1:
+            raise InputError(f"no training rays: {num_images} images of {width}×{height} pixels")
+        self.num_images, self.height, self.width = num_images, height, width
+        self.generator = _generator(seed)
+
+    def sample(self, batch: int) -> tuple[Tensor, Tensor]:
+        """``batch`` rays: image index (B,) int64 and pixels (B, 2) int64 ``(x, y)``."""
+        hw = self.height * self.width
+        flat = torch.randint(0, self.num_images * hw, (batch,), generator=self.generator)
+        pix = flat % hw
+        return flat // hw, torch.stack([pix % self.width, pix // self.width], dim=-1)
+
+    def state_dict(self) -> dict[str, Tensor]:
+        return {"generator": self.generator.get_state()}
+
+    def load_state_dict(self, state: dict[str, Tensor]) -> None:
+        self.generator.set_state(state["generator"])
+
+
+class WindowSampler:
+    """Contiguous windows ``[start, start + L)`` of a T-step stream, each with P random pixels.
+
+    ``order="sequential"`` walks the stream deterministically (start advances by ``stride``, wrapping to 0
+    at the end), as the paper selects consecutive poses; ``order="random"`` draws the start uniformly.
+    Windows always lie inside the stream.
+
+    Args:
+        num_steps: T. height, width: image size. length: L ≤ T. seed: generator seed.
+        order: sequential | random. stride: start advance of the sequential order (default L).
+    """
+
+    def __init__(
+        self,
+        num_steps: int,
+        height: int,
+        width: int,
+        length: int,
+        seed: int = 0,
+        order: str = "sequential",
+        stride: int | None = None,
+    ) -> None:
+        if not 1 <= length <= num_steps:
+            raise InputError(f"spike window length must be between 1 and the {num_steps} steps, got {length}")
+        if order not in ("sequential", "random"):
+            raise InputError(f"window order must be sequential or random, got {order!r}")
+        self.num_steps, self.height, self.width, self.length = num_steps, height, width, length
+        self.order, self.stride = order, max(1, stride or length)
+        self.generator = _generator(seed)
+        self.next_start = 0
+
+    @property
+    def num_starts(self) -> int:
+        """How many window positions fit in the stream, ``T − L + 1``."""
+        return self.num_steps - self.length + 1
+
+    def sample(self, pixels: int) -> tuple[int, Tensor]:
+        """The next window: its first step and pixels (P, 2) int64 ``(x, y)``."""
+        if self.order == "random":
+            start = int(torch.randint(0, self.num_starts, (1,), generator=self.generator))
+        else:
+            start = self.next_start if self.next_start < self.num_starts else 0
+            self.next_start = start + self.stride
+        flat = torch.randint(0, self.height * self.width, (pixels,), generator=self.generator)
+        return start, torch.stack([flat % self.width, flat // self.width], dim=-1)
+
+    def state_dict(self) -> dict[str, Tensor | int]:
+        return {"generator": self.generator.get_state(), "next_start": self.next_start}
+
+    def load_state_dict(self, state: dict[str, Tensor | int]) -> None:
+        self.generator.set_state(state["generator"])  # type: ignore[arg-type]
+        self.next_start = int(state["next_start"])

@@ -1,0 +1,281 @@
+"""The ``simulate`` pipeline: scene frames → spike cameras → a finished dataset folder (docs/scenes.md).
+
+Work happens in ``<out>.partial/``: every step is rendered once into a float16 frame cache
+(``<out>.partial/.frames/NNNNN.npy``, reused after an interruption), then the cached frames stream through one
+:class:`~spikenerf.camera.model.SpikeCamera` per colour mode while GT, blur and test images are written. Only
+a complete folder is renamed to ``out``, so a half-written dataset is never mistaken for a finished one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from spikenerf import __version__
+from spikenerf.camera.model import CameraConfig, SpikeCamera
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import MODES, DatasetWriter, near_far
+from spikenerf.scenes.base import FrameSource
+from spikenerf.scenes.trajectory import Trajectory
+
+#: spike steps buffered per colour mode before they are appended to the .dat files
+SPIKE_CHUNK = 64
+CACHE = ".frames"
+
+
+@dataclass(frozen=True)
+class SimulateOptions:
+    """What to simulate and write besides the scene itself.
+
+    Attributes:
+        colors: colour modes, each a subset of ``gray``, ``rgb``, ``bayer`` (one spike camera each).
+        threshold: φ. noise: ``ideal`` or ``realistic``. seed: camera seed. warmup: camera warm-up steps.
+        gt_every: store the sharp render of every k-th step in ``gt/``.
+        blur_fps: conventional camera rate (Hz); each frame averages ``round(fps / blur_fps)`` step renders
+            (a trailing partial window is kept with its real exposure). 0 writes no blur frames.
+        overwrite: replace an existing ``out``. command: recorded in ``config.yaml``.
+        extra: more entries for ``config.yaml`` (e.g. the trajectory parameters).
+    """
+
+    colors: tuple[str, ...] = ("gray",)
+    threshold: float = 1.0
+    noise: str = "ideal"
+    seed: int = 0
+    warmup: int = 0
+    gt_every: int = 10
+    blur_fps: float = 400.0
+    overwrite: bool = False
+    command: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+def work_dir(out: Path) -> Path:
+    """The work folder of an output folder: ``<out>.partial``."""
+    return out.with_name(out.name + ".partial")
+
+
+def blur_windows(num_steps: int, fps: float, blur_fps: float) -> list[tuple[int, int]]:
+    """Exposure windows ``[start, end)`` in step positions: ``round(fps / blur_fps)`` steps each."""
+    if blur_fps <= 0:
+        return []
+    size = round(fps / blur_fps)
+    if size < 1:
+        raise InputError(f"--blur-fps {blur_fps:g} exceeds the spike rate {fps:g} Hz (need blur_fps ≤ fps)")
+    return [(a, min(a + size, num_steps)) for a in range(0, num_steps, size)]
+
+
+def interpolate_pose(poses: np.ndarray, position: float) -> np.ndarray:
+    """The pose (4, 4) at a fractional index into ``poses`` (N, 4, 4): lerp, rotation re-orthonormalised."""
+    i0 = int(np.floor(position))
+    i1, frac = min(i0 + 1, len(poses) - 1), position - i0
+    m = (1 - frac) * poses[i0] + frac * poses[i1]
+    u, _, vt = np.linalg.svd(m[:3, :3])
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = u @ vt, m[:3, 3]
+    return out
+
+
+def _fingerprint(source: FrameSource) -> dict:
+    """What identifies the renders of a source: a changed scene or camera invalidates the frame cache."""
+    digest = hashlib.sha256(np.ascontiguousarray(source.trajectory.poses, dtype=np.float64).tobytes())
+    keys = ("supersample", "spp", "seed", "settings", "steps_per_frame", "interpolate", "frame_images")
+    extra = {key: getattr(source, key) for key in keys if hasattr(source, key)}
+    test_poses = getattr(source, "test_poses", None)
+    if test_poses is not None:
+        digest.update(np.ascontiguousarray(test_poses, dtype=np.float64).tobytes())
+    k = source.intrinsics
+    return {
+        "scene": source.name,
+        "camera": [k.width, k.height, k.fl_x, k.fl_y, k.cx, k.cy],
+        "steps": [int(s) for s in source.trajectory.steps[[0, -1]]] + [len(source.trajectory)],
+        "poses_sha256": digest.hexdigest(),
+        **{key: v if isinstance(v, (int, float, str)) else str(v) for key, v in extra.items()},
+    }
+
+
+def _save_npy(path: Path, array: np.ndarray) -> None:
+    """``np.save`` through a temporary sibling so an interrupted write never leaves a corrupt cache entry."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as fh:
+        np.save(fh, array)
+    os.replace(tmp, path)
+
+
+def open_cache(source: FrameSource, work: Path) -> Path:
+    """The frame cache folder of ``source`` in ``work``; emptied when it holds renders of another source."""
+    cache = work / CACHE
+    stamp, want = cache / "source.json", _fingerprint(source)
+    if cache.exists():
+        try:
+            same = json.loads(stamp.read_text()) == want
+        except (OSError, ValueError):
+            same = False
+        if not same:
+            shutil.rmtree(cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    if not stamp.exists():
+        stamp.write_text(json.dumps(want))
+    return cache
+
+
+def render_missing(source: FrameSource, cache: Path, progress: bool = True) -> int:
+    """Render the steps (and the test views) not yet in ``cache``; returns the number of steps rendered."""
+    missing = [int(s) for s in source.trajectory.steps if not (cache / f"{int(s):05d}.npy").exists()]
+    k = source.intrinsics
+    bar = tqdm(total=len(missing), desc="render", unit="step", disable=not progress or not missing)
+    for step, frame in zip(missing, source.frames(missing), strict=True):
+        frame = np.asarray(frame)
+        if frame.shape != (k.height, k.width, 3) or not np.isfinite(frame).all():
+            raise InputError(
+                f"scene {source.name!r} gave a frame of shape {frame.shape} (or non-finite values) "
+                f"for step {step}; expected finite ({k.height}, {k.width}, 3)"
+            )
+        _save_npy(cache / f"{step:05d}.npy", frame.astype(np.float16))
+        bar.update()
+    bar.close()
+    if not (cache / "test.npz").exists():
+        poses, frames = source.test_views()
+        tmp = cache / ".test.npz.tmp"
+        with open(tmp, "wb") as fh:
+            np.savez(fh, poses=np.asarray(poses, np.float64), frames=np.asarray(frames, np.float32))
+        os.replace(tmp, cache / "test.npz")
+    return len(missing)
+
+
+def check_options(options: SimulateOptions) -> None:
+    """InputError on unknown colour modes or out-of-range numbers (before any rendering starts)."""
+    if not options.colors or any(c not in MODES for c in options.colors):
+        raise InputError(
+            f"--color: expected gray, rgb, bayer or all, found {', '.join(options.colors) or 'none'}"
+        )
+    if options.gt_every < 1:
+        raise InputError(f"--gt-every must be ≥ 1, found {options.gt_every}")
+    if options.blur_fps < 0:
+        raise InputError(f"--blur-fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}")
+    for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
+        CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
+
+
+def _replace_dir(work: Path, out: Path) -> None:
+    """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is swapped out, then deleted)."""
+    old = None
+    if out.exists() or out.is_symlink():
+        old = out.with_name(f".{out.name}.old")
+        shutil.rmtree(old, ignore_errors=True)
+        out.rename(old)
+    work.rename(out)
+    if old is not None:
+        shutil.rmtree(old) if old.is_dir() else old.unlink()
+
+
+def stream_steps(
+    writer: DatasetWriter,
+    cache: Path,
+    traj: Trajectory,
+    options: SimulateOptions,
+    windows: list[tuple[int, int]],
+    progress: bool = True,
+) -> None:
+    """Feed the cached frames, in step order, to one spike camera per colour mode; write spikes, GT, blur."""
+    h, w = writer.intrinsics.height, writer.intrinsics.width
+    cameras = {
+        c: SpikeCamera(h, w, CameraConfig(options.threshold, c, options.noise, options.seed, options.warmup))
+        for c in options.colors
+    }
+    writer.start_spikes(list(options.colors))
+    buffers: dict[str, list[np.ndarray]] = {c: [] for c in options.colors}
+    blur_sum, win = np.zeros((h, w, 3), np.float64), 0
+    for i, step in enumerate(tqdm(traj.steps, desc="spikes", unit="step", disable=not progress)):
+        frame = np.load(cache / f"{int(step):05d}.npy").astype(np.float32)
+        chw = np.ascontiguousarray(frame.transpose(2, 0, 1))
+        for c, camera in cameras.items():
+            buffers[c].append(camera.step(chw).copy())
+            if len(buffers[c]) == SPIKE_CHUNK or i == len(traj) - 1:
+                writer.append_spikes(c, np.stack(buffers[c]))
+                buffers[c].clear()
+        if i % options.gt_every == 0:
+            writer.add_gt(int(step), frame)
+        if windows:
+            blur_sum += frame
+            start, end = windows[win]
+            if i == end - 1:
+                pose = interpolate_pose(traj.poses, (start + end - 1) / 2)
+                s0, s1 = int(traj.steps[start]), int(traj.steps[end - 1]) + 1
+                writer.add_blur(blur_sum / (end - start), pose, s0, s1)
+                blur_sum[:], win = 0.0, win + 1
+
+
+def dataset_config(source: FrameSource, options: SimulateOptions, test_views: int) -> dict:
+    """The ``config.yaml`` entries (SpikeCV keys first, then the simulation settings)."""
+    k, traj = source.intrinsics, source.trajectory
+    return {
+        "spike_h": k.height,
+        "spike_w": k.width,
+        "fps": float(traj.fps),
+        "threshold": float(options.threshold),
+        "colors": list(options.colors),
+        "noise": options.noise,
+        "seed": int(options.seed),
+        "scene": source.name,
+        "steps": len(traj),
+        "warmup": int(options.warmup),
+        "gt_every": int(options.gt_every),
+        "blur_fps": float(options.blur_fps),
+        "test_views": int(test_views),
+        "spikenerf_version": __version__,
+        "command": options.command,
+        "layout": "spikecv",
+        **({"bayer_pattern": "RGGB"} if "bayer" in options.colors else {}),
+        **options.extra,
+    }
+
+
+def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, progress: bool = True) -> Path:
+    """Render ``source`` along its trajectory, simulate the spike cameras and write a dataset folder.
+
+    Args:
+        source: the scene (its trajectory, intrinsics, scene box and test views).
+        out: the dataset folder to create; refused if it exists unless ``options.overwrite``.
+        options: :class:`SimulateOptions`. progress: show tqdm bars.
+    Returns:
+        ``out``. After an interruption, running again with the same source reuses the cached renders.
+    """
+    out = Path(out)
+    check_options(options)
+    if (out.exists() or out.is_symlink()) and not options.overwrite:
+        raise InputError("output already exists; pass --overwrite to replace it", path=out)
+    traj, k = source.trajectory, source.intrinsics
+    windows = blur_windows(len(traj), traj.fps, options.blur_fps)
+    work = work_dir(out)
+    fresh = not work.exists()
+    cache = open_cache(source, work)
+    try:
+        render_missing(source, cache, progress)
+    except BaseException:
+        if fresh and not any(cache.glob("*.npy")):  # nothing worth resuming: leave nothing behind
+            shutil.rmtree(work, ignore_errors=True)
+        raise
+
+    box = np.asarray(source.scene_box, dtype=np.float64)
+    with np.load(cache / "test.npz") as z:
+        test_poses, test_frames = z["poses"].reshape(-1, 4, 4), z["frames"]
+    near, far = near_far(np.concatenate([traj.poses, test_poses]), box)
+    for stale in work.iterdir():  # outputs of an earlier, interrupted run: rewritten from the cache
+        if stale.name != CACHE:
+            shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
+    writer = DatasetWriter(work, k, traj.fps, box, near, far)
+    stream_steps(writer, cache, traj, options, windows, progress)
+    for pose, image in zip(test_poses, test_frames, strict=True):
+        writer.add_test(image, pose)
+    config = dataset_config(source, options, len(test_poses))
+    writer.finish(traj, config, options.blur_fps if windows else None)
+    shutil.rmtree(cache)
+    _replace_dir(work, out)
+    return out

@@ -1,0 +1,103 @@
+"""``describe(path)``: a text summary of a dataset folder plus ``DIR/preview.png`` (TFP next to the GT)."""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from spikenerf.camera.reconstruct import tfp
+from spikenerf.camera.stats import dat_rate_summary
+from spikenerf.core.atomic import write_bytes_atomic
+from spikenerf.core.color import rgb_to_gray, srgb_encode
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import TRANSFORMS, SpikeDataset, load_dataset, spike_files
+
+PREVIEW = "preview.png"
+#: TFP window of the preview (frames), shortened for streams with fewer steps
+PREVIEW_WINDOW = 41
+#: the preview is upscaled (nearest neighbour) to at least this height in pixels
+PREVIEW_MIN_HEIGHT = 128
+
+
+def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray, str]:
+    """TFP reconstruction and GT side by side at the GT step nearest the middle of the path.
+
+    Args:
+        ds: the dataset. mode: colour mode to reconstruct (default: gray, else rgb, else bayer).
+    Returns:
+        display image uint8 (H·s, (2W + 2)·s, 3) sRGB-encoded, and a caption.
+    """
+    mode = mode or next(m for m in ("gray", "rgb", "bayer") if m in ds.modes)
+    n = len(ds.trajectory)
+    steps = ds.trajectory.steps
+    if len(ds.gt):
+        target = ds.gt.steps[np.abs(ds.gt.steps - steps[n // 2]).argmin()]
+        pos = int(np.searchsorted(steps, target))
+    else:
+        pos = n // 2
+    window = min(PREVIEW_WINDOW, n if n % 2 else n - 1)
+    half = window // 2
+    lo, hi = max(pos - half, 0), min(pos + half + 1, n)
+    recon = tfp(ds.spikes(mode, slice(lo, hi)), window, ds.threshold, frames=pos - lo)[0]
+    recon = np.moveaxis(recon, 0, -1) if mode == "rgb" else np.repeat(recon[..., None], 3, -1)
+    h = recon.shape[0]
+    panels = [recon]
+    caption = f"{PREVIEW}: TFP ({mode}, window {window}) at step {int(steps[pos])}"
+    if len(ds.gt):
+        gt = ds.gt.images[list(ds.gt.steps).index(steps[pos])]
+        gt = np.repeat(rgb_to_gray(gt, channel_axis=-1)[..., None], 3, -1) if mode == "gray" else gt
+        panels += [np.full((h, 2, 3), 0.5, np.float32), gt]
+        caption += " | GT render"
+    image = (np.round(srgb_encode(np.concatenate(panels, axis=1)) * 255)).astype(np.uint8)
+    s = max(1, math.ceil(PREVIEW_MIN_HEIGHT / h))
+    return np.repeat(np.repeat(image, s, 0), s, 1), caption
+
+
+def describe(path: str | Path) -> str:
+    """Summarise a dataset folder (views, steps, size, spike rates per mode); writes ``DIR/preview.png``."""
+    path = Path(path)
+    if not (path / TRANSFORMS).is_file():
+        if path.name.endswith(".partial"):
+            raise InputError(
+                "an unfinished `spikenerf simulate` work folder: run the same command to resume", path
+            )
+        raise InputError(f"not a dataset folder (no {TRANSFORMS})", path=path)
+    ds = load_dataset(path)
+    cfg, k, traj = ds.config, ds.intrinsics, ds.trajectory
+    n = len(traj)
+    lines = [
+        f"dataset: {path}",
+        f"scene: {cfg.get('scene', '?')}   resolution: {k.width}×{k.height}   "
+        f"fov: {math.degrees(k.camera_angle_x):.1f}°",
+        f"steps: {n} at {traj.fps:g} Hz ({n / traj.fps * 1e3:.4g} ms)   threshold φ = {ds.threshold:g}   "
+        f"noise: {cfg.get('noise', '?')}   seed: {cfg.get('seed', '?')}",
+        f"scene box: {ds.scene_box.tolist()}   near/far: {ds.near:.3g}/{ds.far:.3g}",
+        f"GT renders: {len(ds.gt)} (every {cfg.get('gt_every', '?')} steps)   test views: {len(ds.test)}",
+    ]
+    if ds.blur is not None and len(ds.blur):
+        span = ds.blur.step_ranges[:, 1] - ds.blur.step_ranges[:, 0]
+        lines.append(
+            f"blur frames: {len(ds.blur)} at {cfg.get('blur_fps', '?')} fps "
+            f"({int(span.min())}–{int(span.max())} steps of exposure each)"
+        )
+    else:
+        lines.append("blur frames: none")
+    for mode in ds.modes:
+        parts = []
+        for name in spike_files(mode):
+            r = dat_rate_summary(path / name, k.height, k.width)
+            parts.append(
+                f"{name} {r['mean_rate']:.4g} spikes/pixel/step ({r['mean_rate'] * traj.fps:.4g} Hz), "
+                f"silent {r['silent_fraction'] * 100:.3g}%"
+            )
+        lines.append(f"spikes [{mode}]: " + "; ".join(parts))
+    image, caption = preview_image(ds)
+    buf = io.BytesIO()
+    iio.imwrite(buf, image, extension=".png")
+    write_bytes_atomic(path / PREVIEW, buf.getvalue())
+    lines.append(caption)
+    return "\n".join(lines)

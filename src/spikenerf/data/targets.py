@@ -1,0 +1,247 @@
+"""Training targets per method, as compact tensors: posed target images and the recorded spike stream.
+
+Every target is *linear* intensity per readout step (1.0 = white, φ = the dataset threshold), channels last.
+
+* ``spike-nerf``: ``M_k ⊙ Î_k`` at every step k — TFP (window 41) or TFI of the recorded stream, times the
+  spike mask ``M_k = s_{k-n} ∨ … ∨ s_{k+n}`` (n = 5: exactly 11 frames); unmasked (``mask=False``) = ``Î_k``.
+* ``nerf-recon``: ``Î_k`` at every step (no mask).
+* ``nerf-gt``: the sharp ground-truth renders at their poses.
+* ``nerf-blur``: the conventional-camera (400 fps) blur frames at their mid-exposure poses.
+* ``nerf-blur-aware``: the blur frames, each with ``blur_samples`` poses spread over its exposure; the trainer
+  renders all of them and averages before the loss.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from spikenerf.camera.masks import spike_masks
+from spikenerf.camera.reconstruct import tfi, tfp
+from spikenerf.core.color import rgb_to_gray
+from spikenerf.core.errors import InputError
+
+if TYPE_CHECKING:
+    from spikenerf.data.dataset import PosedImages, SpikeDataset
+
+METHODS = ("spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt")
+SPIKE_METHODS = ("spike-nerf", "nerf-recon")
+COLORS = ("gray", "rgb")
+RECONS = ("tfp", "tfi")
+
+
+@dataclass
+class ImageTargets:
+    """Posed linear target images for the reconstruction loss.
+
+    Attributes:
+        poses: (K, S, 4, 4) float32 camera-to-world; the rendering of an image is the mean over its S poses
+            (S = 1 except for the exposure-aware blur baseline).
+        images: (K, H, W, C) float16 linear targets (C = 1 gray, 3 rgb).
+        steps: (K,) int64 spike step of each image (−1 if unknown).
+    """
+
+    poses: Tensor
+    images: Tensor
+    steps: Tensor
+
+    def __len__(self) -> int:
+        return int(self.images.shape[0])
+
+    def gather(self, index: Tensor, pixels: Tensor) -> Tensor:
+        """Target values (B, C) float32 of images ``index`` (B,) at pixels (B, 2) int ``(x, y)``."""
+        return self.images[index, pixels[:, 1], pixels[:, 0]].float()
+
+
+@dataclass
+class SpikeTargets:
+    """The recorded stream and per-step poses for the spike loss.
+
+    Attributes:
+        spikes: (T, H, W, C) uint8 0/1 recorded spikes, channels last.
+        poses: (T, 4, 4) float32 camera-to-world of each step.
+        threshold: φ of the camera.
+    """
+
+    spikes: Tensor
+    poses: Tensor
+    threshold: float
+
+    def window(self, start: int, length: int, pixels: Tensor) -> Tensor:
+        """Recorded spikes (L, P, C) float32 of steps ``start..start+L-1`` at pixels (P, 2) int ``(x, y)``."""
+        return self.spikes[start : start + length, pixels[:, 1], pixels[:, 0]].float()
+
+
+def channels_last(stream: np.ndarray | Tensor) -> Tensor:
+    """(T, H, W) → (T, H, W, 1); (T, 3, H, W) → (T, H, W, 3)."""
+    x = torch.as_tensor(np.asarray(stream) if not isinstance(stream, Tensor) else stream)
+    if x.dim() == 3:
+        return x[..., None]
+    if x.dim() == 4:
+        return x.permute(0, 2, 3, 1)
+    raise InputError(f"spike stream must be (T, H, W) or (T, 3, H, W), found shape {tuple(x.shape)}")
+
+
+def reconstruct_stream(
+    spikes: np.ndarray, recon: str = "tfp", window: int = 41, threshold: float = 1.0
+) -> np.ndarray:
+    """Î of every step: TFP (``window`` frames, odd) or TFI of a (T, ...) stream → float32 (T, ...) linear."""
+    if recon == "tfp":
+        return tfp(spikes, window=window, threshold=threshold)
+    if recon == "tfi":
+        return tfi(spikes, threshold=threshold)
+    raise InputError(f"--recon must be one of {', '.join(RECONS)}, found {recon!r}")
+
+
+def masked_reconstruction(
+    spikes: np.ndarray,
+    recon: str = "tfp",
+    window: int = 41,
+    threshold: float = 1.0,
+    mask: bool = True,
+    mask_n: int = 5,
+) -> np.ndarray:
+    """``M_k ⊙ Î_k`` (or ``Î_k`` when ``mask`` is False) for every step of a (T, ...) stream.
+
+    Returns:
+        float32 (T, ...) linear intensity; 0 where no spike fell in frames ``k-n..k+n``.
+    """
+    images = reconstruct_stream(spikes, recon, window, threshold)
+    if mask:
+        images = images * spike_masks(spikes, n=mask_n)
+    return images.astype(np.float32)
+
+
+def stream_mode(color: str) -> str:
+    """Dataset spike mode used for ``--color``: gray → ``gray`` stream, rgb → per-channel ``rgb`` streams."""
+    if color not in COLORS:
+        raise InputError(f"--color must be one of {', '.join(COLORS)}, found {color!r}")
+    return color
+
+
+def load_stream(dataset: SpikeDataset, color: str) -> np.ndarray:
+    """The recorded stream of ``--color``: uint8 (T, H, W) gray or (T, 3, H, W) rgb; checked against poses."""
+    mode = stream_mode(color)
+    if mode not in dataset.modes:
+        raise InputError(
+            f"--color {color} needs the {mode!r} spike stream, but the dataset has {sorted(dataset.modes)}",
+            path=getattr(dataset, "root", None),
+        )
+    spikes = np.asarray(dataset.spikes(mode))
+    if len(dataset.trajectory) != spikes.shape[0]:
+        raise InputError(
+            f"the {mode} stream has {spikes.shape[0]} steps but the trajectory has {len(dataset.trajectory)}",
+            path=getattr(dataset, "root", None),
+        )
+    return spikes
+
+
+def image_channels(images: np.ndarray | Tensor, color: str) -> Tensor:
+    """Linear RGB images (N, H, W, 3) → (N, H, W, 1) gray (``rgb_to_gray``) or unchanged for rgb, float32."""
+    x = torch.as_tensor(np.asarray(images, dtype=np.float32))
+    return rgb_to_gray(x, channel_axis=-1)[..., None] if stream_mode(color) == "gray" else x
+
+
+def step_poses(dataset: SpikeDataset, steps: np.ndarray) -> np.ndarray:
+    """Trajectory poses (N, 4, 4) at spike ``steps`` (N,) (indices into ``trajectory.steps``)."""
+    traj = dataset.trajectory
+    idx = np.searchsorted(traj.steps, steps)
+    idx = np.clip(idx, 0, len(traj) - 1)
+    if not np.array_equal(traj.steps[idx], steps):
+        raise InputError(
+            "frame steps are not on the training trajectory", path=getattr(dataset, "root", None)
+        )
+    return traj.poses[idx]
+
+
+def exposure_steps(step_range: np.ndarray, samples: int) -> np.ndarray:
+    """``samples`` steps spread evenly over an exposure ``[start, end)``: centres of equal sub-intervals."""
+    start, end = int(step_range[0]), int(step_range[1])
+    frac = (np.arange(samples) + 0.5) / samples
+    return np.minimum(start + np.floor(frac * (end - start)).astype(np.int64), end - 1)
+
+
+def _posed(posed: PosedImages | None, what: str, method: str, dataset: SpikeDataset) -> PosedImages:
+    if posed is None or len(posed.images) == 0:
+        raise InputError(
+            f"--method {method} needs the {what} frames, but the dataset has none",
+            path=getattr(dataset, "root", None),
+        )
+    return posed
+
+
+def build_image_targets(
+    dataset: SpikeDataset,
+    method: str,
+    color: str = "gray",
+    recon: str = "tfp",
+    window: int = 41,
+    mask: bool = True,
+    mask_n: int = 5,
+    blur_samples: int = 8,
+    spikes: np.ndarray | None = None,
+) -> ImageTargets:
+    """The reconstruction-loss targets of ``method`` (see the module docstring).
+
+    Args:
+        dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi. window: TFP window (odd).
+        mask: apply spike masks (spike-nerf only). mask_n: mask half window n (2n+1 frames).
+        blur_samples: poses per exposure for nerf-blur-aware. spikes: the stream if already loaded.
+    """
+    if method not in METHODS:
+        raise InputError(f"--method must be one of {', '.join(METHODS)}, found {method!r}")
+    if method in SPIKE_METHODS:
+        stream = load_stream(dataset, color) if spikes is None else spikes
+        use_mask = mask and method == "spike-nerf"
+        images = masked_reconstruction(stream, recon, window, dataset.threshold, use_mask, mask_n)
+        poses = torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32)[:, None]
+        return ImageTargets(poses, channels_last(images).half(), torch.as_tensor(dataset.trajectory.steps))
+    if method == "nerf-gt":
+        gt = _posed(dataset.gt, "gt/", method, dataset)
+        steps = np.full(len(gt.images), -1) if gt.steps is None else np.asarray(gt.steps)
+        poses = torch.as_tensor(np.asarray(gt.poses), dtype=torch.float32)[:, None]
+        return ImageTargets(poses, image_channels(gt.images, color).half(), torch.as_tensor(steps))
+    blur = _posed(dataset.blur, "blur/", method, dataset)
+    ranges = None if blur.step_ranges is None else np.asarray(blur.step_ranges)
+    steps = np.full(len(blur.images), -1) if ranges is None else (ranges[:, 0] + ranges[:, 1] - 1) // 2
+    if method == "nerf-blur":
+        poses = torch.as_tensor(np.asarray(blur.poses), dtype=torch.float32)[:, None]
+    else:
+        if ranges is None:
+            raise InputError(
+                "--method nerf-blur-aware needs the exposure step ranges of the blur frames",
+                path=getattr(dataset, "root", None),
+            )
+        if blur_samples < 1:
+            raise InputError(f"blur samples per exposure must be ≥ 1, found {blur_samples}")
+        exp = np.stack([step_poses(dataset, exposure_steps(r, blur_samples)) for r in ranges])
+        poses = torch.as_tensor(exp, dtype=torch.float32)
+    return ImageTargets(poses, image_channels(blur.images, color).half(), torch.as_tensor(steps))
+
+
+def build_spike_targets(
+    dataset: SpikeDataset, color: str = "gray", spikes: np.ndarray | None = None
+) -> SpikeTargets:
+    """The recorded stream of ``color`` as (T, H, W, C) uint8 with per-step poses and φ."""
+    stream = load_stream(dataset, color) if spikes is None else spikes
+    return SpikeTargets(
+        channels_last(np.asarray(stream, dtype=np.uint8)).contiguous(),
+        torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32),
+        float(dataset.threshold),
+    )
+
+
+def eval_view_targets(dataset: SpikeDataset, color: str, count: int | None = None) -> ImageTargets | None:
+    """Held-out views for evaluation (the first ``count``; all if None), or None if the dataset has none."""
+    test = dataset.test
+    if test is None or len(test.images) == 0:
+        return None
+    n = len(test.images) if count is None else min(count, len(test.images))
+    idx = np.linspace(0, len(test.images) - 1, n).round().astype(np.int64) if n > 0 else np.zeros(0, np.int64)
+    poses = torch.as_tensor(np.asarray(test.poses)[idx], dtype=torch.float32)[:, None]
+    images = image_channels(np.asarray(test.images)[idx], color)
+    return ImageTargets(poses, images, torch.full((n,), -1, dtype=torch.int64))

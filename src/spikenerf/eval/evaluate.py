@@ -1,0 +1,139 @@
+"""Evaluate a trained run on held-out views and write ``RUN/metrics.json`` (see docs/metrics.md).
+
+Every view is rendered from the run's model, then prediction and ground truth are compared as *displayed*:
+linear radiance → :func:`~spikenerf.core.color.srgb_encode` → [0, 1]. Gray runs (one channel) are compared
+with the gray of the linear GT (0.299R + 0.587G + 0.114B, then encoded). Means are plain averages of the
+per-view values (the NeRF convention: mean PSNR, not the PSNR of the mean MSE).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.color import rgb_to_gray, srgb_encode
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import PosedImages, SpikeDataset
+from spikenerf.eval import lpips as lp
+from spikenerf.eval.metrics import SSIMConfig, psnr, ssim
+from spikenerf.render import render_image
+from spikenerf.train.run import load_run, run_iteration
+
+METRICS_FILE = "metrics.json"
+SPLITS = ("test", "train")
+SPACE = "sRGB-encoded [0,1]"
+
+
+def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
+    """Posed GT images of a split: ``test`` = held-out views, ``train`` = sharp GT on the training path."""
+    if split not in SPLITS:
+        raise InputError(f"--split must be one of {', '.join(SPLITS)}, found {split!r}")
+    views = dataset.test if split == "test" else dataset.gt
+    if views is None or len(views) == 0:
+        source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"
+        raise InputError(f"the dataset has no {split} views (expected {source})", path=dataset.root)
+    return views
+
+
+def display(linear: torch.Tensor | np.ndarray, channels: int) -> torch.Tensor:
+    """Linear (H, W, 3 or C) → displayed (C, H, W) float32 in [0, 1]; 3 → 1 channel via ``rgb_to_gray``."""
+    x = torch.as_tensor(np.asarray(linear) if not isinstance(linear, torch.Tensor) else linear).float().cpu()
+    if channels == 1 and x.shape[-1] == 3:
+        x = rgb_to_gray(x, channel_axis=-1)[..., None]
+    if x.shape[-1] != channels:
+        raise ValueError(f"cannot show an image with {x.shape[-1]} channels as {channels}")
+    return srgb_encode(x).permute(2, 0, 1).contiguous()
+
+
+def _finite(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _mean(values: list[float | None]) -> float | None:
+    vals = [v for v in values if v is not None]
+    return float(np.mean(vals)) if vals and len(vals) == len(values) else None
+
+
+def score_view(
+    pred: torch.Tensor, target: torch.Tensor, lpips_backbone: str | None
+) -> dict[str, float | None]:
+    """PSNR (dB), SSIM and LPIPS of one displayed pair (C, H, W); a metric that cannot run is None."""
+    side = min(pred.shape[-2:])
+    out: dict[str, float | None] = {"psnr": _finite(float(psnr(pred, target)))}
+    out["ssim"] = float(ssim(pred, target)) if side >= SSIMConfig().window else None
+    out["lpips"] = float(lp.lpips(pred, target, lpips_backbone)) if lpips_backbone else None
+    return out
+
+
+def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | None, str | None]:
+    """(backbone to use or None, reason it is not used or None)."""
+    if backbone is None:
+        return None, "disabled (--lpips none)"
+    reason = lp.lpips_unavailable_reason(backbone)
+    if reason is None and min(height, width) < lp.MIN_SIZE[backbone]:
+        need = lp.MIN_SIZE[backbone]
+        reason = f"images {width}×{height} are smaller than LPIPS-{backbone}'s minimum of {need} px a side"
+    return (None, reason) if reason else (backbone, None)
+
+
+def evaluate_run(
+    run_dir: str | Path,
+    split: str = "test",
+    device: str = "cpu",
+    dataset_root: str | Path | None = None,
+    lpips_backbone: str | None = "alex",
+    chunk: int = 8192,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Render every view of ``split``, score it and write ``RUN/metrics.json`` atomically.
+
+    Args:
+        run_dir: a run folder written by ``spikenerf train``.
+        split: ``test`` (held-out novel views) or ``train`` (sharp GT along the training path).
+        device: auto | cpu | cuda. dataset_root: the dataset if it moved since training.
+        lpips_backbone: ``alex`` (default), ``vgg`` or None (skip LPIPS).
+        chunk: rays per render call.
+    Returns:
+        The metrics.json content (see docs/formats.md): split, method, color, field, iterations, views,
+        mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, seconds.
+    """
+    t0 = time.perf_counter()
+    run_dir = Path(run_dir)
+    model, config, dataset = load_run(run_dir, dataset_root, device)
+    views = split_views(dataset, split)
+    k = dataset.intrinsics
+    backbone, reason = lpips_status(lpips_backbone, k.height, k.width)
+    if reason and log:
+        log(f"LPIPS skipped: {reason}")
+    per_view = []
+    for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
+        out = render_image(model, views.poses[i], k, dataset.near, dataset.far, chunk)
+        pred = display(out["color"], model.channels)
+        target = display(views.images[i], model.channels)
+        per_view.append({"index": i, **score_view(pred, target, backbone)})
+    result = {
+        "split": split,
+        "method": config.method,
+        "color": config.color,
+        "field": config.field,
+        "iterations": run_iteration(run_dir),
+        "views": len(per_view),
+        "mean": {m: _mean([v[m] for v in per_view]) for m in ("psnr", "ssim", "lpips")},
+        "per_view": per_view,
+        "lpips_backbone": backbone,
+        "lpips_reason": reason,
+        "space": SPACE,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+    write_text_atomic(run_dir / METRICS_FILE, json.dumps(result, indent=2, allow_nan=False) + "\n")
+    return result

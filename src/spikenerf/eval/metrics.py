@@ -1,0 +1,113 @@
+"""Full-reference image metrics on displayed values: PSNR and SSIM (mip-NeRF convention).
+
+Inputs are torch tensors of shape (N, C, H, W) or (C, H, W) holding display values in [0, 1] (for spikenerf:
+linear radiance passed through :func:`spikenerf.core.color.srgb_encode`). Both metrics use data range 1.
+Results are per image: a tensor of shape (N,) for batched input, a 0-d tensor for a single (C, H, W) image.
+LPIPS lives in :mod:`spikenerf.eval.lpips`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+
+@dataclass(frozen=True)
+class SSIMConfig:
+    """SSIM constants; the defaults are the mip-NeRF / JAX-NeRF evaluation convention."""
+
+    window: int = 11  # taps of the separable Gaussian window
+    sigma: float = 1.5  # Gaussian standard deviation, pixels
+    k1: float = 0.01
+    k2: float = 0.03
+    data_range: float = 1.0
+
+
+def _batched(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, bool]:
+    """Check shapes and lift (C,H,W) to (1,C,H,W); returns (a, b, was_single)."""
+    if a.shape != b.shape:
+        raise ValueError(f"image shapes differ: {tuple(a.shape)} vs {tuple(b.shape)}")
+    if a.ndim == 3:
+        return a[None], b[None], True
+    if a.ndim != 4:
+        raise ValueError(f"expected (N,C,H,W) or (C,H,W) images, got shape {tuple(a.shape)}")
+    return a, b, False
+
+
+def mse(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Mean squared error per image. a, b: (N,C,H,W) or (C,H,W). Returns (N,) or ()."""
+    a, b, single = _batched(a, b)
+    out = (a.double() - b.double()).square().flatten(1).mean(1)
+    return out[0] if single else out
+
+
+def psnr(a: torch.Tensor, b: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+    """Peak signal-to-noise ratio in dB, 10·log10(range² / MSE); +inf for identical images.
+
+    Args:
+        a, b: (N,C,H,W) or (C,H,W), values in [0, data_range].
+    Returns:
+        (N,) or () float64, dB.
+    """
+    err = mse(a, b)
+    return 10.0 * torch.log10(data_range**2 / err)
+
+
+def gaussian_window(taps: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Normalised 1-D Gaussian, (taps,) float64, centred on the middle tap (mip-NeRF's ``filt``)."""
+    x = torch.arange(taps, dtype=torch.float64) - (taps - 1) / 2
+    w = torch.exp(-0.5 * (x / sigma) ** 2)
+    return w / w.sum()
+
+
+def _blur_valid(x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Separable 'valid' filtering of (N,C,H,W) with the 1-D kernel w: (N,C,H-k+1,W-k+1)."""
+    c = x.shape[1]
+    k = w.numel()
+    x = F.conv2d(x, w.view(1, 1, k, 1).expand(c, 1, k, 1), groups=c)
+    return F.conv2d(x, w.view(1, 1, 1, k).expand(c, 1, 1, k), groups=c)
+
+
+def ssim_map(a: torch.Tensor, b: torch.Tensor, config: SSIMConfig = SSIMConfig()) -> torch.Tensor:
+    """The SSIM map with 'valid' Gaussian filtering (no padding), per channel.
+
+    Follows mip-NeRF's ``compute_ssim``: local (co)variances from E[xy] − E[x]E[y], variances clamped at 0,
+    the covariance clamped to ±sqrt(σ_a² σ_b²).
+
+    Args:
+        a, b: (N,C,H,W), H and W at least ``config.window``.
+    Returns:
+        (N, C, H − window + 1, W − window + 1) float64.
+    """
+    a, b, _ = _batched(a, b)
+    if min(a.shape[-2:]) < config.window:
+        raise ValueError(
+            f"SSIM needs images of at least {config.window} px a side, got {tuple(a.shape[-2:])}"
+        )
+    a, b = a.double(), b.double()
+    w = gaussian_window(config.window, config.sigma).to(a.device)
+    mu_a, mu_b = _blur_valid(a, w), _blur_valid(b, w)
+    var_a = (_blur_valid(a * a, w) - mu_a**2).clamp_min(0.0)
+    var_b = (_blur_valid(b * b, w) - mu_b**2).clamp_min(0.0)
+    cov = _blur_valid(a * b, w) - mu_a * mu_b
+    cov = torch.sign(cov) * torch.minimum(torch.sqrt(var_a * var_b), cov.abs())
+    c1 = (config.k1 * config.data_range) ** 2
+    c2 = (config.k2 * config.data_range) ** 2
+    num = (2 * mu_a * mu_b + c1) * (2 * cov + c2)
+    den = (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
+    return num / den
+
+
+def ssim(a: torch.Tensor, b: torch.Tensor, config: SSIMConfig = SSIMConfig()) -> torch.Tensor:
+    """Structural similarity, the mean of :func:`ssim_map` over channels and valid pixels.
+
+    Args:
+        a, b: (N,C,H,W) or (C,H,W), values in [0, data_range], H and W ≥ 11.
+    Returns:
+        (N,) or () float64 in [-1, 1]; 1 for identical images.
+    """
+    single = a.ndim == 3
+    out = ssim_map(a, b, config).flatten(1).mean(1)
+    return out[0] if single else out

@@ -1,0 +1,227 @@
+"""What ``spikenerf render`` writes: views as PNG, depth (colour-mapped PNG + .npy), a video, spike streams.
+
+``render_run(run, out, trajectory)`` renders every pose of a trajectory — ``test`` (the held-out views),
+``orbit`` (a closed orbit at the training path's mean radius and elevation) or a transforms.json with
+``frames[].transform_matrix`` — and writes, each file atomically:
+
+- ``images/NNNNN.png``: 8-bit sRGB-encoded colour (gray runs: 8-bit gray);
+- ``depth/NNNNN.npy``: float32 (H, W) expected ray distance in world units (0 where empty);
+- ``depth/NNNNN.png``: depth through the ``turbo`` colour map over the 1st–99th percentile of the depths
+  of opaque pixels (opacity > 0.5) of the whole trajectory, composited on white by opacity;
+- ``<name>.mp4`` (``orbit.mp4``, ``test.mp4``, ``<file stem>.mp4``): the colour frames (H.264, yuv420p;
+  frames edge-padded to even sizes);
+- with ``spikes=True``: a novel-view spike stream along the trajectory, one step per pose (the orbit is
+  re-sampled to ``spike_steps`` steps, by default the dataset's), fired from a seeded uniform start in
+  [0, φ) with the dataset's threshold φ: ``spikes_gray.dat`` or ``spikes_rgb_{r,g,b}.dat`` (SpikeCV layout)
+  and ``spikes_tfp.png``, the TFP reconstruction of its middle step;
+- ``render.json``: what was written.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import imageio.v3 as iio
+import numpy as np
+from tqdm import tqdm
+
+from spikenerf.camera.io import rgb_paths, write_dat
+from spikenerf.camera.reconstruct import tfp
+from spikenerf.core.atomic import atomic_path, write_bytes_atomic, write_text_atomic
+from spikenerf.core.color import srgb_encode
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import SpikeDataset, read_pose_file
+from spikenerf.render import iter_spike_stream, render_image
+from spikenerf.scenes.trajectory import orbit
+from spikenerf.train.run import load_run
+
+TRAJECTORIES = ("test", "orbit")
+DEFAULT_ORBIT_FRAMES = 120
+TFP_WINDOW = 41
+
+
+def to_uint8(display: np.ndarray) -> np.ndarray:
+    """Display values [0, 1] (H, W, C) → uint8 (H, W) for C = 1, (H, W, 3) for C = 3."""
+    q = np.round(np.clip(display, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return q[..., 0] if q.shape[-1] == 1 else q
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    """8-bit PNG of a uint8 (H, W) or (H, W, 3) image."""
+    return bytes(iio.imwrite("<bytes>", image, extension=".png"))
+
+
+def depth_range(depths: np.ndarray, opacities: np.ndarray) -> tuple[float, float]:
+    """(lo, hi): 1st/99th percentile of depths (N, H, W) where opacity > 0.5 (0, 1 if none)."""
+    valid = depths[opacities > 0.5]
+    if valid.size == 0:
+        return 0.0, 1.0
+    lo, hi = np.percentile(valid, [1.0, 99.0])
+    return float(lo), float(max(hi, lo + 1e-6))
+
+
+def colorize_depth(depth: np.ndarray, opacity: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Depth (H, W) → uint8 (H, W, 3): turbo colour map of (depth − lo)/(hi − lo), over white by opacity."""
+    from matplotlib import colormaps
+
+    t = np.clip((depth - lo) / (hi - lo), 0.0, 1.0)
+    rgb = colormaps["turbo"](t)[..., :3]
+    a = np.clip(opacity, 0.0, 1.0)[..., None]
+    return to_uint8(rgb * a + (1.0 - a))
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
+    """H.264 mp4 (yuv420p) of uint8 frames (H, W) or (H, W, 3), written atomically with imageio-ffmpeg's
+    bundled ffmpeg; odd sizes are edge-padded to even (yuv420p needs even sizes)."""
+    import imageio_ffmpeg
+
+    rgb = [np.repeat(f[..., None], 3, -1) if f.ndim == 2 else f for f in frames]
+    h, w = rgb[0].shape[:2]
+    pad = ((0, h % 2), (0, w % 2), (0, 0))
+    with atomic_path(path) as tmp:
+        writer = imageio_ffmpeg.write_frames(
+            str(tmp), (w + w % 2, h + h % 2), fps=fps, codec="libx264", pix_fmt_out="yuv420p",
+            macro_block_size=1, output_params=["-f", "mp4"], ffmpeg_log_level="error",
+        )  # fmt: skip
+        writer.send(None)
+        try:
+            for f in rgb:
+                writer.send(np.ascontiguousarray(np.pad(f, pad, mode="edge")))
+        finally:
+            writer.close()
+
+
+def _write_npy(path: Path, array: np.ndarray) -> None:
+    buf = io.BytesIO()
+    np.save(buf, array)
+    write_bytes_atomic(path, buf.getvalue())
+
+
+def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
+    """(count, 4, 4) poses of one closed orbit around the scene box centre at the training path's mean
+    distance and elevation (no repeated end pose)."""
+    center = dataset.scene_box.mean(0)
+    offsets = dataset.trajectory.poses[:, :3, 3] - center
+    radius = float(np.linalg.norm(offsets, axis=-1).mean())
+    elevation = float(
+        np.degrees(np.arcsin(np.clip(offsets[:, 2] / np.linalg.norm(offsets, axis=-1), -1, 1))).mean()
+    )
+    start = float(np.degrees(np.arctan2(offsets[0, 1], offsets[0, 0])))
+    traj = orbit(
+        radius, elevation, duration=float(count), fps=1.0, center=tuple(center), start_azimuth_deg=start
+    )
+    return traj.poses
+
+
+def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> tuple[str, np.ndarray]:
+    """(name, poses (N, 4, 4)) for ``test``, ``orbit`` (``count`` poses) or a transforms.json path."""
+    if spec == "test":
+        if len(dataset.test) == 0:
+            raise InputError("the dataset has no test views (transforms_test.json)", path=dataset.root)
+        return "test", np.asarray(dataset.test.poses, np.float64)
+    if spec == "orbit":
+        return "orbit", orbit_poses(dataset, count)
+    path = Path(spec)
+    if not path.is_file():
+        raise InputError(f"--trajectory: expected test, orbit or a transforms.json file, found {spec!r}")
+    return path.stem, read_pose_file(path)
+
+
+def write_spikes(
+    model: Any, poses: np.ndarray, dataset: SpikeDataset, out: Path, seed: int, chunk: int, progress: bool
+) -> list[str]:
+    """Fire a novel-view spike stream along ``poses`` (one step each); write .dat file(s) + a TFP preview."""
+    k = dataset.intrinsics
+    steps = iter_spike_stream(model, poses, k, dataset.threshold, seed, chunk, dataset.near, dataset.far)
+    bar = tqdm(steps, total=len(poses), desc="spikes", unit="step", disable=not progress)
+    stream = np.stack([s.numpy() for s in bar]).astype(np.uint8)  # (T, H, W, C)
+    if stream.shape[-1] == 1:
+        files = [out / "spikes_gray.dat"]
+        write_dat(files[0], stream[..., 0])
+        spikes = stream[..., 0]
+    else:
+        files = rgb_paths(out / "spikes_rgb")
+        for c, path in enumerate(files):
+            write_dat(path, stream[..., c])
+        spikes = stream.transpose(0, 3, 1, 2)  # (T, 3, H, W)
+    t = len(stream)
+    window = min(TFP_WINDOW, t if t % 2 else t - 1)
+    preview = tfp(spikes, window=max(window, 1), threshold=dataset.threshold, frames=t // 2)[0]
+    preview = preview[..., None] if preview.ndim == 2 else preview.transpose(1, 2, 0)
+    write_bytes_atomic(out / "spikes_tfp.png", png_bytes(to_uint8(srgb_encode(preview))))
+    return [p.name for p in files] + ["spikes_tfp.png"]
+
+
+def render_run(
+    run_dir: str | Path,
+    out: str | Path,
+    trajectory: str = "test",
+    spikes: bool = False,
+    fps_video: float = 30.0,
+    orbit_frames: int = DEFAULT_ORBIT_FRAMES,
+    spike_steps: int | None = None,
+    seed: int = 0,
+    device: str = "cpu",
+    dataset_root: str | Path | None = None,
+    chunk: int = 8192,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Render a run along ``trajectory`` into ``out`` (see the module doc); returns render.json's content."""
+    if fps_video <= 0 or orbit_frames < 1 or (spike_steps is not None and spike_steps < 1):
+        raise InputError(
+            f"--fps-video, --orbit-frames and --spike-steps must be positive, found "
+            f"{fps_video}, {orbit_frames}, {spike_steps}"
+        )
+    t0 = time.perf_counter()
+    model, _, dataset = load_run(run_dir, dataset_root, device)
+    name, poses = resolve_trajectory(trajectory, dataset, orbit_frames)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out must be a folder", path=out)
+    k = dataset.intrinsics
+    colors, depths, opacities = [], [], []
+    for pose in tqdm(poses, desc=f"render {name}", unit="view", disable=not progress):
+        r = render_image(model, pose, k, dataset.near, dataset.far, chunk)
+        colors.append(to_uint8(srgb_encode(r["color"].float().cpu().numpy())))
+        depths.append(r["depth"].float().cpu().numpy())
+        opacities.append(r["opacity"].float().cpu().numpy())
+    depth_all, op_all = np.stack(depths), np.stack(opacities)
+    lo, hi = depth_range(depth_all, op_all)
+    for i, (color, depth, opacity) in enumerate(zip(colors, depths, opacities, strict=True)):
+        write_bytes_atomic(out / "images" / f"{i:05d}.png", png_bytes(color))
+        _write_npy(out / "depth" / f"{i:05d}.npy", depth.astype(np.float32))
+        write_bytes_atomic(out / "depth" / f"{i:05d}.png", png_bytes(colorize_depth(depth, opacity, lo, hi)))
+    video = f"{name}.mp4"
+    write_video(out / video, colors, fps_video)
+    files: dict[str, Any] = {"images": "images/NNNNN.png", "depth": "depth/NNNNN.{png,npy}", "video": video}
+    n_spike = None
+    if spikes:
+        spike_poses = (
+            orbit_poses(dataset, spike_steps or len(dataset.trajectory)) if name == "orbit" else poses
+        )
+        files["spikes"] = write_spikes(model, spike_poses, dataset, out, seed, chunk, progress)
+        n_spike = len(spike_poses)
+    manifest = {
+        "run": str(run_dir),
+        "trajectory": name,
+        "views": len(poses),
+        "channels": model.channels,
+        "size": [k.width, k.height],
+        "depth_range": [lo, hi],
+        "fps_video": fps_video,
+        "spike_steps": n_spike,
+        "spike_seed": seed if spikes else None,
+        "threshold": dataset.threshold,
+        "files": files,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+    write_text_atomic(out / "render.json", json.dumps(manifest, indent=2) + "\n")
+    if log:
+        log(f"wrote {out}: {len(poses)} {name} views, {video}" + (", spike stream" if spikes else ""))
+    return manifest

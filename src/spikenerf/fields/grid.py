@@ -1,0 +1,268 @@
+"""TensoRF-VM factorised radiance grid with a small MLP decoder, coarse-to-fine upsampling and occupancy.
+
+Density and appearance are sums of vector–matrix (VM) products: for the three axis pairs
+``(x,y)·z, (x,z)·y, (y,z)·x`` a plane ``P_m`` (C, R, R) times a line ``L_m`` (C, R). Each factor set is
+stored as one tensor so that all three planes are read by ONE batched 2-D ``grid_sample`` call (on the CPU
+that kernel is vectorised and threads over the batch; the 3-D one is scalar) and the three lines by another
+(as width-1 images).
+
+Layout: ``planes[m, c, h, w]`` is the value at ``(coord[MAT[m][0]] ↔ w, coord[MAT[m][1]] ↔ h)``,
+``lines[m, c, h, 0]`` at ``coord[VEC[m]] ↔ h``, with coordinates normalised to [−1, 1] over the scene box and
+``align_corners=True`` (−1 and 1 are the first and last texel centres). The resolution R is the same on all
+axes (cells are anisotropic in a non-cubic box).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from spikenerf.fields.encoding import encoded_size, positional_encoding
+from spikenerf.fields.occupancy import OccupancyGrid
+
+MAT = ((0, 1), (0, 2), (1, 2))
+VEC = (2, 1, 0)
+FACTORS = ("density_planes", "density_lines", "app_planes", "app_lines")
+
+
+@dataclass(frozen=True)
+class GridFieldConfig:
+    """Hyper-parameters of the grid field (defaults sized for minutes of CPU training).
+
+    Attributes:
+        n_voxels_init / n_voxels_final: grid size as a voxel count (R = round(n^(1/3))), log-spaced over
+            the ``upsample_steps`` (a step = number of completed optimiser steps).
+        density_components / app_components: VM rank per axis pair. app_dim: decoder input features.
+        hidden: decoder width (two hidden layers). view_freqs: octaves of the view-direction encoding.
+        density_shift / distance_scale: ``σ = distance_scale · softplus(raw + shift)`` per world unit.
+        step_ratio: marching step in cells. max_samples: cap on samples per ray.
+        weight_threshold: colour is decoded only where the compositing weight exceeds it.
+        occupancy / occupancy_*: the occupancy grid is rebuilt at ``occupancy_start`` and every
+            ``occupancy_every`` steps after (and after each upsampling once started); cells whose one-step
+            opacity is below ``occupancy_threshold`` are skipped; its resolution is
+            ``min(R, occupancy_max_resolution)``.
+        lr_grid / lr: Adam learning rates of the grids and of the networks; both decay exponentially to
+            ``lr_final_ratio`` times their value over the run (trainer side). batch_rays: rays per step.
+        l1_weight: weight of the L1 sparsity prior on the density factors (see ``regularization``).
+        iterations: the run length the schedules are written for (see :meth:`for_iterations`).
+    """
+
+    n_voxels_init: int = 64**3
+    n_voxels_final: int = 200**3
+    upsample_steps: tuple[int, ...] = (500, 1000, 1500, 2000)
+    density_components: int = 16
+    app_components: int = 24
+    app_dim: int = 27
+    hidden: int = 64
+    view_freqs: int = 2
+    init_scale: float = 0.1
+    density_shift: float = -10.0
+    distance_scale: float = 25.0
+    step_ratio: float = 0.5
+    max_samples: int = 1024
+    weight_threshold: float = 1e-4
+    occupancy: bool = True
+    occupancy_start: int = 250
+    occupancy_every: int = 500
+    occupancy_threshold: float = 1e-4
+    occupancy_max_resolution: int = 128
+    lr_grid: float = 0.02
+    lr: float = 1e-3
+    lr_final_ratio: float = 0.1
+    batch_rays: int = 4096
+    l1_weight: float = 0.0
+    iterations: int = 3000
+
+    def for_iterations(self, iterations: int) -> GridFieldConfig:
+        """The same config with its step schedules rescaled from ``self.iterations`` to ``iterations``."""
+        s = iterations / self.iterations
+        return replace(
+            self,
+            upsample_steps=tuple(max(1, round(k * s)) for k in self.upsample_steps),
+            occupancy_start=max(1, round(self.occupancy_start * s)),
+            occupancy_every=max(1, round(self.occupancy_every * s)),
+            iterations=iterations,
+        )
+
+    def resolutions(self) -> list[int]:
+        """Grid resolution R after 0, 1, … upsamplings."""
+        n = len(self.upsample_steps) + 1
+        lo, hi = math.log(self.n_voxels_init), math.log(self.n_voxels_final)
+        return [round(math.exp(lo + (hi - lo) * i / max(n - 1, 1)) ** (1 / 3)) for i in range(n)]
+
+    def resolution_at(self, step: int) -> int:
+        """The resolution the grid should have after ``step`` completed optimiser steps."""
+        return self.resolutions()[sum(1 for k in self.upsample_steps if step >= k)]
+
+
+def vm_splits(device: torch.device) -> int:
+    """Point chunks per plane so that the CPU kernel's batch threads balance (1 off the CPU).
+
+    The CPU ``grid_sample`` threads only over the batch; three planes on an even thread count leave a thread
+    idle, so each plane is repeated ``k`` times (3k divisible by the thread count, k ≤ 4).
+    """
+    if device.type != "cpu":
+        return 1
+    threads = torch.get_num_threads()
+    return max(1, min(4, threads // math.gcd(3, threads)))
+
+
+def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Tensor:
+    """Per-axis-pair VM products at normalised points, with two batched 2-D ``grid_sample`` calls.
+
+    Args:
+        planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3) in [−1, 1].
+        splits: point chunks per plane along the batch (see :func:`vm_splits`); the result is the same.
+    Returns:
+        (3, C, M) ``P_m(xyz) · L_m(xyz)``.
+    """
+    m, c = xyz.shape[0], planes.shape[1]
+    k = splits if m >= 4096 * splits else 1
+    pad = (-m) % k
+    if pad:
+        xyz = torch.cat([xyz, xyz.new_zeros(pad, 3)])
+    mat = torch.tensor(MAT, device=xyz.device)
+    plane_grid = xyz[:, mat].transpose(0, 1).reshape(3 * k, 1, -1, 2)
+    line_coord = xyz[:, list(VEC)].T
+    line_grid = torch.stack([torch.zeros_like(line_coord), line_coord], dim=-1).reshape(3 * k, 1, -1, 2)
+    if k > 1:
+        planes = planes[:, None].expand(3, k, *planes.shape[1:]).reshape(3 * k, *planes.shape[1:])
+        lines = lines[:, None].expand(3, k, *lines.shape[1:]).reshape(3 * k, *lines.shape[1:])
+    p = F.grid_sample(planes, plane_grid, mode="bilinear", align_corners=True)
+    l = F.grid_sample(lines, line_grid, mode="bilinear", align_corners=True)
+    out = (p * l).view(3, k, c, -1)
+    out = out[:, 0] if k == 1 else out.transpose(1, 2).reshape(3, c, -1)
+    return out[..., :m] if pad else out
+
+
+class GridField(nn.Module):
+    """Radiance field on TensoRF-VM grids.
+
+    Args:
+        channels: 1 (gray) or 3 (rgb). scene_box: (2, 3) world bounds. config: :class:`GridFieldConfig`.
+    Colour is linear radiance in [0, 1] (sigmoid): targets are clipped to [0, 1], so highlights brighter than
+    white saturate.
+    """
+
+    def __init__(self, channels: int, scene_box: Tensor, config: GridFieldConfig | None = None) -> None:
+        super().__init__()
+        self.config = cfg = config or GridFieldConfig()
+        self.channels = channels
+        self.register_buffer(
+            "scene_box", torch.as_tensor(scene_box, dtype=torch.float32).reshape(2, 3).clone()
+        )
+        r, s = cfg.resolutions()[0], cfg.init_scale
+        self.density_planes = nn.Parameter(s * torch.randn(3, cfg.density_components, r, r))
+        self.density_lines = nn.Parameter(s * torch.randn(3, cfg.density_components, r, 1))
+        self.app_planes = nn.Parameter(s * torch.randn(3, cfg.app_components, r, r))
+        self.app_lines = nn.Parameter(s * torch.randn(3, cfg.app_components, r, 1))
+        self.basis = nn.Linear(3 * cfg.app_components, cfg.app_dim, bias=False)
+        self.decoder = nn.Sequential(
+            nn.Linear(cfg.app_dim + encoded_size(3, cfg.view_freqs), cfg.hidden),
+            nn.ReLU(inplace=True),
+            nn.Linear(cfg.hidden, cfg.hidden),
+            nn.ReLU(inplace=True),
+            nn.Linear(cfg.hidden, channels),
+        )
+        self.occupancy = OccupancyGrid(min(r, cfg.occupancy_max_resolution))
+        self.register_buffer("occupancy_step", torch.tensor(-1, dtype=torch.long))
+
+    @property
+    def resolution(self) -> int:
+        return int(self.density_planes.shape[-1])
+
+    @property
+    def step_size(self) -> float:
+        """Marching step in world units: ``step_ratio`` × the mean cell size."""
+        size = (self.scene_box[1] - self.scene_box[0]).mean().item()
+        return self.config.step_ratio * size / (self.resolution - 1)
+
+    def normalize(self, xyz: Tensor) -> Tensor:
+        """World points (..., 3) → box-normalised [−1, 1]³."""
+        lo, hi = self.scene_box[0], self.scene_box[1]
+        return (xyz - lo) * (2.0 / (hi - lo)) - 1.0
+
+    def denormalize(self, xyz_norm: Tensor) -> Tensor:
+        """Box-normalised points (..., 3) → world."""
+        lo, hi = self.scene_box[0], self.scene_box[1]
+        return lo + (xyz_norm + 1.0) * (0.5 * (hi - lo))
+
+    def density_norm(self, xyz_norm: Tensor) -> Tensor:
+        """Density per world unit (M,) at normalised points (M, 3)."""
+        raw = sample_vm(self.density_planes, self.density_lines, xyz_norm, vm_splits(xyz_norm.device))
+        return self.config.distance_scale * F.softplus(raw.sum(dim=(0, 1)) + self.config.density_shift)
+
+    def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
+        """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3)."""
+        feats = sample_vm(self.app_planes, self.app_lines, xyz_norm, vm_splits(xyz_norm.device))
+        feats = self.basis(feats.reshape(-1, feats.shape[-1]).T)
+        h = torch.cat([feats, positional_encoding(dirs, self.config.view_freqs)], dim=-1)
+        return torch.sigmoid(self.decoder(h))
+
+    def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+        """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""
+        x = self.normalize(xyz)
+        return self.density_norm(x), self.color_norm(x, dirs)
+
+    @torch.no_grad()
+    def upsample(self, resolution: int) -> None:
+        """Resample all factors to ``resolution`` (bilinear, so the function is kept approximately)."""
+        for name in FACTORS:
+            old = getattr(self, name)
+            size = (resolution, resolution) if name.endswith("planes") else (resolution, 1)
+            new = F.interpolate(old.data, size=size, mode="bilinear", align_corners=True)
+            setattr(self, name, nn.Parameter(new.contiguous()))
+        self.occupancy.resize(min(resolution, self.config.occupancy_max_resolution))
+
+    @torch.no_grad()
+    def update_occupancy(self) -> float:
+        """Rebuild the occupancy grid from the current density; returns the occupied fraction."""
+        return self.occupancy.update(self.density_norm, self.step_size, self.config.occupancy_threshold)
+
+    def on_step(self, step: int) -> bool:
+        """Run the schedules after ``step`` completed optimiser steps; True if parameter shapes changed.
+
+        Idempotent: the target resolution is a function of ``step``; the last occupancy update is recorded.
+        """
+        cfg = self.config
+        target = cfg.resolution_at(step)
+        changed = target != self.resolution
+        if changed:
+            self.upsample(target)
+        started = cfg.occupancy and step >= cfg.occupancy_start
+        due = started and (step - cfg.occupancy_start) % cfg.occupancy_every == 0
+        if (due or (changed and started)) and int(self.occupancy_step) != step:
+            self.update_occupancy()
+            self.occupancy_step.fill_(step)
+        return changed
+
+    def regularization(self) -> Tensor:
+        """``l1_weight`` × mean |density factor| (a sparsity prior against floaters); 0 by default."""
+        if self.config.l1_weight == 0:
+            return self.density_planes.new_zeros(())
+        l1 = self.density_planes.abs().mean() + self.density_lines.abs().mean()
+        return self.config.l1_weight * l1
+
+    def param_groups(self, base_lr: float | None = None) -> list[dict]:
+        """Adam groups: grids at ``lr_grid``, networks at ``lr`` (scaled by ``base_lr / lr``)."""
+        scale = 1.0 if base_lr is None else base_lr / self.config.lr
+        nets = list(self.basis.parameters()) + list(self.decoder.parameters())
+        return [
+            {
+                "params": [getattr(self, n) for n in FACTORS],
+                "lr": self.config.lr_grid * scale,
+                "name": "grid",
+            },
+            {"params": nets, "lr": self.config.lr * scale, "name": "network"},
+        ]
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        for name in FACTORS:  # a checkpoint of an upsampled grid: take its shapes first
+            saved, param = state_dict.get(prefix + name), getattr(self, name)
+            if saved is not None and saved.shape != param.shape:
+                setattr(self, name, nn.Parameter(param.new_empty(saved.shape)))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

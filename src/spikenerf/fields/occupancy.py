@@ -1,0 +1,103 @@
+"""A boolean occupancy grid over the scene box for empty-space skipping."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+class OccupancyGrid(nn.Module):
+    """A (R, R, R) boolean grid over the normalised box ``[−1, 1]³`` (index order x, y, z).
+
+    Starts fully occupied; :meth:`update` marks a cell occupied where the density at its centre gives an
+    opacity above a threshold over one marching step, dilated by ``dilation`` cells so that thin surfaces
+    between cell centres are kept. Queries are one integer gather per point. ``bounds`` (2, 3) is the
+    normalised box around the occupied cells, so renderers can also shorten the rays.
+    """
+
+    def __init__(self, resolution: int) -> None:
+        super().__init__()
+        self.register_buffer("grid", torch.ones(resolution, resolution, resolution, dtype=torch.bool))
+        self.register_buffer("bounds", torch.tensor([[-1.0] * 3, [1.0] * 3]))
+
+    @property
+    def resolution(self) -> int:
+        return int(self.grid.shape[0])
+
+    def occupied_fraction(self) -> float:
+        """Share of occupied cells in [0, 1]."""
+        return float(self.grid.float().mean())
+
+    def cell_index(self, xyz_norm: Tensor) -> Tensor:
+        """Flat cell index of normalised points (M, 3) in [−1, 1] → (M,) int64 (clamped to the grid)."""
+        r = self.resolution
+        ijk = ((xyz_norm + 1.0) * (0.5 * r)).long().clamp_(0, r - 1)
+        return (ijk[:, 0] * r + ijk[:, 1]) * r + ijk[:, 2]
+
+    def lookup(self, xyz_norm: Tensor) -> Tensor:
+        """Occupancy of the cells of normalised points (M, 3) → (M,) bool (outside: the nearest cell)."""
+        return self.grid.reshape(-1)[self.cell_index(xyz_norm)]
+
+    def query(self, xyz_norm: Tensor) -> Tensor:
+        """Occupancy of normalised points (M, 3) → (M,) bool (points outside ``[−1, 1]³`` are False)."""
+        return self.lookup(xyz_norm) & (xyz_norm.abs() <= 1.0).all(dim=-1)
+
+    def cell_centres(self) -> Tensor:
+        """Normalised centres of all cells, (R³, 3) in flat-index order."""
+        r = self.resolution
+        c = (torch.arange(r, device=self.grid.device, dtype=torch.float32) + 0.5) * (2.0 / r) - 1.0
+        return torch.stack(torch.meshgrid(c, c, c, indexing="ij"), dim=-1).reshape(-1, 3)
+
+    @torch.no_grad()
+    def update(
+        self,
+        density_fn: Callable[[Tensor], Tensor],
+        step_size: float,
+        threshold: float = 1e-4,
+        dilation: int = 1,
+        chunk: int = 1 << 18,
+    ) -> float:
+        """Recompute the grid from ``density_fn`` and return the occupied fraction.
+
+        Args:
+            density_fn: normalised points (M, 3) → density (M,) per world unit.
+            step_size: marching step in world units; a cell is occupied where
+                ``1 − exp(−σ·step) > threshold``.
+            dilation: cells added around every occupied cell (max-pool radius).
+        """
+        centres = self.cell_centres()
+        sigma = torch.cat([density_fn(centres[i : i + chunk]) for i in range(0, len(centres), chunk)])
+        alpha = 1.0 - torch.exp(-sigma * step_size)
+        occ = (alpha > threshold).reshape(self.grid.shape).float()
+        if dilation > 0:
+            k = 2 * dilation + 1
+            occ = F.max_pool3d(occ[None, None], kernel_size=k, stride=1, padding=dilation)[0, 0]
+        self.grid = occ > 0.5
+        self.bounds = self._occupied_bounds()
+        return self.occupied_fraction()
+
+    def _occupied_bounds(self) -> Tensor:
+        """(2, 3) normalised corners of the box around all occupied cells (a point at 0 when none)."""
+        r = self.resolution
+        lo, hi = [], []
+        for axis in range(3):
+            other = tuple(a for a in range(3) if a != axis)
+            idx = self.grid.any(dim=other).nonzero().squeeze(1)
+            lo.append(idx.min() if len(idx) else r // 2)
+            hi.append(idx.max() + 1 if len(idx) else r // 2)
+        cells = torch.tensor([[float(v) for v in lo], [float(v) for v in hi]], device=self.grid.device)
+        return cells * (2.0 / r) - 1.0
+
+    def resize(self, resolution: int) -> None:
+        """Start over at a new resolution, fully occupied."""
+        self.grid = torch.ones(resolution, resolution, resolution, dtype=torch.bool, device=self.grid.device)
+        self.bounds = torch.tensor([[-1.0] * 3, [1.0] * 3], device=self.grid.device)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        saved = state_dict.get(prefix + "grid")
+        if saved is not None and saved.shape != self.grid.shape:
+            self.grid = torch.ones(saved.shape, dtype=torch.bool, device=self.grid.device)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

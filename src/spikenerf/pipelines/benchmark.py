@@ -1,0 +1,222 @@
+"""The paper's comparison (Table I) and ablation (Table II), resumable cell by cell.
+
+Every step is one ``spikenerf`` command run in a subprocess, so the exact commands are recorded in
+``results.json`` and a user can re-run any cell by hand. A cell (scene, method variant, colour) is finished
+when its run folder holds ``metrics.json``; finished cells are reused when the benchmark is restarted.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from spikenerf import __version__
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+from spikenerf.pipelines.tables import (
+    ABLATION_VARIANTS,
+    Cell,
+    cells_csv,
+    table1_markdown,
+    table2_markdown,
+)
+from spikenerf.scenes.registry import blender_available, list_scenes
+
+#: method variant -> the ``spikenerf train`` flags that select it
+VARIANT_FLAGS: dict[str, list[str]] = {
+    "nerf-gt": ["--method", "nerf-gt"],
+    "nerf-blur": ["--method", "nerf-blur"],
+    "nerf-blur-aware": ["--method", "nerf-blur-aware"],
+    "nerf-recon": ["--method", "nerf-recon"],
+    "spike-nerf": ["--method", "spike-nerf"],
+    "spike-nerf-no-mask": ["--method", "spike-nerf", "--no-mask"],
+    "spike-nerf-no-spike-loss": ["--method", "spike-nerf", "--no-spike-loss"],
+}
+TABLE1_VARIANTS = ("nerf-gt", "nerf-blur", "nerf-blur-aware", "nerf-recon", "spike-nerf")
+
+
+@dataclass
+class BenchmarkConfig:
+    """What to run; ``size``/``frames``/``iters`` scale from a CPU smoke test up to the paper's setting."""
+
+    scenes: list[str]
+    variants: list[str]
+    colors: list[str]
+    out: Path
+    size: int = 100
+    frames: int = 1000
+    iters: int | None = None
+    field_kind: str = "grid"
+    device: str = "auto"
+    seed: int = 0
+    test_views: int = 8
+    render: bool = True
+    extra_train_args: list[str] = field(default_factory=list)
+
+
+def resolve_scenes(spec: str) -> list[str]:
+    """``all`` → the Blender suite (analytic scenes when Blender is absent); else a comma list."""
+    known = {s.name: s for s in list_scenes()}
+    if spec == "all":
+        blender = [s.name for s in known.values() if s.needs_blender]
+        return (
+            blender
+            if blender and blender_available()
+            else [s.name for s in known.values() if not s.needs_blender]
+        )
+    names = [n.strip() for n in spec.split(",") if n.strip()]
+    unknown = [n for n in names if n not in known]
+    if unknown or not names:
+        raise InputError(
+            f"--scenes: unknown scene(s) {unknown}; expected 'all' or names from: {', '.join(known)}"
+        )
+    return names
+
+
+def resolve_variants(spec: str) -> list[str]:
+    """``all`` → every variant; ``table1``/``table2`` → those tables' rows; else a comma list."""
+    presets = {"all": list(VARIANT_FLAGS), "table1": list(TABLE1_VARIANTS), "table2": list(ABLATION_VARIANTS)}
+    if spec in presets:
+        return presets[spec]
+    names = [n.strip() for n in spec.split(",") if n.strip()]
+    unknown = [n for n in names if n not in VARIANT_FLAGS]
+    if unknown or not names:
+        raise InputError(
+            f"--methods: unknown method(s) {unknown}; expected all, table1, table2 or {list(VARIANT_FLAGS)}"
+        )
+    return names
+
+
+def _spikenerf(*args: str) -> list[str]:
+    return [sys.executable, "-m", "spikenerf", *args]
+
+
+def dataset_command(cfg: BenchmarkConfig, scene: str) -> list[str]:
+    """The ``simulate`` command of one scene's dataset (gray and RGB streams when both are asked)."""
+    color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
+    return _spikenerf(
+        "simulate", "--scene", scene, "--width", str(cfg.size), "--height", str(cfg.size),
+        "--frames", str(cfg.frames), "--color", color, "--seed", str(cfg.seed),
+        "--test-views", str(cfg.test_views), "--out", str(cfg.out / "datasets" / scene),
+    )  # fmt: skip
+
+
+def run_dir(cfg: BenchmarkConfig, scene: str, color: str, variant: str) -> Path:
+    """Where one cell's run folder lives."""
+    return cfg.out / "runs" / scene / color / variant
+
+
+def cell_commands(cfg: BenchmarkConfig, scene: str, color: str, variant: str) -> list[list[str]]:
+    """train (resuming an interrupted run), eval, and optionally render, for one cell."""
+    run = run_dir(cfg, scene, color, variant)
+    train = _spikenerf(
+        "train", str(cfg.out / "datasets" / scene), *VARIANT_FLAGS[variant], "--color", color,
+        "--field", cfg.field_kind, "--device", cfg.device, "--seed", str(cfg.seed), "--out", str(run),
+        *(["--iters", str(cfg.iters)] if cfg.iters else []), *cfg.extra_train_args,
+    )  # fmt: skip
+    if (run / "checkpoint.pt").exists():
+        train.append("--resume")
+    commands = [train, _spikenerf("eval", str(run), "--device", cfg.device)]
+    if cfg.render:
+        commands.append(_spikenerf("render", str(run), "--out", str(run / "render"), "--device", cfg.device))
+    return commands
+
+
+def read_cell(run: Path, scene: str, color: str, variant: str) -> Cell | None:
+    """The cell's metrics from ``run/metrics.json`` (None when the cell has not finished)."""
+    path = run / "metrics.json"
+    if not path.is_file():
+        return None
+    try:
+        metrics = json.loads(path.read_text())
+        mean = metrics["mean"]
+        lpips = None if mean.get("lpips") is None else float(mean["lpips"])
+        psnr, ssim = float(mean["psnr"]), float(mean["ssim"])
+        return Cell(scene, variant, color, psnr, ssim, lpips, metrics.get("seconds"))
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
+
+
+def _run(command: list[str], log: list[dict]) -> None:
+    start = time.perf_counter()
+    result = subprocess.run(command, check=False)
+    log.append(
+        {"command": command[2:], "seconds": round(time.perf_counter() - start, 2), "rc": result.returncode}
+    )
+    if result.returncode != 0:
+        raise InputError(f"step failed with exit code {result.returncode}: spikenerf {' '.join(command[3:])}")
+
+
+def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
+    """Simulate each scene once, then train/eval every missing cell; write the tables and the report."""
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    log: list[dict] = []
+    for scene in cfg.scenes:
+        if not (cfg.out / "datasets" / scene / "transforms.json").is_file():
+            _run(dataset_command(cfg, scene), log)
+    cells: list[Cell] = []
+    jobs = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
+    for scene, color, variant in tqdm(jobs, desc="benchmark cells", unit="cell"):
+        run = run_dir(cfg, scene, color, variant)
+        cell = read_cell(run, scene, color, variant)
+        if cell is None:
+            for command in cell_commands(cfg, scene, color, variant):
+                _run(command, log)
+            cell = read_cell(run, scene, color, variant)
+            if cell is None:
+                raise InputError("eval finished without writing metrics.json", path=run)
+        cells.append(cell)
+        if on_cell:
+            on_cell(cell)
+    write_results(cfg, cells, log)
+    return cells
+
+
+def environment() -> dict:
+    """Versions and hardware recorded beside the results."""
+    return {
+        "spikenerf": __version__,
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "device": torch.cuda.get_device_name(0)
+        if torch.cuda.is_available()
+        else f"cpu ({platform.processor()})",
+        "platform": platform.platform(),
+    }
+
+
+def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
+    """table1.md, table2.md, results.csv, results.json (+ report.html when the report module is present)."""
+    t1 = "\n\n".join(table1_markdown(cells, [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants,
+                                     cfg.scenes, c) for c in cfg.colors)  # fmt: skip
+    write_text_atomic(cfg.out / "table1.md", "# Table I: comparison (test views)\n\n" + t1 + "\n")
+    if any(v in ABLATION_VARIANTS for v in cfg.variants):
+        t2 = "\n\n".join(table2_markdown(cells, c) for c in cfg.colors)
+        write_text_atomic(cfg.out / "table2.md", "# Table II: ablation (mean over scenes)\n\n" + t2 + "\n")
+    write_text_atomic(cfg.out / "results.csv", cells_csv(cells))
+    config = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    results = {
+        "config": config,
+        "environment": environment(),
+        "cells": [asdict(c) for c in cells],
+        "commands": {
+            "datasets": {s: dataset_command(cfg, s)[2:] for s in cfg.scenes},
+            "cells": {
+                f"{s}/{c}/{v}": [cmd[2:] for cmd in cell_commands(cfg, s, c, v)]
+                for s in cfg.scenes
+                for c in cfg.colors
+                for v in cfg.variants
+            },
+            "this_run": log,
+        },
+    }
+    write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")

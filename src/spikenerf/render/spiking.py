@@ -1,0 +1,156 @@
+"""The spiking volume renderer: intensity rendered at consecutive steps along the camera path is accumulated
+from a start state and fires spikes with the camera's own rule (:func:`spikenerf.camera.model.fire`).
+
+Each step k renders the pixel with the pose of step k, so a window of L steps is L different rays through the
+same pixel. The rendered radiance (linear, 1.0 = white) is the intensity integrated over one step, as in the
+camera simulator. Spikes are discrete; the differentiable quantities are ``intensity`` and the accumulators
+(``A_k = A_0 + Σ_{j≤k} I_j − φ·Σ_{j≤k} s_j``, where the spikes enter as constants), which is what a spike loss
+can take its gradient from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from spikenerf.camera.model import fire
+from spikenerf.data.rays import pixel_rays
+from spikenerf.render.base import RadianceModel
+from spikenerf.render.model import ray_bounds, render_image
+from spikenerf.scenes.trajectory import Intrinsics
+
+
+@dataclass
+class SpikeWindow:
+    """A rendered window of L consecutive steps for N pixels.
+
+    Attributes:
+        intensity: (L, N, C) rendered intensity per step, differentiable w.r.t. the field.
+        spikes: (L, N, C) bool, the spikes fired at each step.
+        accumulator: (L, N, C) the accumulator after each step (differentiable through ``intensity``).
+    """
+
+    intensity: Tensor
+    spikes: Tensor
+    accumulator: Tensor
+
+
+def fire_sequence(intensity: Tensor, start: Tensor, threshold: float | Tensor = 1.0) -> tuple[Tensor, Tensor]:
+    """The camera rule over a sequence: ``fire`` applied step by step from ``start``.
+
+    Args:
+        intensity: (L, ...) intensity of each step. start: (...) accumulator before the first step.
+        threshold: φ, scalar or broadcastable to ``start``.
+    Returns:
+        spikes (L, ...) bool and accumulators (L, ...) after each step (same float ops as the camera, so
+        bit-identical to calling ``fire`` in a loop).
+    """
+    spikes, accs = [], []
+    acc = start
+    for k in range(intensity.shape[0]):
+        s, acc = fire(acc, intensity[k], threshold)
+        spikes.append(s)
+        accs.append(acc)
+    if not spikes:
+        empty = intensity.new_zeros((0, *start.shape))
+        return empty.bool(), empty
+    return torch.stack(spikes), torch.stack(accs)
+
+
+def _poses(poses: Tensor | np.ndarray, device: torch.device) -> Tensor:
+    return torch.as_tensor(np.asarray(poses) if not isinstance(poses, Tensor) else poses).to(
+        device, torch.float32
+    )
+
+
+def render_spike_window(
+    model: RadianceModel,
+    poses: Tensor | np.ndarray,
+    intrinsics: Intrinsics,
+    pixels: Tensor,
+    start_accumulator: Tensor,
+    threshold: float | Tensor = 1.0,
+    near: float | None = None,
+    far: float | None = None,
+    perturb: bool = False,
+) -> SpikeWindow:
+    """Render intensity for N pixels over L consecutive steps and fire spikes from a start state.
+
+    Args:
+        poses: (L, 4, 4) camera-to-world of the steps. pixels: (N, 2) int ``(x=column, y=row)``.
+        start_accumulator: (N, C) accumulator before the first step (e.g. uniform in [0, φ) or a state
+            carried from a previous window). threshold: φ.
+        near / far: optional scalar limits; rays are always bounded by the model's scene box.
+        perturb: random sample positions along the rays (training).
+    Returns:
+        :class:`SpikeWindow` with (L, N, C) tensors on the model's device; all L·N rays go through one
+        ``render_rays`` call (keep L·N within a training batch).
+    """
+    device = model.device
+    pose = _poses(poses, device)
+    pixels = torch.as_tensor(pixels, device=device)
+    n_steps, n_pix = pose.shape[0], pixels.shape[0]
+    per_ray = pose[:, None].expand(n_steps, n_pix, 4, 4).reshape(-1, 4, 4)
+    origins, dirs = pixel_rays(per_ray, intrinsics, pixels.repeat(n_steps, 1))
+    lo, hi = ray_bounds(model, origins, dirs, near, far)
+    out = model.render_rays(origins, dirs, lo, hi, perturb=perturb)
+    intensity = out.color.view(n_steps, n_pix, -1)
+    spikes, accs = fire_sequence(intensity, start_accumulator.to(device, intensity.dtype), threshold)
+    return SpikeWindow(intensity, spikes, accs)
+
+
+def random_start(
+    shape: tuple[int, ...], threshold: float, seed: int, device: torch.device | str = "cpu"
+) -> Tensor:
+    """A seeded start accumulator, uniform in [0, φ)."""
+    gen = torch.Generator().manual_seed(seed)
+    return (torch.rand(shape, generator=gen) * threshold).to(device)
+
+
+@torch.no_grad()
+def iter_spike_stream(
+    model: RadianceModel,
+    poses: Tensor | np.ndarray,
+    intrinsics: Intrinsics,
+    threshold: float = 1.0,
+    start_accumulator: Tensor | int | None = None,
+    chunk: int = 8192,
+    near: float | None = None,
+    far: float | None = None,
+) -> Iterator[Tensor]:
+    """Yield the spikes (H, W, C) bool (CPU) of each step of ``poses`` (T, 4, 4), one full render per step.
+
+    ``start_accumulator``: (H, W, C) tensor, or an int seed for a uniform [0, φ) start (None → seed 0).
+    """
+    h, w, c = intrinsics.height, intrinsics.width, model.channels
+    if start_accumulator is None or isinstance(start_accumulator, int):
+        acc = random_start((h, w, c), threshold, start_accumulator or 0, model.device)
+    else:
+        acc = start_accumulator.to(model.device, torch.float32).reshape(h, w, c)
+    for pose in _poses(poses, model.device):
+        color = render_image(model, pose, intrinsics, near, far, chunk)["color"]
+        spikes, acc = fire(acc, color, threshold)
+        yield spikes.cpu()
+
+
+def render_spike_stream(
+    model: RadianceModel,
+    poses: Tensor | np.ndarray,
+    intrinsics: Intrinsics,
+    threshold: float = 1.0,
+    start_accumulator: Tensor | int | None = None,
+    chunk: int = 8192,
+    near: float | None = None,
+    far: float | None = None,
+) -> Tensor:
+    """Novel-view spike stream for any trajectory: bool (T, H, W, C) on the CPU.
+
+    For long streams prefer :func:`iter_spike_stream` and write each step as it comes.
+    """
+    h, w, c = intrinsics.height, intrinsics.width, model.channels
+    steps = list(iter_spike_stream(model, poses, intrinsics, threshold, start_accumulator, chunk, near, far))
+    return torch.stack(steps) if steps else torch.zeros(0, h, w, c, dtype=torch.bool)

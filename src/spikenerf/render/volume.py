@@ -1,0 +1,104 @@
+"""Volume rendering as small pure functions: samples along rays, compositing weights, inverse-CDF sampling.
+
+Rays have unit directions, so ray parameters ``t`` and interval lengths ``δ`` are world distances, and
+densities ``σ`` are per world unit. Compositing is on a white background:
+``C = Σ wᵢ cᵢ + (1 − Σ wᵢ) · 1``, with ``wᵢ = Tᵢ (1 − exp(−σᵢ δᵢ))``, ``Tᵢ = exp(−Σ_{j<i} σⱼ δⱼ)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+BACKGROUND = 1.0
+
+
+@dataclass
+class RenderOutput:
+    """What a renderer returns for N rays.
+
+    Attributes:
+        color: (N, C) linear radiance composited on white.
+        depth: (N,) expected termination distance ``Σ wᵢ tᵢ / Σ wᵢ`` (0 where nothing is hit; mask with
+            ``opacity`` for display).
+        opacity: (N,) ``Σ wᵢ`` in [0, 1].
+        weights: (N, S) compositing weights of the final pass, or None.
+        coarse_color: (N, C) the coarse network's colour (NeRF's two-pass MLP only, else None). The trainer
+            supervises it with the same target and loss as ``color``.
+        num_samples: how many density evaluations the pass made (after empty-space skipping).
+    """
+
+    color: Tensor
+    depth: Tensor
+    opacity: Tensor
+    weights: Tensor | None = None
+    coarse_color: Tensor | None = None
+    num_samples: int = 0
+
+
+def weights_from_density(sigma: Tensor, deltas: Tensor) -> Tensor:
+    """Compositing weights (N, S) from densities (N, S) per unit length and interval lengths (N, S) ≥ 0."""
+    tau = sigma * deltas
+    trans = torch.exp(-torch.cumsum(tau, dim=-1))
+    trans = torch.cat([torch.ones_like(trans[..., :1]), trans[..., :-1]], dim=-1)
+    return trans * (1.0 - torch.exp(-tau))
+
+
+def composite(
+    weights: Tensor, colors: Tensor, t: Tensor, background: float = BACKGROUND
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Colour (N, C), depth (N,), opacity (N,) from weights (N, S), colours (N, S, C), distances t (N, S)."""
+    opacity = weights.sum(dim=-1)
+    color = (weights[..., None] * colors).sum(dim=-2) + (1.0 - opacity)[..., None] * background
+    depth = (weights * t).sum(dim=-1) / opacity.clamp_min(1e-10)
+    return color, depth, opacity
+
+
+def stratified_samples(near: Tensor, far: Tensor, n: int, perturb: bool) -> tuple[Tensor, Tensor]:
+    """``n`` samples per ray in equal bins of [near, far]: one uniform draw per bin, or the bin centre.
+
+    Args:
+        near, far: (N,). perturb: random position in each bin (training) or its centre.
+    Returns:
+        t (N, n) sorted distances, and the bin edges (N, n + 1).
+    """
+    u = torch.linspace(0.0, 1.0, n + 1, device=near.device, dtype=near.dtype)
+    edges = near[:, None] + (far - near)[:, None] * u
+    offset = torch.rand_like(edges[:, :-1]) if perturb else torch.full_like(edges[:, :-1], 0.5)
+    return edges[:, :-1] + offset * (edges[:, 1:] - edges[:, :-1]), edges
+
+
+def deltas_from_samples(t: Tensor, far: Tensor) -> Tensor:
+    """Interval lengths (N, S): ``t_{i+1} − t_i``, and ``far − t_last`` for the last sample (clamped ≥ 0)."""
+    nxt = torch.cat([t[:, 1:], far[:, None].expand(-1, 1)], dim=-1)
+    return (nxt - t).clamp_min(0.0)
+
+
+def sample_pdf(edges: Tensor, weights: Tensor, n: int, perturb: bool) -> Tensor:
+    """Inverse-CDF (hierarchical) samples from piecewise-constant weights over bins.
+
+    Args:
+        edges: (N, B + 1) sorted bin edges. weights: (N, B) ≥ 0 (detached by the caller).
+        n: samples per ray. perturb: uniform random quantiles, else evenly spaced quantiles in [0, 1].
+    Returns:
+        (N, n) distances inside [edges[:, 0], edges[:, -1]] (unsorted when ``perturb``).
+    """
+    w = weights + 1e-5
+    pdf = w / w.sum(dim=-1, keepdim=True)
+    cdf = torch.cat([torch.zeros_like(pdf[:, :1]), torch.cumsum(pdf, dim=-1)], dim=-1).clamp_max(1.0)
+    if perturb:
+        u = torch.rand(edges.shape[0], n, device=edges.device, dtype=edges.dtype)
+    else:
+        u = torch.linspace(0.0, 1.0, n, device=edges.device, dtype=edges.dtype).expand(edges.shape[0], n)
+    u = u.contiguous()
+    idx = torch.searchsorted(cdf.contiguous(), u, right=True)
+    nbins = weights.shape[-1]
+    below = (idx - 1).clamp(0, nbins)
+    above = idx.clamp(0, nbins)
+    cdf_b, cdf_a = cdf.gather(1, below), cdf.gather(1, above)
+    e_b, e_a = edges.gather(1, below), edges.gather(1, above)
+    denom = cdf_a - cdf_b
+    frac = (u - cdf_b) / torch.where(denom < 1e-8, torch.ones_like(denom), denom)
+    return e_b + frac.clamp(0.0, 1.0) * (e_a - e_b)

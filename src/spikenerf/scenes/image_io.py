@@ -1,0 +1,269 @@
+"""Image loading for sequence import: any supported file → linear RGB on white, resampled in linear space.
+
+Colour handling:
+
+* 8-bit and 16-bit integer images (PNG, JPEG, anything Pillow reads) are sRGB-encoded: they are scaled to
+  [0, 1] and linearised with :func:`~spikenerf.core.color.srgb_decode`. Alpha is linear coverage.
+* float images (``.npy``; ``.exr`` when an imageio plugin can read it) are linear radiance, used as they are.
+* RGBA is composited on white *after* linearising: ``rgb·a + (1 − a)``. Gray images are repeated to RGB.
+
+Pillow reduces 16-bit colour PNGs to 8 bits, so 16-bit PNGs are decoded here: the filtered scanlines are
+split into the high and low bytes of each sample, each half is unfiltered by Pillow as an 8-bit PNG with the
+same per-row filters (the PNG filters act bytewise on the byte one pixel to the left/above, which the split
+preserves), and the halves are joined again.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import struct
+import zlib
+from pathlib import Path, PureWindowsPath
+
+import numpy as np
+from PIL import Image
+
+from spikenerf.core.color import srgb_decode
+from spikenerf.core.errors import InputError
+
+#: extensions tried, in order, for a ``file_path`` written without one (NeRF synthetic: "./train/r_0").
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".exr", ".npy", ".PNG", ".JPG", ".JPEG", ".EXR")
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}  # colour type -> samples per pixel (palette never has 16 bits)
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return (
+        struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+    )
+
+
+def _png_chunks(data: bytes, path: Path) -> tuple[tuple[int, ...], bytes]:
+    """IHDR fields (width, height, depth, colour type, interlace) and the joined IDAT payload."""
+    pos, ihdr, idat = 8, None, []
+    while pos + 8 <= len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        kind, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + length]
+        if kind == b"IHDR" and len(body) == 13:
+            w, h, depth, ctype, _, _, interlace = struct.unpack(">IIBBBBB", body)
+            ihdr = (w, h, depth, ctype, interlace)
+        elif kind == b"IDAT":
+            idat.append(body)
+        elif kind == b"IEND":
+            break
+        pos += 12 + length
+    if ihdr is None or not idat:
+        raise InputError("PNG has no IHDR or IDAT chunk (truncated file?)", path=path)
+    return ihdr, b"".join(idat)
+
+
+def decode_png16(data: bytes, path: Path) -> np.ndarray:
+    """Decode a non-interlaced 16-bit PNG.
+
+    Returns:
+        (H, W, C) uint16 with C = 1 (gray), 2 (gray+alpha), 3 (RGB) or 4 (RGBA).
+    """
+    (w, h, depth, ctype, interlace), payload = _png_chunks(data, path)
+    if depth != 16 or ctype not in _PNG_CHANNELS:
+        raise InputError(f"expected a 16-bit PNG, found bit depth {depth}, colour type {ctype}", path=path)
+    if interlace:
+        raise InputError("interlaced 16-bit PNGs are not supported: save it without interlacing", path=path)
+    c = _PNG_CHANNELS[ctype]
+    try:
+        raw = np.frombuffer(zlib.decompress(payload), dtype=np.uint8)
+    except zlib.error as err:
+        raise InputError(f"corrupt PNG data ({err})", path=path) from err
+    if raw.size != h * (1 + w * 2 * c):
+        raise InputError(f"PNG data has {raw.size} bytes, expected {h * (1 + w * 2 * c)}", path=path)
+    rows = raw.reshape(h, 1 + w * 2 * c)
+    filters, samples = rows[:, :1], rows[:, 1:].reshape(h, w, c, 2)
+    halves = []
+    for byte in (0, 1):  # big-endian: high byte, then low byte
+        half = np.concatenate([filters, samples[..., byte].reshape(h, w * c)], axis=1)
+        png8 = (
+            _PNG_SIGNATURE
+            + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, ctype, 0, 0, 0))
+            + _chunk(b"IDAT", zlib.compress(half.tobytes(), 1))
+            + _chunk(b"IEND", b"")
+        )
+        with Image.open(io.BytesIO(png8)) as im:
+            halves.append(np.asarray(im).reshape(h, w, c).astype(np.uint16))
+    return (halves[0] << 8) | halves[1]
+
+
+def _read_pillow(path: Path) -> np.ndarray:
+    """8-bit (or 16-bit gray) image through Pillow: (H, W, C) uint8/uint16, or float32 for mode F."""
+    with Image.open(path) as im:
+        mode = im.mode
+        if mode in ("P", "PA"):
+            im = im.convert("RGBA" if mode == "PA" or "transparency" in im.info else "RGB")
+        elif mode in ("1", "CMYK", "YCbCr", "LAB", "HSV"):
+            im = im.convert("L" if mode == "1" else "RGB")
+        elif mode.startswith("I;16"):
+            return np.asarray(im).astype(np.uint16)[..., None]
+        elif mode not in ("L", "LA", "RGB", "RGBA", "F"):
+            raise InputError(f"unsupported image mode {mode!r} (expected 8/16-bit gray, RGB or RGBA)", path)
+        arr = np.asarray(im)
+    return arr[..., None] if arr.ndim == 2 else arr
+
+
+def _read_array(path: Path) -> np.ndarray:
+    """The stored pixels of ``path``, as (H, W[, C]) integers or floats; format errors → InputError."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            arr = np.load(path, allow_pickle=False)
+            if not np.issubdtype(arr.dtype, np.floating):
+                raise InputError(f".npy images must hold linear floats, found dtype {arr.dtype}", path=path)
+            return arr
+        if suffix == ".exr":
+            import imageio.v3 as iio
+
+            try:
+                return np.asarray(iio.imread(path), dtype=np.float32)
+            except (OSError, ValueError, RuntimeError) as err:
+                raise InputError(
+                    "cannot read EXR: no imageio plugin for it is installed here; convert the frames to "
+                    ".npy (linear float32) or 16-bit PNG",
+                    path=path,
+                ) from err
+        data = path.read_bytes()
+        if data[:8] == _PNG_SIGNATURE and len(data) > 24 and data[24] == 16:
+            return decode_png16(data, path)
+        return _read_pillow(path)
+    except InputError:
+        raise
+    except FileNotFoundError as err:
+        raise InputError("image file not found", path=path) from err
+    except (OSError, ValueError, SyntaxError) as err:
+        raise InputError(f"cannot read image ({err})", path=path) from err
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image as linear RGBA.
+
+    Returns:
+        (H, W, 4) float32: linear RGB (sRGB-decoded for integer inputs, as stored for float inputs) and
+        alpha in [0, 1] (1 where the file has no alpha).
+    """
+    path = Path(path)
+    return to_linear_rgba(_read_array(path), path)
+
+
+def to_linear_rgba(arr: np.ndarray, path: str | Path | None = None) -> np.ndarray:
+    """(H, W) or (H, W, C∈{1,2,3,4}) array → (H, W, 4) float32 linear RGB + alpha (see module doc)."""
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    if arr.ndim != 3 or arr.shape[2] not in (1, 2, 3, 4) or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise InputError(f"expected an (H, W) or (H, W, 1-4) image, found shape {arr.shape}", path=path)
+    colour_channels = 1 if arr.shape[2] <= 2 else 3
+    if arr.dtype in (np.uint8, np.uint16):
+        x = arr.astype(np.float32) / float(np.iinfo(arr.dtype).max)
+        colour = srgb_decode(x[..., :colour_channels])
+    elif np.issubdtype(arr.dtype, np.floating):
+        x = arr.astype(np.float32)
+        if not np.isfinite(x).all():
+            raise InputError("image holds NaN or infinite values", path=path)
+        colour = x[..., :colour_channels]
+    else:
+        raise InputError(f"unsupported pixel type {arr.dtype} (expected uint8, uint16 or float)", path=path)
+    alpha = x[..., -1:] if arr.shape[2] in (2, 4) else np.ones_like(x[..., :1])
+    rgb = np.broadcast_to(colour, (*colour.shape[:2], 3))
+    return np.concatenate([rgb, np.clip(alpha, 0.0, 1.0)], axis=-1).astype(np.float32)
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) of an image file from its header (the whole file only for .npy/.exr)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".exr":
+            shape = _read_array(path).shape
+        elif suffix == ".npy":
+            shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+        else:
+            with Image.open(path) as im:
+                return im.size
+    except InputError:
+        raise
+    except FileNotFoundError as err:
+        raise InputError("image file not found", path=path) from err
+    except (OSError, ValueError, SyntaxError) as err:
+        raise InputError(f"cannot read image ({err})", path=path) from err
+    if len(shape) < 2:
+        raise InputError(f"expected an (H, W[, C]) image, found shape {shape}", path=path)
+    return int(shape[1]), int(shape[0])
+
+
+def composite_on_white(rgba: np.ndarray) -> np.ndarray:
+    """(H, W, 4) linear RGBA → (H, W, 3) linear RGB over a white background: ``rgb·a + (1 − a)``."""
+    alpha = rgba[..., 3:4]
+    return (rgba[..., :3] * alpha + (1.0 - alpha)).astype(np.float32)
+
+
+def resample(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Resample a linear (H, W, C) float image to (height, width, C).
+
+    Integer downscale factors average whole blocks (a reshape-mean); other downscales use Pillow's box
+    filter (exact area averaging); upscales use bicubic interpolation, clipped at 0. All in linear space.
+    """
+    h, w, c = image.shape
+    if (w, h) == (width, height):
+        return image.astype(np.float32, copy=False)
+    if w % width == 0 and h % height == 0:
+        fy, fx = h // height, w // width
+        return image.reshape(height, fy, width, fx, c).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
+    downscale = width <= w and height <= h
+    method = Image.Resampling.BOX if downscale else Image.Resampling.BICUBIC
+    channels = [
+        np.asarray(
+            Image.fromarray(np.ascontiguousarray(image[..., i], dtype=np.float32)).resize(
+                (width, height), method
+            )
+        )
+        for i in range(c)
+    ]
+    out = np.stack(channels, axis=-1).astype(np.float32)
+    return out if downscale else np.maximum(out, 0.0)
+
+
+def load_frame(path: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Read an image, composite it on white and resample it to ``size = (width, height)``.
+
+    Returns:
+        (H, W, 3) float32 linear RGB.
+    """
+    rgb = composite_on_white(read_image(path))
+    return rgb if size is None else resample(rgb, size[0], size[1])
+
+
+def find_image(root: Path, file_path: object, field: str, json_path: Path) -> Path:
+    """The image named by a transforms.json ``file_path``: relative to ``root``, extension optional.
+
+    Absolute paths and paths that resolve outside ``root`` (``..`` or a symlink leading out) are rejected;
+    without an image extension, ``IMAGE_EXTENSIONS`` are tried in order ("./train/r_0" → train/r_0.png).
+    """
+    if not isinstance(file_path, str) or not file_path.strip():
+        raise InputError(f"{field}: expected a relative path string, found {file_path!r}", path=json_path)
+    windows = PureWindowsPath(file_path)
+    if (
+        os.path.isabs(file_path)
+        or windows.is_absolute()
+        or windows.drive
+        or file_path.startswith(("/", "\\"))
+    ):
+        raise InputError(f"{field}: absolute paths are not allowed, found {file_path!r}", path=json_path)
+    candidate = root / file_path.replace("\\", "/")
+    base = root.resolve()
+    if not candidate.resolve().is_relative_to(base):
+        raise InputError(f"{field}: {file_path!r} points outside the folder of the JSON file", path=json_path)
+    tried = [candidate]
+    if candidate.suffix.lower() not in {e.lower() for e in IMAGE_EXTENSIONS}:
+        tried += [candidate.with_name(candidate.name + ext) for ext in IMAGE_EXTENSIONS]
+    for option in tried:
+        if option.is_file() and option.resolve().is_relative_to(base):
+            return option
+    also = f" (also tried {', '.join(IMAGE_EXTENSIONS[:5])})" if len(tried) > 1 else ""
+    raise InputError(f"{field}: image {file_path!r} not found{also}", path=json_path)

@@ -1,0 +1,449 @@
+"""Import an image sequence with poses (NeRF "Blender" ``transforms.json``) as a spike-simulation source.
+
+The frames are taken in the order they are listed (the trajectory order). Source frame ``i`` covers spike
+steps ``i·s … i·s + s − 1`` (``s = steps_per_frame``): held by default, or blended linearly towards frame
+``i + 1`` in intensity with a slerp/lerp pose when ``interpolate=True``. Colour handling is described in
+:mod:`spikenerf.scenes.image_io`; the user guide is ``docs/sequence.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spikenerf.core.errors import InputError
+from spikenerf.scenes.image_io import find_image, image_size, load_frame
+from spikenerf.scenes.trajectory import Intrinsics, Trajectory
+
+#: the stop of an open range "A:" (Python slices clamp it to the number of frames).
+OPEN_END = sys.maxsize
+#: half-size of an estimated scene box, as a fraction of the nearest camera's distance to the box centre.
+SCENE_BOX_FACTOR = 0.5
+_CAMERA_KEYS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")
+_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+
+
+# ----------------------------------------------------------------------------------------------- ranges
+def parse_range(text: str) -> tuple[int, int]:
+    """Parse ``--sequence-range "A:B"`` (Python slice of the listed frames; ``A:`` and ``:B`` allowed).
+
+    Returns:
+        (start, stop); an open stop is :data:`OPEN_END`. Negative values count from the end.
+    """
+    parts = str(text).strip().split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        start = int(parts[0]) if parts[0].strip() else 0
+        stop = int(parts[1]) if parts[1].strip() else OPEN_END
+    except ValueError:
+        raise InputError(
+            f"--sequence-range: expected A:B (a Python slice of the listed frames, e.g. 0:100), got {text!r}"
+        ) from None
+    if (start >= 0) == (stop >= 0) and start >= stop:
+        raise InputError(f"--sequence-range: {text!r} selects no frames (need A < B)")
+    return start, stop
+
+
+def select_range(count: int, frame_range: tuple[int, int] | None, path: Path | None = None) -> range:
+    """The listed-frame indices ``range(count)[A:B]``; an empty selection is an :class:`InputError`."""
+    if frame_range is None:
+        return range(count)
+    start, stop = frame_range
+    selected = range(count)[slice(start, stop)]
+    if len(selected) == 0:
+        shown = f"{start}:{'' if stop == OPEN_END else stop}"
+        raise InputError(f"--sequence-range {shown} selects no frames out of {count} listed", path=path)
+    return selected
+
+
+# ------------------------------------------------------------------------------------- interpolation
+def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) → unit quaternions (..., 4) as (w, x, y, z) with w ≥ 0."""
+    m = np.asarray(rot, dtype=np.float64)
+    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    # candidate i is 4·q_i·q; use the one with the largest |q_i| for numerical stability
+    cands = np.stack(
+        [
+            np.stack([1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01], -1),
+            np.stack([m21 - m12, 1 + m00 - m11 - m22, m10 + m01, m02 + m20], -1),
+            np.stack([m02 - m20, m10 + m01, 1 - m00 + m11 - m22, m21 + m12], -1),
+            np.stack([m10 - m01, m02 + m20, m21 + m12, 1 - m00 - m11 + m22], -1),
+        ],
+        -2,
+    )
+    diag = np.stack([cands[..., i, i] for i in range(4)], -1)
+    best = np.take_along_axis(cands, diag.argmax(-1)[..., None, None], axis=-2)[..., 0, :]
+    q = best / np.linalg.norm(best, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) as (w, x, y, z) → rotation matrices (..., 3, 3)."""
+    q = np.asarray(quat, dtype=np.float64)
+    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(r, -1) for r in rows], -2)
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray | float) -> np.ndarray:
+    """Spherical linear interpolation of unit quaternions (..., 4) along the shorter arc; ``t`` in [0, 1]."""
+    q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.clip(np.abs(dot), 0.0, 1.0)
+    theta = np.arccos(dot)
+    sin = np.sin(theta)
+    near = sin < 1e-6  # (almost) the same rotation: normalised lerp is exact enough
+    safe = np.where(near, 1.0, sin)
+    w0 = np.where(near, 1 - t, np.sin((1 - t) * theta) / safe)
+    w1 = np.where(near, t, np.sin(t * theta) / safe)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def interpolate_poses(p0: np.ndarray, p1: np.ndarray, t: np.ndarray | float) -> np.ndarray:
+    """Camera-to-world poses (..., 4, 4) between ``p0`` and ``p1``: slerp rotation, lerp translation.
+
+    ``t = 0`` returns ``p0`` and ``t = 1`` returns ``p1`` exactly.
+    """
+    p0, p1 = np.asarray(p0, dtype=np.float64), np.asarray(p1, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    out = np.zeros(np.broadcast_shapes(p0.shape, p1.shape, (*t.shape, 4, 4)))
+    rot = quaternion_to_matrix(
+        slerp(matrix_to_quaternion(p0[..., :3, :3]), matrix_to_quaternion(p1[..., :3, :3]), t)
+    )
+    out[..., :3, :3] = rot
+    out[..., :3, 3] = (1 - t[..., None]) * p0[..., :3, 3] + t[..., None] * p1[..., :3, 3]
+    out[..., 3, 3] = 1.0
+    tt = t[..., None, None]
+    return np.where(tt == 0, p0, np.where(tt == 1, p1, out))
+
+
+def step_schedule(
+    n_frames: int, steps_per_frame: int, interpolate: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which source frames each spike step shows.
+
+    Returns:
+        frame (T,) int64 = k // steps_per_frame, next (T,) int64 = min(frame + 1, n − 1), and the blend
+        weight alpha (T,) float64 of ``next`` (0 when holding; the last frame is held); T = n · steps.
+    """
+    k = np.arange(n_frames * steps_per_frame, dtype=np.int64)
+    frame = k // steps_per_frame
+    nxt = np.minimum(frame + 1, n_frames - 1)
+    alpha = (k % steps_per_frame) / steps_per_frame if interpolate else np.zeros(len(k))
+    return frame, nxt, np.where(frame == nxt, 0.0, alpha)
+
+
+def blend_frames(a: np.ndarray, b: np.ndarray, alpha: float) -> np.ndarray:
+    """Linear blend ``(1 − alpha)·a + alpha·b`` of two (H, W, 3) linear frames, float32."""
+    return ((1.0 - alpha) * a + alpha * b).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------ scene box
+def estimate_scene_box(poses: np.ndarray, factor: float = SCENE_BOX_FACTOR) -> np.ndarray:
+    """Axis-aligned box around the region the cameras look at.
+
+    The centre is the least-squares point closest to all optical axes (camera centre, −Z direction); the
+    half-size is ``factor`` × the nearest camera's distance to it. When the axes are (nearly) parallel or
+    the point lies behind the cameras, the centre is put ahead of the mean camera by the cameras' spread
+    (at least 1 unit) — a rough guess; give a ``scene_box`` key then.
+
+    Args:
+        poses: (N, 4, 4) camera-to-world. Returns: (2, 3) float64 (min, max).
+    """
+    origins = poses[:, :3, 3]
+    dirs = -poses[:, :3, 2] / np.linalg.norm(poses[:, :3, 2], axis=-1, keepdims=True)
+    proj = np.eye(3) - dirs[:, :, None] * dirs[:, None, :]  # (N, 3, 3) projections orthogonal to each axis
+    a, b = proj.sum(0), np.einsum("nij,nj->i", proj, origins)
+    centre = None
+    if np.linalg.eigvalsh(a / len(poses)).min() > 1e-3:
+        centre = np.linalg.solve(a, b)
+        if np.mean(np.sum((centre - origins) * dirs, axis=-1)) <= 0:
+            centre = None
+    if centre is None:
+        mean_dir = dirs.mean(0)
+        mean_dir /= max(np.linalg.norm(mean_dir), 1e-12)
+        spread = float(np.linalg.norm(origins - origins.mean(0), axis=-1).max())
+        centre = origins.mean(0) + mean_dir * max(2.0 * spread, 1.0)
+    half = factor * float(np.linalg.norm(origins - centre, axis=-1).min())
+    half = half if half > 0 else 1.0
+    return np.stack([centre - half, centre + half])
+
+
+# --------------------------------------------------------------------------------- transforms.json
+@dataclass(frozen=True)
+class SequenceFrames:
+    """Listed frames of a transforms.json, validated.
+
+    Attributes:
+        path: the JSON file. indices: (N,) positions of the selected frames in ``frames``.
+        images: N image paths. poses: (N, 4, 4) float64 c2w of the selected frames.
+        all_poses: (M, 4, 4) poses of every listed frame. intrinsics: the camera at the images' size.
+        scene_box: (2, 3) from a ``scene_box``/``aabb`` key, or None.
+    """
+
+    path: Path
+    indices: np.ndarray
+    images: list[Path]
+    poses: np.ndarray
+    all_poses: np.ndarray
+    intrinsics: Intrinsics
+    scene_box: np.ndarray | None
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    """Load a transforms JSON object with a non-empty ``frames`` list."""
+    if not path.is_file():
+        raise InputError("transforms file not found", path=path)
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"not valid JSON ({err})", path=path) from err
+    if not isinstance(meta, dict):
+        raise InputError(f"expected a JSON object, found {type(meta).__name__}", path=path)
+    frames = meta.get("frames")
+    if not isinstance(frames, list) or not frames:
+        raise InputError(f"field 'frames': expected a non-empty list, found {frames!r:.40}", path=path)
+    for i, frame in enumerate(frames):
+        if not isinstance(frame, dict):
+            raise InputError(f"frames[{i}]: expected an object, found {type(frame).__name__}", path=path)
+        for key in ("file_path", "transform_matrix"):
+            if key not in frame:
+                raise InputError(f"frames[{i}]: missing field '{key}'", path=path)
+    return meta
+
+
+def parse_pose(value: object, field: str, path: Path) -> np.ndarray:
+    """A 4×4 rigid camera-to-world matrix (finite, orthonormal rotation, last row 0 0 0 1)."""
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{field}: expected a 4×4 list of numbers, found {value!r:.60}", path=path) from None
+    if m.shape != (4, 4):
+        raise InputError(f"{field}: expected a 4×4 matrix, found shape {m.shape}", path=path)
+    if not np.isfinite(m).all():
+        raise InputError(f"{field}: matrix holds NaN or infinite values", path=path)
+    rot = m[:3, :3]
+    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
+        raise InputError(f"{field}: last row must be [0, 0, 0, 1], found {m[3].tolist()}", path=path)
+    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
+        raise InputError(f"{field}: rotation part is not a rotation (scaled, sheared or mirrored)", path=path)
+    return m
+
+
+def _number(value: object, field: str, path: Path, positive: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(f"field '{field}': expected a finite number, found {value!r}", path=path)
+    if positive and value <= 0:
+        raise InputError(f"field '{field}': expected a positive number, found {value!r}", path=path)
+    return float(value)
+
+
+def parse_intrinsics(meta: dict[str, Any], size: tuple[int, int], path: Path) -> Intrinsics:
+    """The shared camera: ``fl_x`` [``fl_y``, ``cx``, ``cy``, ``w``, ``h``] or ``camera_angle_x``.
+
+    Keys are read at the top level, else from the first frame; every frame that repeats a key must agree
+    (per-frame cameras and lens distortion are not supported). ``size`` = (width, height) of the images.
+    """
+    frames = meta["frames"]
+    source = meta if ("fl_x" in meta or "camera_angle_x" in meta) else frames[0]
+    cam = {k: source[k] for k in _CAMERA_KEYS if k in source}
+    for i, frame in enumerate(frames):
+        for key in [k for k in _CAMERA_KEYS if k in frame and k in cam and frame[k] != cam[k]]:
+            raise InputError(
+                f"frames[{i}].{key} differs from {cam[key]!r}: per-frame cameras unsupported", path
+            )
+    for key in [k for d in (meta, *frames) for k in _DISTORTION_KEYS if d.get(k, 0) not in (0, 0.0)]:
+        raise InputError(f"field '{key}': lens distortion is not supported, undistort the images first", path)
+    width, height = size
+    for key, found in (("w", width), ("h", height)):
+        if key in cam and cam[key] != found:
+            raise InputError(
+                f"field '{key}' = {cam[key]!r} but the images are {width}×{height} pixels", path=path
+            )
+    if "fl_x" in cam:
+        fl_x = _number(cam["fl_x"], "fl_x", path)
+        fl_y = _number(cam.get("fl_y", fl_x), "fl_y", path)
+        cx = _number(cam.get("cx", width / 2.0), "cx", path, positive=False)
+        cy = _number(cam.get("cy", height / 2.0), "cy", path, positive=False)
+        return Intrinsics(width, height, fl_x, fl_y, cx, cy)
+    if "camera_angle_x" in cam:
+        angle = _number(cam["camera_angle_x"], "camera_angle_x", path)
+        if angle >= math.pi:
+            raise InputError(f"field 'camera_angle_x': expected radians in (0, π), found {angle}", path=path)
+        return Intrinsics.from_fov(width, height, angle)
+    raise InputError(
+        "missing camera: expected 'camera_angle_x' or 'fl_x' (with optional fl_y, cx, cy)", path=path
+    )
+
+
+def _parse_box(meta: dict[str, Any], path: Path) -> np.ndarray | None:
+    for key in ("scene_box", "aabb"):
+        if key in meta:
+            try:
+                box = np.asarray(meta[key], dtype=np.float64)
+            except (TypeError, ValueError):
+                box = np.zeros(0)
+            if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
+                raise InputError(
+                    f"field '{key}': expected [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max, "
+                    f"found {meta[key]!r:.80}",
+                    path=path,
+                )
+            return box
+    return None
+
+
+def load_sequence(transforms_json: str | Path, frame_range: tuple[int, int] | None = None) -> SequenceFrames:
+    """Read and validate a transforms.json: every listed pose, and the images of the selected frames."""
+    path = Path(transforms_json)
+    meta = read_json(path)
+    frames = meta["frames"]
+    all_poses = np.stack(
+        [
+            parse_pose(f["transform_matrix"], f"frames[{i}].transform_matrix", path)
+            for i, f in enumerate(frames)
+        ]
+    )
+    indices = np.asarray(select_range(len(frames), frame_range, path), dtype=np.int64)
+    root = path.parent
+    images = [find_image(root, frames[i]["file_path"], f"frames[{i}].file_path", path) for i in indices]
+    size = image_size(images[0])
+    for i, image in zip(indices[1:], images[1:], strict=True):
+        found = image_size(image)
+        if found != size:
+            raise InputError(
+                f"frames[{i}].file_path: image is {found[0]}×{found[1]} but frames[{indices[0]}] is "
+                f"{size[0]}×{size[1]}: all images must have the same size",
+                path=path,
+            )
+    intrinsics = parse_intrinsics(meta, size, path)
+    return SequenceFrames(
+        path, indices, images, all_poses[indices], all_poses, intrinsics, _parse_box(meta, path)
+    )
+
+
+# --------------------------------------------------------------------------------------- the source
+def _output_size(native: tuple[int, int], width: int | None, height: int | None) -> tuple[int, int]:
+    for name, value in (("--width", width), ("--height", height)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise InputError(f"{name}: expected a positive integer, found {value!r}")
+    w0, h0 = native
+    if width is None and height is None:
+        return native
+    if width is None:
+        width = max(1, round(w0 * height / h0))
+    if height is None:
+        height = max(1, round(h0 * width / w0))
+    return width, height
+
+
+class SequenceSource:
+    """A :class:`~spikenerf.scenes.base.FrameSource` over an image sequence with poses.
+
+    Args:
+        transforms_json: NeRF-Blender JSON; images are resolved relative to its folder.
+        width, height: output size (one alone keeps the aspect ratio); None = the images' size.
+        frame_range: (start, stop) Python slice of the listed frames (see :func:`parse_range`).
+        steps_per_frame: spike steps per source frame, T = frames × steps_per_frame.
+        interpolate: blend intensity and interpolate poses between neighbouring frames instead of holding.
+        eval_views: a second transforms.json of held-out views with ground truth (the test split).
+        fps: spike readout rate, step k is at time k / fps. name: scene name (default: the JSON's folder).
+
+    Attributes:
+        frame_images: source image paths; frame_poses (F, 4, 4): their poses; frame_indices (F,): their
+        positions in ``frames``; native_size: (width, height) of the images; plus the protocol attributes.
+    """
+
+    _CACHE = 4
+
+    def __init__(
+        self,
+        transforms_json: Path,
+        width: int | None = None,
+        height: int | None = None,
+        frame_range: tuple[int, int] | None = None,
+        steps_per_frame: int = 1,
+        interpolate: bool = False,
+        eval_views: Path | None = None,
+        fps: float = 40000.0,
+        name: str | None = None,
+    ) -> None:
+        if isinstance(steps_per_frame, bool) or not isinstance(steps_per_frame, int) or steps_per_frame < 1:
+            raise InputError(f"steps per frame: expected an integer ≥ 1, found {steps_per_frame!r}")
+        if not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
+            raise InputError(f"--fps: expected a positive number, found {fps!r}")
+        path = Path(transforms_json)
+        seq = load_sequence(path, frame_range)
+        self.native_size = (seq.intrinsics.width, seq.intrinsics.height)
+        size = _output_size(self.native_size, width, height)
+        self.name = name or path.resolve().parent.name or "sequence"
+        self.intrinsics = seq.intrinsics if size == self.native_size else seq.intrinsics.scaled(*size)
+        self.frame_images, self.frame_poses, self.frame_indices = seq.images, seq.poses, seq.indices
+        self.steps_per_frame, self.interpolate = steps_per_frame, bool(interpolate)
+        self._frame, self._next, self._alpha = step_schedule(len(seq.images), steps_per_frame, interpolate)
+        poses = interpolate_poses(seq.poses[self._frame], seq.poses[self._next], self._alpha)
+        steps = np.arange(len(self._frame), dtype=np.int64)
+        self.trajectory = Trajectory(poses, steps / float(fps), steps, float(fps))
+        self.scene_box = seq.scene_box if seq.scene_box is not None else estimate_scene_box(seq.all_poses)
+        self._eval = None if eval_views is None else self._check_eval(Path(eval_views))
+        self._cache: dict[int, np.ndarray] = {}
+        self._test: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _check_eval(self, path: Path) -> SequenceFrames:
+        """Validate the held-out views now (before any simulation runs): same camera as the sequence."""
+        seq = load_sequence(path)
+        cam, ours = seq.intrinsics.scaled(self.intrinsics.width, self.intrinsics.height), self.intrinsics
+        found, want = (cam.fl_x, cam.fl_y, cam.cx, cam.cy), (ours.fl_x, ours.fl_y, ours.cx, ours.cy)
+        if not np.allclose(found, want, rtol=1e-3, atol=1e-3):
+            raise InputError(
+                f"eval views use another camera: at {ours.width}×{ours.height} their (fl_x, fl_y, cx, cy) is "
+                f"{tuple(round(v, 3) for v in found)}, the sequence's is {tuple(round(v, 3) for v in want)}",
+                path=path,
+            )
+        return seq
+
+    def _image(self, index: int) -> np.ndarray:
+        if index not in self._cache:
+            if len(self._cache) >= self._CACHE:
+                self._cache.pop(next(iter(self._cache)))
+            size = (self.intrinsics.width, self.intrinsics.height)
+            self._cache[index] = load_frame(self.frame_images[index], size)
+        return self._cache[index]
+
+    def frames(self, steps: Sequence[int]) -> Iterator[np.ndarray]:
+        """Yield the linear frame (H, W, 3) float32 of each trajectory step, in order (white background)."""
+        for step in steps:
+            k = int(step)
+            if not 0 <= k < len(self._frame):
+                raise IndexError(f"step {k} outside the trajectory's {len(self._frame)} steps")
+            frame = self._image(int(self._frame[k]))
+            alpha = float(self._alpha[k])
+            yield frame.copy() if alpha == 0 else blend_frames(frame, self._image(int(self._next[k])), alpha)
+
+    def test_views(self) -> tuple[np.ndarray, np.ndarray]:
+        """Held-out poses (N, 4, 4) and linear frames (N, H, W, 3) float32 of ``eval_views`` (else N = 0)."""
+        if self._test is None:
+            h, w = self.intrinsics.height, self.intrinsics.width
+            if self._eval is None:
+                self._test = (np.zeros((0, 4, 4)), np.zeros((0, h, w, 3), dtype=np.float32))
+            else:
+                images = [load_frame(p, (w, h)) for p in self._eval.images]
+                self._test = (self._eval.poses.copy(), np.stack(images).astype(np.float32))
+        return self._test[0].copy(), self._test[1].copy()

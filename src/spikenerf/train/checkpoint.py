@@ -1,0 +1,57 @@
+"""Atomic, resumable checkpoints holding only tensors and primitive containers (``weights_only=True`` loads).
+
+``RUN/checkpoint.pt`` = {"format", "iteration", "elapsed", "model" (state dict), "hparams" (to rebuild the
+model), "optimizer" (state dict), "rng" (torch CPU/CUDA states and the samplers'), "config" (TrainConfig as a
+dict)}. It is written to a temporary sibling and moved into place with ``os.replace``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from spikenerf.core.atomic import atomic_path
+from spikenerf.core.errors import InputError
+
+CHECKPOINT = "checkpoint.pt"
+FORMAT = "spikenerf-checkpoint-1"
+
+
+def rng_state(samplers: dict[str, Any]) -> dict[str, Any]:
+    """Every random stream the trainer draws from: torch's global CPU (and CUDA) state and each sampler's."""
+    state: dict[str, Any] = {"torch": torch.get_rng_state()}
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    state.update({name: s.state_dict() for name, s in samplers.items()})
+    return state
+
+
+def restore_rng(state: dict[str, Any], samplers: dict[str, Any]) -> None:
+    """Inverse of :func:`rng_state`."""
+    torch.set_rng_state(state["torch"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+    for name, sampler in samplers.items():
+        sampler.load_state_dict(state[name])
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
+    """Write ``payload`` (tensors, numbers, strings, lists, tuples, dicts) atomically."""
+    with atomic_path(path) as tmp:
+        torch.save({"format": FORMAT, **payload}, tmp)
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read a checkpoint with ``weights_only=True``; a missing or foreign file is an InputError."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("missing checkpoint (not a run folder written by `spikenerf train`?)", path=path)
+    try:
+        data = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as err:  # torch raises many types for truncated or foreign files
+        raise InputError(f"unreadable checkpoint ({type(err).__name__}: {err})", path=path) from err
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise InputError(f"not a spikenerf checkpoint (expected format {FORMAT!r})", path=path)
+    return data

@@ -1,0 +1,64 @@
+"""Evaluation during training (PSNR on held-out views) and the ``curves.csv`` log of PSNR against time."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import torch
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.color import srgb_encode
+from spikenerf.data.dataset import SpikeDataset
+from spikenerf.data.targets import ImageTargets
+from spikenerf.render import RadianceModel, render_image
+
+CURVES = "curves.csv"
+COLUMNS = ("iteration", "seconds", "train_psnr", "test_psnr")
+
+
+def srgb_psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR (dB) between two linear images after sRGB encoding to display values in [0, 1]."""
+    mse = torch.mean((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).item()
+    return math.inf if mse <= 0 else -10.0 * math.log10(mse)
+
+
+@torch.no_grad()
+def evaluate_views(
+    model: RadianceModel, views: ImageTargets, dataset: SpikeDataset, chunk: int = 8192
+) -> float:
+    """Mean PSNR over ``views`` (their first pose each), rendered without perturbation."""
+    was_training = model.training
+    model.eval()
+    scores = []
+    for pose, image in zip(views.poses[:, 0], views.images, strict=True):
+        color = render_image(model, pose, dataset.intrinsics, dataset.near, dataset.far, chunk)["color"]
+        scores.append(srgb_psnr(color.cpu(), image))
+    model.train(was_training)
+    return sum(scores) / len(scores) if scores else math.nan
+
+
+def write_curves(path: str | Path, rows: list[dict[str, float]]) -> None:
+    """Rewrite ``curves.csv`` atomically: iteration, seconds (training time), train_psnr, test_psnr (dB)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(COLUMNS)
+    for r in rows:
+        writer.writerow(
+            [int(r["iteration"]), f"{r['seconds']:.3f}", f"{r['train_psnr']:.4f}", f"{r['test_psnr']:.4f}"]
+        )
+    write_text_atomic(path, buf.getvalue())
+
+
+def read_curves(path: str | Path) -> list[dict[str, float]]:
+    """Rows of ``curves.csv`` (empty if the file does not exist)."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8") as fh:
+        return [
+            {"iteration": int(r["iteration"]), **{k: float(r[k]) for k in COLUMNS[1:]}}
+            for r in csv.DictReader(fh)
+        ]

@@ -1,0 +1,170 @@
+"""Training losses: the masked reconstruction loss and the spike losses (differentiable and paper-faithful).
+
+All intensities are *linear* radiance per readout step (1.0 = white for one step), so the losses are in
+linear space. The spike camera rule is ``A ← A + I``; fire when ``A ≥ φ``; then ``A ← A − φ``.
+
+The differentiable spike loss is the *integral (interval) constraint*. With ``D_m = Σ_{k≤m} I_k − φ·N_m``
+(``N_m`` = recorded spikes in steps ``1..m``, ``D_0 = 0``) the accumulator after step ``m`` is
+``A_m = A_0 + D_m``. Every state of an ideal pixel with ``I ≤ φ`` lies in ``[0, φ)``, so for any pair
+``a < b`` of window positions ``D_b − D_a = A_b − A_a ∈ (−φ, φ)``, i.e. the integral over steps ``a+1..b``
+lies in ``(φ(N_ab − 1), φ(N_ab + 1))``. These bounds do not involve the unknown start accumulator, and the
+recorded spikes are reproduced from *some* ``A_0 ∈ [0, φ)`` exactly when every pair satisfies them.
+See docs/method.md for the derivation.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+
+from spikenerf.camera.model import fire
+
+PairMode = Literal["all", "window"]
+
+
+def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean squared error in linear intensity.
+
+    Args:
+        pred: (N, C) rendered linear colour.
+        target: (N, C) linear target (``M ⊙ Î`` for spike-nerf: 0 where no spike fell in the mask window).
+    Returns:
+        Scalar mean over rays and channels.
+    """
+    return torch.mean((pred - target.to(pred.dtype)) ** 2)
+
+
+def mse_to_psnr(mse: torch.Tensor | float) -> float:
+    """PSNR in dB of a mean squared error on values in [0, 1]."""
+    value = float(mse)
+    return float("inf") if value <= 0 else -10.0 * torch.log10(torch.tensor(value)).item()
+
+
+def spike_prefix(intensity: torch.Tensor, spikes: torch.Tensor, threshold: float) -> torch.Tensor:
+    """Prefix residuals ``D_m = Σ_{k≤m} I_k − φ·N_m`` of a window, with ``D_0 = 0``.
+
+    Args:
+        intensity: (L, ...) rendered linear intensity per step (differentiable).
+        spikes: (L, ...) recorded spikes (bool or 0/1) of the same pixels and steps.
+        threshold: φ.
+    Returns:
+        (L + 1, ...) residuals, in intensity units (the accumulator change since the window start).
+    """
+    resid = intensity - threshold * spikes.to(intensity.dtype)
+    zero = torch.zeros_like(resid[:1])
+    return torch.cat([zero, torch.cumsum(resid, dim=0)], dim=0)
+
+
+def spike_interval_violation(
+    intensity: torch.Tensor,
+    spikes: torch.Tensor,
+    threshold: float,
+    pairs: PairMode = "all",
+    max_intensity: float | None = 1.0,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """How far each window pair's integral falls outside its feasible interval.
+
+    For positions ``a < b`` (``0..L``) the feasible set is ``D_b − D_a ∈ (−φ, φ)``. If intensities may exceed
+    φ (``max_intensity`` is None or above φ) the camera can carry ``A ≥ φ``; then only bounds that are
+    exact without that assumption are kept: the upper bound needs step ``b`` silent (``A_b < φ``) and the
+    lower bound needs step ``a`` silent (``a = 0`` counts as unknown).
+
+    Args:
+        intensity: (L, ...) rendered intensity per step. spikes: (L, ...) recorded spikes.
+        threshold: φ. pairs: ``"all"`` sub-windows or only the whole ``"window"`` (a = 0, b = L).
+        max_intensity: the largest intensity the model can render (1.0 for colours in [0, 1]).
+    Returns:
+        violation: (P, ...) ≥ 0, in intensity units; length: (P,) steps ``b − a`` of each pair;
+        valid: (P, ...) bool, whether the pair's bounds apply.
+    """
+    length = intensity.shape[0]
+    d = spike_prefix(intensity, spikes, threshold)
+    if pairs == "window":
+        a_idx = torch.tensor([0], device=d.device)
+        b_idx = torch.tensor([length], device=d.device)
+    elif pairs == "all":
+        a_idx, b_idx = torch.triu_indices(length + 1, length + 1, offset=1, device=d.device)
+    else:
+        raise ValueError(f"pairs must be 'all' or 'window', got {pairs!r}")
+    diff = d[b_idx] - d[a_idx]
+    upper = torch.relu(diff - threshold)
+    lower = torch.relu(-threshold - diff)
+    bounded = max_intensity is not None and max_intensity <= threshold
+    if bounded:
+        valid = torch.ones_like(diff, dtype=torch.bool)
+        violation = upper + lower
+    else:
+        fired = torch.cat([torch.ones_like(spikes[:1], dtype=torch.bool), spikes.bool()], dim=0)
+        silent_b, silent_a = ~fired[b_idx], ~fired[a_idx]
+        violation = upper * silent_b + lower * silent_a
+        valid = silent_a | silent_b
+    return violation, (b_idx - a_idx).to(intensity.dtype), valid
+
+
+def spike_interval_loss(
+    intensity: torch.Tensor,
+    spikes: torch.Tensor,
+    threshold: float,
+    pairs: PairMode = "all",
+    max_intensity: float | None = 1.0,
+) -> torch.Tensor:
+    """Differentiable spike loss: squared hinge on the integral constraint of every window pair.
+
+    Each violation is normalised by ``φ · (b − a)`` (a per-step intensity error in units of φ, the same
+    scale as the reconstruction MSE when φ = 1), squared, and averaged over valid pairs, pixels and channels.
+    It is zero iff the rendered intensities reproduce the recorded spikes from some start accumulator in
+    ``[0, φ)``; its gradient raises the intensity where too few spikes would fire, lowers it where too many.
+
+    Args:
+        intensity: (L, N, C) rendered linear intensity of N pixels over L consecutive steps.
+        spikes: (L, N, C) recorded spikes of the same pixels and steps.
+        threshold: φ. pairs: ``"all"`` or ``"window"``. max_intensity: see :func:`spike_interval_violation`.
+    Returns:
+        Scalar loss (dimensionless).
+    """
+    violation, length, valid = spike_interval_violation(intensity, spikes, threshold, pairs, max_intensity)
+    scale = (threshold * length).reshape(-1, *([1] * (violation.dim() - 1)))
+    sq = (violation / scale) ** 2
+    count = valid.sum().clamp_min(1)
+    return (sq * valid).sum() / count
+
+
+def paper_spike_loss(
+    intensity: torch.Tensor,
+    spikes: torch.Tensor,
+    threshold: float,
+    start_accumulator: torch.Tensor,
+    warmup: int = 4,
+) -> torch.Tensor:
+    """The paper-faithful spike loss, **without gradient** (for comparison only).
+
+    As in the paper's code, predicted spikes are fired from *detached* intensities starting from a random
+    accumulator; the first ``warmup`` steps are discarded and the mean squared difference to the recorded
+    spikes is returned. Spikes are a step function of the intensity, so the result carries no gradient:
+    adding it to the total loss changes nothing in training (docs/method.md).
+
+    Args:
+        intensity: (L, N, C) rendered intensity. spikes: (L, N, C) recorded spikes.
+        threshold: φ. start_accumulator: (N, C) start state in [0, φ). warmup: steps to discard (< L).
+    Returns:
+        Scalar tensor with ``requires_grad=False``.
+    """
+    with torch.no_grad():
+        acc = start_accumulator.detach().to(intensity.dtype)
+        fired = []
+        for step in intensity.detach():
+            out, acc = fire(acc, step, threshold)
+            fired.append(out)
+        pred = torch.stack(fired).to(intensity.dtype)
+        start = min(max(warmup, 0), intensity.shape[0] - 1)
+        return torch.mean((pred[start:] - spikes[start:].to(intensity.dtype)) ** 2)
+
+
+def spike_weight(iteration: int, lam: float, warmup_iters: int, ramp_iters: int) -> float:
+    """λ schedule: 0 before ``warmup_iters``, then a linear ramp to ``lam`` over ``ramp_iters`` iterations."""
+    if lam <= 0 or iteration < warmup_iters:
+        return 0.0
+    if ramp_iters <= 0:
+        return lam
+    return lam * min(1.0, (iteration - warmup_iters + 1) / ramp_iters)

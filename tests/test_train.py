@@ -1,0 +1,302 @@
+"""Targets, samplers, the trainer (every method and ablation), checkpoints, resume and the train CLI."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from spikenerf.core.color import rgb_to_gray
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import load_dataset
+from spikenerf.data.samplers import RaySampler, WindowSampler
+from spikenerf.data.simulate import SimulateOptions, simulate_dataset
+from spikenerf.data.targets import (
+    build_image_targets,
+    build_spike_targets,
+    exposure_steps,
+    masked_reconstruction,
+)
+from spikenerf.render import build_model, render_spike_window
+from spikenerf.scenes.analytic import AnalyticSource
+from spikenerf.scenes.trajectory import novel_views, orbit
+from spikenerf.train.checkpoint import CHECKPOINT
+from spikenerf.train.config import TrainConfig, load_config
+from spikenerf.train.losses import spike_interval_loss
+from spikenerf.train.run import load_run
+from spikenerf.train.trainer import Trainer, train
+
+STEPS = 120
+#: a small grid so that every run takes a second: two upsamplings and an occupancy update within 6 iterations
+TINY_GRID = {
+    "n_voxels_init": 12**3,
+    "n_voxels_final": 20**3,
+    "upsample_steps": [2, 4],
+    "occupancy_start": 3,
+    "occupancy_every": 3,
+    "occupancy_threshold": 0.0,
+    "iterations": 6,
+}
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    traj = orbit(4.0, 30.0, duration=STEPS / 40000)
+    source = AnalyticSource("analytic-orbs", 16, 16, traj, novel_views(4.0, 2), supersample=1)
+    out = tmp_path_factory.mktemp("data") / "orbs16"
+    options = SimulateOptions(colors=("gray", "rgb"), gt_every=10, blur_fps=1000.0)
+    return simulate_dataset(source, out, options, progress=False)
+
+
+@pytest.fixture(scope="module")
+def dataset(dataset_dir: Path):  # type: ignore[no-untyped-def]
+    return load_dataset(dataset_dir)
+
+
+def _config(dataset_dir: Path, **kw) -> TrainConfig:  # type: ignore[no-untyped-def]
+    spike = kw.pop("spike", {})
+    cfg = TrainConfig(
+        dataset=str(dataset_dir),
+        iters=6,
+        batch=64,
+        eval_every=3,
+        eval_views=1,
+        ckpt_every=3,
+        device="cpu",
+        **kw,
+    )
+    cfg.field_config = dict(TINY_GRID) if cfg.field == "grid" else {**_TINY_MLP}
+    cfg.spike.window, cfg.spike.pixels, cfg.spike.warmup_iters, cfg.spike.ramp_iters = 8, 8, 1, 2
+    for key, value in spike.items():
+        setattr(cfg.spike, key, value)
+    return cfg
+
+
+_TINY_MLP = {"depth": 2, "width": 16, "skip": 0, "xyz_freqs": 3, "dir_freqs": 1, "dir_width": 8}
+_TINY_MLP.update({"n_coarse": 8, "n_fine": 8})
+
+
+# ------------------------------------------------------------------------------------------------ targets
+def test_mask_window_is_exactly_2n_plus_1_frames() -> None:
+    spikes = np.zeros((40, 2, 3), np.uint8)
+    spikes[20, 0, 0] = 1
+    masked = masked_reconstruction(spikes, "tfp", window=41, mask=True, mask_n=5)
+    lit = np.flatnonzero(masked[:, 0, 0] > 0)
+    assert lit.tolist() == list(range(15, 26))  # steps 20-5 … 20+5
+    assert not masked[:, 1:, :].any() and not masked[:, :, 1:].any()
+    unmasked = masked_reconstruction(spikes, "tfp", window=41, mask=False)
+    assert (unmasked[:, 0, 0] > 0).all()  # TFP spreads the spike over its whole 41-frame window
+    assert np.allclose(masked[lit, 0, 0], unmasked[lit, 0, 0])
+
+
+def test_targets_gray_and_rgb(dataset) -> None:  # type: ignore[no-untyped-def]
+    h, w = dataset.intrinsics.height, dataset.intrinsics.width
+    gray = build_image_targets(dataset, "spike-nerf", "gray")
+    rgb = build_image_targets(dataset, "spike-nerf", "rgb")
+    assert gray.images.shape == (STEPS, h, w, 1) and rgb.images.shape == (STEPS, h, w, 3)
+    assert gray.images.dtype == torch.float16 and gray.poses.shape == (STEPS, 1, 4, 4)
+    stream = dataset.spikes("rgb")
+    expected = masked_reconstruction(stream, "tfp", 41, dataset.threshold, True, 5)
+    assert torch.allclose(rgb.images.float(), torch.from_numpy(expected).permute(0, 2, 3, 1), atol=1e-3)
+    recon = build_image_targets(dataset, "nerf-recon", "gray")
+    no_mask = build_image_targets(dataset, "spike-nerf", "gray", mask=False)
+    assert torch.equal(recon.images, no_mask.images) and (recon.images >= gray.images).all()
+    assert (recon.images > gray.images).any()  # some pixels are masked out (target 0)
+    spk = build_spike_targets(dataset, "rgb")
+    assert spk.spikes.shape == (STEPS, h, w, 3) and spk.spikes.dtype == torch.uint8
+    assert torch.equal(spk.spikes[:, :, :, 1], torch.from_numpy(stream[:, 1]))
+
+
+def test_baseline_targets(dataset) -> None:  # type: ignore[no-untyped-def]
+    gt = build_image_targets(dataset, "nerf-gt", "gray")
+    assert len(gt) == len(dataset.gt) == STEPS // 10
+    want = rgb_to_gray(torch.from_numpy(dataset.gt.images), channel_axis=-1)
+    assert torch.allclose(gt.images[..., 0].float(), want, atol=1e-3)
+    blur = build_image_targets(dataset, "nerf-blur", "rgb")
+    assert len(blur) == len(dataset.blur) and blur.poses.shape[1] == 1
+    aware = build_image_targets(dataset, "nerf-blur-aware", "rgb", blur_samples=4)
+    assert aware.poses.shape == (len(dataset.blur), 4, 4, 4)
+    start, end = dataset.blur.step_ranges[0]
+    steps = exposure_steps(dataset.blur.step_ranges[0], 4)
+    assert ((steps >= start) & (steps < end)).all() and len(set(steps.tolist())) == 4
+    assert torch.allclose(
+        aware.poses[0], torch.as_tensor(dataset.trajectory.poses[steps], dtype=torch.float32)
+    )
+
+
+def test_missing_stream_is_input_error(dataset) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(InputError, match=r"bayer|color"):
+        build_image_targets(dataset, "spike-nerf", "bayer")
+
+
+# ----------------------------------------------------------------------------------------------- samplers
+def test_ray_sampler_seeded_and_resumable() -> None:
+    a, b = RaySampler(5, 7, 9, seed=3), RaySampler(5, 7, 9, seed=3)
+    ia, pa = a.sample(1000)
+    ib, pb = b.sample(1000)
+    assert torch.equal(ia, ib) and torch.equal(pa, pb)
+    assert ia.min() >= 0 and ia.max() < 5 and pa[:, 0].max() < 9 and pa[:, 1].max() < 7
+    assert len(torch.unique(ia)) == 5
+    state = a.state_dict()
+    first = a.sample(10)
+    a.load_state_dict(state)
+    assert all(torch.equal(x, y) for x, y in zip(first, a.sample(10), strict=True))
+    assert not torch.equal(
+        RaySampler(5, 7, 9, seed=4).sample(50)[1], RaySampler(5, 7, 9, seed=3).sample(50)[1]
+    )
+
+
+@pytest.mark.parametrize("order", ["sequential", "random"])
+def test_windows_contiguous_and_inside(order: str) -> None:
+    sampler = WindowSampler(50, 4, 6, length=16, seed=1, order=order)
+    starts = []
+    for _ in range(20):
+        start, pixels = sampler.sample(8)
+        assert start >= 0 and start + 16 <= 50
+        assert pixels.shape == (8, 2) and pixels[:, 0].max() < 6 and pixels[:, 1].max() < 4
+        starts.append(start)
+    if order == "sequential":
+        assert starts[:4] == [0, 16, 32, 0]  # consecutive windows, wrapping before running past the end
+    state = sampler.state_dict()
+    nxt = sampler.sample(8)
+    sampler.load_state_dict(state)
+    again = sampler.sample(8)
+    assert nxt[0] == again[0] and torch.equal(nxt[1], again[1])
+    with pytest.raises(InputError):
+        WindowSampler(10, 4, 4, length=11)
+
+
+# ------------------------------------------------------------------------------------------------ training
+@pytest.mark.parametrize("fires", [True, False])
+def test_spike_loss_gradient_moves_the_field(dataset, fires: bool) -> None:  # type: ignore[no-untyped-def]
+    """Recorded spikes at every step (silence) demand more (less) light: one descent step gives it."""
+    torch.manual_seed(0)
+    model = build_model("grid", 1, dataset.scene_box, {**TINY_GRID, "density_shift": 0.0})
+    spk = build_spike_targets(dataset, "gray")
+    pixels = torch.tensor([[8, 8], [5, 9], [10, 4]])
+    recorded = torch.full((16, 3, 1), 1.0 if fires else 0.0)
+
+    def intensity() -> torch.Tensor:
+        poses, k = spk.poses[:16], dataset.intrinsics
+        return render_spike_window(
+            model, poses, k, pixels, torch.zeros(3, 1), 1.0, dataset.near, dataset.far
+        ).intensity
+
+    before = intensity()
+    loss = spike_interval_loss(before, recorded, 1.0)
+    loss.backward()
+    grads = [p.grad for p in model.parameters() if p.grad is not None]
+    assert loss.item() > 0 and grads and any(g.abs().sum() > 0 for g in grads)
+    with torch.no_grad():
+        for p in model.parameters():
+            if p.grad is not None:
+                p -= 0.05 * p.grad / p.grad.abs().max().clamp_min(1e-12)
+        after = intensity()
+    assert (after.mean() > before.mean()) == fires
+
+
+RUNS = [
+    ("spike-nerf", {}),
+    ("spike-nerf", {"no_mask": True}),
+    ("spike-nerf", {"no_spike": True}),
+    ("spike-nerf", {"paper": True}),
+    ("nerf-recon", {}),
+    ("nerf-gt", {}),
+    ("nerf-blur", {}),
+    ("nerf-blur-aware", {}),
+]
+
+
+@pytest.mark.parametrize(("method", "flags"), RUNS)
+def test_every_method_trains_and_writes_a_run(
+    dataset_dir: Path, dataset, tmp_path: Path, method, flags
+) -> None:  # type: ignore[no-untyped-def]
+    cfg = _config(dataset_dir, method=method, color="rgb" if method == "nerf-blur-aware" else "gray")
+    cfg.targets.mask = not flags.get("no_mask", False)
+    cfg.spike.enabled = not flags.get("no_spike", False)
+    cfg.spike.kind = "paper" if flags.get("paper") else "interval"
+    cfg.targets.blur_samples = 2
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    before = {k: v.clone() for k, v in trainer.model.state_dict().items()}
+    summary = trainer.train()
+    assert summary.iteration == 6 and np.isfinite(summary.train_psnr) and np.isfinite(summary.test_psnr)
+    for name in (CHECKPOINT, "config.yaml", "curves.csv", "summary.json"):
+        assert (tmp_path / "run" / name).is_file()
+    ckpt = torch.load(tmp_path / "run" / CHECKPOINT, weights_only=True)
+    assert ckpt["iteration"] == 6 and ckpt["config"]["method"] == method
+    assert load_config(tmp_path / "run" / "config.yaml") == cfg
+    with open(tmp_path / "run" / "curves.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["iteration"]) for r in rows] == [3, 6] and list(rows[0]) == [
+        "iteration",
+        "seconds",
+        "train_psnr",
+        "test_psnr",
+    ]
+    assert trainer.model.field.resolution == 20  # upsampled twice
+    after = trainer.model.state_dict()
+    assert any(not torch.equal(before[k], after[k]) for k in before if "decoder" in k)
+    rays_spike = cfg.uses_spike_loss and trainer.rays > 6 * 64
+    assert rays_spike == (method == "spike-nerf" and not flags.get("no_spike", False))
+
+
+@pytest.mark.parametrize("field", ["grid", "mlp"])
+def test_resume_matches_an_uninterrupted_run(dataset_dir: Path, dataset, tmp_path: Path, field: str) -> None:  # type: ignore[no-untyped-def]
+    cfg = _config(dataset_dir, field=field)
+    straight = Trainer(cfg, tmp_path / "a", dataset, progress=False)
+    straight.train()
+    first = Trainer(cfg, tmp_path / "b", dataset, progress=False)
+    assert first.train(stop_after=3).iteration == 3  # "interrupted" after 3 of 6 iterations
+    with pytest.raises(InputError, match="--resume"):
+        Trainer(cfg, tmp_path / "b", dataset, progress=False)
+    resumed = Trainer(cfg, tmp_path / "b", dataset, resume=True, progress=False)
+    assert resumed.iteration == 3
+    resumed.train()
+    assert resumed.iteration == straight.iteration == 6
+    sa, sb = straight.model.state_dict(), resumed.model.state_dict()
+    assert sa.keys() == sb.keys()
+    for key in sa:
+        assert torch.equal(sa[key], sb[key]), key
+
+
+def test_load_run_renders(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    train(_config(dataset_dir, method="nerf-gt"), tmp_path / "run", dataset, progress=False)
+    model, config, ds = load_run(tmp_path / "run")
+    assert config.method == "nerf-gt" and ds.intrinsics == dataset.intrinsics and not model.training
+    from spikenerf.render import render_image
+
+    img = render_image(model, ds.test.poses[0], ds.intrinsics, ds.near, ds.far)["color"]
+    assert img.shape == (16, 16, 1) and torch.isfinite(img).all()
+
+
+def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.cli import main
+
+    out = tmp_path / "run"
+    args = [
+        "train",
+        str(dataset_dir),
+        "--method",
+        "nerf-recon",
+        "--field",
+        "mlp",
+        "--iters",
+        "2",
+        "--batch",
+        "32",
+    ]
+    args += ["--eval-every", "0", "--device", "cpu", "--quiet", "--out", str(out)]
+    main(args)
+    assert "trained 2 iterations" in capsys.readouterr().out
+    assert load_config(out / "config.yaml").method == "nerf-recon"
+    for bad in (args, ["train", str(tmp_path / "nope"), "--out", str(tmp_path / "x")]):
+        with pytest.raises(SystemExit) as exit_:
+            main(bad)
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("spikenerf: error:") and "\n" not in err
+    main([*args[:-2], "--iters", "3", "--out", str(out), "--resume"])  # extends the run by one iteration
+    assert torch.load(out / CHECKPOINT, weights_only=True)["iteration"] == 3

@@ -1,0 +1,120 @@
+"""Trajectory maths: orbit poses looking at the centre, right-handed axes, times, novel views off the path."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from spikenerf.core.errors import InputError
+from spikenerf.scenes.trajectory import Intrinsics, look_at, novel_views, orbit
+
+
+def _project(c2w: np.ndarray, k: Intrinsics, point: np.ndarray) -> tuple[float, float]:
+    """Pixel coordinates (u, v) of a world point, OpenGL camera (looking down −Z, +Y up, v grows down)."""
+    x, y, z = (np.linalg.inv(c2w) @ np.append(point, 1.0))[:3]
+    assert z < 0, "point behind the camera"
+    return k.cx + k.fl_x * x / -z, k.cy - k.fl_y * y / -z
+
+
+def test_default_orbit_is_1000_steps_at_40khz_one_turn() -> None:
+    traj = orbit(4.0, 30.0)
+    assert len(traj) == 1000 and traj.fps == 40000.0
+    np.testing.assert_array_equal(traj.steps, np.arange(1000))
+    np.testing.assert_allclose(traj.times, traj.steps / 40000.0)
+    assert traj.times[-1] == pytest.approx(0.025 - 1 / 40000)
+    eyes = traj.poses[:, :3, 3]
+    azimuth = np.unwrap(np.arctan2(eyes[:, 1], eyes[:, 0]))
+    np.testing.assert_allclose(azimuth, 2 * np.pi * traj.steps / 1000, atol=1e-9)  # counter-clockwise from +Z
+
+
+def test_orbit_poses_on_the_sphere_at_the_elevation_and_looking_at_the_centre() -> None:
+    center = np.array([0.2, -0.1, 0.3])
+    traj = orbit(3.0, 25.0, duration=0.001, center=tuple(center))
+    eyes = traj.poses[:, :3, 3]
+    np.testing.assert_allclose(np.linalg.norm(eyes - center, axis=1), 3.0)
+    np.testing.assert_allclose(eyes[:, 2] - center[2], 3.0 * math.sin(math.radians(25.0)))
+    forward = -traj.poses[:, :3, 2]  # the camera looks down its −Z axis
+    to_center = (center - eyes) / np.linalg.norm(center - eyes, axis=1, keepdims=True)
+    np.testing.assert_allclose(forward, to_center, atol=1e-12)
+    np.testing.assert_allclose(traj.poses[:, 3], np.tile([0, 0, 0, 1.0], (len(traj), 1)))
+
+
+def test_rotations_are_right_handed_and_upright() -> None:
+    traj = orbit(4.0, 30.0, duration=0.002)
+    rot = traj.poses[:, :3, :3]
+    np.testing.assert_allclose(
+        rot.transpose(0, 2, 1) @ rot, np.broadcast_to(np.eye(3), rot.shape), atol=1e-12
+    )
+    np.testing.assert_allclose(np.linalg.det(rot), 1.0)
+    np.testing.assert_allclose(rot[:, 2, 0], 0.0, atol=1e-12)  # camera +X stays horizontal
+    assert (rot[:, 2, 1] > 0).all()  # camera +Y points up in the world (+Z up)
+
+
+def test_centre_projects_to_the_principal_point_and_up_is_up() -> None:
+    k = Intrinsics.from_fov(200, 100, 0.69)
+    for pose in orbit(4.0, 30.0, duration=0.001).poses[::7]:
+        u, v = _project(pose, k, np.zeros(3))
+        assert (u, v) == (pytest.approx(100.0), pytest.approx(50.0))
+        _, v_up = _project(pose, k, np.array([0.0, 0.0, 0.5]))
+        assert v_up < v  # a point above the centre is higher in the image (smaller row)
+
+
+def test_intrinsics_fov_round_trip_and_scaling() -> None:
+    k = Intrinsics.from_fov(400, 300, 0.6911112070083618)
+    assert k.camera_angle_x == pytest.approx(0.6911112070083618)
+    assert (k.cx, k.cy) == (200.0, 150.0)
+    half = k.scaled(200, 150)
+    assert half.fl_x == pytest.approx(k.fl_x / 2) and half.camera_angle_x == pytest.approx(k.camera_angle_x)
+    np.testing.assert_allclose(k.matrix(), [[k.fl_x, 0, 200], [0, k.fl_y, 150], [0, 0, 1]])
+
+
+def test_novel_views_are_off_the_training_path() -> None:
+    traj = orbit(4.0, 30.0)
+    views = novel_views(4.0, 8)
+    assert views.shape == (8, 4, 4)
+    gaps = np.linalg.norm(views[:, None, :3, 3] - traj.poses[None, :, :3, 3], axis=-1).min(1)
+    assert (gaps > 0.5).all()  # other elevations (15°, 45°): at least ~1 scene unit from any training pose
+    elevations = np.degrees(np.arcsin(views[:, 2, 3] / 4.0))
+    np.testing.assert_allclose(sorted(set(np.round(elevations, 6))), [15.0, 45.0])
+    np.testing.assert_allclose(-views[:, :3, 2], -views[:, :3, 3] / 4.0, atol=1e-12)  # look at the centre
+    assert novel_views(4.0, 0).shape == (0, 4, 4)
+
+
+def test_look_at_straight_down_is_finite_and_bad_orbits_are_input_errors() -> None:
+    pose = look_at(np.array([0.0, 0.0, 5.0]), np.zeros(3))
+    assert np.isfinite(pose).all() and np.linalg.det(pose[:3, :3]) == pytest.approx(1.0)
+    np.testing.assert_allclose(-pose[:3, 2], [0, 0, -1])
+    with pytest.raises(InputError):
+        look_at(np.ones(3), np.ones(3))
+    with pytest.raises(InputError):
+        orbit(-1.0, 30.0)
+    with pytest.raises(InputError):
+        orbit(4.0, 30.0, duration=1e-6)
+
+
+def test_slicing_keeps_steps_and_times() -> None:
+    traj = orbit(4.0, 30.0, duration=0.001)
+    part = traj[10:20]
+    np.testing.assert_array_equal(part.steps, np.arange(10, 20))
+    np.testing.assert_allclose(part.times, np.arange(10, 20) / 40000.0)
+    assert len(part) == 10 and part.fps == traj.fps
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    radius=st.floats(0.5, 20.0),
+    elevation=st.floats(-80.0, 80.0),
+    turns=st.floats(0.1, 3.0),
+    steps=st.integers(1, 60),
+)
+def test_orbit_properties(radius: float, elevation: float, turns: float, steps: int) -> None:
+    traj = orbit(radius, elevation, turns=turns, duration=steps / 40000.0)
+    assert len(traj) == steps
+    eyes = traj.poses[:, :3, 3]
+    np.testing.assert_allclose(np.linalg.norm(eyes, axis=1), radius, rtol=1e-9)
+    np.testing.assert_allclose(-traj.poses[:, :3, 2], -eyes / radius, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(traj.poses[:, :3, :3]), 1.0, atol=1e-9)
