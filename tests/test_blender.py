@@ -117,8 +117,9 @@ def test_every_builtin_scene_builds_centred_and_renders(bpy, name: str) -> None:
     assert frame.shape == (8, 8, 3) and np.all(np.isfinite(frame)) and frame.min() < 0.9
 
 
-def _save_user_blend(bpy, path: Path, sphere_at: np.ndarray) -> None:
-    """A white diffuse plane facing the default sun, a small black sphere on it, a camera, no light."""
+def _save_user_blend(bpy, path: Path, sphere_at: np.ndarray, light: bool = False) -> None:
+    """A white diffuse plane facing the default sun, a small black sphere on it, a camera, a far-away object
+    disabled for rendering, and a light only if ``light``."""
     import bmesh
     from mathutils import Matrix, Vector
 
@@ -149,8 +150,14 @@ def _save_user_blend(bpy, path: Path, sphere_at: np.ndarray) -> None:
         (0, 0, 0),
         Matrix.Translation(Vector(sphere_at.tolist())),
     )
+    add("hidden", lambda bm: bmesh.ops.create_cube(bm, size=1.0), (1, 0, 0), Matrix.Translation((9, 9, 9)))
+    scene.objects["hidden"].hide_render = True
     cam = bpy.data.objects.new("user_camera", bpy.data.cameras.new("user_camera"))
     scene.collection.objects.link(cam)
+    if light:
+        scene.collection.objects.link(
+            bpy.data.objects.new("user_lamp", bpy.data.lights.new("user_lamp", "POINT"))
+        )
     bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
 
 
@@ -167,6 +174,7 @@ def test_user_blend_round_trip_calibration_and_camera_convention(bpy, tmp_path: 
     src = BlenderSource(path, size, size, traj, spp=16, progress=False)
     assert src.name == "user"
     assert np.all(src.scene_box[0] < -0.5) and np.all(src.scene_box[1] > 0.5)
+    assert np.all(src.scene_box[1] < 3.0)  # the object disabled for rendering does not count
     frame = next(src.frames([0]))
     cameras = [o.name for o in bpy.data.objects if o.type == "CAMERA"]
     assert cameras == ["spikenerf_camera"]  # the file's camera is dropped
@@ -188,6 +196,14 @@ def test_user_blend_round_trip_calibration_and_camera_convention(bpy, tmp_path: 
     yy, xx = np.mgrid[:size, :size] + 0.5
     far = (xx - u) ** 2 + (yy - v) ** 2 > 12.0**2
     assert np.median(gray[far]) == pytest.approx(1.0, abs=0.03)
+
+
+def test_user_blend_with_its_own_light_keeps_it(bpy, tmp_path: Path) -> None:
+    path = tmp_path / "lit.blend"
+    _save_user_blend(bpy, path, np.zeros(3), light=True)
+    scene_extent(path)
+    lights = sorted(o.name for o in bpy.data.objects if o.type == "LIGHT")
+    assert lights == ["user_lamp"]  # no default sun added
 
 
 def test_unreadable_blend_files_raise_input_error(bpy, tmp_path: Path) -> None:

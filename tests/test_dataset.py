@@ -16,10 +16,9 @@ import yaml
 from spikenerf.camera.io import read_dat
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
+from spikenerf.core.png16 import decode_png16, encode_png16
 from spikenerf.data.dataset import (
     DatasetWriter,
-    decode_png16,
-    encode_png16,
     load_dataset,
     load_image,
     near_far,

@@ -14,19 +14,22 @@ import pytest
 
 from spikenerf.core.color import srgb_decode
 from spikenerf.core.errors import InputError
-from spikenerf.scenes.image_io import decode_png16, read_image, resample
+from spikenerf.core.png16 import decode_png16
+from spikenerf.scenes.image_io import read_image, resample
 from spikenerf.scenes.sequence import (
     OPEN_END,
     SequenceSource,
     estimate_scene_box,
-    interpolate_poses,
-    matrix_to_quaternion,
     parse_range,
-    quaternion_to_matrix,
-    slerp,
     step_schedule,
 )
-from spikenerf.scenes.trajectory import orbit
+from spikenerf.scenes.trajectory import (
+    interpolate_poses,
+    matrix_to_quaternion,
+    orbit,
+    quaternion_to_matrix,
+    slerp,
+)
 
 N, SIZE, ANGLE = 6, 8, 0.6
 

@@ -18,7 +18,6 @@ from spikenerf.data.dataset import load_dataset
 from spikenerf.data.simulate import (
     SimulateOptions,
     blur_windows,
-    interpolate_pose,
     simulate_dataset,
     work_dir,
 )
@@ -32,7 +31,7 @@ from spikenerf.scenes.analytic import (
     render_primitives,
 )
 from spikenerf.scenes.registry import list_scenes, make_scene_source
-from spikenerf.scenes.trajectory import Intrinsics, look_at, novel_views, orbit
+from spikenerf.scenes.trajectory import Intrinsics, look_at, novel_views, orbit, pose_at
 
 WHITE = Texture("solid", (1.0, 1.0, 1.0))
 
@@ -131,11 +130,11 @@ def test_blur_windows_and_pose_interpolation() -> None:
     assert blur_windows(50, 40000, 400) == [(0, 50)]  # a partial window keeps its real exposure
     assert blur_windows(25, 40000, 4000)[-1] == (20, 25) and blur_windows(10, 40000, 0) == []
     traj = orbit(4.0, 0.0, duration=0.001)
-    mid = interpolate_pose(traj.poses, 4.5)
+    mid = pose_at(traj.poses, 4.5)
     az = math.atan2(mid[1, 3], mid[0, 3])
     assert az == pytest.approx(2 * math.pi * 4.5 / 40, abs=1e-4)
     np.testing.assert_allclose(mid[:3, :3].T @ mid[:3, :3], np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(interpolate_pose(traj.poses, 7.0), traj.poses[7], atol=1e-12)
+    np.testing.assert_allclose(pose_at(traj.poses, 7.0), traj.poses[7], atol=1e-12)
 
 
 # ------------------------------------------------------------------------------------------ end to end
@@ -182,7 +181,7 @@ def test_simulate_end_to_end(tmp_path: Path) -> None:
     frames = np.stack(list(src.frames(range(50))))
     np.testing.assert_allclose(ds.gt.images, frames[::10], atol=2e-3)
     np.testing.assert_allclose(ds.blur.images[1], frames[10:20].mean(0), atol=2e-3)
-    np.testing.assert_allclose(ds.blur.poses[1], interpolate_pose(src.trajectory.poses, 14.5), atol=1e-6)
+    np.testing.assert_allclose(ds.blur.poses[1], pose_at(src.trajectory.poses, 14.5), atol=1e-6)
     np.testing.assert_allclose(ds.test.images, src.test_views()[1], atol=2e-3)
     # ideal camera: per-pixel count = floor(a0 + Σ I / φ), a0 ∈ [0, 1) → within one spike of Σ I / φ
     excess = ds.spikes("gray").sum(0) - rgb_to_gray(frames, channel_axis=-1).sum(0) / 1.5

@@ -7,8 +7,9 @@ from pathlib import Path
 import click
 
 from spikenerf.core.errors import InputError
-
-METHODS = ("spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt")
+from spikenerf.data.targets import COLORS, METHODS, RECONS
+from spikenerf.train.config import FIELDS, SPIKE_LOSS_KINDS, TrainConfig, load_config
+from spikenerf.train.trainer import CONFIG_FILE, train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
 OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
@@ -25,6 +26,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "ckpt_every": (None, "ckpt_every"),
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
+    "blur_samples": ("targets", "blur_samples"),
     "lam": ("spike", "lam"),
     "spike_loss": ("spike", "kind"),
     "spike_window": ("spike", "window"),
@@ -33,54 +35,71 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
 }
 
 
+_D = TrainConfig()
+
+
 @click.command(
     help="Train a radiance field on a spike dataset folder (written by `spikenerf simulate`) into RUN.\n\n"
     "Methods: spike-nerf (masked TFP/TFI targets + differentiable spike loss), nerf-recon (TFP/TFI targets), "
     "nerf-blur (400 fps blur frames), nerf-blur-aware (blur frames, exposure-averaged renders), nerf-gt "
     "(sharp ground truth, an oracle). Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
-    "RUN/summary.json; --resume continues an interrupted run."
+    "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones)."
 )
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
-@click.option("--method", type=click.Choice(METHODS), default="spike-nerf", show_default=True)
+@click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True)
 @click.option("--no-mask", is_flag=True, help="Ablation: spike-nerf without spike masks.")
 @click.option("--no-spike-loss", is_flag=True, help="Ablation: spike-nerf without the spike loss.")
-@click.option("--lambda", "lam", type=float, default=1.0, show_default=True, help="Spike-loss weight λ.")
+@click.option(
+    "--lambda", "lam", type=float, default=_D.spike.lam, show_default=True, help="Spike-loss weight λ."
+)
 @click.option(
     "--spike-loss",
-    type=click.Choice(["interval", "paper"]),
-    default="interval",
+    type=click.Choice(SPIKE_LOSS_KINDS),
+    default=_D.spike.kind,
     show_default=True,
     help="interval: differentiable integral constraint; paper: the paper's spike comparison (no gradient).",
 )
-@click.option("--color", type=click.Choice(["gray", "rgb"]), default="gray", show_default=True)
-@click.option("--field", type=click.Choice(["grid", "mlp"]), default="grid", show_default=True)
-@click.option("--iters", type=int, default=1500, show_default=True, help="Optimiser steps.")
+@click.option("--color", type=click.Choice(COLORS), default=_D.color, show_default=True)
+@click.option("--field", type=click.Choice(FIELDS), default=_D.field, show_default=True)
+@click.option("--iters", type=int, default=_D.iters, show_default=True, help="Optimiser steps.")
 @click.option(
-    "--batch", type=int, default=2048, show_default=True, help="Rays per step (reconstruction loss)."
+    "--batch", type=int, default=_D.batch, show_default=True, help="Rays per step (reconstruction)."
 )
 @click.option("--lr", type=float, default=None, help="Base learning rate (default: the field's own).")
-@click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda")
-@click.option("--recon", type=click.Choice(["tfp", "tfi"]), default="tfp", show_default=True)
-@click.option("--window", type=int, default=41, show_default=True, help="TFP window, frames (odd).")
-@click.option("--spike-window", type=int, default=24, show_default=True, help="L steps per spike window.")
-@click.option("--spike-pixels", type=int, default=64, show_default=True, help="Pixels per spike window.")
+@click.option("--seed", type=int, default=_D.seed, show_default=True)
+@click.option("--device", default=_D.device, show_default=True, help="auto | cpu | cuda")
+@click.option("--recon", type=click.Choice(RECONS), default=_D.targets.recon, show_default=True)
+@click.option("--window", type=int, default=_D.targets.window, show_default=True, help="TFP window (odd).")
 @click.option(
-    "--spike-warmup", type=int, default=300, show_default=True, help="Iterations before λ ramps up."
+    "--blur-samples",
+    type=int,
+    default=_D.targets.blur_samples,
+    show_default=True,
+    help="Poses per exposure (nerf-blur-aware).",
 )
-@click.option("--eval-every", type=int, default=250, show_default=True, help="0 = evaluate only at the end.")
-@click.option("--eval-views", type=int, default=3, show_default=True, help="Test views per evaluation.")
-@click.option("--ckpt-every", type=int, default=500, show_default=True)
+@click.option(
+    "--spike-window", type=int, default=_D.spike.window, show_default=True, help="Steps per window."
+)
+@click.option(
+    "--spike-pixels", type=int, default=_D.spike.pixels, show_default=True, help="Pixels per window."
+)
+@click.option(
+    "--spike-warmup",
+    type=int,
+    default=_D.spike.warmup_iters,
+    show_default=True,
+    help="Iterations before λ ramps up.",
+)
+@click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
+@click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")
+@click.option("--ckpt-every", type=int, default=_D.ckpt_every, show_default=True)
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_context
 def command(
     ctx: click.Context, dataset: Path, out: Path, resume: bool, quiet: bool, **options: object
 ) -> None:
-    from spikenerf.train.config import TrainConfig, load_config
-    from spikenerf.train.trainer import CONFIG_FILE, train
-
     stored = out / CONFIG_FILE
     fresh = not (resume and stored.is_file())  # resuming: keep the stored config, apply only given options
     base = TrainConfig() if fresh else load_config(stored)

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +21,7 @@ from spikenerf.camera.io import count_frames, encode_frames, read_dat, rgb_paths
 from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError
-from spikenerf.scenes.image_io import decode_png16
+from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 TRANSFORMS, TRANSFORMS_BLUR, TRANSFORMS_TEST, CONFIG = (
@@ -42,33 +40,6 @@ def spike_files(mode: str) -> list[str]:
     return [p.name for p in rgb_paths("spikes_rgb")] if mode == "rgb" else [f"spikes_{mode}.dat"]
 
 
-# ----------------------------------------------------------------------------------------------- images
-_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-def _chunk(kind: bytes, body: bytes) -> bytes:
-    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
-
-
-def _png(width: int, height: int, depth: int, ctype: int, scanlines: bytes, level: int = 6) -> bytes:
-    ihdr = struct.pack(">IIBBBBB", width, height, depth, ctype, 0, 0, 0)
-    return (
-        _SIGNATURE
-        + _chunk(b"IHDR", ihdr)
-        + _chunk(b"IDAT", zlib.compress(scanlines, level))
-        + _chunk(b"IEND", b"")
-    )
-
-
-def encode_png16(image: np.ndarray) -> bytes:
-    """A 16-bit RGB PNG (Up-filtered rows) of display values in [0, 1] (H, W, 3), rounded to 1/65535."""
-    q = np.round(np.clip(image, 0.0, 1.0) * 65535.0).astype(">u2")
-    h, w, c = q.shape
-    rows = q.reshape(h, w * c).view(np.uint8)  # big-endian bytes, 2·W·C per row
-    up = np.diff(rows, axis=0, prepend=np.zeros((1, rows.shape[1]), np.uint8))  # uint8 wraps: PNG "Up"
-    return _png(w, h, 16, 2, np.concatenate([np.full((h, 1), 2, np.uint8), up], axis=1).tobytes())
-
-
 def write_image(path: str | Path, linear: np.ndarray) -> None:
     """Write linear radiance (H, W, 3) atomically as a 16-bit PNG of its sRGB encoding (clipped to [0, 1])."""
     write_bytes_atomic(path, encode_png16(srgb_encode(np.asarray(linear, dtype=np.float64))))
@@ -78,10 +49,7 @@ def read_display(path: Path) -> np.ndarray:
     """An image file's display values in [0, 1]: float64 (H, W, 3) (16-bit exactly, 8-bit via imageio)."""
     try:
         data = path.read_bytes()
-        if data[:8] == _SIGNATURE and len(data) > 24 and data[24] == 16:
-            arr = decode_png16(data, path)
-        else:
-            arr = np.asarray(iio.imread(data))
+        arr = decode_png16(data, path) if is_png16(data) else np.asarray(iio.imread(data))
     except (OSError, ValueError) as err:
         if isinstance(err, InputError):
             raise

@@ -23,7 +23,7 @@ from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import MODES, DatasetWriter, near_far
 from spikenerf.scenes.base import FrameSource
-from spikenerf.scenes.trajectory import Trajectory
+from spikenerf.scenes.trajectory import Trajectory, pose_at
 
 #: spike steps buffered per colour mode before they are appended to the .dat files
 SPIKE_CHUNK = 64
@@ -69,17 +69,6 @@ def blur_windows(num_steps: int, fps: float, blur_fps: float) -> list[tuple[int,
     if size < 1:
         raise InputError(f"--blur-fps {blur_fps:g} exceeds the spike rate {fps:g} Hz (need blur_fps ≤ fps)")
     return [(a, min(a + size, num_steps)) for a in range(0, num_steps, size)]
-
-
-def interpolate_pose(poses: np.ndarray, position: float) -> np.ndarray:
-    """The pose (4, 4) at a fractional index into ``poses`` (N, 4, 4): lerp, rotation re-orthonormalised."""
-    i0 = int(np.floor(position))
-    i1, frac = min(i0 + 1, len(poses) - 1), position - i0
-    m = (1 - frac) * poses[i0] + frac * poses[i1]
-    u, _, vt = np.linalg.svd(m[:3, :3])
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = u @ vt, m[:3, 3]
-    return out
 
 
 def _fingerprint(source: FrameSource) -> dict:
@@ -206,7 +195,7 @@ def stream_steps(
             blur_sum += frame
             start, end = windows[win]
             if i == end - 1:
-                pose = interpolate_pose(traj.poses, (start + end - 1) / 2)
+                pose = pose_at(traj.poses, (start + end - 1) / 2)
                 s0, s1 = int(traj.steps[start]), int(traj.steps[end - 1]) + 1
                 writer.add_blur(blur_sum / (end - start), pose, s0, s1)
                 blur_sum[:], win = 0.0, win + 1

@@ -220,3 +220,6 @@ def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) 
         },
     }
     write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
+    from spikenerf.pipelines.report import build_report  # here: report imports this module
+
+    build_report(cfg, list(cells))

@@ -15,10 +15,7 @@ preserves), and the halves are joined again.
 
 from __future__ import annotations
 
-import io
 import os
-import struct
-import zlib
 from pathlib import Path, PureWindowsPath
 
 import numpy as np
@@ -26,71 +23,10 @@ from PIL import Image
 
 from spikenerf.core.color import srgb_decode
 from spikenerf.core.errors import InputError
+from spikenerf.core.png16 import decode_png16, is_png16
 
 #: extensions tried, in order, for a ``file_path`` written without one (NeRF synthetic: "./train/r_0").
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".exr", ".npy", ".PNG", ".JPG", ".JPEG", ".EXR")
-
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}  # colour type -> samples per pixel (palette never has 16 bits)
-
-
-def _chunk(kind: bytes, data: bytes) -> bytes:
-    return (
-        struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-    )
-
-
-def _png_chunks(data: bytes, path: Path) -> tuple[tuple[int, ...], bytes]:
-    """IHDR fields (width, height, depth, colour type, interlace) and the joined IDAT payload."""
-    pos, ihdr, idat = 8, None, []
-    while pos + 8 <= len(data):
-        (length,) = struct.unpack(">I", data[pos : pos + 4])
-        kind, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + length]
-        if kind == b"IHDR" and len(body) == 13:
-            w, h, depth, ctype, _, _, interlace = struct.unpack(">IIBBBBB", body)
-            ihdr = (w, h, depth, ctype, interlace)
-        elif kind == b"IDAT":
-            idat.append(body)
-        elif kind == b"IEND":
-            break
-        pos += 12 + length
-    if ihdr is None or not idat:
-        raise InputError("PNG has no IHDR or IDAT chunk (truncated file?)", path=path)
-    return ihdr, b"".join(idat)
-
-
-def decode_png16(data: bytes, path: Path) -> np.ndarray:
-    """Decode a non-interlaced 16-bit PNG.
-
-    Returns:
-        (H, W, C) uint16 with C = 1 (gray), 2 (gray+alpha), 3 (RGB) or 4 (RGBA).
-    """
-    (w, h, depth, ctype, interlace), payload = _png_chunks(data, path)
-    if depth != 16 or ctype not in _PNG_CHANNELS:
-        raise InputError(f"expected a 16-bit PNG, found bit depth {depth}, colour type {ctype}", path=path)
-    if interlace:
-        raise InputError("interlaced 16-bit PNGs are not supported: save it without interlacing", path=path)
-    c = _PNG_CHANNELS[ctype]
-    try:
-        raw = np.frombuffer(zlib.decompress(payload), dtype=np.uint8)
-    except zlib.error as err:
-        raise InputError(f"corrupt PNG data ({err})", path=path) from err
-    if raw.size != h * (1 + w * 2 * c):
-        raise InputError(f"PNG data has {raw.size} bytes, expected {h * (1 + w * 2 * c)}", path=path)
-    rows = raw.reshape(h, 1 + w * 2 * c)
-    filters, samples = rows[:, :1], rows[:, 1:].reshape(h, w, c, 2)
-    halves = []
-    for byte in (0, 1):  # big-endian: high byte, then low byte
-        half = np.concatenate([filters, samples[..., byte].reshape(h, w * c)], axis=1)
-        png8 = (
-            _PNG_SIGNATURE
-            + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, ctype, 0, 0, 0))
-            + _chunk(b"IDAT", zlib.compress(half.tobytes(), 1))
-            + _chunk(b"IEND", b"")
-        )
-        with Image.open(io.BytesIO(png8)) as im:
-            halves.append(np.asarray(im).reshape(h, w, c).astype(np.uint16))
-    return (halves[0] << 8) | halves[1]
 
 
 def _read_pillow(path: Path) -> np.ndarray:
@@ -130,7 +66,7 @@ def _read_array(path: Path) -> np.ndarray:
                     path=path,
                 ) from err
         data = path.read_bytes()
-        if data[:8] == _PNG_SIGNATURE and len(data) > 24 and data[24] == 16:
+        if is_png16(data):
             return decode_png16(data, path)
         return _read_pillow(path)
     except InputError:

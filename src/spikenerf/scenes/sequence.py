@@ -20,7 +20,7 @@ import numpy as np
 
 from spikenerf.core.errors import InputError
 from spikenerf.scenes.image_io import find_image, image_size, load_frame
-from spikenerf.scenes.trajectory import Intrinsics, Trajectory
+from spikenerf.scenes.trajectory import Intrinsics, Trajectory, interpolate_poses
 
 #: the stop of an open range "A:" (Python slices clamp it to the number of frames).
 OPEN_END = sys.maxsize
@@ -62,76 +62,6 @@ def select_range(count: int, frame_range: tuple[int, int] | None, path: Path | N
         shown = f"{start}:{'' if stop == OPEN_END else stop}"
         raise InputError(f"--sequence-range {shown} selects no frames out of {count} listed", path=path)
     return selected
-
-
-# ------------------------------------------------------------------------------------- interpolation
-def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) → unit quaternions (..., 4) as (w, x, y, z) with w ≥ 0."""
-    m = np.asarray(rot, dtype=np.float64)
-    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
-    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
-    # candidate i is 4·q_i·q; use the one with the largest |q_i| for numerical stability
-    cands = np.stack(
-        [
-            np.stack([1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01], -1),
-            np.stack([m21 - m12, 1 + m00 - m11 - m22, m10 + m01, m02 + m20], -1),
-            np.stack([m02 - m20, m10 + m01, 1 - m00 + m11 - m22, m21 + m12], -1),
-            np.stack([m10 - m01, m02 + m20, m21 + m12, 1 - m00 - m11 + m22], -1),
-        ],
-        -2,
-    )
-    diag = np.stack([cands[..., i, i] for i in range(4)], -1)
-    best = np.take_along_axis(cands, diag.argmax(-1)[..., None, None], axis=-2)[..., 0, :]
-    q = best / np.linalg.norm(best, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4) as (w, x, y, z) → rotation matrices (..., 3, 3)."""
-    q = np.asarray(quat, dtype=np.float64)
-    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return np.stack([np.stack(r, -1) for r in rows], -2)
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray | float) -> np.ndarray:
-    """Spherical linear interpolation of unit quaternions (..., 4) along the shorter arc; ``t`` in [0, 1]."""
-    q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64)[..., None]
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.clip(np.abs(dot), 0.0, 1.0)
-    theta = np.arccos(dot)
-    sin = np.sin(theta)
-    near = sin < 1e-6  # (almost) the same rotation: normalised lerp is exact enough
-    safe = np.where(near, 1.0, sin)
-    w0 = np.where(near, 1 - t, np.sin((1 - t) * theta) / safe)
-    w1 = np.where(near, t, np.sin(t * theta) / safe)
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def interpolate_poses(p0: np.ndarray, p1: np.ndarray, t: np.ndarray | float) -> np.ndarray:
-    """Camera-to-world poses (..., 4, 4) between ``p0`` and ``p1``: slerp rotation, lerp translation.
-
-    ``t = 0`` returns ``p0`` and ``t = 1`` returns ``p1`` exactly.
-    """
-    p0, p1 = np.asarray(p0, dtype=np.float64), np.asarray(p1, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64)
-    out = np.zeros(np.broadcast_shapes(p0.shape, p1.shape, (*t.shape, 4, 4)))
-    rot = quaternion_to_matrix(
-        slerp(matrix_to_quaternion(p0[..., :3, :3]), matrix_to_quaternion(p1[..., :3, :3]), t)
-    )
-    out[..., :3, :3] = rot
-    out[..., :3, 3] = (1 - t[..., None]) * p0[..., :3, 3] + t[..., None] * p1[..., :3, 3]
-    out[..., 3, 3] = 1.0
-    tt = t[..., None, None]
-    return np.where(tt == 0, p0, np.where(tt == 1, p1, out))
 
 
 def step_schedule(

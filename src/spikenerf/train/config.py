@@ -56,8 +56,8 @@ class SpikeLossConfig:
     lam: float = 1.0
     warmup_iters: int = 300
     ramp_iters: int = 300
-    window: int = 24
-    pixels: int = 64
+    window: int = 16
+    pixels: int = 32
     pairs: str = "all"
     order: str = "sequential"
     every: int = 1
@@ -84,7 +84,7 @@ class TrainConfig:
     color: str = "gray"
     field: str = "grid"
     iters: int = 1500
-    batch: int = 2048
+    batch: int = 1024
     lr: float | None = None
     lr_final_ratio: float | None = None
     seed: int = 0

@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 import bpy
 import numpy as np
+from mathutils import Euler, Vector
 
 from spikenerf.core.errors import InputError
 from spikenerf.scenes.blender.catalog import BUILTIN_SCENES
@@ -27,7 +28,9 @@ from spikenerf.scenes.blender.materials import (
     ramp,
 )
 from spikenerf.scenes.blender.render import add_default_light, geometry_box
-from spikenerf.scenes.blender.shapes import Parts, add_modifier
+from spikenerf.scenes.blender.shapes import Parts, Vec3, add_modifier
+
+Mat = bpy.types.Material
 
 
 # ------------------------------------------------------------------------------------------------ scenes
@@ -326,9 +329,17 @@ def build_food(rng: np.random.Generator) -> None:
     add_modifier(obj, "DISPLACE", texture=tex, strength=0.015, mid_level=0.5, texture_coords="GLOBAL")
 
 
-def _drum(p: Parts, shell, head, metal, center, radius: float, depth: float, rot=(0, 0, 0)) -> None:
-    from mathutils import Euler, Vector
-
+def _drum(
+    p: Parts,
+    shell: Mat,
+    head: Mat,
+    metal: Mat,
+    center: Vec3,
+    radius: float,
+    depth: float,
+    rot: Vec3 = (0, 0, 0),
+) -> None:
+    """A drum along local Z: shell, two heads, two hoops, eight lugs."""
     axis = Euler(rot, "XYZ").to_matrix()
     c = Vector(center)
     p.cylinder(shell, center, radius, depth, rot=rot, segments=48)
@@ -341,7 +352,8 @@ def _drum(p: Parts, shell, head, metal, center, radius: float, depth: float, rot
         p.cube(metal, tuple(pos), (0.03, 0.03, min(0.06, 0.5 * depth)), rot=(rot[0], rot[1], rot[2] + a))
 
 
-def _stand(p: Parts, metal, base, top_z: float, floor: float = -0.82) -> None:
+def _stand(p: Parts, metal: Mat, base: tuple[float, float], top_z: float, floor: float = -0.82) -> None:
+    """A vertical pole on a tripod."""
     x, y = base
     p.cylinder(metal, (x, y, 0.5 * (top_z + floor)), 0.012, top_z - floor, segments=12)
     for k in range(3):
@@ -354,7 +366,8 @@ def _stand(p: Parts, metal, base, top_z: float, floor: float = -0.82) -> None:
         )
 
 
-def _cymbal(p: Parts, brass, center, radius: float, tilt: float) -> None:
+def _cymbal(p: Parts, brass: Mat, center: Vec3, radius: float, tilt: float) -> None:
+    """A thin cone with a bell, tilted about X."""
     p.cylinder(brass, center, radius, 0.012, radius2=0.06, rot=(tilt, 0, 0), segments=64)
     p.sphere(brass, center, 0.06, scale=(1, 1, 0.55), rot=(tilt, 0, 0), segments=24)
 
@@ -404,7 +417,6 @@ BUILDERS: dict[str, Callable[[np.random.Generator], None]] = {
     "food": build_food,
     "drums": build_drums,
 }
-assert set(BUILDERS) == set(BUILTIN_SCENES), "catalog and builders disagree"
 
 
 def build(name: str, seed: int = 0) -> None:

@@ -1,7 +1,7 @@
 """Cycles setup, the default light, the camera and one linear frame out of ``bpy`` (needs ``bpy``).
 
 Pixels leave Blender through a 32-bit uncompressed EXR in a private temporary folder, read back with
-``bpy.data.images.load`` + ``pixels.foreach_get`` (≈ 6 ms for 200 × 200 here). The compositor's Viewer
+``bpy.data.images.load`` + ``pixels.foreach_get`` (≈ 4 ms for 200 × 200 here). The compositor's Viewer
 node is not evaluated by the ``bpy`` module in background mode in Blender 5.0, and ``Render Result`` has no
 readable pixels, so the EXR round trip is the robust path.
 """
@@ -178,23 +178,29 @@ def add_default_light(scene: bpy.types.Scene) -> None:
     scene.world = world
 
 
+def renders(obj: bpy.types.Object) -> bool:
+    """True when ``obj`` is enabled for rendering (itself and the collections holding it)."""
+    return not obj.hide_render and not any(c.hide_render for c in obj.users_collection)
+
+
 def has_lights(scene: bpy.types.Scene) -> bool:
-    """True when ``scene`` has a light object that renders."""
-    return any(o.type == "LIGHT" and not o.hide_render for o in scene.objects)
+    """True when the active view layer has a light object that renders."""
+    return any(o.type == "LIGHT" and renders(o) for o in bpy.context.view_layer.objects)
 
 
 def remove_cameras(scene: bpy.types.Scene) -> None:
     """Delete every camera object of ``scene`` (the trajectory provides the camera)."""
     for obj in [o for o in scene.objects if o.type == "CAMERA"]:
         bpy.data.objects.remove(obj, do_unlink=True)
+    bpy.context.view_layer.update()  # refresh the view layer's object list
 
 
 def geometry_box(scene: bpy.types.Scene) -> np.ndarray:
-    """(2, 3) world-space bounds of the rendered geometry (evaluated, modifiers applied)."""
+    """(2, 3) world-space bounds of the geometry that renders (evaluated, modifiers applied)."""
     depsgraph = bpy.context.evaluated_depsgraph_get()
     corners = []
-    for obj in scene.objects:
-        if obj.type not in GEOMETRY_TYPES or obj.hide_render or not obj.visible_get():
+    for obj in bpy.context.view_layer.objects:
+        if obj.type not in GEOMETRY_TYPES or not renders(obj):
             continue
         evaluated = obj.evaluated_get(depsgraph)
         m = np.array(evaluated.matrix_world)

@@ -1,0 +1,362 @@
+"""The benchmark's self-contained HTML report (``OUT/report.html``; see docs/report.md).
+
+One file that opens offline: inline CSS, every figure a base64 PNG data URI, no scripts. Sections (their HTML
+ids): ``tables`` (Table I per colour, Table II), ``views`` (GT, each method and error maps on one test view),
+``spikes`` (raster of a few pixels, TFP next to its spike mask), ``curves`` (test PSNR against training time),
+``novel-spikes`` (a predicted novel-view spike stream next to the one simulated from GT) and ``environment``
+(versions, hardware, and the command behind every figure). A missing piece (a cell without renders, LPIPS
+null, a figure that cannot be made) shows as "–" with a note; the report itself never fails on it.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import shlex
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.color import rgb_to_gray, srgb_encode
+from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.pipelines import figures
+from spikenerf.pipelines.benchmark import (
+    TABLE1_VARIANTS,
+    BenchmarkConfig,
+    cell_commands,
+    dataset_command,
+    environment,
+    run_dir,
+)
+from spikenerf.pipelines.tables import ABLATION_VARIANTS, METHOD_LABELS, Cell, rank_marks
+
+REPORT = "report.html"
+SECTIONS = ("tables", "views", "spikes", "curves", "novel-spikes", "environment")
+#: the test view shown in ``views`` and ``novel-spikes``; TFP window and mask half window of ``spikes``
+VIEW, MASK_N, RASTER_PIXELS, RASTER_STEPS = 0, 5, 6, 200
+CSS = """body{font-family:sans-serif;max-width:1200px;margin:1em auto;padding:0 1em;color:#222}
+table{border-collapse:collapse;margin:.5em 0 1em}td,th{border:1px solid #bbb;padding:3px 7px;font-size:13px}
+td.n{text-align:right;font-variant-numeric:tabular-nums}td.best{background:#f6a5a5;font-weight:bold}
+td.second{background:#fbe79a}.note{color:#666;font-size:12px}figure{margin:.6em 0 1.2em}
+figcaption{font-size:12px;color:#444}img{max-width:100%}nav a{margin-right:1em}
+code{font-size:11px;background:#f3f3f3;padding:1px 3px;word-break:break-all}"""
+
+#: section id -> (heading, explanation) of the figure sections
+HEADS = {
+    "views": ("Novel views", "One held-out test view per scene and colour: ground truth, each method's "
+              "render (RUN/render/images) and its error |pred − GT| of display values on a shared scale."),
+    "spikes": ("Spike streams", "The dataset's recorded stream: a raster of a few pixels, and a TFP "
+               "reconstruction next to its spike mask."),
+    "curves": ("Training curves", "Test PSNR (on the run's evaluation views) against training time."),
+    "novel-spikes": ("Novel-view spike streams", "At the static pose of a test view: the GT test image "
+                     "through the ideal camera simulator vs the trained model's radiance through the spiking "
+                     "renderer's firing rule, both from a seeded uniform [0, φ) start; TFP of each."),
+}  # fmt: skip
+
+
+@dataclass
+class Fig:
+    """One figure of the report: PNG bytes (None = could not be made), the commands behind its data."""
+
+    title: str
+    png: bytes | None
+    commands: list[str] = field(default_factory=list)
+    note: str = ""
+
+
+def _cmd(command: list[str]) -> str:
+    """``python -m spikenerf ARGS`` → the user-facing ``spikenerf ARGS`` (without ``--resume``)."""
+    return shlex.join(["spikenerf", *[a for a in command[3:] if a != "--resume"]])
+
+
+def _esc(text: object) -> str:
+    return html.escape(str(text))
+
+
+def _label(variant: str) -> str:
+    return METHOD_LABELS.get(variant, variant)
+
+
+# ----------------------------------------------------------------------------------------------- tables
+def _fmt(value: float | None, metric: str) -> str:
+    return "–" if value is None else f"{value:.2f}" if metric == "psnr" else f"{value:.3f}"
+
+
+def _mean(values: Sequence[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return sum(present) / len(present) if present and len(present) == len(values) else None
+
+
+def _table(header: list[str], rows: list[tuple[str, list[tuple[float | None, str, str]]]]) -> str:
+    """rows: (label, [(value, metric, mark)])."""
+    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+    body = "".join(
+        f"<tr><td>{_esc(label)}</td>"
+        + "".join(f'<td class="n {mark}">{_fmt(v, m)}</td>' for v, m, mark in values)
+        + "</tr>"
+        for label, values in rows
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def table1_html(cells: Sequence[Cell], variants: Sequence[str], scenes: Sequence[str], color: str) -> str:
+    """Table I for one colour: rows = variants, (SSIM, PSNR) per scene and their average; best, second."""
+    look = {(c.scene, c.variant): c for c in cells if c.color == color}
+    cols = [*scenes, "average"]
+    val: dict[tuple[str, str, str], float | None] = {}
+    for v in variants:
+        for m in ("ssim", "psnr"):
+            per = [getattr(look[(s, v)], m) if (s, v) in look else None for s in scenes]
+            val.update({(v, s, m): x for s, x in zip(scenes, per, strict=True)})
+            val[(v, "average", m)] = _mean(per)
+    marks = {
+        (s, m): rank_marks({v: val[(v, s, m)] for v in variants}, m) for s in cols for m in ("ssim", "psnr")
+    }
+    header = ["method", *[f"{s} {m}" for s in cols for m in ("SSIM ↑", "PSNR ↑")]]
+    rows = [
+        (_label(v), [(val[(v, s, m)], m, marks[(s, m)][v]) for s in cols for m in ("ssim", "psnr")])
+        for v in variants
+    ]
+    return _table(header, rows)
+
+
+def table2_html(cells: Sequence[Cell], color: str) -> str:
+    """Table II (ablation) for one colour: SSIM, PSNR, LPIPS averaged over scenes."""
+    metrics = ("ssim", "psnr", "lpips")
+    rows = {v: [c for c in cells if c.variant == v and c.color == color] for v in ABLATION_VARIANTS}
+    val = {
+        (v, m): _mean([getattr(c, m) for c in rows[v]]) if rows[v] else None for v in rows for m in metrics
+    }
+    marks = {m: rank_marks({v: val[(v, m)] for v in rows}, m) for m in metrics}
+    header = ["method", "SSIM ↑", "PSNR ↑", "LPIPS ↓"]
+    return _table(header, [(_label(v), [(val[(v, m)], m, marks[m][v]) for m in metrics]) for v in rows])
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
+    """One note per missing cell, per LPIPS null (with its reason) and per cell without renders."""
+    have = {(c.scene, c.color, c.variant) for c in cells}
+    notes = []
+    for s in cfg.scenes:
+        for c in cfg.colors:
+            for v in cfg.variants:
+                run, where = run_dir(cfg, s, c, v), f"{s}/{c}/{_label(v)}"
+                if (s, c, v) not in have:
+                    notes.append(f"{where}: no result (the cell has not finished).")
+                    continue
+                metrics = _read_json(run / "metrics.json")
+                if metrics.get("mean", {}).get("lpips") is None:
+                    notes.append(f"{where}: LPIPS – ({metrics.get('lpips_reason') or 'not computed'}).")
+                if not (run / "render" / "images").is_dir():
+                    notes.append(f"{where}: no rendered test views (render did not run).")
+    return notes
+
+
+def _tables_section(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> str:
+    t1 = [v for v in cfg.variants if v in TABLE1_VARIANTS] or list(cfg.variants)
+    parts = ["<h2>Tables</h2><p class='note'>Mean over the held-out test views, metrics on sRGB-encoded "
+             "[0, 1] values. <span style='background:#f6a5a5'>red</span> = best, "
+             "<span style='background:#fbe79a'>yellow</span> = second best; – = not available.</p>",
+             "<h3>Table I: comparison</h3>"]  # fmt: skip
+    for color in cfg.colors:
+        parts += [f"<h4>{color.upper()}</h4>", table1_html(cells, t1, cfg.scenes, color)]
+    if any(v in ABLATION_VARIANTS for v in cfg.variants):
+        parts.append("<h3>Table II: ablation (mean over scenes)</h3>")
+        for color in cfg.colors:
+            parts += [f"<h4>{color.upper()}</h4>", table2_html(cells, color)]
+    notes = _cell_notes(cfg, cells)
+    if notes:
+        parts.append("<ul class='note'>" + "".join(f"<li>{_esc(n)}</li>" for n in notes) + "</ul>")
+    return "".join(parts)
+
+
+# ---------------------------------------------------------------------------------------------- figures
+def _display(linear: np.ndarray, color: str) -> np.ndarray:
+    """Linear RGB (H, W, 3) → display values (H, W) gray or (H, W, 3)."""
+    return srgb_encode(rgb_to_gray(linear, channel_axis=-1) if color == "gray" else linear)
+
+
+def _read_png(path: Path) -> np.ndarray | None:
+    """An 8-bit PNG as display values (H, W) or (H, W, 3); None if it is not there."""
+    if not path.is_file():
+        return None
+    arr = np.asarray(iio.imread(path)).astype(np.float64) / 255.0
+    return arr[..., :3] if arr.ndim == 3 else arr
+
+
+def _views_fig(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str, color: str) -> Fig:
+    gt = _display(ds.test.images[VIEW], color)
+    preds, commands = {}, [_cmd(dataset_command(cfg, scene))]
+    for v in cfg.variants:
+        run = run_dir(cfg, scene, color, v)
+        per_view = _read_json(run / "metrics.json").get("per_view") or [{}]
+        psnr = per_view[VIEW].get("psnr") if len(per_view) > VIEW else None
+        label = _label(v) + ("" if psnr is None else f"\n{psnr:.2f} dB")
+        preds[label] = _read_png(run / "render" / "images" / f"{VIEW:05d}.png")
+        if cfg.render:
+            commands.append(_cmd(cell_commands(cfg, scene, color, v)[-1]))
+    missing = [k.split("\n")[0] for k, p in preds.items() if p is None]
+    note = f"– no rendered test view for: {', '.join(missing)}." if missing else ""
+    title = (
+        f"{scene}, {color}: test view {VIEW} (cropped to the content); error = |pred − GT| of display values"
+    )
+    png = figures.views_figure(gt, preds, f"{scene} · {color} · test view {VIEW}")
+    return Fig(title, png, commands, note)
+
+
+def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig]:
+    from spikenerf.camera.masks import spike_masks
+    from spikenerf.camera.reconstruct import tfp
+
+    mode = "gray" if "gray" in ds.modes else ds.modes[0]
+    stream = ds.spikes(mode)  # (T, H, W) or (T, 3, H, W)
+    gray = stream if stream.ndim == 3 else stream.max(axis=1)
+    t, h, w = gray.shape
+    window = min(figures.TFP_WINDOW, t if t % 2 else t - 1)
+    k = int(ds.gt.steps[np.argmin(np.abs(ds.gt.steps - t // 2))]) if len(ds.gt) else t // 2
+    rate = gray.mean(0).ravel()
+    picks = figures.raster_pixels(rate, RASTER_PIXELS)
+    xy = np.stack([picks % w, picks // w], -1)
+    steps = min(t, RASTER_STEPS)
+    raster = gray[:steps].reshape(steps, -1)[:, picks]
+    labels = [f"x={x} y={y} ({rate[p]:.2f}/step)" for (x, y), p in zip(xy, picks, strict=True)]
+    sim = _cmd(dataset_command(cfg, scene))
+    dat = shlex.quote(str(ds.root / f"spikes_{mode}.dat"))
+    recon = f"spikenerf reconstruct {dat} --height {h} --width {w} --method tfp --window {window} --frame {k}"
+    raster_fig = Fig(
+        f"{scene}: {mode} spikes of {RASTER_PIXELS} pixels, dimmest → brightest, steps 0…{steps - 1}",
+        figures.raster_figure(raster, labels, f"{scene} · {mode} stream · spike raster"),
+        [sim],
+    )
+    rec = tfp(stream, window=window, threshold=ds.threshold, frames=k)[0]
+    rec = rec.transpose(1, 2, 0) if rec.ndim == 3 else rec
+    mask = spike_masks(stream, n=MASK_N, frames=k)[0]
+    mask = mask.any(0) if mask.ndim == 3 else mask
+    gi = int(np.flatnonzero(ds.gt.steps == k)[0]) if len(ds.gt) and k in ds.gt.steps else None
+    gt_img = None if gi is None else _display(ds.gt.images[gi], "gray" if rec.ndim == 2 else "rgb")
+    panels = [(f"GT render, step {k}", gt_img), (f"TFP (window {window})", srgb_encode(rec)),
+              (f"spike mask (n = {MASK_N})", mask.astype(float))]  # fmt: skip
+    tfp_fig = Fig(
+        f"{scene}: step {k}: TFP reconstruction next to its spike mask M_k (OR over k−{MASK_N}…k+{MASK_N}); "
+        "circles = the raster's pixels",
+        figures.panels_figure(panels, f"{scene} · {mode} · step {k}", points=xy),
+        [
+            sim,
+            recon + " --out tfp.png",
+            f"spikenerf.camera.masks.spike_masks(spikes, n={MASK_N}, frames={k})",
+        ],
+    )
+    return [raster_fig, tfp_fig]
+
+
+def _curves_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
+    from spikenerf.train.evaluate import read_curves
+
+    curves = {_label(v): read_curves(run_dir(cfg, scene, color, v) / "curves.csv") for v in cfg.variants}
+    missing = [k for k, rows in curves.items() if not rows]
+    return Fig(
+        f"{scene}, {color}: test PSNR against training time (RUN/curves.csv)",
+        figures.curves_figure(curves, f"{scene} · {color}"),
+        [_cmd(cell_commands(cfg, scene, color, v)[0]) for v in cfg.variants],
+        f"– no curves.csv for: {', '.join(missing)}." if missing else "",
+    )
+
+
+def _novel_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
+    runs = [run_dir(cfg, scene, color, v) for v in ("spike-nerf", *cfg.variants) if v in cfg.variants]
+    run = next((r for r in runs if (r / "checkpoint.pt").is_file()), None)
+    if run is None:
+        return Fig(f"{scene}, {color}: novel-view spikes", None, note="– no trained run to render from.")
+    r = figures.novel_spikes(run, VIEW, device=cfg.device)
+    panels = [
+        ("GT test image → camera simulator", r.gt_tfp),
+        (f"{_label(r.method)} → spiking renderer", r.pred_tfp),
+        ("|difference|", figures.error_map(r.pred_tfp, r.gt_tfp)),
+    ]
+    title = (
+        f"{scene}, {color}: TFP (window {r.window}, step {r.step} of {r.steps}) of static-pose spike streams "
+        f"at test view {VIEW}: spike rate GT {r.gt_rate:.3f}, predicted {r.pred_rate:.3f} spikes/step/pixel; "
+        f"PSNR between the two TFP images {r.psnr:.2f} dB"
+    )
+    cmaps = {2: (figures.ERROR_CMAP, figures.ERROR_VMAX)}
+    fig = figures.panels_figure(panels, f"{scene} · {color} · novel-view spikes", cmaps=cmaps)
+    commands = [
+        _cmd(cell_commands(cfg, scene, color, r.method)[0]),
+        f"spikenerf.pipelines.figures.novel_spikes({str(run)!r}, view={VIEW}, steps={r.steps})",
+    ]
+    return Fig(title, fig, commands)
+
+
+# ------------------------------------------------------------------------------------------------- HTML
+def _figure_html(fig: Fig) -> str:
+    parts = ["<figure>"]
+    if fig.png is not None:
+        data = base64.b64encode(fig.png).decode("ascii")
+        parts.append(f'<img src="data:image/png;base64,{data}" alt="{_esc(fig.title)}">')
+    caption = f"{_esc(fig.title)}" + (f"<br><span class='note'>{_esc(fig.note)}</span>" if fig.note else "")
+    cmds = "".join(f"<br>command: <code>{_esc(c)}</code>" for c in fig.commands)
+    parts.append(f"<figcaption>{caption}{cmds}</figcaption></figure>")
+    return "".join(parts)
+
+
+def _env_section(cfg: BenchmarkConfig) -> str:
+    import matplotlib
+
+    env = {**environment(), "numpy": np.__version__, "matplotlib": matplotlib.__version__}
+    rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_esc(v)}</td></tr>" for k, v in env.items())
+    conf = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
+    return (
+        f"<h2>Environment</h2><table>{rows}</table><p class='note'>benchmark config: "
+        f"<code>{_esc(json.dumps(conf))}</code>; every run's exact commands are in results.json.</p>"
+    )
+
+
+def build_report(cfg: BenchmarkConfig, cells: list[Cell], progress: bool = True) -> Path:
+    """Write ``cfg.out/report.html`` (self-contained) from the benchmark's folders; returns its path."""
+    from tqdm import tqdm
+
+    jobs: list[tuple[str, str, Callable[[], list[Fig]]]] = []
+    datasets: dict[str, SpikeDataset] = {}
+
+    def dataset(scene: str) -> SpikeDataset:
+        if scene not in datasets:
+            datasets[scene] = load_dataset(cfg.out / "datasets" / scene)
+        return datasets[scene]
+
+    for s in cfg.scenes:
+        jobs.append(("spikes", f"{s}: spikes", lambda s=s: _spikes_figs(cfg, dataset(s), s)))
+        for c in cfg.colors:
+            jobs.append(("views", f"{s}, {c}: views", lambda s=s, c=c: [_views_fig(cfg, dataset(s), s, c)]))
+            jobs.append(("curves", f"{s}, {c}: curves", lambda s=s, c=c: [_curves_fig(cfg, s, c)]))
+            jobs.append(("novel-spikes", f"{s}, {c}: novel spikes", lambda s=s, c=c: [_novel_fig(cfg, s, c)]))
+    made: dict[str, list[Fig]] = {k: [] for k in SECTIONS}
+    for section, title, make in tqdm(jobs, desc="report figures", unit="fig", disable=not progress):
+        try:
+            made[section] += make()
+        except Exception as err:  # never crash the report: show what is missing and why
+            made[section].append(
+                Fig(title, None, note=f"– figure not available: {type(err).__name__}: {err}")
+            )
+    body = [f"<section id='tables'>{_tables_section(cfg, cells)}</section>"]
+    for sid, (head, text) in HEADS.items():
+        figs = "".join(_figure_html(f) for f in made[sid]) or "<p class='note'>–</p>"
+        body.append(f"<section id='{sid}'><h2>{head}</h2><p class='note'>{_esc(text)}</p>{figs}</section>")
+    body.append(f"<section id='environment'>{_env_section(cfg)}</section>")
+    nav = "".join(f"<a href='#{s}'>{s}</a>" for s in SECTIONS)
+    head = f"<head><meta charset='utf-8'><title>spikenerf report</title><style>{CSS}</style></head>"
+    page = f"<!DOCTYPE html><html lang='en'>{head}<body><h1>spikenerf report</h1><nav>{nav}</nav>"
+    page += "".join(body) + "</body></html>\n"
+    path = cfg.out / REPORT
+    write_text_atomic(path, page)
+    return path
