@@ -37,7 +37,6 @@ def format_table(rows: list[Row]) -> str:
     """A markdown table: name, ours, reference, unit, ratio."""
     lines = ["| benchmark | ours | reference | unit | ratio |", "|---|---:|---:|---|---:|"]
     for r in rows:
-        lines.append(
-            f"| {r.name} | {r.ours:,.3g} | {r.reference:,.3g} ({r.reference_name}) | {r.unit} | {r.ratio:.2f}× |"
-        )
+        reference = f"{r.reference:,.3g} ({r.reference_name})"
+        lines.append(f"| {r.name} | {r.ours:,.3g} | {reference} | {r.unit} | {r.ratio:.2f}× |")
     return "\n".join(lines)

@@ -276,23 +276,20 @@ def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None
     from spikenerf.cli import main
 
     out = tmp_path / "run"
-    args = [
-        "train",
-        str(dataset_dir),
-        "--method",
-        "nerf-recon",
-        "--field",
-        "mlp",
-        "--iters",
-        "2",
-        "--batch",
-        "32",
-    ]
-    args += ["--eval-every", "0", "--device", "cpu", "--quiet", "--out", str(out)]
+    args = ["train", str(dataset_dir), "--method", "nerf-recon", "--field", "mlp", "--iters", "2"]
+    args += ["--batch", "32", "--eval-every", "0", "--device", "cpu", "--quiet"]
+    args += [f"--field-option={k}={v}" for k, v in _TINY_MLP.items()] + ["--out", str(out)]
     main(args)
     assert "trained 2 iterations" in capsys.readouterr().out
     assert load_config(out / "config.yaml").method == "nerf-recon"
-    for bad in (args, ["train", str(tmp_path / "nope"), "--out", str(tmp_path / "x")]):
+    assert load_config(out / "config.yaml").field_config == _TINY_MLP
+    bad_runs = [
+        args,  # the run exists: needs --resume
+        ["train", str(tmp_path / "nope"), "--out", str(tmp_path / "x")],  # no dataset
+        [*args[:-2], "--field-option", "no-equals-sign", "--out", str(tmp_path / "y")],
+        [*args[:-2], "--field-option", "no_such_key=1", "--out", str(tmp_path / "z")],
+    ]
+    for bad in bad_runs:
         with pytest.raises(SystemExit) as exit_:
             main(bad)
         assert exit_.value.code == 2

@@ -94,6 +94,14 @@ _D = TrainConfig()
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")
 @click.option("--ckpt-every", type=int, default=_D.ckpt_every, show_default=True)
+@click.option(
+    "--field-option",
+    "field_options",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override a field config entry (GridFieldConfig / MLPFieldConfig), e.g. n_voxels_final=2097152; "
+    "values are parsed as YAML. Repeatable.",
+)
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_context
@@ -105,7 +113,7 @@ def command(
     base = TrainConfig() if fresh else load_config(stored)
     given = {
         name
-        for name in [*OPTION_FIELDS, "no_mask", "no_spike_loss"]
+        for name in [*OPTION_FIELDS, "no_mask", "no_spike_loss", "field_options"]
         if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
     }
     for name, (section, key) in OPTION_FIELDS.items():
@@ -115,6 +123,8 @@ def command(
         base.targets.mask = not options["no_mask"]
     if fresh or "no_spike_loss" in given:
         base.spike.enabled = not options["no_spike_loss"]
+    if fresh or "field_options" in given:
+        base.field_config = _field_options(options["field_options"])  # type: ignore[arg-type]
     if not dataset.is_dir():
         raise InputError("dataset folder not found", path=dataset)
     base.dataset = str(dataset.resolve())
@@ -125,3 +135,19 @@ def command(
         f"({summary.rays_per_second:.0f} rays/s); train PSNR {summary.train_psnr:.2f} dB, "
         f"test PSNR {test} → {out}"
     )
+
+
+def _field_options(items: tuple[str, ...]) -> dict[str, object]:
+    """``("KEY=VALUE", ...)`` → ``{KEY: yaml(VALUE)}``; a malformed item is an InputError."""
+    import yaml
+
+    out: dict[str, object] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"--field-option expects KEY=VALUE, found {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as err:
+            raise InputError(f"--field-option {key}: unreadable value {value!r} ({err})") from err
+    return out

@@ -101,3 +101,10 @@ def ray_box_bounds(
     near = torch.minimum(t0, t1).amax(dim=-1).clamp_min(min_near)
     far = torch.maximum(t0, t1).amin(dim=-1)
     return near, torch.maximum(far, near)
+
+
+def as_poses(poses: Tensor | np.ndarray, device: torch.device | str) -> Tensor:
+    """Camera-to-world pose(s) (..., 4, 4) as a float32 tensor on ``device`` (numpy or torch input)."""
+    return torch.as_tensor(poses if isinstance(poses, Tensor) else np.asarray(poses)).to(
+        device, torch.float32
+    )

@@ -168,13 +168,18 @@ def curves_figure(curves: Mapping[str, Sequence[Mapping[str, float]]], title: st
 
 # ------------------------------------------------------------------------------------------------- data
 def raster_pixels(rates: np.ndarray, count: int) -> np.ndarray:
-    """Flat indices of ``count`` pixels spread over the spike-rate range (dimmest → brightest).
+    """Flat indices of up to ``count`` distinct pixels whose spike rates spread evenly from min to max.
 
     Args:
         rates: (H·W,) spikes per step of each pixel.
+    Returns:
+        (N,) int64 indices, N ≤ count, in increasing rate.
     """
     order = np.argsort(rates, kind="stable")
-    return order[np.linspace(0, len(order) - 1, count).round().astype(int)]
+    targets = np.linspace(rates.min(), rates.max(), count)
+    pos = np.clip(np.searchsorted(rates[order], targets), 0, len(order) - 1)
+    picks = np.unique(order[pos])
+    return picks[np.argsort(rates[picks], kind="stable")]
 
 
 @dataclass

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from spikenerf.data.rays import image_rays, ray_box_bounds
+from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
 from spikenerf.fields import build_field
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
@@ -90,7 +90,7 @@ def render_image(
         ``color`` (H, W, C) linear in [0, 1] on white, ``depth`` (H, W) world distance along the ray (0 where
         empty), ``opacity`` (H, W).
     """
-    pose = torch.as_tensor(np.asarray(c2w), dtype=torch.float32, device=model.device)
+    pose = as_poses(c2w, model.device)
     origins, dirs = image_rays(pose, intrinsics)
     lo, hi = ray_bounds(model, origins, dirs, near, far)
     color, depth, opacity = render_rays_chunked(model, origins, dirs, lo, hi, chunk)

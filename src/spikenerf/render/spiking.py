@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.camera.model import fire
-from spikenerf.data.rays import pixel_rays
+from spikenerf.data.rays import as_poses, pixel_rays
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.model import ray_bounds, render_image
 from spikenerf.scenes.trajectory import Intrinsics
@@ -61,12 +61,6 @@ def fire_sequence(intensity: Tensor, start: Tensor, threshold: float | Tensor = 
     return torch.stack(spikes), torch.stack(accs)
 
 
-def _poses(poses: Tensor | np.ndarray, device: torch.device) -> Tensor:
-    return torch.as_tensor(np.asarray(poses) if not isinstance(poses, Tensor) else poses).to(
-        device, torch.float32
-    )
-
-
 def render_spike_window(
     model: RadianceModel,
     poses: Tensor | np.ndarray,
@@ -91,7 +85,7 @@ def render_spike_window(
         ``render_rays`` call (keep L·N within a training batch).
     """
     device = model.device
-    pose = _poses(poses, device)
+    pose = as_poses(poses, device)
     pixels = torch.as_tensor(pixels, device=device)
     n_steps, n_pix = pose.shape[0], pixels.shape[0]
     per_ray = pose[:, None].expand(n_steps, n_pix, 4, 4).reshape(-1, 4, 4)
@@ -131,7 +125,7 @@ def iter_spike_stream(
         acc = random_start((h, w, c), threshold, start_accumulator or 0, model.device)
     else:
         acc = start_accumulator.to(model.device, torch.float32).reshape(h, w, c)
-    for pose in _poses(poses, model.device):
+    for pose in as_poses(poses, model.device):
         color = render_image(model, pose, intrinsics, near, far, chunk)["color"]
         spikes, acc = fire(acc, color, threshold)
         yield spikes.cpu()

@@ -1,0 +1,48 @@
+"""``spikenerf demo``: simulate, train Spike-NeRF and the baselines, evaluate, render, report (resumable)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
+    from spikenerf.core.errors import InputError
+
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    bad = [v for v in items if v not in allowed]
+    if bad or not items:
+        raise InputError(f"{option}: expected a comma list of {', '.join(allowed)}, found {value!r}")
+    return items
+
+
+@click.command(
+    help="Run the whole pipeline on the embedded default scene (analytic-orbs): simulate a spike camera, "
+    "train spike-nerf, nerf-recon, nerf-blur and nerf-gt, evaluate, render and write OUT/report.html. "
+    "Resumable: re-running reuses finished steps. Default size: ≤ 20 min on 2 CPU cores; --quick: minutes."
+)
+@click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)
+@click.option("--quick", is_flag=True, help="Tiny size, few iterations, few steps (a few minutes on a CPU).")
+@click.option("--device", default="auto", show_default=True, help="auto (GPU when present) | cpu | cuda.")
+@click.option("--size", type=int, help="Image width = height in pixels [default 64, quick 32].")
+@click.option("--iters", type=int, help="Training iterations per method [default 300, quick 60].")
+@click.option("--frames", type=int, hidden=True, help="Spike steps on the orbit [default 1000, quick 200].")
+@click.option("--test-views", type=int, hidden=True, help="Held-out views [default 4, quick 2].")
+@click.option("--scene", default=None, hidden=True, help="Another named scene (see simulate --list-scenes).")
+@click.option("--color", default="gray", show_default=True, help="gray, rgb or gray,rgb.")
+@click.option("--methods", default=None, hidden=True, help="Comma list of method variants.")
+def command(
+    out: Path, quick: bool, device: str, size: int | None, iters: int | None, frames: int | None,
+    test_views: int | None, scene: str | None, color: str, methods: str | None,
+) -> None:  # fmt: skip
+    from spikenerf.pipelines.benchmark import VARIANT_FLAGS, resolve_scenes
+    from spikenerf.pipelines.demo import DEFAULT_SCENE, DEMO_METHODS, DemoConfig, run_demo
+
+    cfg = DemoConfig(
+        out=out, quick=quick, device=device, size=size, iters=iters, frames=frames, test_views=test_views,
+        scene=resolve_scenes(scene)[0] if scene else DEFAULT_SCENE,
+        colors=_list(color, ("gray", "rgb"), "--color"),
+        methods=_list(methods, tuple(VARIANT_FLAGS), "--methods") if methods else list(DEMO_METHODS),
+    )  # fmt: skip
+    run_demo(cfg, echo=click.echo)

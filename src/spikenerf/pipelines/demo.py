@@ -1,0 +1,135 @@
+"""``spikenerf demo``: the whole pipeline on the embedded default scene, as a one-scene benchmark.
+
+simulate → train ``spike-nerf`` and the main baselines (``nerf-recon``, ``nerf-blur``, ``nerf-gt``) → eval →
+render → report, all through :func:`spikenerf.pipelines.benchmark.run_benchmark`, so an interrupted demo
+resumes where it stopped. The default scene is the analytic ``analytic-orbs`` (no Blender needed, ms per
+frame); see docs/report.md for the choice and measured timings.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from spikenerf.core.errors import InputError
+from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
+from spikenerf.pipelines.tables import Cell, table1_markdown
+
+DEFAULT_SCENE = "analytic-orbs"
+DEMO_METHODS = ("nerf-gt", "nerf-blur", "nerf-recon", "spike-nerf")
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Sizes of one demo preset: image side (px), spike steps, iterations, test views, rays per batch,
+    spike-loss window (steps) and pixels per window."""
+
+    size: int
+    frames: int
+    iters: int
+    test_views: int
+    batch: int
+    spike_window: int
+    spike_pixels: int
+
+
+#: default: ≤ 20 min on 2 CPU cores; quick: a few minutes; the tests shrink further with explicit options
+PRESETS = {
+    "default": Preset(size=64, frames=1000, iters=300, test_views=4, batch=1024, spike_window=16,
+                      spike_pixels=32),
+    "quick": Preset(size=32, frames=200, iters=60, test_views=2, batch=512, spike_window=8, spike_pixels=16),
+}  # fmt: skip
+
+
+@dataclass
+class DemoConfig:
+    """What ``spikenerf demo`` runs; None = the preset's value (``quick`` selects the quick preset)."""
+
+    out: Path = Path("demo_out")
+    quick: bool = False
+    device: str = "auto"
+    size: int | None = None
+    iters: int | None = None
+    frames: int | None = None
+    test_views: int | None = None
+    scene: str = DEFAULT_SCENE
+    colors: list[str] = field(default_factory=lambda: ["gray"])
+    methods: list[str] = field(default_factory=lambda: list(DEMO_METHODS))
+
+    def preset(self) -> Preset:
+        """The preset with this config's explicit sizes applied (validated)."""
+        p = PRESETS["quick" if self.quick else "default"]
+        size, iters = self.size or p.size, self.iters or p.iters
+        frames = self.frames or p.frames
+        views = p.test_views if self.test_views is None else self.test_views
+        if size < 8 or iters < 1 or frames < 2 or views < 1:
+            raise InputError(
+                f"demo sizes: expected --size ≥ 8, --iters ≥ 1, frames ≥ 2, test views ≥ 1; "
+                f"found {size}, {iters}, {frames}, {views}"
+            )
+        window = min(p.spike_window, frames)
+        return Preset(size, frames, iters, views, p.batch, window, p.spike_pixels)
+
+
+def train_args(p: Preset) -> list[str]:
+    """Extra ``spikenerf train`` flags of the demo: schedules scaled to its short runs.
+
+    Six evaluations on one view give the training curve; the spike loss starts after a fifth of the run
+    (its default 300-iteration warm-up assumes 1500 iterations).
+    """
+    return [
+        "--batch", str(p.batch), "--eval-every", str(max(p.iters // 6, 1)), "--eval-views", "1",
+        "--ckpt-every", str(max(p.iters // 3, 1)), "--spike-warmup", str(p.iters // 5),
+        "--spike-window", str(p.spike_window), "--spike-pixels", str(p.spike_pixels),
+    ]  # fmt: skip
+
+
+def benchmark_config(cfg: DemoConfig) -> BenchmarkConfig:
+    """The one-scene benchmark the demo runs."""
+    p = cfg.preset()
+    return BenchmarkConfig(
+        scenes=[cfg.scene], variants=list(cfg.methods), colors=list(cfg.colors), out=Path(cfg.out),
+        size=p.size, frames=p.frames, iters=p.iters, device=cfg.device, test_views=p.test_views,
+        extra_train_args=train_args(p),
+    )  # fmt: skip
+
+
+def cpu_seconds() -> float:
+    """CPU time (user + system, s) of this process and its finished subprocesses (0 where unsupported)."""
+    try:
+        import resource
+    except ImportError:  # not on Unix
+        return 0.0
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+@dataclass
+class DemoResult:
+    """The demo's cells, its Table I (Markdown), the report's path and the measured wall and CPU time (s)."""
+
+    cells: list[Cell]
+    table: str
+    report: Path
+    wall_seconds: float
+    cpu_seconds: float
+
+
+def run_demo(cfg: DemoConfig, echo: Callable[[str], None] = print) -> DemoResult:
+    """Run (or resume) the demo into ``cfg.out`` and print its table and where the report is."""
+    bcfg = benchmark_config(cfg)
+    echo(
+        f"spikenerf demo: scene {cfg.scene}, {bcfg.size}×{bcfg.size} px, {bcfg.frames} spike steps, "
+        f"{bcfg.iters} iterations per method ({', '.join(bcfg.variants)}), {', '.join(bcfg.colors)}, "
+        f"device {cfg.device} → {bcfg.out}"
+    )
+    t0, c0 = time.perf_counter(), cpu_seconds()
+    cells = run_benchmark(bcfg)
+    wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
+    table = "\n\n".join(table1_markdown(cells, bcfg.variants, bcfg.scenes, c) for c in bcfg.colors)
+    report = bcfg.out / "report.html"
+    echo(f"\n{table}\n\nreport: {report.resolve()}")
+    echo(f"demo finished in {wall:.0f} s wall, {cpu:.0f} s CPU (this process and its subprocesses)")
+    return DemoResult(cells, table, report, wall, cpu)
