@@ -1,0 +1,21 @@
+"""The docs stay true: docs/cli.md matches the commands' --help, and relative links resolve."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from spikenerf.cli.reference import cli_reference
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_cli_reference_is_current() -> None:
+    committed = (ROOT / "docs" / "cli.md").read_text()
+    assert committed == cli_reference(), "regenerate: python -m spikenerf.cli.reference > docs/cli.md"
+
+
+def test_relative_links_in_docs_resolve() -> None:
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", page.read_text()):
+            assert (page.parent / target).exists(), f"{page.name}: broken link {target}"
