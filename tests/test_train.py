@@ -297,3 +297,7 @@ def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None
         assert err.startswith("spikenerf: error:") and "\n" not in err
     main([*args[:-2], "--iters", "3", "--out", str(out), "--resume"])  # extends the run by one iteration
     assert torch.load(out / CHECKPOINT, weights_only=True)["iteration"] == 3
+    capsys.readouterr()
+    main(["info", str(out)])
+    info = capsys.readouterr().out
+    assert "method: nerf-recon" in info and "iterations: 3 of 3" in info and "field: mlp" in info

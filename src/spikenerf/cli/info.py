@@ -66,6 +66,11 @@ def command(
 ) -> None:
     if not path.exists():
         raise InputError("no such file or folder", path=path)
+    if path.is_dir() and (path / "checkpoint.pt").exists() and (path / "config.yaml").exists():
+        from spikenerf.train.run import describe_run
+
+        click.echo(describe_run(path))
+        return
     if path.is_dir():
         click.echo(describe_folder(path))
         return

@@ -39,3 +39,37 @@ def load_run(
 def run_iteration(run_dir: str | Path) -> int:
     """Completed iterations stored in a run folder's checkpoint."""
     return int(load_checkpoint(Path(run_dir) / CHECKPOINT, map_location=torch.device("cpu"))["iteration"])
+
+
+def describe_run(run_dir: str | Path) -> str:
+    """A few lines about a run folder: method, field, progress, last curve point and metrics if evaluated."""
+    import json
+
+    from spikenerf.train.evaluate import CURVES, read_curves
+
+    run_dir = Path(run_dir)
+    config = load_config(run_dir / CONFIG_FILE)
+    done = run_iteration(run_dir) if (run_dir / CHECKPOINT).exists() else 0
+    flags = [
+        f
+        for f, on in (("no mask", not config.uses_mask), ("no spike loss", not config.uses_spike_loss))
+        if on
+    ]
+    lines = [
+        f"run: {run_dir}",
+        f"method: {config.method}"
+        + (f" ({', '.join(flags)})" if config.method == "spike-nerf" and flags else ""),
+        f"color: {config.color}   field: {config.field}   seed: {config.seed}   dataset: {config.dataset}",
+        f"iterations: {done} of {config.iters}"
+        + ("" if done >= config.iters else "  (resume with --resume)"),
+    ]
+    if (run_dir / CURVES).exists() and (curves := read_curves(run_dir / CURVES)):
+        last = curves[-1]
+        lines.append(
+            f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
+            f"train PSNR {last['train_psnr']:.2f} dB, test PSNR {last['test_psnr']:.2f} dB"
+        )
+    if (run_dir / "metrics.json").exists():
+        mean = json.loads((run_dir / "metrics.json").read_text()).get("mean", {})
+        lines.append("metrics.json: " + "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None))
+    return "\n".join(lines)
