@@ -20,14 +20,12 @@ with code 2, leaving nothing half-written.
 def cli_reference() -> str:
     """Markdown: the group's help, then each subcommand's help in a code block."""
     parts = [INTRO]
-    with click.Context(cli, info_name="spikenerf", terminal_width=110) as ctx:
+    with click.Context(cli, info_name="spikenerf", terminal_width=110, **cli.context_settings) as ctx:
         parts.append(f"## spikenerf\n\n```\n{cli.get_help(ctx)}\n```\n")
         for name in SUBCOMMANDS:
             command = cli.get_command(ctx, name)
             assert command is not None
-            with click.Context(
-                command, info_name=f"spikenerf {name}", parent=None, terminal_width=110
-            ) as sub:
+            with click.Context(command, info_name=name, parent=ctx, terminal_width=110) as sub:
                 parts.append(f"## spikenerf {name}\n\n```\n{command.get_help(sub)}\n```\n")
     return "\n".join(parts)
 

@@ -37,8 +37,8 @@ class Preset:
 
 #: default: ≤ 20 min on 2 CPU cores; quick: a few minutes; the tests shrink further with explicit options
 PRESETS = {
-    "default": Preset(size=64, frames=1000, iters=300, test_views=4, batch=1024, spike_window=16,
-                      spike_pixels=32),
+    "default": Preset(size=64, frames=1000, iters=200, test_views=4, batch=512, spike_window=16,
+                      spike_pixels=16),
     "quick": Preset(size=32, frames=200, iters=60, test_views=2, batch=512, spike_window=8, spike_pixels=16),
 }  # fmt: skip
 

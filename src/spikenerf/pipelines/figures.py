@@ -84,7 +84,7 @@ def views_figure(gt: np.ndarray, preds: Mapping[str, np.ndarray | None], title: 
     for j, (label, pred) in enumerate(preds.items(), start=1):
         _show(axes[0, j], None if pred is None else pred[rs, cs], label)
         err = None if pred is None else error_map(pred, gt)[rs, cs]
-        title_err = "|pred − GT|" if err is None else f"|pred − GT|, mean {err.mean():.3f}"
+        title_err = "|pred − GT|" if err is None else f"|pred − GT|\nmean {err.mean():.3f}"
         m = _show(axes[1, j], err, title_err, cmap=ERROR_CMAP, vmin=0.0, vmax=ERROR_VMAX)
         mappable = m or mappable
     if mappable is not None:
@@ -176,9 +176,12 @@ def raster_pixels(rates: np.ndarray, count: int) -> np.ndarray:
         (N,) int64 indices, N ≤ count, in increasing rate.
     """
     order = np.argsort(rates, kind="stable")
+    sorted_rates = rates[order]
     targets = np.linspace(rates.min(), rates.max(), count)
-    pos = np.clip(np.searchsorted(rates[order], targets), 0, len(order) - 1)
-    picks = np.unique(order[pos])
+    hi = np.clip(np.searchsorted(sorted_rates, targets), 1, len(order) - 1)
+    lo = hi - 1
+    nearest = np.where(targets - sorted_rates[lo] <= sorted_rates[hi] - targets, lo, hi)
+    picks = np.unique(order[nearest] if len(order) > 1 else order)
     return picks[np.argsort(rates[picks], kind="stable")]
 
 

@@ -5,7 +5,8 @@ ids): ``tables`` (Table I per colour, Table II), ``views`` (GT, each method and 
 ``spikes`` (raster of a few pixels, TFP next to its spike mask), ``curves`` (test PSNR against training time),
 ``novel-spikes`` (a predicted novel-view spike stream next to the one simulated from GT) and ``environment``
 (versions, hardware, and the command behind every figure). A missing piece (a cell without renders, LPIPS
-null, a figure that cannot be made) shows as "–" with a note; the report itself never fails on it.
+null, a figure that cannot be made) shows as "–" with a note; the report itself never fails on it. Every
+figure is also saved as a PNG under ``OUT/figures/``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.pipelines import figures
@@ -35,7 +36,7 @@ from spikenerf.pipelines.benchmark import (
 )
 from spikenerf.pipelines.tables import ABLATION_VARIANTS, METHOD_LABELS, Cell, rank_marks
 
-REPORT = "report.html"
+REPORT, FIGURES = "report.html", "figures"
 SECTIONS = ("tables", "views", "spikes", "curves", "novel-spikes", "environment")
 #: the test view shown in ``views`` and ``novel-spikes``; TFP window and mask half window of ``spikes``
 VIEW, MASK_N, RASTER_PIXELS, RASTER_STEPS = 0, 5, 6, 120
@@ -67,6 +68,7 @@ class Fig:
     png: bytes | None
     commands: list[str] = field(default_factory=list)
     note: str = ""
+    file: str = ""  # the PNG's path relative to the benchmark folder, once written
 
 
 def _cmd(command: list[str]) -> str:
@@ -306,6 +308,7 @@ def _figure_html(fig: Fig) -> str:
         parts.append(f'<img src="data:image/png;base64,{data}" alt="{_esc(fig.title)}">')
     caption = f"{_esc(fig.title)}" + (f"<br><span class='note'>{_esc(fig.note)}</span>" if fig.note else "")
     cmds = "".join(f"<br>command: <code>{_esc(c)}</code>" for c in fig.commands)
+    cmds += f"<br><span class='note'>also {_esc(fig.file)}</span>" if fig.file else ""
     parts.append(f"<figcaption>{caption}{cmds}</figcaption></figure>")
     return "".join(parts)
 
@@ -323,7 +326,10 @@ def _env_section(cfg: BenchmarkConfig) -> str:
 
 
 def build_report(cfg: BenchmarkConfig, cells: list[Cell], progress: bool = True) -> Path:
-    """Write ``cfg.out/report.html`` (self-contained) from the benchmark's folders; returns its path."""
+    """Write ``cfg.out/report.html`` (self-contained) from the benchmark's folders; returns its path.
+
+    Each figure is also written as ``cfg.out/figures/<section>-<scene>[-<colour>][-<n>].png``.
+    """
     from tqdm import tqdm
 
     jobs: list[tuple[str, str, Callable[[], list[Fig]]]] = []
@@ -335,19 +341,24 @@ def build_report(cfg: BenchmarkConfig, cells: list[Cell], progress: bool = True)
         return datasets[scene]
 
     for s in cfg.scenes:
-        jobs.append(("spikes", f"{s}: spikes", lambda s=s: _spikes_figs(cfg, dataset(s), s)))
+        jobs.append(("spikes", s, lambda s=s: _spikes_figs(cfg, dataset(s), s)))
         for c in cfg.colors:
-            jobs.append(("views", f"{s}, {c}: views", lambda s=s, c=c: [_views_fig(cfg, dataset(s), s, c)]))
-            jobs.append(("curves", f"{s}, {c}: curves", lambda s=s, c=c: [_curves_fig(cfg, s, c)]))
-            jobs.append(("novel-spikes", f"{s}, {c}: novel spikes", lambda s=s, c=c: [_novel_fig(cfg, s, c)]))
+            jobs.append(("views", f"{s}-{c}", lambda s=s, c=c: [_views_fig(cfg, dataset(s), s, c)]))
+            jobs.append(("curves", f"{s}-{c}", lambda s=s, c=c: [_curves_fig(cfg, s, c)]))
+            jobs.append(("novel-spikes", f"{s}-{c}", lambda s=s, c=c: [_novel_fig(cfg, s, c)]))
     made: dict[str, list[Fig]] = {k: [] for k in SECTIONS}
-    for section, title, make in tqdm(jobs, desc="report figures", unit="fig", disable=not progress):
+    for section, key, make in tqdm(jobs, desc="report figures", unit="fig", disable=not progress):
         try:
-            made[section] += make()
+            figs = make()
         except Exception as err:  # never crash the report: show what is missing and why
-            made[section].append(
-                Fig(title, None, note=f"– figure not available: {type(err).__name__}: {err}")
-            )
+            figs = [
+                Fig(f"{section}: {key}", None, note=f"– figure not available: {type(err).__name__}: {err}")
+            ]
+        for i, fig in enumerate(figs):
+            if fig.png is not None:  # each figure also as a PNG file, for READMEs and slides
+                fig.file = f"{FIGURES}/{section}-{key}{f'-{i + 1}' if len(figs) > 1 else ''}.png"
+                write_bytes_atomic(cfg.out / fig.file, fig.png)
+        made[section] += figs
     body = [f"<section id='tables'>{_tables_section(cfg, cells)}</section>"]
     for sid, (head, text) in HEADS.items():
         figs = "".join(_figure_html(f) for f in made[sid]) or "<p class='note'>–</p>"
