@@ -23,10 +23,10 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
     "Resumable: re-running reuses finished steps. Default size: ≤ 20 min on 2 CPU cores; --quick: minutes."
 )
 @click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)
-@click.option("--quick", is_flag=True, help="Tiny size, few iterations, few steps (a few minutes on a CPU).")
+@click.option("--quick", is_flag=True, help="32 px, 200 spike steps, 200 iterations: a few minutes on a CPU.")
 @click.option("--device", default="auto", show_default=True, help="auto (GPU when present) | cpu | cuda.")
 @click.option("--size", type=int, help="Image width = height in pixels [default 64, quick 32].")
-@click.option("--iters", type=int, help="Training iterations per method [default 200, quick 60].")
+@click.option("--iters", type=int, help="Training iterations per method [default 300, quick 200].")
 @click.option("--frames", type=int, hidden=True, help="Spike steps on the orbit [default 1000, quick 200].")
 @click.option("--test-views", type=int, hidden=True, help="Held-out views [default 4, quick 2].")
 @click.option("--scene", default=None, hidden=True, help="Another named scene (see simulate --list-scenes).")

@@ -35,11 +35,12 @@ class Preset:
     spike_pixels: int
 
 
-#: default: ≤ 20 min on 2 CPU cores; quick: a few minutes; the tests shrink further with explicit options
+#: measured on 2 CPU cores (docs/report.md): default 281 s quiet / 993 s under load; quick 255 s quiet. Runs
+#: under ~200 iterations stop learning (the grid's first occupancy update empties it), hence quick's 200.
 PRESETS = {
-    "default": Preset(size=64, frames=1000, iters=200, test_views=4, batch=512, spike_window=16,
+    "default": Preset(size=64, frames=1000, iters=300, test_views=4, batch=512, spike_window=16,
                       spike_pixels=16),
-    "quick": Preset(size=32, frames=200, iters=60, test_views=2, batch=512, spike_window=8, spike_pixels=16),
+    "quick": Preset(size=32, frames=200, iters=200, test_views=2, batch=512, spike_window=8, spike_pixels=16),
 }  # fmt: skip
 
 

@@ -314,9 +314,13 @@ def _figure_html(fig: Fig) -> str:
 
 
 def _env_section(cfg: BenchmarkConfig) -> str:
+    import os
+
     import matplotlib
+    import torch
 
     env = {**environment(), "numpy": np.__version__, "matplotlib": matplotlib.__version__}
+    env |= {"cpu cores": os.cpu_count(), "torch threads": torch.get_num_threads()}
     rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_esc(v)}</td></tr>" for k, v in env.items())
     conf = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
     return (
