@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-import types
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -12,7 +10,6 @@ import pytest
 
 from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.camera.reconstruct import tfi, tfp
-from spikenerf.cli import info as info_module
 from spikenerf.cli import main
 from spikenerf.core.color import srgb_encode
 
@@ -65,16 +62,10 @@ def test_info_needs_the_frame_size(capsys, stream) -> None:
     assert err.strip().count("\n") == 0 and "--width" in err and "s.dat" in err
 
 
-def test_info_folder_uses_data_summary(capsys, tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr(info_module, "SUMMARY_MODULE", "spikenerf.data.no_such_summary_module")
+def test_info_on_a_folder_that_is_not_a_dataset_exits_2(capsys, tmp_path: Path) -> None:
     code, _, err = _run(capsys, "info", tmp_path)
-    assert code == 2 and "not available yet" in err
-    fake = types.ModuleType("fake_summary")
-    fake.describe = lambda path: f"dataset at {path.name}"
-    monkeypatch.setitem(sys.modules, "fake_summary", fake)
-    monkeypatch.setattr(info_module, "SUMMARY_MODULE", "fake_summary")
-    code, out, _ = _run(capsys, "info", tmp_path)
-    assert code == 0 and out.strip() == f"dataset at {tmp_path.name}"
+    assert code == 2 and err.strip().count("\n") == 0
+    assert "not a dataset folder" in err and tmp_path.name in err
 
 
 def test_reconstruct_png_is_srgb_of_tfp(capsys, stream, tmp_path: Path) -> None:
@@ -180,3 +171,19 @@ def test_reconstruct_reads_only_the_needed_frames(capsys, stream, tmp_path: Path
     assert _run(capsys, "reconstruct", path, *args, "--out", tmp_path / "a.npy")[0] == 0
     assert calls == [slice(45, 56)]
     np.testing.assert_array_equal(read_dat(path, H, W), spikes)
+
+
+def test_threads_option_sets_torch_and_child_processes(capsys, stream, monkeypatch) -> None:
+    import os
+
+    import torch
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "")
+    before = torch.get_num_threads()
+    try:
+        code, _, _ = _run(capsys, "--threads", "1", "info", stream[0], "--height", H, "--width", W)
+        assert code == 0 and os.environ["OMP_NUM_THREADS"] == "1" and torch.get_num_threads() == 1
+        code, _, err = _run(capsys, "--threads", "0", "info", stream[0])
+        assert code == 2 and "--threads" in err
+    finally:
+        torch.set_num_threads(before)

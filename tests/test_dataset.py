@@ -18,7 +18,6 @@ from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.png16 import decode_png16, encode_png16
 from spikenerf.data.dataset import (
-    DatasetWriter,
     load_dataset,
     load_image,
     near_far,
@@ -26,6 +25,7 @@ from spikenerf.data.dataset import (
     read_pose_file,
     write_image,
 )
+from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.trajectory import Intrinsics, novel_views, orbit
 
 H, W, T = 8, 12, 30

@@ -238,3 +238,14 @@ def test_tiny_fit_lowers_the_loss(kind: str) -> None:
     assert final < 0.3 * initial, (initial, final)
     if kind == "grid":
         assert model.field.resolution == 24 and 0.0 < model.field.occupancy.occupied_fraction() < 1.0
+
+
+def test_occupancy_update_never_empties_the_grid() -> None:
+    from spikenerf.fields.occupancy import OccupancyGrid
+
+    occ = OccupancyGrid(8)
+    assert occ.update(lambda x: torch.zeros(len(x)), step_size=0.1) == 1.0  # an untrained field: refused
+    blob = occ.update(lambda x: 100.0 * (x.norm(dim=-1) < 0.3).float(), step_size=0.1, dilation=0)
+    assert 0.0 < blob < 0.1 and occ.query(torch.zeros(1, 3)).item()
+    assert occ.update(lambda x: torch.zeros(len(x)), step_size=0.1) == blob  # keeps the last useful grid
+    assert torch.all(occ.bounds.abs() < 0.6)

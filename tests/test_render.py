@@ -132,10 +132,10 @@ def test_empty_grid_renders_white(channels: int) -> None:
     out = model.render_rays(*_down_ray(4), perturb=True)
     assert out.color.shape == (4, channels)
     assert torch.allclose(out.color, torch.ones_like(out.color), atol=5e-3)
-    model.field.update_occupancy()
-    assert model.field.occupancy.occupied_fraction() == 0.0
+    model.field.update_occupancy()  # nothing above the threshold: the update is refused, not an empty grid
+    assert model.field.occupancy.occupied_fraction() == 1.0
     out = model.render_rays(*_down_ray(4), perturb=True)
-    assert torch.equal(out.color, torch.ones_like(out.color)) and out.num_samples == 0
+    assert torch.allclose(out.color, torch.ones_like(out.color), atol=5e-3) and out.num_samples > 0
 
 
 def test_empty_mlp_renders_exactly_white() -> None:

@@ -301,3 +301,15 @@ def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None
     main(["info", str(out)])
     info = capsys.readouterr().out
     assert "method: nerf-recon" in info and "iterations: 3 of 3" in info and "field: mlp" in info
+
+
+def test_an_early_occupancy_update_does_not_stop_training(dataset_dir: Path, tmp_path: Path) -> None:
+    """Regression: an occupancy update before any density exists used to cull every cell, for good."""
+    cfg = _config(dataset_dir, method="nerf-gt")
+    cfg.iters, cfg.eval_every, cfg.batch = 60, 10, 256
+    cfg.field_config = {"n_voxels_init": 16**3, "n_voxels_final": 32**3}
+    cfg.field_config.update(occupancy_start=1, iterations=60)  # an update after the first step
+    trainer = Trainer(cfg, tmp_path / "run", progress=False)
+    trainer.train()
+    assert trainer.model.field.occupancy.occupied_fraction() > 0.0
+    assert trainer.curves[-1]["test_psnr"] > trainer.curves[0]["test_psnr"] + 3.0

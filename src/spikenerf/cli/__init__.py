@@ -7,6 +7,7 @@ Each subcommand lives in ``spikenerf.cli.<name>`` as a click command named ``com
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 import click
@@ -36,14 +37,7 @@ class LazyGroup(click.Group):
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         if cmd_name not in SUBCOMMANDS:
             return None
-        module_name, short_help = SUBCOMMANDS[cmd_name]
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as err:
-            if err.name != module_name:
-                raise
-            return _not_available(cmd_name, short_help)
-        command: click.Command = module.command
+        command: click.Command = importlib.import_module(SUBCOMMANDS[cmd_name][0]).command
         command.name = cmd_name
         return command
 
@@ -52,20 +46,25 @@ class LazyGroup(click.Group):
             formatter.write_dl([(name, help_) for name, (_, help_) in SUBCOMMANDS.items()])
 
 
-def _not_available(name: str, short_help: str) -> click.Command:
-    @click.command(name=name, help=short_help, context_settings={"ignore_unknown_options": True})
-    @click.argument("args", nargs=-1, type=click.UNPROCESSED)
-    def stub(args: tuple[str, ...]) -> None:
-        click.echo(f"spikenerf {name}: not available yet in this version", err=True)
-        sys.exit(1)
-
-    return stub
-
-
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="spikenerf")
-def cli() -> None:
+@click.option(
+    "--threads",
+    type=click.IntRange(min=1),
+    help="CPU threads per process (sets OMP_NUM_THREADS, inherited by the runs that benchmark and demo "
+    "start) [default: torch's choice]. On a busy 2-core machine, 1 is several times faster.",
+)
+def cli(threads: int | None) -> None:
     """spikenerf: spike cameras, from simulation to Spike-NeRF novel views and novel spike streams."""
+    if threads is not None:
+        set_cpu_threads(threads)
+
+
+def set_cpu_threads(threads: int) -> None:
+    """Use ``threads`` OpenMP threads here and in child processes (torch reads the variable on import)."""
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(threads)
 
 
 def main(argv: list[str] | None = None) -> None:

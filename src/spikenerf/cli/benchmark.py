@@ -26,9 +26,17 @@ from spikenerf.core.errors import InputError
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--test-views", type=int, default=8, show_default=True)
 @click.option("--no-render", is_flag=True, help="Skip rendering test views (no report figures).")
+@click.option(
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Steps run at once (outputs go to OUT/logs/; each gets cpu_count // jobs threads unless "
+    "OMP_NUM_THREADS is set).",
+)
 def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
-    field: str, device: str, seed: int, test_views: int, no_render: bool,
+    field: str, device: str, seed: int, test_views: int, no_render: bool, jobs: int,
 ) -> None:  # fmt: skip
     from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants, run_benchmark
 
@@ -40,7 +48,7 @@ def command(
     cfg = BenchmarkConfig(
         scenes=resolve_scenes(scenes), variants=resolve_variants(methods), colors=colors, out=out,
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
-        test_views=test_views, render=not no_render,
+        test_views=test_views, render=not no_render, jobs=jobs,
     )  # fmt: skip
     run_benchmark(cfg)
     click.echo(f"wrote {out}/table1.md, table2.md, results.csv, results.json")

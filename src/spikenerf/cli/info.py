@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 
 import click
 
 from spikenerf.core.errors import InputError
-
-SUMMARY_MODULE = "spikenerf.data.summary"
 
 
 def describe_dat(
@@ -41,19 +38,6 @@ def describe_dat(
     return lines
 
 
-def describe_folder(path: Path) -> str:
-    """A dataset or run folder summary from ``spikenerf.data.summary.describe`` (when that module exists)."""
-    try:
-        module = importlib.import_module(SUMMARY_MODULE)
-    except ModuleNotFoundError as err:
-        if err.name not in (SUMMARY_MODULE, "spikenerf.data"):
-            raise
-        raise InputError(
-            "dataset/run folder summaries are not available yet in this version", path=path
-        ) from None
-    return module.describe(path)
-
-
 @click.command(help="Summarise a dataset folder, a run folder or a .dat spike file (needs --height/--width).")
 @click.argument("path", type=click.Path(path_type=Path))
 @click.option("--height", type=int, help="Frame height in pixels (for a .dat file).")
@@ -72,7 +56,9 @@ def command(
         click.echo(describe_run(path))
         return
     if path.is_dir():
-        click.echo(describe_folder(path))
+        from spikenerf.data.summary import describe
+
+        click.echo(describe(path))
         return
     if height is None or width is None:
         missing = " and ".join(n for n, v in (("--height", height), ("--width", width)) if v is None)

@@ -11,14 +11,13 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
 import yaml
 
-from spikenerf.camera.io import count_frames, encode_frames, read_dat, rgb_paths
-from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
+from spikenerf.camera.io import count_frames, read_dat, rgb_paths
+from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
@@ -127,100 +126,6 @@ def near_far(poses: np.ndarray, scene_box: np.ndarray) -> tuple[float, float]:
     return max(float(dist.min()) - radius, 0.05), float(dist.max()) + radius
 
 
-# -------------------------------------------------------------------------------------------- writing
-def _matrix(pose: np.ndarray) -> list[list[float]]:
-    return [[float(v) for v in row] for row in np.asarray(pose, dtype=np.float64)]
-
-
-def _dump(header: dict, frames: list[dict]) -> str:
-    """JSON with the header indented and one line per frame (1000-step files stay readable)."""
-    head = "".join(f"  {json.dumps(key)}: {json.dumps(value)},\n" for key, value in header.items())
-    body = ",\n".join("    " + json.dumps(f) for f in frames)
-    return f'{{\n{head}  "frames": [\n{body}\n  ]\n}}\n'
-
-
-class DatasetWriter:
-    """Writes a dataset folder (the ``simulate`` pipeline streams into it).
-
-    Args:
-        root: the folder (created). intrinsics: the camera. fps: spike readout rate (Hz).
-        scene_box: (2, 3) bounds. near, far: ray bounds in scene units.
-    """
-
-    def __init__(
-        self, root: Path, intrinsics: Intrinsics, fps: float, scene_box: np.ndarray, near: float, far: float
-    ) -> None:
-        self.root, self.intrinsics, self.fps = Path(root), intrinsics, float(fps)
-        self.scene_box, self.near, self.far = np.asarray(scene_box, dtype=np.float64), float(near), float(far)
-        self.root.mkdir(parents=True, exist_ok=True)
-        self.gt_paths: dict[int, str] = {}
-        self.blur_frames: list[dict] = []
-        self.test_frames: list[dict] = []
-
-    def header(self, **extra: Any) -> dict:
-        """Camera and scene fields shared by the three transforms files."""
-        k = self.intrinsics
-        camera = {
-            "camera_angle_x": k.camera_angle_x,
-            "w": k.width,
-            "h": k.height,
-            "fl_x": k.fl_x,
-            "fl_y": k.fl_y,
-        }
-        scene = {"fps": self.fps, "scene_box": self.scene_box.tolist(), "near": self.near, "far": self.far}
-        return {**camera, "cx": k.cx, "cy": k.cy, **scene, **extra}
-
-    def start_spikes(self, modes: list[str]) -> None:
-        """Create (truncate) the spike files of ``modes``."""
-        for mode in modes:
-            for name in spike_files(mode):
-                (self.root / name).write_bytes(b"")
-
-    def append_spikes(self, mode: str, spikes: np.ndarray) -> None:
-        """Append steps to a mode's files: bool (n, H, W) gray/bayer or (n, 3, H, W) rgb."""
-        channels = [spikes[:, c] for c in range(3)] if mode == "rgb" else [spikes]
-        for name, stream in zip(spike_files(mode), channels, strict=True):
-            with open(self.root / name, "ab") as fh:
-                fh.write(encode_frames(np.asarray(stream)).tobytes())
-
-    def add_gt(self, step: int, image: np.ndarray) -> None:
-        """Store the sharp render (H, W, 3) linear of ``step`` as ``gt/NNNNN.png``."""
-        rel = f"gt/{step:05d}.png"
-        write_image(self.root / rel, image)
-        self.gt_paths[int(step)] = rel
-
-    def add_blur(self, image: np.ndarray, pose: np.ndarray, step_start: int, step_end: int) -> None:
-        """Store a conventional frame exposed over steps ``[step_start, step_end)``; pose at mid-exposure."""
-        rel = f"blur/{len(self.blur_frames):05d}.png"
-        write_image(self.root / rel, image)
-        frame = {"file_path": rel, "transform_matrix": _matrix(pose), "step_start": int(step_start)}
-        mid = (step_start + step_end - 1) / 2  # the mean time of the renders in the exposure
-        self.blur_frames.append({**frame, "step_end": int(step_end), "time": mid / self.fps})
-
-    def add_test(self, image: np.ndarray, pose: np.ndarray) -> None:
-        """Store a held-out view (H, W, 3) linear with its pose (4, 4)."""
-        rel = f"test/{len(self.test_frames):05d}.png"
-        write_image(self.root / rel, image)
-        self.test_frames.append({"file_path": rel, "transform_matrix": _matrix(pose)})
-
-    def finish(self, trajectory: Trajectory, config: dict, blur_fps: float | None) -> None:
-        """Write the side files, ``config.yaml`` and, last, ``transforms.json``."""
-        if blur_fps:
-            write_text_atomic(
-                self.root / TRANSFORMS_BLUR, _dump(self.header(fps=float(blur_fps)), self.blur_frames)
-            )
-        write_text_atomic(self.root / TRANSFORMS_TEST, _dump(self.header(), self.test_frames))
-        write_text_atomic(self.root / CONFIG, yaml.safe_dump(config, sort_keys=False))
-        frames = []
-        for pose, time, step in zip(trajectory.poses, trajectory.times, trajectory.steps, strict=True):
-            frame = {"step": int(step), "time": float(time), "transform_matrix": _matrix(pose)}
-            if int(step) in self.gt_paths:
-                frame["file_path"] = self.gt_paths[int(step)]
-            frames.append(frame)
-        write_text_atomic(self.root / TRANSFORMS, _dump(self.header(), frames))
-
-
-# -------------------------------------------------------------------------------------------- loading
 def _read_json(path: Path) -> dict:
     if not path.is_file():
         raise InputError("missing file (not a dataset folder written by `spikenerf simulate`?)", path=path)

@@ -21,7 +21,8 @@ from tqdm import tqdm
 from spikenerf import __version__
 from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.core.errors import InputError
-from spikenerf.data.dataset import MODES, DatasetWriter, near_far
+from spikenerf.data.dataset import MODES, near_far
+from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.base import FrameSource
 from spikenerf.scenes.trajectory import Trajectory, pose_at
 

@@ -14,8 +14,10 @@ class OccupancyGrid(nn.Module):
 
     Starts fully occupied; :meth:`update` marks a cell occupied where the density at its centre gives an
     opacity above a threshold over one marching step, dilated by ``dilation`` cells so that thin surfaces
-    between cell centres are kept. Queries are one integer gather per point. ``bounds`` (2, 3) is the
-    normalised box around the occupied cells, so renderers can also shorten the rays.
+    between cell centres are kept. An update that would leave no cell occupied (a field that has not learnt
+    any density yet) is refused: culling everything would also stop every gradient, for good.
+    Queries are one integer gather per point. ``bounds`` (2, 3) is the normalised box around the occupied
+    cells, so renderers can also shorten the rays.
     """
 
     def __init__(self, resolution: int) -> None:
@@ -60,7 +62,7 @@ class OccupancyGrid(nn.Module):
         dilation: int = 1,
         chunk: int = 1 << 18,
     ) -> float:
-        """Recompute the grid from ``density_fn`` and return the occupied fraction.
+        """Recompute the grid from ``density_fn`` and return the occupied fraction (unchanged if all empty).
 
         Args:
             density_fn: normalised points (M, 3) → density (M,) per world unit.
@@ -75,6 +77,8 @@ class OccupancyGrid(nn.Module):
         if dilation > 0:
             k = 2 * dilation + 1
             occ = F.max_pool3d(occ[None, None], kernel_size=k, stride=1, padding=dilation)[0, 0]
+        if not bool(occ.any()):
+            return self.occupied_fraction()
         self.grid = occ > 0.5
         self.bounds = self._occupied_bounds()
         return self.occupied_fraction()

@@ -8,13 +8,17 @@ when its run folder holds ``metrics.json``; finished cells are reused when the b
 from __future__ import annotations
 
 import json
+import os
 import platform
 import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
+from typing import TypeVar
 
 import torch
 from tqdm import tqdm
@@ -41,12 +45,17 @@ VARIANT_FLAGS: dict[str, list[str]] = {
     "spike-nerf-no-mask": ["--method", "spike-nerf", "--no-mask"],
     "spike-nerf-no-spike-loss": ["--method", "spike-nerf", "--no-spike-loss"],
 }
+T = TypeVar("T")
 TABLE1_VARIANTS = ("nerf-gt", "nerf-blur", "nerf-blur-aware", "nerf-recon", "spike-nerf")
 
 
 @dataclass
 class BenchmarkConfig:
-    """What to run; ``size``/``frames``/``iters`` scale from a CPU smoke test up to the paper's setting."""
+    """What to run; ``size``/``frames``/``iters`` scale from a CPU smoke test up to the paper's setting.
+
+    ``jobs`` > 1 runs that many steps at once, each with its output in ``out/logs/`` and, unless
+    ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads.
+    """
 
     scenes: list[str]
     variants: list[str]
@@ -61,6 +70,7 @@ class BenchmarkConfig:
     test_views: int = 8
     render: bool = True
     extra_train_args: list[str] = field(default_factory=list)
+    jobs: int = 1
 
 
 def resolve_scenes(spec: str) -> list[str]:
@@ -146,39 +156,98 @@ def read_cell(run: Path, scene: str, color: str, variant: str) -> Cell | None:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
 
 
-def _run(command: list[str], log: list[dict]) -> None:
+def _run(command: list[str], log: list[dict], output: Path | None = None, threads: int | None = None) -> None:
+    """Run one ``spikenerf`` step; its output goes to the terminal, or appended to ``output``."""
+    env = None if threads is None else {**os.environ, "OMP_NUM_THREADS": str(threads)}
     start = time.perf_counter()
-    result = subprocess.run(command, check=False)
-    log.append(
-        {"command": command[2:], "seconds": round(time.perf_counter() - start, 2), "rc": result.returncode}
-    )
-    if result.returncode != 0:
-        raise InputError(f"step failed with exit code {result.returncode}: spikenerf {' '.join(command[3:])}")
+    if output is None:
+        rc = subprocess.run(command, check=False, env=env).returncode
+    else:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        with output.open("a") as sink:
+            done = subprocess.run(command, check=False, env=env, stdout=sink, stderr=subprocess.STDOUT)
+        rc = done.returncode
+    log.append({"command": command[2:], "seconds": round(time.perf_counter() - start, 2), "rc": rc})
+    if rc != 0:
+        where = f" (output in {output})" if output is not None else ""
+        raise InputError(f"step failed with exit code {rc}: spikenerf {' '.join(command[3:])}{where}")
+
+
+def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> list[T]:
+    """Run ``tasks`` ``jobs`` at a time with a progress bar; results in task order. The first failure
+    cancels the tasks not yet started, lets the running ones finish, and is raised."""
+    results: dict[int, T] = {}
+    with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(tasks), desc=desc, unit=unit) as bar:
+        futures = {pool.submit(task): i for i, task in enumerate(tasks)}
+        try:
+            for future in as_completed(futures):
+                results[futures[future]] = future.result()
+                bar.update()
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+    return [results[i] for i in range(len(tasks))]
+
+
+def _step_output(cfg: BenchmarkConfig, name: str) -> tuple[Path | None, int | None]:
+    """Where a step's output goes and its thread count (the terminal and torch's default for one job)."""
+    if cfg.jobs <= 1:
+        return None, None
+    threads = None if os.environ.get("OMP_NUM_THREADS") else max(1, (os.cpu_count() or 1) // cfg.jobs)
+    return cfg.out / "logs" / f"{name}.log", threads
+
+
+def _simulate_scene(cfg: BenchmarkConfig, scene: str, log: list[dict]) -> None:
+    if not (cfg.out / "datasets" / scene / "transforms.json").is_file():
+        _run(dataset_command(cfg, scene), log, *_step_output(cfg, f"simulate-{scene}"))
+
+
+def _run_cell(cfg: BenchmarkConfig, scene: str, color: str, variant: str, log: list[dict]) -> Cell:
+    """The cell's metrics, training and evaluating it first unless it has finished before."""
+    run = run_dir(cfg, scene, color, variant)
+    cell = read_cell(run, scene, color, variant)
+    if cell is None:
+        for command in cell_commands(cfg, scene, color, variant):
+            _run(command, log, *_step_output(cfg, f"{scene}-{color}-{variant}"))
+        cell = read_cell(run, scene, color, variant)
+        if cell is None:
+            raise InputError("eval finished without writing metrics.json", path=run)
+    return cell
 
 
 def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
     """Simulate each scene once, then train/eval every missing cell; write the tables and the report."""
     cfg.out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
-    for scene in cfg.scenes:
-        if not (cfg.out / "datasets" / scene / "transforms.json").is_file():
-            _run(dataset_command(cfg, scene), log)
-    cells: list[Cell] = []
-    jobs = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
-    for scene, color, variant in tqdm(jobs, desc="benchmark cells", unit="cell"):
-        run = run_dir(cfg, scene, color, variant)
-        cell = read_cell(run, scene, color, variant)
-        if cell is None:
-            for command in cell_commands(cfg, scene, color, variant):
-                _run(command, log)
-            cell = read_cell(run, scene, color, variant)
-            if cell is None:
-                raise InputError("eval finished without writing metrics.json", path=run)
-        cells.append(cell)
-        if on_cell:
-            on_cell(cell)
+    jobs = max(1, cfg.jobs)
+    simulations = [partial(_simulate_scene, cfg, s, log) for s in cfg.scenes]
+    _parallel(simulations, jobs, "benchmark datasets", "scene")
+
+    def cell_task(scene: str, color: str, variant: str) -> Callable[[], Cell]:
+        def task() -> Cell:
+            cell = _run_cell(cfg, scene, color, variant, log)
+            if on_cell:
+                on_cell(cell)
+            return cell
+
+        return task
+
+    keys = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
+    cells = _parallel([cell_task(*key) for key in keys], jobs, "benchmark cells", "cell")
     write_results(cfg, cells, log)
     return cells
+
+
+def cpu_name() -> str:
+    """The CPU model (``/proc/cpuinfo`` on Linux, where ``platform.processor()`` is often empty)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def environment() -> dict:
@@ -187,15 +256,14 @@ def environment() -> dict:
         "spikenerf": __version__,
         "python": platform.python_version(),
         "torch": torch.__version__,
-        "device": torch.cuda.get_device_name(0)
-        if torch.cuda.is_available()
-        else f"cpu ({platform.processor()})",
+        "device": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "cpu",
+        "cpu": f"{cpu_name()}, {os.cpu_count()} logical cores, {torch.get_num_threads()} torch threads",
         "platform": platform.platform(),
     }
 
 
 def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
-    """table1.md, table2.md, results.csv, results.json (+ report.html when the report module is present)."""
+    """table1.md, table2.md, results.csv, results.json and report.html."""
     t1 = "\n\n".join(table1_markdown(cells, [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants,
                                      cfg.scenes, c) for c in cfg.colors)  # fmt: skip
     write_text_atomic(cfg.out / "table1.md", "# Table I: comparison (test views)\n\n" + t1 + "\n")

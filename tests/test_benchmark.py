@@ -1,0 +1,70 @@
+"""The benchmark runner: parallel cells with per-step logs, resume, and failure handling."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from spikenerf.core.errors import InputError
+from spikenerf.pipelines.benchmark import BenchmarkConfig, _parallel, run_benchmark
+
+TRAIN = [
+    "--batch",
+    "64",
+    "--eval-every",
+    "2",
+    "--eval-views",
+    "1",
+    "--spike-window",
+    "8",
+    "--spike-pixels",
+    "8",
+]
+
+
+def test_parallel_keeps_order_runs_at_once_and_stops_on_failure() -> None:
+    running, peak, lock = [0], [0], threading.Lock()
+
+    def task(i: int, fail: bool = False):  # type: ignore[no-untyped-def]
+        def run() -> int:
+            with lock:
+                running[0] += 1
+                peak[0] = max(peak[0], running[0])
+            time.sleep(0.05 * (3 - i % 3))
+            with lock:
+                running[0] -= 1
+            if fail:
+                raise InputError(f"task {i} failed")
+            return i
+
+        return run
+
+    assert _parallel([task(i) for i in range(6)], 2, "t", "task") == list(range(6))
+    assert peak[0] == 2
+    started: list[int] = []
+    tasks = [task(0, fail=True)] + [lambda i=i: time.sleep(0.02) or started.append(i) for i in range(1, 40)]
+    with pytest.raises(InputError, match="task 0 failed"):
+        _parallel(tasks, 1, "t", "task")
+    assert len(started) < 39  # the tasks not yet started were cancelled
+
+
+def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt", "nerf-blur"], ["gray"], tmp_path / "b", size=16,
+                          frames=100, iters=4, device="cpu", test_views=1, render=False,
+                          extra_train_args=TRAIN, jobs=2)  # fmt: skip
+    cells = run_benchmark(cfg)
+    assert [c.variant for c in cells] == ["nerf-gt", "nerf-blur"] and all(c.psnr > 5 for c in cells)
+    logs = sorted(p.name for p in (cfg.out / "logs").iterdir())
+    assert logs == [f"analytic-orbs-gray-{v}.log" for v in ("nerf-blur", "nerf-gt")] + [
+        "simulate-analytic-orbs.log"
+    ]
+    assert "trained 4 iterations" in (cfg.out / "logs" / "analytic-orbs-gray-nerf-gt.log").read_text()
+    log = json.loads((cfg.out / "results.json").read_text())["commands"]["this_run"]
+    assert sorted(entry["command"][1] for entry in log) == ["eval", "eval", "simulate", "train", "train"]
+    assert run_benchmark(cfg) == cells  # everything reused
+    assert json.loads((cfg.out / "results.json").read_text())["commands"]["this_run"] == []
