@@ -313,3 +313,17 @@ def test_an_early_occupancy_update_does_not_stop_training(dataset_dir: Path, tmp
     trainer.train()
     assert trainer.model.field.occupancy.occupied_fraction() > 0.0
     assert trainer.curves[-1]["test_psnr"] > trainer.curves[0]["test_psnr"] + 3.0
+
+
+def test_default_spike_schedule_scales_with_the_run(dataset_dir: Path, tmp_path: Path) -> None:
+    """Regression: a fixed 300-iteration warm-up meant runs of ≤ 300 iterations never used the spike loss."""
+    assert TrainConfig().spike.schedule(1500) == (300, 300) and TrainConfig().spike.schedule(300) == (60, 60)
+    params = {}
+    for enabled in (True, False):
+        cfg = _config(dataset_dir, method="spike-nerf")
+        cfg.iters, cfg.spike.enabled = 10, enabled
+        cfg.spike.warmup_iters = cfg.spike.ramp_iters = None  # the defaults: 2 and 2 for 10 iterations
+        trainer = Trainer(cfg, tmp_path / f"run-{enabled}", progress=False)
+        trainer.train()
+        params[enabled] = torch.cat([p.detach().flatten() for p in trainer.model.parameters()])
+    assert not torch.equal(params[True], params[False])

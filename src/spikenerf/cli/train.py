@@ -88,8 +88,7 @@ _D = TrainConfig()
     "--spike-warmup",
     type=int,
     default=_D.spike.warmup_iters,
-    show_default=True,
-    help="Iterations before λ ramps up.",
+    help="Iterations before λ ramps up (then a ramp of iters/5) [default: iters/5].",
 )
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")

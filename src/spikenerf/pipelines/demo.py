@@ -77,8 +77,8 @@ class DemoConfig:
 def train_args(p: Preset) -> list[str]:
     """Extra ``spikenerf train`` flags of the demo: schedules scaled to its short runs.
 
-    Six evaluations on one view give the training curve; the spike loss starts after a fifth of the run
-    (its default 300-iteration warm-up assumes 1500 iterations).
+    Six evaluations on one view give the training curve; the spike warm-up (a fifth of the run, the
+    trainer's default too) is spelled out so that the recorded commands state it.
     """
     return [
         "--batch", str(p.batch), "--eval-every", str(max(p.iters // 6, 1)), "--eval-views", "1",

@@ -45,7 +45,9 @@ class SpikeLossConfig:
         enabled: use the spike loss (spike-nerf only). kind: ``interval`` (differentiable integral constraint)
             or ``paper`` (the paper's non-differentiable spike comparison, for comparison: no gradient).
         lam: λ after the ramp. warmup_iters: iterations with λ = 0 (no spike windows rendered).
-        ramp_iters: linear ramp of λ from 0 to ``lam``. window: L consecutive steps per window.
+        ramp_iters: linear ramp of λ from 0 to ``lam``. Both default (None) to a fifth of the run
+        (300 each for the default 1500 iterations), see :meth:`schedule`.
+        window: L consecutive steps per window.
         pixels: pixels per window (each renders L rays). pairs: ``all`` sub-windows or the whole ``window``.
         order: ``sequential`` windows along the stream (the paper's deterministic choice) or ``random``.
         every: render a spike window every this many iterations. paper_warmup: steps the paper loss discards.
@@ -54,14 +56,22 @@ class SpikeLossConfig:
     enabled: bool = True
     kind: str = "interval"
     lam: float = 1.0
-    warmup_iters: int = 300
-    ramp_iters: int = 300
+    warmup_iters: int | None = None
+    ramp_iters: int | None = None
     window: int = 16
     pixels: int = 32
     pairs: str = "all"
     order: str = "sequential"
     every: int = 1
     paper_warmup: int = 4
+
+    def schedule(self, iters: int) -> tuple[int, int]:
+        """(warm-up, ramp) iterations for a run of ``iters``: the given values, else ``iters // 5`` each."""
+        default = iters // 5
+        return (
+            default if self.warmup_iters is None else self.warmup_iters,
+            default if self.ramp_iters is None else self.ramp_iters,
+        )
 
 
 @dataclass
@@ -131,6 +141,12 @@ class TrainConfig:
         for name, value in positive.items():
             if value < 1:
                 raise InputError(f"{name} must be ≥ 1, found {value}")
+        for name, value in (
+            ("--spike-warmup", self.spike.warmup_iters),
+            ("spike.ramp", self.spike.ramp_iters),
+        ):
+            if value is not None and value < 0:
+                raise InputError(f"{name} must be ≥ 0, found {value}")
         if self.lr is not None and not self.lr > 0:
             raise InputError(f"--lr must be positive, found {self.lr}")
         if self.spike.lam < 0 or self.eval_every < 0:

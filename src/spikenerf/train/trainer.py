@@ -274,7 +274,7 @@ class Trainer:
             set_learning_rate(self.optimizer, it, cfg.iters, self.final_ratio)
             loss, srgb_mse, rays = self.recon_step()
             loss = loss + self.model.regularization()
-            lam = spike_weight(it, s.lam, s.warmup_iters, s.ramp_iters) if self.spikes is not None else 0.0
+            lam = spike_weight(it, s.lam, *s.schedule(cfg.iters)) if self.spikes is not None else 0.0
             if lam > 0 and it % s.every == 0:
                 spike_loss, spike_rays = self.spike_step()
                 loss, rays = loss + lam * spike_loss, rays + spike_rays
