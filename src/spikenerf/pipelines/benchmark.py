@@ -35,6 +35,8 @@ from spikenerf.pipelines.tables import (
 )
 from spikenerf.scenes.registry import blender_available, list_scenes
 
+T = TypeVar("T")
+
 #: method variant -> the ``spikenerf train`` flags that select it
 VARIANT_FLAGS: dict[str, list[str]] = {
     "nerf-gt": ["--method", "nerf-gt"],
@@ -45,7 +47,6 @@ VARIANT_FLAGS: dict[str, list[str]] = {
     "spike-nerf-no-mask": ["--method", "spike-nerf", "--no-mask"],
     "spike-nerf-no-spike-loss": ["--method", "spike-nerf", "--no-spike-loss"],
 }
-T = TypeVar("T")
 TABLE1_VARIANTS = ("nerf-gt", "nerf-blur", "nerf-blur-aware", "nerf-recon", "spike-nerf")
 
 
