@@ -23,7 +23,17 @@ from spikenerf.core.errors import InputError
 @click.option("--iters", type=int, help="Training iterations per run [default: the trainer's].")
 @click.option("--field", type=click.Choice(["grid", "mlp"]), default="grid", show_default=True)
 @click.option("--device", default="auto", show_default=True, help="auto, cpu or cuda.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Dataset (simulation) seed.")
+@click.option(
+    "--seeds",
+    help="Training seeds, comma-separated (e.g. 0,1,2): every cell is trained once per seed; tables show "
+    "mean ± std and OUT/differences.md the paired differences with 95% intervals [default: --seed].",
+)
+@click.option(
+    "--blur-views", default="all", show_default=True,
+    help="The datasets' blur views (simulate --blur-views): 'all' = the paper's baseline (one exposure "
+    "centred on every step), 'frames' = consecutive 400 fps frames, or N evenly spaced exposures.",
+)  # fmt: skip
 @click.option("--test-views", type=int, default=8, show_default=True)
 @click.option("--no-render", is_flag=True, help="Skip rendering test views (no report figures).")
 @click.option(
@@ -36,19 +46,29 @@ from spikenerf.core.errors import InputError
 )
 def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
-    field: str, device: str, seed: int, test_views: int, no_render: bool, jobs: int,
+    field: str, device: str, seed: int, seeds: str | None, blur_views: str, test_views: int, no_render: bool,
+    jobs: int,
 ) -> None:  # fmt: skip
-    from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants, run_benchmark
+    from spikenerf.data.blur import check_blur_views
+    from spikenerf.pipelines.benchmark import (
+        BenchmarkConfig,
+        parse_seeds,
+        resolve_scenes,
+        resolve_variants,
+        run_benchmark,
+    )
 
     colors = [c.strip() for c in color.split(",") if c.strip()]
     if not colors or any(c not in ("gray", "rgb") for c in colors):
         raise InputError(f"--color: expected gray, rgb or gray,rgb, got {color!r}")
     if size < 8 or frames < 2:
         raise InputError(f"--size must be ≥ 8 and --frames ≥ 2, got {size} and {frames}")
+    views = str(check_blur_views(blur_views, frames))
     cfg = BenchmarkConfig(
         scenes=resolve_scenes(scenes), variants=resolve_variants(methods), colors=colors, out=out,
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
         test_views=test_views, render=not no_render, jobs=jobs,
+        seeds=None if seeds is None else parse_seeds(seeds), blur_views=views,
     )  # fmt: skip
     run_benchmark(cfg)
-    click.echo(f"wrote {out}/table1.md, table2.md, results.csv, results.json")
+    click.echo(f"wrote {out}/table1.md, table2.md, differences.md, results.csv, results.json, report.html")

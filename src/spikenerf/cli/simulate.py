@@ -83,6 +83,12 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 @click.option(
     "--blur-fps", type=float, default=400.0, show_default=True, help="Conventional camera fps (0 = none)."
 )
+@click.option(
+    "--blur-views", default="frames", show_default=True,
+    help="Blur exposures: 'frames' = consecutive non-overlapping frames (PNGs; 10 for 1000 steps, 400 fps), "
+    "'all' = one exposure centred on every step (the paper's baseline, 1000 views), or N evenly spaced "
+    "centres; 'all' and N are stored as one float16 array blur/views.npy.",
+)  # fmt: skip
 @click.option("--list-scenes", is_flag=True, help="List the named scenes and exit.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--no-progress", is_flag=True, help="Hide the progress bars.")
@@ -107,6 +113,7 @@ def command(**kw: Any) -> None:
     if (Path(kw["out"]).exists() or Path(kw["out"]).is_symlink()) and not kw["overwrite"]:
         raise InputError("output already exists; pass --overwrite to replace it", path=kw["out"])
     source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
+    from spikenerf.data.blur import parse_blur_views
     from spikenerf.data.simulate import SimulateOptions, simulate_dataset
 
     options = SimulateOptions(
@@ -117,6 +124,7 @@ def command(**kw: Any) -> None:
         warmup=int(kw["warmup"]),
         gt_every=int(kw["gt_every"]),
         blur_fps=float(kw["blur_fps"]),
+        blur_views=parse_blur_views(kw["blur_views"]),
         overwrite=bool(kw["overwrite"]),
         command=_command_line(kw),
         extra=extra,

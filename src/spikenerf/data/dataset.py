@@ -30,6 +30,8 @@ TRANSFORMS, TRANSFORMS_BLUR, TRANSFORMS_TEST, CONFIG = (
     "config.yaml",
 )
 MODES = ("gray", "rgb", "bayer")
+#: blur views stored as one array (named by ``images_npy`` in transforms_blur.json; frames carry ``index``)
+BLUR_ARRAY = "blur/views.npy"
 
 
 def spike_files(mode: str) -> list[str]:
@@ -75,8 +77,9 @@ def load_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
 # ------------------------------------------------------------------------------------------ containers
 @dataclass(frozen=True)
 class PosedImages:
-    """Images with poses: poses (N, 4, 4) float32 c2w, images (N, H, W, 3) float32 linear,
-    steps (N,) int64 spike steps or None, step_ranges (N, 2) int64 exposure ``[start, end)`` or None."""
+    """Images with poses: poses (N, 4, 4) float32 c2w, images (N, H, W, 3) linear (float32; blur views kept
+    in ``blur/views.npy`` are a read-only float16 memory map), steps (N,) int64 spike steps or None,
+    step_ranges (N, 2) int64 exposure ``[start, end)`` or None."""
 
     poses: np.ndarray
     images: np.ndarray
@@ -211,11 +214,18 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
         return None
     data = _read_json(path)
     _check_camera(data, path, k)
+    frames = _frames(data, path)
+    array = (
+        _image_array(root, data, path, (len(frames), k.height, k.width, 3)) if "images_npy" in data else None
+    )
     poses, images, ranges = [], [], []
-    for i, f in enumerate(_frames(data, path)):
+    for i, f in enumerate(frames):
         where = f"frames[{i}]."
         poses.append(_pose(f, path, where))
-        images.append(load_image(_file(root, f, path, where), (k.height, k.width)))
+        if array is None:
+            images.append(load_image(_file(root, f, path, where), (k.height, k.width)))
+        elif f.get("index") != i:
+            raise InputError(f"field {where}'index': expected {i}, found {f.get('index')!r}", path=path)
         if blur:
             s0, s1 = (_number(f, key, path, where) for key in ("step_start", "step_end"))
             if not (s0 == int(s0) and s1 == int(s1) and 0 <= s0 < s1):
@@ -224,7 +234,25 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
                     path=path,
                 )
             ranges.append((int(s0), int(s1)))
-    return _stack(k, poses, images, None, ranges if blur else None)
+    if array is None:
+        return _stack(k, poses, images, None, ranges if blur else None)
+    n = len(poses)
+    step_ranges = np.asarray(ranges, np.int64).reshape(n, 2) if blur else None
+    return PosedImages(np.asarray(poses, np.float32).reshape(n, 4, 4), array, None, step_ranges)
+
+
+def _image_array(root: Path, data: dict, path: Path, shape: tuple[int, ...]) -> np.ndarray:
+    """The memory-mapped image array named by ``images_npy``: float16/float32 of ``shape`` (N, H, W, 3)."""
+    target = _file(root, {"file_path": data["images_npy"]}, path, "")
+    try:
+        array = np.load(target, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise InputError(f"cannot read the image array ({err})", path=target) from err
+    if array.shape != shape or array.dtype not in (np.float16, np.float32):
+        raise InputError(
+            f"expected a float16/float32 array of shape {shape}, found {array.dtype} {array.shape}", target
+        )
+    return array
 
 
 def _stack(

@@ -21,6 +21,7 @@ from tqdm import tqdm
 from spikenerf import __version__
 from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.core.errors import InputError
+from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
 from spikenerf.data.dataset import MODES, near_far
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.base import FrameSource
@@ -40,7 +41,9 @@ class SimulateOptions:
         threshold: φ. noise: ``ideal`` or ``realistic``. seed: camera seed. warmup: camera warm-up steps.
         gt_every: store the sharp render of every k-th step in ``gt/``.
         blur_fps: conventional camera rate (Hz); each frame averages ``round(fps / blur_fps)`` step renders
-            (a trailing partial window is kept with its real exposure). 0 writes no blur frames.
+            (a window cut by the end of the path keeps its real exposure). 0 writes no blur frames.
+        blur_views: which exposures (data/blur.py): ``frames`` (consecutive, as PNGs), ``all`` (one centred
+            on every step, the paper's) or N evenly spaced centres (both stored in ``blur/views.npy``).
         overwrite: replace an existing ``out``. command: recorded in ``config.yaml``.
         extra: more entries for ``config.yaml`` (e.g. the trajectory parameters).
     """
@@ -52,6 +55,7 @@ class SimulateOptions:
     warmup: int = 0
     gt_every: int = 10
     blur_fps: float = 400.0
+    blur_views: str | int = "frames"
     overwrite: bool = False
     command: str = ""
     extra: dict = field(default_factory=dict)
@@ -60,16 +64,6 @@ class SimulateOptions:
 def work_dir(out: Path) -> Path:
     """The work folder of an output folder: ``<out>.partial``."""
     return out.with_name(out.name + ".partial")
-
-
-def blur_windows(num_steps: int, fps: float, blur_fps: float) -> list[tuple[int, int]]:
-    """Exposure windows ``[start, end)`` in step positions: ``round(fps / blur_fps)`` steps each."""
-    if blur_fps <= 0:
-        return []
-    size = round(fps / blur_fps)
-    if size < 1:
-        raise InputError(f"--blur-fps {blur_fps:g} exceeds the spike rate {fps:g} Hz (need blur_fps ≤ fps)")
-    return [(a, min(a + size, num_steps)) for a in range(0, num_steps, size)]
 
 
 def _fingerprint(source: FrameSource) -> dict:
@@ -149,6 +143,7 @@ def check_options(options: SimulateOptions) -> None:
         raise InputError(f"--gt-every must be ≥ 1, found {options.gt_every}")
     if options.blur_fps < 0:
         raise InputError(f"--blur-fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}")
+    parse_blur_views(options.blur_views)
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
 
@@ -173,7 +168,11 @@ def stream_steps(
     windows: list[tuple[int, int]],
     progress: bool = True,
 ) -> None:
-    """Feed the cached frames, in step order, to one spike camera per colour mode; write spikes, GT, blur."""
+    """Feed the cached frames, in step order, to one spike camera per colour mode; write spikes, GT, blur.
+
+    Blur views come from a running sum over the same stream (frames leaving an exposure are re-read from the
+    cache), so overlapping exposures cost no more memory than one image.
+    """
     h, w = writer.intrinsics.height, writer.intrinsics.width
     cameras = {
         c: SpikeCamera(h, w, CameraConfig(options.threshold, c, options.noise, options.seed, options.warmup))
@@ -181,9 +180,15 @@ def stream_steps(
     }
     writer.start_spikes(list(options.colors))
     buffers: dict[str, list[np.ndarray]] = {c: [] for c in options.colors}
-    blur_sum, win = np.zeros((h, w, 3), np.float64), 0
-    for i, step in enumerate(tqdm(traj.steps, desc="spikes", unit="step", disable=not progress)):
-        frame = np.load(cache / f"{int(step):05d}.npy").astype(np.float32)
+
+    def frame_at(i: int) -> np.ndarray:
+        return np.load(cache / f"{int(traj.steps[i]):05d}.npy").astype(np.float32)
+
+    if windows and options.blur_views != "frames":
+        writer.start_blur_array(len(windows))
+    blur = RunningExposures(windows, frame_at)
+    for i in tqdm(range(len(traj)), desc="spikes", unit="step", disable=not progress):
+        step, frame = traj.steps[i], frame_at(i)
         chw = np.ascontiguousarray(frame.transpose(2, 0, 1))
         for c, camera in cameras.items():
             buffers[c].append(camera.step(chw).copy())
@@ -192,14 +197,10 @@ def stream_steps(
                 buffers[c].clear()
         if i % options.gt_every == 0:
             writer.add_gt(int(step), frame)
-        if windows:
-            blur_sum += frame
-            start, end = windows[win]
-            if i == end - 1:
-                pose = pose_at(traj.poses, (start + end - 1) / 2)
-                s0, s1 = int(traj.steps[start]), int(traj.steps[end - 1]) + 1
-                writer.add_blur(blur_sum / (end - start), pose, s0, s1)
-                blur_sum[:], win = 0.0, win + 1
+        for w, image in blur.push(frame):
+            start, end = windows[w]
+            pose = pose_at(traj.poses, (start + end - 1) / 2)
+            writer.add_blur(image, pose, int(traj.steps[start]), int(traj.steps[end - 1]) + 1)
 
 
 def dataset_config(source: FrameSource, options: SimulateOptions, test_views: int) -> dict:
@@ -218,6 +219,7 @@ def dataset_config(source: FrameSource, options: SimulateOptions, test_views: in
         "warmup": int(options.warmup),
         "gt_every": int(options.gt_every),
         "blur_fps": float(options.blur_fps),
+        "blur_views": options.blur_views,
         "test_views": int(test_views),
         "spikenerf_version": __version__,
         "command": options.command,
@@ -242,7 +244,7 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
     if (out.exists() or out.is_symlink()) and not options.overwrite:
         raise InputError("output already exists; pass --overwrite to replace it", path=out)
     traj, k = source.trajectory, source.intrinsics
-    windows = blur_windows(len(traj), traj.fps, options.blur_fps)
+    windows = blur_windows(len(traj), traj.fps, options.blur_fps, options.blur_views)
     work = work_dir(out)
     fresh = not work.exists()
     cache = open_cache(source, work)

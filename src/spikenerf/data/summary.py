@@ -8,13 +8,22 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
+import yaml
 
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
-from spikenerf.data.dataset import TRANSFORMS, SpikeDataset, load_dataset, spike_files
+from spikenerf.data.dataset import (
+    CONFIG,
+    TRANSFORMS,
+    TRANSFORMS_BLUR,
+    SpikeDataset,
+    _read_json,
+    load_dataset,
+    spike_files,
+)
 
 PREVIEW = "preview.png"
 #: TFP window of the preview (frames), shortened for streams with fewer steps
@@ -55,6 +64,30 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
     image = (np.round(srgb_encode(np.concatenate(panels, axis=1)) * 255)).astype(np.uint8)
     s = max(1, math.ceil(PREVIEW_MIN_HEIGHT / h))
     return np.repeat(np.repeat(image, s, 0), s, 1), caption
+
+
+def view_counts(root: str | Path) -> dict:
+    """What a dataset folder offers for training, from its JSON/YAML files only (no images are read).
+
+    Returns:
+        ``steps`` (spike steps = poses), ``gt`` (stored sharp renders), ``blur`` (blur views, 0 without
+        ``transforms_blur.json``) and ``blur_views`` (``config.yaml``; ``frames`` for older datasets).
+    """
+    root = Path(root)
+    frames = _read_json(root / TRANSFORMS).get("frames") or []
+    blur = (
+        _read_json(root / TRANSFORMS_BLUR).get("frames") or [] if (root / TRANSFORMS_BLUR).is_file() else []
+    )
+    try:
+        config = yaml.safe_load((root / CONFIG).read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError):
+        config = {}
+    return {
+        "steps": len(frames),
+        "gt": sum(isinstance(f, dict) and "file_path" in f for f in frames),
+        "blur": len(blur),
+        "blur_views": config.get("blur_views", "frames") if isinstance(config, dict) else "frames",
+    }
 
 
 def describe(path: str | Path) -> str:

@@ -6,8 +6,10 @@ Every target is *linear* intensity per readout step (1.0 = white, φ = the datas
   spike mask ``M_k = s_{k-n} ∨ … ∨ s_{k+n}`` (n = 5: exactly 11 frames); unmasked (``mask=False``) = ``Î_k``.
 * ``nerf-recon``: ``Î_k`` at every step (no mask).
 * ``nerf-gt``: the sharp ground-truth renders at their poses.
-* ``nerf-blur``: the conventional-camera (400 fps) blur frames at their mid-exposure poses.
-* ``nerf-blur-aware``: the blur frames, each with ``blur_samples`` poses spread over its exposure; the trainer
+* ``nerf-blur``: the conventional-camera (400 fps) blur views the dataset holds (``simulate --blur-views``:
+  10 consecutive frames, or the paper's 1000 overlapping exposures) at their mid-exposure poses.
+* ``nerf-blur-aware`` (a deblurring NeRF given the true trajectory; it does not optimise the trajectory as
+  BAD-NeRF does): the blur views, each with ``blur_samples`` poses spread over its exposure; the trainer
   renders all of them and averages before the loss.
 """
 
@@ -146,6 +148,13 @@ def image_channels(images: np.ndarray | Tensor, color: str) -> Tensor:
     return rgb_to_gray(x, channel_axis=-1)[..., None] if stream_mode(color) == "gray" else x
 
 
+def half_channels(images: np.ndarray, color: str, chunk: int = 64) -> Tensor:
+    """:func:`image_channels` as float16 (N, H, W, C), converted ``chunk`` images at a time (memory maps of
+    1000 blur views never exist in float32 at once)."""
+    parts = [image_channels(images[i : i + chunk], color).half() for i in range(0, len(images), chunk)]
+    return torch.cat(parts) if parts else image_channels(images, color).half()
+
+
 def step_poses(dataset: SpikeDataset, steps: np.ndarray) -> np.ndarray:
     """Trajectory poses (N, 4, 4) at spike ``steps`` (N,) (indices into ``trajectory.steps``)."""
     traj = dataset.trajectory
@@ -220,7 +229,7 @@ def build_image_targets(
             raise InputError(f"blur samples per exposure must be ≥ 1, found {blur_samples}")
         exp = np.stack([step_poses(dataset, exposure_steps(r, blur_samples)) for r in ranges])
         poses = torch.as_tensor(exp, dtype=torch.float32)
-    return ImageTargets(poses, image_channels(blur.images, color).half(), torch.as_tensor(steps))
+    return ImageTargets(poses, half_channels(blur.images, color), torch.as_tensor(steps))
 
 
 def build_spike_targets(

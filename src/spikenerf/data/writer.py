@@ -12,6 +12,7 @@ import yaml
 from spikenerf.camera.io import encode_frames
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.data.dataset import (
+    BLUR_ARRAY,
     CONFIG,
     TRANSFORMS,
     TRANSFORMS_BLUR,
@@ -49,6 +50,7 @@ class DatasetWriter:
         self.root.mkdir(parents=True, exist_ok=True)
         self.gt_paths: dict[int, str] = {}
         self.blur_frames: list[dict] = []
+        self.blur_array: np.ndarray | None = None
         self.test_frames: list[dict] = []
 
     def header(self, **extra: Any) -> dict:
@@ -83,11 +85,27 @@ class DatasetWriter:
         write_image(self.root / rel, image)
         self.gt_paths[int(step)] = rel
 
+    def start_blur_array(self, count: int) -> None:
+        """Store the next ``count`` blur views in one float16 array ``blur/views.npy`` (N, H, W, 3) instead of
+        one PNG each (for the paper's 1000 overlapping views; written in place, memory-mapped)."""
+        (self.root / "blur").mkdir(exist_ok=True)
+        k = self.intrinsics
+        shape = (count, k.height, k.width, 3)
+        self.blur_array = np.lib.format.open_memmap(self.root / BLUR_ARRAY, "w+", np.float16, shape)
+
     def add_blur(self, image: np.ndarray, pose: np.ndarray, step_start: int, step_end: int) -> None:
-        """Store a conventional frame exposed over steps ``[step_start, step_end)``; pose at mid-exposure."""
-        rel = f"blur/{len(self.blur_frames):05d}.png"
-        write_image(self.root / rel, image)
-        frame = {"file_path": rel, "transform_matrix": _matrix(pose), "step_start": int(step_start)}
+        """Store a conventional frame (H, W, 3) linear exposed over steps ``[step_start, step_end)``; pose at
+        mid-exposure. It goes to ``blur/NNNNN.png``, or into the array after :meth:`start_blur_array`."""
+        index = len(self.blur_frames)
+        frame: dict[str, Any]
+        if self.blur_array is None:
+            rel = f"blur/{index:05d}.png"
+            write_image(self.root / rel, image)
+            frame = {"file_path": rel}
+        else:
+            self.blur_array[index] = np.asarray(image, np.float32)
+            frame = {"index": index}
+        frame |= {"transform_matrix": _matrix(pose), "step_start": int(step_start)}
         mid = (step_start + step_end - 1) / 2  # the mean time of the renders in the exposure
         self.blur_frames.append({**frame, "step_end": int(step_end), "time": mid / self.fps})
 
@@ -100,9 +118,16 @@ class DatasetWriter:
     def finish(self, trajectory: Trajectory, config: dict, blur_fps: float | None) -> None:
         """Write the side files, ``config.yaml`` and, last, ``transforms.json``."""
         if blur_fps:
-            write_text_atomic(
-                self.root / TRANSFORMS_BLUR, _dump(self.header(fps=float(blur_fps)), self.blur_frames)
-            )
+            extra: dict[str, Any] = {"fps": float(blur_fps)}
+            if self.blur_array is not None:
+                if len(self.blur_frames) != len(self.blur_array):
+                    raise ValueError(
+                        f"{len(self.blur_frames)} blur views added, {len(self.blur_array)} expected"
+                    )
+                self.blur_array.flush()
+                self.blur_array = None
+                extra["images_npy"] = BLUR_ARRAY
+            write_text_atomic(self.root / TRANSFORMS_BLUR, _dump(self.header(**extra), self.blur_frames))
         write_text_atomic(self.root / TRANSFORMS_TEST, _dump(self.header(), self.test_frames))
         write_text_atomic(self.root / CONFIG, yaml.safe_dump(config, sort_keys=False))
         frames = []

@@ -1,8 +1,9 @@
-"""The paper's comparison (Table I) and ablation (Table II), resumable cell by cell.
+"""The paper's comparison (Table I), ablation (Table II) and paired differences, resumable cell by cell.
 
 Every step is one ``spikenerf`` command run in a subprocess, so the exact commands are recorded in
-``results.json`` and a user can re-run any cell by hand. A cell (scene, method variant, colour) is finished
-when its run folder holds ``metrics.json``; finished cells are reused when the benchmark is restarted.
+``results.json`` and a user can re-run any cell by hand. A cell (scene, colour, method variant, training seed)
+is finished when its run folder holds ``metrics.json``; finished cells are reused when the benchmark is
+restarted. :func:`cell_keys` says which cells there are; ``run_benchmark`` says how they are run.
 """
 
 from __future__ import annotations
@@ -15,24 +16,18 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import torch
 from tqdm import tqdm
 
 from spikenerf import __version__
-from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
-from spikenerf.pipelines.tables import (
-    ABLATION_VARIANTS,
-    Cell,
-    cells_csv,
-    table1_markdown,
-    table2_markdown,
-)
+from spikenerf.data.summary import view_counts
+from spikenerf.pipelines.tables import ABLATION_VARIANTS, Cell
 from spikenerf.scenes.registry import blender_available, list_scenes
 
 T = TypeVar("T")
@@ -55,7 +50,9 @@ class BenchmarkConfig:
     """What to run; ``size``/``frames``/``iters`` scale from a CPU smoke test up to the paper's setting.
 
     ``jobs`` > 1 runs that many steps at once, each with its output in ``out/logs/`` and, unless
-    ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads.
+    ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads. ``seed`` seeds the simulated datasets;
+    ``seeds`` are the training seeds, each cell trained once per seed (None = ``[seed]``). ``blur_views`` is
+    ``simulate --blur-views`` (``all`` = the paper's blur baseline: one exposure centred on every step).
     """
 
     scenes: list[str]
@@ -72,6 +69,44 @@ class BenchmarkConfig:
     render: bool = True
     extra_train_args: list[str] = field(default_factory=list)
     jobs: int = 1
+    seeds: list[int] | None = None
+    blur_views: str = "all"
+
+
+class CellKey(NamedTuple):
+    """What identifies a benchmark cell."""
+
+    scene: str
+    color: str
+    variant: str
+    seed: int
+
+
+def training_seeds(cfg: BenchmarkConfig) -> list[int]:
+    """The training seeds of the benchmark (``cfg.seeds``, or the dataset seed alone)."""
+    return list(cfg.seeds) if cfg.seeds else [cfg.seed]
+
+
+def cell_keys(cfg: BenchmarkConfig) -> list[CellKey]:
+    """Every cell of the benchmark, in the order they are run and tabulated."""
+    seeds = training_seeds(cfg)
+    return [CellKey(s, c, v, k) for s in cfg.scenes for c in cfg.colors for v in cfg.variants for k in seeds]
+
+
+def parse_seeds(spec: str) -> list[int]:
+    """``"0,1,2"`` → ``[0, 1, 2]``; InputError on a non-integer, a negative or a repeated seed."""
+    seeds = []
+    for part in spec.split(","):
+        try:
+            seed = int(part.strip())
+        except ValueError:
+            raise InputError(f"--seeds: expected comma-separated integers, found {part.strip()!r}") from None
+        if seed < 0:
+            raise InputError(f"--seeds: expected non-negative integers, found {seed}")
+        if seed in seeds:
+            raise InputError(f"--seeds: seed {seed} is given twice")
+        seeds.append(seed)
+    return seeds
 
 
 def resolve_scenes(spec: str) -> list[str]:
@@ -117,21 +152,27 @@ def dataset_command(cfg: BenchmarkConfig, scene: str) -> list[str]:
     return _spikenerf(
         "simulate", "--scene", scene, "--width", str(cfg.size), "--height", str(cfg.size),
         "--frames", str(cfg.frames), "--color", color, "--seed", str(cfg.seed),
-        "--test-views", str(cfg.test_views), "--out", str(cfg.out / "datasets" / scene),
+        "--test-views", str(cfg.test_views), "--blur-views", cfg.blur_views,
+        "--out", str(cfg.out / "datasets" / scene),
     )  # fmt: skip
 
 
-def run_dir(cfg: BenchmarkConfig, scene: str, color: str, variant: str) -> Path:
-    """Where one cell's run folder lives."""
-    return cfg.out / "runs" / scene / color / variant
+def run_dir(cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: int | None = None) -> Path:
+    """Where one cell's run folder lives: ``runs/SCENE/COLOR/VARIANT`` for the dataset seed (``cfg.seed``,
+    the layout of single-seed benchmarks), ``runs/SCENE/COLOR/VARIANT-seedK`` for another training seed K."""
+    seed = cfg.seed if seed is None else seed
+    return cfg.out / "runs" / scene / color / (variant if seed == cfg.seed else f"{variant}-seed{seed}")
 
 
-def cell_commands(cfg: BenchmarkConfig, scene: str, color: str, variant: str) -> list[list[str]]:
+def cell_commands(
+    cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: int | None = None
+) -> list[list[str]]:
     """train (resuming an interrupted run), eval, and optionally render, for one cell."""
-    run = run_dir(cfg, scene, color, variant)
+    seed = cfg.seed if seed is None else seed
+    run = run_dir(cfg, scene, color, variant, seed)
     train = _spikenerf(
         "train", str(cfg.out / "datasets" / scene), *VARIANT_FLAGS[variant], "--color", color,
-        "--field", cfg.field_kind, "--device", cfg.device, "--seed", str(cfg.seed), "--out", str(run),
+        "--field", cfg.field_kind, "--device", cfg.device, "--seed", str(seed), "--out", str(run),
         *(["--iters", str(cfg.iters)] if cfg.iters else []), *cfg.extra_train_args,
     )  # fmt: skip
     if (run / "checkpoint.pt").exists():
@@ -142,7 +183,7 @@ def cell_commands(cfg: BenchmarkConfig, scene: str, color: str, variant: str) ->
     return commands
 
 
-def read_cell(run: Path, scene: str, color: str, variant: str) -> Cell | None:
+def read_cell(run: Path, scene: str, color: str, variant: str, seed: int = 0) -> Cell | None:
     """The cell's metrics from ``run/metrics.json`` (None when the cell has not finished)."""
     path = run / "metrics.json"
     if not path.is_file():
@@ -152,7 +193,7 @@ def read_cell(run: Path, scene: str, color: str, variant: str) -> Cell | None:
         mean = metrics["mean"]
         lpips = None if mean.get("lpips") is None else float(mean["lpips"])
         psnr, ssim = float(mean["psnr"]), float(mean["ssim"])
-        return Cell(scene, variant, color, psnr, ssim, lpips, metrics.get("seconds"))
+        return Cell(scene, variant, color, psnr, ssim, lpips, metrics.get("seconds"), seed)
     except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
 
@@ -200,18 +241,28 @@ def _step_output(cfg: BenchmarkConfig, name: str) -> tuple[Path | None, int | No
 
 
 def _simulate_scene(cfg: BenchmarkConfig, scene: str, log: list[dict]) -> None:
-    if not (cfg.out / "datasets" / scene / "transforms.json").is_file():
+    root = cfg.out / "datasets" / scene
+    if not (root / "transforms.json").is_file():
         _run(dataset_command(cfg, scene), log, *_step_output(cfg, f"simulate-{scene}"))
+        return
+    have = str(view_counts(root)["blur_views"])
+    if have != cfg.blur_views:
+        raise InputError(
+            f"dataset was simulated with --blur-views {have}, but the benchmark asks for {cfg.blur_views}; "
+            f"pass --blur-views {have} or delete the dataset to re-simulate it",
+            path=root,
+        )
 
 
-def _run_cell(cfg: BenchmarkConfig, scene: str, color: str, variant: str, log: list[dict]) -> Cell:
+def _run_cell(cfg: BenchmarkConfig, key: CellKey, log: list[dict]) -> Cell:
     """The cell's metrics, training and evaluating it first unless it has finished before."""
-    run = run_dir(cfg, scene, color, variant)
-    cell = read_cell(run, scene, color, variant)
+    run = run_dir(cfg, *key)
+    cell = read_cell(run, *key[:3], seed=key.seed)
     if cell is None:
-        for command in cell_commands(cfg, scene, color, variant):
-            _run(command, log, *_step_output(cfg, f"{scene}-{color}-{variant}"))
-        cell = read_cell(run, scene, color, variant)
+        name = "-".join(map(str, key[:3])) + ("" if key.seed == cfg.seed else f"-seed{key.seed}")
+        for command in cell_commands(cfg, *key):
+            _run(command, log, *_step_output(cfg, name))
+        cell = read_cell(run, *key[:3], seed=key.seed)
         if cell is None:
             raise InputError("eval finished without writing metrics.json", path=run)
     return cell
@@ -225,17 +276,16 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
     simulations = [partial(_simulate_scene, cfg, s, log) for s in cfg.scenes]
     _parallel(simulations, jobs, "benchmark datasets", "scene")
 
-    def cell_task(scene: str, color: str, variant: str) -> Callable[[], Cell]:
+    def cell_task(key: CellKey) -> Callable[[], Cell]:
         def task() -> Cell:
-            cell = _run_cell(cfg, scene, color, variant, log)
+            cell = _run_cell(cfg, key, log)
             if on_cell:
                 on_cell(cell)
             return cell
 
         return task
 
-    keys = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
-    cells = _parallel([cell_task(*key) for key in keys], jobs, "benchmark cells", "cell")
+    cells = _parallel([cell_task(key) for key in cell_keys(cfg)], jobs, "benchmark cells", "cell")
     write_results(cfg, cells, log)
     return cells
 
@@ -264,31 +314,7 @@ def environment() -> dict:
 
 
 def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
-    """table1.md, table2.md, results.csv, results.json and report.html."""
-    t1 = "\n\n".join(table1_markdown(cells, [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants,
-                                     cfg.scenes, c) for c in cfg.colors)  # fmt: skip
-    write_text_atomic(cfg.out / "table1.md", "# Table I: comparison (test views)\n\n" + t1 + "\n")
-    if any(v in ABLATION_VARIANTS for v in cfg.variants):
-        t2 = "\n\n".join(table2_markdown(cells, c) for c in cfg.colors)
-        write_text_atomic(cfg.out / "table2.md", "# Table II: ablation (mean over scenes)\n\n" + t2 + "\n")
-    write_text_atomic(cfg.out / "results.csv", cells_csv(cells))
-    config = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
-    results = {
-        "config": config,
-        "environment": environment(),
-        "cells": [asdict(c) for c in cells],
-        "commands": {
-            "datasets": {s: dataset_command(cfg, s)[2:] for s in cfg.scenes},
-            "cells": {
-                f"{s}/{c}/{v}": [cmd[2:] for cmd in cell_commands(cfg, s, c, v)]
-                for s in cfg.scenes
-                for c in cfg.colors
-                for v in cfg.variants
-            },
-            "this_run": log,
-        },
-    }
-    write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
-    from spikenerf.pipelines.report import build_report  # here: report imports this module
+    """table1.md, table2.md, differences.md, results.csv, results.json and report.html (see results.py)."""
+    from spikenerf.pipelines.results import write_all  # here: results imports this module
 
-    build_report(cfg, list(cells))
+    write_all(cfg, cells, log)

@@ -15,7 +15,7 @@ import base64
 import html
 import json
 import shlex
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,11 +30,22 @@ from spikenerf.pipelines.benchmark import (
     TABLE1_VARIANTS,
     BenchmarkConfig,
     cell_commands,
+    cell_keys,
     dataset_command,
     environment,
     run_dir,
+    training_seeds,
 )
-from spikenerf.pipelines.tables import ABLATION_VARIANTS, METHOD_LABELS, Cell, rank_marks
+from spikenerf.pipelines.stats import differences
+from spikenerf.pipelines.tables import (
+    ABLATION_VARIANTS,
+    METHOD_LABELS,
+    Cell,
+    Table,
+    differences_table,
+    table1,
+    table2,
+)
 
 REPORT, FIGURES = "report.html", "figures"
 SECTIONS = ("tables", "views", "spikes", "curves", "novel-spikes", "environment")
@@ -44,7 +55,8 @@ CSS = """body{font-family:sans-serif;max-width:1200px;margin:1em auto;padding:0 
 table{border-collapse:collapse;margin:.5em 0 1em}td,th{border:1px solid #bbb;padding:3px 7px;font-size:13px}
 td.n{text-align:right;font-variant-numeric:tabular-nums}td.best{background:#f6a5a5;font-weight:bold}
 td.second{background:#fbe79a}.note{color:#666;font-size:12px}figure{margin:.6em 0 1.2em}
-figcaption{font-size:12px;color:#444}img{max-width:100%}nav a{margin-right:1em}
+td.shown{background:#b6e3b0;font-weight:bold}figcaption{font-size:12px;color:#444}img{max-width:100%}
+nav a{margin-right:1em}
 code{font-size:11px;background:#f3f3f3;padding:1px 3px;word-break:break-all}"""
 
 #: section id -> (heading, explanation) of the figure sections
@@ -85,58 +97,30 @@ def _label(variant: str) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- tables
-def _fmt(value: float | None, metric: str) -> str:
-    return "–" if value is None else f"{value:.2f}" if metric == "psnr" else f"{value:.3f}"
-
-
-def _mean(values: Sequence[float | None]) -> float | None:
-    present = [v for v in values if v is not None]
-    return sum(present) / len(present) if present and len(present) == len(values) else None
-
-
-def _table(header: list[str], rows: list[tuple[str, list[tuple[float | None, str, str]]]]) -> str:
-    """rows: (label, [(value, metric, mark)])."""
-    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+def table_html(table: Table) -> str:
+    """A :class:`~spikenerf.pipelines.tables.Table` as HTML (numbers right-aligned; best, second, shown)."""
+    head = "".join(f"<th>{_esc(h)}</th>" for h in table.header)
     body = "".join(
         f"<tr><td>{_esc(label)}</td>"
-        + "".join(f'<td class="n {mark}">{_fmt(v, m)}</td>' for v, m, mark in values)
+        + "".join(
+            "<td>" + _esc(text) + "</td>" if mark == "text" else f'<td class="n {mark}">{_esc(text)}</td>'
+            for text, mark in values
+        )
         + "</tr>"
-        for label, values in rows
+        for label, values in table.rows
     )
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def table1_html(cells: Sequence[Cell], variants: Sequence[str], scenes: Sequence[str], color: str) -> str:
+def table1_html(cells: Sequence[Cell], variants: Sequence[str], scenes: Sequence[str], color: str,
+                trained_on: Mapping[str, str] | None = None) -> str:  # fmt: skip
     """Table I for one colour: rows = variants, (SSIM, PSNR) per scene and their average; best, second."""
-    look = {(c.scene, c.variant): c for c in cells if c.color == color}
-    cols = [*scenes, "average"]
-    val: dict[tuple[str, str, str], float | None] = {}
-    for v in variants:
-        for m in ("ssim", "psnr"):
-            per = [getattr(look[(s, v)], m) if (s, v) in look else None for s in scenes]
-            val.update({(v, s, m): x for s, x in zip(scenes, per, strict=True)})
-            val[(v, "average", m)] = _mean(per)
-    marks = {
-        (s, m): rank_marks({v: val[(v, s, m)] for v in variants}, m) for s in cols for m in ("ssim", "psnr")
-    }
-    header = ["method", *[f"{s} {m}" for s in cols for m in ("SSIM ↑", "PSNR ↑")]]
-    rows = [
-        (_label(v), [(val[(v, s, m)], m, marks[(s, m)][v]) for s in cols for m in ("ssim", "psnr")])
-        for v in variants
-    ]
-    return _table(header, rows)
+    return table_html(table1(cells, variants, scenes, color, trained_on))
 
 
-def table2_html(cells: Sequence[Cell], color: str) -> str:
+def table2_html(cells: Sequence[Cell], color: str, trained_on: Mapping[str, str] | None = None) -> str:
     """Table II (ablation) for one colour: SSIM, PSNR, LPIPS averaged over scenes."""
-    metrics = ("ssim", "psnr", "lpips")
-    rows = {v: [c for c in cells if c.variant == v and c.color == color] for v in ABLATION_VARIANTS}
-    val = {
-        (v, m): _mean([getattr(c, m) for c in rows[v]]) if rows[v] else None for v in rows for m in metrics
-    }
-    marks = {m: rank_marks({v: val[(v, m)] for v in rows}, m) for m in metrics}
-    header = ["method", "SSIM ↑", "PSNR ↑", "LPIPS ↓"]
-    return _table(header, [(_label(v), [(val[(v, m)], m, marks[m][v]) for m in metrics]) for v in rows])
+    return table_html(table2(cells, color, trained_on))
 
 
 def _read_json(path: Path) -> dict:
@@ -148,35 +132,48 @@ def _read_json(path: Path) -> dict:
 
 def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
     """One note per missing cell, per LPIPS null (with its reason) and per cell without renders."""
-    have = {(c.scene, c.color, c.variant) for c in cells}
+    have = {(c.scene, c.color, c.variant, c.seed) for c in cells}
     notes = []
-    for s in cfg.scenes:
-        for c in cfg.colors:
-            for v in cfg.variants:
-                run, where = run_dir(cfg, s, c, v), f"{s}/{c}/{_label(v)}"
-                if (s, c, v) not in have:
-                    notes.append(f"{where}: no result (the cell has not finished).")
-                    continue
-                metrics = _read_json(run / "metrics.json")
-                if metrics.get("mean", {}).get("lpips") is None:
-                    notes.append(f"{where}: LPIPS – ({metrics.get('lpips_reason') or 'not computed'}).")
-                if not (run / "render" / "images").is_dir():
-                    notes.append(f"{where}: no rendered test views (render did not run).")
+    for key in cell_keys(cfg):
+        run = run_dir(cfg, *key)
+        where = f"{key.scene}/{key.color}/{_label(key.variant)}" + (
+            "" if key.seed == cfg.seed else f" (seed {key.seed})"
+        )
+        if key not in have:
+            notes.append(f"{where}: no result (the cell has not finished).")
+            continue
+        metrics = _read_json(run / "metrics.json")
+        if metrics.get("mean", {}).get("lpips") is None:
+            notes.append(f"{where}: LPIPS – ({metrics.get('lpips_reason') or 'not computed'}).")
+        if cfg.render and not (run / "render" / "images").is_dir():
+            notes.append(f"{where}: no rendered test views (render did not run).")
     return notes
 
 
 def _tables_section(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> str:
+    from spikenerf.pipelines.results import differences_note, seed_note, trained_on
+
     t1 = [v for v in cfg.variants if v in TABLE1_VARIANTS] or list(cfg.variants)
+    views = trained_on(cfg)
     parts = ["<h2>Tables</h2><p class='note'>Mean over the held-out test views, metrics on sRGB-encoded "
-             "[0, 1] values. <span style='background:#f6a5a5'>red</span> = best, "
-             "<span style='background:#fbe79a'>yellow</span> = second best; – = not available.</p>",
+             f"[0, 1] values. {_esc(seed_note(training_seeds(cfg)))} "
+             "<span style='background:#f6a5a5'>red</span> = best, "
+             "<span style='background:#fbe79a'>yellow</span> = second best (by the mean); – = not available; "
+             "'trained on' is counted from the datasets.</p>",
              "<h3>Table I: comparison</h3>"]  # fmt: skip
     for color in cfg.colors:
-        parts += [f"<h4>{color.upper()}</h4>", table1_html(cells, t1, cfg.scenes, color)]
+        parts += [f"<h4>{color.upper()}</h4>", table1_html(cells, t1, cfg.scenes, color, views)]
     if sum(v in ABLATION_VARIANTS for v in cfg.variants) > 1:
         parts.append("<h3>Table II: ablation (mean over scenes)</h3>")
         for color in cfg.colors:
-            parts += [f"<h4>{color.upper()}</h4>", table2_html(cells, color)]
+            parts += [f"<h4>{color.upper()}</h4>", table2_html(cells, color, views)]
+    diffs = differences(cells, cfg.colors)
+    parts.append(
+        f"<h3 id='differences'>Paired differences</h3><p class='note'>{_esc(differences_note())}</p>"
+    )
+    parts.append(
+        table_html(differences_table(diffs)) if diffs else "<p class='note'>– no comparable pairs.</p>"
+    )
     notes = _cell_notes(cfg, cells)
     if notes:
         parts.append("<ul class='note'>" + "".join(f"<li>{_esc(n)}</li>" for n in notes) + "</ul>")

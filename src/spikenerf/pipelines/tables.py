@@ -1,35 +1,38 @@
-"""The paper's tables from per-run metrics: Table I (methods × scenes, gray and RGB) and Table II (ablation).
+"""The paper's tables from per-run metrics: Table I (methods × scenes, gray and RGB), Table II (ablation) and
+the paired ``differences`` table, each a :class:`Table`, rendered as Markdown here and as HTML by the report.
 
-Pure functions over a list of :class:`Cell` results; the benchmark writes them as Markdown, CSV and JSON.
+Pure functions over a list of :class:`Cell` results. With several seeds a value is "mean ± std" over the seeds
+(sample standard deviation); a scene average is the mean over scenes per seed, then mean ± std over seeds.
 """
 
 from __future__ import annotations
 
 import csv
 import io
-import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
-#: metric name -> True when higher is better
-HIGHER_IS_BETTER = {"ssim": True, "psnr": True, "lpips": False}
+from spikenerf.pipelines.stats import HIGHER_IS_BETTER, Difference, Stat, summarize
+
+__all__ = ["HIGHER_IS_BETTER", "Cell", "Table"]
 
 #: method variant -> label used in the tables (the paper's naming in brackets)
 METHOD_LABELS = {
     "nerf-gt": "NeRF on sharp GT (oracle)",
     "nerf-blur": "NeRF on 400 fps blur",
-    "nerf-blur-aware": "Exposure-aware NeRF (BAD-NeRF-like)",
+    "nerf-blur-aware": "Deblur NeRF given the true trajectory",
     "nerf-recon": "NeRF + TFP reconstruction",
     "spike-nerf": "Spike-NeRF (ours)",
     "spike-nerf-no-mask": "W/O spike masks",
     "spike-nerf-no-spike-loss": "W/O spike loss",
 }
 ABLATION_VARIANTS = ("spike-nerf-no-mask", "spike-nerf-no-spike-loss", "spike-nerf")
+TRAINED_ON = "trained on"
 
 
 @dataclass(frozen=True)
 class Cell:
-    """One finished (scene, method variant, colour) run and its mean test metrics (None = not available)."""
+    """One finished (scene, method variant, colour, seed) run and its mean test metrics (None = n/a)."""
 
     scene: str
     variant: str
@@ -38,17 +41,25 @@ class Cell:
     ssim: float
     lpips: float | None = None
     seconds: float | None = None
+    seed: int = 0
 
 
-def _mean(values: Sequence[float | None]) -> float | None:
-    vals = [v for v in values if v is not None and not math.isnan(v)]
-    return sum(vals) / len(vals) if len(vals) == len(values) and vals else None
+@dataclass(frozen=True)
+class Table:
+    """A table for Markdown and HTML: ``rows`` are (label, [(text, mark)]); mark is '' (a number), 'best',
+    'second', 'shown' (a verdict) or 'text' (a non-numeric column)."""
+
+    header: list[str]
+    rows: list[tuple[str, list[tuple[str, str]]]]
 
 
-def _fmt(value: float | None, metric: str) -> str:
-    if value is None:
+def fmt(stat: Stat | None, metric: str) -> str:
+    """'–', the value, or 'mean ± std' (PSNR with 2 decimals, SSIM/LPIPS with 3)."""
+    if stat is None:
         return "–"
-    return f"{value:.2f}" if metric == "psnr" else f"{value:.3f}"
+    digits = 2 if metric == "psnr" else 3
+    text = f"{stat.mean:.{digits}f}"
+    return text if stat.std is None else f"{text} ± {stat.std:.{digits}f}"
 
 
 def rank_marks(values: dict[str, float | None], metric: str) -> dict[str, str]:
@@ -72,60 +83,134 @@ def rank_marks(values: dict[str, float | None], metric: str) -> dict[str, str]:
     return marks
 
 
-def _decorate(text: str, mark: str) -> str:
-    return f"**{text}**" if mark == "best" else f"_{text}_" if mark == "second" else text
+def scene_stats(
+    cells: Sequence[Cell], variant: str, scenes: Sequence[str], color: str, metric: str
+) -> dict[str, Stat | None]:
+    """scene (and ``average``) -> mean ± std over seeds of ``metric`` for one variant and colour.
 
-
-def table1_markdown(cells: Sequence[Cell], variants: Sequence[str], scenes: Sequence[str], color: str) -> str:
-    """Table I block for one colour: rows = variants, columns = (SSIM, PSNR) per scene and their average.
-
-    Best values are bold, second best italic (the paper's red and yellow).
+    The average uses the seeds that have every scene: per seed the mean over scenes, then over seeds.
     """
-    lookup = {(c.scene, c.variant): c for c in cells if c.color == color}
-    columns = [*scenes, "average"]
-    header = "| method | " + " | ".join(f"{s} SSIM ↑ | {s} PSNR ↑" for s in columns) + " |"
-    sep = "|---|" + "---:|---:|" * len(columns)
-    table: dict[tuple[str, str, str], float | None] = {}
-    for v in variants:
-        for metric in ("ssim", "psnr"):
-            per_scene = [getattr(lookup[(s, v)], metric) if (s, v) in lookup else None for s in scenes]
-            for s, value in zip(scenes, per_scene, strict=True):
-                table[(v, s, metric)] = value
-            table[(v, "average", metric)] = _mean(per_scene)
-    marks = {
-        (s, m): rank_marks({v: table[(v, s, m)] for v in variants}, m)
-        for s in columns
-        for m in ("ssim", "psnr")
-    }
-    lines = [f"**{color.upper()}**", "", header, sep]
-    for v in variants:
-        row = [
-            _decorate(_fmt(table[(v, s, m)], m), marks[(s, m)][v]) for s in columns for m in ("ssim", "psnr")
-        ]
-        lines.append(f"| {METHOD_LABELS.get(v, v)} | " + " | ".join(row) + " |")
-    return "\n".join(lines)
+    per: dict[str, dict[int, float | None]] = {s: {} for s in scenes}
+    for c in cells:
+        if c.variant == variant and c.color == color and c.scene in per:
+            per[c.scene][c.seed] = getattr(c, metric)
+    out: dict[str, Stat | None] = {s: summarize(list(per[s].values())) for s in scenes}
+    seeds = set.intersection(*(set(per[s]) for s in scenes)) if scenes else set()
+    averages = []
+    for seed in sorted(seeds):
+        vals = [per[s][seed] for s in scenes]
+        averages.append(None if any(v is None for v in vals) else sum(vals) / len(vals))  # type: ignore[arg-type]
+    out["average"] = summarize(averages)
+    return out
 
 
-def table2_markdown(cells: Sequence[Cell], color: str) -> str:
-    """Table II (ablation) for one colour: SSIM, PSNR, LPIPS averaged over scenes for the three variants."""
-    rows = {v: [c for c in cells if c.variant == v and c.color == color] for v in ABLATION_VARIANTS}
-    values = {
-        (v, m): _mean([getattr(c, m) for c in rows[v]]) if rows[v] else None
+def _marked(stats: dict[tuple[str, str, str], Stat | None], variants: Sequence[str], cols, metrics) -> Table:
+    """Rows of ``stats[(variant, column, metric)]`` with best/second marks per column (by the mean)."""
+    means = {key: None if stat is None else stat.mean for key, stat in stats.items()}
+    marks = {(s, m): rank_marks({v: means[(v, s, m)] for v in variants}, m) for s in cols for m in metrics}
+    rows = [
+        (
+            METHOD_LABELS.get(v, v),
+            [(fmt(stats[(v, s, m)], m), marks[(s, m)][v]) for s in cols for m in metrics],
+        )
+        for v in variants
+    ]
+    return Table([], rows)
+
+
+def _with_trained_on(
+    table: Table, header: list[str], trained_on: Mapping[str, str] | None, variants
+) -> Table:
+    if trained_on is None:
+        return Table(header, table.rows)
+    rows = [
+        (label, [(trained_on.get(v, "–"), "text"), *vals])
+        for (label, vals), v in zip(table.rows, variants, strict=True)
+    ]
+    return Table([header[0], TRAINED_ON, *header[1:]], rows)
+
+
+def table1(
+    cells: Sequence[Cell],
+    variants: Sequence[str],
+    scenes: Sequence[str],
+    color: str,
+    trained_on: Mapping[str, str] | None = None,
+) -> Table:
+    """Table I for one colour: rows = variants, (SSIM, PSNR) per scene and their average; best, second.
+
+    ``trained_on`` (variant -> e.g. "1000 poses") adds a column with what each method trained on.
+    """
+    cols, metrics = [*scenes, "average"], ("ssim", "psnr")
+    stats = {}
+    for v in variants:
+        for m in metrics:
+            for s, stat in scene_stats(cells, v, scenes, color, m).items():
+                stats[(v, s, m)] = stat
+    header = ["method", *[f"{s} {m}" for s in cols for m in ("SSIM ↑", "PSNR ↑")]]
+    return _with_trained_on(_marked(stats, variants, cols, metrics), header, trained_on, variants)
+
+
+def table2(cells: Sequence[Cell], color: str, trained_on: Mapping[str, str] | None = None) -> Table:
+    """Table II (ablation) for one colour: SSIM, PSNR, LPIPS averaged over scenes, mean ± std over seeds."""
+    metrics = ("ssim", "psnr", "lpips")
+    scenes = sorted({c.scene for c in cells if c.color == color and c.variant in ABLATION_VARIANTS})
+    stats = {
+        (v, "average", m): scene_stats(cells, v, scenes, color, m)["average"] if scenes else None
         for v in ABLATION_VARIANTS
-        for m in ("ssim", "psnr", "lpips")
+        for m in metrics
     }
-    marks = {
-        m: rank_marks({v: values[(v, m)] for v in ABLATION_VARIANTS}, m) for m in ("ssim", "psnr", "lpips")
-    }
-    lines = [f"**{color.upper()}**", "", "| method | SSIM ↑ | PSNR ↑ | LPIPS ↓ |", "|---|---:|---:|---:|"]
-    for v in ABLATION_VARIANTS:
-        row = [_decorate(_fmt(values[(v, m)], m), marks[m][v]) for m in ("ssim", "psnr", "lpips")]
-        lines.append(f"| {METHOD_LABELS[v]} | " + " | ".join(row) + " |")
+    header = ["method", "SSIM ↑", "PSNR ↑", "LPIPS ↓"]
+    return _with_trained_on(_marked(stats, ABLATION_VARIANTS, ["average"], metrics), header, trained_on,
+                            ABLATION_VARIANTS)  # fmt: skip
+
+
+def _num(x: float | None, metric: str) -> str:
+    return "–" if x is None else f"{x:+.{2 if metric == 'psnr' else 3}f}"
+
+
+def differences_table(diffs: Sequence[Difference]) -> Table:
+    """One row per (comparison, colour, metric): pairs, mean difference ± std, the 95% interval, verdict."""
+    header = ["difference", "colour", "metric", "pairs", "mean ± std", "95% CI", "verdict"]
+    rows = []
+    for d in diffs:
+        label = f"{METHOD_LABELS.get(d.ours, d.ours)} − {METHOD_LABELS.get(d.baseline, d.baseline)}"
+        ci = "–" if d.low is None else f"[{_num(d.low, d.metric)}, {_num(d.high, d.metric)}]"
+        std = "" if d.std is None else f" ± {d.std:.{2 if d.metric == 'psnr' else 3}f}"
+        arrow = "↓" if not HIGHER_IS_BETTER[d.metric] else "↑"
+        mark = "shown" if d.verdict == "shown" else ""
+        values = [(d.color, "text"), (f"{d.metric.upper()} {arrow}", "text"), (str(d.n), ""),
+                  (_num(d.mean, d.metric) + std, ""), (ci, ""), (d.verdict, mark)]  # fmt: skip
+        rows.append((label, values))
+    return Table(header, rows)
+
+
+def to_markdown(table: Table, title: str = "") -> str:
+    """The table as GitHub Markdown (best bold, second italic), under ``title`` when given."""
+
+    def cell(text: str, mark: str) -> str:
+        return f"**{text}**" if mark in ("best", "shown") else f"_{text}_" if mark == "second" else text
+
+    align = "|".join("---" if i == 0 or mark == "text" else "---:" for i, (_, mark) in
+                     enumerate([("", "text"), *(table.rows[0][1] if table.rows else [])]))  # fmt: skip
+    lines = [*([title, ""] if title else []), "| " + " | ".join(table.header) + " |", f"|{align}|"]
+    lines += ["| " + " | ".join([label, *(cell(t, m) for t, m in vals)]) + " |" for label, vals in table.rows]
     return "\n".join(lines)
+
+
+def table1_markdown(cells: Sequence[Cell], variants: Sequence[str], scenes: Sequence[str], color: str,
+                    trained_on: Mapping[str, str] | None = None) -> str:  # fmt: skip
+    """Table I block for one colour (see :func:`table1`): best values bold, second best italic."""
+    return to_markdown(table1(cells, variants, scenes, color, trained_on), f"**{color.upper()}**")
+
+
+def table2_markdown(cells: Sequence[Cell], color: str, trained_on: Mapping[str, str] | None = None) -> str:
+    """Table II (ablation) block for one colour (see :func:`table2`)."""
+    return to_markdown(table2(cells, color, trained_on), f"**{color.upper()}**")
 
 
 def cells_csv(cells: Sequence[Cell]) -> str:
-    """All cells as CSV (one row per scene, variant and colour)."""
+    """All cells as CSV (one row per scene, variant, colour and seed)."""
     buffer = io.StringIO()
     fields = list(asdict(cells[0]).keys()) if cells else [f for f in Cell.__dataclass_fields__]
     writer = csv.DictWriter(buffer, fieldnames=fields, lineterminator="\n")

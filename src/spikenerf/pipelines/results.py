@@ -1,0 +1,131 @@
+"""The benchmark's written results: table1.md, table2.md, differences.md, results.csv, results.json (and
+the report), from the finished cells; see docs/results.md for what each table means."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+import yaml
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.data.summary import view_counts
+from spikenerf.pipelines.benchmark import (
+    TABLE1_VARIANTS,
+    BenchmarkConfig,
+    cell_commands,
+    cell_keys,
+    dataset_command,
+    environment,
+    run_dir,
+    training_seeds,
+)
+from spikenerf.pipelines.stats import Difference, differences
+from spikenerf.pipelines.tables import (
+    ABLATION_VARIANTS,
+    Cell,
+    cells_csv,
+    differences_table,
+    table1_markdown,
+    table2_markdown,
+    to_markdown,
+)
+
+
+def blur_samples(run: Path) -> int:
+    """Poses per exposure of a ``nerf-blur-aware`` run (its ``config.yaml``; else the trainer default)."""
+    from spikenerf.train.config import TargetConfig
+
+    try:
+        return int(yaml.safe_load((run / "config.yaml").read_text())["targets"]["blur_samples"])
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        return TargetConfig().blur_samples
+
+
+def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
+    """variant -> what its runs trained on, counted from the datasets (values differing by scene joined by /).
+
+    Spike methods see every step's pose, ``nerf-gt`` the stored GT renders, ``nerf-blur`` the blur views,
+    ``nerf-blur-aware`` each blur view rendered at ``blur_samples`` poses of its exposure (run config).
+    """
+    counts = [view_counts(root) for s in cfg.scenes if (root := cfg.out / "datasets" / s).is_dir()]
+    out = {}
+    for v in cfg.variants:
+        if v == "nerf-gt":
+            texts = {f"{c['gt']} GT views" for c in counts}
+        elif v in ("nerf-blur", "nerf-blur-aware"):
+            texts = {f"{c['blur']} blur views" for c in counts}
+            if v == "nerf-blur-aware":
+                samples = {blur_samples(run_dir(cfg, *k)) for k in cell_keys(cfg) if k.variant == v}
+                texts = {f"{t} × {'/'.join(map(str, sorted(samples)))} poses" for t in texts}
+        else:
+            texts = {f"{c['steps']} poses" for c in counts}
+        out[v] = " / ".join(sorted(texts)) or "–"
+    return out
+
+
+def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
+    """table1.md, table2.md, differences.md, results.csv, results.json and report.html."""
+    views, seeds = trained_on(cfg), training_seeds(cfg)
+    t1_variants = [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants
+    t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
+    note = (
+        f"{seed_note(seeds)} Test views: {cfg.test_views} per scene; 'trained on' counted from the datasets."
+    )
+    write_text_atomic(cfg.out / "table1.md", f"# Table I: comparison (test views)\n\n{note}\n\n{t1}\n")
+    if any(v in ABLATION_VARIANTS for v in cfg.variants):
+        t2 = "\n\n".join(table2_markdown(cells, c, views) for c in cfg.colors)
+        write_text_atomic(
+            cfg.out / "table2.md", f"# Table II: ablation (mean over scenes)\n\n{note}\n\n{t2}\n"
+        )
+    diffs = differences(cells, cfg.colors)
+    write_text_atomic(cfg.out / "differences.md", differences_markdown(diffs))
+    write_text_atomic(cfg.out / "results.csv", cells_csv(cells))
+    config = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    results = {
+        "config": config,
+        "environment": environment(),
+        "cells": [asdict(c) for c in cells],
+        "trained_on": views,
+        "differences": [asdict(d) for d in diffs],
+        "commands": {
+            "datasets": {s: dataset_command(cfg, s)[2:] for s in cfg.scenes},
+            "cells": {
+                "/".join(map(str, k[:3])) + ("" if k.seed == cfg.seed else f"/seed{k.seed}"): [
+                    cmd[2:] for cmd in cell_commands(cfg, *k)
+                ]
+                for k in cell_keys(cfg)
+            },
+            "this_run": log,
+        },
+    }
+    write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
+    from spikenerf.pipelines.report import build_report  # here: report imports this module
+
+    build_report(cfg, list(cells))
+
+
+def seed_note(seeds: Sequence[int]) -> str:
+    if len(seeds) == 1:
+        return f"One training seed ({seeds[0]}): no error bars."
+    return (
+        f"Mean ± sample standard deviation over {len(seeds)} training seeds ({', '.join(map(str, seeds))})."
+    )
+
+
+def differences_note() -> str:
+    """How the differences table is computed (shown above it in Markdown and HTML)."""
+    return (
+        "Each difference (ours − baseline) is paired over scene × seed: the same dataset and training seed. "
+        "95% confidence interval = mean ± t(0.975, n−1)·std/√n (Student t). A claim is 'shown' only when the "
+        "interval excludes 0 on the claimed side (higher PSNR/SSIM, lower LPIPS); otherwise 'not shown' "
+        "('reversed' when the interval excludes 0 on the other side). One pair gives no interval."
+    )
+
+
+def differences_markdown(diffs: Sequence[Difference]) -> str:
+    """``differences.md``: the paired differences the paper claims, with 95% Student-t intervals."""
+    table = to_markdown(differences_table(diffs)) if diffs else "No comparable pairs were run."
+    return f"# Paired differences (ours − baseline)\n\n{differences_note()}\n\n{table}\n"

@@ -1,0 +1,124 @@
+"""Error bars over seeds: mean ± standard deviation, and paired differences with Student-t 95% intervals.
+
+A benchmark cell is one (scene, colour, method variant, seed) run. Tables aggregate the seeds of a
+(scene, colour, variant) to mean ± sample standard deviation (ddof = 1). The ``differences`` table pairs two
+variants on the same (scene, seed) and gives the mean difference with a two-sided Student-t confidence
+interval over those pairs; a claim is "shown" only when the interval excludes 0 on the claimed side.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from spikenerf.pipelines.tables import Cell
+
+#: metric name -> True when higher is better
+HIGHER_IS_BETTER = {"ssim": True, "psnr": True, "lpips": False}
+
+#: the paired differences the paper claims: (ours, baseline); ours should be better on every metric
+COMPARISONS: tuple[tuple[str, str], ...] = (
+    ("spike-nerf", "nerf-recon"),
+    ("spike-nerf", "nerf-blur"),
+    ("spike-nerf", "spike-nerf-no-mask"),
+    ("spike-nerf", "spike-nerf-no-spike-loss"),
+)
+DIFF_METRICS = ("psnr", "ssim", "lpips")
+CONFIDENCE = 0.95
+
+
+@dataclass(frozen=True)
+class Stat:
+    """Mean and sample standard deviation (None for a single value) of ``n`` values."""
+
+    mean: float
+    std: float | None
+    n: int
+
+
+def summarize(values: Sequence[float | None]) -> Stat | None:
+    """Mean ± sample std (ddof = 1) of ``values``; None when any value is missing (None or NaN) or none."""
+    if not values or any(v is None or math.isnan(v) for v in values):
+        return None
+    vals = [float(v) for v in values if v is not None]
+    mean = sum(vals) / len(vals)
+    std = math.sqrt(sum((v - mean) ** 2 for v in vals) / (len(vals) - 1)) if len(vals) > 1 else None
+    return Stat(mean, std, len(vals))
+
+
+def t_quantile(p: float, dof: int) -> float:
+    """The ``p`` quantile of Student's t distribution with ``dof`` degrees of freedom (scipy)."""
+    from scipy.stats import t
+
+    return float(t.ppf(p, dof))
+
+
+@dataclass(frozen=True)
+class Difference:
+    """One paired difference ``ours − baseline`` of ``metric`` in ``color`` over ``n`` (scene, seed) pairs.
+
+    ``low``/``high`` bound the two-sided 95% Student-t interval (None with fewer than 2 pairs); ``verdict``
+    is "shown" when the interval excludes 0 on the claimed side (higher PSNR/SSIM, lower LPIPS), "not shown"
+    when it contains 0 or cannot be computed, and "not shown (reversed)" when it excludes 0 on the other side.
+    """
+
+    ours: str
+    baseline: str
+    color: str
+    metric: str
+    n: int
+    mean: float
+    std: float | None
+    low: float | None
+    high: float | None
+    verdict: str
+
+
+def paired_difference(
+    ours: str, baseline: str, color: str, metric: str, diffs: Sequence[float]
+) -> Difference:
+    """The mean of ``diffs`` (ours − baseline, one per pair) with its t interval and verdict."""
+    stat = summarize(diffs)
+    if stat is None:
+        raise ValueError("paired_difference needs at least one difference")
+    low = high = None
+    verdict = "not shown"
+    if stat.std is not None:
+        half = t_quantile(0.5 + CONFIDENCE / 2, stat.n - 1) * stat.std / math.sqrt(stat.n)
+        low, high = stat.mean - half, stat.mean + half
+        better = HIGHER_IS_BETTER[metric]
+        if (low > 0 and better) or (high < 0 and not better):
+            verdict = "shown"
+        elif (high < 0 and better) or (low > 0 and not better):
+            verdict = "not shown (reversed)"
+    return Difference(ours, baseline, color, metric, stat.n, stat.mean, stat.std, low, high, verdict)
+
+
+def differences(
+    cells: Sequence[Cell],
+    colors: Sequence[str],
+    comparisons: Sequence[tuple[str, str]] = COMPARISONS,
+    metrics: Sequence[str] = DIFF_METRICS,
+) -> list[Difference]:
+    """Every claimed difference whose two variants both have cells, per colour and metric.
+
+    Pairs are the (scene, seed) keys where both variants have a value of the metric (LPIPS may be None).
+    """
+    value = {(c.scene, c.seed, c.color, c.variant): c for c in cells}
+    out = []
+    for ours, base in comparisons:
+        for color in colors:
+            keys = sorted({(s, k) for s, k, col, v in value if col == color and v == ours})
+            for metric in metrics:
+                diffs = []
+                for scene, seed in keys:
+                    a, b = value[(scene, seed, color, ours)], value.get((scene, seed, color, base))
+                    x, y = getattr(a, metric), None if b is None else getattr(b, metric)
+                    if x is not None and y is not None and not (math.isnan(x) or math.isnan(y)):
+                        diffs.append(x - y)
+                if diffs:
+                    out.append(paired_difference(ours, base, color, metric, diffs))
+    return out
