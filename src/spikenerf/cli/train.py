@@ -41,7 +41,8 @@ _D = TrainConfig()
 @click.command(
     help="Train a radiance field on a spike dataset folder (written by `spikenerf simulate`) into RUN.\n\n"
     "Methods: spike-nerf (masked TFP/TFI targets + differentiable spike loss), nerf-recon (TFP/TFI targets), "
-    "nerf-blur (400 fps blur frames), nerf-blur-aware (blur frames, exposure-averaged renders), nerf-gt "
+    "nerf-blur (the dataset's 400 fps blur views), nerf-blur-aware (deblur NeRF given the true trajectory: "
+    "blur views, exposure-averaged renders), nerf-gt "
     "(sharp ground truth, an oracle). Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
     "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones)."
 )

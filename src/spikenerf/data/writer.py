@@ -103,7 +103,7 @@ class DatasetWriter:
             write_image(self.root / rel, image)
             frame = {"file_path": rel}
         else:
-            self.blur_array[index] = np.asarray(image, np.float32)
+            self.blur_array[index] = np.clip(image, 0.0, 1.0)  # the range the PNGs hold
             frame = {"index": index}
         frame |= {"transform_matrix": _matrix(pose), "step_start": int(step_start)}
         mid = (step_start + step_end - 1) / 2  # the mean time of the renders in the exposure
