@@ -7,6 +7,7 @@ when its run folder holds ``metrics.json``; finished cells are reused when the b
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import platform
@@ -55,7 +56,8 @@ class BenchmarkConfig:
     """What to run; ``size``/``frames``/``iters`` scale from a CPU smoke test up to the paper's setting.
 
     ``jobs`` > 1 runs that many steps at once, each with its output in ``out/logs/`` and, unless
-    ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads.
+    ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads. ``executor="ray"`` runs the steps as Ray
+    tasks instead (:mod:`spikenerf.pipelines.ray_executor`, which uses the ``address`` … ``ray_cpus`` fields).
     """
 
     scenes: list[str]
@@ -72,6 +74,11 @@ class BenchmarkConfig:
     render: bool = True
     extra_train_args: list[str] = field(default_factory=list)
     jobs: int = 1
+    executor: str = "local"
+    address: str | None = None
+    retries: int = 2
+    ship_results: bool = False
+    ray_cpus: float = 1.0
 
 
 def resolve_scenes(spec: str) -> list[str]:
@@ -157,16 +164,27 @@ def read_cell(run: Path, scene: str, color: str, variant: str) -> Cell | None:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
 
 
+#: a step's child process dies with the process that started it (Linux), so a killed Ray worker or benchmark
+#: leaves no orphan writing into a cell that is then retried
+_PRCTL = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
+
+
+def _die_with_parent() -> None:
+    if _PRCTL is not None:
+        _PRCTL(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
+
+
 def _run(command: list[str], log: list[dict], output: Path | None = None, threads: int | None = None) -> None:
     """Run one ``spikenerf`` step; its output goes to the terminal, or appended to ``output``."""
     env = None if threads is None else {**os.environ, "OMP_NUM_THREADS": str(threads)}
     start = time.perf_counter()
     if output is None:
-        rc = subprocess.run(command, check=False, env=env).returncode
+        rc = subprocess.run(command, check=False, env=env, preexec_fn=_die_with_parent).returncode
     else:
         output.parent.mkdir(parents=True, exist_ok=True)
         with output.open("a") as sink:
-            done = subprocess.run(command, check=False, env=env, stdout=sink, stderr=subprocess.STDOUT)
+            done = subprocess.run(command, check=False, env=env, stdout=sink, stderr=subprocess.STDOUT,
+                                  preexec_fn=_die_with_parent)  # fmt: skip
         rc = done.returncode
     log.append({"command": command[2:], "seconds": round(time.perf_counter() - start, 2), "rc": rc})
     if rc != 0:
@@ -219,8 +237,19 @@ def _run_cell(cfg: BenchmarkConfig, scene: str, color: str, variant: str, log: l
 
 def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
     """Simulate each scene once, then train/eval every missing cell; write the tables and the report."""
+    if cfg.executor == "ray":
+        from spikenerf.pipelines.ray_executor import require_ray  # here: it imports this module
+
+        require_ray()  # without Ray: one line, before anything is written
     cfg.out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
+    keys = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
+    if cfg.executor == "ray":
+        from spikenerf.pipelines.ray_executor import run_cells
+
+        cells = run_cells(cfg, keys, log)
+        write_results(cfg, cells, log)
+        return cells
     jobs = max(1, cfg.jobs)
     simulations = [partial(_simulate_scene, cfg, s, log) for s in cfg.scenes]
     _parallel(simulations, jobs, "benchmark datasets", "scene")
@@ -234,7 +263,6 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
 
         return task
 
-    keys = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
     cells = _parallel([cell_task(*key) for key in keys], jobs, "benchmark cells", "cell")
     write_results(cfg, cells, log)
     return cells
