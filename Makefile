@@ -2,7 +2,7 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-EXTRAS ?= dev,blender
+EXTRAS ?= dev,blender,cluster
 
 .PHONY: venv demo test lint format clean
 

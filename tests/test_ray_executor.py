@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from spikenerf.cli import main
+from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
 from spikenerf.pipelines.ray_executor import INSTALL_HINT, scratch_root
 
@@ -142,6 +143,20 @@ def test_killed_worker_cell_is_retried_and_nothing_is_lost(
     assert finished.stat().st_mtime_ns == before  # the finished cell was not run again
     assert [c["variant"] for c in numbers(out)] == ["spike-nerf", "nerf-gt"]
     assert numbers(out)[0] == numbers(local_run)[0]
+
+
+def test_failing_cell_is_retried_and_its_logs_kept(cluster: Path, local_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "b"
+    shutil.copytree(local_run / "datasets", out / "datasets")
+    cfg = tiny(out, ["nerf-gt"], executor="ray", retries=1)
+    cfg.extra_train_args = [*TRAIN, "--no-such-flag"]  # train exits with code 2
+    with pytest.raises(
+        InputError, match=r"1 job\(s\) failed after 1 retries: analytic-orbs-gray-nerf-gt \(step "
+    ):
+        run_benchmark(cfg)
+    log = (out / "logs" / "analytic-orbs-gray-nerf-gt.log").read_text()
+    assert len(WORKER.findall(log)) == 2 and log.count("--no-such-flag") == 2  # both attempts' output kept
+    assert not (out / "results.json").exists()
 
 
 def test_without_ray_one_line_hint_exit_2(

@@ -37,7 +37,8 @@ from spikenerf.core.errors import InputError
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="local: --jobs processes on this machine; ray: every dataset and cell a Ray task (needs "
               "'spikenerf[cluster]'; OUT on shared storage, see docs/cluster.md).")  # fmt: skip
-@click.option("--address", help="Ray cluster: 'auto', HOST:PORT [default: $RAY_ADDRESS or a new local one].")
+@click.option("--address", help="Ray cluster: 'auto', HOST:PORT or 'local' (a new one here) [default: "
+              "$RAY_ADDRESS, else the cluster last started here, else a new local one].")  # fmt: skip
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="Ray: retries of a failed cell (logs of every attempt kept in OUT/logs/).")  # fmt: skip
 @click.option(

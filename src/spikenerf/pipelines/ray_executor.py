@@ -170,6 +170,8 @@ def run_jobs(cfg: BenchmarkConfig, jobs: list[Job], log: list[dict]) -> None:
     """Run ``jobs`` on Ray (datasets first, cells after their dataset), appending the steps run to ``log``;
     InputError lists the jobs that still failed after ``cfg.retries`` retries."""
     ray = require_ray()
+    if all((cfg.out / job.done).is_file() for job in jobs):
+        return  # all finished before: no cluster needed
     started = _connect(ray, cfg.address)
     out = str(cfg.out.resolve())
     gpus = cfg.device == "cuda" or (cfg.device == "auto" and ray.cluster_resources().get("GPU", 0) > 0)
@@ -184,7 +186,7 @@ def run_jobs(cfg: BenchmarkConfig, jobs: list[Job], log: list[dict]) -> None:
                 continue  # finished before
             if job.needs and job.needs not in by_name and cfg.ship_results:  # a dataset finished before
                 dep = datasets[job.needs]
-                by_name[job.needs] = ray.put({"files": pack(cfg.out, [dep.folder], out), "done": dep.done})
+                by_name[job.needs] = ray.put({"files": pack(Path(out), [dep.folder], out), "done": dep.done})
             opts = {"num_gpus": 1} if gpus and job.needs else {}
             ref = task.options(name=job.name, **opts).remote(
                 job, out, cfg.ship_results, _threads(cfg.ray_cpus), by_name.get(job.needs or "")
@@ -223,7 +225,8 @@ def _wait(ray: Any, cfg: BenchmarkConfig, refs: dict[Any, Job], cells: list[Job]
                     bar.update(job.needs is not None)
                     continue
                 if result["files"]:
-                    unpack(cfg.out, result["files"], result["done"], str(cfg.out.resolve()))
+                    out = cfg.out.resolve()
+                    unpack(out, result["files"], result["done"], str(out))
                 log.extend(result["log"])
                 bar.update(job.needs is not None)
             datasets = sum(1 for ref in pending if refs[ref].needs is None)
