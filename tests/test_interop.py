@@ -1,4 +1,4 @@
-"""Other tools read our dataset folder: nerfstudio's ``nerfstudio-data`` parser rules and SpikeCV's loader keys.
+"""Other tools read our dataset folder: nerfstudio's ``nerfstudio-data`` parser and SpikeCV's loader keys.
 
 The checks below are our own code, written from the tools' documented formats (the packages are not installed
 here): nerfstudio's dataparser (``nerfstudio/data/dataparsers/nerfstudio_dataparser.py``) and SpikeCV's
@@ -31,7 +31,8 @@ SPIKECV_RAW = 0
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("interop") / "ds"
     args = ["--width", "12", "--height", "10", "--frames", "40", "--blur-fps", "4000", "--test-views", "2"]
-    main(["simulate", "--scene", "analytic-orbs", "--out", str(out), *args, "--color", "all", "--no-progress"])
+    main(["simulate", "--scene", "analytic-orbs", "--out", str(out), *args, "--color", "all",
+          "--no-progress"])  # fmt: skip
     return out
 
 
@@ -45,7 +46,8 @@ def nerfstudio_parse(json_path: Path, split: str) -> dict:
         intrinsics[key] = meta[key] if key in meta else [frame[key] for frame in meta["frames"]]
     camera_model = meta.get("camera_model", "OPENCV")
     assert camera_model in NS_CAMERA_MODELS
-    frames = sorted(meta["frames"], key=lambda f: str(data_dir / f["file_path"]))  # KeyError without file_path
+    # frames sorted by image path; a frame without file_path is a KeyError
+    frames = sorted(meta["frames"], key=lambda f: str(data_dir / f["file_path"]))
     names = [data_dir / f["file_path"] for f in frames]
     poses = np.array([f["transform_matrix"] for f in frames], dtype=np.float32)
     assert poses.shape == (len(frames), 4, 4)
