@@ -10,7 +10,7 @@ from spikenerf.core.errors import InputError
 
 
 def dat_frame_size(path: Path, height: int | None, width: int | None) -> tuple[int, int]:
-    """--height/--width, each defaulting to ``spike_h``/``spike_w`` of a SpikeCV config.yaml beside the file."""
+    """--height/--width, each defaulting to ``spike_h``/``spike_w`` of a SpikeCV config.yaml beside it."""
     from spikenerf.camera.io import spikecv_frame_size
 
     found = None if height is not None and width is not None else spikecv_frame_size(path)
@@ -58,8 +58,8 @@ def describe_dat(
 
 
 @click.command(
-    help="Summarise a dataset folder, a run folder or a .dat spike file (needs --height/--width, or a SpikeCV "
-    "config.yaml beside it)."
+    help="Summarise a dataset folder, a run folder or a .dat spike file (needs --height/--width, or a "
+    "SpikeCV config.yaml beside it)."
 )
 @click.argument("path", type=click.Path(path_type=Path))
 @click.option("--height", type=int, help="Frame height in pixels [default: spike_h of ./config.yaml].")
