@@ -39,7 +39,7 @@ ENCODINGS = ("linear", "srgb")
 
 
 def encode(image: np.ndarray, encoding: str) -> np.ndarray:
-    """Linear intensity (...) → float32: unchanged (``linear``) or sRGB display values in [0, 1] (``srgb``)."""
+    """Linear intensity (...) → float32: unchanged (``linear``) or sRGB display values [0, 1] (``srgb``)."""
     if encoding == "linear":
         return image.astype(np.float32, copy=False)
     from spikenerf.core.color import srgb_encode  # imported here: it loads torch (seconds)
