@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,8 @@ from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.checkpoint import CHECKPOINT
 from spikenerf.train.config import TrainConfig, load_config
+from spikenerf.train.evaluate import read_curves
+from spikenerf.train.logger import RunningMeans
 from spikenerf.train.losses import spike_interval_loss
 from spikenerf.train.run import load_run
 from spikenerf.train.trainer import Trainer, train
@@ -231,11 +235,10 @@ def test_every_method_trains_and_writes_a_run(
     with open(tmp_path / "run" / "curves.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["iteration"]) for r in rows] == [3, 6] and list(rows[0]) == [
-        "iteration",
-        "seconds",
-        "train_psnr",
-        "test_psnr",
+        *("iteration", "seconds", "train_psnr", "test_psnr"),
+        *("loss", "recon", "spike", "reg", "lambda"),
     ]
+    assert all(float(r["recon"]) > 0 and float(r["loss"]) >= float(r["recon"]) for r in rows)
     assert trainer.model.field.resolution == 20  # upsampled twice
     after = trainer.model.state_dict()
     assert any(not torch.equal(before[k], after[k]) for k in before if "decoder" in k)
@@ -327,3 +330,46 @@ def test_default_spike_schedule_scales_with_the_run(dataset_dir: Path, tmp_path:
         trainer.train()
         params[enabled] = torch.cat([p.detach().flatten() for p in trainer.model.parameters()])
     assert not torch.equal(params[True], params[False])
+
+
+def test_tensorboard_log_holds_every_scalar_and_the_test_renders(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    cfg = _config(dataset_dir, log="tensorboard", log_every=2)
+    cfg.iters, cfg.eval_every = 12, 6
+    reads, syncs = [], []
+    real_read, real_item = RunningMeans.read, torch.Tensor.item
+    monkeypatch.setattr(RunningMeans, "read", lambda self: reads.append(1) or real_read(self))
+
+    def item(self: torch.Tensor) -> object:  # device → host reads made by the training code itself
+        if "spikenerf/train/" in traceback.extract_stack(limit=2)[0].filename.replace("\\", "/"):
+            syncs.append(1)
+        return real_item(self)
+
+    monkeypatch.setattr(torch.Tensor, "item", item)
+    Trainer(cfg, tmp_path / "run", dataset, progress=False).train()
+    assert len(reads) == 12 // 2 + 2 + 1  # the per-step values are read every 2 steps, at evals, at the end
+    assert len(syncs) == 12 // 2 + 2 * 2  # a PSNR per read (progress bar), train + test PSNR per eval
+    events = EventAccumulator(str(tmp_path / "run" / "tensorboard"), size_guidance={"images": 0}).Reload()
+    tags = set(events.Tags()["scalars"])
+    want = {"loss/loss", "loss/recon", "loss/spike", "loss/reg", "lambda", "rays_per_s", "psnr/train"}
+    assert want | {"psnr/test", "lr/grid", "lr/network"} <= tags, tags
+    assert [e.step for e in events.Scalars("loss/recon")] == [2, 4, 6, 8, 10, 12]
+    assert [e.step for e in events.Scalars("psnr/test")] == [6, 12]
+    lam = [e.value for e in events.Scalars("lambda")]
+    assert lam[0] == 0.5 and lam[-1] == 1.0  # warm-up 1, ramp 2: λ(1) = 0.5, then 1
+    lr = [e.value for e in events.Scalars("lr/network")]
+    assert lr[0] > lr[-1] > 0  # exponential decay
+    rows = read_curves(tmp_path / "run" / "curves.csv")
+    assert [r["iteration"] for r in rows] == [6, 12] and rows[-1]["spike"] > 0 and rows[-1]["lambda"] == 1.0
+    assert events.Tags()["images"] == ["test/view0"] and len(events.Images("test/view0")) == 2
+
+
+def test_tensorboard_missing_is_one_line_with_the_install_hint(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)
+    with pytest.raises(InputError, match=r"pip install 'spikenerf\[tensorboard\]'"):
+        Trainer(_config(dataset_dir, log="tensorboard"), tmp_path / "run", dataset, progress=False).train()

@@ -9,6 +9,7 @@ import click
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, METHODS, RECONS
 from spikenerf.train.config import FIELDS, SPIKE_LOSS_KINDS, TrainConfig, load_config
+from spikenerf.train.logger import LOG_KINDS
 from spikenerf.train.trainer import CONFIG_FILE, train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
@@ -24,6 +25,8 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "eval_every": (None, "eval_every"),
     "eval_views": (None, "eval_views"),
     "ckpt_every": (None, "ckpt_every"),
+    "log": (None, "log"),
+    "log_every": (None, "log_every"),
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
     "blur_samples": ("targets", "blur_samples"),
@@ -93,6 +96,20 @@ _D = TrainConfig()
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")
 @click.option("--ckpt-every", type=int, default=_D.ckpt_every, show_default=True)
+@click.option(
+    "--log",
+    type=click.Choice(LOG_KINDS),
+    default=_D.log,
+    show_default=True,
+    help="tensorboard: also write TensorBoard event files to RUN/tensorboard (needs spikenerf[tensorboard]).",
+)
+@click.option(
+    "--log-every",
+    type=int,
+    default=_D.log_every,
+    show_default=True,
+    help="Iterations between reads of the loss terms (progress bar, TensorBoard).",
+)
 @click.option(
     "--field-option",
     "field_options",

@@ -86,6 +86,9 @@ class TrainConfig:
         seed: seeds the initialisation, the samplers and the perturbations. device: auto | cpu | cuda.
         eval_every: iterations between test-view evaluations (0 = only at the end). eval_views: views used.
         ckpt_every: iterations between checkpoints (always one at the end).
+        log: ``none`` or ``tensorboard`` (event files in ``RUN/tensorboard/``; curves.csv is always written).
+        log_every: iterations between reads of the loss terms (progress bar, TensorBoard scalars): the
+            per-step values are summed on the device and read only then.
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
     """
 
@@ -102,6 +105,8 @@ class TrainConfig:
     eval_every: int = 250
     eval_views: int = 3
     ckpt_every: int = 500
+    log: str = "none"
+    log_every: int = 25
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -136,6 +141,7 @@ class TrainConfig:
             "spike.every": self.spike.every,
             "--eval-views": self.eval_views + 1,
             "--ckpt-every": self.ckpt_every,
+            "--log-every": self.log_every,
             "blur_samples": self.targets.blur_samples,
         }
         for name, value in positive.items():
