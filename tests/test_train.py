@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import sys
 import traceback
 from pathlib import Path
@@ -373,3 +374,51 @@ def test_tensorboard_missing_is_one_line_with_the_install_hint(
     monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)
     with pytest.raises(InputError, match=r"pip install 'spikenerf\[tensorboard\]'"):
         Trainer(_config(dataset_dir, log="tensorboard"), tmp_path / "run", dataset, progress=False).train()
+
+
+def test_cli_config_file_and_set_reach_every_field(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.cli import main
+
+    first = tmp_path / "a"
+    sets = [f"field_config.{k}={v}" for k, v in _TINY_MLP.items()]
+    sets += ["spike.lam=0.25", "spike.pairs=window", "targets.mask_n=3", "lr_final_ratio=0.5", "lr=1e-3"]
+    args = [
+        "train",
+        str(dataset_dir),
+        "--method",
+        "spike-nerf",
+        "--field",
+        "mlp",
+        "--iters",
+        "2",
+        "--batch",
+        "32",
+    ]
+    args += ["--eval-every", "0", "--device", "cpu", "--quiet", "--out", str(first)]
+    main(args + [f"--set={s}" for s in sets])
+    cfg = load_config(first / "config.yaml")
+    assert (cfg.spike.lam, cfg.spike.pairs, cfg.targets.mask_n, cfg.lr_final_ratio, cfg.lr) == (
+        0.25, "window", 3, 0.5, 0.001
+    )  # fmt: skip
+    assert cfg.field_config == _TINY_MLP and cfg.field == "mlp" and cfg.iters == 2
+    # a run folder's config.yaml is a valid --config (no DATASET needed); options and --set override it
+    second = tmp_path / "b"
+    main(["train", "--config", str(first / "config.yaml"), "--iters", "3", "--set", "spike.every=2",
+          "--quiet", "--out", str(second)])  # fmt: skip
+    again = load_config(second / "config.yaml")
+    assert again == dataclasses.replace(cfg, iters=3, spike=dataclasses.replace(cfg.spike, every=2))
+    capsys.readouterr()
+    for bad, message in [
+        ("spike.kind=nope", "spike.kind must be one of interval, paper, found 'nope'"),
+        ("iters=many", "iters must be an integer, found 'many'"),
+        ("spike.lamda=1", "unknown SpikeLossConfig keys ['lamda']"),
+        ("iters.x=1", "'iters' is not a section"),
+        ("no-equals", "override expects KEY=VALUE"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            main(
+                ["train", "--config", str(first / "config.yaml"), "--set", bad, "--out", str(tmp_path / "c")]
+            )
+        err = capsys.readouterr().err.strip()
+        assert exit_.value.code == 2 and message in err and "\n" not in err, err
+    assert not (tmp_path / "c").exists()

@@ -16,6 +16,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from spikenerf.camera.reconstruct import METHODS as RECON_METHODS
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic
 from spikenerf.core.errors import InputError
 
@@ -91,7 +92,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
 @click.argument("spikes", type=click.Path(path_type=Path))
 @click.option("--height", type=int, help="Frame height in pixels [default: spike_h of ./config.yaml].")
 @click.option("--width", type=int, help="Frame width in pixels [default: spike_w of ./config.yaml].")
-@click.option("--method", type=click.Choice(["tfp", "tfi"]), required=True)
+@click.option("--method", type=click.Choice(RECON_METHODS), required=True)
 @click.option("--window", type=int, help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}].")
 @click.option("--frame", type=int, help="One frame index: .npy gets shape (H, W).")
 @click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")

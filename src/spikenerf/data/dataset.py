@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.io import count_frames, read_dat, rgb_paths
+from spikenerf.camera.model import COLORS
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError
@@ -31,7 +32,7 @@ TRANSFORMS, TRANSFORMS_BLUR, TRANSFORMS_TEST, CONFIG = (
 )
 #: nerfstudio views of the folder (written by the writer; never read by spikenerf)
 TRANSFORMS_GT, TRANSFORMS_TFP = "transforms_gt.json", "transforms_tfp.json"
-MODES = ("gray", "rgb", "bayer")
+MODES = COLORS  # the colour modes a dataset may hold (camera.model.ColorMode)
 
 
 def spike_files(mode: str) -> list[str]:

@@ -9,13 +9,13 @@ import torch
 from torch import Tensor
 
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
-from spikenerf.fields import build_field
+from spikenerf.fields import FIELD_KINDS, build_field
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
 from spikenerf.render.mlp_model import MLPModel
 from spikenerf.scenes.trajectory import Intrinsics
 
-MODEL_KINDS = ("grid", "mlp")
+MODEL_KINDS = FIELD_KINDS
 
 
 def build_model(

@@ -14,13 +14,17 @@ See docs/method.md for the derivation.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 import torch
 
 from spikenerf.camera.model import fire
 
 PairMode = Literal["all", "window"]
+PAIR_MODES: tuple[str, ...] = get_args(PairMode)
+#: the differentiable interval loss, or the paper's spike comparison (no gradient)
+SpikeLossKind = Literal["interval", "paper"]
+SPIKE_LOSS_KINDS: tuple[str, ...] = get_args(SpikeLossKind)
 
 
 def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
