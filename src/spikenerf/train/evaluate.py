@@ -12,6 +12,7 @@ import torch
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.color import srgb_encode
+from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.targets import ImageTargets
 from spikenerf.render import RadianceModel, render_image
@@ -24,8 +25,7 @@ LOSS_COLUMNS = ("loss", "recon", "spike", "reg", "lambda")
 
 def srgb_psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
     """PSNR (dB) between two linear images after sRGB encoding to display values in [0, 1]."""
-    mse = torch.mean((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).item()
-    return math.inf if mse <= 0 else -10.0 * math.log10(mse)
+    return mse_to_psnr(torch.mean((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).item())
 
 
 @torch.no_grad()
