@@ -93,3 +93,20 @@ def test_one_psnr_implementation() -> None:
 
     users = sorted(p.relative_to(SRC).as_posix() for p in SRC.rglob("*.py") if calls_log10(p))
     assert users == ["core/psnr.py"], users
+
+
+def test_public_api_resolves_and_import_spikenerf_stays_light() -> None:
+    import importlib
+    import subprocess
+    import sys
+
+    from spikenerf.core.exports import PUBLIC_API
+
+    for package in PUBLIC_API:
+        module = importlib.import_module(package)
+        assert module.__all__ and all(
+            callable(getattr(module, name)) for name in module.__all__ if name[0] != "_"
+        )
+    code = "import sys, spikenerf, spikenerf.camera; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"

@@ -13,18 +13,5 @@ from spikenerf.core.exports import lazy_exports
 
 __version__ = "0.1.0"
 
-#: public name -> defining module (imported on first use)
-_EXPORTS = {
-    "simulate": "spikenerf.camera",
-    "read_dat": "spikenerf.camera",
-    "write_dat": "spikenerf.camera",
-    "tfp": "spikenerf.camera",
-    "tfi": "spikenerf.camera",
-    "load_dataset": "spikenerf.data",
-    "simulate_dataset": "spikenerf.data",
-    "TrainConfig": "spikenerf.train",
-    "load_run": "spikenerf.train",
-    "evaluate_run": "spikenerf.eval",
-}
-__all__ = ["__version__", *sorted(_EXPORTS)]
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__getattr__, __dir__, _names = lazy_exports(__name__)  # the table: spikenerf.core.exports.PUBLIC_API
+__all__ = ["__version__", *_names]

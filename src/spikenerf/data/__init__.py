@@ -1,13 +1,7 @@
-"""Dataset folder I/O, the simulate pipeline, rays, training targets and samplers."""
+"""Dataset folder I/O, the simulate pipeline, rays, training targets and samplers.
+
+Public names: ``spikenerf.core.exports.PUBLIC_API`` (imported on first use)."""
 
 from spikenerf.core.exports import lazy_exports
 
-#: public name -> defining module (imported on first use)
-_EXPORTS = {
-    "SpikeDataset": "spikenerf.data.dataset",
-    "load_dataset": "spikenerf.data.dataset",
-    "SimulateOptions": "spikenerf.data.simulate",
-    "simulate_dataset": "spikenerf.data.simulate",
-}
-__all__ = sorted(_EXPORTS)
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__getattr__, __dir__, __all__ = lazy_exports(__name__)
