@@ -272,7 +272,7 @@ def test_load_run_renders(dataset_dir: Path, dataset, tmp_path: Path) -> None:  
     assert config.method == "nerf-gt" and ds.intrinsics == dataset.intrinsics and not model.training
     from spikenerf.render import render_image
 
-    img = render_image(model, ds.test.poses[0], ds.intrinsics, ds.near, ds.far)["color"]
+    img = render_image(model, ds.test.poses[0], ds.intrinsics, ds.near, ds.far).color
     assert img.shape == (16, 16, 1) and torch.isfinite(img).all()
 
 

@@ -219,7 +219,7 @@ def novel_spikes(
 
     model, config, ds = load_run(run, device=device)
     k, phi = ds.intrinsics, ds.threshold
-    pred = render_image(model, ds.test.poses[view], k, ds.near, ds.far)["color"].float().cpu()  # (H, W, C)
+    pred = render_image(model, ds.test.poses[view], k, ds.near, ds.far).color.float().cpu()  # (H, W, C)
     start = random_start(tuple(pred.shape), phi, seed)
     fired, _ = fire_sequence(pred.expand(steps, *pred.shape), start, phi)
     pred_spikes = fired.numpy().astype(np.uint8)  # (T, H, W, C)

@@ -42,7 +42,7 @@ def evaluate_views(
     model.eval()
     scores = []
     for pose, image in zip(views.poses[:, 0], views.images, strict=True):
-        color = render_image(model, pose, dataset.intrinsics, dataset.near, dataset.far, chunk)["color"]
+        color = render_image(model, pose, dataset.intrinsics, dataset.near, dataset.far, chunk).color
         scores.append(srgb_psnr(color.cpu(), image))
         if renders is not None:
             renders.append((color.cpu(), image))
