@@ -341,18 +341,23 @@ def test_tensorboard_log_holds_every_scalar_and_the_test_renders(
     cfg = _config(dataset_dir, log="tensorboard", log_every=2)
     cfg.iters, cfg.eval_every = 12, 6
     reads, syncs = [], []
-    real_read, real_item = RunningMeans.read, torch.Tensor.item
+    real_read = RunningMeans.read
     monkeypatch.setattr(RunningMeans, "read", lambda self: reads.append(1) or real_read(self))
+    real = {m: getattr(torch.Tensor, m) for m in ("item", "cpu")}
+    for method in real:  # device → host transfers made by the training code itself
 
-    def item(self: torch.Tensor) -> object:  # device → host reads made by the training code itself
-        if "spikenerf/train/" in traceback.extract_stack(limit=2)[0].filename.replace("\\", "/"):
-            syncs.append(1)
-        return real_item(self)
+        def counted(self: torch.Tensor, *a: object, _m: str = method, **k: object) -> object:
+            frame = traceback.extract_stack(limit=2)[0]
+            if "spikenerf/train/" in frame.filename.replace("\\", "/"):
+                syncs.append(f"{frame.filename.rsplit('/', 1)[-1]}:{frame.name}")
+            return real[_m](self, *a, **k)
 
-    monkeypatch.setattr(torch.Tensor, "item", item)
+        monkeypatch.setattr(torch.Tensor, method, counted)
     Trainer(cfg, tmp_path / "run", dataset, progress=False).train()
     assert len(reads) == 12 // 2 + 2 + 1  # the per-step values are read every 2 steps, at evals, at the end
-    assert len(syncs) == 12 // 2 + 2 * 2  # a PSNR per read (progress bar), train + test PSNR per eval
+    # no transfer in the training step itself: one per read of the sums, the rest in evaluation/logging
+    assert 0 < syncs.count("logger.py:read") <= len(reads), sorted(syncs)  # an empty read transfers nothing
+    assert {s.split(":")[0] for s in syncs} == {"logger.py", "evaluate.py"}, sorted(syncs)
     events = EventAccumulator(str(tmp_path / "run" / "tensorboard"), size_guidance={"images": 0}).Reload()
     tags = set(events.Tags()["scalars"])
     want = {"loss/loss", "loss/recon", "loss/spike", "loss/reg", "lambda", "rays_per_s", "psnr/train"}
@@ -422,3 +427,16 @@ def test_cli_config_file_and_set_reach_every_field(dataset_dir: Path, tmp_path: 
         err = capsys.readouterr().err.strip()
         assert exit_.value.code == 2 and message in err and "\n" not in err, err
     assert not (tmp_path / "c").exists()
+
+
+def test_config_errors_name_the_key_and_the_cli_the_flag(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.cli import main
+
+    with pytest.raises(InputError, match=r"^targets\.window must be an odd"):
+        TrainConfig(targets=dataclasses.replace(TrainConfig().targets, window=4)).validate()
+    with pytest.raises(SystemExit):
+        main(["train", str(dataset_dir), "--window", "4", "--out", str(tmp_path / "r")])
+    assert (
+        capsys.readouterr().err.strip()
+        == "spikenerf: error: --window must be an odd number of frames, found 4"
+    )

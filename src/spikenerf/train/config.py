@@ -131,23 +131,23 @@ class TrainConfig:
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
         check_types(self)
-        positive = {
-            "--iters": self.iters,
-            "--batch": self.batch,
+        positive = {  # errors name the config key; the CLI maps keys to its flags
+            "iters": self.iters,
+            "batch": self.batch,
             "spike.window": self.spike.window,
             "spike.pixels": self.spike.pixels,
             "spike.every": self.spike.every,
-            "--eval-views": self.eval_views + 1,
-            "--ckpt-every": self.ckpt_every,
-            "--log-every": self.log_every,
-            "blur_samples": self.targets.blur_samples,
+            "eval_views": self.eval_views + 1,
+            "ckpt_every": self.ckpt_every,
+            "log_every": self.log_every,
+            "targets.blur_samples": self.targets.blur_samples,
         }
         for name, value in positive.items():
             if value < 1:
                 raise InputError(f"{name} must be ≥ 1, found {value}")
         for name, value in (
-            ("--spike-warmup", self.spike.warmup_iters),
-            ("spike.ramp", self.spike.ramp_iters),
+            ("spike.warmup_iters", self.spike.warmup_iters),
+            ("spike.ramp_iters", self.spike.ramp_iters),
         ):
             if value is not None and value < 0:
                 raise InputError(f"{name} must be ≥ 0, found {value}")
@@ -158,7 +158,7 @@ class TrainConfig:
                 f"--lambda and --eval-every must be ≥ 0, found {self.spike.lam}, {self.eval_every}"
             )
         if self.targets.window < 1 or self.targets.window % 2 == 0:
-            raise InputError(f"--window must be an odd number of frames, found {self.targets.window}")
+            raise InputError(f"targets.window must be an odd number of frames, found {self.targets.window}")
         return self
 
     def to_dict(self) -> dict[str, Any]:

@@ -42,10 +42,10 @@ def evaluate_views(
     model.eval()
     scores = []
     for pose, image in zip(views.poses[:, 0], views.images, strict=True):
-        color = render_image(model, pose, dataset.intrinsics, dataset.near, dataset.far, chunk).color
-        scores.append(srgb_psnr(color.cpu(), image))
+        color = render_image(model, pose, dataset.intrinsics, dataset.near, dataset.far, chunk).color.cpu()
+        scores.append(srgb_psnr(color, image))
         if renders is not None:
-            renders.append((color.cpu(), image))
+            renders.append((color, image))
     model.train(was_training)
     return sum(scores) / len(scores) if scores else math.nan
 
