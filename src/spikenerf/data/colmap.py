@@ -52,8 +52,13 @@ def run_colmap(
     min_registered: float = 0.5,
     keyframe_every: int | None = None,
     threads: int = -1,
+    focal: float | None = None,
+    exhaustive_up_to: int = 120,
 ) -> PoseSet:
     """Estimate the poses of keyframes (N, H, W) linear gray at spike ``steps`` (N,).
+
+    Up to ``exhaustive_up_to`` keyframes every pair is matched (it closes loops); more are matched
+    sequentially with ``overlap`` neighbours (a video). ``focal`` (pixels), when known, is fixed (principal point at the centre); otherwise COLMAP estimates it.
 
     Returns:
         A :class:`PoseSet` of the registered keyframes (steps from their names, a shared camera, points).
@@ -62,7 +67,7 @@ def run_colmap(
             message says how many and suggests a smaller ``--keyframe-every``).
     """
     model, stamp = work / MODEL_DIR, work / "steps.json"
-    want = json.dumps([int(s) for s in steps])
+    want = json.dumps({"steps": [int(s) for s in steps], "focal": focal, "overlap": overlap, "exh": exhaustive_up_to})
     if stamp.is_file() and stamp.read_text() != want:  # keyframes of another --keyframe-every or --range
         shutil.rmtree(work)
     if not (model / "images.txt").is_file():
@@ -79,16 +84,23 @@ def run_colmap(
         extraction.use_gpu, extraction.num_threads = False, threads
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = "SIMPLE_PINHOLE"
+        if focal is not None:
+            reader.camera_params = f"{focal},{images.shape[2] / 2},{images.shape[1] / 2}"
         pycolmap.extract_features(
             db, image_dir, names, pycolmap.CameraMode.SINGLE, reader, extraction, pycolmap.Device.cpu
         )
-        pairing = pycolmap.SequentialPairingOptions()
-        pairing.overlap = overlap
         matching = pycolmap.FeatureMatchingOptions()
         matching.use_gpu, matching.num_threads = False, threads
-        pycolmap.match_sequential(db, matching, pairing, device=pycolmap.Device.cpu)
+        if len(steps) <= exhaustive_up_to:  # every pair: closes the loop of an orbit
+            pycolmap.match_exhaustive(db, matching, device=pycolmap.Device.cpu)
+        else:
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = overlap
+            pycolmap.match_sequential(db, matching, pairing, device=pycolmap.Device.cpu)
         options = pycolmap.IncrementalPipelineOptions()
         options.num_threads, options.random_seed = threads, 0
+        if focal is not None:
+            options.ba_refine_focal_length = options.ba_refine_principal_point = False
         models = pycolmap.incremental_mapping(db, image_dir, sparse, options)
         if not models:
             raise _too_few(0, len(steps), keyframe_every)

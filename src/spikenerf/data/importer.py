@@ -123,8 +123,12 @@ def keyframe_poses(
     if opts.poses == "colmap":
         from spikenerf.data.colmap import run_colmap
 
+        focal = None
+        if opts.fov_deg is not None:
+            focal = Intrinsics.from_fov(images.shape[2], images.shape[1], math.radians(opts.fov_deg)).fl_x
         found = run_colmap(
-            images, key_steps, work / COLMAP_WORK, opts.overlap, opts.min_registered, opts.keyframe_every
+            images, key_steps, work / COLMAP_WORK, opts.overlap, opts.min_registered, opts.keyframe_every,
+            focal=focal,
         )
         return found  # named by relative step
     if opts.poses == "orbit":
