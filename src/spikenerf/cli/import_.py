@@ -54,7 +54,7 @@ from spikenerf.core.errors import InputError
     help="Fraction of keyframes COLMAP must register.",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
-@click.option("--no-progress", is_flag=True, help="Hide progress output.")
+@click.option("--verbose", is_flag=True, help="Show COLMAP's log.")
 def command(**kw: Any) -> None:
     from spikenerf.cli.reconstruct import parse_range
     from spikenerf.data.importer import ImportOptions, import_recording
@@ -83,15 +83,16 @@ def command(**kw: Any) -> None:
         overlap=kw["overlap"],
         min_registered=kw["min_registered"],
         overwrite=kw["overwrite"],
+        verbose=kw["verbose"],
         command=shlex.join(["spikenerf", "import", *sys.argv[2:]]),
     )
-    out = import_recording(kw["recording"], kw["out"], opts, progress=not kw["no_progress"])
+    out = import_recording(kw["recording"], kw["out"], opts)
     from spikenerf.data.dataset import load_dataset
 
     ds = load_dataset(out)
     imported = ds.config["imported"]
     click.echo(
         f"wrote {out}: {len(ds.trajectory)} steps, {ds.intrinsics.width}×{ds.intrinsics.height}, poses from "
-        f"{imported['poses']} ({imported['poses_known']} of {imported['keyframes']} keyframes posed), "
+        f"{imported['poses']} ({imported['poses_known']} poses, {imported['keyframes']} keyframes), "
         f"{len(ds.test)} test views"
     )

@@ -54,11 +54,13 @@ def run_colmap(
     threads: int = -1,
     focal: float | None = None,
     exhaustive_up_to: int = 120,
+    verbose: bool = False,
 ) -> PoseSet:
     """Estimate the poses of keyframes (N, H, W) linear gray at spike ``steps`` (N,).
 
     Up to ``exhaustive_up_to`` keyframes every pair is matched (it closes loops); more are matched
-    sequentially with ``overlap`` neighbours (a video). ``focal`` (pixels), when known, is fixed (principal point at the centre); otherwise COLMAP estimates it.
+    sequentially with ``overlap`` neighbours (a video). ``focal`` (pixels), when known, is fixed with the
+    principal point at the centre; otherwise COLMAP estimates it.
 
     Returns:
         A :class:`PoseSet` of the registered keyframes (steps from their names, a shared camera, points).
@@ -67,11 +69,15 @@ def run_colmap(
             message says how many and suggests a smaller ``--keyframe-every``).
     """
     model, stamp = work / MODEL_DIR, work / "steps.json"
-    want = json.dumps({"steps": [int(s) for s in steps], "focal": focal, "overlap": overlap, "exh": exhaustive_up_to})
+    want = json.dumps(
+        {"steps": [int(s) for s in steps], "focal": focal, "overlap": overlap, "exh": exhaustive_up_to}
+    )
     if stamp.is_file() and stamp.read_text() != want:  # keyframes of another --keyframe-every or --range
         shutil.rmtree(work)
     if not (model / "images.txt").is_file():
         pycolmap = require_pycolmap()
+        if not verbose:
+            pycolmap.logging.minloglevel = 3  # fatal only: COLMAP logs drown the one-line CLI output
         for stale in ("images", "sparse", "database.db"):  # an interrupted attempt: start it over
             path = work / stale
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)

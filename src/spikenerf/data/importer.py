@@ -48,7 +48,7 @@ class ImportOptions:
         keyframe_every: steps between keyframes. window: TFP window (frames). test_every: every n-th
         keyframe becomes a test view (0: none). fov_deg: horizontal field of view when the poses carry no
         intrinsics. overlap: COLMAP sequential-matching overlap. min_registered: fraction of keyframes
-        COLMAP must register.
+        COLMAP must register. verbose: show COLMAP's log.
     """
 
     poses: str = "colmap"
@@ -68,6 +68,7 @@ class ImportOptions:
     overlap: int = 10
     min_registered: float = 0.5
     overwrite: bool = False
+    verbose: bool = False
     command: str = ""
 
 
@@ -127,8 +128,14 @@ def keyframe_poses(
         if opts.fov_deg is not None:
             focal = Intrinsics.from_fov(images.shape[2], images.shape[1], math.radians(opts.fov_deg)).fl_x
         found = run_colmap(
-            images, key_steps, work / COLMAP_WORK, opts.overlap, opts.min_registered, opts.keyframe_every,
+            images,
+            key_steps,
+            work / COLMAP_WORK,
+            opts.overlap,
+            opts.min_registered,
+            opts.keyframe_every,
             focal=focal,
+            verbose=opts.verbose,
         )
         return found  # named by relative step
     if opts.poses == "orbit":
@@ -155,7 +162,7 @@ def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | Non
     raise InputError("the poses carry no camera intrinsics: pass --fov DEGREES (horizontal field of view)")
 
 
-def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions, progress: bool = True) -> Path:
+def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> Path:
     """Import a ``.dat`` recording into the dataset folder ``out`` (see the module doc); returns ``out``."""
     dat, out = Path(dat), Path(out)
     _check(opts)
@@ -169,7 +176,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions, prog
     n = len(sel)
     if (out.exists() or out.is_symlink()) and not opts.overwrite:
         raise InputError("output already exists; pass --overwrite to replace it", path=out)
-    rel_keys = np.arange(0, n, opts.keyframe_every, dtype=np.int64)
+    rel_keys = np.unique(np.append(np.arange(0, n, opts.keyframe_every), n - 1)).astype(np.int64)
     if len(rel_keys) < 2:
         raise InputError(
             f"{n} steps give {len(rel_keys)} keyframe at --keyframe-every {opts.keyframe_every}; "
