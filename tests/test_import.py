@@ -1,4 +1,4 @@
-"""``spikenerf import``: a .dat recording + a pose source → a dataset folder; bad input → exit 2, nothing left."""
+"""``spikenerf import``: a .dat recording + a pose source → a dataset folder; bad input → exit 2."""
 
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ def _leftovers(tmp_path: Path) -> list[str]:
 
 def test_spikecv_config_and_orbit_import(capsys, recording, tmp_path: Path) -> None:
     rec, spikes = recording
-    code, out, err = _run(
+    code, _, err = _run(
         capsys,
         "import",
         rec,
@@ -89,7 +89,7 @@ def test_spikecv_config_and_orbit_import(capsys, recording, tmp_path: Path) -> N
 
 
 def test_raw_416_layout_and_range(capsys, recording, tmp_path: Path) -> None:
-    rec, spikes = recording
+    _, spikes = recording
     raw = tmp_path / "raw" / "stream.dat"
     write_dat(raw, np.concatenate([spikes, np.ones((T, H, 16), np.uint8)], axis=2))  # 16 junk columns
     code, _, err = _run(
@@ -249,7 +249,7 @@ def test_bad_input_exits_2_and_leaves_nothing(
         args += ["--poses", pose_file, "--fov", 40]
     if setup == "nocolmap":
         monkeypatch.setitem(sys.modules, "pycolmap", None)
-    code, out, err = _run(capsys, *args)
+    code, _, err = _run(capsys, *args)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert _leftovers(tmp_path) == [p for p in ["p.json"] if (tmp_path / p).exists()]
 
@@ -261,7 +261,7 @@ def test_config_reader_types(tmp_path: Path) -> None:
     assert (cfg.height, cfg.width, cfg.raw_width, cfg.fps, cfg.threshold) == (250, 400, 416, 20000.0, 2.0)
     for bad in ("spike_h: 2.5\n", "spike_w: true\n", "fps: -1\n", "- a list\n"):
         path.write_text(bad)
-        with pytest.raises(InputError, match="config.yaml"):
+        with pytest.raises(InputError, match=r"config\.yaml"):
             read_spikecv_config(path)
 
 
