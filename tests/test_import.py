@@ -21,7 +21,7 @@ from spikenerf.data.alignment import (
     trajectory_errors,
 )
 from spikenerf.data.dataset import load_dataset
-from spikenerf.data.poses import CV_TO_GL, read_colmap_text
+from spikenerf.data.poses import read_colmap_text
 from spikenerf.scenes.trajectory import matrix_to_quaternion, orbit
 
 H, W, T = 8, 24, 40  # 40 frames of 8×24 are not a whole number of 8×40 raw frames, and vice versa
@@ -159,8 +159,8 @@ def _write_colmap_text(folder: Path, c2w: np.ndarray, steps: np.ndarray, points:
     (folder / "cameras.txt").write_text("# camera\n1 PINHOLE 48 16 30 31 24 8\n")
     lines = ["# images"]
     for i, (pose, step) in enumerate(zip(c2w, steps, strict=True)):
-        w2c = np.linalg.inv(pose @ CV_TO_GL)
-        q, t = matrix_to_quaternion(w2c[:3, :3]), w2c[:3, 3]
+        rot_cv = pose[:3, :3] * np.array([1.0, -1.0, -1.0])  # OpenCV axes: +Y down, +Z forward
+        q, t = matrix_to_quaternion(rot_cv.T), -rot_cv.T @ pose[:3, 3]  # world-to-camera
         lines += [" ".join(str(v) for v in [i + 1, *q, *t, 1, f"{step:06d}.png"]), "1.0 2.0 -1 3.0 4.0 -1"]
     (folder / "images.txt").write_text("\n".join(lines) + "\n")
     rows = [f"{i + 1} {p[0]} {p[1]} {p[2]} 128 128 128 0.5 1 0" for i, p in enumerate(points)]
