@@ -33,6 +33,7 @@ import yaml
 from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.data.alignment import per_step_poses, trajectory_errors, umeyama
 from spikenerf.data.dataset import TRANSFORMS_TEST, load_dataset
+from spikenerf.data.importer import keyframe_steps
 from spikenerf.scenes.analytic import CAMERA_ANGLE_X
 
 RAW_EXTRA = 16
@@ -97,9 +98,7 @@ def import_(rec: Path, out: Path, a: argparse.Namespace, fov: bool) -> tuple[Pat
 def errors(sim: Path, imp: Path) -> dict:
     truth, est = load_dataset(sim), load_dataset(imp)
     info = est.config["imported"]
-    keys = np.unique(
-        np.append(np.arange(0, len(truth.trajectory), info["keyframe_every"]), len(truth.trajectory) - 1)
-    )
+    keys = keyframe_steps(len(truth.trajectory), info["keyframe_every"], info["window"])
     t_all, e_all = truth.trajectory.poses, est.trajectory.poses
     floor = per_step_poses(t_all[keys], keys, np.arange(len(t_all)))
     radius = float(np.linalg.norm(t_all[:, :3, 3], axis=1).mean())

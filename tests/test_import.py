@@ -213,8 +213,9 @@ def test_interpolation_and_focus_point() -> None:
     keys = np.arange(0, 400, 20)
     poses = per_step_poses(truth[keys], keys, np.arange(400))
     np.testing.assert_allclose(poses[keys], truth[keys], atol=1e-12)
-    inside = slice(0, keys[-1] + 1)  # after the last keyframe its pose is held
+    inside = slice(0, keys[-1] + 1)
     assert trajectory_errors(poses[inside], truth[inside])["ate_rel"] < 5e-3
+    assert trajectory_errors(poses, truth)["ate_rel"] < 0.02  # the last 19 steps: extrapolated
     np.testing.assert_allclose(focus_point(truth), 0.0, atol=1e-9)
 
 
@@ -268,7 +269,7 @@ def test_config_reader_types(tmp_path: Path) -> None:
 def test_colmap_too_few_registered_names_count_and_flag(capsys, recording, tmp_path: Path) -> None:
     pytest.importorskip("pycolmap")
     rec, _ = recording  # random noise: nothing to match
-    code, _, err = _run(capsys, "import", rec, "--out", tmp_path / "ds", "--keyframe-every", 8)
+    code, _, err = _run(capsys, "import", rec, "--out", tmp_path / "ds", "--keyframe-every", 8, "--window", 5)
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "COLMAP registered 0 of 6 keyframes" in err and "--keyframe-every (now 8)" in err
     assert not (tmp_path / "ds").exists()

@@ -15,7 +15,8 @@ def per_step_poses(key_poses: np.ndarray, key_steps: np.ndarray, steps: np.ndarr
     """Poses (T, 4, 4) at ``steps`` (T,) from keyframe poses (N, 4, 4) at ``key_steps`` (N,).
 
     Between two keyframes: slerp of the rotation, lerp of the position; before the first and after the last
-    keyframe the nearest keyframe's pose is held.
+    keyframe the motion of the nearest keyframe pair is extrapolated, for at most one keyframe interval
+    (beyond that the pose is held).
     """
     order = np.argsort(key_steps)
     kp, ks = np.asarray(key_poses, np.float64)[order], np.asarray(key_steps, np.int64)[order]
@@ -24,7 +25,7 @@ def per_step_poses(key_poses: np.ndarray, key_steps: np.ndarray, steps: np.ndarr
     steps = np.asarray(steps, np.float64)
     hi = np.clip(np.searchsorted(ks, steps, side="right"), 1, len(ks) - 1)
     lo = hi - 1
-    t = np.clip((steps - ks[lo]) / (ks[hi] - ks[lo]), 0.0, 1.0)
+    t = np.clip((steps - ks[lo]) / (ks[hi] - ks[lo]), -1.0, 2.0)
     return interpolate_poses(kp[lo], kp[hi], t)
 
 

@@ -98,6 +98,13 @@ def count_steps(dat: Path, height: int, width: int, raw_width: int | None) -> in
         raise
 
 
+def keyframe_steps(n: int, every: int, window: int) -> np.ndarray:
+    """Keyframe steps (relative, int64) every ``every`` steps where the whole TFP window fits in the ``n``
+    steps (a clipped window is centred off its step: a biased pose), plus the last such step."""
+    half = min(window // 2, (n - 1) // 2)
+    return np.unique(np.append(np.arange(half, n - half, every), n - 1 - half)).astype(np.int64)
+
+
 def keyframe_images(
     dat: Path,
     steps: np.ndarray,
@@ -176,7 +183,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     n = len(sel)
     if (out.exists() or out.is_symlink()) and not opts.overwrite:
         raise InputError("output already exists; pass --overwrite to replace it", path=out)
-    rel_keys = np.unique(np.append(np.arange(0, n, opts.keyframe_every), n - 1)).astype(np.int64)
+    rel_keys = keyframe_steps(n, opts.keyframe_every, opts.window)
     if len(rel_keys) < 2:
         raise InputError(
             f"{n} steps give {len(rel_keys)} keyframe at --keyframe-every {opts.keyframe_every}; "
@@ -252,6 +259,7 @@ def _write(
             "poses": opts.poses if opts.poses in ("colmap", "orbit") else str(opts.poses),
             "orbit": opts.orbit,
             "keyframe_every": int(opts.keyframe_every),
+            "window": int(opts.window),
             "keyframes": len(rel_keys),
             "poses_known": int(registered),
             "test_keyframes": [int(s) for s in held],
