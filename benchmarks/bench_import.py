@@ -87,11 +87,13 @@ def raw_recording(sim: Path, out: Path) -> Path:
 
 
 def import_(rec: Path, out: Path, a: argparse.Namespace, fov: bool) -> tuple[Path, float]:
-    name = f"imp-{rec.parent.name[4:]}-{'fov' if fov else 'selfcal'}"
+    name = f"imp-{rec.parent.name[4:]}-{'fov' if fov else 'selfcal'}-w{a.window}"
     ds, start = out / name, time.perf_counter()
     if not ds.exists():
         extra = ["--fov", math.degrees(CAMERA_ANGLE_X)] if fov else []
-        spikenerf("import", rec, "--out", ds, "--keyframe-every", a.keyframe_every, *extra)
+        spikenerf(
+            "import", rec, "--out", ds, "--keyframe-every", a.keyframe_every, "--window", a.window, *extra
+        )
     return ds, time.perf_counter() - start
 
 
@@ -154,13 +156,15 @@ def main() -> None:
     p.add_argument("--height", type=int, default=250)
     p.add_argument("--frames", type=int, default=1000)
     p.add_argument("--keyframe-every", type=int, default=20)
+    p.add_argument("--window", type=int, default=41, help="TFP window of the keyframes")
+    p.add_argument("--fov-only", action="store_true", help="skip the self-calibrated imports")
     p.add_argument("--train-iters", type=int, default=0)
     a = p.parse_args()
     rows = []
     for scene in a.scenes.split(","):
         sim = simulate(scene, a.out, a)
         rec = raw_recording(sim, a.out)
-        for fov in (True, False):
+        for fov in (True,) if a.fov_only else (True, False):
             try:
                 imp, seconds = import_(rec, a.out, a, fov)
             except subprocess.CalledProcessError:
@@ -173,7 +177,7 @@ def main() -> None:
                 row["psnr_estimated"] = test_psnr(aligned, a.out / f"run-{scene}-estimated", a.train_iters)
             rows.append(row)
             print(json.dumps(row), flush=True)
-    (a.out / "results.json").write_text(json.dumps(rows, indent=1))
+    (a.out / f"results-w{a.window}.json").write_text(json.dumps(rows, indent=1))
     print(
         "| scene | focal | registered | rot mean° | rot max° | ATE/r keys | ATE/r all | reference | ratio |"
     )
