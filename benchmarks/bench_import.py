@@ -156,7 +156,7 @@ def main() -> None:
     p.add_argument("--height", type=int, default=250)
     p.add_argument("--frames", type=int, default=1000)
     p.add_argument("--keyframe-every", type=int, default=20)
-    p.add_argument("--window", type=int, default=41, help="TFP window of the keyframes")
+    p.add_argument("--window", type=int, default=21, help="TFP window of the keyframes")
     p.add_argument("--fov-only", action="store_true", help="skip the self-calibrated imports")
     p.add_argument("--train-iters", type=int, default=0)
     a = p.parse_args()

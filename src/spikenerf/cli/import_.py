@@ -36,7 +36,9 @@ from spikenerf.core.errors import InputError
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--range", "frame_range", help="A:B, the steps of the recording to import.")
 @click.option("--keyframe-every", type=int, default=20, show_default=True, help="Steps between keyframes.")
-@click.option("--window", type=int, default=41, show_default=True, help="TFP window of the keyframes (odd).")
+@click.option(
+    "--window", type=int, default=21, show_default=True, help="TFP window of the keyframes (odd frames)."
+)
 @click.option(
     "--test-every", type=int, default=8, show_default=True, help="Hold out every n-th keyframe (0 = none)."
 )

@@ -62,7 +62,7 @@ class ImportOptions:
     layout: str = "spikecv"
     frame_range: slice | None = None
     keyframe_every: int = 20
-    window: int = 41
+    window: int = 21
     test_every: int = 8
     fov_deg: float | None = None
     overlap: int = 10
