@@ -78,6 +78,8 @@ def _check(options: ImportOptions) -> None:
             raise InputError(f"--{name.replace('_', '-')} must be ≥ 1, found {getattr(options, name)}")
     if options.window % 2 == 0:
         raise InputError(f"--window must be odd, found {options.window}")
+    if not 0 <= options.min_registered <= 1:
+        raise InputError(f"--min-registered must be in [0, 1], found {options.min_registered}")
     if options.test_every < 0:
         raise InputError(f"--test-every must be ≥ 0 (0 = no test views), found {options.test_every}")
     if options.fov_deg is not None and not 0 < options.fov_deg < 180:
