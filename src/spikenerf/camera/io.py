@@ -230,30 +230,6 @@ def write_dat(
     return written
 
 
-#: SpikeCV's per-dataset config file, beside the ``.dat`` files (keys ``spike_h``, ``spike_w``, ...)
-SPIKECV_CONFIG = "config.yaml"
-
-
-def spikecv_frame_size(dat: str | Path) -> tuple[int, int] | None:
-    """(H, W) from ``spike_h``/``spike_w`` of a SpikeCV ``config.yaml`` beside ``dat``; None if there is
-    none (or it has no such keys). A malformed file or non-positive-integer sizes are an InputError."""
-    path = Path(dat).parent / SPIKECV_CONFIG
-    if not path.is_file():
-        return None
-    import yaml
-
-    try:
-        config = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as err:
-        raise InputError(f"malformed YAML ({err})", path=path) from err
-    if not isinstance(config, dict) or "spike_h" not in config or "spike_w" not in config:
-        return None
-    h, w = config["spike_h"], config["spike_w"]
-    if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in (h, w)):
-        raise InputError(f"fields 'spike_h', 'spike_w': expected positive integers, found {h!r}, {w!r}", path)
-    return h, w
-
-
 def rgb_paths(prefix: str | Path) -> list[Path]:
     """The three per-channel files of an RGB stream: ``{prefix}_r.dat``, ``_g.dat``, ``_b.dat``."""
     prefix = Path(prefix)

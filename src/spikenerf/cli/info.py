@@ -10,22 +10,12 @@ from spikenerf.core.errors import InputError
 
 
 def dat_frame_size(path: Path, height: int | None, width: int | None) -> tuple[int, int]:
-    """--height/--width, each defaulting to ``spike_h``/``spike_w`` of a SpikeCV config.yaml beside it."""
-    from spikenerf.camera.io import spikecv_frame_size
+    """--height/--width, each defaulting to ``spike_h``/``spike_w`` of a SpikeCV config.yaml beside the file
+    (or one folder up)."""
+    from spikenerf.camera.spikecv import recording_config
 
-    found = None if height is not None and width is not None else spikecv_frame_size(path)
-    if found is None and (height is None or width is None):
-        missing = " and ".join(n for n, v in (("--height", height), ("--width", width)) if v is None)
-        raise InputError(
-            f"a .dat file has no header: give {missing} (the frame size in pixels), or put a SpikeCV "
-            "config.yaml with spike_h and spike_w beside it",
-            path=path,
-        )
-    assert found is not None or (height is not None and width is not None)
-    return (
-        found[0] if height is None else height,  # type: ignore[index]
-        found[1] if width is None else width,  # type: ignore[index]
-    )
+    config = recording_config(path, height, width)
+    return config.height, config.width  # type: ignore[return-value]
 
 
 def describe_dat(
