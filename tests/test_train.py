@@ -379,6 +379,7 @@ def test_tensorboard_missing_is_one_line_with_the_install_hint(
     monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)
     with pytest.raises(InputError, match=r"pip install 'spikenerf\[tensorboard\]'"):
         Trainer(_config(dataset_dir, log="tensorboard"), tmp_path / "run", dataset, progress=False).train()
+    assert not (tmp_path / "run").exists()  # nothing half-written
 
 
 def test_cli_config_file_and_set_reach_every_field(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

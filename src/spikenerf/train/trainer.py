@@ -263,13 +263,14 @@ class Trainer:
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
         cfg, s = self.config, self.config.spike
+        log = open_log(cfg.log, self.out)  # first: a missing package leaves no run folder behind
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
         end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
         bar = tqdm(
             total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
         )
-        recent, interval, log = RunningMeans(), RunningMeans(), open_log(cfg.log, self.out)
+        recent, interval = RunningMeans(), RunningMeans()
         train_psnr, lam = math.nan, 0.0
         test_psnr = self.curves[-1]["test_psnr"] if self.curves else math.nan
         while self.iteration < end:
