@@ -58,7 +58,8 @@ def command(
     field: str, device: str, seed: int, test_views: int, no_render: bool, jobs: int, executor: str,
     address: str | None, retries: int, ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
-    from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants, run_benchmark
+    from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants
+    from spikenerf.pipelines.suite import benchmark_with_report
 
     colors = [c.strip() for c in color.split(",") if c.strip()]
     if not colors or any(c not in ("gray", "rgb") for c in colors):
@@ -71,5 +72,5 @@ def command(
         test_views=test_views, render=not no_render, jobs=jobs, executor=executor, address=address,
         retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus,
     )  # fmt: skip
-    run_benchmark(cfg)
+    benchmark_with_report(cfg)
     click.echo(f"wrote {out}/table1.md, table2.md, results.csv, results.json")

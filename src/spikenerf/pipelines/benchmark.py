@@ -7,16 +7,13 @@ when its run folder holds ``metrics.json``; finished cells are reused when the b
 
 from __future__ import annotations
 
-import ctypes
 import json
 import os
 import platform
-import subprocess
 import sys
-import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import TypeVar
@@ -27,6 +24,7 @@ from tqdm import tqdm
 from spikenerf import __version__
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.pipelines.steps import run_step as _run
 from spikenerf.pipelines.tables import (
     ABLATION_VARIANTS,
     Cell,
@@ -164,34 +162,6 @@ def read_cell(run: Path, scene: str, color: str, variant: str) -> Cell | None:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
 
 
-#: a step's child process dies with the process that started it (Linux), so a killed Ray worker or benchmark
-#: leaves no orphan writing into a cell that is then retried
-_PRCTL = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
-
-
-def _die_with_parent() -> None:
-    if _PRCTL is not None:
-        _PRCTL(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
-
-
-def _run(command: list[str], log: list[dict], output: Path | None = None, threads: int | None = None) -> None:
-    """Run one ``spikenerf`` step; its output goes to the terminal, or appended to ``output``."""
-    env = None if threads is None else {**os.environ, "OMP_NUM_THREADS": str(threads)}
-    start = time.perf_counter()
-    if output is None:
-        rc = subprocess.run(command, check=False, env=env, preexec_fn=_die_with_parent).returncode
-    else:
-        output.parent.mkdir(parents=True, exist_ok=True)
-        with output.open("a") as sink:
-            done = subprocess.run(command, check=False, env=env, stdout=sink, stderr=subprocess.STDOUT,
-                                  preexec_fn=_die_with_parent)  # fmt: skip
-        rc = done.returncode
-    log.append({"command": command[2:], "seconds": round(time.perf_counter() - start, 2), "rc": rc})
-    if rc != 0:
-        where = f" (output in {output})" if output is not None else ""
-        raise InputError(f"step failed with exit code {rc}: spikenerf {' '.join(command[3:])}{where}")
-
-
 def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> list[T]:
     """Run ``tasks`` ``jobs`` at a time with a progress bar; results in task order. The first failure
     cancels the tasks not yet started, lets the running ones finish, and is raised."""
@@ -236,18 +206,17 @@ def _run_cell(cfg: BenchmarkConfig, scene: str, color: str, variant: str, log: l
 
 
 def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
-    """Simulate each scene once, then train/eval every missing cell; write the tables and the report."""
+    """Simulate each scene once, then train/eval every missing cell; write the tables (the HTML report:
+    :func:`spikenerf.pipelines.suite.benchmark_with_report`)."""
     if cfg.executor == "ray":
-        from spikenerf.pipelines.ray_executor import require_ray  # here: it imports this module
+        from spikenerf.pipelines.ray_executor import require_ray
 
         require_ray()  # without Ray: one line, before anything is written
     cfg.out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
     keys = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
     if cfg.executor == "ray":
-        from spikenerf.pipelines.ray_executor import run_cells
-
-        cells = run_cells(cfg, keys, log)
+        cells = _run_on_ray(cfg, keys, log)
         write_results(cfg, cells, log)
         return cells
     jobs = max(1, cfg.jobs)
@@ -266,6 +235,29 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
     cells = _parallel([cell_task(*key) for key in keys], jobs, "benchmark cells", "cell")
     write_results(cfg, cells, log)
     return cells
+
+
+def _commands_at(cfg: BenchmarkConfig, key: tuple, root: Path) -> list[list[str]]:
+    """A job's commands for the benchmark folder at ``root``: a dataset's for ``(scene,)``, else a cell's."""
+    here = replace(cfg, out=root)
+    return [dataset_command(here, key[0])] if len(key) == 1 else cell_commands(here, *key)
+
+
+def _run_on_ray(cfg: BenchmarkConfig, keys: list[tuple], log: list[dict]) -> list[Cell]:
+    """Each scene's dataset and each cell (``keys``, scene first) as a Ray task; cells in ``keys`` order."""
+    from spikenerf.pipelines.ray_executor import Job, run_jobs
+
+    jobs = [Job(f"simulate-{s}", partial(_commands_at, cfg, (s,)), f"datasets/{s}",
+                f"datasets/{s}/transforms.json") for s in cfg.scenes]  # fmt: skip
+    for key in keys:
+        run = run_dir(cfg, *key).relative_to(cfg.out).as_posix()
+        jobs.append(Job("-".join(map(str, key)), partial(_commands_at, cfg, key), run, f"{run}/metrics.json",
+                        needs=f"simulate-{key[0]}"))  # fmt: skip
+    run_jobs(cfg, jobs, log)
+    cells = [read_cell(run_dir(cfg, *key), *key) for key in keys]
+    if None in cells:
+        raise InputError("a cell finished without metrics.json; run the benchmark again", path=cfg.out)
+    return cells  # type: ignore[return-value]
 
 
 def cpu_name() -> str:
@@ -292,7 +284,7 @@ def environment() -> dict:
 
 
 def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
-    """table1.md, table2.md, results.csv, results.json and report.html."""
+    """table1.md, table2.md, results.csv and results.json."""
     t1 = "\n\n".join(table1_markdown(cells, [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants,
                                      cfg.scenes, c) for c in cfg.colors)  # fmt: skip
     write_text_atomic(cfg.out / "table1.md", "# Table I: comparison (test views)\n\n" + t1 + "\n")
@@ -317,6 +309,3 @@ def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) 
         },
     }
     write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
-    from spikenerf.pipelines.report import build_report  # here: report imports this module
-
-    build_report(cfg, list(cells))

@@ -23,24 +23,18 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
-from functools import partial
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.errors import InputError
-from spikenerf.pipelines.benchmark import (
-    BenchmarkConfig,
-    _run,
-    cell_commands,
-    dataset_command,
-    read_cell,
-    run_dir,
-)
-from spikenerf.pipelines.tables import Cell
+from spikenerf.pipelines.steps import run_step
+
+if TYPE_CHECKING:
+    from spikenerf.pipelines.benchmark import BenchmarkConfig
 
 INSTALL_HINT = "--executor ray needs Ray: pip install 'spikenerf[cluster]'"
 #: shipped files whose paths are rewritten between a worker's scratch root and the benchmark folder
@@ -116,36 +110,9 @@ def execute(job: Job, out: str, ship: bool, threads: int | None, needed: dict | 
         with output.open("a") as sink:
             sink.write(header + "\n")
         for command in job.commands(root):
-            _run([sys.executable, *command[1:]], log, output, threads)  # the worker's own Python
+            run_step([sys.executable, *command[1:]], log, output, threads)  # the worker's own Python
     files = pack(root, [job.folder, f"logs/{job.name}.log"], out) if ship else {}
     return {"log": log, "files": files, "done": job.done}
-
-
-def _commands_at(cfg: BenchmarkConfig, key: tuple, root: Path) -> list[list[str]]:
-    """A job's commands for the benchmark folder at ``root``: a dataset's for ``(scene,)``, else a cell's."""
-    here = replace(cfg, out=root)
-    return [dataset_command(here, key[0])] if len(key) == 1 else cell_commands(here, *key)
-
-
-def run_cells(cfg: BenchmarkConfig, keys: list[tuple], log: list[dict]) -> list[Cell]:
-    """Each scene's dataset and each cell (``keys``: the benchmark's cell keys, scene first) as a Ray task;
-    the cells' metrics in ``keys`` order."""
-    jobs = []
-    for s in cfg.scenes:
-        jobs.append(Job(f"simulate-{s}", partial(_commands_at, cfg, (s,)), f"datasets/{s}",
-                        f"datasets/{s}/transforms.json"))  # fmt: skip
-    for key in keys:
-        run = run_dir(cfg, *key).relative_to(cfg.out).as_posix()
-        cell = partial(_commands_at, cfg, key)
-        jobs.append(
-            Job("-".join(map(str, key)), cell, run, f"{run}/metrics.json", needs=f"simulate-{key[0]}")
-        )
-    run_jobs(cfg, jobs, log)
-    cells = [read_cell(run_dir(cfg, *key), *key) for key in keys]
-    missing = ["/".join(map(str, key)) for key, cell in zip(keys, cells, strict=True) if cell is None]
-    if missing:
-        raise InputError(f"cells finished without metrics.json: {missing}", path=cfg.out)
-    return cells  # type: ignore[return-value]
 
 
 def _connect(ray: Any, address: str | None) -> bool:
