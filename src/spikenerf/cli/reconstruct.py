@@ -1,4 +1,4 @@
-"""``spikenerf reconstruct``: TFP/TFI images from a ``.dat`` stream, as PNG (sRGB), NPY (linear) or a folder.
+"""``spikenerf reconstruct``: TFP/TFI/learned images from a ``.dat`` stream: PNG (sRGB), NPY (linear), folder.
 
 Only the frames a result depends on are read (memory-mapped): the requested range plus the TFP window margin;
 TFI widens its margin until every pixel's surrounding intervals are known (see ``reconstruct_frames``).
@@ -67,17 +67,25 @@ def check_out_dir(out: Path) -> None:
 
 
 def blocks(frames: range, method: str) -> Iterator[range]:
-    """Blocks of output frames: TFP in blocks of BLOCK_FRAMES, TFI in one block (its margin is shared)."""
-    size = BLOCK_FRAMES if method == "tfp" else max(1, len(frames))
+    """Output frame blocks: TFP/learned in blocks of BLOCK_FRAMES, TFI in one block (its margin is shared)."""
+    size = max(1, len(frames)) if method == "tfi" else BLOCK_FRAMES
     for a in range(frames.start, frames.stop, size):
         yield range(a, min(a + size, frames.stop))
 
 
-@click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI).")
+@click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI, or the learned reconstructor).")
 @click.argument("spikes", type=click.Path(path_type=Path))
 @click.option("--height", type=int, required=True, help="Frame height in pixels.")
 @click.option("--width", type=int, required=True, help="Frame width in pixels.")
-@click.option("--method", type=click.Choice(["tfp", "tfi"]), required=True)
+@click.option("--method", type=click.Choice(["tfp", "tfi", "learned"]), required=True)
+@click.option("--weights", type=click.Path(path_type=Path), help="learned: weights file [default: shipped].")
+@click.option(
+    "--color",
+    type=click.Choice(["gray", "rgb", "bayer"]),
+    default="gray",
+    show_default=True,
+    help="learned: the stream is gray, one channel of a per-channel RGB recording, or a Bayer RGGB mosaic.",
+)
 @click.option("--window", type=int, help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}].")
 @click.option("--frame", type=int, help="One frame index: .npy gets shape (H, W).")
 @click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")
@@ -90,6 +98,8 @@ def command(
     height: int,
     width: int,
     method: str,
+    weights: Path | None,
+    color: str,
     window: int | None,
     frame: int | None,
     frame_range: str | None,
@@ -105,6 +115,10 @@ def command(
 
     if method == "tfi" and window is not None:
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
+    if method == "learned":
+        from spikenerf.recon.infer import learned_reconstructor
+
+        recon = learned_reconstructor(weights, color, window, threshold)
     window = DEFAULT_WINDOW if window is None else window
     if frame is not None and frame_range is not None:
         raise InputError("give either --frame I or --frames A:B, not both")
@@ -127,7 +141,13 @@ def command(
 
     def images() -> Iterator[tuple[range, np.ndarray]]:
         for block in blocks(frames, method):
-            yield block, reconstruct_frames(read, total, block.start, block.stop, method, window, threshold)
+            if method == "learned":
+                yield block, recon(read, total, block.start, block.stop)
+            else:
+                yield (
+                    block,
+                    reconstruct_frames(read, total, block.start, block.stop, method, window, threshold),
+                )
 
     bar = tqdm(
         total=len(frames), unit="frame", desc=f"{method} {spikes.name}", disable=len(frames) < 32 or None

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 METHODS = ("spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt")
 SPIKE_METHODS = ("spike-nerf", "nerf-recon")
 COLORS = ("gray", "rgb")
-RECONS = ("tfp", "tfi")
+RECONS = ("tfp", "tfi", "learned")
 
 
 @dataclass
@@ -89,7 +89,14 @@ def channels_last(stream: np.ndarray | Tensor) -> Tensor:
 def reconstruct_stream(
     spikes: np.ndarray, recon: str = "tfp", window: int = 41, threshold: float = 1.0
 ) -> np.ndarray:
-    """Î of every step: TFP (``window`` frames, odd) or TFI of a (T, ...) stream → float32 (T, ...) linear."""
+    """Î of every step: TFP (``window`` frames, odd), TFI or the shipped learned reconstructor (its trained
+    window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb stream → float32 linear."""
+    if recon == "learned":
+        from spikenerf.recon.infer import reconstruct_learned
+
+        return reconstruct_learned(
+            spikes, "rgb" if np.ndim(spikes) == 4 else "gray", threshold, window=window
+        )
     if recon == "tfp":
         return tfp(spikes, window=window, threshold=threshold)
     if recon == "tfi":
