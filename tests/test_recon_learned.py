@@ -184,3 +184,23 @@ def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: s
     }[case]
     assert code == 2 and err.count("\n") == 1 and expected in err, err
     assert not (tmp_path / "o.npy").exists()
+
+
+def test_training_targets_accept_the_learned_reconstruction() -> None:
+    from spikenerf.core.errors import InputError
+    from spikenerf.data.targets import masked_reconstruction
+
+    net, _ = load_weights(None)
+    spikes = (np.random.default_rng(1).random((net.config.window + 1, 6, 10)) < 0.5).astype(np.uint8)
+    out = masked_reconstruction(spikes, "learned", window=net.config.window)
+    assert out.shape == spikes.shape and out.dtype == np.float32
+    with pytest.raises(InputError, match="trained window"):
+        masked_reconstruction(spikes, "learned", window=net.config.window + 2)
+
+
+def test_recon_commands_reject_bad_folders_with_one_line(capsys, tmp_path: Path) -> None:
+    code, err = _run(capsys, "recon-train", tmp_path, "--out", tmp_path / "run")
+    assert code == 2 and err.count("\n") == 1 and "manifest.json" in err
+    code, err = _run(capsys, "recon-data", "--out", tmp_path / "p", "--window", 8)
+    assert code == 2 and err.count("\n") == 1 and "--window" in err
+    assert not (tmp_path / "p").exists() and not (tmp_path / "run").exists()

@@ -107,8 +107,31 @@ def save_weights(path: str | Path, net: ReconNet, modes: list[str], record: dict
         "state": state,
         "record": record,
     }
+    save_torch(path, payload)
+
+
+def save_torch(path: str | Path, payload: dict[str, Any]) -> None:
+    """``torch.save`` of plain containers, atomically."""
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
+
+
+def read_torch(path: Path, what: str, fmt: str) -> dict[str, Any]:
+    """Load a dict written by :func:`save_torch` (``weights_only=True``); its ``format`` must be ``fmt``.
+
+    Raises:
+        InputError: missing, unreadable (truncated, not a torch file) or foreign (another ``format``) file.
+    """
+    if not path.is_file():
+        raise InputError(f"{what} not found", path=path)
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for truncated or foreign files
+        raise InputError(f"unreadable {what} ({type(err).__name__})", path=path) from err
+    if not isinstance(data, dict) or data.get("format") != fmt:
+        found = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise InputError(f"not a spikenerf reconstructor {what} (format {found!r}, expected {fmt!r})", path)
+    return data
 
 
 def shipped_weights() -> Path:
@@ -128,17 +151,7 @@ def load_weights(path: str | Path | None = None, mode: str | None = None) -> tup
             the weights were not trained for.
     """
     path = shipped_weights() if path is None else Path(path)
-    if not path.is_file():
-        raise InputError("learned reconstruction weights file not found", path=path)
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for truncated or foreign files
-        raise InputError(f"unreadable weights file ({type(err).__name__})", path=path) from err
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        found = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise InputError(
-            f"not a spikenerf reconstructor weights file (format {found!r}, expected {FORMAT!r})", path
-        )
+    data = read_torch(path, "weights file", FORMAT)
     if data.get("arch") != ARCH:
         raise InputError(
             f"weights are for architecture {data.get('arch')!r}; this version runs {ARCH!r}", path

@@ -21,10 +21,10 @@ import torch
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.recon.features import brightness_scale
-from spikenerf.recon.net import NetConfig, ReconNet, save_weights
+from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights
 from spikenerf.recon.store import PairSet, load_split, read_manifest
-from spikenerf.train.checkpoint import load_checkpoint, save_checkpoint
 
+CHECKPOINT_FORMAT = "spikenerf-recon-checkpoint-1"
 CURVES_HEADER = ["iteration", "train_l1", "val_psnr_learned", "val_psnr_tfp", "seconds"]
 
 
@@ -153,9 +153,10 @@ def train_recon(
             _write_curves(out, rows)
             bar.write(f"iter {it}: val PSNR learned {learned:.2f} dB, TFP {tfp:.2f} dB")
         if it % cfg.ckpt_every == 0 or it == end:
-            save_checkpoint(
+            save_torch(
                 out / "checkpoint.pt",
                 {
+                    "format": CHECKPOINT_FORMAT,
                     "iteration": it,
                     "elapsed": time.perf_counter() - t0,
                     "model": net.state_dict(),
@@ -188,7 +189,7 @@ def _resume(out: Path, cfg: ReconTrainConfig, net: ReconNet, opt, gen: torch.Gen
     """Load ``out/checkpoint.pt`` if present; returns (iteration, elapsed seconds)."""
     if not (out / "checkpoint.pt").is_file():
         return 0, 0.0
-    data = load_checkpoint(out / "checkpoint.pt")
+    data = read_torch(out / "checkpoint.pt", "checkpoint", CHECKPOINT_FORMAT)
     stored = {k: v for k, v in data.get("config", {}).items() if k != "iters"}
     if stored != {k: v for k, v in asdict(cfg).items() if k != "iters"}:
         raise InputError(
