@@ -12,7 +12,7 @@ brightness (i.e. shown at the right exposure), clipped to [0, 1], sRGB-encoded, 
 interval (t, paired over draws).
 
 Speed: frames/s of the learned reconstruction of a 250 × 400 gray stream (``learned_frames``, one tile) at
-``torch.set_num_threads(2)``, against TFP of the same frames in the same run.
+1 and 2 torch threads, against TFP of the same frames in the same run (also ``run_all --only learned-recon``).
 """
 
 from __future__ import annotations
@@ -109,20 +109,33 @@ def quality(net, draws: int, size: int = 96) -> list[str]:
     return rows
 
 
-def speed(net, frames: int = 8, height: int = 250, width: int = 400) -> Row:
-    """Learned frames/s at 250 × 400 (2 threads) vs TFP of the same frames."""
-    torch.set_num_threads(2)
+def speed(net, threads: int, frames: int = 8, height: int = 250, width: int = 400) -> Row:
+    """Learned frames/s at 250 × 400 with ``threads`` torch threads vs TFP of the same frames, same run."""
+    torch.set_num_threads(threads)
     k = net.config.window
     rng = np.random.default_rng(0)
     stream = (rng.random((frames + k, height, width), dtype=np.float32) < 0.3).astype(np.uint8)
     total = stream.shape[0]
+    learned_frames(net, lambda a, b: stream[a:b], total, k // 2, k // 2 + 1)  # warm-up
     start = time.perf_counter()
     learned_frames(net, lambda a, b: stream[a:b], total, k // 2, k // 2 + frames)
     learned_fps = frames / (time.perf_counter() - start)
     start = time.perf_counter()
     tfp(stream, window=k, frames=slice(k // 2, k // 2 + frames))
     tfp_fps = frames / (time.perf_counter() - start)
-    return Row(f"learned reconstruction {height}×{width}, 2 threads", learned_fps, tfp_fps, "frames/s", "TFP")
+    return Row(
+        f"learned recon {height}×{width}, {threads} thread(s)", learned_fps, tfp_fps, "frames/s", "TFP"
+    )
+
+
+def measure() -> list[Row]:
+    """Speed rows for ``benchmarks.run_all`` (shipped weights, 1 and 2 threads)."""
+    net, _ = load_weights(None)
+    before = torch.get_num_threads()
+    try:
+        return [speed(net, 1), speed(net, 2)]
+    finally:
+        torch.set_num_threads(before)
 
 
 def main() -> None:
@@ -146,7 +159,7 @@ def main() -> None:
         print(row, flush=True)
     if not args.no_speed:
         print()
-        print(format_table([speed(net)]))
+        print(format_table([speed(net, 1), speed(net, 2)]))
 
 
 if __name__ == "__main__":
