@@ -25,6 +25,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "recon-data": ("spikenerf.cli.recon_data", "Write training pairs for the learned reconstructor."),
     "recon-train": ("spikenerf.cli.recon_train", "Train the learned spike-to-image reconstructor."),
+    "import": ("spikenerf.cli.import_", "Import a raw .dat recording (poses: COLMAP, a file or an orbit)."),
     "train": ("spikenerf.cli.train", "Train a radiance field on a spike dataset."),
     "render": ("spikenerf.cli.render", "Render images, depth, video and novel spike streams from a run."),
     "eval": ("spikenerf.cli.evaluate", "Evaluate a run on held-out views (PSNR, SSIM, LPIPS)."),

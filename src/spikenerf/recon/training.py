@@ -20,6 +20,7 @@ import torch
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.recon.features import brightness_scale
 from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights
 from spikenerf.recon.store import PairSet, load_split, read_manifest
@@ -79,9 +80,9 @@ def sample_batch(pairs: PairSet, cfg: ReconTrainConfig, gen: torch.Generator) ->
 
 
 def psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Per-image PSNR (dB) of rates clipped to [0, 1], peak 1: (N, H, W) → (N,)."""
+    """Per-image PSNR (dB) of rates clipped to [0, 1], peak 1: (N, H, W) → (N,) float64."""
     mse = ((pred.clamp(0, 1) - target.clamp(0, 1)) ** 2).flatten(1).mean(1)
-    return -10 * torch.log10(mse.clamp_min(1e-10))
+    return mse_to_psnr(mse.clamp_min(1e-10))
 
 
 @torch.no_grad()
