@@ -43,10 +43,20 @@ VARIANT_FLAGS: dict[str, list[str]] = {
     "nerf-blur-aware": ["--method", "nerf-blur-aware"],
     "nerf-recon": ["--method", "nerf-recon"],
     "spike-nerf": ["--method", "spike-nerf"],
+    "nerf-recon-learned": ["--method", "nerf-recon", "--recon", "learned"],
+    "spike-nerf-learned": ["--method", "spike-nerf", "--recon", "learned"],
     "spike-nerf-no-mask": ["--method", "spike-nerf", "--no-mask"],
     "spike-nerf-no-spike-loss": ["--method", "spike-nerf", "--no-spike-loss"],
 }
-TABLE1_VARIANTS = ("nerf-gt", "nerf-blur", "nerf-blur-aware", "nerf-recon", "spike-nerf")
+TABLE1_VARIANTS = (
+    "nerf-gt",
+    "nerf-blur",
+    "nerf-blur-aware",
+    "nerf-recon",
+    "nerf-recon-learned",
+    "spike-nerf",
+    "spike-nerf-learned",
+)
 
 
 @dataclass
