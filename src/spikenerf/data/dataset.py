@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.io import count_frames, read_dat, rgb_paths
+from spikenerf.camera.model import COLORS
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError
@@ -29,7 +30,9 @@ TRANSFORMS, TRANSFORMS_BLUR, TRANSFORMS_TEST, CONFIG = (
     "transforms_test.json",
     "config.yaml",
 )
-MODES = ("gray", "rgb", "bayer")
+#: nerfstudio views of the folder (written by the writer; never read by spikenerf)
+TRANSFORMS_GT, TRANSFORMS_TFP = "transforms_gt.json", "transforms_tfp.json"
+MODES = COLORS  # the colour modes a dataset may hold (camera.model.ColorMode)
 #: blur views stored as one array (named by ``images_npy`` in transforms_blur.json; frames carry ``index``)
 BLUR_ARRAY = "blur/views.npy"
 
@@ -219,7 +222,10 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
         _image_array(root, data, path, (len(frames), k.height, k.width, 3)) if "images_npy" in data else None
     )
     poses, images, ranges = [], [], []
+    train = data.get("train_filenames")  # a nerfstudio view lists its held-out frames too: skip them
     for i, f in enumerate(frames):
+        if isinstance(train, list) and f.get("file_path") not in train:
+            continue
         where = f"frames[{i}]."
         poses.append(_pose(f, path, where))
         if array is None:

@@ -10,6 +10,7 @@ import imageio.v3 as iio
 import numpy as np
 import yaml
 
+from spikenerf.camera.model import COLORS as MODES
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic
@@ -40,7 +41,7 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
     Returns:
         display image uint8 (H·s, (2W + 2)·s, 3) sRGB-encoded, and a caption.
     """
-    mode = mode or next(m for m in ("gray", "rgb", "bayer") if m in ds.modes)
+    mode = mode or next(m for m in MODES if m in ds.modes)
     n = len(ds.trajectory)
     steps = ds.trajectory.steps
     if len(ds.gt):
@@ -75,9 +76,11 @@ def view_counts(root: str | Path) -> dict:
     """
     root = Path(root)
     frames = _read_json(root / TRANSFORMS).get("frames") or []
-    blur = (
-        _read_json(root / TRANSFORMS_BLUR).get("frames") or [] if (root / TRANSFORMS_BLUR).is_file() else []
-    )
+    blur_data = _read_json(root / TRANSFORMS_BLUR) if (root / TRANSFORMS_BLUR).is_file() else {}
+    blur = blur_data.get("frames") or []
+    train = blur_data.get("train_filenames")  # a nerfstudio view lists its held-out frames too
+    if isinstance(train, list):
+        blur = [f for f in blur if isinstance(f, dict) and f.get("file_path") in train]
     try:
         config = yaml.safe_load((root / CONFIG).read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError):

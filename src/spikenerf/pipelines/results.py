@@ -67,7 +67,7 @@ def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
 
 
 def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
-    """table1.md, table2.md, differences.md, results.csv, results.json and report.html."""
+    """table1.md, table2.md, differences.md, results.csv and results.json (the report: suite.py)."""
     views, seeds = trained_on(cfg), training_seeds(cfg)
     t1_variants = [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants
     t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
@@ -102,9 +102,6 @@ def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> N
         },
     }
     write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
-    from spikenerf.pipelines.report import build_report  # here: report imports this module
-
-    build_report(cfg, list(cells))
 
 
 def seed_note(seeds: Sequence[int]) -> str:
