@@ -12,6 +12,7 @@ from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, cell_keys, parse_seeds, run_benchmark, run_dir
 from spikenerf.pipelines.stats import differences, summarize
+from spikenerf.pipelines.suite import benchmark_with_report
 from spikenerf.pipelines.tables import Cell, differences_table, table1_markdown, table2_markdown, to_markdown
 
 #: t(0.975, dof) from printed tables (independent of scipy)
@@ -100,7 +101,7 @@ def test_tiny_two_seed_benchmark(tmp_path: Path) -> None:
                           frames=40, iters=2, device="cpu", test_views=1, render=False,
                           extra_train_args=train, seeds=[0, 1], blur_views="all")  # fmt: skip
     assert len(cell_keys(cfg)) == 4
-    cells = run_benchmark(cfg)
+    cells = benchmark_with_report(cfg)
     assert sorted((c.variant, c.seed) for c in cells) == [("nerf-blur", 0), ("nerf-blur", 1),
                                                           ("spike-nerf", 0), ("spike-nerf", 1)]  # fmt: skip
     assert (

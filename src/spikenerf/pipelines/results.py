@@ -12,7 +12,7 @@ import yaml
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.data.summary import view_counts
-from spikenerf.pipelines.benchmark import (
+from spikenerf.pipelines.cells import (
     TABLE1_VARIANTS,
     BenchmarkConfig,
     cell_commands,
