@@ -24,8 +24,10 @@ import torch
 from tqdm import tqdm
 
 from spikenerf import __version__
-from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.pipelines.tables import (
     ABLATION_VARIANTS,
     Cell,
@@ -219,7 +221,17 @@ def _run_cell(cfg: BenchmarkConfig, scene: str, color: str, variant: str, log: l
 
 def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
     """Simulate each scene once, then train/eval every missing cell; write the tables and the report."""
-    cfg.out.mkdir(parents=True, exist_ok=True)
+    from spikenerf.pipelines.resources import check_benchmark_resources
+
+    check_output(cfg.out, "benchmark", overwrite=True)  # a folder it wrote before is resumed
+    check_benchmark_resources(cfg)
+    with output_lock(cfg.out):
+        mark(cfg.out, "benchmark")
+        clean_stale_temps(cfg.out)
+        return _run_benchmark_locked(cfg, on_cell)
+
+
+def _run_benchmark_locked(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None) -> list[Cell]:
     log: list[dict] = []
     jobs = max(1, cfg.jobs)
     simulations = [partial(_simulate_scene, cfg, s, log) for s in cfg.scenes]

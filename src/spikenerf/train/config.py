@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -147,9 +148,9 @@ class TrainConfig:
         ):
             if value is not None and value < 0:
                 raise InputError(f"{name} must be ≥ 0, found {value}")
-        if self.lr is not None and not self.lr > 0:
-            raise InputError(f"--lr must be positive, found {self.lr}")
-        if self.spike.lam < 0 or self.eval_every < 0:
+        if self.lr is not None and not (math.isfinite(self.lr) and self.lr > 0):
+            raise InputError(f"--lr must be a finite number > 0, found {self.lr}")
+        if not (math.isfinite(self.spike.lam) and self.spike.lam >= 0) or self.eval_every < 0:
             raise InputError(
                 f"--lambda and --eval-every must be ≥ 0, found {self.spike.lam}, {self.eval_every}"
             )

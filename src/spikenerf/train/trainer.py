@@ -18,10 +18,14 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
-from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
+from spikenerf.core.faults import failpoint
+from spikenerf.core.limits import check_resources
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.samplers import RaySampler, WindowSampler
@@ -33,7 +37,7 @@ from spikenerf.data.targets import (
     eval_view_targets,
     load_stream,
 )
-from spikenerf.fields import field_config
+from spikenerf.fields import field_config, field_memory
 from spikenerf.render import RadianceModel, build_model, model_from_hparams, ray_bounds, render_spike_window
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint, restore_rng, rng_state, save_checkpoint
 from spikenerf.train.config import TrainConfig, load_config, save_config
@@ -45,6 +49,7 @@ from spikenerf.train.losses import (
     spike_interval_loss,
     spike_weight,
 )
+from spikenerf.train.run import dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
 #: options that may change when a run is resumed (everything else must match the stored config)
@@ -102,6 +107,19 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
 
 
+def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path) -> None:
+    """Refuse a run whose estimated memory (targets, field, one batch) or checkpoint exceeds the machine's."""
+    k, steps = dataset.intrinsics, len(dataset.trajectory)
+    channels = 1 if config.color == "gray" else 3
+    uses_stream = config.method in ("spike-nerf", "nerf-recon")
+    targets = float(steps) * k.height * k.width * channels * 10 if uses_stream else 0.0
+    params, per_ray, ckpt = field_memory(config.field, model_config(config))
+    spike_rays = config.spike.window * config.spike.pixels if config.uses_spike_loss else 0
+    rays = (config.batch + spike_rays) * per_ray
+    flag = "--batch" if rays >= params else "--field-option (grid size)"
+    check_resources(targets + params + rays, 2 * ckpt, out, flag)
+
+
 class Trainer:
     """Holds the model, optimiser, targets and samplers of one run folder.
 
@@ -132,6 +150,7 @@ class Trainer:
             config = _check_resume(load_config(self.out / CONFIG_FILE), config, self.out / CONFIG_FILE)
         self.config = config.validate()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
+        check_train_resources(self.config, self.dataset, self.out)
         self.device = resolve_device(config.device)
         self._build_targets()
         self.samplers: dict[str, Any] = {
@@ -152,8 +171,11 @@ class Trainer:
         self.model.to(self.device)
         self.optimizer = make_optimizer(self.model, config)
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
+        self.sum_mse, self.n_mse = 0.0, 0  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
         if ckpt is not None:
+            sum_mse, n_mse = ckpt.get("train_mse", (0.0, 0))  # absent from checkpoints before 0.x
+            self.sum_mse, self.n_mse = float(sum_mse), int(n_mse)
             self.optimizer.load_state_dict(ckpt["optimizer"])
             restore_rng(ckpt["rng"], self.samplers)
             self.iteration, self.elapsed, self.rays = (
@@ -249,6 +271,8 @@ class Trainer:
                 "iteration": self.iteration,
                 "elapsed": self.elapsed,
                 "rays": self.rays,
+                "train_mse": [self.sum_mse, self.n_mse],
+                "dataset": dataset_fingerprint(self.dataset),
                 "model": self.model.state_dict(),
                 "hparams": self.model.hparams(),
                 "optimizer": self.optimizer.state_dict(),
@@ -262,11 +286,12 @@ class Trainer:
         cfg, s = self.config, self.config.spike
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
+        mark(self.out, "run")
         end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
         bar = tqdm(
             total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
         )
-        sum_mse, n_mse, train_psnr = 0.0, 0, math.nan
+        train_psnr = math.nan
         test_psnr = self.curves[-1]["test_psnr"] if self.curves else math.nan
         while self.iteration < end:
             it = self.iteration
@@ -287,7 +312,7 @@ class Trainer:
                 self.optimizer = make_optimizer(self.model, cfg)
             self.elapsed += time.perf_counter() - t0
             self.rays += rays
-            sum_mse, n_mse = sum_mse + srgb_mse, n_mse + 1
+            self.sum_mse, self.n_mse = self.sum_mse + srgb_mse, self.n_mse + 1
             bar.update()
             bar.set_postfix(
                 loss=f"{loss.item():.4f}",
@@ -296,8 +321,8 @@ class Trainer:
             )
             last = self.iteration == cfg.iters
             if (cfg.eval_every and self.iteration % cfg.eval_every == 0) or last:
-                train_psnr, test_psnr = mse_to_psnr(sum_mse / n_mse), self.evaluate()
-                sum_mse, n_mse = 0.0, 0
+                train_psnr, test_psnr = mse_to_psnr(self.sum_mse / self.n_mse), self.evaluate()
+                self.sum_mse, self.n_mse = 0.0, 0
                 self.curves.append(
                     {
                         "iteration": self.iteration,
@@ -309,11 +334,12 @@ class Trainer:
                 write_curves(self.out / CURVES, self.curves)
             if self.iteration % cfg.ckpt_every == 0 or last or self.iteration == end:
                 self.checkpoint()
+            failpoint("train.iteration")
         bar.close()
         if self.iteration >= cfg.iters and not (self.out / CHECKPOINT).exists():
             self.checkpoint()
-        if n_mse:
-            train_psnr = mse_to_psnr(sum_mse / n_mse)
+        if self.n_mse:
+            train_psnr = mse_to_psnr(self.sum_mse / self.n_mse)
         elif self.curves:
             train_psnr = self.curves[-1]["train_psnr"]
         summary = TrainSummary(
@@ -340,5 +366,16 @@ def train(
     progress: bool = True,
     stop_after: int | None = None,
 ) -> TrainSummary:
-    """Train ``config`` into the run folder ``out`` (see :class:`Trainer`)."""
-    return Trainer(config, out, dataset, resume, progress).train(stop_after)
+    """Train ``config`` into the run folder ``out`` (see :class:`Trainer`), holding its writer lock.
+
+    ``out`` must be new, empty or a run folder; ``resume`` needs it to exist. Temporaries that a killed
+    writer left in it are removed first.
+    """
+    out = Path(out)
+    if resume and not out.is_dir():
+        raise InputError("--resume: no run folder here to resume (leave out --resume to start one)", out)
+    check_output(out, "run", overwrite=True)
+    with output_lock(out):
+        check_output(out, "run", overwrite=True)
+        clean_stale_temps(out)
+        return Trainer(config, out, dataset, resume, progress).train(stop_after)
