@@ -14,13 +14,14 @@ Every target is *linear* intensity per readout step (1.0 = white, φ = the datas
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal, get_args
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from spikenerf.camera.masks import spike_masks
+from spikenerf.camera.reconstruct import METHODS as CAMERA_RECONS
 from spikenerf.camera.reconstruct import tfi, tfp
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
@@ -28,10 +29,15 @@ from spikenerf.core.errors import InputError
 if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
 
-METHODS = ("spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt")
+#: training methods (each defines its targets)
+#: image reconstructions for targets: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
+RECONS: tuple[str, ...] = (*CAMERA_RECONS, "learned")
+Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt"]
+METHODS: tuple[str, ...] = get_args(Method)
 SPIKE_METHODS = ("spike-nerf", "nerf-recon")
-COLORS = ("gray", "rgb")
-RECONS = ("tfp", "tfi")
+#: colours a radiance field is trained in
+TrainColor = Literal["gray", "rgb"]
+COLORS: tuple[str, ...] = get_args(TrainColor)
 
 
 @dataclass
@@ -89,12 +95,19 @@ def channels_last(stream: np.ndarray | Tensor) -> Tensor:
 def reconstruct_stream(
     spikes: np.ndarray, recon: str = "tfp", window: int = 41, threshold: float = 1.0
 ) -> np.ndarray:
-    """Î of every step: TFP (``window`` frames, odd) or TFI of a (T, ...) stream → float32 (T, ...) linear."""
+    """Î of every step: TFP (``window`` frames, odd), TFI or the shipped learned reconstructor (its trained
+    window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb stream → float32 linear."""
+    if recon == "learned":
+        from spikenerf.recon.infer import reconstruct_learned
+
+        return reconstruct_learned(
+            spikes, "rgb" if np.ndim(spikes) == 4 else "gray", threshold, window=window
+        )
     if recon == "tfp":
         return tfp(spikes, window=window, threshold=threshold)
     if recon == "tfi":
         return tfi(spikes, threshold=threshold)
-    raise InputError(f"--recon must be one of {', '.join(RECONS)}, found {recon!r}")
+    raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
 
 
 def masked_reconstruction(
@@ -119,7 +132,7 @@ def masked_reconstruction(
 def stream_mode(color: str) -> str:
     """Dataset spike mode used for ``--color``: gray → ``gray`` stream, rgb → per-channel ``rgb`` streams."""
     if color not in COLORS:
-        raise InputError(f"--color must be one of {', '.join(COLORS)}, found {color!r}")
+        raise InputError(f"color must be one of {', '.join(COLORS)}, found {color!r}")
     return color
 
 
@@ -193,7 +206,7 @@ def build_image_targets(
         blur_samples: poses per exposure for nerf-blur-aware. spikes: the stream if already loaded.
     """
     if method not in METHODS:
-        raise InputError(f"--method must be one of {', '.join(METHODS)}, found {method!r}")
+        raise InputError(f"method must be one of {', '.join(METHODS)}, found {method!r}")
     if method in SPIKE_METHODS:
         stream = load_stream(dataset, color) if spikes is None else spikes
         use_mask = mask and method == "spike-nerf"

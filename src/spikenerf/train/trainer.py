@@ -42,6 +42,7 @@ from spikenerf.render import RadianceModel, build_model, model_from_hparams, ray
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint, restore_rng, rng_state, save_checkpoint
 from spikenerf.train.config import TrainConfig, load_config, save_config
 from spikenerf.train.evaluate import CURVES, evaluate_views, read_curves, write_curves
+from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import (
     mse_to_psnr,
     paper_spike_loss,
@@ -53,7 +54,7 @@ from spikenerf.train.run import dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
 #: options that may change when a run is resumed (everything else must match the stored config)
-RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views")
+RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every")
 
 
 @dataclass
@@ -171,11 +172,12 @@ class Trainer:
         self.model.to(self.device)
         self.optimizer = make_optimizer(self.model, config)
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
-        self.sum_mse, self.n_mse = 0.0, 0  # the train PSNR's running sums since the last evaluation
+        self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
         if ckpt is not None:
-            sum_mse, n_mse = ckpt.get("train_mse", (0.0, 0))  # absent from checkpoints before 0.x
-            self.sum_mse, self.n_mse = float(sum_mse), int(n_mse)
+            means = ckpt.get("interval_means", {"sums": {}, "counts": {}})  # absent from older checkpoints
+            self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
+            self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
             restore_rng(ckpt["rng"], self.samplers)
             self.iteration, self.elapsed, self.rays = (
@@ -212,8 +214,9 @@ class Trainer:
         near, far = ray_bounds(self.model, origins, dirs, self.dataset.near, self.dataset.far)
         return self.model.render_rays(origins, dirs, near, far, perturb=perturb)
 
-    def recon_step(self) -> tuple[torch.Tensor, float, int]:
-        """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered)."""
+    def recon_step(self) -> tuple[torch.Tensor, torch.Tensor, int]:
+        """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered);
+        the MSE stays a 0-d tensor on the device (no synchronisation)."""
         views = self.targets.poses.shape[1]
         index, pixels = self.samplers["rays"].sample(max(1, self.config.batch // views))
         target = self.targets.gather(index, pixels).to(self.device)
@@ -224,7 +227,7 @@ class Trainer:
         if out.coarse_color is not None:
             loss = loss + recon_loss(out.coarse_color.view(-1, views, self.channels).mean(dim=1), target)
         with torch.no_grad():
-            srgb_mse = torch.mean((srgb_encode(color) - srgb_encode(target)) ** 2).item()
+            srgb_mse = torch.mean((srgb_encode(color) - srgb_encode(target)) ** 2)
         return loss, srgb_mse, poses.shape[0]
 
     def spike_step(self) -> tuple[torch.Tensor, int]:
@@ -256,12 +259,13 @@ class Trainer:
         return loss, s.window * s.pixels
 
     # -------------------------------------------------------------------------------------------------- loop
-    def evaluate(self) -> float:
-        """Mean PSNR (dB, sRGB-encoded [0, 1]) over the evaluation views; NaN without test views."""
+    def evaluate(self, renders: list | None = None) -> float:
+        """Mean PSNR (dB, sRGB-encoded [0, 1]) over the evaluation views; NaN without test views.
+        ``renders`` (if given) receives each (rendering, target)."""
         if self.test_views is None:
             return math.nan
         with torch.random.fork_rng(devices=[]):
-            return evaluate_views(self.model, self.test_views, self.dataset)
+            return evaluate_views(self.model, self.test_views, self.dataset, renders=renders)
 
     def checkpoint(self) -> None:
         """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
@@ -271,7 +275,7 @@ class Trainer:
                 "iteration": self.iteration,
                 "elapsed": self.elapsed,
                 "rays": self.rays,
-                "train_mse": [self.sum_mse, self.n_mse],
+                "interval_means": {"sums": self.interval.sums, "counts": self.interval.counts},
                 "dataset": dataset_fingerprint(self.dataset),
                 "model": self.model.state_dict(),
                 "hparams": self.model.hparams(),
@@ -284,6 +288,7 @@ class Trainer:
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
         cfg, s = self.config, self.config.spike
+        log = open_log(cfg.log, self.out)  # first: a missing package leaves no run folder behind
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
         mark(self.out, "run")
@@ -291,18 +296,20 @@ class Trainer:
         bar = tqdm(
             total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
         )
-        train_psnr = math.nan
+        recent, interval = RunningMeans(), self.interval
+        train_psnr, lam = math.nan, 0.0
         test_psnr = self.curves[-1]["test_psnr"] if self.curves else math.nan
         while self.iteration < end:
             it = self.iteration
             t0 = time.perf_counter()
             set_learning_rate(self.optimizer, it, cfg.iters, self.final_ratio)
-            loss, srgb_mse, rays = self.recon_step()
-            loss = loss + self.model.regularization()
+            recon, srgb_mse, rays = self.recon_step()
+            terms = {"recon": recon, "reg": self.model.regularization()}
+            loss = recon + terms["reg"]
             lam = spike_weight(it, s.lam, *s.schedule(cfg.iters)) if self.spikes is not None else 0.0
             if lam > 0 and it % s.every == 0:
-                spike_loss, spike_rays = self.spike_step()
-                loss, rays = loss + lam * spike_loss, rays + spike_rays
+                terms["spike"], spike_rays = self.spike_step()
+                loss, rays = loss + lam * terms["spike"], rays + spike_rays
             self.optimizer.zero_grad(set_to_none=True)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
                 loss.backward()
@@ -312,34 +319,45 @@ class Trainer:
                 self.optimizer = make_optimizer(self.model, cfg)
             self.elapsed += time.perf_counter() - t0
             self.rays += rays
-            self.sum_mse, self.n_mse = self.sum_mse + srgb_mse, self.n_mse + 1
+            for means in (recent, interval):
+                means.add({"loss": loss, **terms, "srgb_mse": srgb_mse})
             bar.update()
-            bar.set_postfix(
-                loss=f"{loss.item():.4f}",
-                psnr=f"{mse_to_psnr(srgb_mse):.2f}",
-                rays_s=f"{self.rays_per_second:.0f}",
-            )
             last = self.iteration == cfg.iters
+            if self.iteration % cfg.log_every == 0 or last:  # the only per-step read of device values
+                m = recent.read()
+                bar.set_postfix(loss=f"{m['loss']:.4f}", psnr=f"{mse_to_psnr(m['srgb_mse']):.2f}",
+                                rays_s=f"{self.rays_per_second:.0f}")  # fmt: skip
+                if log is not None:
+                    log.scalars(self.iteration, step_scalars(m, lam, self.optimizer, self.rays_per_second))
             if (cfg.eval_every and self.iteration % cfg.eval_every == 0) or last:
-                train_psnr, test_psnr = mse_to_psnr(self.sum_mse / self.n_mse), self.evaluate()
-                self.sum_mse, self.n_mse = 0.0, 0
+                renders: list | None = [] if log is not None else None
+                m = interval.read()
+                train_psnr, test_psnr = mse_to_psnr(m["srgb_mse"]), self.evaluate(renders)
+                terms_mean = {k: m.get(k, math.nan) for k in ("loss", "recon", "spike", "reg")}
                 self.curves.append(
                     {
                         "iteration": self.iteration,
                         "seconds": self.elapsed,
                         "train_psnr": train_psnr,
                         "test_psnr": test_psnr,
+                        **terms_mean,
+                        "lambda": lam,
                     }
                 )
                 write_curves(self.out / CURVES, self.curves)
+                if log is not None:
+                    log.scalars(self.iteration, {"psnr/train": train_psnr, "psnr/test": test_psnr})
+                    log.images(self.iteration, renders or [])
             if self.iteration % cfg.ckpt_every == 0 or last or self.iteration == end:
                 self.checkpoint()
             failpoint("train.iteration")
+        if log is not None:
+            log.close()
         bar.close()
         if self.iteration >= cfg.iters and not (self.out / CHECKPOINT).exists():
             self.checkpoint()
-        if self.n_mse:
-            train_psnr = mse_to_psnr(self.sum_mse / self.n_mse)
+        if "srgb_mse" in (m := interval.read()):
+            train_psnr = mse_to_psnr(m["srgb_mse"])
         elif self.curves:
             train_psnr = self.curves[-1]["train_psnr"]
         summary = TrainSummary(
