@@ -186,7 +186,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-out-exists", [*T, "--out", f"{R}/run"], "--resume"),
     ("train-resume-other", [*T, "--method", "nerf-gt", "--resume", "--out", f"{R}/run"],
      "method"),
-    ("train-device-tpu", [*T, "--device", "tpu", "--out", f"{R}/o"], "--device"),
+    ("train-device-tpu", [*T, "--device", "tpu", "--out", f"{R}/o"], "device"),
     ("train-dataset-file", ["train", f"{R}/afile", *TRAIN, "--out", f"{R}/o"], "afile"),
     ("train-truncated-dat", ["train", f"{R}/bad_ds", *TRAIN, "--out", f"{R}/o"], "spikes_gray.dat"),
     ("train-bad-yaml-ds", ["train", f"{R}/yaml_ds", *TRAIN, "--out", f"{R}/o"], "config.yaml"),
