@@ -8,6 +8,7 @@ import click
 
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, METHODS, RECONS
+from spikenerf.train.amp import AMP_MODES
 from spikenerf.train.config import FIELDS, SPIKE_LOSS_KINDS, TrainConfig, load_config
 from spikenerf.train.trainer import CONFIG_FILE, train
 
@@ -24,6 +25,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "eval_every": (None, "eval_every"),
     "eval_views": (None, "eval_views"),
     "ckpt_every": (None, "ckpt_every"),
+    "amp": (None, "amp"),
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
     "blur_samples": ("targets", "blur_samples"),
@@ -93,6 +95,13 @@ _D = TrainConfig()
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")
 @click.option("--ckpt-every", type=int, default=_D.ckpt_every, show_default=True)
+@click.option(
+    "--amp",
+    type=click.Choice(AMP_MODES),
+    default=_D.amp,
+    show_default=True,
+    help="Mixed-precision training step (bf16 also on a CPU; fp16 with a gradient scaler, for CUDA).",
+)
 @click.option(
     "--field-option",
     "field_options",

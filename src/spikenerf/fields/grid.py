@@ -178,8 +178,14 @@ class GridField(nn.Module):
     @property
     def step_size(self) -> float:
         """Marching step in world units: ``step_ratio`` × the mean cell size."""
-        size = (self.scene_box[1] - self.scene_box[0]).mean().item()
-        return self.config.step_ratio * size / (self.resolution - 1)
+        return self.config.step_ratio * self._box_size() / (self.resolution - 1)
+
+    def _box_size(self) -> float:
+        """Mean box edge, read from the device once per box (no host sync per rendered batch)."""
+        key = (self.scene_box.data_ptr(), self.scene_box._version)
+        if getattr(self, "_box_key", None) != key:
+            self._box_key, self._box_mean = key, (self.scene_box[1] - self.scene_box[0]).mean().item()
+        return self._box_mean
 
     def normalize(self, xyz: Tensor) -> Tensor:
         """World points (..., 3) → box-normalised [−1, 1]³."""

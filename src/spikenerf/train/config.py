@@ -15,6 +15,7 @@ import yaml
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, METHODS, RECONS
+from spikenerf.train.amp import AMP_MODES
 
 FIELDS = ("grid", "mlp")
 SPIKE_LOSS_KINDS = ("interval", "paper")
@@ -86,6 +87,7 @@ class TrainConfig:
         seed: seeds the initialisation, the samplers and the perturbations. device: auto | cpu | cuda.
         eval_every: iterations between test-view evaluations (0 = only at the end). eval_views: views used.
         ckpt_every: iterations between checkpoints (always one at the end).
+        amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
     """
 
@@ -102,6 +104,7 @@ class TrainConfig:
     eval_every: int = 250
     eval_views: int = 3
     ckpt_every: int = 500
+    amp: str = "none"
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -124,6 +127,7 @@ class TrainConfig:
             "--spike-loss": (self.spike.kind, SPIKE_LOSS_KINDS),
             "spike.pairs": (self.spike.pairs, ("all", "window")),
             "spike.order": (self.spike.order, ("sequential", "random")),
+            "--amp": (self.amp, AMP_MODES),
         }
         for name, (value, allowed) in choices.items():
             if value not in allowed:
