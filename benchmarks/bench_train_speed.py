@@ -33,7 +33,17 @@ def run_train(src: Path, dataset: Path, out: Path, args: argparse.Namespace) -> 
     """One ``spikenerf train`` with ``src`` first on the path → its summary plus the wall seconds."""
     env = {**os.environ, "PYTHONPATH": str(src), "OMP_NUM_THREADS": str(args.threads)}
     cmd = [sys.executable, "-m", "spikenerf", "train", str(dataset), "--method", args.method]
-    cmd += ["--iters", str(args.iters), "--eval-every", "0", "--eval-views", "8", "--quiet", "--out", str(out)]
+    cmd += [
+        "--iters",
+        str(args.iters),
+        "--eval-every",
+        "0",
+        "--eval-views",
+        "8",
+        "--quiet",
+        "--out",
+        str(out),
+    ]
     start = time.perf_counter()
     subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL)
     summary = json.loads((out / "summary.json").read_text())
@@ -53,21 +63,26 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench_train_speed_") as tmp_name:
         tmp = Path(tmp_name)
         ref = tmp / "ref"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(ref), args.ref], check=True)
+        subprocess.run(
+            ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(ref), args.ref], check=True
+        )
         try:
             dataset = args.dataset
             if dataset is None:
                 dataset = tmp / "orbs100"
                 subprocess.run(
-                    [sys.executable, "-m", "spikenerf", "simulate", "--scene", "analytic-orbs", "--width", "100",
-                     "--height", "100", "--out", str(dataset), "--no-progress"],
+                    [sys.executable, "-m", "spikenerf", "simulate", "--scene", "analytic-orbs",
+                     "--width", "100", "--height", "100", "--out", str(dataset), "--no-progress"],
                     env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
                     check=True,
                 )  # fmt: skip
             builds = {"reference": ref / "src", "ours": ROOT / "src"}
             results: dict[str, list[dict]] = {name: [] for name in builds}
-            print(f"dataset {dataset}, {args.method}, {args.iters} iterations, OMP_NUM_THREADS={args.threads}")
-            print("| round | build | rays/s | test PSNR (dB) | train s | wall s |\n|---:|---|---:|---:|---:|---:|")
+            print(
+                f"dataset {dataset}, {args.method}, {args.iters} iterations, OMP_NUM_THREADS={args.threads}"
+            )
+            print("| round | build | rays/s | test PSNR (dB) | train s | wall s |")
+            print("|---:|---|---:|---:|---:|---:|")
             for r in range(args.rounds):
                 for name, src in builds.items():
                     s = run_train(src, dataset, tmp / f"{name}{r}", args)
@@ -79,8 +94,13 @@ def main() -> None:
                     )
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(ref)], check=False)
-    ratios = [o["rays_per_second"] / b["rays_per_second"] for o, b in zip(results["ours"], results["reference"])]
-    dpsnr = [o["test_psnr"] - b["test_psnr"] for o, b in zip(results["ours"], results["reference"])]
+    ratios = [
+        o["rays_per_second"] / b["rays_per_second"]
+        for o, b in zip(results["ours"], results["reference"], strict=True)
+    ]
+    dpsnr = [
+        o["test_psnr"] - b["test_psnr"] for o, b in zip(results["ours"], results["reference"], strict=True)
+    ]
     print(f"\nrays/s ratio ours / {args.ref} per round: {', '.join(f'{x:.2f}×' for x in ratios)}")
     print(f"median ratio: {statistics.median(ratios):.2f}×")
     print(f"test PSNR ours − reference per round (dB): {', '.join(f'{x:+.2f}' for x in dpsnr)}")

@@ -43,7 +43,9 @@ class GridModel(RadianceModel):
         return lo, torch.maximum(hi, lo)
 
     @torch.no_grad()
-    def _march(self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float) -> tuple[Tensor, Tensor]:
+    def _march(
+        self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float
+    ) -> tuple[Tensor, Tensor]:
         """Packed sample slots inside ``[near, far)`` and (with ``use_occupancy``) in occupied cells.
 
         Returns ray (M,) and step number k (M,) of each kept slot, int64, ray after ray: slot k of a ray
@@ -53,7 +55,9 @@ class GridModel(RadianceModel):
         counts = torch.floor((far - near) / step).long().add_(1).clamp_(0, self.field.config.max_samples)
         counts = torch.where(far > near, counts, torch.zeros_like(counts))
         total = int(counts.sum())
-        ray = torch.repeat_interleave(torch.arange(len(counts), device=near.device), counts, output_size=total)
+        ray = torch.repeat_interleave(
+            torch.arange(len(counts), device=near.device), counts, output_size=total
+        )
         first = torch.cumsum(counts, dim=0) - counts
         k = torch.arange(total, device=near.device) - first[ray]
         t_start = near[ray] + step * k

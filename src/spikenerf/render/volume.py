@@ -57,7 +57,7 @@ def composite(
 
 
 def packed_weights(sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int) -> Tensor:
-    """Compositing weights (M,) of M samples packed ray after ray (no padding), as :func:`weights_from_density`.
+    """Compositing weights (M,) of M samples packed ray after ray (no padding); :func:`weights_from_density`.
 
     Args:
         sigma: (M,) density per unit length. deltas: (M,) interval lengths ≥ 0.
@@ -77,7 +77,12 @@ def packed_weights(sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int) -> T
 
 
 def packed_composite(
-    weights: Tensor, ray: Tensor, n_rays: int, t: Tensor, colors: Tensor, color_index: Tensor,
+    weights: Tensor,
+    ray: Tensor,
+    n_rays: int,
+    t: Tensor,
+    colors: Tensor,
+    color_index: Tensor,
     background: float = BACKGROUND,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`composite` of packed samples → colour (N, C), depth (N,), opacity (N,).

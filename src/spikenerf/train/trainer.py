@@ -35,10 +35,10 @@ from spikenerf.data.targets import (
 )
 from spikenerf.fields import field_config
 from spikenerf.render import RadianceModel, build_model, model_from_hparams, ray_bounds, render_spike_window
+from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint, restore_rng, rng_state, save_checkpoint
 from spikenerf.train.config import TrainConfig, load_config, save_config
 from spikenerf.train.evaluate import CURVES, evaluate_views, read_curves, write_curves
-from spikenerf.train.amp import autocast
 from spikenerf.train.losses import (
     mse_to_psnr,
     paper_spike_loss,
