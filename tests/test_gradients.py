@@ -102,3 +102,27 @@ def test_amp_bf16_trains_on_a_cpu(dataset_dir: Path, dataset, tmp_path: Path) ->
     assert summary.iteration == 6 and torch.isfinite(torch.tensor(summary.test_psnr))
     with pytest.raises(Exception, match="--amp"):
         _config(dataset_dir, amp="fp8").validate()
+
+
+def test_fused_vm_kernel_matches_grid_sample_forward_and_backward() -> None:
+    from spikenerf.fields import vm_kernel
+    from spikenerf.fields.grid import sample_vm
+
+    if not vm_kernel.available():
+        pytest.skip("no C++ compiler for the fused VM kernel")
+    gen = torch.Generator().manual_seed(3)
+    planes = torch.randn(3, 5, 9, 9, generator=gen, requires_grad=True)
+    lines = torch.randn(3, 5, 9, 1, generator=gen, requires_grad=True)
+    xyz = torch.rand(300, 3, generator=gen) * 2 - 1
+    xyz[:4] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])  # edges
+    ref = sample_vm(planes, lines, xyz).permute(2, 0, 1)
+    out = vm_kernel.vm_lookup(planes, lines, xyz)
+    assert torch.allclose(out, ref, atol=1e-5)
+    grad = torch.randn(ref.shape, generator=gen)
+    for a, b in zip(
+        torch.autograd.grad(ref, (planes, lines), grad),
+        torch.autograd.grad(out, (planes, lines), grad),
+        strict=True,
+    ):
+        assert torch.allclose(a, b, atol=1e-4)
+    assert not vm_kernel.usable(planes, xyz.clone().requires_grad_())  # point gradients: grid_sample
