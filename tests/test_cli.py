@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import typing
 
 from spikenerf.cli import SUBCOMMANDS, main
 from spikenerf.core.errors import InputError
@@ -41,3 +42,31 @@ def test_input_error_is_one_line_and_exit_2(monkeypatch, capsys) -> None:
         assert exit_.code == 2
     err = capsys.readouterr().err.strip()
     assert err == "spikenerf: error: x/transforms.json: expected 3 fields, found 2"
+
+
+def test_cli_choices_come_from_the_owning_literals() -> None:
+    """Each choice list is one ``Literal`` in the module that implements it; the CLI shows exactly those."""
+    import importlib
+
+    import click
+
+    from spikenerf.camera.model import COLORS, ColorMode
+    from spikenerf.camera.reconstruct import METHODS, ReconMethod
+    from spikenerf.data.targets import COLORS as TRAIN_COLORS
+    from spikenerf.data.targets import METHODS as TRAIN_METHODS
+    from spikenerf.fields import FIELD_KINDS, FieldKind
+
+    def choices(command: str, option: str) -> list[str]:
+        params = importlib.import_module(SUBCOMMANDS[command][0]).command.params
+        param = next(p for p in params if p.name == option)
+        assert isinstance(param.type, click.Choice)
+        return list(param.type.choices)
+
+    assert typing.get_args(ColorMode) == COLORS and choices("simulate", "color") == [*COLORS, "all"]
+    assert typing.get_args(ReconMethod) == METHODS == tuple(choices("reconstruct", "method"))
+    assert tuple(choices("train", "recon")) == METHODS
+    assert tuple(choices("train", "field")) == FIELD_KINDS == typing.get_args(FieldKind)
+    assert (
+        tuple(choices("train", "method")) == TRAIN_METHODS
+        and tuple(choices("train", "color")) == TRAIN_COLORS
+    )

@@ -187,3 +187,25 @@ def test_threads_option_sets_torch_and_child_processes(capsys, stream, monkeypat
         assert code == 2 and "--threads" in err
     finally:
         torch.set_num_threads(before)
+
+
+def test_info_and_reconstruct_read_the_size_from_a_spikecv_config(capsys, stream, tmp_path: Path) -> None:
+    path, spikes = stream
+    (path.parent / "config.yaml").write_text(f"filename: s\nspike_h: {H}\nspike_w: {W}\nis_labeled: false\n")
+    code, out, _ = _run(capsys, "info", path)
+    assert code == 0 and f"frame: {H}×{W} pixels" in out and "frames: 120" in out
+    out_png = tmp_path / "lin.png"
+    code, _, _ = _run(capsys, "reconstruct", path, "--method", "tfp", "--frame", 60, "--encoding", "linear",
+                      "--out", out_png)  # fmt: skip
+    assert code == 0  # linear PNG: round(255 · Î), SpikeCV's convention (no gamma)
+    np.testing.assert_array_equal(iio.imread(out_png), np.round(tfp(spikes, 41)[60] * 255).astype(np.uint8))
+    out_npy = tmp_path / "s.npy"
+    code, _, _ = _run(capsys, "reconstruct", path, "--method", "tfp", "--frame", 60, "--encoding", "srgb",
+                      "--out", out_npy)  # fmt: skip
+    assert code == 0
+    np.testing.assert_allclose(
+        np.load(out_npy), srgb_encode(tfp(spikes, 41)[60].astype(np.float64)), atol=1e-6
+    )
+    (path.parent / "config.yaml").write_text("spike_h: 0\nspike_w: 12\n")
+    code, _, err = _run(capsys, "info", path)
+    assert code == 2 and "spike_h" in err and err.strip().count("\n") == 0

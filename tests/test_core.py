@@ -54,3 +54,13 @@ def test_resolve_device() -> None:
     if not torch.cuda.is_available():
         with pytest.raises(InputError):
             resolve_device("cuda")
+
+
+def test_device_mps_is_accepted_where_torch_has_it(monkeypatch) -> None:
+    monkeypatch.setattr(torch.backends.mps, "is_available", lambda: True)
+    assert resolve_device("mps") == torch.device("mps")
+    monkeypatch.setattr(torch.backends.mps, "is_available", lambda: False)
+    with pytest.raises(InputError, match="no Apple-GPU"):
+        resolve_device("mps")
+    with pytest.raises(InputError, match="auto, cpu, cuda or mps"):
+        resolve_device("tpu")

@@ -138,7 +138,7 @@ def test_state_dict_round_trip_after_upsampling() -> None:
     assert fresh.field.resolution == 28
     pose = look_at(np.array([2.5, 1.0, 1.5]), np.zeros(3))
     intr = Intrinsics.from_fov(9, 7, 0.7)
-    assert torch.equal(render_image(fresh, pose, intr)["color"], render_image(model, pose, intr)["color"])
+    assert torch.equal(render_image(fresh, pose, intr).color, render_image(model, pose, intr).color)
 
 
 def cube_model(channels: int = 3):
@@ -162,7 +162,7 @@ def test_occupancy_skips_empty_space_without_changing_the_image() -> None:
     pose = look_at(np.array([2.0, -2.2, 1.3]), np.zeros(3))
     intr = Intrinsics.from_fov(24, 20, 0.9)
     model.use_occupancy = True
-    before = render_image(model, pose, intr)["color"]  # occupancy not built yet: all cells occupied
+    before = render_image(model, pose, intr).color  # occupancy not built yet: all cells occupied
     assert model.on_step(1) is False  # occupancy_start = 1 → built now
     assert model.field.occupancy.occupied_fraction() < 0.25
     o, d = pixel_rays(
@@ -177,7 +177,7 @@ def test_occupancy_skips_empty_space_without_changing_the_image() -> None:
     assert skip.num_samples < 0.3 * full.num_samples
     assert torch.allclose(skip.color, full.color, atol=1e-5)
     assert torch.allclose(skip.depth, full.depth, atol=1e-4)
-    after = render_image(model, pose, intr)["color"]
+    after = render_image(model, pose, intr).color
     assert (before - after).abs().max() < 1e-5
     assert (after < 0.99).any() and (after > 0.999).any()  # the image shows the cube and the background
 

@@ -84,7 +84,7 @@ def test_packed_weights_equal_the_padded_ones() -> None:
 def test_training_loop_reads_no_tensor_value_per_step(
     dataset_dir: Path, dataset, tmp_path: Path, monkeypatch
 ) -> None:  # type: ignore[no-untyped-def]
-    """``.item()`` is a host–device sync on a GPU: the loop reads values back only every LOG_EVERY steps."""
+    """``.item()`` is a host–device sync on a GPU: the loop reads values back only every log_every steps."""
     cfg = _config(dataset_dir, method="spike-nerf")
     cfg.iters, cfg.eval_every, cfg.ckpt_every = 20, 0, 100
     trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
@@ -100,7 +100,7 @@ def test_amp_bf16_trains_on_a_cpu(dataset_dir: Path, dataset, tmp_path: Path) ->
     cfg = _config(dataset_dir, method="spike-nerf", amp="bf16")
     summary = Trainer(cfg, tmp_path / "run", dataset, progress=False).train()
     assert summary.iteration == 6 and torch.isfinite(torch.tensor(summary.test_psnr))
-    with pytest.raises(Exception, match="--amp"):
+    with pytest.raises(Exception, match="amp must be one of"):
         _config(dataset_dir, amp="fp8").validate()
 
 

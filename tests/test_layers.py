@@ -29,3 +29,84 @@ def test_lower_layers_never_import_higher_ones(layer: str) -> None:
         for imported in _imports(path):
             assert imported in ORDER, f"{path}: imports unknown package spikenerf.{imported}"
             assert ORDER.index(imported) <= rank, f"{path}: {layer} imports higher layer {imported}"
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """spikenerf module → the spikenerf modules it imports, anywhere in the file (function bodies too, where
+    a cycle would only be deferred), except under ``if TYPE_CHECKING:``."""
+    modules = {
+        ".".join(("spikenerf", *p.relative_to(SRC).with_suffix("").parts)).removesuffix(".__init__"): p
+        for p in SRC.rglob("*.py")
+    }
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        tree = ast.parse(path.read_text())
+        skipped = {
+            id(n)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+            for n in ast.walk(node)
+        }
+        edges: set[str] = set()
+        for node in ast.walk(tree):
+            if id(node) in skipped:
+                continue
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("spikenerf"):
+                targets = [node.module, *(f"{node.module}.{a.name}" for a in node.names)]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                continue
+            edges.update(t for t in targets if t in modules and t != name)
+        graph[name] = edges
+    return graph
+
+
+def test_no_import_cycles_between_modules() -> None:
+    graph = _module_graph()
+    assert "spikenerf.pipelines.benchmark" in graph["spikenerf.pipelines.report"]  # the check sees imports
+    state: dict[str, int] = {}  # 1 = on the current path, 2 = done
+
+    def visit(name: str, path: list[str]) -> None:
+        state[name] = 1
+        for nxt in sorted(graph[name]):
+            if state.get(nxt) == 1:
+                cycle = [*path[path.index(nxt) :], nxt] if nxt in path else [name, nxt]
+                pytest.fail(f"import cycle: {' → '.join(cycle)}")
+            if nxt not in state:
+                visit(nxt, [*path, nxt])
+        state[name] = 2
+
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [name])
+
+
+def test_one_psnr_implementation() -> None:
+    """PSNR is computed in core/psnr.py only; train, eval and pipelines call it."""
+
+    def calls_log10(path: Path) -> bool:
+        return any(
+            isinstance(n, ast.Call) and "log10" in ast.unparse(n.func)
+            for n in ast.walk(ast.parse(path.read_text()))
+        )
+
+    users = sorted(p.relative_to(SRC).as_posix() for p in SRC.rglob("*.py") if calls_log10(p))
+    assert users == ["core/psnr.py"], users
+
+
+def test_public_api_resolves_and_import_spikenerf_stays_light() -> None:
+    import importlib
+    import subprocess
+    import sys
+
+    from spikenerf.core.exports import PUBLIC_API
+
+    for package in PUBLIC_API:
+        module = importlib.import_module(package)
+        assert module.__all__ and all(
+            callable(getattr(module, name)) for name in module.__all__ if name[0] != "_"
+        )
+    code = "import sys, spikenerf, spikenerf.camera; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"

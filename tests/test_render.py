@@ -181,9 +181,9 @@ def test_render_image_shapes_and_hparams_round_trip() -> None:
     intr = Intrinsics.from_fov(7, 5, 0.8)
     pose = look_at(np.array([0.0, -3.0, 1.0]), np.zeros(3))
     img = render_image(model, pose, intr, chunk=11)
-    assert img["color"].shape == (5, 7, 1) and img["depth"].shape == (5, 7) and img["opacity"].shape == (5, 7)
+    assert img.color.shape == (5, 7, 1) and img.depth.shape == (5, 7) and img.opacity.shape == (5, 7)
     clone = model_from_hparams(model.hparams(), model.state_dict())
-    assert torch.equal(render_image(clone, pose, intr)["color"], img["color"])
+    assert torch.equal(render_image(clone, pose, intr).color, img.color)
 
 
 def test_build_model_rejects_bad_input() -> None:

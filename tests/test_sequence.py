@@ -343,7 +343,12 @@ ERRORS = {
     "'camera_angle_x'": lambda p: _edit(p, lambda m: m.update(camera_angle_x="wide")),
     "images are 8×8": lambda p: _edit(p, lambda m: m.update(w=16)),
     "per-frame cameras": lambda p: _edit(p, _set_frame(2, camera_angle_x=0.7)),
-    "lens distortion": lambda p: _edit(p, lambda m: m.update(k1=0.1)),
+    "OPENCV lens distortion is not supported; undistort the images first": lambda p: _edit(
+        p, lambda m: m.update(camera_model="OPENCV", k1=0.1)
+    ),
+    "'OPENCV_FISHEYE' is not a perspective camera": lambda p: _edit(
+        p, lambda m: m.update(camera_model="OPENCV_FISHEYE")
+    ),
     "cannot read image": lambda p: (p.parent / "train" / "r_2.png").write_bytes(b"not a png at all"),
 }
 

@@ -109,7 +109,7 @@ def test_window_matches_image_renders_and_gradient_reaches_the_field(kind: str) 
     assert window.intensity.shape == window.spikes.shape == window.accumulator.shape == (4, 4, 3)
     assert window.spikes.dtype == torch.bool
     for k in range(4):  # step k uses the pose of step k
-        img = render_image(model, poses[k], INTR)["color"]
+        img = render_image(model, poses[k], INTR).color
         assert torch.allclose(window.intensity[k], img[pixels[:, 1], pixels[:, 0]], atol=1e-5)
     ref_spikes, ref_accs = fire_sequence(window.intensity.detach(), start, 0.5)
     assert torch.equal(window.spikes, ref_spikes) and torch.allclose(window.accumulator, ref_accs)
@@ -145,7 +145,7 @@ def test_spike_stream_equals_fire_sequence_over_rendered_images_and_seeds_repeat
         model.field.density_lines.mul_(60.0)  # make something visible
     poses = _poses(6)
     stream = render_spike_stream(model, poses, INTR, threshold=2.5, start_accumulator=4, chunk=17)
-    frames = torch.stack([render_image(model, p, INTR)["color"] for p in poses])
+    frames = torch.stack([render_image(model, p, INTR).color for p in poses])
     start = torch.rand((8, 10, 1), generator=torch.Generator().manual_seed(4)) * 2.5
     expected, _ = fire_sequence(frames, start, 2.5)
     assert torch.equal(stream, expected)

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
+import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +28,8 @@ from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.checkpoint import CHECKPOINT
 from spikenerf.train.config import TrainConfig, load_config
+from spikenerf.train.evaluate import read_curves
+from spikenerf.train.logger import RunningMeans
 from spikenerf.train.losses import spike_interval_loss
 from spikenerf.train.run import load_run
 from spikenerf.train.trainer import Trainer, train
@@ -231,11 +236,10 @@ def test_every_method_trains_and_writes_a_run(
     with open(tmp_path / "run" / "curves.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["iteration"]) for r in rows] == [3, 6] and list(rows[0]) == [
-        "iteration",
-        "seconds",
-        "train_psnr",
-        "test_psnr",
+        *("iteration", "seconds", "train_psnr", "test_psnr"),
+        *("loss", "recon", "spike", "reg", "lambda"),
     ]
+    assert all(float(r["recon"]) > 0 and float(r["loss"]) >= float(r["recon"]) for r in rows)
     assert trainer.model.field.resolution == 20  # upsampled twice
     after = trainer.model.state_dict()
     assert any(not torch.equal(before[k], after[k]) for k in before if "decoder" in k)
@@ -268,7 +272,7 @@ def test_load_run_renders(dataset_dir: Path, dataset, tmp_path: Path) -> None:  
     assert config.method == "nerf-gt" and ds.intrinsics == dataset.intrinsics and not model.training
     from spikenerf.render import render_image
 
-    img = render_image(model, ds.test.poses[0], ds.intrinsics, ds.near, ds.far)["color"]
+    img = render_image(model, ds.test.poses[0], ds.intrinsics, ds.near, ds.far).color
     assert img.shape == (16, 16, 1) and torch.isfinite(img).all()
 
 
@@ -327,3 +331,113 @@ def test_default_spike_schedule_scales_with_the_run(dataset_dir: Path, tmp_path:
         trainer.train()
         params[enabled] = torch.cat([p.detach().flatten() for p in trainer.model.parameters()])
     assert not torch.equal(params[True], params[False])
+
+
+def test_tensorboard_log_holds_every_scalar_and_the_test_renders(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    cfg = _config(dataset_dir, log="tensorboard", log_every=2)
+    cfg.iters, cfg.eval_every = 12, 6
+    reads, syncs = [], []
+    real_read = RunningMeans.read
+    monkeypatch.setattr(RunningMeans, "read", lambda self: reads.append(1) or real_read(self))
+    real = {m: getattr(torch.Tensor, m) for m in ("item", "cpu")}
+    for method in real:  # device → host transfers made by the training code itself
+
+        def counted(self: torch.Tensor, *a: object, _m: str = method, **k: object) -> object:
+            frame = traceback.extract_stack(limit=2)[0]
+            if "spikenerf/train/" in frame.filename.replace("\\", "/"):
+                syncs.append(f"{frame.filename.rsplit('/', 1)[-1]}:{frame.name}")
+            return real[_m](self, *a, **k)
+
+        monkeypatch.setattr(torch.Tensor, method, counted)
+    Trainer(cfg, tmp_path / "run", dataset, progress=False).train()
+    assert len(reads) == 12 // 2 + 2 + 1  # the per-step values are read every 2 steps, at evals, at the end
+    # no transfer in the training step itself: one per read of the sums, the rest in evaluation/logging
+    assert 0 < syncs.count("logger.py:read") <= len(reads), sorted(syncs)  # an empty read transfers nothing
+    assert {s.split(":")[0] for s in syncs} == {"logger.py", "evaluate.py"}, sorted(syncs)
+    events = EventAccumulator(str(tmp_path / "run" / "tensorboard"), size_guidance={"images": 0}).Reload()
+    tags = set(events.Tags()["scalars"])
+    want = {"loss/loss", "loss/recon", "loss/spike", "loss/reg", "lambda", "rays_per_s", "psnr/train"}
+    assert want | {"psnr/test", "lr/grid", "lr/network"} <= tags, tags
+    assert [e.step for e in events.Scalars("loss/recon")] == [2, 4, 6, 8, 10, 12]
+    assert [e.step for e in events.Scalars("psnr/test")] == [6, 12]
+    lam = [e.value for e in events.Scalars("lambda")]
+    assert lam[0] == 0.5 and lam[-1] == 1.0  # warm-up 1, ramp 2: λ(1) = 0.5, then 1
+    lr = [e.value for e in events.Scalars("lr/network")]
+    assert lr[0] > lr[-1] > 0  # exponential decay
+    rows = read_curves(tmp_path / "run" / "curves.csv")
+    assert [r["iteration"] for r in rows] == [6, 12] and rows[-1]["spike"] > 0 and rows[-1]["lambda"] == 1.0
+    assert events.Tags()["images"] == ["test/view0"] and len(events.Images("test/view0")) == 2
+
+
+def test_tensorboard_missing_is_one_line_with_the_install_hint(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)
+    with pytest.raises(InputError, match=r"pip install 'spikenerf\[tensorboard\]'"):
+        Trainer(_config(dataset_dir, log="tensorboard"), tmp_path / "run", dataset, progress=False).train()
+    assert not (tmp_path / "run").exists()  # nothing half-written
+
+
+def test_cli_config_file_and_set_reach_every_field(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.cli import main
+
+    first = tmp_path / "a"
+    sets = [f"field_config.{k}={v}" for k, v in _TINY_MLP.items()]
+    sets += ["spike.lam=0.25", "spike.pairs=window", "targets.mask_n=3", "lr_final_ratio=0.5", "lr=1e-3"]
+    args = [
+        "train",
+        str(dataset_dir),
+        "--method",
+        "spike-nerf",
+        "--field",
+        "mlp",
+        "--iters",
+        "2",
+        "--batch",
+        "32",
+    ]
+    args += ["--eval-every", "0", "--device", "cpu", "--quiet", "--out", str(first)]
+    main(args + [f"--set={s}" for s in sets])
+    cfg = load_config(first / "config.yaml")
+    assert (cfg.spike.lam, cfg.spike.pairs, cfg.targets.mask_n, cfg.lr_final_ratio, cfg.lr) == (
+        0.25, "window", 3, 0.5, 0.001
+    )  # fmt: skip
+    assert cfg.field_config == _TINY_MLP and cfg.field == "mlp" and cfg.iters == 2
+    # a run folder's config.yaml is a valid --config (no DATASET needed); options and --set override it
+    second = tmp_path / "b"
+    main(["train", "--config", str(first / "config.yaml"), "--iters", "3", "--set", "spike.every=2",
+          "--quiet", "--out", str(second)])  # fmt: skip
+    again = load_config(second / "config.yaml")
+    assert again == dataclasses.replace(cfg, iters=3, spike=dataclasses.replace(cfg.spike, every=2))
+    capsys.readouterr()
+    for bad, message in [
+        ("spike.kind=nope", "spike.kind must be one of interval, paper, found 'nope'"),
+        ("iters=many", "iters must be an integer, found 'many'"),
+        ("spike.lamda=1", "unknown SpikeLossConfig keys ['lamda']"),
+        ("iters.x=1", "'iters' is not a section"),
+        ("no-equals", "override expects KEY=VALUE"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            main(
+                ["train", "--config", str(first / "config.yaml"), "--set", bad, "--out", str(tmp_path / "c")]
+            )
+        err = capsys.readouterr().err.strip()
+        assert exit_.value.code == 2 and message in err and "\n" not in err, err
+    assert not (tmp_path / "c").exists()
+
+
+def test_config_errors_name_the_key_and_the_cli_the_flag(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.cli import main
+
+    with pytest.raises(InputError, match=r"^targets\.window must be an odd"):
+        TrainConfig(targets=dataclasses.replace(TrainConfig().targets, window=4)).validate()
+    with pytest.raises(SystemExit):
+        main(["train", str(dataset_dir), "--window", "4", "--out", str(tmp_path / "r")])
+    assert (
+        capsys.readouterr().err.strip()
+        == "spikenerf: error: --window must be an odd number of frames, found 4"
+    )

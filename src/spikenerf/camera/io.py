@@ -276,7 +276,7 @@ def _as_binary(chunk: np.ndarray | torch.Tensor, path: str | Path) -> np.ndarray
         return arr
     bad = (arr != 0) & (arr != 1)
     if bad.any():
-        first = arr[np.unravel_index(np.argmax(bad), arr.shape)]
+        first = arr[np.unravel_index(np.argmax(bad), arr.shape)].item()  # 255, not np.uint8(255) (numpy 2)
         raise InputError(
             f"spikes must be binary (0/1 or bool), found {int(bad.sum())} other values (e.g. {first!r})",
             path=path,

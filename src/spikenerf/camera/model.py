@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Literal, TypeVar, get_args
 
 import numpy as np
 import torch
@@ -21,7 +21,9 @@ from spikenerf.core.errors import InputError
 
 Array = TypeVar("Array", np.ndarray, torch.Tensor)
 
-COLORS = ("gray", "rgb", "bayer")
+#: colour modes of the spike camera
+ColorMode = Literal["gray", "rgb", "bayer"]
+COLORS: tuple[str, ...] = get_args(ColorMode)
 NOISES = ("ideal", "realistic")
 #: The colour filter array of the ``bayer`` mode: (0,0)=R, (0,1)=G, (1,0)=G, (1,1)=B.
 BAYER_PATTERN = "RGGB"

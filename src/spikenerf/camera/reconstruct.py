@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 
 import numpy as np
 
@@ -23,7 +23,9 @@ if TYPE_CHECKING:
 
 Array = TypeVar("Array", np.ndarray, "torch.Tensor")
 
-METHODS = ("tfp", "tfi")
+#: image reconstructions from spikes
+ReconMethod = Literal["tfp", "tfi"]
+METHODS: tuple[str, ...] = get_args(ReconMethod)
 
 
 def window_sum(

@@ -20,6 +20,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("spikenerf.cli.simulate", "Render a scene along a fast path and simulate a spike camera."),
     "info": ("spikenerf.cli.info", "Summarise a dataset folder, a run folder or a .dat spike file."),
     "reconstruct": ("spikenerf.cli.reconstruct", "Reconstruct images from a .dat spike stream (TFP/TFI)."),
+    "import": ("spikenerf.cli.import_", "Import a raw .dat recording (poses: COLMAP, a file or an orbit)."),
     "train": ("spikenerf.cli.train", "Train a radiance field on a spike dataset."),
     "render": ("spikenerf.cli.render", "Render images, depth, video and novel spike streams from a run."),
     "eval": ("spikenerf.cli.evaluate", "Evaluate a run on held-out views (PSNR, SSIM, LPIPS)."),

@@ -38,7 +38,8 @@ def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
     field: str, device: str, seed: int, test_views: int, no_render: bool, jobs: int,
 ) -> None:  # fmt: skip
-    from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants, run_benchmark
+    from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants
+    from spikenerf.pipelines.suite import benchmark_with_report
 
     colors = [c.strip() for c in color.split(",") if c.strip()]
     if not colors or any(c not in ("gray", "rgb") for c in colors):
@@ -50,5 +51,5 @@ def command(
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
         test_views=test_views, render=not no_render, jobs=jobs,
     )  # fmt: skip
-    run_benchmark(cfg)
+    benchmark_with_report(cfg)
     click.echo(f"wrote {out}/table1.md, table2.md, results.csv, results.json")

@@ -9,6 +9,15 @@ import click
 from spikenerf.core.errors import InputError
 
 
+def dat_frame_size(path: Path, height: int | None, width: int | None) -> tuple[int, int]:
+    """--height/--width, each defaulting to ``spike_h``/``spike_w`` of a SpikeCV config.yaml beside the file
+    (or one folder up)."""
+    from spikenerf.camera.spikecv import recording_config
+
+    config = recording_config(path, height, width)
+    return config.height, config.width  # type: ignore[return-value]
+
+
 def describe_dat(
     path: Path, height: int, width: int, layout: str, raw_width: int | None, fps: float
 ) -> list[str]:
@@ -38,10 +47,13 @@ def describe_dat(
     return lines
 
 
-@click.command(help="Summarise a dataset folder, a run folder or a .dat spike file (needs --height/--width).")
+@click.command(
+    help="Summarise a dataset folder, a run folder or a .dat spike file (needs --height/--width, or a "
+    "SpikeCV config.yaml beside it)."
+)
 @click.argument("path", type=click.Path(path_type=Path))
-@click.option("--height", type=int, help="Frame height in pixels (for a .dat file).")
-@click.option("--width", type=int, help="Frame width in pixels (for a .dat file).")
+@click.option("--height", type=int, help="Frame height in pixels [default: spike_h of ./config.yaml].")
+@click.option("--width", type=int, help="Frame width in pixels [default: spike_w of ./config.yaml].")
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
 @click.option("--fps", type=float, default=40000.0, show_default=True, help="Readout rate in Hz.")
@@ -60,9 +72,7 @@ def command(
 
         click.echo(describe(path))
         return
-    if height is None or width is None:
-        missing = " and ".join(n for n, v in (("--height", height), ("--width", width)) if v is None)
-        raise InputError(f"a .dat file has no header: give {missing} (the frame size in pixels)", path=path)
+    height, width = dat_frame_size(path, height, width)
     if fps <= 0:
         raise InputError(f"--fps must be positive, found {fps}")
     click.echo("\n".join(describe_dat(path, height, width, layout, raw_width, fps)))

@@ -1,5 +1,8 @@
 """``spikenerf reconstruct``: TFP/TFI images from a ``.dat`` stream, as PNG (sRGB), NPY (linear) or a folder.
 
+``--encoding`` overrides the value encoding: ``linear`` PNGs hold ``round(255 · Î)`` with no gamma, as SpikeCV
+and spikezoo write their reconstructions; ``srgb`` NPYs hold the display values in [0, 1].
+
 Only the frames a result depends on are read (memory-mapped): the requested range plus the TFP window margin;
 TFI widens its margin until every pixel's surrounding intervals are known (see ``reconstruct_frames``).
 """
@@ -13,6 +16,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from spikenerf.camera.reconstruct import METHODS as RECON_METHODS
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic
 from spikenerf.core.errors import InputError
 
@@ -31,13 +35,24 @@ def parse_range(text: str) -> slice:
     return slice(start, stop)
 
 
-def to_png_bytes(image: np.ndarray) -> bytes:
-    """Linear intensity (H, W) → 8-bit sRGB-encoded PNG bytes (values clipped to [0, 1])."""
+#: value encodings of the outputs; the default is per file kind (.png → srgb, .npy → linear)
+ENCODINGS = ("linear", "srgb")
+
+
+def encode(image: np.ndarray, encoding: str) -> np.ndarray:
+    """Linear intensity (...) → float32: unchanged (``linear``) or sRGB display values [0, 1] (``srgb``)."""
+    if encoding == "linear":
+        return image.astype(np.float32, copy=False)
+    from spikenerf.core.color import srgb_encode  # imported here: it loads torch (seconds)
+
+    return srgb_encode(image.astype(np.float64)).astype(np.float32)
+
+
+def to_png_bytes(image: np.ndarray, encoding: str = "srgb") -> bytes:
+    """Linear intensity (H, W) → 8-bit PNG bytes, sRGB-encoded or linear (values clipped to [0, 1])."""
     import imageio.v3 as iio
 
-    from spikenerf.core.color import srgb_encode  # imported here: it loads torch (seconds) for PNGs only
-
-    encoded = np.round(srgb_encode(image.astype(np.float64)) * 255.0).astype(np.uint8)
+    encoded = np.round(np.clip(encode(image, encoding), 0.0, 1.0) * 255.0).astype(np.uint8)
     return iio.imwrite("<bytes>", encoded, extension=".png")
 
 
@@ -75,20 +90,25 @@ def blocks(frames: range, method: str) -> Iterator[range]:
 
 @click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI).")
 @click.argument("spikes", type=click.Path(path_type=Path))
-@click.option("--height", type=int, required=True, help="Frame height in pixels.")
-@click.option("--width", type=int, required=True, help="Frame width in pixels.")
-@click.option("--method", type=click.Choice(["tfp", "tfi"]), required=True)
+@click.option("--height", type=int, help="Frame height in pixels [default: spike_h of ./config.yaml].")
+@click.option("--width", type=int, help="Frame width in pixels [default: spike_w of ./config.yaml].")
+@click.option("--method", type=click.Choice(RECON_METHODS), required=True)
 @click.option("--window", type=int, help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}].")
 @click.option("--frame", type=int, help="One frame index: .npy gets shape (H, W).")
 @click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
 @click.option("--threshold", type=float, default=1.0, show_default=True, help="The camera threshold φ.")
+@click.option(
+    "--encoding",
+    type=click.Choice(ENCODINGS),
+    help="Output values: linear (SpikeCV/spikezoo PNGs) or srgb [default: srgb for .png, linear for .npy].",
+)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="FILE.png, FILE.npy or a folder.")
 def command(
     spikes: Path,
-    height: int,
-    width: int,
+    height: int | None,
+    width: int | None,
     method: str,
     window: int | None,
     frame: int | None,
@@ -96,12 +116,16 @@ def command(
     layout: str,
     raw_width: int | None,
     threshold: float,
+    encoding: str | None,
     out: Path,
 ) -> None:
     from tqdm import tqdm
 
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
     from spikenerf.camera.reconstruct import reconstruct_frames
+    from spikenerf.cli.info import dat_frame_size
+
+    height, width = dat_frame_size(spikes, height, width)
 
     if method == "tfi" and window is not None:
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
@@ -114,6 +138,7 @@ def command(
     selection = frame if frame is not None else parse_range(frame_range) if frame_range else None
     frames = resolve_frames(selection, total, spikes)
     kind = output_kind(out)
+    encoding = encoding or ("linear" if kind == "npy" else "srgb")
     if kind == "png" and len(frames) != 1:
         raise InputError(
             f"a .png holds one frame but {len(frames)} are selected; use --frame I, or --out a folder",
@@ -135,16 +160,16 @@ def command(
     with bar:
         if kind == "png":
             (_, image), *_ = images()
-            write_bytes_atomic(out, to_png_bytes(image[0]))
+            write_bytes_atomic(out, to_png_bytes(image[0], encoding))
         elif kind == "npy" and frame is not None:
             (_, image), *_ = images()
             with atomic_path(out) as tmp, open(tmp, "wb") as fh:
-                np.save(fh, image[0])
+                np.save(fh, encode(image[0], encoding))
         elif kind == "npy":
             with atomic_path(out) as tmp:
                 dest = np.lib.format.open_memmap(tmp, "w+", np.float32, (len(frames), height, width))
                 for block, image in images():
-                    dest[block.start - frames.start : block.stop - frames.start] = image
+                    dest[block.start - frames.start : block.stop - frames.start] = encode(image, encoding)
                     bar.update(len(block))
                 dest.flush()
                 del dest
@@ -153,6 +178,6 @@ def command(
                 tmp.mkdir()
                 for block, image in images():
                     for index, frame_image in zip(block, image, strict=True):
-                        (tmp / f"{index:05d}.png").write_bytes(to_png_bytes(frame_image))
+                        (tmp / f"{index:05d}.png").write_bytes(to_png_bytes(frame_image, encoding))
                         bar.update(1)
     click.echo(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''}, {method})")

@@ -16,8 +16,13 @@ DEFAULT_TEST_VIEWS = 8
 ORBIT_OPTIONS = ("frames", "duration", "radius", "elevation", "turns")
 
 
+#: camera.model.COLORS, repeated so that this module (and `simulate --help`) does not import torch;
+#: tests/test_cli.py checks that the two agree
+CAMERA_COLORS = ("gray", "rgb", "bayer")
+
+
 def _colors(color: str) -> tuple[str, ...]:
-    return ("gray", "rgb", "bayer") if color == "all" else (color,)
+    return CAMERA_COLORS if color == "all" else (color,)
 
 
 def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
@@ -53,9 +58,7 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 )
 @click.option("--frames", type=int, help=f"Spike steps on the orbit [default: {DEFAULT_STEPS}].")
 @click.option("--fps", type=float, default=40000.0, show_default=True, help="Spike readout rate (Hz).")
-@click.option(
-    "--color", type=click.Choice(["gray", "rgb", "bayer", "all"]), default="gray", show_default=True
-)
+@click.option("--color", type=click.Choice([*CAMERA_COLORS, "all"]), default="gray", show_default=True)
 @click.option("--threshold", type=float, default=1.0, show_default=True, help="Spike threshold φ.")
 @click.option("--noise", type=click.Choice(["ideal", "realistic"]), default="ideal", show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True, help="Camera (and render) seed.")

@@ -9,7 +9,8 @@ import click
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, METHODS, RECONS
 from spikenerf.train.amp import AMP_MODES
-from spikenerf.train.config import FIELDS, SPIKE_LOSS_KINDS, TrainConfig, load_config
+from spikenerf.train.config import FIELDS, SPIKE_LOSS_KINDS, TrainConfig, apply_overrides, load_config
+from spikenerf.train.logger import LOG_KINDS
 from spikenerf.train.trainer import CONFIG_FILE, train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
@@ -25,6 +26,8 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "eval_every": (None, "eval_every"),
     "eval_views": (None, "eval_views"),
     "ckpt_every": (None, "ckpt_every"),
+    "log": (None, "log"),
+    "log_every": (None, "log_every"),
     "amp": (None, "amp"),
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
@@ -38,6 +41,22 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
 
 
 _D = TrainConfig()
+#: TrainConfig key → its flag: errors raised below the CLI name the key, the CLI shows the flag
+FLAGS = {
+    f"{section}.{key}" if section else key: "--" + ("lambda" if name == "lam" else name.replace("_", "-"))
+    for name, (section, key) in OPTION_FIELDS.items()
+}
+
+
+def validated(config: TrainConfig) -> TrainConfig:
+    """``config.validate()``, with the config key that starts an error message replaced by its flag."""
+    try:
+        return config.validate()
+    except InputError as err:
+        key, _, rest = str(err).partition(" ")
+        if err.path is None and key in FLAGS:
+            raise InputError(f"{FLAGS[key]} {rest}") from None
+        raise
 
 
 @click.command(
@@ -45,9 +64,12 @@ _D = TrainConfig()
     "Methods: spike-nerf (masked TFP/TFI targets + differentiable spike loss), nerf-recon (TFP/TFI targets), "
     "nerf-blur (400 fps blur frames), nerf-blur-aware (blur frames, exposure-averaged renders), nerf-gt "
     "(sharp ground truth, an oracle). Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
-    "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones)."
+    "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones).\n\n"
+    "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "
+    "left out); options given on the command line override it, and --set KEY=VALUE overrides any field "
+    "last (e.g. --set spike.lam=0.5 --set targets.mask_n=3 --set field_config.n_voxels_final=2097152)."
 )
-@click.argument("dataset", type=click.Path(path_type=Path))
+@click.argument("dataset", required=False, type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
 @click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True)
 @click.option("--no-mask", is_flag=True, help="Ablation: spike-nerf without spike masks.")
@@ -70,7 +92,7 @@ _D = TrainConfig()
 )
 @click.option("--lr", type=float, default=None, help="Base learning rate (default: the field's own).")
 @click.option("--seed", type=int, default=_D.seed, show_default=True)
-@click.option("--device", default=_D.device, show_default=True, help="auto | cpu | cuda")
+@click.option("--device", default=_D.device, show_default=True, help="auto | cpu | cuda | mps (Apple GPUs)")
 @click.option("--recon", type=click.Choice(RECONS), default=_D.targets.recon, show_default=True)
 @click.option("--window", type=int, default=_D.targets.window, show_default=True, help="TFP window (odd).")
 @click.option(
@@ -96,6 +118,20 @@ _D = TrainConfig()
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")
 @click.option("--ckpt-every", type=int, default=_D.ckpt_every, show_default=True)
 @click.option(
+    "--log",
+    type=click.Choice(LOG_KINDS),
+    default=_D.log,
+    show_default=True,
+    help="tensorboard: also write TensorBoard event files to RUN/tensorboard (needs spikenerf[tensorboard]).",
+)
+@click.option(
+    "--log-every",
+    type=int,
+    default=_D.log_every,
+    show_default=True,
+    help="Iterations between reads of the loss terms (progress bar, TensorBoard).",
+)
+@click.option(
     "--amp",
     type=click.Choice(AMP_MODES),
     default=_D.amp,
@@ -110,33 +146,63 @@ _D = TrainConfig()
     help="Override a field config entry (GridFieldConfig / MLPFieldConfig), e.g. n_voxels_final=2097152; "
     "values are parsed as YAML. Repeatable.",
 )
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path),
+    help="Start from this TrainConfig YAML (e.g. RUN/config.yaml) instead of the defaults.",
+)
+@click.option(
+    "--set",
+    "overrides",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override any TrainConfig field (sections with dots: spike.lam, targets.window, field_config.X); "
+    "values are YAML. Repeatable; applied after every other option.",
+)
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_context
 def command(
-    ctx: click.Context, dataset: Path, out: Path, resume: bool, quiet: bool, **options: object
+    ctx: click.Context,
+    dataset: Path | None,
+    out: Path,
+    config_file: Path | None,
+    overrides: tuple[str, ...],
+    resume: bool,
+    quiet: bool,
+    **options: object,
 ) -> None:
     stored = out / CONFIG_FILE
-    fresh = not (resume and stored.is_file())  # resuming: keep the stored config, apply only given options
-    base = TrainConfig() if fresh else load_config(stored)
+    if config_file is not None:  # the file, then the options given on the command line, then --set
+        base = load_config(config_file)
+    elif resume and stored.is_file():  # resuming: keep the stored config, apply only given options
+        base = load_config(stored)
+    else:  # the click defaults are TrainConfig's defaults
+        base = TrainConfig()
     given = {
         name
         for name in [*OPTION_FIELDS, "no_mask", "no_spike_loss", "field_options"]
         if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
     }
     for name, (section, key) in OPTION_FIELDS.items():
-        if fresh or name in given:
+        if name in given:
             setattr(getattr(base, section) if section else base, key, options[name])
-    if fresh or "no_mask" in given:
+    if "no_mask" in given:
         base.targets.mask = not options["no_mask"]
-    if fresh or "no_spike_loss" in given:
+    if "no_spike_loss" in given:
         base.spike.enabled = not options["no_spike_loss"]
-    if fresh or "field_options" in given:
+    if "field_options" in given:
         base.field_config = _field_options(options["field_options"])  # type: ignore[arg-type]
+    if overrides:
+        base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
+    if dataset is None and not base.dataset:
+        raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
+    dataset = Path(base.dataset) if dataset is None else dataset
     if not dataset.is_dir():
         raise InputError("dataset folder not found", path=dataset)
     base.dataset = str(dataset.resolve())
-    summary = train(base.validate(), out, resume=resume, progress=not quiet)
+    summary = train(validated(base), out, resume=resume, progress=not quiet)
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
     click.echo(
         f"trained {summary.iteration} iterations in {summary.seconds:.1f} s "

@@ -1,1 +1,7 @@
-"""Dataset folder I/O, the simulate pipeline, rays, training targets and samplers."""
+"""Dataset folder I/O, the simulate pipeline, rays, training targets and samplers.
+
+Public names: ``spikenerf.core.exports.PUBLIC_API`` (imported on first use)."""
+
+from spikenerf.core.exports import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__)

@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.io import count_frames, read_dat, rgb_paths
+from spikenerf.camera.model import COLORS
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError
@@ -29,7 +30,9 @@ TRANSFORMS, TRANSFORMS_BLUR, TRANSFORMS_TEST, CONFIG = (
     "transforms_test.json",
     "config.yaml",
 )
-MODES = ("gray", "rgb", "bayer")
+#: nerfstudio views of the folder (written by the writer; never read by spikenerf)
+TRANSFORMS_GT, TRANSFORMS_TFP = "transforms_gt.json", "transforms_tfp.json"
+MODES = COLORS  # the colour modes a dataset may hold (camera.model.ColorMode)
 
 
 def spike_files(mode: str) -> list[str]:
@@ -212,7 +215,10 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
     data = _read_json(path)
     _check_camera(data, path, k)
     poses, images, ranges = [], [], []
+    train = data.get("train_filenames")  # a nerfstudio view lists its held-out frames too: skip them
     for i, f in enumerate(_frames(data, path)):
+        if isinstance(train, list) and f.get("file_path") not in train:
+            continue
         where = f"frames[{i}]."
         poses.append(_pose(f, path, where))
         images.append(load_image(_file(root, f, path, where), (k.height, k.width)))

@@ -6,10 +6,15 @@ and ints, so a checkpoint loaded with ``torch.load(..., weights_only=True)`` res
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import torch
 from torch import Tensor
 
 from spikenerf.core.errors import InputError
+
+WindowOrder = Literal["sequential", "random"]
+WINDOW_ORDERS: tuple[str, ...] = get_args(WindowOrder)
 
 
 def _generator(seed: int) -> torch.Generator:
@@ -69,7 +74,7 @@ class WindowSampler:
     ) -> None:
         if not 1 <= length <= num_steps:
             raise InputError(f"spike window length must be between 1 and the {num_steps} steps, got {length}")
-        if order not in ("sequential", "random"):
+        if order not in WINDOW_ORDERS:
             raise InputError(f"window order must be sequential or random, got {order!r}")
         self.num_steps, self.height, self.width, self.length = num_steps, height, width, length
         self.order, self.stride = order, max(1, stride or length)

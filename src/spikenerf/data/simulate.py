@@ -202,12 +202,24 @@ def stream_steps(
                 blur_sum[:], win = 0.0, win + 1
 
 
+def spikecv_keys(name: str, height: int, width: int) -> dict:
+    """The keys SpikeCV's dataset loader reads from ``config.yaml``: the recording is unlabeled raw spikes
+    (``labeled_data_type`` [0] = SpikeCV's ``raw`` task); the sharp renders are our own ``gt/``."""
+    return {
+        "filename": name,
+        "spike_h": int(height),
+        "spike_w": int(width),
+        "is_labeled": False,
+        "labeled_data_type": [0],
+        "labeled_data_suffix": None,
+    }
+
+
 def dataset_config(source: FrameSource, options: SimulateOptions, test_views: int) -> dict:
     """The ``config.yaml`` entries (SpikeCV keys first, then the simulation settings)."""
     k, traj = source.intrinsics, source.trajectory
     return {
-        "spike_h": k.height,
-        "spike_w": k.width,
+        **spikecv_keys(source.name, k.height, k.width),
         "fps": float(traj.fps),
         "threshold": float(options.threshold),
         "colors": list(options.colors),

@@ -9,6 +9,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
+from spikenerf.camera.model import COLORS as MODES
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic
@@ -31,7 +32,7 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
     Returns:
         display image uint8 (H·s, (2W + 2)·s, 3) sRGB-encoded, and a caption.
     """
-    mode = mode or next(m for m in ("gray", "rgb", "bayer") if m in ds.modes)
+    mode = mode or next(m for m in MODES if m in ds.modes)
     n = len(ds.trajectory)
     steps = ds.trajectory.steps
     if len(ds.gt):

@@ -14,13 +14,14 @@ Every target is *linear* intensity per readout step (1.0 = white, φ = the datas
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal, get_args
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from spikenerf.camera.masks import spike_masks
+from spikenerf.camera.reconstruct import METHODS as RECONS
 from spikenerf.camera.reconstruct import tfi, tfp
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
@@ -28,10 +29,13 @@ from spikenerf.core.errors import InputError
 if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
 
-METHODS = ("spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt")
+#: training methods (each defines its targets)
+Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt"]
+METHODS: tuple[str, ...] = get_args(Method)
 SPIKE_METHODS = ("spike-nerf", "nerf-recon")
-COLORS = ("gray", "rgb")
-RECONS = ("tfp", "tfi")
+#: colours a radiance field is trained in
+TrainColor = Literal["gray", "rgb"]
+COLORS: tuple[str, ...] = get_args(TrainColor)
 
 
 @dataclass
@@ -94,7 +98,7 @@ def reconstruct_stream(
         return tfp(spikes, window=window, threshold=threshold)
     if recon == "tfi":
         return tfi(spikes, threshold=threshold)
-    raise InputError(f"--recon must be one of {', '.join(RECONS)}, found {recon!r}")
+    raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
 
 
 def masked_reconstruction(
@@ -119,7 +123,7 @@ def masked_reconstruction(
 def stream_mode(color: str) -> str:
     """Dataset spike mode used for ``--color``: gray → ``gray`` stream, rgb → per-channel ``rgb`` streams."""
     if color not in COLORS:
-        raise InputError(f"--color must be one of {', '.join(COLORS)}, found {color!r}")
+        raise InputError(f"color must be one of {', '.join(COLORS)}, found {color!r}")
     return color
 
 
@@ -193,7 +197,7 @@ def build_image_targets(
         blur_samples: poses per exposure for nerf-blur-aware. spikes: the stream if already loaded.
     """
     if method not in METHODS:
-        raise InputError(f"--method must be one of {', '.join(METHODS)}, found {method!r}")
+        raise InputError(f"method must be one of {', '.join(METHODS)}, found {method!r}")
     if method in SPIKE_METHODS:
         stream = load_stream(dataset, color) if spikes is None else spikes
         use_mask = mask and method == "spike-nerf"

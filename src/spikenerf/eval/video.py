@@ -188,9 +188,9 @@ def render_run(
     colors, depths, opacities = [], [], []
     for pose in tqdm(poses, desc=f"render {name}", unit="view", disable=not progress):
         r = render_image(model, pose, k, dataset.near, dataset.far, chunk)
-        colors.append(to_uint8(srgb_encode(r["color"].float().cpu().numpy())))
-        depths.append(r["depth"].float().cpu().numpy())
-        opacities.append(r["opacity"].float().cpu().numpy())
+        colors.append(to_uint8(srgb_encode(r.color.float().cpu().numpy())))
+        depths.append(r.depth.float().cpu().numpy())
+        opacities.append(r.opacity.float().cpu().numpy())
     depth_all, op_all = np.stack(depths), np.stack(opacities)
     lo, hi = depth_range(depth_all, op_all)
     for i, (color, depth, opacity) in enumerate(zip(colors, depths, opacities, strict=True)):

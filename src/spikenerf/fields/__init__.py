@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, Literal, get_args
 
 from torch import Tensor
 
@@ -12,11 +12,13 @@ from spikenerf.fields.grid import GridField, GridFieldConfig
 from spikenerf.fields.mlp import MLPField, MLPFieldConfig
 from spikenerf.fields.occupancy import OccupancyGrid
 
-FIELD_KINDS = ("grid", "mlp")
+FieldKind = Literal["grid", "mlp"]
+FIELD_KINDS: tuple[str, ...] = get_args(FieldKind)
 _CONFIGS: dict[str, type] = {"grid": GridFieldConfig, "mlp": MLPFieldConfig}
 
 __all__ = [
     "FIELD_KINDS",
+    "FieldKind",
     "GridField",
     "GridFieldConfig",
     "MLPField",

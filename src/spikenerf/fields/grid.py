@@ -21,9 +21,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from spikenerf.fields import vm_kernel
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
+from spikenerf.fields.vm_kernel import usable, vm_lookup
 
 MAT = ((0, 1), (0, 2), (1, 2))
 VEC = (2, 1, 0)
@@ -213,8 +213,8 @@ class GridField(nn.Module):
     @staticmethod
     def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
         """VM products (M, 3, C): the fused CPU kernel where it applies, else ``grid_sample``."""
-        if vm_kernel.usable(planes, xyz_norm):
-            return vm_kernel.vm_lookup(planes, lines, xyz_norm)
+        if usable(planes, xyz_norm):
+            return vm_lookup(planes, lines, xyz_norm)
         return sample_vm(planes, lines, xyz_norm, vm_splits(xyz_norm.device)).permute(2, 0, 1)
 
     def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:

@@ -218,7 +218,8 @@ def _run_cell(cfg: BenchmarkConfig, scene: str, color: str, variant: str, log: l
 
 
 def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
-    """Simulate each scene once, then train/eval every missing cell; write the tables and the report."""
+    """Simulate each scene once, then train/eval every missing cell; write the tables (the HTML report:
+    :func:`spikenerf.pipelines.suite.benchmark_with_report`)."""
     cfg.out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
     jobs = max(1, cfg.jobs)
@@ -264,7 +265,7 @@ def environment() -> dict:
 
 
 def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
-    """table1.md, table2.md, results.csv, results.json and report.html."""
+    """table1.md, table2.md, results.csv and results.json."""
     t1 = "\n\n".join(table1_markdown(cells, [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants,
                                      cfg.scenes, c) for c in cfg.colors)  # fmt: skip
     write_text_atomic(cfg.out / "table1.md", "# Table I: comparison (test views)\n\n" + t1 + "\n")
@@ -289,6 +290,3 @@ def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) 
         },
     }
     write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
-    from spikenerf.pipelines.report import build_report  # here: report imports this module
-
-    build_report(cfg, list(cells))

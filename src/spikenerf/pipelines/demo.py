@@ -1,7 +1,7 @@
 """``spikenerf demo``: the whole pipeline on the embedded default scene, as a one-scene benchmark.
 
 simulate → train ``spike-nerf`` and the main baselines (``nerf-recon``, ``nerf-blur``, ``nerf-gt``) → eval →
-render → report, all through :func:`spikenerf.pipelines.benchmark.run_benchmark`, so an interrupted demo
+render → report, all through :func:`spikenerf.pipelines.suite.benchmark_with_report`, so an interrupted demo
 resumes where it stopped. The default scene is the analytic ``analytic-orbs`` (no Blender needed, ms per
 frame); see docs/report.md for the choice and measured timings.
 """
@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from spikenerf.core.errors import InputError
-from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
+from spikenerf.pipelines.benchmark import BenchmarkConfig
+from spikenerf.pipelines.suite import benchmark_with_report
 from spikenerf.pipelines.tables import Cell, table1_markdown
 
 DEFAULT_SCENE = "analytic-orbs"
@@ -127,7 +128,7 @@ def run_demo(cfg: DemoConfig, echo: Callable[[str], None] = print) -> DemoResult
         f"device {cfg.device} → {bcfg.out}"
     )
     t0, c0 = time.perf_counter(), cpu_seconds()
-    cells = run_benchmark(bcfg)
+    cells = benchmark_with_report(bcfg)
     wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     table = "\n\n".join(table1_markdown(cells, bcfg.variants, bcfg.scenes, c) for c in bcfg.colors)
     report = bcfg.out / "report.html"

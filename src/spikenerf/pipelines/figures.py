@@ -15,6 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from spikenerf.core.color import rgb_to_gray, srgb_encode
+from spikenerf.core.psnr import mse_to_psnr
 
 #: error maps share this colour scale: |pred − GT| of display values, 0 … ERROR_VMAX
 ERROR_VMAX = 0.3
@@ -218,7 +219,7 @@ def novel_spikes(
 
     model, config, ds = load_run(run, device=device)
     k, phi = ds.intrinsics, ds.threshold
-    pred = render_image(model, ds.test.poses[view], k, ds.near, ds.far)["color"].float().cpu()  # (H, W, C)
+    pred = render_image(model, ds.test.poses[view], k, ds.near, ds.far).color.float().cpu()  # (H, W, C)
     start = random_start(tuple(pred.shape), phi, seed)
     fired, _ = fire_sequence(pred.expand(steps, *pred.shape), start, phi)
     pred_spikes = fired.numpy().astype(np.uint8)  # (T, H, W, C)
@@ -237,5 +238,5 @@ def novel_spikes(
     mse = float(np.mean((images[0] - images[1]) ** 2))
     return NovelSpikes(
         config.method, steps, steps // 2, window, images[0], images[1], float(gt_spikes.mean()),
-        float(pred_spikes.mean()), float("inf") if mse == 0 else float(-10 * np.log10(mse)),
+        float(pred_spikes.mean()), mse_to_psnr(mse),
     )  # fmt: skip

@@ -9,13 +9,14 @@ import torch
 from torch import Tensor
 
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
-from spikenerf.fields import build_field
+from spikenerf.fields import FIELD_KINDS, build_field
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
 from spikenerf.render.mlp_model import MLPModel
+from spikenerf.render.volume import RenderOutput
 from spikenerf.scenes.trajectory import Intrinsics
 
-MODEL_KINDS = ("grid", "mlp")
+MODEL_KINDS = FIELD_KINDS
 
 
 def build_model(
@@ -58,18 +59,20 @@ def ray_bounds(
 @torch.no_grad()
 def render_rays_chunked(
     model: RadianceModel, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, chunk: int = 8192
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Deterministic render of many rays in chunks → colour (N, C), depth (N,), opacity (N,)."""
+) -> RenderOutput:
+    """Deterministic render of many rays in chunks: a :class:`RenderOutput` with colour (N, C), depth (N,),
+    opacity (N,) and the summed ``num_samples`` (no per-sample weights)."""
     parts = [
         model.render_rays(
             origins[i : i + chunk], dirs[i : i + chunk], near[i : i + chunk], far[i : i + chunk]
         )
         for i in range(0, origins.shape[0], chunk)
     ]
-    return (
-        torch.cat([p.color for p in parts]),
-        torch.cat([p.depth for p in parts]),
-        torch.cat([p.opacity for p in parts]),
+    return RenderOutput(
+        color=torch.cat([p.color for p in parts]),
+        depth=torch.cat([p.depth for p in parts]),
+        opacity=torch.cat([p.opacity for p in parts]),
+        num_samples=sum(p.num_samples for p in parts),
     )
 
 
@@ -81,18 +84,20 @@ def render_image(
     near: float | None = None,
     far: float | None = None,
     chunk: int = 8192,
-) -> dict[str, Tensor]:
+) -> RenderOutput:
     """Render one view (no perturbation, no gradients) on the model's device.
 
     Args:
         c2w: (4, 4) camera-to-world (OpenGL axes). near/far: optional scalar limits inside the scene box.
     Returns:
-        ``color`` (H, W, C) linear in [0, 1] on white, ``depth`` (H, W) world distance along the ray (0 where
-        empty), ``opacity`` (H, W).
+        a :class:`RenderOutput` shaped as the image: ``color`` (H, W, C) linear in [0, 1] on white, ``depth``
+        (H, W) world distance along the ray (0 where empty), ``opacity`` (H, W).
     """
     pose = as_poses(c2w, model.device)
     origins, dirs = image_rays(pose, intrinsics)
     lo, hi = ray_bounds(model, origins, dirs, near, far)
-    color, depth, opacity = render_rays_chunked(model, origins, dirs, lo, hi, chunk)
+    out = render_rays_chunked(model, origins, dirs, lo, hi, chunk)
     h, w = intrinsics.height, intrinsics.width
-    return {"color": color.view(h, w, -1), "depth": depth.view(h, w), "opacity": opacity.view(h, w)}
+    return RenderOutput(
+        out.color.view(h, w, -1), out.depth.view(h, w), out.opacity.view(h, w), num_samples=out.num_samples
+    )

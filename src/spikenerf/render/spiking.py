@@ -126,7 +126,7 @@ def iter_spike_stream(
     else:
         acc = start_accumulator.to(model.device, torch.float32).reshape(h, w, c)
     for pose in as_poses(poses, model.device):
-        color = render_image(model, pose, intrinsics, near, far, chunk)["color"]
+        color = render_image(model, pose, intrinsics, near, far, chunk).color
         spikes, acc = fire(acc, color, threshold)
         yield spikes.cpu()
 

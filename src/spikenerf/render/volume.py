@@ -17,7 +17,8 @@ BACKGROUND = 1.0
 
 @dataclass
 class RenderOutput:
-    """What a renderer returns for N rays.
+    """What every renderer returns: for N rays (``render_rays``, ``render_rays_chunked``), or shaped as an
+    image by ``render_image`` (``color`` (H, W, C), ``depth`` and ``opacity`` (H, W)).
 
     Attributes:
         color: (N, C) linear radiance composited on white.

@@ -28,6 +28,8 @@ OPEN_END = sys.maxsize
 SCENE_BOX_FACTOR = 0.5
 _CAMERA_KEYS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")
 _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+#: nerfstudio ``camera_model`` values that are a pinhole camera once the distortion terms are zero
+_PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 
 
 # ----------------------------------------------------------------------------------------------- ranges
@@ -199,8 +201,17 @@ def parse_intrinsics(meta: dict[str, Any], size: tuple[int, int], path: Path) ->
             raise InputError(
                 f"frames[{i}].{key} differs from {cam[key]!r}: per-frame cameras unsupported", path
             )
+    model = meta.get("camera_model", "PINHOLE")
+    if model not in _PERSPECTIVE_MODELS:
+        raise InputError(
+            f"field 'camera_model': {model!r} is not a perspective camera (need a pinhole)", path
+        )
     for key in [k for d in (meta, *frames) for k in _DISTORTION_KEYS if d.get(k, 0) not in (0, 0.0)]:
-        raise InputError(f"field '{key}': lens distortion is not supported, undistort the images first", path)
+        raise InputError(
+            f"field '{key}': {model} lens distortion is not supported; undistort the images first (e.g. "
+            "COLMAP image_undistorter, which writes a PINHOLE camera) and drop k1…p2",
+            path,
+        )
     width, height = size
     for key, found in (("w", width), ("h", height)):
         if key in cam and cam[key] != found:

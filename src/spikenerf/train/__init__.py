@@ -1,1 +1,7 @@
-"""Training: losses, methods, trainer and checkpoints."""
+"""Training: losses, methods, trainer and checkpoints.
+
+Public names: ``spikenerf.core.exports.PUBLIC_API`` (imported on first use)."""
+
+from spikenerf.core.exports import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__)

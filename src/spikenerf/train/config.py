@@ -1,24 +1,33 @@
 """Typed training configs (saved to ``RUN/config.yaml``) and the methods they select.
 
-``TrainConfig.for_method`` applies a method's defaults; the ablation flags only ever switch parts off.
+The dataclasses are the one typed source: each choice is a ``Literal`` owned by the module that implements
+it, and :func:`check_types` validates any value (a YAML file, ``--set key.sub=value``) against the
+annotations. The ablation flags only ever switch parts off.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import types
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 import yaml
 
+from spikenerf.camera.reconstruct import ReconMethod
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
-from spikenerf.data.targets import COLORS, METHODS, RECONS
-from spikenerf.train.amp import AMP_MODES
+from spikenerf.data.samplers import WindowOrder
+from spikenerf.data.targets import Method, TrainColor
+from spikenerf.fields import FIELD_KINDS, FieldKind
+from spikenerf.train.amp import AmpMode
+from spikenerf.train.logger import LogKind
+from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
 
-FIELDS = ("grid", "mlp")
-SPIKE_LOSS_KINDS = ("interval", "paper")
+FIELDS = FIELD_KINDS
+__all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "SpikeLossConfig", "TargetConfig", "TrainConfig"]
 
 
 @dataclass
@@ -31,7 +40,7 @@ class TargetConfig:
         blur_samples: poses per exposure averaged by nerf-blur-aware.
     """
 
-    recon: str = "tfp"
+    recon: ReconMethod = "tfp"
     window: int = 41
     mask: bool = True
     mask_n: int = 5
@@ -55,14 +64,14 @@ class SpikeLossConfig:
     """
 
     enabled: bool = True
-    kind: str = "interval"
+    kind: SpikeLossKind = "interval"
     lam: float = 1.0
     warmup_iters: int | None = None
     ramp_iters: int | None = None
     window: int = 16
     pixels: int = 32
-    pairs: str = "all"
-    order: str = "sequential"
+    pairs: PairMode = "all"
+    order: WindowOrder = "sequential"
     every: int = 1
     paper_warmup: int = 4
 
@@ -87,14 +96,17 @@ class TrainConfig:
         seed: seeds the initialisation, the samplers and the perturbations. device: auto | cpu | cuda.
         eval_every: iterations between test-view evaluations (0 = only at the end). eval_views: views used.
         ckpt_every: iterations between checkpoints (always one at the end).
+        log: ``none`` or ``tensorboard`` (event files in ``RUN/tensorboard/``; curves.csv is always written).
+        log_every: iterations between reads of the loss terms (progress bar, TensorBoard scalars): the
+            per-step values are summed on the device and read only then.
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
     """
 
     dataset: str = ""
-    method: str = "spike-nerf"
-    color: str = "gray"
-    field: str = "grid"
+    method: Method = "spike-nerf"
+    color: TrainColor = "gray"
+    field: FieldKind = "grid"
     iters: int = 1500
     batch: int = 1024
     lr: float | None = None
@@ -104,7 +116,9 @@ class TrainConfig:
     eval_every: int = 250
     eval_views: int = 3
     ckpt_every: int = 500
-    amp: str = "none"
+    log: LogKind = "none"
+    log_every: int = 25
+    amp: AmpMode = "none"
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -119,35 +133,24 @@ class TrainConfig:
 
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
-        choices = {
-            "--method": (self.method, METHODS),
-            "--color": (self.color, COLORS),
-            "--field": (self.field, FIELDS),
-            "--recon": (self.targets.recon, RECONS),
-            "--spike-loss": (self.spike.kind, SPIKE_LOSS_KINDS),
-            "spike.pairs": (self.spike.pairs, ("all", "window")),
-            "spike.order": (self.spike.order, ("sequential", "random")),
-            "--amp": (self.amp, AMP_MODES),
-        }
-        for name, (value, allowed) in choices.items():
-            if value not in allowed:
-                raise InputError(f"{name} must be one of {', '.join(allowed)}, found {value!r}")
-        positive = {
-            "--iters": self.iters,
-            "--batch": self.batch,
+        check_types(self)
+        positive = {  # errors name the config key; the CLI maps keys to its flags
+            "iters": self.iters,
+            "batch": self.batch,
             "spike.window": self.spike.window,
             "spike.pixels": self.spike.pixels,
             "spike.every": self.spike.every,
-            "--eval-views": self.eval_views + 1,
-            "--ckpt-every": self.ckpt_every,
-            "blur_samples": self.targets.blur_samples,
+            "eval_views": self.eval_views + 1,
+            "ckpt_every": self.ckpt_every,
+            "log_every": self.log_every,
+            "targets.blur_samples": self.targets.blur_samples,
         }
         for name, value in positive.items():
             if value < 1:
                 raise InputError(f"{name} must be ≥ 1, found {value}")
         for name, value in (
-            ("--spike-warmup", self.spike.warmup_iters),
-            ("spike.ramp", self.spike.ramp_iters),
+            ("spike.warmup_iters", self.spike.warmup_iters),
+            ("spike.ramp_iters", self.spike.ramp_iters),
         ):
             if value is not None and value < 0:
                 raise InputError(f"{name} must be ≥ 0, found {value}")
@@ -158,7 +161,7 @@ class TrainConfig:
                 f"--lambda and --eval-every must be ≥ 0, found {self.spike.lam}, {self.eval_every}"
             )
         if self.targets.window < 1 or self.targets.window % 2 == 0:
-            raise InputError(f"--window must be an odd number of frames, found {self.targets.window}")
+            raise InputError(f"targets.window must be an odd number of frames, found {self.targets.window}")
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -168,6 +171,72 @@ class TrainConfig:
     def from_dict(cls, data: dict[str, Any], path: str | Path | None = None) -> TrainConfig:
         """Rebuild from :meth:`to_dict` output (e.g. ``config.yaml``); unknown keys are an InputError."""
         return _from_dict(cls, data, path)
+
+
+def check_types(config: Any, prefix: str = "", path: str | Path | None = None) -> None:
+    """Check every field of a config dataclass (and its sections) against its annotation: ``Literal``
+    choices, int, float, bool, str, ``X | None``, dict; an InputError names the key (``spike.kind``)."""
+    hints = get_type_hints(type(config))
+    for f in dataclasses.fields(config):
+        value, name = getattr(config, f.name), f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            check_types(value, f"{name}.", path)
+        elif not _matches(value, hints[f.name]):
+            raise InputError(f"{name} must be {_describe(hints[f.name])}, found {value!r}", path=path)
+
+
+def _matches(value: Any, hint: Any) -> bool:
+    origin = get_origin(hint)
+    if origin is Literal:
+        return value in get_args(hint)
+    if origin in (Union, types.UnionType):
+        return any(_matches(value, h) for h in get_args(hint))
+    if hint is type(None):
+        return value is None
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, origin or hint)
+
+
+def _describe(hint: Any) -> str:
+    origin = get_origin(hint)
+    if origin is Literal:
+        return "one of " + ", ".join(map(str, get_args(hint)))
+    if origin in (Union, types.UnionType):
+        return " or ".join(_describe(h) for h in get_args(hint))
+    names = {type(None): "null", float: "a number", int: "an integer", bool: "true or false", str: "a string"}
+    return names.get(hint, f"a {getattr(origin or hint, '__name__', hint)}")
+
+
+def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) -> dict[str, Any]:
+    """Apply ``KEY.SUB=VALUE`` overrides (values parsed as YAML) to a :meth:`TrainConfig.to_dict` mapping.
+
+    ``KEY`` is any TrainConfig field, ``targets.X``/``spike.X`` their fields, ``field_config.X`` an entry of
+    the field's config. Unknown keys are reported when the mapping is turned back into a config.
+    """
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key or any(not part for part in key.split(".")):
+            raise InputError(f"override expects KEY=VALUE (e.g. spike.lam=0.5), found {item!r}")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise InputError(f"override {key}: unreadable value {text!r} ({err})") from err
+        if isinstance(value, str):  # YAML 1.1 reads 1e-3 (no dot) as a string
+            with contextlib.suppress(ValueError):
+                value = float(value)
+        *sections, leaf = key.split(".")
+        node = data
+        for i, section in enumerate(sections):
+            if not isinstance(node.get(section), dict):
+                where = ".".join(sections[: i + 1])
+                raise InputError(f"override {key}: {where!r} is not a section (targets, spike, field_config)")
+            node = node[section]
+        node[leaf] = value
+    return data
 
 
 def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
@@ -181,7 +250,10 @@ def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
         )
     nested = {"targets": TargetConfig, "spike": SpikeLossConfig}
     values = {k: _from_dict(nested[k], v, path) if k in nested else v for k, v in data.items()}
-    return cls(**values)
+    config = cls(**values)
+    if cls is TrainConfig:
+        check_types(config, path=path)
+    return config
 
 
 def save_config(config: TrainConfig, path: str | Path) -> None:

@@ -1,4 +1,5 @@
-"""Evaluation during training (PSNR on held-out views) and the ``curves.csv`` log of PSNR against time."""
+"""Evaluation during training (PSNR on held-out views) and the ``curves.csv`` log: PSNR and the mean loss
+terms against training time."""
 
 from __future__ import annotations
 
@@ -11,54 +12,69 @@ import torch
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.color import srgb_encode
+from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.targets import ImageTargets
 from spikenerf.render import RadianceModel, render_image
 
 CURVES = "curves.csv"
 COLUMNS = ("iteration", "seconds", "train_psnr", "test_psnr")
+#: mean loss terms since the previous row (NaN when a term was not computed, e.g. before the spike loss)
+LOSS_COLUMNS = ("loss", "recon", "spike", "reg", "lambda")
 
 
 def srgb_psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
     """PSNR (dB) between two linear images after sRGB encoding to display values in [0, 1]."""
-    mse = torch.mean((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).item()
-    return math.inf if mse <= 0 else -10.0 * math.log10(mse)
+    return mse_to_psnr(torch.mean((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).item())
 
 
 @torch.no_grad()
 def evaluate_views(
-    model: RadianceModel, views: ImageTargets, dataset: SpikeDataset, chunk: int = 8192
+    model: RadianceModel,
+    views: ImageTargets,
+    dataset: SpikeDataset,
+    chunk: int = 8192,
+    renders: list[tuple[torch.Tensor, torch.Tensor]] | None = None,
 ) -> float:
-    """Mean PSNR over ``views`` (their first pose each), rendered without perturbation."""
+    """Mean PSNR over ``views`` (their first pose each), rendered without perturbation; ``renders`` (if given)
+    receives each (rendering, target), linear (H, W, C) on the CPU."""
     was_training = model.training
     model.eval()
     scores = []
     for pose, image in zip(views.poses[:, 0], views.images, strict=True):
-        color = render_image(model, pose, dataset.intrinsics, dataset.near, dataset.far, chunk)["color"]
-        scores.append(srgb_psnr(color.cpu(), image))
+        color = render_image(model, pose, dataset.intrinsics, dataset.near, dataset.far, chunk).color.cpu()
+        scores.append(srgb_psnr(color, image))
+        if renders is not None:
+            renders.append((color, image))
     model.train(was_training)
     return sum(scores) / len(scores) if scores else math.nan
 
 
 def write_curves(path: str | Path, rows: list[dict[str, float]]) -> None:
-    """Rewrite ``curves.csv`` atomically: iteration, seconds (training time), train_psnr, test_psnr (dB)."""
+    """Rewrite ``curves.csv`` atomically: iteration, seconds (training time), train_psnr, test_psnr (dB),
+    then the mean loss terms since the previous row (``LOSS_COLUMNS``; λ at the row's iteration)."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(COLUMNS)
+    writer.writerow(COLUMNS + LOSS_COLUMNS)
     for r in rows:
         writer.writerow(
             [int(r["iteration"]), f"{r['seconds']:.3f}", f"{r['train_psnr']:.4f}", f"{r['test_psnr']:.4f}"]
+            + [f"{r.get(k, math.nan):.6g}" for k in LOSS_COLUMNS]
         )
     write_text_atomic(path, buf.getvalue())
 
 
 def read_curves(path: str | Path) -> list[dict[str, float]]:
-    """Rows of ``curves.csv`` (empty if the file does not exist)."""
+    """Rows of ``curves.csv`` (empty if the file does not exist; loss columns absent in older files → NaN)."""
     path = Path(path)
     if not path.is_file():
         return []
     with open(path, newline="", encoding="utf-8") as fh:
         return [
-            {"iteration": int(r["iteration"]), **{k: float(r[k]) for k in COLUMNS[1:]}}
+            {
+                "iteration": int(r["iteration"]),
+                **{k: float(r[k]) for k in COLUMNS[1:]},
+                **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
+            }
             for r in csv.DictReader(fh)
         ]

@@ -14,13 +14,18 @@ See docs/method.md for the derivation.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 import torch
 
 from spikenerf.camera.model import fire
+from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 
 PairMode = Literal["all", "window"]
+PAIR_MODES: tuple[str, ...] = get_args(PairMode)
+#: the differentiable interval loss, or the paper's spike comparison (no gradient)
+SpikeLossKind = Literal["interval", "paper"]
+SPIKE_LOSS_KINDS: tuple[str, ...] = get_args(SpikeLossKind)
 
 
 def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -33,12 +38,6 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         Scalar mean over rays and channels.
     """
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
-
-
-def mse_to_psnr(mse: torch.Tensor | float) -> float:
-    """PSNR in dB of a mean squared error on values in [0, 1]."""
-    value = float(mse)
-    return float("inf") if value <= 0 else -10.0 * torch.log10(torch.tensor(value)).item()
 
 
 def spike_prefix(intensity: torch.Tensor, spikes: torch.Tensor, threshold: float) -> torch.Tensor:

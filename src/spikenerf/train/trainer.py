@@ -39,6 +39,7 @@ from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint, restore_rng, rng_state, save_checkpoint
 from spikenerf.train.config import TrainConfig, load_config, save_config
 from spikenerf.train.evaluate import CURVES, evaluate_views, read_curves, write_curves
+from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import (
     mse_to_psnr,
     paper_spike_loss,
@@ -48,10 +49,8 @@ from spikenerf.train.losses import (
 )
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
-#: iterations between progress-bar updates (the loop reads no tensor value back in between)
-LOG_EVERY = 25
 #: options that may change when a run is resumed (everything else must match the stored config)
-RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views")
+RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every")
 
 
 @dataclass
@@ -196,7 +195,8 @@ class Trainer:
         return self.model.render_rays(origins, dirs, near, far, perturb=perturb)
 
     def recon_step(self) -> tuple[torch.Tensor, torch.Tensor, int]:
-        """Reconstruction loss of one random batch → (loss, sRGB MSE (a 0-d tensor: no host sync), rays)."""
+        """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered);
+        the MSE stays a 0-d tensor on the device (no synchronisation)."""
         views = self.targets.poses.shape[1]
         index, pixels = self.samplers["rays"].sample(max(1, self.config.batch // views))
         target = self.targets.gather(index, pixels).to(self.device)
@@ -239,12 +239,13 @@ class Trainer:
         return loss, s.window * s.pixels
 
     # -------------------------------------------------------------------------------------------------- loop
-    def evaluate(self) -> float:
-        """Mean PSNR (dB, sRGB-encoded [0, 1]) over the evaluation views; NaN without test views."""
+    def evaluate(self, renders: list | None = None) -> float:
+        """Mean PSNR (dB, sRGB-encoded [0, 1]) over the evaluation views; NaN without test views.
+        ``renders`` (if given) receives each (rendering, target)."""
         if self.test_views is None:
             return math.nan
         with torch.random.fork_rng(devices=[]):
-            return evaluate_views(self.model, self.test_views, self.dataset)
+            return evaluate_views(self.model, self.test_views, self.dataset, renders=renders)
 
     def checkpoint(self) -> None:
         """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
@@ -265,25 +266,28 @@ class Trainer:
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
         cfg, s = self.config, self.config.spike
+        log = open_log(cfg.log, self.out)  # first: a missing package leaves no run folder behind
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
         end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
         bar = tqdm(
             total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
         )
-        sum_mse, n_mse, train_psnr = 0.0, 0, math.nan
+        recent, interval = RunningMeans(), RunningMeans()
+        train_psnr, lam = math.nan, 0.0
         test_psnr = self.curves[-1]["test_psnr"] if self.curves else math.nan
         while self.iteration < end:
             it = self.iteration
             t0 = time.perf_counter()
             set_learning_rate(self.optimizer, it, cfg.iters, self.final_ratio)
             with autocast(self.device, cfg.amp):
-                loss, srgb_mse, rays = self.recon_step()
-                loss = loss + self.model.regularization()
+                recon, srgb_mse, rays = self.recon_step()
+                terms = {"recon": recon, "reg": self.model.regularization()}
+                loss = recon + terms["reg"]
                 lam = spike_weight(it, s.lam, *s.schedule(cfg.iters)) if self.spikes is not None else 0.0
                 if lam > 0 and it % s.every == 0:
-                    spike_loss, spike_rays = self.spike_step()
-                    loss, rays = loss + lam * spike_loss, rays + spike_rays
+                    terms["spike"], spike_rays = self.spike_step()
+                    loss, rays = loss + lam * terms["spike"], rays + spike_rays
             self.optimizer.zero_grad(set_to_none=True)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
                 self.scaler.scale(loss).backward()
@@ -294,34 +298,44 @@ class Trainer:
                 self.optimizer = make_optimizer(self.model, cfg)
             self.elapsed += time.perf_counter() - t0
             self.rays += rays
-            sum_mse, n_mse = sum_mse + srgb_mse.detach(), n_mse + 1  # a tensor: no host sync per step
+            for means in (recent, interval):
+                means.add({"loss": loss, **terms, "srgb_mse": srgb_mse})
             bar.update()
-            if self.progress and self.iteration % LOG_EVERY == 0:  # the only per-N-steps host sync
-                bar.set_postfix(
-                    loss=f"{loss.item():.4f}",
-                    psnr=f"{mse_to_psnr(srgb_mse):.2f}",
-                    rays_s=f"{self.rays_per_second:.0f}",
-                )
             last = self.iteration == cfg.iters
+            if self.iteration % cfg.log_every == 0 or last:  # the only per-step read of device values
+                m = recent.read()
+                bar.set_postfix(loss=f"{m['loss']:.4f}", psnr=f"{mse_to_psnr(m['srgb_mse']):.2f}",
+                                rays_s=f"{self.rays_per_second:.0f}")  # fmt: skip
+                if log is not None:
+                    log.scalars(self.iteration, step_scalars(m, lam, self.optimizer, self.rays_per_second))
             if (cfg.eval_every and self.iteration % cfg.eval_every == 0) or last:
-                train_psnr, test_psnr = mse_to_psnr(sum_mse / n_mse), self.evaluate()
-                sum_mse, n_mse = 0.0, 0
+                renders: list | None = [] if log is not None else None
+                m = interval.read()
+                train_psnr, test_psnr = mse_to_psnr(m["srgb_mse"]), self.evaluate(renders)
+                terms_mean = {k: m.get(k, math.nan) for k in ("loss", "recon", "spike", "reg")}
                 self.curves.append(
                     {
                         "iteration": self.iteration,
                         "seconds": self.elapsed,
                         "train_psnr": train_psnr,
                         "test_psnr": test_psnr,
+                        **terms_mean,
+                        "lambda": lam,
                     }
                 )
                 write_curves(self.out / CURVES, self.curves)
+                if log is not None:
+                    log.scalars(self.iteration, {"psnr/train": train_psnr, "psnr/test": test_psnr})
+                    log.images(self.iteration, renders or [])
             if self.iteration % cfg.ckpt_every == 0 or last or self.iteration == end:
                 self.checkpoint()
+        if log is not None:
+            log.close()
         bar.close()
         if self.iteration >= cfg.iters and not (self.out / CHECKPOINT).exists():
             self.checkpoint()
-        if n_mse:
-            train_psnr = mse_to_psnr(sum_mse / n_mse)
+        if "srgb_mse" in (m := interval.read()):
+            train_psnr = mse_to_psnr(m["srgb_mse"])
         elif self.curves:
             train_psnr = self.curves[-1]["train_psnr"]
         summary = TrainSummary(

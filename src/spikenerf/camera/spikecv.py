@@ -1,0 +1,91 @@
+"""A recording's SpikeCV ``config.yaml``: the frame size (``spike_h``, ``spike_w``) and what else is known.
+
+SpikeCV keeps a ``config.yaml`` beside (or one folder above) its ``.dat`` recordings with at least ``spike_h``
+and ``spike_w``. spikenerf also reads ``fps``, ``threshold`` and ``raw_width`` (the stored row width of raw
+sps10 files, 416) when present. Every other key is ignored. This is the one reader of that file for all
+commands (``import``, ``info``, ``reconstruct``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from spikenerf.core.errors import InputError
+
+CONFIG_NAME = "config.yaml"
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """What a SpikeCV config says about a recording; ``None`` where it says nothing."""
+
+    height: int | None = None
+    width: int | None = None
+    fps: float | None = None
+    threshold: float | None = None
+    raw_width: int | None = None
+    path: Path | None = None
+
+
+def find_spikecv_config(dat: str | Path) -> Path | None:
+    """The ``config.yaml`` beside a ``.dat`` file, else one folder up (SpikeCV's layout), else None."""
+    dat = Path(dat)
+    for folder in (dat.parent, dat.parent.parent):
+        if (folder / CONFIG_NAME).is_file():
+            return folder / CONFIG_NAME
+    return None
+
+
+def _value(data: dict, key: str, path: Path, integer: bool) -> float | int | None:
+    if data.get(key) is None:
+        return None
+    v = data[key]
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+    if not ok or (integer and v != int(v)):
+        kind = "a positive integer" if integer else "a positive number"
+        raise InputError(f"field {key!r}: expected {kind}, found {v!r}", path=path)
+    return int(v) if integer else float(v)
+
+
+def read_spikecv_config(path: str | Path) -> RecordingConfig:
+    """Parse a SpikeCV ``config.yaml``; InputError (naming the file and field) on malformed values."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read YAML ({err})", path=path) from err
+    if not isinstance(data, dict):
+        raise InputError(f"expected a mapping at the top level, found {type(data).__name__}", path=path)
+    return RecordingConfig(
+        height=_value(data, "spike_h", path, True),
+        width=_value(data, "spike_w", path, True),
+        fps=_value(data, "fps", path, False),
+        threshold=_value(data, "threshold", path, False),
+        raw_width=_value(data, "raw_width", path, True),
+        path=path,
+    )
+
+
+def recording_config(
+    dat: str | Path,
+    height: int | None = None,
+    width: int | None = None,
+    config: str | Path | None = None,
+) -> RecordingConfig:
+    """The recording's config: explicit ``height``/``width`` win over ``config`` (default: beside ``dat``).
+
+    Raises:
+        InputError: the size is known from neither (naming both ways to give it).
+    """
+    found = Path(config) if config is not None else find_spikecv_config(dat)
+    base = read_spikecv_config(found) if found is not None else RecordingConfig()
+    h = height if height is not None else base.height
+    w = width if width is not None else base.width
+    if h is None or w is None:
+        where = f"{found} has no spike_h/spike_w" if found else f"no {CONFIG_NAME} beside the recording"
+        raise InputError(f"frame size unknown ({where}): pass --height and --width", path=dat)
+    return RecordingConfig(h, w, base.fps, base.threshold, base.raw_width, found)

@@ -1,0 +1,100 @@
+"""``spikenerf import``: a raw ``.dat`` recording (+ poses) → a dataset folder that ``train`` reads."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+
+from spikenerf.core.errors import InputError
+
+
+@click.command(
+    help="Import a raw .dat spike recording (SpikeCV config.yaml beside it) into a dataset folder."
+)
+@click.argument("recording", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="The dataset folder to write.")
+@click.option(
+    "--poses",
+    default="colmap",
+    show_default=True,
+    help="colmap (estimate with pycolmap), orbit (with --orbit), or a transforms.json, a COLMAP model "
+    "folder or an LLFF poses_bounds.npy.",
+)
+@click.option("--orbit", help="RADIUS,ELEVATION_DEG[,TURNS[,START_AZIMUTH_DEG]] of a known orbit.")
+@click.option("--height", type=int, help="Frame height [default: spike_h of config.yaml].")
+@click.option("--width", type=int, help="Frame width [default: spike_w of config.yaml].")
+@click.option(
+    "--config", type=click.Path(path_type=Path), help="SpikeCV config.yaml [default: beside the file]."
+)
+@click.option("--raw-width", type=int, help="Stored row width of raw files (416 for 250×400 sps10).")
+@click.option("--fps", type=float, help="Readout rate in Hz [default: config.yaml, else 40000].")
+@click.option("--threshold", type=float, help="Spike threshold φ [default: config.yaml, else 1].")
+@click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
+@click.option("--range", "frame_range", help="A:B, the steps of the recording to import.")
+@click.option("--keyframe-every", type=int, default=20, show_default=True, help="Steps between keyframes.")
+@click.option(
+    "--window", type=int, default=21, show_default=True, help="TFP window of the keyframes (odd frames)."
+)
+@click.option(
+    "--test-every", type=int, default=8, show_default=True, help="Hold out every n-th keyframe (0 = none)."
+)
+@click.option(
+    "--fov", type=float, help="Horizontal field of view in degrees (when the poses lack intrinsics)."
+)
+@click.option(
+    "--overlap", type=int, default=10, show_default=True, help="COLMAP sequential matching overlap."
+)
+@click.option(
+    "--min-registered",
+    type=float,
+    default=0.5,
+    show_default=True,
+    help="Fraction of keyframes COLMAP must register.",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
+@click.option("--verbose", is_flag=True, help="Show COLMAP's log.")
+def command(**kw: Any) -> None:
+    from spikenerf.cli.reconstruct import parse_range
+    from spikenerf.data.importer import ImportOptions, import_recording
+
+    frame_range = None
+    if kw["frame_range"] is not None:
+        try:
+            frame_range = parse_range(kw["frame_range"])
+        except InputError as err:
+            raise InputError(str(err).replace("--frames", "--range")) from None
+    opts = ImportOptions(
+        poses=kw["poses"],
+        orbit=kw["orbit"],
+        height=kw["height"],
+        width=kw["width"],
+        config=kw["config"],
+        raw_width=kw["raw_width"],
+        fps=kw["fps"],
+        threshold=kw["threshold"],
+        layout=kw["layout"],
+        frame_range=frame_range,
+        keyframe_every=kw["keyframe_every"],
+        window=kw["window"],
+        test_every=kw["test_every"],
+        fov_deg=kw["fov"],
+        overlap=kw["overlap"],
+        min_registered=kw["min_registered"],
+        overwrite=kw["overwrite"],
+        verbose=kw["verbose"],
+        command=shlex.join(["spikenerf", "import", *sys.argv[2:]]),
+    )
+    out = import_recording(kw["recording"], kw["out"], opts)
+    from spikenerf.data.dataset import load_dataset
+
+    ds = load_dataset(out)
+    imported = ds.config["imported"]
+    click.echo(
+        f"wrote {out}: {len(ds.trajectory)} steps, {ds.intrinsics.width}×{ds.intrinsics.height}, poses from "
+        f"{imported['poses']} ({imported['poses_known']} poses, {imported['keyframes']} keyframes), "
+        f"{len(ds.test)} test views"
+    )

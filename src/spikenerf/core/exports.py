@@ -1,0 +1,57 @@
+"""The public API, in one table, exported lazily by the package ``__init__`` files (PEP 562).
+
+``spikenerf.camera.tfp`` imports ``spikenerf.camera.reconstruct`` only when first used, so ``import
+spikenerf`` and the CLI stay fast and the ``__init__`` files add no import edges (no cycles). Names are
+strings here: this module imports nothing of spikenerf.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+#: package → {defining module → its public names}
+PUBLIC_API: dict[str, dict[str, str]] = {
+    "spikenerf": {
+        "spikenerf.camera": "simulate read_dat write_dat tfp tfi",
+        "spikenerf.data": "load_dataset simulate_dataset",
+        "spikenerf.train": "TrainConfig load_run",  # train(): spikenerf.train is the subpackage
+        "spikenerf.eval": "evaluate_run",
+    },
+    "spikenerf.camera": {
+        "spikenerf.camera.model": "CameraConfig SpikeCamera fire simulate",
+        "spikenerf.camera.io": "read_dat write_dat read_dat_rgb write_dat_rgb",
+        "spikenerf.camera.reconstruct": "tfp tfi",
+        "spikenerf.camera.masks": "spike_masks",
+    },
+    "spikenerf.scenes": {
+        "spikenerf.scenes.trajectory": "Intrinsics Trajectory orbit novel_views",
+        "spikenerf.scenes.registry": "list_scenes make_scene_source",
+    },
+    "spikenerf.data": {
+        "spikenerf.data.dataset": "SpikeDataset load_dataset",
+        "spikenerf.data.simulate": "SimulateOptions simulate_dataset",
+    },
+    "spikenerf.train": {
+        "spikenerf.train.config": "TrainConfig load_config",
+        "spikenerf.train.trainer": "Trainer train",
+        "spikenerf.train.run": "load_run",
+    },
+    "spikenerf.eval": {"spikenerf.eval.metrics": "psnr ssim", "spikenerf.eval.evaluate": "evaluate_run"},
+}
+
+
+def lazy_exports(package: str) -> tuple[Callable[[str], Any], Callable[[], list[str]], list[str]]:
+    """``(__getattr__, __dir__, __all__)`` for ``package`` from :data:`PUBLIC_API`."""
+    exports = {name: module for module, names in PUBLIC_API[package].items() for name in names.split()}
+
+    def getattr_(name: str) -> Any:
+        if name not in exports:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        return getattr(importlib.import_module(exports[name]), name)
+
+    def dir_() -> list[str]:
+        return sorted(exports)
+
+    return getattr_, dir_, sorted(exports)

@@ -1,0 +1,125 @@
+"""Pose geometry for imported recordings: per-step interpolation, unit-box normalisation, near/far from
+sparse points, and the similarity (Umeyama) alignment used to score estimated trajectories (ATE, rotation)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from spikenerf.core.errors import InputError
+from spikenerf.scenes.trajectory import interpolate_poses
+
+
+def per_step_poses(key_poses: np.ndarray, key_steps: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Poses (T, 4, 4) at ``steps`` (T,) from keyframe poses (N, 4, 4) at ``key_steps`` (N,).
+
+    Between two keyframes: slerp of the rotation, lerp of the position; before the first and after the last
+    keyframe the motion of the nearest keyframe pair is extrapolated, for at most one keyframe interval
+    (beyond that the pose is held).
+    """
+    order = np.argsort(key_steps)
+    kp, ks = np.asarray(key_poses, np.float64)[order], np.asarray(key_steps, np.int64)[order]
+    if len(np.unique(ks)) != len(ks):
+        raise InputError(f"two poses share one spike step (steps {ks.tolist()[:8]}...)")
+    steps = np.asarray(steps, np.float64)
+    hi = np.clip(np.searchsorted(ks, steps, side="right"), 1, len(ks) - 1)
+    lo = hi - 1
+    t = np.clip((steps - ks[lo]) / (ks[hi] - ks[lo]), -1.0, 2.0)
+    return interpolate_poses(kp[lo], kp[hi], t)
+
+
+def focus_point(poses: np.ndarray) -> np.ndarray:
+    """The point (3,) nearest (least squares) to every camera's optical axis (what an orbit looks at)."""
+    eyes, fwd = poses[:, :3, 3], -poses[:, :3, 2]
+    proj = np.eye(3)[None] - fwd[:, :, None] * fwd[:, None, :]  # projects out each axis direction
+    a, b = proj.sum(0), np.einsum("nij,nj->i", proj, eyes)
+    if np.linalg.cond(a) > 1e8:  # parallel axes (a straight dolly): fall back to the cameras' mean
+        return eyes.mean(0)
+    return np.linalg.solve(a, b)
+
+
+def normalisation(
+    poses: np.ndarray,
+    points: np.ndarray | None = None,
+    scene_box: np.ndarray | None = None,
+    camera_angle_x: float = 0.69,
+) -> tuple[np.ndarray, float]:
+    """Centre (3,) and scale mapping the scene into the unit box ``[-1, 1]^3``: ``x' = (x - centre) · scale``.
+
+    From the sparse points (N, 3) (2nd–98th percentile per axis) when given, else the source's scene box,
+    else the cameras' focus point with the half-width of the view frustum at the nearest camera distance.
+    """
+    if points is not None and len(points) >= 8:
+        lo, hi = np.percentile(points, [2, 98], axis=0)
+    elif scene_box is not None:
+        lo, hi = np.asarray(scene_box, np.float64)
+    else:
+        c = focus_point(poses)
+        half = float(np.linalg.norm(poses[:, :3, 3] - c, axis=1).min()) * math.tan(camera_angle_x / 2)
+        lo, hi = c - half, c + half
+    half = float(np.max(hi - lo)) / 2
+    if not half > 0:
+        raise InputError("the scene has no extent (all sparse points or cameras coincide)")
+    return (lo + hi) / 2, 1.0 / half
+
+
+def apply_similarity(poses: np.ndarray, center: np.ndarray, scale: float) -> np.ndarray:
+    """Poses (N, 4, 4) with positions mapped by ``(x - center) · scale`` (rotations unchanged)."""
+    out = np.array(poses, np.float64)
+    out[:, :3, 3] = (out[:, :3, 3] - center) * scale
+    return out
+
+
+def near_far_from_points(poses: np.ndarray, points: np.ndarray) -> tuple[float, float] | None:
+    """Ray bounds from the depths of sparse points (M, 3) in cameras (N, 4, 4): 0.8·p1 and 1.2·p99 of the
+    positive depths (None when too few points are in front of the cameras)."""
+    rel = points[None, :, :] - poses[:, None, :3, 3]
+    depth = -np.einsum("nmk,nk->nm", rel, poses[:, :3, 2]).ravel()
+    depth = depth[depth > 0]
+    if len(depth) < 16:
+        return None
+    near, far = np.percentile(depth, [1, 99])
+    return max(0.8 * float(near), 0.05), 1.2 * float(far)
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The similarity ``dst ≈ s · R @ src + t`` of least squares (Umeyama 1991) for points (N, 3).
+
+    Returns:
+        ``(s, R (3, 3), t (3,))``.
+    """
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    u, d, vt = np.linalg.svd(cov)
+    sign = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sign[2, 2] = -1
+    rot = u @ sign @ vt
+    var = (xs**2).sum() / len(src)
+    s = float(np.trace(np.diag(d) @ sign) / var) if var > 0 else 1.0
+    return s, rot, mu_d - s * rot @ mu_s
+
+
+def trajectory_errors(estimated: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Errors of estimated poses (N, 4, 4) against the truth after similarity alignment of the positions.
+
+    Returns:
+        ``ate_rmse`` (position RMSE in the truth's units), ``ate_rel`` (ATE / the truth's mean distance from
+        its centroid), ``rot_mean_deg`` and ``rot_max_deg`` (the angle of each aligned rotation error).
+    """
+    s, rot, t = umeyama(estimated[:, :3, 3], truth[:, :3, 3])
+    aligned = (s * (rot @ estimated[:, :3, 3].T)).T + t
+    err = np.linalg.norm(aligned - truth[:, :3, 3], axis=1)
+    spread = float(np.linalg.norm(truth[:, :3, 3] - truth[:, :3, 3].mean(0), axis=1).mean())
+    rel_rot = np.einsum("nji,njk->nik", truth[:, :3, :3], rot @ estimated[:, :3, :3])
+    cos = np.clip((np.trace(rel_rot, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
+    angle = np.degrees(np.arccos(cos))
+    ate = float(np.sqrt((err**2).mean()))
+    return {
+        "ate_rmse": ate,
+        "ate_rel": ate / spread if spread > 0 else float("nan"),
+        "rot_mean_deg": float(angle.mean()),
+        "rot_max_deg": float(angle.max()),
+    }

@@ -1,0 +1,281 @@
+"""``spikenerf import``: a raw ``.dat`` recording (+ poses: COLMAP, a file or an orbit) → a dataset folder.
+
+Steps (docs/real-data.md): read the frame size from the flags or the SpikeCV ``config.yaml``; select
+``--range``; reconstruct keyframes (TFP) every ``keyframe_every`` steps; get keyframe poses (COLMAP on the
+keyframes, a pose file, or an orbit); interpolate them to every step; normalise the scene to ``[-1, 1]^3``;
+pick near/far (from COLMAP's sparse points where there are some); hold out every ``test_every``-th keyframe
+reconstruction as a test view; write the standard dataset folder. Work happens in ``<out>.partial/`` (the
+COLMAP model is kept there and reused after an interruption); only a finished folder becomes ``out``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spikenerf import __version__
+from spikenerf.camera.io import count_frames, frame_bytes, iter_dat, read_dat, resolve_frames
+from spikenerf.camera.reconstruct import tfp
+from spikenerf.camera.spikecv import recording_config
+from spikenerf.core.errors import InputError
+from spikenerf.data.alignment import (
+    apply_similarity,
+    near_far_from_points,
+    normalisation,
+    per_step_poses,
+)
+from spikenerf.data.dataset import near_far
+from spikenerf.data.poses import PoseSet, orbit_poses, read_pose_source
+from spikenerf.data.simulate import _replace_dir, work_dir
+from spikenerf.data.writer import DatasetWriter
+from spikenerf.scenes.trajectory import Intrinsics, Trajectory
+
+DEFAULT_FPS = 40000.0
+COLMAP_WORK = "colmap"
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """How to import a recording (see :func:`import_recording`; the CLI flags have the same names).
+
+    Attributes:
+        poses: ``colmap``, ``orbit`` (with ``orbit``) or a pose file/folder. height, width, config, raw_width,
+        fps, threshold, layout: the recording (flags win over the config.yaml). frame_range: a slice of steps.
+        keyframe_every: steps between keyframes. window: TFP window (frames). test_every: every n-th
+        keyframe becomes a test view (0: none). fov_deg: horizontal field of view when the poses carry no
+        intrinsics. overlap: COLMAP sequential-matching overlap. min_registered: fraction of keyframes
+        COLMAP must register. verbose: show COLMAP's log.
+    """
+
+    poses: str = "colmap"
+    orbit: str | None = None
+    height: int | None = None
+    width: int | None = None
+    config: Path | None = None
+    raw_width: int | None = None
+    fps: float | None = None
+    threshold: float | None = None
+    layout: str = "spikecv"
+    frame_range: slice | None = None
+    keyframe_every: int = 20
+    window: int = 21
+    test_every: int = 8
+    fov_deg: float | None = None
+    overlap: int = 10
+    min_registered: float = 0.5
+    overwrite: bool = False
+    verbose: bool = False
+    command: str = ""
+
+
+def _check(options: ImportOptions) -> None:
+    for name in ("keyframe_every", "window", "overlap"):
+        if getattr(options, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} must be ≥ 1, found {getattr(options, name)}")
+    if options.window % 2 == 0:
+        raise InputError(f"--window must be odd, found {options.window}")
+    if not 0 <= options.min_registered <= 1:
+        raise InputError(f"--min-registered must be in [0, 1], found {options.min_registered}")
+    if options.test_every < 0:
+        raise InputError(f"--test-every must be ≥ 0 (0 = no test views), found {options.test_every}")
+    if options.fov_deg is not None and not 0 < options.fov_deg < 180:
+        raise InputError(f"--fov must be in (0, 180) degrees, found {options.fov_deg}")
+    if (options.poses == "orbit") != (options.orbit is not None):
+        raise InputError("--orbit R,ELEV[,TURNS[,AZIMUTH]] goes with --poses orbit (and only with it)")
+
+
+def count_steps(dat: Path, height: int, width: int, raw_width: int | None) -> int:
+    """Frames in the recording; a size mismatch that a 16-column raw layout explains says so."""
+    try:
+        return count_frames(dat, height, width, raw_width)
+    except InputError as err:
+        size = dat.stat().st_size if dat.is_file() else 0
+        raw = width + 16
+        if raw_width is None and size and (height * raw) % 8 == 0 and size % frame_bytes(height, raw) == 0:
+            raise InputError(f"{err} — a raw sps10 file? pass --raw-width {raw}") from None
+        raise
+
+
+def keyframe_steps(n: int, every: int, window: int) -> np.ndarray:
+    """Keyframe steps (relative, int64) every ``every`` steps where the whole TFP window fits in the ``n``
+    steps (a clipped window is centred off its step: a biased pose), plus the last such step."""
+    half = min(window // 2, (n - 1) // 2)
+    return np.unique(np.append(np.arange(half, n - half, every), n - 1 - half)).astype(np.int64)
+
+
+def keyframe_images(
+    dat: Path,
+    steps: np.ndarray,
+    first: int,
+    stop: int,
+    shape: tuple[int, int, int | None],
+    opts: ImportOptions,
+    threshold: float,
+) -> np.ndarray:
+    """TFP images (N, H, W) float32 linear at absolute ``steps``, windows clipped to ``[first, stop)``."""
+    half, (h, w, raw) = opts.window // 2, shape
+    out = []
+    for s in steps:
+        lo, hi = max(first, int(s) - half), min(stop, int(s) + half + 1)
+        chunk = read_dat(dat, h, w, slice(lo, hi), opts.layout, raw)
+        out.append(tfp(chunk, opts.window, threshold, frames=int(s) - lo)[0])
+    return np.stack(out)
+
+
+def keyframe_poses(
+    opts: ImportOptions, images: np.ndarray, key_steps: np.ndarray, work: Path, n: int, fps: float, first: int
+) -> PoseSet:
+    """Keyframe poses with steps relative to the selection (0..n-1)."""
+    if opts.poses == "colmap":
+        from spikenerf.data.colmap import run_colmap
+
+        focal = None
+        if opts.fov_deg is not None:
+            focal = Intrinsics.from_fov(images.shape[2], images.shape[1], math.radians(opts.fov_deg)).fl_x
+        found = run_colmap(
+            images,
+            key_steps,
+            work / COLMAP_WORK,
+            opts.overlap,
+            opts.min_registered,
+            opts.keyframe_every,
+            focal=focal,
+            verbose=opts.verbose,
+        )
+        return found  # named by relative step
+    if opts.poses == "orbit":
+        return orbit_poses(str(opts.orbit), n, fps)
+    found = read_pose_source(opts.poses)
+    if found.steps is None:  # spread evenly over the selected steps
+        steps = np.round(np.linspace(0, n - 1, len(found.poses))).astype(np.int64)
+    else:
+        steps = found.steps - first
+    return PoseSet(
+        found.poses, steps, found.intrinsics, found.points, found.scene_box, found.names, found.camera_angle_x
+    )
+
+
+def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | None) -> Intrinsics:
+    """The camera at the recording's size: ``--fov`` wins, then the pose source's intrinsics or its fov."""
+    if fov_deg is not None:
+        return Intrinsics.from_fov(width, height, math.radians(fov_deg))
+    if found.intrinsics is not None:
+        k = found.intrinsics
+        return k if (k.width, k.height) == (width, height) else k.scaled(width, height)
+    if found.camera_angle_x is not None:
+        return Intrinsics.from_fov(width, height, found.camera_angle_x)
+    raise InputError("the poses carry no camera intrinsics: pass --fov DEGREES (horizontal field of view)")
+
+
+def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> Path:
+    """Import a ``.dat`` recording into the dataset folder ``out`` (see the module doc); returns ``out``."""
+    dat, out = Path(dat), Path(out)
+    _check(opts)
+    rc = recording_config(dat, opts.height, opts.width, opts.config)
+    h, w = int(rc.height or 0), int(rc.width or 0)
+    raw = opts.raw_width if opts.raw_width is not None else rc.raw_width
+    fps = opts.fps or rc.fps or DEFAULT_FPS
+    threshold = opts.threshold or rc.threshold or 1.0
+    total = count_steps(dat, h, w, raw)
+    sel = resolve_frames(opts.frame_range, total, dat)
+    n = len(sel)
+    if (out.exists() or out.is_symlink()) and not opts.overwrite:
+        raise InputError("output already exists; pass --overwrite to replace it", path=out)
+    rel_keys = keyframe_steps(n, opts.keyframe_every, opts.window)
+    if len(rel_keys) < 2:
+        raise InputError(
+            f"{n} steps give {len(rel_keys)} keyframe at --keyframe-every {opts.keyframe_every}; "
+            "need at least 2"
+        )
+    work = work_dir(out)
+    fresh = not work.exists()
+    work.mkdir(parents=True, exist_ok=True)
+    try:
+        images = keyframe_images(dat, rel_keys + sel.start, sel.start, sel.stop, (h, w, raw), opts, threshold)
+        found = keyframe_poses(opts, images, rel_keys, work, n, fps, sel.start)
+        k = intrinsics_for(found, w, h, opts.fov_deg)
+        _write(dat, out, work, opts, found, k, (images, rel_keys), (sel, fps, threshold, raw, rc.path))
+    except BaseException:
+        if fresh and not (work / COLMAP_WORK / "model").exists():  # nothing worth resuming
+            shutil.rmtree(work, ignore_errors=True)
+        raise
+    return out
+
+
+def _write(
+    dat: Path,
+    out: Path,
+    work: Path,
+    opts: ImportOptions,
+    found: PoseSet,
+    k: Intrinsics,
+    keys: tuple[np.ndarray, np.ndarray],
+    rec: tuple,
+) -> None:
+    sel, fps, threshold, raw, config_path = rec
+    images, rel_keys = keys
+    n = len(sel)
+    steps = np.arange(n, dtype=np.int64)
+    poses = per_step_poses(found.poses, found.steps, steps)
+    center, scale = normalisation(found.poses, found.points, found.scene_box, k.camera_angle_x)
+    poses = apply_similarity(poses, center, scale)
+    box = np.array([[-1.0] * 3, [1.0] * 3])
+    bounds = None
+    if found.points is not None:
+        bounds = near_far_from_points(
+            apply_similarity(found.poses, center, scale), (found.points - center) * scale
+        )
+    near, far = bounds if bounds is not None else near_far(poses, box)
+    for stale in work.iterdir():  # outputs of an earlier, interrupted attempt
+        if stale.name != COLMAP_WORK:
+            shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
+    writer = DatasetWriter(work, k, fps, box, near, far)
+    writer.start_spikes(["gray"])
+    for _, chunk in iter_dat(
+        dat, k.height, k.width, frames=slice(sel.start, sel.stop), layout=opts.layout, raw_width=raw
+    ):
+        writer.append_spikes("gray", chunk)
+    held = rel_keys[1 :: opts.test_every] if opts.test_every else rel_keys[:0]
+    for i in np.searchsorted(rel_keys, held):
+        writer.add_test(np.repeat(images[i][..., None], 3, -1), poses[rel_keys[i]])
+    registered = len(found.poses)
+    config = {
+        "spike_h": k.height,
+        "spike_w": k.width,
+        "fps": float(fps),
+        "threshold": float(threshold),
+        "colors": ["gray"],
+        "noise": "recorded",
+        "scene": f"imported:{dat.stem}",
+        "steps": int(n),
+        "imported": {
+            "recording": str(dat),
+            "spikecv_config": None if config_path is None else str(config_path),
+            "range": [int(sel.start), int(sel.stop)],
+            "raw_width": raw,
+            "layout": opts.layout,
+            "poses": opts.poses if opts.poses in ("colmap", "orbit") else str(opts.poses),
+            "orbit": opts.orbit,
+            "keyframe_every": int(opts.keyframe_every),
+            "window": int(opts.window),
+            "keyframes": len(rel_keys),
+            "poses_known": int(registered),
+            "test_keyframes": [int(s) for s in held],
+            "normalisation": {"center": [float(c) for c in center], "scale": float(scale)},
+        },
+        "test_views": len(held),
+        "spikenerf_version": __version__,
+        "command": opts.command,
+        "layout": "spikecv",
+    }
+    model = work / COLMAP_WORK / "model"
+    if model.is_dir():
+        for name in ("images", "sparse", "database.db"):  # big and rebuildable: not part of the dataset
+            path = work / COLMAP_WORK / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+    writer.finish(Trajectory(poses, steps / fps, steps, fps), config, None)
+    _replace_dir(work, out)

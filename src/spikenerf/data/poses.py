@@ -1,0 +1,215 @@
+"""Camera poses for a real recording: read from a pose file, or made from a known orbit (docs/real-data.md).
+
+Every reader returns a :class:`PoseSet` of camera-to-world poses in our convention (OpenGL camera axes, see
+scenes/trajectory.py), with the spike steps they belong to when the file says so. Supported: a nerfstudio /
+Blender ``transforms.json``, a COLMAP model folder (``cameras``, ``images``, ``points3D`` as ``.txt``, or
+``.bin`` converted through pycolmap), an LLFF ``poses_bounds.npy`` and an orbit (``--orbit``).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spikenerf.core.errors import InputError
+from spikenerf.scenes.trajectory import Intrinsics, orbit, quaternion_to_matrix
+
+#: OpenCV camera axes (COLMAP: +X right, +Y down, +Z forward) → OpenGL (+Y up, looking down −Z)
+CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+COLMAP_MISSING = "COLMAP poses need pycolmap: pip install 'spikenerf[colmap]'"
+#: COLMAP camera models whose first parameters are (f, cx, cy) or (fx, fy, cx, cy); distortion is ignored
+ONE_FOCAL = ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
+
+
+@dataclass(frozen=True)
+class PoseSet:
+    """Poses (N, 4, 4) float64 c2w; steps (N,) int64 spike steps or None (spread evenly later);
+    intrinsics if the source knows them (at its own image size); points (M, 3) sparse scene points or None;
+    scene_box (2, 3) if the source states one; names (N,) of the frames (for messages); camera_angle_x
+    (radians) when the source gives only a field of view."""
+
+    poses: np.ndarray
+    steps: np.ndarray | None = None
+    intrinsics: Intrinsics | None = None
+    points: np.ndarray | None = None
+    scene_box: np.ndarray | None = None
+    names: tuple[str, ...] = ()
+    camera_angle_x: float | None = None
+
+
+def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) -> np.ndarray:
+    """Poses as float64 (N, 4, 4); InputError on NaN/inf, a singular rotation or fewer than ``minimum``."""
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise InputError(f"expected (N, 4, 4) poses, found shape {poses.shape}", path=path)
+    if not np.isfinite(poses).all():
+        bad = int((~np.isfinite(poses)).any(axis=(1, 2)).sum())
+        raise InputError(f"{bad} of {len(poses)} poses hold NaN or infinite values", path=path)
+    if len(poses) < minimum:
+        raise InputError(f"found {len(poses)} poses, need at least {minimum} to interpolate", path=path)
+    det = np.linalg.det(poses[:, :3, :3])
+    if (np.abs(det - 1) > 1e-2).any():
+        i = int(np.argmax(np.abs(det - 1)))
+        raise InputError(f"pose {i} has a rotation with determinant {det[i]:.3g}, expected 1", path=path)
+    return poses
+
+
+def steps_from_names(names: list[str]) -> np.ndarray | None:
+    """Spike steps from frame names when every name's stem ends in a number and they are unique, else None."""
+    found = [re.search(r"(\d+)$", Path(n).stem) for n in names]
+    if not names or not all(found):
+        return None
+    steps = np.array([int(m.group(1)) for m in found if m], np.int64)
+    return steps if len(np.unique(steps)) == len(steps) else None
+
+
+# ------------------------------------------------------------------------------------- transforms.json
+def read_transforms_poses(path: Path) -> PoseSet:
+    """A nerfstudio/Blender ``transforms.json``: ``frames[].transform_matrix`` (+ ``step`` when present)."""
+    from spikenerf.data.dataset import read_pose_file
+
+    poses = check_poses(read_pose_file(path), path)
+    data = json.loads(path.read_text(encoding="utf-8"))
+    frames = data["frames"]
+    steps = None
+    if all(isinstance(f.get("step"), int) for f in frames):
+        steps = np.array([f["step"] for f in frames], np.int64)
+    elif all(isinstance(f.get("file_path"), str) for f in frames):
+        steps = steps_from_names([f["file_path"] for f in frames])
+    k, fov = None, None
+    if all(isinstance(data.get(key), (int, float)) for key in ("w", "h", "fl_x", "fl_y", "cx", "cy")):
+        k = Intrinsics(
+            int(data["w"]), int(data["h"]), *(float(data[key]) for key in ("fl_x", "fl_y", "cx", "cy"))
+        )
+    elif isinstance(data.get("camera_angle_x"), (int, float)) and data["camera_angle_x"] > 0:
+        fov = float(data["camera_angle_x"])
+    box = None
+    if "scene_box" in data:
+        box = np.asarray(data["scene_box"], np.float64)
+        if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
+            raise InputError(
+                f"field 'scene_box': expected [[min x,y,z],[max x,y,z]], found {box.tolist()}", path
+            )
+    names = tuple(str(f.get("file_path", i)) for i, f in enumerate(frames))
+    return PoseSet(poses, steps, k, None, box, names, fov)
+
+
+# ------------------------------------------------------------------------------------------- COLMAP model
+def _lines(path: Path) -> list[list[str]]:
+    if not path.is_file():
+        raise InputError("missing file of a COLMAP text model", path=path)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    return [ln.split() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
+    model, w, h, params = fields[1], int(fields[2]), int(fields[3]), [float(p) for p in fields[4:]]
+    if model in ONE_FOCAL and len(params) >= 3:
+        return Intrinsics(w, h, params[0], params[0], params[1], params[2])
+    if len(params) >= 4:
+        return Intrinsics(w, h, *params[:4])
+    raise InputError(f"camera model {model} with {len(params)} parameters is not supported", path=path)
+
+
+def read_colmap_text(folder: Path) -> PoseSet:
+    """A COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``); the first camera is used."""
+    try:
+        cams = {int(f[0]): f for f in _lines(folder / "cameras.txt")}
+        rows = _lines(folder / "images.txt")
+        # images.txt: one pose line (10+ fields) followed by one (possibly empty, hence dropped) points line
+        pose_rows = [r for r in rows if len(r) == 10 and int(r[8]) in cams]
+        pts_path = folder / "points3D.txt"
+        pts = [[float(v) for v in r[1:4]] for r in _lines(pts_path)] if pts_path.is_file() else []
+    except (ValueError, IndexError) as err:
+        raise InputError(f"malformed COLMAP text model ({err})", path=folder) from err
+    if not cams:
+        raise InputError("no cameras in cameras.txt", path=folder)
+    pose_rows.sort(key=lambda r: r[9])
+    quats = np.array([[float(v) for v in r[1:5]] for r in pose_rows]).reshape(-1, 4)
+    trans = np.array([[float(v) for v in r[5:8]] for r in pose_rows]).reshape(-1, 3)
+    if (
+        not np.isfinite(quats).all()
+        or not np.isfinite(trans).all()
+        or (np.linalg.norm(quats, axis=1) == 0).any()
+    ):
+        raise InputError("images.txt holds NaN, infinite or zero-quaternion poses", path=folder)
+    w2c = np.tile(np.eye(4), (len(pose_rows), 1, 1))
+    w2c[:, :3, :3], w2c[:, :3, 3] = quaternion_to_matrix(quats), trans
+    poses = check_poses(np.linalg.inv(w2c) @ CV_TO_GL, folder / "images.txt")
+    names = [r[9] for r in pose_rows]
+    points = np.asarray(pts, np.float64).reshape(-1, 3)
+    camera = _colmap_camera(cams[int(pose_rows[0][8])], folder / "cameras.txt")
+    return PoseSet(
+        poses, steps_from_names(names), camera, points if len(points) else None, None, tuple(names)
+    )
+
+
+def read_colmap_model(folder: Path) -> PoseSet:
+    """A COLMAP model folder: text files directly, binary ones converted to text through pycolmap."""
+    if (folder / "images.txt").is_file():
+        return read_colmap_text(folder)
+    if not (folder / "images.bin").is_file():
+        raise InputError("not a COLMAP model folder (no images.txt or images.bin)", path=folder)
+    try:
+        import pycolmap
+    except ImportError as err:
+        raise InputError(f"reading a binary model: {COLMAP_MISSING}", path=folder) from err
+    with tempfile.TemporaryDirectory() as tmp:
+        pycolmap.Reconstruction(str(folder)).write_text(tmp)
+        return read_colmap_text(Path(tmp))
+
+
+# ------------------------------------------------------------------------------------------------- LLFF
+def read_poses_bounds(path: Path) -> PoseSet:
+    """LLFF ``poses_bounds.npy``: (N, 17) rows: 3×5 [R | t | (h, w, f)] (axes down, right, back), bounds."""
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise InputError(f"cannot read a .npy array ({err})", path=path) from err
+    if arr.ndim != 2 or arr.shape[1] != 17:
+        raise InputError(f"expected an (N, 17) array, found shape {arr.shape}", path=path)
+    if not np.isfinite(arr).all():
+        raise InputError(f"{int((~np.isfinite(arr)).any(1).sum())} of {len(arr)} rows hold NaN or inf", path)
+    m = arr[:, :15].reshape(-1, 3, 5).astype(np.float64)
+    poses = np.tile(np.eye(4), (len(arr), 1, 1))
+    poses[:, :3, 0], poses[:, :3, 1], poses[:, :3, 2] = m[:, :, 1], -m[:, :, 0], m[:, :, 2]
+    poses[:, :3, 3] = m[:, :, 3]
+    h, w, f = (float(v) for v in m[0, :, 4])
+    k = Intrinsics(round(w), round(h), f, f, w / 2, h / 2) if min(h, w, f) > 0 else None
+    return PoseSet(check_poses(poses, path), None, k)
+
+
+def read_pose_source(path: str | Path) -> PoseSet:
+    """A pose file or folder, by its kind: COLMAP model folder, ``.npy`` (LLFF) or ``.json`` (transforms)."""
+    path = Path(path)
+    if path.is_dir():
+        sparse = path / "sparse" / "0"
+        return read_colmap_model(sparse if sparse.is_dir() and not (path / "images.txt").exists() else path)
+    if not path.is_file():
+        raise InputError("pose file not found", path=path)
+    if path.suffix == ".npy":
+        return read_poses_bounds(path)
+    if path.suffix == ".json":
+        return read_transforms_poses(path)
+    raise InputError("expected a transforms .json, an LLFF poses_bounds.npy or a COLMAP model folder", path)
+
+
+def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
+    """``--orbit RADIUS,ELEVATION_DEG[,TURNS[,START_AZIMUTH_DEG]]`` around the origin over ``steps`` steps."""
+    try:
+        values = [float(v) for v in spec.split(",")]
+    except ValueError:
+        values = []
+    if not 2 <= len(values) <= 4 or values[0] <= 0:
+        raise InputError(
+            f"--orbit: expected RADIUS,ELEVATION[,TURNS[,AZIMUTH]] with RADIUS > 0, found {spec!r}"
+        )
+    turns = values[2] if len(values) > 2 else 1.0
+    start = values[3] if len(values) > 3 else 0.0
+    traj = orbit(values[0], values[1], turns, steps / fps, fps, start_azimuth_deg=start)
+    return PoseSet(traj.poses, traj.steps.copy())
