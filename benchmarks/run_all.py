@@ -20,6 +20,7 @@ SUITES = {
     "dat": "benchmarks.bench_dat",
     "simulator": "benchmarks.bench_simulator",
     "fields": "benchmarks.bench_fields",
+    "learned-recon": "benchmarks.bench_learned_recon",
 }
 SLOW_SUITES = {"time-to-psnr": "benchmarks.bench_time_to_psnr"}
 

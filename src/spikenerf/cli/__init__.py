@@ -19,7 +19,12 @@ from spikenerf.core.errors import InputError
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("spikenerf.cli.simulate", "Render a scene along a fast path and simulate a spike camera."),
     "info": ("spikenerf.cli.info", "Summarise a dataset folder, a run folder or a .dat spike file."),
-    "reconstruct": ("spikenerf.cli.reconstruct", "Reconstruct images from a .dat spike stream (TFP/TFI)."),
+    "reconstruct": (
+        "spikenerf.cli.reconstruct",
+        "Reconstruct images from a .dat spike stream (TFP/TFI/learned).",
+    ),
+    "recon-data": ("spikenerf.cli.recon_data", "Write training pairs for the learned reconstructor."),
+    "recon-train": ("spikenerf.cli.recon_train", "Train the learned spike-to-image reconstructor."),
     "import": ("spikenerf.cli.import_", "Import a raw .dat recording (poses: COLMAP, a file or an orbit)."),
     "train": ("spikenerf.cli.train", "Train a radiance field on a spike dataset."),
     "render": ("spikenerf.cli.render", "Render images, depth, video and novel spike streams from a run."),

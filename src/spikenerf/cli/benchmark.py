@@ -34,9 +34,29 @@ from spikenerf.core.errors import InputError
     help="Steps run at once (outputs go to OUT/logs/; each gets cpu_count // jobs threads unless "
     "OMP_NUM_THREADS is set).",
 )
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="local: --jobs processes on this machine; ray: every dataset and cell a Ray task (needs "
+              "'spikenerf[cluster]'; OUT on shared storage, see docs/cluster.md).")  # fmt: skip
+@click.option("--address", help="Ray cluster: 'auto', HOST:PORT or 'local' (a new one here) [default: "
+              "$RAY_ADDRESS, else the cluster last started here, else a new local one].")  # fmt: skip
+@click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
+              help="Ray: retries of a failed cell (logs of every attempt kept in OUT/logs/).")  # fmt: skip
+@click.option(
+    "--ray-cpus",
+    type=click.FloatRange(min=0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Ray: CPUs per task (and its threads); a cell also takes a GPU with --device cuda.",
+)
+@click.option(
+    "--ray-ship-results",
+    is_flag=True,
+    help="Ray: no shared storage; workers use a local scratch copy, files travel by object store.",
+)
 def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
-    field: str, device: str, seed: int, test_views: int, no_render: bool, jobs: int,
+    field: str, device: str, seed: int, test_views: int, no_render: bool, jobs: int, executor: str,
+    address: str | None, retries: int, ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
     from spikenerf.pipelines.benchmark import BenchmarkConfig, resolve_scenes, resolve_variants
     from spikenerf.pipelines.suite import benchmark_with_report
@@ -49,7 +69,8 @@ def command(
     cfg = BenchmarkConfig(
         scenes=resolve_scenes(scenes), variants=resolve_variants(methods), colors=colors, out=out,
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
-        test_views=test_views, render=not no_render, jobs=jobs,
+        test_views=test_views, render=not no_render, jobs=jobs, executor=executor, address=address,
+        retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus,
     )  # fmt: skip
     benchmark_with_report(cfg)
     click.echo(f"wrote {out}/table1.md, table2.md, results.csv, results.json")

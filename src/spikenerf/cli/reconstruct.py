@@ -1,4 +1,4 @@
-"""``spikenerf reconstruct``: TFP/TFI images from a ``.dat`` stream, as PNG (sRGB), NPY (linear) or a folder.
+"""``spikenerf reconstruct``: TFP/TFI/learned images from a ``.dat`` stream: PNG (sRGB), NPY (linear), folder.
 
 ``--encoding`` overrides the value encoding: ``linear`` PNGs hold ``round(255 · Î)`` with no gamma, as SpikeCV
 and spikezoo write their reconstructions; ``srgb`` NPYs hold the display values in [0, 1].
@@ -82,17 +82,25 @@ def check_out_dir(out: Path) -> None:
 
 
 def blocks(frames: range, method: str) -> Iterator[range]:
-    """Blocks of output frames: TFP in blocks of BLOCK_FRAMES, TFI in one block (its margin is shared)."""
-    size = BLOCK_FRAMES if method == "tfp" else max(1, len(frames))
+    """Output frame blocks: TFP/learned in blocks of BLOCK_FRAMES, TFI in one block (its margin is shared)."""
+    size = max(1, len(frames)) if method == "tfi" else BLOCK_FRAMES
     for a in range(frames.start, frames.stop, size):
         yield range(a, min(a + size, frames.stop))
 
 
-@click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI).")
+@click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI, or the learned reconstructor).")
 @click.argument("spikes", type=click.Path(path_type=Path))
 @click.option("--height", type=int, help="Frame height in pixels [default: spike_h of ./config.yaml].")
 @click.option("--width", type=int, help="Frame width in pixels [default: spike_w of ./config.yaml].")
-@click.option("--method", type=click.Choice(RECON_METHODS), required=True)
+@click.option("--method", type=click.Choice([*RECON_METHODS, "learned"]), required=True)
+@click.option("--weights", type=click.Path(path_type=Path), help="learned: weights file [default: shipped].")
+@click.option(
+    "--color",
+    type=click.Choice(["gray", "rgb", "bayer"]),
+    default="gray",
+    show_default=True,
+    help="learned: the stream is gray, one channel of a per-channel RGB recording, or a Bayer RGGB mosaic.",
+)
 @click.option("--window", type=int, help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}].")
 @click.option("--frame", type=int, help="One frame index: .npy gets shape (H, W).")
 @click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")
@@ -110,6 +118,8 @@ def command(
     height: int | None,
     width: int | None,
     method: str,
+    weights: Path | None,
+    color: str,
     window: int | None,
     frame: int | None,
     frame_range: str | None,
@@ -129,6 +139,10 @@ def command(
 
     if method == "tfi" and window is not None:
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
+    if method == "learned":
+        from spikenerf.recon.infer import learned_reconstructor
+
+        recon = learned_reconstructor(weights, color, window, threshold)
     window = DEFAULT_WINDOW if window is None else window
     if frame is not None and frame_range is not None:
         raise InputError("give either --frame I or --frames A:B, not both")
@@ -152,7 +166,13 @@ def command(
 
     def images() -> Iterator[tuple[range, np.ndarray]]:
         for block in blocks(frames, method):
-            yield block, reconstruct_frames(read, total, block.start, block.stop, method, window, threshold)
+            if method == "learned":
+                yield block, recon(read, total, block.start, block.stop)
+            else:
+                yield (
+                    block,
+                    reconstruct_frames(read, total, block.start, block.stop, method, window, threshold),
+                )
 
     bar = tqdm(
         total=len(frames), unit="frame", desc=f"{method} {spikes.name}", disable=len(frames) < 32 or None

@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.camera.masks import spike_masks
-from spikenerf.camera.reconstruct import METHODS as RECONS
+from spikenerf.camera.reconstruct import METHODS as CAMERA_RECONS
 from spikenerf.camera.reconstruct import tfi, tfp
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
@@ -30,6 +30,8 @@ if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
 
 #: training methods (each defines its targets)
+#: image reconstructions for targets: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
+RECONS: tuple[str, ...] = (*CAMERA_RECONS, "learned")
 Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt"]
 METHODS: tuple[str, ...] = get_args(Method)
 SPIKE_METHODS = ("spike-nerf", "nerf-recon")
@@ -93,7 +95,14 @@ def channels_last(stream: np.ndarray | Tensor) -> Tensor:
 def reconstruct_stream(
     spikes: np.ndarray, recon: str = "tfp", window: int = 41, threshold: float = 1.0
 ) -> np.ndarray:
-    """Î of every step: TFP (``window`` frames, odd) or TFI of a (T, ...) stream → float32 (T, ...) linear."""
+    """Î of every step: TFP (``window`` frames, odd), TFI or the shipped learned reconstructor (its trained
+    window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb stream → float32 linear."""
+    if recon == "learned":
+        from spikenerf.recon.infer import reconstruct_learned
+
+        return reconstruct_learned(
+            spikes, "rgb" if np.ndim(spikes) == 4 else "gray", threshold, window=window
+        )
     if recon == "tfp":
         return tfp(spikes, window=window, threshold=threshold)
     if recon == "tfi":

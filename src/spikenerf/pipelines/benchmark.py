@@ -10,12 +10,10 @@ from __future__ import annotations
 import json
 import os
 import platform
-import subprocess
 import sys
-import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import TypeVar
@@ -26,6 +24,7 @@ from tqdm import tqdm
 from spikenerf import __version__
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.pipelines.steps import run_step as _run
 from spikenerf.pipelines.tables import (
     ABLATION_VARIANTS,
     Cell,
@@ -44,10 +43,20 @@ VARIANT_FLAGS: dict[str, list[str]] = {
     "nerf-blur-aware": ["--method", "nerf-blur-aware"],
     "nerf-recon": ["--method", "nerf-recon"],
     "spike-nerf": ["--method", "spike-nerf"],
+    "nerf-recon-learned": ["--method", "nerf-recon", "--recon", "learned"],
+    "spike-nerf-learned": ["--method", "spike-nerf", "--recon", "learned"],
     "spike-nerf-no-mask": ["--method", "spike-nerf", "--no-mask"],
     "spike-nerf-no-spike-loss": ["--method", "spike-nerf", "--no-spike-loss"],
 }
-TABLE1_VARIANTS = ("nerf-gt", "nerf-blur", "nerf-blur-aware", "nerf-recon", "spike-nerf")
+TABLE1_VARIANTS = (
+    "nerf-gt",
+    "nerf-blur",
+    "nerf-blur-aware",
+    "nerf-recon",
+    "nerf-recon-learned",
+    "spike-nerf",
+    "spike-nerf-learned",
+)
 
 
 @dataclass
@@ -55,7 +64,8 @@ class BenchmarkConfig:
     """What to run; ``size``/``frames``/``iters`` scale from a CPU smoke test up to the paper's setting.
 
     ``jobs`` > 1 runs that many steps at once, each with its output in ``out/logs/`` and, unless
-    ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads.
+    ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads. ``executor="ray"`` runs the steps as Ray
+    tasks instead (:mod:`spikenerf.pipelines.ray_executor`, which uses the ``address`` … ``ray_cpus`` fields).
     """
 
     scenes: list[str]
@@ -72,6 +82,11 @@ class BenchmarkConfig:
     render: bool = True
     extra_train_args: list[str] = field(default_factory=list)
     jobs: int = 1
+    executor: str = "local"
+    address: str | None = None
+    retries: int = 2
+    ship_results: bool = False
+    ray_cpus: float = 1.0
 
 
 def resolve_scenes(spec: str) -> list[str]:
@@ -157,23 +172,6 @@ def read_cell(run: Path, scene: str, color: str, variant: str) -> Cell | None:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
 
 
-def _run(command: list[str], log: list[dict], output: Path | None = None, threads: int | None = None) -> None:
-    """Run one ``spikenerf`` step; its output goes to the terminal, or appended to ``output``."""
-    env = None if threads is None else {**os.environ, "OMP_NUM_THREADS": str(threads)}
-    start = time.perf_counter()
-    if output is None:
-        rc = subprocess.run(command, check=False, env=env).returncode
-    else:
-        output.parent.mkdir(parents=True, exist_ok=True)
-        with output.open("a") as sink:
-            done = subprocess.run(command, check=False, env=env, stdout=sink, stderr=subprocess.STDOUT)
-        rc = done.returncode
-    log.append({"command": command[2:], "seconds": round(time.perf_counter() - start, 2), "rc": rc})
-    if rc != 0:
-        where = f" (output in {output})" if output is not None else ""
-        raise InputError(f"step failed with exit code {rc}: spikenerf {' '.join(command[3:])}{where}")
-
-
 def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> list[T]:
     """Run ``tasks`` ``jobs`` at a time with a progress bar; results in task order. The first failure
     cancels the tasks not yet started, lets the running ones finish, and is raised."""
@@ -220,8 +218,17 @@ def _run_cell(cfg: BenchmarkConfig, scene: str, color: str, variant: str, log: l
 def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
     """Simulate each scene once, then train/eval every missing cell; write the tables (the HTML report:
     :func:`spikenerf.pipelines.suite.benchmark_with_report`)."""
+    if cfg.executor == "ray":
+        from spikenerf.pipelines.ray_executor import require_ray
+
+        require_ray()  # without Ray: one line, before anything is written
     cfg.out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
+    keys = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
+    if cfg.executor == "ray":
+        cells = _run_on_ray(cfg, keys, log)
+        write_results(cfg, cells, log)
+        return cells
     jobs = max(1, cfg.jobs)
     simulations = [partial(_simulate_scene, cfg, s, log) for s in cfg.scenes]
     _parallel(simulations, jobs, "benchmark datasets", "scene")
@@ -235,10 +242,32 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
 
         return task
 
-    keys = [(s, c, v) for s in cfg.scenes for c in cfg.colors for v in cfg.variants]
     cells = _parallel([cell_task(*key) for key in keys], jobs, "benchmark cells", "cell")
     write_results(cfg, cells, log)
     return cells
+
+
+def _commands_at(cfg: BenchmarkConfig, key: tuple, root: Path) -> list[list[str]]:
+    """A job's commands for the benchmark folder at ``root``: a dataset's for ``(scene,)``, else a cell's."""
+    here = replace(cfg, out=root)
+    return [dataset_command(here, key[0])] if len(key) == 1 else cell_commands(here, *key)
+
+
+def _run_on_ray(cfg: BenchmarkConfig, keys: list[tuple], log: list[dict]) -> list[Cell]:
+    """Each scene's dataset and each cell (``keys``, scene first) as a Ray task; cells in ``keys`` order."""
+    from spikenerf.pipelines.ray_executor import Job, run_jobs
+
+    jobs = [Job(f"simulate-{s}", partial(_commands_at, cfg, (s,)), f"datasets/{s}",
+                f"datasets/{s}/transforms.json") for s in cfg.scenes]  # fmt: skip
+    for key in keys:
+        run = run_dir(cfg, *key).relative_to(cfg.out).as_posix()
+        jobs.append(Job("-".join(map(str, key)), partial(_commands_at, cfg, key), run, f"{run}/metrics.json",
+                        needs=f"simulate-{key[0]}"))  # fmt: skip
+    run_jobs(cfg, jobs, log)
+    cells = [read_cell(run_dir(cfg, *key), *key) for key in keys]
+    if None in cells:
+        raise InputError("a cell finished without metrics.json; run the benchmark again", path=cfg.out)
+    return cells  # type: ignore[return-value]
 
 
 def cpu_name() -> str:

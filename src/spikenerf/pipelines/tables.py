@@ -20,7 +20,9 @@ METHOD_LABELS = {
     "nerf-blur": "NeRF on 400 fps blur",
     "nerf-blur-aware": "Exposure-aware NeRF (BAD-NeRF-like)",
     "nerf-recon": "NeRF + TFP reconstruction",
+    "nerf-recon-learned": "NeRF + learned reconstruction (Spk2ImgNet+NeRF)",
     "spike-nerf": "Spike-NeRF (ours)",
+    "spike-nerf-learned": "Spike-NeRF on learned targets",
     "spike-nerf-no-mask": "W/O spike masks",
     "spike-nerf-no-spike-loss": "W/O spike loss",
 }

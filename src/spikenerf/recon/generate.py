@@ -1,0 +1,105 @@
+"""``recon-data``: write a pair folder (train and held-out val splits), resumable shard by shard.
+
+Train pairs come from random procedural scenes (seeded by ``seed``), plus optional Blender scenes and image
+sequences; val pairs come from scenes never used for training: the named analytic scenes
+(:data:`VAL_SCENES`) and random scenes of another seed stream.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from dataclasses import asdict
+from pathlib import Path
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+from spikenerf.recon.pairs import PairConfig, Sample, analytic_pairs, source_pairs
+from spikenerf.recon.store import MANIFEST, shard_path, write_shard
+from spikenerf.scenes.base import FrameSource
+
+#: named analytic scenes held out for validation (never in the train split)
+VAL_SCENES = ["analytic-orbs", "analytic-blocks"]
+#: random draws per shard
+DRAWS_PER_SHARD = 24
+#: the seed stream of held-out random scenes is ``seed + VAL_SEED_OFFSET``
+VAL_SEED_OFFSET = 7919
+
+
+Job = tuple[str, Callable[[range], Iterator[Sample]], int]
+
+
+def plan(
+    cfg: PairConfig,
+    train_draws: int,
+    val_draws: int,
+    seed: int,
+    extra: dict[str, FrameSource],
+    extra_draws: int,
+) -> list[Job]:
+    """The jobs (split, draw function of a range of draw indices, draw count) of a pair folder, in order."""
+    jobs: list[Job] = [("train", lambda d: analytic_pairs(None, d, cfg, seed), train_draws)]
+    for k, name in enumerate(sorted(extra)):
+        src_seed = seed * 1000 + k + 1
+        jobs.append(("train", lambda d, s=extra[name], q=src_seed: source_pairs(s, d, cfg, q), extra_draws))
+    half = val_draws // 2
+    jobs.append(
+        ("val", lambda d: analytic_pairs(VAL_SCENES, d, cfg, seed + VAL_SEED_OFFSET), val_draws - half)
+    )
+    jobs.append(("val", lambda d: analytic_pairs(None, d, cfg, seed + 2 * VAL_SEED_OFFSET), half))
+    return jobs
+
+
+def write_pairs(
+    out: str | Path,
+    cfg: PairConfig,
+    train_draws: int,
+    val_draws: int,
+    seed: int = 0,
+    extra: dict[str, FrameSource] | None = None,
+    extra_draws: int = 0,
+    command: str = "",
+    progress: bool = True,
+) -> dict:
+    """Generate (or finish) the pair folder ``out``; returns the manifest.
+
+    Args:
+        cfg: pair settings. train_draws / val_draws: random draws per split (a draw gives 1, 3 or 4 samples).
+        extra: named FrameSources (Blender scenes, sequences) added to the train split, ``extra_draws`` each.
+        command: the command line, recorded in the manifest.
+    Raises:
+        InputError: ``out`` holds pairs made with other settings.
+    """
+    from tqdm import tqdm
+
+    out = Path(out)
+    manifest = {
+        "config": asdict(cfg),
+        "train_draws": train_draws,
+        "val_draws": val_draws,
+        "seed": seed,
+        "extra_sources": sorted(extra or {}),
+        "extra_draws": extra_draws,
+        "val_scenes": [*VAL_SCENES, f"random scenes of seed {seed + 2 * VAL_SEED_OFFSET}"],
+    }
+    path = out / MANIFEST
+    if path.is_file():
+        old = json.loads(path.read_text())
+        if {k: old.get(k) for k in manifest} != json.loads(json.dumps(manifest)):
+            raise InputError("--out holds pairs made with other settings; use a new folder", path=out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, json.dumps({**manifest, "command": command}, indent=2))
+    counters = dict.fromkeys(("train", "val"), 0)
+    jobs = plan(cfg, train_draws, val_draws, seed, extra or {}, extra_draws)
+    total = sum(-(-n // DRAWS_PER_SHARD) for _, _, n in jobs)
+    with tqdm(total=total, unit="shard", desc="recon pairs", disable=not progress) as bar:
+        for split, draw, count in jobs:
+            for start in range(0, count, DRAWS_PER_SHARD):
+                target = shard_path(out, split, counters[split])
+                counters[split] += 1
+                if not target.is_file():
+                    samples = list(draw(range(start, min(start + DRAWS_PER_SHARD, count))))
+                    if samples:
+                        write_shard(target, samples)
+                bar.update(1)
+    return manifest

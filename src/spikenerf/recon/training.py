@@ -1,0 +1,221 @@
+"""``recon-train``: train the reconstructor on a pair folder, resumable, with curves and a final weights file.
+
+Run folder: ``config.json`` (settings + command), ``checkpoint.pt`` (atomic, ``weights_only``: model, Adam,
+the sampling generator, iteration), ``curves.csv`` (iteration, train L1, val PSNR of learned and of TFP over
+the same window, seconds) and, at the end, ``weights.pt`` (fp16, the shipped format) with ``weights.json``
+(how it was made). Every random choice comes from one ``torch.Generator`` saved in the checkpoint, so a
+resumed run is bit-identical to an uninterrupted one (same thread count).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+from spikenerf.core.psnr import mse_to_psnr
+from spikenerf.recon.features import brightness_scale
+from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights
+from spikenerf.recon.store import PairSet, load_split, read_manifest
+
+CHECKPOINT_FORMAT = "spikenerf-recon-checkpoint-1"
+CURVES_HEADER = ["iteration", "train_l1", "val_psnr_learned", "val_psnr_tfp", "seconds"]
+
+
+@dataclass(frozen=True)
+class ReconTrainConfig:
+    """Training settings: steps, batch of crops, crop side, Adam learning rate (cosine-decayed to 5 %),
+    network width, seed, validation/checkpoint periods and the number of val samples scored."""
+
+    iters: int = 4000
+    batch: int = 16
+    crop: int = 40
+    lr: float = 2e-3
+    width: int = 16
+    seed: int = 0
+    eval_every: int = 250
+    ckpt_every: int = 100
+    val_samples: int = 128
+
+    def check(self) -> ReconTrainConfig:
+        for name in ("iters", "batch", "crop", "width", "eval_every", "ckpt_every", "val_samples"):
+            if getattr(self, name) < 1:
+                raise InputError(f"--{name.replace('_', '-')} must be ≥ 1, found {getattr(self, name)}")
+        if not self.lr > 0:
+            raise InputError(f"--lr must be > 0, found {self.lr}")
+        return self
+
+
+def learning_rate(cfg: ReconTrainConfig, it: int) -> float:
+    """Cosine decay from ``lr`` to ``0.05·lr`` over ``iters`` steps (a function of the step only)."""
+    return cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(it, cfg.iters) / cfg.iters)))
+
+
+def sample_batch(pairs: PairSet, cfg: ReconTrainConfig, gen: torch.Generator) -> tuple[torch.Tensor, ...]:
+    """A random batch: windows (B, K, c, c), targets (B, c, c), scales (B,) of whole samples; random crops,
+    flips and 90° rotations (applied to spikes and target alike)."""
+    index = torch.randint(len(pairs), (cfg.batch,), generator=gen)
+    win, tgt = pairs.windows(index), pairs.targets[index]
+    scale = brightness_scale(win)
+    size = tgt.shape[-1]
+    c = min(cfg.crop, size)
+    ys, xs = torch.randint(size - c + 1, (2, cfg.batch), generator=gen)
+    ops = torch.randint(8, (cfg.batch,), generator=gen)
+    wins, tgts = [], []
+    for b in range(cfg.batch):
+        y, x, op = int(ys[b]), int(xs[b]), int(ops[b])
+        w, t = win[b, :, y : y + c, x : x + c], tgt[b, y : y + c, x : x + c]
+        if op & 4:
+            w, t = w.flip(-1), t.flip(-1)
+        wins.append(torch.rot90(w, op & 3, (-2, -1)))
+        tgts.append(torch.rot90(t, op & 3, (-2, -1)))
+    return torch.stack(wins), torch.stack(tgts), scale
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per-image PSNR (dB) of rates clipped to [0, 1], peak 1: (N, H, W) → (N,) float64."""
+    mse = ((pred.clamp(0, 1) - target.clamp(0, 1)) ** 2).flatten(1).mean(1)
+    return mse_to_psnr(mse.clamp_min(1e-10))
+
+
+@torch.no_grad()
+def validate(net: ReconNet, pairs: PairSet, count: int) -> tuple[float, float]:
+    """Mean PSNR of the learned and the TFP (same window) rates on the first ``count`` val samples."""
+    scores, base = [], []
+    for a in range(0, min(count, len(pairs)), 32):
+        index = torch.arange(a, min(a + 32, count, len(pairs)))
+        win, tgt = pairs.windows(index), pairs.targets[index]
+        scores.append(psnr(net(win, brightness_scale(win)), tgt))
+        base.append(psnr(win.mean(1), tgt))
+    return float(torch.cat(scores).mean()), float(torch.cat(base).mean())
+
+
+def train_recon(
+    pairs_dir: str | Path,
+    out: str | Path,
+    cfg: ReconTrainConfig,
+    command: str = "",
+    progress: bool = True,
+    stop_at: int | None = None,
+) -> dict:
+    """Train (or resume) a reconstructor into ``out``; returns the summary (also in ``weights.json``).
+
+    ``stop_at`` ends the run after that many steps without the final export (an interruption, for tests).
+    """
+    from tqdm import tqdm
+
+    cfg.check()
+    out = Path(out)
+    manifest = read_manifest(pairs_dir)
+    train, val = load_split(pairs_dir, "train"), load_split(pairs_dir, "val")
+    net = ReconNet(NetConfig(window=train.window, width=cfg.width))
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    start, elapsed = _resume(out, cfg, net, opt, gen)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(
+        out / "config.json",
+        json.dumps({"config": asdict(cfg), "pairs": str(pairs_dir), "command": command}, indent=2),
+    )
+    rows = _curves(out, start)
+    t0, it, end = (
+        time.perf_counter() - elapsed,
+        start,
+        cfg.iters if stop_at is None else min(stop_at, cfg.iters),
+    )
+    bar = tqdm(total=cfg.iters, initial=start, unit="it", desc="recon-train", disable=not progress)
+    running = float("nan")
+    while it < end:
+        win, tgt, scale = sample_batch(train, cfg, gen)
+        for group in opt.param_groups:
+            group["lr"] = learning_rate(cfg, it)
+        loss = ((net(win, scale) - tgt) / scale.view(-1, 1, 1)).abs().mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        it += 1
+        value = float(loss.detach())
+        running = value if math.isnan(running) else 0.95 * running + 0.05 * value
+        bar.update(1)
+        bar.set_postfix(l1=f"{running:.4f}")
+        if it % cfg.eval_every == 0 or it == cfg.iters:
+            learned, tfp = validate(net.eval(), val, cfg.val_samples)
+            net.train()
+            rows.append(
+                [it, f"{running:.5f}", f"{learned:.3f}", f"{tfp:.3f}", f"{time.perf_counter() - t0:.1f}"]
+            )
+            _write_curves(out, rows)
+            bar.write(f"iter {it}: val PSNR learned {learned:.2f} dB, TFP {tfp:.2f} dB")
+        if it % cfg.ckpt_every == 0 or it == end:
+            save_torch(
+                out / "checkpoint.pt",
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "iteration": it,
+                    "elapsed": time.perf_counter() - t0,
+                    "model": net.state_dict(),
+                    "optimizer": opt.state_dict(),
+                    "rng": gen.get_state(),
+                    "config": asdict(cfg),
+                },
+            )
+    bar.close()
+    if it < cfg.iters:
+        return {"iteration": it}
+    learned, tfp = validate(net.eval(), val, len(val))
+    summary = {
+        "command": command,
+        "pairs": manifest,
+        "train_samples": len(train),
+        "val_samples": len(val),
+        "config": asdict(cfg),
+        "seconds": round(time.perf_counter() - t0, 1),
+        "val_psnr_learned": round(learned, 3),
+        "val_psnr_tfp": round(tfp, 3),
+        "threads": torch.get_num_threads(),
+    }
+    save_weights(out / "weights.pt", net, list(manifest["config"]["modes"]), summary)
+    write_text_atomic(out / "weights.json", json.dumps(summary, indent=2))
+    return summary
+
+
+def _resume(out: Path, cfg: ReconTrainConfig, net: ReconNet, opt, gen: torch.Generator) -> tuple[int, float]:
+    """Load ``out/checkpoint.pt`` if present; returns (iteration, elapsed seconds)."""
+    if not (out / "checkpoint.pt").is_file():
+        return 0, 0.0
+    data = read_torch(out / "checkpoint.pt", "checkpoint", CHECKPOINT_FORMAT)
+    stored = {k: v for k, v in data.get("config", {}).items() if k != "iters"}
+    if stored != {k: v for k, v in asdict(cfg).items() if k != "iters"}:
+        raise InputError(
+            "--out holds a run with other settings (only --iters may change on resume)", path=out
+        )
+    try:
+        net.load_state_dict(data["model"])
+        opt.load_state_dict(data["optimizer"])
+        gen.set_state(data["rng"])
+    except (KeyError, RuntimeError) as err:
+        raise InputError(
+            f"checkpoint does not fit this reconstructor ({type(err).__name__})", path=out
+        ) from err
+    return int(data["iteration"]), float(data.get("elapsed", 0.0))
+
+
+def _curves(out: Path, start: int) -> list[list]:
+    """Curve rows up to the resumed iteration (later rows came after the checkpoint and are redone)."""
+    path = out / "curves.csv"
+    if not path.is_file() or start == 0:
+        return []
+    with open(path, newline="") as fh:
+        return [row for row in list(csv.reader(fh))[1:] if row and int(row[0]) <= start]
+
+
+def _write_curves(out: Path, rows: list[list]) -> None:
+    text = ",".join(CURVES_HEADER) + "\n" + "".join(",".join(str(v) for v in r) + "\n" for r in rows)
+    write_text_atomic(out / "curves.csv", text)

@@ -1,0 +1,173 @@
+"""``benchmark --executor ray``: same numbers as the local executor, a killed worker's cell is retried, and a
+clear one-line hint without Ray. The Ray tests start their own 2-CPU cluster on 127.0.0.1 and shut it down."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from spikenerf.cli import main
+from spikenerf.core.errors import InputError
+from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
+from spikenerf.pipelines.ray_executor import INSTALL_HINT, scratch_root
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+TRAIN = [
+    "--batch",
+    "64",
+    "--eval-every",
+    "2",
+    "--eval-views",
+    "1",
+    "--spike-window",
+    "8",
+    "--spike-pixels",
+    "8",
+]
+WORKER = re.compile(r"Ray worker pid (\d+)")
+
+
+def tiny(out: Path, variants: list[str], **kw: object) -> BenchmarkConfig:
+    return BenchmarkConfig(
+        ["analytic-orbs"], variants, ["gray"], out, size=16, frames=60, iters=4, device="cpu",
+        test_views=1, render=False, extra_train_args=TRAIN, **kw,  # type: ignore[arg-type]
+    )  # fmt: skip
+
+
+def numbers(out: Path) -> list[dict]:
+    """results.json's cells without their timings."""
+    cells = json.loads((out / "results.json").read_text())["cells"]
+    return [{k: v for k, v in c.items() if k != "seconds"} for c in cells]
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """A local 2-CPU Ray cluster on 127.0.0.1; its workers import this checkout. Yields their scratch root."""
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'spikenerf[cluster]')")
+    scratch = tmp_path_factory.mktemp("scratch")
+    saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "OMP_NUM_THREADS", "SPIKENERF_RAY_SCRATCH")}
+    os.environ.update(PYTHONPATH=os.pathsep.join(filter(None, [str(SRC), saved["PYTHONPATH"]])),
+                      OMP_NUM_THREADS="1", SPIKENERF_RAY_SCRATCH=str(scratch))  # fmt: skip
+    ray.init(address="local", num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1",
+             log_to_driver=False)  # fmt: skip
+    try:
+        yield scratch
+    finally:
+        ray.shutdown()
+        for key, value in saved.items():
+            os.environ.pop(key, None) if value is None else os.environ.__setitem__(key, value)
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny benchmark (one spike-nerf cell) under the local executor."""
+    out = tmp_path_factory.mktemp("local") / "b"
+    run_benchmark(tiny(out, ["spike-nerf"]))
+    return out
+
+
+def test_ray_gives_the_local_numbers_shared_and_shipped(
+    cluster: Path, local_run: Path, tmp_path: Path
+) -> None:
+    on_ray = run_benchmark(tiny(tmp_path / "ray", ["spike-nerf"], executor="ray"))
+    assert numbers(tmp_path / "ray") == numbers(local_run) and on_ray[0].psnr > 5
+    assert "wrote" in (tmp_path / "ray" / "logs" / "simulate-analytic-orbs.log").read_text()
+    # no shared storage: the dataset travels out to the worker, the run comes back through the object store
+    shipped = tmp_path / "shipped"
+    shutil.copytree(local_run / "datasets", shipped / "datasets")
+    run_benchmark(tiny(shipped, ["spike-nerf"], executor="ray", ship_results=True))
+    assert numbers(shipped) == numbers(local_run)
+    scratch = scratch_root(str(shipped.resolve()))
+    run = "runs/analytic-orbs/gray/spike-nerf"
+    assert scratch.is_relative_to(cluster) and (scratch / run / "metrics.json").is_file()
+    config = (shipped / run / "config.yaml").read_text()
+    assert str(shipped.resolve()) in config and str(scratch) not in config
+    assert WORKER.search((shipped / "logs" / "analytic-orbs-gray-spike-nerf.log").read_text())
+
+
+def _children(pid: int) -> list[int]:
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                found.append(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the worker's child through /proc")
+def test_killed_worker_cell_is_retried_and_nothing_is_lost(
+    cluster: Path, local_run: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "b"
+    shutil.copytree(local_run, out)  # the dataset and a finished spike-nerf cell
+    finished = out / "runs/analytic-orbs/gray/spike-nerf/metrics.json"
+    before = finished.stat().st_mtime_ns
+    log = out / "logs" / "analytic-orbs-gray-nerf-gt.log"
+    killed: dict = {}
+
+    def kill_the_worker() -> None:
+        """Once the cell's train step runs, SIGKILL the Ray worker that started it."""
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and "pid" not in killed:
+            found = WORKER.search(log.read_text()) if log.is_file() else None
+            children = _children(int(found.group(1))) if found else []
+            if found and children:
+                done = (out / "runs/analytic-orbs/gray/nerf-gt/metrics.json").exists()
+                killed.update(pid=int(found.group(1)), children=children, mid_cell=not done)
+                os.kill(killed["pid"], signal.SIGKILL)
+                time.sleep(3)
+                killed["orphans"] = [c for c in children if Path(f"/proc/{c}").exists()]
+            time.sleep(0.1)
+
+    killer = threading.Thread(target=kill_the_worker)
+    killer.start()
+    cells = run_benchmark(tiny(out, ["spike-nerf", "nerf-gt"], executor="ray", retries=2))
+    killer.join()
+    assert killed.get("pid") and killed["mid_cell"], killed
+    assert killed["orphans"] == []  # the killed worker's train step died with it
+    attempts = WORKER.findall(log.read_text())
+    assert len(attempts) == 2 and attempts[0] == str(killed["pid"]) != attempts[1]
+    assert [c.variant for c in cells] == ["spike-nerf", "nerf-gt"] and all(c.psnr > 5 for c in cells)
+    assert finished.stat().st_mtime_ns == before  # the finished cell was not run again
+    assert [c["variant"] for c in numbers(out)] == ["spike-nerf", "nerf-gt"]
+    assert numbers(out)[0] == numbers(local_run)[0]
+
+
+def test_failing_cell_is_retried_and_its_logs_kept(cluster: Path, local_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "b"
+    shutil.copytree(local_run / "datasets", out / "datasets")
+    cfg = tiny(out, ["nerf-gt"], executor="ray", retries=1)
+    cfg.extra_train_args = [*TRAIN, "--no-such-flag"]  # train exits with code 2
+    with pytest.raises(
+        InputError, match=r"1 job\(s\) failed after 1 retries: analytic-orbs-gray-nerf-gt \(step "
+    ):
+        run_benchmark(cfg)
+    log = (out / "logs" / "analytic-orbs-gray-nerf-gt.log").read_text()
+    assert len(WORKER.findall(log)) == 2 and log.count("--no-such-flag") == 2  # both attempts' output kept
+    assert not (out / "results.json").exists()
+
+
+def test_without_ray_one_line_hint_exit_2(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray → ImportError
+    out = tmp_path / "bench"
+    with pytest.raises(SystemExit) as exit_:
+        main(["benchmark", "--scenes", "analytic-orbs", "--executor", "ray", "--out", str(out)])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.splitlines() == [f"spikenerf: error: {INSTALL_HINT}"]
+    assert "pip install 'spikenerf[cluster]'" in err
+    assert not out.exists()  # nothing written
