@@ -23,6 +23,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.samplers import WindowOrder
 from spikenerf.data.targets import Method, TrainColor
 from spikenerf.fields import FIELD_KINDS, FieldKind
+from spikenerf.train.amp import AmpMode
 from spikenerf.train.logger import LogKind
 from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
 
@@ -99,6 +100,7 @@ class TrainConfig:
         log: ``none`` or ``tensorboard`` (event files in ``RUN/tensorboard/``; curves.csv is always written).
         log_every: iterations between reads of the loss terms (progress bar, TensorBoard scalars): the
             per-step values are summed on the device and read only then.
+        amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
     """
 
@@ -117,6 +119,7 @@ class TrainConfig:
     ckpt_every: int = 500
     log: LogKind = "none"
     log_every: int = 25
+    amp: AmpMode = "none"
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
