@@ -17,11 +17,10 @@ from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 import yaml
 
-from spikenerf.camera.reconstruct import ReconMethod
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.samplers import WindowOrder
-from spikenerf.data.targets import Method, TrainColor
+from spikenerf.data.targets import Method, TargetRecon, TrainColor
 from spikenerf.fields import FIELD_KINDS, FieldKind
 from spikenerf.train.amp import AmpMode
 from spikenerf.train.logger import LogKind
@@ -41,7 +40,7 @@ class TargetConfig:
         blur_samples: poses per exposure averaged by nerf-blur-aware.
     """
 
-    recon: ReconMethod = "tfp"
+    recon: TargetRecon = "tfp"
     window: int = 41
     mask: bool = True
     mask_n: int = 5
