@@ -54,6 +54,7 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
     from spikenerf.camera.reconstruct import METHODS, ReconMethod
     from spikenerf.data.targets import COLORS as TRAIN_COLORS
     from spikenerf.data.targets import METHODS as TRAIN_METHODS
+    from spikenerf.data.targets import RECONS, TargetRecon
     from spikenerf.fields import FIELD_KINDS, FieldKind
 
     def choices(command: str, option: str) -> list[str]:
@@ -63,8 +64,9 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
         return list(param.type.choices)
 
     assert typing.get_args(ColorMode) == COLORS and choices("simulate", "color") == [*COLORS, "all"]
-    assert typing.get_args(ReconMethod) == METHODS == tuple(choices("reconstruct", "method"))
-    assert tuple(choices("train", "recon")) == METHODS
+    assert typing.get_args(ReconMethod) == METHODS and (*METHODS, "learned") == RECONS
+    assert tuple(choices("reconstruct", "method")) == RECONS == typing.get_args(TargetRecon)
+    assert tuple(choices("train", "recon")) == RECONS
     assert tuple(choices("train", "field")) == FIELD_KINDS == typing.get_args(FieldKind)
     assert (
         tuple(choices("train", "method")) == TRAIN_METHODS

@@ -150,7 +150,8 @@ def test_simulate_end_to_end(tmp_path: Path) -> None:
     _simulate(out, "--color", "all", "--threshold", "1.5", "--seed", "3")
     names = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
     assert names == sorted(
-        ["config.yaml", "transforms.json", "transforms_blur.json", "transforms_test.json", "spikes_gray.dat",
+        [".spikenerf", "config.yaml", "transforms.json", "transforms_blur.json", "transforms_test.json",
+         "spikes_gray.dat",
          "transforms_gt.json", "transforms_tfp.json", *[f"tfp/{s:05d}.png" for s in range(0, 50, 10)],
          "spikes_rgb_r.dat", "spikes_rgb_g.dat", "spikes_rgb_b.dat", "spikes_bayer.dat",
          *[f"gt/{s:05d}.png" for s in range(0, 50, 10)], *[f"blur/{i:05d}.png" for i in range(5)],

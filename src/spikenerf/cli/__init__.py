@@ -60,10 +60,20 @@ class LazyGroup(click.Group):
     help="CPU threads per process (sets OMP_NUM_THREADS, inherited by the runs that benchmark and demo "
     "start) [default: torch's choice]. On a busy 2-core machine, 1 is several times faster.",
 )
-def cli(threads: int | None) -> None:
+@click.option(
+    "--no-limits",
+    is_flag=True,
+    help="Skip the memory and disk estimates that refuse oversized jobs before they start "
+    "(inherited by the runs that benchmark and demo start).",
+)
+def cli(threads: int | None, no_limits: bool) -> None:
     """spikenerf: spike cameras, from simulation to Spike-NeRF novel views and novel spike streams."""
     if threads is not None:
         set_cpu_threads(threads)
+    if no_limits:
+        from spikenerf.core.limits import NO_LIMITS_ENV
+
+        os.environ[NO_LIMITS_ENV] = "1"
 
 
 def set_cpu_threads(threads: int) -> None:
@@ -73,18 +83,34 @@ def set_cpu_threads(threads: int) -> None:
         sys.modules["torch"].set_num_threads(threads)
 
 
+def _fail(message: str, code: int = 2) -> None:
+    from spikenerf.core.errors import one_line
+
+    click.echo(f"spikenerf: error: {one_line(message)}", err=True)
+    sys.exit(code)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: run the group; InputError → one line on stderr, exit code 2."""
+    """Console entry point: run the group; bad input (InputError, a usage error, a path the system refuses,
+    an allocation that fails) → one line on stderr, exit code 2."""
     try:
         cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
     except InputError as err:
-        click.echo(f"spikenerf: error: {err}", err=True)
-        sys.exit(2)
+        _fail(str(err))
     except click.exceptions.Abort:
         click.echo("spikenerf: aborted", err=True)
         sys.exit(130)
+    except click.UsageError as err:
+        hint = f" (see `{err.ctx.command_path} --help`)" if err.ctx is not None else ""
+        _fail(err.format_message() + hint, err.exit_code)
     except click.ClickException as err:
-        err.show()
-        sys.exit(err.exit_code)
+        _fail(err.format_message(), err.exit_code)
+    except (
+        OSError
+    ) as err:  # a path the system refuses (permissions, a file where a folder must be, full disk)
+        where = f"{err.filename}: " if err.filename else ""
+        _fail(f"{where}{err.strerror or err}")
+    except MemoryError:
+        _fail("out of memory: lower the sizes (frames, width, height, batch, grid size)")
     except click.exceptions.Exit as err:
         sys.exit(err.exit_code)

@@ -16,9 +16,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from spikenerf.camera.reconstruct import METHODS as RECON_METHODS
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.data.targets import RECONS
 
 DEFAULT_WINDOW = 41
 #: output frames reconstructed per block (bounds memory; one progress-bar step)
@@ -92,7 +92,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
 @click.argument("spikes", type=click.Path(path_type=Path))
 @click.option("--height", type=int, help="Frame height in pixels [default: spike_h of ./config.yaml].")
 @click.option("--width", type=int, help="Frame width in pixels [default: spike_w of ./config.yaml].")
-@click.option("--method", type=click.Choice([*RECON_METHODS, "learned"]), required=True)
+@click.option("--method", type=click.Choice(RECONS), required=True)
 @click.option("--weights", type=click.Path(path_type=Path), help="learned: weights file [default: shipped].")
 @click.option(
     "--color",

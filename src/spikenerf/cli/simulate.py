@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import shlex
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,7 @@ DEFAULT_SIZE = 200
 DEFAULT_STEPS = 1000
 DEFAULT_TEST_VIEWS = 8
 ORBIT_OPTIONS = ("frames", "duration", "radius", "elevation", "turns")
+FLOAT_OPTIONS = ("fps", "threshold", "radius", "elevation", "turns", "duration", "blur_fps")
 
 
 #: camera.model.COLORS, repeated so that this module (and `simulate --help`) does not import torch;
@@ -113,8 +115,12 @@ def command(**kw: Any) -> None:
             raise InputError(
                 f"--{name.replace('_', '-')} must be ≥ {0 if name == 'test_views' else 1}, found {kw[name]}"
             )
-    if (Path(kw["out"]).exists() or Path(kw["out"]).is_symlink()) and not kw["overwrite"]:
-        raise InputError("output already exists; pass --overwrite to replace it", path=kw["out"])
+    for name in FLOAT_OPTIONS:  # nan/inf would write NaN poses or hang the camera
+        if kw[name] is not None and not math.isfinite(kw[name]):
+            raise InputError(f"--{name.replace('_', '-')}: expected a finite number, found {kw[name]}")
+    from spikenerf.core.marker import check_output
+
+    check_output(kw["out"], "dataset", overwrite=bool(kw["overwrite"]))
     source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
     from spikenerf.data.blur import parse_blur_views
     from spikenerf.data.simulate import SimulateOptions, simulate_dataset
@@ -168,16 +174,17 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     turns = 1.0 if kw["turns"] is None else float(kw["turns"])
     if radius <= 0:
         raise InputError(f"--radius must be positive, found {radius:g}")
+    width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
+    height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
+    views = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
+    _check_resources(kw, "--width/--height/--frames", width, height, steps, views)
     trajectory = orbit(radius, elevation, turns=turns, duration=steps / fps, fps=fps, center=center)
     if kw["eval_views"] is not None:
         from spikenerf.data.dataset import read_pose_file
 
         test_poses = read_pose_file(kw["eval_views"])
     else:
-        count = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
-        test_poses = novel_views(radius, count, center=center) if count else np.zeros((0, 4, 4))
-    width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
-    height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
+        test_poses = novel_views(radius, views, center=center) if views else np.zeros((0, 4, 4))
     source = registry.make_scene_source(
         scene, width, height, trajectory, test_poses, kw["spp"], int(kw["seed"])
     )
@@ -195,6 +202,17 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     spp = getattr(settings, "spp", None) or getattr(source, "supersample", 0) ** 2 or kw["spp"]
     extra["spp"] = spp if spp is None else int(spp)
     return source, extra
+
+
+def _check_resources(kw: dict, flags: str, width: int, height: int, steps: int, views: int) -> None:
+    """Refuse (InputError naming ``flags``) a run larger than this machine's memory or free disk."""
+    from spikenerf.data.simulate import check_simulate_resources
+
+    blur = 0 if not kw["blur_fps"] or kw["blur_fps"] <= 0 else max(1, int(steps * kw["blur_fps"] / kw["fps"]))
+    check_simulate_resources(
+        Path(kw["out"]), flags, width=width, height=height, steps=steps, colors=_colors(str(kw["color"])),
+        test_views=views, spp=kw["spp"] or 16, gt_every=max(1, int(kw["gt_every"])), blur_frames=blur,
+    )  # fmt: skip
 
 
 def _sequence_source(kw: dict) -> tuple[Any, dict]:
@@ -218,6 +236,8 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
         eval_views=kw["eval_views"],
         fps=float(kw["fps"]),
     )
+    k = source.intrinsics
+    _check_resources(kw, "--width/--height/--sequence-range", k.width, k.height, len(source.trajectory), 8)
     extra = {
         "trajectory": {
             "kind": "sequence",

@@ -8,6 +8,7 @@ import click
 
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, METHODS, RECONS
+from spikenerf.train.amp import AMP_MODES
 from spikenerf.train.config import FIELDS, SPIKE_LOSS_KINDS, TrainConfig, apply_overrides, load_config
 from spikenerf.train.logger import LOG_KINDS
 from spikenerf.train.trainer import CONFIG_FILE, train
@@ -27,6 +28,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "ckpt_every": (None, "ckpt_every"),
     "log": (None, "log"),
     "log_every": (None, "log_every"),
+    "amp": (None, "amp"),
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
     "blur_samples": ("targets", "blur_samples"),
@@ -129,6 +131,13 @@ def validated(config: TrainConfig) -> TrainConfig:
     default=_D.log_every,
     show_default=True,
     help="Iterations between reads of the loss terms (progress bar, TensorBoard).",
+)
+@click.option(
+    "--amp",
+    type=click.Choice(AMP_MODES),
+    default=_D.amp,
+    show_default=True,
+    help="Mixed-precision training step (bf16 also on a CPU; fp16 with a gradient scaler, for CUDA).",
 )
 @click.option(
     "--field-option",

@@ -9,6 +9,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from spikenerf.core.faults import failpoint
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
@@ -24,6 +26,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     tmp.unlink()
     try:
         yield tmp
+        failpoint(f"write:{path.name}")
         if tmp.is_dir() and path.is_dir():
             old = path.with_name(f".{path.name}.old")
             shutil.rmtree(old, ignore_errors=True)
@@ -48,3 +51,17 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
 def write_text_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def clean_stale_temps(folder: str | Path) -> list[str]:
+    """Delete the temporaries (``.NAME….tmp`` files or folders) a killed writer left in ``folder``.
+
+    Call it only while holding the folder's writer lock (``core/lock.py``): a live writer's temporaries
+    look the same. Returns the names removed.
+    """
+    folder = Path(folder)
+    removed = []
+    for tmp in folder.glob(".*.tmp") if folder.is_dir() else []:
+        shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
+        removed.append(tmp.name)
+    return removed

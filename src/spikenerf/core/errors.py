@@ -4,13 +4,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
+#: longest message an InputError keeps (foreign library errors can run to pages)
+MAX_MESSAGE = 400
+
+
+def one_line(text: str, limit: int = MAX_MESSAGE) -> str:
+    """``text`` with every run of whitespace (newlines included) collapsed to one space, cut at ``limit``."""
+    flat = " ".join(str(text).split())
+    return flat if len(flat) <= limit else flat[: limit - 1] + "…"
+
 
 class InputError(ValueError):
     """Bad input from the user: a malformed file, wrong sizes, a missing field, a path escaping a root.
 
-    The message must name the file or field and say what was expected and what was found.
+    The message must name the file or field and say what was expected and what was found. It is kept to
+    one line (see :func:`one_line`), whatever a wrapped library error said.
     """
 
     def __init__(self, message: str, path: str | Path | None = None) -> None:
         self.path = None if path is None else str(path)
+        message = one_line(message)
         super().__init__(f"{self.path}: {message}" if self.path else message)

@@ -54,7 +54,7 @@ def read_display(path: Path) -> np.ndarray:
     try:
         data = path.read_bytes()
         arr = decode_png16(data, path) if is_png16(data) else np.asarray(iio.imread(data))
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, SyntaxError) as err:  # Pillow raises SyntaxError for a broken PNG
         if isinstance(err, InputError):
             raise
         raise InputError(f"cannot read image ({err})", path=path) from err

@@ -14,13 +14,19 @@ import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from spikenerf import __version__
 from spikenerf.camera.model import CameraConfig, SpikeCamera
+from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
+from spikenerf.core.faults import failpoint
+from spikenerf.core.limits import check_resources
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
 from spikenerf.data.dataset import MODES, near_far
 from spikenerf.data.writer import DatasetWriter
@@ -84,6 +90,29 @@ def _fingerprint(source: FrameSource) -> dict:
     }
 
 
+def estimate_resources(
+    width: int, height: int, steps: int, colors: tuple[str, ...] = ("gray",), test_views: int = 8,
+    spp: int | None = 4, gt_every: int = 10, blur_frames: int = 0,
+) -> tuple[float, float]:  # fmt: skip
+    """(peak memory, disk) in bytes of a ``simulate`` run, upper-ish estimates from its sizes.
+
+    Memory: one frame's supersampled rays and their intermediates (~256 B per ray), the cameras' state and
+    spike buffers per mode, the held-out views and the poses. Disk: the float16 frame cache, the ``.dat``
+    streams, 16-bit PNGs (GT, blur, test; uncompressed bound) and the JSON lines of the steps.
+    """
+    px, channels = float(width) * float(height), sum(3 if c == "rgb" else 1 for c in colors)
+    rays = px * max(1, spp or 1)
+    memory = rays * 256 + px * (len(colors) * (160 + SPIKE_CHUNK * 3) + 12 * test_views + 48) + steps * 200
+    pngs = steps / max(gt_every, 1) + blur_frames + test_views
+    disk = steps * px * 6 + px * channels * steps / 8 + pngs * px * 6 + steps * 700 + test_views * px * 16
+    return memory, disk
+
+
+def check_simulate_resources(out: Path, flags: str, **sizes: Any) -> None:
+    """InputError (naming ``flags``) when :func:`estimate_resources` exceeds the memory or disk at hand."""
+    check_resources(*estimate_resources(**sizes), out, flags)
+
+
 def _save_npy(path: Path, array: np.ndarray) -> None:
     """``np.save`` through a temporary sibling so an interrupted write never leaves a corrupt cache entry."""
     tmp = path.with_name(f".{path.name}.tmp")
@@ -109,10 +138,20 @@ def open_cache(source: FrameSource, work: Path) -> Path:
     return cache
 
 
+def _cached(path: Path, shape: tuple[int, ...]) -> bool:
+    """True when ``path`` holds a whole cached frame of ``shape`` (a truncated or foreign file is False)."""
+    try:
+        frame = np.load(path, mmap_mode="r", allow_pickle=False)
+        return frame.shape == shape and frame.dtype == np.float16
+    except (OSError, ValueError, EOFError):
+        return False
+
+
 def render_missing(source: FrameSource, cache: Path, progress: bool = True) -> int:
     """Render the steps (and the test views) not yet in ``cache``; returns the number of steps rendered."""
-    missing = [int(s) for s in source.trajectory.steps if not (cache / f"{int(s):05d}.npy").exists()]
     k = source.intrinsics
+    shape = (k.height, k.width, 3)
+    missing = [int(s) for s in source.trajectory.steps if not _cached(cache / f"{int(s):05d}.npy", shape)]
     bar = tqdm(total=len(missing), desc="render", unit="step", disable=not progress or not missing)
     for step, frame in zip(missing, source.frames(missing), strict=True):
         frame = np.asarray(frame)
@@ -122,15 +161,25 @@ def render_missing(source: FrameSource, cache: Path, progress: bool = True) -> i
                 f"for step {step}; expected finite ({k.height}, {k.width}, 3)"
             )
         _save_npy(cache / f"{step:05d}.npy", frame.astype(np.float16))
+        failpoint("simulate.render")
         bar.update()
     bar.close()
-    if not (cache / "test.npz").exists():
+    if not _test_cached(cache / "test.npz"):
         poses, frames = source.test_views()
         tmp = cache / ".test.npz.tmp"
         with open(tmp, "wb") as fh:
             np.savez(fh, poses=np.asarray(poses, np.float64), frames=np.asarray(frames, np.float32))
         os.replace(tmp, cache / "test.npz")
     return len(missing)
+
+
+def _test_cached(path: Path) -> bool:
+    """True when ``path`` is a readable test-view archive."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return z["frames"].dtype == np.float32 and z["poses"].shape[0] == z["frames"].shape[0]
+    except Exception:  # missing, truncated (zipfile.BadZipFile), foreign: render the test views again
+        return False
 
 
 def check_options(options: SimulateOptions) -> None:
@@ -195,6 +244,7 @@ def stream_steps(
             if len(buffers[c]) == SPIKE_CHUNK or i == len(traj) - 1:
                 writer.append_spikes(c, np.stack(buffers[c]))
                 buffers[c].clear()
+        failpoint("simulate.spikes")
         if i % options.gt_every == 0:
             writer.add_gt(int(step), frame)
         for w, image in blur.push(frame):
@@ -253,13 +303,19 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
     """
     out = Path(out)
     check_options(options)
-    if (out.exists() or out.is_symlink()) and not options.overwrite:
-        raise InputError("output already exists; pass --overwrite to replace it", path=out)
+    check_output(out, "dataset", overwrite=options.overwrite)
+    with output_lock(out):
+        check_output(out, "dataset", overwrite=options.overwrite)  # again, now that no one else writes
+        return _simulate_locked(source, out, options, progress)
+
+
+def _simulate_locked(source: FrameSource, out: Path, options: SimulateOptions, progress: bool) -> Path:
     traj, k = source.trajectory, source.intrinsics
     windows = blur_windows(len(traj), traj.fps, options.blur_fps, options.blur_views)
     work = work_dir(out)
     fresh = not work.exists()
     cache = open_cache(source, work)
+    clean_stale_temps(cache)
     try:
         render_missing(source, cache, progress)
     except BaseException:
@@ -280,6 +336,8 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
         writer.add_test(image, pose)
     config = dataset_config(source, options, len(test_poses))
     writer.finish(traj, config, options.blur_fps if windows else None)
+    mark(work, "dataset")
+    failpoint("simulate.publish")
     shutil.rmtree(cache)
     _replace_dir(work, out)
     return out

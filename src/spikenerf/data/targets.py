@@ -23,17 +23,17 @@ import torch
 from torch import Tensor
 
 from spikenerf.camera.masks import spike_masks
-from spikenerf.camera.reconstruct import METHODS as CAMERA_RECONS
-from spikenerf.camera.reconstruct import tfi, tfp
+from spikenerf.camera.reconstruct import ReconMethod, tfi, tfp
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
 
 if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
 
-#: training methods (each defines its targets)
 #: image reconstructions for targets: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
-RECONS: tuple[str, ...] = (*CAMERA_RECONS, "learned")
+TargetRecon = Literal[ReconMethod, "learned"]
+RECONS: tuple[str, ...] = get_args(TargetRecon)
+#: training methods (each defines its targets)
 Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt"]
 METHODS: tuple[str, ...] = get_args(Method)
 SPIKE_METHODS = ("spike-nerf", "nerf-recon")

@@ -22,6 +22,7 @@ from tqdm import tqdm
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
+from spikenerf.core.lock import output_lock
 from spikenerf.data.dataset import PosedImages, SpikeDataset
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, psnr, ssim
@@ -107,8 +108,17 @@ def evaluate_run(
         The metrics.json content (see docs/formats.md): split, method, color, field, iterations, views,
         mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, seconds.
     """
+    with output_lock(run_dir, "RUN"):
+        return _evaluate_locked(
+            Path(run_dir), split, device, dataset_root, lpips_backbone, chunk, progress, log
+        )
+
+
+def _evaluate_locked(
+    run_dir: Path, split: str, device: str, dataset_root: str | Path | None, lpips_backbone: str | None,
+    chunk: int, progress: bool, log: Callable[[str], None] | None,
+) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
-    run_dir = Path(run_dir)
     model, config, dataset = load_run(run_dir, dataset_root, device)
     views = split_views(dataset, split)
     k = dataset.intrinsics

@@ -35,6 +35,9 @@ from spikenerf.camera.reconstruct import tfp
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
+from spikenerf.core.limits import check_resources
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, read_pose_file
 from spikenerf.render import iter_spike_stream, render_image
 from spikenerf.scenes.trajectory import orbit
@@ -173,17 +176,42 @@ def render_run(
     log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Render a run along ``trajectory`` into ``out`` (see the module doc); returns render.json's content."""
-    if fps_video <= 0 or orbit_frames < 1 or (spike_steps is not None and spike_steps < 1):
+    bad_steps = spike_steps is not None and spike_steps < 1
+    if not (0 < fps_video < float("inf")) or orbit_frames < 1 or bad_steps:
         raise InputError(
             f"--fps-video, --orbit-frames and --spike-steps must be positive, found "
             f"{fps_video}, {orbit_frames}, {spike_steps}"
         )
+    out = Path(out)
+    check_output(out, "render", overwrite=True)
+    with output_lock(out):
+        return _render_locked(
+            run_dir, out, trajectory, spikes, fps_video, orbit_frames, spike_steps, seed, device,
+            dataset_root, chunk, progress, log,
+        )  # fmt: skip
+
+
+def check_render_resources(dataset: SpikeDataset, views: int, spike_steps: int, out: Path) -> None:
+    """Refuse a render whose frames (kept for the video and the depth range) or files exceed the machine."""
+    px = float(dataset.intrinsics.width) * dataset.intrinsics.height
+    memory = views * (px * 16 + 256) + spike_steps * (px * 3 + 256)
+    disk = views * px * 14 + spike_steps * px * 3 / 8
+    check_resources(memory, disk, out, "--orbit-frames/--spike-steps/--trajectory")
+
+
+def _render_locked(
+    run_dir: str | Path, out: Path, trajectory: str, spikes: bool, fps_video: float, orbit_frames: int,
+    spike_steps: int | None, seed: int, device: str, dataset_root: str | Path | None, chunk: int,
+    progress: bool, log: Callable[[str], None] | None,
+) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, _, dataset = load_run(run_dir, dataset_root, device)
+    views = orbit_frames if trajectory == "orbit" else len(dataset.test) if trajectory == "test" else 0
+    n_spikes = (spike_steps or len(dataset.trajectory)) if spikes and trajectory == "orbit" else views
+    check_render_resources(dataset, views, n_spikes if spikes else 0, out)
     name, poses = resolve_trajectory(trajectory, dataset, orbit_frames)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError("--out must be a folder", path=out)
+    check_render_resources(dataset, len(poses), n_spikes if spikes else 0, out)
+    mark(out, "render")
     k = dataset.intrinsics
     colors, depths, opacities = [], [], []
     for pose in tqdm(poses, desc=f"render {name}", unit="view", disable=not progress):

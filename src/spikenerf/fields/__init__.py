@@ -26,6 +26,7 @@ __all__ = [
     "OccupancyGrid",
     "build_field",
     "field_config",
+    "field_memory",
 ]
 
 
@@ -43,9 +44,51 @@ def field_config(kind: str, config: Any = None) -> GridFieldConfig | MLPFieldCon
         unknown = sorted(set(config) - set(names))
         if unknown:
             raise InputError(f"unknown {kind} field config keys {unknown}; expected some of {sorted(names)}")
-        values = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
+        values = {k: _checked(kind, k, v, getattr(cls(), k)) for k, v in config.items()}
         return cls(**values)
     raise InputError(f"{kind} field config must be a {cls.__name__} or a dict, got {type(config).__name__}")
+
+
+def _checked(kind: str, key: str, value: Any, default: Any) -> Any:
+    """``value`` for the config entry ``key`` (whose default is ``default``): same type, finite, and ≥ 0
+    for numbers (> 0 for sizes and rates); anything else is an InputError naming the entry."""
+    import math
+
+    where = f"{kind} field config {key!r}"
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, int) and v >= 0 for v in value):
+            raise InputError(f"{where}: expected a list of integers ≥ 0, found {value!r}")
+        return tuple(value)
+    if isinstance(default, bool) or isinstance(value, bool):
+        if not isinstance(value, bool) or not isinstance(default, bool):
+            raise InputError(f"{where}: expected {type(default).__name__}, found {value!r}")
+        return value
+    if isinstance(default, (int, float)):
+        ok = isinstance(value, int) or (isinstance(default, float) and isinstance(value, float))
+        if not ok or not math.isfinite(value):
+            raise InputError(f"{where}: expected a finite {type(default).__name__}, found {value!r}")
+        positive = key.startswith(("n_voxels", "lr", "step_", "max_", "batch_", "iterations")) or key in (
+            "density_components", "app_components", "app_dim", "hidden", "width", "depth", "distance_scale",
+        )  # fmt: skip
+        if (positive and value <= 0) or (value < 0 and key != "density_shift"):
+            raise InputError(f"{where}: expected a number {'> 0' if positive else '≥ 0'}, found {value!r}")
+        return type(default)(value)
+    return value
+
+
+def field_memory(kind: str, config: Any) -> tuple[float, float, float]:
+    """(parameter memory while training, memory per ray, checkpoint bytes) of a field of ``kind``: the
+    parameters with their gradient and Adam state; a ray's samples through the network, forward and
+    backward (~256 B a sample); parameters and Adam state on disk."""
+    cfg = field_config(kind, config)
+    if isinstance(cfg, GridFieldConfig):
+        r = float(max(cfg.n_voxels_init, cfg.n_voxels_final)) ** (1 / 3)
+        params = 3.0 * (cfg.density_components + cfg.app_components) * (r * r + r)
+        samples = min(float(cfg.max_samples), r * 3**0.5 / cfg.step_ratio)
+    else:
+        params = float(cfg.depth) * cfg.width * cfg.width * 2
+        samples = float(cfg.n_coarse + cfg.n_fine)
+    return params * 16, samples * 256, params * 12
 
 
 def build_field(kind: str, channels: int, scene_box: Tensor, config: Any = None) -> GridField | MLPField:

@@ -23,6 +23,7 @@ from torch import Tensor, nn
 
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
+from spikenerf.fields.vm_kernel import usable, vm_lookup
 
 MAT = ((0, 1), (0, 2), (1, 2))
 VEC = (2, 1, 0)
@@ -178,8 +179,14 @@ class GridField(nn.Module):
     @property
     def step_size(self) -> float:
         """Marching step in world units: ``step_ratio`` × the mean cell size."""
-        size = (self.scene_box[1] - self.scene_box[0]).mean().item()
-        return self.config.step_ratio * size / (self.resolution - 1)
+        return self.config.step_ratio * self._box_size() / (self.resolution - 1)
+
+    def _box_size(self) -> float:
+        """Mean box edge, read from the device once per box (no host sync per rendered batch)."""
+        key = (self.scene_box.data_ptr(), self.scene_box._version)
+        if getattr(self, "_box_key", None) != key:
+            self._box_key, self._box_mean = key, (self.scene_box[1] - self.scene_box[0]).mean().item()
+        return self._box_mean
 
     def normalize(self, xyz: Tensor) -> Tensor:
         """World points (..., 3) → box-normalised [−1, 1]³."""
@@ -193,15 +200,22 @@ class GridField(nn.Module):
 
     def density_norm(self, xyz_norm: Tensor) -> Tensor:
         """Density per world unit (M,) at normalised points (M, 3)."""
-        raw = sample_vm(self.density_planes, self.density_lines, xyz_norm, vm_splits(xyz_norm.device))
-        return self.config.distance_scale * F.softplus(raw.sum(dim=(0, 1)) + self.config.density_shift)
+        raw = self._vm(self.density_planes, self.density_lines, xyz_norm).sum(dim=(1, 2))
+        return self.config.distance_scale * F.softplus(raw + self.config.density_shift)
 
     def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
         """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3)."""
-        feats = sample_vm(self.app_planes, self.app_lines, xyz_norm, vm_splits(xyz_norm.device))
-        feats = self.basis(feats.reshape(-1, feats.shape[-1]).T)
+        feats = self._vm(self.app_planes, self.app_lines, xyz_norm)
+        feats = self.basis(feats.reshape(feats.shape[0], -1))
         h = torch.cat([feats, positional_encoding(dirs, self.config.view_freqs)], dim=-1)
         return torch.sigmoid(self.decoder(h))
+
+    @staticmethod
+    def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
+        """VM products (M, 3, C): the fused CPU kernel where it applies, else ``grid_sample``."""
+        if usable(planes, xyz_norm):
+            return vm_lookup(planes, lines, xyz_norm)
+        return sample_vm(planes, lines, xyz_norm, vm_splits(xyz_norm.device)).permute(2, 0, 1)
 
     def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
         """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""

@@ -18,7 +18,10 @@ from typing import TypeVar
 
 from tqdm import tqdm
 
+from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.cells import (  # re-exported: the benchmark's public API
     TABLE1_VARIANTS,
@@ -123,6 +126,17 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
         from spikenerf.pipelines.ray_executor import require_ray
 
         require_ray()  # without Ray: one line, before anything is written
+    from spikenerf.pipelines.resources import check_benchmark_resources
+
+    check_output(cfg.out, "benchmark", overwrite=True)  # a folder it wrote before is resumed
+    check_benchmark_resources(cfg)
+    with output_lock(cfg.out):
+        mark(cfg.out, "benchmark")
+        clean_stale_temps(cfg.out)
+        return _run_benchmark_locked(cfg, on_cell)
+
+
+def _run_benchmark_locked(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None) -> list[Cell]:
     cfg.out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
     keys = cell_keys(cfg)

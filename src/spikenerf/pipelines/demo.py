@@ -63,8 +63,9 @@ class DemoConfig:
     def preset(self) -> Preset:
         """The preset with this config's explicit sizes applied (validated)."""
         p = PRESETS["quick" if self.quick else "default"]
-        size, iters = self.size or p.size, self.iters or p.iters
-        frames = self.frames or p.frames
+        size = p.size if self.size is None else self.size  # an explicit 0 is refused, not the default
+        iters = p.iters if self.iters is None else self.iters
+        frames = p.frames if self.frames is None else self.frames
         views = p.test_views if self.test_views is None else self.test_views
         if size < 8 or iters < 1 or frames < 2 or views < 1:
             raise InputError(

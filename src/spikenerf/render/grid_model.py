@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import Tensor
 
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridField
 from spikenerf.render.base import RadianceModel
-from spikenerf.render.volume import RenderOutput, composite, weights_from_density
+from spikenerf.render.volume import RenderOutput, packed_composite, packed_weights
 
 
 class GridModel(RadianceModel):
@@ -44,6 +42,31 @@ class GridModel(RadianceModel):
         hi = torch.minimum(far, leave)
         return lo, torch.maximum(hi, lo)
 
+    @torch.no_grad()
+    def _march(
+        self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float
+    ) -> tuple[Tensor, Tensor]:
+        """Packed sample slots inside ``[near, far)`` and (with ``use_occupancy``) in occupied cells.
+
+        Returns ray (M,) and step number k (M,) of each kept slot, int64, ray after ray: slot k of a ray
+        covers ``[near + k·step, min(near + (k+1)·step, far))``. No padding: the work is the total number of
+        slots, not rays × the longest ray. The occupancy test uses the slot's midpoint.
+        """
+        counts = torch.floor((far - near) / step).long().add_(1).clamp_(0, self.field.config.max_samples)
+        counts = torch.where(far > near, counts, torch.zeros_like(counts))
+        total = int(counts.sum())
+        ray = torch.repeat_interleave(
+            torch.arange(len(counts), device=near.device), counts, output_size=total
+        )
+        first = torch.cumsum(counts, dim=0) - counts
+        k = torch.arange(total, device=near.device) - first[ray]
+        t_start = near[ray] + step * k
+        inside = t_start < far[ray]
+        if self.use_occupancy:
+            t_mid = t_start + 0.5 * (far[ray] - t_start).clamp(max=step)
+            inside &= self.field.occupancy.lookup(torch.addcmul(o_n[ray], t_mid[:, None], d_n[ray]))
+        return ray[inside], k[inside]
+
     def render_rays(
         self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, perturb: bool = False
     ) -> RenderOutput:
@@ -51,34 +74,16 @@ class GridModel(RadianceModel):
         n, step = origins.shape[0], field.step_size
         if self.use_occupancy:
             near, far = self._shorten(origins, dirs, near, far, step)
-        span = float((far - near).max()) if n else 0.0
-        s = max(1, min(cfg.max_samples, math.ceil(span / step)))
-        t_start = near[:, None] + step * torch.arange(s, device=near.device, dtype=near.dtype)
-        deltas = (far[:, None] - t_start).clamp(0.0, step)
-        t = t_start + (torch.rand_like(t_start) if perturb else 0.5) * deltas
-
-        flat = (deltas.reshape(-1) > 0).nonzero().squeeze(1)
         o_n = field.normalize(origins)
         d_n = dirs * (2.0 / (field.scene_box[1] - field.scene_box[0]))
-        xn = self._points(o_n, d_n, t, flat, s)
-        if self.use_occupancy:
-            keep = field.occupancy.lookup(xn)
-            flat, xn = flat[keep], xn[keep]
-        sigma = t.new_zeros(n * s)
-        if len(flat):
-            sigma = sigma.index_copy(0, flat, field.density_norm(xn))
-        weights = weights_from_density(sigma.view(n, s), deltas)
-
-        app = (weights.detach().reshape(-1) > cfg.weight_threshold).nonzero().squeeze(1)
-        colors = t.new_zeros(n * s, field.channels)
-        if len(app):
-            rgb = field.color_norm(self._points(o_n, d_n, t, app, s), dirs[app // s])
-            colors = colors.index_copy(0, app, rgb)
-        color, depth, opacity = composite(weights, colors.view(n, s, -1), t)
-        return RenderOutput(color, depth, opacity, weights=weights, num_samples=len(flat))
-
-    @staticmethod
-    def _points(origins: Tensor, dirs: Tensor, t: Tensor, flat: Tensor, s: int) -> Tensor:
-        """Points (M, 3) of the flat sample indices ``flat`` into (N, S) samples along the given rays."""
-        ray = flat // s
-        return torch.addcmul(origins[ray], t.reshape(-1)[flat, None], dirs[ray])
+        ray, k = self._march(o_n, d_n, near, far, step)
+        t_start = near[ray] + step * k
+        deltas = (far[ray] - t_start).clamp(0.0, step)
+        t = t_start + (torch.rand_like(t_start) if perturb else 0.5) * deltas
+        xn = torch.addcmul(o_n[ray], t[:, None], d_n[ray])
+        sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
+        weights = packed_weights(sigma, deltas, ray, n)
+        app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
+        rgb = field.color_norm(xn[app], dirs[ray[app]]) if len(app) else t.new_zeros(0, field.channels)
+        color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app)
+        return RenderOutput(color, depth, opacity, num_samples=len(ray))

@@ -57,6 +57,49 @@ def composite(
     return color, depth, opacity
 
 
+def packed_weights(sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int) -> Tensor:
+    """Compositing weights (M,) of M samples packed ray after ray (no padding); :func:`weights_from_density`.
+
+    Args:
+        sigma: (M,) density per unit length. deltas: (M,) interval lengths ≥ 0.
+        ray: (M,) int64 ray of each sample, non-decreasing (samples of a ray are contiguous and in order).
+        n_rays: N, the number of rays (rays without samples are allowed).
+    Returns:
+        (M,) weights ``Tᵢ (1 − exp(−σᵢ δᵢ))``; ``Tᵢ`` sums only the earlier samples of the same ray. The
+        running sum is taken in float64 over all samples, then each ray's offset is removed, so a ray's
+        transmittance does not depend on how much optical depth the rays before it had.
+    """
+    tau = sigma * deltas
+    tau64 = tau.to(torch.float64)
+    per_ray = tau64.new_zeros(n_rays).index_add(0, ray, tau64)
+    before = torch.cumsum(per_ray, dim=0) - per_ray  # optical depth of all earlier rays
+    depth = torch.cumsum(tau64, dim=0) - tau64 - before[ray]
+    return torch.exp(-depth).to(tau.dtype) * (1.0 - torch.exp(-tau))
+
+
+def packed_composite(
+    weights: Tensor,
+    ray: Tensor,
+    n_rays: int,
+    t: Tensor,
+    colors: Tensor,
+    color_index: Tensor,
+    background: float = BACKGROUND,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`composite` of packed samples → colour (N, C), depth (N,), opacity (N,).
+
+    Args:
+        weights: (M,) from :func:`packed_weights`. ray: (M,) ray of each sample. t: (M,) sample distances.
+        colors: (K, C) colours of the samples ``color_index`` (K,); the other samples count as colour 0
+            (the renderers decode colour only where the weight matters).
+    """
+    opacity = weights.new_zeros(n_rays).index_add(0, ray, weights)
+    depth = weights.new_zeros(n_rays).index_add(0, ray, weights * t) / opacity.clamp_min(1e-10)
+    wc = weights[color_index, None] * colors
+    color = wc.new_zeros(n_rays, colors.shape[-1]).index_add(0, ray[color_index], wc)
+    return color + (1.0 - opacity)[:, None] * background, depth, opacity
+
+
 def stratified_samples(near: Tensor, far: Tensor, n: int, perturb: bool) -> tuple[Tensor, Tensor]:
     """``n`` samples per ray in equal bins of [near, far]: one uniform draw per bin, or the bin centre.
 

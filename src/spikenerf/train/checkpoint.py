@@ -7,6 +7,8 @@ dict)}. It is written to a temporary sibling and moved into place with ``os.repl
 
 from __future__ import annotations
 
+import pickle
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -49,9 +51,18 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not path.is_file():
         raise InputError("missing checkpoint (not a run folder written by `spikenerf train`?)", path=path)
     try:
-        data = torch.load(path, map_location=map_location, weights_only=True)
+        with warnings.catch_warnings():  # torch warns (several lines) about foreign pickle protocols
+            warnings.simplefilter("ignore")
+            data = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as err:
+        raise InputError(
+            "refused: it holds Python objects that a weights-only load does not run (not a spikenerf "
+            "checkpoint, or a malicious one)",
+            path=path,
+        ) from err
     except Exception as err:  # torch raises many types for truncated or foreign files
-        raise InputError(f"unreadable checkpoint ({type(err).__name__}: {err})", path=path) from err
+        first = str(err).strip().split(". ")[0]
+        raise InputError(f"unreadable checkpoint ({type(err).__name__}: {first})", path=path) from err
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"not a spikenerf checkpoint (expected format {FORMAT!r})", path=path)
     return data

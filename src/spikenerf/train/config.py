@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import types
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,12 +17,12 @@ from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 import yaml
 
-from spikenerf.camera.reconstruct import ReconMethod
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.samplers import WindowOrder
-from spikenerf.data.targets import Method, TrainColor
+from spikenerf.data.targets import Method, TargetRecon, TrainColor
 from spikenerf.fields import FIELD_KINDS, FieldKind
+from spikenerf.train.amp import AmpMode
 from spikenerf.train.logger import LogKind
 from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
 
@@ -39,7 +40,7 @@ class TargetConfig:
         blur_samples: poses per exposure averaged by nerf-blur-aware.
     """
 
-    recon: ReconMethod = "tfp"
+    recon: TargetRecon = "tfp"
     window: int = 41
     mask: bool = True
     mask_n: int = 5
@@ -98,6 +99,7 @@ class TrainConfig:
         log: ``none`` or ``tensorboard`` (event files in ``RUN/tensorboard/``; curves.csv is always written).
         log_every: iterations between reads of the loss terms (progress bar, TensorBoard scalars): the
             per-step values are summed on the device and read only then.
+        amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
     """
 
@@ -116,6 +118,7 @@ class TrainConfig:
     ckpt_every: int = 500
     log: LogKind = "none"
     log_every: int = 25
+    amp: AmpMode = "none"
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -151,9 +154,9 @@ class TrainConfig:
         ):
             if value is not None and value < 0:
                 raise InputError(f"{name} must be ≥ 0, found {value}")
-        if self.lr is not None and not self.lr > 0:
-            raise InputError(f"--lr must be positive, found {self.lr}")
-        if self.spike.lam < 0 or self.eval_every < 0:
+        if self.lr is not None and not (math.isfinite(self.lr) and self.lr > 0):
+            raise InputError(f"--lr must be a finite number > 0, found {self.lr}")
+        if not (math.isfinite(self.spike.lam) and self.spike.lam >= 0) or self.eval_every < 0:
             raise InputError(
                 f"--lambda and --eval-every must be ≥ 0, found {self.spike.lam}, {self.eval_every}"
             )

@@ -7,6 +7,7 @@ from pathlib import Path
 import torch
 
 from spikenerf.core.device import resolve_device
+from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.render import RadianceModel, model_from_hparams
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
@@ -33,7 +34,39 @@ def load_run(
     model = model_from_hparams(ckpt["hparams"], ckpt["model"])
     model.to(resolve_device(device)).eval()
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset)
+    check_dataset_fits(ckpt, dataset, "--dataset" if dataset_root is not None else "the run's dataset")
     return model, config, dataset
+
+
+def dataset_fingerprint(dataset: SpikeDataset) -> dict:
+    """What a run remembers of its dataset (stored in the checkpoint): image size, steps, rate, scene box."""
+    k = dataset.intrinsics
+    box = [[round(float(v), 6) for v in row] for row in dataset.scene_box]
+    return {
+        "size": [k.width, k.height],
+        "steps": len(dataset.trajectory),
+        "fps": float(dataset.trajectory.fps),
+        "box": box,
+    }
+
+
+def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, flag: str) -> None:
+    """InputError (naming ``flag``) when ``dataset`` is not the one the checkpoint was trained on (its
+    fingerprint; checkpoints without one are compared by scene box)."""
+    want = ckpt.get("dataset")
+    have = dataset_fingerprint(dataset)
+    if want is None:
+        want, have = {"box": ckpt["hparams"]["scene_box"]}, {"box": have["box"]}
+    diff = []
+    for key, value in want.items():
+        if key == "box":
+            fits = torch.allclose(torch.tensor(value).double(), torch.tensor(have[key]).double(), atol=1e-4)
+        else:
+            fits = have.get(key) == value
+        if not fits:
+            diff.append(f"{key} {have.get(key)} (run: {value})")
+    if diff:
+        raise InputError(f"{flag}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root)
 
 
 def run_iteration(run_dir: str | Path) -> int:

@@ -1,0 +1,79 @@
+"""Resource limits: refuse a job whose estimated memory or disk exceeds what the machine has, before work.
+
+Each command estimates its peak memory and the disk it will write from its arguments (the estimators live
+beside the code they describe, e.g. ``data/simulate.py``); :func:`check_resources` compares them with the
+available memory (``psutil``, else ``/proc/meminfo``) and the free space under the output folder. The global
+``spikenerf --no-limits`` (environment ``SPIKENERF_NO_LIMITS=1``, inherited by the runs that benchmark and
+demo start) skips the check for users who know better (swap, memory that frees up later).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from spikenerf.core.errors import InputError
+
+NO_LIMITS_ENV = "SPIKENERF_NO_LIMITS"
+GIB = 1024**3
+
+
+def limits_disabled() -> bool:
+    """True when ``--no-limits`` was given (``SPIKENERF_NO_LIMITS`` set to a non-empty value other than 0)."""
+    return os.environ.get(NO_LIMITS_ENV, "") not in ("", "0")
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (None when unknown)."""
+    try:
+        import psutil
+
+        return int(psutil.virtual_memory().available)
+    except ImportError:
+        pass
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def free_disk(path: str | Path) -> int | None:
+    """Free bytes on the file system that would hold ``path`` (its nearest existing ancestor)."""
+    p = Path(path).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        return int(shutil.disk_usage(p if p.is_dir() else p.parent).free)
+    except OSError:
+        return None
+
+
+def human(n: float) -> str:
+    """Bytes as a short human string (``1.5 GiB``, ``300 MiB``, ``12 KiB``)."""
+    for unit, size in (("TiB", 1024**4), ("GiB", GIB), ("MiB", 1024**2), ("KiB", 1024)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{int(n)} B"
+
+
+def check_resources(memory: float, disk: float, out: str | Path, flags: str) -> None:
+    """InputError when ``memory`` or ``disk`` (estimated bytes) exceeds what is available.
+
+    Args:
+        memory: estimated peak memory. disk: estimated bytes written under ``out``.
+        out: the output folder (its file system's free space is checked).
+        flags: the flags that set the size, named in the message (e.g. ``--width/--height/--frames``).
+    """
+    if limits_disabled():
+        return
+    checks = (("memory", memory, available_memory()), ("disk space", disk, free_disk(out)))
+    for what, need, have in checks:
+        if have is not None and need > have:
+            raise InputError(
+                f"{flags}: this needs about {human(need)} of {what}, but only {human(have)} is available; "
+                "lower them, or pass `spikenerf --no-limits ...` to try anyway"
+            )

@@ -1,0 +1,86 @@
+"""One writer per output folder: an advisory ``flock`` on ``.<name>.lock`` beside the folder.
+
+The lock file records the holder's PID, so a second writer is refused in one line that names the folder and
+that process. The kernel drops a ``flock`` when its process dies (even by SIGKILL), so the file a killed run
+leaves behind is a stale lock that the next writer takes over: nobody holds the ``flock`` any more. After
+locking, the holder checks that the path still names the file it locked (a releasing holder unlinks it), so
+two writers can never both hold one folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from spikenerf.core.errors import InputError
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not on Unix: no locking
+    fcntl = None  # type: ignore[assignment]
+
+
+def lock_path(folder: str | Path) -> Path:
+    """The lock file of an output folder: ``.<name>.lock`` in its parent."""
+    folder = Path(folder).absolute()
+    return folder.with_name(f".{folder.name}.lock")
+
+
+def holder(folder: str | Path) -> int | None:
+    """The PID written in ``folder``'s lock file (None when there is none or it is unreadable)."""
+    try:
+        return int(lock_path(folder).read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _acquire(path: Path, folder: Path, flag: str) -> int:
+    """An open descriptor of ``path`` holding an exclusive ``flock``; InputError while another holds it."""
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            pid = holder(folder)
+            who = f"process {pid}" if pid is not None else "another process"
+            raise InputError(
+                f"{flag}: in use by {who} (another spikenerf writer); wait for it to finish or stop it",
+                path=folder,
+            ) from None
+        try:
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)  # the previous holder unlinked the file between our open and our lock: try again
+
+
+@contextlib.contextmanager
+def output_lock(folder: str | Path, flag: str = "--out") -> Iterator[Path]:
+    """Hold the writer lock of ``folder`` (which need not exist yet) for the ``with`` block.
+
+    Raises InputError (naming ``flag``, the folder and the holder's PID) when another live process holds
+    it; a lock left by a dead process is taken over. Re-entrant in one process is not supported.
+    """
+    folder = Path(folder)
+    path = lock_path(folder)
+    if fcntl is None:
+        yield path
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{flag}: a parent of this path is a regular file", path=folder) from None
+    fd = _acquire(path, folder, flag)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()
+        os.close(fd)

@@ -1,0 +1,24 @@
+"""Optional mixed precision for the training step (``--amp bf16|fp16``; off by default).
+
+Autocast runs the decoder MLP and the other autocast-listed ops in the low-precision dtype; the grid
+factors, the compositing (float64 running sums) and the optimiser stay in float32. ``fp16`` pairs with a
+gradient scaler in the trainer; ``bf16`` needs none and also runs on a CPU.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Literal, get_args
+
+import torch
+
+AmpMode = Literal["none", "bf16", "fp16"]
+AMP_MODES: tuple[str, ...] = get_args(AmpMode)
+_DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
+
+
+def autocast(device: torch.device, mode: str) -> contextlib.AbstractContextManager:
+    """The autocast context of ``mode`` ("none" | "bf16" | "fp16") on ``device``'s type (a no-op for none)."""
+    if mode == "none":
+        return contextlib.nullcontext()
+    return torch.autocast(device.type, dtype=_DTYPES[mode])

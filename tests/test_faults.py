@@ -1,0 +1,282 @@
+"""The fault suite: bad inputs against every command, table-driven (docs/reliability.md).
+
+Each case runs the CLI in this process and asserts: exit code 2, exactly one line on stderr that names the
+flag or file, no traceback, and a sandbox (a tiny dataset, a trained run, foreign files) left byte-for-byte
+as it was, with nothing new written (no partial output).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import pickle
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spikenerf.cli import main
+
+SIM = [
+    "simulate",
+    "--scene",
+    "analytic-orbs",
+    "--width",
+    "16",
+    "--height",
+    "16",
+    "--frames",
+    "12",
+    "--test-views",
+    "1",
+    "--no-progress",
+]
+TINY_GRID = ["--field-option", "n_voxels_init=512", "--field-option", "n_voxels_final=1000"]
+TRAIN = [
+    "--iters",
+    "2",
+    "--batch",
+    "32",
+    "--eval-every",
+    "0",
+    "--eval-views",
+    "1",
+    "--spike-warmup",
+    "1",
+    "--spike-window",
+    "4",
+    "--spike-pixels",
+    "4",
+    "--device",
+    "cpu",
+    "--quiet",
+    *TINY_GRID,
+]
+#: the slowest case seen, in seconds (reported in docs/reliability.md; the issue asks for ≤ 2 s)
+TIMES: dict[str, float] = {}
+
+
+class Evil:
+    """A pickle whose loading would create the file named in ``PWNED`` (it must never be loaded)."""
+
+    def __reduce__(self) -> tuple:
+        return (Path.touch, (Path(PWNED[0]),))
+
+
+PWNED: list[str] = [""]
+
+
+def _cli(*args: object) -> None:
+    main([str(a) for a in args])
+
+
+def _tree(root: Path) -> dict[str, str]:
+    """Every path under ``root`` with a hash of its bytes ('dir' for folders)."""
+    return {
+        str(p.relative_to(root)): "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+    }
+
+
+@pytest.fixture(scope="module")
+def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A dataset, a trained run, a second (different) dataset and foreign or broken files, built once."""
+    root = tmp_path_factory.mktemp("faults")
+    _cli(*SIM, "--frames", "40", "--out", root / "ds")
+    _cli("train", root / "ds", *TRAIN, "--out", root / "run")
+    _cli(*SIM, "--width", "12", "--height", "12", "--out", root / "other_ds")
+    (root / "afile").write_text("a regular file\n")
+    (root / "thesis").mkdir()
+    (root / "thesis" / "thesis.tex").write_text("\\documentclass{article}\n")
+    (root / "garbage.json").write_text("{not json")
+    (root / "list.json").write_text("[1, 2]")
+    (root / "bad.yaml").write_text("a: [1\n  b: :\n")
+    (root / "garbage.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 20)
+    (root / "trunc.dat").write_bytes(b"\xff" * 33)
+    np.save(root / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    for name, ckpt in (("garbage_ckpt", b"\x00garbage" * 10), ("pickle_ckpt", pickle.dumps(Evil()))):
+        (root / name).mkdir()
+        shutil.copy(root / "run" / "config.yaml", root / name / "config.yaml")
+        (root / name / "checkpoint.pt").write_bytes(ckpt)
+    (root / "bad_yaml_run").mkdir()
+    shutil.copy(root / "run" / "checkpoint.pt", root / "bad_yaml_run" / "checkpoint.pt")
+    (root / "bad_yaml_run" / "config.yaml").write_text("method: [spike-nerf\n")
+    seq = root / "seq"
+    seq.mkdir()
+    pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
+    frames = [{"file_path": "a.png", "transform_matrix": pose}]
+    (seq / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": frames}))
+    shutil.copy(root / "ds" / "test" / "00000.png", seq / "a.png")
+    bad_ds = root / "bad_ds"
+    shutil.copytree(root / "ds", bad_ds)
+    (bad_ds / "spikes_gray.dat").write_bytes((bad_ds / "spikes_gray.dat").read_bytes()[:-5])
+    yaml_ds = root / "yaml_ds"
+    shutil.copytree(root / "ds", yaml_ds)
+    (yaml_ds / "config.yaml").write_text("spike_h: [16\n")
+    png_ds = root / "png_ds"
+    shutil.copytree(root / "ds", png_ds)
+    (png_ds / "test" / "00000.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    json_ds = root / "json_ds"
+    shutil.copytree(root / "ds", json_ds)
+    (json_ds / "transforms.json").write_text('{"frames": 3}')
+    PWNED[0] = str(root / "PWNED")
+    return root
+
+
+R = "{root}"
+#: (case id, argv with {root} for the sandbox, a fragment the one-line message must contain)
+T = ["train", f"{R}/ds", *TRAIN]
+B = ["benchmark", "--scenes", "analytic-orbs"]
+DAT = ["reconstruct", f"{R}/ds/spikes_gray.dat", "--method", "tfp"]
+# fmt: off
+CASES: list[tuple[str, list[str], str]] = [
+    # simulate: sizes, non-finite numbers, outputs
+    ("sim-memory-bomb", [*SIM, "--width", "100000", "--height", "100000", "--out", f"{R}/o"], "--width"),
+    ("sim-frames-bomb", [*SIM, "--frames", "100000000", "--out", f"{R}/o"], "--frames"),
+    ("sim-seq-width-bomb", ["simulate", "--sequence", f"{R}/seq/transforms.json", "--width", "100000",
+                            "--out", f"{R}/o"], "--width"),
+    ("sim-fps-nan", [*SIM, "--fps", "nan", "--out", f"{R}/o"], "--fps"),
+    ("sim-fps-inf", [*SIM, "--fps", "inf", "--out", f"{R}/o"], "--fps"),
+    ("sim-fps-zero", [*SIM, "--fps", "0", "--out", f"{R}/o"], "--fps"),
+    ("sim-radius-inf", [*SIM, "--radius", "inf", "--out", f"{R}/o"], "--radius"),
+    ("sim-radius-nan", [*SIM, "--radius", "nan", "--out", f"{R}/o"], "--radius"),
+    ("sim-elevation-nan", [*SIM, "--elevation", "nan", "--out", f"{R}/o"], "--elevation"),
+    ("sim-turns-inf", [*SIM, "--turns", "inf", "--out", f"{R}/o"], "--turns"),
+    ("sim-duration-nan", [*SIM, "--duration", "nan", "--out", f"{R}/o"], "--duration"),
+    ("sim-threshold-nan", [*SIM, "--threshold", "nan", "--out", f"{R}/o"], "threshold"),
+    ("sim-threshold-neg", [*SIM, "--threshold", "-1", "--out", f"{R}/o"], "threshold"),
+    ("sim-blur-fps-nan", [*SIM, "--blur-fps", "nan", "--out", f"{R}/o"], "--blur-fps"),
+    ("sim-width-zero", [*SIM, "--width", "0", "--out", f"{R}/o"], "--width"),
+    ("sim-spp-zero", [*SIM, "--spp", "0", "--out", f"{R}/o"], "--spp"),
+    ("sim-gt-every-zero", [*SIM, "--gt-every", "0", "--out", f"{R}/o"], "--gt-every"),
+    ("sim-frames-abc", [*SIM, "--frames", "abc", "--out", f"{R}/o"], "--frames"),
+    ("sim-unknown-scene", ["simulate", "--scene", "no-such-scene", "--out", f"{R}/o"], "no-such-scene"),
+    ("sim-out-under-file", [*SIM, "--out", f"{R}/afile/ds"], "afile"),
+    ("sim-out-is-file", [*SIM, "--overwrite", "--out", f"{R}/afile"], "afile"),
+    ("sim-overwrite-foreign", [*SIM, "--overwrite", "--out", f"{R}/thesis"], "thesis"),
+    ("sim-overwrite-run", [*SIM, "--overwrite", "--out", f"{R}/run"], "run folder"),
+    ("sim-exists", [*SIM, "--out", f"{R}/ds"], "--overwrite"),
+    ("sim-seq-missing", ["simulate", "--sequence", f"{R}/nope.json", "--out", f"{R}/o"], "nope.json"),
+    ("sim-seq-garbage", ["simulate", "--sequence", f"{R}/garbage.json", "--out", f"{R}/o"], "garbage.json"),
+    ("sim-eval-views-list", [*SIM[:-3], "--no-progress", "--eval-views", f"{R}/list.json", "--out",
+                             f"{R}/o"], "list.json"),
+    # train
+    ("train-no-dataset", ["train", f"{R}/nope", *TRAIN, "--out", f"{R}/o"], "nope"),
+    ("train-resume-missing", [*T, "--resume", "--out", f"{R}/o"], "--resume"),
+    ("train-lambda-nan", [*T, "--lambda", "nan", "--out", f"{R}/o"], "--lambda"),
+    ("train-lambda-inf", [*T, "--lambda", "inf", "--out", f"{R}/o"], "--lambda"),
+    ("train-lr-nan", [*T, "--lr", "nan", "--out", f"{R}/o"], "--lr"),
+    ("train-iters-zero", [*T, "--iters", "0", "--out", f"{R}/o"], "--iters"),
+    ("train-window-even", [*T, "--window", "4", "--out", f"{R}/o"], "--window"),
+    ("train-batch-bomb", [*T, "--batch", "1000000000", "--out", f"{R}/o"], "--batch"),
+    ("train-grid-bomb", [*T, "--field-option", "n_voxels_final=1000000000000",
+                         "--out", f"{R}/o"], "--field-option"),
+    ("train-fopt-abc", [*T, "--field-option", "lr=abc", "--out", f"{R}/o"], "lr"),
+    ("train-fopt-neg", [*T, "--field-option", "n_voxels_init=-1", "--out", f"{R}/o"],
+     "n_voxels_init"),
+    ("train-fopt-noeq", [*T, "--field-option", "novalue", "--out", f"{R}/o"],
+     "--field-option"),
+    ("train-fopt-unknown", [*T, "--field-option", "warp=1", "--out", f"{R}/o"], "warp"),
+    ("train-fopt-yaml", [*T, "--field-option", "lr=[1", "--out", f"{R}/o"], "lr"),
+    ("train-out-under-file", [*T, "--out", f"{R}/afile/run"], "afile"),
+    ("train-out-dataset", [*T, "--out", f"{R}/other_ds"], "other_ds"),
+    ("train-out-foreign", [*T, "--out", f"{R}/thesis"], "thesis"),
+    ("train-out-exists", [*T, "--out", f"{R}/run"], "--resume"),
+    ("train-resume-other", [*T, "--method", "nerf-gt", "--resume", "--out", f"{R}/run"],
+     "method"),
+    ("train-device-tpu", [*T, "--device", "tpu", "--out", f"{R}/o"], "device"),
+    ("train-dataset-file", ["train", f"{R}/afile", *TRAIN, "--out", f"{R}/o"], "afile"),
+    ("train-truncated-dat", ["train", f"{R}/bad_ds", *TRAIN, "--out", f"{R}/o"], "spikes_gray.dat"),
+    ("train-bad-yaml-ds", ["train", f"{R}/yaml_ds", *TRAIN, "--out", f"{R}/o"], "config.yaml"),
+    ("train-bad-png-ds", ["train", f"{R}/png_ds", *TRAIN, "--out", f"{R}/o"], "00000.png"),
+    ("train-bad-json-ds", ["train", f"{R}/json_ds", *TRAIN, "--out", f"{R}/o"], "transforms.json"),
+    ("train-resume-garbage", [*T, "--resume", "--out", f"{R}/garbage_ckpt"],
+     "checkpoint.pt"),
+    ("train-resume-pickle", [*T, "--resume", "--out", f"{R}/pickle_ckpt"],
+     "checkpoint.pt"),
+    # eval
+    ("eval-missing", ["eval", f"{R}/nope", "--device", "cpu"], "nope"),
+    ("eval-garbage-ckpt", ["eval", f"{R}/garbage_ckpt", "--device", "cpu"], "checkpoint.pt"),
+    ("eval-pickle-ckpt", ["eval", f"{R}/pickle_ckpt", "--device", "cpu"], "checkpoint.pt"),
+    ("eval-bad-yaml", ["eval", f"{R}/bad_yaml_run", "--device", "cpu"], "config.yaml"),
+    ("eval-other-dataset", ["eval", f"{R}/run", "--dataset", f"{R}/other_ds", "--device", "cpu", "--quiet"],
+     "--dataset"),
+    ("eval-chunk-zero", ["eval", f"{R}/run", "--chunk", "0"], "--chunk"),
+    # render
+    ("render-out-dataset", ["render", f"{R}/run", "--spikes", "--device", "cpu", "--out", f"{R}/ds"], "ds"),
+    ("render-out-run", ["render", f"{R}/run", "--device", "cpu", "--out", f"{R}/run"], "run"),
+    ("render-out-foreign", ["render", f"{R}/run", "--device", "cpu", "--out", f"{R}/thesis"], "thesis"),
+    ("render-out-under-file", ["render", f"{R}/run", "--device", "cpu", "--out", f"{R}/afile/r"], "afile"),
+    ("render-orbit-bomb", ["render", f"{R}/run", "--trajectory", "orbit", "--orbit-frames", "1000000000",
+                           "--device", "cpu", "--out", f"{R}/o"], "--orbit-frames"),
+    ("render-traj-garbage", ["render", f"{R}/run", "--trajectory", f"{R}/garbage.json", "--device", "cpu",
+                             "--out", f"{R}/o"], "garbage.json"),
+    ("render-traj-missing", ["render", f"{R}/run", "--trajectory", f"{R}/nope.json", "--out", f"{R}/o"],
+     "--trajectory"),
+    ("render-fps-nan", ["render", f"{R}/run", "--fps-video", "nan", "--out", f"{R}/o"], "--fps-video"),
+    ("render-pickle-ckpt", ["render", f"{R}/pickle_ckpt", "--out", f"{R}/o"], "checkpoint.pt"),
+    # reconstruct, info
+    ("recon-truncated", ["reconstruct", f"{R}/trunc.dat", "--height", "4", "--width", "4", "--method", "tfp",
+                         "--out", f"{R}/o.npy"], "trunc.dat"),
+    ("recon-out-under-file", [*DAT, "--height", "16", "--width", "16", "--frame", "3",
+                              "--out", f"{R}/afile/x.png"], "afile"),
+    ("recon-height-zero", [*DAT, "--height", "0", "--width", "16", "--out", f"{R}/o.npy"], "height"),
+    ("info-missing", ["info", f"{R}/nope"], "nope"),
+    ("info-pickle-ckpt", ["info", f"{R}/pickle_ckpt"], "checkpoint.pt"),
+    ("info-bad-yaml-ds", ["info", f"{R}/yaml_ds"], "config.yaml"),
+    # benchmark, demo
+    ("bench-out-under-file", [*B, "--out", f"{R}/afile/b"], "afile"),
+    ("bench-size-bomb", [*B, "--size", "100000", "--out", f"{R}/o"],
+     "--size"),
+    ("bench-frames-bomb", [*B, "--frames", "100000000",
+                           "--out", f"{R}/o"], "--frames"),
+    ("bench-unknown-scene", ["benchmark", "--scenes", "nope", "--out", f"{R}/o"], "--scenes"),
+    ("bench-out-foreign", [*B, "--out", f"{R}/thesis"], "thesis"),
+    ("demo-size-zero", ["demo", "--size", "0", "--out", f"{R}/o"], "--size"),
+    ("demo-iters-zero", ["demo", "--iters", "0", "--out", f"{R}/o"], "--iters"),
+    ("demo-out-under-file", ["demo", "--quick", "--out", f"{R}/afile/demo"], "afile"),
+    ("global-threads-zero", ["--threads", "0", "info", f"{R}/ds"], "--threads"),
+    # sequences with broken images
+    ("sim-seq-pickle-npy", ["simulate", "--sequence", f"{R}/seq_npy/transforms.json", "--out", f"{R}/o"],
+     "obj.npy"),
+]
+# fmt: on
+
+
+@pytest.fixture(scope="module")
+def seq_npy(sandbox: Path) -> Path:
+    """A sequence whose only frame is an object (pickle) .npy: it must be refused, never unpickled."""
+    seq = sandbox / "seq_npy"
+    if not seq.exists():
+        seq.mkdir()
+        text = (sandbox / "seq" / "transforms.json").read_text().replace("a.png", "obj.npy")
+        (seq / "transforms.json").write_text(text)
+        shutil.copy(sandbox / "obj.npy", seq / "obj.npy")
+    return seq
+
+
+@pytest.mark.parametrize(("argv", "needle"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_input_is_one_line_exit_2_and_harmless(
+    sandbox: Path, seq_npy: Path, argv: list[str], needle: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    before = _tree(sandbox)
+    args = [a.replace(R, str(sandbox)) for a in argv]
+    capsys.readouterr()
+    t0 = time.perf_counter()
+    with pytest.raises(SystemExit) as exit_:
+        _cli(*args)
+    TIMES[" ".join(argv[:1])] = max(TIMES.get(argv[0], 0.0), time.perf_counter() - t0)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("spikenerf: error: "), err
+    assert "Traceback" not in err and needle in lines[0], err
+    assert _tree(sandbox) == before, "the sandbox changed (partial output, or a file was touched)"
+    assert not Path(PWNED[0]).exists(), "a pickle payload ran"
+
+
+def test_case_table_is_large_and_distinct() -> None:
+    assert len({c[0] for c in CASES}) == len(CASES) >= 50
+    assert len({tuple(c[1]) for c in CASES}) == len(CASES)

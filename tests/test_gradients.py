@@ -1,0 +1,128 @@
+"""Gradient guards: the spike loss reaches the field through the Trainer's own step; float64 gradchecks of
+the interval spike loss and of the compositing weights; a training loop without per-step host reads; bf16."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+import test_train
+from spikenerf.render.volume import packed_weights, weights_from_density
+from spikenerf.train.losses import spike_interval_loss
+from spikenerf.train.trainer import Trainer
+
+_config = test_train._config
+dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
+
+
+def _field_grads(dataset_dir: Path, dataset, out: Path, lam: float) -> dict[str, torch.Tensor]:  # type: ignore[no-untyped-def]
+    """The field's gradients left by ONE ``Trainer.train`` step with the spike loss at full weight λ."""
+    cfg = _config(dataset_dir, method="spike-nerf", spike={"lam": lam, "warmup_iters": 0, "ramp_iters": 0})
+    trainer = Trainer(cfg, out, dataset, progress=False)
+    trainer.train(stop_after=1)  # the loop zeroes gradients before backward, so they survive the step
+    return {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
+
+
+def test_spike_loss_reaches_the_field_through_the_trainer_step(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """Same seeds, λ = 1 vs λ = 0: the gradients differ by λ·∇L_spike, which must be non-zero on the grid.
+
+    A ``.detach()`` anywhere between the rendered intensity and the spike loss makes the two runs leave the
+    same gradients (the reconstruction part is identical), so this test fails.
+    """
+    base = _field_grads(dataset_dir, dataset, tmp_path / "a", 0.0)
+    again = _field_grads(dataset_dir, dataset, tmp_path / "b", 0.0)
+    spike = _field_grads(dataset_dir, dataset, tmp_path / "c", 1.0)
+    assert base.keys() == again.keys() == spike.keys()
+    assert all(torch.equal(base[k], again[k]) for k in base)  # λ = 0 twice: exactly the same step
+    grid = [k for k in base if "planes" in k or "lines" in k]
+    diff = sum(float((spike[k] - base[k]).abs().sum()) for k in grid)
+    scale = sum(float(base[k].abs().sum()) for k in grid)
+    assert grid and diff > 1e-3 * scale
+
+
+def test_gradcheck_interval_spike_loss() -> None:
+    gen = torch.Generator().manual_seed(0)
+    intensity = (torch.rand(6, 3, 2, generator=gen, dtype=torch.float64) * 1.6).requires_grad_()
+    spikes = torch.rand(6, 3, 2, generator=gen) < 0.4
+    for pairs in ("all", "window"):
+        assert torch.autograd.gradcheck(
+            lambda x, p=pairs: spike_interval_loss(x, spikes, 0.8, p), (intensity,)
+        )
+    assert torch.autograd.gradcheck(
+        lambda x: spike_interval_loss(x, spikes, 0.8, max_intensity=None), (intensity,)
+    )
+
+
+def test_gradcheck_compositing_weights_dense_and_packed() -> None:
+    gen = torch.Generator().manual_seed(1)
+    sigma = (torch.rand(3, 5, generator=gen, dtype=torch.float64) * 4).requires_grad_()
+    deltas = (torch.rand(3, 5, generator=gen, dtype=torch.float64) * 0.5).requires_grad_()
+    assert torch.autograd.gradcheck(weights_from_density, (sigma, deltas))
+    # packed: rays of 5, 0, 2 and 1 samples
+    ray = torch.tensor([0, 0, 0, 0, 0, 2, 2, 3])
+    s, d = sigma.detach().reshape(-1)[:8].clone(), deltas.detach().reshape(-1)[:8].clone()
+    assert torch.autograd.gradcheck(
+        lambda a, b: packed_weights(a, b, ray, 4), (s.requires_grad_(), d.requires_grad_())
+    )
+
+
+def test_packed_weights_equal_the_padded_ones() -> None:
+    gen = torch.Generator().manual_seed(2)
+    sigma, deltas = torch.rand(4, 7, generator=gen) * 30, torch.rand(4, 7, generator=gen) * 0.1
+    counts = torch.tensor([7, 0, 3, 5])
+    keep = torch.arange(7)[None] < counts[:, None]
+    dense = weights_from_density(sigma * keep, deltas)
+    ray = torch.repeat_interleave(torch.arange(4), counts)
+    packed = packed_weights(sigma[keep], deltas[keep], ray, 4)
+    assert torch.allclose(packed, dense[keep], atol=1e-6)
+
+
+def test_training_loop_reads_no_tensor_value_per_step(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch
+) -> None:  # type: ignore[no-untyped-def]
+    """``.item()`` is a host–device sync on a GPU: the loop reads values back only every log_every steps."""
+    cfg = _config(dataset_dir, method="spike-nerf")
+    cfg.iters, cfg.eval_every, cfg.ckpt_every = 20, 0, 100
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    trainer.evaluate = lambda: float("nan")  # type: ignore[method-assign]
+    calls = []
+    item = torch.Tensor.item
+    monkeypatch.setattr(torch.Tensor, "item", lambda self: calls.append(1) or item(self))
+    trainer.train(stop_after=19)
+    assert len(calls) <= 2  # the final train PSNR; before: 2 per iteration
+
+
+def test_amp_bf16_trains_on_a_cpu(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    cfg = _config(dataset_dir, method="spike-nerf", amp="bf16")
+    summary = Trainer(cfg, tmp_path / "run", dataset, progress=False).train()
+    assert summary.iteration == 6 and torch.isfinite(torch.tensor(summary.test_psnr))
+    with pytest.raises(Exception, match="amp must be one of"):
+        _config(dataset_dir, amp="fp8").validate()
+
+
+def test_fused_vm_kernel_matches_grid_sample_forward_and_backward() -> None:
+    from spikenerf.fields import vm_kernel
+    from spikenerf.fields.grid import sample_vm
+
+    if not vm_kernel.available():
+        pytest.skip("no C++ compiler for the fused VM kernel")
+    gen = torch.Generator().manual_seed(3)
+    planes = torch.randn(3, 5, 9, 9, generator=gen, requires_grad=True)
+    lines = torch.randn(3, 5, 9, 1, generator=gen, requires_grad=True)
+    xyz = torch.rand(300, 3, generator=gen) * 2 - 1
+    xyz[:4] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])  # edges
+    ref = sample_vm(planes, lines, xyz).permute(2, 0, 1)
+    out = vm_kernel.vm_lookup(planes, lines, xyz)
+    assert torch.allclose(out, ref, atol=1e-5)
+    grad = torch.randn(ref.shape, generator=gen)
+    for a, b in zip(
+        torch.autograd.grad(ref, (planes, lines), grad),
+        torch.autograd.grad(out, (planes, lines), grad),
+        strict=True,
+    ):
+        assert torch.allclose(a, b, atol=1e-4)
+    assert not vm_kernel.usable(planes, xyz.clone().requires_grad_())  # point gradients: grid_sample

@@ -1,0 +1,139 @@
+"""Kill and resume: SIGKILL ``simulate`` and ``train`` at three points each, resume, compare with an
+uninterrupted run; two concurrent writers; a stale lock; a truncated cache frame (docs/reliability.md).
+
+Kills are real SIGKILLs delivered at named fail points (``SPIKENERF_KILL_AT``, see core/faults.py), so the
+place of each kill is exact and the test is deterministic.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from spikenerf.cli import main
+from spikenerf.core.faults import KILL_ENV
+from spikenerf.core.lock import holder, lock_path
+from spikenerf.data.simulate import work_dir
+
+SIM = ["simulate", "--scene", "analytic-orbs", "--width", "16", "--height", "16", "--frames", "60",
+       "--test-views", "2", "--gt-every", "7", "--blur-fps", "4000", "--no-progress"]  # fmt: skip
+TRAIN = ["--iters", "6", "--batch", "32", "--eval-every", "3", "--eval-views", "1", "--ckpt-every", "2",
+         "--spike-warmup", "1", "--spike-window", "4", "--spike-pixels", "4", "--device", "cpu", "--quiet",
+         "--field-option", "n_voxels_init=512", "--field-option", "n_voxels_final=1000"]  # fmt: skip
+
+
+def _cli(*args: object) -> None:
+    main([str(a) for a in args])
+
+
+def _spawn(args: list[object], point: str | None = None) -> subprocess.Popen[str]:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    if point:
+        env[KILL_ENV] = point
+    command = [sys.executable, "-m", "spikenerf", *map(str, args)]
+    return subprocess.Popen(command, env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def _killed_at(args: list[object], point: str) -> None:
+    done = _spawn(args, point)
+    _, err = done.communicate(timeout=120)
+    assert done.returncode == -signal.SIGKILL, f"not killed at {point}: rc {done.returncode}\n{err}"
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    """Every file's bytes; config.yaml without its ``command`` line (it records the --out path)."""
+    files = {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+    config = yaml.safe_load(files["config.yaml"])
+    assert "--out" in config.pop("command")
+    files["config.yaml"] = yaml.safe_dump(config).encode()
+    return files
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An uninterrupted dataset and run."""
+    root = tmp_path_factory.mktemp("reference")
+    _cli(*SIM, "--out", root / "ds")
+    _cli("train", root / "ds", *TRAIN, "--out", root / "run")
+    return root
+
+
+@pytest.mark.parametrize("point", ["simulate.render:5", "simulate.spikes:30", "simulate.publish:1"])
+def test_simulate_killed_then_resumed_is_bit_identical(reference: Path, tmp_path: Path, point: str) -> None:
+    out = tmp_path / "ds"
+    _killed_at([*SIM, "--out", out], point)
+    assert not out.exists() and work_dir(out).is_dir()
+    frames = sorted((work_dir(out) / ".frames").glob("*.npy"))
+    if point == "simulate.render:5":  # a cache frame cut short (disk full, a copy interrupted) is re-rendered
+        assert len(frames) == 5
+        frames[-1].write_bytes(frames[-1].read_bytes()[:50])
+    _cli(*SIM, "--out", out)
+    assert _files(out) == _files(reference / "ds")
+    assert not work_dir(out).exists() and not lock_path(out).exists()
+
+
+def _state(run: Path) -> dict[str, torch.Tensor]:
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=True)
+    flat = {f"model.{k}": v for k, v in ckpt["model"].items()}
+    for i, group in ckpt["optimizer"]["state"].items():
+        flat.update({f"adam.{i}.{k}": torch.as_tensor(v) for k, v in group.items()})
+    return flat
+
+
+def _curves(run: Path) -> list[tuple[str, str, str]]:
+    with (run / "curves.csv").open() as fh:
+        return [(r["iteration"], r["train_psnr"], r["test_psnr"]) for r in csv.DictReader(fh)]
+
+
+@pytest.mark.parametrize("point", ["train.iteration:1", "write:checkpoint.pt:2", "train.iteration:5"])
+def test_train_killed_then_resumed_is_bit_identical(reference: Path, tmp_path: Path, point: str) -> None:
+    run = tmp_path / "run"
+    _killed_at(["train", reference / "ds", *TRAIN, "--out", run], point)
+    if point.startswith("write:"):  # killed mid-write: the finished temporary never replaced the checkpoint
+        assert list(run.glob(".checkpoint.pt.*.tmp"))
+    _cli("train", reference / "ds", *TRAIN, "--resume", "--out", run)
+    want, got = _state(reference / "run"), _state(run)
+    assert want.keys() == got.keys() and all(torch.equal(want[k], got[k]) for k in want)
+    # the train PSNR of the evaluation after the restart counts the batches before the kill too
+    assert _curves(run) == _curves(reference / "run")
+    assert not list(run.glob(".*.tmp")) and not lock_path(run).exists()
+
+
+def test_second_writer_is_refused_naming_the_holder(
+    reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "ds"
+    first = _spawn([*SIM, "--out", out], "simulate.render:3:STOP")  # freezes holding the lock
+    try:
+        deadline = time.monotonic() + 60
+        while holder(out) != first.pid and time.monotonic() < deadline and first.poll() is None:
+            time.sleep(0.05)
+        assert holder(out) == first.pid, "the first writer never took the lock"
+        for second in ([*SIM, "--out", out], [*SIM, "--overwrite", "--out", out]):
+            with pytest.raises(SystemExit) as exit_:
+                _cli(*second)
+            err = capsys.readouterr().err.strip()
+            assert exit_.value.code == 2 and err.count("\n") == 0
+            assert str(out) in err and f"process {first.pid}" in err
+    finally:
+        first.send_signal(signal.SIGCONT)
+    assert first.wait(timeout=120) == 0
+    assert _files(out) == _files(reference / "ds")  # the first writer finished undisturbed
+
+
+def test_stale_lock_of_a_dead_process_is_taken_over(reference: Path, tmp_path: Path) -> None:
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
+    out = tmp_path / "ds"
+    lock_path(out).write_text(dead.stdout.decode())
+    assert holder(out) == int(dead.stdout)
+    _cli(*SIM, "--out", out)
+    assert _files(out) == _files(reference / "ds") and not lock_path(out).exists()
