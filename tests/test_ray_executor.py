@@ -76,6 +76,12 @@ def local_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def reuse_datasets(done: Path, out: Path) -> None:
+    """A new benchmark folder ``out`` holding the datasets of the finished benchmark ``done``."""
+    shutil.copytree(done / "datasets", out / "datasets")
+    shutil.copy(done / ".spikenerf", out / ".spikenerf")  # marks ``out`` as a benchmark folder we wrote
+
+
 def test_ray_gives_the_local_numbers_shared_and_shipped(
     cluster: Path, local_run: Path, tmp_path: Path
 ) -> None:
@@ -84,7 +90,7 @@ def test_ray_gives_the_local_numbers_shared_and_shipped(
     assert "wrote" in (tmp_path / "ray" / "logs" / "simulate-analytic-orbs.log").read_text()
     # no shared storage: the dataset travels out to the worker, the run comes back through the object store
     shipped = tmp_path / "shipped"
-    shutil.copytree(local_run / "datasets", shipped / "datasets")
+    reuse_datasets(local_run, shipped)
     run_benchmark(tiny(shipped, ["spike-nerf"], executor="ray", ship_results=True))
     assert numbers(shipped) == numbers(local_run)
     scratch = scratch_root(str(shipped.resolve()))
@@ -147,7 +153,7 @@ def test_killed_worker_cell_is_retried_and_nothing_is_lost(
 
 def test_failing_cell_is_retried_and_its_logs_kept(cluster: Path, local_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "b"
-    shutil.copytree(local_run / "datasets", out / "datasets")
+    reuse_datasets(local_run, out)
     cfg = tiny(out, ["nerf-gt"], executor="ray", retries=1)
     cfg.extra_train_args = [*TRAIN, "--no-such-flag"]  # train exits with code 2
     with pytest.raises(

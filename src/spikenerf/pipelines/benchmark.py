@@ -30,6 +30,7 @@ from spikenerf.pipelines.cells import (  # re-exported: the benchmark's public A
     CellKey,
     cell_commands,
     cell_keys,
+    cell_name,
     cpu_name,
     dataset_command,
     environment,
@@ -110,9 +111,8 @@ def _run_cell(cfg: BenchmarkConfig, key: CellKey, log: list[dict]) -> Cell:
     run = run_dir(cfg, *key)
     cell = read_cell(run, *key[:3], seed=key.seed)
     if cell is None:
-        name = "-".join(map(str, key[:3])) + ("" if key.seed == cfg.seed else f"-seed{key.seed}")
         for command in cell_commands(cfg, *key):
-            _run(command, log, *_step_output(cfg, name))
+            _run(command, log, *_step_output(cfg, cell_name(cfg, key)))
         cell = read_cell(run, *key[:3], seed=key.seed)
         if cell is None:
             raise InputError("eval finished without writing metrics.json", path=run)
@@ -168,7 +168,7 @@ def _commands_at(cfg: BenchmarkConfig, key: tuple, root: Path) -> list[list[str]
     return [dataset_command(here, key[0])] if len(key) == 1 else cell_commands(here, *key)
 
 
-def _run_on_ray(cfg: BenchmarkConfig, keys: list[tuple], log: list[dict]) -> list[Cell]:
+def _run_on_ray(cfg: BenchmarkConfig, keys: list[CellKey], log: list[dict]) -> list[Cell]:
     """Each scene's dataset and each cell (``keys``, scene first) as a Ray task; cells in ``keys`` order."""
     from spikenerf.pipelines.ray_executor import Job, run_jobs
 
@@ -176,10 +176,10 @@ def _run_on_ray(cfg: BenchmarkConfig, keys: list[tuple], log: list[dict]) -> lis
                 f"datasets/{s}/transforms.json") for s in cfg.scenes]  # fmt: skip
     for key in keys:
         run = run_dir(cfg, *key).relative_to(cfg.out).as_posix()
-        jobs.append(Job("-".join(map(str, key)), partial(_commands_at, cfg, key), run, f"{run}/metrics.json",
+        jobs.append(Job(cell_name(cfg, key), partial(_commands_at, cfg, key), run, f"{run}/metrics.json",
                         needs=f"simulate-{key[0]}"))  # fmt: skip
     run_jobs(cfg, jobs, log)
-    cells = [read_cell(run_dir(cfg, *key), *key) for key in keys]
+    cells = [read_cell(run_dir(cfg, *key), *key[:3], seed=key.seed) for key in keys]
     if None in cells:
         raise InputError("a cell finished without metrics.json; run the benchmark again", path=cfg.out)
     return cells  # type: ignore[return-value]

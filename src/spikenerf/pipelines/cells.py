@@ -170,6 +170,11 @@ def run_dir(cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: in
     return cfg.out / "runs" / scene / color / (variant if seed == cfg.seed else f"{variant}-seed{seed}")
 
 
+def cell_name(cfg: BenchmarkConfig, key: CellKey) -> str:
+    """The cell's name in logs and progress: ``SCENE-COLOR-VARIANT``, ``-seedK`` added for another seed."""
+    return "-".join(key[:3]) + ("" if key.seed == cfg.seed else f"-seed{key.seed}")
+
+
 def cell_commands(
     cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: int | None = None
 ) -> list[list[str]]:
