@@ -43,6 +43,14 @@ def _spawn(args: list[object], point: str | None = None) -> subprocess.Popen[str
     return subprocess.Popen(command, env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
+def _stopped(pid: int) -> bool:
+    """Whether process ``pid`` is frozen by SIGSTOP (state ``T`` in /proc/PID/stat)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] == "T"
+    except (OSError, IndexError):
+        return False
+
+
 def _killed_at(args: list[object], point: str) -> None:
     done = _spawn(args, point)
     _, err = done.communicate(timeout=120)
@@ -115,9 +123,9 @@ def test_second_writer_is_refused_naming_the_holder(
     first = _spawn([*SIM, "--out", out], "simulate.render:3:STOP")  # freezes holding the lock
     try:
         deadline = time.monotonic() + 60
-        while holder(out) != first.pid and time.monotonic() < deadline and first.poll() is None:
-            time.sleep(0.05)
-        assert holder(out) == first.pid, "the first writer never took the lock"
+        while not _stopped(first.pid) and time.monotonic() < deadline and first.poll() is None:
+            time.sleep(0.05)  # SIGCONT before the writer has frozen itself would leave it frozen for good
+        assert _stopped(first.pid) and holder(out) == first.pid, "the first writer never took the lock"
         for second in ([*SIM, "--out", out], [*SIM, "--overwrite", "--out", out]):
             with pytest.raises(SystemExit) as exit_:
                 _cli(*second)
