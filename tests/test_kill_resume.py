@@ -1,5 +1,5 @@
-"""Kill and resume: SIGKILL ``simulate`` and ``train`` at three points each, resume, compare with an
-uninterrupted run; two concurrent writers; a stale lock; a truncated cache frame (docs/reliability.md).
+"""Kill and resume: SIGKILL ``simulate``, ``import`` and ``train`` at three points each, resume, compare with
+an uninterrupted run; two concurrent writers; a stale lock; a truncated cache frame (docs/reliability.md).
 
 Kills are real SIGKILLs delivered at named fail points (``SPIKENERF_KILL_AT``, see core/faults.py), so the
 place of each kill is exact and the test is deterministic.
@@ -15,10 +15,12 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
 
+from spikenerf.camera.io import write_dat
 from spikenerf.cli import main
 from spikenerf.core.faults import KILL_ENV
 from spikenerf.core.lock import holder, lock_path
@@ -29,6 +31,10 @@ SIM = ["simulate", "--scene", "analytic-orbs", "--width", "16", "--height", "16"
 TRAIN = ["--iters", "6", "--batch", "32", "--eval-every", "3", "--eval-views", "1", "--ckpt-every", "2",
          "--spike-warmup", "1", "--spike-window", "4", "--spike-pixels", "4", "--device", "cpu", "--quiet",
          "--field-option", "n_voxels_init=512", "--field-option", "n_voxels_final=1000"]  # fmt: skip
+
+#: an orbit pose source needs no COLMAP; 600 steps are three chunks of the spike copy (CHUNK_FRAMES 256)
+IMPORT = ["--poses", "orbit", "--orbit", "4,30", "--fov", "40", "--keyframe-every", "100", "--window", "5",
+          "--test-every", "2"]  # fmt: skip
 
 
 def _cli(*args: object) -> None:
@@ -50,10 +56,11 @@ def _killed_at(args: list[object], point: str) -> None:
 
 
 def _files(root: Path) -> dict[str, bytes]:
-    """Every file's bytes; config.yaml without its ``command`` line (it records the --out path)."""
+    """Every file's bytes; config.yaml without its ``command`` line (it records the --out path; ``import``
+    in this process records pytest's command line)."""
     files = {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
     config = yaml.safe_load(files["config.yaml"])
-    assert "--out" in config.pop("command")
+    assert config.pop("command").startswith("spikenerf ")
     files["config.yaml"] = yaml.safe_dump(config).encode()
     return files
 
@@ -64,6 +71,10 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("reference")
     _cli(*SIM, "--out", root / "ds")
     _cli("train", root / "ds", *TRAIN, "--out", root / "run")
+    spikes = (np.random.default_rng(0).random((600, 16, 16)) < 0.3).astype(np.uint8)
+    write_dat(root / "rec" / "stream.dat", spikes)
+    (root / "rec" / "config.yaml").write_text("spike_h: 16\nspike_w: 16\nfps: 20000\n")
+    _cli("import", root / "rec" / "stream.dat", *IMPORT, "--out", root / "imported")
     return root
 
 
@@ -78,6 +89,18 @@ def test_simulate_killed_then_resumed_is_bit_identical(reference: Path, tmp_path
         frames[-1].write_bytes(frames[-1].read_bytes()[:50])
     _cli(*SIM, "--out", out)
     assert _files(out) == _files(reference / "ds")
+    assert not work_dir(out).exists() and not lock_path(out).exists()
+
+
+@pytest.mark.parametrize("point", ["import.keyframe:3", "import.spikes:2", "import.publish:1"])
+def test_import_killed_then_rerun_is_bit_identical(reference: Path, tmp_path: Path, point: str) -> None:
+    out, rec = tmp_path / "ds", reference / "rec" / "stream.dat"
+    _killed_at(["import", rec, *IMPORT, "--out", out], point)
+    assert not out.exists() and work_dir(out).is_dir()
+    if point == "import.spikes:2":  # killed mid-copy: a partial spike file is left in the work folder
+        assert (work_dir(out) / "spikes_gray.dat").stat().st_size == 2 * 256 * 16 * 16 // 8
+    _cli("import", rec, *IMPORT, "--out", out)
+    assert _files(out) == _files(reference / "imported")
     assert not work_dir(out).exists() and not lock_path(out).exists()
 
 
@@ -128,6 +151,28 @@ def test_second_writer_is_refused_naming_the_holder(
         first.send_signal(signal.SIGCONT)
     assert first.wait(timeout=120) == 0
     assert _files(out) == _files(reference / "ds")  # the first writer finished undisturbed
+
+
+def test_second_import_is_refused_while_one_writes(
+    reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, rec = tmp_path / "ds", reference / "rec" / "stream.dat"
+    first = _spawn(["import", rec, *IMPORT, "--out", out], "import.keyframe:2:STOP")
+    try:
+        deadline = time.monotonic() + 60
+        while holder(out) != first.pid and time.monotonic() < deadline and first.poll() is None:
+            time.sleep(0.05)
+        assert holder(out) == first.pid, "the first import never took the lock"
+        for second in (["import", rec, *IMPORT, "--overwrite"], [*SIM]):  # another import, or a simulate
+            with pytest.raises(SystemExit) as exit_:
+                _cli(*second, "--out", out)
+            err = capsys.readouterr().err.strip()
+            assert exit_.value.code == 2 and err.count("\n") == 0
+            assert str(out) in err and f"process {first.pid}" in err
+    finally:
+        first.send_signal(signal.SIGCONT)
+    assert first.wait(timeout=120) == 0
+    assert _files(out) == _files(reference / "imported")
 
 
 def test_stale_lock_of_a_dead_process_is_taken_over(reference: Path, tmp_path: Path) -> None:
