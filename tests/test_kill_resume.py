@@ -8,7 +8,9 @@ place of each kill is exact and the test is deterministic.
 from __future__ import annotations
 
 import csv
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,7 +26,9 @@ from spikenerf.camera.io import write_dat
 from spikenerf.cli import main
 from spikenerf.core.faults import KILL_ENV
 from spikenerf.core.lock import holder, lock_path
+from spikenerf.core.marker import mark
 from spikenerf.data.simulate import work_dir
+from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
 
 SIM = ["simulate", "--scene", "analytic-orbs", "--width", "16", "--height", "16", "--frames", "60",
        "--test-views", "2", "--gt-every", "7", "--blur-fps", "4000", "--no-progress"]  # fmt: skip
@@ -182,3 +186,79 @@ def test_stale_lock_of_a_dead_process_is_taken_over(reference: Path, tmp_path: P
     assert holder(out) == int(dead.stdout)
     _cli(*SIM, "--out", out)
     assert _files(out) == _files(reference / "ds") and not lock_path(out).exists()
+
+
+#: two cells of a tiny benchmark; a checkpoint every 2 iterations, so a kill at iteration 3 resumes from one
+BENCH = {"scenes": ["analytic-orbs"], "variants": ["nerf-gt", "nerf-blur"], "colors": ["gray"], "size": 16,
+         "frames": 100, "iters": 4, "device": "cpu", "test_views": 1, "render": False,
+         "extra_train_args": ["--batch", "64", "--eval-every", "2", "--eval-views", "1", "--spike-window",
+                              "8", "--spike-pixels", "8", "--ckpt-every", "2", "--quiet"]}  # fmt: skip
+
+
+def _stopped_in_group(pgid: int) -> list[int]:
+    """PIDs of the stopped (SIGSTOP) processes of process group ``pgid`` (Linux /proc)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[0] == "T" and int(fields[2]) == pgid:
+            found.append(int(proc.name))
+    return found
+
+
+def _numbers(out: Path) -> list[dict]:
+    """results.json's cells without their wall-clock training time."""
+    cells = json.loads((out / "results.json").read_text())["cells"]
+    return [{k: v for k, v in c.items() if k != "seconds"} for c in cells]
+
+
+def _kill_in_second_cell(out: Path, log: Path) -> None:
+    """Run the benchmark in its own process group; every train stops (SIGSTOP) at iteration 3: the first
+    cell's is let go on, and at the second cell's the whole group (benchmark and step) is SIGKILLed."""
+    script = "; ".join([
+        "from pathlib import Path",
+        "from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark",
+        f"run_benchmark(BenchmarkConfig(**{BENCH!r}, out=Path({str(out)!r})))",
+    ])  # fmt: skip
+    env = {**os.environ, "OMP_NUM_THREADS": "1", KILL_ENV: "train.iteration:3:STOP"}
+    with log.open("w") as sink:
+        bench = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=sink,
+                                 stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
+    first = out / "runs" / "analytic-orbs" / "gray" / "nerf-gt"
+    try:
+        deadline = time.monotonic() + 240
+        while bench.poll() is None and time.monotonic() < deadline:
+            stopped = _stopped_in_group(bench.pid)
+            if stopped and (first / "metrics.json").is_file():  # the second cell's train, at iteration 3
+                os.killpg(bench.pid, signal.SIGKILL)
+                break
+            for pid in stopped:  # the first cell's train
+                os.kill(pid, signal.SIGCONT)
+            time.sleep(0.02)
+    finally:
+        if bench.poll() is None:
+            os.killpg(bench.pid, signal.SIGKILL)
+    assert bench.wait(timeout=30) == -signal.SIGKILL, log.read_text()
+
+
+def test_benchmark_killed_in_its_second_cell_resumes_without_redoing_the_first(tmp_path: Path) -> None:
+    # the uninterrupted reference of the second cell (a cell's numbers do not depend on the other cells)
+    ref = BenchmarkConfig(**{**BENCH, "variants": ["nerf-blur"]}, out=tmp_path / "ref")
+    run_benchmark(ref)
+    out = tmp_path / "bench"
+    shutil.copytree(ref.out / "datasets", out / "datasets")  # the same dataset, simulated once
+    mark(out, "benchmark")
+    _kill_in_second_cell(out, tmp_path / "log")
+    first, second = (out / "runs" / "analytic-orbs" / "gray" / v for v in BENCH["variants"])
+    assert not (second / "metrics.json").exists() and (second / "checkpoint.pt").is_file()
+    done = {p.name: p.stat().st_mtime_ns for p in first.iterdir()}
+    run_benchmark(BenchmarkConfig(**BENCH, out=out))
+    assert _numbers(out)[1] == _numbers(ref.out)[0]
+    assert {p.name: p.stat().st_mtime_ns for p in first.iterdir()} == done  # the first cell was not re-run
+    steps = json.loads((out / "results.json").read_text())["commands"]["this_run"]
+    assert [(s["command"][1], "--resume" in s["command"]) for s in steps] == [
+        ("train", True),
+        ("eval", False),
+    ]
