@@ -9,21 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from helpers import BENCHMARK_TRAIN
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, _parallel, run_benchmark
-
-TRAIN = [
-    "--batch",
-    "64",
-    "--eval-every",
-    "2",
-    "--eval-views",
-    "1",
-    "--spike-window",
-    "8",
-    "--spike-pixels",
-    "8",
-]
 
 
 def test_parallel_keeps_order_runs_at_once_and_stops_on_failure() -> None:
@@ -56,7 +44,7 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt", "nerf-blur"], ["gray"], tmp_path / "b", size=16,
                           frames=100, iters=4, device="cpu", test_views=1, render=False,
-                          extra_train_args=TRAIN, jobs=2)  # fmt: skip
+                          extra_train_args=BENCHMARK_TRAIN, jobs=2)  # fmt: skip
     cells = run_benchmark(cfg)
     assert [c.variant for c in cells] == ["nerf-gt", "nerf-blur"] and all(c.psnr > 5 for c in cells)
     logs = sorted(p.name for p in (cfg.out / "logs").iterdir())

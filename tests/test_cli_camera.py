@@ -8,22 +8,12 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from helpers import run_cli
 from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.camera.reconstruct import tfi, tfp
-from spikenerf.cli import main
 from spikenerf.core.color import srgb_encode
 
 H, W, T = 8, 12, 120
-
-
-def _run(capsys, *args: str) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exit_:
-        code = int(exit_.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture
@@ -46,7 +36,7 @@ def stream(tmp_path: Path) -> tuple[Path, np.ndarray]:
 
 def test_info_dat_prints_counts_and_rates(capsys, stream) -> None:
     path, spikes = stream
-    code, out, _ = _run(capsys, "info", path, "--height", H, "--width", W)
+    code, out, _ = run_cli(capsys, "info", path, "--height", H, "--width", W)
     assert code == 0
     assert "frames: 120" in out and "duration: 3 ms at 40000 Hz" in out
     rate = spikes.mean()
@@ -57,13 +47,13 @@ def test_info_dat_prints_counts_and_rates(capsys, stream) -> None:
 
 
 def test_info_needs_the_frame_size(capsys, stream) -> None:
-    code, _, err = _run(capsys, "info", stream[0], "--height", H)
+    code, _, err = run_cli(capsys, "info", stream[0], "--height", H)
     assert code == 2
     assert err.strip().count("\n") == 0 and "--width" in err and "s.dat" in err
 
 
 def test_info_on_a_folder_that_is_not_a_dataset_exits_2(capsys, tmp_path: Path) -> None:
-    code, _, err = _run(capsys, "info", tmp_path)
+    code, _, err = run_cli(capsys, "info", tmp_path)
     assert code == 2 and err.strip().count("\n") == 0
     assert "not a dataset folder" in err and tmp_path.name in err
 
@@ -71,8 +61,8 @@ def test_info_on_a_folder_that_is_not_a_dataset_exits_2(capsys, tmp_path: Path) 
 def test_reconstruct_png_is_srgb_of_tfp(capsys, stream, tmp_path: Path) -> None:
     path, spikes = stream
     out = tmp_path / "f.png"
-    code, _, _ = _run(capsys, "reconstruct", path, "--height", H, "--width", W, "--method", "tfp",
-                      "--window", 21, "--frame", 60, "--out", out)  # fmt: skip
+    code, _, _ = run_cli(capsys, "reconstruct", path, "--height", H, "--width", W, "--method", "tfp",
+                         "--window", 21, "--frame", 60, "--out", out)  # fmt: skip
     assert code == 0
     expect = np.round(srgb_encode(tfp(spikes, 21)[60].astype(np.float64)) * 255).astype(np.uint8)
     image = iio.imread(out)
@@ -86,11 +76,11 @@ def test_reconstruct_npy_frame_and_range(capsys, stream, tmp_path: Path, method:
     path, spikes = stream
     full = tfp(spikes, 41) if method == "tfp" else tfi(spikes)
     base = ["reconstruct", path, "--height", H, "--width", W, "--method", method]
-    assert _run(capsys, *base, "--frame", 7, "--out", tmp_path / "one.npy")[0] == 0
+    assert run_cli(capsys, *base, "--frame", 7, "--out", tmp_path / "one.npy")[0] == 0
     one = np.load(tmp_path / "one.npy")
     assert one.shape == (H, W) and one.dtype == np.float32
     np.testing.assert_array_equal(one, full[7])
-    assert _run(capsys, *base, "--frames", "10:110", "--out", tmp_path / "r.npy")[0] == 0
+    assert run_cli(capsys, *base, "--frames", "10:110", "--out", tmp_path / "r.npy")[0] == 0
     np.testing.assert_array_equal(np.load(tmp_path / "r.npy"), full[10:110])
 
 
@@ -100,11 +90,13 @@ def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
     write_dat(topdown, spikes, layout="topdown")
     out = tmp_path / "frames"
     args = ["reconstruct", topdown, "--height", H, "--width", W, "--method", "tfp", "--layout", "topdown"]
-    assert _run(capsys, *args, "--frames", "5:9", "--out", out)[0] == 0
+    assert run_cli(capsys, *args, "--frames", "5:9", "--out", out)[0] == 0
     assert sorted(p.name for p in out.iterdir()) == ["00005.png", "00006.png", "00007.png", "00008.png"]
     expect = np.round(srgb_encode(tfp(spikes, 41)[8].astype(np.float64)) * 255).astype(np.uint8)
     np.testing.assert_array_equal(iio.imread(out / "00008.png"), expect)
-    assert _run(capsys, *args, "--frames", "0:2", "--out", out)[0] == 0  # a previous frame folder is replaced
+    assert (
+        run_cli(capsys, *args, "--frames", "0:2", "--out", out)[0] == 0
+    )  # a previous frame folder is replaced
     assert sorted(p.name for p in out.iterdir()) == ["00000.png", "00001.png"]
 
 
@@ -129,7 +121,7 @@ def test_reconstruct_bad_input_exits_2_and_writes_nothing(capsys, stream, tmp_pa
         out = out.with_suffix(".png" if "--out-png" in extra else ".jpg")
         extra = [e for e in extra if not e.startswith("--out-")]
     method = [] if "--method" in extra else ["--method", "tfp"]
-    code, _, err = _run(
+    code, _, err = run_cli(
         capsys, "reconstruct", path, "--height", H, "--width", W, *method, *extra, "--out", out
     )
     assert code == 2
@@ -142,16 +134,18 @@ def test_reconstruct_truncated_file_and_refused_folder(capsys, stream, tmp_path:
     truncated = tmp_path / "t.dat"
     truncated.write_bytes(path.read_bytes()[:-5])
     base = ["--height", H, "--width", W, "--method", "tfp", "--frame", 0]
-    code, _, err = _run(capsys, "reconstruct", truncated, *base, "--out", tmp_path / "x.npy")
+    code, _, err = run_cli(capsys, "reconstruct", truncated, *base, "--out", tmp_path / "x.npy")
     assert code == 2 and "remainder of 7 bytes" in err and "t.dat" in err
     assert not (tmp_path / "x.npy").exists()
     busy = tmp_path / "busy"
     busy.mkdir()
     (busy / "notes.txt").write_text("keep me")
-    code, _, err = _run(capsys, "reconstruct", path, *base[:-2], "--frames", "0:2", "--out", busy)
+    code, _, err = run_cli(capsys, "reconstruct", path, *base[:-2], "--frames", "0:2", "--out", busy)
     assert code == 2 and "refusing" in err
     assert (busy / "notes.txt").read_text() == "keep me"
-    code, _, err = _run(capsys, "reconstruct", tmp_path / "missing.dat", *base, "--out", tmp_path / "y.png")
+    code, _, err = run_cli(
+        capsys, "reconstruct", tmp_path / "missing.dat", *base, "--out", tmp_path / "y.png"
+    )
     assert code == 2 and "not found" in err
 
 
@@ -168,7 +162,7 @@ def test_reconstruct_reads_only_the_needed_frames(capsys, stream, tmp_path: Path
 
     monkeypatch.setattr(io, "read_dat", spy)
     args = ["--height", H, "--width", W, "--method", "tfp", "--window", 11, "--frame", 50]
-    assert _run(capsys, "reconstruct", path, *args, "--out", tmp_path / "a.npy")[0] == 0
+    assert run_cli(capsys, "reconstruct", path, *args, "--out", tmp_path / "a.npy")[0] == 0
     assert calls == [slice(45, 56)]
     np.testing.assert_array_equal(read_dat(path, H, W), spikes)
 
@@ -181,9 +175,9 @@ def test_threads_option_sets_torch_and_child_processes(capsys, stream, monkeypat
     monkeypatch.setenv("OMP_NUM_THREADS", "")
     before = torch.get_num_threads()
     try:
-        code, _, _ = _run(capsys, "--threads", "1", "info", stream[0], "--height", H, "--width", W)
+        code, _, _ = run_cli(capsys, "--threads", "1", "info", stream[0], "--height", H, "--width", W)
         assert code == 0 and os.environ["OMP_NUM_THREADS"] == "1" and torch.get_num_threads() == 1
-        code, _, err = _run(capsys, "--threads", "0", "info", stream[0])
+        code, _, err = run_cli(capsys, "--threads", "0", "info", stream[0])
         assert code == 2 and "--threads" in err
     finally:
         torch.set_num_threads(before)
@@ -192,20 +186,20 @@ def test_threads_option_sets_torch_and_child_processes(capsys, stream, monkeypat
 def test_info_and_reconstruct_read_the_size_from_a_spikecv_config(capsys, stream, tmp_path: Path) -> None:
     path, spikes = stream
     (path.parent / "config.yaml").write_text(f"filename: s\nspike_h: {H}\nspike_w: {W}\nis_labeled: false\n")
-    code, out, _ = _run(capsys, "info", path)
+    code, out, _ = run_cli(capsys, "info", path)
     assert code == 0 and f"frame: {H}×{W} pixels" in out and "frames: 120" in out
     out_png = tmp_path / "lin.png"
-    code, _, _ = _run(capsys, "reconstruct", path, "--method", "tfp", "--frame", 60, "--encoding", "linear",
-                      "--out", out_png)  # fmt: skip
+    code, _, _ = run_cli(capsys, "reconstruct", path, "--method", "tfp", "--frame", 60,
+                         "--encoding", "linear", "--out", out_png)  # fmt: skip
     assert code == 0  # linear PNG: round(255 · Î), SpikeCV's convention (no gamma)
     np.testing.assert_array_equal(iio.imread(out_png), np.round(tfp(spikes, 41)[60] * 255).astype(np.uint8))
     out_npy = tmp_path / "s.npy"
-    code, _, _ = _run(capsys, "reconstruct", path, "--method", "tfp", "--frame", 60, "--encoding", "srgb",
-                      "--out", out_npy)  # fmt: skip
+    code, _, _ = run_cli(capsys, "reconstruct", path, "--method", "tfp", "--frame", 60,
+                         "--encoding", "srgb", "--out", out_npy)  # fmt: skip
     assert code == 0
     np.testing.assert_allclose(
         np.load(out_npy), srgb_encode(tfp(spikes, 41)[60].astype(np.float64)), atol=1e-6
     )
     (path.parent / "config.yaml").write_text("spike_h: 0\nspike_w: 12\n")
-    code, _, err = _run(capsys, "info", path)
+    code, _, err = run_cli(capsys, "info", path)
     assert code == 2 and "spike_h" in err and err.strip().count("\n") == 0

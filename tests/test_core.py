@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -11,7 +13,7 @@ from hypothesis import strategies as st
 from spikenerf.core.atomic import atomic_path, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_decode, srgb_encode
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, comma_list
 
 
 @given(st.floats(0.0, 1.0))
@@ -64,3 +66,14 @@ def test_device_mps_is_accepted_where_torch_has_it(monkeypatch) -> None:
         resolve_device("mps")
     with pytest.raises(InputError, match="auto, cpu, cuda or mps"):
         resolve_device("tpu")
+
+
+def test_comma_list_keeps_known_names_and_words_the_error_through_the_caller() -> None:
+    known = ("gray", "rgb", "bayer")
+    assert comma_list(" rgb,, gray ", known, str) == [
+        "rgb",
+        "gray",
+    ]  # stripped, empty items dropped, in order
+    for spec, unknown in (("rgb,cmyk,x", "['cmyk', 'x']"), (" , ", "[]"), ("", "[]")):
+        with pytest.raises(InputError, match=rf"^--color: {re.escape(unknown)}$"):
+            comma_list(spec, known, lambda bad: f"--color: {bad}")

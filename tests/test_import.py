@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import run_cli
 from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.camera.spikecv import read_spikecv_config
-from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.data.alignment import (
     apply_similarity,
@@ -25,16 +25,7 @@ from spikenerf.data.poses import read_colmap_text
 from spikenerf.scenes.trajectory import matrix_to_quaternion, orbit
 
 H, W, T = 8, 24, 40  # 40 frames of 8×24 are not a whole number of 8×40 raw frames, and vice versa
-
-
-def _run(capsys, *args: object) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exit_:
-        code = int(exit_.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
+ORBIT = ("--poses", "orbit", "--orbit", "4,30", "--fov", 40)  # the orbit that _truth() and the tests use
 
 
 @pytest.fixture
@@ -57,25 +48,8 @@ def _leftovers(tmp_path: Path) -> list[str]:
 
 def test_spikecv_config_and_orbit_import(capsys, recording, tmp_path: Path) -> None:
     rec, spikes = recording
-    code, _, err = _run(
-        capsys,
-        "import",
-        rec,
-        "--out",
-        tmp_path / "ds",
-        "--poses",
-        "orbit",
-        "--orbit",
-        "4,30",
-        "--fov",
-        40,
-        "--keyframe-every",
-        8,
-        "--window",
-        5,
-        "--test-every",
-        2,
-    )
+    args = ["--keyframe-every", 8, "--window", 5, "--test-every", 2]
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, *args)
     assert code == 0, err
     ds = load_dataset(tmp_path / "ds")
     assert (ds.intrinsics.height, ds.intrinsics.width, ds.trajectory.fps) == (H, W, 20000.0)
@@ -92,44 +66,11 @@ def test_raw_416_layout_and_range(capsys, recording, tmp_path: Path) -> None:
     _, spikes = recording
     raw = tmp_path / "raw" / "stream.dat"
     write_dat(raw, np.concatenate([spikes, np.ones((T, H, 16), np.uint8)], axis=2))  # 16 junk columns
-    code, _, err = _run(
-        capsys,
-        "import",
-        raw,
-        "--height",
-        H,
-        "--width",
-        W,
-        "--out",
-        tmp_path / "x",
-        "--poses",
-        "orbit",
-        "--orbit",
-        "4,30",
-        "--fov",
-        40,
-    )
+    size = ("--height", H, "--width", W)
+    code, _, err = run_cli(capsys, "import", raw, *size, "--out", tmp_path / "x", *ORBIT)
     assert code == 2 and "pass --raw-width 40" in err and len(err.strip().splitlines()) == 1
-    code, _, err = _run(
-        capsys,
-        "import",
-        raw,
-        "--height",
-        H,
-        "--width",
-        W,
-        "--raw-width",
-        40,
-        "--range",
-        "5:37",
-        "--out",
-        tmp_path / "ds",
-        "--poses",
-        "orbit",
-        "--orbit",
-        "4,30",
-        "--fov",
-        40,
+    code, _, err = run_cli(
+        capsys, "import", raw, *size, "--raw-width", 40, "--range", "5:37", "--out", tmp_path / "ds", *ORBIT
     )
     assert code == 0, err
     ds = load_dataset(tmp_path / "ds")
@@ -145,7 +86,7 @@ def test_transforms_json_poses_at_their_steps(capsys, recording, tmp_path: Path)
     box = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
     pose_file = tmp_path / "transforms.json"
     pose_file.write_text(json.dumps({"camera_angle_x": 0.7, "scene_box": box, "frames": frames}))
-    code, _, err = _run(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", pose_file)
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", pose_file)
     assert code == 0, err
     ds = load_dataset(tmp_path / "ds")
     np.testing.assert_allclose(ds.trajectory.poses[keys], truth[keys], atol=1e-6)  # box already unit
@@ -178,7 +119,7 @@ def test_colmap_text_model_normalised_with_points(capsys, recording, tmp_path: P
     found = read_colmap_text(model)
     np.testing.assert_allclose(found.poses, c2w, atol=1e-9)
     assert found.steps.tolist() == keys.tolist() and found.intrinsics.fl_y == 31
-    code, _, err = _run(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", model)
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", model)
     assert code == 0, err
     ds = load_dataset(tmp_path / "ds")
     norm = ds.config["imported"]["normalisation"]
@@ -198,7 +139,7 @@ def test_llff_poses_bounds(capsys, recording, tmp_path: Path) -> None:
     hwf = np.broadcast_to(np.array([H, W, 30.0])[None, :, None], (len(truth), 3, 1))
     rows = np.concatenate([np.concatenate([llff, hwf], -1).reshape(-1, 15), np.ones((len(truth), 2))], 1)
     np.save(tmp_path / "poses_bounds.npy", rows)
-    code, _, err = _run(
+    code, _, err = run_cli(
         capsys, "import", rec, "--out", tmp_path / "ds", "--poses", tmp_path / "poses_bounds.npy"
     )
     assert code == 0, err
@@ -250,7 +191,7 @@ def test_bad_input_exits_2_and_leaves_nothing(
         args += ["--poses", pose_file, "--fov", 40]
     if setup == "nocolmap":
         monkeypatch.setitem(sys.modules, "pycolmap", None)
-    code, _, err = _run(capsys, *args)
+    code, _, err = run_cli(capsys, *args)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert _leftovers(tmp_path) == [p for p in ["p.json"] if (tmp_path / p).exists()]
 
@@ -269,7 +210,9 @@ def test_config_reader_types(tmp_path: Path) -> None:
 def test_colmap_too_few_registered_names_count_and_flag(capsys, recording, tmp_path: Path) -> None:
     pytest.importorskip("pycolmap")
     rec, _ = recording  # random noise: nothing to match
-    code, _, err = _run(capsys, "import", rec, "--out", tmp_path / "ds", "--keyframe-every", 8, "--window", 5)
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds", "--keyframe-every", 8, "--window", 5
+    )
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "COLMAP registered 0 of 6 keyframes" in err and "--keyframe-every (now 8)" in err
     assert not (tmp_path / "ds").exists()

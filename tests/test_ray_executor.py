@@ -16,31 +16,20 @@ from pathlib import Path
 
 import pytest
 
+from helpers import BENCHMARK_TRAIN
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
 from spikenerf.pipelines.ray_executor import INSTALL_HINT, scratch_root
 
 SRC = Path(__file__).resolve().parents[1] / "src"
-TRAIN = [
-    "--batch",
-    "64",
-    "--eval-every",
-    "2",
-    "--eval-views",
-    "1",
-    "--spike-window",
-    "8",
-    "--spike-pixels",
-    "8",
-]
 WORKER = re.compile(r"Ray worker pid (\d+)")
 
 
 def tiny(out: Path, variants: list[str], **kw: object) -> BenchmarkConfig:
     return BenchmarkConfig(
         ["analytic-orbs"], variants, ["gray"], out, size=16, frames=60, iters=4, device="cpu",
-        test_views=1, render=False, extra_train_args=TRAIN, **kw,  # type: ignore[arg-type]
+        test_views=1, render=False, extra_train_args=BENCHMARK_TRAIN, **kw,  # type: ignore[arg-type]
     )  # fmt: skip
 
 
@@ -155,7 +144,7 @@ def test_failing_cell_is_retried_and_its_logs_kept(cluster: Path, local_run: Pat
     out = tmp_path / "b"
     reuse_datasets(local_run, out)
     cfg = tiny(out, ["nerf-gt"], executor="ray", retries=1)
-    cfg.extra_train_args = [*TRAIN, "--no-such-flag"]  # train exits with code 2
+    cfg.extra_train_args = [*BENCHMARK_TRAIN, "--no-such-flag"]  # train exits with code 2
     with pytest.raises(
         InputError, match=r"1 job\(s\) failed after 1 retries: analytic-orbs-gray-nerf-gt \(step "
     ):

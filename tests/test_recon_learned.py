@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import run_cli
 from spikenerf.camera.io import write_dat
-from spikenerf.cli import main
 from spikenerf.recon.generate import write_pairs
 from spikenerf.recon.infer import predict_plane, reconstruct_learned
 from spikenerf.recon.net import NetConfig, ReconNet, load_weights, save_weights
@@ -18,15 +18,6 @@ from spikenerf.recon.store import load_split
 from spikenerf.recon.training import ReconTrainConfig, psnr, train_recon
 
 TINY = PairConfig(size=16, window=7, supersample=1)
-
-
-def _run(capsys, *args: object) -> tuple[int, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exit_:
-        code = int(exit_.code or 0)
-    return code, capsys.readouterr().err
 
 
 def test_pairs_have_the_window_and_target_shapes_of_each_colour_mode() -> None:
@@ -173,7 +164,7 @@ def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: s
         args += ["--color", "bayer"]
     elif case == "window":
         args += ["--window", 41]
-    code, err = _run(capsys, *args, "--weights", weights, "--out", tmp_path / "o.npy")
+    code, _, err = run_cli(capsys, *args, "--weights", weights, "--out", tmp_path / "o.npy")
     expected = {
         "corrupt": "unreadable weights",
         "foreign": "not a spikenerf reconstructor",
@@ -199,8 +190,8 @@ def test_training_targets_accept_the_learned_reconstruction() -> None:
 
 
 def test_recon_commands_reject_bad_folders_with_one_line(capsys, tmp_path: Path) -> None:
-    code, err = _run(capsys, "recon-train", tmp_path, "--out", tmp_path / "run")
+    code, _, err = run_cli(capsys, "recon-train", tmp_path, "--out", tmp_path / "run")
     assert code == 2 and err.count("\n") == 1 and "manifest.json" in err
-    code, err = _run(capsys, "recon-data", "--out", tmp_path / "p", "--window", 8)
+    code, _, err = run_cli(capsys, "recon-data", "--out", tmp_path / "p", "--window", 8)
     assert code == 2 and err.count("\n") == 1 and "--window" in err
     assert not (tmp_path / "p").exists() and not (tmp_path / "run").exists()

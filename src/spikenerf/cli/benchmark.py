@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, comma_list
 
 
 @click.command(help="Reproduce Table I (comparison) and Table II (ablation) on the built-in scenes.")
@@ -72,9 +72,9 @@ def command(
     from spikenerf.pipelines.benchmark import BenchmarkConfig, parse_seeds, resolve_scenes, resolve_variants
     from spikenerf.pipelines.suite import benchmark_with_report
 
-    colors = [c.strip() for c in color.split(",") if c.strip()]
-    if not colors or any(c not in ("gray", "rgb") for c in colors):
-        raise InputError(f"--color: expected gray, rgb or gray,rgb, got {color!r}")
+    colors = comma_list(
+        color, ("gray", "rgb"), lambda _: f"--color: expected gray, rgb or gray,rgb, got {color!r}"
+    )
     if size < 8 or frames < 2:
         raise InputError(f"--size must be ≥ 8 and --frames ≥ 2, got {size} and {frames}")
     views = str(check_blur_views(blur_views, frames))

@@ -8,13 +8,11 @@ import click
 
 
 def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
-    from spikenerf.core.errors import InputError
+    from spikenerf.core.errors import comma_list
 
-    items = [v.strip() for v in value.split(",") if v.strip()]
-    bad = [v for v in items if v not in allowed]
-    if bad or not items:
-        raise InputError(f"{option}: expected a comma list of {', '.join(allowed)}, found {value!r}")
-    return items
+    return comma_list(
+        value, allowed, lambda _: f"{option}: expected a comma list of {', '.join(allowed)}, found {value!r}"
+    )
 
 
 @click.command(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shlex
 import sys
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -67,26 +68,10 @@ def command(**kw: Any) -> None:
             frame_range = parse_range(kw["frame_range"])
         except InputError as err:
             raise InputError(str(err).replace("--frames", "--range")) from None
+    flag = {"fov_deg": "fov"}  # ImportOptions field → click parameter, where the names differ
+    given = {f.name: kw[flag.get(f.name, f.name)] for f in fields(ImportOptions) if f.name != "command"}
     opts = ImportOptions(
-        poses=kw["poses"],
-        orbit=kw["orbit"],
-        height=kw["height"],
-        width=kw["width"],
-        config=kw["config"],
-        raw_width=kw["raw_width"],
-        fps=kw["fps"],
-        threshold=kw["threshold"],
-        layout=kw["layout"],
-        frame_range=frame_range,
-        keyframe_every=kw["keyframe_every"],
-        window=kw["window"],
-        test_every=kw["test_every"],
-        fov_deg=kw["fov"],
-        overlap=kw["overlap"],
-        min_registered=kw["min_registered"],
-        overwrite=kw["overwrite"],
-        verbose=kw["verbose"],
-        command=shlex.join(["spikenerf", "import", *sys.argv[2:]]),
+        **given | {"frame_range": frame_range, "command": shlex.join(["spikenerf", "import", *sys.argv[2:]])}
     )
     out = import_recording(kw["recording"], kw["out"], opts)
     from spikenerf.data.dataset import load_dataset

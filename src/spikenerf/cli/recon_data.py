@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, comma_list
 
 
 @click.command(
@@ -130,11 +130,13 @@ def _window(window: int) -> int:
 
 
 def _choices(flag: str, text: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
-    items = tuple(t.strip() for t in text.split(",") if t.strip())
-    bad = [t for t in items if t not in allowed]
-    if bad or not items:
-        raise InputError(f"{flag} must be a comma-separated subset of {','.join(allowed)}, found {text!r}")
-    return items
+    return tuple(
+        comma_list(
+            text,
+            allowed,
+            lambda _: f"{flag} must be a comma-separated subset of {','.join(allowed)}, found {text!r}",
+        )
+    )
 
 
 def _range(text: str) -> tuple[float, float]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 #: longest message an InputError keeps (foreign library errors can run to pages)
@@ -25,3 +26,16 @@ class InputError(ValueError):
         self.path = None if path is None else str(path)
         message = one_line(message)
         super().__init__(f"{self.path}: {message}" if self.path else message)
+
+
+def comma_list(spec: str, known: Collection[str], complaint: Callable[[list[str]], str]) -> list[str]:
+    """``"a, b"`` → ``["a", "b"]``: the non-empty comma-separated names of ``spec``, each one of ``known``.
+
+    Raises InputError(``complaint(unknown)``) when a name is not known or there is none (the caller words
+    the message: it names the flag and what was expected).
+    """
+    names = [n.strip() for n in spec.split(",") if n.strip()]
+    unknown = [n for n in names if n not in known]
+    if unknown or not names:
+        raise InputError(complaint(unknown))
+    return names

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import torch
 
 from spikenerf import __version__
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, comma_list
 from spikenerf.pipelines.tables import ABLATION_VARIANTS, Cell
 from spikenerf.scenes.registry import blender_available, list_scenes
 
@@ -125,13 +125,11 @@ def resolve_scenes(spec: str) -> list[str]:
             if blender and blender_available()
             else [s.name for s in known.values() if not s.needs_blender]
         )
-    names = [n.strip() for n in spec.split(",") if n.strip()]
-    unknown = [n for n in names if n not in known]
-    if unknown or not names:
-        raise InputError(
-            f"--scenes: unknown scene(s) {unknown}; expected 'all' or names from: {', '.join(known)}"
-        )
-    return names
+    return comma_list(
+        spec,
+        known,
+        lambda bad: f"--scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+    )
 
 
 def resolve_variants(spec: str) -> list[str]:
@@ -139,13 +137,13 @@ def resolve_variants(spec: str) -> list[str]:
     presets = {"all": list(VARIANT_FLAGS), "table1": list(TABLE1_VARIANTS), "table2": list(ABLATION_VARIANTS)}
     if spec in presets:
         return presets[spec]
-    names = [n.strip() for n in spec.split(",") if n.strip()]
-    unknown = [n for n in names if n not in VARIANT_FLAGS]
-    if unknown or not names:
-        raise InputError(
-            f"--methods: unknown method(s) {unknown}; expected all, table1, table2 or {list(VARIANT_FLAGS)}"
-        )
-    return names
+    return comma_list(
+        spec,
+        VARIANT_FLAGS,
+        lambda bad: (
+            f"--methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANT_FLAGS)}"
+        ),
+    )
 
 
 def _spikenerf(*args: str) -> list[str]:

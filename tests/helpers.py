@@ -1,0 +1,25 @@
+"""What several test modules share: running the CLI in-process, and the tiny trainer flags of benchmark tests.
+
+Import it as ``from helpers import ...`` (pytest puts ``tests/`` on ``sys.path``: the folder has no
+``__init__.py``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from spikenerf.cli import main
+
+#: ``train`` flags of the tiny benchmarks (``BenchmarkConfig.extra_train_args``): a few rays, one eval view
+BENCHMARK_TRAIN = ["--batch", "64", "--eval-every", "2", "--eval-views", "1", "--spike-window", "8",
+                   "--spike-pixels", "8"]  # fmt: skip
+
+
+def run_cli(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:
+    """``spikenerf ARGS`` in this process: (exit code, stdout, stderr)."""
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as exit_:
+        code = int(exit_.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
