@@ -22,6 +22,7 @@ import pytest
 import torch
 import yaml
 
+from helpers import BENCHMARK_TRAIN
 from spikenerf.camera.io import write_dat
 from spikenerf.cli import main
 from spikenerf.core.faults import KILL_ENV
@@ -191,8 +192,7 @@ def test_stale_lock_of_a_dead_process_is_taken_over(reference: Path, tmp_path: P
 #: two cells of a tiny benchmark; a checkpoint every 2 iterations, so a kill at iteration 3 resumes from one
 BENCH = {"scenes": ["analytic-orbs"], "variants": ["nerf-gt", "nerf-blur"], "colors": ["gray"], "size": 16,
          "frames": 100, "iters": 4, "device": "cpu", "test_views": 1, "render": False,
-         "extra_train_args": ["--batch", "64", "--eval-every", "2", "--eval-views", "1", "--spike-window",
-                              "8", "--spike-pixels", "8", "--ckpt-every", "2", "--quiet"]}  # fmt: skip
+         "extra_train_args": [*BENCHMARK_TRAIN, "--ckpt-every", "2", "--quiet"]}  # fmt: skip
 
 
 def _stopped_in_group(pgid: int) -> list[int]:
