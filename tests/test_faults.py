@@ -129,6 +129,8 @@ R = "{root}"
 #: (case id, argv with {root} for the sandbox, a fragment the one-line message must contain)
 T = ["train", f"{R}/ds", *TRAIN]
 B = ["benchmark", "--scenes", "analytic-orbs"]
+IMP = ["import", f"{R}/ds/spikes_gray.dat", "--poses", "orbit", "--orbit", "4,30", "--fov", "40",
+       "--keyframe-every", "5", "--window", "3"]  # fmt: skip
 DAT = ["reconstruct", f"{R}/ds/spikes_gray.dat", "--method", "tfp"]
 # fmt: off
 CASES: list[tuple[str, list[str], str]] = [
@@ -226,6 +228,12 @@ CASES: list[tuple[str, list[str], str]] = [
     ("info-missing", ["info", f"{R}/nope"], "nope"),
     ("info-pickle-ckpt", ["info", f"{R}/pickle_ckpt"], "checkpoint.pt"),
     ("info-bad-yaml-ds", ["info", f"{R}/yaml_ds"], "config.yaml"),
+    # import: outputs (the dataset's own spikes and config.yaml are a valid recording)
+    ("import-overwrite-foreign", [*IMP, "--overwrite", "--out", f"{R}/thesis"], "thesis"),
+    ("import-overwrite-run", [*IMP, "--overwrite", "--out", f"{R}/run"], "run folder"),
+    ("import-exists", [*IMP, "--out", f"{R}/ds"], "--overwrite"),
+    ("import-out-is-file", [*IMP, "--overwrite", "--out", f"{R}/afile"], "afile"),
+    ("import-out-under-file", [*IMP, "--out", f"{R}/afile/ds"], "afile"),
     # benchmark, demo
     ("bench-out-under-file", [*B, "--out", f"{R}/afile/b"], "afile"),
     ("bench-size-bomb", [*B, "--size", "100000", "--out", f"{R}/o"],

@@ -1,5 +1,5 @@
-"""Kill and resume: SIGKILL ``simulate`` and ``train`` at three points each, resume, compare with an
-uninterrupted run; two concurrent writers; a stale lock; a truncated cache frame (docs/reliability.md).
+"""Kill and resume: SIGKILL ``simulate``, ``import`` and ``train`` at three points each, resume, compare with
+an uninterrupted run; two concurrent writers; a stale lock; a truncated cache frame (docs/reliability.md).
 
 Kills are real SIGKILLs delivered at named fail points (``SPIKENERF_KILL_AT``, see core/faults.py), so the
 place of each kill is exact and the test is deterministic.
@@ -8,27 +8,38 @@ place of each kill is exact and the test is deterministic.
 from __future__ import annotations
 
 import csv
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
 
+from helpers import BENCHMARK_TRAIN
+from spikenerf.camera.io import write_dat
 from spikenerf.cli import main
 from spikenerf.core.faults import KILL_ENV
 from spikenerf.core.lock import holder, lock_path
+from spikenerf.core.marker import mark
 from spikenerf.data.simulate import work_dir
+from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
 
 SIM = ["simulate", "--scene", "analytic-orbs", "--width", "16", "--height", "16", "--frames", "60",
        "--test-views", "2", "--gt-every", "7", "--blur-fps", "4000", "--no-progress"]  # fmt: skip
 TRAIN = ["--iters", "6", "--batch", "32", "--eval-every", "3", "--eval-views", "1", "--ckpt-every", "2",
          "--spike-warmup", "1", "--spike-window", "4", "--spike-pixels", "4", "--device", "cpu", "--quiet",
          "--field-option", "n_voxels_init=512", "--field-option", "n_voxels_final=1000"]  # fmt: skip
+
+#: an orbit pose source needs no COLMAP; 600 steps are three chunks of the spike copy (CHUNK_FRAMES 256)
+IMPORT = ["--poses", "orbit", "--orbit", "4,30", "--fov", "40", "--keyframe-every", "100", "--window", "5",
+          "--test-every", "2"]  # fmt: skip
 
 
 def _cli(*args: object) -> None:
@@ -58,10 +69,11 @@ def _killed_at(args: list[object], point: str) -> None:
 
 
 def _files(root: Path) -> dict[str, bytes]:
-    """Every file's bytes; config.yaml without its ``command`` line (it records the --out path)."""
+    """Every file's bytes; config.yaml without its ``command`` line (it records the --out path; ``import``
+    in this process records pytest's command line)."""
     files = {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
     config = yaml.safe_load(files["config.yaml"])
-    assert "--out" in config.pop("command")
+    assert config.pop("command").startswith("spikenerf ")
     files["config.yaml"] = yaml.safe_dump(config).encode()
     return files
 
@@ -72,6 +84,10 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("reference")
     _cli(*SIM, "--out", root / "ds")
     _cli("train", root / "ds", *TRAIN, "--out", root / "run")
+    spikes = (np.random.default_rng(0).random((600, 16, 16)) < 0.3).astype(np.uint8)
+    write_dat(root / "rec" / "stream.dat", spikes)
+    (root / "rec" / "config.yaml").write_text("spike_h: 16\nspike_w: 16\nfps: 20000\n")
+    _cli("import", root / "rec" / "stream.dat", *IMPORT, "--out", root / "imported")
     return root
 
 
@@ -86,6 +102,18 @@ def test_simulate_killed_then_resumed_is_bit_identical(reference: Path, tmp_path
         frames[-1].write_bytes(frames[-1].read_bytes()[:50])
     _cli(*SIM, "--out", out)
     assert _files(out) == _files(reference / "ds")
+    assert not work_dir(out).exists() and not lock_path(out).exists()
+
+
+@pytest.mark.parametrize("point", ["import.keyframe:3", "import.spikes:2", "import.publish:1"])
+def test_import_killed_then_rerun_is_bit_identical(reference: Path, tmp_path: Path, point: str) -> None:
+    out, rec = tmp_path / "ds", reference / "rec" / "stream.dat"
+    _killed_at(["import", rec, *IMPORT, "--out", out], point)
+    assert not out.exists() and work_dir(out).is_dir()
+    if point == "import.spikes:2":  # killed mid-copy: a partial spike file is left in the work folder
+        assert (work_dir(out) / "spikes_gray.dat").stat().st_size == 2 * 256 * 16 * 16 // 8
+    _cli("import", rec, *IMPORT, "--out", out)
+    assert _files(out) == _files(reference / "imported")
     assert not work_dir(out).exists() and not lock_path(out).exists()
 
 
@@ -138,6 +166,28 @@ def test_second_writer_is_refused_naming_the_holder(
     assert _files(out) == _files(reference / "ds")  # the first writer finished undisturbed
 
 
+def test_second_import_is_refused_while_one_writes(
+    reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, rec = tmp_path / "ds", reference / "rec" / "stream.dat"
+    first = _spawn(["import", rec, *IMPORT, "--out", out], "import.keyframe:2:STOP")
+    try:
+        deadline = time.monotonic() + 60
+        while holder(out) != first.pid and time.monotonic() < deadline and first.poll() is None:
+            time.sleep(0.05)
+        assert holder(out) == first.pid, "the first import never took the lock"
+        for second in (["import", rec, *IMPORT, "--overwrite"], [*SIM]):  # another import, or a simulate
+            with pytest.raises(SystemExit) as exit_:
+                _cli(*second, "--out", out)
+            err = capsys.readouterr().err.strip()
+            assert exit_.value.code == 2 and err.count("\n") == 0
+            assert str(out) in err and f"process {first.pid}" in err
+    finally:
+        first.send_signal(signal.SIGCONT)
+    assert first.wait(timeout=120) == 0
+    assert _files(out) == _files(reference / "imported")
+
+
 def test_stale_lock_of_a_dead_process_is_taken_over(reference: Path, tmp_path: Path) -> None:
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
     out = tmp_path / "ds"
@@ -145,3 +195,78 @@ def test_stale_lock_of_a_dead_process_is_taken_over(reference: Path, tmp_path: P
     assert holder(out) == int(dead.stdout)
     _cli(*SIM, "--out", out)
     assert _files(out) == _files(reference / "ds") and not lock_path(out).exists()
+
+
+#: two cells of a tiny benchmark; a checkpoint every 2 iterations, so a kill at iteration 3 resumes from one
+BENCH = {"scenes": ["analytic-orbs"], "variants": ["nerf-gt", "nerf-blur"], "colors": ["gray"], "size": 16,
+         "frames": 100, "iters": 4, "device": "cpu", "test_views": 1, "render": False,
+         "extra_train_args": [*BENCHMARK_TRAIN, "--ckpt-every", "2", "--quiet"]}  # fmt: skip
+
+
+def _stopped_in_group(pgid: int) -> list[int]:
+    """PIDs of the stopped (SIGSTOP) processes of process group ``pgid`` (Linux /proc)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[0] == "T" and int(fields[2]) == pgid:
+            found.append(int(proc.name))
+    return found
+
+
+def _numbers(out: Path) -> list[dict]:
+    """results.json's cells without their wall-clock training time."""
+    cells = json.loads((out / "results.json").read_text())["cells"]
+    return [{k: v for k, v in c.items() if k != "seconds"} for c in cells]
+
+
+def _kill_in_second_cell(out: Path, log: Path) -> None:
+    """Run the benchmark in its own process group; every train stops (SIGSTOP) at iteration 3: the first
+    cell's is let go on, and at the second cell's the whole group (benchmark and step) is SIGKILLed."""
+    script = "; ".join([
+        "from pathlib import Path",
+        "from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark",
+        f"run_benchmark(BenchmarkConfig(**{BENCH!r}, out=Path({str(out)!r})))",
+    ])  # fmt: skip
+    env = {**os.environ, "OMP_NUM_THREADS": "1", KILL_ENV: "train.iteration:3:STOP"}
+    with log.open("w") as sink:
+        bench = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=sink,
+                                 stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
+    first = out / "runs" / "analytic-orbs" / "gray" / "nerf-gt"
+    try:
+        deadline = time.monotonic() + 240
+        while bench.poll() is None and time.monotonic() < deadline:
+            stopped = _stopped_in_group(bench.pid)
+            if stopped and (first / "metrics.json").is_file():  # the second cell's train, at iteration 3
+                os.killpg(bench.pid, signal.SIGKILL)
+                break
+            for pid in stopped:  # the first cell's train
+                os.kill(pid, signal.SIGCONT)
+            time.sleep(0.02)
+    finally:
+        if bench.poll() is None:
+            os.killpg(bench.pid, signal.SIGKILL)
+    assert bench.wait(timeout=30) == -signal.SIGKILL, log.read_text()
+
+
+def test_benchmark_killed_in_its_second_cell_resumes_without_redoing_the_first(tmp_path: Path) -> None:
+    # the uninterrupted reference of the second cell (a cell's numbers do not depend on the other cells)
+    ref = BenchmarkConfig(**{**BENCH, "variants": ["nerf-blur"]}, out=tmp_path / "ref")
+    run_benchmark(ref)
+    out = tmp_path / "bench"
+    shutil.copytree(ref.out / "datasets", out / "datasets")  # the same dataset, simulated once
+    mark(out, "benchmark")
+    _kill_in_second_cell(out, tmp_path / "log")
+    first, second = (out / "runs" / "analytic-orbs" / "gray" / v for v in BENCH["variants"])
+    assert not (second / "metrics.json").exists() and (second / "checkpoint.pt").is_file()
+    done = {p.name: p.stat().st_mtime_ns for p in first.iterdir()}
+    run_benchmark(BenchmarkConfig(**BENCH, out=out))
+    assert _numbers(out)[1] == _numbers(ref.out)[0]
+    assert {p.name: p.stat().st_mtime_ns for p in first.iterdir()} == done  # the first cell was not re-run
+    steps = json.loads((out / "results.json").read_text())["commands"]["this_run"]
+    assert [(s["command"][1], "--resume" in s["command"]) for s in steps] == [
+        ("train", True),
+        ("eval", False),
+    ]

@@ -3,7 +3,9 @@ N-th time it passes the point ``NAME`` (a real SIGKILL: no cleanup, no ``finally
 ``NAME:N:STOP`` sends SIGSTOP instead (the process freezes, holding its locks, until SIGCONT).
 
 Points: ``simulate.render`` (after each cached frame), ``simulate.spikes`` (after each step fed to the
-cameras), ``simulate.publish`` (a finished work folder, before it is renamed), ``train.iteration`` (after
+cameras), ``simulate.publish`` (a finished work folder, before it is renamed), ``import.keyframe`` (after each
+keyframe reconstruction), ``import.spikes`` (after each chunk of steps copied into the dataset),
+``import.publish`` (like ``simulate.publish``), ``train.iteration`` (after
 each optimiser step) and ``write:NAME`` (an atomic write of a file called NAME, after its temporary is
 complete and before it replaces the file). Unset, a point costs one dictionary lookup.
 """

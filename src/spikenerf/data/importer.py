@@ -22,6 +22,9 @@ from spikenerf.camera.io import count_frames, frame_bytes, iter_dat, read_dat, r
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
+from spikenerf.core.faults import failpoint
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.data.alignment import (
     apply_similarity,
     near_far_from_points,
@@ -123,6 +126,7 @@ def keyframe_images(
         lo, hi = max(first, int(s) - half), min(stop, int(s) + half + 1)
         chunk = read_dat(dat, h, w, slice(lo, hi), opts.layout, raw)
         out.append(tfp(chunk, opts.window, threshold, frames=int(s) - lo)[0])
+        failpoint("import.keyframe")
     return np.stack(out)
 
 
@@ -183,27 +187,34 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     total = count_steps(dat, h, w, raw)
     sel = resolve_frames(opts.frame_range, total, dat)
     n = len(sel)
-    if (out.exists() or out.is_symlink()) and not opts.overwrite:
-        raise InputError("output already exists; pass --overwrite to replace it", path=out)
+    check_output(out, "dataset", overwrite=opts.overwrite)
     rel_keys = keyframe_steps(n, opts.keyframe_every, opts.window)
     if len(rel_keys) < 2:
         raise InputError(
             f"{n} steps give {len(rel_keys)} keyframe at --keyframe-every {opts.keyframe_every}; "
             "need at least 2"
         )
+    with output_lock(out):
+        check_output(out, "dataset", overwrite=opts.overwrite)  # again, now that no one else writes
+        _import_locked(dat, out, opts, (sel, fps, threshold, raw, rc.path), (h, w, rel_keys))
+    return out
+
+
+def _import_locked(dat: Path, out: Path, opts: ImportOptions, rec: tuple, keys: tuple) -> None:
+    sel, fps, threshold, raw, _ = rec
+    h, w, rel_keys = keys
     work = work_dir(out)
     fresh = not work.exists()
     work.mkdir(parents=True, exist_ok=True)
     try:
         images = keyframe_images(dat, rel_keys + sel.start, sel.start, sel.stop, (h, w, raw), opts, threshold)
-        found = keyframe_poses(opts, images, rel_keys, work, n, fps, sel.start)
+        found = keyframe_poses(opts, images, rel_keys, work, len(sel), fps, sel.start)
         k = intrinsics_for(found, w, h, opts.fov_deg)
-        _write(dat, out, work, opts, found, k, (images, rel_keys), (sel, fps, threshold, raw, rc.path))
+        _write(dat, out, work, opts, found, k, (images, rel_keys), rec)
     except BaseException:
         if fresh and not (work / COLMAP_WORK / "model").exists():  # nothing worth resuming
             shutil.rmtree(work, ignore_errors=True)
         raise
-    return out
 
 
 def _write(
@@ -239,6 +250,7 @@ def _write(
         dat, k.height, k.width, frames=slice(sel.start, sel.stop), layout=opts.layout, raw_width=raw
     ):
         writer.append_spikes("gray", chunk)
+        failpoint("import.spikes")
     held = rel_keys[1 :: opts.test_every] if opts.test_every else rel_keys[:0]
     for i in np.searchsorted(rel_keys, held):
         writer.add_test(np.repeat(images[i][..., None], 3, -1), poses[rel_keys[i]])
@@ -278,4 +290,6 @@ def _write(
             path = work / COLMAP_WORK / name
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     writer.finish(Trajectory(poses, steps / fps, steps, fps), config, None)
+    mark(work, "dataset")
+    failpoint("import.publish")
     _replace_dir(work, out)
