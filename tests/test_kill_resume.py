@@ -54,12 +54,17 @@ def _spawn(args: list[object], point: str | None = None) -> subprocess.Popen[str
     return subprocess.Popen(command, env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
-def _stopped(pid: int) -> bool:
-    """Whether process ``pid`` is frozen by SIGSTOP (state ``T`` in /proc/PID/stat)."""
+def _stat(proc: Path) -> list[str]:
+    """Fields of ``/proc/PID/stat`` after the command name (state, ppid, pgrp, …); [] when it is gone."""
     try:
-        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] == "T"
-    except (OSError, IndexError):
-        return False
+        return (proc / "stat").read_text().rpartition(")")[2].split()
+    except OSError:
+        return []
+
+
+def _stopped(pid: int) -> bool:
+    """Whether process ``pid`` is frozen by SIGSTOP (state ``T``)."""
+    return _stat(Path(f"/proc/{pid}"))[:1] == ["T"]
 
 
 def _killed_at(args: list[object], point: str) -> None:
@@ -173,9 +178,9 @@ def test_second_import_is_refused_while_one_writes(
     first = _spawn(["import", rec, *IMPORT, "--out", out], "import.keyframe:2:STOP")
     try:
         deadline = time.monotonic() + 60
-        while holder(out) != first.pid and time.monotonic() < deadline and first.poll() is None:
+        while not _stopped(first.pid) and time.monotonic() < deadline and first.poll() is None:
             time.sleep(0.05)
-        assert holder(out) == first.pid, "the first import never took the lock"
+        assert _stopped(first.pid) and holder(out) == first.pid, "the first import never took the lock"
         for second in (["import", rec, *IMPORT, "--overwrite"], [*SIM]):  # another import, or a simulate
             with pytest.raises(SystemExit) as exit_:
                 _cli(*second, "--out", out)
@@ -207,11 +212,8 @@ def _stopped_in_group(pgid: int) -> list[int]:
     """PIDs of the stopped (SIGSTOP) processes of process group ``pgid`` (Linux /proc)."""
     found = []
     for proc in Path("/proc").iterdir():
-        try:
-            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if fields[0] == "T" and int(fields[2]) == pgid:
+        fields = _stat(proc) if proc.name.isdigit() else []
+        if fields[:1] == ["T"] and int(fields[2]) == pgid:
             found.append(int(proc.name))
     return found
 
