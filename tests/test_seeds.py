@@ -62,6 +62,12 @@ def test_differences_known_interval_and_verdicts() -> None:
     single = differences(_cells([5.0]), ["gray"], metrics=["psnr"])[0]
     assert single.n == 1 and single.low is None and single.verdict == "not shown"
     assert differences(_cells([1.0, 2.0]), ["rgb"]) == []  # no rgb cells
+    one_seed = [Cell(s, v, "gray", 20.0 + i + (v == "spike-nerf") * d, 0.8, 0.2, seed=0)
+                for i, (s, d) in enumerate([("s1", 1.0), ("s2", 1.2), ("s3", 1.1)])
+                for v in ("nerf-recon", "spike-nerf")]  # fmt: skip
+    scenes_only = differences(one_seed, ["gray"], metrics=["psnr"])[0]  # 3 scenes, one training seed
+    assert scenes_only.low is not None and scenes_only.low > 0  # the interval excludes 0 across scenes …
+    assert scenes_only.verdict == "not shown (one seed)"  # … but seed noise is not in it
     md = to_markdown(differences_table([psnr, wide]))
     row = "| Spike-NeRF (ours) − NeRF + TFP reconstruction | gray | PSNR ↑ | 4 |"
     assert f"{row} +1.03 ± 0.17 | [+0.75, +1.30] | **shown** |" in md

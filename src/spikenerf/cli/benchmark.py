@@ -14,15 +14,17 @@ from spikenerf.core.errors import InputError, comma_list
 @click.option(
     "--methods", default="all", show_default=True,
     help="'all', 'table1', 'table2' or comma-separated variants (spike-nerf, spike-nerf-no-mask, "
-    "spike-nerf-no-spike-loss, nerf-recon, nerf-blur, nerf-blur-aware, nerf-gt).",
+    "spike-nerf-no-spike-loss, spike-nerf-learned, nerf-recon, nerf-recon-learned, nerf-blur, "
+    "nerf-blur-aware, nerf-gt).",
 )  # fmt: skip
 @click.option("--color", default="gray,rgb", show_default=True, help="gray, rgb or gray,rgb.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Benchmark folder (resumable).")
 @click.option("--size", type=int, default=100, show_default=True, help="Image width = height in pixels.")
 @click.option("--frames", type=int, default=1000, show_default=True, help="Spike steps on the orbit.")
-@click.option("--iters", type=int, help="Training iterations per run [default: the trainer's].")
+@click.option("--iters", type=click.IntRange(min=1), help="Training iterations per run [default: trainer's].")
 @click.option("--field", type=click.Choice(["grid", "mlp"]), default="grid", show_default=True)
-@click.option("--device", default="auto", show_default=True, help="auto, cpu or cuda.")
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda", "mps"]), default="auto", show_default=True,
+              help="Where cells train.")  # fmt: skip
 @click.option("--seed", type=int, default=0, show_default=True, help="Dataset (simulation) seed.")
 @click.option(
     "--seeds",
@@ -34,7 +36,7 @@ from spikenerf.core.errors import InputError, comma_list
     help="The datasets' blur views (simulate --blur-views): 'all' = the paper's baseline (one exposure "
     "centred on every step), 'frames' = consecutive 400 fps frames, or N evenly spaced exposures.",
 )  # fmt: skip
-@click.option("--test-views", type=int, default=8, show_default=True)
+@click.option("--test-views", type=click.IntRange(min=1), default=8, show_default=True)
 @click.option("--no-render", is_flag=True, help="Skip rendering test views (no report figures).")
 @click.option(
     "--jobs",

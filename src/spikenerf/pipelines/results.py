@@ -118,7 +118,8 @@ def differences_note() -> str:
         "Each difference (ours − baseline) is paired over scene × seed: the same dataset and training seed. "
         "95% confidence interval = mean ± t(0.975, n−1)·std/√n (Student t). A claim is 'shown' only when the "
         "interval excludes 0 on the claimed side (higher PSNR/SSIM, lower LPIPS); otherwise 'not shown' "
-        "('reversed' when the interval excludes 0 on the other side). One pair gives no interval."
+        "('reversed' when the interval excludes 0 on the other side). One pair gives no interval; with one "
+        "training seed the interval spans scenes only, not seed noise, so nothing is 'shown'."
     )
 
 

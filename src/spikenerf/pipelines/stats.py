@@ -78,9 +78,13 @@ class Difference:
 
 
 def paired_difference(
-    ours: str, baseline: str, color: str, metric: str, diffs: Sequence[float]
+    ours: str, baseline: str, color: str, metric: str, diffs: Sequence[float], seeds: int = 2
 ) -> Difference:
-    """The mean of ``diffs`` (ours − baseline, one per pair) with its t interval and verdict."""
+    """The mean of ``diffs`` (ours − baseline, one per pair) with its t interval and verdict.
+
+    ``seeds``: how many training seeds the pairs span. With one seed the interval only covers scene to scene
+    spread, not seed noise, so no claim is 'shown' ("not shown (one seed)").
+    """
     stat = summarize(diffs)
     if stat is None:
         raise ValueError("paired_difference needs at least one difference")
@@ -90,7 +94,9 @@ def paired_difference(
         half = t_quantile(0.5 + CONFIDENCE / 2, stat.n - 1) * stat.std / math.sqrt(stat.n)
         low, high = stat.mean - half, stat.mean + half
         better = HIGHER_IS_BETTER[metric]
-        if (low > 0 and better) or (high < 0 and not better):
+        if seeds < 2:
+            verdict = "not shown (one seed)"
+        elif (low > 0 and better) or (high < 0 and not better):
             verdict = "shown"
         elif (high < 0 and better) or (low > 0 and not better):
             verdict = "not shown (reversed)"
@@ -120,5 +126,6 @@ def differences(
                     if x is not None and y is not None and not (math.isnan(x) or math.isnan(y)):
                         diffs.append(x - y)
                 if diffs:
-                    out.append(paired_difference(ours, base, color, metric, diffs))
+                    seeds = len({seed for _, seed in keys})
+                    out.append(paired_difference(ours, base, color, metric, diffs, seeds))
     return out
