@@ -23,8 +23,10 @@ from spikenerf.core.errors import InputError, comma_list
 @click.option("--frames", type=int, default=1000, show_default=True, help="Spike steps on the orbit.")
 @click.option("--iters", type=click.IntRange(min=1), help="Training iterations per run [default: trainer's].")
 @click.option("--field", type=click.Choice(["grid", "mlp"]), default="grid", show_default=True)
-@click.option("--device", type=click.Choice(["auto", "cpu", "cuda", "mps"]), default="auto", show_default=True,
-              help="Where cells train.")  # fmt: skip
+@click.option(
+    "--device", type=click.Choice(["auto", "cpu", "cuda", "mps"]), default="auto", show_default=True,
+    help="Where cells train.",
+)  # fmt: skip
 @click.option("--seed", type=int, default=0, show_default=True, help="Dataset (simulation) seed.")
 @click.option(
     "--seeds",
