@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -56,3 +57,22 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
     assert sorted(entry["command"][1] for entry in log) == ["eval", "eval", "simulate", "train", "train"]
     assert run_benchmark(cfg) == cells  # everything reused
     assert json.loads((cfg.out / "results.json").read_text())["commands"]["this_run"] == []
+    # resuming with other dataset or training settings is refused, naming the flags, before anything runs
+    before = (cfg.out / "results.json").stat().st_mtime_ns
+    for change, words in [
+        ({"iters": 5}, "--iters 4 → 5"),
+        ({"size": 24, "seed": 1}, "--size 16 → 24, --seed 0 → 1"),
+        ({"colors": ["gray", "rgb"]}, "--color 'gray' → 'all'"),
+        ({"field_kind": "mlp"}, "--field"),
+    ]:
+        with pytest.raises(
+            InputError, match=f"other settings \\({words}.*; pass the same values .* or a new --out"
+        ):
+            run_benchmark(replace(cfg, **change))
+    assert (cfg.out / "results.json").stat().st_mtime_ns == before
+    # a folder from before benchmark.json resumes as it is, and gets the file
+    nonce = json.loads((cfg.out / "benchmark.json").read_text())["nonce"]
+    (cfg.out / "benchmark.json").unlink()
+    assert run_benchmark(replace(cfg, jobs=1)) == cells
+    assert json.loads((cfg.out / "benchmark.json").read_text())["settings"]["iters"] == 4
+    assert json.loads((cfg.out / "benchmark.json").read_text())["nonce"] != nonce

@@ -42,6 +42,7 @@ from spikenerf.pipelines.cells import (  # re-exported: the benchmark's public A
     training_seeds,
 )
 from spikenerf.pipelines.results import write_all
+from spikenerf.pipelines.settings import check_settings, write_settings
 from spikenerf.pipelines.steps import run_step as _run
 from spikenerf.pipelines.tables import Cell
 
@@ -129,19 +130,25 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
     from spikenerf.pipelines.resources import check_benchmark_resources
 
     check_output(cfg.out, "benchmark", overwrite=True)  # a folder it wrote before is resumed
+    check_settings(cfg)  # … with the settings it was started with
     check_benchmark_resources(cfg)
     with output_lock(cfg.out):
+        nonce = check_settings(cfg)
         mark(cfg.out, "benchmark")
+        if nonce is None:
+            nonce = write_settings(cfg, None)
         clean_stale_temps(cfg.out)
-        return _run_benchmark_locked(cfg, on_cell)
+        return _run_benchmark_locked(cfg, on_cell, nonce)
 
 
-def _run_benchmark_locked(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None) -> list[Cell]:
+def _run_benchmark_locked(
+    cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None, nonce: str
+) -> list[Cell]:
     cfg.out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
     keys = cell_keys(cfg)
     if cfg.executor == "ray":
-        cells = _run_on_ray(cfg, keys, log)
+        cells = _run_on_ray(cfg, keys, log, nonce)
         write_results(cfg, cells, log)
         return cells
     jobs = max(1, cfg.jobs)
@@ -168,7 +175,7 @@ def _commands_at(cfg: BenchmarkConfig, key: tuple, root: Path) -> list[list[str]
     return [dataset_command(here, key[0])] if len(key) == 1 else cell_commands(here, *key)
 
 
-def _run_on_ray(cfg: BenchmarkConfig, keys: list[CellKey], log: list[dict]) -> list[Cell]:
+def _run_on_ray(cfg: BenchmarkConfig, keys: list[CellKey], log: list[dict], nonce: str) -> list[Cell]:
     """Each scene's dataset and each cell (``keys``, scene first) as a Ray task; cells in ``keys`` order."""
     from spikenerf.pipelines.ray_executor import Job, run_jobs
 
@@ -178,7 +185,7 @@ def _run_on_ray(cfg: BenchmarkConfig, keys: list[CellKey], log: list[dict]) -> l
         run = run_dir(cfg, *key).relative_to(cfg.out).as_posix()
         jobs.append(Job(cell_name(cfg, key), partial(_commands_at, cfg, key), run, f"{run}/metrics.json",
                         needs=f"simulate-{key[0]}"))  # fmt: skip
-    run_jobs(cfg, jobs, log)
+    run_jobs(cfg, jobs, log, nonce)
     cells = [read_cell(run_dir(cfg, *key), *key[:3], seed=key.seed) for key in keys]
     if None in cells:
         raise InputError("a cell finished without metrics.json; run the benchmark again", path=cfg.out)

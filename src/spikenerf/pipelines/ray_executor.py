@@ -133,7 +133,7 @@ def _threads(cpus: float) -> int:
     return int(os.environ.get("OMP_NUM_THREADS") or max(1, int(cpus)))
 
 
-def run_jobs(cfg: BenchmarkConfig, jobs: list[Job], log: list[dict]) -> None:
+def run_jobs(cfg: BenchmarkConfig, jobs: list[Job], log: list[dict], nonce: str = "") -> None:
     """Run ``jobs`` on Ray (datasets first, cells after their dataset), appending the steps run to ``log``;
     InputError lists the jobs that still failed after ``cfg.retries`` retries."""
     ray = require_ray()

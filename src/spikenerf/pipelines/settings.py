@@ -1,0 +1,68 @@
+"""``OUT/benchmark.json``: the dataset and training settings a benchmark folder was started with.
+
+A resumed benchmark reuses its datasets and finished cells, so it must ask for what they were made with:
+a changed ``--size``, ``--frames``, ``--seed``, ``--test-views``, ``--blur-views``, ``--color`` (one the
+datasets lack), ``--iters``, ``--field`` or extra train arguments is refused with one line naming the
+flag(s). The file also holds the folder's ``nonce``, which keys the Ray workers' scratch copies
+(``ray_executor.scratch_root``).
+A folder written before this file existed is resumed as it is, and gets the file then.
+"""
+
+from __future__ import annotations
+
+import json
+import uuid
+from typing import Any
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+
+NAME = "benchmark.json"
+#: setting -> the ``benchmark`` flag that sets it
+FLAGS = {
+    "size": "--size", "frames": "--frames", "seed": "--seed", "test_views": "--test-views",
+    "blur_views": "--blur-views", "color": "--color", "iters": "--iters", "field_kind": "--field",
+    "extra_train_args": "extra train arguments",
+}  # fmt: skip
+
+
+def settings(cfg: Any) -> dict:
+    """What the datasets and cells of ``cfg`` depend on (``color``: the colours each dataset holds)."""
+    color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
+    return {"color": color, **{k: getattr(cfg, k) for k in FLAGS if k != "color"}}
+
+
+def _differs(key: str, old: Any, new: Any) -> bool:
+    return not (old == new or (key == "color" and old == "all"))  # an all-colour dataset serves any colour
+
+
+def check_settings(cfg: Any) -> str | None:
+    """The folder's nonce (None for a new or pre-``benchmark.json`` folder); InputError when ``cfg`` asks for
+    other settings than the folder was started with."""
+    path = cfg.out / NAME
+    if not path.is_file():
+        return None
+    try:
+        stored = json.loads(path.read_text())
+        old, nonce = stored["settings"], str(stored["nonce"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise InputError(f"malformed benchmark settings ({err}); delete the file to adopt the current flags",
+                         path=path) from err  # fmt: skip
+    new = settings(cfg)
+    bad = [k for k in FLAGS if _differs(k, old.get(k), new[k])]
+    if bad:
+        changes = ", ".join(f"{FLAGS[k]} {old.get(k)!r} → {new[k]!r}" for k in bad)
+        raise InputError(
+            f"this benchmark was started with other settings ({changes}); pass the same values to resume it, "
+            "or a new --out",
+            path=cfg.out,
+        )
+    return nonce
+
+
+def write_settings(cfg: Any, nonce: str | None) -> str:
+    """Write ``benchmark.json`` (a new nonce when ``nonce`` is None); the nonce."""
+    nonce = nonce or uuid.uuid4().hex
+    text = json.dumps({"settings": settings(cfg), "nonce": nonce}, indent=2) + "\n"
+    write_text_atomic(cfg.out / NAME, text)
+    return nonce
