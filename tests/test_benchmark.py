@@ -76,3 +76,19 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
     assert run_benchmark(replace(cfg, jobs=1)) == cells
     assert json.loads((cfg.out / "benchmark.json").read_text())["settings"]["iters"] == 4
     assert json.loads((cfg.out / "benchmark.json").read_text())["nonce"] != nonce
+
+
+def test_disk_estimate_counts_seeds_and_every_simulated_stream(monkeypatch: pytest.MonkeyPatch) -> None:
+    from spikenerf.data.simulate import estimate_resources
+    from spikenerf.pipelines import resources
+
+    seen: list[float] = []
+    monkeypatch.setattr(resources, "check_resources", lambda memory, disk, *_: seen.append(disk))
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray", "rgb"], Path("b"), size=16, frames=100,
+                          test_views=1, render=False)  # fmt: skip
+    for seeds in (None, [0, 1, 2]):
+        resources.check_benchmark_resources(replace(cfg, seeds=seeds))
+    one, three = seen
+    sim = estimate_resources(16, 16, 100, ("gray", "rgb", "bayer"), 1, 4, 10, 1)[1]  # what --color all writes
+    cell = (one - sim) / 2  # two colours, one seed
+    assert cell > 0 and three == pytest.approx(sim + 6 * cell)
