@@ -20,7 +20,7 @@ from helpers import BENCHMARK_TRAIN
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
-from spikenerf.pipelines.ray_executor import INSTALL_HINT, scratch_root
+from spikenerf.pipelines.ray_executor import INSTALL_HINT, rebase, scratch_root
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 WORKER = re.compile(r"Ray worker pid (\d+)")
@@ -80,14 +80,29 @@ def test_ray_gives_the_local_numbers_shared_and_shipped(
     # no shared storage: the dataset travels out to the worker, the run comes back through the object store
     shipped = tmp_path / "shipped"
     reuse_datasets(local_run, shipped)
+    run = "runs/analytic-orbs/gray/spike-nerf"
+    stale = scratch_root(str(shipped.resolve())) / run  # a scratch copy keyed on the path alone: never used
+    stale.mkdir(parents=True)
+    (stale / "metrics.json").write_text('{"mean": {"psnr": 99, "ssim": 1, "lpips": null}}')
     run_benchmark(tiny(shipped, ["spike-nerf"], executor="ray", ship_results=True))
     assert numbers(shipped) == numbers(local_run)
-    scratch = scratch_root(str(shipped.resolve()))
-    run = "runs/analytic-orbs/gray/spike-nerf"
+    nonce = json.loads((shipped / "benchmark.json").read_text())["nonce"]
+    scratch = scratch_root(str(shipped.resolve()), nonce)
+    this_run = json.dumps(json.loads((shipped / "results.json").read_text())["commands"]["this_run"])
+    assert str(shipped.resolve()) in this_run and str(scratch) not in this_run  # commands as in OUT
     assert scratch.is_relative_to(cluster) and (scratch / run / "metrics.json").is_file()
     config = (shipped / run / "config.yaml").read_text()
     assert str(shipped.resolve()) in config and str(scratch) not in config
     assert WORKER.search((shipped / "logs" / "analytic-orbs-gray-spike-nerf.log").read_text())
+
+
+def test_rebase_replaces_whole_path_components_only() -> None:
+    text = b'out: /data/bench\n"/data/bench" /data/bench/runs /data/bench2/x /data/benchmark /data/bench'
+    assert (
+        rebase(text, "/data/bench", "/s/1")
+        == b'out: /s/1\n"/s/1" /s/1/runs /data/bench2/x /data/benchmark /s/1'
+    )
+    assert scratch_root("/b", "n1") != scratch_root("/b", "n2") != scratch_root("/b")
 
 
 def _children(pid: int) -> list[int]:

@@ -18,6 +18,8 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import re
+import shutil
 import socket
 import sys
 import tempfile
@@ -67,10 +69,24 @@ def require_ray() -> Any:
     return ray
 
 
-def scratch_root(out: str | Path) -> Path:
-    """A worker's own benchmark folder for ``ship_results`` (``$SPIKENERF_RAY_SCRATCH`` or the temp dir)."""
+def scratch_root(out: str | Path, nonce: str = "") -> Path:
+    """A worker's own benchmark folder for ``ship_results`` (``$SPIKENERF_RAY_SCRATCH`` or the temp dir),
+    keyed on the benchmark folder and its ``benchmark.json`` nonce: a deleted and restarted benchmark at the
+    same path gets a new scratch folder, never the old one's datasets and cells."""
     base = os.environ.get("SPIKENERF_RAY_SCRATCH") or Path(tempfile.gettempdir()) / "spikenerf-ray"
-    return Path(base) / hashlib.sha1(str(out).encode()).hexdigest()[:12]
+    return Path(base) / hashlib.sha1(f"{out}\0{nonce}".encode()).hexdigest()[:12]
+
+
+def rebase(data: bytes, old: str, new: str) -> bytes:
+    """``data`` with the folder path ``old`` replaced by ``new`` where it is a whole path component
+    (``/data/bench`` in ``/data/bench/x`` or ``"/data/bench"``, never in ``/data/bench2``)."""
+    pattern = re.escape(old.encode()) + rb"(?=[/\"'\s:,]|$)"
+    return re.sub(pattern, lambda _: new.encode(), data)
+
+
+def _rebase_log(log: list[dict], old: str, new: str) -> list[dict]:
+    """Log entries with ``old`` → ``new`` in their command arguments."""
+    return [{**e, "command": [rebase(a.encode(), old, new).decode() for a in e["command"]]} for e in log]
 
 
 def pack(root: Path, paths: list[str], out: str) -> dict[str, bytes]:
@@ -82,7 +98,7 @@ def pack(root: Path, paths: list[str], out: str) -> dict[str, bytes]:
             if path.is_file():
                 data = path.read_bytes()
                 if path.suffix in TEXT_SUFFIXES and str(root) != out:
-                    data = data.replace(str(root).encode(), out.encode())
+                    data = rebase(data, str(root), out)
                 files[path.relative_to(root).as_posix()] = data
     return files
 
@@ -92,14 +108,19 @@ def unpack(root: Path, files: dict[str, bytes], done: str, out: str) -> None:
     for rel in sorted(files, key=lambda r: r == done):
         data = files[rel]
         if Path(rel).suffix in TEXT_SUFFIXES and str(root) != out:
-            data = data.replace(out.encode(), str(root).encode())
+            data = rebase(data, out, str(root))
         write_bytes_atomic(root / rel, data)
 
 
-def execute(job: Job, out: str, ship: bool, threads: int | None, needed: dict | None = None) -> dict:
+def execute(
+    job: Job, out: str, ship: bool, threads: int | None, needed: dict | None = None, nonce: str = ""
+) -> dict:
     """On a worker: make the needed dataset present, run the job unless it has finished; the run's log
-    entries and, with ``ship``, the job's files."""
-    root = scratch_root(out) if ship else Path(out)
+    entries (paths as in ``out``) and, with ``ship``, the job's files. With ``ship`` the job's scratch folder
+    is emptied first: the driver submits only unfinished jobs, so what it holds is stale."""
+    root = scratch_root(out, nonce) if ship else Path(out)
+    if ship:
+        shutil.rmtree(root / job.folder, ignore_errors=True)
     if needed and needed["files"] and not (root / needed["done"]).is_file():
         unpack(root, needed["files"], needed["done"], out)
     log: list[dict] = []
@@ -111,8 +132,10 @@ def execute(job: Job, out: str, ship: bool, threads: int | None, needed: dict | 
             sink.write(header + "\n")
         for command in job.commands(root):
             run_step([sys.executable, *command[1:]], log, output, threads)  # the worker's own Python
-    files = pack(root, [job.folder, f"logs/{job.name}.log"], out) if ship else {}
-    return {"log": log, "files": files, "done": job.done}
+    if not ship:
+        return {"log": log, "files": {}, "done": job.done}
+    files = pack(root, [job.folder, f"logs/{job.name}.log"], out)
+    return {"log": _rebase_log(log, str(root), out), "files": files, "done": job.done}
 
 
 def _connect(ray: Any, address: str | None) -> bool:
@@ -156,7 +179,7 @@ def run_jobs(cfg: BenchmarkConfig, jobs: list[Job], log: list[dict], nonce: str 
                 by_name[job.needs] = ray.put({"files": pack(Path(out), [dep.folder], out), "done": dep.done})
             opts = {"num_gpus": 1} if gpus and job.needs else {}
             ref = task.options(name=job.name, **opts).remote(
-                job, out, cfg.ship_results, _threads(cfg.ray_cpus), by_name.get(job.needs or "")
+                job, out, cfg.ship_results, _threads(cfg.ray_cpus), by_name.get(job.needs or ""), nonce
             )
             refs[ref], by_name[job.name] = job, ref
         failed = _wait(ray, cfg, refs, cells, log)
