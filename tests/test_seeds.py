@@ -51,8 +51,15 @@ def test_differences_known_interval_and_verdicts() -> None:
     half = T975[3] * math.sqrt(0.0875 / 3) / 2  # sd of the four differences = sqrt(0.0875 / 3)
     assert (psnr.ours, psnr.baseline, psnr.n) == ("spike-nerf", "nerf-recon", 4)
     assert psnr.mean == pytest.approx(1.025) and psnr.low == pytest.approx(1.025 - half, abs=1e-5)
-    assert psnr.high == pytest.approx(1.025 + half, abs=1e-5) and psnr.verdict == "shown"
-    assert shown["lpips"].verdict == "shown" and shown["lpips"].mean < 0  # lower LPIPS is the claimed side
+    assert psnr.high == pytest.approx(1.025 + half, abs=1e-5)
+    # per-seed means 0.9 and 1.15: sd 0.25/√2, one degree of freedom → the seed-level interval contains 0
+    seed_half = 12.706205 * 0.25 / 2
+    assert psnr.seed_low == pytest.approx(1.025 - seed_half, abs=1e-5) and psnr.seed_low < 0 < psnr.low
+    assert psnr.seed_high == pytest.approx(1.025 + seed_half, abs=1e-5) and psnr.verdict == "not shown"
+    tight = {d.metric: d for d in differences(_cells([1.0, 1.0, 1.2, 1.21]), ["gray"])}  # seeds 1.1, 1.105
+    assert tight["psnr"].seed_low == pytest.approx(1.1025 - 12.706205 * 0.0025, abs=1e-5)
+    assert tight["psnr"].verdict == "shown" and tight["lpips"].verdict == "shown"
+    assert tight["lpips"].mean < 0  # lower LPIPS is the claimed side
     assert shown["ssim"].verdict == "not shown" and shown["ssim"].low == 0 == shown["ssim"].high  # ties
     wide = differences(_cells([1.0, 2.0, 3.0]), ["gray"], metrics=["psnr"])[0]
     assert wide.low == pytest.approx(2 - T975[2] / math.sqrt(3), abs=1e-5) and wide.low < 0 < wide.high
@@ -68,9 +75,10 @@ def test_differences_known_interval_and_verdicts() -> None:
     scenes_only = differences(one_seed, ["gray"], metrics=["psnr"])[0]  # 3 scenes, one training seed
     assert scenes_only.low is not None and scenes_only.low > 0  # the interval excludes 0 across scenes …
     assert scenes_only.verdict == "not shown (one seed)"  # … but seed noise is not in it
-    md = to_markdown(differences_table([psnr, wide]))
+    md = to_markdown(differences_table([psnr, tight["psnr"], wide]))
     row = "| Spike-NeRF (ours) − NeRF + TFP reconstruction | gray | PSNR ↑ | 4 |"
-    assert f"{row} +1.03 ± 0.17 | [+0.75, +1.30] | **shown** |" in md
+    assert f"{row} +1.03 ± 0.17 | [+0.75, +1.30] | [-0.56, +2.61] | not shown |" in md
+    assert f"{row} +1.10 ± 0.12 | [+0.91, +1.29] | [+1.07, +1.13] | **shown** |" in md
     assert "**shown**" in md and md.rstrip().endswith("| not shown |")
 
 

@@ -116,9 +116,12 @@ def differences_note() -> str:
     """How the differences table is computed (shown above it in Markdown and HTML)."""
     return (
         "Each difference (ours − baseline) is paired over scene × seed: the same dataset and training seed. "
-        "95% confidence interval = mean ± t(0.975, n−1)·std/√n (Student t). A claim is 'shown' only when the "
-        "interval excludes 0 on the claimed side (higher PSNR/SSIM, lower LPIPS); otherwise 'not shown' "
-        "('reversed' when the interval excludes 0 on the other side). One pair gives no interval; with one "
+        "95% confidence interval = mean ± t(0.975, n−1)·std/√n (Student t). Pairs of one scene "
+        "share its effect, so the per-seed 95% CI repeats it over the per-seed means (scenes averaged, "
+        "seeds − 1 degrees "
+        "of freedom). A claim is 'shown' only when both intervals exclude 0 on the claimed side (higher "
+        "PSNR/SSIM, lower LPIPS); otherwise 'not shown' ('reversed' when the pair interval excludes 0 on the "
+        "other side). One pair gives no interval; with one "
         "training seed the interval spans scenes only, not seed noise, so nothing is 'shown'."
     )
 

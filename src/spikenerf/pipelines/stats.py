@@ -3,7 +3,9 @@
 A benchmark cell is one (scene, colour, method variant, seed) run. Tables aggregate the seeds of a
 (scene, colour, variant) to mean ± sample standard deviation (ddof = 1). The ``differences`` table pairs two
 variants on the same (scene, seed) and gives the mean difference with a two-sided Student-t confidence
-interval over those pairs; a claim is "shown" only when the interval excludes 0 on the claimed side.
+interval over those pairs. Pairs from one scene share that scene's effect, so a second interval is computed
+over the per-seed means (scenes averaged, ``seeds − 1`` degrees of freedom); a claim is "shown" only when
+both intervals exclude 0 on the claimed side.
 """
 
 from __future__ import annotations
@@ -60,9 +62,11 @@ def t_quantile(p: float, dof: int) -> float:
 class Difference:
     """One paired difference ``ours − baseline`` of ``metric`` in ``color`` over ``n`` (scene, seed) pairs.
 
-    ``low``/``high`` bound the two-sided 95% Student-t interval (None with fewer than 2 pairs); ``verdict``
-    is "shown" when the interval excludes 0 on the claimed side (higher PSNR/SSIM, lower LPIPS), "not shown"
-    when it contains 0 or cannot be computed, and "not shown (reversed)" when it excludes 0 on the other side.
+    ``low``/``high`` bound the two-sided 95% Student-t interval (None with fewer than 2 pairs);
+    ``seed_low``/``seed_high`` the same over the per-seed means (None with fewer than 2 seeds). ``verdict``
+    is "shown" when both intervals exclude 0 on the claimed side (higher PSNR/SSIM, lower LPIPS), "not shown"
+    when one contains 0 or cannot be computed, and "not shown (reversed)" when the pair interval excludes 0
+    on the other side.
     """
 
     ours: str
@@ -75,32 +79,47 @@ class Difference:
     low: float | None
     high: float | None
     verdict: str
+    seed_low: float | None = None
+    seed_high: float | None = None
+
+
+def t_interval(values: Sequence[float]) -> tuple[float, float] | None:
+    """The two-sided 95% Student-t interval of the mean of ``values`` (None for fewer than 2)."""
+    stat = summarize(values)
+    if stat is None or stat.std is None:
+        return None
+    half = t_quantile(0.5 + CONFIDENCE / 2, stat.n - 1) * stat.std / math.sqrt(stat.n)
+    return stat.mean - half, stat.mean + half
+
+
+def _claimed(interval: tuple[float, float] | None, better: bool) -> bool:
+    """Whether ``interval`` excludes 0 on the claimed side."""
+    return interval is not None and (interval[0] > 0 if better else interval[1] < 0)
 
 
 def paired_difference(
-    ours: str, baseline: str, color: str, metric: str, diffs: Sequence[float], seeds: int = 2
+    ours: str, baseline: str, color: str, metric: str, diffs: Sequence[float], per_seed: Sequence[float]
 ) -> Difference:
     """The mean of ``diffs`` (ours − baseline, one per pair) with its t interval and verdict.
 
-    ``seeds``: how many training seeds the pairs span. With one seed the interval only covers scene to scene
-    spread, not seed noise, so no claim is 'shown' ("not shown (one seed)").
+    ``per_seed``: the mean difference of each training seed (over its scenes). With one seed the pair interval
+    only covers scene to scene spread, not seed noise, so no claim is 'shown' ("not shown (one seed)").
     """
     stat = summarize(diffs)
     if stat is None:
         raise ValueError("paired_difference needs at least one difference")
-    low = high = None
+    pairs, seeds, better = t_interval(diffs), t_interval(per_seed), HIGHER_IS_BETTER[metric]
     verdict = "not shown"
-    if stat.std is not None:
-        half = t_quantile(0.5 + CONFIDENCE / 2, stat.n - 1) * stat.std / math.sqrt(stat.n)
-        low, high = stat.mean - half, stat.mean + half
-        better = HIGHER_IS_BETTER[metric]
-        if seeds < 2:
-            verdict = "not shown (one seed)"
-        elif (low > 0 and better) or (high < 0 and not better):
-            verdict = "shown"
-        elif (high < 0 and better) or (low > 0 and not better):
-            verdict = "not shown (reversed)"
-    return Difference(ours, baseline, color, metric, stat.n, stat.mean, stat.std, low, high, verdict)
+    if pairs is not None and len(per_seed) < 2:
+        verdict = "not shown (one seed)"
+    elif _claimed(pairs, better) and _claimed(seeds, better):
+        verdict = "shown"
+    elif _claimed(pairs, not better):
+        verdict = "not shown (reversed)"
+    low, high = pairs or (None, None)
+    seed_low, seed_high = seeds or (None, None)
+    return Difference(ours, baseline, color, metric, stat.n, stat.mean, stat.std, low, high, verdict,
+                      seed_low, seed_high)  # fmt: skip
 
 
 def differences(
@@ -119,13 +138,14 @@ def differences(
         for color in colors:
             keys = sorted({(s, k) for s, k, col, v in value if col == color and v == ours})
             for metric in metrics:
-                diffs = []
+                diffs, by_seed = [], {}
                 for scene, seed in keys:
                     a, b = value[(scene, seed, color, ours)], value.get((scene, seed, color, base))
                     x, y = getattr(a, metric), None if b is None else getattr(b, metric)
                     if x is not None and y is not None and not (math.isnan(x) or math.isnan(y)):
                         diffs.append(x - y)
+                        by_seed.setdefault(seed, []).append(x - y)
                 if diffs:
-                    seeds = len({seed for _, seed in keys})
-                    out.append(paired_difference(ours, base, color, metric, diffs, seeds))
+                    per_seed = [sum(v) / len(v) for v in by_seed.values()]
+                    out.append(paired_difference(ours, base, color, metric, diffs, per_seed))
     return out

@@ -173,16 +173,19 @@ def _num(x: float | None, metric: str) -> str:
 
 def differences_table(diffs: Sequence[Difference]) -> Table:
     """One row per (comparison, colour, metric): pairs, mean difference ± std, the 95% interval, verdict."""
-    header = ["difference", "colour", "metric", "pairs", "mean ± std", "95% CI", "verdict"]
+    header = ["difference", "colour", "metric", "pairs", "mean ± std", "95% CI", "per-seed 95% CI", "verdict"]
     rows = []
     for d in diffs:
         label = f"{METHOD_LABELS.get(d.ours, d.ours)} − {METHOD_LABELS.get(d.baseline, d.baseline)}"
-        ci = "–" if d.low is None else f"[{_num(d.low, d.metric)}, {_num(d.high, d.metric)}]"
+        ci, seed_ci = (
+            "–" if lo is None else f"[{_num(lo, d.metric)}, {_num(hi, d.metric)}]"
+            for lo, hi in ((d.low, d.high), (d.seed_low, d.seed_high))
+        )
         std = "" if d.std is None else f" ± {d.std:.{2 if d.metric == 'psnr' else 3}f}"
         arrow = "↓" if not HIGHER_IS_BETTER[d.metric] else "↑"
         mark = "shown" if d.verdict == "shown" else ""
         values = [(d.color, "text"), (f"{d.metric.upper()} {arrow}", "text"), (str(d.n), ""),
-                  (_num(d.mean, d.metric) + std, ""), (ci, ""), (d.verdict, mark)]  # fmt: skip
+                  (_num(d.mean, d.metric) + std, ""), (ci, ""), (seed_ci, ""), (d.verdict, mark)]  # fmt: skip
         rows.append((label, values))
     return Table(header, rows)
 
