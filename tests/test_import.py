@@ -168,6 +168,10 @@ def test_interpolation_and_focus_point() -> None:
         ("nan", "NaN"),
         ("few", "need at least 2"),
         ("nocolmap", "pip install 'spikenerf[colmap]'"),
+        ("fps-neg", "--fps must be a finite number > 0"),
+        ("fps-nan", "--fps must be a finite number > 0"),
+        ("fps-zero", "--fps must be a finite number > 0"),
+        ("threshold-zero", "--threshold must be a finite number > 0"),
     ],
 )
 def test_bad_input_exits_2_and_leaves_nothing(
@@ -191,6 +195,9 @@ def test_bad_input_exits_2_and_leaves_nothing(
         args += ["--poses", pose_file, "--fov", 40]
     if setup == "nocolmap":
         monkeypatch.setitem(sys.modules, "pycolmap", None)
+    if setup.startswith(("fps", "threshold")):
+        name, value = setup.split("-")
+        args += [*ORBIT, f"--{name}", {"neg": -5, "nan": "nan", "zero": 0}[value]]
     code, _, err = run_cli(capsys, *args)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert _leftovers(tmp_path) == [p for p in ["p.json"] if (tmp_path / p).exists()]

@@ -87,6 +87,10 @@ def _check(options: ImportOptions) -> None:
         raise InputError(f"--test-every must be ≥ 0 (0 = no test views), found {options.test_every}")
     if options.fov_deg is not None and not 0 < options.fov_deg < 180:
         raise InputError(f"--fov must be in (0, 180) degrees, found {options.fov_deg}")
+    for name in ("fps", "threshold"):
+        value = getattr(options, name)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"--{name} must be a finite number > 0, found {value}")
     if (options.poses == "orbit") != (options.orbit is not None):
         raise InputError("--orbit R,ELEV[,TURNS[,AZIMUTH]] goes with --poses orbit (and only with it)")
 
@@ -182,8 +186,8 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     rc = recording_config(dat, opts.height, opts.width, opts.config)
     h, w = int(rc.height or 0), int(rc.width or 0)
     raw = opts.raw_width if opts.raw_width is not None else rc.raw_width
-    fps = opts.fps or rc.fps or DEFAULT_FPS
-    threshold = opts.threshold or rc.threshold or 1.0
+    fps = next(v for v in (opts.fps, rc.fps, DEFAULT_FPS) if v is not None)
+    threshold = next(v for v in (opts.threshold, rc.threshold, 1.0) if v is not None)
     total = count_steps(dat, h, w, raw)
     sel = resolve_frames(opts.frame_range, total, dat)
     n = len(sel)
