@@ -203,6 +203,42 @@ def test_bad_input_exits_2_and_leaves_nothing(
     assert _leftovers(tmp_path) == [p for p in ["p.json"] if (tmp_path / p).exists()]
 
 
+@pytest.mark.parametrize(
+    ("kind", "content", "message"),
+    [
+        ("json", {"scene_box": [[0, 0, 0], [1, 1]]}, "field 'scene_box'"),
+        ("json", {"scene_box": "abc"}, "field 'scene_box'"),
+        ("json", {"w": 0, "h": 8, "fl_x": 10, "fl_y": 10, "cx": 4, "cy": 4}, "field 'w'"),
+        ("json", {"w": 8, "h": 8, "fl_x": -1, "fl_y": 10, "cx": 4, "cy": 4}, "field 'fl_x'"),
+        ("colmap", "1 PINHOLE abc", "malformed camera line"),
+        ("colmap", "1 PINHOLE", "malformed camera line"),
+        ("colmap", "1 PINHOLE 0 16 30 31 24 8", "must be > 0"),
+        ("colmap", "1 PINHOLE 48 16 -30 31 24 8", "must be > 0"),
+        ("colmapbin", b"junk", "pycolmap cannot read"),
+    ],
+)
+def test_malformed_pose_sources_exit_2(capsys, recording, tmp_path, kind, content, message) -> None:
+    rec, _ = recording
+    keys = np.arange(0, T, 13)
+    if kind == "json":
+        frames = [{"step": int(s), "transform_matrix": _truth()[s].tolist()} for s in keys]
+        source = tmp_path / "p.json"
+        source.write_text(json.dumps({**content, "frames": frames}))
+    else:
+        source = tmp_path / "model"
+        _write_colmap_text(source, _truth()[keys], keys, np.zeros((1, 3)))
+        if kind == "colmapbin":
+            pytest.importorskip("pycolmap")
+            for name in ("cameras", "images", "points3D"):
+                (source / f"{name}.txt").unlink()
+                (source / f"{name}.bin").write_bytes(content)
+        else:
+            (source / "cameras.txt").write_text(content + "\n")
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", source, "--fov", 40)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert str(source.name) in err and not (tmp_path / "ds").exists()
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")
