@@ -239,6 +239,16 @@ def test_malformed_pose_sources_exit_2(capsys, recording, tmp_path, kind, conten
     assert str(source.name) in err and not (tmp_path / "ds").exists()
 
 
+def test_stale_colmap_work_is_not_published_with_other_poses(capsys, recording, tmp_path) -> None:
+    rec, _ = recording
+    model = tmp_path / "ds.partial" / "colmap" / "model"
+    _write_colmap_text(model, _truth()[[0, 39]], np.array([0, 39]), np.zeros((1, 3)))
+    (tmp_path / "ds.partial" / ".spikenerf-work").write_text("")  # an earlier, failed COLMAP attempt
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
+    assert code == 0, err
+    assert not (tmp_path / "ds" / "colmap").exists()
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")

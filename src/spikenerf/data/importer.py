@@ -245,8 +245,8 @@ def _write(
             apply_similarity(found.poses, center, scale), (found.points - center) * scale
         )
     near, far = bounds if bounds is not None else near_far(poses, box)
-    for stale in work.iterdir():  # outputs of an earlier, interrupted attempt
-        if stale.name != COLMAP_WORK:
+    for stale in work.iterdir():  # outputs of an earlier attempt (its COLMAP model only if ours now)
+        if stale.name != COLMAP_WORK or opts.poses != "colmap":
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
     writer = DatasetWriter(work, k, fps, box, near, far)
     writer.start_spikes(["gray"])
