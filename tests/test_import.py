@@ -62,6 +62,16 @@ def test_spikecv_config_and_orbit_import(capsys, recording, tmp_path: Path) -> N
     assert ds.near < 4 * scale < ds.far
 
 
+def test_recorded_command_line(capsys, recording, tmp_path: Path) -> None:
+    rec, _ = recording
+    out = tmp_path / "ds"
+    code, _, err = run_cli(capsys, "--threads", 1, "import", rec, "--out", out, *ORBIT, "--range", "0:30")
+    assert code == 0, err
+    assert load_dataset(out).config["command"] == (
+        f"spikenerf --threads 1 import {rec} --out {out} --poses orbit --orbit 4,30 --range 0:30 --fov 40.0"
+    )
+
+
 def test_raw_416_layout_and_range(capsys, recording, tmp_path: Path) -> None:
     _, spikes = recording
     raw = tmp_path / "raw" / "stream.dat"
