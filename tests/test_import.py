@@ -72,6 +72,34 @@ def test_recorded_command_line(capsys, recording, tmp_path: Path) -> None:
     )
 
 
+def test_tfp_views_read_one_window_at_a_time_and_imports_get_none(
+    capsys, recording, tmp_path: Path, monkeypatch
+) -> None:
+    import spikenerf.data.writer as writer
+
+    reads = []
+
+    def spy(*args, **kwargs):
+        frames = read_dat(*args, **kwargs)
+        reads.append(len(frames))
+        return frames
+
+    monkeypatch.setattr(writer, "read_dat", spy)
+    code, _, err = run_cli(capsys, "import", rec := recording[0], "--out", tmp_path / "ds", *ORBIT)
+    assert code == 0, err
+    assert reads == [] and not {"transforms_gt.json", "transforms_tfp.json"} & {
+        p.name for p in (tmp_path / "ds").iterdir()
+    }
+    sim = ["simulate", "--scene", "analytic-orbs", "--width", 8, "--height", 8, "--frames", 120]
+    code, _, err = run_cli(
+        capsys, *sim, "--gt-every", 50, "--test-views", 1, "--no-progress", "--out", rec.parent / "s"
+    )
+    assert code == 0, err
+    assert reads == [21, 41, 40]  # steps 0, 50, 100 of 120: windows of 41 clipped to the stream
+    meta = json.loads((rec.parent / "s" / "transforms_tfp.json").read_text())
+    assert len(meta["train_filenames"]) == 3
+
+
 def test_raw_416_layout_and_range(capsys, recording, tmp_path: Path) -> None:
     _, spikes = recording
     raw = tmp_path / "raw" / "stream.dat"
