@@ -287,6 +287,20 @@ def test_stale_colmap_work_is_not_published_with_other_poses(capsys, recording, 
     assert not (tmp_path / "ds" / "colmap").exists()
 
 
+def test_a_finished_colmap_model_is_reused_only_for_the_same_keyframe_images(tmp_path, monkeypatch) -> None:
+    from spikenerf.data.colmap import colmap_fingerprint, run_colmap
+
+    keys, images = np.array([0, 13, 26, 39]), np.random.default_rng(2).random((4, H, W)).astype(np.float32)
+    work = tmp_path / "colmap"
+    _write_colmap_text(work / "model", _truth()[keys], keys, np.zeros((1, 3)))
+    (work / "steps.json").write_text(colmap_fingerprint(images, keys, None, 10, 120))
+    monkeypatch.setitem(sys.modules, "pycolmap", None)  # a rerun of COLMAP would fail: pycolmap missing
+    assert run_colmap(images, keys, work).steps.tolist() == keys.tolist()  # reused
+    with pytest.raises(InputError, match="pycolmap"):  # other images at the same steps: not reused
+        run_colmap(images[::-1].copy(), keys, work)
+    assert not (work / "model").exists()
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")

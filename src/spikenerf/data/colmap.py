@@ -8,6 +8,7 @@ imported COLMAP models share one reader. The work folder is kept between attempt
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -44,6 +45,24 @@ def write_keyframes(images: np.ndarray, steps: np.ndarray, folder: Path) -> list
     return names
 
 
+def colmap_fingerprint(
+    images: np.ndarray, steps: np.ndarray, focal: float | None, overlap: int, exhaustive_up_to: int
+) -> str:
+    """What identifies a COLMAP model: a hash of the keyframe images (N, H, W) themselves (so another
+    recording, ``--range``, ``--window``, ``--layout`` or ``--raw-width`` never reuses it), their steps and
+    the matching settings."""
+    digest = hashlib.sha256(np.ascontiguousarray(images, dtype=np.float32).tobytes()).hexdigest()
+    return json.dumps(
+        {
+            "steps": [int(s) for s in steps],
+            "images": digest,
+            "focal": focal,
+            "overlap": overlap,
+            "exh": exhaustive_up_to,
+        }
+    )
+
+
 def run_colmap(
     images: np.ndarray,
     steps: np.ndarray,
@@ -69,10 +88,8 @@ def run_colmap(
             message says how many and suggests a smaller ``--keyframe-every``).
     """
     model, stamp = work / MODEL_DIR, work / "steps.json"
-    want = json.dumps(
-        {"steps": [int(s) for s in steps], "focal": focal, "overlap": overlap, "exh": exhaustive_up_to}
-    )
-    if stamp.is_file() and stamp.read_text() != want:  # keyframes of another --keyframe-every or --range
+    want = colmap_fingerprint(images, steps, focal, overlap, exhaustive_up_to)
+    if stamp.is_file() and stamp.read_text() != want:  # other keyframe images (any recording/range/window)
         shutil.rmtree(work)
     if not (model / "images.txt").is_file():
         pycolmap = require_pycolmap()
