@@ -277,6 +277,24 @@ def test_malformed_pose_sources_exit_2(capsys, recording, tmp_path, kind, conten
     assert str(source.name) in err and not (tmp_path / "ds").exists()
 
 
+@pytest.mark.parametrize(
+    ("steps", "extra", "message"),
+    [
+        ([1, 2, 3, 4], [], "cover only 4 of the 40 selected steps"),  # frame_00001.png … on a long stream
+        ([0, 20, 45], [], "fall outside the selected steps 0..39"),
+        ([0, 20, 39], ["--range", "10:40"], "fall outside the selected steps 10..39"),
+    ],
+)
+def test_pose_file_steps_must_fit_the_selection(capsys, recording, tmp_path, steps, extra, message) -> None:
+    rec, _ = recording
+    frames = [{"file_path": f"frame_{s:05d}.png", "transform_matrix": _truth(60)[s].tolist()} for s in steps]
+    (tmp_path / "p.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": frames}))
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds", "--poses", tmp_path / "p.json", *extra
+    )
+    assert code == 2 and message in err and "p.json" in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_stale_colmap_work_is_not_published_with_other_poses(capsys, recording, tmp_path) -> None:
     rec, _ = recording
     model = tmp_path / "ds.partial" / "colmap" / "model"

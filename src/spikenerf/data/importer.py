@@ -162,9 +162,25 @@ def keyframe_poses(
         steps = np.round(np.linspace(0, n - 1, len(found.poses))).astype(np.int64)
     else:
         steps = found.steps - first
+        _check_pose_steps(steps, n, first, opts.poses)
     return PoseSet(
         found.poses, steps, found.intrinsics, found.points, found.scene_box, found.names, found.camera_angle_x
     )
+
+
+def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> None:
+    """InputError unless a pose file's steps (relative to the selection) lie in ``[0, n)`` and span at least
+    half of it (frame numbers that are not spike steps, such as frame_00001.png, would hold the rest)."""
+    lo, hi = int(steps.min()), int(steps.max())
+    where = f"steps {lo + first}..{hi + first} of the poses"
+    if lo < 0 or hi >= n:
+        raise InputError(f"{where} fall outside the selected steps {first}..{first + n - 1}", path=source)
+    if hi - lo + 1 < n / 2:
+        raise InputError(
+            f"{where} cover only {hi - lo + 1} of the {n} selected steps: are the frame numbers spike "
+            "steps? (give 'step' per frame, or select the steps with --range)",
+            path=source,
+        )
 
 
 def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | None) -> Intrinsics:
