@@ -13,6 +13,7 @@ from helpers import run_cli
 from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.camera.spikecv import read_spikecv_config
 from spikenerf.core.errors import InputError
+from spikenerf.core.marker import mark
 from spikenerf.data.alignment import (
     apply_similarity,
     focus_point,
@@ -299,7 +300,7 @@ def test_stale_colmap_work_is_not_published_with_other_poses(capsys, recording, 
     rec, _ = recording
     model = tmp_path / "ds.partial" / "colmap" / "model"
     _write_colmap_text(model, _truth()[[0, 39]], np.array([0, 39]), np.zeros((1, 3)))
-    (tmp_path / "ds.partial" / ".spikenerf-work").write_text("")  # an earlier, failed COLMAP attempt
+    mark(tmp_path / "ds.partial", "dataset")  # an earlier, failed COLMAP attempt
     code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
     assert code == 0, err
     assert not (tmp_path / "ds" / "colmap").exists()
@@ -317,6 +318,20 @@ def test_a_finished_colmap_model_is_reused_only_for_the_same_keyframe_images(tmp
     with pytest.raises(InputError, match="pycolmap"):  # other images at the same steps: not reused
         run_colmap(images[::-1].copy(), keys, work)
     assert not (work / "model").exists()
+
+
+@pytest.mark.parametrize("command", ["import", "simulate"])
+def test_a_foreign_partial_folder_is_refused_untouched(capsys, recording, tmp_path, command) -> None:
+    rec, _ = recording
+    foreign = tmp_path / "ds.partial"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("mine")
+    args = (
+        [rec, *ORBIT] if command == "import" else ["--scene", "analytic-orbs", "--frames", 4, "--no-progress"]
+    )
+    code, _, err = run_cli(capsys, command, *args, "--out", tmp_path / "ds")
+    assert code == 2 and "ds.partial" in err and "move it away" in err and len(err.strip().splitlines()) == 1
+    assert [p.name for p in foreign.iterdir()] == ["thesis.tex"] and not (tmp_path / "ds").exists()
 
 
 def test_config_reader_types(tmp_path: Path) -> None:

@@ -24,7 +24,7 @@ from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark
+from spikenerf.core.marker import MARKER, check_output, mark
 from spikenerf.data.alignment import (
     apply_similarity,
     near_far_from_points,
@@ -33,7 +33,7 @@ from spikenerf.data.alignment import (
 )
 from spikenerf.data.dataset import near_far
 from spikenerf.data.poses import PoseSet, orbit_poses, read_pose_source
-from spikenerf.data.simulate import _replace_dir, work_dir
+from spikenerf.data.simulate import _replace_dir, open_work
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
@@ -223,9 +223,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
 def _import_locked(dat: Path, out: Path, opts: ImportOptions, rec: tuple, keys: tuple) -> None:
     sel, fps, threshold, raw, _ = rec
     h, w, rel_keys = keys
-    work = work_dir(out)
-    fresh = not work.exists()
-    work.mkdir(parents=True, exist_ok=True)
+    work, fresh = open_work(out)
     try:
         images = keyframe_images(dat, rel_keys + sel.start, sel.start, sel.stop, (h, w, raw), opts, threshold)
         found = keyframe_poses(opts, images, rel_keys, work, len(sel), fps, sel.start)
@@ -262,7 +260,7 @@ def _write(
         )
     near, far = bounds if bounds is not None else near_far(poses, box)
     for stale in work.iterdir():  # outputs of an earlier attempt (its COLMAP model only if ours now)
-        if stale.name != COLMAP_WORK or opts.poses != "colmap":
+        if stale.name != MARKER and (stale.name != COLMAP_WORK or opts.poses != "colmap"):
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
     writer = DatasetWriter(work, k, fps, box, near, far)
     writer.start_spikes(["gray"])
