@@ -334,6 +334,21 @@ def test_a_foreign_partial_folder_is_refused_untouched(capsys, recording, tmp_pa
     assert [p.name for p in foreign.iterdir()] == ["thesis.tex"] and not (tmp_path / "ds").exists()
 
 
+def test_near_far_from_points_memory_is_bounded() -> None:
+    import tracemalloc
+
+    from spikenerf.data.alignment import near_far_from_points
+
+    poses = _truth(400)  # 400 cameras on a radius-4 orbit, 30k points in the unit ball
+    points = np.random.default_rng(0).normal(size=(30000, 3)) * 0.3
+    tracemalloc.start()
+    near, far = near_far_from_points(poses, points)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 60e6, peak  # all pairs at once: 400 × 30000 × 3 float64 = 288 MB
+    assert 0.8 * 3 < near < 4 < far < 1.2 * 5
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")

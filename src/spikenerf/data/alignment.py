@@ -71,11 +71,16 @@ def apply_similarity(poses: np.ndarray, center: np.ndarray, scale: float) -> np.
     return out
 
 
-def near_far_from_points(poses: np.ndarray, points: np.ndarray) -> tuple[float, float] | None:
+def near_far_from_points(
+    poses: np.ndarray, points: np.ndarray, max_points: int = 20000, max_cameras: int = 128
+) -> tuple[float, float] | None:
     """Ray bounds from the depths of sparse points (M, 3) in cameras (N, 4, 4): 0.8·p1 and 1.2·p99 of the
-    positive depths (None when too few points are in front of the cameras)."""
-    rel = points[None, :, :] - poses[:, None, :3, 3]
-    depth = -np.einsum("nmk,nk->nm", rel, poses[:, :3, 2]).ravel()
+    positive depths (None when too few points are in front of the cameras). At most ``max_points`` points
+    and ``max_cameras`` cameras (evenly spaced) are used, one camera at a time: memory stays bounded."""
+    points = points[np.unique(np.linspace(0, len(points) - 1, min(len(points), max_points)).astype(int))]
+    poses = poses[np.unique(np.linspace(0, len(poses) - 1, min(len(poses), max_cameras)).astype(int))]
+    depth = np.concatenate([-(points - c2w[:3, 3]) @ c2w[:3, 2] for c2w in poses]) if len(points) else []
+    depth = np.asarray(depth, np.float64)
     depth = depth[depth > 0]
     if len(depth) < 16:
         return None
