@@ -207,6 +207,7 @@ def test_interpolation_and_focus_point() -> None:
         ("nan", "NaN"),
         ("few", "need at least 2"),
         ("nocolmap", "pip install 'spikenerf[colmap]'"),
+        ("empty", "the recording holds no steps"),
         ("fps-neg", "--fps must be a finite number > 0"),
         ("fps-nan", "--fps must be a finite number > 0"),
         ("fps-zero", "--fps must be a finite number > 0"),
@@ -220,6 +221,8 @@ def test_bad_input_exits_2_and_leaves_nothing(
     args = ["import", rec, "--out", tmp_path / "ds"]
     if setup == "size":
         rec.write_bytes(rec.read_bytes() + b"\0")
+    if setup == "empty":
+        rec.write_bytes(b"")
     if setup == "yaml":
         (rec.parent / "config.yaml").write_text("spike_h: eight\nspike_w: 24\n")
     if setup in ("nan", "few"):

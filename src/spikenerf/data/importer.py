@@ -207,6 +207,8 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     total = count_steps(dat, h, w, raw)
     sel = resolve_frames(opts.frame_range, total, dat)
     n = len(sel)
+    if n == 0:
+        raise InputError("the recording holds no steps" if total == 0 else "--range selects no steps", dat)
     check_output(out, "dataset", overwrite=opts.overwrite)
     rel_keys = keyframe_steps(n, opts.keyframe_every, opts.window)
     if len(rel_keys) < 2:
