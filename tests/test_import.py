@@ -352,6 +352,23 @@ def test_near_far_from_points_memory_is_bounded() -> None:
     assert 0.8 * 3 < near < 4 < far < 1.2 * 5
 
 
+def test_one_lock_per_folder_and_a_killed_swap_is_finished(capsys, recording, tmp_path) -> None:
+    from spikenerf.core.lock import lock_path
+
+    (tmp_path / "d").mkdir()
+    assert lock_path(tmp_path / "d" / ".." / "ds") == lock_path(tmp_path / "ds")
+    rec, _ = recording
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
+    assert code == 0, err
+    (tmp_path / "ds").rename(tmp_path / ".ds.old")  # killed between the two renames of --overwrite
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
+    assert code == 2 and "--overwrite" in err  # the earlier dataset is back, so it is not replaced silently
+    assert load_dataset(tmp_path / "ds") and not (tmp_path / ".ds.old").exists()
+    (tmp_path / ".ds.old").mkdir()  # a leftover beside an existing dataset: deleted
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, "--overwrite")
+    assert code == 0 and not (tmp_path / ".ds.old").exists(), err
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")

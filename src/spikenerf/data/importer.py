@@ -33,7 +33,7 @@ from spikenerf.data.alignment import (
 )
 from spikenerf.data.dataset import near_far
 from spikenerf.data.poses import PoseSet, orbit_poses, read_pose_source
-from spikenerf.data.simulate import _replace_dir, open_work
+from spikenerf.data.simulate import _replace_dir, open_work, recover_replaced
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
@@ -217,6 +217,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
             "need at least 2"
         )
     with output_lock(out):
+        recover_replaced(out)
         check_output(out, "dataset", overwrite=opts.overwrite)  # again, now that no one else writes
         _import_locked(dat, out, opts, (sel, fps, threshold, raw, rc.path), (h, w, rel_keys))
     return out

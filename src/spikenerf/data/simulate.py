@@ -213,6 +213,18 @@ def check_options(options: SimulateOptions) -> None:
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
 
 
+def recover_replaced(out: Path) -> None:
+    """Finish a :func:`_replace_dir` that was killed between its renames (call it holding the lock): the
+    swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted."""
+    old = out.with_name(f".{out.name}.old")
+    if not (old.exists() or old.is_symlink()):
+        return
+    if out.exists() or out.is_symlink():
+        shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink()
+    else:
+        old.rename(out)
+
+
 def _replace_dir(work: Path, out: Path) -> None:
     """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is swapped out, then deleted)."""
     old = None
@@ -321,6 +333,7 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
     check_options(options)
     check_output(out, "dataset", overwrite=options.overwrite)
     with output_lock(out):
+        recover_replaced(out)
         check_output(out, "dataset", overwrite=options.overwrite)  # again, now that no one else writes
         return _simulate_locked(source, out, options, progress)
 
