@@ -369,6 +369,20 @@ def test_one_lock_per_folder_and_a_killed_swap_is_finished(capsys, recording, tm
     assert code == 0 and not (tmp_path / ".ds.old").exists(), err
 
 
+def test_a_pycolmap_failure_is_one_input_error(tmp_path, monkeypatch) -> None:
+    from unittest import mock
+
+    from spikenerf.data.colmap import run_colmap
+
+    fake = mock.MagicMock()
+    fake.extract_features.side_effect = RuntimeError("Check failed: camera\n(stack trace)")
+    monkeypatch.setitem(sys.modules, "pycolmap", fake)
+    images = np.random.default_rng(0).random((4, H, W)).astype(np.float32)
+    with pytest.raises(InputError, match=r"COLMAP failed on the keyframes \(Check failed: camera\)$"):
+        run_colmap(images, np.arange(4) * 10, tmp_path / "colmap")
+    assert set(fake.extract_features.call_args.kwargs) >= {"database_path", "image_names", "camera_mode"}
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")
