@@ -383,6 +383,22 @@ def test_a_pycolmap_failure_is_one_input_error(tmp_path, monkeypatch) -> None:
     assert set(fake.extract_features.call_args.kwargs) >= {"database_path", "image_names", "camera_mode"}
 
 
+def test_info_and_reconstruct_take_raw_width_from_the_config(capsys, recording, tmp_path) -> None:
+    _, spikes = recording
+    raw = tmp_path / "raw" / "stream.dat"
+    write_dat(raw, np.concatenate([spikes, np.ones((T, H, 16), np.uint8)], axis=2))
+    (raw.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\nraw_width: {W + 16}\n")
+    code, out, err = run_cli(capsys, "info", raw)
+    assert code == 0 and f"stored rows {W + 16} wide" in out, err
+    code, _, err = run_cli(
+        capsys, "reconstruct", raw, "--method", "tfp", "--frame", 20, "--out", tmp_path / "r.png"
+    )
+    assert code == 0, err
+    (raw.parent / "config.yaml").write_text("spike_h: eight\n")  # malformed, but the flags say it all
+    code, out, err = run_cli(capsys, "info", raw, "--height", H, "--width", W, "--raw-width", W + 16)
+    assert code == 0 and f"{H}×{W} pixels" in out, err
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")
