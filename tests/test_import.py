@@ -399,6 +399,28 @@ def test_info_and_reconstruct_take_raw_width_from_the_config(capsys, recording, 
     assert code == 0 and f"{H}×{W} pixels" in out, err
 
 
+def test_forward_facing_poses_need_a_box_or_llff_bounds(capsys, recording, tmp_path) -> None:
+    grid = np.tile(np.eye(4), (9, 1, 1))  # a 3×3 LLFF-style grid, every camera looking down −Z
+    grid[:, :2, 3] = np.stack(np.meshgrid([-0.5, 0, 0.5], [-0.5, 0, 0.5]), -1).reshape(9, 2)
+    dolly = np.tile(np.eye(4), (5, 1, 1))
+    dolly[:, 2, 3] = np.linspace(0, 2, 5)
+    for poses in (grid, dolly):
+        with pytest.raises(InputError, match="cannot size the scene from the cameras alone"):
+            normalisation(poses, camera_angle_x=0.7)
+    rec, _ = recording
+    llff = np.stack([-grid[:, :3, 1], grid[:, :3, 0], grid[:, :3, 2], grid[:, :3, 3]], -1)
+    hwf = np.broadcast_to(np.array([H, W, 30.0])[None, :, None], (9, 3, 1))
+    rows = np.concatenate([np.concatenate([llff, hwf], -1).reshape(-1, 15), np.tile([[2.0, 6.0]], (9, 1))], 1)
+    np.save(tmp_path / "poses_bounds.npy", rows)
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds", "--poses", tmp_path / "poses_bounds.npy"
+    )
+    assert code == 0, err
+    ds = load_dataset(tmp_path / "ds")
+    scale = ds.config["imported"]["normalisation"]["scale"]
+    assert scale == pytest.approx(2 / 6) and (ds.near, ds.far) == pytest.approx((2 * scale, 6 * scale))
+
+
 def test_config_reader_types(tmp_path: Path) -> None:
     path = tmp_path / "config.yaml"
     path.write_text("spike_h: 250\nspike_w: 400\nraw_width: 416\nfps: 20000\nthreshold: 2\n")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_output, mark
 from spikenerf.data.alignment import (
     apply_similarity,
+    frustum_box,
     near_far_from_points,
     normalisation,
     per_step_poses,
@@ -163,9 +164,7 @@ def keyframe_poses(
     else:
         steps = found.steps - first
         _check_pose_steps(steps, n, first, opts.poses)
-    return PoseSet(
-        found.poses, steps, found.intrinsics, found.points, found.scene_box, found.names, found.camera_angle_x
-    )
+    return replace(found, steps=steps)
 
 
 def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> None:
@@ -253,10 +252,13 @@ def _write(
     n = len(sel)
     steps = np.arange(n, dtype=np.int64)
     poses = per_step_poses(found.poses, found.steps, steps)
-    center, scale = normalisation(found.poses, found.points, found.scene_box, k.camera_angle_x)
+    scene_box = found.scene_box
+    if scene_box is None and found.depth_bounds is not None:
+        scene_box = frustum_box(found.poses, *found.depth_bounds)
+    center, scale = normalisation(found.poses, found.points, scene_box, k.camera_angle_x)
     poses = apply_similarity(poses, center, scale)
     box = np.array([[-1.0] * 3, [1.0] * 3])
-    bounds = None
+    bounds = None if found.depth_bounds is None else tuple(d * scale for d in found.depth_bounds)
     if found.points is not None:
         bounds = near_far_from_points(
             apply_similarity(found.poses, center, scale), (found.points - center) * scale

@@ -32,7 +32,8 @@ class PoseSet:
     """Poses (N, 4, 4) float64 c2w; steps (N,) int64 spike steps or None (spread evenly later);
     intrinsics if the source knows them (at its own image size); points (M, 3) sparse scene points or None;
     scene_box (2, 3) if the source states one; names (N,) of the frames (for messages); camera_angle_x
-    (radians) when the source gives only a field of view."""
+    (radians) when the source gives only a field of view; depth_bounds (near, far) along the optical axes
+    in the source's units (LLFF)."""
 
     poses: np.ndarray
     steps: np.ndarray | None = None
@@ -41,6 +42,7 @@ class PoseSet:
     scene_box: np.ndarray | None = None
     names: tuple[str, ...] = ()
     camera_angle_x: float | None = None
+    depth_bounds: tuple[float, float] | None = None
 
 
 def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) -> np.ndarray:
@@ -197,7 +199,9 @@ def read_poses_bounds(path: Path) -> PoseSet:
     poses[:, :3, 3] = m[:, :, 3]
     h, w, f = (float(v) for v in m[0, :, 4])
     k = Intrinsics(round(w), round(h), f, f, w / 2, h / 2) if min(h, w, f) > 0 else None
-    return PoseSet(check_poses(poses, path), None, k)
+    near, far = float(arr[:, 15].min()), float(arr[:, 16].max())
+    bounds = (near, far) if 0 < near < far else None  # columns 15-16: the scene's depth range per view
+    return PoseSet(check_poses(poses, path), None, k, depth_bounds=bounds)
 
 
 def read_pose_source(path: str | Path) -> PoseSet:
