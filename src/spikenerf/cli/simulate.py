@@ -195,9 +195,10 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
 
 def _check_resources(kw: dict, flags: str, width: int, height: int, steps: int, views: int) -> None:
     """Refuse (InputError naming ``flags``) a run larger than this machine's memory or free disk."""
+    from spikenerf.data.blur import blur_windows
     from spikenerf.data.simulate import check_simulate_resources
 
-    blur = 0 if not kw["blur_fps"] or kw["blur_fps"] <= 0 else max(1, int(steps * kw["blur_fps"] / kw["fps"]))
+    blur = len(blur_windows(steps, kw["fps"], kw["blur_fps"] or 0.0, kw["blur_views"]))  # --blur-views too
     check_simulate_resources(
         Path(kw["out"]), flags, width=width, height=height, steps=steps, colors=_colors(str(kw["color"])),
         test_views=views, spp=kw["spp"] or 16, gt_every=max(1, int(kw["gt_every"])), blur_frames=blur,
