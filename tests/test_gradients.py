@@ -81,6 +81,20 @@ def test_packed_weights_equal_the_padded_ones() -> None:
     assert torch.allclose(packed, dense[keep], atol=1e-6)
 
 
+def test_an_infinite_density_leaves_the_other_rays_weights_finite() -> None:
+    """One ``inf`` (or NaN) sample in ray 0: before the clamped scan, ``inf − inf`` made every ray NaN."""
+    gen = torch.Generator().manual_seed(4)
+    sigma, deltas = torch.rand(3, 4, generator=gen) * 5, torch.rand(3, 4, generator=gen) * 0.2 + 0.01
+    ray = torch.arange(3).repeat_interleave(4)
+    for bad in (float("inf"), float("nan")):
+        sigma[0, 1] = bad
+        packed = packed_weights(sigma.reshape(-1), deltas.reshape(-1), ray, 3).view(3, 4)
+        assert torch.isfinite(packed[1:]).all()
+        assert torch.allclose(packed[1:], weights_from_density(sigma[1:], deltas[1:]), atol=1e-6)
+        assert packed[0, 0] == weights_from_density(sigma[:1], deltas[:1])[0, 0]  # before the bad sample
+        assert packed[0, 2:].eq(0).all()  # after it: transmittance 0
+
+
 def test_training_loop_reads_no_tensor_value_per_step(
     dataset_dir: Path, dataset, tmp_path: Path, monkeypatch
 ) -> None:  # type: ignore[no-untyped-def]
