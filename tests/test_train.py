@@ -266,6 +266,18 @@ def test_resume_matches_an_uninterrupted_run(dataset_dir: Path, dataset, tmp_pat
         assert torch.equal(sa[key], sb[key]), key
 
 
+def test_resume_keeps_the_fp16_loss_scale(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The GradScaler state is in the checkpoint: a resumed --amp fp16 run continues with the same scale."""
+    cfg = _config(dataset_dir, amp="fp16")
+    first = Trainer(cfg, tmp_path / "b", dataset, progress=False)
+    first.train(stop_after=2)
+    first.scaler.update(new_scale=1024.0)  # as after some overflow back-offs
+    first.checkpoint()
+    resumed = Trainer(cfg, tmp_path / "b", dataset, resume=True, progress=False)
+    assert resumed.scaler.get_scale() == 1024.0
+    assert resumed.scaler.state_dict() == first.scaler.state_dict()
+
+
 def test_load_run_renders(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     train(_config(dataset_dir, method="nerf-gt"), tmp_path / "run", dataset, progress=False)
     model, config, ds = load_run(tmp_path / "run")

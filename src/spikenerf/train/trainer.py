@@ -190,6 +190,8 @@ class Trainer:
             self.curves = [r for r in read_curves(self.out / CURVES) if r["iteration"] <= self.iteration]
         self.final_ratio = _lr_final_ratio(self.config, self.model)
         self.scaler = torch.amp.GradScaler(self.device.type, enabled=self.config.amp == "fp16")
+        if ckpt is not None and ckpt.get("scaler"):  # fp16 loss scale and growth tracker (absent: older)
+            self.scaler.load_state_dict(ckpt["scaler"])
 
     # ------------------------------------------------------------------------------------------------ setup
     def _build_targets(self) -> None:
@@ -283,6 +285,7 @@ class Trainer:
                 "model": self.model.state_dict(),
                 "hparams": self.model.hparams(),
                 "optimizer": self.optimizer.state_dict(),
+                "scaler": self.scaler.state_dict(),  # {} unless --amp fp16
                 "rng": rng_state(self.samplers),
                 "config": self.config.to_dict(),
             },
