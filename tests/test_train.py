@@ -453,3 +453,14 @@ def test_config_errors_name_the_key_and_the_cli_the_flag(dataset_dir: Path, tmp_
         capsys.readouterr().err.strip()
         == "spikenerf: error: --window must be an odd number of frames, found 4"
     )
+
+
+def test_set_coerces_number_strings_by_the_key_type() -> None:
+    """``1e-3`` (a string to YAML 1.1) becomes a float for a float key only; a string key keeps it."""
+    from spikenerf.fields import field_config
+    from spikenerf.train.config import TrainConfig, apply_overrides
+
+    sets = ["dataset=1e3", "lr=1e-3", "field_config.lr=2e-2"]
+    cfg = TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), sets)).validate()
+    assert cfg.dataset == "1e3" and cfg.lr == 1e-3
+    assert field_config("grid", cfg.field_config).lr == 2e-2
