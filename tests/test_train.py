@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import sys
+import time
 import traceback
 from pathlib import Path
 
@@ -383,6 +384,26 @@ def test_tensorboard_log_holds_every_scalar_and_the_test_renders(
     rows = read_curves(tmp_path / "run" / "curves.csv")
     assert [r["iteration"] for r in rows] == [6, 12] and rows[-1]["spike"] > 0 and rows[-1]["lambda"] == 1.0
     assert events.Tags()["images"] == ["test/view0"] and len(events.Images("test/view0")) == 2
+
+
+def test_tensorboard_after_resume_has_each_step_once(tmp_path: Path) -> None:
+    """Steps logged after the last checkpoint and logged again by the resumed run are purged."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from spikenerf.train.logger import TensorBoardLog
+
+    log = TensorBoardLog(tmp_path)
+    for step in range(1, 9):  # interrupted after 8 steps; the checkpoint is at 4
+        log.scalars(step, {"loss/recon": float(step)})
+    log.close()
+    time.sleep(1.1)  # a new event file name (SummaryWriter names files by the second)
+    log = TensorBoardLog(tmp_path, start=4)
+    for step in range(5, 11):
+        log.scalars(step, {"loss/recon": 10.0 * step})
+    log.close()
+    events = EventAccumulator(str(tmp_path / "tensorboard")).Reload()
+    got = [(e.step, e.value) for e in events.Scalars("loss/recon")]
+    assert got == [(s, float(s)) for s in range(1, 5)] + [(s, 10.0 * s) for s in range(5, 11)]
 
 
 def test_tensorboard_missing_is_one_line_with_the_install_hint(

@@ -294,7 +294,8 @@ class Trainer:
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
         cfg, s = self.config, self.config.spike
-        log = open_log(cfg.log, self.out)  # first: a missing package leaves no run folder behind
+        # first: a missing package leaves no run folder behind
+        log = open_log(cfg.log, self.out, self.iteration)
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
         mark(self.out, "run")
