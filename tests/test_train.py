@@ -443,9 +443,10 @@ def test_cli_config_file_and_set_reach_every_field(dataset_dir: Path, tmp_path: 
     # a run folder's config.yaml is a valid --config (no DATASET needed); options and --set override it
     second = tmp_path / "b"
     main(["train", "--config", str(first / "config.yaml"), "--iters", "3", "--set", "spike.every=2",
-          "--quiet", "--out", str(second)])  # fmt: skip
-    again = load_config(second / "config.yaml")
-    assert again == dataclasses.replace(cfg, iters=3, spike=dataclasses.replace(cfg.spike, every=2))
+          "--field-option", "width=24", "--quiet", "--out", str(second)])  # fmt: skip
+    again = load_config(second / "config.yaml")  # --field-option merges into the file's field_config
+    spike = dataclasses.replace(cfg.spike, every=2)
+    assert again == dataclasses.replace(cfg, iters=3, spike=spike, field_config={**_TINY_MLP, "width": 24})
     capsys.readouterr()
     for bad, message in [
         ("spike.kind=nope", "spike.kind must be one of interval, paper, found 'nope'"),
