@@ -141,12 +141,25 @@ def test_in_memory_learned_reconstruction_of_a_stream_uses_mirrored_edges() -> N
     np.testing.assert_allclose(out, 2.0, rtol=0.15)  # a white stream reconstructs as φ
 
 
+def test_in_memory_learned_reconstruction_honours_the_slice_step(tmp_path: Path) -> None:
+    from spikenerf.core.errors import InputError
+
+    weights = _weights(tmp_path / "w.pt", ["gray"])
+    spikes = (np.random.default_rng(2).random((12, 8, 8)) < 0.5).astype(np.uint8)
+    every = reconstruct_learned(spikes, "gray", weights=weights)
+    for sel in (slice(1, 9, 3), slice(None, None, -5)):
+        got = reconstruct_learned(spikes, "gray", weights=weights, frames=sel)
+        np.testing.assert_array_equal(got, every[sel])
+    with pytest.raises(InputError, match="frames"):
+        reconstruct_learned(spikes, "gray", weights=weights, frames=slice(5, 5))
+
+
 def _weights(path: Path, modes: list[str]) -> Path:
     save_weights(path, ReconNet(NetConfig(window=7, width=8)), modes, {"command": "test"})
     return path
 
 
-@pytest.mark.parametrize("case", ["corrupt", "foreign", "arch", "mode", "short", "window"])
+@pytest.mark.parametrize("case", ["corrupt", "foreign", "arch", "mode", "short", "window", "inner", "modes"])
 def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: str) -> None:
     dat = tmp_path / "s.dat"
     write_dat(dat, np.random.default_rng(0).random((5 if case == "short" else 12, 8, 8)) < 0.5)
@@ -160,6 +173,10 @@ def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: s
         data = torch.load(weights, weights_only=True)
         data["state"].pop(next(iter(data["state"])))
         torch.save(data, weights)
+    elif case in ("inner", "modes"):  # right keys, wrong inner types
+        data = torch.load(weights, weights_only=True)
+        data.update({"state": [1, 2]} if case == "inner" else {"modes": 3})
+        torch.save(data, weights)
     elif case == "mode":
         args += ["--color", "bayer"]
     elif case == "window":
@@ -172,6 +189,8 @@ def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: s
         "mode": "trained for colour modes gray, not 'bayer'",
         "short": "longer than the stream",
         "window": "trained window of 7",
+        "inner": "do not fit",
+        "modes": "malformed 'modes'",
     }[case]
     assert code == 2 and err.count("\n") == 1 and expected in err, err
     assert not (tmp_path / "o.npy").exists()
@@ -194,4 +213,11 @@ def test_recon_commands_reject_bad_folders_with_one_line(capsys, tmp_path: Path)
     assert code == 2 and err.count("\n") == 1 and "manifest.json" in err
     code, _, err = run_cli(capsys, "recon-data", "--out", tmp_path / "p", "--window", 8)
     assert code == 2 and err.count("\n") == 1 and "--window" in err
+    for flag, value in [("--brightness", "0.5:inf"), ("--max-speed", "inf"), ("--threshold", "inf")]:
+        code, _, err = run_cli(capsys, "recon-data", "--out", tmp_path / "p", flag, value)
+        assert code == 2 and err.count("\n") == 1 and flag in err, err
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "manifest.json").write_text("{not json")
+    code, _, err = run_cli(capsys, "recon-train", tmp_path / "bad", "--out", tmp_path / "run")
+    assert code == 2 and err.count("\n") == 1 and "corrupt manifest.json" in err, err
     assert not (tmp_path / "p").exists() and not (tmp_path / "run").exists()
