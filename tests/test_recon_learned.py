@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,7 @@ import torch
 
 from helpers import run_cli
 from spikenerf.camera.io import write_dat
+from spikenerf.core.errors import InputError
 from spikenerf.recon.generate import write_pairs
 from spikenerf.recon.infer import predict_plane, reconstruct_learned
 from spikenerf.recon.net import NetConfig, ReconNet, load_weights, save_weights
@@ -116,6 +119,15 @@ def test_training_reduces_the_loss_and_resumes_bit_identically(pairs: Path, tmp_
     for key, value in a["model"].items():
         assert torch.equal(value, b["model"][key]), key
     assert (tmp_path / "c" / "curves.csv").read_text().count("\n") == 3  # header + iterations 3 and 6
+    # the running L1 (column 2) continues across the resume; the time (last column) differs
+    rows = [[r.split(",")[:4] for r in (tmp_path / d / "curves.csv").read_text().splitlines()] for d in "bc"]
+    assert rows[0] == rows[1]
+    other = tmp_path / "other_pairs"  # same samples, another manifest: refused
+    shutil.copytree(pairs, other)
+    manifest = json.loads((other / "manifest.json").read_text())
+    (other / "manifest.json").write_text(json.dumps({**manifest, "seed": -1}))
+    with pytest.raises(InputError, match="another pair folder"):
+        train_recon(other, tmp_path / "c", _cfg(iters=9), progress=False)
 
 
 def test_shipped_weights_beat_tfp_on_a_held_out_analytic_scene() -> None:
