@@ -182,11 +182,8 @@ class Trainer:
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
             restore_rng(ckpt["rng"], self.samplers)
-            self.iteration, self.elapsed, self.rays = (
-                int(ckpt["iteration"]),
-                float(ckpt["elapsed"]),
-                int(ckpt["rays"]),
-            )
+            self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
+            self.rays = int(ckpt["rays"])
             self.curves = [r for r in read_curves(self.out / CURVES) if r["iteration"] <= self.iteration]
         self.final_ratio = _lr_final_ratio(self.config, self.model)
         self.scaler = torch.amp.GradScaler(self.device.type, enabled=self.config.amp == "fp16")
