@@ -233,3 +233,12 @@ def test_recon_commands_reject_bad_folders_with_one_line(capsys, tmp_path: Path)
     code, _, err = run_cli(capsys, "recon-train", tmp_path / "bad", "--out", tmp_path / "run")
     assert code == 2 and err.count("\n") == 1 and "corrupt manifest.json" in err, err
     assert not (tmp_path / "p").exists() and not (tmp_path / "run").exists()
+
+
+def test_recon_resume_with_a_foreign_optimiser_state_is_an_input_error(pairs: Path, tmp_path: Path) -> None:
+    train_recon(pairs, tmp_path / "r", _cfg(), progress=False, stop_at=2)
+    data = torch.load(tmp_path / "r" / "checkpoint.pt", weights_only=True)
+    data["optimizer"]["param_groups"].append(dict(data["optimizer"]["param_groups"][0]))  # → ValueError
+    torch.save(data, tmp_path / "r" / "checkpoint.pt")
+    with pytest.raises(InputError, match="does not fit"):
+        train_recon(pairs, tmp_path / "r", _cfg(), progress=False)
