@@ -81,6 +81,20 @@ def test_packed_weights_equal_the_padded_ones() -> None:
     assert torch.allclose(packed, dense[keep], atol=1e-6)
 
 
+def test_an_infinite_density_leaves_the_other_rays_weights_finite() -> None:
+    """One ``inf`` (or NaN) sample in ray 0: before the clamped scan, ``inf − inf`` made every ray NaN."""
+    gen = torch.Generator().manual_seed(4)
+    sigma, deltas = torch.rand(3, 4, generator=gen) * 5, torch.rand(3, 4, generator=gen) * 0.2 + 0.01
+    ray = torch.arange(3).repeat_interleave(4)
+    for bad in (float("inf"), float("nan")):
+        sigma[0, 1] = bad
+        packed = packed_weights(sigma.reshape(-1), deltas.reshape(-1), ray, 3).view(3, 4)
+        assert torch.isfinite(packed[1:]).all()
+        assert torch.allclose(packed[1:], weights_from_density(sigma[1:], deltas[1:]), atol=1e-6)
+        assert packed[0, 0] == weights_from_density(sigma[:1], deltas[:1])[0, 0]  # before the bad sample
+        assert packed[0, 2:].eq(0).all()  # after it: transmittance 0
+
+
 def test_training_loop_reads_no_tensor_value_per_step(
     dataset_dir: Path, dataset, tmp_path: Path, monkeypatch
 ) -> None:  # type: ignore[no-untyped-def]
@@ -115,6 +129,8 @@ def test_fused_vm_kernel_matches_grid_sample_forward_and_backward() -> None:
     lines = torch.randn(3, 5, 9, 1, generator=gen, requires_grad=True)
     xyz = torch.rand(300, 3, generator=gen) * 2 - 1
     xyz[:4] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])  # edges
+    # outside the box (zeros padding as grid_sample: half a texel out, one texel out, far out)
+    xyz[4:8] = torch.tensor([[1.1, 0.0, 0.3], [-1.1, -1.2, 0.5], [1.26, 0.2, -1.3], [5.0, -7.0, 0.0]])
     ref = sample_vm(planes, lines, xyz).permute(2, 0, 1)
     out = vm_kernel.vm_lookup(planes, lines, xyz)
     assert torch.allclose(out, ref, atol=1e-5)
@@ -126,3 +142,70 @@ def test_fused_vm_kernel_matches_grid_sample_forward_and_backward() -> None:
     ):
         assert torch.allclose(a, b, atol=1e-4)
     assert not vm_kernel.usable(planes, xyz.clone().requires_grad_())  # point gradients: grid_sample
+
+
+def _kernel_or_skip():  # type: ignore[no-untyped-def]
+    from spikenerf.fields import vm_kernel
+
+    if not vm_kernel.available():
+        pytest.skip("no C++ compiler for the fused VM kernel")
+    return vm_kernel
+
+
+def test_fused_vm_kernel_nan_point_gives_nan_not_a_crash() -> None:
+    """A NaN coordinate used to become a wild index (segfault); now NaN exactly where grid_sample has NaN."""
+    from spikenerf.fields.grid import sample_vm
+
+    vm_kernel = _kernel_or_skip()
+    planes, lines = torch.randn(3, 4, 6, 6, requires_grad=True), torch.randn(3, 4, 6, 1, requires_grad=True)
+    nan, inf = float("nan"), float("inf")
+    xyz = torch.tensor([[nan, 0.1, 0.2], [0.3, nan, -0.5], [1e30, -1e30, 0], [inf, 0, -inf], [0.2, 0.1, 0]])
+    ref = sample_vm(planes, lines, xyz).permute(2, 0, 1)
+    out = vm_kernel.vm_lookup(planes, lines, xyz)
+    assert torch.equal(out.isnan(), ref.isnan())
+    assert torch.allclose(out, ref, atol=1e-5, equal_nan=True)
+    out.sum().backward()  # no crash in the scatter either
+
+
+def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:
+    """> 4096 points on 2 threads: the per-thread gradient buffers and their sum."""
+    from spikenerf.fields.grid import sample_vm
+
+    vm_kernel = _kernel_or_skip()
+    gen = torch.Generator().manual_seed(5)
+    planes = torch.randn(3, 4, 8, 8, generator=gen, requires_grad=True)
+    lines = torch.randn(3, 4, 8, 1, generator=gen, requires_grad=True)
+    xyz = torch.rand(9000, 3, generator=gen) * 2 - 1
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        out = vm_kernel.vm_lookup(planes, lines, xyz)
+        got = torch.autograd.grad(out, (planes, lines), torch.ones_like(out))
+    finally:
+        torch.set_num_threads(threads)
+    ref = sample_vm(planes, lines, xyz).permute(2, 0, 1)
+    want = torch.autograd.grad(ref, (planes, lines), torch.ones_like(ref))
+    assert torch.allclose(out, ref, atol=1e-5)
+    assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got, want, strict=True))
+
+
+def test_fused_vm_kernel_stale_build_lock_falls_back(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A lock left by a build killed long ago: grid_sample with one warning, not torch's endless wait."""
+    import os
+    import time
+
+    import torch.utils.cpp_extension as ext
+
+    from spikenerf.fields import vm_kernel
+
+    (tmp_path / "lock").touch()
+    old = time.time() - vm_kernel.STALE_LOCK_S - 60
+    os.utime(tmp_path / "lock", (old, old))
+    monkeypatch.setattr(ext, "_get_build_directory", lambda name, verbose: str(tmp_path))
+    monkeypatch.setattr(vm_kernel, "_MODULE", None)
+    monkeypatch.setattr(vm_kernel, "_FAILED", False)
+    monkeypatch.delenv("SPIKENERF_VM_KERNEL", raising=False)
+    with pytest.warns(UserWarning, match="stale build lock"):
+        assert not vm_kernel.available()
+    with pytest.raises(RuntimeError, match="unavailable"):  # vm_lookup without the kernel: a clear error
+        vm_kernel.vm_lookup(torch.zeros(3, 1, 2, 2), torch.zeros(3, 1, 2, 1), torch.zeros(1, 3))

@@ -13,6 +13,7 @@ from helpers import run_cli
 from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.camera.spikecv import read_spikecv_config
 from spikenerf.core.errors import InputError
+from spikenerf.core.marker import mark
 from spikenerf.data.alignment import (
     apply_similarity,
     focus_point,
@@ -60,6 +61,44 @@ def test_spikecv_config_and_orbit_import(capsys, recording, tmp_path: Path) -> N
     np.testing.assert_allclose(ds.trajectory.poses, apply_similarity(truth, center, scale), atol=1e-5)
     assert np.abs(ds.trajectory.poses[:, :3, 3]).max() > 1  # cameras sit outside the unit box
     assert ds.near < 4 * scale < ds.far
+
+
+def test_recorded_command_line(capsys, recording, tmp_path: Path) -> None:
+    rec, _ = recording
+    out = tmp_path / "ds"
+    code, _, err = run_cli(capsys, "--threads", 1, "import", rec, "--out", out, *ORBIT, "--range", "0:30")
+    assert code == 0, err
+    assert load_dataset(out).config["command"] == (
+        f"spikenerf --threads 1 import {rec} --out {out} --poses orbit --orbit 4,30 --range 0:30 --fov 40.0"
+    )
+
+
+def test_tfp_views_read_one_window_at_a_time_and_imports_get_none(
+    capsys, recording, tmp_path: Path, monkeypatch
+) -> None:
+    import spikenerf.data.writer as writer
+
+    reads = []
+
+    def spy(*args, **kwargs):
+        frames = read_dat(*args, **kwargs)
+        reads.append(len(frames))
+        return frames
+
+    monkeypatch.setattr(writer, "read_dat", spy)
+    code, _, err = run_cli(capsys, "import", rec := recording[0], "--out", tmp_path / "ds", *ORBIT)
+    assert code == 0, err
+    assert reads == [] and not {"transforms_gt.json", "transforms_tfp.json"} & {
+        p.name for p in (tmp_path / "ds").iterdir()
+    }
+    sim = ["simulate", "--scene", "analytic-orbs", "--width", 8, "--height", 8, "--frames", 120]
+    code, _, err = run_cli(
+        capsys, *sim, "--gt-every", 50, "--test-views", 1, "--no-progress", "--out", rec.parent / "s"
+    )
+    assert code == 0, err
+    assert reads == [21, 41, 40]  # steps 0, 50, 100 of 120: windows of 41 clipped to the stream
+    meta = json.loads((rec.parent / "s" / "transforms_tfp.json").read_text())
+    assert len(meta["train_filenames"]) == 3
 
 
 def test_raw_416_layout_and_range(capsys, recording, tmp_path: Path) -> None:
@@ -168,6 +207,11 @@ def test_interpolation_and_focus_point() -> None:
         ("nan", "NaN"),
         ("few", "need at least 2"),
         ("nocolmap", "pip install 'spikenerf[colmap]'"),
+        ("empty", "the recording holds no steps"),
+        ("fps-neg", "--fps must be a finite number > 0"),
+        ("fps-nan", "--fps must be a finite number > 0"),
+        ("fps-zero", "--fps must be a finite number > 0"),
+        ("threshold-zero", "--threshold must be a finite number > 0"),
     ],
 )
 def test_bad_input_exits_2_and_leaves_nothing(
@@ -177,6 +221,8 @@ def test_bad_input_exits_2_and_leaves_nothing(
     args = ["import", rec, "--out", tmp_path / "ds"]
     if setup == "size":
         rec.write_bytes(rec.read_bytes() + b"\0")
+    if setup == "empty":
+        rec.write_bytes(b"")
     if setup == "yaml":
         (rec.parent / "config.yaml").write_text("spike_h: eight\nspike_w: 24\n")
     if setup in ("nan", "few"):
@@ -191,9 +237,188 @@ def test_bad_input_exits_2_and_leaves_nothing(
         args += ["--poses", pose_file, "--fov", 40]
     if setup == "nocolmap":
         monkeypatch.setitem(sys.modules, "pycolmap", None)
+    if setup.startswith(("fps", "threshold")):
+        name, value = setup.split("-")
+        args += [*ORBIT, f"--{name}", {"neg": -5, "nan": "nan", "zero": 0}[value]]
     code, _, err = run_cli(capsys, *args)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert _leftovers(tmp_path) == [p for p in ["p.json"] if (tmp_path / p).exists()]
+
+
+@pytest.mark.parametrize(
+    ("kind", "content", "message"),
+    [
+        ("json", {"scene_box": [[0, 0, 0], [1, 1]]}, "field 'scene_box'"),
+        ("json", {"scene_box": "abc"}, "field 'scene_box'"),
+        ("json", {"w": 0, "h": 8, "fl_x": 10, "fl_y": 10, "cx": 4, "cy": 4}, "field 'w'"),
+        ("json", {"w": 8, "h": 8, "fl_x": -1, "fl_y": 10, "cx": 4, "cy": 4}, "field 'fl_x'"),
+        ("colmap", "1 PINHOLE abc", "malformed camera line"),
+        ("colmap", "1 PINHOLE", "malformed camera line"),
+        ("colmap", "1 PINHOLE 0 16 30 31 24 8", "must be > 0"),
+        ("colmap", "1 PINHOLE 48 16 -30 31 24 8", "must be > 0"),
+        ("colmapbin", b"junk", "pycolmap cannot read"),
+    ],
+)
+def test_malformed_pose_sources_exit_2(capsys, recording, tmp_path, kind, content, message) -> None:
+    rec, _ = recording
+    keys = np.arange(0, T, 13)
+    if kind == "json":
+        frames = [{"step": int(s), "transform_matrix": _truth()[s].tolist()} for s in keys]
+        source = tmp_path / "p.json"
+        source.write_text(json.dumps({**content, "frames": frames}))
+    else:
+        source = tmp_path / "model"
+        _write_colmap_text(source, _truth()[keys], keys, np.zeros((1, 3)))
+        if kind == "colmapbin":
+            pytest.importorskip("pycolmap")
+            for name in ("cameras", "images", "points3D"):
+                (source / f"{name}.txt").unlink()
+                (source / f"{name}.bin").write_bytes(content)
+        else:
+            (source / "cameras.txt").write_text(content + "\n")
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", source, "--fov", 40)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert str(source.name) in err and not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize(
+    ("steps", "extra", "message"),
+    [
+        ([1, 2, 3, 4], [], "cover only 4 of the 40 selected steps"),  # frame_00001.png … on a long stream
+        ([0, 20, 45], [], "fall outside the selected steps 0..39"),
+        ([0, 20, 39], ["--range", "10:40"], "fall outside the selected steps 10..39"),
+    ],
+)
+def test_pose_file_steps_must_fit_the_selection(capsys, recording, tmp_path, steps, extra, message) -> None:
+    rec, _ = recording
+    frames = [{"file_path": f"frame_{s:05d}.png", "transform_matrix": _truth(60)[s].tolist()} for s in steps]
+    (tmp_path / "p.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": frames}))
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds", "--poses", tmp_path / "p.json", *extra
+    )
+    assert code == 2 and message in err and "p.json" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_stale_colmap_work_is_not_published_with_other_poses(capsys, recording, tmp_path) -> None:
+    rec, _ = recording
+    model = tmp_path / "ds.partial" / "colmap" / "model"
+    _write_colmap_text(model, _truth()[[0, 39]], np.array([0, 39]), np.zeros((1, 3)))
+    mark(tmp_path / "ds.partial", "dataset")  # an earlier, failed COLMAP attempt
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
+    assert code == 0, err
+    assert not (tmp_path / "ds" / "colmap").exists()
+
+
+def test_a_finished_colmap_model_is_reused_only_for_the_same_keyframe_images(tmp_path, monkeypatch) -> None:
+    from spikenerf.data.colmap import colmap_fingerprint, run_colmap
+
+    keys, images = np.array([0, 13, 26, 39]), np.random.default_rng(2).random((4, H, W)).astype(np.float32)
+    work = tmp_path / "colmap"
+    _write_colmap_text(work / "model", _truth()[keys], keys, np.zeros((1, 3)))
+    (work / "steps.json").write_text(colmap_fingerprint(images, keys, None, 10, 120))
+    monkeypatch.setitem(sys.modules, "pycolmap", None)  # a rerun of COLMAP would fail: pycolmap missing
+    assert run_colmap(images, keys, work).steps.tolist() == keys.tolist()  # reused
+    with pytest.raises(InputError, match="pycolmap"):  # other images at the same steps: not reused
+        run_colmap(images[::-1].copy(), keys, work)
+    assert not (work / "model").exists()
+
+
+@pytest.mark.parametrize("command", ["import", "simulate"])
+def test_a_foreign_partial_folder_is_refused_untouched(capsys, recording, tmp_path, command) -> None:
+    rec, _ = recording
+    foreign = tmp_path / "ds.partial"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("mine")
+    args = (
+        [rec, *ORBIT] if command == "import" else ["--scene", "analytic-orbs", "--frames", 4, "--no-progress"]
+    )
+    code, _, err = run_cli(capsys, command, *args, "--out", tmp_path / "ds")
+    assert code == 2 and "ds.partial" in err and "move it away" in err and len(err.strip().splitlines()) == 1
+    assert [p.name for p in foreign.iterdir()] == ["thesis.tex"] and not (tmp_path / "ds").exists()
+
+
+def test_near_far_from_points_memory_is_bounded() -> None:
+    import tracemalloc
+
+    from spikenerf.data.alignment import near_far_from_points
+
+    poses = _truth(400)  # 400 cameras on a radius-4 orbit, 30k points in the unit ball
+    points = np.random.default_rng(0).normal(size=(30000, 3)) * 0.3
+    tracemalloc.start()
+    near, far = near_far_from_points(poses, points)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 60e6, peak  # all pairs at once: 400 × 30000 × 3 float64 = 288 MB
+    assert 0.8 * 3 < near < 4 < far < 1.2 * 5
+
+
+def test_one_lock_per_folder_and_a_killed_swap_is_finished(capsys, recording, tmp_path) -> None:
+    from spikenerf.core.lock import lock_path
+
+    (tmp_path / "d").mkdir()
+    assert lock_path(tmp_path / "d" / ".." / "ds") == lock_path(tmp_path / "ds")
+    rec, _ = recording
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
+    assert code == 0, err
+    (tmp_path / "ds").rename(tmp_path / ".ds.old")  # killed between the two renames of --overwrite
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
+    assert code == 2 and "--overwrite" in err  # the earlier dataset is back, so it is not replaced silently
+    assert load_dataset(tmp_path / "ds") and not (tmp_path / ".ds.old").exists()
+    (tmp_path / ".ds.old").mkdir()  # a leftover beside an existing dataset: deleted
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, "--overwrite")
+    assert code == 0 and not (tmp_path / ".ds.old").exists(), err
+
+
+def test_a_pycolmap_failure_is_one_input_error(tmp_path, monkeypatch) -> None:
+    from unittest import mock
+
+    from spikenerf.data.colmap import run_colmap
+
+    fake = mock.MagicMock()
+    fake.extract_features.side_effect = RuntimeError("Check failed: camera\n(stack trace)")
+    monkeypatch.setitem(sys.modules, "pycolmap", fake)
+    images = np.random.default_rng(0).random((4, H, W)).astype(np.float32)
+    with pytest.raises(InputError, match=r"COLMAP failed on the keyframes \(Check failed: camera\)$"):
+        run_colmap(images, np.arange(4) * 10, tmp_path / "colmap")
+    assert set(fake.extract_features.call_args.kwargs) >= {"database_path", "image_names", "camera_mode"}
+
+
+def test_info_and_reconstruct_take_raw_width_from_the_config(capsys, recording, tmp_path) -> None:
+    _, spikes = recording
+    raw = tmp_path / "raw" / "stream.dat"
+    write_dat(raw, np.concatenate([spikes, np.ones((T, H, 16), np.uint8)], axis=2))
+    (raw.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\nraw_width: {W + 16}\n")
+    code, out, err = run_cli(capsys, "info", raw)
+    assert code == 0 and f"stored rows {W + 16} wide" in out, err
+    code, _, err = run_cli(
+        capsys, "reconstruct", raw, "--method", "tfp", "--frame", 20, "--out", tmp_path / "r.png"
+    )
+    assert code == 0, err
+    (raw.parent / "config.yaml").write_text("spike_h: eight\n")  # malformed, but the flags say it all
+    code, out, err = run_cli(capsys, "info", raw, "--height", H, "--width", W, "--raw-width", W + 16)
+    assert code == 0 and f"{H}×{W} pixels" in out, err
+
+
+def test_forward_facing_poses_need_a_box_or_llff_bounds(capsys, recording, tmp_path) -> None:
+    grid = np.tile(np.eye(4), (9, 1, 1))  # a 3×3 LLFF-style grid, every camera looking down −Z
+    grid[:, :2, 3] = np.stack(np.meshgrid([-0.5, 0, 0.5], [-0.5, 0, 0.5]), -1).reshape(9, 2)
+    dolly = np.tile(np.eye(4), (5, 1, 1))
+    dolly[:, 2, 3] = np.linspace(0, 2, 5)
+    for poses in (grid, dolly):
+        with pytest.raises(InputError, match="cannot size the scene from the cameras alone"):
+            normalisation(poses, camera_angle_x=0.7)
+    rec, _ = recording
+    llff = np.stack([-grid[:, :3, 1], grid[:, :3, 0], grid[:, :3, 2], grid[:, :3, 3]], -1)
+    hwf = np.broadcast_to(np.array([H, W, 30.0])[None, :, None], (9, 3, 1))
+    rows = np.concatenate([np.concatenate([llff, hwf], -1).reshape(-1, 15), np.tile([[2.0, 6.0]], (9, 1))], 1)
+    np.save(tmp_path / "poses_bounds.npy", rows)
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds", "--poses", tmp_path / "poses_bounds.npy"
+    )
+    assert code == 0, err
+    ds = load_dataset(tmp_path / "ds")
+    scale = ds.config["imported"]["normalisation"]["scale"]
+    assert scale == pytest.approx(2 / 6) and (ds.near, ds.far) == pytest.approx((2 * scale, 6 * scale))
 
 
 def test_config_reader_types(tmp_path: Path) -> None:

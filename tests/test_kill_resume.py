@@ -74,11 +74,11 @@ def _killed_at(args: list[object], point: str) -> None:
 
 
 def _files(root: Path) -> dict[str, bytes]:
-    """Every file's bytes; config.yaml without its ``command`` line (it records the --out path; ``import``
-    in this process records pytest's command line)."""
+    """Every file's bytes; config.yaml without its ``command`` line (it records the --out path)."""
     files = {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
     config = yaml.safe_load(files["config.yaml"])
-    assert config.pop("command").startswith("spikenerf ")
+    command = config.pop("command")
+    assert command.startswith("spikenerf ") and f"--out {root}" in command, command
     files["config.yaml"] = yaml.safe_dump(config).encode()
     return files
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,7 @@ import torch
 
 from helpers import run_cli
 from spikenerf.camera.io import write_dat
+from spikenerf.core.errors import InputError
 from spikenerf.recon.generate import write_pairs
 from spikenerf.recon.infer import predict_plane, reconstruct_learned
 from spikenerf.recon.net import NetConfig, ReconNet, load_weights, save_weights
@@ -116,6 +119,15 @@ def test_training_reduces_the_loss_and_resumes_bit_identically(pairs: Path, tmp_
     for key, value in a["model"].items():
         assert torch.equal(value, b["model"][key]), key
     assert (tmp_path / "c" / "curves.csv").read_text().count("\n") == 3  # header + iterations 3 and 6
+    # the running L1 (column 2) continues across the resume; the time (last column) differs
+    rows = [[r.split(",")[:4] for r in (tmp_path / d / "curves.csv").read_text().splitlines()] for d in "bc"]
+    assert rows[0] == rows[1]
+    other = tmp_path / "other_pairs"  # same samples, another manifest: refused
+    shutil.copytree(pairs, other)
+    manifest = json.loads((other / "manifest.json").read_text())
+    (other / "manifest.json").write_text(json.dumps({**manifest, "seed": -1}))
+    with pytest.raises(InputError, match="another pair folder"):
+        train_recon(other, tmp_path / "c", _cfg(iters=9), progress=False)
 
 
 def test_shipped_weights_beat_tfp_on_a_held_out_analytic_scene() -> None:
@@ -141,12 +153,25 @@ def test_in_memory_learned_reconstruction_of_a_stream_uses_mirrored_edges() -> N
     np.testing.assert_allclose(out, 2.0, rtol=0.15)  # a white stream reconstructs as φ
 
 
+def test_in_memory_learned_reconstruction_honours_the_slice_step(tmp_path: Path) -> None:
+    from spikenerf.core.errors import InputError
+
+    weights = _weights(tmp_path / "w.pt", ["gray"])
+    spikes = (np.random.default_rng(2).random((12, 8, 8)) < 0.5).astype(np.uint8)
+    every = reconstruct_learned(spikes, "gray", weights=weights)
+    for sel in (slice(1, 9, 3), slice(None, None, -5)):
+        got = reconstruct_learned(spikes, "gray", weights=weights, frames=sel)
+        np.testing.assert_array_equal(got, every[sel])
+    with pytest.raises(InputError, match="frames"):
+        reconstruct_learned(spikes, "gray", weights=weights, frames=slice(5, 5))
+
+
 def _weights(path: Path, modes: list[str]) -> Path:
     save_weights(path, ReconNet(NetConfig(window=7, width=8)), modes, {"command": "test"})
     return path
 
 
-@pytest.mark.parametrize("case", ["corrupt", "foreign", "arch", "mode", "short", "window"])
+@pytest.mark.parametrize("case", ["corrupt", "foreign", "arch", "mode", "short", "window", "inner", "modes"])
 def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: str) -> None:
     dat = tmp_path / "s.dat"
     write_dat(dat, np.random.default_rng(0).random((5 if case == "short" else 12, 8, 8)) < 0.5)
@@ -160,6 +185,10 @@ def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: s
         data = torch.load(weights, weights_only=True)
         data["state"].pop(next(iter(data["state"])))
         torch.save(data, weights)
+    elif case in ("inner", "modes"):  # right keys, wrong inner types
+        data = torch.load(weights, weights_only=True)
+        data.update({"state": [1, 2]} if case == "inner" else {"modes": 3})
+        torch.save(data, weights)
     elif case == "mode":
         args += ["--color", "bayer"]
     elif case == "window":
@@ -172,6 +201,8 @@ def test_bad_learned_input_exits_2_with_one_line(capsys, tmp_path: Path, case: s
         "mode": "trained for colour modes gray, not 'bayer'",
         "short": "longer than the stream",
         "window": "trained window of 7",
+        "inner": "do not fit",
+        "modes": "malformed 'modes'",
     }[case]
     assert code == 2 and err.count("\n") == 1 and expected in err, err
     assert not (tmp_path / "o.npy").exists()
@@ -194,4 +225,20 @@ def test_recon_commands_reject_bad_folders_with_one_line(capsys, tmp_path: Path)
     assert code == 2 and err.count("\n") == 1 and "manifest.json" in err
     code, _, err = run_cli(capsys, "recon-data", "--out", tmp_path / "p", "--window", 8)
     assert code == 2 and err.count("\n") == 1 and "--window" in err
+    for flag, value in [("--brightness", "0.5:inf"), ("--max-speed", "inf"), ("--threshold", "inf")]:
+        code, _, err = run_cli(capsys, "recon-data", "--out", tmp_path / "p", flag, value)
+        assert code == 2 and err.count("\n") == 1 and flag in err, err
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "manifest.json").write_text("{not json")
+    code, _, err = run_cli(capsys, "recon-train", tmp_path / "bad", "--out", tmp_path / "run")
+    assert code == 2 and err.count("\n") == 1 and "corrupt manifest.json" in err, err
     assert not (tmp_path / "p").exists() and not (tmp_path / "run").exists()
+
+
+def test_recon_resume_with_a_foreign_optimiser_state_is_an_input_error(pairs: Path, tmp_path: Path) -> None:
+    train_recon(pairs, tmp_path / "r", _cfg(), progress=False, stop_at=2)
+    data = torch.load(tmp_path / "r" / "checkpoint.pt", weights_only=True)
+    data["optimizer"]["param_groups"].append(dict(data["optimizer"]["param_groups"][0]))  # → ValueError
+    torch.save(data, tmp_path / "r" / "checkpoint.pt")
+    with pytest.raises(InputError, match="does not fit"):
+        train_recon(pairs, tmp_path / "r", _cfg(), progress=False)

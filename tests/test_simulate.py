@@ -310,3 +310,20 @@ def test_simulate_from_an_image_sequence(tmp_path: Path, capsys) -> None:
     np.testing.assert_allclose(ds.gt.images[0], next(src.frames([0])), atol=2e-3)
     err = _fails(capsys, ["simulate", "--sequence", str(seq), "--radius", "3", "--out", str(tmp_path / "x")])
     assert "--radius" in err and "do not apply to --sequence" in err
+
+
+@pytest.mark.parametrize(("views", "count"), [("all", 12), ("5", 5)])
+def test_resource_estimate_counts_the_blur_views(tmp_path: Path, capsys, monkeypatch, views, count) -> None:
+    import spikenerf.data.simulate as simulate
+
+    seen = {}
+
+    def estimate(*args, **kwargs):
+        seen.update(kwargs)
+        raise InputError("stop here")
+
+    monkeypatch.setattr(simulate, "check_simulate_resources", estimate)
+    args = ["--scene", "analytic-orbs", "--frames", 12, "--blur-views", views, "--out", tmp_path / "ds"]
+    with pytest.raises(SystemExit):
+        main(["simulate", *map(str, args)])
+    assert seen["blur_frames"] == count

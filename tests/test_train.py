@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import sys
+import time
 import traceback
 from pathlib import Path
 
@@ -266,6 +267,18 @@ def test_resume_matches_an_uninterrupted_run(dataset_dir: Path, dataset, tmp_pat
         assert torch.equal(sa[key], sb[key]), key
 
 
+def test_resume_keeps_the_fp16_loss_scale(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The GradScaler state is in the checkpoint: a resumed --amp fp16 run continues with the same scale."""
+    cfg = _config(dataset_dir, amp="fp16")
+    first = Trainer(cfg, tmp_path / "b", dataset, progress=False)
+    first.train(stop_after=2)
+    first.scaler.update(new_scale=1024.0)  # as after some overflow back-offs
+    first.checkpoint()
+    resumed = Trainer(cfg, tmp_path / "b", dataset, resume=True, progress=False)
+    assert resumed.scaler.get_scale() == 1024.0
+    assert resumed.scaler.state_dict() == first.scaler.state_dict()
+
+
 def test_load_run_renders(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     train(_config(dataset_dir, method="nerf-gt"), tmp_path / "run", dataset, progress=False)
     model, config, ds = load_run(tmp_path / "run")
@@ -373,6 +386,26 @@ def test_tensorboard_log_holds_every_scalar_and_the_test_renders(
     assert events.Tags()["images"] == ["test/view0"] and len(events.Images("test/view0")) == 2
 
 
+def test_tensorboard_after_resume_has_each_step_once(tmp_path: Path) -> None:
+    """Steps logged after the last checkpoint and logged again by the resumed run are purged."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from spikenerf.train.logger import TensorBoardLog
+
+    log = TensorBoardLog(tmp_path)
+    for step in range(1, 9):  # interrupted after 8 steps; the checkpoint is at 4
+        log.scalars(step, {"loss/recon": float(step)})
+    log.close()
+    time.sleep(1.1)  # a new event file name (SummaryWriter names files by the second)
+    log = TensorBoardLog(tmp_path, start=4)
+    for step in range(5, 11):
+        log.scalars(step, {"loss/recon": 10.0 * step})
+    log.close()
+    events = EventAccumulator(str(tmp_path / "tensorboard")).Reload()
+    got = [(e.step, e.value) for e in events.Scalars("loss/recon")]
+    assert got == [(s, float(s)) for s in range(1, 5)] + [(s, 10.0 * s) for s in range(5, 11)]
+
+
 def test_tensorboard_missing_is_one_line_with_the_install_hint(
     dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:  # type: ignore[no-untyped-def]
@@ -410,9 +443,10 @@ def test_cli_config_file_and_set_reach_every_field(dataset_dir: Path, tmp_path: 
     # a run folder's config.yaml is a valid --config (no DATASET needed); options and --set override it
     second = tmp_path / "b"
     main(["train", "--config", str(first / "config.yaml"), "--iters", "3", "--set", "spike.every=2",
-          "--quiet", "--out", str(second)])  # fmt: skip
-    again = load_config(second / "config.yaml")
-    assert again == dataclasses.replace(cfg, iters=3, spike=dataclasses.replace(cfg.spike, every=2))
+          "--field-option", "width=24", "--quiet", "--out", str(second)])  # fmt: skip
+    again = load_config(second / "config.yaml")  # --field-option merges into the file's field_config
+    spike = dataclasses.replace(cfg.spike, every=2)
+    assert again == dataclasses.replace(cfg, iters=3, spike=spike, field_config={**_TINY_MLP, "width": 24})
     capsys.readouterr()
     for bad, message in [
         ("spike.kind=nope", "spike.kind must be one of interval, paper, found 'nope'"),
@@ -441,3 +475,14 @@ def test_config_errors_name_the_key_and_the_cli_the_flag(dataset_dir: Path, tmp_
         capsys.readouterr().err.strip()
         == "spikenerf: error: --window must be an odd number of frames, found 4"
     )
+
+
+def test_set_coerces_number_strings_by_the_key_type() -> None:
+    """``1e-3`` (a string to YAML 1.1) becomes a float for a float key only; a string key keeps it."""
+    from spikenerf.fields import field_config
+    from spikenerf.train.config import TrainConfig, apply_overrides
+
+    sets = ["dataset=1e3", "lr=1e-3", "field_config.lr=2e-2"]
+    cfg = TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), sets)).validate()
+    assert cfg.dataset == "1e3" and cfg.lr == 1e-3
+    assert field_config("grid", cfg.field_config).lr == 2e-2

@@ -78,11 +78,20 @@ def recording_config(
 ) -> RecordingConfig:
     """The recording's config: explicit ``height``/``width`` win over ``config`` (default: beside ``dat``).
 
+    A config found beside the recording (not given as ``config``) that cannot be parsed is ignored when
+    ``height`` and ``width`` are both given: an unrelated file does not block a command that needs nothing
+    from it.
+
     Raises:
-        InputError: the size is known from neither (naming both ways to give it).
+        InputError: the size is known from neither (naming both ways to give it), or ``config`` is malformed.
     """
     found = Path(config) if config is not None else find_spikecv_config(dat)
-    base = read_spikecv_config(found) if found is not None else RecordingConfig()
+    try:
+        base = read_spikecv_config(found) if found is not None else RecordingConfig()
+    except InputError:
+        if config is not None or height is None or width is None:
+            raise
+        base, found = RecordingConfig(), None
     h = height if height is not None else base.height
     w = width if width is not None else base.width
     if h is None or w is None:

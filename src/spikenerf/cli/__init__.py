@@ -83,6 +83,29 @@ def set_cpu_threads(threads: int) -> None:
         sys.modules["torch"].set_num_threads(threads)
 
 
+def command_line() -> str:
+    """The running command as the user gave it (group options, arguments and the options given on the
+    command line, not defaults), as a shell command: recorded in ``config.yaml``; correct in-process too."""
+    import shlex
+
+    ctx, parts = click.get_current_context(), []
+    while ctx is not None:
+        words = [ctx.info_name if ctx.parent is not None else "spikenerf"]
+        for param in ctx.command.params:
+            if ctx.get_parameter_source(param.name) != click.core.ParameterSource.COMMANDLINE:
+                continue
+            value = ctx.params[param.name]
+            values = value if getattr(param, "multiple", False) or param.nargs != 1 else [value]
+            if isinstance(param, click.Argument):
+                words += [str(v) for v in values]
+            elif getattr(param, "is_flag", False):
+                words.append(param.opts[0] if value else param.secondary_opts[0])
+            else:
+                words += [w for v in values for w in (param.opts[0], str(v))]
+        parts, ctx = words + parts, ctx.parent
+    return shlex.join(parts)
+
+
 def _fail(message: str, code: int = 2) -> None:
     from spikenerf.core.errors import one_line
 

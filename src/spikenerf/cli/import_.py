@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import shlex
-import sys
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import click
 
+from spikenerf.cli import command_line
 from spikenerf.core.errors import InputError
 
 
@@ -70,9 +69,7 @@ def command(**kw: Any) -> None:
             raise InputError(str(err).replace("--frames", "--range")) from None
     flag = {"fov_deg": "fov"}  # ImportOptions field → click parameter, where the names differ
     given = {f.name: kw[flag.get(f.name, f.name)] for f in fields(ImportOptions) if f.name != "command"}
-    opts = ImportOptions(
-        **given | {"frame_range": frame_range, "command": shlex.join(["spikenerf", "import", *sys.argv[2:]])}
-    )
+    opts = ImportOptions(**given | {"frame_range": frame_range, "command": command_line()})
     out = import_recording(kw["recording"], kw["out"], opts)
     from spikenerf.data.dataset import load_dataset
 

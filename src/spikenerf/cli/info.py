@@ -9,13 +9,16 @@ import click
 from spikenerf.core.errors import InputError
 
 
-def dat_frame_size(path: Path, height: int | None, width: int | None) -> tuple[int, int]:
-    """--height/--width, each defaulting to ``spike_h``/``spike_w`` of a SpikeCV config.yaml beside the file
-    (or one folder up)."""
+def dat_frame_size(
+    path: Path, height: int | None, width: int | None, raw_width: int | None = None
+) -> tuple[int, int, int | None]:
+    """--height/--width/--raw-width, each defaulting to ``spike_h``/``spike_w``/``raw_width`` of a SpikeCV
+    config.yaml beside the file (or one folder up)."""
     from spikenerf.camera.spikecv import recording_config
 
     config = recording_config(path, height, width)
-    return config.height, config.width  # type: ignore[return-value]
+    raw = raw_width if raw_width is not None else config.raw_width
+    return config.height, config.width, raw  # type: ignore[return-value]
 
 
 def describe_dat(
@@ -72,7 +75,7 @@ def command(
 
         click.echo(describe(path))
         return
-    height, width = dat_frame_size(path, height, width)
+    height, width, raw_width = dat_frame_size(path, height, width, raw_width)
     if fps <= 0:
         raise InputError(f"--fps must be positive, found {fps}")
     click.echo("\n".join(describe_dat(path, height, width, layout, raw_width, fps)))

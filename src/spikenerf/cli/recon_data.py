@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import shlex
 import sys
 from pathlib import Path
@@ -113,8 +114,10 @@ def command(
         max_speed=max_speed,
         threshold=threshold,
     )
-    if not (max_speed >= 0 and threshold > 0):
-        raise InputError("--max-speed must be ≥ 0 and --threshold > 0")
+    if not (math.isfinite(max_speed) and math.isfinite(threshold) and max_speed >= 0 and threshold > 0):
+        raise InputError(
+            f"--max-speed must be finite ≥ 0 and --threshold finite > 0, found {max_speed}, {threshold}"
+        )
     if set(scenes) & set(VAL_SCENES):
         raise InputError(f"--scene: {', '.join(VAL_SCENES)} are held out for validation")
     extra = _sources(scenes, sequences, size, window, seed)
@@ -144,8 +147,8 @@ def _range(text: str) -> tuple[float, float]:
         lo, hi = (float(v) for v in text.split(":"))
     except ValueError:
         lo = hi = -1.0
-    if not 0 < lo <= hi:
-        raise InputError(f"--brightness must be LO:HI with 0 < LO ≤ HI, found {text!r}")
+    if not (0 < lo <= hi and math.isfinite(hi)):
+        raise InputError(f"--brightness must be LO:HI with 0 < LO ≤ HI < inf, found {text!r}")
     return lo, hi
 
 

@@ -135,7 +135,7 @@ def command(
     from spikenerf.camera.reconstruct import reconstruct_frames
     from spikenerf.cli.info import dat_frame_size
 
-    height, width = dat_frame_size(spikes, height, width)
+    height, width, raw_width = dat_frame_size(spikes, height, width, raw_width)
 
     if method == "tfi" and window is not None:
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import math
-import shlex
 from pathlib import Path
 from typing import Any
 
 import click
 
+from spikenerf.cli import command_line
 from spikenerf.core.errors import InputError
 
 DEFAULT_SIZE = 200
@@ -135,7 +135,7 @@ def command(**kw: Any) -> None:
         blur_fps=float(kw["blur_fps"]),
         blur_views=parse_blur_views(kw["blur_views"]),
         overwrite=bool(kw["overwrite"]),
-        command=_command_line(kw),
+        command=command_line(),
         extra=extra,
     )
     out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"])
@@ -144,17 +144,6 @@ def command(**kw: Any) -> None:
         f"wrote {out}: {len(source.trajectory)} steps at {source.trajectory.fps:g} Hz, "
         f"{k.width}×{k.height}, {', '.join(options.colors)}"
     )
-
-
-def _command_line(kw: dict) -> str:
-    """The options given on the command line, as a shell command (recorded in ``config.yaml``)."""
-    ctx = click.get_current_context()
-    parts = ["spikenerf", "simulate"]
-    for name, value in kw.items():
-        if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE:
-            flag = "--" + name.replace("_", "-")
-            parts += [flag] if value is True else [flag, str(value)]
-    return shlex.join(parts)
 
 
 def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
@@ -206,9 +195,10 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
 
 def _check_resources(kw: dict, flags: str, width: int, height: int, steps: int, views: int) -> None:
     """Refuse (InputError naming ``flags``) a run larger than this machine's memory or free disk."""
+    from spikenerf.data.blur import blur_windows
     from spikenerf.data.simulate import check_simulate_resources
 
-    blur = 0 if not kw["blur_fps"] or kw["blur_fps"] <= 0 else max(1, int(steps * kw["blur_fps"] / kw["fps"]))
+    blur = len(blur_windows(steps, kw["fps"], kw["blur_fps"] or 0.0, kw["blur_views"]))  # --blur-views too
     check_simulate_resources(
         Path(kw["out"]), flags, width=width, height=height, steps=steps, colors=_colors(str(kw["color"])),
         test_views=views, spp=kw["spp"] or 16, gt_every=max(1, int(kw["gt_every"])), blur_frames=blur,

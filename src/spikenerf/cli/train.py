@@ -194,7 +194,7 @@ def command(
     if "no_spike_loss" in given:
         base.spike.enabled = not options["no_spike_loss"]
     if "field_options" in given:
-        base.field_config = _field_options(options["field_options"])  # type: ignore[arg-type]
+        base.field_config = {**base.field_config, **_field_options(options["field_options"])}  # type: ignore[arg-type]
     if overrides:
         base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
     if dataset is None and not base.dataset:

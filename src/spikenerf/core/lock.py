@@ -23,9 +23,10 @@ except ImportError:  # pragma: no cover - not on Unix: no locking
 
 
 def lock_path(folder: str | Path) -> Path:
-    """The lock file of an output folder: ``.<name>.lock`` in its parent."""
+    """The lock file of an output folder: ``.<name>.lock`` in its parent (resolved: ``d/../out`` and ``out``
+    share one lock)."""
     folder = Path(folder).absolute()
-    return folder.with_name(f".{folder.name}.lock")
+    return folder.parent.resolve() / f".{folder.name}.lock"
 
 
 def holder(folder: str | Path) -> int | None:

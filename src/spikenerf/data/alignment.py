@@ -31,12 +31,26 @@ def per_step_poses(key_poses: np.ndarray, key_steps: np.ndarray, steps: np.ndarr
 
 def focus_point(poses: np.ndarray) -> np.ndarray:
     """The point (3,) nearest (least squares) to every camera's optical axis (what an orbit looks at)."""
+    found = _axes_meet(poses)
+    return poses[:, :3, 3].mean(0) if found is None else found  # parallel axes: the cameras' mean
+
+
+def _axes_meet(poses: np.ndarray) -> np.ndarray | None:
+    """The least-squares meeting point (3,) of the optical axes; None when they are (nearly) parallel."""
     eyes, fwd = poses[:, :3, 3], -poses[:, :3, 2]
     proj = np.eye(3)[None] - fwd[:, :, None] * fwd[:, None, :]  # projects out each axis direction
     a, b = proj.sum(0), np.einsum("nij,nj->i", proj, eyes)
-    if np.linalg.cond(a) > 1e8:  # parallel axes (a straight dolly): fall back to the cameras' mean
-        return eyes.mean(0)
+    if np.linalg.cond(a) > 1e8:
+        return None
     return np.linalg.solve(a, b)
+
+
+def frustum_box(poses: np.ndarray, near: float, far: float) -> np.ndarray:
+    """The bounds (2, 3) of the camera centres and the points ``near`` and ``far`` along each optical axis
+    of poses (N, 4, 4) (LLFF's per-view depth bounds: a forward-facing scene)."""
+    eyes, fwd = poses[:, :3, 3], -poses[:, :3, 2]
+    pts = np.concatenate([eyes, eyes + near * fwd, eyes + far * fwd])
+    return np.stack([pts.min(0), pts.max(0)])
 
 
 def normalisation(
@@ -55,8 +69,18 @@ def normalisation(
     elif scene_box is not None:
         lo, hi = np.asarray(scene_box, np.float64)
     else:
-        c = focus_point(poses)
-        half = float(np.linalg.norm(poses[:, :3, 3] - c, axis=1).min()) * math.tan(camera_angle_x / 2)
+        c = _axes_meet(poses)
+        eyes = poses[:, :3, 3]
+        spread = float(np.ptp(eyes, axis=0).max())
+        half = (
+            0.0 if c is None else float(np.linalg.norm(eyes - c, axis=1).min()) * math.tan(camera_angle_x / 2)
+        )
+        if c is None or half < 0.05 * spread:  # forward-facing or a straight dolly: no focus to size from
+            raise InputError(
+                "cannot size the scene from the cameras alone (their optical axes do not converge: a "
+                "forward-facing or straight path); give a 'scene_box' in a transforms.json, a COLMAP model "
+                "with points, or LLFF poses_bounds.npy with depth bounds"
+            )
         lo, hi = c - half, c + half
     half = float(np.max(hi - lo)) / 2
     if not half > 0:
@@ -71,11 +95,16 @@ def apply_similarity(poses: np.ndarray, center: np.ndarray, scale: float) -> np.
     return out
 
 
-def near_far_from_points(poses: np.ndarray, points: np.ndarray) -> tuple[float, float] | None:
+def near_far_from_points(
+    poses: np.ndarray, points: np.ndarray, max_points: int = 20000, max_cameras: int = 128
+) -> tuple[float, float] | None:
     """Ray bounds from the depths of sparse points (M, 3) in cameras (N, 4, 4): 0.8·p1 and 1.2·p99 of the
-    positive depths (None when too few points are in front of the cameras)."""
-    rel = points[None, :, :] - poses[:, None, :3, 3]
-    depth = -np.einsum("nmk,nk->nm", rel, poses[:, :3, 2]).ravel()
+    positive depths (None when too few points are in front of the cameras). At most ``max_points`` points
+    and ``max_cameras`` cameras (evenly spaced) are used, one camera at a time: memory stays bounded."""
+    points = points[np.unique(np.linspace(0, len(points) - 1, min(len(points), max_points)).astype(int))]
+    poses = poses[np.unique(np.linspace(0, len(poses) - 1, min(len(poses), max_cameras)).astype(int))]
+    depth = np.concatenate([-(points - c2w[:3, 3]) @ c2w[:3, 2] for c2w in poses]) if len(points) else []
+    depth = np.asarray(depth, np.float64)
     depth = depth[depth > 0]
     if len(depth) < 16:
         return None

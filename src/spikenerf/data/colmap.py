@@ -8,6 +8,7 @@ imported COLMAP models share one reader. The work folder is kept between attempt
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -44,6 +45,24 @@ def write_keyframes(images: np.ndarray, steps: np.ndarray, folder: Path) -> list
     return names
 
 
+def colmap_fingerprint(
+    images: np.ndarray, steps: np.ndarray, focal: float | None, overlap: int, exhaustive_up_to: int
+) -> str:
+    """What identifies a COLMAP model: a hash of the keyframe images (N, H, W) themselves (so another
+    recording, ``--range``, ``--window``, ``--layout`` or ``--raw-width`` never reuses it), their steps and
+    the matching settings."""
+    digest = hashlib.sha256(np.ascontiguousarray(images, dtype=np.float32).tobytes()).hexdigest()
+    return json.dumps(
+        {
+            "steps": [int(s) for s in steps],
+            "images": digest,
+            "focal": focal,
+            "overlap": overlap,
+            "exh": exhaustive_up_to,
+        }
+    )
+
+
 def run_colmap(
     images: np.ndarray,
     steps: np.ndarray,
@@ -69,57 +88,80 @@ def run_colmap(
             message says how many and suggests a smaller ``--keyframe-every``).
     """
     model, stamp = work / MODEL_DIR, work / "steps.json"
-    want = json.dumps(
-        {"steps": [int(s) for s in steps], "focal": focal, "overlap": overlap, "exh": exhaustive_up_to}
-    )
-    if stamp.is_file() and stamp.read_text() != want:  # keyframes of another --keyframe-every or --range
+    want = colmap_fingerprint(images, steps, focal, overlap, exhaustive_up_to)
+    if stamp.is_file() and stamp.read_text() != want:  # other keyframe images (any recording/range/window)
         shutil.rmtree(work)
     if not (model / "images.txt").is_file():
-        pycolmap = require_pycolmap()
-        if not verbose:
-            pycolmap.logging.minloglevel = 3  # fatal only: COLMAP logs drown the one-line CLI output
-        for stale in ("images", "sparse", "database.db"):  # an interrupted attempt: start it over
-            path = work / stale
-            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
-        image_dir, sparse = work / "images", work / "sparse"
-        names = write_keyframes(images, steps, image_dir)
-        sparse.mkdir(parents=True)
-        stamp.write_text(want)
-        db = work / "database.db"
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.use_gpu, extraction.num_threads = False, threads
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = "SIMPLE_PINHOLE"
-        if focal is not None:
-            reader.camera_params = f"{focal},{images.shape[2] / 2},{images.shape[1] / 2}"
-        pycolmap.extract_features(
-            db, image_dir, names, pycolmap.CameraMode.SINGLE, reader, extraction, pycolmap.Device.cpu
-        )
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.use_gpu, matching.num_threads = False, threads
-        if len(steps) <= exhaustive_up_to:  # every pair: closes the loop of an orbit
-            pycolmap.match_exhaustive(db, matching, device=pycolmap.Device.cpu)
-        else:
-            pairing = pycolmap.SequentialPairingOptions()
-            pairing.overlap = overlap
-            pycolmap.match_sequential(db, matching, pairing, device=pycolmap.Device.cpu)
-        options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads, options.random_seed = threads, 0
-        if focal is not None:
-            options.ba_refine_focal_length = options.ba_refine_principal_point = False
-        models = pycolmap.incremental_mapping(db, image_dir, sparse, options)
-        if not models:
+        try:
+            _estimate(images, steps, work, (overlap, threads, focal, exhaustive_up_to, verbose), want)
+        except InputError:
+            raise
+        except (RuntimeError, ValueError, TypeError) as err:  # pycolmap's own failures
+            why = (str(err).strip().splitlines() or [type(err).__name__])[0]
+            raise InputError(f"COLMAP failed on the keyframes ({why})", path=work) from err
+        if not (model / "images.txt").is_file():
             raise _too_few(0, len(steps), keyframe_every)
-        best = max(models.values(), key=lambda r: r.num_reg_images())
-        tmp = work / ".model.tmp"
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir()
-        best.write_text(str(tmp))
-        tmp.rename(model)
     found = read_colmap_text(model)
     if len(found.poses) < max(3, min_registered * len(steps)):
         raise _too_few(len(found.poses), len(steps), keyframe_every)
     return found
+
+
+def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, settings: tuple, want: str) -> None:
+    """Run pycolmap (tested with 4.2) on the keyframes; writes ``work/model`` (text) unless nothing maps."""
+    overlap, threads, focal, exhaustive_up_to, verbose = settings
+    model = work / MODEL_DIR
+    pycolmap = require_pycolmap()
+    if not verbose:
+        pycolmap.logging.minloglevel = 3  # fatal only: COLMAP logs drown the one-line CLI output
+    for stale in ("images", "sparse", "database.db"):  # an interrupted attempt: start it over
+        path = work / stale
+        shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+    image_dir, sparse = work / "images", work / "sparse"
+    names = write_keyframes(images, steps, image_dir)
+    sparse.mkdir(parents=True)
+    (work / "steps.json").write_text(want)
+    db = work / "database.db"
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.use_gpu, extraction.num_threads = False, threads
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "SIMPLE_PINHOLE"
+    if focal is not None:
+        reader.camera_params = f"{focal},{images.shape[2] / 2},{images.shape[1] / 2}"
+    pycolmap.extract_features(
+        database_path=db,
+        image_path=image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.use_gpu, matching.num_threads = False, threads
+    if len(steps) <= exhaustive_up_to:  # every pair: closes the loop of an orbit
+        pycolmap.match_exhaustive(database_path=db, matching_options=matching, device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = overlap
+        pycolmap.match_sequential(
+            database_path=db, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+        )
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads, options.random_seed = threads, 0
+    if focal is not None:
+        options.ba_refine_focal_length = options.ba_refine_principal_point = False
+    models = pycolmap.incremental_mapping(
+        database_path=db, image_path=image_dir, output_path=sparse, options=options
+    )
+    if not models:
+        return
+    best = max(models.values(), key=lambda r: r.num_reg_images())
+    tmp = work / ".model.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    best.write_text(str(tmp))
+    tmp.rename(model)
 
 
 def _too_few(registered: int, total: int, keyframe_every: int | None) -> InputError:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,16 +24,17 @@ from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark
+from spikenerf.core.marker import MARKER, check_output, mark
 from spikenerf.data.alignment import (
     apply_similarity,
+    frustum_box,
     near_far_from_points,
     normalisation,
     per_step_poses,
 )
 from spikenerf.data.dataset import near_far
 from spikenerf.data.poses import PoseSet, orbit_poses, read_pose_source
-from spikenerf.data.simulate import _replace_dir, work_dir
+from spikenerf.data.simulate import _replace_dir, open_work, recover_replaced
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
@@ -87,6 +88,10 @@ def _check(options: ImportOptions) -> None:
         raise InputError(f"--test-every must be ≥ 0 (0 = no test views), found {options.test_every}")
     if options.fov_deg is not None and not 0 < options.fov_deg < 180:
         raise InputError(f"--fov must be in (0, 180) degrees, found {options.fov_deg}")
+    for name in ("fps", "threshold"):
+        value = getattr(options, name)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"--{name} must be a finite number > 0, found {value}")
     if (options.poses == "orbit") != (options.orbit is not None):
         raise InputError("--orbit R,ELEV[,TURNS[,AZIMUTH]] goes with --poses orbit (and only with it)")
 
@@ -158,9 +163,23 @@ def keyframe_poses(
         steps = np.round(np.linspace(0, n - 1, len(found.poses))).astype(np.int64)
     else:
         steps = found.steps - first
-    return PoseSet(
-        found.poses, steps, found.intrinsics, found.points, found.scene_box, found.names, found.camera_angle_x
-    )
+        _check_pose_steps(steps, n, first, opts.poses)
+    return replace(found, steps=steps)
+
+
+def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> None:
+    """InputError unless a pose file's steps (relative to the selection) lie in ``[0, n)`` and span at least
+    half of it (frame numbers that are not spike steps, such as frame_00001.png, would hold the rest)."""
+    lo, hi = int(steps.min()), int(steps.max())
+    where = f"steps {lo + first}..{hi + first} of the poses"
+    if lo < 0 or hi >= n:
+        raise InputError(f"{where} fall outside the selected steps {first}..{first + n - 1}", path=source)
+    if hi - lo + 1 < n / 2:
+        raise InputError(
+            f"{where} cover only {hi - lo + 1} of the {n} selected steps: are the frame numbers spike "
+            "steps? (give 'step' per frame, or select the steps with --range)",
+            path=source,
+        )
 
 
 def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | None) -> Intrinsics:
@@ -182,11 +201,13 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     rc = recording_config(dat, opts.height, opts.width, opts.config)
     h, w = int(rc.height or 0), int(rc.width or 0)
     raw = opts.raw_width if opts.raw_width is not None else rc.raw_width
-    fps = opts.fps or rc.fps or DEFAULT_FPS
-    threshold = opts.threshold or rc.threshold or 1.0
+    fps = next(v for v in (opts.fps, rc.fps, DEFAULT_FPS) if v is not None)
+    threshold = next(v for v in (opts.threshold, rc.threshold, 1.0) if v is not None)
     total = count_steps(dat, h, w, raw)
     sel = resolve_frames(opts.frame_range, total, dat)
     n = len(sel)
+    if n == 0:
+        raise InputError("the recording holds no steps" if total == 0 else "--range selects no steps", dat)
     check_output(out, "dataset", overwrite=opts.overwrite)
     rel_keys = keyframe_steps(n, opts.keyframe_every, opts.window)
     if len(rel_keys) < 2:
@@ -195,6 +216,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
             "need at least 2"
         )
     with output_lock(out):
+        recover_replaced(out)
         check_output(out, "dataset", overwrite=opts.overwrite)  # again, now that no one else writes
         _import_locked(dat, out, opts, (sel, fps, threshold, raw, rc.path), (h, w, rel_keys))
     return out
@@ -203,9 +225,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
 def _import_locked(dat: Path, out: Path, opts: ImportOptions, rec: tuple, keys: tuple) -> None:
     sel, fps, threshold, raw, _ = rec
     h, w, rel_keys = keys
-    work = work_dir(out)
-    fresh = not work.exists()
-    work.mkdir(parents=True, exist_ok=True)
+    work, fresh = open_work(out)
     try:
         images = keyframe_images(dat, rel_keys + sel.start, sel.start, sel.stop, (h, w, raw), opts, threshold)
         found = keyframe_poses(opts, images, rel_keys, work, len(sel), fps, sel.start)
@@ -232,17 +252,20 @@ def _write(
     n = len(sel)
     steps = np.arange(n, dtype=np.int64)
     poses = per_step_poses(found.poses, found.steps, steps)
-    center, scale = normalisation(found.poses, found.points, found.scene_box, k.camera_angle_x)
+    scene_box = found.scene_box
+    if scene_box is None and found.depth_bounds is not None:
+        scene_box = frustum_box(found.poses, *found.depth_bounds)
+    center, scale = normalisation(found.poses, found.points, scene_box, k.camera_angle_x)
     poses = apply_similarity(poses, center, scale)
     box = np.array([[-1.0] * 3, [1.0] * 3])
-    bounds = None
+    bounds = None if found.depth_bounds is None else tuple(d * scale for d in found.depth_bounds)
     if found.points is not None:
         bounds = near_far_from_points(
             apply_similarity(found.poses, center, scale), (found.points - center) * scale
         )
     near, far = bounds if bounds is not None else near_far(poses, box)
-    for stale in work.iterdir():  # outputs of an earlier, interrupted attempt
-        if stale.name != COLMAP_WORK:
+    for stale in work.iterdir():  # outputs of an earlier attempt (its COLMAP model only if ours now)
+        if stale.name != MARKER and (stale.name != COLMAP_WORK or opts.poses != "colmap"):
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
     writer = DatasetWriter(work, k, fps, box, near, far)
     writer.start_spikes(["gray"])

@@ -9,6 +9,7 @@ Blender ``transforms.json``, a COLMAP model folder (``cameras``, ``images``, ``p
 from __future__ import annotations
 
 import json
+import math
 import re
 import tempfile
 from dataclasses import dataclass
@@ -31,7 +32,8 @@ class PoseSet:
     """Poses (N, 4, 4) float64 c2w; steps (N,) int64 spike steps or None (spread evenly later);
     intrinsics if the source knows them (at its own image size); points (M, 3) sparse scene points or None;
     scene_box (2, 3) if the source states one; names (N,) of the frames (for messages); camera_angle_x
-    (radians) when the source gives only a field of view."""
+    (radians) when the source gives only a field of view; depth_bounds (near, far) along the optical axes
+    in the source's units (LLFF)."""
 
     poses: np.ndarray
     steps: np.ndarray | None = None
@@ -40,6 +42,7 @@ class PoseSet:
     scene_box: np.ndarray | None = None
     names: tuple[str, ...] = ()
     camera_angle_x: float | None = None
+    depth_bounds: tuple[float, float] | None = None
 
 
 def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) -> np.ndarray:
@@ -83,6 +86,9 @@ def read_transforms_poses(path: Path) -> PoseSet:
         steps = steps_from_names([f["file_path"] for f in frames])
     k, fov = None, None
     if all(isinstance(data.get(key), (int, float)) for key in ("w", "h", "fl_x", "fl_y", "cx", "cy")):
+        for key in ("w", "h", "fl_x", "fl_y"):
+            if not (math.isfinite(data[key]) and data[key] > 0):
+                raise InputError(f"field '{key}': expected a number > 0, found {data[key]}", path)
         k = Intrinsics(
             int(data["w"]), int(data["h"]), *(float(data[key]) for key in ("fl_x", "fl_y", "cx", "cy"))
         )
@@ -90,10 +96,13 @@ def read_transforms_poses(path: Path) -> PoseSet:
         fov = float(data["camera_angle_x"])
     box = None
     if "scene_box" in data:
-        box = np.asarray(data["scene_box"], np.float64)
+        try:
+            box = np.asarray(data["scene_box"], np.float64)
+        except (TypeError, ValueError):
+            box = np.zeros(0)
         if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
             raise InputError(
-                f"field 'scene_box': expected [[min x,y,z],[max x,y,z]], found {box.tolist()}", path
+                f"field 'scene_box': expected [[min x,y,z],[max x,y,z]], found {data['scene_box']!r}", path
             )
     names = tuple(str(f.get("file_path", i)) for i, f in enumerate(frames))
     return PoseSet(poses, steps, k, None, box, names, fov)
@@ -108,12 +117,17 @@ def _lines(path: Path) -> list[list[str]]:
 
 
 def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
-    model, w, h, params = fields[1], int(fields[2]), int(fields[3]), [float(p) for p in fields[4:]]
+    try:
+        model, w, h, params = fields[1], int(fields[2]), int(fields[3]), [float(p) for p in fields[4:]]
+    except (ValueError, IndexError) as err:
+        raise InputError(f"malformed camera line {' '.join(fields)!r} ({err})", path=path) from err
     if model in ONE_FOCAL and len(params) >= 3:
-        return Intrinsics(w, h, params[0], params[0], params[1], params[2])
-    if len(params) >= 4:
-        return Intrinsics(w, h, *params[:4])
-    raise InputError(f"camera model {model} with {len(params)} parameters is not supported", path=path)
+        params = [params[0], *params[:3]]
+    elif len(params) < 4:
+        raise InputError(f"camera model {model} with {len(params)} parameters is not supported", path=path)
+    if not (w > 0 and h > 0 and all(math.isfinite(p) and p > 0 for p in params[:2])):
+        raise InputError(f"camera {fields[0]}: width, height and focal length must be > 0", path=path)
+    return Intrinsics(w, h, *params[:4])
 
 
 def read_colmap_text(folder: Path) -> PoseSet:
@@ -160,7 +174,11 @@ def read_colmap_model(folder: Path) -> PoseSet:
     except ImportError as err:
         raise InputError(f"reading a binary model: {COLMAP_MISSING}", path=folder) from err
     with tempfile.TemporaryDirectory() as tmp:
-        pycolmap.Reconstruction(str(folder)).write_text(tmp)
+        try:
+            pycolmap.Reconstruction(str(folder)).write_text(tmp)
+        except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on a bad model
+            why = (str(err).strip().splitlines() or [type(err).__name__])[0]
+            raise InputError(f"pycolmap cannot read the binary model ({why})", path=folder) from err
         return read_colmap_text(Path(tmp))
 
 
@@ -181,7 +199,9 @@ def read_poses_bounds(path: Path) -> PoseSet:
     poses[:, :3, 3] = m[:, :, 3]
     h, w, f = (float(v) for v in m[0, :, 4])
     k = Intrinsics(round(w), round(h), f, f, w / 2, h / 2) if min(h, w, f) > 0 else None
-    return PoseSet(check_poses(poses, path), None, k)
+    near, far = float(arr[:, 15].min()), float(arr[:, 16].max())
+    bounds = (near, far) if 0 < near < far else None  # columns 15-16: the scene's depth range per view
+    return PoseSet(check_poses(poses, path), None, k, depth_bounds=bounds)
 
 
 def read_pose_source(path: str | Path) -> PoseSet:

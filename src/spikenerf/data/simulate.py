@@ -26,7 +26,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark
+from spikenerf.core.marker import MARKER, check_output, folder_kind, mark
 from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
 from spikenerf.data.dataset import MODES, near_far
 from spikenerf.data.writer import DatasetWriter
@@ -70,6 +70,22 @@ class SimulateOptions:
 def work_dir(out: Path) -> Path:
     """The work folder of an output folder: ``<out>.partial``."""
     return out.with_name(out.name + ".partial")
+
+
+def open_work(out: Path) -> tuple[Path, bool]:
+    """Create (or reopen) the work folder ``<out>.partial`` marked as ours; returns it and whether it is new.
+
+    A non-empty ``.partial`` folder without our dataset marker is someone else's: InputError, untouched.
+    """
+    work = work_dir(out)
+    fresh = not work.exists()
+    if not fresh and (not work.is_dir() or any(work.iterdir())) and folder_kind(work) != "dataset":
+        raise InputError(
+            "is in the way of the work folder and spikenerf did not write it; move it away", work
+        )
+    work.mkdir(parents=True, exist_ok=True)
+    mark(work, "dataset")  # written first: a later run knows the folder is its own to resume or clean
+    return work, fresh
 
 
 def _fingerprint(source: FrameSource) -> dict:
@@ -197,6 +213,18 @@ def check_options(options: SimulateOptions) -> None:
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
 
 
+def recover_replaced(out: Path) -> None:
+    """Finish a :func:`_replace_dir` that was killed between its renames (call it holding the lock): the
+    swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted."""
+    old = out.with_name(f".{out.name}.old")
+    if not (old.exists() or old.is_symlink()):
+        return
+    if out.exists() or out.is_symlink():
+        shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink()
+    else:
+        old.rename(out)
+
+
 def _replace_dir(work: Path, out: Path) -> None:
     """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is swapped out, then deleted)."""
     old = None
@@ -305,6 +333,7 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
     check_options(options)
     check_output(out, "dataset", overwrite=options.overwrite)
     with output_lock(out):
+        recover_replaced(out)
         check_output(out, "dataset", overwrite=options.overwrite)  # again, now that no one else writes
         return _simulate_locked(source, out, options, progress)
 
@@ -312,8 +341,7 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
 def _simulate_locked(source: FrameSource, out: Path, options: SimulateOptions, progress: bool) -> Path:
     traj, k = source.trajectory, source.intrinsics
     windows = blur_windows(len(traj), traj.fps, options.blur_fps, options.blur_views)
-    work = work_dir(out)
-    fresh = not work.exists()
+    work, fresh = open_work(out)
     cache = open_cache(source, work)
     clean_stale_temps(cache)
     try:
@@ -328,7 +356,7 @@ def _simulate_locked(source: FrameSource, out: Path, options: SimulateOptions, p
         test_poses, test_frames = z["poses"].reshape(-1, 4, 4), z["frames"]
     near, far = near_far(np.concatenate([traj.poses, test_poses]), box)
     for stale in work.iterdir():  # outputs of an earlier, interrupted run: rewritten from the cache
-        if stale.name != CACHE:
+        if stale.name not in (CACHE, MARKER):
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
     writer = DatasetWriter(work, k, traj.fps, box, near, far)
     stream_steps(writer, cache, traj, options, windows, progress)

@@ -168,22 +168,27 @@ class DatasetWriter:
             (TRANSFORMS_GT, keyframes),
             (TRANSFORMS_TFP, self._tfp_keyframes(trajectory, keyframes, config)),
         ):
+            if not views:  # no GT renders (an imported recording): no training images, no nerfstudio view
+                continue
             write_text_atomic(self.root / name, _dump(self.header(**split_fields(views, test)), views + test))
         write_text_atomic(self.root / TRANSFORMS, _dump(self.header(), frames))
 
     def _tfp_keyframes(self, trajectory: Trajectory, keyframes: list[dict], config: dict) -> list[dict]:
         """TFP reconstructions (window 41) at the GT keyframes as ``tfp/NNNNN.png``, from the rgb stream if
-        recorded, else the gray one (a Bayer-only dataset gives its raw mosaic, not demosaiced)."""
+        recorded, else the gray one (a Bayer-only dataset gives its raw mosaic, not demosaiced); each keyframe
+        reads only its own window of the stream."""
         modes = list(config.get("colors", ["gray"]))
         mode = "rgb" if "rgb" in modes else modes[0]
-        k = self.intrinsics
-        streams = [read_dat(self.root / name, k.height, k.width) for name in spike_files(mode)]
+        k, half, total = self.intrinsics, TFP_WINDOW // 2, len(trajectory.steps)
         index = {int(s): i for i, s in enumerate(trajectory.steps)}
         out = []
-        for frame in keyframes:
+        for frame in keyframes:  # read only each keyframe's window: the stream may be long
             i, rel = index[frame["step"]], f"tfp/{frame['step']:05d}.png"
+            lo = max(0, i - half)
+            window = slice(lo, min(total, i + half + 1))
+            streams = [read_dat(self.root / name, k.height, k.width, window) for name in spike_files(mode)]
             image = np.stack(
-                [tfp(s, TFP_WINDOW, float(config["threshold"]), frames=i)[0] for s in streams], axis=-1
+                [tfp(s, TFP_WINDOW, float(config["threshold"]), frames=i - lo)[0] for s in streams], axis=-1
             )
             write_image(self.root / rel, np.broadcast_to(image, (*image.shape[:2], 3)))
             out.append({**frame, "file_path": rel})

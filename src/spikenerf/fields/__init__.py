@@ -51,7 +51,9 @@ def field_config(kind: str, config: Any = None) -> GridFieldConfig | MLPFieldCon
 
 def _checked(kind: str, key: str, value: Any, default: Any) -> Any:
     """``value`` for the config entry ``key`` (whose default is ``default``): same type, finite, and ≥ 0
-    for numbers (> 0 for sizes and rates); anything else is an InputError naming the entry."""
+    for numbers (> 0 for sizes and rates; ≥ 8 voxels, R ≥ 2 per axis; ≥ 1 step between occupancy updates;
+    a final lr ratio ≤ 1); anything else is an InputError naming the entry."""
+    import contextlib
     import math
 
     where = f"{kind} field config {key!r}"
@@ -63,6 +65,9 @@ def _checked(kind: str, key: str, value: Any, default: Any) -> Any:
         if not isinstance(value, bool) or not isinstance(default, bool):
             raise InputError(f"{where}: expected {type(default).__name__}, found {value!r}")
         return value
+    if isinstance(default, float) and isinstance(value, str):  # YAML 1.1 reads 1e-3 as a string
+        with contextlib.suppress(ValueError):
+            value = float(value)
     if isinstance(default, (int, float)):
         ok = isinstance(value, int) or (isinstance(default, float) and isinstance(value, float))
         if not ok or not math.isfinite(value):
@@ -72,6 +77,11 @@ def _checked(kind: str, key: str, value: Any, default: Any) -> Any:
         )  # fmt: skip
         if (positive and value <= 0) or (value < 0 and key != "density_shift"):
             raise InputError(f"{where}: expected a number {'> 0' if positive else '≥ 0'}, found {value!r}")
+        least = {"occupancy_every": 1, "n_voxels_init": 8, "n_voxels_final": 8}.get(key)  # 8: R ≥ 2 per axis
+        if least is not None and value < least:
+            raise InputError(f"{where}: expected ≥ {least}, found {value!r}")
+        if key == "lr_final_ratio" and value > 1:
+            raise InputError(f"{where}: expected a number in (0, 1], found {value!r}")
         return type(default)(value)
     return value
 

@@ -3,7 +3,7 @@
 ``grid_sample`` on a CPU spends most of a training step in its backward (a strided scatter per channel). This
 kernel reads the factors channels-last and does one pass over the points: forward ``P_m(x)·L_m(x)`` for the
 three axis pairs; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into channels-last gradients (no races:
-each thread scatters into its own buffer; ≈ 11 M multiply-adds for a 58 k-point, 16-channel batch). It is
+each of ≤ 4 threads scatters into its own buffer; ≈ 11 M multiply-adds for a 58 k-point, 16-channel batch). It is
 compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (cached under
 ``~/.cache/torch_extensions``; 20–90 s the first time on a machine). Where that is not possible (no
 compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``) callers
@@ -12,8 +12,12 @@ fall back to ``grid_sample``; :func:`available` says which path is used.
 
 from __future__ import annotations
 
+import hashlib
 import os
+import sys
+import time
 import warnings
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -24,20 +28,23 @@ _SOURCE = r"""
 #include <ATen/Parallel.h>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 // planes (3, R, R, C), lines (3, R, C) channels last; xyz (M, 3) in [-1, 1]; align_corners=True.
 // plane m: col = coord[MAT[m][0]], row = coord[MAT[m][1]]; line m: coord[VEC[m]].
 static const int MAT0[3] = {0, 0, 1}, MAT1[3] = {1, 2, 2}, VEC[3] = {2, 1, 0};
 
-static inline void cell(float x, int r, int &i, float &f) {
-  float u = (x + 1.f) * 0.5f * (r - 1);
-  float fl = std::floor(u);
-  if (fl < 0.f) fl = 0.f;
-  if (fl > r - 2) fl = (float)(r - 2);
-  i = (int)fl;
-  f = u - fl;
-  if (f < 0.f) f = 0.f;
-  if (f > 1.f) f = 1.f;
+// zeros padding as grid_sample: texel i gets weight a, texel i + 1 weight b (0 for a texel outside [0, r-1]);
+// a NaN/inf coordinate gives NaN weights (grid_sample's NaN) on an in-range index, never a wild read.
+static inline void cell(float x, int r, int &i, float &a, float &b) {
+  const float u = (x + 1.f) * 0.5f * (r - 1);
+  i = 0;
+  if (!std::isfinite(u)) { a = b = std::numeric_limits<float>::quiet_NaN(); return; }
+  const float fl = std::floor(u), f = u - fl;
+  if (fl < -1.f || fl > (float)(r - 1)) { a = b = 0.f; return; }  // both texels outside
+  if (fl == -1.f) { a = f; b = 0.f; return; }                       // only texel 0, at index 0
+  if (fl == (float)(r - 1)) { i = r - 2; a = 0.f; b = 1.f - f; return; }  // only texel r-1, at index r-2
+  i = (int)fl; a = 1.f - f; b = f;
 }
 
 torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz) {
@@ -48,15 +55,16 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
   at::parallel_for(0, m, 256, [&](int64_t b, int64_t e) {
     for (int64_t n = b; n < e; ++n) {
       for (int k = 0; k < 3; ++k) {
-        int ic, ir, il; float fc, fr, fl;
-        cell(X[n * 3 + MAT0[k]], r, ic, fc); cell(X[n * 3 + MAT1[k]], r, ir, fr); cell(X[n * 3 + VEC[k]], r, il, fl);
+        int ic, ir, il; float ac, bc, ar, br, al, bl;
+        cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
+        cell(X[n * 3 + VEC[k]], r, il, al, bl);
         const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
         const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
-        const float w00 = (1 - fr) * (1 - fc), w01 = (1 - fr) * fc, w10 = fr * (1 - fc), w11 = fr * fc;
+        const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
         float *o = O + (n * 3 + k) * c;
         for (int64_t j = 0; j < c; ++j) {
           float pv = w00 * p00[j] + w01 * p01[j] + w10 * p10[j] + w11 * p11[j];
-          o[j] = pv * ((1 - fl) * l0[j] + fl * l1[j]);
+          o[j] = pv * (al * l0[j] + bl * l1[j]);
         }
       }
     }
@@ -66,9 +74,11 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
 
 std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz,
                                        torch::Tensor grad) {
-  // each thread scatters into its own zeroed gradient buffer (no races); the buffers are summed at the end
+  // each thread scatters into its own zeroed gradient buffer (no races); the buffers are summed at the end.
+  // At most 4 buffers (3·R²·C floats each); the sum order depends on the thread count (not bit-identical).
   const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
-  const int64_t nt = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), (m + 4095) / 4096));
+  const int64_t threads = std::min<int64_t>(4, at::get_num_threads());
+  const int64_t nt = std::max<int64_t>(1, std::min<int64_t>(threads, (m + 4095) / 4096));
   auto gp = torch::zeros({nt, 3, r, r, c}, planes.options()), gl = torch::zeros({nt, 3, r, c}, lines.options());
   const float *__restrict__ P = planes.data_ptr<float>(), *__restrict__ L = lines.data_ptr<float>();
   const float *__restrict__ X = xyz.data_ptr<float>(), *__restrict__ G = grad.data_ptr<float>();
@@ -79,19 +89,20 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
       float *__restrict__ GP = GP0 + t * sp, *__restrict__ GL = GL0 + t * sl;
       for (int64_t n = t * chunk; n < std::min(m, (t + 1) * chunk); ++n) {
         for (int k = 0; k < 3; ++k) {
-          int ic, ir, il; float fc, fr, fl;
-          cell(X[n * 3 + MAT0[k]], r, ic, fc); cell(X[n * 3 + MAT1[k]], r, ir, fr); cell(X[n * 3 + VEC[k]], r, il, fl);
+          int ic, ir, il; float ac, bc, ar, br, al, bl;
+          cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
+          cell(X[n * 3 + VEC[k]], r, il, al, bl);
           const int64_t o00 = ((k * r + ir) * r + ic) * c, o01 = o00 + c, o10 = o00 + r * c, o11 = o10 + c;
           const int64_t q0 = (k * r + il) * c, q1 = q0 + c;
-          const float w00 = (1 - fr) * (1 - fc), w01 = (1 - fr) * fc, w10 = fr * (1 - fc), w11 = fr * fc;
+          const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
           const float *__restrict__ g = G + (n * 3 + k) * c;
 #pragma GCC ivdep
           for (int64_t j = 0; j < c; ++j) {
             const float pv = w00 * P[o00 + j] + w01 * P[o01 + j] + w10 * P[o10 + j] + w11 * P[o11 + j];
-            const float lv = (1 - fl) * L[q0 + j] + fl * L[q1 + j];
+            const float lv = al * L[q0 + j] + bl * L[q1 + j];
             const float gpl = g[j] * lv, glp = g[j] * pv;
             GP[o00 + j] += w00 * gpl; GP[o01 + j] += w01 * gpl; GP[o10 + j] += w10 * gpl; GP[o11 + j] += w11 * gpl;
-            GL[q0 + j] += (1 - fl) * glp; GL[q1 + j] += fl * glp;
+            GL[q0 + j] += al * glp; GL[q1 + j] += bl * glp;
           }
         }
       }
@@ -109,6 +120,25 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
 
 _MODULE: Any = None
 _FAILED = False
+_NAME = "spikenerf_vm_" + hashlib.sha256(_SOURCE.encode()).hexdigest()[:12]  # one build folder per source
+STALE_LOCK_S = 600.0  # a build lock older than this was left by a killed build
+
+
+def _wait_for_lock(build_dir: Path) -> bool:
+    """Wait while another process builds (its ``lock`` file exists); False when the lock is stale.
+
+    torch's own wait loops forever on a lock left by a process killed mid-build; here a lock older than
+    :data:`STALE_LOCK_S` makes the caller fall back to ``grid_sample`` instead.
+    """
+    lock = build_dir / "lock"
+    while True:
+        try:
+            age = time.time() - lock.stat().st_mtime
+        except FileNotFoundError:
+            return True
+        if age > STALE_LOCK_S:
+            return False
+        time.sleep(0.5)
 
 
 def _load() -> Any:
@@ -120,10 +150,21 @@ def _load() -> Any:
         _FAILED = True
         return None
     try:
-        from torch.utils.cpp_extension import load_inline
+        from torch.utils.cpp_extension import _get_build_directory, load_inline
 
+        build_dir = Path(_get_build_directory(_NAME, verbose=False))
+        if not _wait_for_lock(build_dir):
+            _FAILED = True
+            warnings.warn(
+                f"VM CPU kernel: stale build lock {build_dir / 'lock'} (a build was killed; delete the file to"
+                " rebuild), using grid_sample",
+                stacklevel=2,
+            )
+            return None
+        if not (build_dir / f"{_NAME}.so").exists():
+            print("building the fused CPU kernel (once, ~1 min)…", file=sys.stderr, flush=True)
         _MODULE = load_inline(
-            "spikenerf_vm", cpp_sources=[_SOURCE], extra_cflags=["-O3"], verbose=False, with_cuda=False
+            _NAME, cpp_sources=[_SOURCE], extra_cflags=["-O3"], verbose=False, with_cuda=False
         )
     except Exception as err:  # no compiler, no ninja, no headers: use grid_sample instead
         _FAILED = True
@@ -167,8 +208,13 @@ def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor) -> Tensor:
     """``P_m(xyz)·L_m(xyz)`` per axis pair with the fused kernel (check :func:`usable` first).
 
     Args:
-        planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3) in [−1, 1] (clamped to the border).
+        planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3), normally in [−1, 1]; outside, zeros padding
+            as ``grid_sample`` (a NaN coordinate gives NaN).
     Returns:
         (M, 3, C), the same values as :func:`spikenerf.fields.grid.sample_vm` transposed.
+    Raises:
+        RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False).
     """
+    if _load() is None:
+        raise RuntimeError("vm_lookup: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
     return _VM.apply(planes, lines, xyz)

@@ -156,7 +156,11 @@ def reconstruct_learned(
     check_window(net, window)
     x = np.asarray(spikes)
     sel = range(x.shape[0])[frames if frames is not None else slice(None)]
-    return learned_frames(net, lambda a, b: x[a:b], x.shape[0], sel.start, sel.stop, mode, threshold)
+    if len(sel) == 0:
+        raise InputError(f"frames: the selection {frames} of {x.shape[0]} frames is empty")
+    lo, hi = min(sel), max(sel) + 1  # the span, then the selected frames (any step, also negative)
+    out = learned_frames(net, lambda a, b: x[a:b], x.shape[0], lo, hi, mode, threshold)
+    return out if sel.step == 1 else out[[i - lo for i in sel]]
 
 
 def learned_reconstructor(

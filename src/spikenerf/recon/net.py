@@ -157,12 +157,14 @@ def load_weights(path: str | Path | None = None, mode: str | None = None) -> tup
             f"weights are for architecture {data.get('arch')!r}; this version runs {ARCH!r}", path
         )
     modes = data.get("modes", [])
+    if not (isinstance(modes, list) and all(isinstance(m, str) for m in modes)):
+        raise InputError(f"weights file has a malformed 'modes' entry ({type(modes).__name__})", path=path)
     if mode is not None and mode not in modes:
         raise InputError(f"weights were trained for colour modes {', '.join(modes)}, not {mode!r}", path=path)
     try:
         net = ReconNet(NetConfig(**data["hparams"]))
         net.load_state_dict({k: v.float() for k, v in data["state"].items()})
-    except (KeyError, TypeError, RuntimeError) as err:
+    except (KeyError, TypeError, RuntimeError, AttributeError, ValueError) as err:  # wrong inner types too
         raise InputError(
             f"weights do not fit architecture {ARCH!r} ({type(err).__name__})", path=path
         ) from err

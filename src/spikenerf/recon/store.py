@@ -104,4 +104,10 @@ def read_manifest(root: str | Path) -> dict:
     path = Path(root) / MANIFEST
     if not path.is_file():
         raise InputError("not a pair folder written by `spikenerf recon-data` (no manifest.json)", path=root)
-    return json.loads(path.read_text())
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as err:  # JSONDecodeError is a ValueError
+        raise InputError(f"corrupt manifest.json ({type(err).__name__})", path=path) from err
+    if not isinstance(data, dict):
+        raise InputError("corrupt manifest.json (not a JSON object)", path=path)
+    return data

@@ -10,6 +10,7 @@ resumed run is bit-identical to an uninterrupted one (same thread count).
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import time
@@ -118,7 +119,8 @@ def train_recon(
     net = ReconNet(NetConfig(window=train.window, width=cfg.width))
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
-    start, elapsed = _resume(out, cfg, net, opt, gen)
+    pairs_hash = hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()
+    start, elapsed, running = _resume(out, cfg, net, opt, gen, pairs_hash)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(
         out / "config.json",
@@ -131,7 +133,6 @@ def train_recon(
         cfg.iters if stop_at is None else min(stop_at, cfg.iters),
     )
     bar = tqdm(total=cfg.iters, initial=start, unit="it", desc="recon-train", disable=not progress)
-    running = float("nan")
     while it < end:
         win, tgt, scale = sample_batch(train, cfg, gen)
         for group in opt.param_groups:
@@ -164,6 +165,8 @@ def train_recon(
                     "optimizer": opt.state_dict(),
                     "rng": gen.get_state(),
                     "config": asdict(cfg),
+                    "pairs": pairs_hash,  # the pair folder's manifest: a resume on other pairs is refused
+                    "running_l1": running,  # the curve's running L1 continues as without the interruption
                 },
             )
     bar.close()
@@ -186,11 +189,15 @@ def train_recon(
     return summary
 
 
-def _resume(out: Path, cfg: ReconTrainConfig, net: ReconNet, opt, gen: torch.Generator) -> tuple[int, float]:
-    """Load ``out/checkpoint.pt`` if present; returns (iteration, elapsed seconds)."""
+def _resume(
+    out: Path, cfg: ReconTrainConfig, net: ReconNet, opt, gen: torch.Generator, pairs_hash: str
+) -> tuple[int, float, float]:
+    """Load ``out/checkpoint.pt`` if present; returns (iteration, elapsed seconds, running L1)."""
     if not (out / "checkpoint.pt").is_file():
-        return 0, 0.0
+        return 0, 0.0, float("nan")
     data = read_torch(out / "checkpoint.pt", "checkpoint", CHECKPOINT_FORMAT)
+    if data.get("pairs", pairs_hash) != pairs_hash:  # absent from older checkpoints
+        raise InputError("--out holds a run trained on another pair folder (its manifest differs)", path=out)
     stored = {k: v for k, v in data.get("config", {}).items() if k != "iters"}
     if stored != {k: v for k, v in asdict(cfg).items() if k != "iters"}:
         raise InputError(
@@ -200,11 +207,11 @@ def _resume(out: Path, cfg: ReconTrainConfig, net: ReconNet, opt, gen: torch.Gen
         net.load_state_dict(data["model"])
         opt.load_state_dict(data["optimizer"])
         gen.set_state(data["rng"])
-    except (KeyError, RuntimeError) as err:
+    except (KeyError, RuntimeError, ValueError, TypeError) as err:
         raise InputError(
             f"checkpoint does not fit this reconstructor ({type(err).__name__})", path=out
         ) from err
-    return int(data["iteration"]), float(data.get("elapsed", 0.0))
+    return int(data["iteration"]), float(data.get("elapsed", 0.0)), float(data.get("running_l1", "nan"))
 
 
 def _curves(out: Path, start: int) -> list[list]:

@@ -13,6 +13,7 @@ import torch
 from torch import Tensor
 
 BACKGROUND = 1.0
+MAX_TAU = 1e3  # optical depth at which transmittance is 0 in float32 and float64
 
 
 @dataclass
@@ -66,11 +67,15 @@ def packed_weights(sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int) -> T
         n_rays: N, the number of rays (rays without samples are allowed).
     Returns:
         (M,) weights ``Tᵢ (1 − exp(−σᵢ δᵢ))``; ``Tᵢ`` sums only the earlier samples of the same ray. The
-        running sum is taken in float64 over all samples, then each ray's offset is removed, so a ray's
-        transmittance does not depend on how much optical depth the rays before it had.
+        running sum is taken in float64 (float32 on MPS, which has no float64) over all samples, then each
+        ray's offset is removed, so a ray's transmittance does not depend on how much optical depth the rays
+        before it had. The scan sees ``τ`` clamped to ≤ 1e3 (NaN → 1e3): ``exp(−1e3)`` is already 0, so
+        no weight changes, and one infinite or NaN sample cannot make ``inf − inf`` for every later ray.
     """
     tau = sigma * deltas
-    tau64 = tau.to(torch.float64)
+    wide = torch.float32 if tau.device.type == "mps" else torch.float64
+    tau64 = tau.to(wide)
+    tau64 = torch.where(tau64.isnan(), MAX_TAU, tau64.clamp(max=MAX_TAU))
     per_ray = tau64.new_zeros(n_rays).index_add(0, ray, tau64)
     before = torch.cumsum(per_ray, dim=0) - per_ray  # optical depth of all earlier rays
     depth = torch.cumsum(tau64, dim=0) - tau64 - before[ray]

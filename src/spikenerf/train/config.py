@@ -160,6 +160,13 @@ class TrainConfig:
             raise InputError(
                 f"--lambda and --eval-every must be ≥ 0, found {self.spike.lam}, {self.eval_every}"
             )
+        ratio = self.lr_final_ratio
+        if ratio is not None and not (math.isfinite(ratio) and 0 < ratio <= 1):
+            raise InputError(f"lr_final_ratio must be a finite number in (0, 1], found {ratio}")
+        if self.targets.mask_n < 1:
+            raise InputError(f"targets.mask_n must be ≥ 1, found {self.targets.mask_n}")
+        if self.spike.paper_warmup < 0:
+            raise InputError(f"spike.paper_warmup must be ≥ 0, found {self.spike.paper_warmup}")
         if self.targets.window < 1 or self.targets.window % 2 == 0:
             raise InputError(f"targets.window must be an odd number of frames, found {self.targets.window}")
         return self
@@ -200,6 +207,15 @@ def _matches(value: Any, hint: Any) -> bool:
     return isinstance(value, origin or hint)
 
 
+def _coerce(value: Any, hint: Any) -> Any:
+    """A string for a number-typed key read as a float (YAML 1.1 reads ``1e-3``, no dot, as a string);
+    anything else unchanged (``--set dataset=1e3`` stays the string it is)."""
+    if isinstance(value, str) and _matches(1.0, hint) and not _matches(value, hint):
+        with contextlib.suppress(ValueError):
+            return float(value)
+    return value
+
+
 def _describe(hint: Any) -> str:
     origin = get_origin(hint)
     if origin is Literal:
@@ -225,9 +241,6 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
             value = yaml.safe_load(text)
         except yaml.YAMLError as err:
             raise InputError(f"override {key}: unreadable value {text!r} ({err})") from err
-        if isinstance(value, str):  # YAML 1.1 reads 1e-3 (no dot) as a string
-            with contextlib.suppress(ValueError):
-                value = float(value)
         *sections, leaf = key.split(".")
         node = data
         for i, section in enumerate(sections):
@@ -248,8 +261,10 @@ def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
         raise InputError(
             f"unknown {cls.__name__} keys {unknown}; expected some of {sorted(known)}", path=path
         )
-    nested = {"targets": TargetConfig, "spike": SpikeLossConfig}
-    values = {k: _from_dict(nested[k], v, path) if k in nested else v for k, v in data.items()}
+    nested, hints = {"targets": TargetConfig, "spike": SpikeLossConfig}, get_type_hints(cls)
+    values = {
+        k: _from_dict(nested[k], v, path) if k in nested else _coerce(v, hints[k]) for k, v in data.items()
+    }
     config = cls(**values)
     if cls is TrainConfig:
         check_types(config, path=path)

@@ -52,14 +52,17 @@ class RunningMeans:
 class TensorBoardLog:
     """Scalars and images for TensorBoard (``torch.utils.tensorboard``; needs the ``tensorboard`` package)."""
 
-    def __init__(self, out: str | Path) -> None:
+    def __init__(self, out: str | Path, start: int = 0) -> None:
+        """``start``: the iteration a resumed run continues from; its later events (written before the
+        interruption, and about to be written again) are purged, so no step appears twice."""
         try:
             from torch.utils.tensorboard import SummaryWriter
         except ImportError as err:
             raise InputError(
                 "log: tensorboard needs the tensorboard package (pip install 'spikenerf[tensorboard]')"
             ) from err
-        self.writer = SummaryWriter(log_dir=str(Path(out) / TENSORBOARD_DIR))
+        purge = start + 1 if start > 0 else None
+        self.writer = SummaryWriter(log_dir=str(Path(out) / TENSORBOARD_DIR), purge_step=purge)
 
     def scalars(self, iteration: int, values: dict[str, float]) -> None:
         """One scalar per tag (``loss/recon``, ``psnr/test``, ...); non-finite values are skipped."""
@@ -80,11 +83,11 @@ class TensorBoardLog:
         self.writer.close()
 
 
-def open_log(kind: str, out: str | Path) -> TensorBoardLog | None:
-    """The logger of ``kind`` (``none`` → None)."""
+def open_log(kind: str, out: str | Path, start: int = 0) -> TensorBoardLog | None:
+    """The logger of ``kind`` (``none`` → None); ``start``: see :class:`TensorBoardLog`."""
     if kind not in LOG_KINDS:
         raise InputError(f"log must be one of {', '.join(LOG_KINDS)}, found {kind!r}")
-    return TensorBoardLog(out) if kind == "tensorboard" else None
+    return TensorBoardLog(out, start) if kind == "tensorboard" else None
 
 
 def step_scalars(

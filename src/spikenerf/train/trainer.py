@@ -182,14 +182,13 @@ class Trainer:
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
             restore_rng(ckpt["rng"], self.samplers)
-            self.iteration, self.elapsed, self.rays = (
-                int(ckpt["iteration"]),
-                float(ckpt["elapsed"]),
-                int(ckpt["rays"]),
-            )
+            self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
+            self.rays = int(ckpt["rays"])
             self.curves = [r for r in read_curves(self.out / CURVES) if r["iteration"] <= self.iteration]
         self.final_ratio = _lr_final_ratio(self.config, self.model)
         self.scaler = torch.amp.GradScaler(self.device.type, enabled=self.config.amp == "fp16")
+        if ckpt is not None and ckpt.get("scaler"):  # fp16 loss scale and growth tracker (absent: older)
+            self.scaler.load_state_dict(ckpt["scaler"])
 
     # ------------------------------------------------------------------------------------------------ setup
     def _build_targets(self) -> None:
@@ -283,6 +282,7 @@ class Trainer:
                 "model": self.model.state_dict(),
                 "hparams": self.model.hparams(),
                 "optimizer": self.optimizer.state_dict(),
+                "scaler": self.scaler.state_dict(),  # {} unless --amp fp16
                 "rng": rng_state(self.samplers),
                 "config": self.config.to_dict(),
             },
@@ -291,7 +291,8 @@ class Trainer:
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
         cfg, s = self.config, self.config.spike
-        log = open_log(cfg.log, self.out)  # first: a missing package leaves no run folder behind
+        # first: a missing package leaves no run folder behind
+        log = open_log(cfg.log, self.out, self.iteration)
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
         mark(self.out, "run")
