@@ -20,7 +20,7 @@ from helpers import BENCHMARK_TRAIN
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
-from spikenerf.pipelines.ray_executor import INSTALL_HINT, rebase, scratch_root
+from spikenerf.pipelines.ray_executor import INSTALL_HINT, Job, execute, rebase, scratch_root
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 WORKER = re.compile(r"Ray worker pid (\d+)")
@@ -103,6 +103,19 @@ def test_rebase_replaces_whole_path_components_only() -> None:
         == b'out: /s/1\n"/s/1" /s/1/runs /data/bench2/x /data/benchmark /s/1'
     )
     assert scratch_root("/b", "n1") != scratch_root("/b", "n2") != scratch_root("/b")
+
+
+def test_shipped_job_starts_from_an_empty_scratch_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A re-submitted job (its metrics.json deleted in OUT) never ships the worker's stale scratch copy."""
+    monkeypatch.setenv("SPIKENERF_RAY_SCRATCH", str(tmp_path / "scratch"))
+    stale = scratch_root("/b", "n") / "runs/x"
+    stale.mkdir(parents=True)
+    (stale / "metrics.json").write_text("{}")
+    job = Job("x", lambda root: [], "runs/x", "runs/x/metrics.json")
+    result = execute(job, "/b", ship=True, threads=1, nonce="n")
+    assert "runs/x/metrics.json" not in result["files"] and "logs/x.log" in result["files"]
 
 
 def _children(pid: int) -> list[int]:
