@@ -77,6 +77,12 @@ def main() -> None:
                     check=True,
                 )  # fmt: skip
             builds = {"reference": ref / "src", "ours": ROOT / "src"}
+            warm = "from spikenerf.fields import vm_kernel; print(vm_kernel.available())"  # build it untimed
+            ours_env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+            kernel = subprocess.run(
+                [sys.executable, "-c", warm], env=ours_env, capture_output=True, text=True, check=True
+            ).stdout.strip()
+            print(f"fused CPU kernel (ours) available: {kernel}")
             results: dict[str, list[dict]] = {name: [] for name in builds}
             print(
                 f"dataset {dataset}, {args.method}, {args.iters} iterations, OMP_NUM_THREADS={args.threads}"
