@@ -154,20 +154,7 @@ def test_second_writer_is_refused_naming_the_holder(
 ) -> None:
     out = tmp_path / "ds"
     first = _spawn([*SIM, "--out", out], "simulate.render:3:STOP")  # freezes holding the lock
-    try:
-        deadline = time.monotonic() + 60
-        while not _stopped(first.pid) and time.monotonic() < deadline and first.poll() is None:
-            time.sleep(0.05)  # SIGCONT before the writer has frozen itself would leave it frozen for good
-        assert _stopped(first.pid) and holder(out) == first.pid, "the first writer never took the lock"
-        for second in ([*SIM, "--out", out], [*SIM, "--overwrite", "--out", out]):
-            with pytest.raises(SystemExit) as exit_:
-                _cli(*second)
-            err = capsys.readouterr().err.strip()
-            assert exit_.value.code == 2 and err.count("\n") == 0
-            assert str(out) in err and f"process {first.pid}" in err
-    finally:
-        first.send_signal(signal.SIGCONT)
-    assert first.wait(timeout=120) == 0
+    _refused_while_frozen(first, out, [[*SIM, "--out", out], [*SIM, "--overwrite", "--out", out]], capsys)
     assert _files(out) == _files(reference / "ds")  # the first writer finished undisturbed
 
 
@@ -176,21 +163,30 @@ def test_second_import_is_refused_while_one_writes(
 ) -> None:
     out, rec = tmp_path / "ds", reference / "rec" / "stream.dat"
     first = _spawn(["import", rec, *IMPORT, "--out", out], "import.keyframe:2:STOP")
+    others = [["import", rec, *IMPORT, "--overwrite", "--out", out], [*SIM, "--out", out]]  # import, simulate
+    _refused_while_frozen(first, out, others, capsys)
+    assert _files(out) == _files(reference / "imported")
+
+
+def _refused_while_frozen(
+    first: subprocess.Popen[str], out: Path, others: list[list[object]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Once ``first`` has frozen itself (SIGSTOP) holding ``out``'s lock, each of ``others`` is refused in one
+    line naming the folder and the holder; then ``first`` is continued and must finish with exit 0."""
     try:
         deadline = time.monotonic() + 60
         while not _stopped(first.pid) and time.monotonic() < deadline and first.poll() is None:
-            time.sleep(0.05)
-        assert _stopped(first.pid) and holder(out) == first.pid, "the first import never took the lock"
-        for second in (["import", rec, *IMPORT, "--overwrite"], [*SIM]):  # another import, or a simulate
+            time.sleep(0.05)  # SIGCONT before the writer has frozen itself would leave it frozen for good
+        assert _stopped(first.pid) and holder(out) == first.pid, "the first writer never took the lock"
+        for second in others:
             with pytest.raises(SystemExit) as exit_:
-                _cli(*second, "--out", out)
+                _cli(*second)
             err = capsys.readouterr().err.strip()
             assert exit_.value.code == 2 and err.count("\n") == 0
             assert str(out) in err and f"process {first.pid}" in err
     finally:
         first.send_signal(signal.SIGCONT)
     assert first.wait(timeout=120) == 0
-    assert _files(out) == _files(reference / "imported")
 
 
 def test_stale_lock_of_a_dead_process_is_taken_over(reference: Path, tmp_path: Path) -> None:
