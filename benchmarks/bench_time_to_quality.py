@@ -271,6 +271,7 @@ def main() -> None:
     parser.add_argument("--dataset", help="a dataset folder (e.g. 200×200 bricks)")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--iters", default="1500", help="schedule lengths, comma-separated")
+    parser.add_argument("--runs", help="explicit METHOD:ITERS runs, comma-separated (instead of the product)")
     parser.add_argument("--budget", type=float, default=1800.0, help="training seconds per run (on --clock)")
     parser.add_argument(
         "--eval-seconds", type=float, default=60.0, help="training seconds between evaluations"
@@ -314,6 +315,8 @@ def main() -> None:
                 train_curve(method, int(iters), opts, Path(tmp) / "run", csv_path)
                 return
             runs = [(m, int(n)) for n in args.iters.split(",") for m in args.methods.split(",")]
+            if args.runs:
+                runs = [(r.split(":")[0], int(r.split(":")[1])) for r in args.runs.split(",")]
             run_all(runs, opts, args.jobs, args.threads, csv_path)
             points = read_points(csv_path)
     print(summarize(points))
