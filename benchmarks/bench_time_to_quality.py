@@ -287,11 +287,13 @@ def main() -> None:
     )
     parser.add_argument("--csv", type=Path, help="where the points go [default: a temporary file]")
     parser.add_argument("--plot", type=Path, help="a PNG of PSNR against CPU time")
-    parser.add_argument("--summarize", type=Path, help="only print the tables (and --plot) of this CSV")
+    parser.add_argument(
+        "--summarize", type=Path, nargs="+", help="only print the tables (and --plot) of CSVs"
+    )
     parser.add_argument("--worker", help=argparse.SUPPRESS)  # METHOD:ITERS, one run (used by the parent)
     args = parser.parse_args()
     if args.summarize:
-        points = read_points(args.summarize)
+        points = [p for path in args.summarize for p in read_points(path)]
     else:
         if not args.dataset:
             parser.error("--dataset is required (or --summarize CSV)")
