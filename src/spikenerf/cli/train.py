@@ -37,6 +37,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "spike_window": ("spike", "window"),
     "spike_pixels": ("spike", "pixels"),
     "spike_warmup": ("spike", "warmup_iters"),
+    "refine_poses": ("poses", "refine"),
 }
 
 
@@ -114,6 +115,12 @@ def validated(config: TrainConfig) -> TrainConfig:
     type=int,
     default=_D.spike.warmup_iters,
     help="Iterations before λ ramps up (then a ramp of iters/5) [default: iters/5].",
+)
+@click.option(
+    "--refine-poses/--no-refine-poses",
+    default=None,
+    help="Learn SE(3) corrections of the keyframe poses while training (poses.* in --set) "
+    "[default: on for imported datasets].",
 )
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")

@@ -51,6 +51,7 @@ from spikenerf.train.losses import (
     spike_interval_loss,
     spike_weight,
 )
+from spikenerf.train.pose_refine import pose_refinement
 from spikenerf.train.run import dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
@@ -173,6 +174,7 @@ class Trainer:
             self.model = model_from_hparams(ckpt["hparams"], ckpt["model"])
         self.model.to(self.device)
         self.optimizer = make_optimizer(self.model, config)
+        self.pose_refine = pose_refinement(self.config, self.dataset, self.model, self.device, self.targets)
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
@@ -181,6 +183,8 @@ class Trainer:
             self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
+            if self.pose_refine is not None:
+                self.pose_refine.load_state_dict(ckpt["poses"])
             restore_rng(ckpt["rng"], self.samplers)
             self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
             self.rays = int(ckpt["rays"])
@@ -223,6 +227,8 @@ class Trainer:
         index, pixels = self.samplers["rays"].sample(max(1, self.config.batch // views))
         target = self.targets.gather(index, pixels).to(self.device)
         poses = self.targets.poses[index].reshape(-1, 4, 4)  # (B·S, 4, 4), S poses averaged per ray
+        if self.pose_refine is not None:
+            poses = self.pose_refine.images(self.targets, index, poses)
         out = self._render(poses, pixels.repeat_interleave(views, dim=0))
         color = out.color.view(-1, views, self.channels).mean(dim=1)
         loss = recon_loss(color, target)
@@ -240,9 +246,10 @@ class Trainer:
         paper = s.kind == "paper"
         shape = (s.pixels, self.channels)
         a0 = torch.rand(shape) * spikes.threshold if paper else torch.zeros(shape)
+        poses = spikes.poses[start : start + s.window]
         window = render_spike_window(
             self.model,
-            spikes.poses[start : start + s.window],
+            poses if self.pose_refine is None else self.pose_refine.window(poses, start),
             self.dataset.intrinsics,
             pixels,
             a0.to(self.device),
@@ -266,8 +273,9 @@ class Trainer:
         ``renders`` (if given) receives each (rendering, target)."""
         if self.test_views is None:
             return math.nan
+        views = self.test_views if self.pose_refine is None else self.pose_refine.views(self.test_views)
         with torch.random.fork_rng(devices=[]):
-            return evaluate_views(self.model, self.test_views, self.dataset, renders=renders)
+            return evaluate_views(self.model, views, self.dataset, renders=renders)
 
     def checkpoint(self) -> None:
         """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
@@ -285,8 +293,11 @@ class Trainer:
                 "scaler": self.scaler.state_dict(),  # {} unless --amp fp16
                 "rng": rng_state(self.samplers),
                 "config": self.config.to_dict(),
+                "poses": None if self.pose_refine is None else self.pose_refine.state_dict(),
             },
         )
+        if self.pose_refine is not None:
+            self.pose_refine.write(self.out)
 
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
@@ -316,9 +327,13 @@ class Trainer:
                     terms["spike"], spike_rays = self.spike_step()
                     loss, rays = loss + lam * terms["spike"], rays + spike_rays
             self.optimizer.zero_grad(set_to_none=True)
+            if self.pose_refine is not None:
+                self.pose_refine.begin(it)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
                 self.scaler.scale(loss).backward()
                 self.scaler.step(self.optimizer)
+                if self.pose_refine is not None:
+                    self.scaler.step(self.pose_refine.optimizer)
                 self.scaler.update()
             self.iteration = it + 1
             if self.model.on_step(self.iteration, self.optimizer):
