@@ -19,7 +19,14 @@ from spikenerf.data.simulate import SimulateOptions, simulate_dataset
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.config import TrainConfig
-from spikenerf.train.pose_refine import REFINED_POSES, PoseRefiner, keyframes_of, se3_exp, so3_exp
+from spikenerf.train.pose_refine import (
+    REFINED_POSES,
+    PoseRefiner,
+    keyframes_of,
+    refined_views,
+    se3_exp,
+    so3_exp,
+)
 from spikenerf.train.trainer import Trainer
 
 STEPS = 120
@@ -167,6 +174,10 @@ def test_on_by_default_for_imported_datasets_with_test_keyframes_left_out(datase
     )
     out = trainer.pose_refine.eval_poses(views)
     assert not torch.allclose(out[0], views[0]) and torch.equal(out[1], views[1])
+    posed = dataclasses.replace(dataset.test, poses=views.numpy())  # what `spikenerf eval` scores
+    state = {"poses": trainer.pose_refine.state_dict()}
+    assert np.array_equal(refined_views(state, cfg, imported, posed).poses, out.numpy())
+    assert refined_views({"poses": None}, cfg, imported, posed) is posed
 
 
 def test_bad_input_is_one_line_exit_2(

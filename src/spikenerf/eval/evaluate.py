@@ -27,6 +27,8 @@ from spikenerf.data.dataset import PosedImages, SpikeDataset
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, psnr, ssim
 from spikenerf.render import render_image
+from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.train.pose_refine import refined_views
 from spikenerf.train.run import load_run, run_iteration
 
 METRICS_FILE = "metrics.json"
@@ -120,7 +122,7 @@ def _evaluate_locked(
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device)
-    views = split_views(dataset, split)
+    views = refined_views(load_checkpoint(run_dir / CHECKPOINT), config, dataset, split_views(dataset, split))
     k = dataset.intrinsics
     backbone, reason = lpips_status(lpips_backbone, k.height, k.width)
     if reason and log:

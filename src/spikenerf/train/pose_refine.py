@@ -142,7 +142,7 @@ class PoseRefinement:
         self.refiner = PoseRefiner(keyframes_of(dataset, config.keyframe_every)).to(device)
         self.optimizer = torch.optim.Adam(self.refiner.parameters(), lr=0.0, betas=(0.9, 0.99))
         traj = dataset.trajectory
-        self._traj_poses = torch.as_tensor(traj.poses, dtype=torch.float32)
+        self._traj_poses = torch.as_tensor(traj.poses, dtype=torch.float32)  # (T, 4, 4)
         self._traj_steps = np.asarray(traj.steps, np.int64)
 
     def __call__(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
@@ -168,15 +168,8 @@ class PoseRefinement:
         return dataclasses.replace(views, poses=self.eval_poses(views.poses[:, 0])[:, None])
 
     def eval_poses(self, poses: Tensor) -> Tensor:
-        """Evaluation poses (V, 4, 4): a view whose pose is a pose of the trajectory (an imported held-out
-        keyframe) gets that step's refined pose, interpolated from the neighbouring keyframes (its own
-        keyframe is not refined); a novel view off the trajectory is used as given."""
-        dist = (poses[:, None].float() - self._traj_poses[None]).abs().flatten(2).amax(-1)  # (V, T)
-        best = dist.argmin(1)
-        on_path = dist.gather(1, best[:, None])[:, 0] < 1e-5
-        with torch.no_grad():
-            refined = self.refiner(poses, self._traj_steps[best.numpy()]).cpu()
-        return torch.where(on_path[:, None, None], refined, poses.float())
+        """Evaluation poses (V, 4, 4) from ``poses`` (V, 4, 4) (see :func:`on_path_poses`)."""
+        return on_path_poses(self.refiner, self.dataset.trajectory, poses)
 
     def state_dict(self) -> dict[str, Any]:
         return {"refiner": self.refiner.state_dict(), "optimizer": self.optimizer.state_dict()}
@@ -230,3 +223,28 @@ def pose_refinement(
         upsample = getattr(model.config, "upsample_steps", ())
         warmup = int(upsample[0]) if len(upsample) else config.iters // 10
     return PoseRefinement(cfg, dataset, config.iters, warmup, device)
+
+
+def on_path_poses(refiner: PoseRefiner, trajectory: Any, poses: Tensor | np.ndarray) -> Tensor:
+    """Evaluation poses (V, 4, 4) float32: a view whose pose is a pose of the ``trajectory`` (an imported
+    held-out keyframe) gets that step's refined pose, interpolated from the neighbouring keyframes (its own
+    keyframe is not refined); a novel view off the trajectory is used as given."""
+    poses = torch.as_tensor(np.asarray(poses) if not isinstance(poses, Tensor) else poses).float().cpu()
+    path = torch.as_tensor(trajectory.poses, dtype=torch.float32)
+    dist = (poses[:, None] - path[None]).abs().flatten(2).amax(-1)  # (V, T)
+    best = dist.argmin(1)
+    on_path = dist.gather(1, best[:, None])[:, 0] < 1e-5
+    with torch.no_grad():
+        refined = refiner(poses, np.asarray(trajectory.steps)[best.numpy()]).cpu()
+    return torch.where(on_path[:, None, None], refined, poses)
+
+
+def refined_views(checkpoint: dict[str, Any], config: Any, dataset: Any, views: Any) -> Any:
+    """``views`` (PosedImages of ``dataset``) with the poses a run refined (``spikenerf eval``): unchanged
+    when the run (its ``checkpoint``) did not refine poses."""
+    state = checkpoint.get("poses")
+    if not state or len(views.poses) == 0:
+        return views
+    refiner = PoseRefiner(keyframes_of(dataset, config.poses.keyframe_every))
+    refiner.load_state_dict(state["refiner"])
+    return dataclasses.replace(views, poses=on_path_poses(refiner, dataset.trajectory, views.poses).numpy())
