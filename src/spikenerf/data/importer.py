@@ -299,6 +299,7 @@ def _write(
             "window": int(opts.window),
             "keyframes": len(rel_keys),
             "poses_known": int(registered),
+            "pose_steps": [int(s) for s in np.sort(found.steps)],
             "test_keyframes": [int(s) for s in held],
             "normalisation": {"center": [float(c) for c in center], "scale": float(scale)},
         },

@@ -90,10 +90,10 @@ def keyframes_of(dataset: Any, every: int) -> np.ndarray:
     left out), else every ``every`` steps of the trajectory plus its last step."""
     steps = np.asarray(dataset.trajectory.steps, np.int64)
     info = (dataset.config or {}).get("imported")
-    if info:
+    if info:  # the steps that had poses; older imports, or dense ones (an orbit): the importer's keyframe rule
+        rule = keyframe_steps(len(steps), int(info["keyframe_every"]), int(info["window"]))
         keys = info.get("pose_steps")
-        if keys is None:  # imports before pose_steps was recorded: the keyframe rule the importer used
-            keys = keyframe_steps(len(steps), int(info["keyframe_every"]), int(info["window"]))
+        keys = rule if keys is None or len(keys) > len(rule) else keys
         keys = np.setdiff1d(np.asarray(keys, np.int64), info.get("test_keyframes") or []) + steps[0]
     else:
         keys = np.unique(np.append(np.arange(steps[0], steps[-1] + 1, every), steps[-1]))
