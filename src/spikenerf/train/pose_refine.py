@@ -130,8 +130,10 @@ class PoseRefiner(torch.nn.Module):
         return se3_exp((1 - w) * self.xi[lo_t] + w * self.xi[hi_t])
 
     def forward(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
-        """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,)."""
-        return poses.to(self.xi.device, self.xi.dtype) @ self.correction(steps)
+        """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,); always in
+        float32, also inside a mixed-precision step (a bf16 pose would be off by ~0.01 scene units)."""
+        with torch.autocast(self.xi.device.type, enabled=False):
+            return poses.to(self.xi.device, self.xi.dtype) @ self.correction(steps)
 
 
 class PoseRefinement:
