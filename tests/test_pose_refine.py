@@ -96,6 +96,10 @@ def test_zero_correction_is_exactly_the_identity() -> None:
     refiner = PoseRefiner(np.array([0, 10, 30]))
     poses = torch.randn(40, 4, 4)
     assert torch.equal(refiner(poses, np.arange(40)), poses)
+    refiner.xi.data[:, 0] = 0.01
+    with torch.autocast("cpu", dtype=torch.bfloat16):  # a mixed-precision step keeps the poses float32
+        moved = refiner(poses, np.arange(40))
+    assert moved.dtype == torch.float32 and torch.equal(moved, refiner(poses, np.arange(40)))
 
 
 def test_so3_exp_matches_the_matrix_exponential_and_passes_gradcheck() -> None:
