@@ -47,6 +47,8 @@ def train(dataset: Path, run: Path, a: argparse.Namespace, refine: bool) -> None
            "--method", a.method, "--iters", str(a.iters), "--batch", str(a.batch), "--eval-every", "0",
            "--eval-views", "1", "--quiet", "--refine-poses" if refine else "--no-refine-poses",
            "--out", str(run), *(x for kv in grid for x in ("--set", kv))]  # fmt: skip
+    if refine and a.pose_lr is not None:
+        cmd += ["--set", f"poses.lr={a.pose_lr}"]
     if (run / "checkpoint.pt").exists():
         cmd.append("--resume")
     print("$", " ".join(cmd[2:]), flush=True)
@@ -105,6 +107,7 @@ def main() -> None:
     p.add_argument("--grid", type=int, default=96, help="final grid resolution (cells per side)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--conditions", default=",".join(CONDITIONS))
+    p.add_argument("--pose-lr", type=float, default=None, help="poses.lr of the refined runs (default: 1e-3)")
     a = p.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -120,7 +123,9 @@ def main() -> None:
     print("| scene | poses | test PSNR | Δ vs exact | rot mean° before → after | rot max° before → after |")
     print("|---|---|---:|---:|---|---|")
     for r in rows:
-        ref = next(x["psnr"] for x in rows if x["scene"] == r["scene"] and x["condition"] == "exact")
+        ref = next(
+            (x["psnr"] for x in rows if x["scene"] == r["scene"] and x["condition"] == "exact"), np.nan
+        )
         rot = (
             f"{r['rot_mean_deg_before']:.2f} → {r['rot_mean_deg_after']:.2f} | "
             f"{r['rot_max_deg_before']:.2f} → {r['rot_max_deg_after']:.2f}"
