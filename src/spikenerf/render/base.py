@@ -8,6 +8,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from spikenerf.fields.base import Field
 from spikenerf.render.volume import RenderOutput
 
 
@@ -21,7 +22,7 @@ class RadianceModel(nn.Module):
 
     kind: str = ""
 
-    def __init__(self, field: nn.Module) -> None:
+    def __init__(self, field: Field) -> None:
         super().__init__()
         self.field = field
 
@@ -74,8 +75,7 @@ class RadianceModel(nn.Module):
 
     def regularization(self) -> Tensor:
         """A scalar prior to add to the loss (already weighted; zero unless the config enables one)."""
-        reg = getattr(self.field, "regularization", None)
-        return reg() if reg is not None else self.scene_box.new_zeros(())
+        return self.field.regularization()
 
     def hparams(self) -> dict[str, Any]:
         """Everything ``build_model`` needs to rebuild this model (store it beside the checkpoint)."""
