@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from spikenerf import __version__
+from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
@@ -124,9 +125,10 @@ def estimate_resources(
     return memory, disk
 
 
-def check_simulate_resources(out: Path, flags: str, **sizes: Any) -> None:
-    """InputError (naming ``flags``) when :func:`estimate_resources` exceeds the memory or disk at hand."""
-    check_resources(*estimate_resources(**sizes), out, flags)
+def check_simulate_resources(out: Path, params: str, **sizes: Any) -> None:
+    """InputError (naming ``params``, e.g. ``width/height/frames``) when :func:`estimate_resources` exceeds
+    the memory or disk at hand."""
+    check_resources(*estimate_resources(**sizes), out, params)
 
 
 def _save_npy(path: Path, array: np.ndarray) -> None:
@@ -202,12 +204,15 @@ def check_options(options: SimulateOptions) -> None:
     """InputError on unknown colour modes or out-of-range numbers (before any rendering starts)."""
     if not options.colors or any(c not in MODES for c in options.colors):
         raise InputError(
-            f"--color: expected gray, rgb, bayer or all, found {', '.join(options.colors) or 'none'}"
+            f"colors: expected gray, rgb, bayer or all, found {', '.join(options.colors) or 'none'}",
+            param="colors",
         )
     if options.gt_every < 1:
-        raise InputError(f"--gt-every must be ≥ 1, found {options.gt_every}")
+        raise InputError(f"gt_every must be ≥ 1, found {options.gt_every}", param="gt_every")
     if options.blur_fps < 0:
-        raise InputError(f"--blur-fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}")
+        raise InputError(
+            f"blur_fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}", param="blur_fps"
+        )
     parse_blur_views(options.blur_views)
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
@@ -266,7 +271,7 @@ def stream_steps(
     blur = RunningExposures(windows, frame_at)
     for i in tqdm(range(len(traj)), desc="spikes", unit="step", disable=not progress):
         step, frame = traj.steps[i], frame_at(i)
-        chw = np.ascontiguousarray(frame.transpose(2, 0, 1))
+        chw = np.ascontiguousarray(to_camera_layout(frame, frame=True))
         for c, camera in cameras.items():
             buffers[c].append(camera.step(chw).copy())
             if len(buffers[c]) == SPIKE_CHUNK or i == len(traj) - 1:

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
 from spikenerf.camera.reconstruct import ReconMethod, tfi, tfp
 from spikenerf.core.color import rgb_to_gray
@@ -70,7 +71,7 @@ class SpikeTargets:
     """The recorded stream and per-step poses for the spike loss.
 
     Attributes:
-        spikes: (T, H, W, C) uint8 0/1 recorded spikes, channels last.
+        spikes: (T, H, W, C) uint8 0/1 recorded spikes, channels last (``camera.layout.to_channels_last``).
         poses: (T, 4, 4) float32 camera-to-world of each step.
         threshold: φ of the camera.
     """
@@ -82,16 +83,6 @@ class SpikeTargets:
     def window(self, start: int, length: int, pixels: Tensor) -> Tensor:
         """Recorded spikes (L, P, C) float32 of steps ``start..start+L-1`` at pixels (P, 2) int ``(x, y)``."""
         return self.spikes[start : start + length, pixels[:, 1], pixels[:, 0]].float()
-
-
-def channels_last(stream: np.ndarray | Tensor) -> Tensor:
-    """(T, H, W) → (T, H, W, 1); (T, 3, H, W) → (T, H, W, 3)."""
-    x = torch.as_tensor(np.asarray(stream) if not isinstance(stream, Tensor) else stream)
-    if x.dim() == 3:
-        return x[..., None]
-    if x.dim() == 4:
-        return x.permute(0, 2, 3, 1)
-    raise InputError(f"spike stream must be (T, H, W) or (T, 3, H, W), found shape {tuple(x.shape)}")
 
 
 def reconstruct_stream(
@@ -143,8 +134,9 @@ def load_stream(dataset: SpikeDataset, color: str) -> np.ndarray:
     mode = stream_mode(color)
     if mode not in dataset.modes:
         raise InputError(
-            f"--color {color} needs the {mode!r} spike stream, but the dataset has {sorted(dataset.modes)}",
+            f"color {color} needs the {mode!r} spike stream, but the dataset has {sorted(dataset.modes)}",
             path=getattr(dataset, "root", None),
+            param="color",
         )
     spikes = np.asarray(dataset.spikes(mode))
     if len(dataset.trajectory) != spikes.shape[0]:
@@ -190,8 +182,9 @@ def exposure_steps(step_range: np.ndarray, samples: int) -> np.ndarray:
 def _posed(posed: PosedImages | None, what: str, method: str, dataset: SpikeDataset) -> PosedImages:
     if posed is None or len(posed.images) == 0:
         raise InputError(
-            f"--method {method} needs the {what} frames, but the dataset has none",
+            f"method {method} needs the {what} frames, but the dataset has none",
             path=getattr(dataset, "root", None),
+            param="method",
         )
     return posed
 
@@ -221,7 +214,9 @@ def build_image_targets(
         use_mask = mask and method == "spike-nerf"
         images = masked_reconstruction(stream, recon, window, dataset.threshold, use_mask, mask_n)
         poses = torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32)[:, None]
-        return ImageTargets(poses, channels_last(images).half(), torch.as_tensor(dataset.trajectory.steps))
+        return ImageTargets(
+            poses, torch.as_tensor(to_channels_last(images)).half(), torch.as_tensor(dataset.trajectory.steps)
+        )
     if method == "nerf-gt":
         gt = _posed(dataset.gt, "gt/", method, dataset)
         steps = np.full(len(gt.images), -1) if gt.steps is None else np.asarray(gt.steps)
@@ -251,7 +246,7 @@ def build_spike_targets(
     """The recorded stream of ``color`` as (T, H, W, C) uint8 with per-step poses and φ."""
     stream = load_stream(dataset, color) if spikes is None else spikes
     return SpikeTargets(
-        channels_last(np.asarray(stream, dtype=np.uint8)).contiguous(),
+        torch.as_tensor(to_channels_last(np.asarray(stream, dtype=np.uint8))).contiguous(),
         torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32),
         float(dataset.threshold),
     )

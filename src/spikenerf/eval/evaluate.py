@@ -37,7 +37,7 @@ SPACE = "sRGB-encoded [0,1]"
 def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
     """Posed GT images of a split: ``test`` = held-out views, ``train`` = sharp GT on the training path."""
     if split not in SPLITS:
-        raise InputError(f"--split must be one of {', '.join(SPLITS)}, found {split!r}")
+        raise InputError(f"split must be one of {', '.join(SPLITS)}, found {split!r}", param="split")
     views = dataset.test if split == "test" else dataset.gt
     if views is None or len(views) == 0:
         source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"

@@ -106,11 +106,13 @@ def parse_seeds(spec: str) -> list[int]:
         try:
             seed = int(part.strip())
         except ValueError:
-            raise InputError(f"--seeds: expected comma-separated integers, found {part.strip()!r}") from None
+            raise InputError(
+                f"seeds: expected comma-separated integers, found {part.strip()!r}", param="seeds"
+            ) from None
         if seed < 0:
-            raise InputError(f"--seeds: expected non-negative integers, found {seed}")
+            raise InputError(f"seeds: expected non-negative integers, found {seed}", param="seeds")
         if seed in seeds:
-            raise InputError(f"--seeds: seed {seed} is given twice")
+            raise InputError(f"seeds: seed {seed} is given twice", param="seeds")
         seeds.append(seed)
     return seeds
 
@@ -128,7 +130,8 @@ def resolve_scenes(spec: str) -> list[str]:
     return comma_list(
         spec,
         known,
-        lambda bad: f"--scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        lambda bad: f"scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        param="scenes",
     )
 
 
@@ -141,8 +144,9 @@ def resolve_variants(spec: str) -> list[str]:
         spec,
         VARIANT_FLAGS,
         lambda bad: (
-            f"--methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANT_FLAGS)}"
+            f"methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANT_FLAGS)}"
         ),
+        param="methods",
     )
 
 

@@ -34,7 +34,7 @@ def load_run(
     model = model_from_hparams(ckpt["hparams"], ckpt["model"])
     model.to(resolve_device(device)).eval()
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset)
-    check_dataset_fits(ckpt, dataset, "--dataset" if dataset_root is not None else "the run's dataset")
+    check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
     return model, config, dataset
 
 
@@ -50,8 +50,8 @@ def dataset_fingerprint(dataset: SpikeDataset) -> dict:
     }
 
 
-def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, flag: str) -> None:
-    """InputError (naming ``flag``) when ``dataset`` is not the one the checkpoint was trained on (its
+def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
+    """InputError (naming ``param``) when ``dataset`` is not the one the checkpoint was trained on (its
     fingerprint; checkpoints without one are compared by scene box)."""
     want = ckpt.get("dataset")
     have = dataset_fingerprint(dataset)
@@ -66,7 +66,9 @@ def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, flag: str) -> None:
         if not fits:
             diff.append(f"{key} {have.get(key)} (run: {value})")
     if diff:
-        raise InputError(f"{flag}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root)
+        raise InputError(
+            f"{param}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root, param=param
+        )
 
 
 def run_iteration(run_dir: str | Path) -> int:
