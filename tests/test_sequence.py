@@ -86,7 +86,7 @@ def test_parse_range() -> None:
     assert parse_range(":4") == (0, 4)
     assert parse_range("-3:-1") == (-3, -1)
     for bad in ["abc", "3", "1:2:3", "a:b", "5:2", "4:4", "-1:-3"]:
-        with pytest.raises(InputError, match="sequence-range"):
+        with pytest.raises(InputError, match="sequence_range"):
             parse_range(bad)
 
 

@@ -30,13 +30,13 @@ def _movedim(x: Array, source: int, destination: int) -> Array:
 
 
 def to_channels_last(x: Array, frame: bool = False, name: str = "spikes") -> Array:
-    """Camera layout → channels last (a view).
+    """Camera layout → channels last, as a view.
 
-    Shape:
-        - stream: ``(T, H, W)`` → ``(T, H, W, 1)``; ``(T, 3, H, W)`` → ``(T, H, W, 3)``.
-        - ``frame=True``, one step: ``(H, W)`` → ``(H, W, 1)``; ``(3, H, W)`` → ``(H, W, 3)``.
-
-    ``name`` is the parameter named by the InputError on any other shape.
+    Args:
+        x: a stream (T, H, W) or (T, 3, H, W); with ``frame=True`` one step (H, W) or (3, H, W).
+        name: the parameter that the InputError on any other shape names.
+    Returns:
+        (T, H, W, 1) or (T, H, W, 3); one step: (H, W, 1) or (H, W, 3).
     """
     ndim, gray = len(x.shape), 2 if frame else 3  # type: ignore[attr-defined]
     if ndim == gray:
@@ -48,13 +48,13 @@ def to_channels_last(x: Array, frame: bool = False, name: str = "spikes") -> Arr
 
 
 def to_camera_layout(x: Array, frame: bool = False, name: str = "spikes") -> Array:
-    """Channels last → camera layout (a view); the inverse of :func:`to_channels_last`.
+    """Channels last → camera layout, as a view; the inverse of :func:`to_channels_last`.
 
-    Shape:
-        - stream: ``(T, H, W, 1)`` → ``(T, H, W)``; ``(T, H, W, 3)`` → ``(T, 3, H, W)``.
-        - ``frame=True``, one step: ``(H, W, 1)`` → ``(H, W)``; ``(H, W, 3)`` → ``(3, H, W)``.
-
-    ``name`` is the parameter named by the InputError on any other shape.
+    Args:
+        x: a stream (T, H, W, C), C = 1 or 3; with ``frame=True`` one step (H, W, C).
+        name: the parameter that the InputError on any other shape names.
+    Returns:
+        (T, H, W) or (T, 3, H, W); one step: (H, W) or (3, H, W).
     """
     shape = tuple(x.shape)  # type: ignore[attr-defined]
     if len(shape) == (3 if frame else 4) and shape[-1] in (1, 3):

@@ -22,7 +22,7 @@ from spikenerf.data.dataset import (
     TRANSFORMS,
     TRANSFORMS_BLUR,
     SpikeDataset,
-    _read_json,
+    _read_mapping,
     load_dataset,
     spike_files,
 )
@@ -76,8 +76,8 @@ def view_counts(root: str | Path) -> dict:
         ``transforms_blur.json``) and ``blur_views`` (``config.yaml``; ``frames`` for older datasets).
     """
     root = Path(root)
-    frames = _read_json(root / TRANSFORMS).get("frames") or []
-    blur_data = _read_json(root / TRANSFORMS_BLUR) if (root / TRANSFORMS_BLUR).is_file() else {}
+    frames = _read_mapping(root / TRANSFORMS).get("frames") or []
+    blur_data = _read_mapping(root / TRANSFORMS_BLUR) if (root / TRANSFORMS_BLUR).is_file() else {}
     blur = blur_data.get("frames") or []
     train = blur_data.get("train_filenames")  # a nerfstudio view lists its held-out frames too
     if isinstance(train, list):

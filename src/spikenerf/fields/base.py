@@ -48,7 +48,7 @@ class Field(nn.Module):
         raise NotImplementedError
 
     def regularization(self) -> Tensor:
-        """A scalar prior to add to the loss (already weighted); zero unless the field defines one."""
+        """A scalar () prior to add to the loss (already weighted); zero unless the field defines one."""
         return self.scene_box.new_zeros(())
 
     def param_groups(self, base_lr: float | None = None) -> list[dict]:

@@ -242,7 +242,8 @@ class GridField(Field):
         return changed
 
     def regularization(self) -> Tensor:
-        """``l1_weight`` × mean |density factor| (a sparsity prior against floaters); 0 by default."""
+        """Scalar () ``l1_weight`` × mean |density factor| (a sparsity prior against floaters); 0 by
+        default."""
         if self.config.l1_weight == 0:
             return self.density_planes.new_zeros(())
         l1 = self.density_planes.abs().mean() + self.density_lines.abs().mean()

@@ -70,6 +70,7 @@ class NeRFMLP(nn.Module):
         self.out = nn.Linear(c.dir_width, channels)
 
     def forward(self, xyz_norm: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+        """Normalised points (M, 3), unit dirs (M, 3) → raw density (M,), colour (M, C) in [0, 1]."""
         c = self.config
         enc = positional_encoding(xyz_norm, c.xyz_freqs)
         h = enc

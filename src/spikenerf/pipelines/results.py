@@ -12,16 +12,7 @@ import yaml
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.data.summary import view_counts
-from spikenerf.pipelines.cells import (
-    TABLE1_VARIANTS,
-    BenchmarkConfig,
-    cell_commands,
-    cell_keys,
-    dataset_command,
-    environment,
-    run_dir,
-    training_seeds,
-)
+from spikenerf.pipelines import cells as plan
 from spikenerf.pipelines.stats import Difference, differences
 from spikenerf.pipelines.tables import (
     ABLATION_VARIANTS,
@@ -44,7 +35,7 @@ def blur_samples(run: Path) -> int:
         return TargetConfig().blur_samples
 
 
-def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
+def trained_on(cfg: plan.BenchmarkConfig) -> dict[str, str]:
     """variant -> what its runs trained on, counted from the datasets (values differing by scene joined by /).
 
     Spike methods see every step's pose, ``nerf-gt`` the stored GT renders, ``nerf-blur`` the blur views,
@@ -58,7 +49,7 @@ def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
         elif v in ("nerf-blur", "nerf-blur-aware"):
             texts = {f"{c['blur']} blur views" for c in counts}
             if v == "nerf-blur-aware":
-                samples = {blur_samples(run_dir(cfg, *k)) for k in cell_keys(cfg) if k.variant == v}
+                samples = {blur_samples(plan.run_dir(cfg, *k)) for k in plan.cell_keys(cfg) if k.variant == v}
                 texts = {f"{t} × {'/'.join(map(str, sorted(samples)))} poses" for t in texts}
         else:
             texts = {f"{c['steps']} poses" for c in counts}
@@ -66,10 +57,10 @@ def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
     return out
 
 
-def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
+def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
     """table1.md, table2.md, differences.md, results.csv and results.json (the report: suite.py)."""
-    views, seeds = trained_on(cfg), training_seeds(cfg)
-    t1_variants = [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants
+    views, seeds = trained_on(cfg), plan.training_seeds(cfg)
+    t1_variants = [v for v in cfg.variants if v in plan.TABLE1_VARIANTS] or cfg.variants
     t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
     note = (
         f"{seed_note(seeds)} Test views: {cfg.test_views} per scene; 'trained on' counted from the datasets."
@@ -86,17 +77,17 @@ def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> N
     config = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
     results = {
         "config": config,
-        "environment": environment(),
+        "environment": plan.environment(),
         "cells": [asdict(c) for c in cells],
         "trained_on": views,
         "differences": [asdict(d) for d in diffs],
         "commands": {
-            "datasets": {s: dataset_command(cfg, s)[2:] for s in cfg.scenes},
+            "datasets": {s: plan.dataset_command(cfg, s)[2:] for s in cfg.scenes},
             "cells": {
                 "/".join(map(str, k[:3])) + ("" if k.seed == cfg.seed else f"/seed{k.seed}"): [
-                    cmd[2:] for cmd in cell_commands(cfg, *k)
+                    cmd[2:] for cmd in plan.cell_commands(cfg, *k)
                 ]
-                for k in cell_keys(cfg)
+                for k in plan.cell_keys(cfg)
             },
             "this_run": log,
         },

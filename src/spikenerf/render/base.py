@@ -36,6 +36,7 @@ class RadianceModel(nn.Module):
 
     @property
     def scene_box(self) -> Tensor:
+        """The field's world bounds (2, 3): ``[min, max]``."""
         return self.field.scene_box
 
     @property
@@ -45,6 +46,7 @@ class RadianceModel(nn.Module):
     def forward(
         self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, perturb: bool
     ) -> RenderOutput:
+        """:meth:`render_rays`: origins (N, 3), unit dirs (N, 3), near/far (N,) → per-ray output."""
         return self.render_rays(origins, dirs, near, far, perturb)
 
     def render_rays(
@@ -74,7 +76,7 @@ class RadianceModel(nn.Module):
         return self.field.param_groups(base_lr)
 
     def regularization(self) -> Tensor:
-        """A scalar prior to add to the loss (already weighted; zero unless the config enables one)."""
+        """A scalar () prior to add to the loss (already weighted; zero unless the config enables one)."""
         return self.field.regularization()
 
     def hparams(self) -> dict[str, Any]:

@@ -101,7 +101,7 @@ def render_spike_window(
 def random_start(
     shape: tuple[int, ...], threshold: float, seed: int, device: torch.device | str = "cpu"
 ) -> Tensor:
-    """A seeded start accumulator, uniform in [0, φ)."""
+    """A seeded start accumulator of ``shape`` (e.g. (H, W, C)), uniform in [0, φ)."""
     gen = torch.Generator().manual_seed(seed)
     return (torch.rand(shape, generator=gen) * threshold).to(device)
 
@@ -117,12 +117,10 @@ def iter_spike_stream(
     near: float | None = None,
     far: float | None = None,
 ) -> Iterator[Tensor]:
-    """Yield the spikes of each step of ``poses`` (T, 4, 4), one full render per step.
+    """Yield the spikes of each step of ``poses`` (T, 4, 4), one full render per step: bool on the CPU in
+    the camera layout (:mod:`spikenerf.camera.layout`), (H, W) gray or (3, H, W) rgb.
 
-    Shape:
-        Each step: bool on the CPU in the camera layout (:mod:`spikenerf.camera.layout`): (H, W) gray,
-        (3, H, W) rgb. ``start_accumulator``: the same layout, or an int seed for a uniform [0, φ) start
-        (None → seed 0).
+    ``start_accumulator``: the same layout, or an int seed for a uniform [0, φ) start (None → seed 0).
     """
     h, w, c = intrinsics.height, intrinsics.width, model.channels
     if start_accumulator is None or isinstance(start_accumulator, int):
@@ -146,10 +144,9 @@ def render_spike_stream(
     near: float | None = None,
     far: float | None = None,
 ) -> Tensor:
-    """Novel-view spike stream for any trajectory, bool on the CPU.
+    """Novel-view spike stream for any trajectory: bool on the CPU, (T, H, W) gray or (T, 3, H, W) rgb (the
+    camera layout, see :func:`iter_spike_stream`).
 
-    Shape:
-        (T, H, W) gray or (T, 3, H, W) rgb, the camera layout (see :func:`iter_spike_stream`).
     For long streams prefer :func:`iter_spike_stream` and write each step as it comes.
     """
     h, w, c = intrinsics.height, intrinsics.width, model.channels
