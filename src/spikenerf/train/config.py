@@ -199,11 +199,8 @@ def check_types(config: Any, prefix: str = "", path: str | Path | None = None) -
         if dataclasses.is_dataclass(value):
             check_types(value, f"{name}.", path)
         elif not _matches(value, hints[f.name]):
-            raise InputError(
-                f"{name} must be {_describe(hints[f.name])}, found {value!r}",
-                path=path,
-                param=None if path is not None else name,  # a file's key is named as it is
-            )
+            # no param=: a wrong type comes from a file or --set, where the user wrote the key itself
+            raise InputError(f"{name} must be {_describe(hints[f.name])}, found {value!r}", path=path)
 
 
 def _matches(value: Any, hint: Any) -> bool:
