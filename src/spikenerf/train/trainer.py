@@ -2,8 +2,8 @@
 
 The method (:mod:`spikenerf.train.methods`) builds the targets and returns each step's named loss terms
 (``recon``, ``reg`` and, for spike-nerf once λ(it) > 0, ``spike``); the trainer sums them, steps the
-optimiser, logs the terms and checkpoints. A run interrupted at any point resumes from ``RUN/checkpoint.pt`` to the same
-parameters as an uninterrupted one.
+optimiser, logs the terms and checkpoints. A run interrupted at any point resumes from ``RUN/checkpoint.pt``
+to the same parameters as an uninterrupted one.
 """
 
 from __future__ import annotations
