@@ -249,9 +249,7 @@ class SpikeNeRF(NerfRecon):
 
     def lam(self, iteration: int) -> float:
         s = self.config.spike
-        return (
-            spike_weight(iteration, s.lam, *s.schedule(self.config.iters)) if self.spikes is not None else 0.0
-        )
+        return spike_weight(iteration, s.lam, *s.schedule(self.config.iters)) if self.uses_spike_loss else 0.0
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
         step = super().losses(state, iteration)
