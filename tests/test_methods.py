@@ -84,3 +84,25 @@ def test_variant_command_trains_its_config(name: str, tmp_path: Path, monkeypatc
     if name.endswith("learned"):
         assert want.targets.recon == "learned"
     assert make_method(want).uses_mask == (name != "spike-nerf-no-mask" and want.method == "spike-nerf")
+
+
+def test_trained_on_follows_each_variants_method(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.pipelines import results
+    from spikenerf.pipelines.cells import run_dir
+    from spikenerf.train.config import save_config
+
+    monkeypatch.setattr(results, "view_counts", lambda root: {"steps": 40, "gt": 4, "blur": 10})
+    (tmp_path / "datasets" / "s").mkdir(parents=True)
+    names = ["nerf-gt", "nerf-blur", "nerf-blur-aware", "spike-nerf-no-mask", "nerf-recon-learned"]
+    cfg = BenchmarkConfig(["s"], names, ["gray"], tmp_path)
+    aware = VARIANTS["nerf-blur-aware"].config()
+    aware.targets.blur_samples = 3  # a finished cell's config.yaml is read; the others use the defaults
+    run_dir(cfg, "s", "gray", "nerf-blur-aware").mkdir(parents=True)
+    save_config(aware, run_dir(cfg, "s", "gray", "nerf-blur-aware") / "config.yaml")
+    assert results.trained_on(cfg) == {
+        "nerf-gt": "4 GT views",
+        "nerf-blur": "10 blur views",
+        "nerf-blur-aware": "10 blur views × 3 poses",
+        "spike-nerf-no-mask": "40 poses",
+        "nerf-recon-learned": "40 poses",
+    }
