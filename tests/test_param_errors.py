@@ -17,7 +17,7 @@ from spikenerf.train.config import TrainConfig
 SRC = Path(__file__).resolve().parents[1] / "src" / "spikenerf"
 FLAG = re.compile(r"(^|[\s(/`'\"])--[a-z]")
 #: flags still named below the CLI, in code that another change owns (remove an entry when it is fixed)
-KNOWN = {"train/trainer.py", "data/targets.py:build_image_targets"}
+KNOWN = {"train/trainer.py"}
 
 
 def test_a_lower_layer_error_names_the_parameter() -> None:
