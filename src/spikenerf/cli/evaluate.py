@@ -30,7 +30,9 @@ import click
     "--noref-steps", type=int, default=8, show_default=True,
     help="Check steps along the path when the dataset has no imported test keyframes.",
 )  # fmt: skip
-@click.option("--spike-window", type=int, help="Steps per violation window [default: the run's spike window].")
+@click.option(
+    "--spike-window", type=int, help="Steps per violation window [default: the run's spike window]."
+)
 @click.option(
     "--spike-pixels", type=int, default=4096, show_default=True,
     help="Pixels sampled per check step for the violation rate (0 = all).",

@@ -97,7 +97,7 @@ def evaluate_run(
     progress: bool = True,
     log: Callable[[str], None] | None = None,
     noref: str = "auto",
-    noref_options: NoRefOptions = NoRefOptions(),
+    noref_options: NoRefOptions | None = None,
 ) -> dict[str, Any]:
     """Render every view of ``split``, score it and write ``RUN/metrics.json`` atomically.
 
@@ -113,6 +113,7 @@ def evaluate_run(
         The metrics.json content (see docs/formats.md): split, method, color, field, iterations, views,
         mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, no_reference, seconds.
     """
+    noref_options = NoRefOptions() if noref_options is None else noref_options
     noref_options.check()
     with output_lock(run_dir, "RUN"):
         return _evaluate_locked(

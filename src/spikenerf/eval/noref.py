@@ -99,7 +99,9 @@ def _sample_pixels(height: int, width: int, count: int, seed: int) -> torch.Tens
     """(P, 2) int64 ``(x, y)``: all pixels when ``count`` is 0 or covers the image, else a seeded sample."""
     total = height * width
     gen = torch.Generator().manual_seed(seed)
-    idx = torch.arange(total) if count == 0 or count >= total else torch.randperm(total, generator=gen)[:count]
+    idx = (
+        torch.arange(total) if count == 0 or count >= total else torch.randperm(total, generator=gen)[:count]
+    )
     return torch.stack([idx % width, idx // width], dim=1)
 
 
@@ -146,7 +148,10 @@ def score_step(
     pred, target = display(out.color, model.channels), display(recon, model.channels)
     m = mask.permute(2, 0, 1).expand_as(pred)
     side = min(pred.shape[-2:]) >= SSIMConfig().window
-    row: dict[str, Any] = {"step": int(dataset.trajectory.steps[step]), "mask_fraction": float(m.double().mean())}
+    row: dict[str, Any] = {
+        "step": int(dataset.trajectory.steps[step]),
+        "mask_fraction": float(m.double().mean()),
+    }
     row["masked_psnr"] = _finite(float(psnr(pred, target, mask=m)))
     row["masked_ssim"] = _finite(float(ssim(pred, target, mask=m))) if side else None
     recorded = channels_last(raw[start - lo : start - lo + length])[:, pixels[:, 1], pixels[:, 0]].float()
@@ -190,7 +195,8 @@ def noref_metrics(
     return {
         "steps_from": source,
         "steps_trained_on": True,
-        "target": f"{t.recon} (window {t.window}), masked where a spike fell in steps k-{t.mask_n}..k+{t.mask_n}",
+        "target": f"{t.recon} (window {t.window})",
+        "mask": f"a spike in steps k-{t.mask_n}..k+{t.mask_n}",
         "spike_window": length,
         "spike_pixels": len(_sample_pixels(k.height, k.width, options.spike_pixels, 0)),
         "mean": mean,
