@@ -128,15 +128,11 @@ def test_noref_defaults_and_steps_of_simulated_data(demo: Path) -> None:
     ],
 )
 def test_bad_noref_flags_exit_2(demo: Path, capsys, args: list, message: str) -> None:
-    before = (
-        (demo / "run" / "metrics.json").stat().st_mtime_ns if (demo / "run" / "metrics.json").exists() else 0
-    )
+    metrics = demo / "run" / "metrics.json"
+    before = metrics.stat().st_mtime_ns if metrics.exists() else 0
     code, _, err = run_cli(capsys, "eval", demo / "run", "--lpips", "none", "--quiet", *args)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
-    after = (
-        (demo / "run" / "metrics.json").stat().st_mtime_ns if (demo / "run" / "metrics.json").exists() else 0
-    )
-    assert before == after  # nothing rewritten
+    assert (metrics.stat().st_mtime_ns if metrics.exists() else 0) == before  # nothing rewritten
 
 
 @pytest.mark.parametrize(
