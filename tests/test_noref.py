@@ -148,3 +148,17 @@ def test_bad_raw_width_exits_2_before_anything_is_written(tmp_path: Path, capsys
     code, _, err = run_cli(capsys, *base, *args, "--out", tmp_path / "sim")
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_learned_reconstructor_is_the_target_of_a_run_that_trained_on_it(demo: Path) -> None:
+    model, config, dataset = load_run(demo / "run")
+    opts = NoRefOptions(spike_pixels=16)
+    learned = dataclasses.replace(
+        config, targets=dataclasses.replace(config.targets, recon="learned", window=41)
+    )
+    tfp41 = dataclasses.replace(config, targets=dataclasses.replace(config.targets, window=41))
+    a = noref_metrics(model, learned, dataset, opts, 8192, display)
+    b = noref_metrics(model, tfp41, dataset, opts, 8192, display)
+    assert a["target"] == "learned (window 41)" and b["target"] == "tfp (window 41)"
+    assert 10 < a["mean"]["masked_psnr"] < 60 and a["mean"]["masked_psnr"] != b["mean"]["masked_psnr"]
+    assert a["mean"]["interval_violation_rate"] == b["mean"]["interval_violation_rate"]  # the model's, same

@@ -140,9 +140,10 @@ def score_step(
     half = t.window // 2
     start = window_start(step, length, total)
     lo, hi = max(0, min(step - half, start)), min(total, max(step + half + 1, start + length))
+    lo, hi = max(0, min(lo, hi - t.window)), min(total, max(hi, lo + t.window))  # a whole window (learned)
     raw = dataset.spikes(stream_mode(config.color), frames=slice(lo, hi))
     i = step - lo
-    recon = channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold)[i : i + 1])[0]
+    recon = channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
     mask = channels_last(spike_masks(raw, n=t.mask_n, frames=slice(i, i + 1)))[0]
     out = render_image(model, dataset.trajectory.poses[step], dataset.intrinsics, dataset.near, dataset.far)
     pred, target = display(out.color, model.channels), display(recon, model.channels)
