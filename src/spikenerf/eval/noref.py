@@ -182,7 +182,7 @@ def noref_metrics(
     length = min(options.spike_window or config.spike.window, total)
     steps, source = check_steps(dataset, options.steps)
     k = dataset.intrinsics
-    rows = []
+    rows, pixels = [], torch.zeros(0, 2)
     with torch.no_grad():
         for i, step in enumerate(progress(steps)):
             pixels = _sample_pixels(k.height, k.width, options.spike_pixels, options.seed + i)
@@ -199,7 +199,7 @@ def noref_metrics(
         "target": f"{t.recon} (window {t.window})",
         "mask": f"a spike in steps k-{t.mask_n}..k+{t.mask_n}",
         "spike_window": length,
-        "spike_pixels": len(_sample_pixels(k.height, k.width, options.spike_pixels, 0)),
+        "spike_pixels": len(pixels),
         "mean": mean,
         "per_step": rows,
         "image_score": None,
