@@ -25,7 +25,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.data.dataset import PosedImages, SpikeDataset
 from spikenerf.eval import lpips as lp
-from spikenerf.eval.metrics import SSIMConfig, psnr, ssim
+from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_image
 from spikenerf.train.run import load_run, run_iteration
@@ -58,11 +58,6 @@ def display(linear: torch.Tensor | np.ndarray, channels: int) -> torch.Tensor:
 
 def _finite(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
-
-
-def _mean(values: list[float | None]) -> float | None:
-    vals = [v for v in values if v is not None]
-    return float(np.mean(vals)) if vals and len(vals) == len(values) else None
 
 
 def score_view(
@@ -147,7 +142,7 @@ def _evaluate_locked(
         "field": config.field,
         "iterations": run_iteration(run_dir),
         "views": len(per_view),
-        "mean": {m: _mean([v[m] for v in per_view]) for m in ("psnr", "ssim", "lpips")},
+        "mean": {m: mean_or_none([v[m] for v in per_view]) for m in ("psnr", "ssim", "lpips")},
         "per_view": per_view,
         "lpips_backbone": backbone,
         "lpips_reason": reason,

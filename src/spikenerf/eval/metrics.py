@@ -38,6 +38,12 @@ def _batched(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tens
     return a, b, False
 
 
+def mean_or_none(values: list[float | None]) -> float | None:
+    """The plain mean of per-view values, or None when there are none or any of them is None."""
+    vals = [v for v in values if v is not None]
+    return float(sum(vals) / len(vals)) if vals and len(vals) == len(values) else None
+
+
 def masked_mean(x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
     """Mean over all but the first axis of x (N, ...), counting only where ``mask`` (same shape, bool) is
     set; no mask = the plain mean. An image with an empty mask gives NaN. Returns (N,) float64."""

@@ -31,7 +31,7 @@ from spikenerf.camera.masks import spike_masks
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.targets import channels_last, reconstruct_stream, stream_mode
-from spikenerf.eval.metrics import SSIMConfig, psnr, ssim
+from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.render import RadianceModel, render_image, render_spike_window
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import spike_interval_violation
@@ -187,11 +187,7 @@ def noref_metrics(
         for i, step in enumerate(progress(steps)):
             pixels = _sample_pixels(k.height, k.width, options.spike_pixels, options.seed + i)
             rows.append(score_step(model, config, dataset, int(step), length, pixels, chunk, display))
-    keys = [key for key in rows[0] if key != "step"]
-    mean = {}
-    for key in keys:
-        vals = [r[key] for r in rows]
-        mean[key] = None if any(v is None for v in vals) else float(np.mean(vals))
+    mean = {key: mean_or_none([r[key] for r in rows]) for key in rows[0] if key != "step"}
     t = config.targets
     return {
         "steps_from": source,
