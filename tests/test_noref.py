@@ -75,6 +75,8 @@ def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path
     assert 0 < m["mask_fraction"] <= 1 and 10 < m["masked_psnr"] < 60 and 0 < m["masked_ssim"] <= 1
     for key in ("interval_violation_rate", "recon_interval_violation_rate"):
         assert 0 <= m[key] <= 1
+    code, out, _ = run_cli(capsys, "info", run)
+    assert code == 0 and f"no-reference: mask_fraction {m['mask_fraction']:.4g}   masked_psnr" in out
     code, out, err = run_cli(capsys, "eval", run, "--device", "cpu", "--lpips", "none", "--noref", "off",
                              "--quiet")  # fmt: skip
     assert code == 0 and "no-reference" not in out
