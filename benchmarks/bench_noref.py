@@ -3,10 +3,11 @@
 Run: ``.venv/bin/python -m benchmarks.bench_noref --out /tmp/bench-noref`` (resumable: finished steps in
 ``--out`` are reused). ``simulate --noise realistic --raw-width W+16`` writes a raw recording with a SpikeCV
 ``config.yaml`` and no poses; it is imported twice with ``--poses orbit``: with the true orbit (the reference)
-and with a wrong elevation (``--wrong-elevation``, a misregistered trajectory). ``nerf-recon``/``spike-nerf``
+and with a wrong elevation (``--wrong-elevation``, a misregistered trajectory). ``--method`` (spike-nerf)
 trains on each for the same iterations, then ``spikenerf eval`` reports the no-reference checks at the same
 check steps (the imported test keyframes). Printed: each metric's mean ± std over the check steps for both,
-and the ratio wrong / true.
+the ratio wrong / true, and the paired difference over the check steps with its 95% t interval (one training
+run per pose set: the interval covers the check steps, not training seeds).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 FOV_DEG = 39.5978  # the analytic scenes' horizontal field of view
 METRICS = ("masked_psnr", "masked_ssim", "interval_violation_rate", "interval_violation_mean")
@@ -63,11 +65,16 @@ def main() -> None:
         rows[name] = json.loads((run / "metrics.json").read_text())["no_reference"]
     print(f"\n{a.scene} {a.width}×{a.height}, {a.frames} steps, {a.method} {a.iters} it; check steps "
           f"{[r['step'] for r in rows['true']['per_step']]}; mean ± std over them")  # fmt: skip
-    print("| metric | true orbit | wrong elevation | ratio wrong/true |\n|---|---:|---:|---:|")
+    print("| metric | true orbit | wrong elevation | ratio wrong/true | paired wrong − true, 95% CI |")
+    print("|---|---:|---:|---:|---:|")
     for key in METRICS:
         vals = {n: np.array([r[key] for r in rows[n]["per_step"]], dtype=float) for n in rows}
         cells = [f"{v.mean():.4f} ± {v.std(ddof=1) if len(v) > 1 else 0:.4f}" for v in vals.values()]
-        print(f"| {key} | {cells[0]} | {cells[1]} | {vals['wrong'].mean() / vals['true'].mean():.3f} |")
+        diff = vals["wrong"] - vals["true"]  # the same check steps in both
+        half = stats.t.ppf(0.975, len(diff) - 1) * diff.std(ddof=1) / np.sqrt(len(diff))
+        ci = f"{diff.mean():+.4f} [{diff.mean() - half:+.4f}, {diff.mean() + half:+.4f}]"
+        ratio = vals["wrong"].mean() / vals["true"].mean()
+        print(f"| {key} | {cells[0]} | {cells[1]} | {ratio:.3f} | {ci} |")
 
 
 if __name__ == "__main__":
