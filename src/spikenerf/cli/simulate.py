@@ -96,6 +96,12 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     "'all' = one exposure centred on every step (the paper's baseline, 1000 views), or N evenly spaced "
     "centres; 'all' and N are stored as one float16 array blur/views.npy.",
 )  # fmt: skip
+@click.option(
+    "--raw-width", type=int,
+    help="Also write the gray stream as a camera would record it: DATASET/raw/recording.dat with this many "
+    "columns per row (416 for a 400-wide raw sps10 file; the extra ones zero) and a SpikeCV config.yaml, "
+    "no poses (try `spikenerf import` on it, docs/real-data.md).",
+)  # fmt: skip
 @click.option("--list-scenes", is_flag=True, help="List the named scenes and exit.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--no-progress", is_flag=True, help="Hide the progress bars.")
@@ -139,6 +145,7 @@ def command(**kw: Any) -> None:
         overwrite=bool(kw["overwrite"]),
         command=command_line(),
         extra=extra,
+        raw_width=kw["raw_width"],
     )
     out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"])
     k = source.intrinsics

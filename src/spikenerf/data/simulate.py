@@ -29,7 +29,8 @@ from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_output, folder_kind, mark
 from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
-from spikenerf.data.dataset import MODES, near_far
+from spikenerf.data.dataset import MODES, near_far, spike_files
+from spikenerf.data.recording import RAW_DIR, check_raw_width, write_raw_recording
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.base import FrameSource
 from spikenerf.scenes.trajectory import Trajectory, pose_at
@@ -53,6 +54,8 @@ class SimulateOptions:
             on every step, the paper's) or N evenly spaced centres (both stored in ``blur/views.npy``).
         overwrite: replace an existing ``out``. command: recorded in ``config.yaml``.
         extra: more entries for ``config.yaml`` (e.g. the trajectory parameters).
+        raw_width: also write the gray stream as a raw recording with this row width, no poses
+            (``raw/``, data/recording.py); None: not.
     """
 
     colors: tuple[str, ...] = ("gray",)
@@ -66,6 +69,7 @@ class SimulateOptions:
     overwrite: bool = False
     command: str = ""
     extra: dict = field(default_factory=dict)
+    raw_width: int | None = None
 
 
 def work_dir(out: Path) -> Path:
@@ -214,6 +218,10 @@ def check_options(options: SimulateOptions) -> None:
             f"blur_fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}", param="blur_fps"
         )
     parse_blur_views(options.blur_views)
+    if options.raw_width is not None and "gray" not in options.colors:
+        raise InputError(
+            "--raw-width writes the gray stream as a raw recording: it needs --color gray or all"
+        )
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
 
@@ -336,6 +344,7 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
     """
     out = Path(out)
     check_options(options)
+    check_raw_width(options.raw_width, source.intrinsics.height, source.intrinsics.width)
     check_output(out, "dataset", overwrite=options.overwrite)
     with output_lock(out):
         recover_replaced(out)
@@ -369,6 +378,10 @@ def _simulate_locked(source: FrameSource, out: Path, options: SimulateOptions, p
         writer.add_test(image, pose)
     config = dataset_config(source, options, len(test_poses))
     writer.finish(traj, config, options.blur_fps if windows else None)
+    if options.raw_width is not None:
+        write_raw_recording(
+            work / spike_files("gray")[0], k.height, k.width, traj.fps, work / RAW_DIR, options.raw_width
+        )
     mark(work, "dataset")
     failpoint("simulate.publish")
     shutil.rmtree(cache)

@@ -88,20 +88,24 @@ class SpikeTargets:
 
 
 def reconstruct_stream(
-    spikes: np.ndarray, recon: str = "tfp", window: int = 41, threshold: float = 1.0
+    spikes: np.ndarray,
+    recon: str = "tfp",
+    window: int = 41,
+    threshold: float = 1.0,
+    frames: slice | None = None,
 ) -> np.ndarray:
-    """Î of every step: TFP (``window`` frames, odd), TFI or the shipped learned reconstructor (its trained
-    window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb stream → float32 linear."""
+    """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI or the shipped learned
+    reconstructor (its trained window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb
+    stream → float32 linear (N, ...)."""
     if recon == "learned":
         from spikenerf.recon.infer import reconstruct_learned
 
-        return reconstruct_learned(
-            spikes, "rgb" if np.ndim(spikes) == 4 else "gray", threshold, window=window
-        )
+        mode = "rgb" if np.ndim(spikes) == 4 else "gray"
+        return reconstruct_learned(spikes, mode, threshold, frames=frames, window=window)
     if recon == "tfp":
-        return tfp(spikes, window=window, threshold=threshold)
+        return tfp(spikes, window=window, threshold=threshold, frames=frames)
     if recon == "tfi":
-        return tfi(spikes, threshold=threshold)
+        return tfi(spikes, threshold=threshold, frames=frames)
     raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
 
 

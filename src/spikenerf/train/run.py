@@ -100,6 +100,15 @@ def describe_run(run_dir: str | Path) -> str:
             f"train PSNR {last['train_psnr']:.2f} dB, test PSNR {last['test_psnr']:.2f} dB"
         )
     if (run_dir / "metrics.json").exists():
-        mean = json.loads((run_dir / "metrics.json").read_text()).get("mean", {})
-        lines.append("metrics.json: " + "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None))
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        for label, mean in (("metrics.json", metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
+            if mean:
+                values = "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None)
+                lines.append(f"{label}: {values}")
     return "\n".join(lines)
+
+
+def _noref_mean(metrics: dict) -> dict | None:
+    """The means of metrics.json's no-reference checks (docs/metrics.md), if eval ran them."""
+    section = metrics.get("no_reference")
+    return section.get("mean") if isinstance(section, dict) else None
