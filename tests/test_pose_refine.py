@@ -198,7 +198,7 @@ def test_bad_input_is_one_line_exit_2(
         source, tmp_path / "one", SimulateOptions(colors=("gray",), gt_every=1), progress=False
     )
     cases = [
-        ((one, "--method", "nerf-gt", "--refine-poses"), "at least 2 keyframes"),
+        ((one, "--method", "nerf-gt", "--refine-poses"), "--refine-poses needs at least 2 keyframes"),
         ((data_dir, "--method", "nerf-gt", "--set", "poses.lr=-1"), "poses.lr must be"),
         ((data_dir, "--method", "nerf-gt", "--set", "poses.keyframe_every=0"), "poses.keyframe_every"),
     ]

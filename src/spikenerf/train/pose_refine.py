@@ -52,13 +52,20 @@ class PoseRefineConfig:
     def check(self) -> None:
         """InputError on an out-of-range value (names the config key)."""
         if not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"poses.lr must be a finite number > 0, found {self.lr}")
+            raise InputError(f"poses.lr must be a finite number > 0, found {self.lr}", param="poses.lr")
         if not (math.isfinite(self.lr_final_ratio) and 0 < self.lr_final_ratio <= 1):
-            raise InputError(f"poses.lr_final_ratio must be in (0, 1], found {self.lr_final_ratio}")
+            raise InputError(
+                f"poses.lr_final_ratio must be in (0, 1], found {self.lr_final_ratio}",
+                param="poses.lr_final_ratio",
+            )
         if self.warmup_iters is not None and self.warmup_iters < 0:
-            raise InputError(f"poses.warmup_iters must be ≥ 0, found {self.warmup_iters}")
+            raise InputError(
+                f"poses.warmup_iters must be ≥ 0, found {self.warmup_iters}", param="poses.warmup_iters"
+            )
         if self.keyframe_every < 1:
-            raise InputError(f"poses.keyframe_every must be ≥ 1, found {self.keyframe_every}")
+            raise InputError(
+                f"poses.keyframe_every must be ≥ 1, found {self.keyframe_every}", param="poses.keyframe_every"
+            )
 
 
 def so3_exp(omega: Tensor) -> Tensor:
@@ -90,7 +97,9 @@ def keyframes_of(dataset: Any, every: int) -> np.ndarray:
     left out), else every ``every`` steps of the trajectory plus its last step."""
     steps = np.asarray(dataset.trajectory.steps, np.int64)
     info = (dataset.config or {}).get("imported")
-    if info:  # the steps that had poses; older imports, or dense ones (an orbit): the importer's keyframe rule
+    if (
+        info
+    ):  # the steps that had poses; older imports, or dense ones (an orbit): the importer's keyframe rule
         rule = keyframe_steps(len(steps), int(info["keyframe_every"]), int(info["window"]))
         keys = info.get("pose_steps")
         keys = rule if keys is None or len(keys) > len(rule) else keys
@@ -100,9 +109,10 @@ def keyframes_of(dataset: Any, every: int) -> np.ndarray:
     keys = keys[np.isin(keys, steps)]
     if len(keys) < 2:
         raise InputError(
-            f"--refine-poses needs at least 2 keyframes on the trajectory, the dataset gives {len(keys)} "
+            f"poses.refine needs at least 2 keyframes on the trajectory, the dataset gives {len(keys)} "
             f"({len(steps)} steps)",
             path=getattr(dataset, "root", None),
+            param="poses.refine",
         )
     return keys
 
@@ -219,7 +229,10 @@ def pose_refinement(
         return None
     steps = targets.steps if targets.pose_steps is None else targets.pose_steps
     if bool((steps < 0).any()):
-        raise InputError(f"--refine-poses: the {config.method} targets have no spike steps to refine at")
+        raise InputError(
+            f"poses.refine: the {config.method} targets have no spike steps to refine at",
+            param="poses.refine",
+        )
     warmup = cfg.warmup_iters
     if warmup is None:
         upsample = getattr(model.config, "upsample_steps", ())
