@@ -111,7 +111,7 @@ def run_colmap(
     threads: int = -1,
     verbose: bool = False,
 ) -> PoseSet:
-    """Estimate the poses of keyframes (N, H, W) linear gray at spike ``steps`` (N,) (:class:`ColmapSettings`).
+    """Estimate the poses of keyframes (N, H, W), linear gray, at spike ``steps`` (N,); see ColmapSettings.
 
     Returns:
         A :class:`PoseSet` of the registered keyframes (steps from their names, a shared camera, points).

@@ -153,7 +153,7 @@ def keyframe_images(
     opts: ImportOptions,
     threshold: float,
 ) -> np.ndarray:
-    """TFP (or learned) images (N, H, W) float32 linear at absolute ``steps``, windows in ``[first, stop)``."""
+    """TFP (or learned) keyframes (N, H, W) float32 linear at absolute ``steps``, windows in [first, stop)."""
     half, (h, w, raw) = opts.window // 2, shape
     if opts.keyframe_images == "learned":
         from spikenerf.recon.infer import learned_reconstructor
