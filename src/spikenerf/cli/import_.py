@@ -73,7 +73,12 @@ from spikenerf.core.errors import InputError
     help="COLMAP SIFT peak (contrast) threshold; lower finds more features in low-contrast keyframes.",
 )
 @click.option("--affine-sift", is_flag=True, help="COLMAP affine-shape SIFT with domain-size pooling.")
-@click.option("--final-ba", is_flag=True, help="A last robust global bundle adjustment of the COLMAP model.")
+@click.option(
+    "--final-ba/--no-final-ba",
+    default=True,
+    show_default=True,
+    help="A last global bundle adjustment of the COLMAP model with a robust (Cauchy) loss.",
+)
 @click.option(
     "--contrast",
     type=float,

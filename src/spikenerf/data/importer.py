@@ -82,7 +82,7 @@ class ImportOptions:
     max_features: int = 8192
     sift_peak: float = 0.02 / 3
     affine_sift: bool = False
-    final_ba: bool = False
+    final_ba: bool = True
     contrast: float = 0.0
     smooth: int = 0
     command: str = ""
