@@ -8,9 +8,13 @@ imported COLMAP models share one reader. The work folder is kept between attempt
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
 import shutil
+import sys
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -199,12 +203,27 @@ def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, cs: ColmapSetti
         return
     best = max(models.values(), key=lambda r: r.num_reg_images())
     if cs.final_ba:
-        _global_ba(pycolmap, best, cs.focal is not None, threads)
+        with contextlib.nullcontext() if verbose else _no_stderr():  # it logs its heading regardless
+            _global_ba(pycolmap, best, cs.focal is not None, threads)
     tmp = work / ".model.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     best.write_text(str(tmp))
     tmp.rename(model)
+
+
+@contextlib.contextmanager
+def _no_stderr() -> Iterator[None]:
+    """Silence file descriptor 2 (C++ logging) for the duration."""
+    sys.stderr.flush()
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
 
 
 def _global_ba(pycolmap: object, model: object, fixed_focal: bool, threads: int) -> None:
