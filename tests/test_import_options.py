@@ -97,3 +97,55 @@ def test_bad_option_values_are_one_line(capsys, recording, tmp_path, flag, value
     code, _, err = run_cli(capsys, "import", recording, "--out", tmp_path / "ds", *ORBIT, flag, value)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "ds").exists()
+
+
+def _synthetic_model(folder: Path, truth: np.ndarray, focal: float, seed: int = 0) -> None:
+    """A COLMAP text model of cameras ``truth`` (N, 4, 4) seeing 300 points, 0.3 px noise, and 10% of the
+    observations pushed 4 px down (wrong matches that pass a 4 px filter, all biased one way)."""
+    from spikenerf.scenes.trajectory import matrix_to_quaternion
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1, 1, (300, 3))
+    folder.mkdir(parents=True)
+    (folder / "cameras.txt").write_text(f"1 SIMPLE_PINHOLE 400 250 {focal} 200 125\n")
+    tracks: list[list[str]] = [[] for _ in points]
+    lines = []
+    for i, pose in enumerate(truth):
+        rot_cv = pose[:3, :3] * np.array([1.0, -1.0, -1.0])
+        w2c_r, w2c_t = rot_cv.T, -rot_cv.T @ pose[:3, 3]
+        cam = points @ w2c_r.T + w2c_t
+        uv = focal * cam[:, :2] / cam[:, 2:] + np.array([200.0, 125.0])
+        uv += rng.normal(0, 0.3, uv.shape) + (rng.random(len(uv)) < 0.1)[:, None] * np.array([0.0, 4.0])
+        lines.append(
+            " ".join(str(v) for v in [i + 1, *matrix_to_quaternion(w2c_r), *w2c_t, 1, f"{i:06d}.png"])
+        )
+        lines.append(" ".join(f"{u} {v} {j + 1}" for j, (u, v) in enumerate(uv)))
+        for j in range(len(points)):
+            tracks[j].append(f"{i + 1} {j}")
+    (folder / "images.txt").write_text("\n".join(lines) + "\n")
+    rows = [
+        f"{j + 1} {p[0]} {p[1]} {p[2]} 128 128 128 1.0 {' '.join(tracks[j])}" for j, p in enumerate(points)
+    ]
+    (folder / "points3D.txt").write_text("\n".join(rows) + "\n")
+
+
+def test_the_robust_final_bundle_adjustment_resists_biased_wrong_matches(tmp_path) -> None:
+    pycolmap = pytest.importorskip("pycolmap")
+    from spikenerf.data.colmap import _global_ba
+    from spikenerf.data.poses import read_colmap_text
+
+    truth = orbit(4.0, 30.0, turns=0.25, duration=12 / 40000, fps=40000).poses
+    _synthetic_model(tmp_path / "in", truth, 555.0)
+    errors = {}
+    for name in ("plain", "robust"):
+        model = pycolmap.Reconstruction(str(tmp_path / "in"))
+        if name == "robust":
+            _global_ba(pycolmap, model, fixed_focal=True, threads=1)
+        else:  # COLMAP's own bundle adjustments: a squared loss
+            options = pycolmap.BundleAdjustmentOptions()
+            options.refine_focal_length = options.print_summary = False
+            pycolmap.bundle_adjustment(model, options)
+        (tmp_path / name).mkdir()
+        model.write_text(str(tmp_path / name))
+        errors[name] = trajectory_errors(read_colmap_text(tmp_path / name).poses, truth)["rot_mean_deg"]
+    assert errors["robust"] < 0.5 * errors["plain"], errors  # measured: 0.07° against 0.24°
