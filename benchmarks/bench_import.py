@@ -28,12 +28,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.data.alignment import per_step_poses, trajectory_errors, umeyama
 from spikenerf.data.dataset import TRANSFORMS_TEST, load_dataset
 from spikenerf.data.importer import keyframe_steps
+from spikenerf.data.recording import RAW_FILE, write_raw_recording
 from spikenerf.scenes.analytic import CAMERA_ANGLE_X
 
 RAW_EXTRA = 16
@@ -76,13 +75,10 @@ def raw_recording(sim: Path, out: Path) -> Path:
     """The simulated stream as a raw 416-column recording + a SpikeCV config.yaml; no poses."""
     ds = load_dataset(sim)
     h, w = ds.intrinsics.height, ds.intrinsics.width
-    rec = out / f"rec-{sim.name[4:]}" / "recording.dat"
+    rec = out / f"rec-{sim.name[4:]}" / RAW_FILE
     if not rec.exists():
-        spikes = read_dat(sim / "spikes_gray.dat", h, w)
-        padded = np.concatenate([spikes, np.zeros((len(spikes), h, RAW_EXTRA), np.uint8)], axis=2)
-        write_dat(rec, padded)
-        config = {"spike_h": h, "spike_w": w, "raw_width": w + RAW_EXTRA, "fps": float(ds.trajectory.fps)}
-        (rec.parent / "config.yaml").write_text(yaml.safe_dump(config))
+        fps = float(ds.trajectory.fps)
+        write_raw_recording(sim / "spikes_gray.dat", h, w, fps, rec.parent, w + RAW_EXTRA)
     return rec
 
 

@@ -11,6 +11,9 @@ import click
 from spikenerf.cli import command_line
 from spikenerf.core.errors import InputError
 
+#: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
+PARAM_FLAGS = {"fov_deg": "--fov"}
+
 
 @click.command(
     help="Import a raw .dat spike recording (SpikeCV config.yaml beside it) into a dataset folder."

@@ -42,21 +42,11 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
 
 _D = TrainConfig()
 #: TrainConfig key → its flag: errors raised below the CLI name the key, the CLI shows the flag
-FLAGS = {
+#: (``spikenerf.cli.flag_of``)
+PARAM_FLAGS = {
     f"{section}.{key}" if section else key: "--" + ("lambda" if name == "lam" else name.replace("_", "-"))
     for name, (section, key) in OPTION_FIELDS.items()
 }
-
-
-def validated(config: TrainConfig) -> TrainConfig:
-    """``config.validate()``, with the config key that starts an error message replaced by its flag."""
-    try:
-        return config.validate()
-    except InputError as err:
-        key, _, rest = str(err).partition(" ")
-        if err.path is None and key in FLAGS:
-            raise InputError(f"{FLAGS[key]} {rest}") from None
-        raise
 
 
 @click.command(
@@ -203,7 +193,7 @@ def command(
     if not dataset.is_dir():
         raise InputError("dataset folder not found", path=dataset)
     base.dataset = str(dataset.resolve())
-    summary = train(validated(base), out, resume=resume, progress=not quiet)
+    summary = train(base.validate(), out, resume=resume, progress=not quiet)
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
     click.echo(
         f"trained {summary.iteration} iterations in {summary.seconds:.1f} s "

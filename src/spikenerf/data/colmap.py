@@ -242,5 +242,6 @@ def _too_few(registered: int, total: int, keyframe_every: int | None) -> InputEr
     hint = f" (now {keyframe_every})" if keyframe_every else ""
     return InputError(
         f"COLMAP registered {registered} of {total} keyframes, too few for a trajectory; try a smaller "
-        f"--keyframe-every{hint} so that neighbouring keyframes overlap more, or give --poses FILE"
+        f"keyframe_every{hint} so that neighbouring keyframes overlap more, or give poses FILE",
+        param=("keyframe_every", "poses"),
     )

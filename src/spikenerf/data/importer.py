@@ -91,29 +91,39 @@ class ImportOptions:
 def _check(options: ImportOptions) -> None:
     for name in ("keyframe_every", "window", "overlap"):
         if getattr(options, name) < 1:
-            raise InputError(f"--{name.replace('_', '-')} must be ≥ 1, found {getattr(options, name)}")
+            raise InputError(f"{name} must be ≥ 1, found {getattr(options, name)}", param=name)
     if options.window % 2 == 0:
-        raise InputError(f"--window must be odd, found {options.window}")
+        raise InputError(f"window must be odd, found {options.window}", param="window")
     if not 0 <= options.min_registered <= 1:
-        raise InputError(f"--min-registered must be in [0, 1], found {options.min_registered}")
+        raise InputError(
+            f"min_registered must be in [0, 1], found {options.min_registered}", param="min_registered"
+        )
     if options.keyframe_images not in ("tfp", "learned"):
-        raise InputError(f"--keyframe-images must be tfp or learned, found {options.keyframe_images!r}")
+        raise InputError(
+            f"keyframe_images must be tfp or learned, found {options.keyframe_images!r}",
+            param="keyframe_images",
+        )
     if options.max_features < 64:
-        raise InputError(f"--max-features must be ≥ 64, found {options.max_features}")
+        raise InputError(f"max_features must be ≥ 64, found {options.max_features}", param="max_features")
     for name in ("sift_peak", "contrast", "smooth"):
         value = getattr(options, name)
         if not (math.isfinite(value) and value >= 0):
-            raise InputError(f"--{name.replace('_', '-')} must be a finite number ≥ 0, found {value}")
+            raise InputError(f"{name} must be a finite number ≥ 0, found {value}", param=name)
     if options.test_every < 0:
-        raise InputError(f"--test-every must be ≥ 0 (0 = no test views), found {options.test_every}")
+        raise InputError(
+            f"test_every must be ≥ 0 (0 = no test views), found {options.test_every}", param="test_every"
+        )
     if options.fov_deg is not None and not 0 < options.fov_deg < 180:
-        raise InputError(f"--fov must be in (0, 180) degrees, found {options.fov_deg}")
+        raise InputError(f"fov_deg must be in (0, 180) degrees, found {options.fov_deg}", param="fov_deg")
     for name in ("fps", "threshold"):
         value = getattr(options, name)
         if value is not None and not (math.isfinite(value) and value > 0):
-            raise InputError(f"--{name} must be a finite number > 0, found {value}")
+            raise InputError(f"{name} must be a finite number > 0, found {value}", param=name)
     if (options.poses == "orbit") != (options.orbit is not None):
-        raise InputError("--orbit R,ELEV[,TURNS[,AZIMUTH]] goes with --poses orbit (and only with it)")
+        raise InputError(
+            "orbit R,ELEV[,TURNS[,AZIMUTH]] goes with poses orbit (and only with it)",
+            param=("orbit", "poses"),
+        )
 
 
 def count_steps(dat: Path, height: int, width: int, raw_width: int | None) -> int:
@@ -124,7 +134,9 @@ def count_steps(dat: Path, height: int, width: int, raw_width: int | None) -> in
         size = dat.stat().st_size if dat.is_file() else 0
         raw = width + 16
         if raw_width is None and size and (height * raw) % 8 == 0 and size % frame_bytes(height, raw) == 0:
-            raise InputError(f"{err} — a raw sps10 file? pass --raw-width {raw}") from None
+            raise InputError(
+                f"{err} — a raw sps10 file? pass raw_width {raw}", param=(*err.params, "raw_width")
+            ) from None
         raise
 
 
@@ -220,8 +232,9 @@ def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> Non
     if hi - lo + 1 < n / 2:
         raise InputError(
             f"{where} cover only {hi - lo + 1} of the {n} selected steps: are the frame numbers spike "
-            "steps? (give 'step' per frame, or select the steps with --range)",
+            "steps? (give 'step' per frame, or select the steps with frame_range)",
             path=source,
+            param="frame_range",
         )
 
 
@@ -234,7 +247,10 @@ def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | Non
         return k if (k.width, k.height) == (width, height) else k.scaled(width, height)
     if found.camera_angle_x is not None:
         return Intrinsics.from_fov(width, height, found.camera_angle_x)
-    raise InputError("the poses carry no camera intrinsics: pass --fov DEGREES (horizontal field of view)")
+    raise InputError(
+        "the pose source carries no camera intrinsics: pass fov_deg (horizontal field of view, degrees)",
+        param="fov_deg",
+    )
 
 
 def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> Path:
@@ -250,13 +266,18 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     sel = resolve_frames(opts.frame_range, total, dat)
     n = len(sel)
     if n == 0:
-        raise InputError("the recording holds no steps" if total == 0 else "--range selects no steps", dat)
+        raise InputError(
+            "the recording holds no steps" if total == 0 else "frame_range selects no steps",
+            dat,
+            param="frame_range",
+        )
     check_output(out, "dataset", overwrite=opts.overwrite)
     rel_keys = keyframe_steps(n, opts.keyframe_every, keyframe_window(opts))
     if len(rel_keys) < 2:
         raise InputError(
-            f"{n} steps give {len(rel_keys)} keyframe at --keyframe-every {opts.keyframe_every}; "
-            "need at least 2"
+            f"{n} steps give {len(rel_keys)} keyframe at keyframe_every {opts.keyframe_every}; "
+            "need at least 2",
+            param="keyframe_every",
         )
     with output_lock(out):
         recover_replaced(out)

@@ -85,11 +85,13 @@ def parse_seeds(spec: str) -> list[int]:
         try:
             seed = int(part.strip())
         except ValueError:
-            raise InputError(f"--seeds: expected comma-separated integers, found {part.strip()!r}") from None
+            raise InputError(
+                f"seeds: expected comma-separated integers, found {part.strip()!r}", param="seeds"
+            ) from None
         if seed < 0:
-            raise InputError(f"--seeds: expected non-negative integers, found {seed}")
+            raise InputError(f"seeds: expected non-negative integers, found {seed}", param="seeds")
         if seed in seeds:
-            raise InputError(f"--seeds: seed {seed} is given twice")
+            raise InputError(f"seeds: seed {seed} is given twice", param="seeds")
         seeds.append(seed)
     return seeds
 
@@ -107,7 +109,8 @@ def resolve_scenes(spec: str) -> list[str]:
     return comma_list(
         spec,
         known,
-        lambda bad: f"--scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        lambda bad: f"scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        param="scenes",
     )
 
 
@@ -119,7 +122,8 @@ def resolve_variants(spec: str) -> list[str]:
     return comma_list(
         spec,
         VARIANTS,
-        lambda bad: f"--methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANTS)}",
+        lambda bad: f"methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANTS)}",
+        param="methods",
     )
 
 

@@ -35,7 +35,7 @@ def load_run(
     model = model_from_hparams(ckpt["hparams"], ckpt["model"])
     model.to(resolve_device(device)).eval()
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset)
-    check_dataset_fits(ckpt, dataset, "--dataset" if dataset_root is not None else "the run's dataset")
+    check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
     return model, config, dataset
 
 
@@ -51,8 +51,8 @@ def dataset_fingerprint(dataset: SpikeDataset) -> dict:
     }
 
 
-def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, flag: str) -> None:
-    """InputError (naming ``flag``) when ``dataset`` is not the one the checkpoint was trained on (its
+def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
+    """InputError (naming ``param``) when ``dataset`` is not the one the checkpoint was trained on (its
     fingerprint; checkpoints without one are compared by scene box)."""
     want = ckpt.get("dataset")
     have = dataset_fingerprint(dataset)
@@ -67,7 +67,9 @@ def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, flag: str) -> None:
         if not fits:
             diff.append(f"{key} {have.get(key)} (run: {value})")
     if diff:
-        raise InputError(f"{flag}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root)
+        raise InputError(
+            f"{param}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root, param=param
+        )
 
 
 def run_iteration(run_dir: str | Path) -> int:
@@ -98,6 +100,15 @@ def describe_run(run_dir: str | Path) -> str:
             f"train PSNR {last['train_psnr']:.2f} dB, test PSNR {last['test_psnr']:.2f} dB"
         )
     if (run_dir / "metrics.json").exists():
-        mean = json.loads((run_dir / "metrics.json").read_text()).get("mean", {})
-        lines.append("metrics.json: " + "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None))
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        for label, mean in (("metrics.json", metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
+            if mean:
+                values = "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None)
+                lines.append(f"{label}: {values}")
     return "\n".join(lines)
+
+
+def _noref_mean(metrics: dict) -> dict | None:
+    """The means of metrics.json's no-reference checks (docs/metrics.md), if eval ran them."""
+    section = metrics.get("no_reference")
+    return section.get("mean") if isinstance(section, dict) else None

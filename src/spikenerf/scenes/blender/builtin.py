@@ -81,22 +81,15 @@ def build_bricks(rng: np.random.Generator) -> None:
     studs = Parts("studs")
     studs.cylinder(green, (-0.825, -0.825, -0.685), 0.045, 0.03, segments=16)
     obj = studs.finish()[green.name]
-    add_modifier(
-        obj,
-        "ARRAY",
-        count=12,
-        use_relative_offset=False,
-        use_constant_offset=True,
-        constant_offset_displace=(0.15, 0, 0),
-    )
-    add_modifier(
-        obj,
-        "ARRAY",
-        count=12,
-        use_relative_offset=False,
-        use_constant_offset=True,
-        constant_offset_displace=(0, 0.15, 0),
-    )
+    for offset in ((0.15, 0, 0), (0, 0.15, 0)):  # a 12 × 12 grid of studs: along x, then along y
+        add_modifier(
+            obj,
+            "ARRAY",
+            count=12,
+            use_relative_offset=False,
+            use_constant_offset=True,
+            constant_offset_displace=offset,
+        )
 
 
 def build_plant(rng: np.random.Generator) -> None:
