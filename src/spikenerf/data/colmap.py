@@ -40,8 +40,8 @@ class ColmapSettings:
         max_features: SIFT features per image. peak_threshold: SIFT's contrast threshold (lower: more
         features in flat, low-contrast images). affine: affine-shape SIFT with domain-size pooling.
         upsample: SIFT starts at twice the image size (COLMAP's default, octave −1); off: at the image size
-        (API only, not measured on the benchmark). contrast: local contrast normalisation of the keyframes, the
-        Gaussian's sigma in pixels (0: off; see :func:`write_keyframes`).
+        (API only, not measured on the benchmark). contrast: local contrast normalisation of the
+        keyframes, the Gaussian's sigma in pixels (0: off; see :func:`write_keyframes`).
         final_ba: a last global bundle adjustment of the largest model with a robust (Cauchy, 0.5 px) loss,
             the focal fixed when known. COLMAP's own bundle adjustments use a plain squared loss, so a few
             wrong matches that pass its 4 px filter tilt the cameras; on the benchmark scenes this step
