@@ -6,6 +6,9 @@ from pathlib import Path
 
 import click
 
+#: lower-layer parameters (eval/noref.py) → the flags that set them
+PARAM_FLAGS = {"steps": "--noref-steps", "mode": "--noref"}
+
 
 @click.command(help="Evaluate a run on held-out views (PSNR, SSIM, LPIPS); writes RUN/metrics.json.")
 @click.argument("run", type=click.Path(path_type=Path))

@@ -21,13 +21,15 @@ RAW_FILE = "recording.dat"
 
 
 def check_raw_width(raw_width: int | None, height: int, width: int) -> None:
-    """InputError (naming ``--raw-width``) unless ``raw_width`` is None or ≥ W with H·raw_width % 8 == 0."""
+    """InputError (naming ``raw_width``) unless ``raw_width`` is None or ≥ W with H·raw_width % 8 == 0."""
     if raw_width is None:
         return
     if raw_width < width:
-        raise InputError(f"--raw-width must be ≥ the image width {width}, found {raw_width}")
+        raise InputError(f"raw_width must be ≥ the image width {width}, found {raw_width}", param="raw_width")
     if (height * raw_width) % 8:
-        raise InputError(f"--raw-width: H·raw_width must be a multiple of 8, found {height}×{raw_width}")
+        raise InputError(
+            f"raw_width: H·raw_width must be a multiple of 8, found {height}×{raw_width}", param="raw_width"
+        )
     frame_bytes(height, width, raw_width)
 
 

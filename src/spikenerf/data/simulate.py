@@ -220,7 +220,8 @@ def check_options(options: SimulateOptions) -> None:
     parse_blur_views(options.blur_views)
     if options.raw_width is not None and "gray" not in options.colors:
         raise InputError(
-            "--raw-width writes the gray stream as a raw recording: it needs --color gray or all"
+            "raw_width writes the gray stream as a raw recording: it needs colors to include gray",
+            param=("raw_width", "colors"),
         )
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)

@@ -30,11 +30,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import check_steps, is_imported
-from spikenerf.data.targets import channels_last, reconstruct_stream, stream_mode
+from spikenerf.data.targets import reconstruct_stream, stream_mode
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.render import RadianceModel, render_image, render_spike_window
 from spikenerf.train.config import TrainConfig
@@ -60,18 +61,20 @@ class NoRefOptions:
 
     def check(self) -> None:
         if self.steps < 1:
-            raise InputError(f"--noref-steps must be ≥ 1, found {self.steps}")
+            raise InputError(f"steps must be ≥ 1, found {self.steps}", param="steps")
         if self.spike_window is not None and self.spike_window < 1:
-            raise InputError(f"--spike-window must be ≥ 1, found {self.spike_window}")
+            raise InputError(f"spike_window must be ≥ 1, found {self.spike_window}", param="spike_window")
         if self.spike_pixels < 0:
-            raise InputError(f"--spike-pixels must be ≥ 0 (0 = all), found {self.spike_pixels}")
+            raise InputError(
+                f"spike_pixels must be ≥ 0 (0 = all), found {self.spike_pixels}", param="spike_pixels"
+            )
 
 
 def wants_noref(mode: str, dataset: SpikeDataset, held: bool = False) -> bool:
     """``auto``: on for an imported dataset (its config has an ``imported`` section) or a run that ``held``
     steps out; ``on``/``off``."""
     if mode not in NOREF_MODES:
-        raise InputError(f"--noref must be one of {', '.join(NOREF_MODES)}, found {mode!r}")
+        raise InputError(f"mode must be one of {', '.join(NOREF_MODES)}, found {mode!r}", param="mode")
     return mode == "on" or (mode == "auto" and (held or is_imported(dataset)))
 
 
@@ -112,6 +115,11 @@ def _render_window(
     return torch.cat(parts, dim=1)
 
 
+def _channels_last(x: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """A camera-layout stream (T, H, W) or (T, 3, H, W) as a tensor (T, H, W, C)."""
+    return to_channels_last(torch.as_tensor(x))
+
+
 def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
@@ -135,11 +143,11 @@ def score_step(
     lo, hi = max(0, min(lo, hi - t.window)), min(total, max(hi, lo + t.window))  # a whole window (learned)
     raw = dataset.spikes(stream_mode(config.color), frames=slice(lo, hi))
     i = step - lo
-    recon = channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
-    mask = channels_last(spike_masks(raw, n=t.mask_n, frames=slice(i, i + 1)))[0]
+    recon = _channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
+    mask = torch.as_tensor(spike_masks(raw, n=t.mask_n, frames=slice(i, i + 1))[0])  # (H, W) or (3, H, W)
     out = render_image(model, dataset.trajectory.poses[step], dataset.intrinsics, dataset.near, dataset.far)
     pred, target = display(out.color, model.channels), display(recon, model.channels)
-    m = mask.permute(2, 0, 1).expand_as(pred)
+    m = mask.expand_as(pred)
     side = min(pred.shape[-2:]) >= SSIMConfig().window
     row: dict[str, Any] = {
         "step": int(dataset.trajectory.steps[step]),
@@ -147,7 +155,7 @@ def score_step(
     }
     row["masked_psnr"] = _finite(float(psnr(pred, target, mask=m)))
     row["masked_ssim"] = _finite(float(ssim(pred, target, mask=m))) if side else None
-    recorded = channels_last(raw[start - lo : start - lo + length])[:, pixels[:, 1], pixels[:, 0]].float()
+    recorded = _channels_last(raw[start - lo : start - lo + length])[:, pixels[:, 1], pixels[:, 0]].float()
     rendered = _render_window(model, dataset, start, length, pixels, chunk)
     held = recon[pixels[:, 1], pixels[:, 0]].float().expand(length, -1, -1)
     row["interval_violation_rate"], row["interval_violation_mean"] = violation_stats(
