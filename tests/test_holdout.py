@@ -157,3 +157,18 @@ def test_a_negative_radius_exits_2(dataset_dir: Path, tmp_path: Path, capsys) ->
         capsys, "train", dataset_dir, *TRAIN, "--holdout-radius", -1, "--out", tmp_path / "r"
     )
     assert code == 2 and "--holdout-radius must be ≥ 0" in err, err
+
+
+def test_the_trainer_samples_only_outside_the_bands(dataset_dir: Path, tmp_path: Path) -> None:
+    from spikenerf.train.trainer import Trainer
+
+    cfg = TrainConfig(dataset=str(dataset_dir), device="cpu", holdout=True, holdout_steps=2, holdout_radius=3)
+    cfg.spike.window = 4
+    trainer = Trainer(cfg, tmp_path / "run", progress=False)
+    band = set(range(17, 24)) | set(range(36, 43))
+    rays, windows = trainer.samplers["rays"], trainer.samplers["windows"]
+    drawn = set(torch.cat([rays.sample(512)[0] for _ in range(20)]).tolist())
+    assert not drawn & band and len(drawn) == STEPS - len(band)
+    for _ in range(100):
+        start = windows.sample(1)[0]
+        assert not set(range(start, start + 4)) & band, start
