@@ -120,6 +120,8 @@ def test_train_records_the_held_out_steps_and_eval_reads_them(
     nr = json.loads((run / "metrics.json").read_text())["no_reference"]
     assert nr["steps_trained_on"] is False and nr["guard_radius"] == 3
     assert [r["step"] for r in nr["per_step"]] == record["step_numbers"]
+    code, out, _ = run_cli(capsys, "info", run)
+    assert code == 0 and "held out: steps 20, 39 ± 3 (14 steps not trained on)" in out
     # the same run without the hold-out trains on every step, writes no record and says so
     (run / HOLDOUT_FILE).unlink()
     code, out, err = run_cli(capsys, "eval", run, "--lpips", "none", "--spike-pixels", 8, "--noref", "on",
