@@ -49,7 +49,7 @@ _D = TrainConfig()
 PARAM_FLAGS = {
     f"{section}.{key}" if section else key: "--" + ("lambda" if name == "lam" else name.replace("_", "-"))
     for name, (section, key) in OPTION_FIELDS.items()
-}
+} | {"field_config": "--field-option (grid size)"}
 
 
 @click.command(

@@ -94,7 +94,11 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
     diff = sorted(k for k in a if k not in RESUMABLE and a[k] != b[k])
     if diff:
         detail = ", ".join(f"{k}: run has {a[k]!r}, asked {b[k]!r}" for k in diff)
-        raise InputError(f"--resume with different options ({detail}); use a new --out to change them", path)
+        raise InputError(
+            f"resume with different options ({detail}); use a new out folder to change them",
+            path,
+            param=("resume", "out"),
+        )
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
 
 
@@ -106,8 +110,7 @@ def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path)
     params, per_ray, ckpt = field_memory(config.field, model_config(config))
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     rays = (config.batch + spike_rays) * per_ray
-    flag = "--batch" if rays >= params else "--field-option (grid size)"
-    check_resources(targets + params + rays, 2 * ckpt, out, flag)
+    check_resources(targets + params + rays, 2 * ckpt, out, "batch" if rays >= params else "field_config")
 
 
 class Trainer:
@@ -134,7 +137,9 @@ class Trainer:
         if ckpt_path.exists():
             if not resume:
                 raise InputError(
-                    "already holds a training run; pass --resume or choose a new --out", self.out
+                    "already holds a training run; pass resume or choose a new out folder",
+                    self.out,
+                    param=("resume", "out"),
                 )
             ckpt = load_checkpoint(ckpt_path)
             config = _check_resume(load_config(self.out / CONFIG_FILE), config, self.out / CONFIG_FILE)
@@ -317,7 +322,7 @@ def train(
     """
     out = Path(out)
     if resume and not out.is_dir():
-        raise InputError("--resume: no run folder here to resume (leave out --resume to start one)", out)
+        raise InputError("resume: no run folder here to resume (start one without it)", out, param="resume")
     check_output(out, "run", overwrite=True)
     with output_lock(out):
         check_output(out, "run", overwrite=True)
