@@ -37,6 +37,9 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "spike_window": ("spike", "window"),
     "spike_pixels": ("spike", "pixels"),
     "spike_warmup": ("spike", "warmup_iters"),
+    "holdout": (None, "holdout"),
+    "holdout_steps": (None, "holdout_steps"),
+    "holdout_radius": (None, "holdout_radius"),
 }
 
 
@@ -104,6 +107,25 @@ PARAM_FLAGS = {
     type=int,
     default=_D.spike.warmup_iters,
     help="Iterations before λ ramps up (then a ramp of iters/5) [default: iters/5].",
+)
+@click.option(
+    "--holdout/--no-holdout",
+    default=None,
+    help="Keep the check steps of eval's no-reference checks, and a guard band around each, out of "
+    "every training target [default: on for imported datasets].",
+)
+@click.option(
+    "--holdout-steps",
+    type=int,
+    default=_D.holdout_steps,
+    show_default=True,
+    help="Check steps (evenly spaced) when the dataset has no imported test keyframes.",
+)
+@click.option(
+    "--holdout-radius",
+    type=int,
+    default=None,
+    help="Guard band half-width in steps [default: TFP half window + max(it, spike window / 2), e.g. 40].",
 )
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")

@@ -27,6 +27,7 @@ from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.holdout import write_record
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields import field_config, field_memory
@@ -148,6 +149,8 @@ class Trainer:
         self.device = resolve_device(config.device)
         self.method = make_method(self.config)
         self.method.build_targets(self.dataset)
+        holdout = self.method.hold_out(self.dataset)
+        self.holdout = None if holdout is None else holdout.record(self.dataset.trajectory.steps)
         self.height, self.width = self.dataset.intrinsics.height, self.dataset.intrinsics.width
         self.channels = self.method.channels
         self.test_views = eval_view_targets(self.dataset, config.color, config.eval_views)
@@ -220,6 +223,7 @@ class Trainer:
         log = open_log(cfg.log, self.out, self.iteration)
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
+        write_record(self.out, self.holdout)
         mark(self.out, "run")
         end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
         bar = tqdm(
