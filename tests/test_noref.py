@@ -27,7 +27,9 @@ ORBIT = ["--poses", "orbit", "--orbit", "4,30", "--fov", 39.5978]
 TRAIN = ["--iters", 60, "--batch", 1024, "--eval-every", 0, "--eval-views", 1, "--spike-warmup", 30,
          "--spike-window", 8, "--spike-pixels", 32, "--device", "cpu", "--quiet",
          "--field-option", "n_voxels_init=4096", "--field-option", "n_voxels_final=4096",
-         "--field-option", "density_shift=-2"]  # fmt: skip
+         "--field-option", "density_shift=-2",
+         "--holdout-radius", 4]  # fmt: skip
+#: the hold-out (on for imported data) keeps steps 16..24, 36..44 and 56..64 out of training
 
 
 def _cli(*args: object) -> None:
@@ -65,9 +67,10 @@ def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path
     code, out, err = run_cli(capsys, "eval", run, "--device", "cpu", "--lpips", "none", "--spike-pixels", 64,
                              "--quiet")  # fmt: skip
     assert code == 0, err
-    assert "no-reference at 3 check steps" in out and "interval violations" in out
+    assert "no-reference at 3 check steps (held out)" in out and "interval violations" in out
     nr = json.loads((run / "metrics.json").read_text())["no_reference"]
-    assert nr["steps_from"] == "the imported test keyframes" and nr["steps_trained_on"] is True
+    assert nr["steps_from"] == "the imported test keyframes" and nr["steps_trained_on"] is False
+    assert json.loads((run / "holdout.json").read_text())["check_steps"] == [20, 40, 60]
     assert [r["step"] for r in nr["per_step"]] == [20, 40, 60]
     assert (nr["spike_window"], nr["spike_pixels"]) == (8, 64)
     assert nr["image_score"] is None and "piq" in nr["image_score_reason"]

@@ -77,9 +77,9 @@ def command(
     )
     nr = result["no_reference"]
     if nr is not None:
-        m = nr["mean"]
+        m, seen = nr["mean"], "trained on" if nr["steps_trained_on"] else "held out"
         click.echo(
-            f"no-reference at {len(nr['per_step'])} check steps (trained on): masked PSNR "
+            f"no-reference at {len(nr['per_step'])} check steps ({seen}): masked PSNR "
             f"{fmt(m['masked_psnr'], 2)} dB, masked SSIM {fmt(m['masked_ssim'], 4)} vs the reconstructions; "
             f"interval violations {fmt(m['interval_violation_rate'], 4)} of windows, mean "
             f"{fmt(m['interval_violation_mean'], 4)} φ (reconstruction held: "

@@ -38,6 +38,9 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "spike_pixels": ("spike", "pixels"),
     "spike_warmup": ("spike", "warmup_iters"),
     "refine_poses": ("poses", "refine"),
+    "holdout": (None, "holdout"),
+    "holdout_steps": (None, "holdout_steps"),
+    "holdout_radius": (None, "holdout_radius"),
 }
 
 
@@ -47,7 +50,7 @@ _D = TrainConfig()
 PARAM_FLAGS = {
     f"{section}.{key}" if section else key: "--" + ("lambda" if name == "lam" else name.replace("_", "-"))
     for name, (section, key) in OPTION_FIELDS.items()
-}
+} | {"field_config": "--field-option (grid size)"}
 
 
 @click.command(
@@ -111,6 +114,25 @@ PARAM_FLAGS = {
     default=None,
     help="Learn SE(3) corrections of the keyframe poses while training (poses.* in --set) "
     "[default: on for imported datasets].",
+)
+@click.option(
+    "--holdout/--no-holdout",
+    default=None,
+    help="Keep the check steps of eval's no-reference checks, and a guard band around each, out of "
+    "every training target [default: on for imported datasets].",
+)
+@click.option(
+    "--holdout-steps",
+    type=int,
+    default=_D.holdout_steps,
+    show_default=True,
+    help="Check steps (evenly spaced) when the dataset has no imported test keyframes.",
+)
+@click.option(
+    "--holdout-radius",
+    type=int,
+    default=None,
+    help="Guard band half-width in steps [default: TFP half window + max(it, spike window / 2), e.g. 40].",
 )
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")

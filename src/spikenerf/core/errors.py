@@ -63,3 +63,11 @@ def comma_list(
     if unknown or not names:
         raise InputError(complaint(unknown), param=param)
     return names
+
+
+def parse_int(text: str, param: str, expected: str) -> int:
+    """``int(text)``; else InputError(``"{param}: expected {expected}, found {text!r}"``, ``param=param``)."""
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"{param}: expected {expected}, found {text!r}", param=param) from None

@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, parse_int
 
 BLUR_VIEW_NAMES = ("frames", "all")
 
@@ -28,12 +28,7 @@ def parse_blur_views(spec: str | int) -> str | int:
     text = str(spec).strip()
     if text in BLUR_VIEW_NAMES:
         return text
-    try:
-        count = int(text)
-    except ValueError:
-        raise InputError(
-            f"blur_views: expected all, frames or a positive integer, found {text!r}", param="blur_views"
-        ) from None
+    count = parse_int(text, "blur_views", "all, frames or a positive integer")
     if count < 1:
         raise InputError(f"blur_views must be ≥ 1 (or all, frames), found {count}", param="blur_views")
     return count

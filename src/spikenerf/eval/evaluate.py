@@ -24,6 +24,7 @@ from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.data.dataset import PosedImages, SpikeDataset
+from spikenerf.data.holdout import read_record
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
@@ -126,7 +127,8 @@ def _evaluate_locked(
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device)
     views = refined_views(load_checkpoint(run_dir / CHECKPOINT), config, dataset, split_views(dataset, split))
-    use_noref = wants_noref(noref[0], dataset)
+    held = read_record(run_dir)
+    use_noref = wants_noref(noref[0], dataset, held is not None)
     k = dataset.intrinsics
     backbone, reason = lpips_status(lpips_backbone, k.height, k.width)
     if reason and log:
@@ -157,7 +159,7 @@ def _evaluate_locked(
         def bar(steps: Any) -> Any:
             return tqdm(steps, desc="no-reference", unit="step", disable=not progress)
 
-        result["no_reference"] = noref_metrics(model, config, dataset, noref[1], chunk, display, bar)
+        result["no_reference"] = noref_metrics(model, config, dataset, noref[1], chunk, display, bar, held)
     result["seconds"] = round(time.perf_counter() - t0, 3)
     write_text_atomic(run_dir / METRICS_FILE, json.dumps(result, indent=2, allow_nan=False) + "\n")
     return result

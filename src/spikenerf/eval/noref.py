@@ -13,8 +13,11 @@ steps) the model is scored against the recorded spike stream alone (docs/metrics
   violation** in units of φ. The same numbers for ``Î_k`` held constant over the window are given as a
   reference point.
 
-These steps are *not* withheld from training: the run fitted the stream and the reconstructions at every step,
-these included. The scores say how well the model explains the recording, not how well it generalises.
+A run trained with the hold-out (``train --holdout``, on by default for imported datasets) never saw the
+check steps: training drew no image target and no spike window within its guard band of them
+(:mod:`spikenerf.data.holdout`, recorded in ``RUN/holdout.json``). The checks then score those very steps and
+report ``steps_trained_on: false``; otherwise the run fitted them too (``true``) and the scores say how well
+the model explains the recording, not how well it generalises.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
+from spikenerf.data.holdout import check_steps, is_imported
 from spikenerf.data.targets import reconstruct_stream, stream_mode
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.render import RadianceModel, render_image, render_spike_window
@@ -66,24 +70,12 @@ class NoRefOptions:
             )
 
 
-def wants_noref(mode: str, dataset: SpikeDataset) -> bool:
-    """``auto``: on for an imported dataset (its config has an ``imported`` section); ``on``/``off``."""
+def wants_noref(mode: str, dataset: SpikeDataset, held: bool = False) -> bool:
+    """``auto``: on for an imported dataset (its config has an ``imported`` section) or a run that ``held``
+    steps out; ``on``/``off``."""
     if mode not in NOREF_MODES:
         raise InputError(f"mode must be one of {', '.join(NOREF_MODES)}, found {mode!r}", param="mode")
-    return mode == "on" or (mode == "auto" and isinstance(dataset.config.get("imported"), dict))
-
-
-def check_steps(dataset: SpikeDataset, count: int) -> tuple[np.ndarray, str]:
-    """Stream indices (N,) int64 of the check steps and where they come from."""
-    total = len(dataset.trajectory)
-    keys = (dataset.config.get("imported") or {}).get("test_keyframes")
-    if keys:
-        steps = np.asarray(keys, dtype=np.int64)
-        if steps.min() < 0 or steps.max() >= total:
-            raise InputError("config.yaml: imported.test_keyframes lie outside the stream", path=dataset.root)
-        return steps, "the imported test keyframes"
-    n = min(count, total)
-    return np.unique(np.linspace(0, total - 1, n + 2)[1:-1].round().astype(np.int64)), "evenly spaced steps"
+    return mode == "on" or (mode == "auto" and (held or is_imported(dataset)))
 
 
 def window_start(step: int, length: int, total: int) -> int:
@@ -183,12 +175,20 @@ def noref_metrics(
     chunk: int,
     display: Callable[[Any, int], torch.Tensor],
     progress: Callable[[Any], Any] = iter,
+    held: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The ``no_reference`` section of metrics.json: settings, ``mean`` and ``per_step`` scores."""
+    """The ``no_reference`` section of metrics.json: settings, ``mean`` and ``per_step`` scores. ``held``:
+    the run's hold-out record (``data.holdout.read_record``); its check steps are scored, else those of
+    :func:`check_steps`."""
     options.check()
     total = len(dataset.trajectory)
     length = min(options.spike_window or config.spike.window, total)
-    steps, source = check_steps(dataset, options.steps)
+    if held is None:
+        steps, source = check_steps(dataset, options.steps)
+    else:
+        steps, source = np.asarray(held["check_steps"], dtype=np.int64), str(held.get("source", ""))
+        if len(steps) == 0 or steps.min() < 0 or steps.max() >= total:
+            raise InputError(f"the run's held-out steps lie outside the {total}-step stream", dataset.root)
     k = dataset.intrinsics
     rows, pixels = [], torch.zeros(0, 2)
     with torch.no_grad():
@@ -199,7 +199,8 @@ def noref_metrics(
     t = config.targets
     return {
         "steps_from": source,
-        "steps_trained_on": True,
+        "steps_trained_on": held is None,
+        "guard_radius": None if held is None else held.get("radius"),
         "target": f"{t.recon} (window {t.window})",
         "mask": f"a spike in steps k-{t.mask_n}..k+{t.mask_n}",
         "spike_window": length,

@@ -104,6 +104,11 @@ class TrainConfig:
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
         poses: pose refinement (``--refine-poses``, train/pose_refine.py).
+        holdout: hold the check steps of ``eval``'s no-reference checks out of training (None: on for
+            imported datasets, off for simulated ones; ``spikenerf.data.holdout``).
+        holdout_steps: check steps (evenly spaced) on a dataset without imported test keyframes.
+        holdout_radius: guard band half-width r in steps around each check step (None:
+            ``data.holdout.guard_radius`` of the TFP window, mask n and spike window).
     """
 
     dataset: str = ""
@@ -122,6 +127,9 @@ class TrainConfig:
     log: LogKind = "none"
     log_every: int = 25
     amp: AmpMode = "none"
+    holdout: bool | None = None
+    holdout_steps: int = 8
+    holdout_radius: int | None = None
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     poses: PoseRefineConfig = dataclasses.field(default_factory=PoseRefineConfig)
@@ -140,6 +148,7 @@ class TrainConfig:
             "ckpt_every": self.ckpt_every,
             "log_every": self.log_every,
             "targets.blur_samples": self.targets.blur_samples,
+            "holdout_steps": self.holdout_steps,
         }
         for name, value in positive.items():
             if value < 1:
@@ -147,6 +156,7 @@ class TrainConfig:
         for name, value in (
             ("spike.warmup_iters", self.spike.warmup_iters),
             ("spike.ramp_iters", self.spike.ramp_iters),
+            ("holdout_radius", self.holdout_radius),
         ):
             if value is not None and value < 0:
                 raise InputError(f"{name} must be ≥ 0, found {value}", param=name)

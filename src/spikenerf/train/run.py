@@ -9,6 +9,7 @@ import torch
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.holdout import read_record
 from spikenerf.render import RadianceModel, model_from_hparams
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.config import TrainConfig, load_config
@@ -93,6 +94,11 @@ def describe_run(run_dir: str | Path) -> str:
         f"iterations: {done} of {config.iters}"
         + ("" if done >= config.iters else "  (resume with --resume)"),
     ]
+    if (held := read_record(run_dir)) is not None:
+        lines.append(
+            f"held out: steps {', '.join(map(str, held.get('step_numbers', held['check_steps'])))} "
+            f"± {held.get('radius')} ({held.get('excluded_steps')} steps not trained on)"
+        )
     if (run_dir / CURVES).exists() and (curves := read_curves(run_dir / CURVES)):
         last = curves[-1]
         lines.append(
