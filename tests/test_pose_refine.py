@@ -165,17 +165,25 @@ def test_resume_with_refinement_is_bit_identical(data_dir: Path, dataset, tmp_pa
 
 
 # ----------------------------------------------------------------------------------- defaults and inputs
-def test_on_by_default_for_imported_datasets_with_test_keyframes_left_out(dataset) -> None:  # type: ignore[no-untyped-def]
+def test_off_by_default_and_test_keyframes_left_out(dataset) -> None:  # type: ignore[no-untyped-def]
     info = {"keyframe_every": 20, "window": 21, "test_keyframes": [30], "pose_steps": [10, 30, 50, 70, 90]}
     imported = dataclasses.replace(dataset, config={**dataset.config, "imported": info})
     assert keyframes_of(imported, 12).tolist() == [10, 50, 70, 90]
     del info["pose_steps"]  # older imports: the importer's keyframe rule (every 20 where the window fits)
     assert keyframes_of(imported, 12).tolist() == [10, 50, 70, 90, 109]
     assert keyframes_of(dataset, 50).tolist() == [0, 50, 100, 119]
-    cfg = _config(dataset.root, None, iters=2)
+    default = _config(dataset.root, None, iters=2)
+    default.poses = TrainConfig().poses  # the default: off, imported or not (docs/real-data.md says why)
+    assert Trainer(default, dataset.root.parent / "run-default", imported, progress=False).pose_refine is None
+    cfg = _config(dataset.root, True, iters=2)
     trainer = Trainer(cfg, dataset.root.parent / "run-imported", imported, progress=False)
     assert trainer.pose_refine is not None
-    assert Trainer(cfg, dataset.root.parent / "run-plain", dataset, progress=False).pose_refine is None
+    assert (
+        Trainer(
+            _config(dataset.root, False, iters=2), dataset.root.parent / "run-plain", dataset, progress=False
+        ).pose_refine
+        is None
+    )
     # a test view on the trajectory gets the refined pose of its step; a novel view keeps its pose
     trainer.pose_refine.refiner.xi.data[:, 0] = 0.1
     views = torch.as_tensor(
