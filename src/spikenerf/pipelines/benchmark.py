@@ -24,8 +24,6 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.cells import (  # re-exported: the benchmark's public API
-    TABLE1_VARIANTS,
-    VARIANT_FLAGS,
     BenchmarkConfig,
     CellKey,
     cell_commands,
@@ -45,11 +43,12 @@ from spikenerf.pipelines.results import write_all
 from spikenerf.pipelines.settings import check_settings, write_settings
 from spikenerf.pipelines.steps import run_step as _run
 from spikenerf.pipelines.tables import Cell
+from spikenerf.pipelines.variants import TABLE1_VARIANTS, VARIANTS  # re-exported
 
 T = TypeVar("T")
 __all__ = [
     "TABLE1_VARIANTS",
-    "VARIANT_FLAGS",
+    "VARIANTS",
     "BenchmarkConfig",
     "CellKey",
     "cell_commands",

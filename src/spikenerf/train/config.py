@@ -1,4 +1,5 @@
-"""Typed training configs (saved to ``RUN/config.yaml``) and the methods they select.
+"""Typed training configs (saved to ``RUN/config.yaml``); what each method does with them is its class in
+:mod:`spikenerf.train.methods`.
 
 The dataclasses are the one typed source: each choice is a ``Literal`` owned by the module that implements
 it, and :func:`check_types` validates any value (a YAML file, ``--set key.sub=value``) against the
@@ -122,14 +123,6 @@ class TrainConfig:
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
-
-    @property
-    def uses_spike_loss(self) -> bool:
-        return self.method == "spike-nerf" and self.spike.enabled
-
-    @property
-    def uses_mask(self) -> bool:
-        return self.method == "spike-nerf" and self.targets.mask
 
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""

@@ -12,6 +12,7 @@ from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.render import RadianceModel, model_from_hparams
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.config import TrainConfig, load_config
+from spikenerf.train.methods import make_method
 
 CONFIG_FILE = "config.yaml"
 
@@ -83,15 +84,9 @@ def describe_run(run_dir: str | Path) -> str:
     run_dir = Path(run_dir)
     config = load_config(run_dir / CONFIG_FILE)
     done = run_iteration(run_dir) if (run_dir / CHECKPOINT).exists() else 0
-    flags = [
-        f
-        for f, on in (("no mask", not config.uses_mask), ("no spike loss", not config.uses_spike_loss))
-        if on
-    ]
     lines = [
         f"run: {run_dir}",
-        f"method: {config.method}"
-        + (f" ({', '.join(flags)})" if config.method == "spike-nerf" and flags else ""),
+        f"method: {make_method(config).describe()}",
         f"color: {config.color}   field: {config.field}   seed: {config.seed}   dataset: {config.dataset}",
         f"iterations: {done} of {config.iters}"
         + ("" if done >= config.iters else "  (resume with --resume)"),
