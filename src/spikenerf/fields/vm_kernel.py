@@ -3,9 +3,11 @@
 ``grid_sample`` on a CPU spends most of a training step in its backward (a strided scatter per channel). This
 kernel reads the factors channels-last and does one pass over the points: forward ``P_m(x)·L_m(x)`` for the
 three axis pairs; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into channels-last gradients (no races:
-each of ≤ 4 threads scatters into its own buffer; ≈ 11 M multiply-adds for a 58 k-point, 16-channel batch). It is
-compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (cached under
-``~/.cache/torch_extensions``; 20–90 s the first time on a machine). Where that is not possible (no
+each of ≤ 4 threads scatters into its own buffer; ≈ 11 M multiply-adds for a 58 k-point, 16-channel batch).
+The lookups are random reads of a grid larger than the L2 cache, so each loop prefetches the texels of the
+point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (``-O3``, and
+``-march=native`` on x86-64; cached under ``~/.cache/torch_extensions`` in a folder named by the source, the
+flags and the CPU's feature flags; 20–90 s the first time on a machine). Where that is not possible (no
 compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``) callers
 fall back to ``grid_sample``; :func:`available` says which path is used.
 """
