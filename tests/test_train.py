@@ -260,7 +260,7 @@ def test_resume_matches_an_uninterrupted_run(dataset_dir: Path, dataset, tmp_pat
     straight.train()
     first = Trainer(cfg, tmp_path / "b", dataset, progress=False)
     assert first.train(stop_after=3).iteration == 3  # "interrupted" after 3 of 6 iterations
-    with pytest.raises(InputError, match="--resume"):
+    with pytest.raises(InputError, match="pass resume"):
         Trainer(cfg, tmp_path / "b", dataset, progress=False)
     resumed = Trainer(cfg, tmp_path / "b", dataset, resume=True, progress=False)
     assert resumed.iteration == 3

@@ -9,6 +9,9 @@ import click
 from spikenerf.core.errors import InputError, comma_list
 from spikenerf.pipelines.variants import VARIANTS
 
+#: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
+PARAM_FLAGS = {"field_kind": "--field"}
+
 
 @click.command(help="Reproduce Table I (comparison) and Table II (ablation) on the built-in scenes.")
 @click.option("--scenes", default="all", show_default=True, help="'all' or comma-separated scene names.")

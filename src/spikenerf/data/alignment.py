@@ -152,3 +152,34 @@ def trajectory_errors(estimated: np.ndarray, truth: np.ndarray) -> dict[str, flo
         "rot_mean_deg": float(angle.mean()),
         "rot_max_deg": float(angle.max()),
     }
+
+
+def smooth_poses(poses: np.ndarray, steps: np.ndarray, span: float) -> np.ndarray:
+    """Keyframe poses (N, 4, 4) at spike ``steps`` (N,) smoothed along time by local quadratic regression.
+
+    For each keyframe, its neighbours within ``span`` steps are expressed in the tangent space of its pose
+    (rotation vectors of ``R_iᵀ R_j``, positions), a quadratic in time is fitted with tricube weights and
+    evaluated at the keyframe (a Savitzky–Golay filter on SE(3) for irregular steps). A quadratic keeps
+    constant-rate turns and circular paths unbiased (a plain average would shrink an orbit). A keyframe with
+    fewer than four neighbours in its span is kept as it is. ``span`` ≤ 0 returns the poses unchanged.
+    """
+    from scipy.spatial.transform import Rotation
+
+    poses = np.asarray(poses, np.float64)
+    if span <= 0:
+        return poses.copy()
+    t = np.asarray(steps, np.float64)
+    out = poses.copy()
+    for i in range(len(poses)):
+        near = np.flatnonzero(np.abs(t - t[i]) < span)
+        if len(near) < 4:
+            continue
+        dt = (t[near] - t[i]) / span
+        w = np.sqrt((1 - np.abs(dt) ** 3) ** 3)  # square root of tricube: weighted least squares rows
+        design = np.stack([np.ones_like(dt), dt, dt**2], 1) * w[:, None]
+        rel = np.einsum("ji,njk->nik", poses[i, :3, :3], poses[near, :3, :3])
+        values = np.concatenate([Rotation.from_matrix(rel).as_rotvec(), poses[near, :3, 3]], 1) * w[:, None]
+        coef = np.linalg.lstsq(design, values, rcond=None)[0][0]  # the fit at dt = 0
+        out[i, :3, :3] = poses[i, :3, :3] @ Rotation.from_rotvec(coef[:3]).as_matrix()
+        out[i, :3, 3] = coef[3:]
+    return out

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
 from spikenerf.camera.reconstruct import ReconMethod, tfi, tfp
 from spikenerf.core.color import rgb_to_gray
@@ -72,7 +73,7 @@ class SpikeTargets:
     """The recorded stream and per-step poses for the spike loss.
 
     Attributes:
-        spikes: (T, H, W, C) uint8 0/1 recorded spikes, channels last.
+        spikes: (T, H, W, C) uint8 0/1 recorded spikes, channels last (``camera.layout.to_channels_last``).
         poses: (T, 4, 4) float32 camera-to-world of each step.
         threshold: φ of the camera.
     """
@@ -86,31 +87,25 @@ class SpikeTargets:
         return self.spikes[start : start + length, pixels[:, 1], pixels[:, 0]].float()
 
 
-def channels_last(stream: np.ndarray | Tensor) -> Tensor:
-    """(T, H, W) → (T, H, W, 1); (T, 3, H, W) → (T, H, W, 3)."""
-    x = torch.as_tensor(np.asarray(stream) if not isinstance(stream, Tensor) else stream)
-    if x.dim() == 3:
-        return x[..., None]
-    if x.dim() == 4:
-        return x.permute(0, 2, 3, 1)
-    raise InputError(f"spike stream must be (T, H, W) or (T, 3, H, W), found shape {tuple(x.shape)}")
-
-
 def reconstruct_stream(
-    spikes: np.ndarray, recon: str = "tfp", window: int = 41, threshold: float = 1.0
+    spikes: np.ndarray,
+    recon: str = "tfp",
+    window: int = 41,
+    threshold: float = 1.0,
+    frames: slice | None = None,
 ) -> np.ndarray:
-    """Î of every step: TFP (``window`` frames, odd), TFI or the shipped learned reconstructor (its trained
-    window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb stream → float32 linear."""
+    """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI or the shipped learned
+    reconstructor (its trained window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb
+    stream → float32 linear (N, ...)."""
     if recon == "learned":
         from spikenerf.recon.infer import reconstruct_learned
 
-        return reconstruct_learned(
-            spikes, "rgb" if np.ndim(spikes) == 4 else "gray", threshold, window=window
-        )
+        mode = "rgb" if np.ndim(spikes) == 4 else "gray"
+        return reconstruct_learned(spikes, mode, threshold, frames=frames, window=window)
     if recon == "tfp":
-        return tfp(spikes, window=window, threshold=threshold)
+        return tfp(spikes, window=window, threshold=threshold, frames=frames)
     if recon == "tfi":
-        return tfi(spikes, threshold=threshold)
+        return tfi(spikes, threshold=threshold, frames=frames)
     raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
 
 
@@ -145,8 +140,9 @@ def load_stream(dataset: SpikeDataset, color: str) -> np.ndarray:
     mode = stream_mode(color)
     if mode not in dataset.modes:
         raise InputError(
-            f"--color {color} needs the {mode!r} spike stream, but the dataset has {sorted(dataset.modes)}",
+            f"color {color} needs the {mode!r} spike stream, but the dataset has {sorted(dataset.modes)}",
             path=getattr(dataset, "root", None),
+            param="color",
         )
     spikes = np.asarray(dataset.spikes(mode))
     if len(dataset.trajectory) != spikes.shape[0]:
@@ -192,8 +188,9 @@ def exposure_steps(step_range: np.ndarray, samples: int) -> np.ndarray:
 def _posed(posed: PosedImages | None, what: str, method: str, dataset: SpikeDataset) -> PosedImages:
     if posed is None or len(posed.images) == 0:
         raise InputError(
-            f"--method {method} needs the {what} frames, but the dataset has none",
+            f"method {method} needs the {what} frames, but the dataset has none",
             path=getattr(dataset, "root", None),
+            param="method",
         )
     return posed
 
@@ -217,7 +214,8 @@ def stream_targets(
     stream = load_stream(dataset, color) if spikes is None else spikes
     images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n)
     poses = torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32)[:, None]
-    return ImageTargets(poses, channels_last(images).half(), torch.as_tensor(dataset.trajectory.steps))
+    images = torch.as_tensor(to_channels_last(images)).half()
+    return ImageTargets(poses, images, torch.as_tensor(dataset.trajectory.steps))
 
 
 def gt_targets(dataset: SpikeDataset, color: str = "gray", method: str = "nerf-gt") -> ImageTargets:
@@ -243,8 +241,9 @@ def blur_targets(
     else:
         if ranges is None:
             raise InputError(
-                f"--method {method} needs the exposure step ranges of the blur frames",
+                f"method {method} needs the exposure step ranges of the blur frames",
                 path=getattr(dataset, "root", None),
+                param="method",
             )
         if samples < 1:
             raise InputError(f"blur samples per exposure must be ≥ 1, found {samples}")
@@ -259,7 +258,7 @@ def build_spike_targets(
     """The recorded stream of ``color`` as (T, H, W, C) uint8 with per-step poses and φ."""
     stream = load_stream(dataset, color) if spikes is None else spikes
     return SpikeTargets(
-        channels_last(np.asarray(stream, dtype=np.uint8)).contiguous(),
+        torch.as_tensor(to_channels_last(np.asarray(stream, dtype=np.uint8))).contiguous(),
         torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32),
         float(dataset.threshold),
     )

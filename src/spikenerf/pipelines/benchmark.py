@@ -100,9 +100,10 @@ def _simulate_scene(cfg: BenchmarkConfig, scene: str, log: list[dict]) -> None:
     have = str(view_counts(root)["blur_views"])
     if have != cfg.blur_views:
         raise InputError(
-            f"dataset was simulated with --blur-views {have}, but the benchmark asks for {cfg.blur_views}; "
-            f"pass --blur-views {have} or delete the dataset to re-simulate it",
+            f"blur_views: the dataset was simulated with {have} blur views, but the benchmark asks for "
+            f"{cfg.blur_views}; pass {have} or delete the dataset to re-simulate it",
             path=root,
+            param="blur_views",
         )
 
 

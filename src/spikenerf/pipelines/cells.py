@@ -17,7 +17,7 @@ from typing import NamedTuple
 import torch
 
 from spikenerf import __version__
-from spikenerf.core.errors import InputError, comma_list
+from spikenerf.core.errors import InputError, comma_list, parse_int
 from spikenerf.pipelines.tables import Cell
 from spikenerf.pipelines.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, VARIANTS
 from spikenerf.scenes.registry import blender_available, list_scenes
@@ -82,14 +82,11 @@ def parse_seeds(spec: str) -> list[int]:
     """``"0,1,2"`` → ``[0, 1, 2]``; InputError on a non-integer, a negative or a repeated seed."""
     seeds = []
     for part in spec.split(","):
-        try:
-            seed = int(part.strip())
-        except ValueError:
-            raise InputError(f"--seeds: expected comma-separated integers, found {part.strip()!r}") from None
+        seed = parse_int(part.strip(), "seeds", "comma-separated integers")
         if seed < 0:
-            raise InputError(f"--seeds: expected non-negative integers, found {seed}")
+            raise InputError(f"seeds: expected non-negative integers, found {seed}", param="seeds")
         if seed in seeds:
-            raise InputError(f"--seeds: seed {seed} is given twice")
+            raise InputError(f"seeds: seed {seed} is given twice", param="seeds")
         seeds.append(seed)
     return seeds
 
@@ -107,7 +104,8 @@ def resolve_scenes(spec: str) -> list[str]:
     return comma_list(
         spec,
         known,
-        lambda bad: f"--scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        lambda bad: f"scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        param="scenes",
     )
 
 
@@ -119,7 +117,8 @@ def resolve_variants(spec: str) -> list[str]:
     return comma_list(
         spec,
         VARIANTS,
-        lambda bad: f"--methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANTS)}",
+        lambda bad: f"methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANTS)}",
+        param="methods",
     )
 
 

@@ -209,6 +209,7 @@ def _views_fig(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str, color: str) -
 
 
 def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig]:
+    from spikenerf.camera.layout import to_channels_last
     from spikenerf.camera.masks import spike_masks
     from spikenerf.camera.reconstruct import tfp
 
@@ -233,7 +234,7 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
         [sim],
     )
     rec = tfp(stream, window=window, threshold=ds.threshold, frames=k)[0]
-    rec = rec.transpose(1, 2, 0) if rec.ndim == 3 else rec
+    rec = rec if rec.ndim == 2 else to_channels_last(rec, frame=True)
     mask = spike_masks(stream, n=MASK_N, frames=k)[0]
     mask = mask.any(0) if mask.ndim == 3 else mask
     gi = int(np.flatnonzero(ds.gt.steps == k)[0]) if len(ds.gt) and k in ds.gt.steps else None

@@ -11,15 +11,7 @@ from pathlib import Path
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.summary import view_counts
-from spikenerf.pipelines.cells import (
-    BenchmarkConfig,
-    cell_commands,
-    cell_keys,
-    dataset_command,
-    environment,
-    run_dir,
-    training_seeds,
-)
+from spikenerf.pipelines import cells as plan
 from spikenerf.pipelines.stats import Difference, differences
 from spikenerf.pipelines.tables import (
     Cell,
@@ -48,7 +40,7 @@ def poses_per_view(run: Path, variant: str) -> int:
     return make_method(config).poses_per_view()
 
 
-def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
+def trained_on(cfg: plan.BenchmarkConfig) -> dict[str, str]:
     """variant -> what its runs trained on, counted from the datasets (values differing by scene joined by /).
 
     Its method's ``views`` says what: every step's pose (spike methods), the stored GT renders (``nerf-gt``)
@@ -62,16 +54,16 @@ def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
     for v in cfg.variants:
         views = METHOD_CLASSES[VARIANTS[v].method].views
         texts = {VIEW_TEXT[views].format(c[views]) for c in counts}
-        samples = {poses_per_view(run_dir(cfg, *k), v) for k in cell_keys(cfg) if k.variant == v}
+        samples = {poses_per_view(plan.run_dir(cfg, *k), v) for k in plan.cell_keys(cfg) if k.variant == v}
         if samples - {1}:
             texts = {f"{t} × {'/'.join(map(str, sorted(samples)))} poses" for t in texts}
         out[v] = " / ".join(sorted(texts)) or "–"
     return out
 
 
-def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
+def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
     """table1.md, table2.md, differences.md, results.csv and results.json (the report: suite.py)."""
-    views, seeds = trained_on(cfg), training_seeds(cfg)
+    views, seeds = trained_on(cfg), plan.training_seeds(cfg)
     t1_variants = [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants
     t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
     note = (
@@ -89,17 +81,17 @@ def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> N
     config = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
     results = {
         "config": config,
-        "environment": environment(),
+        "environment": plan.environment(),
         "cells": [asdict(c) for c in cells],
         "trained_on": views,
         "differences": [asdict(d) for d in diffs],
         "commands": {
-            "datasets": {s: dataset_command(cfg, s)[2:] for s in cfg.scenes},
+            "datasets": {s: plan.dataset_command(cfg, s)[2:] for s in cfg.scenes},
             "cells": {
                 "/".join(map(str, k[:3])) + ("" if k.seed == cfg.seed else f"/seed{k.seed}"): [
-                    cmd[2:] for cmd in cell_commands(cfg, *k)
+                    cmd[2:] for cmd in plan.cell_commands(cfg, *k)
                 ]
-                for k in cell_keys(cfg)
+                for k in plan.cell_keys(cfg)
             },
             "this_run": log,
         },

@@ -102,6 +102,11 @@ class TrainConfig:
             per-step values are summed on the device and read only then.
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
+        holdout: hold the check steps of ``eval``'s no-reference checks out of training (None: on for
+            imported datasets, off for simulated ones; ``spikenerf.data.holdout``).
+        holdout_steps: check steps (evenly spaced) on a dataset without imported test keyframes.
+        holdout_radius: guard band half-width r in steps around each check step (None:
+            ``data.holdout.guard_radius`` of the TFP window, mask n and spike window).
     """
 
     dataset: str = ""
@@ -120,6 +125,9 @@ class TrainConfig:
     log: LogKind = "none"
     log_every: int = 25
     amp: AmpMode = "none"
+    holdout: bool | None = None
+    holdout_steps: int = 8
+    holdout_radius: int | None = None
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -137,31 +145,43 @@ class TrainConfig:
             "ckpt_every": self.ckpt_every,
             "log_every": self.log_every,
             "targets.blur_samples": self.targets.blur_samples,
+            "holdout_steps": self.holdout_steps,
         }
         for name, value in positive.items():
             if value < 1:
-                raise InputError(f"{name} must be ≥ 1, found {value}")
+                raise InputError(f"{name} must be ≥ 1, found {value}", param=name)
         for name, value in (
             ("spike.warmup_iters", self.spike.warmup_iters),
             ("spike.ramp_iters", self.spike.ramp_iters),
+            ("holdout_radius", self.holdout_radius),
         ):
             if value is not None and value < 0:
-                raise InputError(f"{name} must be ≥ 0, found {value}")
+                raise InputError(f"{name} must be ≥ 0, found {value}", param=name)
         if self.lr is not None and not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"--lr must be a finite number > 0, found {self.lr}")
+            raise InputError(f"lr must be a finite number > 0, found {self.lr}", param="lr")
         if not (math.isfinite(self.spike.lam) and self.spike.lam >= 0) or self.eval_every < 0:
             raise InputError(
-                f"--lambda and --eval-every must be ≥ 0, found {self.spike.lam}, {self.eval_every}"
+                f"spike.lam and eval_every must be ≥ 0, found {self.spike.lam}, {self.eval_every}",
+                param=("spike.lam", "eval_every"),
             )
         ratio = self.lr_final_ratio
         if ratio is not None and not (math.isfinite(ratio) and 0 < ratio <= 1):
-            raise InputError(f"lr_final_ratio must be a finite number in (0, 1], found {ratio}")
+            raise InputError(
+                f"lr_final_ratio must be a finite number in (0, 1], found {ratio}", param="lr_final_ratio"
+            )
         if self.targets.mask_n < 1:
-            raise InputError(f"targets.mask_n must be ≥ 1, found {self.targets.mask_n}")
+            raise InputError(
+                f"targets.mask_n must be ≥ 1, found {self.targets.mask_n}", param="targets.mask_n"
+            )
         if self.spike.paper_warmup < 0:
-            raise InputError(f"spike.paper_warmup must be ≥ 0, found {self.spike.paper_warmup}")
+            raise InputError(
+                f"spike.paper_warmup must be ≥ 0, found {self.spike.paper_warmup}", param="spike.paper_warmup"
+            )
         if self.targets.window < 1 or self.targets.window % 2 == 0:
-            raise InputError(f"targets.window must be an odd number of frames, found {self.targets.window}")
+            raise InputError(
+                f"targets.window must be an odd number of frames, found {self.targets.window}",
+                param="targets.window",
+            )
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -182,6 +202,7 @@ def check_types(config: Any, prefix: str = "", path: str | Path | None = None) -
         if dataclasses.is_dataclass(value):
             check_types(value, f"{name}.", path)
         elif not _matches(value, hints[f.name]):
+            # no param=: a wrong type comes from a file or --set, where the user wrote the key itself
             raise InputError(f"{name} must be {_describe(hints[f.name])}, found {value!r}", path=path)
 
 

@@ -29,6 +29,7 @@ from torch import Tensor
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
+from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
 from spikenerf.data.samplers import RaySampler, WindowSampler
 from spikenerf.data.targets import (
     METHODS,
@@ -101,6 +102,8 @@ class TrainMethod:
         self.channels = 1 if config.color == "gray" else 3
         self.targets: ImageTargets | None = None
         self.spikes: SpikeTargets | None = None
+        self.holdout: Holdout | None = None
+        self.stream_steps = np.zeros(0, dtype=np.int64)
 
     # ---------------------------------------------------------------------------------------------- facts
     @property
@@ -136,10 +139,24 @@ class TrainMethod:
         stream = load_stream(dataset, self.config.color) if self.uses_stream else None
         self.targets = self.image_targets(dataset, stream)
 
+    def hold_out(self, dataset: SpikeDataset) -> Holdout | None:
+        """Decide the held-out check steps (``config.holdout``; None: trains on every step), which
+        :meth:`make_samplers` then never draws."""
+        c = self.config
+        t, r = c.targets, c.holdout_radius
+        radius = guard_radius(t.window, t.mask_n, c.spike.window) if r is None else r
+        self.holdout = make_holdout(dataset, c.holdout, c.holdout_steps, radius)
+        self.stream_steps = np.asarray(dataset.trajectory.steps)
+        return self.holdout
+
     def make_samplers(self, height: int, width: int) -> dict[str, Any]:
         """The seeded samplers of its steps, by name (their states are checkpointed under these names)."""
         assert self.targets is not None, "build_targets first"
-        return {"rays": RaySampler(len(self.targets), height, width, self.config.seed)}
+        images = None
+        if self.holdout is not None:
+            images = self.holdout.image_indices(self.targets.steps, self.stream_steps)
+            checked(self.holdout, len(images), "image target")
+        return {"rays": RaySampler(len(self.targets), height, width, self.config.seed, images)}
 
     # ---------------------------------------------------------------------------------------------- steps
     def lam(self, iteration: int) -> float:
@@ -243,8 +260,12 @@ class SpikeNeRF(NerfRecon):
         samplers = super().make_samplers(height, width)
         if self.spikes is not None:
             s = self.config.spike
-            steps = self.spikes.spikes.shape[0]
-            samplers["windows"] = WindowSampler(steps, height, width, s.window, self.config.seed + 1, s.order)
+            steps, starts = self.spikes.spikes.shape[0], None
+            if self.holdout is not None:
+                starts = self.holdout.window_starts(s.window)
+                checked(self.holdout, len(starts), f"{s.window}-step spike window")
+            seed = self.config.seed + 1
+            samplers["windows"] = WindowSampler(steps, height, width, s.window, seed, s.order, starts=starts)
         return samplers
 
     def lam(self, iteration: int) -> float:

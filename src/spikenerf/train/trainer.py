@@ -27,6 +27,7 @@ from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.holdout import write_record
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields import field_config, field_memory
@@ -93,7 +94,11 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
     diff = sorted(k for k in a if k not in RESUMABLE and a[k] != b[k])
     if diff:
         detail = ", ".join(f"{k}: run has {a[k]!r}, asked {b[k]!r}" for k in diff)
-        raise InputError(f"--resume with different options ({detail}); use a new --out to change them", path)
+        raise InputError(
+            f"resume with different options ({detail}); use a new out folder to change them",
+            path,
+            param=("resume", "out"),
+        )
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
 
 
@@ -105,8 +110,7 @@ def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path)
     params, per_ray, ckpt = field_memory(config.field, model_config(config))
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     rays = (config.batch + spike_rays) * per_ray
-    flag = "--batch" if rays >= params else "--field-option (grid size)"
-    check_resources(targets + params + rays, 2 * ckpt, out, flag)
+    check_resources(targets + params + rays, 2 * ckpt, out, "batch" if rays >= params else "field_config")
 
 
 class Trainer:
@@ -133,7 +137,9 @@ class Trainer:
         if ckpt_path.exists():
             if not resume:
                 raise InputError(
-                    "already holds a training run; pass --resume or choose a new --out", self.out
+                    "already holds a training run; pass resume or choose a new out folder",
+                    self.out,
+                    param=("resume", "out"),
                 )
             ckpt = load_checkpoint(ckpt_path)
             config = _check_resume(load_config(self.out / CONFIG_FILE), config, self.out / CONFIG_FILE)
@@ -143,6 +149,8 @@ class Trainer:
         self.device = resolve_device(config.device)
         self.method = make_method(self.config)
         self.method.build_targets(self.dataset)
+        holdout = self.method.hold_out(self.dataset)
+        self.holdout = None if holdout is None else holdout.record(self.dataset.trajectory.steps)
         self.height, self.width = self.dataset.intrinsics.height, self.dataset.intrinsics.width
         self.channels = self.method.channels
         self.test_views = eval_view_targets(self.dataset, config.color, config.eval_views)
@@ -215,6 +223,7 @@ class Trainer:
         log = open_log(cfg.log, self.out, self.iteration)
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
+        write_record(self.out, self.holdout)
         mark(self.out, "run")
         end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
         bar = tqdm(
@@ -313,7 +322,7 @@ def train(
     """
     out = Path(out)
     if resume and not out.is_dir():
-        raise InputError("--resume: no run folder here to resume (leave out --resume to start one)", out)
+        raise InputError("resume: no run folder here to resume (start one without it)", out, param="resume")
     check_output(out, "run", overwrite=True)
     with output_lock(out):
         check_output(out, "run", overwrite=True)
