@@ -37,6 +37,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "spike_window": ("spike", "window"),
     "spike_pixels": ("spike", "pixels"),
     "spike_warmup": ("spike", "warmup_iters"),
+    "refine_poses": ("poses", "refine"),
     "holdout": (None, "holdout"),
     "holdout_steps": (None, "holdout_steps"),
     "holdout_radius": (None, "holdout_radius"),
@@ -107,6 +108,12 @@ PARAM_FLAGS = {
     type=int,
     default=_D.spike.warmup_iters,
     help="Iterations before λ ramps up (then a ramp of iters/5) [default: iters/5].",
+)
+@click.option(
+    "--refine-poses/--no-refine-poses",
+    default=None,
+    help="Learn SE(3) corrections of the keyframe poses while training (poses.* in --set) "
+    "[default: off; see docs/real-data.md].",
 )
 @click.option(
     "--holdout/--no-holdout",

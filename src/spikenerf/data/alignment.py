@@ -20,13 +20,21 @@ def per_step_poses(key_poses: np.ndarray, key_steps: np.ndarray, steps: np.ndarr
     """
     order = np.argsort(key_steps)
     kp, ks = np.asarray(key_poses, np.float64)[order], np.asarray(key_steps, np.int64)[order]
+    lo, hi, t = key_brackets(ks, steps)
+    return interpolate_poses(kp[lo], kp[hi], np.clip(t, -1.0, 2.0))
+
+
+def key_brackets(key_steps: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The keyframe pair around each of ``steps`` (T,) among sorted ``key_steps`` (N,), N ≥ 2: indices
+    ``lo``, ``hi`` (T,) and the fraction ``t`` (T,) of the way from ``lo`` to ``hi`` (below 0 before the
+    first keyframe, above 1 after the last: the nearest pair is extrapolated)."""
+    ks = np.asarray(key_steps, np.int64)
     if len(np.unique(ks)) != len(ks):
         raise InputError(f"two poses share one spike step (steps {ks.tolist()[:8]}...)")
     steps = np.asarray(steps, np.float64)
     hi = np.clip(np.searchsorted(ks, steps, side="right"), 1, len(ks) - 1)
     lo = hi - 1
-    t = np.clip((steps - ks[lo]) / (ks[hi] - ks[lo]), -1.0, 2.0)
-    return interpolate_poses(kp[lo], kp[hi], t)
+    return lo, hi, (steps - ks[lo]) / (ks[hi] - ks[lo])
 
 
 def focus_point(poses: np.ndarray) -> np.ndarray:

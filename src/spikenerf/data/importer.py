@@ -364,6 +364,7 @@ def _write(
             "keyframe_images": opts.keyframe_images,
             "keyframes": len(rel_keys),
             "poses_known": int(registered),
+            "pose_steps": [int(s) for s in np.sort(found.steps)],
             "test_keyframes": [int(s) for s in held],
             "normalisation": {"center": [float(c) for c in center], "scale": float(scale)},
         },

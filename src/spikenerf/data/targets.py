@@ -54,11 +54,13 @@ class ImageTargets:
             (S = 1 except for the exposure-aware blur baseline).
         images: (K, H, W, C) float16 linear targets (C = 1 gray, 3 rgb).
         steps: (K,) int64 spike step of each image (−1 if unknown).
+        pose_steps: (K, S) int64 spike step of each pose (None: ``steps`` for every pose).
     """
 
     poses: Tensor
     images: Tensor
     steps: Tensor
+    pose_steps: Tensor | None = None
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
@@ -247,8 +249,11 @@ def blur_targets(
             )
         if samples < 1:
             raise InputError(f"blur samples per exposure must be ≥ 1, found {samples}")
-        exp = np.stack([step_poses(dataset, exposure_steps(r, samples)) for r in ranges])
-        poses = torch.as_tensor(exp, dtype=torch.float32)
+        sub = np.stack([exposure_steps(r, samples) for r in ranges])
+        poses = torch.as_tensor(np.stack([step_poses(dataset, s) for s in sub]), dtype=torch.float32)
+        return ImageTargets(
+            poses, half_channels(blur.images, color), torch.as_tensor(steps), torch.as_tensor(sub)
+        )
     return ImageTargets(poses, half_channels(blur.images, color), torch.as_tensor(steps))
 
 

@@ -29,6 +29,8 @@ from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_image
+from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.train.pose_refine import refined_views
 from spikenerf.train.run import load_run, run_iteration
 
 METRICS_FILE = "metrics.json"
@@ -124,7 +126,7 @@ def _evaluate_locked(
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device)
-    views = split_views(dataset, split)
+    views = refined_views(load_checkpoint(run_dir / CHECKPOINT), config, dataset, split_views(dataset, split))
     held = read_record(run_dir)
     use_noref = wants_noref(noref[0], dataset, held is not None)
     k = dataset.intrinsics

@@ -26,6 +26,7 @@ from spikenerf.fields import FIELD_KINDS, FieldKind
 from spikenerf.train.amp import AmpMode
 from spikenerf.train.logger import LogKind
 from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
+from spikenerf.train.pose_refine import PoseRefineConfig
 
 FIELDS = FIELD_KINDS
 __all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "SpikeLossConfig", "TargetConfig", "TrainConfig"]
@@ -102,6 +103,7 @@ class TrainConfig:
             per-step values are summed on the device and read only then.
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
+        poses: pose refinement (``--refine-poses``, train/pose_refine.py).
         holdout: hold the check steps of ``eval``'s no-reference checks out of training (None: on for
             imported datasets, off for simulated ones; ``spikenerf.data.holdout``).
         holdout_steps: check steps (evenly spaced) on a dataset without imported test keyframes.
@@ -130,6 +132,7 @@ class TrainConfig:
     holdout_radius: int | None = None
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
+    poses: PoseRefineConfig = dataclasses.field(default_factory=PoseRefineConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def validate(self) -> TrainConfig:
@@ -182,6 +185,7 @@ class TrainConfig:
                 f"targets.window must be an odd number of frames, found {self.targets.window}",
                 param="targets.window",
             )
+        self.poses.check()
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -260,7 +264,9 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
         for i, section in enumerate(sections):
             if not isinstance(node.get(section), dict):
                 where = ".".join(sections[: i + 1])
-                raise InputError(f"override {key}: {where!r} is not a section (targets, spike, field_config)")
+                raise InputError(
+                    f"override {key}: {where!r} is not a section (targets, spike, poses, field_config)"
+                )
             node = node[section]
         node[leaf] = value
     return data
@@ -275,7 +281,8 @@ def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
         raise InputError(
             f"unknown {cls.__name__} keys {unknown}; expected some of {sorted(known)}", path=path
         )
-    nested, hints = {"targets": TargetConfig, "spike": SpikeLossConfig}, get_type_hints(cls)
+    nested = {"targets": TargetConfig, "spike": SpikeLossConfig, "poses": PoseRefineConfig}
+    hints = get_type_hints(cls)
     values = {
         k: _from_dict(nested[k], v, path) if k in nested else _coerce(v, hints[k]) for k, v in data.items()
     }

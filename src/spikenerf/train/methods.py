@@ -44,6 +44,7 @@ from spikenerf.data.targets import (
 from spikenerf.render import RadianceModel, RenderOutput, render_spike_window
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import paper_spike_loss, recon_loss, spike_interval_loss, spike_weight
+from spikenerf.train.pose_refine import PoseRefinement
 
 
 class TrainState(Protocol):
@@ -54,6 +55,7 @@ class TrainState(Protocol):
     model: RadianceModel
     device: torch.device
     samplers: dict[str, Any]
+    pose_refine: PoseRefinement | None  # learnable pose corrections (--refine-poses) or None
 
     def render_rays(self, poses: Tensor, pixels: Tensor, perturb: bool = True) -> RenderOutput: ...
 
@@ -177,6 +179,8 @@ class TrainMethod:
         index, pixels = state.samplers["rays"].sample(max(1, state.config.batch // views))
         target = targets.gather(index, pixels).to(state.device)
         poses = targets.poses[index].reshape(-1, 4, 4)  # (B·S, 4, 4), S poses averaged per ray
+        if state.pose_refine is not None:
+            poses = state.pose_refine.images(targets, index, poses)
         out = state.render_rays(poses, pixels.repeat_interleave(views, dim=0))
         color = out.color.view(-1, views, channels).mean(dim=1)
         loss = recon_loss(color, target)
@@ -290,6 +294,8 @@ class SpikeNeRF(NerfRecon):
         shape = (s.pixels, self.channels)
         a0 = torch.rand(shape) * spikes.threshold if paper else torch.zeros(shape)
         poses = spikes.poses[start : start + s.window]
+        if state.pose_refine is not None:
+            poses = state.pose_refine.window(poses, start)
         window = render_spike_window(state.model, poses, ds.intrinsics, pixels, a0.to(state.device),
                                      spikes.threshold, ds.near, ds.far, perturb=True)  # fmt: skip
         recorded = spikes.window(start, s.window, pixels).to(state.device)

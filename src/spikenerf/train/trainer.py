@@ -39,6 +39,7 @@ from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
 from spikenerf.train.methods import make_method
+from spikenerf.train.pose_refine import pose_refinement
 from spikenerf.train.run import dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
@@ -164,6 +165,9 @@ class Trainer:
             self.model = model_from_hparams(ckpt["hparams"], ckpt["model"])
         self.model.to(self.device)
         self.optimizer = make_optimizer(self.model, config)
+        self.pose_refine = pose_refinement(
+            self.config, self.dataset, self.model, self.device, self.method.targets
+        )
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
@@ -172,6 +176,8 @@ class Trainer:
             self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
+            if self.pose_refine is not None:
+                self.pose_refine.load_state_dict(ckpt["poses"])
             restore_rng(ckpt["rng"], self.samplers)
             self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
             self.rays = int(ckpt["rays"])
@@ -194,8 +200,9 @@ class Trainer:
         ``renders`` (if given) receives each (rendering, target)."""
         if self.test_views is None:
             return math.nan
+        views = self.test_views if self.pose_refine is None else self.pose_refine.views(self.test_views)
         with torch.random.fork_rng(devices=[]):
-            return evaluate_views(self.model, self.test_views, self.dataset, renders=renders)
+            return evaluate_views(self.model, views, self.dataset, renders=renders)
 
     def checkpoint(self) -> None:
         """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
@@ -213,8 +220,11 @@ class Trainer:
                 "scaler": self.scaler.state_dict(),  # {} unless --amp fp16
                 "rng": rng_state(self.samplers),
                 "config": self.config.to_dict(),
+                "poses": None if self.pose_refine is None else self.pose_refine.state_dict(),
             },
         )
+        if self.pose_refine is not None:
+            self.pose_refine.write(self.out)
 
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
@@ -241,9 +251,13 @@ class Trainer:
                 loss = step.total()
             lam = self.method.lam(it)
             self.optimizer.zero_grad(set_to_none=True)
+            if self.pose_refine is not None:
+                self.pose_refine.begin(it)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
                 self.scaler.scale(loss).backward()
                 self.scaler.step(self.optimizer)
+                if self.pose_refine is not None:
+                    self.scaler.step(self.pose_refine.optimizer)
                 self.scaler.update()
             self.iteration = it + 1
             if self.model.on_step(self.iteration, self.optimizer):
