@@ -28,7 +28,7 @@ import time
 import numpy as np
 import torch
 
-from benchmarks._table import Row, format_table
+from benchmarks._table import Row, best_seconds, format_table
 from spikenerf.camera.reconstruct import tfi, tfp
 from spikenerf.core.color import srgb_encode
 from spikenerf.eval.metrics import psnr, ssim
@@ -112,15 +112,6 @@ def quality(net, draws: int, size: int = 96) -> list[str]:
     return rows
 
 
-def _best(fn, repeats: int, clock) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        start = clock()
-        fn()
-        best = min(best, clock() - start)
-    return best
-
-
 def speed(threads: int, frames: int = 8, height: int = 250, width: int = 400, repeats: int = 3) -> list[Row]:
     """Learned frames/s at 250 × 400 with ``threads`` torch threads: the fast path (``learned_frames``)
     against the reference path (``predict_frame`` of each window) and TFP, same run, best of ``repeats``.
@@ -151,7 +142,7 @@ def speed(threads: int, frames: int = 8, height: int = 250, width: int = 400, re
     clocks = [("wall", time.perf_counter)] + ([("CPU", time.process_time)] if threads == 1 else [])
     for clock_name, clock in clocks:
         t = {
-            name: _best(fn, repeats, clock)
+            name: best_seconds(fn, repeats, clock)
             for name, fn in (("fast", fast), ("ref", reference), ("tfp", tfp_frames))
         }
         label = f"learned recon {height}×{width}, {threads} thread(s), {clock_name} time"
