@@ -162,6 +162,7 @@ def learned_frames(
     views = plane_views(tuple(sub.shape[1:]), mode)
     runs = [RunningFeatures(sub[(slice(None), *view)], k) for view in views]
     fast_layout(net)
+    device = next(net.parameters()).device
     out = np.empty((stop - start, *sub.shape[1:]), np.float32)
     for i, f in enumerate(range(start, stop)):
         steps = mirrored(f, half, total) - lo
@@ -169,8 +170,8 @@ def learned_frames(
             feats, scale = run(steps)
 
             def piece(y0: int, y1: int, x0: int, x1: int, feats=feats, scale=scale) -> torch.Tensor:
-                x = feats[:, :, y0:y1, x0:x1].contiguous(memory_format=torch.channels_last)
-                return net.decode(x, scale)[0]
+                x = feats[:, :, y0:y1, x0:x1].to(device).contiguous(memory_format=torch.channels_last)
+                return net.decode(x, scale.to(device))[0]
 
             out[(i, *view)] = tiled(piece, feats.shape[2], feats.shape[3], tile)
         out[i] *= np.float32(threshold)
