@@ -57,16 +57,17 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
     assert sorted(entry["command"][1] for entry in log) == ["eval", "eval", "simulate", "train", "train"]
     assert run_benchmark(cfg) == cells  # everything reused
     assert json.loads((cfg.out / "results.json").read_text())["commands"]["this_run"] == []
-    # resuming with other dataset or training settings is refused, naming the flags, before anything runs
+    # resuming with other dataset or training settings is refused, naming the settings (the CLI shows
+    # their flags), before anything runs
     before = (cfg.out / "results.json").stat().st_mtime_ns
     for change, words in [
-        ({"iters": 5}, "--iters 4 → 5"),
-        ({"size": 24, "seed": 1}, "--size 16 → 24, --seed 0 → 1"),
-        ({"colors": ["gray", "rgb"]}, "--color 'gray' → 'all'"),
-        ({"field_kind": "mlp"}, "--field"),
+        ({"iters": 5}, "iters 4 → 5"),
+        ({"size": 24, "seed": 1}, "size 16 → 24, seed 0 → 1"),
+        ({"colors": ["gray", "rgb"]}, "color 'gray' → 'all'"),
+        ({"field_kind": "mlp"}, "field_kind"),
     ]:
         with pytest.raises(
-            InputError, match=f"other settings \\({words}.*; pass the same values .* or a new --out"
+            InputError, match=f"other settings \\({words}.*; pass the same values .* or a new out"
         ):
             run_benchmark(replace(cfg, **change))
     assert (cfg.out / "results.json").stat().st_mtime_ns == before

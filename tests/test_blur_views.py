@@ -13,7 +13,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.blur import RunningExposures, blur_windows, check_blur_views
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.summary import view_counts
-from spikenerf.data.targets import build_image_targets
+from spikenerf.data.targets import blur_targets
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit, pose_at
 
@@ -81,9 +81,9 @@ def test_simulate_all_views_writes_one_array_and_loads_it(tmp_path: Path) -> Non
         )
     counts = view_counts(out)
     assert counts == {"steps": STEPS, "gt": 4, "blur": STEPS, "blur_views": "all"}
-    targets = build_image_targets(ds, "nerf-blur", "rgb")
+    targets = blur_targets(ds, "rgb")
     assert targets.images.shape == (STEPS, SIZE, SIZE, 3) and len(targets) == STEPS
-    aware = build_image_targets(ds, "nerf-blur-aware", "gray", blur_samples=4)
+    aware = blur_targets(ds, "gray", samples=4)
     assert tuple(aware.poses.shape) == (STEPS, 4, 4, 4)
 
     main(

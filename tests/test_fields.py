@@ -12,9 +12,9 @@ import torch
 
 from spikenerf.core.errors import InputError
 from spikenerf.data.rays import pixel_rays, ray_box_bounds
-from spikenerf.fields import GridFieldConfig, MLPFieldConfig, build_field, field_config
+from spikenerf.fields import Field, GridFieldConfig, MLPFieldConfig, build_field, field_config
 from spikenerf.fields.encoding import encoded_size, positional_encoding
-from spikenerf.fields.grid import sample_vm
+from spikenerf.fields.grid import FACTORS, sample_vm
 from spikenerf.render import build_model, render_image
 from spikenerf.scenes.trajectory import Intrinsics, look_at
 
@@ -74,6 +74,28 @@ def test_forward_shapes_and_ranges(kind: str, channels: int) -> None:
     sigma, color = field(xyz, dirs)
     assert sigma.shape == (37,) and color.shape == (37, channels)
     assert (sigma >= 0).all() and (color >= 0).all() and (color <= 1).all()
+
+
+@pytest.mark.parametrize("kind", ["grid", "mlp"])
+def test_fields_share_the_base_box_and_groups(kind: str) -> None:
+    """Both fields are a :class:`Field`: box normalisation and inverse, every parameter in exactly one Adam
+    group, and the state-dict keys of old checkpoints (the base class must not rename or add any)."""
+    box = torch.tensor([[-1.0, 0.0, 2.0], [3.0, 1.0, 2.5]])  # not a cube
+    field = build_field(kind, 3, box, CFG if kind == "grid" else MLPFieldConfig.tiny())
+    assert isinstance(field, Field) and field.channels == 3
+    torch.testing.assert_close(field.normalize(box), torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    x = torch.rand(9, 3) * 2 - 1
+    torch.testing.assert_close(field.normalize(field.denormalize(x)), x)
+    grouped = [id(p) for g in field.param_groups(1e-3) for p in g["params"]]
+    assert sorted(grouped) == sorted(id(p) for p in field.parameters()) and len(set(grouped)) == len(grouped)
+    keys = list(field.state_dict())
+    if kind == "grid":
+        assert keys[:6] == [*FACTORS, "scene_box", "occupancy_step"] and keys[-2:] == [
+            "occupancy.grid",
+            "occupancy.bounds",
+        ]
+    else:
+        assert keys[0] == "scene_box" and all(k.startswith(("coarse.", "fine.")) for k in keys[1:])
 
 
 def test_paper_mlp_config_is_recorded() -> None:

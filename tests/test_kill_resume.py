@@ -149,6 +149,20 @@ def test_train_killed_then_resumed_is_bit_identical(reference: Path, tmp_path: P
     assert not list(run.glob(".*.tmp")) and not lock_path(run).exists()
 
 
+def test_train_with_holdout_killed_then_resumed_is_bit_identical(reference: Path, tmp_path: Path) -> None:
+    """The restricted samplers (data/holdout.py) resume from the same checkpointed state."""
+    args = [*TRAIN, "--holdout", "--holdout-steps", "2", "--holdout-radius", "3", "--spike-warmup", "0"]
+    _cli("train", reference / "ds", *args, "--out", tmp_path / "whole")
+    run = tmp_path / "run"
+    _killed_at(["train", reference / "ds", *args, "--out", run], "train.iteration:3")
+    _cli("train", reference / "ds", *args, "--resume", "--out", run)
+    want, got = _state(tmp_path / "whole"), _state(run)
+    assert want.keys() == got.keys() and all(torch.equal(want[k], got[k]) for k in want)
+    assert _curves(run) == _curves(tmp_path / "whole")
+    assert (run / "holdout.json").read_bytes() == (tmp_path / "whole" / "holdout.json").read_bytes()
+    assert json.loads((run / "holdout.json").read_text())["check_steps"] == [20, 39]
+
+
 def test_second_writer_is_refused_naming_the_holder(
     reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

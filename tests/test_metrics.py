@@ -214,3 +214,24 @@ def test_missing_weights_package_is_reported(monkeypatch) -> None:
     monkeypatch.setenv(lp.WEIGHTS_ENV, "/nonexistent")
     with pytest.raises(lp.LPIPSUnavailable, match=r"has no alexnet\.ckpt"):
         lp.weights_file("alex")
+
+
+def test_masked_psnr_and_ssim_count_only_the_masked_pixels() -> None:
+    gen = torch.Generator().manual_seed(3)
+    a = torch.rand(1, 24, 20, generator=gen)
+    b = (a + 0.05 * torch.randn(1, 24, 20, generator=gen)).clamp(0, 1)
+    mask = torch.zeros_like(a, dtype=torch.bool)
+    mask[:, 4:16, 3:15] = True
+    expect = 10 * math.log10(1 / float(((a - b)[mask].double() ** 2).mean()))
+    assert math.isclose(float(psnr(a, b, mask=mask)), expect, rel_tol=1e-9)
+    ruined = b.clone()
+    ruined[~mask] = 1 - ruined[~mask]  # outside the mask: no effect on the masked PSNR
+    assert math.isclose(float(psnr(a, ruined, mask=mask)), expect, rel_tol=1e-9)
+    assert float(psnr(a, ruined)) < expect - 3
+    full = torch.ones_like(mask)
+    assert math.isclose(float(ssim(a, b, mask=full)), float(ssim(a, b)), rel_tol=1e-12)
+    smap = ssim_map(a, b)[0]
+    assert math.isclose(float(ssim(a, b, mask=mask)), float(smap[:, 0:11, 0:10].mean()), rel_tol=1e-9)
+    assert math.isnan(float(psnr(a, b, mask=torch.zeros_like(mask))))
+    with pytest.raises(ValueError, match="mask shape"):
+        psnr(a, b, mask=mask[:, :10])

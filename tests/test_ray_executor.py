@@ -191,6 +191,7 @@ def test_without_ray_one_line_hint_exit_2(
         main(["benchmark", "--scenes", "analytic-orbs", "--executor", "ray", "--out", str(out)])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
-    assert err.splitlines() == [f"spikenerf: error: {INSTALL_HINT}"]
+    assert err.splitlines() == [f"spikenerf: error: --{INSTALL_HINT}"]  # the parameter shown as its flag
+    assert INSTALL_HINT.startswith("executor ray needs Ray")
     assert "pip install 'spikenerf[cluster]'" in err
     assert not out.exists()  # nothing written

@@ -136,5 +136,5 @@ def test_tiny_two_seed_benchmark(tmp_path: Path) -> None:
     assert "id='differences'" in page and "trained on" in page and "± " in page
     assert run_benchmark(cfg) == cells  # every seed's cell is reused on resume
     cfg.blur_views = "frames"
-    with pytest.raises(InputError, match="--blur-views 'all' → 'frames'"):
+    with pytest.raises(InputError, match="blur_views 'all' → 'frames'"):
         run_benchmark(cfg)

@@ -11,6 +11,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera, fire
 from spikenerf.fields import GridFieldConfig, MLPFieldConfig
 from spikenerf.render import (
@@ -130,25 +131,27 @@ def test_spike_stream_fires_like_the_camera_for_a_constant_scene() -> None:
     model = _constant_model(0.35)
     poses = _poses(12)
     narrow = Intrinsics.from_fov(10, 8, 0.5)  # every pixel sees the box (no white background)
-    stream = render_spike_stream(model, poses, narrow, threshold=1.0, start_accumulator=torch.zeros(8, 10, 1))
-    assert stream.shape == (12, 8, 10, 1) and stream.dtype == torch.bool
+    stream = render_spike_stream(model, poses, narrow, threshold=1.0, start_accumulator=torch.zeros(8, 10))
+    assert stream.shape == (12, 8, 10) and stream.dtype == torch.bool  # the camera layout
     # 0.35 per step from 0: spikes after steps 3, 6, 9, 12 (indices 2, 5, 8, 11), everywhere
     fired = stream.reshape(12, -1).all(dim=1)
     assert fired.tolist() == [k in (2, 5, 8, 11) for k in range(12)]
     assert not stream.reshape(12, -1)[[k for k in range(12) if k not in (2, 5, 8, 11)]].any()
 
 
-def test_spike_stream_equals_fire_sequence_over_rendered_images_and_seeds_repeat() -> None:
+@pytest.mark.parametrize("channels", [1, 3])
+def test_spike_stream_equals_fire_sequence_over_rendered_images_and_seeds_repeat(channels: int) -> None:
     torch.manual_seed(1)
-    model = build_model("grid", 1, BOX, GRID)
+    model = build_model("grid", channels, BOX, GRID)
     with torch.no_grad():
         model.field.density_lines.mul_(60.0)  # make something visible
     poses = _poses(6)
     stream = render_spike_stream(model, poses, INTR, threshold=2.5, start_accumulator=4, chunk=17)
     frames = torch.stack([render_image(model, p, INTR).color for p in poses])
-    start = torch.rand((8, 10, 1), generator=torch.Generator().manual_seed(4)) * 2.5
-    expected, _ = fire_sequence(frames, start, 2.5)
-    assert torch.equal(stream, expected)
+    start = torch.rand((8, 10, channels), generator=torch.Generator().manual_seed(4)) * 2.5
+    expected, _ = fire_sequence(frames, start, 2.5)  # channels last, like the rendered images
+    assert stream.shape == ((6, 8, 10) if channels == 1 else (6, 3, 8, 10))  # the camera layout
+    assert torch.equal(stream, to_camera_layout(expected))
     assert 0 < stream.float().mean() < 0.6
     assert torch.equal(render_spike_stream(model, poses, INTR, 2.5, start_accumulator=4), stream)
     assert not torch.equal(render_spike_stream(model, poses, INTR, 2.5, start_accumulator=5), stream)

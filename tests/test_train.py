@@ -19,10 +19,12 @@ from spikenerf.data.dataset import load_dataset
 from spikenerf.data.samplers import RaySampler, WindowSampler
 from spikenerf.data.simulate import SimulateOptions, simulate_dataset
 from spikenerf.data.targets import (
-    build_image_targets,
+    blur_targets,
     build_spike_targets,
     exposure_steps,
+    gt_targets,
     masked_reconstruction,
+    stream_targets,
 )
 from spikenerf.render import build_model, render_spike_window
 from spikenerf.scenes.analytic import AnalyticSource
@@ -32,6 +34,7 @@ from spikenerf.train.config import TrainConfig, load_config
 from spikenerf.train.evaluate import read_curves
 from spikenerf.train.logger import RunningMeans
 from spikenerf.train.losses import spike_interval_loss
+from spikenerf.train.methods import make_method
 from spikenerf.train.run import load_run
 from spikenerf.train.trainer import Trainer, train
 
@@ -100,30 +103,32 @@ def test_mask_window_is_exactly_2n_plus_1_frames() -> None:
 
 def test_targets_gray_and_rgb(dataset) -> None:  # type: ignore[no-untyped-def]
     h, w = dataset.intrinsics.height, dataset.intrinsics.width
-    gray = build_image_targets(dataset, "spike-nerf", "gray")
-    rgb = build_image_targets(dataset, "spike-nerf", "rgb")
+    gray = stream_targets(dataset, "gray")
+    rgb = stream_targets(dataset, "rgb")
     assert gray.images.shape == (STEPS, h, w, 1) and rgb.images.shape == (STEPS, h, w, 3)
     assert gray.images.dtype == torch.float16 and gray.poses.shape == (STEPS, 1, 4, 4)
     stream = dataset.spikes("rgb")
     expected = masked_reconstruction(stream, "tfp", 41, dataset.threshold, True, 5)
     assert torch.allclose(rgb.images.float(), torch.from_numpy(expected).permute(0, 2, 3, 1), atol=1e-3)
-    recon = build_image_targets(dataset, "nerf-recon", "gray")
-    no_mask = build_image_targets(dataset, "spike-nerf", "gray", mask=False)
-    assert torch.equal(recon.images, no_mask.images) and (recon.images >= gray.images).all()
-    assert (recon.images > gray.images).any()  # some pixels are masked out (target 0)
+    recon = make_method(TrainConfig(method="nerf-recon", color="gray"))
+    recon.build_targets(dataset)
+    assert recon.targets is not None and recon.spikes is None
+    no_mask = stream_targets(dataset, "gray", mask=False)
+    assert torch.equal(recon.targets.images, no_mask.images) and (no_mask.images >= gray.images).all()
+    assert (no_mask.images > gray.images).any()  # some pixels are masked out (target 0)
     spk = build_spike_targets(dataset, "rgb")
     assert spk.spikes.shape == (STEPS, h, w, 3) and spk.spikes.dtype == torch.uint8
     assert torch.equal(spk.spikes[:, :, :, 1], torch.from_numpy(stream[:, 1]))
 
 
 def test_baseline_targets(dataset) -> None:  # type: ignore[no-untyped-def]
-    gt = build_image_targets(dataset, "nerf-gt", "gray")
+    gt = gt_targets(dataset, "gray")
     assert len(gt) == len(dataset.gt) == STEPS // 10
     want = rgb_to_gray(torch.from_numpy(dataset.gt.images), channel_axis=-1)
     assert torch.allclose(gt.images[..., 0].float(), want, atol=1e-3)
-    blur = build_image_targets(dataset, "nerf-blur", "rgb")
+    blur = blur_targets(dataset, "rgb")
     assert len(blur) == len(dataset.blur) and blur.poses.shape[1] == 1
-    aware = build_image_targets(dataset, "nerf-blur-aware", "rgb", blur_samples=4)
+    aware = blur_targets(dataset, "rgb", samples=4)
     assert aware.poses.shape == (len(dataset.blur), 4, 4, 4)
     start, end = dataset.blur.step_ranges[0]
     steps = exposure_steps(dataset.blur.step_ranges[0], 4)
@@ -135,7 +140,7 @@ def test_baseline_targets(dataset) -> None:  # type: ignore[no-untyped-def]
 
 def test_missing_stream_is_input_error(dataset) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(InputError, match=r"bayer|color"):
-        build_image_targets(dataset, "spike-nerf", "bayer")
+        stream_targets(dataset, "bayer")
 
 
 # ----------------------------------------------------------------------------------------------- samplers
@@ -244,7 +249,7 @@ def test_every_method_trains_and_writes_a_run(
     assert trainer.model.field.resolution == 20  # upsampled twice
     after = trainer.model.state_dict()
     assert any(not torch.equal(before[k], after[k]) for k in before if "decoder" in k)
-    rays_spike = cfg.uses_spike_loss and trainer.rays > 6 * 64
+    rays_spike = trainer.method.uses_spike_loss and trainer.rays > 6 * 64
     assert rays_spike == (method == "spike-nerf" and not flags.get("no_spike", False))
 
 
@@ -255,7 +260,7 @@ def test_resume_matches_an_uninterrupted_run(dataset_dir: Path, dataset, tmp_pat
     straight.train()
     first = Trainer(cfg, tmp_path / "b", dataset, progress=False)
     assert first.train(stop_after=3).iteration == 3  # "interrupted" after 3 of 6 iterations
-    with pytest.raises(InputError, match="--resume"):
+    with pytest.raises(InputError, match="pass resume"):
         Trainer(cfg, tmp_path / "b", dataset, progress=False)
     resumed = Trainer(cfg, tmp_path / "b", dataset, resume=True, progress=False)
     assert resumed.iteration == 3

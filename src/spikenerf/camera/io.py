@@ -63,8 +63,9 @@ def count_frames(path: str | Path, height: int, width: int, raw_width: int | Non
         raise InputError(
             f"file size {size} bytes is not a multiple of the frame size {fb} bytes "
             f"({height}×{_stored_width(width, raw_width, path)} pixels / 8): {size // fb} whole frames "
-            f"and a remainder of {size % fb} bytes (wrong --height/--width, or a truncated file?)",
+            f"and a remainder of {size % fb} bytes (wrong height/width, or a truncated file?)",
             path=path,
+            param=("height", "width"),
         )
     return size // fb
 

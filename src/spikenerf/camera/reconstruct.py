@@ -262,7 +262,8 @@ def _row_uint8(row: np.ndarray) -> np.ndarray:
 
 
 def like(result: np.ndarray, spikes: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-    """``result`` as the array type of ``spikes``: a torch tensor on its device, or numpy unchanged."""
+    """``result`` (any shape (...)) as the array type of ``spikes``: a torch tensor on its device, or numpy
+    unchanged."""
     if is_tensor(spikes):
         return sys.modules["torch"].from_numpy(result).to(spikes.device)
     return result

@@ -96,5 +96,7 @@ def recording_config(
     w = width if width is not None else base.width
     if h is None or w is None:
         where = f"{found} has no spike_h/spike_w" if found else f"no {CONFIG_NAME} beside the recording"
-        raise InputError(f"frame size unknown ({where}): pass --height and --width", path=dat)
+        raise InputError(
+            f"frame size unknown ({where}): pass height and width", path=dat, param=("height", "width")
+        )
     return RecordingConfig(h, w, base.fps, base.threshold, base.raw_width, found)

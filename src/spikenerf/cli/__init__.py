@@ -40,12 +40,20 @@ class LazyGroup(click.Group):
     def list_commands(self, ctx: click.Context) -> list[str]:
         return list(SUBCOMMANDS)
 
+    #: the subcommand that ran last (its flags name the parameters of a lower layer's InputError)
+    invoked: str | None = None
+
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         if cmd_name not in SUBCOMMANDS:
             return None
         command: click.Command = importlib.import_module(SUBCOMMANDS[cmd_name][0]).command
         command.name = cmd_name
         return command
+
+    def resolve_command(self, ctx: click.Context, args: list[str]) -> tuple:
+        name, command, rest = super().resolve_command(ctx, args)
+        LazyGroup.invoked = name
+        return name, command, rest
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         with formatter.section("Commands"):
@@ -106,6 +114,25 @@ def command_line() -> str:
     return shlex.join(parts)
 
 
+#: parameters of lower layers whose flag is not ``--`` + the name with dashes, for every subcommand
+#: (a subcommand module adds its own as ``PARAM_FLAGS``)
+PARAM_FLAGS = {"no_limits": "`spikenerf --no-limits ...`"}
+
+
+def flag_of(param: str, command: str | None = None) -> str | None:
+    """The flag that sets the lower-layer parameter ``param`` in ``command`` (None: not a flag there):
+    the command module's ``PARAM_FLAGS``, else the group's, else the option of that name."""
+    module = importlib.import_module(SUBCOMMANDS[command][0]) if command in SUBCOMMANDS else None
+    aliases = {**PARAM_FLAGS, **getattr(module, "PARAM_FLAGS", {})}
+    if param in aliases:
+        return aliases[param]
+    params = [*cli.params, *(module.command.params if module is not None else [])]
+    for option in params:
+        if isinstance(option, click.Option) and option.name == param:
+            return max(option.opts, key=len)
+    return None
+
+
 def _fail(message: str, code: int = 2) -> None:
     from spikenerf.core.errors import one_line
 
@@ -119,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
     except InputError as err:
-        _fail(str(err))
+        _fail(err.shown(lambda param: flag_of(param, LazyGroup.invoked)))
     except click.exceptions.Abort:
         click.echo("spikenerf: aborted", err=True)
         sys.exit(130)

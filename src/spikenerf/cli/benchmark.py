@@ -7,15 +7,17 @@ from pathlib import Path
 import click
 
 from spikenerf.core.errors import InputError, comma_list
+from spikenerf.pipelines.variants import VARIANTS
+
+#: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
+PARAM_FLAGS = {"field_kind": "--field"}
 
 
 @click.command(help="Reproduce Table I (comparison) and Table II (ablation) on the built-in scenes.")
 @click.option("--scenes", default="all", show_default=True, help="'all' or comma-separated scene names.")
 @click.option(
     "--methods", default="all", show_default=True,
-    help="'all', 'table1', 'table2' or comma-separated variants (spike-nerf, spike-nerf-no-mask, "
-    "spike-nerf-no-spike-loss, spike-nerf-learned, nerf-recon, nerf-recon-learned, nerf-blur, "
-    "nerf-blur-aware, nerf-gt).",
+    help=f"'all', 'table1', 'table2' or comma-separated variants ({', '.join(VARIANTS)}).",
 )  # fmt: skip
 @click.option("--color", default="gray,rgb", show_default=True, help="gray, rgb or gray,rgb.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Benchmark folder (resumable).")

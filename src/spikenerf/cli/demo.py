@@ -34,13 +34,13 @@ def command(
     out: Path, quick: bool, device: str, size: int | None, iters: int | None, frames: int | None,
     test_views: int | None, scene: str | None, color: str, methods: str | None,
 ) -> None:  # fmt: skip
-    from spikenerf.pipelines.benchmark import VARIANT_FLAGS, resolve_scenes
+    from spikenerf.pipelines.benchmark import VARIANTS, resolve_scenes
     from spikenerf.pipelines.demo import DEFAULT_SCENE, DEMO_METHODS, DemoConfig, run_demo
 
     cfg = DemoConfig(
         out=out, quick=quick, device=device, size=size, iters=iters, frames=frames, test_views=test_views,
         scene=resolve_scenes(scene)[0] if scene else DEFAULT_SCENE,
         colors=_list(color, ("gray", "rgb"), "--color"),
-        methods=_list(methods, tuple(VARIANT_FLAGS), "--methods") if methods else list(DEMO_METHODS),
+        methods=_list(methods, tuple(VARIANTS), "--methods") if methods else list(DEMO_METHODS),
     )  # fmt: skip
     run_demo(cfg, echo=click.echo)

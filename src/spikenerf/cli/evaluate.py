@@ -6,6 +6,9 @@ from pathlib import Path
 
 import click
 
+#: lower-layer parameters (eval/noref.py) → the flags that set them
+PARAM_FLAGS = {"steps": "--noref-steps", "mode": "--noref"}
+
 
 @click.command(help="Evaluate a run on held-out views (PSNR, SSIM, LPIPS); writes RUN/metrics.json.")
 @click.argument("run", type=click.Path(path_type=Path))
@@ -21,12 +24,30 @@ import click
 )  # fmt: skip
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
 @click.option("--chunk", type=int, default=8192, show_default=True, help="Rays per render call.")
+@click.option(
+    "--noref", type=click.Choice(["auto", "on", "off"]), default="auto", show_default=True,
+    help="No-reference checks against the recording itself (masked PSNR/SSIM against the run's "
+    "reconstructions, spike interval-violation rate); auto = on for imported datasets.",
+)  # fmt: skip
+@click.option(
+    "--noref-steps", type=int, default=8, show_default=True,
+    help="Check steps along the path when the dataset has no imported test keyframes.",
+)  # fmt: skip
+@click.option(
+    "--spike-window", type=int, help="Steps per violation window [default: the run's spike window]."
+)
+@click.option(
+    "--spike-pixels", type=int, default=4096, show_default=True,
+    help="Pixels sampled per check step for the violation rate (0 = all).",
+)  # fmt: skip
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def command(
-    run: Path, split: str, device: str, lpips_backbone: str, dataset: Path | None, chunk: int, quiet: bool
-) -> None:
+    run: Path, split: str, device: str, lpips_backbone: str, dataset: Path | None, chunk: int, noref: str,
+    noref_steps: int, spike_window: int | None, spike_pixels: int, quiet: bool,
+) -> None:  # fmt: skip
     from spikenerf.core.errors import InputError
     from spikenerf.eval.evaluate import METRICS_FILE, evaluate_run
+    from spikenerf.eval.noref import NoRefOptions
 
     if chunk < 1:
         raise InputError(f"--chunk must be ≥ 1, found {chunk}")
@@ -41,6 +62,8 @@ def command(
         chunk=chunk,
         progress=not quiet,
         log=lambda msg: click.echo(msg, err=True),
+        noref=noref,
+        noref_options=NoRefOptions(noref_steps, spike_window, spike_pixels),
     )
     mean = result["mean"]
 
@@ -52,3 +75,13 @@ def command(
         f"{result['views']} {split} views: PSNR {fmt(mean['psnr'], 2)} dB, SSIM {fmt(mean['ssim'], 4)}, "
         f"LPIPS {fmt(mean['lpips'], 4)} → {run / METRICS_FILE}"
     )
+    nr = result["no_reference"]
+    if nr is not None:
+        m, seen = nr["mean"], "trained on" if nr["steps_trained_on"] else "held out"
+        click.echo(
+            f"no-reference at {len(nr['per_step'])} check steps ({seen}): masked PSNR "
+            f"{fmt(m['masked_psnr'], 2)} dB, masked SSIM {fmt(m['masked_ssim'], 4)} vs the reconstructions; "
+            f"interval violations {fmt(m['interval_violation_rate'], 4)} of windows, mean "
+            f"{fmt(m['interval_violation_mean'], 4)} φ (reconstruction held: "
+            f"{fmt(m['recon_interval_violation_rate'], 4)})"
+        )

@@ -11,6 +11,9 @@ import click
 from spikenerf.cli import command_line
 from spikenerf.core.errors import InputError
 
+#: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
+PARAM_FLAGS = {"fov_deg": "--fov"}
+
 
 @click.command(
     help="Import a raw .dat spike recording (SpikeCV config.yaml beside it) into a dataset folder."
@@ -54,6 +57,44 @@ from spikenerf.core.errors import InputError
     default=0.5,
     show_default=True,
     help="Fraction of keyframes COLMAP must register.",
+)
+@click.option(
+    "--keyframe-images",
+    type=click.Choice(["tfp", "learned"]),
+    default="tfp",
+    show_default=True,
+    help="Keyframe reconstruction for COLMAP: TFP (--window) or the shipped learned reconstructor.",
+)
+@click.option(
+    "--max-features", type=int, default=8192, show_default=True, help="COLMAP SIFT features per keyframe."
+)
+@click.option(
+    "--sift-peak",
+    type=float,
+    default=round(0.02 / 3, 6),
+    show_default=True,
+    help="COLMAP SIFT peak (contrast) threshold; lower finds more features in low-contrast keyframes.",
+)
+@click.option("--affine-sift", is_flag=True, help="COLMAP affine-shape SIFT with domain-size pooling.")
+@click.option(
+    "--final-ba/--no-final-ba",
+    default=True,
+    show_default=True,
+    help="A last global bundle adjustment of the COLMAP model with a robust (Cauchy) loss.",
+)
+@click.option(
+    "--contrast",
+    type=float,
+    default=0.0,
+    show_default=True,
+    help="Local contrast normalisation of the keyframes, Gaussian sigma in pixels (0 = off).",
+)
+@click.option(
+    "--smooth",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Smooth the keyframe poses over this many steps (local quadratic fit; 0 = off).",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--verbose", is_flag=True, help="Show COLMAP's log.")

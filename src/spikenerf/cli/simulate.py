@@ -21,6 +21,8 @@ FLOAT_OPTIONS = ("fps", "threshold", "radius", "elevation", "turns", "duration",
 #: camera.model.COLORS, repeated so that this module (and `simulate --help`) does not import torch;
 #: tests/test_cli.py checks that the two agree
 CAMERA_COLORS = ("gray", "rgb", "bayer")
+#: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
+PARAM_FLAGS = {"colors": "--color"}
 
 
 def _colors(color: str) -> tuple[str, ...]:
@@ -94,6 +96,12 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     "'all' = one exposure centred on every step (the paper's baseline, 1000 views), or N evenly spaced "
     "centres; 'all' and N are stored as one float16 array blur/views.npy.",
 )  # fmt: skip
+@click.option(
+    "--raw-width", type=int,
+    help="Also write the gray stream as a camera would record it: DATASET/raw/recording.dat with this many "
+    "columns per row (416 for a 400-wide raw sps10 file; the extra ones zero) and a SpikeCV config.yaml, "
+    "no poses (try `spikenerf import` on it, docs/real-data.md).",
+)  # fmt: skip
 @click.option("--list-scenes", is_flag=True, help="List the named scenes and exit.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--no-progress", is_flag=True, help="Hide the progress bars.")
@@ -137,6 +145,7 @@ def command(**kw: Any) -> None:
         overwrite=bool(kw["overwrite"]),
         command=command_line(),
         extra=extra,
+        raw_width=kw["raw_width"],
     )
     out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"])
     k = source.intrinsics
@@ -166,7 +175,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
     height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
     views = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
-    _check_resources(kw, "--width/--height/--frames", width, height, steps, views)
+    _check_resources(kw, "width/height/frames", width, height, steps, views)
     trajectory = orbit(radius, elevation, turns=turns, duration=steps / fps, fps=fps, center=center)
     if kw["eval_views"] is not None:
         from spikenerf.data.dataset import read_pose_file
@@ -193,14 +202,15 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     return source, extra
 
 
-def _check_resources(kw: dict, flags: str, width: int, height: int, steps: int, views: int) -> None:
-    """Refuse (InputError naming ``flags``) a run larger than this machine's memory or free disk."""
+def _check_resources(kw: dict, params: str, width: int, height: int, steps: int, views: int) -> None:
+    """Refuse (InputError naming ``params``, shown as their flags) a run larger than this machine's memory
+    or free disk."""
     from spikenerf.data.blur import blur_windows
     from spikenerf.data.simulate import check_simulate_resources
 
     blur = len(blur_windows(steps, kw["fps"], kw["blur_fps"] or 0.0, kw["blur_views"]))  # --blur-views too
     check_simulate_resources(
-        Path(kw["out"]), flags, width=width, height=height, steps=steps, colors=_colors(str(kw["color"])),
+        Path(kw["out"]), params, width=width, height=height, steps=steps, colors=_colors(str(kw["color"])),
         test_views=views, spp=kw["spp"] or 16, gt_every=max(1, int(kw["gt_every"])), blur_frames=blur,
     )  # fmt: skip
 
@@ -227,7 +237,7 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
         fps=float(kw["fps"]),
     )
     k = source.intrinsics
-    _check_resources(kw, "--width/--height/--sequence-range", k.width, k.height, len(source.trajectory), 8)
+    _check_resources(kw, "width/height/sequence_range", k.width, k.height, len(source.trajectory), 8)
     extra = {
         "trajectory": {
             "kind": "sequence",

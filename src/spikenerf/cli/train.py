@@ -37,26 +37,20 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "spike_window": ("spike", "window"),
     "spike_pixels": ("spike", "pixels"),
     "spike_warmup": ("spike", "warmup_iters"),
+    "refine_poses": ("poses", "refine"),
+    "holdout": (None, "holdout"),
+    "holdout_steps": (None, "holdout_steps"),
+    "holdout_radius": (None, "holdout_radius"),
 }
 
 
 _D = TrainConfig()
 #: TrainConfig key → its flag: errors raised below the CLI name the key, the CLI shows the flag
-FLAGS = {
+#: (``spikenerf.cli.flag_of``)
+PARAM_FLAGS = {
     f"{section}.{key}" if section else key: "--" + ("lambda" if name == "lam" else name.replace("_", "-"))
     for name, (section, key) in OPTION_FIELDS.items()
-}
-
-
-def validated(config: TrainConfig) -> TrainConfig:
-    """``config.validate()``, with the config key that starts an error message replaced by its flag."""
-    try:
-        return config.validate()
-    except InputError as err:
-        key, _, rest = str(err).partition(" ")
-        if err.path is None and key in FLAGS:
-            raise InputError(f"{FLAGS[key]} {rest}") from None
-        raise
+} | {"field_config": "--field-option (grid size)"}
 
 
 @click.command(
@@ -114,6 +108,31 @@ def validated(config: TrainConfig) -> TrainConfig:
     type=int,
     default=_D.spike.warmup_iters,
     help="Iterations before λ ramps up (then a ramp of iters/5) [default: iters/5].",
+)
+@click.option(
+    "--refine-poses/--no-refine-poses",
+    default=None,
+    help="Learn SE(3) corrections of the keyframe poses while training (poses.* in --set) "
+    "[default: off; see docs/real-data.md].",
+)
+@click.option(
+    "--holdout/--no-holdout",
+    default=None,
+    help="Keep the check steps of eval's no-reference checks, and a guard band around each, out of "
+    "every training target [default: on for imported datasets].",
+)
+@click.option(
+    "--holdout-steps",
+    type=int,
+    default=_D.holdout_steps,
+    show_default=True,
+    help="Check steps (evenly spaced) when the dataset has no imported test keyframes.",
+)
+@click.option(
+    "--holdout-radius",
+    type=int,
+    default=None,
+    help="Guard band half-width in steps [default: TFP half window + max(it, spike window / 2), e.g. 40].",
 )
 @click.option("--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end.")
 @click.option("--eval-views", type=int, default=_D.eval_views, show_default=True, help="Test views per eval.")
@@ -203,7 +222,7 @@ def command(
     if not dataset.is_dir():
         raise InputError("dataset folder not found", path=dataset)
     base.dataset = str(dataset.resolve())
-    summary = train(validated(base), out, resume=resume, progress=not quiet)
+    summary = train(base.validate(), out, resume=resume, progress=not quiet)
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
     click.echo(
         f"trained {summary.iteration} iterations in {summary.seconds:.1f} s "

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
+import re
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 
 #: longest message an InputError keeps (foreign library errors can run to pages)
@@ -20,22 +21,53 @@ class InputError(ValueError):
 
     The message must name the file or field and say what was expected and what was found. It is kept to
     one line (see :func:`one_line`), whatever a wrapped library error said.
+
+    Below the CLI a message names the *parameter* (``window``, ``blur_views``, ``spike.lam``), never a
+    command-line flag, and lists it in ``param`` (a name or several); the CLI shows the message with each
+    parameter replaced by its flag (:meth:`shown`).
     """
 
-    def __init__(self, message: str, path: str | Path | None = None) -> None:
+    def __init__(
+        self, message: str, path: str | Path | None = None, param: str | Sequence[str] | None = None
+    ) -> None:
         self.path = None if path is None else str(path)
-        message = one_line(message)
-        super().__init__(f"{self.path}: {message}" if self.path else message)
+        self.params: tuple[str, ...] = (param,) if isinstance(param, str) else tuple(param or ())
+        self.message = one_line(message)
+        super().__init__(self.shown(lambda name: None))
+
+    def shown(self, flag: Callable[[str], str | None]) -> str:
+        """The one line, with the first whole-word mention of each parameter replaced by ``flag(name)``
+        (unchanged where that is None): how the CLI prints the error, naming its flags."""
+        message = self.message
+        for name in self.params:
+            shown = flag(name)
+            if shown is not None:
+                word = rf"(?<![\w.'-]){re.escape(name)}(?![\w'-])"  # not inside a quoted value
+                message = re.sub(word, lambda _, s=shown: s, message, count=1)
+        return f"{self.path}: {message}" if self.path else message
+
+    def __reduce__(self) -> tuple:  # keep path and params across pickling (worker processes)
+        return (type(self), (self.message, self.path, self.params))
 
 
-def comma_list(spec: str, known: Collection[str], complaint: Callable[[list[str]], str]) -> list[str]:
+def comma_list(
+    spec: str, known: Collection[str], complaint: Callable[[list[str]], str], param: str | None = None
+) -> list[str]:
     """``"a, b"`` → ``["a", "b"]``: the non-empty comma-separated names of ``spec``, each one of ``known``.
 
-    Raises InputError(``complaint(unknown)``) when a name is not known or there is none (the caller words
-    the message: it names the flag and what was expected).
+    Raises InputError(``complaint(unknown)``, ``param=param``) when a name is not known or there is none
+    (the caller words the message: it names the parameter, or the flag in cli/, and what was expected).
     """
     names = [n.strip() for n in spec.split(",") if n.strip()]
     unknown = [n for n in names if n not in known]
     if unknown or not names:
-        raise InputError(complaint(unknown))
+        raise InputError(complaint(unknown), param=param)
     return names
+
+
+def parse_int(text: str, param: str, expected: str) -> int:
+    """``int(text)``; else InputError(``"{param}: expected {expected}, found {text!r}"``, ``param=param``)."""
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"{param}: expected {expected}, found {text!r}", param=param) from None

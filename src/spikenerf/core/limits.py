@@ -60,13 +60,14 @@ def human(n: float) -> str:
     return f"{int(n)} B"
 
 
-def check_resources(memory: float, disk: float, out: str | Path, flags: str) -> None:
+def check_resources(memory: float, disk: float, out: str | Path, params: str) -> None:
     """InputError when ``memory`` or ``disk`` (estimated bytes) exceeds what is available.
 
     Args:
         memory: estimated peak memory. disk: estimated bytes written under ``out``.
         out: the output folder (its file system's free space is checked).
-        flags: the flags that set the size, named in the message (e.g. ``--width/--height/--frames``).
+        params: the parameters that set the size, named in the message (e.g. ``width/height/frames``; the
+            CLI shows their flags).
     """
     if limits_disabled():
         return
@@ -74,6 +75,7 @@ def check_resources(memory: float, disk: float, out: str | Path, flags: str) -> 
     for what, need, have in checks:
         if have is not None and need > have:
             raise InputError(
-                f"{flags}: this needs about {human(need)} of {what}, but only {human(have)} is available; "
-                "lower them, or pass `spikenerf --no-limits ...` to try anyway"
+                f"{params}: this needs about {human(need)} of {what}, but only {human(have)} is available; "
+                "lower them, or pass no_limits to try anyway",
+                param=(*params.split("/"), "no_limits"),
             )

@@ -37,7 +37,7 @@ def holder(folder: str | Path) -> int | None:
         return None
 
 
-def _acquire(path: Path, folder: Path, flag: str) -> int:
+def _acquire(path: Path, folder: Path, param: str) -> int:
     """An open descriptor of ``path`` holding an exclusive ``flock``; InputError while another holds it."""
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -48,8 +48,9 @@ def _acquire(path: Path, folder: Path, flag: str) -> int:
             pid = holder(folder)
             who = f"process {pid}" if pid is not None else "another process"
             raise InputError(
-                f"{flag}: in use by {who} (another spikenerf writer); wait for it to finish or stop it",
+                f"{param}: in use by {who} (another spikenerf writer); wait for it to finish or stop it",
                 path=folder,
+                param=param,
             ) from None
         try:
             same = os.stat(path).st_ino == os.fstat(fd).st_ino
@@ -61,10 +62,10 @@ def _acquire(path: Path, folder: Path, flag: str) -> int:
 
 
 @contextlib.contextmanager
-def output_lock(folder: str | Path, flag: str = "--out") -> Iterator[Path]:
+def output_lock(folder: str | Path, param: str = "out") -> Iterator[Path]:
     """Hold the writer lock of ``folder`` (which need not exist yet) for the ``with`` block.
 
-    Raises InputError (naming ``flag``, the folder and the holder's PID) when another live process holds
+    Raises InputError (naming ``param``, the folder and the holder's PID) when another live process holds
     it; a lock left by a dead process is taken over. Re-entrant in one process is not supported.
     """
     folder = Path(folder)
@@ -75,8 +76,10 @@ def output_lock(folder: str | Path, flag: str = "--out") -> Iterator[Path]:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
-        raise InputError(f"{flag}: a parent of this path is a regular file", path=folder) from None
-    fd = _acquire(path, folder, flag)
+        raise InputError(
+            f"{param}: a parent of this path is a regular file", path=folder, param=param
+        ) from None
+    fd = _acquire(path, folder, param)
     try:
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())

@@ -48,7 +48,7 @@ def folder_kind(folder: str | Path) -> str | None:
     return None
 
 
-def check_output(path: str | Path, kind: str, flag: str = "--out", overwrite: bool = False) -> None:
+def check_output(path: str | Path, kind: str, param: str = "out", overwrite: bool = False) -> None:
     """InputError unless ``path`` may receive output of ``kind``.
 
     Accepted: a path that does not exist (its parents must be folders), an empty folder, or a folder that
@@ -58,19 +58,24 @@ def check_output(path: str | Path, kind: str, flag: str = "--out", overwrite: bo
     path = Path(path)
     for parent in path.absolute().parents:
         if parent.exists() and not parent.is_dir():
-            raise InputError(f"{flag}: {parent} is a regular file, not a folder", path=path)
+            raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
     if not (path.exists() or path.is_symlink()):
         return
     if not path.is_dir():
-        raise InputError(f"{flag}: a file is in the way (expected a folder); not replacing it", path=path)
+        raise InputError(
+            f"{param}: a file is in the way (expected a folder); not replacing it", path=path, param=param
+        )
     found = folder_kind(path)
     if found is None and any(path.iterdir()):
         raise InputError(
-            f"{flag}: the folder holds files spikenerf did not write (no {MARKER} marker); "
+            f"{param}: the folder holds files spikenerf did not write (no {MARKER} marker); "
             "refusing to write into or replace it",
             path=path,
+            param=param,
         )
     if found is not None and found != kind:
-        raise InputError(f"{flag}: this is a {found} folder, not a {kind} folder; choose another", path=path)
+        raise InputError(
+            f"{param}: this is a {found} folder, not a {kind} folder; choose another", path=path, param=param
+        )
     if found == kind and not overwrite:
-        raise InputError("output already exists; pass --overwrite to replace it", path=path)
+        raise InputError("output already exists; pass overwrite to replace it", path=path, param="overwrite")

@@ -18,24 +18,19 @@ from collections.abc import Callable
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, parse_int
 
 BLUR_VIEW_NAMES = ("frames", "all")
 
 
 def parse_blur_views(spec: str | int) -> str | int:
-    """``frames`` | ``all`` | a positive integer (``"10"`` → 10); InputError naming ``--blur-views``."""
+    """``frames`` | ``all`` | a positive integer (``"10"`` → 10); InputError naming ``blur_views``."""
     text = str(spec).strip()
     if text in BLUR_VIEW_NAMES:
         return text
-    try:
-        count = int(text)
-    except ValueError:
-        raise InputError(
-            f"--blur-views: expected all, frames or a positive integer, found {text!r}"
-        ) from None
+    count = parse_int(text, "blur_views", "all, frames or a positive integer")
     if count < 1:
-        raise InputError(f"--blur-views must be ≥ 1 (or all, frames), found {count}")
+        raise InputError(f"blur_views must be ≥ 1 (or all, frames), found {count}", param="blur_views")
     return count
 
 
@@ -43,7 +38,7 @@ def check_blur_views(spec: str | int, num_steps: int) -> str | int:
     """:func:`parse_blur_views`, and a count must not exceed the ``num_steps`` spike steps."""
     views = parse_blur_views(spec)
     if isinstance(views, int) and views > num_steps:
-        raise InputError(f"--blur-views {views} exceeds the {num_steps} spike steps")
+        raise InputError(f"blur_views {views} exceeds the {num_steps} spike steps", param="blur_views")
     return views
 
 
@@ -51,7 +46,9 @@ def exposure_length(fps: float, blur_fps: float) -> int:
     """Steps per exposure: ``round(fps / blur_fps)``; InputError if the blur camera is faster than ``fps``."""
     size = round(fps / blur_fps)
     if size < 1:
-        raise InputError(f"--blur-fps {blur_fps:g} exceeds the spike rate {fps:g} Hz (need blur_fps ≤ fps)")
+        raise InputError(
+            f"blur_fps {blur_fps:g} exceeds the spike rate {fps:g} Hz (need blur_fps ≤ fps)", param="blur_fps"
+        )
     return size
 
 

@@ -8,9 +8,14 @@ imported COLMAP models share one reader. The work folder is kept between attempt
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
 import shutil
+import sys
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +25,40 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.poses import COLMAP_MISSING, PoseSet, read_colmap_text
 
 MODEL_DIR = "model"
+#: reprojection error (pixels) where the final bundle adjustment's Cauchy loss starts to flatten
+ROBUST_SCALE = 0.5
+
+
+@dataclass(frozen=True)
+class ColmapSettings:
+    """How COLMAP runs on the keyframes (docs/real-data.md; the CLI flags have the same names).
+
+    Attributes:
+        focal: focal length in pixels when known (fixed, principal point at the centre); None: estimated.
+        overlap: sequential-matching neighbours (more than ``exhaustive_up_to`` keyframes).
+        exhaustive_up_to: match every pair up to this many keyframes (closes the loop of an orbit).
+        max_features: SIFT features per image. peak_threshold: SIFT's contrast threshold (lower: more
+        features in flat, low-contrast images). affine: affine-shape SIFT with domain-size pooling.
+        upsample: SIFT starts at twice the image size (COLMAP's default, octave −1); off: at the image size
+        (API only, not measured on the benchmark). contrast: local contrast normalisation of the
+        keyframes, the Gaussian's sigma in pixels (0: off; see :func:`write_keyframes`).
+        final_ba: a last global bundle adjustment of the largest model with a robust (Cauchy, 0.5 px) loss,
+            the focal fixed when known. COLMAP's own bundle adjustments use a plain squared loss, so a few
+            wrong matches that pass its 4 px filter tilt the cameras; on the benchmark scenes this step
+            lowered the rotation error in every one of 12 models (docs/real-data.md).
+        seed: COLMAP's random seed (RANSAC); with one thread a run is repeatable.
+    """
+
+    focal: float | None = None
+    overlap: int = 10
+    exhaustive_up_to: int = 120
+    max_features: int = 8192
+    peak_threshold: float = 0.02 / 3
+    affine: bool = False
+    upsample: bool = True
+    contrast: float = 0.0
+    final_ba: bool = True
+    seed: int = 0
 
 
 def require_pycolmap() -> object:
@@ -31,8 +70,13 @@ def require_pycolmap() -> object:
     return pycolmap
 
 
-def write_keyframes(images: np.ndarray, steps: np.ndarray, folder: Path) -> list[str]:
-    """Write linear gray keyframes (N, H, W) as ``{step:06d}.png`` (8-bit sRGB); returns their names."""
+def write_keyframes(images: np.ndarray, steps: np.ndarray, folder: Path, contrast: float = 0.0) -> list[str]:
+    """Write linear gray keyframes (N, H, W) as ``{step:06d}.png`` (8-bit sRGB); returns their names.
+
+    ``contrast`` > 0: local contrast normalisation, each pixel's sRGB value minus the Gaussian-weighted local
+    mean over the local standard deviation, with a Gaussian of that many pixels (dark and bright parts of
+    the scene then give SIFT features alike); 0: the global exposure only.
+    """
     import imageio.v3 as iio
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -40,46 +84,43 @@ def write_keyframes(images: np.ndarray, steps: np.ndarray, folder: Path) -> list
     for image, step in zip(images, steps, strict=True):
         name = f"{int(step):06d}.png"
         scaled = image / max(float(np.percentile(image, 99.5)), 1e-6)  # exposure: use the full 8-bit range
-        iio.imwrite(folder / name, np.round(srgb_encode(np.clip(scaled, 0, 1)) * 255).astype(np.uint8))
+        encoded = srgb_encode(np.clip(scaled, 0, 1))
+        if contrast > 0:
+            encoded = local_contrast(encoded, contrast)
+        iio.imwrite(folder / name, np.round(encoded * 255).astype(np.uint8))
         names.append(name)
     return names
 
 
-def colmap_fingerprint(
-    images: np.ndarray, steps: np.ndarray, focal: float | None, overlap: int, exhaustive_up_to: int
-) -> str:
+def local_contrast(image: np.ndarray, sigma: float) -> np.ndarray:
+    """(H, W) in [0, 1] → (H, W) in [0, 1]: ``0.5 + (x − mean) / (6·std)``, local Gaussian mean and std."""
+    from scipy.ndimage import gaussian_filter
+
+    centred = image - gaussian_filter(image, sigma, mode="reflect")
+    std = np.sqrt(gaussian_filter(centred**2, sigma, mode="reflect"))
+    spread = np.maximum(std, 0.02)  # flat areas: not blown up to pure noise
+    return np.clip(0.5 + centred / (6 * spread), 0, 1)
+
+
+def colmap_fingerprint(images: np.ndarray, steps: np.ndarray, settings: ColmapSettings) -> str:
     """What identifies a COLMAP model: a hash of the keyframe images (N, H, W) themselves (so another
     recording, ``--range``, ``--window``, ``--layout`` or ``--raw-width`` never reuses it), their steps and
-    the matching settings."""
+    the settings."""
     digest = hashlib.sha256(np.ascontiguousarray(images, dtype=np.float32).tobytes()).hexdigest()
-    return json.dumps(
-        {
-            "steps": [int(s) for s in steps],
-            "images": digest,
-            "focal": focal,
-            "overlap": overlap,
-            "exh": exhaustive_up_to,
-        }
-    )
+    return json.dumps({"steps": [int(s) for s in steps], "images": digest, **asdict(settings)})
 
 
 def run_colmap(
     images: np.ndarray,
     steps: np.ndarray,
     work: Path,
-    overlap: int = 10,
+    settings: ColmapSettings = ColmapSettings(),
     min_registered: float = 0.5,
     keyframe_every: int | None = None,
     threads: int = -1,
-    focal: float | None = None,
-    exhaustive_up_to: int = 120,
     verbose: bool = False,
 ) -> PoseSet:
-    """Estimate the poses of keyframes (N, H, W) linear gray at spike ``steps`` (N,).
-
-    Up to ``exhaustive_up_to`` keyframes every pair is matched (it closes loops); more are matched
-    sequentially with ``overlap`` neighbours (a video). ``focal`` (pixels), when known, is fixed with the
-    principal point at the centre; otherwise COLMAP estimates it.
+    """Estimate the poses of keyframes (N, H, W), linear gray, at spike ``steps`` (N,); see ColmapSettings.
 
     Returns:
         A :class:`PoseSet` of the registered keyframes (steps from their names, a shared camera, points).
@@ -88,12 +129,12 @@ def run_colmap(
             message says how many and suggests a smaller ``--keyframe-every``).
     """
     model, stamp = work / MODEL_DIR, work / "steps.json"
-    want = colmap_fingerprint(images, steps, focal, overlap, exhaustive_up_to)
+    want = colmap_fingerprint(images, steps, settings)
     if stamp.is_file() and stamp.read_text() != want:  # other keyframe images (any recording/range/window)
         shutil.rmtree(work)
     if not (model / "images.txt").is_file():
         try:
-            _estimate(images, steps, work, (overlap, threads, focal, exhaustive_up_to, verbose), want)
+            _estimate(images, steps, work, settings, (threads, verbose, want))
         except InputError:
             raise
         except (RuntimeError, ValueError, TypeError) as err:  # pycolmap's own failures
@@ -107,9 +148,9 @@ def run_colmap(
     return found
 
 
-def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, settings: tuple, want: str) -> None:
+def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, cs: ColmapSettings, run: tuple) -> None:
     """Run pycolmap (tested with 4.2) on the keyframes; writes ``work/model`` (text) unless nothing maps."""
-    overlap, threads, focal, exhaustive_up_to, verbose = settings
+    threads, verbose, want = run
     model = work / MODEL_DIR
     pycolmap = require_pycolmap()
     if not verbose:
@@ -118,16 +159,19 @@ def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, settings: tuple
         path = work / stale
         shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     image_dir, sparse = work / "images", work / "sparse"
-    names = write_keyframes(images, steps, image_dir)
+    names = write_keyframes(images, steps, image_dir, cs.contrast)
     sparse.mkdir(parents=True)
     (work / "steps.json").write_text(want)
     db = work / "database.db"
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.use_gpu, extraction.num_threads = False, threads
+    extraction.sift.max_num_features, extraction.sift.peak_threshold = cs.max_features, cs.peak_threshold
+    extraction.sift.first_octave = -1 if cs.upsample else 0
+    extraction.sift.estimate_affine_shape = extraction.sift.domain_size_pooling = cs.affine
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "SIMPLE_PINHOLE"
-    if focal is not None:
-        reader.camera_params = f"{focal},{images.shape[2] / 2},{images.shape[1] / 2}"
+    if cs.focal is not None:
+        reader.camera_params = f"{cs.focal},{images.shape[2] / 2},{images.shape[1] / 2}"
     pycolmap.extract_features(
         database_path=db,
         image_path=image_dir,
@@ -139,17 +183,18 @@ def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, settings: tuple
     )
     matching = pycolmap.FeatureMatchingOptions()
     matching.use_gpu, matching.num_threads = False, threads
-    if len(steps) <= exhaustive_up_to:  # every pair: closes the loop of an orbit
+    matching.guided_matching = cs.affine  # affine shapes: guided matching is what COLMAP pairs them with
+    if len(steps) <= cs.exhaustive_up_to:  # every pair: closes the loop of an orbit
         pycolmap.match_exhaustive(database_path=db, matching_options=matching, device=pycolmap.Device.cpu)
     else:
         pairing = pycolmap.SequentialPairingOptions()
-        pairing.overlap = overlap
+        pairing.overlap = cs.overlap
         pycolmap.match_sequential(
             database_path=db, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
         )
     options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads, options.random_seed = threads, 0
-    if focal is not None:
+    options.num_threads, options.random_seed = threads, cs.seed
+    if cs.focal is not None:
         options.ba_refine_focal_length = options.ba_refine_principal_point = False
     models = pycolmap.incremental_mapping(
         database_path=db, image_path=image_dir, output_path=sparse, options=options
@@ -157,6 +202,9 @@ def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, settings: tuple
     if not models:
         return
     best = max(models.values(), key=lambda r: r.num_reg_images())
+    if cs.final_ba:
+        with contextlib.nullcontext() if verbose else _no_stderr():  # it logs its heading regardless
+            _global_ba(pycolmap, best, cs.focal is not None, threads)
     tmp = work / ".model.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
@@ -164,9 +212,36 @@ def _estimate(images: np.ndarray, steps: np.ndarray, work: Path, settings: tuple
     tmp.rename(model)
 
 
+@contextlib.contextmanager
+def _no_stderr() -> Iterator[None]:
+    """Silence file descriptor 2 (C++ logging) for the duration."""
+    sys.stderr.flush()
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
+def _global_ba(pycolmap: object, model: object, fixed_focal: bool, threads: int) -> None:
+    """A last global bundle adjustment of ``model`` in place (focal fixed when it was given)."""
+    ba = pycolmap.BundleAdjustmentOptions()
+    ba.refine_focal_length = not fixed_focal
+    ba.refine_principal_point = False
+    ba.refine_extra_params = ba.print_summary = False
+    ba.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY  # robust to the odd wrong match
+    ba.ceres.loss_function_scale = ROBUST_SCALE
+    ba.ceres.solver_options.num_threads = threads
+    pycolmap.bundle_adjustment(model, ba)
+
+
 def _too_few(registered: int, total: int, keyframe_every: int | None) -> InputError:
     hint = f" (now {keyframe_every})" if keyframe_every else ""
     return InputError(
         f"COLMAP registered {registered} of {total} keyframes, too few for a trajectory; try a smaller "
-        f"--keyframe-every{hint} so that neighbouring keyframes overlap more, or give --poses FILE"
+        f"keyframe_every{hint} so that neighbouring keyframes overlap more, or give poses FILE",
+        param=("keyframe_every", "poses"),
     )

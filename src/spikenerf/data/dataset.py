@@ -132,15 +132,19 @@ def near_far(poses: np.ndarray, scene_box: np.ndarray) -> tuple[float, float]:
     return max(float(dist.min()) - radius, 0.05), float(dist.max()) + radius
 
 
-def _read_json(path: Path) -> dict:
+def _read_mapping(path: Path, fmt: str = "JSON") -> dict:
+    """The top-level mapping of a dataset folder's JSON or YAML (``fmt``) file; InputError when the file is
+    missing, malformed or not a mapping."""
     if not path.is_file():
         raise InputError("missing file (not a dataset folder written by `spikenerf simulate`?)", path=path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"malformed JSON ({err})", path=path) from err
+        text = path.read_text(encoding="utf-8")
+        data = json.loads(text) if fmt == "JSON" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError, UnicodeDecodeError) as err:
+        raise InputError(f"malformed {fmt} ({err})", path=path) from err
     if not isinstance(data, dict):
-        raise InputError(f"expected a JSON object at the top level, found {type(data).__name__}", path=path)
+        what = "a JSON object" if fmt == "JSON" else "a mapping"
+        raise InputError(f"expected {what} at the top level, found {type(data).__name__}", path=path)
     return data
 
 
@@ -215,7 +219,7 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
     path = root / name
     if not path.exists():
         return None
-    data = _read_json(path)
+    data = _read_mapping(path)
     _check_camera(data, path, k)
     frames = _frames(data, path)
     array = (
@@ -285,7 +289,7 @@ def load_dataset(root: str | Path) -> SpikeDataset:
     if not root.is_dir():
         raise InputError("dataset folder not found", path=root)
     tpath = root / TRANSFORMS
-    data = _read_json(tpath)
+    data = _read_mapping(tpath)
     k = _check_camera(data, tpath, None)
     fps = _number(data, "fps", tpath, positive=True)
     near, far = _number(data, "near", tpath, positive=True), _number(data, "far", tpath, positive=True)
@@ -342,14 +346,7 @@ def load_dataset(root: str | Path) -> SpikeDataset:
 
 def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
     path = root / CONFIG
-    if not path.is_file():
-        raise InputError("missing file (not a dataset folder written by `spikenerf simulate`?)", path=path)
-    try:
-        config = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as err:
-        raise InputError(f"malformed YAML ({err})", path=path) from err
-    if not isinstance(config, dict):
-        raise InputError(f"expected a mapping at the top level, found {type(config).__name__}", path=path)
+    config = _read_mapping(path, "YAML")
     for key, want in (("spike_h", k.height), ("spike_w", k.width), ("fps", fps)):
         if _number(config, key, path, positive=True) != want:
             raise InputError(f"field {key!r} is {config[key]}, but transforms.json says {want}", path=path)
@@ -365,7 +362,7 @@ def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
 def read_pose_file(path: str | Path) -> np.ndarray:
     """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``)."""
     path = Path(path)
-    data = _read_json(path)
+    data = _read_mapping(path)
     poses = [_pose(f, path, f"frames[{i}].") for i, f in enumerate(_frames(data, path))]
     if not poses:
         raise InputError("field 'frames' is empty: expected at least one pose", path=path)

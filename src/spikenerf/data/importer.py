@@ -31,6 +31,7 @@ from spikenerf.data.alignment import (
     near_far_from_points,
     normalisation,
     per_step_poses,
+    smooth_poses,
 )
 from spikenerf.data.dataset import near_far
 from spikenerf.data.poses import PoseSet, orbit_poses, read_pose_source
@@ -52,7 +53,11 @@ class ImportOptions:
         keyframe_every: steps between keyframes. window: TFP window (frames). test_every: every n-th
         keyframe becomes a test view (0: none). fov_deg: horizontal field of view when the poses carry no
         intrinsics. overlap: COLMAP sequential-matching overlap. min_registered: fraction of keyframes
-        COLMAP must register. verbose: show COLMAP's log.
+        COLMAP must register. verbose: show COLMAP's log. keyframe_images: ``tfp`` (window ``window``) or
+        ``learned`` (the shipped learned reconstructor, at its trained window). max_features, sift_peak,
+        affine_sift, final_ba, contrast: COLMAP settings (:class:`spikenerf.data.colmap.ColmapSettings`).
+        smooth: local quadratic smoothing of the keyframe poses over this many steps (0: off;
+        :func:`spikenerf.data.alignment.smooth_poses`).
     """
 
     poses: str = "colmap"
@@ -73,27 +78,52 @@ class ImportOptions:
     min_registered: float = 0.5
     overwrite: bool = False
     verbose: bool = False
+    keyframe_images: str = "tfp"
+    max_features: int = 8192
+    sift_peak: float = 0.02 / 3
+    affine_sift: bool = False
+    final_ba: bool = True
+    contrast: float = 0.0
+    smooth: int = 0
     command: str = ""
 
 
 def _check(options: ImportOptions) -> None:
     for name in ("keyframe_every", "window", "overlap"):
         if getattr(options, name) < 1:
-            raise InputError(f"--{name.replace('_', '-')} must be ≥ 1, found {getattr(options, name)}")
+            raise InputError(f"{name} must be ≥ 1, found {getattr(options, name)}", param=name)
     if options.window % 2 == 0:
-        raise InputError(f"--window must be odd, found {options.window}")
+        raise InputError(f"window must be odd, found {options.window}", param="window")
     if not 0 <= options.min_registered <= 1:
-        raise InputError(f"--min-registered must be in [0, 1], found {options.min_registered}")
+        raise InputError(
+            f"min_registered must be in [0, 1], found {options.min_registered}", param="min_registered"
+        )
+    if options.keyframe_images not in ("tfp", "learned"):
+        raise InputError(
+            f"keyframe_images must be tfp or learned, found {options.keyframe_images!r}",
+            param="keyframe_images",
+        )
+    if options.max_features < 64:
+        raise InputError(f"max_features must be ≥ 64, found {options.max_features}", param="max_features")
+    for name in ("sift_peak", "contrast", "smooth"):
+        value = getattr(options, name)
+        if not (math.isfinite(value) and value >= 0):
+            raise InputError(f"{name} must be a finite number ≥ 0, found {value}", param=name)
     if options.test_every < 0:
-        raise InputError(f"--test-every must be ≥ 0 (0 = no test views), found {options.test_every}")
+        raise InputError(
+            f"test_every must be ≥ 0 (0 = no test views), found {options.test_every}", param="test_every"
+        )
     if options.fov_deg is not None and not 0 < options.fov_deg < 180:
-        raise InputError(f"--fov must be in (0, 180) degrees, found {options.fov_deg}")
+        raise InputError(f"fov_deg must be in (0, 180) degrees, found {options.fov_deg}", param="fov_deg")
     for name in ("fps", "threshold"):
         value = getattr(options, name)
         if value is not None and not (math.isfinite(value) and value > 0):
-            raise InputError(f"--{name} must be a finite number > 0, found {value}")
+            raise InputError(f"{name} must be a finite number > 0, found {value}", param=name)
     if (options.poses == "orbit") != (options.orbit is not None):
-        raise InputError("--orbit R,ELEV[,TURNS[,AZIMUTH]] goes with --poses orbit (and only with it)")
+        raise InputError(
+            "orbit R,ELEV[,TURNS[,AZIMUTH]] goes with poses orbit (and only with it)",
+            param=("orbit", "poses"),
+        )
 
 
 def count_steps(dat: Path, height: int, width: int, raw_width: int | None) -> int:
@@ -104,7 +134,9 @@ def count_steps(dat: Path, height: int, width: int, raw_width: int | None) -> in
         size = dat.stat().st_size if dat.is_file() else 0
         raw = width + 16
         if raw_width is None and size and (height * raw) % 8 == 0 and size % frame_bytes(height, raw) == 0:
-            raise InputError(f"{err} — a raw sps10 file? pass --raw-width {raw}") from None
+            raise InputError(
+                f"{err} — a raw sps10 file? pass raw_width {raw}", param=(*err.params, "raw_width")
+            ) from None
         raise
 
 
@@ -113,6 +145,15 @@ def keyframe_steps(n: int, every: int, window: int) -> np.ndarray:
     steps (a clipped window is centred off its step: a biased pose), plus the last such step."""
     half = min(window // 2, (n - 1) // 2)
     return np.unique(np.append(np.arange(half, n - half, every), n - 1 - half)).astype(np.int64)
+
+
+def keyframe_window(opts: ImportOptions) -> int:
+    """The window (steps) of one keyframe image: ``window`` for TFP, the network's for ``learned``."""
+    if opts.keyframe_images != "learned":
+        return opts.window
+    from spikenerf.recon.net import load_weights
+
+    return int(load_weights(None, "gray")[0].config.window)
 
 
 def keyframe_images(
@@ -124,8 +165,14 @@ def keyframe_images(
     opts: ImportOptions,
     threshold: float,
 ) -> np.ndarray:
-    """TFP images (N, H, W) float32 linear at absolute ``steps``, windows clipped to ``[first, stop)``."""
+    """TFP (or learned) keyframes (N, H, W) float32 linear at absolute ``steps``, windows in [first, stop)."""
     half, (h, w, raw) = opts.window // 2, shape
+    if opts.keyframe_images == "learned":
+        from spikenerf.recon.infer import learned_reconstructor
+
+        recon = learned_reconstructor(threshold=threshold)
+        read = lambda a, b: read_dat(dat, h, w, slice(first + a, first + b), opts.layout, raw)  # noqa: E731
+        return np.stack([recon(read, stop - first, int(s) - first, int(s) - first + 1)[0] for s in steps])
     out = []
     for s in steps:
         lo, hi = max(first, int(s) - half), min(stop, int(s) + half + 1)
@@ -140,22 +187,30 @@ def keyframe_poses(
 ) -> PoseSet:
     """Keyframe poses with steps relative to the selection (0..n-1)."""
     if opts.poses == "colmap":
-        from spikenerf.data.colmap import run_colmap
+        from spikenerf.data.colmap import ColmapSettings, run_colmap
 
         focal = None
         if opts.fov_deg is not None:
             focal = Intrinsics.from_fov(images.shape[2], images.shape[1], math.radians(opts.fov_deg)).fl_x
+        settings = ColmapSettings(
+            focal=focal,
+            overlap=opts.overlap,
+            max_features=opts.max_features,
+            peak_threshold=opts.sift_peak,
+            affine=opts.affine_sift,
+            final_ba=opts.final_ba,
+            contrast=opts.contrast,
+        )
         found = run_colmap(
             images,
             key_steps,
             work / COLMAP_WORK,
-            opts.overlap,
+            settings,
             opts.min_registered,
             opts.keyframe_every,
-            focal=focal,
             verbose=opts.verbose,
         )
-        return found  # named by relative step
+        return replace(found, poses=smooth_poses(found.poses, found.steps, opts.smooth))  # by relative step
     if opts.poses == "orbit":
         return orbit_poses(str(opts.orbit), n, fps)
     found = read_pose_source(opts.poses)
@@ -177,8 +232,9 @@ def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> Non
     if hi - lo + 1 < n / 2:
         raise InputError(
             f"{where} cover only {hi - lo + 1} of the {n} selected steps: are the frame numbers spike "
-            "steps? (give 'step' per frame, or select the steps with --range)",
+            "steps? (give 'step' per frame, or select the steps with frame_range)",
             path=source,
+            param="frame_range",
         )
 
 
@@ -191,7 +247,10 @@ def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | Non
         return k if (k.width, k.height) == (width, height) else k.scaled(width, height)
     if found.camera_angle_x is not None:
         return Intrinsics.from_fov(width, height, found.camera_angle_x)
-    raise InputError("the poses carry no camera intrinsics: pass --fov DEGREES (horizontal field of view)")
+    raise InputError(
+        "the pose source carries no camera intrinsics: pass fov_deg (horizontal field of view, degrees)",
+        param="fov_deg",
+    )
 
 
 def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> Path:
@@ -207,13 +266,18 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     sel = resolve_frames(opts.frame_range, total, dat)
     n = len(sel)
     if n == 0:
-        raise InputError("the recording holds no steps" if total == 0 else "--range selects no steps", dat)
+        raise InputError(
+            "the recording holds no steps" if total == 0 else "frame_range selects no steps",
+            dat,
+            param="frame_range",
+        )
     check_output(out, "dataset", overwrite=opts.overwrite)
-    rel_keys = keyframe_steps(n, opts.keyframe_every, opts.window)
+    rel_keys = keyframe_steps(n, opts.keyframe_every, keyframe_window(opts))
     if len(rel_keys) < 2:
         raise InputError(
-            f"{n} steps give {len(rel_keys)} keyframe at --keyframe-every {opts.keyframe_every}; "
-            "need at least 2"
+            f"{n} steps give {len(rel_keys)} keyframe at keyframe_every {opts.keyframe_every}; "
+            "need at least 2",
+            param="keyframe_every",
         )
     with output_lock(out):
         recover_replaced(out)
@@ -296,9 +360,11 @@ def _write(
             "poses": opts.poses if opts.poses in ("colmap", "orbit") else str(opts.poses),
             "orbit": opts.orbit,
             "keyframe_every": int(opts.keyframe_every),
-            "window": int(opts.window),
+            "window": keyframe_window(opts),
+            "keyframe_images": opts.keyframe_images,
             "keyframes": len(rel_keys),
             "poses_known": int(registered),
+            "pose_steps": [int(s) for s in np.sort(found.steps)],
             "test_keyframes": [int(s) for s in held],
             "normalisation": {"center": [float(c) for c in center], "scale": float(scale)},
         },

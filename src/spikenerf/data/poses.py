@@ -227,7 +227,8 @@ def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
         values = []
     if not 2 <= len(values) <= 4 or values[0] <= 0:
         raise InputError(
-            f"--orbit: expected RADIUS,ELEVATION[,TURNS[,AZIMUTH]] with RADIUS > 0, found {spec!r}"
+            f"orbit: expected RADIUS,ELEVATION[,TURNS[,AZIMUTH]] with RADIUS > 0, found {spec!r}",
+            param="orbit",
         )
     turns = values[2] if len(values) > 2 else 1.0
     start = values[3] if len(values) > 3 else 0.0

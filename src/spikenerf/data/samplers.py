@@ -28,20 +28,26 @@ class RaySampler:
 
     Args:
         num_images: K. height, width: image size in pixels. seed: generator seed.
+        images: (K',) int64 the image indices to draw from (None: all K; the held-out steps, data/holdout.py).
     """
 
-    def __init__(self, num_images: int, height: int, width: int, seed: int = 0) -> None:
-        if num_images < 1 or height < 1 or width < 1:
+    def __init__(
+        self, num_images: int, height: int, width: int, seed: int = 0, images: Tensor | None = None
+    ) -> None:
+        if num_images < 1 or height < 1 or width < 1 or (images is not None and len(images) < 1):
             raise InputError(f"no training rays: {num_images} images of {width}×{height} pixels")
         self.num_images, self.height, self.width = num_images, height, width
+        self.images = images
         self.generator = _generator(seed)
 
     def sample(self, batch: int) -> tuple[Tensor, Tensor]:
         """``batch`` rays: image index (B,) int64 and pixels (B, 2) int64 ``(x, y)``."""
         hw = self.height * self.width
-        flat = torch.randint(0, self.num_images * hw, (batch,), generator=self.generator)
-        pix = flat % hw
-        return flat // hw, torch.stack([pix % self.width, pix // self.width], dim=-1)
+        count = self.num_images if self.images is None else len(self.images)
+        flat = torch.randint(0, count * hw, (batch,), generator=self.generator)
+        pix, index = flat % hw, flat // hw
+        index = index if self.images is None else self.images[index]
+        return index, torch.stack([pix % self.width, pix // self.width], dim=-1)
 
     def state_dict(self) -> dict[str, Tensor]:
         return {"generator": self.generator.get_state()}
@@ -55,11 +61,14 @@ class WindowSampler:
 
     ``order="sequential"`` walks the stream deterministically (start advances by ``stride``, wrapping to 0
     at the end), as the paper selects consecutive poses; ``order="random"`` draws the start uniformly.
-    Windows always lie inside the stream.
+    Windows always lie inside the stream. ``starts`` restricts the first steps drawn (the held-out bands,
+    data/holdout.py): the random order draws among them, the sequential order takes the next one at or
+    after its position. The checkpointed state is the same either way.
 
     Args:
         num_steps: T. height, width: image size. length: L ≤ T. seed: generator seed.
         order: sequential | random. stride: start advance of the sequential order (default L).
+        starts: (S,) int64 sorted allowed first steps (None: all ``T − L + 1``).
     """
 
     def __init__(
@@ -71,6 +80,7 @@ class WindowSampler:
         seed: int = 0,
         order: str = "sequential",
         stride: int | None = None,
+        starts: Tensor | None = None,
     ) -> None:
         if not 1 <= length <= num_steps:
             raise InputError(f"spike window length must be between 1 and the {num_steps} steps, got {length}")
@@ -78,6 +88,9 @@ class WindowSampler:
             raise InputError(f"window order must be sequential or random, got {order!r}")
         self.num_steps, self.height, self.width, self.length = num_steps, height, width, length
         self.order, self.stride = order, max(1, stride or length)
+        if starts is not None and len(starts) < 1:
+            raise InputError(f"no {length}-step window to train on among the {num_steps} steps")
+        self.starts = starts
         self.generator = _generator(seed)
         self.next_start = 0
 
@@ -88,10 +101,17 @@ class WindowSampler:
 
     def sample(self, pixels: int) -> tuple[int, Tensor]:
         """The next window: its first step and pixels (P, 2) int64 ``(x, y)``."""
+        starts = self.starts
         if self.order == "random":
-            start = int(torch.randint(0, self.num_starts, (1,), generator=self.generator))
-        else:
+            count = self.num_starts if starts is None else len(starts)
+            start = int(torch.randint(0, count, (1,), generator=self.generator))
+            start = start if starts is None else int(starts[start])
+        elif starts is None:
             start = self.next_start if self.next_start < self.num_starts else 0
+            self.next_start = start + self.stride
+        else:
+            i = int(torch.searchsorted(starts, self.next_start))
+            start = int(starts[i]) if i < len(starts) else int(starts[0])
             self.next_start = start + self.stride
         flat = torch.randint(0, self.height * self.width, (pixels,), generator=self.generator)
         return start, torch.stack([flat % self.width, flat // self.width], dim=-1)

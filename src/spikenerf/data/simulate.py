@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from spikenerf import __version__
+from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
@@ -28,7 +29,8 @@ from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_output, folder_kind, mark
 from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
-from spikenerf.data.dataset import MODES, near_far
+from spikenerf.data.dataset import MODES, near_far, spike_files
+from spikenerf.data.recording import RAW_DIR, check_raw_width, write_raw_recording
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.base import FrameSource
 from spikenerf.scenes.trajectory import Trajectory, pose_at
@@ -52,6 +54,8 @@ class SimulateOptions:
             on every step, the paper's) or N evenly spaced centres (both stored in ``blur/views.npy``).
         overwrite: replace an existing ``out``. command: recorded in ``config.yaml``.
         extra: more entries for ``config.yaml`` (e.g. the trajectory parameters).
+        raw_width: also write the gray stream as a raw recording with this row width, no poses
+            (``raw/``, data/recording.py); None: not.
     """
 
     colors: tuple[str, ...] = ("gray",)
@@ -65,6 +69,7 @@ class SimulateOptions:
     overwrite: bool = False
     command: str = ""
     extra: dict = field(default_factory=dict)
+    raw_width: int | None = None
 
 
 def work_dir(out: Path) -> Path:
@@ -124,9 +129,10 @@ def estimate_resources(
     return memory, disk
 
 
-def check_simulate_resources(out: Path, flags: str, **sizes: Any) -> None:
-    """InputError (naming ``flags``) when :func:`estimate_resources` exceeds the memory or disk at hand."""
-    check_resources(*estimate_resources(**sizes), out, flags)
+def check_simulate_resources(out: Path, params: str, **sizes: Any) -> None:
+    """InputError (naming ``params``, e.g. ``width/height/frames``) when :func:`estimate_resources` exceeds
+    the memory or disk at hand."""
+    check_resources(*estimate_resources(**sizes), out, params)
 
 
 def _save_npy(path: Path, array: np.ndarray) -> None:
@@ -202,13 +208,21 @@ def check_options(options: SimulateOptions) -> None:
     """InputError on unknown colour modes or out-of-range numbers (before any rendering starts)."""
     if not options.colors or any(c not in MODES for c in options.colors):
         raise InputError(
-            f"--color: expected gray, rgb, bayer or all, found {', '.join(options.colors) or 'none'}"
+            f"colors: expected gray, rgb, bayer or all, found {', '.join(options.colors) or 'none'}",
+            param="colors",
         )
     if options.gt_every < 1:
-        raise InputError(f"--gt-every must be ≥ 1, found {options.gt_every}")
+        raise InputError(f"gt_every must be ≥ 1, found {options.gt_every}", param="gt_every")
     if options.blur_fps < 0:
-        raise InputError(f"--blur-fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}")
+        raise InputError(
+            f"blur_fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}", param="blur_fps"
+        )
     parse_blur_views(options.blur_views)
+    if options.raw_width is not None and "gray" not in options.colors:
+        raise InputError(
+            "raw_width writes the gray stream as a raw recording: it needs colors to include gray",
+            param=("raw_width", "colors"),
+        )
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
 
@@ -266,7 +280,7 @@ def stream_steps(
     blur = RunningExposures(windows, frame_at)
     for i in tqdm(range(len(traj)), desc="spikes", unit="step", disable=not progress):
         step, frame = traj.steps[i], frame_at(i)
-        chw = np.ascontiguousarray(frame.transpose(2, 0, 1))
+        chw = np.ascontiguousarray(to_camera_layout(frame, frame=True))
         for c, camera in cameras.items():
             buffers[c].append(camera.step(chw).copy())
             if len(buffers[c]) == SPIKE_CHUNK or i == len(traj) - 1:
@@ -331,6 +345,7 @@ def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, p
     """
     out = Path(out)
     check_options(options)
+    check_raw_width(options.raw_width, source.intrinsics.height, source.intrinsics.width)
     check_output(out, "dataset", overwrite=options.overwrite)
     with output_lock(out):
         recover_replaced(out)
@@ -364,6 +379,10 @@ def _simulate_locked(source: FrameSource, out: Path, options: SimulateOptions, p
         writer.add_test(image, pose)
     config = dataset_config(source, options, len(test_poses))
     writer.finish(traj, config, options.blur_fps if windows else None)
+    if options.raw_width is not None:
+        write_raw_recording(
+            work / spike_files("gray")[0], k.height, k.width, traj.fps, work / RAW_DIR, options.raw_width
+        )
     mark(work, "dataset")
     failpoint("simulate.publish")
     shutil.rmtree(cache)

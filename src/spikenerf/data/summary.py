@@ -10,6 +10,7 @@ import imageio.v3 as iio
 import numpy as np
 import yaml
 
+from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.model import COLORS as MODES
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.camera.stats import dat_rate_summary
@@ -21,7 +22,7 @@ from spikenerf.data.dataset import (
     TRANSFORMS,
     TRANSFORMS_BLUR,
     SpikeDataset,
-    _read_json,
+    _read_mapping,
     load_dataset,
     spike_files,
 )
@@ -53,7 +54,7 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
     half = window // 2
     lo, hi = max(pos - half, 0), min(pos + half + 1, n)
     recon = tfp(ds.spikes(mode, slice(lo, hi)), window, ds.threshold, frames=pos - lo)[0]
-    recon = np.moveaxis(recon, 0, -1) if mode == "rgb" else np.repeat(recon[..., None], 3, -1)
+    recon = np.repeat(to_channels_last(recon, frame=True), 3 if mode != "rgb" else 1, -1)  # (H, W, 3)
     h = recon.shape[0]
     panels = [recon]
     caption = f"{PREVIEW}: TFP ({mode}, window {window}) at step {int(steps[pos])}"
@@ -75,8 +76,8 @@ def view_counts(root: str | Path) -> dict:
         ``transforms_blur.json``) and ``blur_views`` (``config.yaml``; ``frames`` for older datasets).
     """
     root = Path(root)
-    frames = _read_json(root / TRANSFORMS).get("frames") or []
-    blur_data = _read_json(root / TRANSFORMS_BLUR) if (root / TRANSFORMS_BLUR).is_file() else {}
+    frames = _read_mapping(root / TRANSFORMS).get("frames") or []
+    blur_data = _read_mapping(root / TRANSFORMS_BLUR) if (root / TRANSFORMS_BLUR).is_file() else {}
     blur = blur_data.get("frames") or []
     train = blur_data.get("train_filenames")  # a nerfstudio view lists its held-out frames too
     if isinstance(train, list):

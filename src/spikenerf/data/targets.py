@@ -1,16 +1,19 @@
-"""Training targets per method, as compact tensors: posed target images and the recorded spike stream.
+"""Training targets, as compact tensors: posed target images and the recorded spike stream.
 
 Every target is *linear* intensity per readout step (1.0 = white, φ = the dataset threshold), channels last.
+Which method uses which targets is decided by its class in :mod:`spikenerf.train.methods`:
 
-* ``spike-nerf``: ``M_k ⊙ Î_k`` at every step k — TFP (window 41) or TFI of the recorded stream, times the
-  spike mask ``M_k = s_{k-n} ∨ … ∨ s_{k+n}`` (n = 5: exactly 11 frames); unmasked (``mask=False``) = ``Î_k``.
-* ``nerf-recon``: ``Î_k`` at every step (no mask).
-* ``nerf-gt``: the sharp ground-truth renders at their poses.
-* ``nerf-blur``: the conventional-camera (400 fps) blur views the dataset holds (``simulate --blur-views``:
-  10 consecutive frames, or the paper's 1000 overlapping exposures) at their mid-exposure poses.
+* ``spike-nerf`` (:func:`stream_targets`): ``M_k ⊙ Î_k`` at every step k — TFP (window 41) or TFI of the
+  recorded stream, times the spike mask ``M_k = s_{k-n} ∨ … ∨ s_{k+n}`` (n = 5: exactly 11 frames);
+  unmasked (``mask=False``) = ``Î_k``.
+* ``nerf-recon`` (:func:`stream_targets`, ``mask=False``): ``Î_k`` at every step (no mask).
+* ``nerf-gt`` (:func:`gt_targets`): the sharp ground-truth renders at their poses.
+* ``nerf-blur`` (:func:`blur_targets`): the conventional-camera (400 fps) blur views the dataset holds
+  (``simulate --blur-views``: 10 consecutive frames, or the paper's 1000 overlapping exposures) at their
+  mid-exposure poses.
 * ``nerf-blur-aware`` (a deblurring NeRF given the true trajectory; it does not optimise the trajectory as
-  BAD-NeRF does): the blur views, each with ``blur_samples`` poses spread over its exposure; the trainer
-  renders all of them and averages before the loss.
+  BAD-NeRF does; :func:`blur_targets` with ``samples``): the blur views, each with ``blur_samples`` poses
+  spread over its exposure; the method renders all of them and averages before the loss.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
 from spikenerf.camera.reconstruct import ReconMethod, tfi, tfp
 from spikenerf.core.color import rgb_to_gray
@@ -33,10 +37,9 @@ if TYPE_CHECKING:
 #: image reconstructions for targets: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
 TargetRecon = Literal[ReconMethod, "learned"]
 RECONS: tuple[str, ...] = get_args(TargetRecon)
-#: training methods (each defines its targets)
+#: training methods (each one a class in ``spikenerf.train.methods`` that builds its targets from here)
 Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt"]
 METHODS: tuple[str, ...] = get_args(Method)
-SPIKE_METHODS = ("spike-nerf", "nerf-recon")
 #: colours a radiance field is trained in
 TrainColor = Literal["gray", "rgb"]
 COLORS: tuple[str, ...] = get_args(TrainColor)
@@ -51,11 +54,13 @@ class ImageTargets:
             (S = 1 except for the exposure-aware blur baseline).
         images: (K, H, W, C) float16 linear targets (C = 1 gray, 3 rgb).
         steps: (K,) int64 spike step of each image (−1 if unknown).
+        pose_steps: (K, S) int64 spike step of each pose (None: ``steps`` for every pose).
     """
 
     poses: Tensor
     images: Tensor
     steps: Tensor
+    pose_steps: Tensor | None = None
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
@@ -70,7 +75,7 @@ class SpikeTargets:
     """The recorded stream and per-step poses for the spike loss.
 
     Attributes:
-        spikes: (T, H, W, C) uint8 0/1 recorded spikes, channels last.
+        spikes: (T, H, W, C) uint8 0/1 recorded spikes, channels last (``camera.layout.to_channels_last``).
         poses: (T, 4, 4) float32 camera-to-world of each step.
         threshold: φ of the camera.
     """
@@ -84,31 +89,25 @@ class SpikeTargets:
         return self.spikes[start : start + length, pixels[:, 1], pixels[:, 0]].float()
 
 
-def channels_last(stream: np.ndarray | Tensor) -> Tensor:
-    """(T, H, W) → (T, H, W, 1); (T, 3, H, W) → (T, H, W, 3)."""
-    x = torch.as_tensor(np.asarray(stream) if not isinstance(stream, Tensor) else stream)
-    if x.dim() == 3:
-        return x[..., None]
-    if x.dim() == 4:
-        return x.permute(0, 2, 3, 1)
-    raise InputError(f"spike stream must be (T, H, W) or (T, 3, H, W), found shape {tuple(x.shape)}")
-
-
 def reconstruct_stream(
-    spikes: np.ndarray, recon: str = "tfp", window: int = 41, threshold: float = 1.0
+    spikes: np.ndarray,
+    recon: str = "tfp",
+    window: int = 41,
+    threshold: float = 1.0,
+    frames: slice | None = None,
 ) -> np.ndarray:
-    """Î of every step: TFP (``window`` frames, odd), TFI or the shipped learned reconstructor (its trained
-    window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb stream → float32 linear."""
+    """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI or the shipped learned
+    reconstructor (its trained window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb
+    stream → float32 linear (N, ...)."""
     if recon == "learned":
         from spikenerf.recon.infer import reconstruct_learned
 
-        return reconstruct_learned(
-            spikes, "rgb" if np.ndim(spikes) == 4 else "gray", threshold, window=window
-        )
+        mode = "rgb" if np.ndim(spikes) == 4 else "gray"
+        return reconstruct_learned(spikes, mode, threshold, frames=frames, window=window)
     if recon == "tfp":
-        return tfp(spikes, window=window, threshold=threshold)
+        return tfp(spikes, window=window, threshold=threshold, frames=frames)
     if recon == "tfi":
-        return tfi(spikes, threshold=threshold)
+        return tfi(spikes, threshold=threshold, frames=frames)
     raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
 
 
@@ -143,8 +142,9 @@ def load_stream(dataset: SpikeDataset, color: str) -> np.ndarray:
     mode = stream_mode(color)
     if mode not in dataset.modes:
         raise InputError(
-            f"--color {color} needs the {mode!r} spike stream, but the dataset has {sorted(dataset.modes)}",
+            f"color {color} needs the {mode!r} spike stream, but the dataset has {sorted(dataset.modes)}",
             path=getattr(dataset, "root", None),
+            param="color",
         )
     spikes = np.asarray(dataset.spikes(mode))
     if len(dataset.trajectory) != spikes.shape[0]:
@@ -190,58 +190,70 @@ def exposure_steps(step_range: np.ndarray, samples: int) -> np.ndarray:
 def _posed(posed: PosedImages | None, what: str, method: str, dataset: SpikeDataset) -> PosedImages:
     if posed is None or len(posed.images) == 0:
         raise InputError(
-            f"--method {method} needs the {what} frames, but the dataset has none",
+            f"method {method} needs the {what} frames, but the dataset has none",
             path=getattr(dataset, "root", None),
+            param="method",
         )
     return posed
 
 
-def build_image_targets(
+def stream_targets(
     dataset: SpikeDataset,
-    method: str,
     color: str = "gray",
     recon: str = "tfp",
     window: int = 41,
     mask: bool = True,
     mask_n: int = 5,
-    blur_samples: int = 8,
     spikes: np.ndarray | None = None,
 ) -> ImageTargets:
-    """The reconstruction-loss targets of ``method`` (see the module docstring).
+    """``M_k ⊙ Î_k`` (``mask``) or ``Î_k`` at every step's pose: poses (T, 1, 4, 4), images (T, H, W, C).
 
     Args:
-        dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi. window: TFP window (odd).
-        mask: apply spike masks (spike-nerf only). mask_n: mask half window n (2n+1 frames).
-        blur_samples: poses per exposure for nerf-blur-aware. spikes: the stream if already loaded.
+        dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi | learned. window: TFP window
+        (odd). mask: apply spike masks. mask_n: mask half window n (2n+1 frames). spikes: the stream if
+        already loaded ((T, H, W) gray or (T, 3, H, W) rgb).
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {', '.join(METHODS)}, found {method!r}")
-    if method in SPIKE_METHODS:
-        stream = load_stream(dataset, color) if spikes is None else spikes
-        use_mask = mask and method == "spike-nerf"
-        images = masked_reconstruction(stream, recon, window, dataset.threshold, use_mask, mask_n)
-        poses = torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32)[:, None]
-        return ImageTargets(poses, channels_last(images).half(), torch.as_tensor(dataset.trajectory.steps))
-    if method == "nerf-gt":
-        gt = _posed(dataset.gt, "gt/", method, dataset)
-        steps = np.full(len(gt.images), -1) if gt.steps is None else np.asarray(gt.steps)
-        poses = torch.as_tensor(np.asarray(gt.poses), dtype=torch.float32)[:, None]
-        return ImageTargets(poses, image_channels(gt.images, color).half(), torch.as_tensor(steps))
+    stream = load_stream(dataset, color) if spikes is None else spikes
+    images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n)
+    poses = torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32)[:, None]
+    images = torch.as_tensor(to_channels_last(images)).half()
+    return ImageTargets(poses, images, torch.as_tensor(dataset.trajectory.steps))
+
+
+def gt_targets(dataset: SpikeDataset, color: str = "gray", method: str = "nerf-gt") -> ImageTargets:
+    """The sharp ground-truth renders at their poses: poses (K, 1, 4, 4), images (K, H, W, C).
+    ``method`` names the caller in the error raised when the dataset has none."""
+    gt = _posed(dataset.gt, "gt/", method, dataset)
+    steps = np.full(len(gt.images), -1) if gt.steps is None else np.asarray(gt.steps)
+    poses = torch.as_tensor(np.asarray(gt.poses), dtype=torch.float32)[:, None]
+    return ImageTargets(poses, image_channels(gt.images, color).half(), torch.as_tensor(steps))
+
+
+def blur_targets(
+    dataset: SpikeDataset, color: str = "gray", samples: int | None = None, method: str = "nerf-blur"
+) -> ImageTargets:
+    """The blur views: at their mid-exposure poses (``samples`` None: poses (K, 1, 4, 4)) or each at
+    ``samples`` poses spread over its exposure (poses (K, samples, 4, 4)); images (K, H, W, C).
+    ``method`` names the caller in errors."""
     blur = _posed(dataset.blur, "blur/", method, dataset)
     ranges = None if blur.step_ranges is None else np.asarray(blur.step_ranges)
     steps = np.full(len(blur.images), -1) if ranges is None else (ranges[:, 0] + ranges[:, 1] - 1) // 2
-    if method == "nerf-blur":
+    if samples is None:
         poses = torch.as_tensor(np.asarray(blur.poses), dtype=torch.float32)[:, None]
     else:
         if ranges is None:
             raise InputError(
-                "--method nerf-blur-aware needs the exposure step ranges of the blur frames",
+                f"method {method} needs the exposure step ranges of the blur frames",
                 path=getattr(dataset, "root", None),
+                param="method",
             )
-        if blur_samples < 1:
-            raise InputError(f"blur samples per exposure must be ≥ 1, found {blur_samples}")
-        exp = np.stack([step_poses(dataset, exposure_steps(r, blur_samples)) for r in ranges])
-        poses = torch.as_tensor(exp, dtype=torch.float32)
+        if samples < 1:
+            raise InputError(f"blur samples per exposure must be ≥ 1, found {samples}")
+        sub = np.stack([exposure_steps(r, samples) for r in ranges])
+        poses = torch.as_tensor(np.stack([step_poses(dataset, s) for s in sub]), dtype=torch.float32)
+        return ImageTargets(
+            poses, half_channels(blur.images, color), torch.as_tensor(steps), torch.as_tensor(sub)
+        )
     return ImageTargets(poses, half_channels(blur.images, color), torch.as_tensor(steps))
 
 
@@ -251,7 +263,7 @@ def build_spike_targets(
     """The recorded stream of ``color`` as (T, H, W, C) uint8 with per-step poses and φ."""
     stream = load_stream(dataset, color) if spikes is None else spikes
     return SpikeTargets(
-        channels_last(np.asarray(stream, dtype=np.uint8)).contiguous(),
+        torch.as_tensor(to_channels_last(np.asarray(stream, dtype=np.uint8))).contiguous(),
         torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32),
         float(dataset.threshold),
     )

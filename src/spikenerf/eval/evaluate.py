@@ -24,9 +24,13 @@ from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.data.dataset import PosedImages, SpikeDataset
+from spikenerf.data.holdout import read_record
 from spikenerf.eval import lpips as lp
-from spikenerf.eval.metrics import SSIMConfig, psnr, ssim
+from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
+from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_image
+from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.train.pose_refine import refined_views
 from spikenerf.train.run import load_run, run_iteration
 
 METRICS_FILE = "metrics.json"
@@ -37,7 +41,7 @@ SPACE = "sRGB-encoded [0,1]"
 def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
     """Posed GT images of a split: ``test`` = held-out views, ``train`` = sharp GT on the training path."""
     if split not in SPLITS:
-        raise InputError(f"--split must be one of {', '.join(SPLITS)}, found {split!r}")
+        raise InputError(f"split must be one of {', '.join(SPLITS)}, found {split!r}", param="split")
     views = dataset.test if split == "test" else dataset.gt
     if views is None or len(views) == 0:
         source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"
@@ -57,11 +61,6 @@ def display(linear: torch.Tensor | np.ndarray, channels: int) -> torch.Tensor:
 
 def _finite(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
-
-
-def _mean(values: list[float | None]) -> float | None:
-    vals = [v for v in values if v is not None]
-    return float(np.mean(vals)) if vals and len(vals) == len(values) else None
 
 
 def score_view(
@@ -95,6 +94,8 @@ def evaluate_run(
     chunk: int = 8192,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
+    noref: str = "auto",
+    noref_options: NoRefOptions | None = None,
 ) -> dict[str, Any]:
     """Render every view of ``split``, score it and write ``RUN/metrics.json`` atomically.
 
@@ -104,23 +105,30 @@ def evaluate_run(
         device: auto | cpu | cuda. dataset_root: the dataset if it moved since training.
         lpips_backbone: ``alex`` (default), ``vgg`` or None (skip LPIPS).
         chunk: rays per render call.
+        noref: ``auto`` (on for imported datasets), ``on`` or ``off``: the no-reference checks against the
+            recording itself (:mod:`spikenerf.eval.noref`). noref_options: their settings.
     Returns:
         The metrics.json content (see docs/formats.md): split, method, color, field, iterations, views,
-        mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, seconds.
+        mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, no_reference, seconds.
     """
+    noref_options = NoRefOptions() if noref_options is None else noref_options
+    noref_options.check()
     with output_lock(run_dir, "RUN"):
         return _evaluate_locked(
-            Path(run_dir), split, device, dataset_root, lpips_backbone, chunk, progress, log
-        )
+            Path(run_dir), split, device, dataset_root, lpips_backbone, chunk, progress, log,
+            (noref, noref_options),
+        )  # fmt: skip
 
 
 def _evaluate_locked(
     run_dir: Path, split: str, device: str, dataset_root: str | Path | None, lpips_backbone: str | None,
-    chunk: int, progress: bool, log: Callable[[str], None] | None,
+    chunk: int, progress: bool, log: Callable[[str], None] | None, noref: tuple[str, NoRefOptions],
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device)
-    views = split_views(dataset, split)
+    views = refined_views(load_checkpoint(run_dir / CHECKPOINT), config, dataset, split_views(dataset, split))
+    held = read_record(run_dir)
+    use_noref = wants_noref(noref[0], dataset, held is not None)
     k = dataset.intrinsics
     backbone, reason = lpips_status(lpips_backbone, k.height, k.width)
     if reason and log:
@@ -138,12 +146,20 @@ def _evaluate_locked(
         "field": config.field,
         "iterations": run_iteration(run_dir),
         "views": len(per_view),
-        "mean": {m: _mean([v[m] for v in per_view]) for m in ("psnr", "ssim", "lpips")},
+        "mean": {m: mean_or_none([v[m] for v in per_view]) for m in ("psnr", "ssim", "lpips")},
         "per_view": per_view,
         "lpips_backbone": backbone,
         "lpips_reason": reason,
         "space": SPACE,
-        "seconds": round(time.perf_counter() - t0, 3),
+        "no_reference": None,
+        "seconds": 0.0,
     }
+    if use_noref:
+
+        def bar(steps: Any) -> Any:
+            return tqdm(steps, desc="no-reference", unit="step", disable=not progress)
+
+        result["no_reference"] = noref_metrics(model, config, dataset, noref[1], chunk, display, bar, held)
+    result["seconds"] = round(time.perf_counter() - t0, 3)
     write_text_atomic(run_dir / METRICS_FILE, json.dumps(result, indent=2, allow_nan=False) + "\n")
     return result

@@ -38,22 +38,53 @@ def _batched(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tens
     return a, b, False
 
 
-def mse(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Mean squared error per image. a, b: (N,C,H,W) or (C,H,W). Returns (N,) or ()."""
+def mean_or_none(values: list[float | None]) -> float | None:
+    """The plain mean of per-view values, or None when there are none or any of them is None."""
+    vals = [v for v in values if v is not None]
+    return float(sum(vals) / len(vals)) if vals and len(vals) == len(values) else None
+
+
+def masked_mean(x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Mean over all but the first axis of x (N, ...), counting only where ``mask`` (same shape, bool) is
+    set; no mask = the plain mean. An image with an empty mask gives NaN. Returns (N,) float64."""
+    x = x.double().flatten(1)
+    if mask is None:
+        return x.mean(1)
+    m = mask.flatten(1).to(x.dtype)
+    return (x * m).sum(1) / m.sum(1)
+
+
+def _mask_batched(mask: torch.Tensor | None, shape: torch.Size) -> torch.Tensor | None:
+    if mask is None:
+        return None
+    mask = mask[None] if mask.ndim == 3 else mask
+    if mask.shape != shape:
+        raise ValueError(f"mask shape {tuple(mask.shape)} differs from the images' {tuple(shape)}")
+    return mask.bool()
+
+
+def mse(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean squared error per image, over the pixels where ``mask`` is set (all if None; NaN if none).
+
+    a, b, mask: (N,C,H,W) or (C,H,W). Returns (N,) or ().
+    """
     a, b, single = _batched(a, b)
-    out = (a.double() - b.double()).square().flatten(1).mean(1)
+    out = masked_mean((a.double() - b.double()).square(), _mask_batched(mask, a.shape))
     return out[0] if single else out
 
 
-def psnr(a: torch.Tensor, b: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+def psnr(
+    a: torch.Tensor, b: torch.Tensor, data_range: float = 1.0, mask: torch.Tensor | None = None
+) -> torch.Tensor:
     """Peak signal-to-noise ratio in dB, 10·log10(range² / MSE); +inf for identical images.
 
     Args:
         a, b: (N,C,H,W) or (C,H,W), values in [0, data_range].
+        mask: optional bool of the same shape: the MSE counts only those pixels (a masked PSNR).
     Returns:
         (N,) or () float64, dB.
     """
-    return mse_to_psnr(mse(a, b), data_range)
+    return mse_to_psnr(mse(a, b, mask), data_range)
 
 
 def gaussian_window(taps: int = 11, sigma: float = 1.5) -> torch.Tensor:
@@ -101,14 +132,22 @@ def ssim_map(a: torch.Tensor, b: torch.Tensor, config: SSIMConfig = SSIMConfig()
     return num / den
 
 
-def ssim(a: torch.Tensor, b: torch.Tensor, config: SSIMConfig = SSIMConfig()) -> torch.Tensor:
+def ssim(
+    a: torch.Tensor, b: torch.Tensor, config: SSIMConfig = SSIMConfig(), mask: torch.Tensor | None = None
+) -> torch.Tensor:
     """Structural similarity, the mean of :func:`ssim_map` over channels and valid pixels.
 
     Args:
         a, b: (N,C,H,W) or (C,H,W), values in [0, data_range], H and W ≥ 11.
+        mask: optional bool of the same shape: average the map only over the window centres where it is
+            set (the map's valid region is the image less ``window // 2`` pixels at every border).
     Returns:
-        (N,) or () float64 in [-1, 1]; 1 for identical images.
+        (N,) or () float64 in [-1, 1]; 1 for identical images (NaN where the mask leaves nothing).
     """
     single = a.ndim == 3
-    out = ssim_map(a, b, config).flatten(1).mean(1)
+    m = _mask_batched(mask, a.shape if a.ndim == 4 else a[None].shape)
+    if m is not None:
+        r = config.window // 2
+        m = m[..., r : m.shape[-2] - r, r : m.shape[-1] - r]
+    out = masked_mean(ssim_map(a, b, config), m)
     return out[0] if single else out

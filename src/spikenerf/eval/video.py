@@ -30,7 +30,8 @@ import imageio.v3 as iio
 import numpy as np
 from tqdm import tqdm
 
-from spikenerf.camera.io import rgb_paths, write_dat
+from spikenerf.camera.io import write_dat, write_dat_rgb
+from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import srgb_encode
@@ -131,7 +132,9 @@ def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> tuple[st
         return "orbit", orbit_poses(dataset, count)
     path = Path(spec)
     if not path.is_file():
-        raise InputError(f"--trajectory: expected test, orbit or a transforms.json file, found {spec!r}")
+        raise InputError(
+            f"trajectory: expected test, orbit or a transforms.json file, found {spec!r}", param="trajectory"
+        )
     return path.stem, read_pose_file(path)
 
 
@@ -142,20 +145,16 @@ def write_spikes(
     k = dataset.intrinsics
     steps = iter_spike_stream(model, poses, k, dataset.threshold, seed, chunk, dataset.near, dataset.far)
     bar = tqdm(steps, total=len(poses), desc="spikes", unit="step", disable=not progress)
-    stream = np.stack([s.numpy() for s in bar]).astype(np.uint8)  # (T, H, W, C)
-    if stream.shape[-1] == 1:
+    spikes = np.stack([s.numpy() for s in bar]).astype(np.uint8)  # camera layout: (T, H, W) | (T, 3, H, W)
+    if spikes.ndim == 3:
         files = [out / "spikes_gray.dat"]
-        write_dat(files[0], stream[..., 0])
-        spikes = stream[..., 0]
+        write_dat(files[0], spikes)
     else:
-        files = rgb_paths(out / "spikes_rgb")
-        for c, path in enumerate(files):
-            write_dat(path, stream[..., c])
-        spikes = stream.transpose(0, 3, 1, 2)  # (T, 3, H, W)
-    t = len(stream)
+        files = write_dat_rgb(out / "spikes_rgb", spikes)
+    t = len(spikes)
     window = min(TFP_WINDOW, t if t % 2 else t - 1)
     preview = tfp(spikes, window=max(window, 1), threshold=dataset.threshold, frames=t // 2)[0]
-    preview = preview[..., None] if preview.ndim == 2 else preview.transpose(1, 2, 0)
+    preview = to_channels_last(preview, frame=True)
     write_bytes_atomic(out / "spikes_tfp.png", png_bytes(to_uint8(srgb_encode(preview))))
     return [p.name for p in files] + ["spikes_tfp.png"]
 
@@ -179,8 +178,9 @@ def render_run(
     bad_steps = spike_steps is not None and spike_steps < 1
     if not (0 < fps_video < float("inf")) or orbit_frames < 1 or bad_steps:
         raise InputError(
-            f"--fps-video, --orbit-frames and --spike-steps must be positive, found "
-            f"{fps_video}, {orbit_frames}, {spike_steps}"
+            f"fps_video, orbit_frames and spike_steps must be positive, found "
+            f"{fps_video}, {orbit_frames}, {spike_steps}",
+            param=("fps_video", "orbit_frames", "spike_steps"),
         )
     out = Path(out)
     check_output(out, "render", overwrite=True)
@@ -196,7 +196,7 @@ def check_render_resources(dataset: SpikeDataset, views: int, spike_steps: int, 
     px = float(dataset.intrinsics.width) * dataset.intrinsics.height
     memory = views * (px * 16 + 256) + spike_steps * (px * 3 + 256)
     disk = views * px * 14 + spike_steps * px * 3 / 8
-    check_resources(memory, disk, out, "--orbit-frames/--spike-steps/--trajectory")
+    check_resources(memory, disk, out, "orbit_frames/spike_steps/trajectory")
 
 
 def _render_locked(

@@ -8,6 +8,7 @@ from typing import Any, Literal, get_args
 from torch import Tensor
 
 from spikenerf.core.errors import InputError
+from spikenerf.fields.base import Field
 from spikenerf.fields.grid import GridField, GridFieldConfig
 from spikenerf.fields.mlp import MLPField, MLPFieldConfig
 from spikenerf.fields.occupancy import OccupancyGrid
@@ -18,6 +19,7 @@ _CONFIGS: dict[str, type] = {"grid": GridFieldConfig, "mlp": MLPFieldConfig}
 
 __all__ = [
     "FIELD_KINDS",
+    "Field",
     "FieldKind",
     "GridField",
     "GridFieldConfig",

@@ -21,6 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
 from spikenerf.fields.vm_kernel import usable, vm_lookup
@@ -140,7 +141,7 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
     return out[..., :m] if pad else out
 
 
-class GridField(nn.Module):
+class GridField(Field):
     """Radiance field on TensoRF-VM grids.
 
     Args:
@@ -150,12 +151,8 @@ class GridField(nn.Module):
     """
 
     def __init__(self, channels: int, scene_box: Tensor, config: GridFieldConfig | None = None) -> None:
-        super().__init__()
-        self.config = cfg = config or GridFieldConfig()
-        self.channels = channels
-        self.register_buffer(
-            "scene_box", torch.as_tensor(scene_box, dtype=torch.float32).reshape(2, 3).clone()
-        )
+        super().__init__(channels, scene_box, config or GridFieldConfig())
+        cfg = self.config
         r, s = cfg.resolutions()[0], cfg.init_scale
         self.density_planes = nn.Parameter(s * torch.randn(3, cfg.density_components, r, r))
         self.density_lines = nn.Parameter(s * torch.randn(3, cfg.density_components, r, 1))
@@ -187,16 +184,6 @@ class GridField(nn.Module):
         if getattr(self, "_box_key", None) != key:
             self._box_key, self._box_mean = key, (self.scene_box[1] - self.scene_box[0]).mean().item()
         return self._box_mean
-
-    def normalize(self, xyz: Tensor) -> Tensor:
-        """World points (..., 3) → box-normalised [−1, 1]³."""
-        lo, hi = self.scene_box[0], self.scene_box[1]
-        return (xyz - lo) * (2.0 / (hi - lo)) - 1.0
-
-    def denormalize(self, xyz_norm: Tensor) -> Tensor:
-        """Box-normalised points (..., 3) → world."""
-        lo, hi = self.scene_box[0], self.scene_box[1]
-        return lo + (xyz_norm + 1.0) * (0.5 * (hi - lo))
 
     def density_norm(self, xyz_norm: Tensor) -> Tensor:
         """Density per world unit (M,) at normalised points (M, 3)."""
@@ -255,7 +242,8 @@ class GridField(nn.Module):
         return changed
 
     def regularization(self) -> Tensor:
-        """``l1_weight`` × mean |density factor| (a sparsity prior against floaters); 0 by default."""
+        """Scalar () ``l1_weight`` × mean |density factor| (a sparsity prior against floaters); 0 by
+        default."""
         if self.config.l1_weight == 0:
             return self.density_planes.new_zeros(())
         l1 = self.density_planes.abs().mean() + self.density_lines.abs().mean()

@@ -8,6 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 
 
@@ -69,6 +70,7 @@ class NeRFMLP(nn.Module):
         self.out = nn.Linear(c.dir_width, channels)
 
     def forward(self, xyz_norm: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+        """Normalised points (M, 3), unit dirs (M, 3) → raw density (M,), colour (M, C) in [0, 1]."""
         c = self.config
         enc = positional_encoding(xyz_norm, c.xyz_freqs)
         h = enc
@@ -81,26 +83,16 @@ class NeRFMLP(nn.Module):
         return raw_sigma, torch.sigmoid(self.out(F.relu(self.head(h))))
 
 
-class MLPField(nn.Module):
+class MLPField(Field):
     """Coarse and fine NeRF networks over a scene box.
 
     Density is ``relu(raw)`` per world unit; colour is linear radiance in [0, 1] (sigmoid), like NeRF.
     """
 
     def __init__(self, channels: int, scene_box: Tensor, config: MLPFieldConfig | None = None) -> None:
-        super().__init__()
-        self.config = config or MLPFieldConfig()
-        self.channels = channels
-        self.register_buffer(
-            "scene_box", torch.as_tensor(scene_box, dtype=torch.float32).reshape(2, 3).clone()
-        )
+        super().__init__(channels, scene_box, config or MLPFieldConfig())
         self.coarse = NeRFMLP(channels, self.config)
         self.fine = NeRFMLP(channels, self.config)
-
-    def normalize(self, xyz: Tensor) -> Tensor:
-        """World points (..., 3) → box-normalised [−1, 1]³."""
-        lo, hi = self.scene_box[0], self.scene_box[1]
-        return (xyz - lo) * (2.0 / (hi - lo)) - 1.0
 
     def query(self, xyz: Tensor, dirs: Tensor, fine: bool, noise_std: float = 0.0) -> tuple[Tensor, Tensor]:
         """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""
@@ -111,7 +103,3 @@ class MLPField(nn.Module):
 
     def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
         return self.query(xyz, dirs, fine=True)
-
-    def param_groups(self, base_lr: float | None = None) -> list[dict]:
-        """One Adam group for both networks at ``base_lr`` (default ``config.lr``)."""
-        return [{"params": list(self.parameters()), "lr": base_lr or self.config.lr, "name": "network"}]

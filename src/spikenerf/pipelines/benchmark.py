@@ -24,8 +24,6 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.cells import (  # re-exported: the benchmark's public API
-    TABLE1_VARIANTS,
-    VARIANT_FLAGS,
     BenchmarkConfig,
     CellKey,
     cell_commands,
@@ -45,11 +43,12 @@ from spikenerf.pipelines.results import write_all
 from spikenerf.pipelines.settings import check_settings, write_settings
 from spikenerf.pipelines.steps import run_step as _run
 from spikenerf.pipelines.tables import Cell
+from spikenerf.pipelines.variants import TABLE1_VARIANTS, VARIANTS  # re-exported
 
 T = TypeVar("T")
 __all__ = [
     "TABLE1_VARIANTS",
-    "VARIANT_FLAGS",
+    "VARIANTS",
     "BenchmarkConfig",
     "CellKey",
     "cell_commands",
@@ -101,9 +100,10 @@ def _simulate_scene(cfg: BenchmarkConfig, scene: str, log: list[dict]) -> None:
     have = str(view_counts(root)["blur_views"])
     if have != cfg.blur_views:
         raise InputError(
-            f"dataset was simulated with --blur-views {have}, but the benchmark asks for {cfg.blur_views}; "
-            f"pass --blur-views {have} or delete the dataset to re-simulate it",
+            f"blur_views: the dataset was simulated with {have} blur views, but the benchmark asks for "
+            f"{cfg.blur_views}; pass {have} or delete the dataset to re-simulate it",
             path=root,
+            param="blur_views",
         )
 
 

@@ -17,31 +17,10 @@ from typing import NamedTuple
 import torch
 
 from spikenerf import __version__
-from spikenerf.core.errors import InputError, comma_list
-from spikenerf.pipelines.tables import ABLATION_VARIANTS, Cell
+from spikenerf.core.errors import InputError, comma_list, parse_int
+from spikenerf.pipelines.tables import Cell
+from spikenerf.pipelines.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, VARIANTS
 from spikenerf.scenes.registry import blender_available, list_scenes
-
-#: method variant -> the ``spikenerf train`` flags that select it
-VARIANT_FLAGS: dict[str, list[str]] = {
-    "nerf-gt": ["--method", "nerf-gt"],
-    "nerf-blur": ["--method", "nerf-blur"],
-    "nerf-blur-aware": ["--method", "nerf-blur-aware"],
-    "nerf-recon": ["--method", "nerf-recon"],
-    "spike-nerf": ["--method", "spike-nerf"],
-    "nerf-recon-learned": ["--method", "nerf-recon", "--recon", "learned"],
-    "spike-nerf-learned": ["--method", "spike-nerf", "--recon", "learned"],
-    "spike-nerf-no-mask": ["--method", "spike-nerf", "--no-mask"],
-    "spike-nerf-no-spike-loss": ["--method", "spike-nerf", "--no-spike-loss"],
-}
-TABLE1_VARIANTS = (
-    "nerf-gt",
-    "nerf-blur",
-    "nerf-blur-aware",
-    "nerf-recon",
-    "nerf-recon-learned",
-    "spike-nerf",
-    "spike-nerf-learned",
-)
 
 
 @dataclass
@@ -103,14 +82,11 @@ def parse_seeds(spec: str) -> list[int]:
     """``"0,1,2"`` → ``[0, 1, 2]``; InputError on a non-integer, a negative or a repeated seed."""
     seeds = []
     for part in spec.split(","):
-        try:
-            seed = int(part.strip())
-        except ValueError:
-            raise InputError(f"--seeds: expected comma-separated integers, found {part.strip()!r}") from None
+        seed = parse_int(part.strip(), "seeds", "comma-separated integers")
         if seed < 0:
-            raise InputError(f"--seeds: expected non-negative integers, found {seed}")
+            raise InputError(f"seeds: expected non-negative integers, found {seed}", param="seeds")
         if seed in seeds:
-            raise InputError(f"--seeds: seed {seed} is given twice")
+            raise InputError(f"seeds: seed {seed} is given twice", param="seeds")
         seeds.append(seed)
     return seeds
 
@@ -128,21 +104,21 @@ def resolve_scenes(spec: str) -> list[str]:
     return comma_list(
         spec,
         known,
-        lambda bad: f"--scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        lambda bad: f"scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        param="scenes",
     )
 
 
 def resolve_variants(spec: str) -> list[str]:
     """``all`` → every variant; ``table1``/``table2`` → those tables' rows; else a comma list."""
-    presets = {"all": list(VARIANT_FLAGS), "table1": list(TABLE1_VARIANTS), "table2": list(ABLATION_VARIANTS)}
+    presets = {"all": list(VARIANTS), "table1": list(TABLE1_VARIANTS), "table2": list(ABLATION_VARIANTS)}
     if spec in presets:
         return presets[spec]
     return comma_list(
         spec,
-        VARIANT_FLAGS,
-        lambda bad: (
-            f"--methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANT_FLAGS)}"
-        ),
+        VARIANTS,
+        lambda bad: f"methods: unknown method(s) {bad}; expected all, table1, table2 or {list(VARIANTS)}",
+        param="methods",
     )
 
 
@@ -180,7 +156,7 @@ def cell_commands(
     seed = cfg.seed if seed is None else seed
     run = run_dir(cfg, scene, color, variant, seed)
     train = _spikenerf(
-        "train", str(cfg.out / "datasets" / scene), *VARIANT_FLAGS[variant], "--color", color,
+        "train", str(cfg.out / "datasets" / scene), *VARIANTS[variant].train_args(), "--color", color,
         "--field", cfg.field_kind, "--device", cfg.device, "--seed", str(seed), "--out", str(run),
         *(["--iters", str(cfg.iters)] if cfg.iters else []), *cfg.extra_train_args,
     )  # fmt: skip

@@ -69,8 +69,9 @@ class DemoConfig:
         views = p.test_views if self.test_views is None else self.test_views
         if size < 8 or iters < 1 or frames < 2 or views < 1:
             raise InputError(
-                f"demo sizes: expected --size ≥ 8, --iters ≥ 1, frames ≥ 2, test views ≥ 1; "
-                f"found {size}, {iters}, {frames}, {views}"
+                f"demo sizes: expected size ≥ 8, iters ≥ 1, frames ≥ 2, test views ≥ 1; "
+                f"found {size}, {iters}, {frames}, {views}",
+                param=("size", "iters"),
             )
         window = min(p.spike_window, frames)
         return Preset(size, frames, iters, views, p.batch, window, p.spike_pixels)

@@ -211,6 +211,7 @@ def novel_spikes(
     test image through the ideal camera simulator (:func:`spikenerf.camera.model.simulate`). Both start from
     a seeded uniform [0, φ) accumulator and use the dataset's threshold φ.
     """
+    from spikenerf.camera.layout import to_camera_layout, to_channels_last
     from spikenerf.camera.model import CameraConfig, simulate
     from spikenerf.camera.reconstruct import tfp
     from spikenerf.render import render_image
@@ -222,10 +223,9 @@ def novel_spikes(
     pred = render_image(model, ds.test.poses[view], k, ds.near, ds.far).color.float().cpu()  # (H, W, C)
     start = random_start(tuple(pred.shape), phi, seed)
     fired, _ = fire_sequence(pred.expand(steps, *pred.shape), start, phi)
-    pred_spikes = fired.numpy().astype(np.uint8)  # (T, H, W, C)
-    pred_spikes = pred_spikes[..., 0] if pred.shape[-1] == 1 else pred_spikes.transpose(0, 3, 1, 2)
+    pred_spikes = to_camera_layout(fired.numpy().astype(np.uint8))  # (T, H, W) | (T, 3, H, W)
     gt = ds.test.images[view]
-    frame = rgb_to_gray(gt, channel_axis=-1) if pred.shape[-1] == 1 else gt.transpose(2, 0, 1)
+    frame = rgb_to_gray(gt, channel_axis=-1) if pred.shape[-1] == 1 else to_camera_layout(gt, frame=True)
     color = "gray" if pred.shape[-1] == 1 else "rgb"
     gt_spikes = simulate(
         [frame] * steps, k.height, k.width, CameraConfig(threshold=phi, color=color, seed=seed)
@@ -234,7 +234,7 @@ def novel_spikes(
     images = []
     for s in (gt_spikes, pred_spikes):
         rec = tfp(s.astype(np.uint8), window=window, threshold=phi, frames=steps // 2)[0]
-        images.append(srgb_encode(rec.transpose(1, 2, 0) if rec.ndim == 3 else rec))
+        images.append(srgb_encode(rec if rec.ndim == 2 else to_channels_last(rec, frame=True)))
     mse = float(np.mean((images[0] - images[1]) ** 2))
     return NovelSpikes(
         config.method, steps, steps // 2, window, images[0], images[1], float(gt_spikes.mean()),

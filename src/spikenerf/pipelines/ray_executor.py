@@ -38,7 +38,7 @@ from spikenerf.pipelines.steps import run_step
 if TYPE_CHECKING:
     from spikenerf.pipelines.benchmark import BenchmarkConfig
 
-INSTALL_HINT = "--executor ray needs Ray: pip install 'spikenerf[cluster]'"
+INSTALL_HINT = "executor ray needs Ray: pip install 'spikenerf[cluster]'"
 #: shipped files whose paths are rewritten between a worker's scratch root and the benchmark folder
 TEXT_SUFFIXES = {".json", ".yaml", ".yml", ".csv", ".txt", ".log", ".md"}
 ATTEMPT = "=== attempt on {host}, Ray worker pid {pid}, {when} ==="
@@ -65,7 +65,7 @@ def require_ray() -> Any:
     try:
         import ray
     except ImportError:
-        raise InputError(INSTALL_HINT) from None
+        raise InputError(INSTALL_HINT, param="executor") from None
     return ray
 
 
@@ -147,7 +147,9 @@ def _connect(ray: Any, address: str | None) -> bool:
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False,
                  **({"include_dashboard": False} if local else {}))  # fmt: skip
     except (ConnectionError, ValueError, RuntimeError) as err:
-        raise InputError(f"--address: cannot reach a Ray cluster at {address!r} ({err})") from None
+        raise InputError(
+            f"address: cannot reach a Ray cluster at {address!r} ({err})", param="address"
+        ) from None
     return True
 
 

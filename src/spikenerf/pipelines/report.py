@@ -27,7 +27,6 @@ from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.pipelines import figures
 from spikenerf.pipelines.benchmark import (
-    TABLE1_VARIANTS,
     BenchmarkConfig,
     cell_commands,
     cell_keys,
@@ -38,14 +37,13 @@ from spikenerf.pipelines.benchmark import (
 )
 from spikenerf.pipelines.stats import differences
 from spikenerf.pipelines.tables import (
-    ABLATION_VARIANTS,
-    METHOD_LABELS,
     Cell,
     Table,
     differences_table,
     table1,
     table2,
 )
+from spikenerf.pipelines.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, label
 
 REPORT, FIGURES = "report.html", "figures"
 SECTIONS = ("tables", "views", "spikes", "curves", "novel-spikes", "environment")
@@ -92,22 +90,18 @@ def _esc(text: object) -> str:
     return html.escape(str(text))
 
 
-def _label(variant: str) -> str:
-    return METHOD_LABELS.get(variant, variant)
-
-
 # ----------------------------------------------------------------------------------------------- tables
 def table_html(table: Table) -> str:
     """A :class:`~spikenerf.pipelines.tables.Table` as HTML (numbers right-aligned; best, second, shown)."""
     head = "".join(f"<th>{_esc(h)}</th>" for h in table.header)
     body = "".join(
-        f"<tr><td>{_esc(label)}</td>"
+        f"<tr><td>{_esc(row)}</td>"
         + "".join(
             "<td>" + _esc(text) + "</td>" if mark == "text" else f'<td class="n {mark}">{_esc(text)}</td>'
             for text, mark in values
         )
         + "</tr>"
-        for label, values in table.rows
+        for row, values in table.rows
     )
     return f"<table><tr>{head}</tr>{body}</table>"
 
@@ -136,7 +130,7 @@ def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
     notes = []
     for key in cell_keys(cfg):
         run = run_dir(cfg, *key)
-        where = f"{key.scene}/{key.color}/{_label(key.variant)}" + (
+        where = f"{key.scene}/{key.color}/{label(key.variant)}" + (
             "" if key.seed == cfg.seed else f" (seed {key.seed})"
         )
         if key not in have:
@@ -201,8 +195,8 @@ def _views_fig(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str, color: str) -
         run = run_dir(cfg, scene, color, v)
         per_view = _read_json(run / "metrics.json").get("per_view") or [{}]
         psnr = per_view[VIEW].get("psnr") if len(per_view) > VIEW else None
-        label = _label(v) + ("" if psnr is None else f"\n{psnr:.2f} dB")
-        preds[label] = _read_png(run / "render" / "images" / f"{VIEW:05d}.png")
+        name = label(v) + ("" if psnr is None else f"\n{psnr:.2f} dB")
+        preds[name] = _read_png(run / "render" / "images" / f"{VIEW:05d}.png")
         if cfg.render:
             commands.append(_cmd(cell_commands(cfg, scene, color, v)[-1]))
     missing = [k.split("\n")[0] for k, p in preds.items() if p is None]
@@ -215,6 +209,7 @@ def _views_fig(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str, color: str) -
 
 
 def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig]:
+    from spikenerf.camera.layout import to_channels_last
     from spikenerf.camera.masks import spike_masks
     from spikenerf.camera.reconstruct import tfp
 
@@ -239,7 +234,7 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
         [sim],
     )
     rec = tfp(stream, window=window, threshold=ds.threshold, frames=k)[0]
-    rec = rec.transpose(1, 2, 0) if rec.ndim == 3 else rec
+    rec = rec if rec.ndim == 2 else to_channels_last(rec, frame=True)
     mask = spike_masks(stream, n=MASK_N, frames=k)[0]
     mask = mask.any(0) if mask.ndim == 3 else mask
     gi = int(np.flatnonzero(ds.gt.steps == k)[0]) if len(ds.gt) and k in ds.gt.steps else None
@@ -262,7 +257,7 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
 def _curves_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     from spikenerf.train.evaluate import read_curves
 
-    curves = {_label(v): read_curves(run_dir(cfg, scene, color, v) / "curves.csv") for v in cfg.variants}
+    curves = {label(v): read_curves(run_dir(cfg, scene, color, v) / "curves.csv") for v in cfg.variants}
     missing = [k for k, rows in curves.items() if not rows]
     return Fig(
         f"{scene}, {color}: test PSNR against training time (RUN/curves.csv)",
@@ -280,7 +275,7 @@ def _novel_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     r = figures.novel_spikes(run, VIEW, device=cfg.device)
     panels = [
         ("GT test image\n→ camera simulator", r.gt_tfp),
-        (f"{_label(r.method)}\n→ spiking renderer", r.pred_tfp),
+        (f"{label(r.method)}\n→ spiking renderer", r.pred_tfp),
         ("|difference|", figures.error_map(r.pred_tfp, r.gt_tfp)),
     ]
     title = (

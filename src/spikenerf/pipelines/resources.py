@@ -14,7 +14,7 @@ SIMULATE_ALL = ("gray", "rgb", "bayer")
 
 
 def check_benchmark_resources(cfg: Any) -> None:
-    """Refuse (naming ``--size/--frames``) a benchmark whose datasets, runs and renders exceed the machine.
+    """Refuse (naming ``size/frames``) a benchmark whose datasets, runs and renders exceed the machine.
 
     Memory: the larger of one ``simulate`` and one ``train`` step (stream targets, field, a batch of 1024
     rays), times ``jobs`` steps at once. Disk: every scene's dataset plus every cell's checkpoint and
@@ -32,4 +32,4 @@ def check_benchmark_resources(cfg: Any) -> None:
     render = cfg.test_views * float(cfg.size) * cfg.size * 14 if cfg.render else 0.0
     memory = max(sim_memory, train_memory) * max(1, cfg.jobs)
     disk = len(cfg.scenes) * sim_disk + cells * (ckpt + render)
-    check_resources(memory, disk, cfg.out, "--size/--frames")
+    check_resources(memory, disk, cfg.out, "size/frames")

@@ -8,23 +8,12 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-import yaml
-
 from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
 from spikenerf.data.summary import view_counts
-from spikenerf.pipelines.cells import (
-    TABLE1_VARIANTS,
-    BenchmarkConfig,
-    cell_commands,
-    cell_keys,
-    dataset_command,
-    environment,
-    run_dir,
-    training_seeds,
-)
+from spikenerf.pipelines import cells as plan
 from spikenerf.pipelines.stats import Difference, differences
 from spikenerf.pipelines.tables import (
-    ABLATION_VARIANTS,
     Cell,
     cells_csv,
     differences_table,
@@ -32,43 +21,49 @@ from spikenerf.pipelines.tables import (
     table2_markdown,
     to_markdown,
 )
+from spikenerf.pipelines.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, VARIANTS
+
+#: a method's ``views`` (what its targets are posed on) -> how "trained on" counts them
+VIEW_TEXT = {"steps": "{} poses", "gt": "{} GT views", "blur": "{} blur views"}
 
 
-def blur_samples(run: Path) -> int:
-    """Poses per exposure of a ``nerf-blur-aware`` run (its ``config.yaml``; else the trainer default)."""
-    from spikenerf.train.config import TargetConfig
+def poses_per_view(run: Path, variant: str) -> int:
+    """Poses a cell's run renders per target view (its ``config.yaml``; else the variant's defaults), e.g.
+    ``blur_samples`` for ``nerf-blur-aware``."""
+    from spikenerf.train.config import load_config
+    from spikenerf.train.methods import make_method
 
     try:
-        return int(yaml.safe_load((run / "config.yaml").read_text())["targets"]["blur_samples"])
-    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
-        return TargetConfig().blur_samples
+        config = load_config(run / "config.yaml")
+    except InputError:
+        config = VARIANTS[variant].config()
+    return make_method(config).poses_per_view()
 
 
-def trained_on(cfg: BenchmarkConfig) -> dict[str, str]:
+def trained_on(cfg: plan.BenchmarkConfig) -> dict[str, str]:
     """variant -> what its runs trained on, counted from the datasets (values differing by scene joined by /).
 
-    Spike methods see every step's pose, ``nerf-gt`` the stored GT renders, ``nerf-blur`` the blur views,
-    ``nerf-blur-aware`` each blur view rendered at ``blur_samples`` poses of its exposure (run config).
+    Its method's ``views`` says what: every step's pose (spike methods), the stored GT renders (``nerf-gt``)
+    or the blur views; ``× N poses`` when each view is rendered at N poses (``nerf-blur-aware``: its
+    ``blur_samples`` poses of the exposure, from the run config).
     """
+    from spikenerf.train.methods import METHOD_CLASSES
+
     counts = [view_counts(root) for s in cfg.scenes if (root := cfg.out / "datasets" / s).is_dir()]
     out = {}
     for v in cfg.variants:
-        if v == "nerf-gt":
-            texts = {f"{c['gt']} GT views" for c in counts}
-        elif v in ("nerf-blur", "nerf-blur-aware"):
-            texts = {f"{c['blur']} blur views" for c in counts}
-            if v == "nerf-blur-aware":
-                samples = {blur_samples(run_dir(cfg, *k)) for k in cell_keys(cfg) if k.variant == v}
-                texts = {f"{t} × {'/'.join(map(str, sorted(samples)))} poses" for t in texts}
-        else:
-            texts = {f"{c['steps']} poses" for c in counts}
+        views = METHOD_CLASSES[VARIANTS[v].method].views
+        texts = {VIEW_TEXT[views].format(c[views]) for c in counts}
+        samples = {poses_per_view(plan.run_dir(cfg, *k), v) for k in plan.cell_keys(cfg) if k.variant == v}
+        if samples - {1}:
+            texts = {f"{t} × {'/'.join(map(str, sorted(samples)))} poses" for t in texts}
         out[v] = " / ".join(sorted(texts)) or "–"
     return out
 
 
-def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
+def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
     """table1.md, table2.md, differences.md, results.csv and results.json (the report: suite.py)."""
-    views, seeds = trained_on(cfg), training_seeds(cfg)
+    views, seeds = trained_on(cfg), plan.training_seeds(cfg)
     t1_variants = [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants
     t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
     note = (
@@ -86,17 +81,17 @@ def write_all(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> N
     config = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
     results = {
         "config": config,
-        "environment": environment(),
+        "environment": plan.environment(),
         "cells": [asdict(c) for c in cells],
         "trained_on": views,
         "differences": [asdict(d) for d in diffs],
         "commands": {
-            "datasets": {s: dataset_command(cfg, s)[2:] for s in cfg.scenes},
+            "datasets": {s: plan.dataset_command(cfg, s)[2:] for s in cfg.scenes},
             "cells": {
                 "/".join(map(str, k[:3])) + ("" if k.seed == cfg.seed else f"/seed{k.seed}"): [
-                    cmd[2:] for cmd in cell_commands(cfg, *k)
+                    cmd[2:] for cmd in plan.cell_commands(cfg, *k)
                 ]
-                for k in cell_keys(cfg)
+                for k in plan.cell_keys(cfg)
             },
             "this_run": log,
         },

@@ -1,10 +1,10 @@
 """``OUT/benchmark.json``: the dataset and training settings a benchmark folder was started with.
 
 A resumed benchmark reuses its datasets and finished cells, so it must ask for what they were made with:
-a changed ``--size``, ``--frames``, ``--seed``, ``--test-views``, ``--blur-views``, ``--color`` (one the
-datasets lack), ``--iters``, ``--field`` or extra train arguments is refused with one line naming the
-flag(s). The file also holds the folder's ``nonce``, which keys the Ray workers' scratch copies
-(``ray_executor.scratch_root``).
+a changed ``size``, ``frames``, ``seed``, ``test_views``, ``blur_views``, ``color`` (one the datasets
+lack), ``iters``, ``field_kind`` or extra train arguments is refused with one line naming the setting(s)
+(the CLI shows their flags). The file also holds the folder's ``nonce``, which keys the Ray workers'
+scratch copies (``ray_executor.scratch_root``).
 A folder written before this file existed is resumed as it is, and gets the file then.
 """
 
@@ -18,18 +18,18 @@ from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 
 NAME = "benchmark.json"
-#: setting -> the ``benchmark`` flag that sets it
-FLAGS = {
-    "size": "--size", "frames": "--frames", "seed": "--seed", "test_views": "--test-views",
-    "blur_views": "--blur-views", "color": "--color", "iters": "--iters", "field_kind": "--field",
-    "extra_train_args": "extra train arguments",
-}  # fmt: skip
+#: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
+KEYS = (
+    "size", "frames", "seed", "test_views", "blur_views", "color", "iters", "field_kind", "extra_train_args",
+)  # fmt: skip
+#: how a message names a setting that is not a parameter
+LABELS = {"extra_train_args": "extra train arguments"}
 
 
 def settings(cfg: Any) -> dict:
     """What the datasets and cells of ``cfg`` depend on (``color``: the colours each dataset holds)."""
     color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
-    return {"color": color, **{k: getattr(cfg, k) for k in FLAGS if k != "color"}}
+    return {"color": color, **{k: getattr(cfg, k) for k in KEYS if k != "color"}}
 
 
 def _differs(key: str, old: Any, new: Any) -> bool:
@@ -49,13 +49,14 @@ def check_settings(cfg: Any) -> str | None:
         raise InputError(f"malformed benchmark settings ({err}); delete the file to adopt the current flags",
                          path=path) from err  # fmt: skip
     new = settings(cfg)
-    bad = [k for k in FLAGS if _differs(k, old.get(k), new[k])]
+    bad = [k for k in KEYS if _differs(k, old.get(k), new[k])]
     if bad:
-        changes = ", ".join(f"{FLAGS[k]} {old.get(k)!r} → {new[k]!r}" for k in bad)
+        changes = ", ".join(f"{LABELS.get(k, k)} {old.get(k)!r} → {new[k]!r}" for k in bad)
         raise InputError(
             f"this benchmark was started with other settings ({changes}); pass the same values to resume it, "
-            "or a new --out",
+            "or a new out",
             path=cfg.out,
+            param=(*bad, "out"),
         )
     return nonce
 

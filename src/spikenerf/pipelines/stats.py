@@ -15,19 +15,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from spikenerf.pipelines.variants import COMPARISONS
+
 if TYPE_CHECKING:
     from spikenerf.pipelines.tables import Cell
 
 #: metric name -> True when higher is better
 HIGHER_IS_BETTER = {"ssim": True, "psnr": True, "lpips": False}
 
-#: the paired differences the paper claims: (ours, baseline); ours should be better on every metric
-COMPARISONS: tuple[tuple[str, str], ...] = (
-    ("spike-nerf", "nerf-recon"),
-    ("spike-nerf", "nerf-blur"),
-    ("spike-nerf", "spike-nerf-no-mask"),
-    ("spike-nerf", "spike-nerf-no-spike-loss"),
-)
 DIFF_METRICS = ("psnr", "ssim", "lpips")
 CONFIDENCE = 0.95
 

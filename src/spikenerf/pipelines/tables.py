@@ -13,22 +13,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 from spikenerf.pipelines.stats import HIGHER_IS_BETTER, Difference, Stat, summarize
+from spikenerf.pipelines.variants import ABLATION_VARIANTS, label
 
 __all__ = ["HIGHER_IS_BETTER", "Cell", "Table"]
 
-#: method variant -> label used in the tables (the paper's naming in brackets)
-METHOD_LABELS = {
-    "nerf-gt": "NeRF on sharp GT (oracle)",
-    "nerf-blur": "NeRF on 400 fps blur",
-    "nerf-blur-aware": "Deblur NeRF given the true trajectory",
-    "nerf-recon": "NeRF + TFP reconstruction",
-    "nerf-recon-learned": "NeRF + learned reconstruction (Spk2ImgNet+NeRF)",
-    "spike-nerf": "Spike-NeRF (ours)",
-    "spike-nerf-learned": "Spike-NeRF on learned targets",
-    "spike-nerf-no-mask": "W/O spike masks",
-    "spike-nerf-no-spike-loss": "W/O spike loss",
-}
-ABLATION_VARIANTS = ("spike-nerf-no-mask", "spike-nerf-no-spike-loss", "spike-nerf")
 TRAINED_ON = "trained on"
 
 
@@ -112,7 +100,7 @@ def _marked(stats: dict[tuple[str, str, str], Stat | None], variants: Sequence[s
     marks = {(s, m): rank_marks({v: means[(v, s, m)] for v in variants}, m) for s in cols for m in metrics}
     rows = [
         (
-            METHOD_LABELS.get(v, v),
+            label(v),
             [(fmt(stats[(v, s, m)], m), marks[(s, m)][v]) for s in cols for m in metrics],
         )
         for v in variants
@@ -176,7 +164,7 @@ def differences_table(diffs: Sequence[Difference]) -> Table:
     header = ["difference", "colour", "metric", "pairs", "mean ± std", "95% CI", "per-seed 95% CI", "verdict"]
     rows = []
     for d in diffs:
-        label = f"{METHOD_LABELS.get(d.ours, d.ours)} − {METHOD_LABELS.get(d.baseline, d.baseline)}"
+        name = f"{label(d.ours)} − {label(d.baseline)}"
         ci, seed_ci = (
             "–" if lo is None else f"[{_num(lo, d.metric)}, {_num(hi, d.metric)}]"
             for lo, hi in ((d.low, d.high), (d.seed_low, d.seed_high))
@@ -186,7 +174,7 @@ def differences_table(diffs: Sequence[Difference]) -> Table:
         mark = "shown" if d.verdict == "shown" else ""
         values = [(d.color, "text"), (f"{d.metric.upper()} {arrow}", "text"), (str(d.n), ""),
                   (_num(d.mean, d.metric) + std, ""), (ci, ""), (seed_ci, ""), (d.verdict, mark)]  # fmt: skip
-        rows.append((label, values))
+        rows.append((name, values))
     return Table(header, rows)
 
 

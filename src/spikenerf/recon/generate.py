@@ -86,7 +86,9 @@ def write_pairs(
     if path.is_file():
         old = json.loads(path.read_text())
         if {k: old.get(k) for k in manifest} != json.loads(json.dumps(manifest)):
-            raise InputError("--out holds pairs made with other settings; use a new folder", path=out)
+            raise InputError(
+                "out holds pairs made with other settings; use a new folder", path=out, param="out"
+            )
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(path, json.dumps({**manifest, "command": command}, indent=2))
     counters = dict.fromkeys(("train", "val"), 0)

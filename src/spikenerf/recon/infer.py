@@ -69,8 +69,9 @@ def check_window(net: ReconNet, window: int | None) -> None:
     """InputError unless ``window`` is None or the network's trained window K."""
     if window is not None and window != net.config.window:
         raise InputError(
-            f"--window: the learned reconstructor runs at its trained window of {net.config.window} steps, "
-            f"found {window}"
+            f"window: the learned reconstructor runs at its trained window of {net.config.window} steps, "
+            f"found {window}",
+            param="window",
         )
 
 

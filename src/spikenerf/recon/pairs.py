@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera, bayer_mosaic
 from spikenerf.camera.noise import RealisticNoise
 from spikenerf.core.color import rgb_to_gray
@@ -135,9 +136,9 @@ class PrimitiveRenderer:
 def render_window(render, poses: np.ndarray) -> np.ndarray:
     """Linear RGB frames (K, 3, H, W) along ``poses``; a still camera renders once."""
     if np.allclose(poses, poses[:1]):
-        frame = render(poses[0]).transpose(2, 0, 1)
+        frame = to_camera_layout(render(poses[0]), frame=True)
         return np.broadcast_to(frame, (len(poses), *frame.shape))
-    return np.stack([render(p).transpose(2, 0, 1) for p in poses])
+    return np.stack([to_camera_layout(render(p), frame=True) for p in poses])
 
 
 def simulate_samples(
@@ -219,7 +220,7 @@ def source_pairs(source: FrameSource, draws: range, cfg: PairConfig, seed: int) 
         y, x = int(rng.integers(0, h - size + 1)), int(rng.integers(0, w - size + 1))
         frames = np.stack(
             [
-                f[y : y + size, x : x + size].transpose(2, 0, 1)
+                to_camera_layout(f[y : y + size, x : x + size], frame=True)
                 for f in source.frames(steps[start : start + cfg.window])
             ]
         )

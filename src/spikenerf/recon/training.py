@@ -48,9 +48,9 @@ class ReconTrainConfig:
     def check(self) -> ReconTrainConfig:
         for name in ("iters", "batch", "crop", "width", "eval_every", "ckpt_every", "val_samples"):
             if getattr(self, name) < 1:
-                raise InputError(f"--{name.replace('_', '-')} must be ≥ 1, found {getattr(self, name)}")
+                raise InputError(f"{name} must be ≥ 1, found {getattr(self, name)}", param=name)
         if not self.lr > 0:
-            raise InputError(f"--lr must be > 0, found {self.lr}")
+            raise InputError(f"lr must be > 0, found {self.lr}", param="lr")
         return self
 
 
@@ -197,11 +197,15 @@ def _resume(
         return 0, 0.0, float("nan")
     data = read_torch(out / "checkpoint.pt", "checkpoint", CHECKPOINT_FORMAT)
     if data.get("pairs", pairs_hash) != pairs_hash:  # absent from older checkpoints
-        raise InputError("--out holds a run trained on another pair folder (its manifest differs)", path=out)
+        raise InputError(
+            "out holds a run trained on another pair folder (its manifest differs)", path=out, param="out"
+        )
     stored = {k: v for k, v in data.get("config", {}).items() if k != "iters"}
     if stored != {k: v for k, v in asdict(cfg).items() if k != "iters"}:
         raise InputError(
-            "--out holds a run with other settings (only --iters may change on resume)", path=out
+            "out holds a run with other settings (only iters may change on resume)",
+            path=out,
+            param=("out", "iters"),
         )
     try:
         net.load_state_dict(data["model"])

@@ -8,6 +8,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from spikenerf.fields.base import Field
 from spikenerf.render.volume import RenderOutput
 
 
@@ -21,7 +22,7 @@ class RadianceModel(nn.Module):
 
     kind: str = ""
 
-    def __init__(self, field: nn.Module) -> None:
+    def __init__(self, field: Field) -> None:
         super().__init__()
         self.field = field
 
@@ -35,6 +36,7 @@ class RadianceModel(nn.Module):
 
     @property
     def scene_box(self) -> Tensor:
+        """The field's world bounds (2, 3): ``[min, max]``."""
         return self.field.scene_box
 
     @property
@@ -44,6 +46,7 @@ class RadianceModel(nn.Module):
     def forward(
         self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, perturb: bool
     ) -> RenderOutput:
+        """:meth:`render_rays`: origins (N, 3), unit dirs (N, 3), near/far (N,) → per-ray output."""
         return self.render_rays(origins, dirs, near, far, perturb)
 
     def render_rays(
@@ -73,9 +76,8 @@ class RadianceModel(nn.Module):
         return self.field.param_groups(base_lr)
 
     def regularization(self) -> Tensor:
-        """A scalar prior to add to the loss (already weighted; zero unless the config enables one)."""
-        reg = getattr(self.field, "regularization", None)
-        return reg() if reg is not None else self.scene_box.new_zeros(())
+        """A scalar () prior to add to the loss (already weighted; zero unless the config enables one)."""
+        return self.field.regularization()
 
     def hparams(self) -> dict[str, Any]:
         """Everything ``build_model`` needs to rebuild this model (store it beside the checkpoint)."""

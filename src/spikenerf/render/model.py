@@ -35,7 +35,8 @@ def build_model(
 
 
 def model_from_hparams(hparams: dict[str, Any], state_dict: dict[str, Tensor] | None = None) -> RadianceModel:
-    """Rebuild a model from :meth:`RadianceModel.hparams` and optionally load a state (shapes adapt)."""
+    """Rebuild a model from :meth:`RadianceModel.hparams` (``scene_box`` (2, 3)) and optionally load a state
+    dict (tensor shapes as saved: a checkpoint of an upsampled grid resizes the grid)."""
     model = build_model(
         hparams["kind"], hparams["channels"], np.asarray(hparams["scene_box"]), hparams["config"]
     )

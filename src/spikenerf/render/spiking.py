@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.model import fire
 from spikenerf.data.rays import as_poses, pixel_rays
 from spikenerf.render.base import RadianceModel
@@ -100,7 +101,7 @@ def render_spike_window(
 def random_start(
     shape: tuple[int, ...], threshold: float, seed: int, device: torch.device | str = "cpu"
 ) -> Tensor:
-    """A seeded start accumulator, uniform in [0, φ)."""
+    """A seeded start accumulator of ``shape`` (e.g. (H, W, C)), uniform in [0, φ)."""
     gen = torch.Generator().manual_seed(seed)
     return (torch.rand(shape, generator=gen) * threshold).to(device)
 
@@ -116,19 +117,21 @@ def iter_spike_stream(
     near: float | None = None,
     far: float | None = None,
 ) -> Iterator[Tensor]:
-    """Yield the spikes (H, W, C) bool (CPU) of each step of ``poses`` (T, 4, 4), one full render per step.
+    """Yield the spikes of each step of ``poses`` (T, 4, 4), one full render per step: bool on the CPU in
+    the camera layout (:mod:`spikenerf.camera.layout`), (H, W) gray or (3, H, W) rgb.
 
-    ``start_accumulator``: (H, W, C) tensor, or an int seed for a uniform [0, φ) start (None → seed 0).
+    ``start_accumulator``: the same layout, or an int seed for a uniform [0, φ) start (None → seed 0).
     """
     h, w, c = intrinsics.height, intrinsics.width, model.channels
     if start_accumulator is None or isinstance(start_accumulator, int):
         acc = random_start((h, w, c), threshold, start_accumulator or 0, model.device)
     else:
-        acc = start_accumulator.to(model.device, torch.float32).reshape(h, w, c)
+        acc = to_channels_last(start_accumulator, frame=True, name="start_accumulator")
+        acc = acc.to(model.device, torch.float32).reshape(h, w, c)
     for pose in as_poses(poses, model.device):
         color = render_image(model, pose, intrinsics, near, far, chunk).color
         spikes, acc = fire(acc, color, threshold)
-        yield spikes.cpu()
+        yield to_camera_layout(spikes.cpu(), frame=True)
 
 
 def render_spike_stream(
@@ -141,10 +144,11 @@ def render_spike_stream(
     near: float | None = None,
     far: float | None = None,
 ) -> Tensor:
-    """Novel-view spike stream for any trajectory: bool (T, H, W, C) on the CPU.
+    """Novel-view spike stream for any trajectory: bool on the CPU, (T, H, W) gray or (T, 3, H, W) rgb (the
+    camera layout, see :func:`iter_spike_stream`).
 
     For long streams prefer :func:`iter_spike_stream` and write each step as it comes.
     """
     h, w, c = intrinsics.height, intrinsics.width, model.channels
     steps = list(iter_spike_stream(model, poses, intrinsics, threshold, start_accumulator, chunk, near, far))
-    return torch.stack(steps) if steps else torch.zeros(0, h, w, c, dtype=torch.bool)
+    return torch.stack(steps) if steps else to_camera_layout(torch.zeros(0, h, w, c, dtype=torch.bool))

@@ -15,7 +15,9 @@ preserves), and the halves are joined again.
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path, PureWindowsPath
 
 import numpy as np
@@ -45,10 +47,23 @@ def _read_pillow(path: Path) -> np.ndarray:
     return arr[..., None] if arr.ndim == 2 else arr
 
 
+@contextlib.contextmanager
+def _reading(path: Path) -> Iterator[None]:
+    """Turn a failed read of the image ``path`` into one InputError (an InputError passes as it is)."""
+    try:
+        yield
+    except InputError:
+        raise
+    except FileNotFoundError as err:
+        raise InputError("image file not found", path=path) from err
+    except (OSError, ValueError, SyntaxError) as err:
+        raise InputError(f"cannot read image ({err})", path=path) from err
+
+
 def _read_array(path: Path) -> np.ndarray:
     """The stored pixels of ``path``, as (H, W[, C]) integers or floats; format errors → InputError."""
     suffix = path.suffix.lower()
-    try:
+    with _reading(path):
         if suffix == ".npy":
             arr = np.load(path, allow_pickle=False)
             if not np.issubdtype(arr.dtype, np.floating):
@@ -69,12 +84,6 @@ def _read_array(path: Path) -> np.ndarray:
         if is_png16(data):
             return decode_png16(data, path)
         return _read_pillow(path)
-    except InputError:
-        raise
-    except FileNotFoundError as err:
-        raise InputError("image file not found", path=path) from err
-    except (OSError, ValueError, SyntaxError) as err:
-        raise InputError(f"cannot read image ({err})", path=path) from err
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -114,7 +123,7 @@ def image_size(path: str | Path) -> tuple[int, int]:
     """(width, height) of an image file from its header (the whole file only for .npy/.exr)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    try:
+    with _reading(path):
         if suffix == ".exr":
             shape = _read_array(path).shape
         elif suffix == ".npy":
@@ -122,12 +131,6 @@ def image_size(path: str | Path) -> tuple[int, int]:
         else:
             with Image.open(path) as im:
                 return im.size
-    except InputError:
-        raise
-    except FileNotFoundError as err:
-        raise InputError("image file not found", path=path) from err
-    except (OSError, ValueError, SyntaxError) as err:
-        raise InputError(f"cannot read image ({err})", path=path) from err
     if len(shape) < 2:
         raise InputError(f"expected an (H, W[, C]) image, found shape {shape}", path=path)
     return int(shape[1]), int(shape[0])

@@ -71,7 +71,7 @@ def format_scene_list() -> str:
 def supersample_for(spp: int) -> int:
     """Analytic supersampling factor ``s`` (``s × s`` rays per pixel) closest to ``spp`` samples per pixel."""
     if spp < 1:
-        raise InputError(f"--spp must be ≥ 1, got {spp}")
+        raise InputError(f"spp must be ≥ 1, got {spp}", param="spp")
     return max(1, round(spp**0.5))
 
 
@@ -86,7 +86,10 @@ def _require_blender(scene: str | Path) -> None:
         raise InputError("Blender scene file not found (expected an existing .blend file)", path=name)
     if not _is_blend(name) and name not in _blender_scenes():
         known = ", ".join(s.name for s in list_scenes())
-        raise InputError(f"--scene: unknown scene {name!r}; expected one of: {known} (see --list-scenes)")
+        raise InputError(
+            f"scene: unknown scene {name!r}; expected one of: {known} (see list_scenes)",
+            param=("scene", "list_scenes"),
+        )
     if not blender_available():
         raise InputError(BLENDER_MISSING)
 

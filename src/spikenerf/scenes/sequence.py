@@ -47,10 +47,11 @@ def parse_range(text: str) -> tuple[int, int]:
         stop = int(parts[1]) if parts[1].strip() else OPEN_END
     except ValueError:
         raise InputError(
-            f"--sequence-range: expected A:B (a Python slice of the listed frames, e.g. 0:100), got {text!r}"
+            f"sequence_range: expected A:B (a Python slice of the listed frames, e.g. 0:100), got {text!r}",
+            param="sequence_range",
         ) from None
     if (start >= 0) == (stop >= 0) and start >= stop:
-        raise InputError(f"--sequence-range: {text!r} selects no frames (need A < B)")
+        raise InputError(f"sequence_range: {text!r} selects no frames (need A < B)", param="sequence_range")
     return start, stop
 
 
@@ -62,7 +63,11 @@ def select_range(count: int, frame_range: tuple[int, int] | None, path: Path | N
     selected = range(count)[slice(start, stop)]
     if len(selected) == 0:
         shown = f"{start}:{'' if stop == OPEN_END else stop}"
-        raise InputError(f"--sequence-range {shown} selects no frames out of {count} listed", path=path)
+        raise InputError(
+            f"sequence_range {shown} selects no frames out of {count} listed",
+            path=path,
+            param="sequence_range",
+        )
     return selected
 
 
@@ -282,9 +287,9 @@ def load_sequence(transforms_json: str | Path, frame_range: tuple[int, int] | No
 
 # --------------------------------------------------------------------------------------- the source
 def _output_size(native: tuple[int, int], width: int | None, height: int | None) -> tuple[int, int]:
-    for name, value in (("--width", width), ("--height", height)):
+    for name, value in (("width", width), ("height", height)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise InputError(f"{name}: expected a positive integer, found {value!r}")
+            raise InputError(f"{name}: expected a positive integer, found {value!r}", param=name)
     w0, h0 = native
     if width is None and height is None:
         return native
@@ -329,7 +334,7 @@ class SequenceSource:
         if isinstance(steps_per_frame, bool) or not isinstance(steps_per_frame, int) or steps_per_frame < 1:
             raise InputError(f"steps per frame: expected an integer ≥ 1, found {steps_per_frame!r}")
         if not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
-            raise InputError(f"--fps: expected a positive number, found {fps!r}")
+            raise InputError(f"fps: expected a positive number, found {fps!r}", param="fps")
         path = Path(transforms_json)
         seq = load_sequence(path, frame_range)
         self.native_size = (seq.intrinsics.width, seq.intrinsics.height)

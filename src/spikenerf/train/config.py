@@ -1,4 +1,5 @@
-"""Typed training configs (saved to ``RUN/config.yaml``) and the methods they select.
+"""Typed training configs (saved to ``RUN/config.yaml``); what each method does with them is its class in
+:mod:`spikenerf.train.methods`.
 
 The dataclasses are the one typed source: each choice is a ``Literal`` owned by the module that implements
 it, and :func:`check_types` validates any value (a YAML file, ``--set key.sub=value``) against the
@@ -25,6 +26,7 @@ from spikenerf.fields import FIELD_KINDS, FieldKind
 from spikenerf.train.amp import AmpMode
 from spikenerf.train.logger import LogKind
 from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
+from spikenerf.train.pose_refine import PoseRefineConfig
 
 FIELDS = FIELD_KINDS
 __all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "SpikeLossConfig", "TargetConfig", "TrainConfig"]
@@ -101,6 +103,12 @@ class TrainConfig:
             per-step values are summed on the device and read only then.
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
+        poses: pose refinement (``--refine-poses``, train/pose_refine.py).
+        holdout: hold the check steps of ``eval``'s no-reference checks out of training (None: on for
+            imported datasets, off for simulated ones; ``spikenerf.data.holdout``).
+        holdout_steps: check steps (evenly spaced) on a dataset without imported test keyframes.
+        holdout_radius: guard band half-width r in steps around each check step (None:
+            ``data.holdout.guard_radius`` of the TFP window, mask n and spike window).
     """
 
     dataset: str = ""
@@ -119,17 +127,13 @@ class TrainConfig:
     log: LogKind = "none"
     log_every: int = 25
     amp: AmpMode = "none"
+    holdout: bool | None = None
+    holdout_steps: int = 8
+    holdout_radius: int | None = None
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
+    poses: PoseRefineConfig = dataclasses.field(default_factory=PoseRefineConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
-
-    @property
-    def uses_spike_loss(self) -> bool:
-        return self.method == "spike-nerf" and self.spike.enabled
-
-    @property
-    def uses_mask(self) -> bool:
-        return self.method == "spike-nerf" and self.targets.mask
 
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
@@ -144,31 +148,44 @@ class TrainConfig:
             "ckpt_every": self.ckpt_every,
             "log_every": self.log_every,
             "targets.blur_samples": self.targets.blur_samples,
+            "holdout_steps": self.holdout_steps,
         }
         for name, value in positive.items():
             if value < 1:
-                raise InputError(f"{name} must be ≥ 1, found {value}")
+                raise InputError(f"{name} must be ≥ 1, found {value}", param=name)
         for name, value in (
             ("spike.warmup_iters", self.spike.warmup_iters),
             ("spike.ramp_iters", self.spike.ramp_iters),
+            ("holdout_radius", self.holdout_radius),
         ):
             if value is not None and value < 0:
-                raise InputError(f"{name} must be ≥ 0, found {value}")
+                raise InputError(f"{name} must be ≥ 0, found {value}", param=name)
         if self.lr is not None and not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"--lr must be a finite number > 0, found {self.lr}")
+            raise InputError(f"lr must be a finite number > 0, found {self.lr}", param="lr")
         if not (math.isfinite(self.spike.lam) and self.spike.lam >= 0) or self.eval_every < 0:
             raise InputError(
-                f"--lambda and --eval-every must be ≥ 0, found {self.spike.lam}, {self.eval_every}"
+                f"spike.lam and eval_every must be ≥ 0, found {self.spike.lam}, {self.eval_every}",
+                param=("spike.lam", "eval_every"),
             )
         ratio = self.lr_final_ratio
         if ratio is not None and not (math.isfinite(ratio) and 0 < ratio <= 1):
-            raise InputError(f"lr_final_ratio must be a finite number in (0, 1], found {ratio}")
+            raise InputError(
+                f"lr_final_ratio must be a finite number in (0, 1], found {ratio}", param="lr_final_ratio"
+            )
         if self.targets.mask_n < 1:
-            raise InputError(f"targets.mask_n must be ≥ 1, found {self.targets.mask_n}")
+            raise InputError(
+                f"targets.mask_n must be ≥ 1, found {self.targets.mask_n}", param="targets.mask_n"
+            )
         if self.spike.paper_warmup < 0:
-            raise InputError(f"spike.paper_warmup must be ≥ 0, found {self.spike.paper_warmup}")
+            raise InputError(
+                f"spike.paper_warmup must be ≥ 0, found {self.spike.paper_warmup}", param="spike.paper_warmup"
+            )
         if self.targets.window < 1 or self.targets.window % 2 == 0:
-            raise InputError(f"targets.window must be an odd number of frames, found {self.targets.window}")
+            raise InputError(
+                f"targets.window must be an odd number of frames, found {self.targets.window}",
+                param="targets.window",
+            )
+        self.poses.check()
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -189,6 +206,7 @@ def check_types(config: Any, prefix: str = "", path: str | Path | None = None) -
         if dataclasses.is_dataclass(value):
             check_types(value, f"{name}.", path)
         elif not _matches(value, hints[f.name]):
+            # no param=: a wrong type comes from a file or --set, where the user wrote the key itself
             raise InputError(f"{name} must be {_describe(hints[f.name])}, found {value!r}", path=path)
 
 
@@ -246,7 +264,9 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
         for i, section in enumerate(sections):
             if not isinstance(node.get(section), dict):
                 where = ".".join(sections[: i + 1])
-                raise InputError(f"override {key}: {where!r} is not a section (targets, spike, field_config)")
+                raise InputError(
+                    f"override {key}: {where!r} is not a section (targets, spike, poses, field_config)"
+                )
             node = node[section]
         node[leaf] = value
     return data
@@ -261,7 +281,8 @@ def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
         raise InputError(
             f"unknown {cls.__name__} keys {unknown}; expected some of {sorted(known)}", path=path
         )
-    nested, hints = {"targets": TargetConfig, "spike": SpikeLossConfig}, get_type_hints(cls)
+    nested = {"targets": TargetConfig, "spike": SpikeLossConfig, "poses": PoseRefineConfig}
+    hints = get_type_hints(cls)
     values = {
         k: _from_dict(nested[k], v, path) if k in nested else _coerce(v, hints[k]) for k, v in data.items()
     }

@@ -9,9 +9,11 @@ import torch
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.holdout import read_record
 from spikenerf.render import RadianceModel, model_from_hparams
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.config import TrainConfig, load_config
+from spikenerf.train.methods import make_method
 
 CONFIG_FILE = "config.yaml"
 
@@ -34,7 +36,7 @@ def load_run(
     model = model_from_hparams(ckpt["hparams"], ckpt["model"])
     model.to(resolve_device(device)).eval()
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset)
-    check_dataset_fits(ckpt, dataset, "--dataset" if dataset_root is not None else "the run's dataset")
+    check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
     return model, config, dataset
 
 
@@ -50,8 +52,8 @@ def dataset_fingerprint(dataset: SpikeDataset) -> dict:
     }
 
 
-def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, flag: str) -> None:
-    """InputError (naming ``flag``) when ``dataset`` is not the one the checkpoint was trained on (its
+def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
+    """InputError (naming ``param``) when ``dataset`` is not the one the checkpoint was trained on (its
     fingerprint; checkpoints without one are compared by scene box)."""
     want = ckpt.get("dataset")
     have = dataset_fingerprint(dataset)
@@ -66,7 +68,9 @@ def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, flag: str) -> None:
         if not fits:
             diff.append(f"{key} {have.get(key)} (run: {value})")
     if diff:
-        raise InputError(f"{flag}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root)
+        raise InputError(
+            f"{param}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root, param=param
+        )
 
 
 def run_iteration(run_dir: str | Path) -> int:
@@ -83,19 +87,18 @@ def describe_run(run_dir: str | Path) -> str:
     run_dir = Path(run_dir)
     config = load_config(run_dir / CONFIG_FILE)
     done = run_iteration(run_dir) if (run_dir / CHECKPOINT).exists() else 0
-    flags = [
-        f
-        for f, on in (("no mask", not config.uses_mask), ("no spike loss", not config.uses_spike_loss))
-        if on
-    ]
     lines = [
         f"run: {run_dir}",
-        f"method: {config.method}"
-        + (f" ({', '.join(flags)})" if config.method == "spike-nerf" and flags else ""),
+        f"method: {make_method(config).describe()}",
         f"color: {config.color}   field: {config.field}   seed: {config.seed}   dataset: {config.dataset}",
         f"iterations: {done} of {config.iters}"
         + ("" if done >= config.iters else "  (resume with --resume)"),
     ]
+    if (held := read_record(run_dir)) is not None:
+        lines.append(
+            f"held out: steps {', '.join(map(str, held.get('step_numbers', held['check_steps'])))} "
+            f"± {held.get('radius')} ({held.get('excluded_steps')} steps not trained on)"
+        )
     if (run_dir / CURVES).exists() and (curves := read_curves(run_dir / CURVES)):
         last = curves[-1]
         lines.append(
@@ -103,6 +106,15 @@ def describe_run(run_dir: str | Path) -> str:
             f"train PSNR {last['train_psnr']:.2f} dB, test PSNR {last['test_psnr']:.2f} dB"
         )
     if (run_dir / "metrics.json").exists():
-        mean = json.loads((run_dir / "metrics.json").read_text()).get("mean", {})
-        lines.append("metrics.json: " + "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None))
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        for label, mean in (("metrics.json", metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
+            if mean:
+                values = "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None)
+                lines.append(f"{label}: {values}")
     return "\n".join(lines)
+
+
+def _noref_mean(metrics: dict) -> dict | None:
+    """The means of metrics.json's no-reference checks (docs/metrics.md), if eval ran them."""
+    section = metrics.get("no_reference")
+    return section.get("mean") if isinstance(section, dict) else None

@@ -1,8 +1,9 @@
 """The training loop: targets → Adam with exponential decay → periodic evaluation → atomic checkpoints.
 
-One iteration renders ``batch`` random rays against the method's image targets (``L_recon``, linear MSE) and,
-for spike-nerf once λ(it) > 0, one window of L consecutive steps for P pixels (``λ · L_spike``). A run
-interrupted at any point resumes from ``RUN/checkpoint.pt`` to the same parameters as an uninterrupted one.
+The method (:mod:`spikenerf.train.methods`) builds the targets and returns each step's named loss terms
+(``recon``, ``reg`` and, for spike-nerf once λ(it) > 0, ``spike``); the trainer sums them, steps the
+optimiser, logs the terms and checkpoints. A run interrupted at any point resumes from ``RUN/checkpoint.pt``
+to the same parameters as an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import torch
 from tqdm import tqdm
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
-from spikenerf.core.color import srgb_encode
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
@@ -27,30 +27,19 @@ from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.holdout import write_record
 from spikenerf.data.rays import pixel_rays
-from spikenerf.data.samplers import RaySampler, WindowSampler
-from spikenerf.data.targets import (
-    ImageTargets,
-    SpikeTargets,
-    build_image_targets,
-    build_spike_targets,
-    eval_view_targets,
-    load_stream,
-)
+from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields import field_config, field_memory
-from spikenerf.render import RadianceModel, build_model, model_from_hparams, ray_bounds, render_spike_window
+from spikenerf.render import RadianceModel, RenderOutput, build_model, model_from_hparams, ray_bounds
 from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint, restore_rng, rng_state, save_checkpoint
 from spikenerf.train.config import TrainConfig, load_config, save_config
-from spikenerf.train.evaluate import CURVES, evaluate_views, read_curves, write_curves
+from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
-from spikenerf.train.losses import (
-    mse_to_psnr,
-    paper_spike_loss,
-    recon_loss,
-    spike_interval_loss,
-    spike_weight,
-)
+from spikenerf.train.losses import mse_to_psnr
+from spikenerf.train.methods import make_method
+from spikenerf.train.pose_refine import pose_refinement
 from spikenerf.train.run import dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
@@ -106,21 +95,23 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
     diff = sorted(k for k in a if k not in RESUMABLE and a[k] != b[k])
     if diff:
         detail = ", ".join(f"{k}: run has {a[k]!r}, asked {b[k]!r}" for k in diff)
-        raise InputError(f"--resume with different options ({detail}); use a new --out to change them", path)
+        raise InputError(
+            f"resume with different options ({detail}); use a new out folder to change them",
+            path,
+            param=("resume", "out"),
+        )
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
 
 
 def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path) -> None:
     """Refuse a run whose estimated memory (targets, field, one batch) or checkpoint exceeds the machine's."""
     k, steps = dataset.intrinsics, len(dataset.trajectory)
-    channels = 1 if config.color == "gray" else 3
-    uses_stream = config.method in ("spike-nerf", "nerf-recon")
-    targets = float(steps) * k.height * k.width * channels * 10 if uses_stream else 0.0
+    method = make_method(config)
+    targets = float(steps) * k.height * k.width * method.channels * 10 if method.uses_stream else 0.0
     params, per_ray, ckpt = field_memory(config.field, model_config(config))
-    spike_rays = config.spike.window * config.spike.pixels if config.uses_spike_loss else 0
+    spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     rays = (config.batch + spike_rays) * per_ray
-    flag = "--batch" if rays >= params else "--field-option (grid size)"
-    check_resources(targets + params + rays, 2 * ckpt, out, flag)
+    check_resources(targets + params + rays, 2 * ckpt, out, "batch" if rays >= params else "field_config")
 
 
 class Trainer:
@@ -147,7 +138,9 @@ class Trainer:
         if ckpt_path.exists():
             if not resume:
                 raise InputError(
-                    "already holds a training run; pass --resume or choose a new --out", self.out
+                    "already holds a training run; pass resume or choose a new out folder",
+                    self.out,
+                    param=("resume", "out"),
                 )
             ckpt = load_checkpoint(ckpt_path)
             config = _check_resume(load_config(self.out / CONFIG_FILE), config, self.out / CONFIG_FILE)
@@ -155,15 +148,14 @@ class Trainer:
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
         check_train_resources(self.config, self.dataset, self.out)
         self.device = resolve_device(config.device)
-        self._build_targets()
-        self.samplers: dict[str, Any] = {
-            "rays": RaySampler(len(self.targets), self.height, self.width, config.seed)
-        }
-        if self.spikes is not None:
-            s = config.spike
-            self.samplers["windows"] = WindowSampler(
-                self.spikes.spikes.shape[0], self.height, self.width, s.window, config.seed + 1, s.order
-            )
+        self.method = make_method(self.config)
+        self.method.build_targets(self.dataset)
+        holdout = self.method.hold_out(self.dataset)
+        self.holdout = None if holdout is None else holdout.record(self.dataset.trajectory.steps)
+        self.height, self.width = self.dataset.intrinsics.height, self.dataset.intrinsics.width
+        self.channels = self.method.channels
+        self.test_views = eval_view_targets(self.dataset, config.color, config.eval_views)
+        self.samplers: dict[str, Any] = self.method.make_samplers(self.height, self.width)
         torch.manual_seed(config.seed)
         if ckpt is None:
             self.model = build_model(
@@ -173,6 +165,9 @@ class Trainer:
             self.model = model_from_hparams(ckpt["hparams"], ckpt["model"])
         self.model.to(self.device)
         self.optimizer = make_optimizer(self.model, config)
+        self.pose_refine = pose_refinement(
+            self.config, self.dataset, self.model, self.device, self.method.targets
+        )
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
@@ -181,6 +176,8 @@ class Trainer:
             self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
+            if self.pose_refine is not None:
+                self.pose_refine.load_state_dict(ckpt["poses"])
             restore_rng(ckpt["rng"], self.samplers)
             self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
             self.rays = int(ckpt["rays"])
@@ -190,75 +187,12 @@ class Trainer:
         if ckpt is not None and ckpt.get("scaler"):  # fp16 loss scale and growth tracker (absent: older)
             self.scaler.load_state_dict(ckpt["scaler"])
 
-    # ------------------------------------------------------------------------------------------------ setup
-    def _build_targets(self) -> None:
-        cfg, ds = self.config, self.dataset
-        k = ds.intrinsics
-        self.height, self.width = k.height, k.width
-        self.channels = 1 if cfg.color == "gray" else 3
-        t = cfg.targets
-        stream = load_stream(ds, cfg.color) if cfg.method in ("spike-nerf", "nerf-recon") else None
-        self.targets: ImageTargets = build_image_targets(
-            ds, cfg.method, cfg.color, t.recon, t.window, cfg.uses_mask, t.mask_n, t.blur_samples, stream
-        )
-        self.spikes: SpikeTargets | None = None
-        if cfg.uses_spike_loss:
-            if cfg.spike.window > len(ds.trajectory):
-                raise InputError(
-                    f"spike window {cfg.spike.window} exceeds the {len(ds.trajectory)} recorded steps"
-                )
-            self.spikes = build_spike_targets(ds, cfg.color, stream)
-        self.test_views = eval_view_targets(ds, cfg.color, cfg.eval_views)
-
     # ------------------------------------------------------------------------------------------------- steps
-    def _render(self, poses: torch.Tensor, pixels: torch.Tensor, perturb: bool = True) -> Any:
+    def render_rays(self, poses: torch.Tensor, pixels: torch.Tensor, perturb: bool = True) -> RenderOutput:
+        """Render the rays through ``pixels`` (N, 2) int ``(x, y)`` of cameras ``poses`` (N, 4, 4)."""
         origins, dirs = pixel_rays(poses.to(self.device), self.dataset.intrinsics, pixels.to(self.device))
         near, far = ray_bounds(self.model, origins, dirs, self.dataset.near, self.dataset.far)
         return self.model.render_rays(origins, dirs, near, far, perturb=perturb)
-
-    def recon_step(self) -> tuple[torch.Tensor, torch.Tensor, int]:
-        """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered);
-        the MSE stays a 0-d tensor on the device (no synchronisation)."""
-        views = self.targets.poses.shape[1]
-        index, pixels = self.samplers["rays"].sample(max(1, self.config.batch // views))
-        target = self.targets.gather(index, pixels).to(self.device)
-        poses = self.targets.poses[index].reshape(-1, 4, 4)  # (B·S, 4, 4), S poses averaged per ray
-        out = self._render(poses, pixels.repeat_interleave(views, dim=0))
-        color = out.color.view(-1, views, self.channels).mean(dim=1)
-        loss = recon_loss(color, target)
-        if out.coarse_color is not None:
-            loss = loss + recon_loss(out.coarse_color.view(-1, views, self.channels).mean(dim=1), target)
-        with torch.no_grad():
-            srgb_mse = torch.mean((srgb_encode(color.float()) - srgb_encode(target)) ** 2)
-        return loss, srgb_mse, poses.shape[0]
-
-    def spike_step(self) -> tuple[torch.Tensor, int]:
-        """Spike loss of the next window of L consecutive steps for P pixels → (loss, rays rendered)."""
-        s, spikes = self.config.spike, self.spikes
-        assert spikes is not None
-        start, pixels = self.samplers["windows"].sample(s.pixels)
-        paper = s.kind == "paper"
-        shape = (s.pixels, self.channels)
-        a0 = torch.rand(shape) * spikes.threshold if paper else torch.zeros(shape)
-        window = render_spike_window(
-            self.model,
-            spikes.poses[start : start + s.window],
-            self.dataset.intrinsics,
-            pixels,
-            a0.to(self.device),
-            spikes.threshold,
-            self.dataset.near,
-            self.dataset.far,
-            perturb=True,
-        )
-        recorded = spikes.window(start, s.window, pixels).to(self.device)
-        if paper:
-            loss = paper_spike_loss(
-                window.intensity, recorded, spikes.threshold, a0.to(self.device), s.paper_warmup
-            )
-        else:
-            loss = spike_interval_loss(window.intensity, recorded, spikes.threshold, s.pairs)  # type: ignore[arg-type]
-        return loss, s.window * s.pixels
 
     # -------------------------------------------------------------------------------------------------- loop
     def evaluate(self, renders: list | None = None) -> float:
@@ -266,8 +200,9 @@ class Trainer:
         ``renders`` (if given) receives each (rendering, target)."""
         if self.test_views is None:
             return math.nan
+        views = self.test_views if self.pose_refine is None else self.pose_refine.views(self.test_views)
         with torch.random.fork_rng(devices=[]):
-            return evaluate_views(self.model, self.test_views, self.dataset, renders=renders)
+            return evaluate_views(self.model, views, self.dataset, renders=renders)
 
     def checkpoint(self) -> None:
         """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
@@ -285,48 +220,52 @@ class Trainer:
                 "scaler": self.scaler.state_dict(),  # {} unless --amp fp16
                 "rng": rng_state(self.samplers),
                 "config": self.config.to_dict(),
+                "poses": None if self.pose_refine is None else self.pose_refine.state_dict(),
             },
         )
+        if self.pose_refine is not None:
+            self.pose_refine.write(self.out)
 
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
-        cfg, s = self.config, self.config.spike
+        cfg = self.config
         # first: a missing package leaves no run folder behind
         log = open_log(cfg.log, self.out, self.iteration)
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(cfg, self.out / CONFIG_FILE)
+        write_record(self.out, self.holdout)
         mark(self.out, "run")
         end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
         bar = tqdm(
             total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
         )
         recent, interval = RunningMeans(), self.interval
-        train_psnr, lam = math.nan, 0.0
+        train_psnr = math.nan
         test_psnr = self.curves[-1]["test_psnr"] if self.curves else math.nan
         while self.iteration < end:
             it = self.iteration
             t0 = time.perf_counter()
             set_learning_rate(self.optimizer, it, cfg.iters, self.final_ratio)
             with autocast(self.device, cfg.amp):
-                recon, srgb_mse, rays = self.recon_step()
-                terms = {"recon": recon, "reg": self.model.regularization()}
-                loss = recon + terms["reg"]
-                lam = spike_weight(it, s.lam, *s.schedule(cfg.iters)) if self.spikes is not None else 0.0
-                if lam > 0 and it % s.every == 0:
-                    terms["spike"], spike_rays = self.spike_step()
-                    loss, rays = loss + lam * terms["spike"], rays + spike_rays
+                step = self.method.losses(self, it)
+                loss = step.total()
+            lam = self.method.lam(it)
             self.optimizer.zero_grad(set_to_none=True)
+            if self.pose_refine is not None:
+                self.pose_refine.begin(it)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
                 self.scaler.scale(loss).backward()
                 self.scaler.step(self.optimizer)
+                if self.pose_refine is not None:
+                    self.scaler.step(self.pose_refine.optimizer)
                 self.scaler.update()
             self.iteration = it + 1
             if self.model.on_step(self.iteration, self.optimizer):
                 self.optimizer = make_optimizer(self.model, cfg)
             self.elapsed += time.perf_counter() - t0
-            self.rays += rays
+            self.rays += step.rays
             for means in (recent, interval):
-                means.add({"loss": loss, **terms, "srgb_mse": srgb_mse})
+                means.add({"loss": loss, **step.terms, "srgb_mse": step.srgb_mse})
             bar.update()
             last = self.iteration == cfg.iters
             if self.iteration % cfg.log_every == 0 or last:  # the only per-step read of device values
@@ -339,7 +278,7 @@ class Trainer:
                 renders: list | None = [] if log is not None else None
                 m = interval.read()
                 train_psnr, test_psnr = mse_to_psnr(m["srgb_mse"]), self.evaluate(renders)
-                terms_mean = {k: m.get(k, math.nan) for k in ("loss", "recon", "spike", "reg")}
+                terms_mean = {k: m.get(k, math.nan) for k in LOSS_COLUMNS}
                 self.curves.append(
                     {
                         "iteration": self.iteration,
@@ -397,7 +336,7 @@ def train(
     """
     out = Path(out)
     if resume and not out.is_dir():
-        raise InputError("--resume: no run folder here to resume (leave out --resume to start one)", out)
+        raise InputError("resume: no run folder here to resume (start one without it)", out, param="resume")
     check_output(out, "run", overwrite=True)
     with output_lock(out):
         check_output(out, "run", overwrite=True)

@@ -28,7 +28,7 @@ from spikenerf.scenes.blender.materials import (
     ramp,
 )
 from spikenerf.scenes.blender.render import add_default_light, geometry_box
-from spikenerf.scenes.blender.shapes import Parts, add_modifier
+from spikenerf.scenes.blender.shapes import Parts, add_modifier, stud_grid
 
 Mat = bpy.types.Material
 
@@ -78,25 +78,7 @@ def build_bricks(rng: np.random.Generator) -> None:
     p.cylinder(dark, (0, 0, 0.88), 0.012, 0.2)
     p.cube(flag, (0.08, 0, 0.93), (0.15, 0.01, 0.09))
     p.finish()
-    studs = Parts("studs")
-    studs.cylinder(green, (-0.825, -0.825, -0.685), 0.045, 0.03, segments=16)
-    obj = studs.finish()[green.name]
-    add_modifier(
-        obj,
-        "ARRAY",
-        count=12,
-        use_relative_offset=False,
-        use_constant_offset=True,
-        constant_offset_displace=(0.15, 0, 0),
-    )
-    add_modifier(
-        obj,
-        "ARRAY",
-        count=12,
-        use_relative_offset=False,
-        use_constant_offset=True,
-        constant_offset_displace=(0, 0.15, 0),
-    )
+    stud_grid("studs", green, (-0.825, -0.825, -0.685), 0.045, 0.03, pitch=0.15, count=12)
 
 
 def build_plant(rng: np.random.Generator) -> None:
@@ -256,18 +238,7 @@ def build_toy(rng: np.random.Generator) -> None:
     p.cube(grey, (-0.62, 0, -0.42), (0.2, 0.4, 0.05))
     for obj in p.finish().values():
         add_modifier(obj, "BEVEL", width=0.008, segments=2, limit_method="ANGLE")
-    studs = Parts("toy_studs")
-    studs.cylinder(yellow, (-0.45, -0.18, -0.065), 0.04, 0.03, segments=16)
-    obj = studs.finish()[yellow.name]
-    for offset in ((0.12, 0, 0), (0, 0.12, 0)):
-        add_modifier(
-            obj,
-            "ARRAY",
-            count=4,
-            use_relative_offset=False,
-            use_constant_offset=True,
-            constant_offset_displace=offset,
-        )
+    stud_grid("toy_studs", yellow, (-0.45, -0.18, -0.065), 0.04, 0.03, pitch=0.12, count=4)
 
 
 def build_food(rng: np.random.Generator) -> None:

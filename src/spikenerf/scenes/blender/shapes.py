@@ -220,3 +220,24 @@ def add_modifier(obj: bpy.types.Object, kind: str, **props: object) -> bpy.types
     for key, value in props.items():
         setattr(mod, key, value)
     return mod
+
+
+def stud_grid(
+    prefix: str, mat: bpy.types.Material, loc: Vec3, radius: float, depth: float, pitch: float, count: int
+) -> None:
+    """A ``count × count`` grid of studs (cylinders, 16 segments) from ``loc``, ``pitch`` apart along x and y.
+
+    One stud mesh (object ``{prefix}_{mat.name}``) repeated by two ARRAY modifiers: along x, then along y.
+    """
+    studs = Parts(prefix)
+    studs.cylinder(mat, loc, radius, depth, segments=16)
+    obj = studs.finish()[mat.name]
+    for offset in ((pitch, 0, 0), (0, pitch, 0)):
+        add_modifier(
+            obj,
+            "ARRAY",
+            count=count,
+            use_relative_offset=False,
+            use_constant_offset=True,
+            constant_offset_displace=offset,
+        )

@@ -1,0 +1,142 @@
+"""Held-out check steps: the steps that ``eval``'s no-reference checks score, and the guard band around each
+that training never sees (docs/real-data.md, docs/metrics.md).
+
+The check steps are an imported dataset's test keyframes, else ``count`` evenly spaced steps
+(:func:`check_steps`, the one definition that ``train`` and ``eval`` share). With the hold-out on, training
+drops every image target whose step lies within ``radius`` steps of a check step and every spike window that
+overlaps such a band. The default radius (:func:`guard_radius`) makes the spikes that training reads disjoint
+from the spikes that the check of step c reads.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+
+if TYPE_CHECKING:
+    from spikenerf.data.dataset import SpikeDataset
+
+#: the run's record of its held-out steps (written by ``train``, read by ``eval``)
+HOLDOUT_FILE = "holdout.json"
+
+
+def is_imported(dataset: SpikeDataset) -> bool:
+    """Whether the dataset was written by ``spikenerf import`` (its config has an ``imported`` section)."""
+    return isinstance((dataset.config or {}).get("imported"), dict)
+
+
+def check_steps(dataset: SpikeDataset, count: int) -> tuple[np.ndarray, str]:
+    """Stream indices (N,) int64 of the check steps and where they come from."""
+    total = len(dataset.trajectory)
+    keys = ((dataset.config or {}).get("imported") or {}).get("test_keyframes")
+    if keys:
+        steps = np.asarray(keys, dtype=np.int64)
+        if steps.min() < 0 or steps.max() >= total:
+            raise InputError("config.yaml: imported.test_keyframes lie outside the stream", path=dataset.root)
+        return steps, "the imported test keyframes"
+    n = min(count, total)
+    return np.unique(np.linspace(0, total - 1, n + 2)[1:-1].round().astype(np.int64)), "evenly spaced steps"
+
+
+def guard_radius(recon_window: int, mask_n: int, spike_window: int) -> int:
+    """The default band half-width r: a training target at step k reads spikes k−a..k+a (a = max(TFP
+    half window, mask n)); the check of step c reads c−e..c+e (e = max(a, L//2), its reconstruction, mask
+    and the L-step spike window centred on c). r = a + e keeps the two sets of spikes apart."""
+    a = max(recon_window // 2, mask_n)
+    return a + max(a, spike_window // 2)
+
+
+@dataclass(frozen=True)
+class Holdout:
+    """The check steps of a run and their guard bands.
+
+    Attributes:
+        steps: (N,) int64 stream indices of the check steps. radius: r. total: T, steps in the stream.
+        source: where the steps come from (see :func:`check_steps`).
+    """
+
+    steps: np.ndarray
+    radius: int
+    total: int
+    source: str
+
+    def band(self) -> np.ndarray:
+        """(T,) bool: True at stream indices within ``radius`` of a check step."""
+        idx = np.arange(self.total)
+        return (np.abs(idx[:, None] - self.steps[None, :]) <= self.radius).any(axis=1)
+
+    def image_indices(self, image_steps: Tensor, stream_steps: np.ndarray) -> Tensor:
+        """(K',) int64 indices of the image targets to train on: those whose spike step (``image_steps``
+        (K,), numbers of ``stream_steps`` (T,); −1 unknown) lies outside every band."""
+        banned = stream_steps[self.band()]
+        keep = ~np.isin(np.asarray(image_steps), banned)
+        if (np.asarray(image_steps) < 0).any():
+            raise InputError("the hold-out needs the spike step of every image target", param="holdout")
+        return torch.as_tensor(np.flatnonzero(keep), dtype=torch.int64)
+
+    def window_starts(self, length: int) -> Tensor:
+        """(S,) int64 first steps of the L-step windows ``[s, s + L)`` that overlap no band."""
+        hit = np.concatenate([[0], np.cumsum(self.band())])
+        starts = np.arange(self.total - length + 1)
+        return torch.as_tensor(starts[hit[starts + length] == hit[starts]], dtype=torch.int64)
+
+    def record(self, stream_steps: np.ndarray) -> dict[str, Any]:
+        """What ``RUN/holdout.json`` holds: check steps (indices and step numbers), radius, source, band."""
+        return {
+            "check_steps": [int(s) for s in self.steps],
+            "step_numbers": [int(stream_steps[s]) for s in self.steps],
+            "radius": self.radius,
+            "source": self.source,
+            "excluded_steps": int(self.band().sum()),
+            "total_steps": self.total,
+        }
+
+
+def checked(holdout: Holdout, trainable: int, what: str) -> None:
+    """InputError naming ``holdout_radius`` when the bands leave nothing of ``what`` to train on."""
+    if trainable < 1:
+        raise InputError(
+            f"holdout_radius {holdout.radius} around {len(holdout.steps)} check steps leaves no {what} of "
+            f"the {holdout.total} steps to train on; lower it or turn the hold-out off",
+            param="holdout_radius",
+        )
+
+
+def write_record(run_dir: str | Path, record: dict[str, Any] | None) -> None:
+    """Write ``RUN/holdout.json`` atomically (``record`` None: remove a stale one)."""
+    path = Path(run_dir) / HOLDOUT_FILE
+    if record is None:
+        path.unlink(missing_ok=True)
+    else:
+        write_text_atomic(path, json.dumps(record, indent=2) + "\n")
+
+
+def read_record(run_dir: str | Path) -> dict[str, Any] | None:
+    """``RUN/holdout.json``, or None when the run trained on every step."""
+    path = Path(run_dir) / HOLDOUT_FILE
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        steps = [int(s) for s in data["check_steps"]]
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"malformed hold-out record ({err})", path=path) from err
+    return {**data, "check_steps": steps}
+
+
+def make_holdout(dataset: SpikeDataset, on: bool | None, count: int, radius: int) -> Holdout | None:
+    """The run's :class:`Holdout`, or None when it trains on every step (``on`` None: on for imported
+    datasets). ``count``: check steps of a dataset without imported test keyframes."""
+    if not (is_imported(dataset) if on is None else on):
+        return None
+    steps, source = check_steps(dataset, count)
+    return Holdout(steps, radius, len(dataset.trajectory), source)

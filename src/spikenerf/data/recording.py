@@ -1,0 +1,55 @@
+"""A dataset's gray stream as a camera would deliver it: a raw ``.dat`` + SpikeCV ``config.yaml``, no poses.
+
+``simulate --raw-width N`` writes it to ``DATASET/raw/`` so that the real-data workflow (``spikenerf import``,
+docs/real-data.md) can be tried where the truth is known. Each stored row carries ``N − W`` extra columns,
+written as zeros (raw sps10 files carry 16 such non-pixel columns: 416 for a 400-pixel row).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from spikenerf.camera.io import frame_bytes, iter_dat, write_dat
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+
+RAW_DIR = "raw"
+RAW_FILE = "recording.dat"
+
+
+def check_raw_width(raw_width: int | None, height: int, width: int) -> None:
+    """InputError (naming ``raw_width``) unless ``raw_width`` is None or ≥ W with H·raw_width % 8 == 0."""
+    if raw_width is None:
+        return
+    if raw_width < width:
+        raise InputError(f"raw_width must be ≥ the image width {width}, found {raw_width}", param="raw_width")
+    if (height * raw_width) % 8:
+        raise InputError(
+            f"raw_width: H·raw_width must be a multiple of 8, found {height}×{raw_width}", param="raw_width"
+        )
+    frame_bytes(height, width, raw_width)
+
+
+def write_raw_recording(
+    spikes_dat: str | Path, height: int, width: int, fps: float, out_dir: str | Path, raw_width: int
+) -> Path:
+    """Copy the (T, H, W) stream ``spikes_dat`` to ``out_dir/recording.dat`` with ``raw_width`` columns per
+    row (chunk by chunk, atomically) and write the SpikeCV ``config.yaml`` beside it: spike_h, spike_w,
+    raw_width, fps — no poses, no intrinsics. Returns the recording's path."""
+    check_raw_width(raw_width, height, width)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    pad = raw_width - width
+
+    def chunks():
+        for _, chunk in iter_dat(spikes_dat, height, width):
+            yield np.concatenate([chunk, np.zeros((len(chunk), height, pad), np.uint8)], axis=2)
+
+    rec = out_dir / RAW_FILE
+    write_dat(rec, chunks())
+    config = {"spike_h": int(height), "spike_w": int(width), "raw_width": int(raw_width), "fps": float(fps)}
+    write_text_atomic(out_dir / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+    return rec

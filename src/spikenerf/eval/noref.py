@@ -1,0 +1,212 @@
+"""No-reference checks of a run against its own recording (for real data, which has no ground truth).
+
+At a few *check steps* k of the training path (an imported dataset's test keyframes, else evenly spaced
+steps) the model is scored against the recorded spike stream alone (docs/metrics.md, docs/real-data.md):
+
+* **masked PSNR / SSIM** of the render at the pose of step k against the run's own reconstruction ``Î_k``
+  (TFP, TFI or the learned reconstructor, with the run's window), counted only where the spike mask ``M_k``
+  is set (a spike fell in steps k−n..k+n, the run's mask n): elsewhere the reconstruction says only "dark".
+  Both are displayed values (sRGB-encoded [0, 1]), as every eval metric.
+* the **interval-violation rate** of the L steps around k: the fraction of sampled pixel windows whose
+  rendered integral lies outside the interval that the recorded spike count allows — the spike loss's own
+  constraint (:func:`spikenerf.train.losses.spike_interval_violation`, whole windows) — and the **mean
+  violation** in units of φ. The same numbers for ``Î_k`` held constant over the window are given as a
+  reference point.
+
+A run trained with the hold-out (``train --holdout``, on by default for imported datasets) never saw the
+check steps: training drew no image target and no spike window within its guard band of them
+(:mod:`spikenerf.data.holdout`, recorded in ``RUN/holdout.json``). The checks then score those very steps and
+report ``steps_trained_on: false``; otherwise the run fitted them too (``true``) and the scores say how well
+the model explains the recording, not how well it generalises.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from spikenerf.camera.layout import to_channels_last
+from spikenerf.camera.masks import spike_masks
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import SpikeDataset
+from spikenerf.data.holdout import check_steps, is_imported
+from spikenerf.data.targets import reconstruct_stream, stream_mode
+from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
+from spikenerf.render import RadianceModel, render_image, render_spike_window
+from spikenerf.train.config import TrainConfig
+from spikenerf.train.losses import spike_interval_violation
+
+NOREF_MODES = ("auto", "on", "off")
+#: why no no-reference image score (BRISQUE, NIQE…) is reported; see docs/metrics.md
+IMAGE_SCORE_REASON = (
+    "no field-standard no-reference image score installs from PyPI without downloading weights at run time "
+    "(piq's BRISQUE fetches its SVR weights from GitHub; pyiqa's NIQE/BRISQUE fetch theirs)"
+)
+
+
+@dataclass(frozen=True)
+class NoRefOptions:
+    """steps: check steps for a dataset without imported test keyframes. spike_window: L (None: the run's
+    spike window). spike_pixels: pixels sampled per check step (0: all). seed: pixel sampling seed."""
+
+    steps: int = 8
+    spike_window: int | None = None
+    spike_pixels: int = 4096
+    seed: int = 0
+
+    def check(self) -> None:
+        if self.steps < 1:
+            raise InputError(f"steps must be ≥ 1, found {self.steps}", param="steps")
+        if self.spike_window is not None and self.spike_window < 1:
+            raise InputError(f"spike_window must be ≥ 1, found {self.spike_window}", param="spike_window")
+        if self.spike_pixels < 0:
+            raise InputError(
+                f"spike_pixels must be ≥ 0 (0 = all), found {self.spike_pixels}", param="spike_pixels"
+            )
+
+
+def wants_noref(mode: str, dataset: SpikeDataset, held: bool = False) -> bool:
+    """``auto``: on for an imported dataset (its config has an ``imported`` section) or a run that ``held``
+    steps out; ``on``/``off``."""
+    if mode not in NOREF_MODES:
+        raise InputError(f"mode must be one of {', '.join(NOREF_MODES)}, found {mode!r}", param="mode")
+    return mode == "on" or (mode == "auto" and (held or is_imported(dataset)))
+
+
+def window_start(step: int, length: int, total: int) -> int:
+    """First step of the ``length``-step window centred on ``step``, shifted to lie inside ``total`` steps."""
+    return int(min(max(step - length // 2, 0), max(total - length, 0)))
+
+
+def violation_stats(intensity: torch.Tensor, recorded: torch.Tensor, threshold: float) -> tuple[float, float]:
+    """(violation rate, mean violation / φ) of whole windows. intensity, recorded: (L, P, C)."""
+    violation, _, valid = spike_interval_violation(intensity, recorded, threshold, pairs="window")
+    v = violation[valid].double()
+    return float((v > 0).double().mean()), float(v.mean() / threshold)
+
+
+def _sample_pixels(height: int, width: int, count: int, seed: int) -> torch.Tensor:
+    """(P, 2) int64 ``(x, y)``: all pixels when ``count`` is 0 or covers the image, else a seeded sample."""
+    total = height * width
+    gen = torch.Generator().manual_seed(seed)
+    idx = (
+        torch.arange(total) if count == 0 or count >= total else torch.randperm(total, generator=gen)[:count]
+    )
+    return torch.stack([idx % width, idx // width], dim=1)
+
+
+def _render_window(
+    model: RadianceModel, dataset: SpikeDataset, start: int, length: int, pixels: torch.Tensor, chunk: int
+) -> torch.Tensor:
+    """Rendered intensity (L, P, C) over steps ``start..start+L-1`` at ``pixels``, ``chunk`` rays a call."""
+    poses = dataset.trajectory.poses[start : start + length]
+    per_call = max(1, chunk // length)
+    parts = []
+    for i in range(0, len(pixels), per_call):
+        px = pixels[i : i + per_call]
+        zero = torch.zeros(len(px), model.channels)
+        args = (dataset.intrinsics, px, zero, dataset.threshold, dataset.near, dataset.far)
+        parts.append(render_spike_window(model, poses, *args).intensity.float().cpu())
+    return torch.cat(parts, dim=1)
+
+
+def _channels_last(x: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """A camera-layout stream (T, H, W) or (T, 3, H, W) as a tensor (T, H, W, C)."""
+    return to_channels_last(torch.as_tensor(x))
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def score_step(
+    model: RadianceModel,
+    config: TrainConfig,
+    dataset: SpikeDataset,
+    step: int,
+    length: int,
+    pixels: torch.Tensor,
+    chunk: int,
+    display: Callable[[Any, int], torch.Tensor],
+) -> dict[str, Any]:
+    """The no-reference scores of one check step (see the module doc); ``display`` maps linear (H, W, C)
+    to the displayed (C, H, W) (eval's convention)."""
+    total, t = len(dataset.trajectory), config.targets
+    half = t.window // 2
+    start = window_start(step, length, total)
+    lo, hi = max(0, min(step - half, start)), min(total, max(step + half + 1, start + length))
+    lo, hi = max(0, min(lo, hi - t.window)), min(total, max(hi, lo + t.window))  # a whole window (learned)
+    raw = dataset.spikes(stream_mode(config.color), frames=slice(lo, hi))
+    i = step - lo
+    recon = _channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
+    mask = torch.as_tensor(spike_masks(raw, n=t.mask_n, frames=slice(i, i + 1))[0])  # (H, W) or (3, H, W)
+    out = render_image(model, dataset.trajectory.poses[step], dataset.intrinsics, dataset.near, dataset.far)
+    pred, target = display(out.color, model.channels), display(recon, model.channels)
+    m = mask.expand_as(pred)
+    side = min(pred.shape[-2:]) >= SSIMConfig().window
+    row: dict[str, Any] = {
+        "step": int(dataset.trajectory.steps[step]),
+        "mask_fraction": float(m.double().mean()),
+    }
+    row["masked_psnr"] = _finite(float(psnr(pred, target, mask=m)))
+    row["masked_ssim"] = _finite(float(ssim(pred, target, mask=m))) if side else None
+    recorded = _channels_last(raw[start - lo : start - lo + length])[:, pixels[:, 1], pixels[:, 0]].float()
+    rendered = _render_window(model, dataset, start, length, pixels, chunk)
+    held = recon[pixels[:, 1], pixels[:, 0]].float().expand(length, -1, -1)
+    row["interval_violation_rate"], row["interval_violation_mean"] = violation_stats(
+        rendered, recorded, dataset.threshold
+    )
+    row["recon_interval_violation_rate"], row["recon_interval_violation_mean"] = violation_stats(
+        held, recorded, dataset.threshold
+    )
+    return row
+
+
+def noref_metrics(
+    model: RadianceModel,
+    config: TrainConfig,
+    dataset: SpikeDataset,
+    options: NoRefOptions,
+    chunk: int,
+    display: Callable[[Any, int], torch.Tensor],
+    progress: Callable[[Any], Any] = iter,
+    held: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The ``no_reference`` section of metrics.json: settings, ``mean`` and ``per_step`` scores. ``held``:
+    the run's hold-out record (``data.holdout.read_record``); its check steps are scored, else those of
+    :func:`check_steps`."""
+    options.check()
+    total = len(dataset.trajectory)
+    length = min(options.spike_window or config.spike.window, total)
+    if held is None:
+        steps, source = check_steps(dataset, options.steps)
+    else:
+        steps, source = np.asarray(held["check_steps"], dtype=np.int64), str(held.get("source", ""))
+        if len(steps) == 0 or steps.min() < 0 or steps.max() >= total:
+            raise InputError(f"the run's held-out steps lie outside the {total}-step stream", dataset.root)
+    k = dataset.intrinsics
+    rows, pixels = [], torch.zeros(0, 2)
+    with torch.no_grad():
+        for i, step in enumerate(progress(steps)):
+            pixels = _sample_pixels(k.height, k.width, options.spike_pixels, options.seed + i)
+            rows.append(score_step(model, config, dataset, int(step), length, pixels, chunk, display))
+    mean = {key: mean_or_none([r[key] for r in rows]) for key in rows[0] if key != "step"}
+    t = config.targets
+    return {
+        "steps_from": source,
+        "steps_trained_on": held is None,
+        "guard_radius": None if held is None else held.get("radius"),
+        "target": f"{t.recon} (window {t.window})",
+        "mask": f"a spike in steps k-{t.mask_n}..k+{t.mask_n}",
+        "spike_window": length,
+        "spike_pixels": len(pixels),
+        "mean": mean,
+        "per_step": rows,
+        "image_score": None,
+        "image_score_reason": IMAGE_SCORE_REASON,
+    }

@@ -1,0 +1,59 @@
+"""The base of the radiance fields: a scene box, the box normalisation, output channels and Adam groups.
+
+Compare nerfstudio's ``fields/base_field.py``: a field maps world points and view directions to density and
+colour; what every field shares lives here, what differs (the encoding, the network) in its subclass.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+
+class Field(nn.Module):
+    """A radiance field over an axis-aligned scene box.
+
+    Args:
+        channels: 1 (gray) or 3 (rgb) colour channels.
+        scene_box: (2, 3) world bounds ``[min, max]``; stored as the buffer ``scene_box`` (so it moves with
+            ``.to(device)`` and is in the state dict).
+        config: the field's frozen hyper-parameter dataclass, kept as ``config``.
+    Colour is linear radiance in [0, 1]; density is per world unit.
+    """
+
+    scene_box: Tensor
+
+    def __init__(self, channels: int, scene_box: Tensor, config: Any) -> None:
+        super().__init__()
+        self.config = config
+        self.channels = channels
+        self.register_buffer(
+            "scene_box", torch.as_tensor(scene_box, dtype=torch.float32).reshape(2, 3).clone()
+        )
+
+    def normalize(self, xyz: Tensor) -> Tensor:
+        """World points (..., 3) → box-normalised [−1, 1]³ (..., 3)."""
+        lo, hi = self.scene_box[0], self.scene_box[1]
+        return (xyz - lo) * (2.0 / (hi - lo)) - 1.0
+
+    def denormalize(self, xyz_norm: Tensor) -> Tensor:
+        """Box-normalised points (..., 3) → world (..., 3)."""
+        lo, hi = self.scene_box[0], self.scene_box[1]
+        return lo + (xyz_norm + 1.0) * (0.5 * (hi - lo))
+
+    def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+        """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""
+        raise NotImplementedError
+
+    def regularization(self) -> Tensor:
+        """A scalar () prior to add to the loss (already weighted); zero unless the field defines one."""
+        return self.scene_box.new_zeros(())
+
+    def param_groups(self, base_lr: float | None = None) -> list[dict]:
+        """Adam groups, each with ``params``, ``lr`` and a ``name`` ("grid" | "network").
+
+        The default is one "network" group of all parameters at ``base_lr`` (default ``config.lr``).
+        """
+        return [{"params": list(self.parameters()), "lr": base_lr or self.config.lr, "name": "network"}]

@@ -1,0 +1,320 @@
+"""Training methods: one :class:`TrainMethod` per ``--method``; each builds its targets and returns its named
+loss terms, and the trainer sums them (compare nerfstudio's ``Model.get_loss_dict``).
+
+Every method renders ``batch`` random rays against its image targets (``recon``, linear MSE; images posed
+at S > 1 poses are rendered at each and averaged first) and adds the field's prior (``reg``). Spike-NeRF adds,
+once its λ(it) > 0, one window of L consecutive steps for P pixels (``spike``, weighted by λ). The terms keep
+these names in ``curves.csv`` and TensorBoard (``loss/recon``, ``loss/spike``, ``loss/reg``).
+
+=================  ==============================================  ==================================
+method             targets (``spikenerf.data.targets``)             loss terms
+=================  ==============================================  ==================================
+nerf-gt            sharp GT renders (``gt_targets``)               recon, reg
+nerf-blur          blur views at mid-exposure (``blur_targets``)   recon, reg
+nerf-blur-aware    blur views at ``blur_samples`` exposure poses   recon (exposure-averaged), reg
+nerf-recon         Î_k at every step (``stream_targets``)          recon, reg
+spike-nerf         M_k ⊙ Î_k at every step + the recorded stream   recon, reg, λ(it) · spike
+=================  ==============================================  ==================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from spikenerf.core.color import srgb_encode
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import SpikeDataset
+from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
+from spikenerf.data.samplers import RaySampler, WindowSampler
+from spikenerf.data.targets import (
+    METHODS,
+    ImageTargets,
+    SpikeTargets,
+    blur_targets,
+    build_spike_targets,
+    gt_targets,
+    load_stream,
+    stream_targets,
+)
+from spikenerf.render import RadianceModel, RenderOutput, render_spike_window
+from spikenerf.train.config import TrainConfig
+from spikenerf.train.losses import paper_spike_loss, recon_loss, spike_interval_loss, spike_weight
+from spikenerf.train.pose_refine import PoseRefinement
+
+
+class TrainState(Protocol):
+    """What a method reads from the trainer during a step."""
+
+    config: TrainConfig
+    dataset: SpikeDataset
+    model: RadianceModel
+    device: torch.device
+    samplers: dict[str, Any]
+    pose_refine: PoseRefinement | None  # learnable pose corrections (--refine-poses) or None
+
+    def render_rays(self, poses: Tensor, pixels: Tensor, perturb: bool = True) -> RenderOutput: ...
+
+
+@dataclass
+class StepLosses:
+    """One step's named loss terms (in summation order), their weights and statistics.
+
+    Attributes:
+        terms: name -> 0-d loss tensor, unweighted (what ``curves.csv`` averages).
+        weights: name -> weight this step (λ(it) for ``spike``); a term without one is added as it is.
+        srgb_mse: 0-d MSE of the sRGB-encoded batch (the train PSNR; no gradient, stays on the device).
+        rays: rays rendered this step.
+    """
+
+    terms: dict[str, Tensor]
+    srgb_mse: Tensor
+    rays: int
+    weights: dict[str, float] = field(default_factory=dict)
+
+    def total(self) -> Tensor:
+        """The loss to minimise: the sum of the weighted terms."""
+        total: Tensor | None = None
+        for name, term in self.terms.items():
+            weighted = self.weights[name] * term if name in self.weights else term
+            total = weighted if total is None else total + weighted
+        assert total is not None
+        return total
+
+
+class TrainMethod:
+    """A training method: its targets, its λ schedule and its named loss terms.
+
+    Attributes:
+        name: the ``--method`` value. views: what its targets are posed on and the benchmark counts in
+            "trained on": ``steps`` (every spike step), ``gt`` (the GT renders) or ``blur`` (the blur views).
+        uses_stream: its targets are made from the recorded spike stream.
+    """
+
+    name: ClassVar[str]
+    views: ClassVar[str] = "steps"
+    uses_stream: ClassVar[bool] = False
+
+    def __init__(self, config: TrainConfig) -> None:
+        self.config = config
+        self.channels = 1 if config.color == "gray" else 3
+        self.targets: ImageTargets | None = None
+        self.spikes: SpikeTargets | None = None
+        self.holdout: Holdout | None = None
+        self.stream_steps = np.zeros(0, dtype=np.int64)
+
+    # ---------------------------------------------------------------------------------------------- facts
+    @property
+    def uses_mask(self) -> bool:
+        """Its image targets are multiplied by the spike masks."""
+        return False
+
+    @property
+    def uses_spike_loss(self) -> bool:
+        """It adds the spike loss."""
+        return False
+
+    def poses_per_view(self) -> int:
+        """Poses rendered and averaged for each target image (S of :class:`ImageTargets`)."""
+        return 1
+
+    def describe(self) -> str:
+        """``spike-nerf (no mask)``: the name and the parts the config switched off."""
+        off = self.ablations()
+        return self.name + (f" ({', '.join(off)})" if off else "")
+
+    def ablations(self) -> list[str]:
+        """The parts of the method the config switched off (``no mask``, ``no spike loss``)."""
+        return []
+
+    # ---------------------------------------------------------------------------------------------- setup
+    def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
+        """The reconstruction-loss targets (``stream``: the recorded stream when :attr:`uses_stream`)."""
+        raise NotImplementedError
+
+    def build_targets(self, dataset: SpikeDataset) -> None:
+        """Build :attr:`targets` (and the spike targets of a method with a spike loss)."""
+        stream = load_stream(dataset, self.config.color) if self.uses_stream else None
+        self.targets = self.image_targets(dataset, stream)
+
+    def hold_out(self, dataset: SpikeDataset) -> Holdout | None:
+        """Decide the held-out check steps (``config.holdout``; None: trains on every step), which
+        :meth:`make_samplers` then never draws."""
+        c = self.config
+        t, r = c.targets, c.holdout_radius
+        radius = guard_radius(t.window, t.mask_n, c.spike.window) if r is None else r
+        self.holdout = make_holdout(dataset, c.holdout, c.holdout_steps, radius)
+        self.stream_steps = np.asarray(dataset.trajectory.steps)
+        return self.holdout
+
+    def make_samplers(self, height: int, width: int) -> dict[str, Any]:
+        """The seeded samplers of its steps, by name (their states are checkpointed under these names)."""
+        assert self.targets is not None, "build_targets first"
+        images = None
+        if self.holdout is not None:
+            images = self.holdout.image_indices(self.targets.steps, self.stream_steps)
+            checked(self.holdout, len(images), "image target")
+        return {"rays": RaySampler(len(self.targets), height, width, self.config.seed, images)}
+
+    # ---------------------------------------------------------------------------------------------- steps
+    def lam(self, iteration: int) -> float:
+        """λ of the spike loss at ``iteration`` (0 for a method without one)."""
+        return 0.0
+
+    def losses(self, state: TrainState, iteration: int) -> StepLosses:
+        """The loss terms of one step: ``recon`` and ``reg`` (subclasses add theirs)."""
+        recon, srgb_mse, rays = self.recon_term(state)
+        return StepLosses({"recon": recon, "reg": state.model.regularization()}, srgb_mse, rays)
+
+    def recon_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
+        """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered);
+        the MSE stays a 0-d tensor on the device (no synchronisation)."""
+        targets = self.targets
+        assert targets is not None, "build_targets first"
+        views, channels = targets.poses.shape[1], self.channels
+        index, pixels = state.samplers["rays"].sample(max(1, state.config.batch // views))
+        target = targets.gather(index, pixels).to(state.device)
+        poses = targets.poses[index].reshape(-1, 4, 4)  # (B·S, 4, 4), S poses averaged per ray
+        if state.pose_refine is not None:
+            poses = state.pose_refine.images(targets, index, poses)
+        out = state.render_rays(poses, pixels.repeat_interleave(views, dim=0))
+        color = out.color.view(-1, views, channels).mean(dim=1)
+        loss = recon_loss(color, target)
+        if out.coarse_color is not None:
+            loss = loss + recon_loss(out.coarse_color.view(-1, views, channels).mean(dim=1), target)
+        with torch.no_grad():
+            srgb_mse = torch.mean((srgb_encode(color.float()) - srgb_encode(target)) ** 2)
+        return loss, srgb_mse, poses.shape[0]
+
+
+class NerfGT(TrainMethod):
+    """The oracle: NeRF on the sharp ground-truth renders."""
+
+    name, views = "nerf-gt", "gt"
+
+    def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
+        return gt_targets(dataset, self.config.color, self.name)
+
+
+class NerfBlur(TrainMethod):
+    """NeRF on the conventional camera's blur views, each at its mid-exposure pose."""
+
+    name, views = "nerf-blur", "blur"
+
+    def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
+        return blur_targets(dataset, self.config.color, None, self.name)
+
+
+class NerfBlurAware(NerfBlur):
+    """A deblurring NeRF given the true trajectory: each blur view is compared with the mean of renders at
+    ``targets.blur_samples`` poses spread over its exposure."""
+
+    name = "nerf-blur-aware"
+
+    def poses_per_view(self) -> int:
+        return self.config.targets.blur_samples
+
+    def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
+        return blur_targets(dataset, self.config.color, self.poses_per_view(), self.name)
+
+
+class NerfRecon(TrainMethod):
+    """NeRF on the reconstructions Î_k (TFP, TFI or learned) of every step, unmasked."""
+
+    name, uses_stream = "nerf-recon", True
+
+    def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
+        t = self.config.targets
+        return stream_targets(dataset, self.config.color, t.recon, t.window, self.uses_mask, t.mask_n, stream)
+
+
+class SpikeNeRF(NerfRecon):
+    """Spike-NeRF: masked targets ``M_k ⊙ Î_k`` plus ``λ(it) · L_spike`` (both can be switched off)."""
+
+    name = "spike-nerf"
+
+    @property
+    def uses_mask(self) -> bool:
+        return self.config.targets.mask
+
+    @property
+    def uses_spike_loss(self) -> bool:
+        return self.config.spike.enabled
+
+    def ablations(self) -> list[str]:
+        off = (("no mask", self.uses_mask), ("no spike loss", self.uses_spike_loss))
+        return [name for name, on in off if not on]
+
+    def build_targets(self, dataset: SpikeDataset) -> None:
+        stream = load_stream(dataset, self.config.color)
+        self.targets = self.image_targets(dataset, stream)
+        if self.uses_spike_loss:
+            window = self.config.spike.window
+            if window > len(dataset.trajectory):
+                raise InputError(
+                    f"spike window {window} exceeds the {len(dataset.trajectory)} recorded steps"
+                )
+            self.spikes = build_spike_targets(dataset, self.config.color, stream)
+
+    def make_samplers(self, height: int, width: int) -> dict[str, Any]:
+        samplers = super().make_samplers(height, width)
+        if self.spikes is not None:
+            s = self.config.spike
+            steps, starts = self.spikes.spikes.shape[0], None
+            if self.holdout is not None:
+                starts = self.holdout.window_starts(s.window)
+                checked(self.holdout, len(starts), f"{s.window}-step spike window")
+            seed = self.config.seed + 1
+            samplers["windows"] = WindowSampler(steps, height, width, s.window, seed, s.order, starts=starts)
+        return samplers
+
+    def lam(self, iteration: int) -> float:
+        s = self.config.spike
+        return spike_weight(iteration, s.lam, *s.schedule(self.config.iters)) if self.uses_spike_loss else 0.0
+
+    def losses(self, state: TrainState, iteration: int) -> StepLosses:
+        step = super().losses(state, iteration)
+        lam = self.lam(iteration)
+        if lam > 0 and iteration % self.config.spike.every == 0:
+            step.terms["spike"], rays = self.spike_term(state)
+            step.weights["spike"] = lam
+            step.rays += rays
+        return step
+
+    def spike_term(self, state: TrainState) -> tuple[Tensor, int]:
+        """Spike loss of the next window of L consecutive steps for P pixels → (loss, rays rendered)."""
+        s, spikes, ds = self.config.spike, self.spikes, state.dataset
+        assert spikes is not None
+        start, pixels = state.samplers["windows"].sample(s.pixels)
+        paper = s.kind == "paper"
+        shape = (s.pixels, self.channels)
+        a0 = torch.rand(shape) * spikes.threshold if paper else torch.zeros(shape)
+        poses = spikes.poses[start : start + s.window]
+        if state.pose_refine is not None:
+            poses = state.pose_refine.window(poses, start)
+        window = render_spike_window(state.model, poses, ds.intrinsics, pixels, a0.to(state.device),
+                                     spikes.threshold, ds.near, ds.far, perturb=True)  # fmt: skip
+        recorded = spikes.window(start, s.window, pixels).to(state.device)
+        if paper:
+            a0 = a0.to(state.device)
+            loss = paper_spike_loss(window.intensity, recorded, spikes.threshold, a0, s.paper_warmup)
+        else:
+            loss = spike_interval_loss(window.intensity, recorded, spikes.threshold, s.pairs)  # type: ignore[arg-type]
+        return loss, s.window * s.pixels
+
+
+#: ``--method`` -> its class; the names are the ``Method`` Literal of ``spikenerf.data.targets``
+METHOD_CLASSES: dict[str, type[TrainMethod]] = {
+    cls.name: cls for cls in (SpikeNeRF, NerfRecon, NerfBlur, NerfBlurAware, NerfGT)
+}
+
+
+def make_method(config: TrainConfig) -> TrainMethod:
+    """The :class:`TrainMethod` of ``config.method`` (InputError for an unknown one)."""
+    if config.method not in METHOD_CLASSES:
+        raise InputError(f"method must be one of {', '.join(METHODS)}, found {config.method!r}")
+    return METHOD_CLASSES[config.method](config)

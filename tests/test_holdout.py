@@ -1,0 +1,176 @@
+"""The hold-out of the no-reference check steps (data/holdout.py): the samplers never draw a held-out step or
+a window overlapping a guard band, the defaults (imported → on, simulated → off), the run's record, the
+radius, and a band that leaves nothing to train on."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from helpers import run_cli
+from spikenerf.data.dataset import load_dataset
+from spikenerf.data.holdout import HOLDOUT_FILE, Holdout, guard_radius, read_record
+from spikenerf.data.samplers import RaySampler, WindowSampler
+from spikenerf.data.simulate import SimulateOptions, simulate_dataset
+from spikenerf.scenes.analytic import AnalyticSource
+from spikenerf.scenes.trajectory import novel_views, orbit
+from spikenerf.train.config import TrainConfig
+from spikenerf.train.methods import make_method
+
+STEPS = 60
+TRAIN = ["--iters", 2, "--batch", 32, "--eval-every", 0, "--eval-views", 1, "--spike-warmup", 0,
+         "--spike-window", 4, "--spike-pixels", 4, "--device", "cpu", "--quiet",
+         "--field-option", "n_voxels_init=512", "--field-option", "n_voxels_final=512"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    traj = orbit(4.0, 30.0, duration=STEPS / 40000)
+    source = AnalyticSource("analytic-orbs", 8, 8, traj, novel_views(4.0, 1), supersample=1)
+    out = tmp_path_factory.mktemp("holdout") / "orbs8"
+    return simulate_dataset(source, out, SimulateOptions(blur_fps=0.0), progress=False)
+
+
+def _imported(dataset, keys: list[int]):  # type: ignore[no-untyped-def]
+    """The dataset as if `spikenerf import` had written it, with these test keyframes."""
+    return dataclasses.replace(dataset, config={**dataset.config, "imported": {"test_keyframes": keys}})
+
+
+def test_samplers_never_draw_a_held_out_step_or_an_overlapping_window() -> None:
+    hold = Holdout(np.array([10, 31]), radius=3, total=50, source="test")
+    band = set(np.flatnonzero(hold.band()).tolist())
+    assert band == set(range(7, 14)) | set(range(28, 35))
+    images = hold.image_indices(torch.arange(100, 150), np.arange(100, 150))  # step numbers ≠ indices
+    assert set(images.tolist()) == set(range(50)) - band
+    rays = RaySampler(50, 4, 4, seed=0, images=images)
+    drawn = torch.cat([rays.sample(256)[0] for _ in range(40)])
+    assert not set(drawn.tolist()) & band and len(set(drawn.tolist())) == 50 - len(band)
+    length = 5
+    starts = hold.window_starts(length)
+    for order in ("random", "sequential"):
+        windows = WindowSampler(50, 4, 4, length, seed=1, order=order, starts=starts)
+        firsts = {windows.sample(2)[0] for _ in range(400)}
+        assert firsts <= set(starts.tolist()), order
+        if order == "random":
+            assert firsts == set(starts.tolist())  # every allowed window, and only those
+        else:  # walks on by L, skipping to the next allowed start, and wraps
+            assert firsts == {0, 14, 19, 35, 40, 45}
+        for s in firsts:
+            assert not set(range(s, s + length)) & band, (order, s)
+    # the allowed windows are exactly those that miss the bands (the edges touch them)
+    assert {6 - length + 1, 2, 14, 23, 35, 45} <= set(starts.tolist())
+    assert not {3, 9, 24, 34, 46} & set(starts.tolist())
+
+
+def test_unrestricted_samplers_draw_as_before() -> None:
+    """``images``/``starts`` covering everything give the same draws as the unrestricted samplers."""
+    a, b = RaySampler(6, 3, 5, seed=2), RaySampler(6, 3, 5, seed=2, images=torch.arange(6))
+    for _ in range(5):
+        for x, y in zip(a.sample(64), b.sample(64), strict=True):
+            assert torch.equal(x, y)
+    for order in ("random", "sequential"):
+        c = WindowSampler(30, 3, 3, 4, seed=3, order=order, stride=3)
+        d = WindowSampler(30, 3, 3, 4, seed=3, order=order, stride=3, starts=torch.arange(27))
+        for _ in range(25):
+            (s, p), (t, q) = c.sample(3), d.sample(3)
+            assert s == t and torch.equal(p, q)
+        assert c.state_dict()["next_start"] == d.state_dict()["next_start"]
+
+
+def test_guard_radius_keeps_trained_and_checked_spikes_apart() -> None:
+    # TFP 41 (a = 20), mask n 5, spike window 16 (centred: ±8): r = 20 + 20
+    assert guard_radius(41, 5, 16) == 40
+    assert guard_radius(5, 5, 40) == 5 + 20  # a wide check window
+    assert guard_radius(3, 5, 2) == 10  # the mask reaches further than a short TFP
+
+
+def test_hold_out_is_on_for_imported_datasets_only(dataset_dir: Path) -> None:
+    dataset = load_dataset(dataset_dir)
+    cfg = TrainConfig(dataset=str(dataset_dir), holdout_radius=2, holdout_steps=3)
+    assert make_method(cfg).hold_out(dataset) is None  # simulated: off by default
+    hold = make_method(cfg).hold_out(_imported(dataset, [20, 40]))
+    assert (
+        hold is not None and hold.steps.tolist() == [20, 40] and hold.source == "the imported test keyframes"
+    )
+    on = make_method(dataclasses.replace(cfg, holdout=True)).hold_out(dataset)
+    assert on is not None and on.steps.tolist() == [15, 30, 44] and on.source == "evenly spaced steps"
+    assert make_method(dataclasses.replace(cfg, holdout=False)).hold_out(_imported(dataset, [20])) is None
+    default = make_method(TrainConfig(dataset=str(dataset_dir))).hold_out(_imported(dataset, [20]))
+    assert default is not None and default.radius == 40
+
+
+def test_train_records_the_held_out_steps_and_eval_reads_them(
+    dataset_dir: Path, tmp_path: Path, capsys
+) -> None:
+    run = tmp_path / "run"
+    args = ["--holdout", "--holdout-steps", 2, "--holdout-radius", 3]
+    code, _, err = run_cli(capsys, "train", dataset_dir, *TRAIN, *args, "--out", run)
+    assert code == 0, err
+    record = read_record(run)
+    assert record is not None and record["check_steps"] == [20, 39] and record["radius"] == 3
+    assert record["excluded_steps"] == 14 and record["source"] == "evenly spaced steps"
+    code, out, err = run_cli(capsys, "eval", run, "--lpips", "none", "--spike-pixels", 8, "--quiet")
+    assert code == 0, err
+    assert "no-reference at 2 check steps (held out)" in out  # auto: on for a run that held steps out
+    nr = json.loads((run / "metrics.json").read_text())["no_reference"]
+    assert nr["steps_trained_on"] is False and nr["guard_radius"] == 3
+    assert [r["step"] for r in nr["per_step"]] == record["step_numbers"]
+    code, out, _ = run_cli(capsys, "info", run)
+    assert code == 0 and "held out: steps 20, 39 ± 3 (14 steps not trained on)" in out
+    # the same run without the hold-out trains on every step, writes no record and says so
+    (run / HOLDOUT_FILE).unlink()
+    code, out, err = run_cli(capsys, "eval", run, "--lpips", "none", "--spike-pixels", 8, "--noref", "on",
+                             "--noref-steps", 2, "--quiet")  # fmt: skip
+    assert code == 0 and "(trained on)" in out, err
+    assert json.loads((run / "metrics.json").read_text())["no_reference"]["steps_trained_on"] is True
+
+
+def test_default_simulated_run_writes_no_record(dataset_dir: Path, tmp_path: Path, capsys) -> None:
+    code, _, err = run_cli(capsys, "train", dataset_dir, *TRAIN, "--out", tmp_path / "run")
+    assert code == 0, err
+    assert not (tmp_path / "run" / HOLDOUT_FILE).exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "what"),
+    [
+        (["--holdout-radius", 30], "image target"),
+        (["--holdout-radius", 12, "--holdout-steps", 2, "--method", "spike-nerf", "--spike-window", 30],
+         "30-step spike window"),
+    ],
+)  # fmt: skip
+def test_a_band_that_leaves_nothing_to_train_on_exits_2(
+    dataset_dir: Path, tmp_path: Path, capsys, args: list, what: str
+) -> None:
+    out = tmp_path / "run"
+    code, _, err = run_cli(capsys, "train", dataset_dir, *TRAIN, "--holdout", *args, "--out", out)
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "--holdout-radius" in err and f"leaves no {what}" in err, err
+    assert not (out / "config.yaml").exists() and not (out / "checkpoint.pt").exists()
+
+
+def test_a_negative_radius_exits_2(dataset_dir: Path, tmp_path: Path, capsys) -> None:
+    code, _, err = run_cli(
+        capsys, "train", dataset_dir, *TRAIN, "--holdout-radius", -1, "--out", tmp_path / "r"
+    )
+    assert code == 2 and "--holdout-radius must be ≥ 0" in err, err
+
+
+def test_the_trainer_samples_only_outside_the_bands(dataset_dir: Path, tmp_path: Path) -> None:
+    from spikenerf.train.trainer import Trainer
+
+    cfg = TrainConfig(dataset=str(dataset_dir), device="cpu", holdout=True, holdout_steps=2, holdout_radius=3)
+    cfg.spike.window = 4
+    trainer = Trainer(cfg, tmp_path / "run", progress=False)
+    band = set(range(17, 24)) | set(range(36, 43))
+    rays, windows = trainer.samplers["rays"], trainer.samplers["windows"]
+    drawn = set(torch.cat([rays.sample(512)[0] for _ in range(20)]).tolist())
+    assert not drawn & band and len(drawn) == STEPS - len(band)
+    for _ in range(100):
+        start = windows.sample(1)[0]
+        assert not set(range(start, start + 4)) & band, start

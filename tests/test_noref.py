@@ -1,0 +1,169 @@
+"""The real-data path at tiny size: ``simulate --noise realistic --raw-width`` → ``import`` (no poses in the
+recording; a known orbit) → ``train`` → ``eval`` with the no-reference checks; good model vs broken ones."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from helpers import run_cli
+from spikenerf.camera.io import read_dat
+from spikenerf.cli import main
+from spikenerf.eval.evaluate import display
+from spikenerf.eval.noref import NoRefOptions, check_steps, noref_metrics, wants_noref
+from spikenerf.render import model_from_hparams
+from spikenerf.train.run import load_run
+
+SIZE, RAW, STEPS = 24, 40, 80
+#: the orbit analytic scenes are simulated on (radius 4, 30° up, one turn) and their field of view
+ORBIT = ["--poses", "orbit", "--orbit", "4,30", "--fov", 39.5978]
+#: a small grid that learns the tiny scene in a few dozen iterations
+TRAIN = ["--iters", 60, "--batch", 1024, "--eval-every", 0, "--eval-views", 1, "--spike-warmup", 30,
+         "--spike-window", 8, "--spike-pixels", 32, "--device", "cpu", "--quiet",
+         "--field-option", "n_voxels_init=4096", "--field-option", "n_voxels_final=4096",
+         "--field-option", "density_shift=-2",
+         "--holdout-radius", 4]  # fmt: skip
+#: the hold-out (on for imported data) keeps steps 16..24, 36..44 and 56..64 out of training
+
+
+def _cli(*args: object) -> None:
+    main([str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The documented workflow (docs/real-data.md, *Try it on a simulated recording*) at 24×24, 80 steps."""
+    root = tmp_path_factory.mktemp("noref")
+    _cli("simulate", "--scene", "analytic-blocks", "--width", SIZE, "--height", SIZE, "--frames", STEPS,
+         "--noise", "realistic", "--raw-width", RAW, "--test-views", 1, "--blur-fps", 0, "--no-progress",
+         "--out", root / "sim")  # fmt: skip
+    rec = root / "rec" / "recording.dat"  # the "camera" files alone, away from the simulated truth
+    rec.parent.mkdir()
+    for name in ("recording.dat", "config.yaml"):
+        (rec.parent / name).write_bytes((root / "sim" / "raw" / name).read_bytes())
+    _cli("import", rec, *ORBIT, "--keyframe-every", 10, "--test-every", 2, "--out", root / "ds")
+    _cli("train", root / "ds", *TRAIN, "--out", root / "run")
+    return root
+
+
+def test_raw_recording_is_the_stream_with_padding_and_no_poses(demo: Path) -> None:
+    config = yaml.safe_load((demo / "rec" / "config.yaml").read_text())
+    assert config == {"spike_h": SIZE, "spike_w": SIZE, "raw_width": RAW, "fps": 40000.0}
+    raw = read_dat(demo / "rec" / "recording.dat", SIZE, RAW)
+    assert raw.shape == (STEPS, SIZE, RAW) and not raw[..., SIZE:].any()
+    np.testing.assert_array_equal(raw[..., :SIZE], read_dat(demo / "sim" / "spikes_gray.dat", SIZE, SIZE))
+    imported = yaml.safe_load((demo / "ds" / "config.yaml").read_text())["imported"]
+    assert imported["raw_width"] == RAW and imported["test_keyframes"] == [20, 40, 60]
+
+
+def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path, capsys) -> None:
+    run = demo / "run"
+    code, out, err = run_cli(capsys, "eval", run, "--device", "cpu", "--lpips", "none", "--spike-pixels", 64,
+                             "--quiet")  # fmt: skip
+    assert code == 0, err
+    assert "no-reference at 3 check steps (held out)" in out and "interval violations" in out
+    nr = json.loads((run / "metrics.json").read_text())["no_reference"]
+    assert nr["steps_from"] == "the imported test keyframes" and nr["steps_trained_on"] is False
+    assert json.loads((run / "holdout.json").read_text())["check_steps"] == [20, 40, 60]
+    assert [r["step"] for r in nr["per_step"]] == [20, 40, 60]
+    assert (nr["spike_window"], nr["spike_pixels"]) == (8, 64)
+    assert nr["image_score"] is None and "piq" in nr["image_score_reason"]
+    m = nr["mean"]
+    assert 0 < m["mask_fraction"] <= 1 and 10 < m["masked_psnr"] < 60 and 0 < m["masked_ssim"] <= 1
+    for key in ("interval_violation_rate", "recon_interval_violation_rate"):
+        assert 0 <= m[key] <= 1
+    code, out, _ = run_cli(capsys, "info", run)
+    assert code == 0 and f"no-reference: mask_fraction {m['mask_fraction']:.4g}   masked_psnr" in out
+    code, out, err = run_cli(capsys, "eval", run, "--device", "cpu", "--lpips", "none", "--noref", "off",
+                             "--quiet")  # fmt: skip
+    assert code == 0 and "no-reference" not in out
+    assert json.loads((run / "metrics.json").read_text())["no_reference"] is None
+
+
+def _sideways(poses: np.ndarray, distance: float) -> np.ndarray:
+    """Every camera moved ``distance`` along its own x axis (a misregistered trajectory)."""
+    out = poses.copy()
+    out[:, :3, 3] += distance * out[:, :3, 0]
+    return out
+
+
+def test_a_good_model_scores_better_than_broken_ones(demo: Path) -> None:
+    model, config, dataset = load_run(demo / "run")
+    opts = NoRefOptions(spike_pixels=96)
+
+    def scores(m, ds) -> dict:
+        return noref_metrics(m, config, ds, opts, 8192, display)["mean"]
+
+    good = scores(model, dataset)
+    torch.manual_seed(0)
+    untrained = scores(model_from_hparams(model.hparams()).eval(), dataset)
+    traj = dataset.trajectory
+    moved = dataclasses.replace(traj, poses=_sideways(traj.poses, 0.3))
+    shifted = scores(model, dataclasses.replace(dataset, trajectory=moved))
+    for name, bad in (("untrained", untrained), ("shifted", shifted)):
+        assert good["masked_psnr"] > bad["masked_psnr"] + 1.0, (name, good, bad)
+        assert good["masked_ssim"] > bad["masked_ssim"] + 0.05, (name, good, bad)
+        assert good["interval_violation_rate"] < bad["interval_violation_rate"], (name, good, bad)
+        assert good["interval_violation_mean"] < bad["interval_violation_mean"], (name, good, bad)
+        # the reference (the reconstruction held over the window) does not depend on the model
+        assert good["recon_interval_violation_rate"] == bad["recon_interval_violation_rate"]
+
+
+def test_noref_defaults_and_steps_of_simulated_data(demo: Path) -> None:
+    _, _, dataset = load_run(demo / "run")
+    assert wants_noref("auto", dataset) and not wants_noref("off", dataset)
+    plain = dataclasses.replace(dataset, config={})  # a simulated dataset: no `imported` section
+    assert not wants_noref("auto", plain) and wants_noref("on", plain)
+    steps, source = check_steps(plain, 4)
+    assert source == "evenly spaced steps" and steps.tolist() == [16, 32, 47, 63]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--spike-pixels", -1], "--spike-pixels must be ≥ 0"),
+        (["--noref-steps", 0], "--noref-steps must be ≥ 1"),
+        (["--spike-window", 0], "--spike-window must be ≥ 1"),
+    ],
+)
+def test_bad_noref_flags_exit_2(demo: Path, capsys, args: list, message: str) -> None:
+    metrics = demo / "run" / "metrics.json"
+    before = metrics.stat().st_mtime_ns if metrics.exists() else 0
+    code, _, err = run_cli(capsys, "eval", demo / "run", "--lpips", "none", "--quiet", *args)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert (metrics.stat().st_mtime_ns if metrics.exists() else 0) == before  # nothing rewritten
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--raw-width", 20], "--raw-width must be ≥ the image width 24"),
+        (["--raw-width", 25, "--height", 7], "--raw-width: H·raw_width must be a multiple of 8"),
+        (["--raw-width", 40, "--color", "rgb"], "--raw-width writes the gray stream"),
+    ],
+)
+def test_bad_raw_width_exits_2_before_anything_is_written(tmp_path: Path, capsys, args, message) -> None:
+    base = ["simulate", "--scene", "analytic-orbs", "--width", SIZE, "--height", SIZE, "--frames", 4]
+    code, _, err = run_cli(capsys, *base, *args, "--out", tmp_path / "sim")
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_learned_reconstructor_is_the_target_of_a_run_that_trained_on_it(demo: Path) -> None:
+    model, config, dataset = load_run(demo / "run")
+    opts = NoRefOptions(spike_pixels=16)
+    learned = dataclasses.replace(
+        config, targets=dataclasses.replace(config.targets, recon="learned", window=41)
+    )
+    tfp41 = dataclasses.replace(config, targets=dataclasses.replace(config.targets, window=41))
+    a = noref_metrics(model, learned, dataset, opts, 8192, display)
+    b = noref_metrics(model, tfp41, dataset, opts, 8192, display)
+    assert a["target"] == "learned (window 41)" and b["target"] == "tfp (window 41)"
+    assert 10 < a["mean"]["masked_psnr"] < 60 and a["mean"]["masked_psnr"] != b["mean"]["masked_psnr"]
+    assert a["mean"]["interval_violation_rate"] == b["mean"]["interval_violation_rate"]  # the model's, same

@@ -1,0 +1,73 @@
+"""Tensor-handling public functions state their shapes, in the project's one style: a parenthesised shape
+beside each tensor in the docstring (``origins (N, 3)``, ``(T, H, W)``, ``(...)``; a scalar is ``()``)."""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import pkgutil
+import re
+
+import spikenerf.fields
+import spikenerf.render
+
+#: a shape: (N, 3), (T, H, W), (M,), (...), (2, 3), (), (n_rays, C)
+SHAPE = re.compile(r"\((?:\.\.\.|[A-Z0-9…]|[a-z]\w*,)[^()]*\)|\(\)")
+TENSORS = re.compile(r"\b(Tensor|ndarray|Array)\b")
+MODULES = [
+    *(
+        f"{pkg.__name__}.{m.name}"
+        for pkg in (spikenerf.render, spikenerf.fields)
+        for m in pkgutil.iter_modules(pkg.__path__)
+    ),
+    "spikenerf.camera.reconstruct",
+    "spikenerf.camera.masks",
+    "spikenerf.camera.layout",
+]
+
+
+def _public_functions(module_name: str) -> list[tuple[str, object]]:
+    """Public functions of the module and public methods (and properties) of its public classes."""
+    module = importlib.import_module(module_name)
+    found = []
+    for name, obj in vars(module).items():
+        if name.startswith("_") or getattr(obj, "__module__", None) != module_name:
+            continue
+        if inspect.isfunction(obj):
+            found.append((name, obj))
+        elif inspect.isclass(obj):
+            for attr, member in vars(obj).items():
+                func = member.fget if isinstance(member, property) else getattr(member, "__func__", member)
+                if not attr.startswith("_") and inspect.isfunction(func):
+                    found.append((f"{name}.{attr}", func))
+    return found
+
+
+def _handles_tensors(func: object) -> bool:
+    """Takes or returns a tensor/array by its annotations (a bool predicate states no shape)."""
+    sig = inspect.signature(func)  # type: ignore[arg-type]
+    if str(sig.return_annotation) == "bool":
+        return False
+    annotations = [str(p.annotation) for p in sig.parameters.values()] + [str(sig.return_annotation)]
+    return any(TENSORS.search(a) for a in annotations)
+
+
+def test_every_tensor_function_in_render_fields_and_reconstruction_states_shapes() -> None:
+    missing = [
+        f"{module}.{name}"
+        for module in MODULES
+        for name, func in _public_functions(module)
+        if _handles_tensors(func) and not SHAPE.search(inspect.getdoc(func) or "")
+    ]
+    assert len(MODULES) > 10
+    assert not missing, "state the shapes, e.g. 'origins (N, 3)', in the docstring of:\n" + "\n".join(missing)
+
+
+def test_the_check_sees_a_function_without_shapes() -> None:
+    def render(origins: "spikenerf.render.volume.Tensor") -> "spikenerf.render.volume.Tensor":  # noqa: UP037
+        """Render the rays."""
+
+    assert _handles_tensors(render) and not SHAPE.search(inspect.getdoc(render) or "")
+    assert (
+        SHAPE.search("origins (N, 3)") and SHAPE.search("a scalar ()") and not SHAPE.search("TFP (a method)")
+    )
