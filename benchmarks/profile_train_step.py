@@ -58,6 +58,7 @@ def main() -> None:
     parser.add_argument("run", type=Path)
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--iters", type=int, default=None, help="the run's --iters (default: as stored)")
+    parser.add_argument("--time-only", action="store_true", help="print only the CPU ms per iteration")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         run = Path(tmp) / "run"
@@ -71,6 +72,9 @@ def main() -> None:
         cpu0, wall0 = time.process_time(), time.perf_counter()
         trainer.train(stop_after=args.steps)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+        if args.time_only:
+            print(f"{1000 * cpu / args.steps:.1f}")
+            return
         with profile() as prof:
             trainer.train(stop_after=args.steps)
     events = prof.key_averages()

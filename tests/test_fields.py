@@ -161,6 +161,27 @@ def test_state_dict_round_trip_after_upsampling() -> None:
     pose = look_at(np.array([2.5, 1.0, 1.5]), np.zeros(3))
     intr = Intrinsics.from_fov(9, 7, 0.7)
     assert torch.equal(render_image(fresh, pose, intr).color, render_image(model, pose, intr).color)
+    for f in (model.field, fresh.field):  # channels-last after upsampling and after loading a bigger grid
+        assert all(_channels_last(getattr(f, n)) for n in FACTORS)
+
+
+def _channels_last(t: torch.Tensor) -> bool:
+    return t.is_contiguous(memory_format=torch.channels_last) and not t.is_contiguous()
+
+
+def test_grid_factors_are_stored_channels_last_and_take_gradients_without_a_copy() -> None:
+    from spikenerf.fields import vm_kernel
+
+    field = build_field("grid", 1, BOX, CFG)
+    assert all(_channels_last(getattr(field, n)) for n in FACTORS)
+    if not vm_kernel.available():
+        pytest.skip("no C++ compiler for the fused VM kernel")
+    xyz = torch.rand(300, 3) * 2 - 1
+    field.density_norm(xyz).sum().backward()
+    for name in ("density_planes", "density_lines"):
+        p = getattr(field, name)
+        big = [d for d in range(p.dim()) if p.shape[d] > 1]  # a size-1 dimension's stride is arbitrary
+        assert [p.grad.stride(d) for d in big] == [p.stride(d) for d in big]  # the kernel's own layout
 
 
 def cube_model(channels: int = 3):

@@ -141,6 +141,16 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
     return out[..., :m] if pad else out
 
 
+def _factor(values: Tensor) -> nn.Parameter:
+    """A factor (3, C, R, R) or (3, C, R, 1) as a parameter stored channels-last (memory order 3, R, R, C).
+
+    The fused kernel reads and writes that order: no transposed copy of the factors per lookup, and its
+    gradients have the parameter's own strides (autograd keeps them without a copy). Values and
+    ``state_dict`` keys are those of a contiguous tensor; only the strides differ.
+    """
+    return nn.Parameter(values.contiguous(memory_format=torch.channels_last))
+
+
 class GridField(Field):
     """Radiance field on TensoRF-VM grids.
 
@@ -154,10 +164,10 @@ class GridField(Field):
         super().__init__(channels, scene_box, config or GridFieldConfig())
         cfg = self.config
         r, s = cfg.resolutions()[0], cfg.init_scale
-        self.density_planes = nn.Parameter(s * torch.randn(3, cfg.density_components, r, r))
-        self.density_lines = nn.Parameter(s * torch.randn(3, cfg.density_components, r, 1))
-        self.app_planes = nn.Parameter(s * torch.randn(3, cfg.app_components, r, r))
-        self.app_lines = nn.Parameter(s * torch.randn(3, cfg.app_components, r, 1))
+        self.density_planes = _factor(s * torch.randn(3, cfg.density_components, r, r))
+        self.density_lines = _factor(s * torch.randn(3, cfg.density_components, r, 1))
+        self.app_planes = _factor(s * torch.randn(3, cfg.app_components, r, r))
+        self.app_lines = _factor(s * torch.randn(3, cfg.app_components, r, 1))
         self.basis = nn.Linear(3 * cfg.app_components, cfg.app_dim, bias=False)
         self.decoder = nn.Sequential(
             nn.Linear(cfg.app_dim + encoded_size(3, cfg.view_freqs), cfg.hidden),
@@ -216,7 +226,7 @@ class GridField(Field):
             old = getattr(self, name)
             size = (resolution, resolution) if name.endswith("planes") else (resolution, 1)
             new = F.interpolate(old.data, size=size, mode="bilinear", align_corners=True)
-            setattr(self, name, nn.Parameter(new.contiguous()))
+            setattr(self, name, _factor(new))
         self.occupancy.resize(min(resolution, self.config.occupancy_max_resolution))
 
     @torch.no_grad()
@@ -266,5 +276,5 @@ class GridField(Field):
         for name in FACTORS:  # a checkpoint of an upsampled grid: take its shapes first
             saved, param = state_dict.get(prefix + name), getattr(self, name)
             if saved is not None and saved.shape != param.shape:
-                setattr(self, name, nn.Parameter(param.new_empty(saved.shape)))
+                setattr(self, name, _factor(param.new_empty(saved.shape)))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
