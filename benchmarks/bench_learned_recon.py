@@ -11,8 +11,11 @@ brightness (i.e. shown at the right exposure), clipped to [0, 1], sRGB-encoded, 
 (RGB: over the three channels of one image; Bayer: over the mosaic). Δ is learned − TFP per draw, with a 95 %
 interval (t, paired over draws).
 
-Speed: frames/s of the learned reconstruction of a 250 × 400 gray stream (``learned_frames``, one tile) at
-1 and 2 torch threads, against TFP of the same frames in the same run (also ``run_all --only learned-recon``).
+Speed: frames/s of the learned reconstruction of 8 consecutive frames of a 250 × 400 gray stream (one tile) at
+1 and 2 torch threads: the fast path (``learned_frames``: running-count features, channels-last network)
+against, in the same run, the reference path (``predict_frame`` of each frame's window: features from the
+whole window, contiguous layout) and TFP of the same frames; best of 3, wall and CPU time
+(``--speed-only``; also ``run_all --only learned-recon``).
 """
 
 from __future__ import annotations
@@ -25,12 +28,12 @@ import time
 import numpy as np
 import torch
 
-from benchmarks._table import Row, format_table
+from benchmarks._table import Row, best_seconds, format_table
 from spikenerf.camera.reconstruct import tfi, tfp
 from spikenerf.core.color import srgb_encode
 from spikenerf.eval.metrics import psnr, ssim
 from spikenerf.recon.generate import VAL_SCENES
-from spikenerf.recon.infer import learned_frames, predict_plane
+from spikenerf.recon.infer import learned_frames, mirrored, predict_frame, predict_plane
 from spikenerf.recon.net import load_weights
 from spikenerf.recon.pairs import PairConfig, analytic_pairs
 
@@ -109,31 +112,50 @@ def quality(net, draws: int, size: int = 96) -> list[str]:
     return rows
 
 
-def speed(net, threads: int, frames: int = 8, height: int = 250, width: int = 400) -> Row:
-    """Learned frames/s at 250 × 400 with ``threads`` torch threads vs TFP of the same frames, same run."""
+def speed(threads: int, frames: int = 8, height: int = 250, width: int = 400, repeats: int = 3) -> list[Row]:
+    """Learned frames/s at 250 × 400 with ``threads`` torch threads: the fast path (``learned_frames``)
+    against the reference path (``predict_frame`` of each window) and TFP, same run, best of ``repeats``.
+    Wall-clock rows, and with 1 thread also CPU-time rows (``time.process_time``: less sensitive to load)."""
     torch.set_num_threads(threads)
-    k = net.config.window
+    fast_net, _ = load_weights(None)
+    ref_net, _ = load_weights(None)
+    k = fast_net.config.window
+    half = k // 2
     rng = np.random.default_rng(0)
     stream = (rng.random((frames + k, height, width), dtype=np.float32) < 0.3).astype(np.uint8)
     total = stream.shape[0]
-    learned_frames(net, lambda a, b: stream[a:b], total, k // 2, k // 2 + 1)  # warm-up
-    start = time.perf_counter()
-    learned_frames(net, lambda a, b: stream[a:b], total, k // 2, k // 2 + frames)
-    learned_fps = frames / (time.perf_counter() - start)
-    start = time.perf_counter()
-    tfp(stream, window=k, frames=slice(k // 2, k // 2 + frames))
-    tfp_fps = frames / (time.perf_counter() - start)
-    return Row(
-        f"learned recon {height}×{width}, {threads} thread(s)", learned_fps, tfp_fps, "frames/s", "TFP"
-    )
+    sel = range(half, half + frames)
+
+    def fast():
+        learned_frames(fast_net, lambda a, b: stream[a:b], total, sel.start, sel.stop)
+
+    def reference():
+        for f in sel:
+            predict_frame(ref_net, stream[mirrored(f, half, total)], "gray")
+
+    def tfp_frames():
+        tfp(stream, window=k, frames=slice(sel.start, sel.stop))
+
+    learned_frames(fast_net, lambda a, b: stream[a:b], total, half, half + 1)  # warm-up
+    predict_frame(ref_net, stream[:k], "gray")
+    rows = []
+    clocks = [("wall", time.perf_counter)] + ([("CPU", time.process_time)] if threads == 1 else [])
+    for clock_name, clock in clocks:
+        t = {
+            name: best_seconds(fn, repeats, clock)
+            for name, fn in (("fast", fast), ("ref", reference), ("tfp", tfp_frames))
+        }
+        label = f"learned recon {height}×{width}, {threads} thread(s), {clock_name} time"
+        rows.append(Row(label, frames / t["fast"], frames / t["ref"], "frames/s", "reference path"))
+        rows.append(Row(label, frames / t["fast"], frames / t["tfp"], "frames/s", "TFP"))
+    return rows
 
 
 def measure() -> list[Row]:
     """Speed rows for ``benchmarks.run_all`` (shipped weights, 1 and 2 threads)."""
-    net, _ = load_weights(None)
     before = torch.get_num_threads()
     try:
-        return [speed(net, 1), speed(net, 2)]
+        return speed(1) + speed(2)
     finally:
         torch.set_num_threads(before)
 
@@ -143,12 +165,16 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=16, help="draws per (config, noise, colour) cell")
     parser.add_argument("--weights", default=None, help="weights file [default: the shipped one]")
     parser.add_argument("--no-speed", action="store_true")
+    parser.add_argument("--speed-only", action="store_true")
     args = parser.parse_args()
     net, meta = load_weights(args.weights)
     print(
         f"weights: {args.weights or 'shipped'} ({meta['record'].get('command', '?')}); "
         f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, load {os.getloadavg()[0]:.1f}"
     )
+    if args.speed_only:
+        print(format_table(speed(1) + speed(2)))
+        return
     torch.set_num_threads(1)
     print(
         "| simulator | noise | colour | TFP PSNR / SSIM | TFI PSNR / SSIM | learned PSNR / SSIM "
@@ -159,7 +185,7 @@ def main() -> None:
         print(row, flush=True)
     if not args.no_speed:
         print()
-        print(format_table([speed(net, 1), speed(net, 2)]))
+        print(format_table(speed(1) + speed(2)))
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from spikenerf.core.errors import InputError
+from spikenerf.recon.features import RunningFeatures
 from spikenerf.recon.net import ReconNet
 
 #: tile side (pixels) and margin on each side; a 250 × 400 frame runs as one tile
@@ -30,31 +31,38 @@ def frame_scale(window: np.ndarray | torch.Tensor) -> float:
     return max(total / max(w.numel(), 1), MIN_SCALE)
 
 
+def tiled(run: Callable[[int, int, int, int], torch.Tensor], h: int, w: int, tile: int = TILE) -> np.ndarray:
+    """Assemble an (H, W) float32 image from ``run(y0, y1, x0, x1)`` → (y1-y0, x1-x0) tiles with margins."""
+    if tile < 16 or tile % 4:
+        raise InputError(f"tile must be a multiple of 4 and ≥ 16, found {tile}")
+    out = np.empty((h, w), np.float32)
+    for y in range(0, h, tile):
+        for x in range(0, w, tile):
+            y0, x0 = max(0, y - MARGIN), max(0, x - MARGIN)
+            pred = run(y0, min(h, y + tile + MARGIN), x0, min(w, x + tile + MARGIN)).cpu().numpy()
+            ty, tx = min(tile, h - y), min(tile, w - x)
+            out[y : y + ty, x : x + tx] = pred[y - y0 : y - y0 + ty, x - x0 : x - x0 + tx]
+    return out
+
+
 @torch.no_grad()
 def predict_plane(net: ReconNet, window: np.ndarray | torch.Tensor, tile: int = TILE) -> np.ndarray:
-    """Rate (intensity / φ) of the middle step of one single-channel window.
+    """Rate (intensity / φ) of the middle step of one single-channel window (the reference path: features of
+    the whole window per tile; :func:`learned_frames` computes the same for consecutive frames, faster).
 
     Args:
         window: (K, H, W) 0/1 spikes, K = the network's window. tile: tile side (multiple of 4, ≥ 16).
     Returns:
         float32 (H, W).
     """
-    if tile < 16 or tile % 4:
-        raise InputError(f"tile must be a multiple of 4 and ≥ 16, found {tile}")
     w = torch.as_tensor(np.asarray(window) if not isinstance(window, torch.Tensor) else window)
-    _k, h, wd = w.shape
     scale = torch.tensor([frame_scale(w)], dtype=torch.float32)
     device = next(net.parameters()).device
-    out = np.empty((h, wd), np.float32)
-    for y in range(0, h, tile):
-        for x in range(0, wd, tile):
-            y0, x0 = max(0, y - MARGIN), max(0, x - MARGIN)
-            y1, x1 = min(h, y + tile + MARGIN), min(wd, x + tile + MARGIN)
-            piece = w[:, y0:y1, x0:x1].to(device=device, dtype=torch.float32)[None]
-            pred = net(piece, scale.to(device))[0].cpu().numpy()
-            ty, tx = min(tile, h - y), min(tile, wd - x)
-            out[y : y + ty, x : x + tx] = pred[y - y0 : y - y0 + ty, x - x0 : x - x0 + tx]
-    return out
+
+    def run(y0: int, y1: int, x0: int, x1: int) -> torch.Tensor:
+        return net(w[:, y0:y1, x0:x1].to(device=device, dtype=torch.float32)[None], scale.to(device))[0]
+
+    return tiled(run, w.shape[1], w.shape[2], tile)
 
 
 def check_window(net: ReconNet, window: int | None) -> None:
@@ -74,26 +82,50 @@ def mirrored(k: int, half: int, total: int) -> np.ndarray:
     return np.where(idx >= total, 2 * (total - 1) - idx, idx)
 
 
-def predict_frame(net: ReconNet, window: np.ndarray, mode: str, tile: int = TILE) -> np.ndarray:
-    """One frame from its window: gray (K, H, W) → (H, W); rgb (K, 3, H, W) → (3, H, W), channel by channel
-    (or one channel's stream (K, H, W) → (H, W)); bayer (K, H, W) RGGB mosaic → (H, W), each of the four CFA
-    planes on its own. Rates (intensity / φ)."""
-    if mode == "rgb" and window.ndim != 3:
-        if window.ndim != 4 or window.shape[1] != 3:
-            raise InputError(f"an rgb stream must be (T, 3, H, W), found a window of shape {window.shape}")
-        return np.stack([predict_plane(net, window[:, c], tile) for c in range(3)])
-    if window.ndim != 3:
-        raise InputError(f"a {mode} stream must be (T, H, W), found a window of shape {window.shape}")
+def plane_views(shape: tuple[int, ...], mode: str) -> list[tuple[slice | int, ...]]:
+    """Where each single-channel plane of a frame of ``shape`` (the stream's ``shape[1:]``) lies in it.
+
+    gray → the frame; rgb (3, H, W) → each channel (an (H, W) frame: one channel's stream); bayer (H, W) RGGB
+    mosaic → each of the four CFA planes. An index into a frame, e.g. ``out[view] = plane``.
+    """
+    if mode == "rgb" and len(shape) != 2:
+        if len(shape) != 3 or shape[0] != 3:
+            raise InputError(f"an rgb stream must be (T, 3, H, W), found frames of shape {tuple(shape)}")
+        return [(c,) for c in range(3)]
+    if len(shape) != 2:
+        raise InputError(f"a {mode} stream must be (T, H, W), found frames of shape {tuple(shape)}")
     if mode in ("gray", "rgb"):
-        return predict_plane(net, window, tile)
+        return [()]
+    cfa = [(i, j) for i in (0, 1) for j in (0, 1) if shape[0] > i and shape[1] > j]
+    return [(slice(i, None, 2), slice(j, None, 2)) for i, j in cfa]
+
+
+def predict_frame(net: ReconNet, window: np.ndarray, mode: str, tile: int = TILE) -> np.ndarray:
+    """One frame from its window with :func:`predict_plane` per plane (see :func:`plane_views`): gray
+    (K, H, W) → (H, W); rgb (K, 3, H, W) → (3, H, W); bayer (K, H, W) → (H, W). Rates (intensity / φ)."""
     out = np.empty(window.shape[1:], np.float32)
-    for i in (0, 1):
-        for j in (0, 1):
-            if window.shape[1] > i and window.shape[2] > j:
-                out[i::2, j::2] = predict_plane(net, np.ascontiguousarray(window[:, i::2, j::2]), tile)
+    for view in plane_views(window.shape[1:], mode):
+        out[view] = predict_plane(net, np.ascontiguousarray(window[(slice(None), *view)]), tile)
     return out
 
 
+def fast_layout(net: ReconNet) -> ReconNet:
+    """Convert ``net`` in place for fast CPU inference: channels-last weights, in-place activations (the same
+    values; still trainable)."""
+    for m in net.modules():
+        if isinstance(m, torch.nn.LeakyReLU):
+            m.inplace = True
+    return net.to(memory_format=torch.channels_last)
+
+
+def spike_tensor(frames: np.ndarray) -> torch.Tensor:
+    """(T, ...) 0/1 spikes as a uint8 tensor, sharing memory where the array is writable uint8 or bool."""
+    a = np.asarray(frames)
+    a = a.view(np.uint8) if a.dtype == np.bool_ else a.astype(np.uint8, copy=False)
+    return torch.from_numpy(a if a.flags.writeable else a.copy())
+
+
+@torch.inference_mode()
 def learned_frames(
     net: ReconNet,
     read: Callable[[int, int], np.ndarray],
@@ -106,6 +138,10 @@ def learned_frames(
     progress: Callable[[int], None] | None = None,
 ) -> np.ndarray:
     """Learned reconstruction of frames ``start:stop`` of a long stream, reading only the frames needed.
+
+    Equals :func:`predict_frame` of each frame's (mirrored) window to float rounding, but computes the
+    features of consecutive frames with running counts (:class:`~spikenerf.recon.features.RunningFeatures`)
+    and runs the network in channels-last layout (``net`` is converted in place, see :func:`fast_layout`).
 
     Args:
         read: ``read(a, b)`` returns frames ``a:b``, (b-a, H, W) or (b-a, 3, H, W) 0/1. total: T.
@@ -123,15 +159,26 @@ def learned_frames(
         )
     half = k // 2
     lo, hi = max(0, start - half), min(total, stop + half)
-    sub = read(lo, hi)
-    frames = []
-    for f in range(start, stop):
-        frames.append(
-            predict_frame(net, sub[mirrored(f, half, total) - lo], mode, tile) * np.float32(threshold)
-        )
+    sub = spike_tensor(read(lo, hi))
+    views = plane_views(tuple(sub.shape[1:]), mode)
+    runs = [RunningFeatures(sub[(slice(None), *view)], k) for view in views]
+    fast_layout(net)
+    device = next(net.parameters()).device
+    out = np.empty((stop - start, *sub.shape[1:]), np.float32)
+    for i, f in enumerate(range(start, stop)):
+        steps = mirrored(f, half, total) - lo
+        for view, run in zip(views, runs, strict=True):
+            feats, scale = run(steps)
+
+            def piece(y0: int, y1: int, x0: int, x1: int, feats=feats, scale=scale) -> torch.Tensor:
+                x = feats[:, :, y0:y1, x0:x1].to(device).contiguous(memory_format=torch.channels_last)
+                return net.decode(x, scale.to(device))[0]
+
+            out[(i, *view)] = tiled(piece, feats.shape[2], feats.shape[3], tile)
+        out[i] *= np.float32(threshold)
         if progress is not None:
             progress(1)
-    return np.stack(frames).astype(np.float32)
+    return out
 
 
 def reconstruct_learned(
