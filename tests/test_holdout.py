@@ -174,3 +174,21 @@ def test_the_trainer_samples_only_outside_the_bands(dataset_dir: Path, tmp_path:
     for _ in range(100):
         start = windows.sample(1)[0]
         assert not set(range(start, start + 4)) & band, start
+
+
+def test_a_run_from_before_the_hold_out_resumes_without_one(dataset_dir: Path, tmp_path: Path) -> None:
+    """Its config.yaml has no ``holdout`` key: it trained on every step and must go on doing so, even on an
+    imported dataset (where the default would turn the hold-out on halfway and eval would mislabel it)."""
+    from spikenerf.train.trainer import Trainer
+
+    imported = _imported(load_dataset(dataset_dir), [30])
+    cfg = TrainConfig(dataset=str(dataset_dir), device="cpu", iters=4, holdout=False, holdout_radius=3)
+    cfg.spike.window = 4
+    first = Trainer(cfg, tmp_path / "run", imported, progress=False)
+    first.train(stop_after=2)
+    path = tmp_path / "run" / "config.yaml"
+    path.write_text("".join(li for li in path.read_text().splitlines(True) if not li.startswith("holdout:")))
+    resumed = Trainer(dataclasses.replace(cfg, holdout=None), tmp_path / "run", imported, resume=True,
+                      progress=False)  # fmt: skip
+    assert resumed.holdout is None and resumed.config.holdout is False
+    assert not (tmp_path / "run" / HOLDOUT_FILE).exists()

@@ -272,6 +272,30 @@ def test_resume_matches_an_uninterrupted_run(dataset_dir: Path, dataset, tmp_pat
         assert torch.equal(sa[key], sb[key]), key
 
 
+def test_resume_from_plain_layout_adam_state_matches(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """A checkpoint from before the channels-last grid factors holds Adam's moments in the plain layout; the
+    resumed run must still equal an uninterrupted one (fused Adam needs parameter and state layouts equal)."""
+    cfg = _config(dataset_dir)
+    straight = Trainer(cfg, tmp_path / "a", dataset, progress=False)
+    straight.train()
+    first = Trainer(cfg, tmp_path / "b", dataset, progress=False)
+    first.train(stop_after=3)
+    path = tmp_path / "b" / CHECKPOINT
+    ckpt = torch.load(path, weights_only=True)
+    state = ckpt["optimizer"]["state"]
+    plain = [k for k, v in state.items() for t in v.values() if torch.is_tensor(t) and not t.is_contiguous()]
+    assert plain, "no channels-last state to convert: the test would not test anything"
+    ckpt["optimizer"]["state"] = {
+        k: {n: t.contiguous() if torch.is_tensor(t) else t for n, t in v.items()} for k, v in state.items()
+    }
+    torch.save(ckpt, path)
+    resumed = Trainer(cfg, tmp_path / "b", dataset, resume=True, progress=False)
+    resumed.train()
+    sa, sb = straight.model.state_dict(), resumed.model.state_dict()
+    for key in sa:
+        assert torch.equal(sa[key], sb[key]), key
+
+
 def test_resume_keeps_the_fp16_loss_scale(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """The GradScaler state is in the checkpoint: a resumed --amp fp16 run continues with the same scale."""
     cfg = _config(dataset_dir, amp="fp16")

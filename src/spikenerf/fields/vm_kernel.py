@@ -147,20 +147,19 @@ def _cflags() -> list[str]:
 
 def _cpu_fingerprint() -> str:
     """The CPU's feature flags (Linux), so that a cache folder shared by different CPUs never serves one a
-    binary built with ``-march=native`` for another."""
+    binary built with ``-march=native`` for another; "" where they cannot be read."""
     try:
         text = Path("/proc/cpuinfo").read_text()
     except OSError:
-        return platform.processor()
+        return ""
     return next((line for line in text.splitlines() if line.startswith(("flags", "Features"))), "")
 
 
-_CFLAGS = _cflags()
+_CPU = _cpu_fingerprint()
+# without the CPU's flags a shared cache folder could not tell CPUs apart: no -march=native then
+_CFLAGS = _cflags() if _CPU else ["-O3"]
 # one build folder per source, flags and CPU
-_NAME = (
-    "spikenerf_vm_"
-    + hashlib.sha256("\0".join([_SOURCE, *_CFLAGS, _cpu_fingerprint()]).encode()).hexdigest()[:12]
-)
+_NAME = "spikenerf_vm_" + hashlib.sha256("\0".join([_SOURCE, *_CFLAGS, _CPU]).encode()).hexdigest()[:12]
 STALE_LOCK_S = 600.0  # a build lock older than this was left by a killed build
 
 

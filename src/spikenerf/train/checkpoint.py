@@ -66,3 +66,18 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"not a spikenerf checkpoint (expected format {FORMAT!r})", path=path)
     return data
+
+
+def match_state_layout(optimizer: torch.optim.Optimizer) -> None:
+    """Give every per-parameter state tensor (Adam's moments) its parameter's memory layout, in place.
+
+    ``load_state_dict`` keeps the strides stored in the checkpoint. A checkpoint written before the grid
+    factors were stored channels-last holds the moments in the plain layout, and fused Adam assumes that a
+    parameter, its gradient and its state share one layout: without this, such a resume trains wrongly.
+    """
+    for group in optimizer.param_groups:
+        for p in group["params"]:
+            state = optimizer.state.get(p, {})
+            for key, value in state.items():
+                if torch.is_tensor(value) and value.shape == p.shape and value.stride() != p.stride():
+                    state[key] = torch.empty_like(p, dtype=value.dtype).copy_(value)

@@ -33,7 +33,14 @@ from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields import field_config, field_memory
 from spikenerf.render import RadianceModel, RenderOutput, build_model, model_from_hparams, ray_bounds
 from spikenerf.train.amp import autocast
-from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint, restore_rng, rng_state, save_checkpoint
+from spikenerf.train.checkpoint import (
+    CHECKPOINT,
+    load_checkpoint,
+    match_state_layout,
+    restore_rng,
+    rng_state,
+    save_checkpoint,
+)
 from spikenerf.train.config import TrainConfig, load_config, save_config
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
@@ -87,6 +94,17 @@ def set_learning_rate(
 
 def _lr_final_ratio(config: TrainConfig, model: RadianceModel) -> float:
     return config.lr_final_ratio if config.lr_final_ratio is not None else float(model.config.lr_final_ratio)
+
+
+def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, TrainConfig]:
+    """The run's stored config and ``given``; a run from before the hold-out (its config.yaml has no
+    ``holdout`` key) trained on every step, so it resumes without one unless ``given`` asks for it."""
+    stored = load_config(path)
+    if not any(line.startswith("holdout:") for line in path.read_text(encoding="utf-8").splitlines()):
+        stored.holdout = False
+        if given.holdout is None:
+            given = dataclasses.replace(given, holdout=False)
+    return stored, given
 
 
 def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainConfig:
@@ -143,7 +161,7 @@ class Trainer:
                     param=("resume", "out"),
                 )
             ckpt = load_checkpoint(ckpt_path)
-            config = _check_resume(load_config(self.out / CONFIG_FILE), config, self.out / CONFIG_FILE)
+            config = _check_resume(*_stored_and_given(self.out / CONFIG_FILE, config), self.out / CONFIG_FILE)
         self.config = config.validate()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
         check_train_resources(self.config, self.dataset, self.out)
@@ -176,6 +194,7 @@ class Trainer:
             self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
+            match_state_layout(self.optimizer)
             if self.pose_refine is not None:
                 self.pose_refine.load_state_dict(ckpt["poses"])
             restore_rng(ckpt["rng"], self.samplers)
