@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from helpers import run_cli
+from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.holdout import HOLDOUT_FILE, Holdout, guard_radius, read_record
 from spikenerf.data.samplers import RaySampler, WindowSampler
@@ -192,3 +193,14 @@ def test_a_run_from_before_the_hold_out_resumes_without_one(dataset_dir: Path, t
                       progress=False)  # fmt: skip
     assert resumed.holdout is None and resumed.config.holdout is False
     assert not (tmp_path / "run" / HOLDOUT_FILE).exists()
+
+
+def test_a_hand_edited_imported_section_is_one_input_error(dataset_dir: Path) -> None:
+    from spikenerf.data.holdout import check_steps
+    from spikenerf.train.pose_refine import keyframes_of
+
+    dataset = load_dataset(dataset_dir)
+    with pytest.raises(InputError, match="test_keyframes must be a list of step indices"):
+        check_steps(_imported(dataset, ["a", 3]), 4)
+    with pytest.raises(InputError, match=r"imported section is incomplete or malformed \(KeyError"):
+        keyframes_of(_imported(dataset, [20]), 20)  # no keyframe_every / window

@@ -86,6 +86,20 @@ def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path
     assert json.loads((run / "metrics.json").read_text())["no_reference"] is None
 
 
+def test_eval_without_views_to_score_runs_the_checks_alone(demo: Path, capsys) -> None:
+    """An imported dataset has no sharp GT frames (and may have no test views): eval still reports the
+    no-reference checks instead of refusing the only metrics real data has."""
+    run = demo / "run"
+    code, out, err = run_cli(capsys, "eval", run, "--split", "train", "--device", "cpu", "--lpips", "none",
+                             "--spike-pixels", 16, "--quiet")  # fmt: skip
+    assert code == 0, err
+    assert "on 0 train views: PSNR n/a" in out and "no-reference at 3 check steps" in out
+    result = json.loads((run / "metrics.json").read_text())
+    assert result["views"] == 0 and result["no_reference"]["mean"]["masked_psnr"] is not None
+    code, _, err = run_cli(capsys, "eval", run, "--split", "train", "--noref", "off", "--quiet")
+    assert code == 2 and "no train views" in err
+
+
 def _sideways(poses: np.ndarray, distance: float) -> np.ndarray:
     """Every camera moved ``distance`` along its own x axis (a misregistered trajectory)."""
     out = poses.copy()

@@ -23,6 +23,7 @@ from spikenerf.train.pose_refine import (
     REFINED_POSES,
     PoseRefiner,
     keyframes_of,
+    refined_dataset,
     refined_views,
     se3_exp,
     so3_exp,
@@ -195,6 +196,11 @@ def test_off_by_default_and_test_keyframes_left_out(dataset) -> None:  # type: i
     state = {"poses": trainer.pose_refine.state_dict()}
     assert np.array_equal(refined_views(state, cfg, imported, posed).poses, out.numpy())
     assert refined_views({"poses": None}, cfg, imported, posed) is posed
+    # eval's no-reference checks render the path at the refined poses too
+    moved = refined_dataset(state, cfg, imported)
+    np.testing.assert_allclose(moved.trajectory.poses[30], out[0].numpy(), atol=1e-6)
+    assert not np.allclose(moved.trajectory.poses[30], imported.trajectory.poses[30])
+    assert refined_dataset({"poses": None}, cfg, imported) is imported
 
 
 def test_bad_input_is_one_line_exit_2(

@@ -39,7 +39,13 @@ def check_steps(dataset: SpikeDataset, count: int) -> tuple[np.ndarray, str]:
     total = len(dataset.trajectory)
     keys = ((dataset.config or {}).get("imported") or {}).get("test_keyframes")
     if keys:
-        steps = np.asarray(keys, dtype=np.int64)
+        try:
+            steps = np.asarray(keys, dtype=np.int64).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError(
+                f"config.yaml: imported.test_keyframes must be a list of step indices, found {keys!r}",
+                path=dataset.root,
+            ) from None
         if steps.min() < 0 or steps.max() >= total:
             raise InputError("config.yaml: imported.test_keyframes lie outside the stream", path=dataset.root)
         return steps, "the imported test keyframes"

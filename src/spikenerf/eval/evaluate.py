@@ -30,7 +30,7 @@ from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_image
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
-from spikenerf.train.pose_refine import refined_views
+from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import load_run, run_iteration
 
 METRICS_FILE = "metrics.json"
@@ -38,12 +38,18 @@ SPLITS = ("test", "train")
 SPACE = "sRGB-encoded [0,1]"
 
 
+def has_views(dataset: SpikeDataset, split: str) -> bool:
+    """Whether the dataset has views of ``split`` (``test`` or ``train``) to score against."""
+    views = dataset.test if split == "test" else dataset.gt
+    return views is not None and len(views) > 0
+
+
 def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
     """Posed GT images of a split: ``test`` = held-out views, ``train`` = sharp GT on the training path."""
     if split not in SPLITS:
         raise InputError(f"split must be one of {', '.join(SPLITS)}, found {split!r}", param="split")
     views = dataset.test if split == "test" else dataset.gt
-    if views is None or len(views) == 0:
+    if not has_views(dataset, split):
         source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"
         raise InputError(f"the dataset has no {split} views (expected {source})", path=dataset.root)
     return views
@@ -126,9 +132,14 @@ def _evaluate_locked(
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device)
-    views = refined_views(load_checkpoint(run_dir / CHECKPOINT), config, dataset, split_views(dataset, split))
+    ckpt = load_checkpoint(run_dir / CHECKPOINT)
     held = read_record(run_dir)
     use_noref = wants_noref(noref[0], dataset, held is not None)
+    if use_noref and not has_views(dataset, split):  # real data without test views: the checks alone
+        k = dataset.intrinsics
+        views = PosedImages(np.zeros((0, 4, 4), np.float32), np.zeros((0, k.height, k.width, 3), np.float32))
+    else:
+        views = refined_views(ckpt, config, dataset, split_views(dataset, split))
     k = dataset.intrinsics
     backbone, reason = lpips_status(lpips_backbone, k.height, k.width)
     if reason and log:
@@ -159,7 +170,8 @@ def _evaluate_locked(
         def bar(steps: Any) -> Any:
             return tqdm(steps, desc="no-reference", unit="step", disable=not progress)
 
-        result["no_reference"] = noref_metrics(model, config, dataset, noref[1], chunk, display, bar, held)
+        path = refined_dataset(ckpt, config, dataset)  # the poses the model was fitted to
+        result["no_reference"] = noref_metrics(model, config, path, noref[1], chunk, display, bar, held)
     result["seconds"] = round(time.perf_counter() - t0, 3)
     write_text_atomic(run_dir / METRICS_FILE, json.dumps(result, indent=2, allow_nan=False) + "\n")
     return result

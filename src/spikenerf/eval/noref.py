@@ -139,8 +139,13 @@ def score_step(
     total, t = len(dataset.trajectory), config.targets
     half = t.window // 2
     start = window_start(step, length, total)
-    lo, hi = max(0, min(step - half, start)), min(total, max(step + half + 1, start + length))
+    reach = max(half, t.mask_n)  # the reconstruction window and the mask's steps
+    lo, hi = max(0, min(step - reach, start)), min(total, max(step + reach + 1, start + length))
     lo, hi = max(0, min(lo, hi - t.window)), min(total, max(hi, lo + t.window))  # a whole window (learned)
+    if (
+        t.recon == "tfi"
+    ):  # TFI reads out to the neighbouring spikes, however far: the whole stream, as training
+        lo, hi = 0, total
     raw = dataset.spikes(stream_mode(config.color), frames=slice(lo, hi))
     i = step - lo
     recon = _channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
@@ -158,12 +163,12 @@ def score_step(
     recorded = _channels_last(raw[start - lo : start - lo + length])[:, pixels[:, 1], pixels[:, 0]].float()
     rendered = _render_window(model, dataset, start, length, pixels, chunk)
     held = recon[pixels[:, 1], pixels[:, 0]].float().expand(length, -1, -1)
-    row["interval_violation_rate"], row["interval_violation_mean"] = violation_stats(
-        rendered, recorded, dataset.threshold
-    )
-    row["recon_interval_violation_rate"], row["recon_interval_violation_mean"] = violation_stats(
-        held, recorded, dataset.threshold
-    )
+    for prefix, intensity in (("", rendered), ("recon_", held)):  # None where no window's bounds apply
+        rate, mean = violation_stats(intensity, recorded, dataset.threshold)
+        row[f"{prefix}interval_violation_rate"], row[f"{prefix}interval_violation_mean"] = (
+            _finite(rate),
+            _finite(mean),
+        )
     return row
 
 

@@ -101,10 +101,17 @@ def keyframes_of(dataset: Any, every: int) -> np.ndarray:
     if (
         info
     ):  # the steps that had poses; older imports, or dense ones (an orbit): the importer's keyframe rule
-        rule = keyframe_steps(len(steps), int(info["keyframe_every"]), int(info["window"]))
-        keys = info.get("pose_steps")
-        keys = rule if keys is None or len(keys) > len(rule) else keys
-        keys = np.setdiff1d(np.asarray(keys, np.int64), info.get("test_keyframes") or []) + steps[0]
+        try:
+            rule = keyframe_steps(len(steps), int(info["keyframe_every"]), int(info["window"]))
+            keys = info.get("pose_steps")
+            keys = rule if keys is None or len(keys) > len(rule) else keys
+            keys = np.setdiff1d(np.asarray(keys, np.int64), info.get("test_keyframes") or []) + steps[0]
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(
+                f"config.yaml: the imported section is incomplete or malformed "
+                f"({type(err).__name__}: {err}); re-run `spikenerf import`",
+                path=dataset.root,
+            ) from None
     else:
         keys = np.unique(np.append(np.arange(steps[0], steps[-1] + 1, every), steps[-1]))
     keys = keys[np.isin(keys, steps)]
@@ -263,3 +270,18 @@ def refined_views(checkpoint: dict[str, Any], config: Any, dataset: Any, views: 
     refiner = PoseRefiner(keyframes_of(dataset, config.poses.keyframe_every))
     refiner.load_state_dict(state["refiner"])
     return dataclasses.replace(views, poses=on_path_poses(refiner, dataset.trajectory, views.poses).numpy())
+
+
+def refined_dataset(checkpoint: dict[str, Any], config: Any, dataset: Any) -> Any:
+    """``dataset`` with every trajectory pose (T, 4, 4) corrected as the run learned them (``spikenerf
+    eval``'s no-reference checks render the path): unchanged when the run did not refine poses."""
+    state = checkpoint.get("poses")
+    if not state:
+        return dataset
+    refiner = PoseRefiner(keyframes_of(dataset, config.poses.keyframe_every))
+    refiner.load_state_dict(state["refiner"])
+    traj = dataset.trajectory
+    with torch.no_grad():
+        poses = refiner(torch.as_tensor(np.asarray(traj.poses), dtype=torch.float32), np.asarray(traj.steps))
+    refined = dataclasses.replace(traj, poses=poses.cpu().numpy().astype(np.asarray(traj.poses).dtype))
+    return dataclasses.replace(dataset, trajectory=refined)
