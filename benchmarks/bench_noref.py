@@ -2,12 +2,17 @@
 
 Run: ``.venv/bin/python -m benchmarks.bench_noref --out /tmp/bench-noref`` (resumable: finished steps in
 ``--out`` are reused). ``simulate --noise realistic --raw-width W+16`` writes a raw recording with a SpikeCV
-``config.yaml`` and no poses; it is imported twice with ``--poses orbit``: with the true orbit (the reference)
-and with a wrong elevation (``--wrong-elevation``, a misregistered trajectory). ``--method`` (spike-nerf)
-trains on each for the same iterations, then ``spikenerf eval`` reports the no-reference checks at the same
-check steps (the imported test keyframes). Printed: each metric's mean ± std over the check steps for both,
-the ratio wrong / true, and the paired difference over the check steps with its 95% t interval (one training
-run per pose set: the interval covers the check steps, not training seeds).
+``config.yaml`` and no poses; it is imported with ``--poses orbit``: with the true orbit (30°, the reference)
+and with each wrong elevation of ``--wrong-elevation`` (a misregistered trajectory). ``--method``
+(spike-nerf) trains on each for the same iterations, once per seed of ``--seeds``, then ``spikenerf eval``
+reports the no-reference checks at the same check steps (the imported test keyframes). Training holds those
+steps out (the default for imported datasets; ``--no-holdout`` trains on them, as before the hold-out
+existed); the script prints the held-out steps and stops if the checks scored other steps.
+
+Printed per wrong elevation: each metric's mean ± std over the (seed, check step) pairs for both pose sets,
+the ratio wrong / true, the paired difference (same seed, same step) with its 95% t interval over those
+pairs, and each seed's mean difference. The interval treats the pairs as independent: it covers the
+check steps and, with ``--seeds`` > 1, training seeds too, but steps of one run share that run's field.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import numpy as np
 from scipy import stats
 
 FOV_DEG = 39.5978  # the analytic scenes' horizontal field of view
+TRUE_ELEVATION = 30.0
 METRICS = ("masked_psnr", "masked_ssim", "interval_violation_rate", "interval_violation_mean")
 
 
@@ -30,6 +36,31 @@ def spikenerf(*args: object) -> None:
     cmd = [sys.executable, "-m", "spikenerf", "--threads", "1", *map(str, args)]
     print("$", " ".join(cmd[2:]), flush=True)
     subprocess.run(cmd, check=True)
+
+
+def run_dir(out: Path, name: str, seed: int) -> Path:
+    """``run-NAME`` for seed 0 (the layout of earlier runs, so they resume), ``run-NAME-sSEED`` after."""
+    return out / (f"run-{name}" if seed == 0 else f"run-{name}-s{seed}")
+
+
+def held_out_rows(run: Path, holdout: bool) -> tuple[list[dict], dict]:
+    """The run's no-reference rows (one per check step) and per-view test scores, after checking that the
+    checks scored exactly the held-out steps (or, with ``holdout`` False, that the run trained on them)."""
+    metrics = json.loads((run / "metrics.json").read_text())
+    nr = metrics["no_reference"]
+    steps = [r["step"] for r in nr["per_step"]]
+    record = run / "holdout.json"
+    if holdout:
+        held = json.loads(record.read_text()) if record.is_file() else None
+        if held is None or nr["steps_trained_on"] or held["check_steps"] != steps:
+            sys.exit(f"{run}: the checks scored steps {steps}, not the held-out ones ({held})")
+        print(f"{run.name}: checks at steps {steps}, held out (radius {held['radius']}, "
+              f"{held['excluded_steps']} of {held['total_steps']} steps never trained on)")  # fmt: skip
+    else:
+        if not nr["steps_trained_on"]:
+            sys.exit(f"{run}: --no-holdout, but the run held its check steps out")
+        print(f"{run.name}: checks at steps {steps}, trained on (no hold-out)")
+    return nr["per_step"], {"psnr": [v["psnr"] for v in metrics["per_view"]]}
 
 
 def main() -> None:
@@ -41,7 +72,9 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=400)
     p.add_argument("--iters", type=int, default=300)
     p.add_argument("--method", default="spike-nerf")
-    p.add_argument("--wrong-elevation", type=float, default=36.0, help="degrees; the truth is 30")
+    p.add_argument("--seeds", type=int, default=1, help="training seeds 0..N-1 per pose set")
+    p.add_argument("--wrong-elevation", type=float, nargs="+", default=[36.0], help="degrees; truth 30")
+    p.add_argument("--no-holdout", action="store_true", help="train on the check steps (the old setup)")
     a = p.parse_args()
     sim, rec = a.out / "sim", a.out / "rec" / "recording.dat"
     if not sim.exists():
@@ -52,29 +85,47 @@ def main() -> None:
         rec.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(sim / "raw" / "config.yaml", rec.parent / "config.yaml")
         shutil.copy(sim / "raw" / "recording.dat", rec)
-    rows = {}
-    for name, elevation in (("true", 30.0), ("wrong", a.wrong_elevation)):
-        ds, run = a.out / f"ds-{name}", a.out / f"run-{name}"
-        if not ds.exists():
-            spikenerf("import", rec, "--poses", "orbit", "--orbit", f"4,{elevation}", "--fov", FOV_DEG,
-                      "--out", ds)  # fmt: skip
-        if not (run / "metrics.json").exists():
-            spikenerf("train", ds, "--method", a.method, "--iters", a.iters, "--eval-every", 0, "--quiet",
-                      "--out", run)  # fmt: skip
-            spikenerf("eval", run, "--lpips", "none", "--quiet")
-        rows[name] = json.loads((run / "metrics.json").read_text())["no_reference"]
-    print(f"\n{a.scene} {a.width}×{a.height}, {a.frames} steps, {a.method} {a.iters} it; check steps "
-          f"{[r['step'] for r in rows['true']['per_step']]}; mean ± std over them")  # fmt: skip
-    print("| metric | true orbit | wrong elevation | ratio wrong/true | paired wrong − true, 95% CI |")
-    print("|---|---:|---:|---:|---:|")
-    for key in METRICS:
-        vals = {n: np.array([r[key] for r in rows[n]["per_step"]], dtype=float) for n in rows}
-        cells = [f"{v.mean():.4f} ± {v.std(ddof=1) if len(v) > 1 else 0:.4f}" for v in vals.values()]
-        diff = vals["wrong"] - vals["true"]  # the same check steps in both
-        half = stats.t.ppf(0.975, len(diff) - 1) * diff.std(ddof=1) / np.sqrt(len(diff))
-        ci = f"{diff.mean():+.4f} [{diff.mean() - half:+.4f}, {diff.mean() + half:+.4f}]"
-        ratio = vals["wrong"].mean() / vals["true"].mean()
-        print(f"| {key} | {cells[0]} | {cells[1]} | {ratio:.3f} | {ci} |")
+    # the first wrong elevation keeps the folder name "wrong" of earlier runs
+    conds = {"true": TRUE_ELEVATION} | {("wrong" if i == 0 else f"wrong{e:g}"): e
+                                         for i, e in enumerate(a.wrong_elevation)}  # fmt: skip
+    rows: dict[str, list] = {n: [] for n in conds}
+    views: dict[str, list] = {n: [] for n in conds}
+    holdout = "--no-holdout" if a.no_holdout else "--holdout"
+    for seed in range(a.seeds):
+        for name, elevation in conds.items():
+            ds, run = a.out / f"ds-{name}", run_dir(a.out, name, seed)
+            if not ds.exists():
+                spikenerf("import", rec, "--poses", "orbit", "--orbit", f"4,{elevation}", "--fov", FOV_DEG,
+                          "--out", ds)  # fmt: skip
+            if not (run / "metrics.json").exists():
+                spikenerf("train", ds, "--method", a.method, "--iters", a.iters, "--seed", seed, holdout,
+                          "--eval-every", 0, "--quiet", "--out", run)  # fmt: skip
+                spikenerf("eval", run, "--lpips", "none", "--quiet")
+            per_step, per_view = held_out_rows(run, not a.no_holdout)
+            rows[name].append(per_step)
+            views[name].append(per_view["psnr"])
+    steps = [r["step"] for r in rows["true"][0]]
+    print(f"\n{a.scene} {a.width}×{a.height}, {a.frames} steps, {a.method} {a.iters} it, seeds "
+          f"0..{a.seeds - 1}; check steps {steps} ({'trained on' if a.no_holdout else 'held out'}); "
+          f"mean ± std over the {a.seeds}×{len(steps)} (seed, step) pairs")  # fmt: skip
+    for name, elevation in conds.items():
+        if name == "true":
+            continue
+        print(f"\n| metric | true orbit ({TRUE_ELEVATION:g}°) | wrong elevation ({elevation:g}°) | ratio "
+              "wrong/true | paired wrong − true, 95% CI | per-seed mean difference |")  # fmt: skip
+        print("|---|---:|---:|---:|---:|---:|")
+        table = {key: {n: [[r[key] for r in seed_rows] for seed_rows in rows[n]] for n in ("true", name)}
+                 for key in METRICS}  # fmt: skip
+        table["test psnr vs TFP keyframes"] = {n: views[n] for n in ("true", name)}
+        for key, by_cond in table.items():
+            vals = {n: np.array(v, dtype=float) for n, v in by_cond.items()}  # (seeds, steps)
+            cells = [f"{v.mean():.4f} ± {v.std(ddof=1) if v.size > 1 else 0:.4f}" for v in vals.values()]
+            diff = vals[name] - vals["true"]  # same seed, same check step
+            half = stats.t.ppf(0.975, diff.size - 1) * diff.std(ddof=1) / np.sqrt(diff.size)
+            ci = f"{diff.mean():+.4f} [{diff.mean() - half:+.4f}, {diff.mean() + half:+.4f}]"
+            ratio = vals[name].mean() / vals["true"].mean()
+            seeds = ", ".join(f"{d:+.4f}" for d in diff.mean(axis=1))
+            print(f"| {key} | {cells[0]} | {cells[1]} | {ratio:.3f} | {ci} | {seeds} |")
 
 
 if __name__ == "__main__":
