@@ -152,8 +152,8 @@ def test_the_robust_final_bundle_adjustment_resists_biased_wrong_matches(tmp_pat
 
 
 def test_the_import_benchmark_measures_ate_against_the_orbit_radius_about_its_centre() -> None:
-    # benchmarks/bench_import.py divides the ATE by the orbit radius; Blender orbits need not be centred on the
-    # origin, so the radius is taken about the simulation's recorded `trajectory.center`
+    # benchmarks/bench_import.py divides the ATE by the orbit radius; Blender orbits need not be centred on
+    # the origin, so the radius is taken about the simulation's recorded `trajectory.center`
     import importlib.util
     from types import SimpleNamespace
 
