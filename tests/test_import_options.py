@@ -66,6 +66,24 @@ def test_colmap_settings_reach_pycolmap_and_the_fingerprint(tmp_path, monkeypatc
     assert colmap_fingerprint(images, keys, settings) != colmap_fingerprint(images, keys, ColmapSettings())
 
 
+@pytest.mark.parametrize(
+    ("flags", "matcher"), [((), "match_exhaustive"), (("--no-loop-pairs",), "match_sequential")]
+)
+def test_no_loop_pairs_matches_the_keyframes_sequentially(
+    capsys, recording, tmp_path, monkeypatch, flags, matcher
+):
+    # symmetric scenes (the Blender castle, docs/real-data.md) fold when look-alike views are matched
+    fake = mock.MagicMock()
+    fake.match_exhaustive.side_effect = RuntimeError("exhaustive")
+    fake.match_sequential.side_effect = RuntimeError("sequential")
+    monkeypatch.setitem(sys.modules, "pycolmap", fake)
+    code, _, err = run_cli(
+        capsys, "import", recording, "--out", tmp_path / "ds", "--keyframe-every", 10, *flags
+    )
+    assert code == 2 and f"({matcher.split('_')[1]})" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "ds").exists()
+
+
 @pytest.fixture
 def recording(tmp_path: Path) -> Path:
     rec = tmp_path / "rec" / "stream.dat"
