@@ -292,3 +292,32 @@ def test_occupancy_update_never_empties_the_grid() -> None:
     assert 0.0 < blob < 0.1 and occ.query(torch.zeros(1, 3)).item()
     assert occ.update(lambda x: torch.zeros(len(x)), step_size=0.1) == blob  # keeps the last useful grid
     assert torch.all(occ.bounds.abs() < 0.6)
+
+
+def test_decoder_bf16_is_close_to_float32_forward_and_backward() -> None:
+    """``decoder_bf16`` changes only the decoder's precision: colours and gradients stay close to float32."""
+    torch.manual_seed(0)
+    ref = smooth_field(replace(CFG, hidden=32))
+    low = smooth_field(replace(CFG, hidden=32, decoder_bf16=True))
+    low.load_state_dict(ref.state_dict())
+    xyz, dirs = torch.rand(500, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(500, 3), dim=-1)
+    outs = []
+    for field in (ref, low):
+        rgb = field.color_norm(xyz, dirs)
+        (rgb * torch.linspace(0, 1, rgb.numel()).view_as(rgb)).sum().backward()
+        outs.append((rgb, field.app_planes.grad, field.decoder[0].weight.grad))
+    assert outs[0][0].dtype == outs[1][0].dtype == torch.float32
+    assert not torch.equal(outs[0][0], outs[1][0])  # really another precision
+    for a, b in zip(outs[0], outs[1], strict=True):  # bf16 keeps 8 bits: a few % on the grid's gradient
+        assert ((a - b).norm() / a.norm()).item() < 0.06
+
+
+def test_float32_decoder_keeps_an_outer_autocast() -> None:
+    """Without ``decoder_bf16`` the field adds no autocast of its own (``--amp bf16`` still applies)."""
+    field = smooth_field()
+    xyz, dirs = torch.rand(50, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
+    ref = field.color_norm(xyz, dirs)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        amp = field.color_norm(xyz, dirs)
+    assert not torch.equal(ref, amp.float())
+    assert torch.allclose(ref, amp.float(), atol=0.02)

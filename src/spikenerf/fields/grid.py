@@ -14,6 +14,7 @@ axes (cells are anisotropic in a non-cubic box).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, replace
 
@@ -43,6 +44,8 @@ class GridFieldConfig:
         density_shift / distance_scale: ``σ = distance_scale · softplus(raw + shift)`` per world unit.
         step_ratio: marching step in cells. max_samples: cap on samples per ray.
         weight_threshold: colour is decoded only where the compositing weight exceeds it.
+        decoder_bf16: run the appearance basis and the decoder's hidden layers in bfloat16 (autocast,
+            float32 accumulation; the output layer, the grids and the compositing stay float32).
         occupancy / occupancy_*: the occupancy grid is rebuilt at ``occupancy_start`` and every
             ``occupancy_every`` steps after (and after each upsampling once started); cells whose one-step
             opacity is below ``occupancy_threshold`` are skipped; its resolution is
@@ -67,6 +70,7 @@ class GridFieldConfig:
     step_ratio: float = 0.5
     max_samples: int = 1024
     weight_threshold: float = 1e-4
+    decoder_bf16: bool = False
     occupancy: bool = True
     occupancy_start: int = 250
     occupancy_every: int = 500
@@ -141,6 +145,11 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
     return out[..., :m] if pad else out
 
 
+def _low_precision(device: torch.device, on: bool) -> contextlib.AbstractContextManager:
+    """bfloat16 autocast on ``device`` if ``on``, else no change (an outer ``--amp`` context stays active)."""
+    return torch.autocast(device.type, torch.bfloat16) if on else contextlib.nullcontext()
+
+
 def _factor(values: Tensor) -> nn.Parameter:
     """A factor (3, C, R, R) or (3, C, R, 1) as a parameter stored channels-last (memory order 3, R, R, C).
 
@@ -203,9 +212,11 @@ class GridField(Field):
     def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
         """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3)."""
         feats = self._vm(self.app_planes, self.app_lines, xyz_norm)
-        feats = self.basis(feats.reshape(feats.shape[0], -1))
-        h = torch.cat([feats, positional_encoding(dirs, self.config.view_freqs)], dim=-1)
-        return torch.sigmoid(self.decoder(h))
+        view = positional_encoding(dirs, self.config.view_freqs)
+        with _low_precision(xyz_norm.device, self.config.decoder_bf16):
+            feats = self.basis(feats.reshape(feats.shape[0], -1))
+            hidden = self.decoder[:-1](torch.cat([feats, view.to(feats.dtype)], dim=-1))
+        return torch.sigmoid(self.decoder[-1](hidden.float()))
 
     @staticmethod
     def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
