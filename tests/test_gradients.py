@@ -200,7 +200,8 @@ def test_fused_vm_kernel_sum_matches_grid_sample_forward_and_backward(threads: i
     planes = torch.randn(3, 5, 8, 8, generator=gen, requires_grad=True)
     lines = torch.randn(3, 5, 8, 1, generator=gen, requires_grad=True)
     xyz = torch.rand(9000, 3, generator=gen) * 2 - 1
-    xyz[:5] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.1, 0.0, 0.3], [-1.1, -1.2, 0.5], [5, -7, 0]])
+    edges = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.1, 0.0, 0.3], [-1.1, -1.2, 0.5], [5.0, -7.0, 0.0]]
+    xyz[:5] = torch.tensor(edges)
     grad = torch.randn(9000, generator=gen)
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
