@@ -45,8 +45,8 @@ class GridFieldConfig:
         step_ratio: marching step in cells (0.5 before issue 9; TensoRF's 0.5). max_samples: cap on samples
             per ray.
         weight_threshold: colour is decoded only where the compositing weight exceeds it.
-        decoder_bf16: run the appearance basis and the decoder's hidden layers in bfloat16 (autocast,
-            float32 accumulation; the output layer, the grids and the compositing stay float32) where the
+        decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
+            the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
             GPU with bf16); float32 elsewhere, and everywhere with ``False`` (the default before issue 9).
         occupancy / occupancy_*: the occupancy grid is rebuilt at ``occupancy_start`` and every
@@ -228,8 +228,8 @@ class GridField(Field):
         view = positional_encoding(dirs, self.config.view_freqs)
         with _low_precision(xyz_norm.device, self.config.decoder_bf16):
             feats = self.basis(feats.reshape(feats.shape[0], -1))
-            hidden = self.decoder[:-1](torch.cat([feats, view.to(feats.dtype)], dim=-1))
-        return torch.sigmoid(self.decoder[-1](hidden.float()))
+            logit = self.decoder(torch.cat([feats, view.to(feats.dtype)], dim=-1))
+        return torch.sigmoid(logit.float())
 
     @staticmethod
     def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor, total: bool = False) -> Tensor:
