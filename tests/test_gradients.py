@@ -189,34 +189,6 @@ def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:
     assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got, want, strict=True))
 
 
-@pytest.mark.parametrize("threads", [1, 2])
-def test_fused_vm_kernel_sum_matches_grid_sample_forward_and_backward(threads: int) -> None:
-    """``total=True`` (the density): the sum over axis pairs and channels, and its gradient, as grid_sample's;
-    9000 points, so 2 threads take the multi-buffer backward; points on the edges and outside the box."""
-    from spikenerf.fields.grid import sample_vm
-
-    vm_kernel = _kernel_or_skip()
-    gen = torch.Generator().manual_seed(7)
-    planes = torch.randn(3, 5, 8, 8, generator=gen, requires_grad=True)
-    lines = torch.randn(3, 5, 8, 1, generator=gen, requires_grad=True)
-    xyz = torch.rand(9000, 3, generator=gen) * 2 - 1
-    edges = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.1, 0.0, 0.3], [-1.1, -1.2, 0.5], [5.0, -7.0, 0.0]]
-    xyz[:5] = torch.tensor(edges)
-    grad = torch.randn(9000, generator=gen)
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        out = vm_kernel.vm_lookup(planes, lines, xyz, total=True)
-        got = torch.autograd.grad(out, (planes, lines), grad)
-    finally:
-        torch.set_num_threads(before)
-    ref = sample_vm(planes, lines, xyz).sum(dim=(0, 1))
-    want = torch.autograd.grad(ref, (planes, lines), grad)
-    assert out.shape == (9000,)
-    assert torch.allclose(out, ref, atol=1e-4)
-    assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got, want, strict=True))
-
-
 def test_fused_vm_kernel_stale_build_lock_falls_back(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """A lock left by a build killed long ago: grid_sample with one warning, not torch's endless wait."""
     import os

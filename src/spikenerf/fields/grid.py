@@ -219,7 +219,7 @@ class GridField(Field):
 
     def density_norm(self, xyz_norm: Tensor) -> Tensor:
         """Density per world unit (M,) at normalised points (M, 3)."""
-        raw = self._vm(self.density_planes, self.density_lines, xyz_norm, total=True)
+        raw = self._vm(self.density_planes, self.density_lines, xyz_norm).sum(dim=(1, 2))
         return self.config.distance_scale * F.softplus(raw + self.config.density_shift)
 
     def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
@@ -232,13 +232,11 @@ class GridField(Field):
         return torch.sigmoid(logit.float())
 
     @staticmethod
-    def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor, total: bool = False) -> Tensor:
-        """VM products (M, 3, C), or with ``total`` their sum (M,): the fused CPU kernel where it applies,
-        else ``grid_sample``."""
+    def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
+        """VM products (M, 3, C): the fused CPU kernel where it applies, else ``grid_sample``."""
         if usable(planes, xyz_norm):
-            return vm_lookup(planes, lines, xyz_norm, total)
-        out = sample_vm(planes, lines, xyz_norm, vm_splits(xyz_norm.device))
-        return out.sum(dim=(0, 1)) if total else out.permute(2, 0, 1)
+            return vm_lookup(planes, lines, xyz_norm)
+        return sample_vm(planes, lines, xyz_norm, vm_splits(xyz_norm.device)).permute(2, 0, 1)
 
     def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
         """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""

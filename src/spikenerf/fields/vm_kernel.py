@@ -62,17 +62,14 @@ static inline void prefetch_point(const float *P, const float *L, const float *x
   }
 }
 
-// SUM: the sum over the axis pairs and channels, (M,) (the density); else every product, (M, 3, C).
-template <bool SUM>
 torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz) {
   const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
-  auto out = SUM ? torch::empty({m}, xyz.options()) : torch::empty({m, 3, c}, xyz.options());
+  auto out = torch::empty({m, 3, c}, xyz.options());
   const float *P = planes.data_ptr<float>(), *L = lines.data_ptr<float>(), *X = xyz.data_ptr<float>();
   float *O = out.data_ptr<float>();
   at::parallel_for(0, m, 256, [&](int64_t b, int64_t e) {
     for (int64_t n = b; n < e; ++n) {
       if (n + PF < e) prefetch_point(P, L, X + (n + PF) * 3, r, c);
-      float total = 0.f;
       for (int k = 0; k < 3; ++k) {
         int ic, ir, il; float ac, bc, ar, br, al, bl;
         cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
@@ -80,20 +77,17 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
         const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
         const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
         const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
-        float *o = O + (SUM ? 0 : (n * 3 + k) * c);
+        float *o = O + (n * 3 + k) * c;
         for (int64_t j = 0; j < c; ++j) {
           float pv = w00 * p00[j] + w01 * p01[j] + w10 * p10[j] + w11 * p11[j];
-          if (SUM) total += pv * (al * l0[j] + bl * l1[j]); else o[j] = pv * (al * l0[j] + bl * l1[j]);
+          o[j] = pv * (al * l0[j] + bl * l1[j]);
         }
       }
-      if (SUM) O[n] = total;
     }
   });
   return out;
 }
 
-// grad: (M, 3, C), or (M,) for SUM (the same gradient for every product of a point)
-template <bool SUM>
 std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz,
                                        torch::Tensor grad) {
   // each thread scatters into its own zeroed gradient buffer (no races); the buffers are summed at the end.
@@ -119,13 +113,12 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
           const int64_t o00 = ((k * r + ir) * r + ic) * c, o01 = o00 + c, o10 = o00 + r * c, o11 = o10 + c;
           const int64_t q0 = (k * r + il) * c, q1 = q0 + c;
           const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
-          const float *__restrict__ g = G + (SUM ? n : (n * 3 + k) * c);
+          const float *__restrict__ g = G + (n * 3 + k) * c;
 #pragma GCC ivdep
           for (int64_t j = 0; j < c; ++j) {
-            const float gj = g[SUM ? 0 : j];
             const float pv = w00 * P[o00 + j] + w01 * P[o01 + j] + w10 * P[o10 + j] + w11 * P[o11 + j];
             const float lv = al * L[q0 + j] + bl * L[q1 + j];
-            const float gpl = gj * lv, glp = gj * pv;
+            const float gpl = g[j] * lv, glp = g[j] * pv;
             GP[o00 + j] += w00 * gpl; GP[o01 + j] += w01 * gpl; GP[o10 + j] += w10 * gpl; GP[o11 + j] += w11 * gpl;
             GL[q0 + j] += al * glp; GL[q1 + j] += bl * glp;
           }
@@ -138,10 +131,8 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
 }
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("forward", &vm_forward<false>);
-  m.def("backward", &vm_backward<false>);
-  m.def("forward_sum", &vm_forward<true>);
-  m.def("backward_sum", &vm_backward<true>);
+  m.def("forward", &vm_forward);
+  m.def("backward", &vm_backward);
 }
 """
 
@@ -170,7 +161,6 @@ _CPU = _cpu_fingerprint()
 def cpu_has(*flags: str) -> bool:
     """Whether the CPU lists any of ``flags`` (Linux ``/proc/cpuinfo``; False where it cannot be read)."""
     return any(flag in _CPU.split() for flag in flags)
-
 
 # without the CPU's flags a shared cache folder could not tell CPUs apart: no -march=native then
 _CFLAGS = _cflags() if _CPU else ["-O3"]
@@ -245,35 +235,31 @@ def usable(planes: Tensor, xyz: Tensor) -> bool:
 
 class _VM(torch.autograd.Function):
     @staticmethod
-    def forward(ctx: Any, planes: Tensor, lines: Tensor, xyz: Tensor, total: bool) -> Tensor:  # type: ignore[override]
+    def forward(ctx: Any, planes: Tensor, lines: Tensor, xyz: Tensor) -> Tensor:  # type: ignore[override]
         p = planes.detach().permute(0, 2, 3, 1).contiguous()  # (3, R, R, C)
         ln = lines.detach()[..., 0].permute(0, 2, 1).contiguous()  # (3, R, C)
         x = xyz.detach().contiguous()
         ctx.save_for_backward(p, ln, x)
-        ctx.total = total
-        return (_MODULE.forward_sum if total else _MODULE.forward)(p, ln, x)
+        return _MODULE.forward(p, ln, x)
 
     @staticmethod
-    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:  # type: ignore[override]
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None]:  # type: ignore[override]
         p, ln, x = ctx.saved_tensors
-        gp, gl = (_MODULE.backward_sum if ctx.total else _MODULE.backward)(p, ln, x, grad.contiguous())
-        return gp.permute(0, 3, 1, 2), gl.permute(0, 2, 1)[..., None], None, None
+        gp, gl = _MODULE.backward(p, ln, x, grad.contiguous())
+        return gp.permute(0, 3, 1, 2), gl.permute(0, 2, 1)[..., None], None
 
 
-def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, total: bool = False) -> Tensor:
+def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor) -> Tensor:
     """``P_m(xyz)·L_m(xyz)`` per axis pair with the fused kernel (check :func:`usable` first).
 
     Args:
         planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3), normally in [−1, 1]; outside, zeros padding
             as ``grid_sample`` (a NaN coordinate gives NaN).
-        total: return only the sum over axis pairs and channels (the density's raw value), summed in the
-            kernel: the (M, 3, C) products are never stored, nor their expanded gradient.
     Returns:
-        (M, 3, C), the same values as :func:`spikenerf.fields.grid.sample_vm` transposed; (M,) with
-        ``total``.
+        (M, 3, C), the same values as :func:`spikenerf.fields.grid.sample_vm` transposed.
     Raises:
         RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False).
     """
     if _load() is None:
         raise RuntimeError("vm_lookup: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
-    return _VM.apply(planes, lines, xyz, total)
+    return _VM.apply(planes, lines, xyz)
