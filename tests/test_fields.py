@@ -341,3 +341,12 @@ def test_decoder_bf16_only_where_the_device_has_native_bf16(monkeypatch) -> None
     monkeypatch.setattr(grid, "cpu_has", lambda *flags: "avx512_bf16" in flags)
     field.config = replace(field.config, decoder_bf16=True)
     assert not torch.equal(plain, field.color_norm(xyz, dirs))
+
+
+def test_a_checkpoint_from_before_decoder_bf16_keeps_a_float32_decoder() -> None:
+    from spikenerf.render import model_from_hparams
+
+    hparams = build_model("grid", 1, BOX, CFG).hparams()
+    assert model_from_hparams(hparams).field.config.decoder_bf16  # today's default, stored
+    del hparams["config"]["decoder_bf16"]
+    assert not model_from_hparams(hparams).field.config.decoder_bf16
