@@ -125,7 +125,7 @@ def keyframes_of(dataset: Any, every: int) -> np.ndarray:
     return keys
 
 
-def pose_lr(config: PoseRefineConfig, iteration: int, iters: int, warmup: int) -> float:
+def pose_lr(config: Any, iteration: int, iters: int, warmup: int) -> float:
     """The corrections' rate at ``iteration``: a linear warm-up from 0 over ``warmup`` iterations, times an
     exponential decay to ``lr_final_ratio`` at ``iters``."""
     ramp = min(1.0, iteration / warmup) if warmup > 0 else 1.0
@@ -148,19 +148,52 @@ class PoseRefiner(torch.nn.Module):
         return se3_exp((1 - w) * self.xi[lo_t] + w * self.xi[hi_t])
 
     def forward(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
-        """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,); always in
-        float32, also inside a mixed-precision step (a bf16 pose would be off by ~0.01 scene units)."""
-        with torch.autocast(self.xi.device.type, enabled=False):
-            return poses.to(self.xi.device, self.xi.dtype) @ self.correction(steps)
+        """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,)."""
+        return corrected(poses, lambda: self.correction(steps), self.xi)
 
 
-class PoseRefinement:
+def corrected(poses: Tensor, correction: Any, like: Tensor) -> Tensor:
+    """``poses`` (..., 4, 4) times the rigid ``correction()`` (..., 4, 4), on ``like``'s device; always in
+    float32, also inside a mixed-precision step (a bf16 pose would be off by ~0.01 scene units)."""
+    with torch.autocast(like.device.type, enabled=False):
+        return poses.to(like.device, like.dtype) @ correction()
+
+
+class PoseLearner:
+    """Learnable pose parameters (``refiner``, a module) with their own Adam (β = 0.9, 0.99) and rate
+    schedule (:func:`pose_lr` of ``config``: ``lr``, ``lr_final_ratio``): the trainer's hooks (:meth:`begin`,
+    ``optimizer``, the checkpoint state)."""
+
+    def __init__(self, refiner: torch.nn.Module, config: Any, iters: int, warmup: int) -> None:
+        self.refiner, self.config, self.iters, self.warmup = refiner, config, iters, warmup
+        self.optimizer = torch.optim.Adam(self.refiner.parameters(), lr=0.0, betas=(0.9, 0.99))
+
+    def begin(self, iteration: int) -> None:
+        """Set the rate of ``iteration`` and clear the gradients (before the backward pass)."""
+        for g in self.optimizer.param_groups:
+            g["lr"] = pose_lr(self.config, iteration, self.iters, self.warmup)
+        self.optimizer.zero_grad(set_to_none=True)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"refiner": self.refiner.state_dict(), "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.refiner.load_state_dict(state["refiner"])
+        self.optimizer.load_state_dict(state["optimizer"])
+
+    def write(self, out: Path) -> None:
+        """Write the learned poses into the run folder ``out`` (a JSON file)."""
+        raise NotImplementedError
+
+
+class PoseRefinement(PoseLearner):
     """The trainer's hooks: the refiner, its optimiser and schedule, checkpoint state and the JSON output."""
 
     def __init__(self, config: PoseRefineConfig, dataset: Any, iters: int, warmup: int, device: Any) -> None:
-        self.config, self.dataset, self.iters, self.warmup = config, dataset, iters, warmup
-        self.refiner = PoseRefiner(keyframes_of(dataset, config.keyframe_every)).to(device)
-        self.optimizer = torch.optim.Adam(self.refiner.parameters(), lr=0.0, betas=(0.9, 0.99))
+        self.dataset = dataset
+        super().__init__(
+            PoseRefiner(keyframes_of(dataset, config.keyframe_every)).to(device), config, iters, warmup
+        )
         traj = dataset.trajectory
         self._traj_poses = torch.as_tensor(traj.poses, dtype=torch.float32)  # (T, 4, 4)
         self._traj_steps = np.asarray(traj.steps, np.int64)
@@ -177,12 +210,6 @@ class PoseRefinement:
         """Corrected poses of the trajectory slice ``poses`` (L, 4, 4) starting at index ``start``."""
         return self.refiner(poses, self._traj_steps[start : start + len(poses)])
 
-    def begin(self, iteration: int) -> None:
-        """Set the rate of ``iteration`` and clear the gradients (before the backward pass)."""
-        for g in self.optimizer.param_groups:
-            g["lr"] = pose_lr(self.config, iteration, self.iters, self.warmup)
-        self.optimizer.zero_grad(set_to_none=True)
-
     def views(self, views: Any) -> Any:
         """The evaluation views with their first poses refined by :meth:`eval_poses`."""
         return dataclasses.replace(views, poses=self.eval_poses(views.poses[:, 0])[:, None])
@@ -190,13 +217,6 @@ class PoseRefinement:
     def eval_poses(self, poses: Tensor) -> Tensor:
         """Evaluation poses (V, 4, 4) from ``poses`` (V, 4, 4) (see :func:`on_path_poses`)."""
         return on_path_poses(self.refiner, self.dataset.trajectory, poses)
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"refiner": self.refiner.state_dict(), "optimizer": self.optimizer.state_dict()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.refiner.load_state_dict(state["refiner"])
-        self.optimizer.load_state_dict(state["optimizer"])
 
     @torch.no_grad()
     def write(self, out: Path) -> None:

@@ -1,0 +1,201 @@
+"""Learned exposure poses of the BAD-NeRF-like baseline ``nerf-bad`` (docs/method.md).
+
+Each blur view ``k`` carries two corrections, ``ξ_k^start`` and ``ξ_k^end`` in so(3) × R³ log coordinates
+(radians; scene units), of its given pose ``C_k`` (the exposure-centre pose the dataset stores). The
+``n = targets.blur_samples`` virtual sharp frames of the exposure are at ``u_i = i / (n − 1)``, i = 0…n−1:
+
+    ``P_k(u) = C_k · [exp((1 − u) ω_s + u ω_e) | (1 − u) ρ_s + u ρ_e]``
+
+a linear interpolation in the log coordinates between the start pose (u = 0) and the end pose (u = 1), with
+the rotation about the camera centre and the shift along the camera's own axes, exactly as the keyframe
+corrections of :mod:`spikenerf.train.pose_refine` (whose ``se3_exp`` it uses). The method renders the n
+frames, averages them in linear radiance and compares the mean with the blurred image; the field and every
+``ξ`` are optimised together from the blur views alone (no trajectory is read).
+
+The two corrections start at ``+ε`` and ``−ε``, ``ε ~ N(0, init_noise²)`` per component (seeded): exactly at
+the given pose they would be symmetric, and swapping start and end leaves the blurred image unchanged, so
+they would receive the same gradient and never part. That swap symmetry also means the learned start may be
+the true end: :func:`endpoint_errors` scores each view under the better of the two assignments.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+from spikenerf.data.targets import step_poses
+from spikenerf.train.pose_refine import PoseLearner, corrected, se3_exp
+
+EXPOSURE_POSES = "exposure_poses.json"
+
+
+@dataclass
+class ExposurePoseConfig:
+    """The learned exposure poses of ``nerf-bad`` (``--set exposure.X=...``).
+
+    Attributes:
+        lr: Adam rate of the corrections (radians and scene units per step); BAD-NeRF uses 1e-3.
+        lr_final_ratio: exponential decay to this fraction of ``lr`` at the end of the run (BAD-NeRF: 1e-5,
+            i.e. 0.01).
+        warmup_iters: linear warm-up of the rate from 0 (BAD-NeRF: none).
+        init_noise: standard deviation of the opposite start/end perturbations at the start (> 0 breaks the
+            start/end symmetry).
+    """
+
+    lr: float = 1e-3
+    lr_final_ratio: float = 0.01
+    warmup_iters: int = 0
+    init_noise: float = 1e-3
+
+    def check(self) -> None:
+        """InputError on an out-of-range value (names the config key)."""
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise InputError(f"exposure.lr must be a finite number > 0, found {self.lr}", param="exposure.lr")
+        if not (math.isfinite(self.lr_final_ratio) and 0 < self.lr_final_ratio <= 1):
+            raise InputError(
+                f"exposure.lr_final_ratio must be in (0, 1], found {self.lr_final_ratio}",
+                param="exposure.lr_final_ratio",
+            )
+        if self.warmup_iters < 0:
+            raise InputError(
+                f"exposure.warmup_iters must be ≥ 0, found {self.warmup_iters}", param="exposure.warmup_iters"
+            )
+        if not (math.isfinite(self.init_noise) and self.init_noise > 0):
+            raise InputError(
+                f"exposure.init_noise must be a finite number > 0, found {self.init_noise}",
+                param="exposure.init_noise",
+            )
+
+
+class ExposurePoses(torch.nn.Module):
+    """Start and end corrections ``xi`` (K, 2, 6) of K views with given poses ``centres`` (K, 4, 4), and the
+    ``samples`` virtual frames between them."""
+
+    def __init__(self, centres: Tensor, samples: int, init_noise: float, seed: int) -> None:
+        super().__init__()
+        if samples < 2:
+            raise InputError(
+                f"targets.blur_samples must be ≥ 2 for nerf-bad (a start and an end pose), found {samples}",
+                param="targets.blur_samples",
+            )
+        self.centres = torch.as_tensor(centres, dtype=torch.float32)  # not a parameter, not checkpointed
+        gen = torch.Generator().manual_seed(seed)
+        eps = init_noise * torch.randn(len(self.centres), 1, 6, generator=gen)
+        self.xi = torch.nn.Parameter(torch.cat([eps, -eps], 1))
+        self.u = torch.linspace(0.0, 1.0, samples)
+
+    def to(self, *args: Any, **kwargs: Any) -> ExposurePoses:
+        super().to(*args, **kwargs)
+        self.centres, self.u = self.centres.to(self.xi.device), self.u.to(self.xi.device)
+        return self
+
+    def forward(self, index: Tensor) -> Tensor:
+        """Poses (B, S, 4, 4) float32 of the S virtual frames of views ``index`` (B,), start to end."""
+        index = index.to(self.xi.device)
+        xi, u = self.xi[index], self.u[:, None]  # (B, 2, 6), (S, 1)
+        blend = (1 - u) * xi[:, None, 0] + u * xi[:, None, 1]  # (B, S, 6)
+        return corrected(self.centres[index][:, None], lambda: se3_exp(blend), self.xi)
+
+    @torch.no_grad()
+    def endpoints(self) -> Tensor:
+        """Learned start and end poses (K, 2, 4, 4) of every view."""
+        return corrected(self.centres[:, None], lambda: se3_exp(self.xi), self.xi)
+
+
+class ExposureLearner(PoseLearner):
+    """The trainer's hooks for :class:`ExposurePoses` (own Adam and schedule) and ``RUN/exposure_poses.json``.
+
+    Args:
+        config: the run's ``exposure`` section. centres: (K, 4, 4) given poses. steps: (K,) spike step of
+        each view's centre (−1 if unknown). samples: virtual frames per exposure. iters: the run's length.
+        seed: seeds the initial perturbation. device: where the corrections live.
+    """
+
+    def __init__(
+        self,
+        config: ExposurePoseConfig,
+        centres: Tensor,
+        steps: Tensor,
+        samples: int,
+        iters: int,
+        seed: int,
+        device: Any,
+    ) -> None:
+        config.check()
+        poses = ExposurePoses(centres, samples, config.init_noise, seed).to(device)
+        super().__init__(poses, config, iters, config.warmup_iters)
+        self.poses, self.steps = poses, steps
+
+    @torch.no_grad()
+    def write(self, out: Path) -> None:
+        """``RUN/exposure_poses.json``: each view's step, corrections and given, start and end poses."""
+        ends = self.poses.endpoints().cpu().double().numpy()
+        xi = self.poses.xi.detach().cpu().double().numpy()
+        given = self.poses.centres.cpu().double().numpy()
+        frames = [
+            {
+                "view": k,
+                "step": int(self.steps[k]),
+                "start": {"omega": xi[k, 0, :3].tolist(), "rho": xi[k, 0, 3:].tolist()},
+                "end": {"omega": xi[k, 1, :3].tolist(), "rho": xi[k, 1, 3:].tolist()},
+                "motion_deg": rotation_deg(ends[k, 0], ends[k, 1]),
+                "given_matrix": given[k].tolist(),
+                "start_matrix": ends[k, 0].tolist(),
+                "end_matrix": ends[k, 1].tolist(),
+            }
+            for k in range(len(given))
+        ]
+        doc = {
+            "convention": "P(u) = given · [exp((1-u) omega_start + u omega_end) | (1-u) rho_start + "
+            "u rho_end], u in [0, 1] over the exposure; omega in radians, rho in scene units along the "
+            "camera axes",
+            "views": frames,
+        }
+        write_text_atomic(out / EXPOSURE_POSES, json.dumps(doc, indent=1) + "\n")
+
+
+def rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle in degrees of the rotation between the camera-to-world poses ``a`` and ``b`` (4, 4)."""
+    r = a[:3, :3].T @ b[:3, :3]
+    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1.0, 1.0))))
+
+
+def endpoint_errors(learned: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Mean errors of learned exposure start/end poses ``learned`` (K, 2, 4, 4) against ``truth`` (K, 2, 4,
+    4), each view under the better of the two start/end assignments (the blur cannot tell them apart).
+
+    Returns:
+        ``rot_deg`` (mean endpoint rotation error), ``pos`` (mean endpoint position error, scene units),
+        ``motion_deg`` (mean angle between the learned and the true start → end displacement of the camera
+        centre; 0 = the same direction of motion).
+    """
+    rot, pos, motion = [], [], []
+    for (s, e), (ts, te) in zip(learned, truth, strict=True):
+        pairs = ((s, ts), (e, te)), ((s, te), (e, ts))
+        costs = [sum(rotation_deg(a, b) for a, b in p) for p in pairs]
+        best = pairs[int(np.argmin(costs))]
+        rot.append(min(costs) / 2)
+        pos.append(np.mean([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in best]))
+        d, t = best[1][0][:3, 3] - best[0][0][:3, 3], best[1][1][:3, 3] - best[0][1][:3, 3]
+        cos = float(d @ t / max(np.linalg.norm(d) * np.linalg.norm(t), 1e-12))
+        motion.append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
+    return {"rot_deg": float(np.mean(rot)), "pos": float(np.mean(pos)), "motion_deg": float(np.mean(motion))}
+
+
+def true_endpoints(dataset: Any) -> np.ndarray:
+    """The true start and end poses (K, 2, 4, 4) of a simulated dataset's blur views: the trajectory poses
+    at the first and last step of each exposure ``[start, end)`` (InputError without the exposure ranges)."""
+    ranges = None if dataset.blur is None else dataset.blur.step_ranges
+    if ranges is None:
+        raise InputError("the blur views have no exposure step ranges", path=getattr(dataset, "root", None))
+    ranges = np.asarray(ranges, np.int64)
+    return np.stack([step_poses(dataset, ranges[:, 0]), step_poses(dataset, ranges[:, 1] - 1)], 1)
