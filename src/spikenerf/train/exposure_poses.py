@@ -187,24 +187,42 @@ def rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 def endpoint_errors(learned: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Mean errors of learned exposure start/end poses ``learned`` (K, 2, 4, 4) against ``truth`` (K, 2, 4,
-    4), each view under the better of the two start/end assignments (the blur cannot tell them apart).
+    4), each view under the better of the two start/end assignments (the blur cannot tell them apart; the
+    one with the smaller sum of rotation errors in radians and position errors in scene units).
 
     Returns:
         ``rot_deg`` (mean endpoint rotation error), ``pos`` (mean endpoint position error, scene units),
         ``motion_deg`` (mean angle between the learned and the true start → end displacement of the camera
-        centre; 0 = the same direction of motion).
+        centre; 0 = the same direction of motion), ``spin_deg`` (the same for the start → end rotation
+        vectors, in the world frame: 0 = the camera turns about the same axis the same way).
     """
-    rot, pos, motion = [], [], []
+    rot, pos, motion, spin = [], [], [], []
     for (s, e), (ts, te) in zip(learned, truth, strict=True):
         pairs = ((s, ts), (e, te)), ((s, te), (e, ts))
-        costs = [sum(rotation_deg(a, b) for a, b in p) for p in pairs]
-        best = pairs[int(np.argmin(costs))]
-        rot.append(min(costs) / 2)
-        pos.append(np.mean([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in best]))
-        d, t = best[1][0][:3, 3] - best[0][0][:3, 3], best[1][1][:3, 3] - best[0][1][:3, 3]
-        cos = float(d @ t / max(np.linalg.norm(d) * np.linalg.norm(t), 1e-12))
-        motion.append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
-    return {"rot_deg": float(np.mean(rot)), "pos": float(np.mean(pos)), "motion_deg": float(np.mean(motion))}
+        rots = [[rotation_deg(a, b) for a, b in p] for p in pairs]
+        dists = [[float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a, b in p] for p in pairs]
+        pick = int(np.argmin([np.radians(sum(r)) + sum(d) for r, d in zip(rots, dists, strict=True)]))
+        best = pairs[pick]
+        rot.append(float(np.mean(rots[pick])))
+        pos.append(float(np.mean(dists[pick])))
+        (a0, t0), (a1, t1) = best
+        motion.append(_angle_deg(a1[:3, 3] - a0[:3, 3], t1[:3, 3] - t0[:3, 3]))
+        spin.append(_angle_deg(_spin(a0, a1), _spin(t0, t1)))
+    return {"rot_deg": float(np.mean(rot)), "pos": float(np.mean(pos)), "motion_deg": float(np.mean(motion)),
+            "spin_deg": float(np.mean(spin))}  # fmt: skip
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def _spin(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) of the world-frame rotation from camera-to-world pose ``a`` to ``b`` (4, 4)."""
+    r = b[:3, :3] @ a[:3, :3].T
+    angle = np.arccos(np.clip((np.trace(r) - 1) / 2, -1.0, 1.0))
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return axis * (angle / max(2 * np.sin(angle), 1e-12))
 
 
 def true_endpoints(dataset: Any) -> np.ndarray:
