@@ -15,12 +15,13 @@ frames, averages them in linear radiance and compares the mean with the blurred 
 
 Why ``(μ, δ)`` and not ``(ξ_s, ξ_e)`` as BAD-NeRF: the two parameterisations describe the same poses, but
 Adam scales each coordinate by its own gradient history. With ``(ξ_s, ξ_e)`` the shared gradient of the
-centre (large while the field forms) sets the scale of both, and the small gradient that parts them moves
-them by a tiny fraction of the rate: measured on a 32×32 orbit with a sharp field held fixed, the start and
-end stayed together for 200 iterations although the loss falls by 40% towards the true motion. ``δ`` has
-its own scale. It starts at ``ε ~ N(0, init_noise²)`` per component (seeded), ``μ`` at 0: exactly at the
-given pose the start and end would be symmetric, and swapping them leaves the blurred image unchanged, so
-``δ`` would receive no gradient. That swap symmetry also means the learned start may be the true end:
+centre sets the scale of both, and the smaller gradient that parts them moves them by a fraction of the
+rate. Measured with a sharp field held fixed (``tests/test_bad_nerf.py``, 40 steps): the endpoint rotation
+error fell from 8.9° to 4.5° with ``(μ, δ)`` and to 6.7° with ``(ξ_s, ξ_e)``.
+
+``δ`` starts at ``ε ~ N(0, init_noise²)`` per component (seeded), ``μ`` at 0: exactly at the given pose
+the start and end would be symmetric, and swapping them leaves the blurred image unchanged, so ``δ`` would
+receive no gradient. That swap symmetry also means the learned start may be the true end:
 :func:`endpoint_errors` scores each view under the better of the two assignments.
 """
 
