@@ -64,8 +64,8 @@ def make_dataset(a: argparse.Namespace) -> Path:
 
 def train_one(a: argparse.Namespace, root: Path, dataset, name: str, seed: int) -> dict:  # type: ignore[no-untyped-def]
     method, centre = RUNS[name]
-    config = TrainConfig(dataset=str(root), method=method, iters=a.iters, batch=a.batch, seed=seed, device="cpu",
-                         eval_every=0, eval_views=a.test_views, ckpt_every=a.iters)  # fmt: skip
+    config = TrainConfig(dataset=str(root), method=method, iters=a.iters, batch=a.batch, seed=seed,
+                         device="cpu", eval_every=0, eval_views=a.test_views, ckpt_every=a.iters)  # fmt: skip
     config.exposure.learn_centre = centre
     out = a.out / "runs" / f"{name.replace(' ', '_').replace('(', '').replace(')', '')}-s{seed}"
     trainer = Trainer(config.validate(), out, dataset, resume=out.exists(), progress=False)

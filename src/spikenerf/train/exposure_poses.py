@@ -40,7 +40,7 @@ from torch import Tensor
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import step_poses
-from spikenerf.train.pose_refine import PoseLearner, corrected, se3_exp
+from spikenerf.train.pose_refine import PoseLearner, check_schedule, corrected, se3_exp
 
 EXPOSURE_POSES = "exposure_poses.json"
 
@@ -67,17 +67,7 @@ class ExposurePoseConfig:
 
     def check(self) -> None:
         """InputError on an out-of-range value (names the config key)."""
-        if not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"exposure.lr must be a finite number > 0, found {self.lr}", param="exposure.lr")
-        if not (math.isfinite(self.lr_final_ratio) and 0 < self.lr_final_ratio <= 1):
-            raise InputError(
-                f"exposure.lr_final_ratio must be in (0, 1], found {self.lr_final_ratio}",
-                param="exposure.lr_final_ratio",
-            )
-        if self.warmup_iters < 0:
-            raise InputError(
-                f"exposure.warmup_iters must be ≥ 0, found {self.warmup_iters}", param="exposure.warmup_iters"
-            )
+        check_schedule(self, "exposure")
         if not (math.isfinite(self.init_noise) and self.init_noise > 0):
             raise InputError(
                 f"exposure.init_noise must be a finite number > 0, found {self.init_noise}",

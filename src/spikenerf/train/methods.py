@@ -6,16 +6,16 @@ at S > 1 poses are rendered at each and averaged first) and adds the field's pri
 once its λ(it) > 0, one window of L consecutive steps for P pixels (``spike``, weighted by λ). The terms keep
 these names in ``curves.csv`` and TensorBoard (``loss/recon``, ``loss/spike``, ``loss/reg``).
 
-=================  ===============================================  ==================================
+=================  ==============================================  ==================================
 method             targets (``spikenerf.data.targets``)             loss terms
-=================  ===============================================  ==================================
+=================  ==============================================  ==================================
 nerf-gt            sharp GT renders (``gt_targets``)               recon, reg
 nerf-blur          blur views at mid-exposure (``blur_targets``)   recon, reg
 nerf-blur-aware    blur views at ``blur_samples`` exposure poses   recon (exposure-averaged), reg
 nerf-bad           blur views at learned exposure start/end poses  recon (exposure-averaged), reg
 nerf-recon         Î_k at every step (``stream_targets``)          recon, reg
 spike-nerf         M_k ⊙ Î_k at every step + the recorded stream   recon, reg, λ(it) · spike
-=================  ===============================================  ==================================
+=================  ==============================================  ==================================
 """
 
 from __future__ import annotations

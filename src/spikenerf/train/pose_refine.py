@@ -52,21 +52,30 @@ class PoseRefineConfig:
 
     def check(self) -> None:
         """InputError on an out-of-range value (names the config key)."""
-        if not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"poses.lr must be a finite number > 0, found {self.lr}", param="poses.lr")
-        if not (math.isfinite(self.lr_final_ratio) and 0 < self.lr_final_ratio <= 1):
-            raise InputError(
-                f"poses.lr_final_ratio must be in (0, 1], found {self.lr_final_ratio}",
-                param="poses.lr_final_ratio",
-            )
-        if self.warmup_iters is not None and self.warmup_iters < 0:
-            raise InputError(
-                f"poses.warmup_iters must be ≥ 0, found {self.warmup_iters}", param="poses.warmup_iters"
-            )
+        check_schedule(self, "poses")
         if self.keyframe_every < 1:
             raise InputError(
                 f"poses.keyframe_every must be ≥ 1, found {self.keyframe_every}", param="poses.keyframe_every"
             )
+
+
+def check_schedule(config: Any, section: str) -> None:
+    """InputError naming ``section.KEY`` unless the pose rate schedule of ``config`` is valid: ``lr`` > 0,
+    ``lr_final_ratio`` in (0, 1], ``warmup_iters`` ≥ 0 (or None)."""
+    if not (math.isfinite(config.lr) and config.lr > 0):
+        raise InputError(
+            f"{section}.lr must be a finite number > 0, found {config.lr}", param=f"{section}.lr"
+        )
+    if not (math.isfinite(config.lr_final_ratio) and 0 < config.lr_final_ratio <= 1):
+        raise InputError(
+            f"{section}.lr_final_ratio must be in (0, 1], found {config.lr_final_ratio}",
+            param=f"{section}.lr_final_ratio",
+        )
+    if config.warmup_iters is not None and config.warmup_iters < 0:
+        raise InputError(
+            f"{section}.warmup_iters must be ≥ 0, found {config.warmup_iters}",
+            param=f"{section}.warmup_iters",
+        )
 
 
 def so3_exp(omega: Tensor) -> Tensor:
