@@ -3,7 +3,9 @@
 ``PYTHONPATH=src python -m benchmarks.bench_bad_nerf --out /tmp/bench-bad`` simulates one ``analytic-blocks``
 dataset (gray, ideal camera; an orbit of ``--steps`` steps, ``--blur-views`` exposures of ``--exposure``
 steps each, ``--test-views`` novel views; ``--shake A`` adds a fast look-at oscillation of amplitude A scene
-units, a hand-shake-like rotation within each exposure) and trains, per seed, with the same settings:
+units, a hand-shake-like rotation within each exposure) and trains, per seed, with the same settings (a
+finished run's numbers are kept in its folder, so a second invocation with more ``--methods`` trains only
+the new ones):
 
 * ``nerf-blur``: the blur views at their mid-exposure poses (the reference of the Δ column);
 * ``nerf-bad``: learns each view's exposure start and end pose (``--set exposure.*`` defaults);
@@ -68,6 +70,8 @@ def train_one(a: argparse.Namespace, root: Path, dataset, name: str, seed: int) 
                          device="cpu", eval_every=0, eval_views=a.test_views, ckpt_every=a.iters)  # fmt: skip
     config.exposure.learn_centre = centre
     out = a.out / "runs" / f"{name.replace(' ', '_').replace('(', '').replace(')', '')}-s{seed}"
+    if (out / "bench_row.json").is_file():  # finished by an earlier invocation (e.g. with fewer methods)
+        return json.loads((out / "bench_row.json").read_text())
     trainer = Trainer(config.validate(), out, dataset, resume=out.exists(), progress=False)
     learned = getattr(trainer.method, "exposures", None)
     truth = true_endpoints(dataset) if learned is not None else None
@@ -77,6 +81,7 @@ def train_one(a: argparse.Namespace, root: Path, dataset, name: str, seed: int) 
     after = None if learned is None else endpoint_errors(learned.poses.endpoints().cpu().numpy(), truth)
     row = {"name": name, "seed": seed, "test_psnr": summary.test_psnr, "seconds": time.perf_counter() - t0,
            "endpoints_before": before, "endpoints_after": after}  # fmt: skip
+    (out / "bench_row.json").write_text(json.dumps(row))
     print(json.dumps(row), flush=True)
     return row
 
@@ -120,7 +125,7 @@ def main() -> None:
     for n in names:
         errs = [(r["endpoints_before"], r["endpoints_after"]) for r in rows if r["name"] == n]
         if errs and errs[0][0] is not None:
-            for key in ("rot_deg", "pos", "motion_deg"):
+            for key in ("rot_deg", "pos", "motion_deg", "spin_deg"):
                 b, f = (np.mean([e[i][key] for e in errs]) for i in (0, 1))
                 print(f"{n}: endpoint {key} {b:.3f} → {f:.3f} (mean over views and seeds)")
 
