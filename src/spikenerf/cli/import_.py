@@ -52,6 +52,12 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     "--overlap", type=int, default=10, show_default=True, help="COLMAP sequential matching overlap."
 )
 @click.option(
+    "--loop-pairs/--no-loop-pairs",
+    default=True,
+    show_default=True,
+    help="COLMAP also matches every pair of keyframes (closes an orbit); off: sequential only.",
+)
+@click.option(
     "--min-registered",
     type=float,
     default=0.5,

@@ -52,7 +52,9 @@ class ImportOptions:
         fps, threshold, layout: the recording (flags win over the config.yaml). frame_range: a slice of steps.
         keyframe_every: steps between keyframes. window: TFP window (frames). test_every: every n-th
         keyframe becomes a test view (0: none). fov_deg: horizontal field of view when the poses carry no
-        intrinsics. overlap: COLMAP sequential-matching overlap. min_registered: fraction of keyframes
+        intrinsics. overlap: COLMAP sequential-matching overlap. loop_pairs: also match every pair of
+        keyframes (up to ``ColmapSettings.exhaustive_up_to`` keyframes), which closes an orbit's loop; off:
+        sequential matching only (symmetric scenes). min_registered: fraction of keyframes
         COLMAP must register. verbose: show COLMAP's log. keyframe_images: ``tfp`` (window ``window``) or
         ``learned`` (the shipped learned reconstructor, at its trained window). max_features, sift_peak,
         affine_sift, final_ba, contrast: COLMAP settings (:class:`spikenerf.data.colmap.ColmapSettings`).
@@ -75,6 +77,7 @@ class ImportOptions:
     test_every: int = 8
     fov_deg: float | None = None
     overlap: int = 10
+    loop_pairs: bool = True
     min_registered: float = 0.5
     overwrite: bool = False
     verbose: bool = False
@@ -195,6 +198,7 @@ def keyframe_poses(
         settings = ColmapSettings(
             focal=focal,
             overlap=opts.overlap,
+            exhaustive_up_to=ColmapSettings.exhaustive_up_to if opts.loop_pairs else 0,
             max_features=opts.max_features,
             peak_threshold=opts.sift_peak,
             affine=opts.affine_sift,
