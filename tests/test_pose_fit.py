@@ -23,42 +23,30 @@ K = Intrinsics.from_fov(48, 32, math.radians(40.0))
 
 EYES = ((0.6, -0.4, 0.3), (-0.5, 0.2, -0.3))
 TARGETS = ((2.0, 1.0, 0.5), (-1.0, 2.0, 0.0))
+DEPTHS = (1.0, 2.0, 3.5)
 
 
-class Scene(torch.nn.Module):
-    """A frozen-field stand-in with depth: a textured sphere of radius 3 around the origin seen from inside,
-    and in front of each camera a textured ball of radius 0.3 at 1 unit (parallax tells a rotation of
-    the camera from a shift). The colour is smooth in the 3D point seen."""
+class Fog(torch.nn.Module):
+    """A frozen-field stand-in with depth and no edges: a pixel sees the mean of a smooth 3D texture at
+    three depths along its ray (1, 2 and 3.5 units), so the parallax between them tells a rotation of the
+    camera from a shift, and the error surface has no occlusion boundaries."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.freq = torch.nn.Parameter(torch.tensor([1.7, 2.3, 1.1]))
-        eye, target = torch.tensor(EYES), torch.tensor(TARGETS)
-        ahead = torch.nn.functional.normalize(target - eye, dim=-1)
-        self.register_buffer("balls", eye + 1.0 * ahead)
+        self.freq = torch.nn.Parameter(torch.tensor([3.4, 4.6, 2.2]))
 
-    def texture(self, p: Tensor) -> Tensor:  # (N, 3) → (N, 1)
-        s = torch.sin(self.freq[0] * 2 * p[:, 0] + 1.5 * p[:, 2]) * torch.cos(self.freq[1] * 2 * p[:, 1])
-        return (0.5 + 0.4 * s + 0.05 * torch.sin(self.freq[2] * 2 * p[:, 2]))[:, None]
-
-    def forward(self, o: Tensor, d: Tensor) -> Tensor:  # rays (N, 3), unit (N, 3) → depth (N,)
-        b, c = (o * d).sum(-1), (o * o).sum(-1) - 9.0
-        t = -b + torch.sqrt((b * b - c).clamp_min(1e-9))  # the far wall (the camera is inside it)
-        for centre in self.balls:
-            oc = o - centre
-            b, c = (oc * d).sum(-1), (oc * oc).sum(-1) - 0.09
-            disc = b * b - c
-            near = -b - torch.sqrt(disc.clamp_min(1e-9))
-            t = torch.where((disc > 0) & (near > 0) & (near < t), near, t)
-        return t
+    def forward(self, p: Tensor) -> Tensor:  # (..., 3) → (...)
+        x, y, z = p.unbind(-1)
+        s = torch.sin(self.freq[0] * x + 0.7 * z) * torch.cos(self.freq[1] * y - 0.4 * x)
+        return 0.5 + 0.3 * s + 0.1 * torch.sin(self.freq[2] * z + y)
 
 
-class SceneModel(RadianceModel):
-    """:class:`RadianceModel` interface around :class:`Scene` (one channel, opaque)."""
+class FogModel(RadianceModel):
+    """:class:`RadianceModel` interface around :class:`Fog` (one channel)."""
 
     def __init__(self) -> None:
         torch.nn.Module.__init__(self)
-        self.field = Scene()  # type: ignore[assignment]
+        self.field = Fog()  # type: ignore[assignment]
 
     @property
     def channels(self) -> int:
@@ -66,19 +54,20 @@ class SceneModel(RadianceModel):
 
     @property
     def scene_box(self) -> Tensor:
-        return torch.tensor([[-3.0, -3.0, -3.0], [3.0, 3.0, 3.0]])
+        return torch.tensor([[-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]])
 
     @property
     def device(self) -> torch.device:
         return torch.device("cpu")
 
     def render_rays(self, origins, dirs, near, far, perturb=False):  # type: ignore[no-untyped-def]
-        t = self.field(origins, dirs)
-        color = self.field.texture(origins + t[:, None] * dirs)
-        return RenderOutput(color, t, torch.ones_like(t), num_samples=len(t))
+        t = torch.tensor(DEPTHS)
+        color = self.field(origins[:, None] + t[:, None] * dirs[:, None]).mean(1, keepdim=True)
+        depth = torch.full_like(color[:, 0], t.mean().item())
+        return RenderOutput(color, depth, torch.ones_like(depth), num_samples=len(t) * len(depth))
 
 
-def _views(model: SceneModel, poses: Tensor) -> Tensor:
+def _views(model: FogModel, poses: Tensor) -> Tensor:
     with torch.no_grad():
         out = [model.render_rays(*image_rays(p, K), None, None).color for p in poses]
     return torch.stack(out).view(len(poses), K.height, K.width, 1)
@@ -108,27 +97,27 @@ def _rotation_error_deg(a: Tensor, b: Tensor) -> np.ndarray:
 
 
 def test_a_known_pose_error_is_recovered_with_the_field_frozen() -> None:
-    model, truth = SceneModel(), _truth()
+    model, truth = FogModel(), _truth()
     images = _views(model, truth)
     start = _perturbed(truth, 3.0, 0.1)
     before = _rotation_error_deg(start, truth)
     assert np.allclose(before, 3.0, atol=1e-3)
     state = {k: v.clone() for k, v in model.state_dict().items()}
-    fit = fit_view_poses(model, start, images, K, steps=150, lr=3e-3, batch=256)
+    fit = fit_view_poses(model, start, images, K, steps=300, lr=5e-3, batch=256)
     after = _rotation_error_deg(fit.poses, truth)
     shift = (fit.poses[:, :3, 3] - truth[:, :3, 3]).norm(dim=1).numpy()
-    assert after.max() < 0.3, (before, after)  # 3° → well under a tenth of it
-    assert shift.max() < 0.03, shift  # 0.1 → under a third
-    assert fit.loss_last < 0.1 * fit.loss_first
+    assert after.max() < 0.4, (before, after)  # 3° → well under a seventh of it (measured 0.23°, 0.18°)
+    assert shift.max() < 0.04, shift  # 0.1 → under 40% (measured 0.010, 0.027)
+    assert fit.loss_last < 0.01 * fit.loss_first
     assert np.allclose(fit.rotation_deg.numpy(), 3.0, atol=0.5)  # the size of the correction it applied
     for k, v in model.state_dict().items():  # the field is frozen and left trainable as it was
         assert torch.equal(v, state[k]), k
-    assert all(p.requires_grad for p in model.parameters())
+    assert all(p.requires_grad and p.grad is None for p in model.parameters())
     assert model.training
 
 
 def test_the_exact_pose_stays_put_and_zero_steps_change_nothing() -> None:
-    model, truth = SceneModel(), _truth()
+    model, truth = FogModel(), _truth()
     images = _views(model, truth)
     still = fit_view_poses(model, truth, images, K, steps=0)
     assert torch.equal(still.poses, truth) and math.isnan(still.loss_first)
@@ -137,7 +126,7 @@ def test_the_exact_pose_stays_put_and_zero_steps_change_nothing() -> None:
 
 
 def test_same_seed_same_poses_and_another_seed_differs() -> None:
-    model, truth = SceneModel(), _truth()
+    model, truth = FogModel(), _truth()
     images, start = _views(model, truth), _perturbed(truth, 2.0, 0.05)
     a, b = (fit_view_poses(model, start, images, K, steps=10, batch=64, seed=1) for _ in range(2))
     c = fit_view_poses(model, start, images, K, steps=10, batch=64, seed=2)
@@ -156,7 +145,7 @@ def test_same_seed_same_poses_and_another_seed_differs() -> None:
     ],
 )
 def test_bad_settings_name_their_parameter(kwargs: dict, param: str) -> None:
-    model, truth = SceneModel(), _truth()
+    model, truth = FogModel(), _truth()
     with pytest.raises(InputError) as err:
         fit_view_poses(model, truth, _views(model, truth), K, **kwargs)
     assert param in err.value.params and param in str(err.value)
