@@ -23,7 +23,6 @@ from spikenerf.render import RadianceModel, ray_bounds
 from spikenerf.scenes.trajectory import Intrinsics
 from spikenerf.train.pose_refine import se3_exp
 
-
 #: the rate decays exponentially to this fraction of ``lr`` over the steps (settles the random-batch noise)
 FINAL_RATIO = 0.1
 
