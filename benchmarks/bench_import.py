@@ -1,7 +1,8 @@
 """The real-data path checked where the truth is known: simulate, hide the poses, ``spikenerf import``.
 
 Run: ``.venv/bin/python -m benchmarks.bench_import --out /tmp/bench-import`` (resumable: finished simulations
-and imports in ``--out`` are reused). For each scene: ``spikenerf simulate --noise realistic`` at 400×250;
+and imports in ``--out`` are reused). Any named scene works: the analytic ones (the default) or Blender ones
+(``--scenes bricks,food --spp 4``; needs bpy). Per scene: ``spikenerf simulate --noise realistic`` at 400×250;
 the spike stream is rewritten in the raw 416-column sps10 layout with a SpikeCV ``config.yaml`` (spike_h,
 spike_w, raw_width, fps) and nothing else: no poses, no intrinsics. Then ``spikenerf import REC.dat``
 estimates the keyframe poses with COLMAP and interpolates them to every step.
@@ -30,10 +31,9 @@ from pathlib import Path
 import numpy as np
 
 from spikenerf.data.alignment import per_step_poses, trajectory_errors, umeyama
-from spikenerf.data.dataset import TRANSFORMS_TEST, load_dataset
+from spikenerf.data.dataset import TRANSFORMS_TEST, SpikeDataset, load_dataset
 from spikenerf.data.importer import keyframe_steps
 from spikenerf.data.recording import RAW_FILE, write_raw_recording
-from spikenerf.scenes.analytic import CAMERA_ANGLE_X
 
 RAW_EXTRA = 16
 
@@ -48,6 +48,7 @@ def spikenerf(*args: object) -> None:
 def simulate(scene: str, out: Path, a: argparse.Namespace) -> Path:
     sim = out / f"sim-{scene}"
     if not sim.exists():
+        spp = ["--spp", a.spp] if a.spp else []
         spikenerf(
             "simulate",
             "--scene",
@@ -65,6 +66,7 @@ def simulate(scene: str, out: Path, a: argparse.Namespace) -> Path:
             "--test-views",
             4,
             "--no-progress",
+            *spp,
             "--out",
             sim,
         )
@@ -82,12 +84,13 @@ def raw_recording(sim: Path, out: Path) -> Path:
     return rec
 
 
-def import_(rec: Path, out: Path, a: argparse.Namespace, fov: bool) -> tuple[Path, float]:
+def import_(rec: Path, out: Path, a: argparse.Namespace, fov: float | None) -> tuple[Path, float]:
+    """Import ``rec`` with COLMAP: the focal length fixed by ``fov`` (horizontal, degrees) or estimated."""
     tag = f"-{a.tag}" if a.tag else ""
     name = f"imp-{rec.parent.name[4:]}-{'fov' if fov else 'selfcal'}-w{a.window}{tag}"
     ds, start = out / name, time.perf_counter()
     if not ds.exists():
-        extra = ["--fov", math.degrees(CAMERA_ANGLE_X)] if fov else []
+        extra = ["--fov", fov] if fov else []
         spikenerf(
             "import",
             rec,
@@ -103,13 +106,20 @@ def import_(rec: Path, out: Path, a: argparse.Namespace, fov: bool) -> tuple[Pat
     return ds, time.perf_counter() - start
 
 
+def orbit_radius(truth: SpikeDataset) -> float:
+    """Mean distance of the true camera centres from the orbit centre (``trajectory.center`` in the
+    simulation's config; the origin when absent): the orbit radius for the built-in scenes."""
+    center = np.asarray(truth.config.get("trajectory", {}).get("center", (0.0, 0.0, 0.0)), dtype=float)
+    return float(np.linalg.norm(truth.trajectory.poses[:, :3, 3] - center, axis=1).mean())
+
+
 def errors(sim: Path, imp: Path) -> dict:
     truth, est = load_dataset(sim), load_dataset(imp)
     info = est.config["imported"]
     keys = keyframe_steps(len(truth.trajectory), info["keyframe_every"], info["window"])
     t_all, e_all = truth.trajectory.poses, est.trajectory.poses
     floor = per_step_poses(t_all[keys], keys, np.arange(len(t_all)))
-    radius = float(np.linalg.norm(t_all[:, :3, 3], axis=1).mean())
+    radius = orbit_radius(truth)
     at_keys = trajectory_errors(e_all[keys], t_all[keys])
     every = trajectory_errors(e_all, t_all)
     ref = trajectory_errors(floor, t_all)
@@ -163,6 +173,7 @@ def main() -> None:
     p.add_argument("--width", type=int, default=400)
     p.add_argument("--height", type=int, default=250)
     p.add_argument("--frames", type=int, default=1000)
+    p.add_argument("--spp", type=int, default=0, help="render samples per pixel (0: the simulator's default)")
     p.add_argument("--keyframe-every", type=int, default=20)
     p.add_argument("--window", type=int, default=21, help="TFP window of the keyframes")
     p.add_argument("--fov-only", action="store_true", help="skip the self-calibrated imports")
@@ -174,13 +185,14 @@ def main() -> None:
     for scene in a.scenes.split(","):
         sim = simulate(scene, a.out, a)
         rec = raw_recording(sim, a.out)
-        for fov in (True,) if a.fov_only else (True, False):
+        true_fov = math.degrees(load_dataset(sim).intrinsics.camera_angle_x)
+        for fov in (true_fov,) if a.fov_only else (true_fov, None):
             try:
                 imp, seconds = import_(rec, a.out, a, fov)
             except subprocess.CalledProcessError:
-                rows.append({"scene": scene, "fov": fov, "registered": "failed"})
+                rows.append({"scene": scene, "fov": fov is not None, "registered": "failed"})
                 continue
-            row = {"scene": scene, "fov": fov, **errors(sim, imp), "import_s": seconds}
+            row = {"scene": scene, "fov": fov is not None, **errors(sim, imp), "import_s": seconds}
             if a.train_iters and fov:
                 aligned = aligned_test_views(sim, imp, a.out / f"{imp.name}-testaligned")
                 row["psnr_exact"] = test_psnr(sim, a.out / f"run-{scene}-exact", a.train_iters)

@@ -4,14 +4,18 @@ Usage (from the repository root)::
 
     .venv/bin/python -m benchmarks.bench_train_speed [--dataset DIR] [--ref 42328ae] [--iters 300]
                                                      [--rounds 2] [--threads 2] [--method spike-nerf]
+                                                     [--ours-args "..."]
 
 The reference commit is checked out with ``git worktree add`` into a temporary folder; both builds run the
 same ``spikenerf train DATASET --method M --iters N --eval-views 8 --eval-every 0`` as subprocesses (the
 reference with its own ``src`` first on ``PYTHONPATH``), alternating reference, ours, reference, ours, … so
 that a load change on a shared machine hits both. Each run reports its own ``summary.json``: training rays/s
 (rendered rays over the loop's time, evaluation and checkpoints excluded) and the test PSNR after the same
-iterations on all held-out views. Printed: every run, the per-round ratio ours / reference and the median
-ratio. Without ``--dataset`` an ``analytic-orbs`` 100×100, 1000-step gray dataset is simulated first.
+iterations on all held-out views, and the process's CPU time (``getrusage`` of the child: start-up and
+evaluation included). Printed: every run, the per-round ratios ours / reference of rays/s and of CPU time,
+and their medians. ``--ours-args`` adds train options to this checkout's runs only (e.g.
+``--ours-args "--field-option step_ratio=0.5"`` to time the previous defaults). Without ``--dataset`` an
+``analytic-orbs`` 100×100, 1000-step gray dataset is simulated first.
 """
 
 from __future__ import annotations
@@ -19,6 +23,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
+import shlex
 import statistics
 import subprocess
 import sys
@@ -29,8 +35,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_train(src: Path, dataset: Path, out: Path, args: argparse.Namespace) -> dict:
-    """One ``spikenerf train`` with ``src`` first on the path → its summary plus the wall seconds."""
+def run_train(src: Path, dataset: Path, out: Path, args: argparse.Namespace, extra: list[str]) -> dict:
+    """One ``spikenerf train`` (plus ``extra`` options) with ``src`` first on the path → its summary plus
+    the wall seconds and the process's CPU seconds."""
     env = {**os.environ, "PYTHONPATH": str(src), "OMP_NUM_THREADS": str(args.threads)}
     cmd = [sys.executable, "-m", "spikenerf", "train", str(dataset), "--method", args.method]
     cmd += [
@@ -43,12 +50,19 @@ def run_train(src: Path, dataset: Path, out: Path, args: argparse.Namespace) -> 
         "--quiet",
         "--out",
         str(out),
+        *extra,
     ]
-    start = time.perf_counter()
+    start, cpu0 = time.perf_counter(), _children_cpu()
     subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL)
     summary = json.loads((out / "summary.json").read_text())
-    summary["wall"] = time.perf_counter() - start
+    summary["wall"], summary["cpu"] = time.perf_counter() - start, _children_cpu() - cpu0
     return summary
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of all finished child processes so far."""
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return use.ru_utime + use.ru_stime
 
 
 def main() -> None:
@@ -59,6 +73,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--method", default="spike-nerf")
+    parser.add_argument("--ours-args", default="", help="extra train options for this checkout only")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_train_speed_") as tmp_name:
         tmp = Path(tmp_name)
@@ -87,15 +102,16 @@ def main() -> None:
             print(
                 f"dataset {dataset}, {args.method}, {args.iters} iterations, OMP_NUM_THREADS={args.threads}"
             )
-            print("| round | build | rays/s | test PSNR (dB) | train s | wall s |")
-            print("|---:|---|---:|---:|---:|---:|")
+            print("| round | build | rays/s | test PSNR (dB) | train s | wall s | process CPU s |")
+            print("|---:|---|---:|---:|---:|---:|---:|")
             for r in range(args.rounds):
                 for name, src in builds.items():
-                    s = run_train(src, dataset, tmp / f"{name}{r}", args)
+                    extra = shlex.split(args.ours_args) if name == "ours" else []
+                    s = run_train(src, dataset, tmp / f"{name}{r}", args, extra)
                     results[name].append(s)
                     print(
                         f"| {r} | {name} | {s['rays_per_second']:.0f} | {s['test_psnr']:.2f} | "
-                        f"{s['seconds']:.1f} | {s['wall']:.1f} |",
+                        f"{s['seconds']:.1f} | {s['wall']:.1f} | {s['cpu']:.1f} |",
                         flush=True,
                     )
         finally:
@@ -109,6 +125,11 @@ def main() -> None:
     ]
     print(f"\nrays/s ratio ours / {args.ref} per round: {', '.join(f'{x:.2f}×' for x in ratios)}")
     print(f"median ratio: {statistics.median(ratios):.2f}×")
+    cpu = [b["cpu"] / o["cpu"] for o, b in zip(results["ours"], results["reference"], strict=True)]
+    print(f"process CPU time reference / ours per round: {', '.join(f'{x:.2f}×' for x in cpu)}")
+    print(
+        f"median CPU ratio: {statistics.median(cpu):.2f}× (whole processes: start-up and evaluation included)"
+    )
     print(f"test PSNR ours − reference per round (dB): {', '.join(f'{x:+.2f}' for x in dpsnr)}")
 
 

@@ -292,3 +292,61 @@ def test_occupancy_update_never_empties_the_grid() -> None:
     assert 0.0 < blob < 0.1 and occ.query(torch.zeros(1, 3)).item()
     assert occ.update(lambda x: torch.zeros(len(x)), step_size=0.1) == blob  # keeps the last useful grid
     assert torch.all(occ.bounds.abs() < 0.6)
+
+
+def test_decoder_bf16_is_close_to_float32_forward_and_backward() -> None:
+    """``decoder_bf16`` changes only the decoder's precision: colours and gradients stay close to float32."""
+    from spikenerf.fields.grid import native_bf16
+
+    if not native_bf16(torch.device("cpu")):
+        pytest.skip("this CPU has no native bfloat16 (the decoder stays float32)")
+    torch.manual_seed(0)
+    ref = smooth_field(replace(CFG, hidden=32, decoder_bf16=False))
+    low = smooth_field(replace(CFG, hidden=32, decoder_bf16=True))
+    low.load_state_dict(ref.state_dict())
+    xyz, dirs = torch.rand(500, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(500, 3), dim=-1)
+    outs = []
+    for field in (ref, low):
+        rgb = field.color_norm(xyz, dirs)
+        (rgb * torch.linspace(0, 1, rgb.numel()).view_as(rgb)).sum().backward()
+        outs.append((rgb, field.app_planes.grad, field.decoder[0].weight.grad))
+    assert outs[0][0].dtype == outs[1][0].dtype == torch.float32
+    assert not torch.equal(outs[0][0], outs[1][0])  # really another precision
+    for a, b in zip(outs[0], outs[1], strict=True):  # bf16 keeps 8 bits: a few % on the grid's gradient
+        assert ((a - b).norm() / a.norm()).item() < 0.06
+
+
+def test_float32_decoder_keeps_an_outer_autocast() -> None:
+    """Without ``decoder_bf16`` the field adds no autocast of its own (``--amp bf16`` still applies)."""
+    field = smooth_field(replace(CFG, decoder_bf16=False))
+    xyz, dirs = torch.rand(50, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
+    ref = field.color_norm(xyz, dirs)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        amp = field.color_norm(xyz, dirs)
+    assert not torch.equal(ref, amp.float())
+    assert torch.allclose(ref, amp.float(), atol=0.02)
+
+
+def test_decoder_bf16_only_where_the_device_has_native_bf16(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """On a CPU without AVX512-BF16/AMX the default decoder stays float32 (emulated bf16 would be slower)."""
+    from spikenerf.fields import grid
+
+    field = smooth_field(replace(CFG, decoder_bf16=True))
+    xyz, dirs = torch.rand(50, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
+    monkeypatch.setattr(grid, "cpu_has", lambda *flags: False)
+    plain = field.color_norm(xyz, dirs)
+    with torch.no_grad():
+        field.config = replace(field.config, decoder_bf16=False)
+        assert torch.equal(plain, field.color_norm(xyz, dirs))
+    monkeypatch.setattr(grid, "cpu_has", lambda *flags: "avx512_bf16" in flags)
+    field.config = replace(field.config, decoder_bf16=True)
+    assert not torch.equal(plain, field.color_norm(xyz, dirs))
+
+
+def test_a_checkpoint_from_before_decoder_bf16_keeps_a_float32_decoder() -> None:
+    from spikenerf.render import model_from_hparams
+
+    hparams = build_model("grid", 1, BOX, CFG).hparams()
+    assert model_from_hparams(hparams).field.config.decoder_bf16  # today's default, stored
+    del hparams["config"]["decoder_bf16"]
+    assert not model_from_hparams(hparams).field.config.decoder_bf16

@@ -52,6 +52,12 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     "--overlap", type=int, default=10, show_default=True, help="COLMAP sequential matching overlap."
 )
 @click.option(
+    "--loop-pairs/--no-loop-pairs",
+    default=True,
+    show_default=True,
+    help="COLMAP also matches every pair of keyframes (closes an orbit); off: sequential only.",
+)
+@click.option(
     "--min-registered",
     type=float,
     default=0.5,
@@ -119,5 +125,5 @@ def command(**kw: Any) -> None:
     click.echo(
         f"wrote {out}: {len(ds.trajectory)} steps, {ds.intrinsics.width}×{ds.intrinsics.height}, poses from "
         f"{imported['poses']} ({imported['poses_known']} poses, {imported['keyframes']} keyframes), "
-        f"{len(ds.test)} test views"
+        f"{len(ds.test)} test views" + (f"; {imported['pose_note']}" if imported.get("pose_note") else "")
     )

@@ -14,6 +14,7 @@ axes (cells are anisotropic in a non-cubic box).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, replace
 
@@ -24,7 +25,7 @@ from torch import Tensor, nn
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
-from spikenerf.fields.vm_kernel import usable, vm_lookup
+from spikenerf.fields.vm_kernel import cpu_has, usable, vm_lookup
 
 MAT = ((0, 1), (0, 2), (1, 2))
 VEC = (2, 1, 0)
@@ -41,8 +42,13 @@ class GridFieldConfig:
         density_components / app_components: VM rank per axis pair. app_dim: decoder input features.
         hidden: decoder width (two hidden layers). view_freqs: octaves of the view-direction encoding.
         density_shift / distance_scale: ``σ = distance_scale · softplus(raw + shift)`` per world unit.
-        step_ratio: marching step in cells. max_samples: cap on samples per ray.
+        step_ratio: marching step in cells (0.5 before issue 9; TensoRF's 0.5). max_samples: cap on samples
+            per ray.
         weight_threshold: colour is decoded only where the compositing weight exceeds it.
+        decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
+            the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
+            device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
+            GPU with bf16); float32 elsewhere, and everywhere with ``False`` (the default before issue 9).
         occupancy / occupancy_*: the occupancy grid is rebuilt at ``occupancy_start`` and every
             ``occupancy_every`` steps after (and after each upsampling once started); cells whose one-step
             opacity is below ``occupancy_threshold`` are skipped; its resolution is
@@ -64,9 +70,10 @@ class GridFieldConfig:
     init_scale: float = 0.1
     density_shift: float = -10.0
     distance_scale: float = 25.0
-    step_ratio: float = 0.5
+    step_ratio: float = 0.75
     max_samples: int = 1024
     weight_threshold: float = 1e-4
+    decoder_bf16: bool = True
     occupancy: bool = True
     occupancy_start: int = 250
     occupancy_every: int = 500
@@ -141,6 +148,21 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
     return out[..., :m] if pad else out
 
 
+def native_bf16(device: torch.device) -> bool:
+    """Whether ``device`` multiplies bfloat16 matrices natively (else bf16 would be emulated, slower)."""
+    if device.type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    return device.type == "cpu" and cpu_has("avx512_bf16", "amx_bf16")
+
+
+def _low_precision(device: torch.device, on: bool) -> contextlib.AbstractContextManager:
+    """bfloat16 autocast on ``device`` if ``on`` and it is native there, else no change (an outer
+    ``--amp`` context stays active)."""
+    if on and native_bf16(device):
+        return torch.autocast(device.type, torch.bfloat16)
+    return contextlib.nullcontext()
+
+
 def _factor(values: Tensor) -> nn.Parameter:
     """A factor (3, C, R, R) or (3, C, R, 1) as a parameter stored channels-last (memory order 3, R, R, C).
 
@@ -203,9 +225,11 @@ class GridField(Field):
     def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
         """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3)."""
         feats = self._vm(self.app_planes, self.app_lines, xyz_norm)
-        feats = self.basis(feats.reshape(feats.shape[0], -1))
-        h = torch.cat([feats, positional_encoding(dirs, self.config.view_freqs)], dim=-1)
-        return torch.sigmoid(self.decoder(h))
+        view = positional_encoding(dirs, self.config.view_freqs)
+        with _low_precision(xyz_norm.device, self.config.decoder_bf16):
+            feats = self.basis(feats.reshape(feats.shape[0], -1))
+            logit = self.decoder(torch.cat([feats, view.to(feats.dtype)], dim=-1))
+        return torch.sigmoid(logit.float())
 
     @staticmethod
     def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:

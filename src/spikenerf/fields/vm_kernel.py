@@ -156,6 +156,13 @@ def _cpu_fingerprint() -> str:
 
 
 _CPU = _cpu_fingerprint()
+
+
+def cpu_has(*flags: str) -> bool:
+    """Whether the CPU lists any of ``flags`` (Linux ``/proc/cpuinfo``; False where it cannot be read)."""
+    return any(flag in _CPU.split() for flag in flags)
+
+
 # without the CPU's flags a shared cache folder could not tell CPUs apart: no -march=native then
 _CFLAGS = _cflags() if _CPU else ["-O3"]
 # one build folder per source, flags and CPU

@@ -36,10 +36,12 @@ def build_model(
 
 def model_from_hparams(hparams: dict[str, Any], state_dict: dict[str, Tensor] | None = None) -> RadianceModel:
     """Rebuild a model from :meth:`RadianceModel.hparams` (``scene_box`` (2, 3)) and optionally load a state
-    dict (tensor shapes as saved: a checkpoint of an upsampled grid resizes the grid)."""
-    model = build_model(
-        hparams["kind"], hparams["channels"], np.asarray(hparams["scene_box"]), hparams["config"]
-    )
+    dict (tensor shapes as saved: a checkpoint of an upsampled grid resizes the grid). A grid saved before
+    ``decoder_bf16`` existed keeps its float32 decoder."""
+    config = hparams["config"]
+    if hparams["kind"] == "grid" and isinstance(config, dict):
+        config = {"decoder_bf16": False, **config}
+    model = build_model(hparams["kind"], hparams["channels"], np.asarray(hparams["scene_box"]), config)
     if state_dict is not None:
         model.load_state_dict(state_dict)
     return model
