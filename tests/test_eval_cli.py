@@ -133,6 +133,9 @@ def test_test_pose_optimisation_is_reported_beside_the_plain_score(
     assert (opt["steps"], opt["lr"], len(opt["per_view"])) == (3, 2e-3, 3) and "fitted" in opt["protocol"]
     assert all(v["rotation_deg"] > 0 and v["translation"] > 0 for v in opt["per_view"])
     assert math.isclose(opt["mean"]["psnr"], float(np.mean([v["psnr"] for v in opt["per_view"]])))
+    assert (
+        abs(opt["mean"]["psnr"] - plain["mean"]["psnr"]) < 1.0
+    )  # 3 small steps: scored at nearly the same poses
     for flag, value in (("--test-pose-opt", "-1"), ("--test-pose-lr", "0")):
         assert flag in _cli_error(capsys, "eval", run_dir, "--device", "cpu", flag, value)
     assert json.loads((run_dir / "metrics.json").read_text()) == data  # nothing rewritten on bad input
