@@ -35,8 +35,8 @@ class PoseRefineConfig:
     """Pose refinement (``--refine-poses``; ``--set poses.X=...``).
 
     Attributes:
-        refine: learn the corrections (off by default, imported datasets included: in docs/real-data.md it
-            lowered test PSNR on both measured scenes; None, from older configs, is off too).
+        refine: learn the corrections (off by default, imported datasets included: docs/real-data.md does
+            not show a gain yet; None, from older configs, is off too).
         lr: Adam rate of the corrections (radians and scene units per step) after the warm-up.
         lr_final_ratio: exponential decay to this fraction of ``lr`` at the end of the run.
         warmup_iters: linear warm-up of the rate from 0 (None: the grid's first upsampling step, the end of
