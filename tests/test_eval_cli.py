@@ -115,3 +115,27 @@ def test_bad_inputs_are_one_line_errors(
     err = _cli_error(capsys, "render", run_dir, "--trajectory", "spiral", "--out", tmp_path / "o")
     assert "--trajectory" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_test_pose_optimisation_is_reported_beside_the_plain_score(
+    run_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _cli("eval", run_dir, "--device", "cpu", "--quiet", "--lpips", "none")
+    plain = json.loads((run_dir / "metrics.json").read_text())
+    assert plain["test_pose_optimised"] is None
+    capsys.readouterr()
+    _cli("eval", run_dir, "--device", "cpu", "--quiet", "--lpips", "none", "--test-pose-opt", 3)
+    out = capsys.readouterr().out
+    assert "test-pose-optimised (3 steps" in out and out.count("PSNR") == 2
+    data = json.loads((run_dir / "metrics.json").read_text())
+    assert data["mean"] == plain["mean"] and data["per_view"] == plain["per_view"]  # the plain score stays
+    opt = data["test_pose_optimised"]
+    assert (opt["steps"], opt["lr"], len(opt["per_view"])) == (3, 2e-3, 3) and "fitted" in opt["protocol"]
+    assert all(v["rotation_deg"] > 0 and v["translation"] > 0 for v in opt["per_view"])
+    assert math.isclose(opt["mean"]["psnr"], float(np.mean([v["psnr"] for v in opt["per_view"]])))
+    assert (
+        abs(opt["mean"]["psnr"] - plain["mean"]["psnr"]) < 1.0
+    )  # 3 small steps: scored at nearly the same poses
+    for flag, value in (("--test-pose-opt", "-1"), ("--test-pose-lr", "0")):
+        assert flag in _cli_error(capsys, "eval", run_dir, "--device", "cpu", flag, value)
+    assert json.loads((run_dir / "metrics.json").read_text()) == data  # nothing rewritten on bad input

@@ -57,6 +57,8 @@ def test_each_method_owns_its_parts() -> None:
     assert recon.uses_stream and not recon.uses_mask and not recon.uses_spike_loss and recon.lam(99) == 0.0
     assert method("nerf-blur-aware", targets__blur_samples=5).poses_per_view() == 5
     assert method("nerf-blur", targets__blur_samples=5).poses_per_view() == 1
+    bad = method("nerf-bad", targets__blur_samples=5)
+    assert bad.poses_per_view() == 5 and bad.views == "blur" and not bad.uses_stream
     assert not method("nerf-gt").uses_stream and method("nerf-gt").views == "gt"
 
 

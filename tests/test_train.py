@@ -218,6 +218,7 @@ RUNS = [
     ("nerf-gt", {}),
     ("nerf-blur", {}),
     ("nerf-blur-aware", {}),
+    ("nerf-bad", {}),
 ]
 
 
@@ -225,7 +226,9 @@ RUNS = [
 def test_every_method_trains_and_writes_a_run(
     dataset_dir: Path, dataset, tmp_path: Path, method, flags
 ) -> None:  # type: ignore[no-untyped-def]
-    cfg = _config(dataset_dir, method=method, color="rgb" if method == "nerf-blur-aware" else "gray")
+    cfg = _config(
+        dataset_dir, method=method, color="rgb" if method in ("nerf-blur-aware", "nerf-bad") else "gray"
+    )
     cfg.targets.mask = not flags.get("no_mask", False)
     cfg.spike.enabled = not flags.get("no_spike", False)
     cfg.spike.kind = "paper" if flags.get("paper") else "interval"

@@ -57,7 +57,8 @@ PARAM_FLAGS = {
     help="Train a radiance field on a spike dataset folder (written by `spikenerf simulate`) into RUN.\n\n"
     "Methods: spike-nerf (masked TFP/TFI targets + differentiable spike loss), nerf-recon (TFP/TFI targets), "
     "nerf-blur (the dataset's 400 fps blur views), nerf-blur-aware (deblur NeRF given the true trajectory: "
-    "blur views, exposure-averaged renders), nerf-gt "
+    "blur views, exposure-averaged renders), nerf-bad (BAD-NeRF-like: learns each blur view's exposure "
+    "start and end pose from the blurred frames alone; --set exposure.lr=...), nerf-gt "
     "(sharp ground truth, an oracle). Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
     "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones).\n\n"
     "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "
@@ -95,7 +96,7 @@ PARAM_FLAGS = {
     type=int,
     default=_D.targets.blur_samples,
     show_default=True,
-    help="Poses per exposure (nerf-blur-aware).",
+    help="Poses per exposure (nerf-blur-aware; nerf-bad's virtual frames, ≥ 2).",
 )
 @click.option(
     "--spike-window", type=int, default=_D.spike.window, show_default=True, help="Steps per window."

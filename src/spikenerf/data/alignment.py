@@ -4,6 +4,7 @@ sparse points, and the similarity (Umeyama) alignment used to score estimated tr
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -139,6 +140,62 @@ def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.nda
     return s, rot, mu_d - s * rot @ mu_s
 
 
+def rotation_angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The angle in degrees (N,) of the rotation between each pair of rotations ``a``, ``b`` (N, 3, 3)."""
+    rel = np.einsum("nji,njk->nik", a, b)
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)))
+
+
+@dataclass(frozen=True)
+class Jump:
+    """The worst jump of a keyframe trajectory: between steps ``a`` and ``b`` the camera turns ``turn_deg``
+    and moves ``move`` (the trajectory's units), ``ratio`` times the typical rate of the whole trajectory."""
+
+    a: int
+    b: int
+    turn_deg: float
+    move: float
+    ratio: float
+
+    def describe(self) -> str:
+        return (
+            f"jump between steps {self.a} and {self.b} (it turns {self.turn_deg:.1f}° there, "
+            f"{self.ratio:.0f}× the typical rate of the trajectory)"
+        )
+
+
+def trajectory_jump(
+    poses: np.ndarray, steps: np.ndarray, factor: float = 5.0, min_turn_deg: float = 10.0
+) -> Jump | None:
+    """The worst jump between consecutive keyframes (N, 4, 4) at ``steps`` (N,), or None when there is none.
+
+    A spike camera records 20 000–40 000 steps a second, so the true motion between keyframes a few steps
+    apart is smooth. A pair is a jump when its rate (turn or move per step) is over ``factor`` times the
+    median rate of all pairs and the pair also turns more than ``min_turn_deg``, or moves more than a
+    tenth of the cameras' mean distance from their centroid. COLMAP models that fold (cameras that go
+    round twice, or flip at a symmetric scene) show such jumps; see docs/real-data.md.
+    """
+    if len(poses) < 3:
+        return None
+    order = np.argsort(steps)
+    p, s = poses[order], np.asarray(steps)[order].astype(np.float64)
+    gap = np.maximum(np.diff(s), 1.0)
+    turn = rotation_angles_deg(p[:-1, :3, :3], p[1:, :3, :3])
+    move = np.linalg.norm(np.diff(p[:, :3, 3], axis=0), axis=1)
+    spread = float(np.linalg.norm(p[:, :3, 3] - p[:, :3, 3].mean(0), axis=1).mean())
+    ratios = []
+    for amount, floor in ((turn, min_turn_deg), (move, 0.1 * spread)):
+        rate = amount / gap
+        typical = float(np.median(rate))
+        ratio = rate / typical if typical > 0 else np.zeros_like(rate)
+        ratios.append(np.where(amount > floor, ratio, 0.0))
+    worst = np.maximum(*ratios)
+    i = int(np.argmax(worst))
+    if worst[i] <= factor:
+        return None
+    return Jump(int(s[i]), int(s[i + 1]), float(turn[i]), float(move[i]), float(worst[i]))
+
+
 def trajectory_errors(estimated: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Errors of estimated poses (N, 4, 4) against the truth after similarity alignment of the positions.
 
@@ -150,9 +207,7 @@ def trajectory_errors(estimated: np.ndarray, truth: np.ndarray) -> dict[str, flo
     aligned = (s * (rot @ estimated[:, :3, 3].T)).T + t
     err = np.linalg.norm(aligned - truth[:, :3, 3], axis=1)
     spread = float(np.linalg.norm(truth[:, :3, 3] - truth[:, :3, 3].mean(0), axis=1).mean())
-    rel_rot = np.einsum("nji,njk->nik", truth[:, :3, :3], rot @ estimated[:, :3, :3])
-    cos = np.clip((np.trace(rel_rot, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
-    angle = np.degrees(np.arccos(cos))
+    angle = rotation_angles_deg(truth[:, :3, :3], rot @ estimated[:, :3, :3])
     ate = float(np.sqrt((err**2).mean()))
     return {
         "ate_rmse": ate,

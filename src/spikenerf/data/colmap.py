@@ -15,13 +15,14 @@ import os
 import shutil
 import sys
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
+from spikenerf.data.alignment import trajectory_jump
 from spikenerf.data.poses import COLMAP_MISSING, PoseSet, read_colmap_text
 
 MODEL_DIR = "model"
@@ -145,6 +146,44 @@ def run_colmap(
     found = read_colmap_text(model)
     if len(found.poses) < max(3, min_registered * len(steps)):
         raise _too_few(len(found.poses), len(steps), keyframe_every)
+    return found
+
+
+def unfolded_colmap(
+    images: np.ndarray, steps: np.ndarray, folders: tuple[Path, Path], settings: ColmapSettings, run: tuple
+) -> PoseSet:
+    """:func:`run_colmap` in ``folders[0]``, checked for a folded model.
+
+    When the model matched every pair (the loop) and its trajectory has a jump
+    (:func:`spikenerf.data.alignment.trajectory_jump`), the keyframes are mapped again with sequential
+    matching only, in ``folders[1]``, and that model is kept when it has none (its ``note`` says so).
+
+    Args:
+        images: keyframes (N, H, W), linear gray; steps: their spike steps (N,).
+        run: ``(min_registered, keyframe_every, verbose)`` as :func:`run_colmap` takes them.
+    Raises:
+        InputError: a jump remains (names the steps), or :func:`run_colmap`'s own errors.
+    """
+    min_registered, keyframe_every, verbose = run
+    estimate = lambda folder, cs: run_colmap(  # noqa: E731
+        images, steps, folder, cs, min_registered, keyframe_every, verbose=verbose
+    )
+    found = estimate(folders[0], settings)
+    jump = trajectory_jump(found.poses, found.steps)
+    if jump is not None and len(steps) <= settings.exhaustive_up_to:  # the loop pairs may have folded it
+        try:
+            again = estimate(folders[1], replace(settings, exhaustive_up_to=0))
+        except InputError:  # too few registered sequentially: the fold is the better message
+            again = None
+        if again is not None and trajectory_jump(again.poses, again.steps) is None:
+            return replace(again, note=f"sequential matching (matching all pairs gave a {jump.describe()})")
+    if jump is not None:
+        raise InputError(
+            f"COLMAP's keyframe trajectory has a {jump.describe()}: the model is folded (a symmetric or "
+            "repetitive scene); try another frame_range or keyframe_every, or give poses FILE",
+            path=folders[0] / MODEL_DIR,
+            param=("frame_range", "keyframe_every", "poses"),
+        )
     return found
 
 

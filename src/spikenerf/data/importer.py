@@ -41,6 +41,8 @@ from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 DEFAULT_FPS = 40000.0
 COLMAP_WORK = "colmap"
+COLMAP_SEQUENTIAL = "colmap-sequential"  # the refit without loop pairs (colmap_poses)
+COLMAP_FOLDERS = (COLMAP_WORK, COLMAP_SEQUENTIAL)
 
 
 @dataclass(frozen=True)
@@ -190,30 +192,7 @@ def keyframe_poses(
 ) -> PoseSet:
     """Keyframe poses with steps relative to the selection (0..n-1)."""
     if opts.poses == "colmap":
-        from spikenerf.data.colmap import ColmapSettings, run_colmap
-
-        focal = None
-        if opts.fov_deg is not None:
-            focal = Intrinsics.from_fov(images.shape[2], images.shape[1], math.radians(opts.fov_deg)).fl_x
-        settings = ColmapSettings(
-            focal=focal,
-            overlap=opts.overlap,
-            exhaustive_up_to=ColmapSettings.exhaustive_up_to if opts.loop_pairs else 0,
-            max_features=opts.max_features,
-            peak_threshold=opts.sift_peak,
-            affine=opts.affine_sift,
-            final_ba=opts.final_ba,
-            contrast=opts.contrast,
-        )
-        found = run_colmap(
-            images,
-            key_steps,
-            work / COLMAP_WORK,
-            settings,
-            opts.min_registered,
-            opts.keyframe_every,
-            verbose=opts.verbose,
-        )
+        found = colmap_poses(opts, images, key_steps, work)
         return replace(found, poses=smooth_poses(found.poses, found.steps, opts.smooth))  # by relative step
     if opts.poses == "orbit":
         return orbit_poses(str(opts.orbit), n, fps)
@@ -224,6 +203,33 @@ def keyframe_poses(
         steps = found.steps - first
         _check_pose_steps(steps, n, first, opts.poses)
     return replace(found, steps=steps)
+
+
+def colmap_poses(opts: ImportOptions, images: np.ndarray, key_steps: np.ndarray, work: Path) -> PoseSet:
+    """COLMAP's poses of the keyframes (N, H, W) at ``key_steps`` (N,), checked for folds
+    (:func:`spikenerf.data.colmap.unfolded_colmap`)."""
+    from spikenerf.data.colmap import ColmapSettings, unfolded_colmap
+
+    focal = None
+    if opts.fov_deg is not None:
+        focal = Intrinsics.from_fov(images.shape[2], images.shape[1], math.radians(opts.fov_deg)).fl_x
+    settings = ColmapSettings(
+        focal=focal,
+        overlap=opts.overlap,
+        exhaustive_up_to=ColmapSettings.exhaustive_up_to if opts.loop_pairs else 0,
+        max_features=opts.max_features,
+        peak_threshold=opts.sift_peak,
+        affine=opts.affine_sift,
+        final_ba=opts.final_ba,
+        contrast=opts.contrast,
+    )
+    return unfolded_colmap(
+        images,
+        key_steps,
+        (work / COLMAP_WORK, work / COLMAP_SEQUENTIAL),
+        settings,
+        (opts.min_registered, opts.keyframe_every, opts.verbose),
+    )
 
 
 def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> None:
@@ -300,7 +306,7 @@ def _import_locked(dat: Path, out: Path, opts: ImportOptions, rec: tuple, keys: 
         k = intrinsics_for(found, w, h, opts.fov_deg)
         _write(dat, out, work, opts, found, k, (images, rel_keys), rec)
     except BaseException:
-        if fresh and not (work / COLMAP_WORK / "model").exists():  # nothing worth resuming
+        if fresh and not any((work / f / "model").exists() for f in COLMAP_FOLDERS):  # nothing to resume
             shutil.rmtree(work, ignore_errors=True)
         raise
 
@@ -333,7 +339,7 @@ def _write(
         )
     near, far = bounds if bounds is not None else near_far(poses, box)
     for stale in work.iterdir():  # outputs of an earlier attempt (its COLMAP model only if ours now)
-        if stale.name != MARKER and (stale.name != COLMAP_WORK or opts.poses != "colmap"):
+        if stale.name != MARKER and (stale.name not in COLMAP_FOLDERS or opts.poses != "colmap"):
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
     writer = DatasetWriter(work, k, fps, box, near, far)
     writer.start_spikes(["gray"])
@@ -369,6 +375,7 @@ def _write(
             "keyframes": len(rel_keys),
             "poses_known": int(registered),
             "pose_steps": [int(s) for s in np.sort(found.steps)],
+            **({"pose_note": found.note} if found.note else {}),
             "test_keyframes": [int(s) for s in held],
             "normalisation": {"center": [float(c) for c in center], "scale": float(scale)},
         },
@@ -377,11 +384,11 @@ def _write(
         "command": opts.command,
         "layout": "spikecv",
     }
-    model = work / COLMAP_WORK / "model"
-    if model.is_dir():
-        for name in ("images", "sparse", "database.db"):  # big and rebuildable: not part of the dataset
-            path = work / COLMAP_WORK / name
-            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+    for folder in COLMAP_FOLDERS:
+        if (work / folder / "model").is_dir():
+            for name in ("images", "sparse", "database.db"):  # big and rebuildable: not part of the dataset
+                path = work / folder / name
+                shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     writer.finish(Trajectory(poses, steps / fps, steps, fps), config, None)
     mark(work, "dataset")
     failpoint("import.publish")

@@ -33,7 +33,7 @@ class PoseSet:
     intrinsics if the source knows them (at its own image size); points (M, 3) sparse scene points or None;
     scene_box (2, 3) if the source states one; names (N,) of the frames (for messages); camera_angle_x
     (radians) when the source gives only a field of view; depth_bounds (near, far) along the optical axes
-    in the source's units (LLFF)."""
+    in the source's units (LLFF); note: how the poses were found when it matters (stored in config.yaml)."""
 
     poses: np.ndarray
     steps: np.ndarray | None = None
@@ -43,6 +43,7 @@ class PoseSet:
     names: tuple[str, ...] = ()
     camera_angle_x: float | None = None
     depth_bounds: tuple[float, float] | None = None
+    note: str = ""
 
 
 def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) -> np.ndarray:

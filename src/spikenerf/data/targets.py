@@ -14,6 +14,9 @@ Which method uses which targets is decided by its class in :mod:`spikenerf.train
 * ``nerf-blur-aware`` (a deblurring NeRF given the true trajectory; it does not optimise the trajectory as
   BAD-NeRF does; :func:`blur_targets` with ``samples``): the blur views, each with ``blur_samples`` poses
   spread over its exposure; the method renders all of them and averages before the loss.
+* ``nerf-bad`` (BAD-NeRF-like; :func:`blur_targets` at the given poses): the blur views at their stored
+  (mid-exposure) poses only; the method learns each view's exposure start and end pose itself
+  (``spikenerf.train.exposure_poses``) and reads no trajectory.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ if TYPE_CHECKING:
 TargetRecon = Literal[ReconMethod, "learned"]
 RECONS: tuple[str, ...] = get_args(TargetRecon)
 #: training methods (each one a class in ``spikenerf.train.methods`` that builds its targets from here)
-Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-gt"]
+Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-bad", "nerf-gt"]
 METHODS: tuple[str, ...] = get_args(Method)
 #: colours a radiance field is trained in
 TrainColor = Literal["gray", "rgb"]

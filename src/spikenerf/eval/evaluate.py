@@ -25,17 +25,25 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.data.dataset import PosedImages, SpikeDataset
 from spikenerf.data.holdout import read_record
+from spikenerf.data.targets import image_channels
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_image
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.train.pose_fit import check_fit_args, fit_view_poses
 from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import load_run, run_iteration
 
 METRICS_FILE = "metrics.json"
 SPLITS = ("test", "train")
 SPACE = "sRGB-encoded [0,1]"
+#: random pixels per view and step of the test-time pose optimisation
+POSE_BATCH = 1024
+POSE_PROTOCOL = (
+    "each test view's pose fitted to its own test image (6 numbers per view, Adam on the linear MSE of "
+    "random pixels; the field frozen), then scored; reported beside the plain score, never instead of it"
+)
 
 
 def has_views(dataset: SpikeDataset, split: str) -> bool:
@@ -91,6 +99,33 @@ def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | N
     return (None, reason) if reason else (backbone, None)
 
 
+def pose_optimised(
+    model: Any, views: PosedImages, k: Any, dataset: SpikeDataset, backbone: str | None, chunk: int,
+    test_pose: tuple[int, float],
+) -> dict[str, Any]:  # fmt: skip
+    """Scores of ``views`` (V poses (V, 4, 4), images (V, H, W, 3)) after fitting each pose to its own image
+    with the model frozen (:func:`spikenerf.train.pose_fit.fit_view_poses`, ``test_pose`` = (steps, lr))."""
+    steps, lr = test_pose
+    targets = image_channels(np.asarray(views.images), "gray" if model.channels == 1 else "rgb")
+    fit = fit_view_poses(model, torch.as_tensor(np.asarray(views.poses)), targets, k, dataset.near,
+                         dataset.far, steps=steps, lr=lr, batch=POSE_BATCH)  # fmt: skip
+    per_view = []
+    for i, pose in enumerate(fit.poses):
+        pred = display(render_image(model, pose, k, dataset.near, dataset.far, chunk).color, model.channels)
+        scores = score_view(pred, display(views.images[i], model.channels), backbone)
+        size = {"rotation_deg": float(fit.rotation_deg[i]), "translation": float(fit.translation[i])}
+        per_view.append({"index": i, **scores, **size})
+    keys = ("psnr", "ssim", "lpips", "rotation_deg", "translation")
+    return {
+        "protocol": POSE_PROTOCOL,
+        "steps": steps,
+        "lr": lr,
+        "batch": POSE_BATCH,
+        "mean": {m: mean_or_none([v[m] for v in per_view]) for m in keys},
+        "per_view": per_view,
+    }
+
+
 def evaluate_run(
     run_dir: str | Path,
     split: str = "test",
@@ -102,6 +137,7 @@ def evaluate_run(
     log: Callable[[str], None] | None = None,
     noref: str = "auto",
     noref_options: NoRefOptions | None = None,
+    test_pose: tuple[int, float] = (0, 2e-3),
 ) -> dict[str, Any]:
     """Render every view of ``split``, score it and write ``RUN/metrics.json`` atomically.
 
@@ -115,20 +151,23 @@ def evaluate_run(
             recording itself (:mod:`spikenerf.eval.noref`). noref_options: their settings.
     Returns:
         The metrics.json content (see docs/formats.md): split, method, color, field, iterations, views,
-        mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, no_reference, seconds.
+        mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, no_reference,
+        test_pose_optimised (None when off), seconds.
     """
     noref_options = NoRefOptions() if noref_options is None else noref_options
     noref_options.check()
+    check_fit_args(test_pose[0], test_pose[1], POSE_BATCH)
     with output_lock(run_dir, "RUN"):
         return _evaluate_locked(
             Path(run_dir), split, device, dataset_root, lpips_backbone, chunk, progress, log,
-            (noref, noref_options),
+            (noref, noref_options), test_pose,
         )  # fmt: skip
 
 
 def _evaluate_locked(
     run_dir: Path, split: str, device: str, dataset_root: str | Path | None, lpips_backbone: str | None,
     chunk: int, progress: bool, log: Callable[[str], None] | None, noref: tuple[str, NoRefOptions],
+    test_pose: tuple[int, float],
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device)
@@ -163,8 +202,11 @@ def _evaluate_locked(
         "lpips_reason": reason,
         "space": SPACE,
         "no_reference": None,
+        "test_pose_optimised": None,
         "seconds": 0.0,
     }
+    if test_pose[0] > 0 and len(views):
+        result["test_pose_optimised"] = pose_optimised(model, views, k, dataset, backbone, chunk, test_pose)
     if use_noref:
 
         def bar(steps: Any) -> Any:

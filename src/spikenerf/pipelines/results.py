@@ -29,7 +29,7 @@ VIEW_TEXT = {"steps": "{} poses", "gt": "{} GT views", "blur": "{} blur views"}
 
 def poses_per_view(run: Path, variant: str) -> int:
     """Poses a cell's run renders per target view (its ``config.yaml``; else the variant's defaults), e.g.
-    ``blur_samples`` for ``nerf-blur-aware``."""
+    ``blur_samples`` for ``nerf-blur-aware`` and ``nerf-bad``."""
     from spikenerf.train.config import load_config
     from spikenerf.train.methods import make_method
 
@@ -44,8 +44,8 @@ def trained_on(cfg: plan.BenchmarkConfig) -> dict[str, str]:
     """variant -> what its runs trained on, counted from the datasets (values differing by scene joined by /).
 
     Its method's ``views`` says what: every step's pose (spike methods), the stored GT renders (``nerf-gt``)
-    or the blur views; ``× N poses`` when each view is rendered at N poses (``nerf-blur-aware``: its
-    ``blur_samples`` poses of the exposure, from the run config).
+    or the blur views; ``× N poses`` when each view is rendered at N poses (``nerf-blur-aware``,
+    ``nerf-bad``: its ``blur_samples`` poses of the exposure, from the run config).
     """
     from spikenerf.train.methods import METHOD_CLASSES
 

@@ -44,6 +44,9 @@ VARIANTS: dict[str, Variant] = {
     "nerf-gt": Variant("nerf-gt", "NeRF on sharp GT (oracle)"),
     "nerf-blur": Variant("nerf-blur", "NeRF on 400 fps blur"),
     "nerf-blur-aware": Variant("nerf-blur-aware", "Deblur NeRF given the true trajectory"),
+    "nerf-bad": Variant(
+        "nerf-bad", "BAD-NeRF-like: deblur NeRF that learns each exposure's start and end pose"
+    ),
     "nerf-recon": Variant("nerf-recon", "NeRF + TFP reconstruction"),
     "spike-nerf": Variant("spike-nerf", "Spike-NeRF (ours)"),
     "nerf-recon-learned": Variant(
@@ -60,6 +63,7 @@ TABLE1_VARIANTS = (
     "nerf-gt",
     "nerf-blur",
     "nerf-blur-aware",
+    "nerf-bad",
     "nerf-recon",
     "nerf-recon-learned",
     "spike-nerf",

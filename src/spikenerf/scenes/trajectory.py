@@ -103,6 +103,8 @@ def orbit(
     elevation_sweep_deg: float = 0.0,
     jitter: float = 0.0,
     seed: int = 0,
+    shake: float = 0.0,
+    shake_cycles: int = 8,
 ) -> Trajectory:
     """A circular orbit around ``center``, looking at it: ``round(duration · fps)`` steps.
 
@@ -111,6 +113,8 @@ def orbit(
         turns: full 360° turns over the duration. duration: seconds. fps: steps per second.
         elevation_sweep_deg: peak-to-peak sinusoidal elevation change over the path (0 = flat orbit).
         jitter: standard deviation of a smooth random position offset (scene units), seeded.
+        shake: amplitude (scene units) of a look-at point circling ``center`` ``shake_cycles`` times over the
+            path (and bobbing twice as fast): a fast hand-shake-like rotation of the camera (0 = none).
     Returns:
         A :class:`Trajectory` whose step ``k`` is at azimuth ``start + 360° · turns · k / N``.
     """
@@ -130,7 +134,9 @@ def orbit(
         knots = rng.normal(0.0, jitter, size=(8, 3))
         t = frac * (len(knots) - 1)
         eyes = eyes + np.stack([np.interp(t, np.arange(len(knots)), knots[:, i]) for i in range(3)], -1)
-    poses = np.stack([look_at(e, c) for e in eyes])
+    ph = 2 * np.pi * shake_cycles * frac
+    targets = c + shake * np.stack([np.sin(ph), np.cos(ph), np.sin(2 * ph)], -1)
+    poses = np.stack([look_at(e, t) for e, t in zip(eyes, targets, strict=True)])
     return Trajectory(poses, steps / fps, steps, float(fps))
 
 

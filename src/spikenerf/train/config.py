@@ -24,6 +24,7 @@ from spikenerf.data.samplers import WindowOrder
 from spikenerf.data.targets import Method, TargetRecon, TrainColor
 from spikenerf.fields import FIELD_KINDS, FieldKind
 from spikenerf.train.amp import AmpMode
+from spikenerf.train.exposure_poses import ExposurePoseConfig
 from spikenerf.train.logger import LogKind
 from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
 from spikenerf.train.pose_refine import PoseRefineConfig
@@ -39,7 +40,7 @@ class TargetConfig:
     Attributes:
         recon: tfp | tfi (image reconstruction of the stream). window: TFP window, frames (odd).
         mask: multiply by the spike masks (spike-nerf). mask_n: mask half window n (2n+1 frames, paper: 5).
-        blur_samples: poses per exposure averaged by nerf-blur-aware.
+        blur_samples: poses per exposure averaged by nerf-blur-aware and nerf-bad (its virtual frames).
     """
 
     recon: TargetRecon = "tfp"
@@ -91,7 +92,8 @@ class TrainConfig:
     """One training run.
 
     Attributes:
-        dataset: dataset folder. method: spike-nerf | nerf-recon | nerf-blur | nerf-blur-aware | nerf-gt.
+        dataset: dataset folder. method: spike-nerf | nerf-recon | nerf-blur | nerf-blur-aware | nerf-bad |
+            nerf-gt.
         color: gray | rgb. field: grid | mlp. iters: optimiser steps. batch: rays per step (reconstruction).
         lr: base learning rate (None = the field's own); the grid keeps its grid/network ratio.
         lr_final_ratio: exponential decay to this fraction of the rate at ``iters`` (None = the field's).
@@ -104,6 +106,7 @@ class TrainConfig:
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
         poses: pose refinement (``--refine-poses``, train/pose_refine.py).
+        exposure: the learned exposure start and end poses of nerf-bad (train/exposure_poses.py).
         holdout: hold the check steps of ``eval``'s no-reference checks out of training (None: on for
             imported datasets, off for simulated ones; ``spikenerf.data.holdout``).
         holdout_steps: check steps (evenly spaced) on a dataset without imported test keyframes.
@@ -133,6 +136,7 @@ class TrainConfig:
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
     poses: PoseRefineConfig = dataclasses.field(default_factory=PoseRefineConfig)
+    exposure: ExposurePoseConfig = dataclasses.field(default_factory=ExposurePoseConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def validate(self) -> TrainConfig:
@@ -186,6 +190,18 @@ class TrainConfig:
                 param="targets.window",
             )
         self.poses.check()
+        self.exposure.check()
+        if self.method == "nerf-bad" and self.targets.blur_samples < 2:
+            raise InputError(
+                f"targets.blur_samples must be ≥ 2 for nerf-bad (a start and an end pose), "
+                f"found {self.targets.blur_samples}",
+                param="targets.blur_samples",
+            )
+        if self.method == "nerf-bad" and self.poses.refine:
+            raise InputError(
+                "poses.refine: nerf-bad learns each exposure's own start and end pose; turn refinement off",
+                param="poses.refine",
+            )
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -265,7 +281,8 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
             if not isinstance(node.get(section), dict):
                 where = ".".join(sections[: i + 1])
                 raise InputError(
-                    f"override {key}: {where!r} is not a section (targets, spike, poses, field_config)"
+                    f"override {key}: {where!r} is not a section "
+                    "(targets, spike, poses, exposure, field_config)"
                 )
             node = node[section]
         node[leaf] = value
@@ -281,7 +298,12 @@ def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
         raise InputError(
             f"unknown {cls.__name__} keys {unknown}; expected some of {sorted(known)}", path=path
         )
-    nested = {"targets": TargetConfig, "spike": SpikeLossConfig, "poses": PoseRefineConfig}
+    nested = {
+        "targets": TargetConfig,
+        "spike": SpikeLossConfig,
+        "poses": PoseRefineConfig,
+        "exposure": ExposurePoseConfig,
+    }
     hints = get_type_hints(cls)
     values = {
         k: _from_dict(nested[k], v, path) if k in nested else _coerce(v, hints[k]) for k, v in data.items()

@@ -12,6 +12,7 @@ method             targets (``spikenerf.data.targets``)             loss terms
 nerf-gt            sharp GT renders (``gt_targets``)               recon, reg
 nerf-blur          blur views at mid-exposure (``blur_targets``)   recon, reg
 nerf-blur-aware    blur views at ``blur_samples`` exposure poses   recon (exposure-averaged), reg
+nerf-bad           blur views at learned exposure start/end poses  recon (exposure-averaged), reg
 nerf-recon         Î_k at every step (``stream_targets``)          recon, reg
 spike-nerf         M_k ⊙ Î_k at every step + the recorded stream   recon, reg, λ(it) · spike
 =================  ==============================================  ==================================
@@ -43,8 +44,9 @@ from spikenerf.data.targets import (
 )
 from spikenerf.render import RadianceModel, RenderOutput, render_spike_window
 from spikenerf.train.config import TrainConfig
+from spikenerf.train.exposure_poses import ExposureLearner
 from spikenerf.train.losses import paper_spike_loss, recon_loss, spike_interval_loss, spike_weight
-from spikenerf.train.pose_refine import PoseRefinement
+from spikenerf.train.pose_refine import PoseLearner, PoseRefinement
 
 
 class TrainState(Protocol):
@@ -160,6 +162,11 @@ class TrainMethod:
             checked(self.holdout, len(images), "image target")
         return {"rays": RaySampler(len(self.targets), height, width, self.config.seed, images)}
 
+    def learner(self, device: torch.device) -> PoseLearner | None:
+        """Pose parameters the method learns with its own optimiser (None: none); call after
+        :meth:`build_targets`. The trainer steps and checkpoints it under ``exposure_poses``."""
+        return None
+
     # ---------------------------------------------------------------------------------------------- steps
     def lam(self, iteration: int) -> float:
         """λ of the spike loss at ``iteration`` (0 for a method without one)."""
@@ -175,12 +182,10 @@ class TrainMethod:
         the MSE stays a 0-d tensor on the device (no synchronisation)."""
         targets = self.targets
         assert targets is not None, "build_targets first"
-        views, channels = targets.poses.shape[1], self.channels
+        views, channels = self.poses_per_view(), self.channels
         index, pixels = state.samplers["rays"].sample(max(1, state.config.batch // views))
         target = targets.gather(index, pixels).to(state.device)
-        poses = targets.poses[index].reshape(-1, 4, 4)  # (B·S, 4, 4), S poses averaged per ray
-        if state.pose_refine is not None:
-            poses = state.pose_refine.images(targets, index, poses)
+        poses = self.image_poses(state, index)  # (B·S, 4, 4), S poses averaged per ray
         out = state.render_rays(poses, pixels.repeat_interleave(views, dim=0))
         color = out.color.view(-1, views, channels).mean(dim=1)
         loss = recon_loss(color, target)
@@ -189,6 +194,15 @@ class TrainMethod:
         with torch.no_grad():
             srgb_mse = torch.mean((srgb_encode(color.float()) - srgb_encode(target)) ** 2)
         return loss, srgb_mse, poses.shape[0]
+
+    def image_poses(self, state: TrainState, index: Tensor) -> Tensor:
+        """Poses (B·S, 4, 4) of image targets ``index`` (B,): their S poses each, refined when
+        ``--refine-poses`` is on."""
+        assert self.targets is not None, "build_targets first"
+        poses = self.targets.poses[index].reshape(-1, 4, 4)
+        if state.pose_refine is not None:
+            poses = state.pose_refine.images(self.targets, index, poses)
+        return poses
 
 
 class NerfGT(TrainMethod):
@@ -220,6 +234,33 @@ class NerfBlurAware(NerfBlur):
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         return blur_targets(dataset, self.config.color, self.poses_per_view(), self.name)
+
+
+class NerfBAD(NerfBlur):
+    """BAD-NeRF-like: a deblurring NeRF that learns each blur view's exposure start and end pose (from its
+    given pose, train/exposure_poses.py) and compares the mean of ``targets.blur_samples`` renders
+    interpolated between them with the blurred image; it reads no trajectory."""
+
+    name = "nerf-bad"
+
+    def __init__(self, config: TrainConfig) -> None:
+        super().__init__(config)
+        self.exposures: ExposureLearner | None = None
+
+    def poses_per_view(self) -> int:
+        return self.config.targets.blur_samples
+
+    def learner(self, device: torch.device) -> PoseLearner | None:
+        t, c = self.targets, self.config
+        assert t is not None, "build_targets first"
+        self.exposures = ExposureLearner(
+            c.exposure, t.poses[:, 0], t.steps, self.poses_per_view(), c.iters, c.seed + 2, device
+        )
+        return self.exposures
+
+    def image_poses(self, state: TrainState, index: Tensor) -> Tensor:
+        assert self.exposures is not None, "learner first"
+        return self.exposures.poses(index).reshape(-1, 4, 4)
 
 
 class NerfRecon(TrainMethod):
@@ -309,7 +350,7 @@ class SpikeNeRF(NerfRecon):
 
 #: ``--method`` -> its class; the names are the ``Method`` Literal of ``spikenerf.data.targets``
 METHOD_CLASSES: dict[str, type[TrainMethod]] = {
-    cls.name: cls for cls in (SpikeNeRF, NerfRecon, NerfBlur, NerfBlurAware, NerfGT)
+    cls.name: cls for cls in (SpikeNeRF, NerfRecon, NerfBlur, NerfBlurAware, NerfBAD, NerfGT)
 }
 
 

@@ -35,8 +35,8 @@ class PoseRefineConfig:
     """Pose refinement (``--refine-poses``; ``--set poses.X=...``).
 
     Attributes:
-        refine: learn the corrections (off by default, imported datasets included: in docs/real-data.md it
-            lowered test PSNR on both measured scenes; None, from older configs, is off too).
+        refine: learn the corrections (off by default, imported datasets included: docs/real-data.md does
+            not show a gain yet; None, from older configs, is off too).
         lr: Adam rate of the corrections (radians and scene units per step) after the warm-up.
         lr_final_ratio: exponential decay to this fraction of ``lr`` at the end of the run.
         warmup_iters: linear warm-up of the rate from 0 (None: the grid's first upsampling step, the end of
@@ -52,21 +52,30 @@ class PoseRefineConfig:
 
     def check(self) -> None:
         """InputError on an out-of-range value (names the config key)."""
-        if not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"poses.lr must be a finite number > 0, found {self.lr}", param="poses.lr")
-        if not (math.isfinite(self.lr_final_ratio) and 0 < self.lr_final_ratio <= 1):
-            raise InputError(
-                f"poses.lr_final_ratio must be in (0, 1], found {self.lr_final_ratio}",
-                param="poses.lr_final_ratio",
-            )
-        if self.warmup_iters is not None and self.warmup_iters < 0:
-            raise InputError(
-                f"poses.warmup_iters must be ≥ 0, found {self.warmup_iters}", param="poses.warmup_iters"
-            )
+        check_schedule(self, "poses")
         if self.keyframe_every < 1:
             raise InputError(
                 f"poses.keyframe_every must be ≥ 1, found {self.keyframe_every}", param="poses.keyframe_every"
             )
+
+
+def check_schedule(config: Any, section: str) -> None:
+    """InputError naming ``section.KEY`` unless the pose rate schedule of ``config`` is valid: ``lr`` > 0,
+    ``lr_final_ratio`` in (0, 1], ``warmup_iters`` ≥ 0 (or None)."""
+    if not (math.isfinite(config.lr) and config.lr > 0):
+        raise InputError(
+            f"{section}.lr must be a finite number > 0, found {config.lr}", param=f"{section}.lr"
+        )
+    if not (math.isfinite(config.lr_final_ratio) and 0 < config.lr_final_ratio <= 1):
+        raise InputError(
+            f"{section}.lr_final_ratio must be in (0, 1], found {config.lr_final_ratio}",
+            param=f"{section}.lr_final_ratio",
+        )
+    if config.warmup_iters is not None and config.warmup_iters < 0:
+        raise InputError(
+            f"{section}.warmup_iters must be ≥ 0, found {config.warmup_iters}",
+            param=f"{section}.warmup_iters",
+        )
 
 
 def so3_exp(omega: Tensor) -> Tensor:
@@ -125,7 +134,7 @@ def keyframes_of(dataset: Any, every: int) -> np.ndarray:
     return keys
 
 
-def pose_lr(config: PoseRefineConfig, iteration: int, iters: int, warmup: int) -> float:
+def pose_lr(config: Any, iteration: int, iters: int, warmup: int) -> float:
     """The corrections' rate at ``iteration``: a linear warm-up from 0 over ``warmup`` iterations, times an
     exponential decay to ``lr_final_ratio`` at ``iters``."""
     ramp = min(1.0, iteration / warmup) if warmup > 0 else 1.0
@@ -148,19 +157,52 @@ class PoseRefiner(torch.nn.Module):
         return se3_exp((1 - w) * self.xi[lo_t] + w * self.xi[hi_t])
 
     def forward(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
-        """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,); always in
-        float32, also inside a mixed-precision step (a bf16 pose would be off by ~0.01 scene units)."""
-        with torch.autocast(self.xi.device.type, enabled=False):
-            return poses.to(self.xi.device, self.xi.dtype) @ self.correction(steps)
+        """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,)."""
+        return corrected(poses, lambda: self.correction(steps), self.xi)
 
 
-class PoseRefinement:
+def corrected(poses: Tensor, correction: Any, like: Tensor) -> Tensor:
+    """``poses`` (..., 4, 4) times the rigid ``correction()`` (..., 4, 4), on ``like``'s device; always in
+    float32, also inside a mixed-precision step (a bf16 pose would be off by ~0.01 scene units)."""
+    with torch.autocast(like.device.type, enabled=False):
+        return poses.to(like.device, like.dtype) @ correction()
+
+
+class PoseLearner:
+    """Learnable pose parameters (``refiner``, a module) with their own Adam (β = 0.9, 0.99) and rate
+    schedule (:func:`pose_lr` of ``config``: ``lr``, ``lr_final_ratio``): the trainer's hooks (:meth:`begin`,
+    ``optimizer``, the checkpoint state)."""
+
+    def __init__(self, refiner: torch.nn.Module, config: Any, iters: int, warmup: int) -> None:
+        self.refiner, self.config, self.iters, self.warmup = refiner, config, iters, warmup
+        self.optimizer = torch.optim.Adam(self.refiner.parameters(), lr=0.0, betas=(0.9, 0.99))
+
+    def begin(self, iteration: int) -> None:
+        """Set the rate of ``iteration`` and clear the gradients (before the backward pass)."""
+        for g in self.optimizer.param_groups:
+            g["lr"] = pose_lr(self.config, iteration, self.iters, self.warmup)
+        self.optimizer.zero_grad(set_to_none=True)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"refiner": self.refiner.state_dict(), "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.refiner.load_state_dict(state["refiner"])
+        self.optimizer.load_state_dict(state["optimizer"])
+
+    def write(self, out: Path) -> None:
+        """Write the learned poses into the run folder ``out`` (a JSON file)."""
+        raise NotImplementedError
+
+
+class PoseRefinement(PoseLearner):
     """The trainer's hooks: the refiner, its optimiser and schedule, checkpoint state and the JSON output."""
 
     def __init__(self, config: PoseRefineConfig, dataset: Any, iters: int, warmup: int, device: Any) -> None:
-        self.config, self.dataset, self.iters, self.warmup = config, dataset, iters, warmup
-        self.refiner = PoseRefiner(keyframes_of(dataset, config.keyframe_every)).to(device)
-        self.optimizer = torch.optim.Adam(self.refiner.parameters(), lr=0.0, betas=(0.9, 0.99))
+        self.dataset = dataset
+        super().__init__(
+            PoseRefiner(keyframes_of(dataset, config.keyframe_every)).to(device), config, iters, warmup
+        )
         traj = dataset.trajectory
         self._traj_poses = torch.as_tensor(traj.poses, dtype=torch.float32)  # (T, 4, 4)
         self._traj_steps = np.asarray(traj.steps, np.int64)
@@ -177,12 +219,6 @@ class PoseRefinement:
         """Corrected poses of the trajectory slice ``poses`` (L, 4, 4) starting at index ``start``."""
         return self.refiner(poses, self._traj_steps[start : start + len(poses)])
 
-    def begin(self, iteration: int) -> None:
-        """Set the rate of ``iteration`` and clear the gradients (before the backward pass)."""
-        for g in self.optimizer.param_groups:
-            g["lr"] = pose_lr(self.config, iteration, self.iters, self.warmup)
-        self.optimizer.zero_grad(set_to_none=True)
-
     def views(self, views: Any) -> Any:
         """The evaluation views with their first poses refined by :meth:`eval_poses`."""
         return dataclasses.replace(views, poses=self.eval_poses(views.poses[:, 0])[:, None])
@@ -190,13 +226,6 @@ class PoseRefinement:
     def eval_poses(self, poses: Tensor) -> Tensor:
         """Evaluation poses (V, 4, 4) from ``poses`` (V, 4, 4) (see :func:`on_path_poses`)."""
         return on_path_poses(self.refiner, self.dataset.trajectory, poses)
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"refiner": self.refiner.state_dict(), "optimizer": self.optimizer.state_dict()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.refiner.load_state_dict(state["refiner"])
-        self.optimizer.load_state_dict(state["optimizer"])
 
     @torch.no_grad()
     def write(self, out: Path) -> None:

@@ -186,6 +186,15 @@ class Trainer:
         self.pose_refine = pose_refinement(
             self.config, self.dataset, self.model, self.device, self.method.targets
         )
+        #: pose parameters with their own optimisers, by checkpoint key
+        self.learners = {
+            name: learner
+            for name, learner in (
+                ("poses", self.pose_refine),
+                ("exposure_poses", self.method.learner(self.device)),
+            )
+            if learner is not None
+        }
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
@@ -195,8 +204,8 @@ class Trainer:
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
             self.optimizer.load_state_dict(ckpt["optimizer"])
             match_state_layout(self.optimizer)
-            if self.pose_refine is not None:
-                self.pose_refine.load_state_dict(ckpt["poses"])
+            for name, learner in self.learners.items():
+                learner.load_state_dict(ckpt[name])
             restore_rng(ckpt["rng"], self.samplers)
             self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
             self.rays = int(ckpt["rays"])
@@ -239,11 +248,12 @@ class Trainer:
                 "scaler": self.scaler.state_dict(),  # {} unless --amp fp16
                 "rng": rng_state(self.samplers),
                 "config": self.config.to_dict(),
-                "poses": None if self.pose_refine is None else self.pose_refine.state_dict(),
+                "poses": None,  # replaced by the refinement's state when --refine-poses is on
+                **{name: learner.state_dict() for name, learner in self.learners.items()},
             },
         )
-        if self.pose_refine is not None:
-            self.pose_refine.write(self.out)
+        for learner in self.learners.values():
+            learner.write(self.out)
 
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
@@ -270,13 +280,13 @@ class Trainer:
                 loss = step.total()
             lam = self.method.lam(it)
             self.optimizer.zero_grad(set_to_none=True)
-            if self.pose_refine is not None:
-                self.pose_refine.begin(it)
+            for learner in self.learners.values():
+                learner.begin(it)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
                 self.scaler.scale(loss).backward()
                 self.scaler.step(self.optimizer)
-                if self.pose_refine is not None:
-                    self.scaler.step(self.pose_refine.optimizer)
+                for learner in self.learners.values():
+                    self.scaler.step(learner.optimizer)
                 self.scaler.update()
             self.iteration = it + 1
             if self.model.on_step(self.iteration, self.optimizer):

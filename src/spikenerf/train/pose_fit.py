@@ -1,0 +1,129 @@
+"""Test-time pose optimisation: fit each held-out view's pose to its own image with the field frozen.
+
+The evaluation protocol of NeRF with estimated or refined poses (BARF, Lin et al. 2021; NeRF--, NoPe-NeRF,
+SPARF): a run trained on estimated poses lives in its own slightly rotated and shifted frame, so its test
+views are first registered to it. Each view gets a 6-DoF correction ``ξ = (ω, ρ)`` (so(3) × R³, the same
+camera-frame correction as :mod:`spikenerf.train.pose_refine`: ``c2w' = c2w · [exp(ω) | ρ]``), fitted by
+Adam on random pixels of that view for a fixed number of steps, with every field parameter frozen. Only the
+6 numbers per view move. docs/metrics.md explains why this is reported beside the plain score, never
+instead of it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from spikenerf.core.errors import InputError
+from spikenerf.data.rays import pixel_rays
+from spikenerf.render import RadianceModel, ray_bounds
+from spikenerf.scenes.trajectory import Intrinsics
+from spikenerf.train.pose_refine import se3_exp
+
+#: the rate decays exponentially to this fraction of ``lr`` over the steps (settles the random-batch noise)
+FINAL_RATIO = 0.1
+
+
+@dataclass
+class PoseFit:
+    """The result of :func:`fit_view_poses`.
+
+    Attributes:
+        poses: (V, 4, 4) float32 corrected camera-to-world poses, on the CPU.
+        rotation_deg: (V,) float64 angle of each view's rotation correction (degrees).
+        translation: (V,) float64 length of each view's shift (scene units).
+        loss_first: mean squared error (linear) of the first step's batch, all views.
+        loss_last: the same for the last step's batch.
+    """
+
+    poses: Tensor
+    rotation_deg: Tensor
+    translation: Tensor
+    loss_first: float
+    loss_last: float
+
+
+def check_fit_args(steps: int, lr: float, batch: int) -> None:
+    """InputError naming the parameter when ``steps`` < 0, ``lr`` is not finite > 0 or ``batch`` < 1."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise InputError(f"test_pose_steps must be an integer ≥ 0, found {steps!r}", param="test_pose_steps")
+    if not (isinstance(lr, int | float) and math.isfinite(lr) and lr > 0):
+        raise InputError(f"test_pose_lr must be a finite number > 0, found {lr!r}", param="test_pose_lr")
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise InputError(f"test_pose_batch must be an integer ≥ 1, found {batch!r}", param="test_pose_batch")
+
+
+def fit_view_poses(
+    model: RadianceModel,
+    poses: Tensor,
+    images: Tensor,
+    intrinsics: Intrinsics,
+    near: float | None = None,
+    far: float | None = None,
+    steps: int = 200,
+    lr: float = 2e-3,
+    batch: int = 1024,
+    seed: int = 0,
+) -> PoseFit:
+    """Fit a camera-frame correction of each view's pose to its image, the model frozen.
+
+    Args:
+        model: the trained radiance model; its parameters are not changed (nor is their ``requires_grad``).
+        poses: (V, 4, 4) initial camera-to-world poses (OpenGL axes).
+        images: (V, H, W, C) linear target images, C = ``model.channels``.
+        intrinsics: the views' pinhole camera (H × W). near/far: optional scalar ray limits.
+        steps: Adam steps (0: the poses come back unchanged). lr: Adam's first rate (radians and scene
+            units per step), decaying exponentially to ``FINAL_RATIO`` · lr at the last step.
+        batch: random pixels per view and step. seed: the pixel draws (same seed → same result).
+    Returns:
+        a :class:`PoseFit`: corrected poses (V, 4, 4) and each view's correction size.
+    """
+    check_fit_args(steps, lr, batch)
+    poses = torch.as_tensor(poses).to(model.device, torch.float32)
+    images = torch.as_tensor(images).to(model.device, torch.float32)
+    v, h, w = images.shape[:3]
+    if poses.shape != (v, 4, 4) or (h, w) != (intrinsics.height, intrinsics.width):
+        raise ValueError(f"poses {tuple(poses.shape)} and images {tuple(images.shape)} do not match")
+    xi = torch.zeros(v, 6, device=model.device, requires_grad=True)
+    opt = torch.optim.Adam([xi], lr=lr)
+    decay = torch.optim.lr_scheduler.ExponentialLR(opt, FINAL_RATIO ** (1 / max(steps, 1)))
+    gen = torch.Generator().manual_seed(seed)
+    frozen = [p for p in model.parameters() if p.requires_grad]
+    was_training = model.training
+    model.eval()
+    losses: list[float] = []
+    try:
+        for p in frozen:
+            p.requires_grad_(False)
+        for _ in range(steps):
+            idx = torch.randint(0, h * w, (v, batch), generator=gen).to(model.device)  # (V, B)
+            pixels = torch.stack([idx % w, idx // w], -1).reshape(-1, 2)  # (V·B, 2) (x, y)
+            view = torch.arange(v, device=model.device).repeat_interleave(batch)
+            corrected = poses @ se3_exp(xi)  # (V, 4, 4)
+            origins, dirs = pixel_rays(corrected[view], intrinsics, pixels)
+            lo, hi = ray_bounds(model, origins, dirs, near, far)
+            color = model.render_rays(origins, dirs, lo, hi, perturb=False).color
+            target = images[view, pixels[:, 1], pixels[:, 0]]
+            loss = ((color - target) ** 2).mean() * v  # each view's mean: its gradient does not shrink with V
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            decay.step()
+            losses.append(loss.item() / v)
+    finally:
+        for p in frozen:
+            p.requires_grad_(True)
+        model.train(was_training)
+    xi = xi.detach()
+    with torch.no_grad():
+        fitted = (poses @ se3_exp(xi)).cpu()
+    return PoseFit(
+        poses=fitted,
+        rotation_deg=torch.rad2deg(xi[:, :3].norm(dim=1)).double().cpu(),
+        translation=xi[:, 3:].norm(dim=1).double().cpu(),
+        loss_first=losses[0] if losses else math.nan,
+        loss_last=losses[-1] if losses else math.nan,
+    )
