@@ -7,10 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import run_cli
+from spikenerf.camera.io import write_dat
 from spikenerf.cli import flag_of
 from spikenerf.core.errors import InputError
 from spikenerf.data import colmap
 from spikenerf.data.alignment import trajectory_jump
+from spikenerf.data.dataset import load_dataset
 from spikenerf.data.poses import PoseSet
 from spikenerf.scenes.trajectory import look_at
 
@@ -46,6 +49,21 @@ def test_a_gap_of_unregistered_keyframes_is_no_jump_and_a_still_camera_is_none()
     still = np.repeat(poses[:1], 10, axis=0)
     still[:, :3, 3] += np.random.default_rng(1).normal(0, 1e-4, (10, 3))
     assert trajectory_jump(still, np.arange(10) * 20) is None  # no rate to compare with: tiny moves only
+
+
+def test_a_camera_that_starts_or_speeds_up_is_no_jump_but_a_single_leap_is():
+    eye = np.zeros((50, 3))
+    eye[:, 0] = np.r_[np.zeros(30), 0.05 * np.arange(1, 21)]  # still for 30 keyframes, then steady motion
+    poses = np.stack([look_at(e, np.array([0.0, 5.0, 0.0])) for e in eye])
+    assert trajectory_jump(poses, np.arange(50) * 20) is None
+    faster = np.r_[np.arange(25) * 20, 480 + np.arange(1, 26) * 3.3].astype(np.int64)  # 6× faster halfway
+    assert trajectory_jump(_orbit()[0], faster) is None
+    eye[35:, 0] += 2.0  # one leap of 2 units between two neighbouring keyframes, no turn
+    leap = trajectory_jump(
+        np.stack([look_at(e, e + np.array([0.0, 5.0, 0.0])) for e in eye]), np.arange(50) * 20
+    )
+    assert leap is not None and leap.what == "move" and (leap.a, leap.b) == (680, 700)
+    assert "it moves 2.05 there" in leap.describe()
 
 
 @pytest.fixture
@@ -99,3 +117,37 @@ def test_a_fold_that_remains_is_refused_naming_the_steps(tmp_path, fake_colmap, 
     shown = err.value.shown(lambda name: flag_of(name, "import"))
     assert "another --range or --keyframe-every, or give --poses FILE" in shown
     assert len(calls) == (2 if loop else 1)  # no second fit when the first was sequential already
+
+
+def test_the_import_keeps_the_sequential_refit_says_so_and_publishes_no_scratch(
+    capsys, tmp_path, monkeypatch
+):
+    t = 400
+    rec = tmp_path / "rec" / "stream.dat"
+    write_dat(rec, (np.random.default_rng(0).random((t, 8, 24)) < 0.3).astype(np.uint8))
+    (rec.parent / "config.yaml").write_text("spike_h: 8\nspike_w: 24\n")
+
+    def fake(images, steps, work, settings, min_registered, keyframe_every, verbose=False):
+        work.mkdir(parents=True, exist_ok=True)
+        (work / "model").mkdir(exist_ok=True)
+        (work / "database.db").write_bytes(b"scratch")  # what COLMAP leaves beside its model
+        az = 2 * np.pi * steps / t + (np.pi * (steps > t // 2) if work.name == "colmap" else 0.0)
+        eye = np.stack([4 * np.cos(az), 4 * np.sin(az), np.full(len(az), 2.0)], 1)
+        return PoseSet(np.stack([look_at(e, np.zeros(3)) for e in eye]), np.asarray(steps))
+
+    monkeypatch.setattr(colmap, "run_colmap", fake)
+    out = tmp_path / "ds"
+    code, stdout, err = run_cli(capsys, "import", rec, "--out", out, "--keyframe-every", 10, "--fov", 40)
+    assert code == 0, err
+    assert "; sequential matching (matching all pairs gave a jump between steps" in stdout
+    note = load_dataset(out).config["imported"]["pose_note"]
+    assert note.startswith("sequential matching") and "it turns 1" in note
+    assert sorted(p.relative_to(out).as_posix() for p in out.glob("colmap*/**/*")) == [
+        "colmap-sequential/model",
+        "colmap/model",
+    ]
+    monkeypatch.setattr(colmap, "run_colmap", lambda *a, **k: fake(a[0], a[1], a[2].parent / "x", *a[3:]))
+    code, _, err = run_cli(capsys, "import", rec, "--out", out, "--overwrite", "--poses", "orbit",
+                           "--orbit", "4,30", "--fov", 40)  # fmt: skip
+    assert code == 0, err
+    assert not list(out.glob("colmap*")) and "pose_note" not in load_dataset(out).config["imported"]

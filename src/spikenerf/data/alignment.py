@@ -149,19 +149,26 @@ def rotation_angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class Jump:
     """The worst jump of a keyframe trajectory: between steps ``a`` and ``b`` the camera turns ``turn_deg``
-    and moves ``move`` (the trajectory's units), ``ratio`` times the typical rate of the whole trajectory."""
+    and moves ``move`` (the trajectory's units); ``what`` (``"turn"`` or ``"move"``) went ``ratio`` times
+    faster there than at the neighbouring keyframes."""
 
     a: int
     b: int
     turn_deg: float
     move: float
+    what: str
     ratio: float
 
     def describe(self) -> str:
+        amount = f"turns {self.turn_deg:.1f}°" if self.what == "turn" else f"moves {self.move:.3g}"
         return (
-            f"jump between steps {self.a} and {self.b} (it turns {self.turn_deg:.1f}° there, "
-            f"{self.ratio:.0f}× the typical rate of the trajectory)"
+            f"jump between steps {self.a} and {self.b} (it {amount} there, {self.ratio:.0f}× as fast as at "
+            "the neighbouring keyframes)"
         )
+
+
+#: pairs on each side whose median rate a pair is compared with (:func:`trajectory_jump`)
+JUMP_NEIGHBOURS = 5
 
 
 def trajectory_jump(
@@ -170,9 +177,10 @@ def trajectory_jump(
     """The worst jump between consecutive keyframes (N, 4, 4) at ``steps`` (N,), or None when there is none.
 
     A spike camera records 20 000–40 000 steps a second, so the true motion between keyframes a few steps
-    apart is smooth. A pair is a jump when its rate (turn or move per step) is over ``factor`` times the
-    median rate of all pairs and the pair also turns more than ``min_turn_deg``, or moves more than a
-    tenth of the cameras' mean distance from their centroid. COLMAP models that fold (cameras that go
+    apart is smooth: it may start, stop or speed up, but not for a single pair. A pair is a jump when its
+    rate (turn or move per step) is over ``factor`` times the median rate of the ``JUMP_NEIGHBOURS`` pairs
+    on each side of it, and it also turns more than ``min_turn_deg`` (a turn) or moves more than a tenth
+    of the cameras' mean distance from their centroid (a move). COLMAP models that fold (cameras that go
     round twice, or flip at a symmetric scene) show such jumps; see docs/real-data.md.
     """
     if len(poses) < 3:
@@ -183,17 +191,16 @@ def trajectory_jump(
     turn = rotation_angles_deg(p[:-1, :3, :3], p[1:, :3, :3])
     move = np.linalg.norm(np.diff(p[:, :3, 3], axis=0), axis=1)
     spread = float(np.linalg.norm(p[:, :3, 3] - p[:, :3, 3].mean(0), axis=1).mean())
-    ratios = []
-    for amount, floor in ((turn, min_turn_deg), (move, 0.1 * spread)):
+    worst: Jump | None = None
+    for what, amount, floor in (("turn", turn, min_turn_deg), ("move", move, 0.1 * spread)):
         rate = amount / gap
-        typical = float(np.median(rate))
-        ratio = rate / typical if typical > 0 else np.zeros_like(rate)
-        ratios.append(np.where(amount > floor, ratio, 0.0))
-    worst = np.maximum(*ratios)
-    i = int(np.argmax(worst))
-    if worst[i] <= factor:
-        return None
-    return Jump(int(s[i]), int(s[i + 1]), float(turn[i]), float(move[i]), float(worst[i]))
+        for i in np.flatnonzero(amount > floor):
+            near = np.r_[rate[max(0, i - JUMP_NEIGHBOURS) : i], rate[i + 1 : i + 1 + JUMP_NEIGHBOURS]]
+            typical = float(np.median(near))
+            ratio = rate[i] / typical if typical > 0 else np.inf
+            if ratio > factor and (worst is None or ratio > worst.ratio):
+                worst = Jump(int(s[i]), int(s[i + 1]), float(turn[i]), float(move[i]), what, float(ratio))
+    return worst
 
 
 def trajectory_errors(estimated: np.ndarray, truth: np.ndarray) -> dict[str, float]:

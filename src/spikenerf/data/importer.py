@@ -338,8 +338,9 @@ def _write(
             apply_similarity(found.poses, center, scale), (found.points - center) * scale
         )
     near, far = bounds if bounds is not None else near_far(poses, box)
+    used = (COLMAP_WORK, COLMAP_SEQUENTIAL) if found.note else (COLMAP_WORK,)  # the refit only when used
     for stale in work.iterdir():  # outputs of an earlier attempt (its COLMAP model only if ours now)
-        if stale.name != MARKER and (stale.name not in COLMAP_FOLDERS or opts.poses != "colmap"):
+        if stale.name != MARKER and (stale.name not in used or opts.poses != "colmap"):
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
     writer = DatasetWriter(work, k, fps, box, near, far)
     writer.start_spikes(["gray"])
@@ -385,10 +386,9 @@ def _write(
         "layout": "spikecv",
     }
     for folder in COLMAP_FOLDERS:
-        if (work / folder / "model").is_dir():
-            for name in ("images", "sparse", "database.db"):  # big and rebuildable: not part of the dataset
-                path = work / folder / name
-                shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+        for name in ("images", "sparse", "database.db"):  # big and rebuildable: not part of the dataset
+            path = work / folder / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     writer.finish(Trajectory(poses, steps / fps, steps, fps), config, None)
     mark(work, "dataset")
     failpoint("import.publish")

@@ -25,6 +25,8 @@ from spikenerf.train.pose_refine import se3_exp
 
 #: the rate decays exponentially to this fraction of ``lr`` over the steps (settles the random-batch noise)
 FINAL_RATIO = 0.1
+#: at most this many rays per Adam step: the views are fitted in groups of ``MAX_RAYS // batch``
+MAX_RAYS = 8192
 
 
 @dataclass
@@ -77,7 +79,9 @@ def fit_view_poses(
         intrinsics: the views' pinhole camera (H × W). near/far: optional scalar ray limits.
         steps: Adam steps (0: the poses come back unchanged). lr: Adam's first rate (radians and scene
             units per step), decaying exponentially to ``FINAL_RATIO`` · lr at the last step.
-        batch: random pixels per view and step. seed: the pixel draws (same seed → same result).
+        batch: random pixels per view and step; views are fitted in groups of ``MAX_RAYS // batch`` (each
+            view's fit is independent: Adam works per element). seed: the pixel draws (same seed → same
+            result).
     Returns:
         a :class:`PoseFit`: corrected poses (V, 4, 4) and each view's correction size.
     """
@@ -87,43 +91,70 @@ def fit_view_poses(
     v, h, w = images.shape[:3]
     if poses.shape != (v, 4, 4) or (h, w) != (intrinsics.height, intrinsics.width):
         raise ValueError(f"poses {tuple(poses.shape)} and images {tuple(images.shape)} do not match")
-    xi = torch.zeros(v, 6, device=model.device, requires_grad=True)
-    opt = torch.optim.Adam([xi], lr=lr)
-    decay = torch.optim.lr_scheduler.ExponentialLR(opt, FINAL_RATIO ** (1 / max(steps, 1)))
     gen = torch.Generator().manual_seed(seed)
     frozen = [p for p in model.parameters() if p.requires_grad]
     was_training = model.training
     model.eval()
-    losses: list[float] = []
+    group = max(1, MAX_RAYS // batch)  # views fitted together: memory stays that of a training step
+    xis, firsts, lasts = [], [], []
     try:
         for p in frozen:
             p.requires_grad_(False)
-        for _ in range(steps):
-            idx = torch.randint(0, h * w, (v, batch), generator=gen).to(model.device)  # (V, B)
-            pixels = torch.stack([idx % w, idx // w], -1).reshape(-1, 2)  # (V·B, 2) (x, y)
-            view = torch.arange(v, device=model.device).repeat_interleave(batch)
-            corrected = poses @ se3_exp(xi)  # (V, 4, 4)
-            origins, dirs = pixel_rays(corrected[view], intrinsics, pixels)
-            lo, hi = ray_bounds(model, origins, dirs, near, far)
-            color = model.render_rays(origins, dirs, lo, hi, perturb=False).color
-            target = images[view, pixels[:, 1], pixels[:, 0]]
-            loss = ((color - target) ** 2).mean() * v  # each view's mean: its gradient does not shrink with V
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            decay.step()
-            losses.append(loss.item() / v)
+        for lo in range(0, v, group):
+            sl = slice(lo, lo + group)
+            xi, first, last = _fit_group(
+                model, poses[sl], images[sl], intrinsics, (near, far), steps, lr, batch, gen
+            )
+            xis.append(xi)
+            firsts.append(first * len(xi))
+            lasts.append(last * len(xi))
     finally:
         for p in frozen:
             p.requires_grad_(True)
         model.train(was_training)
-    xi = xi.detach()
+    xi = torch.cat(xis) if xis else torch.zeros(0, 6, device=model.device)
     with torch.no_grad():
         fitted = (poses @ se3_exp(xi)).cpu()
     return PoseFit(
         poses=fitted,
         rotation_deg=torch.rad2deg(xi[:, :3].norm(dim=1)).double().cpu(),
         translation=xi[:, 3:].norm(dim=1).double().cpu(),
-        loss_first=losses[0] if losses else math.nan,
-        loss_last=losses[-1] if losses else math.nan,
+        loss_first=sum(firsts) / v if steps and v else math.nan,
+        loss_last=sum(lasts) / v if steps and v else math.nan,
     )
+
+
+def _fit_group(
+    model: RadianceModel,
+    poses: Tensor,
+    images: Tensor,
+    intrinsics: Intrinsics,
+    bounds: tuple[float | None, float | None],
+    steps: int,
+    lr: float,
+    batch: int,
+    gen: torch.Generator,
+) -> tuple[Tensor, float, float]:
+    """Fit the corrections ξ (G, 6) of G views (poses (G, 4, 4), images (G, H, W, C)) together; returns ξ
+    (detached) and the per-pixel loss of the first and the last step (NaN with no steps)."""
+    v, h, w = images.shape[:3]
+    xi = torch.zeros(v, 6, device=model.device, requires_grad=True)
+    opt = torch.optim.Adam([xi], lr=lr)
+    decay = torch.optim.lr_scheduler.ExponentialLR(opt, FINAL_RATIO ** (1 / max(steps, 1)))
+    losses: list[float] = []
+    for _ in range(steps):
+        idx = torch.randint(0, h * w, (v, batch), generator=gen).to(model.device)  # (G, B)
+        pixels = torch.stack([idx % w, idx // w], -1).reshape(-1, 2)  # (G·B, 2) (x, y)
+        view = torch.arange(v, device=model.device).repeat_interleave(batch)
+        corrected = poses @ se3_exp(xi)  # (G, 4, 4)
+        origins, dirs = pixel_rays(corrected[view], intrinsics, pixels)
+        lo, hi = ray_bounds(model, origins, dirs, *bounds)
+        color = model.render_rays(origins, dirs, lo, hi, perturb=False).color
+        target = images[view, pixels[:, 1], pixels[:, 0]]
+        loss = ((color - target) ** 2).mean() * v  # each view's mean: its gradient does not shrink with G
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        decay.step()
+        losses.append(loss.item() / v)
+    return xi.detach(), (losses[0] if losses else math.nan), (losses[-1] if losses else math.nan)
