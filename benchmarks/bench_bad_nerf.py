@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -104,6 +105,14 @@ def main() -> None:
     p.add_argument("--methods", default=",".join(RUNS))
     a = p.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
+    fixed = {
+        k: getattr(a, k)
+        for k in ("size", "steps", "exposure", "blur_views", "test_views", "shake", "iters", "batch")
+    }
+    stamp = a.out / "args.json"  # the finished dataset and rows are reused: only for the same settings
+    if stamp.is_file() and json.loads(stamp.read_text()) != fixed:
+        sys.exit(f"{stamp}: this folder was made with {stamp.read_text().strip()}; use another --out")
+    stamp.write_text(json.dumps(fixed))
     root = make_dataset(a)
     dataset = load_dataset(root)
     seeds = [int(s) for s in a.seeds.split(",")]

@@ -70,6 +70,15 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
             InputError, match=f"other settings \\({words}.*; pass the same values .* or a new out"
         ):
             run_benchmark(replace(cfg, **change))
+    # … and so is a folder whose cells another version's field defaults trained (or an unrecorded one)
+    stored = json.loads((cfg.out / "benchmark.json").read_text())
+    older = {**stored["settings"]["field_defaults"], "step_ratio": 0.5}
+    for defaults, words in [(older, "step_ratio 0.5 → 0.75"), (None, "unrecorded")]:
+        settings = {**stored["settings"], "field_defaults": defaults}
+        (cfg.out / "benchmark.json").write_text(json.dumps({**stored, "settings": settings}))
+        with pytest.raises(InputError, match=f"other field defaults \\({words}.*or use a new out"):
+            run_benchmark(cfg)
+    (cfg.out / "benchmark.json").write_text(json.dumps(stored))
     assert (cfg.out / "results.json").stat().st_mtime_ns == before
     # a folder from before benchmark.json resumes as it is, and gets the file
     nonce = json.loads((cfg.out / "benchmark.json").read_text())["nonce"]

@@ -294,12 +294,12 @@ def test_occupancy_update_never_empties_the_grid() -> None:
     assert torch.all(occ.bounds.abs() < 0.6)
 
 
-def test_decoder_bf16_is_close_to_float32_forward_and_backward() -> None:
-    """``decoder_bf16`` changes only the decoder's precision: colours and gradients stay close to float32."""
-    from spikenerf.fields.grid import native_bf16
+def test_decoder_bf16_is_close_to_float32_forward_and_backward(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``decoder_bf16`` changes only the decoder's precision: colours and gradients stay close to float32.
+    Runs on every CPU: bf16 autocast is emulated where it is not native (the check is pretended true)."""
+    from spikenerf.fields import grid
 
-    if not native_bf16(torch.device("cpu")):
-        pytest.skip("this CPU has no native bfloat16 (the decoder stays float32)")
+    monkeypatch.setattr(grid, "cpu_has", lambda *flags: True)
     torch.manual_seed(0)
     ref = smooth_field(replace(CFG, hidden=32, decoder_bf16=False))
     low = smooth_field(replace(CFG, hidden=32, decoder_bf16=True))

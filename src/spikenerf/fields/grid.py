@@ -150,8 +150,10 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
 
 def native_bf16(device: torch.device) -> bool:
     """Whether ``device`` multiplies bfloat16 matrices natively (else bf16 would be emulated, slower)."""
-    if device.type == "cuda":
-        return torch.cuda.is_bf16_supported()
+    if device.type == "cuda":  # emulated bf16 (V100, T4) would count by default: ask for the real thing
+        return torch.cuda.is_bf16_supported(including_emulation=False) and torch.cuda.get_device_capability(
+            device
+        ) >= (8, 0)
     return device.type == "cpu" and cpu_has("avx512_bf16", "amx_bf16")
 
 

@@ -5,17 +5,25 @@ a changed ``size``, ``frames``, ``seed``, ``test_views``, ``blur_views``, ``colo
 lack), ``iters``, ``field_kind`` or extra train arguments is refused with one line naming the setting(s)
 (the CLI shows their flags). The file also holds the folder's ``nonce``, which keys the Ray workers'
 scratch copies (``ray_executor.scratch_root``).
-A folder written before this file existed is resumed as it is, and gets the file then.
+A folder written before this file existed is resumed as it is, and gets the file then. The file also
+records the field's default config (``field_defaults``); a folder started by a version with other
+defaults (before ``step_ratio`` 0.75 and the bf16 decoder, or on a CPU that differs in native bf16) is
+refused, since its finished cells would be compared with cells of another field.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import uuid
 from typing import Any
 
+import torch
+
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.fields import field_config
+from spikenerf.fields.grid import native_bf16
 
 NAME = "benchmark.json"
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
@@ -27,9 +35,14 @@ LABELS = {"extra_train_args": "extra train arguments"}
 
 
 def settings(cfg: Any) -> dict:
-    """What the datasets and cells of ``cfg`` depend on (``color``: the colours each dataset holds)."""
+    """What the datasets and cells of ``cfg`` depend on (``color``: the colours each dataset holds;
+    ``field_defaults``: the field's default config in this version, with whether this machine's CPU runs
+    the bf16 decoder natively, so a version or machine that trains other fields is refused)."""
     color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
-    return {"color": color, **{k: getattr(cfg, k) for k in KEYS if k != "color"}}
+    defaults = json.loads(json.dumps(dataclasses.asdict(field_config(cfg.field_kind))))
+    if cfg.field_kind == "grid":
+        defaults["decoder_bf16"] = bool(defaults["decoder_bf16"] and native_bf16(torch.device("cpu")))
+    return {"color": color, **{k: getattr(cfg, k) for k in KEYS if k != "color"}, "field_defaults": defaults}
 
 
 def _differs(key: str, old: Any, new: Any) -> bool:
@@ -57,6 +70,17 @@ def check_settings(cfg: Any) -> str | None:
             "or a new out",
             path=cfg.out,
             param=(*bad, "out"),
+        )
+    was = old.get("field_defaults")
+    if was != new["field_defaults"]:
+        what = "unrecorded (an earlier version)" if was is None else ", ".join(
+            f"{k} {was.get(k)!r} → {v!r}" for k, v in new["field_defaults"].items() if was.get(k) != v
+        )  # fmt: skip
+        raise InputError(
+            f"this benchmark's cells were trained with other field defaults ({what}); finish it with the "
+            "version and machine that started it, or use a new out",
+            path=cfg.out,
+            param="out",
         )
     return nonce
 
