@@ -88,6 +88,21 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
     assert json.loads((cfg.out / "benchmark.json").read_text())["nonce"] != nonce
 
 
+def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
+    """Without ``--iters`` the folder records the trainer's default, so a folder started under an older
+    default (recorded as null) is refused instead of mixing 3000- and 8000-iteration cells."""
+    from spikenerf.pipelines.settings import NAME, check_settings, settings
+    from spikenerf.train.config import TrainConfig
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=16, frames=100,
+                          test_views=1, render=False)  # fmt: skip
+    assert cfg.iters is None and settings(cfg)["iters"] == TrainConfig().iters
+    stored = {**settings(cfg), "iters": None}
+    (tmp_path / NAME).write_text(json.dumps({"settings": stored, "nonce": "n"}))
+    with pytest.raises(InputError, match=f"iters None → {TrainConfig().iters}"):
+        check_settings(cfg)
+
+
 def test_disk_estimate_counts_seeds_and_every_simulated_stream(monkeypatch: pytest.MonkeyPatch) -> None:
     from spikenerf.data.simulate import estimate_resources
     from spikenerf.pipelines import resources

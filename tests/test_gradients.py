@@ -203,6 +203,32 @@ def test_fused_vm_kernel_runs_on_every_torch_thread() -> None:
         torch.set_num_threads(threads)
 
 
+def test_fused_vm_kernel_build_without_openmp_then_grid_sample(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A compiler that cannot build with OpenMP: one warning, a single-threaded build; if that fails too,
+    grid_sample with the error in the warning."""
+    from spikenerf.fields import vm_kernel
+
+    fail_plain = [False]
+
+    def build(cflags: list[str], ldflags: list[str]) -> object:
+        if cflags or fail_plain[0]:
+            raise RuntimeError("omp.h: No such file" if cflags else "no compiler")
+        return "single-threaded module"
+
+    monkeypatch.setattr(vm_kernel, "_build", build)
+    monkeypatch.setattr(vm_kernel, "_OPENMP_CFLAGS", ["-fopenmp"])
+    monkeypatch.delenv("SPIKENERF_VM_KERNEL", raising=False)
+    for fail, want, words in [
+        (False, "single-threaded module", "without OpenMP.*omp.h"),
+        (True, None, "grid_sample.*no compiler"),
+    ]:
+        fail_plain[0] = fail
+        monkeypatch.setattr(vm_kernel, "_MODULE", None)
+        monkeypatch.setattr(vm_kernel, "_FAILED", False)
+        with pytest.warns(UserWarning, match=words):
+            assert vm_kernel._load() == want
+
+
 def test_fused_vm_kernel_stale_build_lock_falls_back(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """A lock left by a build killed long ago: grid_sample with one warning, not torch's endless wait."""
     import os

@@ -132,8 +132,11 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
 
 // how many threads an at::parallel_for of this build spreads over (1 where it was built without OpenMP)
 int64_t parallel_threads(int64_t n) {
-  std::vector<int> used(std::max<int64_t>(1, at::get_num_threads()), 0);
-  at::parallel_for(0, n, 1, [&](int64_t, int64_t) { used[at::get_thread_num()] = 1; });
+  std::vector<int> used(std::max<int64_t>(256, at::get_num_threads()), 0);
+  at::parallel_for(0, std::max<int64_t>(1, n), 1, [&](int64_t, int64_t) {
+    const int t = at::get_thread_num();
+    if (t >= 0 && t < (int)used.size()) used[t] = 1;
+  });
   return std::count(used.begin(), used.end(), 1);
 }
 
@@ -154,9 +157,36 @@ def _cflags() -> list[str]:
 
 
 # ``at::parallel_for`` is a header template over ``#pragma omp parallel``: an extension built without
-# ``-fopenmp`` runs it on one thread whatever ``torch.get_num_threads()`` says. torch's Linux wheels use GNU
-# OpenMP (libgomp), which gcc's ``-fopenmp`` links, so the kernel shares torch's thread pool there.
-_OPENMP = ["-fopenmp"] if sys.platform.startswith("linux") else []
+# ``-fopenmp`` runs it on one thread whatever ``torch.get_num_threads()`` says. So the kernel is compiled with
+# ``-fopenmp`` and linked against the very GNU OpenMP library torch has loaded (its wheels bundle one, named
+# ``libgomp.so.1`` or, after auditwheel, ``libgomp-<hash>.so.1``), never a second runtime with its own
+# thread pool. Where torch uses another runtime (LLVM libomp, Intel iomp5) or none is found, the kernel is
+# built without OpenMP and runs on one thread, as before.
+
+
+def _torch_gomp() -> str:
+    """The path of the GNU OpenMP library mapped into this process after importing torch ("" if none)."""
+    try:
+        maps = Path("/proc/self/maps").read_text()
+    except OSError:
+        return ""
+    found = {
+        line.split()[-1] for line in maps.splitlines() if "/libgomp" in line and line.split()[-1][0] == "/"
+    }
+    return min(found) if len(found) == 1 else ""
+
+
+def _openmp_flags() -> tuple[list[str], list[str]]:
+    """(compile flags, link flags) for OpenMP, or ([], []) where the kernel is built without it."""
+    if not sys.platform.startswith("linux"):
+        return [], []
+    gomp = _torch_gomp()
+    if not gomp:
+        return [], []
+    return ["-fopenmp"], [gomp, f"-Wl,-rpath,{Path(gomp).parent}"]
+
+
+_OPENMP_CFLAGS, _OPENMP_LDFLAGS = _openmp_flags()
 
 
 def _cpu_fingerprint() -> str:
@@ -179,10 +209,16 @@ def cpu_has(*flags: str) -> bool:
 
 # without the CPU's flags a shared cache folder could not tell CPUs apart: no -march=native then
 _CFLAGS = _cflags() if _CPU else ["-O3"]
-# one build folder per source, flags and CPU
-_NAME = (
-    "spikenerf_vm_" + hashlib.sha256("\0".join([_SOURCE, *_CFLAGS, *_OPENMP, _CPU]).encode()).hexdigest()[:12]
-)
+
+
+def _name(cflags: list[str], ldflags: list[str]) -> str:
+    """One build folder per source, flags (the OpenMP library's path included) and CPU."""
+    return (
+        "spikenerf_vm_"
+        + hashlib.sha256("\0".join([_SOURCE, *cflags, *ldflags, _CPU]).encode()).hexdigest()[:12]
+    )
+
+
 STALE_LOCK_S = 600.0  # a build lock older than this was left by a killed build
 
 
@@ -203,39 +239,51 @@ def _wait_for_lock(build_dir: Path) -> bool:
         time.sleep(0.5)
 
 
+def _build(cflags: list[str], ldflags: list[str]) -> Any:
+    """Compile (or load the cached) module with these extra flags; None when a killed build left its lock."""
+    from torch.utils.cpp_extension import _get_build_directory, load_inline
+
+    name = _name(_CFLAGS + cflags, ldflags)
+    build_dir = Path(_get_build_directory(name, verbose=False))
+    if not _wait_for_lock(build_dir):
+        warnings.warn(
+            f"VM CPU kernel: stale build lock {build_dir / 'lock'} (a build was killed; delete the file to"
+            " rebuild), using grid_sample",
+            stacklevel=3,
+        )
+        return None
+    if not (build_dir / f"{name}.so").exists():
+        print("building the fused CPU kernel (once, ~1 min)…", file=sys.stderr, flush=True)
+    return load_inline(
+        name, cpp_sources=[_SOURCE], extra_cflags=_CFLAGS + cflags, extra_ldflags=ldflags, with_cuda=False
+    )
+
+
 def _load() -> Any:
-    """The compiled module, or None (compiled once per process; a failure is reported once and remembered)."""
+    """The compiled module, or None (compiled once per process; a failure is reported once and remembered).
+
+    With OpenMP first where torch's GNU OpenMP library was found; if that build fails (e.g. a compiler
+    without OpenMP support), once more without it (single-threaded) before giving up on the kernel.
+    """
     global _MODULE, _FAILED
     if _MODULE is not None or _FAILED:
         return _MODULE
     if os.environ.get("SPIKENERF_VM_KERNEL", "1") == "0":
         _FAILED = True
         return None
-    try:
-        from torch.utils.cpp_extension import _get_build_directory, load_inline
-
-        build_dir = Path(_get_build_directory(_NAME, verbose=False))
-        if not _wait_for_lock(build_dir):
-            _FAILED = True
-            warnings.warn(
-                f"VM CPU kernel: stale build lock {build_dir / 'lock'} (a build was killed; delete the file to"
-                " rebuild), using grid_sample",
-                stacklevel=2,
-            )
-            return None
-        if not (build_dir / f"{_NAME}.so").exists():
-            print("building the fused CPU kernel (once, ~1 min)…", file=sys.stderr, flush=True)
-        _MODULE = load_inline(
-            _NAME,
-            cpp_sources=[_SOURCE],
-            extra_cflags=_CFLAGS + _OPENMP,
-            extra_ldflags=_OPENMP,
-            verbose=False,
-            with_cuda=False,
-        )
-    except Exception as err:  # no compiler, no ninja, no headers: use grid_sample instead
-        _FAILED = True
-        warnings.warn(f"VM CPU kernel unavailable, using grid_sample ({type(err).__name__})", stacklevel=2)
+    variants = [(_OPENMP_CFLAGS, _OPENMP_LDFLAGS)] if _OPENMP_CFLAGS else []
+    variants.append(([], []))
+    for i, (cflags, ldflags) in enumerate(variants):
+        try:
+            _MODULE = _build(cflags, ldflags)
+            break
+        except (
+            Exception
+        ) as err:  # no compiler, no ninja, no headers, no OpenMP: try the next, then grid_sample
+            last = i == len(variants) - 1
+            fallback = "using grid_sample" if last else "building it without OpenMP"
+            warnings.warn(f"VM CPU kernel: {fallback} ({type(err).__name__}: {err})", stacklevel=2)
+    _FAILED = _MODULE is None
     return _MODULE
 
 

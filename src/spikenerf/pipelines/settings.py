@@ -24,6 +24,7 @@ from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config
 from spikenerf.fields.grid import native_bf16
+from spikenerf.train.config import TrainConfig
 
 NAME = "benchmark.json"
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
@@ -37,12 +38,16 @@ LABELS = {"extra_train_args": "extra train arguments"}
 def settings(cfg: Any) -> dict:
     """What the datasets and cells of ``cfg`` depend on (``color``: the colours each dataset holds;
     ``field_defaults``: the field's default config in this version, with whether this machine's CPU runs
-    the bf16 decoder natively, so a version or machine that trains other fields is refused)."""
+    the bf16 decoder natively, so a version or machine that trains other fields is refused; ``iters``: the
+    iterations the cells train, the trainer's default resolved, so a folder started before that default
+    changed is refused rather than mixing run lengths)."""
     color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
     defaults = json.loads(json.dumps(dataclasses.asdict(field_config(cfg.field_kind))))
     if cfg.field_kind == "grid":
         defaults["decoder_bf16"] = bool(defaults["decoder_bf16"] and native_bf16(torch.device("cpu")))
-    return {"color": color, **{k: getattr(cfg, k) for k in KEYS if k != "color"}, "field_defaults": defaults}
+    values = {k: getattr(cfg, k) for k in KEYS if k != "color"}
+    values["iters"] = values["iters"] or TrainConfig().iters
+    return {"color": color, **values, "field_defaults": defaults}
 
 
 def _differs(key: str, old: Any, new: Any) -> bool:

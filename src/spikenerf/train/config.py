@@ -118,7 +118,7 @@ class TrainConfig:
     method: Method = "spike-nerf"
     color: TrainColor = "gray"
     field: FieldKind = "grid"
-    iters: int = 3000
+    iters: int = 8000
     batch: int = 1024
     lr: float | None = None
     lr_final_ratio: float | None = None
