@@ -3,6 +3,7 @@ the interval spike loss and of the compositing weights; a training loop without 
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
@@ -187,6 +188,19 @@ def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:
     want = torch.autograd.grad(ref, (planes, lines), torch.ones_like(ref))
     assert torch.allclose(out, ref, atol=1e-5)
     assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got, want, strict=True))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="built with OpenMP on Linux only")
+def test_fused_vm_kernel_runs_on_every_torch_thread() -> None:
+    """The kernel is built with OpenMP: without ``-fopenmp`` its ``at::parallel_for`` ran on one thread."""
+    vm_kernel = _kernel_or_skip()
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2, 3):
+            torch.set_num_threads(n)
+            assert vm_kernel.parallel_threads(64) == n
+    finally:
+        torch.set_num_threads(threads)
 
 
 def test_fused_vm_kernel_stale_build_lock_falls_back(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]

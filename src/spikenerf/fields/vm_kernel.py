@@ -5,8 +5,8 @@ kernel reads the factors channels-last and does one pass over the points: forwar
 three axis pairs; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into channels-last gradients (no races:
 each of ≤ 4 threads scatters into its own buffer; ≈ 11 M multiply-adds for a 58 k-point, 16-channel batch).
 The lookups are random reads of a grid larger than the L2 cache, so each loop prefetches the texels of the
-point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (``-O3``, and
-``-march=native`` on x86-64; cached under ``~/.cache/torch_extensions`` in a folder named by the source, the
+point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (``-O3``,
+``-march=native`` on x86-64, ``-fopenmp`` on Linux so its loops use torch's threads; cached under ``~/.cache/torch_extensions`` in a folder named by the source, the
 flags and the CPU's feature flags; 20–90 s the first time on a machine). Where that is not possible (no
 compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``) callers
 fall back to ``grid_sample``; :func:`available` says which path is used.
@@ -130,7 +130,15 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
   return {gp.sum(0), gl.sum(0)};
 }
 
+// how many threads an at::parallel_for of this build spreads over (1 where it was built without OpenMP)
+int64_t parallel_threads(int64_t n) {
+  std::vector<int> used(std::max<int64_t>(1, at::get_num_threads()), 0);
+  at::parallel_for(0, n, 1, [&](int64_t, int64_t) { used[at::get_thread_num()] = 1; });
+  return std::count(used.begin(), used.end(), 1);
+}
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("parallel_threads", &parallel_threads);
   m.def("forward", &vm_forward);
   m.def("backward", &vm_backward);
 }
@@ -143,6 +151,12 @@ _FAILED = False
 def _cflags() -> list[str]:
     """``-O3``, plus ``-march=native`` on x86-64 (AVX2/AVX-512 for the scatter loops: backward 1.6× faster)."""
     return ["-O3", "-march=native"] if platform.machine().lower() in ("x86_64", "amd64") else ["-O3"]
+
+
+# ``at::parallel_for`` is a header template over ``#pragma omp parallel``: an extension built without
+# ``-fopenmp`` runs it on one thread whatever ``torch.get_num_threads()`` says. torch's Linux wheels use GNU
+# OpenMP (libgomp), which gcc's ``-fopenmp`` links, so the kernel shares torch's thread pool there.
+_OPENMP = ["-fopenmp"] if sys.platform.startswith("linux") else []
 
 
 def _cpu_fingerprint() -> str:
@@ -166,7 +180,9 @@ def cpu_has(*flags: str) -> bool:
 # without the CPU's flags a shared cache folder could not tell CPUs apart: no -march=native then
 _CFLAGS = _cflags() if _CPU else ["-O3"]
 # one build folder per source, flags and CPU
-_NAME = "spikenerf_vm_" + hashlib.sha256("\0".join([_SOURCE, *_CFLAGS, _CPU]).encode()).hexdigest()[:12]
+_NAME = (
+    "spikenerf_vm_" + hashlib.sha256("\0".join([_SOURCE, *_CFLAGS, *_OPENMP, _CPU]).encode()).hexdigest()[:12]
+)
 STALE_LOCK_S = 600.0  # a build lock older than this was left by a killed build
 
 
@@ -210,12 +226,28 @@ def _load() -> Any:
         if not (build_dir / f"{_NAME}.so").exists():
             print("building the fused CPU kernel (once, ~1 min)…", file=sys.stderr, flush=True)
         _MODULE = load_inline(
-            _NAME, cpp_sources=[_SOURCE], extra_cflags=_CFLAGS, verbose=False, with_cuda=False
+            _NAME,
+            cpp_sources=[_SOURCE],
+            extra_cflags=_CFLAGS + _OPENMP,
+            extra_ldflags=_OPENMP,
+            verbose=False,
+            with_cuda=False,
         )
     except Exception as err:  # no compiler, no ninja, no headers: use grid_sample instead
         _FAILED = True
         warnings.warn(f"VM CPU kernel unavailable, using grid_sample ({type(err).__name__})", stacklevel=2)
     return _MODULE
+
+
+def parallel_threads(n: int = 64) -> int:
+    """How many threads the kernel's ``at::parallel_for`` uses over ``n`` items (1 without OpenMP).
+
+    Raises:
+        RuntimeError: the kernel cannot be built or is disabled.
+    """
+    if _load() is None:
+        raise RuntimeError("parallel_threads: the fused VM CPU kernel is unavailable")
+    return int(_MODULE.parallel_threads(n))
 
 
 def available() -> bool:
