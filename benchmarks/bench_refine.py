@@ -17,6 +17,12 @@ Test-time pose optimisation (``--fit-steps``, default 100; 0 = off): every run, 
 also scored after each mapped test pose was fitted to its own test image with the field frozen
 (``train/pose_fit.py``, the BARF evaluation protocol; docs/metrics.md). Both PSNRs are printed: the
 positions-only alignment above, and the pose-optimised one beside it.
+
+``--seed N`` is every run's ``train --seed``. ``--holdout`` holds steps out of training as an imported
+dataset does by default: an imported run its test keyframes (with their guard bands), the exact run as many
+evenly spaced steps with the same band radius (so every condition trains on about as many steps); the
+default ``--no-holdout`` trains on every step, as first measured. Run folders are named by seed (when not 0)
+and hold-out; a folder whose ``config.yaml`` records other settings is refused.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 
 from spikenerf.data.alignment import trajectory_errors, umeyama
 from spikenerf.data.dataset import load_dataset
@@ -43,7 +50,42 @@ from spikenerf.train.run import load_run
 CONDITIONS = ("exact", "estimated", "refined")
 
 
-def train(dataset: Path, run: Path, a: argparse.Namespace, refine: bool) -> None:
+def wanted(dataset: Path, a: argparse.Namespace, refine: bool, check_steps: int) -> dict:
+    """The settings of one training run, as its ``config.yaml`` records them (the run folder's stamp)."""
+    want = {"dataset": str(dataset), "method": a.method, "iters": a.iters, "batch": a.batch, "seed": a.seed,
+            "holdout": a.holdout, "poses.refine": refine, "field_config.n_voxels_init": a.grid_init**3,
+            "field_config.n_voxels_final": a.grid**3}  # fmt: skip
+    if a.holdout and check_steps:
+        want["holdout_steps"] = check_steps
+    if refine:
+        want["poses.lr"] = 1e-3 if a.pose_lr is None else a.pose_lr
+    return want
+
+
+def made_with(run: Path, want: dict) -> None:
+    """Refuse (one line) a run folder whose ``config.yaml`` was written with other settings than ``want``."""
+    if not (run / "config.yaml").exists():
+        return
+    have = yaml.safe_load((run / "config.yaml").read_text())
+    got = {}
+    for key in want:
+        value = have
+        for part in key.split("."):
+            value = (value or {}).get(part)
+        got[key] = value
+    if got["dataset"] is not None:
+        got["dataset"] = str(Path(got["dataset"]))
+    diff = {
+        k: got[k] for k in want if (False if got[k] is None else got[k]) != want[k]
+    }  # None: before the key
+    if diff:
+        sys.exit(f"{run}: made with {diff}, not {dict((k, want[k]) for k in diff)}; use another --out")
+
+
+def train(dataset: Path, run: Path, a: argparse.Namespace, refine: bool, check_steps: int = 0) -> None:
+    """Train one run (skipped when finished, resumed when interrupted). ``check_steps`` > 0: the hold-out
+    of a dataset without imported test keyframes (the exact run) holds out that many evenly spaced steps."""
+    made_with(run, wanted(dataset, a, refine, check_steps))
     if (run / "summary.json").exists():
         return
     grid = [
@@ -52,8 +94,11 @@ def train(dataset: Path, run: Path, a: argparse.Namespace, refine: bool) -> None
     cmd = [sys.executable, "-m", "spikenerf", "--threads", str(a.threads), "train", str(dataset),
            "--method", a.method, "--iters", str(a.iters), "--batch", str(a.batch), "--eval-every", "0",
            "--eval-views", "1", "--quiet", "--refine-poses" if refine else "--no-refine-poses",
-           "--out", str(run), *(x for kv in grid for x in ("--set", kv))]  # fmt: skip
-    cmd.append("--no-holdout")  # as measured: every step trains (the hold-out came later; docs/real-data.md)
+           "--seed", str(a.seed), "--out", str(run), *(x for kv in grid for x in ("--set", kv))]  # fmt: skip
+    # --no-holdout: as first measured, every step trains (the hold-out came later; docs/real-data.md)
+    cmd.append("--holdout" if a.holdout else "--no-holdout")
+    if a.holdout and check_steps:
+        cmd += ["--holdout-steps", str(check_steps)]
     if refine and a.pose_lr is not None:
         cmd += ["--set", f"poses.lr={a.pose_lr}"]
     if (run / "checkpoint.pt").exists():
@@ -108,6 +153,11 @@ def score(run: Path, truth_dir: Path, fit_steps: int = 0, fit_lr: float = 2e-3) 
     return row
 
 
+def run_name(scene: str, condition: str, seed: int, holdout: bool) -> str:
+    """The run folder's name: seed 0 without hold-out keeps the first measurements' names."""
+    return f"run-{scene}-{condition}" + (f"-s{seed}" if seed else "") + ("-holdout" if holdout else "")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--data", type=Path, required=True, help="bench_import's --out")
@@ -124,19 +174,33 @@ def main() -> None:
     p.add_argument("--pose-lr", type=float, default=None, help="poses.lr of the refined runs (default: 1e-3)")
     p.add_argument("--fit-steps", type=int, default=100, help="test-time pose optimisation steps (0: off)")
     p.add_argument("--fit-lr", type=float, default=2e-3, help="its Adam rate")
+    p.add_argument("--seed", type=int, default=0, help="train --seed of every run")
+    p.add_argument(
+        "--holdout",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="hold steps out of training: an imported run its test keyframes, the exact run as "
+        "many evenly spaced steps (default: off: every step trains, as first measured)",
+    )
     a = p.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for scene in a.scenes.split(","):
         sim, imp = a.data / f"sim-{scene}", a.data / f"imp-{scene}-{a.imported}"
         for cond in a.conditions.split(","):
-            run = a.out / f"run-{scene}-{cond}"
-            train(sim if cond == "exact" else imp, run, a, refine=cond == "refined")
-            rows.append({"scene": scene, "condition": cond, **score(run, sim, a.fit_steps, a.fit_lr)})
+            run = a.out / run_name(scene, cond, a.seed, a.holdout)
+            checks = len(
+                yaml.safe_load((imp / "config.yaml").read_text())["imported"]["test_keyframes"] or []
+            )
+            train(sim if cond == "exact" else imp, run, a, cond == "refined", checks * (cond == "exact"))
+            row = {"scene": scene, "condition": cond, "seed": a.seed, "holdout": a.holdout}
+            rows.append({**row, **score(run, sim, a.fit_steps, a.fit_lr)})
             print(json.dumps(rows[-1]), flush=True)
             (a.out / "results.json").write_text(json.dumps(rows, indent=1))
-    print(f"\n{a.method}, {a.iters} iterations, batch {a.batch}, grid {a.grid_init}³→{a.grid}³; "
-          f"pose-optimised: {a.fit_steps} steps, rate {a.fit_lr}")  # fmt: skip
+    print(
+        f"\n{a.method}, {a.iters} iterations, batch {a.batch}, grid {a.grid_init}³→{a.grid}³; "
+        f"pose-optimised: {a.fit_steps} steps, rate {a.fit_lr}; seed {a.seed}, hold-out {a.holdout}"
+    )
     print("| scene | poses | test PSNR | Δ vs exact | pose-optimised PSNR | Δ vs exact | fit mean° | "
           "rot mean° before → after | rot max° before → after |")  # fmt: skip
     print("|---|---|---:|---:|---:|---:|---:|---|---|")

@@ -1,0 +1,59 @@
+"""benchmarks/bench_refine.py's settings: seed and hold-out reach `train`, and never mix in one run folder."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+from pathlib import Path
+
+import pytest
+import yaml
+
+
+def _bench():  # type: ignore[no-untyped-def]
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_refine.py"
+    spec = importlib.util.spec_from_file_location("bench_refine_under_test", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+def _args(**kw) -> argparse.Namespace:  # type: ignore[no-untyped-def]
+    base = dict(method="nerf-recon", iters=20, batch=64, seed=0, holdout=False, grid_init=8, grid=16)
+    return argparse.Namespace(**{**base, "pose_lr": None, "threads": 1, **kw})
+
+
+def test_run_names_keep_the_first_measurements_and_separate_seeds_and_holdout() -> None:
+    name = _bench().run_name
+    assert name("orbs", "exact", 0, False) == "run-orbs-exact"  # the old commands find their runs
+    names = {name("orbs", "exact", s, h) for s in (0, 1) for h in (False, True)}
+    assert len(names) == 4
+
+
+def test_seed_and_holdout_reach_train_and_other_settings_are_refused(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    bench = _bench()
+    calls: list[list[str]] = []
+    monkeypatch.setattr(bench.subprocess, "run", lambda cmd, check: calls.append(cmd))
+    run, data = tmp_path / "run", tmp_path / "sim"
+    a = _args(seed=3, holdout=True)
+    bench.train(data, run, a, refine=False, check_steps=7)
+    cmd = calls[-1]
+    assert cmd[cmd.index("--seed") + 1] == "3" and "--holdout" in cmd
+    assert cmd[cmd.index("--holdout-steps") + 1] == "7"
+    bench.train(data, run, _args(), refine=True)
+    assert "--no-holdout" in calls[-1] and calls[-1][calls[-1].index("--seed") + 1] == "0"
+
+    # a run folder whose config.yaml (as `train` writes it) has other settings: one line, exit
+    run.mkdir()
+    config = {"dataset": str(data), "method": "nerf-recon", "iters": 20, "batch": 64, "seed": 3,
+              "holdout": True, "holdout_steps": 7, "poses": {"refine": False},
+              "field_config": {"n_voxels_init": 8**3, "n_voxels_final": 16**3}}  # fmt: skip
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    bench.train(data, run, a, refine=False, check_steps=7)  # the same settings: resumes
+    assert "--resume" not in calls[-1]  # (no checkpoint here)
+    for other in (_args(seed=1, holdout=True), _args(seed=3), _args(seed=3, holdout=True, iters=40)):
+        with pytest.raises(SystemExit, match=r"made with .*use another --out"):
+            bench.train(data, run, other, refine=False, check_steps=7)
+    (run / "config.yaml").write_text(yaml.safe_dump({**config, "holdout": None, "seed": 0}))
+    bench.train(data, run, _args(), refine=False)  # written before the hold-out existed: same as off
