@@ -23,6 +23,7 @@ from spikenerf.train.pose_refine import (
     REFINED_POSES,
     PoseRefiner,
     keyframes_of,
+    pose_refinement,
     refined_dataset,
     refined_views,
     se3_exp,
@@ -166,7 +167,7 @@ def test_resume_with_refinement_is_bit_identical(data_dir: Path, dataset, tmp_pa
 
 
 # ----------------------------------------------------------------------------------- defaults and inputs
-def test_off_by_default_and_test_keyframes_left_out(dataset) -> None:  # type: ignore[no-untyped-def]
+def test_on_by_default_for_imported_only_and_test_keyframes_left_out(dataset) -> None:  # type: ignore[no-untyped-def]
     info = {"keyframe_every": 20, "window": 21, "test_keyframes": [30], "pose_steps": [10, 30, 50, 70, 90]}
     imported = dataclasses.replace(dataset, config={**dataset.config, "imported": info})
     assert keyframes_of(imported, 12).tolist() == [10, 50, 70, 90]
@@ -174,8 +175,17 @@ def test_off_by_default_and_test_keyframes_left_out(dataset) -> None:  # type: i
     assert keyframes_of(imported, 12).tolist() == [10, 50, 70, 90, 109]
     assert keyframes_of(dataset, 50).tolist() == [0, 50, 100, 119]
     default = _config(dataset.root, None, iters=2)
-    default.poses = TrainConfig().poses  # the default: off, imported or not (docs/real-data.md says why)
-    assert Trainer(default, dataset.root.parent / "run-default", imported, progress=False).pose_refine is None
+    default.poses = TrainConfig().poses  # the default: on for an imported dataset, off for a simulated one
+    assert default.poses.refine is None
+    assert (
+        Trainer(default, dataset.root.parent / "run-default", imported, progress=False).pose_refine
+        is not None
+    )
+    assert (
+        Trainer(default, dataset.root.parent / "run-default-sim", dataset, progress=False).pose_refine is None
+    )
+    # … but not for nerf-bad, which learns its own exposure poses (decided before targets are looked at)
+    assert pose_refinement(TrainConfig(method="nerf-bad"), imported, None, "cpu", None) is None
     cfg = _config(dataset.root, True, iters=2)
     trainer = Trainer(cfg, dataset.root.parent / "run-imported", imported, progress=False)
     assert trainer.pose_refine is not None

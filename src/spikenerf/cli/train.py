@@ -114,7 +114,7 @@ PARAM_FLAGS = {
     "--refine-poses/--no-refine-poses",
     default=None,
     help="Learn SE(3) corrections of the keyframe poses while training (poses.* in --set) "
-    "[default: off; see docs/real-data.md].",
+    "[default: on for imported datasets; see docs/real-data.md].",
 )
 @click.option(
     "--holdout/--no-holdout",

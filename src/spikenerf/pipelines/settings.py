@@ -67,6 +67,16 @@ def check_settings(cfg: Any) -> str | None:
         raise InputError(f"malformed benchmark settings ({err}); delete the file to adopt the current flags",
                          path=path) from err  # fmt: skip
     new = settings(cfg)
+    if "iters" in old and old["iters"] is None:  # started without --iters when that was not recorded
+        if cfg.iters is None:
+            raise InputError(
+                "this benchmark recorded no iteration count (started without --iters under an earlier "
+                "default: 3000 iterations in stops 9–10, 1500 before); pass --iters with that count to "
+                "resume it, or a new out",
+                path=cfg.out,
+                param=("iters", "out"),
+            )
+        old = {**old, "iters": cfg.iters}  # the caller states which default trained the cells
     bad = [k for k in KEYS if _differs(k, old.get(k), new[k])]
     if bad:
         changes = ", ".join(f"{LABELS.get(k, k)} {old.get(k)!r} → {new[k]!r}" for k in bad)

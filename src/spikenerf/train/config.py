@@ -59,7 +59,7 @@ class SpikeLossConfig:
             or ``paper`` (the paper's non-differentiable spike comparison, for comparison: no gradient).
         lam: λ after the ramp. warmup_iters: iterations with λ = 0 (no spike windows rendered).
         ramp_iters: linear ramp of λ from 0 to ``lam``. Both default (None) to a fifth of the run
-        (600 each for the default 3000 iterations), see :meth:`schedule`.
+        (1000 each for the default 5000 iterations), see :meth:`schedule`.
         window: L consecutive steps per window.
         pixels: pixels per window (each renders L rays). pairs: ``all`` sub-windows or the whole ``window``.
         order: ``sequential`` windows along the stream (the paper's deterministic choice) or ``random``.
@@ -118,7 +118,7 @@ class TrainConfig:
     method: Method = "spike-nerf"
     color: TrainColor = "gray"
     field: FieldKind = "grid"
-    iters: int = 8000
+    iters: int = 5000
     batch: int = 1024
     lr: float | None = None
     lr_final_ratio: float | None = None

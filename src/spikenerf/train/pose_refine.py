@@ -25,6 +25,7 @@ from torch import Tensor
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.alignment import key_brackets
+from spikenerf.data.holdout import is_imported
 from spikenerf.data.importer import keyframe_steps
 
 REFINED_POSES = "refined_poses.json"
@@ -35,8 +36,8 @@ class PoseRefineConfig:
     """Pose refinement (``--refine-poses``; ``--set poses.X=...``).
 
     Attributes:
-        refine: learn the corrections (off by default, imported datasets included: docs/real-data.md does
-            not show a gain yet; None, from older configs, is off too).
+        refine: learn the corrections (None, the default: on for datasets written by ``spikenerf import``,
+            off for simulated ones with their exact poses; docs/real-data.md measures the gain).
         lr: Adam rate of the corrections (radians and scene units per step) after the warm-up.
         lr_final_ratio: exponential decay to this fraction of ``lr`` at the end of the run.
         warmup_iters: linear warm-up of the rate from 0 (None: the grid's first upsampling step, the end of
@@ -44,7 +45,7 @@ class PoseRefineConfig:
         keyframe_every: steps between keyframes on a dataset that was not imported.
     """
 
-    refine: bool | None = False
+    refine: bool | None = None
     lr: float = 1e-3
     lr_final_ratio: float = 0.05
     warmup_iters: int | None = None
@@ -257,14 +258,19 @@ class PoseRefinement(PoseLearner):
 def pose_refinement(
     config: Any, dataset: Any, model: Any, device: Any, targets: Any
 ) -> PoseRefinement | None:
-    """The run's :class:`PoseRefinement`, or None when refinement is off (``config.poses.refine``, off by
-    default). Every image target (``targets``) must know its spike step."""
+    """The run's :class:`PoseRefinement`, or None when refinement is off (``config.poses.refine``; None: on
+    for an imported dataset). Every image target (``targets``) must know its spike step; where one does not,
+    asking for refinement is an InputError and the imported-dataset default simply stays off."""
     cfg: PoseRefineConfig = config.poses
     cfg.check()
-    if not cfg.refine:
+    auto = is_imported(dataset) and config.method != "nerf-bad"  # nerf-bad learns its own exposure poses
+    if not (auto if cfg.refine is None else cfg.refine):
         return None
     steps = targets.steps if targets.pose_steps is None else targets.pose_steps
-    if bool((steps < 0).any()):
+    unplaced = bool((steps < 0).any())
+    if unplaced and cfg.refine is None:
+        return None
+    if unplaced:
         raise InputError(
             f"poses.refine: the {config.method} targets have no spike steps to refine at",
             param="poses.refine",
