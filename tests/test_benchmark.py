@@ -99,7 +99,7 @@ def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
     assert cfg.iters is None and settings(cfg)["iters"] == TrainConfig().iters
     stored = {**settings(cfg), "iters": None}
     (tmp_path / NAME).write_text(json.dumps({"settings": stored, "nonce": "n"}))
-    with pytest.raises(InputError, match=r"recorded no iteration count.*pass --iters with that count"):
+    with pytest.raises(InputError, match=r"recorded no iteration count.*pass that count as iters"):
         check_settings(cfg)
     assert check_settings(replace(cfg, iters=3000)) == "n"  # the caller names the old default
 

@@ -70,8 +70,8 @@ def check_settings(cfg: Any) -> str | None:
     if "iters" in old and old["iters"] is None:  # started without --iters when that was not recorded
         if cfg.iters is None:
             raise InputError(
-                "this benchmark recorded no iteration count (started without --iters under an earlier "
-                "default: 3000 iterations in stops 9–10, 1500 before); pass --iters with that count to "
+                "this benchmark recorded no iteration count (started without one under an earlier "
+                "default: 3000 iterations in stops 9–10, 1500 before); pass that count as iters to "
                 "resume it, or a new out",
                 path=cfg.out,
                 param=("iters", "out"),
