@@ -6,8 +6,9 @@ three axis pairs; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into cha
 each of ≤ 4 threads scatters into its own buffer; ≈ 11 M multiply-adds for a 58 k-point, 16-channel batch).
 The lookups are random reads of a grid larger than the L2 cache, so each loop prefetches the texels of the
 point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (``-O3``,
-``-march=native`` on x86-64, ``-fopenmp`` on Linux so its loops use torch's threads; cached under ``~/.cache/torch_extensions`` in a folder named by the source, the
-flags and the CPU's feature flags; 20–90 s the first time on a machine). Where that is not possible (no
+``-march=native`` on x86-64, ``-fopenmp`` on Linux so its loops use torch's threads; cached under
+``~/.cache/torch_extensions`` in a folder named by the source, the flags and the CPU's feature flags;
+20–90 s the first time on a machine). Where that is not possible (no
 compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``) callers
 fall back to ``grid_sample``; :func:`available` says which path is used.
 """
