@@ -54,12 +54,16 @@ def wanted(dataset: Path, a: argparse.Namespace, refine: bool, check_steps: int)
     """The settings of one training run, as its ``config.yaml`` records them (the run folder's stamp)."""
     want = {"dataset": str(dataset), "method": a.method, "iters": a.iters, "batch": a.batch, "seed": a.seed,
             "holdout": a.holdout, "poses.refine": refine, "field_config.n_voxels_init": a.grid_init**3,
-            "field_config.n_voxels_final": a.grid**3}  # fmt: skip
+            "field_config.n_voxels_final": a.grid**3, "targets.window_poses": a.window_poses}  # fmt: skip
     if a.holdout and check_steps:
         want["holdout_steps"] = check_steps
     if refine:
         want["poses.lr"] = 1e-3 if a.pose_lr is None else a.pose_lr
     return want
+
+
+#: settings a run written before they existed had, by their default
+BEFORE_THE_KEY = {"targets.window_poses": 1}
 
 
 def made_with(run: Path, want: dict) -> None:
@@ -72,7 +76,7 @@ def made_with(run: Path, want: dict) -> None:
         value = have
         for part in key.split("."):
             value = (value or {}).get(part)
-        got[key] = value
+        got[key] = BEFORE_THE_KEY.get(key) if value is None else value
     if got["dataset"] is not None:
         got["dataset"] = str(Path(got["dataset"]))
     diff = {
@@ -94,7 +98,8 @@ def train(dataset: Path, run: Path, a: argparse.Namespace, refine: bool, check_s
     cmd = [sys.executable, "-m", "spikenerf", "--threads", str(a.threads), "train", str(dataset),
            "--method", a.method, "--iters", str(a.iters), "--batch", str(a.batch), "--eval-every", "0",
            "--eval-views", "1", "--quiet", "--refine-poses" if refine else "--no-refine-poses",
-           "--seed", str(a.seed), "--out", str(run), *(x for kv in grid for x in ("--set", kv))]  # fmt: skip
+           "--seed", str(a.seed), "--window-poses", str(a.window_poses), "--out", str(run),
+           *(x for kv in grid for x in ("--set", kv))]  # fmt: skip
     # --no-holdout: as first measured, every step trains (the hold-out came later; docs/real-data.md)
     cmd.append("--holdout" if a.holdout else "--no-holdout")
     if a.holdout and check_steps:
@@ -175,6 +180,7 @@ def main() -> None:
     p.add_argument("--fit-steps", type=int, default=100, help="test-time pose optimisation steps (0: off)")
     p.add_argument("--fit-lr", type=float, default=2e-3, help="its Adam rate")
     p.add_argument("--seed", type=int, default=0, help="train --seed of every run")
+    p.add_argument("--window-poses", type=int, default=1, help="train --window-poses of every run")
     p.add_argument(
         "--holdout",
         action=argparse.BooleanOptionalAction,

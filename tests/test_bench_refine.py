@@ -21,7 +21,7 @@ def _bench():  # type: ignore[no-untyped-def]
 
 def _args(**kw) -> argparse.Namespace:  # type: ignore[no-untyped-def]
     base = dict(method="nerf-recon", iters=20, batch=64, seed=0, holdout=False, grid_init=8, grid=16)
-    return argparse.Namespace(**{**base, "pose_lr": None, "threads": 1, **kw})
+    return argparse.Namespace(**{**base, "pose_lr": None, "threads": 1, "window_poses": 1, **kw})
 
 
 def test_run_names_keep_the_first_measurements_and_separate_seeds_and_holdout() -> None:
@@ -52,8 +52,15 @@ def test_seed_and_holdout_reach_train_and_other_settings_are_refused(tmp_path, m
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     bench.train(data, run, a, refine=False, check_steps=7)  # the same settings: resumes
     assert "--resume" not in calls[-1]  # (no checkpoint here)
-    for other in (_args(seed=1, holdout=True), _args(seed=3), _args(seed=3, holdout=True, iters=40)):
+    others = (_args(seed=1, holdout=True), _args(seed=3), _args(seed=3, holdout=True, iters=40),
+              _args(seed=3, holdout=True, window_poses=8))  # fmt: skip
+    for other in others:
         with pytest.raises(SystemExit, match=r"made with .*use another --out"):
             bench.train(data, run, other, refine=False, check_steps=7)
     (run / "config.yaml").write_text(yaml.safe_dump({**config, "holdout": None, "seed": 0}))
     bench.train(data, run, _args(), refine=False)  # written before the hold-out existed: same as off
+    # written before window-aware targets existed: the same as --window-poses 1, not as 8
+    bench.train(data, run, _args(window_poses=1), refine=False)
+    assert calls[-1][calls[-1].index("--window-poses") + 1] == "1"
+    with pytest.raises(SystemExit, match="made with"):
+        bench.train(data, run, _args(window_poses=8), refine=False)

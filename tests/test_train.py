@@ -25,6 +25,7 @@ from spikenerf.data.targets import (
     gt_targets,
     masked_reconstruction,
     stream_targets,
+    window_steps,
 )
 from spikenerf.render import build_model, render_spike_window
 from spikenerf.scenes.analytic import AnalyticSource
@@ -138,6 +139,41 @@ def test_baseline_targets(dataset) -> None:  # type: ignore[no-untyped-def]
     )
 
 
+def test_window_steps_spread_over_the_clipped_tfp_window() -> None:
+    idx = window_steps(100, 41, 4)
+    assert idx.shape == (100, 4)
+    assert idx[50].tolist() == [35, 45, 55, 65]  # window 30..70: centres of four parts of 41 steps
+    assert idx[0].tolist() == [2, 7, 13, 18]  # clipped to 0..20 as tfp clips it
+    assert idx[99].tolist() == [81, 86, 92, 97]
+    assert (idx >= np.maximum(np.arange(100) - 20, 0)[:, None]).all()
+    assert (idx <= np.minimum(np.arange(100) + 20, 99)[:, None]).all()
+    assert (window_steps(100, 41, 1)[20:80, 0] == np.arange(20, 80)).all()  # S = 1: the step itself
+
+
+def test_window_aware_stream_targets(dataset) -> None:  # type: ignore[no-untyped-def]
+    plain = stream_targets(dataset, "gray", window=11)
+    aware = stream_targets(dataset, "gray", window=11, window_poses=3)
+    assert torch.equal(aware.images, plain.images) and torch.equal(aware.steps, plain.steps)
+    assert aware.poses.shape == (STEPS, 3, 4, 4) and aware.pose_steps is not None
+    k = 60
+    assert aware.pose_steps[k].tolist() == window_steps(STEPS, 11, 3)[k].tolist() == [56, 60, 64]
+    want = torch.as_tensor(dataset.trajectory.poses[[56, 60, 64]], dtype=torch.float32)
+    assert torch.allclose(aware.poses[k], want)
+    with pytest.raises(InputError, match="window_poses"):
+        stream_targets(dataset, "gray", recon="tfi", window_poses=2)
+    with pytest.raises(InputError, match="window_poses"):
+        stream_targets(dataset, "gray", window_poses=0)
+    cfg = TrainConfig(method="nerf-recon")
+    cfg.targets.window_poses, cfg.targets.recon = 4, "tfi"
+    with pytest.raises(InputError, match=r"targets\.window_poses"):
+        cfg.validate()
+    cfg.targets.window_poses = 0
+    with pytest.raises(InputError, match=r"targets\.window_poses must be ≥ 1"):
+        cfg.validate()
+    cfg.targets.window_poses, cfg.targets.recon = 4, "tfp"
+    assert make_method(cfg.validate()).poses_per_view() == 4
+
+
 def test_missing_stream_is_input_error(dataset) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(InputError, match=r"bayer|color"):
         stream_targets(dataset, "bayer")
@@ -215,6 +251,8 @@ RUNS = [
     ("spike-nerf", {"no_spike": True}),
     ("spike-nerf", {"paper": True}),
     ("nerf-recon", {}),
+    ("nerf-recon", {"window_poses": 3}),
+    ("spike-nerf", {"window_poses": 2}),
     ("nerf-gt", {}),
     ("nerf-blur", {}),
     ("nerf-blur-aware", {}),
@@ -233,7 +271,11 @@ def test_every_method_trains_and_writes_a_run(
     cfg.spike.enabled = not flags.get("no_spike", False)
     cfg.spike.kind = "paper" if flags.get("paper") else "interval"
     cfg.targets.blur_samples = 2
+    cfg.targets.window_poses = flags.get("window_poses", 1)
     trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    assert trainer.method.targets is not None
+    if method != "nerf-bad":  # (nerf-bad interpolates its S poses from learned endpoints)
+        assert trainer.method.targets.poses.shape[1] == trainer.method.poses_per_view()
     before = {k: v.clone() for k, v in trainer.model.state_dict().items()}
     summary = trainer.train()
     assert summary.iteration == 6 and np.isfinite(summary.train_psnr) and np.isfinite(summary.test_psnr)

@@ -32,6 +32,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
     "blur_samples": ("targets", "blur_samples"),
+    "window_poses": ("targets", "window_poses"),
     "lam": ("spike", "lam"),
     "spike_loss": ("spike", "kind"),
     "spike_window": ("spike", "window"),
@@ -97,6 +98,14 @@ PARAM_FLAGS = {
     default=_D.targets.blur_samples,
     show_default=True,
     help="Poses per exposure (nerf-blur-aware; nerf-bad's virtual frames, ≥ 2).",
+)
+@click.option(
+    "--window-poses",
+    type=int,
+    default=_D.targets.window_poses,
+    show_default=True,
+    help="Poses per TFP target, spread over its window and averaged (nerf-recon, spike-nerf; "
+    "1 = the paper's; > 1 = window-aware targets, --recon tfp).",
 )
 @click.option(
     "--spike-window", type=int, default=_D.spike.window, show_default=True, help="Steps per window."

@@ -7,6 +7,10 @@ Which method uses which targets is decided by its class in :mod:`spikenerf.train
   recorded stream, times the spike mask ``M_k = s_{k-n} ∨ … ∨ s_{k+n}`` (n = 5: exactly 11 frames);
   unmasked (``mask=False``) = ``Î_k``.
 * ``nerf-recon`` (:func:`stream_targets`, ``mask=False``): ``Î_k`` at every step (no mask).
+* Either of the two with ``window_poses`` S > 1 (window-aware targets, not in the paper): a TFP image is the
+  mean light over its window, so each target carries S poses spread over its window (:func:`window_steps`)
+  and the method compares it with the mean of the renders there, as ``nerf-blur-aware`` does with a blur
+  view's exposure.
 * ``nerf-gt`` (:func:`gt_targets`): the sharp ground-truth renders at their poses.
 * ``nerf-blur`` (:func:`blur_targets`): the conventional-camera (400 fps) blur views the dataset holds
   (``simulate --blur-views``: 10 consecutive frames, or the paper's 1000 overlapping exposures) at their
@@ -190,6 +194,19 @@ def exposure_steps(step_range: np.ndarray, samples: int) -> np.ndarray:
     return np.minimum(start + np.floor(frac * (end - start)).astype(np.int64), end - 1)
 
 
+def window_steps(n_steps: int, window: int, samples: int) -> np.ndarray:
+    """Trajectory indices (T, S) of ``samples`` poses spread over each step's TFP window.
+
+    Step k's window is ``k − h … k + h`` (h = (window − 1) // 2) clipped to ``0 … n_steps − 1``, as
+    :func:`spikenerf.camera.reconstruct.tfp` clips it; the S indices are the centres of S equal parts of it
+    (:func:`exposure_steps`), so S = 1 is k itself where the whole window fits.
+    """
+    h = (window - 1) // 2
+    k = np.arange(n_steps)
+    lo, hi = np.maximum(k - h, 0), np.minimum(k + h, n_steps - 1) + 1
+    return np.stack([exposure_steps(np.array([a, b]), samples) for a, b in zip(lo, hi, strict=True)])
+
+
 def _posed(posed: PosedImages | None, what: str, method: str, dataset: SpikeDataset) -> PosedImages:
     if posed is None or len(posed.images) == 0:
         raise InputError(
@@ -208,19 +225,35 @@ def stream_targets(
     mask: bool = True,
     mask_n: int = 5,
     spikes: np.ndarray | None = None,
+    window_poses: int = 1,
 ) -> ImageTargets:
-    """``M_k ⊙ Î_k`` (``mask``) or ``Î_k`` at every step's pose: poses (T, 1, 4, 4), images (T, H, W, C).
+    """``M_k ⊙ Î_k`` (``mask``) or ``Î_k`` at every step's pose: poses (T, 1, 4, 4), images (T, H, W, C);
+    with ``window_poses`` S > 1 (``recon`` tfp only), poses (T, S, 4, 4) spread over each step's TFP
+    window (:func:`window_steps`) and ``pose_steps`` (T, S).
 
     Args:
         dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi | learned. window: TFP window
         (odd). mask: apply spike masks. mask_n: mask half window n (2n+1 frames). spikes: the stream if
-        already loaded ((T, H, W) gray or (T, 3, H, W) rgb).
+        already loaded ((T, H, W) gray or (T, 3, H, W) rgb). window_poses: poses per target (≥ 1).
     """
+    if window_poses < 1:
+        raise InputError(f"window_poses must be ≥ 1, found {window_poses}", param="window_poses")
+    if window_poses > 1 and recon != "tfp":
+        raise InputError(
+            f"window_poses > 1 models the TFP window; recon {recon!r} has none (use recon tfp)",
+            param="window_poses",
+        )
     stream = load_stream(dataset, color) if spikes is None else spikes
     images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n)
-    poses = torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32)[:, None]
     images = torch.as_tensor(to_channels_last(images)).half()
-    return ImageTargets(poses, images, torch.as_tensor(dataset.trajectory.steps))
+    traj = dataset.trajectory
+    steps = torch.as_tensor(traj.steps)
+    if window_poses == 1:
+        poses = torch.as_tensor(traj.poses, dtype=torch.float32)[:, None]
+        return ImageTargets(poses, images, steps)
+    idx = window_steps(len(traj), window, window_poses)
+    poses = torch.as_tensor(np.asarray(traj.poses)[idx], dtype=torch.float32)
+    return ImageTargets(poses, images, steps, torch.as_tensor(np.asarray(traj.steps)[idx]))
 
 
 def gt_targets(dataset: SpikeDataset, color: str = "gray", method: str = "nerf-gt") -> ImageTargets:

@@ -41,6 +41,8 @@ class TargetConfig:
         recon: tfp | tfi (image reconstruction of the stream). window: TFP window, frames (odd).
         mask: multiply by the spike masks (spike-nerf). mask_n: mask half window n (2n+1 frames, paper: 5).
         blur_samples: poses per exposure averaged by nerf-blur-aware and nerf-bad (its virtual frames).
+        window_poses: poses per TFP target of nerf-recon and spike-nerf, spread over its window and
+            averaged (1: the target's own step, the paper's; S > 1: window-aware targets, recon tfp).
     """
 
     recon: TargetRecon = "tfp"
@@ -48,6 +50,7 @@ class TargetConfig:
     mask: bool = True
     mask_n: int = 5
     blur_samples: int = 8
+    window_poses: int = 1
 
 
 @dataclass
@@ -152,6 +155,7 @@ class TrainConfig:
             "ckpt_every": self.ckpt_every,
             "log_every": self.log_every,
             "targets.blur_samples": self.targets.blur_samples,
+            "targets.window_poses": self.targets.window_poses,
             "holdout_steps": self.holdout_steps,
         }
         for name, value in positive.items():
@@ -188,6 +192,12 @@ class TrainConfig:
             raise InputError(
                 f"targets.window must be an odd number of frames, found {self.targets.window}",
                 param="targets.window",
+            )
+        if self.targets.window_poses > 1 and self.targets.recon != "tfp":
+            raise InputError(
+                f"targets.window_poses > 1 models the TFP window; targets.recon {self.targets.recon!r} "
+                "has none (use tfp)",
+                param=("targets.window_poses", "targets.recon"),
             )
         self.poses.check()
         self.exposure.check()

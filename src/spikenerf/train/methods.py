@@ -16,6 +16,9 @@ nerf-bad           blur views at learned exposure start/end poses  recon (exposu
 nerf-recon         Î_k at every step (``stream_targets``)          recon, reg
 spike-nerf         M_k ⊙ Î_k at every step + the recorded stream   recon, reg, λ(it) · spike
 =================  ==============================================  ==================================
+
+With ``targets.window_poses`` S > 1, nerf-recon and spike-nerf render each TFP target at S poses spread over
+its window and average them (window-aware targets; S = 1 is the paper's).
 """
 
 from __future__ import annotations
@@ -268,9 +271,13 @@ class NerfRecon(TrainMethod):
 
     name, uses_stream = "nerf-recon", True
 
+    def poses_per_view(self) -> int:
+        return self.config.targets.window_poses
+
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         t = self.config.targets
-        return stream_targets(dataset, self.config.color, t.recon, t.window, self.uses_mask, t.mask_n, stream)
+        return stream_targets(dataset, self.config.color, t.recon, t.window, self.uses_mask, t.mask_n,
+                              stream, t.window_poses)  # fmt: skip
 
 
 class SpikeNeRF(NerfRecon):
