@@ -39,6 +39,9 @@ class Variant:
         return TrainConfig.from_dict(apply_overrides(data, self.assignments())).validate()
 
 
+#: poses per TFP target of the window-aware rows (``targets.window_poses``; docs/method.md, Targets)
+WINDOW_POSES = 4
+
 #: variant -> what it trains (in the order ``--methods all`` runs them)
 VARIANTS: dict[str, Variant] = {
     "nerf-gt": Variant("nerf-gt", "NeRF on sharp GT (oracle)"),
@@ -55,6 +58,12 @@ VARIANTS: dict[str, Variant] = {
     "spike-nerf-learned": Variant(
         "spike-nerf", "Spike-NeRF on learned targets", (("targets.recon", "learned"),)
     ),
+    "nerf-recon-window": Variant(
+        "nerf-recon", "NeRF + TFP, window-aware targets", (("targets.window_poses", WINDOW_POSES),)
+    ),
+    "spike-nerf-window": Variant(
+        "spike-nerf", "Spike-NeRF, window-aware targets", (("targets.window_poses", WINDOW_POSES),)
+    ),
     "spike-nerf-no-mask": Variant("spike-nerf", "W/O spike masks", (("targets.mask", False),)),
     "spike-nerf-no-spike-loss": Variant("spike-nerf", "W/O spike loss", (("spike.enabled", False),)),
 }
@@ -68,6 +77,8 @@ TABLE1_VARIANTS = (
     "nerf-recon-learned",
     "spike-nerf",
     "spike-nerf-learned",
+    "nerf-recon-window",
+    "spike-nerf-window",
 )
 ABLATION_VARIANTS = ("spike-nerf-no-mask", "spike-nerf-no-spike-loss", "spike-nerf")
 #: the paired differences the paper claims: (ours, baseline); ours should be better on every metric
