@@ -1,4 +1,4 @@
-"""Paired differences of the rows beyond the paper's claims in a finished benchmark folder, with 95 % intervals.
+"""Paired differences of the rows beyond the paper's claims in a benchmark folder, with 95 % intervals.
 
 Run: ``.venv/bin/python -m benchmarks.learned_differences OUT`` after ``spikenerf benchmark ... --out OUT``
 with the variants below. The benchmark's own ``differences.md`` holds the paper's claims (Spike-NeRF

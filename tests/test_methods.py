@@ -62,6 +62,18 @@ def test_each_method_owns_its_parts() -> None:
     assert not method("nerf-gt").uses_stream and method("nerf-gt").views == "gt"
 
 
+def test_paper_rows_train_the_papers_targets_and_window_rows_window_aware() -> None:
+    from spikenerf.pipelines import variants
+    from spikenerf.train import config
+
+    assert variants.WINDOW_POSES == config.WINDOW_POSES  # the rows show train's default
+    for name in ("nerf-recon", "spike-nerf", "spike-nerf-no-mask", "spike-nerf-no-spike-loss"):
+        assert VARIANTS[name].config().targets.poses_per_target() == 1, name
+    for name in ("nerf-recon-window", "spike-nerf-window"):
+        assert VARIANTS[name].config().targets.poses_per_target() == config.WINDOW_POSES > 1, name
+    assert VARIANTS["spike-nerf-learned"].config().targets.poses_per_target() == 1
+
+
 def test_variant_table_is_complete() -> None:
     assert set(TABLE1_VARIANTS) | set(ABLATION_VARIANTS) == set(VARIANTS)
     assert {v for pair in COMPARISONS for v in pair} <= set(VARIANTS)

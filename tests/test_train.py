@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
@@ -31,7 +32,7 @@ from spikenerf.render import build_model, render_spike_window
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.checkpoint import CHECKPOINT
-from spikenerf.train.config import TrainConfig, load_config
+from spikenerf.train.config import WINDOW_POSES, TrainConfig, load_config, save_config
 from spikenerf.train.evaluate import read_curves
 from spikenerf.train.logger import RunningMeans
 from spikenerf.train.losses import spike_interval_loss
@@ -172,6 +173,21 @@ def test_window_aware_stream_targets(dataset) -> None:  # type: ignore[no-untype
         cfg.validate()
     cfg.targets.window_poses, cfg.targets.recon = 4, "tfp"
     assert make_method(cfg.validate()).poses_per_view() == 4
+    cfg.targets.window_poses = None  # the default: window-aware for TFP, one pose for the others
+    assert make_method(cfg.validate()).poses_per_view() == WINDOW_POSES > 1
+    cfg.targets.recon = "tfi"
+    assert make_method(cfg.validate()).poses_per_view() == 1
+
+
+def test_a_run_config_from_before_window_poses_resumes_with_one_pose(tmp_path: Path) -> None:
+    cfg = TrainConfig(method="spike-nerf")
+    data = cfg.to_dict()
+    del data["targets"]["window_poses"]  # a config.yaml written before the key existed
+    (tmp_path / "old.yaml").write_text(yaml.safe_dump(data))
+    assert load_config(tmp_path / "old.yaml").targets.poses_per_target() == 1
+    save_config(cfg, tmp_path / "new.yaml")  # written now: None, today's default
+    assert load_config(tmp_path / "new.yaml").targets.window_poses is None
+    assert load_config(tmp_path / "new.yaml").targets.poses_per_target() == WINDOW_POSES
 
 
 def test_missing_stream_is_input_error(dataset) -> None:  # type: ignore[no-untyped-def]

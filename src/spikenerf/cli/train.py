@@ -9,7 +9,14 @@ import click
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, METHODS, RECONS
 from spikenerf.train.amp import AMP_MODES
-from spikenerf.train.config import FIELDS, SPIKE_LOSS_KINDS, TrainConfig, apply_overrides, load_config
+from spikenerf.train.config import (
+    FIELDS,
+    SPIKE_LOSS_KINDS,
+    WINDOW_POSES,
+    TrainConfig,
+    apply_overrides,
+    load_config,
+)
 from spikenerf.train.logger import LOG_KINDS
 from spikenerf.train.trainer import CONFIG_FILE, train
 
@@ -102,10 +109,10 @@ PARAM_FLAGS = {
 @click.option(
     "--window-poses",
     type=int,
-    default=_D.targets.window_poses,
-    show_default=True,
+    default=None,
     help="Poses per TFP target, spread over its window and averaged (nerf-recon, spike-nerf; "
-    "1 = the paper's; > 1 = window-aware targets, --recon tfp).",
+    "1 = the paper's; > 1 = window-aware targets, --recon tfp) "
+    f"[default: {WINDOW_POSES} with --recon tfp, else 1].",
 )
 @click.option(
     "--spike-window", type=int, default=_D.spike.window, show_default=True, help="Steps per window."

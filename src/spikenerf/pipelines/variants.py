@@ -41,6 +41,8 @@ class Variant:
 
 #: poses per TFP target of the window-aware rows (``targets.window_poses``; docs/method.md, Targets)
 WINDOW_POSES = 4
+#: the paper's rows compare each TFP target with one render at its own step, whatever ``train``'s default
+PAPER_TARGETS: tuple[tuple[str, Any], ...] = (("targets.window_poses", 1),)
 
 #: variant -> what it trains (in the order ``--methods all`` runs them)
 VARIANTS: dict[str, Variant] = {
@@ -50,8 +52,8 @@ VARIANTS: dict[str, Variant] = {
     "nerf-bad": Variant(
         "nerf-bad", "BAD-NeRF-like: deblur NeRF that learns each exposure's start and end pose"
     ),
-    "nerf-recon": Variant("nerf-recon", "NeRF + TFP reconstruction"),
-    "spike-nerf": Variant("spike-nerf", "Spike-NeRF (ours)"),
+    "nerf-recon": Variant("nerf-recon", "NeRF + TFP reconstruction", PAPER_TARGETS),
+    "spike-nerf": Variant("spike-nerf", "Spike-NeRF (ours)", PAPER_TARGETS),
     "nerf-recon-learned": Variant(
         "nerf-recon", "NeRF + learned reconstruction (Spk2ImgNet+NeRF)", (("targets.recon", "learned"),)
     ),
@@ -64,8 +66,10 @@ VARIANTS: dict[str, Variant] = {
     "spike-nerf-window": Variant(
         "spike-nerf", "Spike-NeRF, window-aware targets", (("targets.window_poses", WINDOW_POSES),)
     ),
-    "spike-nerf-no-mask": Variant("spike-nerf", "W/O spike masks", (("targets.mask", False),)),
-    "spike-nerf-no-spike-loss": Variant("spike-nerf", "W/O spike loss", (("spike.enabled", False),)),
+    "spike-nerf-no-mask": Variant("spike-nerf", "W/O spike masks", (*PAPER_TARGETS, ("targets.mask", False))),
+    "spike-nerf-no-spike-loss": Variant(
+        "spike-nerf", "W/O spike loss", (*PAPER_TARGETS, ("spike.enabled", False))
+    ),
 }
 #: the rows of Table I (comparison) and Table II (ablation), in the paper's order
 TABLE1_VARIANTS = (

@@ -33,6 +33,10 @@ FIELDS = FIELD_KINDS
 __all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "SpikeLossConfig", "TargetConfig", "TrainConfig"]
 
 
+#: the default poses per TFP target (window-aware targets; docs/method.md, Targets)
+WINDOW_POSES = 4
+
+
 @dataclass
 class TargetConfig:
     """Reconstruction targets.
@@ -42,7 +46,8 @@ class TargetConfig:
         mask: multiply by the spike masks (spike-nerf). mask_n: mask half window n (2n+1 frames, paper: 5).
         blur_samples: poses per exposure averaged by nerf-blur-aware and nerf-bad (its virtual frames).
         window_poses: poses per TFP target of nerf-recon and spike-nerf, spread over its window and
-            averaged (1: the target's own step, the paper's; S > 1: window-aware targets, recon tfp).
+            averaged (1: the target's own step, the paper's; S > 1: window-aware targets, recon tfp only;
+            None: :data:`WINDOW_POSES` with tfp, 1 otherwise). :meth:`poses_per_target` resolves it.
     """
 
     recon: TargetRecon = "tfp"
@@ -50,7 +55,13 @@ class TargetConfig:
     mask: bool = True
     mask_n: int = 5
     blur_samples: int = 8
-    window_poses: int = 1
+    window_poses: int | None = None
+
+    def poses_per_target(self) -> int:
+        """``window_poses`` resolved: :data:`WINDOW_POSES` for TFP targets when unset, else 1."""
+        if self.window_poses is None:
+            return WINDOW_POSES if self.recon == "tfp" else 1
+        return self.window_poses
 
 
 @dataclass
@@ -155,7 +166,7 @@ class TrainConfig:
             "ckpt_every": self.ckpt_every,
             "log_every": self.log_every,
             "targets.blur_samples": self.targets.blur_samples,
-            "targets.window_poses": self.targets.window_poses,
+            "targets.window_poses": self.targets.poses_per_target(),
             "holdout_steps": self.holdout_steps,
         }
         for name, value in positive.items():
@@ -193,7 +204,7 @@ class TrainConfig:
                 f"targets.window must be an odd number of frames, found {self.targets.window}",
                 param="targets.window",
             )
-        if self.targets.window_poses > 1 and self.targets.recon != "tfp":
+        if self.targets.poses_per_target() > 1 and self.targets.recon != "tfp":
             raise InputError(
                 f"targets.window_poses > 1 models the TFP window; targets.recon {self.targets.recon!r} "
                 "has none (use tfp)",
@@ -329,8 +340,14 @@ def save_config(config: TrainConfig, path: str | Path) -> None:
     write_text_atomic(path, yaml.safe_dump(config.to_dict(), sort_keys=False))
 
 
+#: keys a ``targets`` section written before they existed trained with: (key, value then)
+TARGETS_BEFORE_THE_KEY = (("window_poses", 1),)
+
+
 def load_config(path: str | Path) -> TrainConfig:
-    """Read ``config.yaml`` written by :func:`save_config`."""
+    """Read ``config.yaml`` written by :func:`save_config`. A ``targets`` section written before one of
+    :data:`TARGETS_BEFORE_THE_KEY` existed gets the value its run trained with (so an older run resumes as
+    it was), not today's default."""
     path = Path(path)
     if not path.is_file():
         raise InputError("missing run config (not a run folder written by `spikenerf train`?)", path=path)
@@ -338,4 +355,6 @@ def load_config(path: str | Path) -> TrainConfig:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as err:
         raise InputError(f"malformed YAML ({err})", path=path) from err
+    if isinstance(data, dict) and isinstance(data.get("targets"), dict):
+        data["targets"] = {**dict(TARGETS_BEFORE_THE_KEY), **data["targets"]}
     return TrainConfig.from_dict(data, path).validate()

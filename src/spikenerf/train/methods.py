@@ -17,8 +17,8 @@ nerf-recon         Î_k at every step (``stream_targets``)          recon, reg
 spike-nerf         M_k ⊙ Î_k at every step + the recorded stream   recon, reg, λ(it) · spike
 =================  ==============================================  ==================================
 
-With ``targets.window_poses`` S > 1, nerf-recon and spike-nerf render each TFP target at S poses spread over
-its window and average them (window-aware targets; S = 1 is the paper's).
+With ``targets.window_poses`` S > 1 (the default for TFP targets: 4), nerf-recon and spike-nerf render each
+TFP target at S poses spread over its window and average them (window-aware targets; S = 1 is the paper's).
 """
 
 from __future__ import annotations
@@ -272,12 +272,12 @@ class NerfRecon(TrainMethod):
     name, uses_stream = "nerf-recon", True
 
     def poses_per_view(self) -> int:
-        return self.config.targets.window_poses
+        return self.config.targets.poses_per_target()
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         t = self.config.targets
         return stream_targets(dataset, self.config.color, t.recon, t.window, self.uses_mask, t.mask_n,
-                              stream, t.window_poses)  # fmt: skip
+                              stream, t.poses_per_target())  # fmt: skip
 
 
 class SpikeNeRF(NerfRecon):
