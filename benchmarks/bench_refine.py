@@ -76,7 +76,9 @@ def made_with(run: Path, want: dict) -> None:
         value = have
         for part in key.split("."):
             value = (value or {}).get(part)
-        got[key] = BEFORE_THE_KEY.get(key) if value is None else value
+        got[key] = value
+    if "window_poses" not in (have.get("targets") or {}):  # written before the key: one pose per target
+        got["targets.window_poses"] = BEFORE_THE_KEY["targets.window_poses"]
     if got["dataset"] is not None:
         got["dataset"] = str(Path(got["dataset"]))
     diff = {

@@ -15,7 +15,8 @@ iterations on all held-out views, and the process's CPU time (``getrusage`` of t
 evaluation included). Printed: every run, the per-round ratios ours / reference of rays/s and of CPU time,
 and their medians. ``--ours-args`` adds train options to this checkout's runs only (e.g.
 ``--ours-args "--field-option step_ratio=0.5"`` to time the previous defaults). Ours trains with
-``--window-poses 1`` (one pose per TFP target, as the reference), unless ``--ours-args`` says otherwise.
+``--window-poses 1`` (one pose per TFP target, as a reference before 8041e5c; ``--ref-window-poses`` pins
+a later reference too), unless ``--ours-args`` says otherwise.
 Without ``--dataset`` an ``analytic-orbs`` 100×100, 1000-step gray dataset is simulated first.
 """
 
@@ -75,6 +76,11 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--method", default="spike-nerf")
     parser.add_argument("--ours-args", default="", help="extra train options for this checkout only")
+    parser.add_argument(
+        "--ref-window-poses",
+        action="store_true",
+        help="the reference knows --window-poses (8041e5c or later): pin it to 1 there too",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_train_speed_") as tmp_name:
         tmp = Path(tmp_name)
@@ -108,7 +114,9 @@ def main() -> None:
             for r in range(args.rounds):
                 for name, src in builds.items():
                     # the reference has one pose per TFP target; ours trains the same (--ours-args may differ)
-                    extra = ["--window-poses", "1", *shlex.split(args.ours_args)] if name == "ours" else []
+                    extra = shlex.split(args.ours_args) if name == "ours" else []
+                    if name == "ours" or args.ref_window_poses:
+                        extra = ["--window-poses", "1", *extra]
                     s = run_train(src, dataset, tmp / f"{name}{r}", args, extra)
                     results[name].append(s)
                     print(

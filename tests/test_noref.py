@@ -15,9 +15,12 @@ import yaml
 from helpers import run_cli
 from spikenerf.camera.io import read_dat
 from spikenerf.cli import main
+from spikenerf.data.targets import window_steps
+from spikenerf.eval import noref
 from spikenerf.eval.evaluate import display
 from spikenerf.eval.noref import NoRefOptions, check_steps, noref_metrics, wants_noref
 from spikenerf.render import model_from_hparams
+from spikenerf.train.config import WINDOW_POSES
 from spikenerf.train.run import load_run
 
 SIZE, RAW, STEPS = 24, 40, 80
@@ -127,6 +130,27 @@ def test_a_good_model_scores_better_than_broken_ones(demo: Path) -> None:
         assert good["interval_violation_mean"] < bad["interval_violation_mean"], (name, good, bad)
         # the reference (the reconstruction held over the window) does not depend on the model
         assert good["recon_interval_violation_rate"] == bad["recon_interval_violation_rate"]
+
+
+def test_masked_scores_render_what_the_run_was_trained_to_match(demo: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    model, config, dataset = load_run(demo / "run")
+    assert config.targets.window_poses == WINDOW_POSES > 1  # the default run: window-aware targets
+    seen: list[np.ndarray] = []
+    real = noref.render_image
+
+    def spy(m, pose, *args, **kw):  # type: ignore[no-untyped-def]
+        seen.append(np.asarray(pose))
+        return real(m, pose, *args, **kw)
+
+    monkeypatch.setattr(noref, "render_image", spy)
+    step, total = 40, len(dataset.trajectory)
+    pixels = torch.tensor([[3, 4], [10, 12]])
+    for poses in (WINDOW_POSES, 1):
+        seen.clear()
+        cfg = dataclasses.replace(config, targets=dataclasses.replace(config.targets, window_poses=poses))
+        noref.score_step(model, cfg, dataset, step, 8, pixels, 8192, display)
+        want = dataset.trajectory.poses[window_steps(total, config.targets.window, poses)[step]]
+        assert len(seen) == poses and np.allclose(np.stack(seen), want)
 
 
 def test_noref_defaults_and_steps_of_simulated_data(demo: Path) -> None:

@@ -32,7 +32,7 @@ from spikenerf.render import build_model, render_spike_window
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.checkpoint import CHECKPOINT
-from spikenerf.train.config import WINDOW_POSES, TrainConfig, load_config, save_config
+from spikenerf.train.config import WINDOW_POSES, TrainConfig, load_config, load_run_config, save_config
 from spikenerf.train.evaluate import read_curves
 from spikenerf.train.logger import RunningMeans
 from spikenerf.train.losses import spike_interval_loss
@@ -182,12 +182,43 @@ def test_window_aware_stream_targets(dataset) -> None:  # type: ignore[no-untype
 def test_a_run_config_from_before_window_poses_resumes_with_one_pose(tmp_path: Path) -> None:
     cfg = TrainConfig(method="spike-nerf")
     data = cfg.to_dict()
-    del data["targets"]["window_poses"]  # a config.yaml written before the key existed
+    del data["targets"]["window_poses"]  # a run's config.yaml written before the key existed
     (tmp_path / "old.yaml").write_text(yaml.safe_dump(data))
-    assert load_config(tmp_path / "old.yaml").targets.poses_per_target() == 1
-    save_config(cfg, tmp_path / "new.yaml")  # written now: None, today's default
-    assert load_config(tmp_path / "new.yaml").targets.window_poses is None
-    assert load_config(tmp_path / "new.yaml").targets.poses_per_target() == WINDOW_POSES
+    assert load_run_config(tmp_path / "old.yaml").targets.poses_per_target() == 1
+    # a hand-written --config file without the key gets today's default
+    (tmp_path / "mine.yaml").write_text(yaml.safe_dump({"method": "spike-nerf", "targets": {"window": 81}}))
+    assert load_config(tmp_path / "mine.yaml").targets.poses_per_target() == WINDOW_POSES
+    save_config(cfg.resolved(), tmp_path / "new.yaml")  # a run written now records the resolved count
+    assert load_run_config(tmp_path / "new.yaml").targets.window_poses == WINDOW_POSES
+    tfi = TrainConfig(method="nerf-recon")
+    tfi.targets.recon = "tfi"
+    assert tfi.resolved().targets.window_poses == 1 and tfi.targets.window_poses is None
+
+
+def test_runs_record_their_pose_count_and_older_runs_resume_with_theirs(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    cfg = _config(dataset_dir, method="nerf-recon")
+    assert cfg.targets.window_poses is None
+    Trainer(cfg, tmp_path / "new", dataset, progress=False).train(stop_after=3)
+    stored = yaml.safe_load((tmp_path / "new" / "config.yaml").read_text())
+    assert stored["targets"]["window_poses"] == WINDOW_POSES  # resolved, not null
+    again = Trainer(cfg, tmp_path / "new", dataset, resume=True, progress=False)
+    assert again.method.poses_per_view() == WINDOW_POSES
+    # an older run: its config.yaml has no window_poses; resumed with a fresh config it keeps one pose
+    Trainer(_config(dataset_dir, method="nerf-recon"), tmp_path / "old", dataset, progress=False).train(
+        stop_after=3
+    )
+    stored = yaml.safe_load((tmp_path / "old" / "config.yaml").read_text())
+    del stored["targets"]["window_poses"]
+    (tmp_path / "old" / "config.yaml").write_text(yaml.safe_dump(stored))
+    old = Trainer(_config(dataset_dir, method="nerf-recon"), tmp_path / "old", dataset, resume=True,
+                  progress=False)  # fmt: skip
+    assert old.method.poses_per_view() == 1 and old.config.targets.window_poses == 1
+    asked = _config(dataset_dir, method="nerf-recon")
+    asked.targets.window_poses = WINDOW_POSES
+    with pytest.raises(InputError, match="window_poses"):  # asking for another count is refused
+        Trainer(asked, tmp_path / "old", dataset, resume=True, progress=False)
 
 
 def test_missing_stream_is_input_error(dataset) -> None:  # type: ignore[no-untyped-def]

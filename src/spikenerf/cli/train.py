@@ -16,6 +16,7 @@ from spikenerf.train.config import (
     TrainConfig,
     apply_overrides,
     load_config,
+    load_run_config,
 )
 from spikenerf.train.logger import LOG_KINDS
 from spikenerf.train.trainer import CONFIG_FILE, train
@@ -214,7 +215,7 @@ def command(
     if config_file is not None:  # the file, then the options given on the command line, then --set
         base = load_config(config_file)
     elif resume and stored.is_file():  # resuming: keep the stored config, apply only given options
-        base = load_config(stored)
+        base = load_run_config(stored)
     else:  # the click defaults are TrainConfig's defaults
         base = TrainConfig()
     given = {

@@ -3,9 +3,11 @@
 At a few *check steps* k of the training path (an imported dataset's test keyframes, else evenly spaced
 steps) the model is scored against the recorded spike stream alone (docs/metrics.md, docs/real-data.md):
 
-* **masked PSNR / SSIM** of the render at the pose of step k against the run's own reconstruction ``Î_k``
-  (TFP, TFI or the learned reconstructor, with the run's window), counted only where the spike mask ``M_k``
-  is set (a spike fell in steps k−n..k+n, the run's mask n): elsewhere the reconstruction says only "dark".
+* **masked PSNR / SSIM** of the render at the pose of step k (for a run with window-aware targets, the
+  mean of its S renders over the TFP window, what it was trained to match) against the run's own
+  reconstruction ``Î_k`` (TFP, TFI or the learned reconstructor, with the run's window), counted only where
+  the spike mask ``M_k`` is set (a spike fell in steps k−n..k+n, the run's mask n): elsewhere the
+  reconstruction says only "dark".
   Both are displayed values (sRGB-encoded [0, 1]), as every eval metric.
 * the **interval-violation rate** of the L steps around k: the fraction of sampled pixel windows whose
   rendered integral lies outside the interval that the recorded spike count allows — the spike loss's own
@@ -35,7 +37,7 @@ from spikenerf.camera.masks import spike_masks
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import check_steps, is_imported
-from spikenerf.data.targets import reconstruct_stream, stream_mode
+from spikenerf.data.targets import reconstruct_stream, stream_mode, window_steps
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.render import RadianceModel, render_image, render_spike_window
 from spikenerf.train.config import TrainConfig
@@ -150,8 +152,13 @@ def score_step(
     i = step - lo
     recon = _channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
     mask = torch.as_tensor(spike_masks(raw, n=t.mask_n, frames=slice(i, i + 1))[0])  # (H, W) or (3, H, W)
-    out = render_image(model, dataset.trajectory.poses[step], dataset.intrinsics, dataset.near, dataset.far)
-    pred, target = display(out.color, model.channels), display(recon, model.channels)
+    # what the run was trained to match: one render at the step, or the mean over its TFP window's poses
+    poses = window_steps(total, t.window, t.poses_per_target())[step]
+    color = torch.stack([
+        render_image(model, dataset.trajectory.poses[j], dataset.intrinsics, dataset.near, dataset.far).color
+        for j in poses
+    ]).mean(dim=0)  # fmt: skip
+    pred, target = display(color, model.channels), display(recon, model.channels)
     m = mask.expand_as(pred)
     side = min(pred.shape[-2:]) >= SSIMConfig().window
     row: dict[str, Any] = {

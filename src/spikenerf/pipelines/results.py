@@ -30,11 +30,11 @@ VIEW_TEXT = {"steps": "{} poses", "gt": "{} GT views", "blur": "{} blur views"}
 def poses_per_view(run: Path, variant: str) -> int:
     """Poses a cell's run renders per target view (its ``config.yaml``; else the variant's defaults), e.g.
     ``blur_samples`` for ``nerf-blur-aware`` and ``nerf-bad``."""
-    from spikenerf.train.config import load_config
+    from spikenerf.train.config import load_run_config
     from spikenerf.train.methods import make_method
 
     try:
-        config = load_config(run / "config.yaml")
+        config = load_run_config(run / "config.yaml")
     except InputError:
         config = VARIANTS[variant].config()
     return make_method(config).poses_per_view()
@@ -45,7 +45,8 @@ def trained_on(cfg: plan.BenchmarkConfig) -> dict[str, str]:
 
     Its method's ``views`` says what: every step's pose (spike methods), the stored GT renders (``nerf-gt``)
     or the blur views; ``× N poses`` when each view is rendered at N poses (``nerf-blur-aware``,
-    ``nerf-bad``: its ``blur_samples`` poses of the exposure, from the run config).
+    ``nerf-bad``: its ``blur_samples`` poses of the exposure; window-aware targets: "T targets × N poses"
+    of each TFP window; from the run config).
     """
     from spikenerf.train.methods import METHOD_CLASSES
 
@@ -56,6 +57,8 @@ def trained_on(cfg: plan.BenchmarkConfig) -> dict[str, str]:
         texts = {VIEW_TEXT[views].format(c[views]) for c in counts}
         samples = {poses_per_view(plan.run_dir(cfg, *k), v) for k in plan.cell_keys(cfg) if k.variant == v}
         if samples - {1}:
+            if views == "steps":  # window-aware targets: each step's target at N poses of its window
+                texts = {f"{c['steps']} targets" for c in counts}
             texts = {f"{t} × {'/'.join(map(str, sorted(samples)))} poses" for t in texts}
         out[v] = " / ".join(sorted(texts)) or "–"
     return out

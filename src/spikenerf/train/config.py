@@ -228,6 +228,12 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def resolved(self) -> TrainConfig:
+        """A copy with the defaults that depend on other fields filled in (``targets.window_poses``), as a
+        new run records them in its ``config.yaml``."""
+        targets = dataclasses.replace(self.targets, window_poses=self.targets.poses_per_target())
+        return dataclasses.replace(self, targets=targets)
+
     @classmethod
     def from_dict(cls, data: dict[str, Any], path: str | Path | None = None) -> TrainConfig:
         """Rebuild from :meth:`to_dict` output (e.g. ``config.yaml``); unknown keys are an InputError."""
@@ -340,14 +346,8 @@ def save_config(config: TrainConfig, path: str | Path) -> None:
     write_text_atomic(path, yaml.safe_dump(config.to_dict(), sort_keys=False))
 
 
-#: keys a ``targets`` section written before they existed trained with: (key, value then)
-TARGETS_BEFORE_THE_KEY = (("window_poses", 1),)
-
-
 def load_config(path: str | Path) -> TrainConfig:
-    """Read ``config.yaml`` written by :func:`save_config`. A ``targets`` section written before one of
-    :data:`TARGETS_BEFORE_THE_KEY` existed gets the value its run trained with (so an older run resumes as
-    it was), not today's default."""
+    """Read ``config.yaml`` written by :func:`save_config` (or a ``--config`` file)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("missing run config (not a run folder written by `spikenerf train`?)", path=path)
@@ -355,6 +355,15 @@ def load_config(path: str | Path) -> TrainConfig:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as err:
         raise InputError(f"malformed YAML ({err})", path=path) from err
-    if isinstance(data, dict) and isinstance(data.get("targets"), dict):
-        data["targets"] = {**dict(TARGETS_BEFORE_THE_KEY), **data["targets"]}
     return TrainConfig.from_dict(data, path).validate()
+
+
+def load_run_config(path: str | Path) -> TrainConfig:
+    """A run folder's ``config.yaml`` as that run trained: :func:`load_config`, but a run written before
+    ``targets.window_poses`` existed (its targets section lacks the key) trained with one pose per target,
+    not today's default. (A run written since records the resolved count: :meth:`TrainConfig.resolved`.)"""
+    config = load_config(path)
+    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    if isinstance(data.get("targets"), dict) and "window_poses" not in data["targets"]:
+        config.targets.window_poses = 1
+    return config

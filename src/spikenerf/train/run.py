@@ -12,7 +12,7 @@ from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.holdout import read_record
 from spikenerf.render import RadianceModel, model_from_hparams
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
-from spikenerf.train.config import TrainConfig, load_config
+from spikenerf.train.config import TrainConfig, load_run_config
 from spikenerf.train.methods import make_method
 
 CONFIG_FILE = "config.yaml"
@@ -31,7 +31,7 @@ def load_run(
         (model, config, dataset). Problems (missing files, foreign checkpoint) raise InputError.
     """
     run_dir = Path(run_dir)
-    config = load_config(run_dir / CONFIG_FILE)
+    config = load_run_config(run_dir / CONFIG_FILE)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)
     model = model_from_hparams(ckpt["hparams"], ckpt["model"])
     model.to(resolve_device(device)).eval()
@@ -85,7 +85,7 @@ def describe_run(run_dir: str | Path) -> str:
     from spikenerf.train.evaluate import CURVES, read_curves
 
     run_dir = Path(run_dir)
-    config = load_config(run_dir / CONFIG_FILE)
+    config = load_run_config(run_dir / CONFIG_FILE)
     done = run_iteration(run_dir) if (run_dir / CHECKPOINT).exists() else 0
     lines = [
         f"run: {run_dir}",

@@ -41,7 +41,7 @@ from spikenerf.train.checkpoint import (
     rng_state,
     save_checkpoint,
 )
-from spikenerf.train.config import TrainConfig, load_config, save_config
+from spikenerf.train.config import TrainConfig, load_run_config, save_config
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
@@ -99,11 +99,14 @@ def _lr_final_ratio(config: TrainConfig, model: RadianceModel) -> float:
 def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, TrainConfig]:
     """The run's stored config and ``given``; a run from before the hold-out (its config.yaml has no
     ``holdout`` key) trained on every step, so it resumes without one unless ``given`` asks for it."""
-    stored = load_config(path)
+    stored = load_run_config(path)
     if not any(line.startswith("holdout:") for line in path.read_text(encoding="utf-8").splitlines()):
         stored.holdout = False
         if given.holdout is None:
             given = dataclasses.replace(given, holdout=False)
+    if given.targets.window_poses is None:  # not asked: the count the run trained with
+        targets = dataclasses.replace(given.targets, window_poses=stored.targets.window_poses)
+        given = dataclasses.replace(given, targets=targets)
     return stored, given
 
 
@@ -162,7 +165,7 @@ class Trainer:
                 )
             ckpt = load_checkpoint(ckpt_path)
             config = _check_resume(*_stored_and_given(self.out / CONFIG_FILE, config), self.out / CONFIG_FILE)
-        self.config = config.validate()
+        self.config = config.validate().resolved()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
         check_train_resources(self.config, self.dataset, self.out)
         self.device = resolve_device(config.device)
