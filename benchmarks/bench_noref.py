@@ -86,6 +86,12 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=1, help="training seeds 0..N-1 per pose set")
     p.add_argument("--wrong-elevation", type=float, nargs="+", default=[36.0], help="degrees; truth 30")
     p.add_argument("--no-holdout", action="store_true", help="train on the check steps (the old setup)")
+    p.add_argument(
+        "--window-poses",
+        type=int,
+        default=None,
+        help="train --window-poses (default: train's; the docs' tables used 1, before stop 12)",
+    )
     a = p.parse_args()
     sim, rec = a.out / "sim", a.out / "rec" / "recording.dat"
     if not sim.exists():
@@ -109,8 +115,9 @@ def main() -> None:
                 spikenerf("import", rec, "--poses", "orbit", "--orbit", f"4,{elevation}", "--fov", FOV_DEG,
                           "--out", ds)  # fmt: skip
             if not (run / "metrics.json").exists():
+                poses = () if a.window_poses is None else ("--window-poses", a.window_poses)
                 spikenerf("train", ds, "--method", a.method, "--iters", a.iters, "--seed", seed, holdout,
-                          "--eval-every", 0, "--quiet", "--out", run)  # fmt: skip
+                          *poses, "--eval-every", 0, "--quiet", "--out", run)  # fmt: skip
                 spikenerf("eval", run, "--lpips", "none", "--quiet")
             per_step, per_view = held_out_rows(run, not a.no_holdout)
             rows[name].append(per_step)
