@@ -151,6 +151,10 @@ def test_masked_scores_render_what_the_run_was_trained_to_match(demo: Path, monk
         noref.score_step(model, cfg, dataset, step, 8, pixels, 8192, display)
         want = dataset.trajectory.poses[window_steps(total, config.targets.window, poses)[step]]
         assert len(seen) == poses and np.allclose(np.stack(seen), want)
+    seen.clear()  # one pose: the step's own, also at the ends of the stream (where a window is clipped)
+    one = dataclasses.replace(config, targets=dataclasses.replace(config.targets, window_poses=1))
+    noref.score_step(model, one, dataset, 2, 8, pixels, 8192, display)
+    assert len(seen) == 1 and np.allclose(seen[0], dataset.trajectory.poses[2])
 
 
 def test_noref_defaults_and_steps_of_simulated_data(demo: Path) -> None:
