@@ -89,6 +89,32 @@ def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path
     assert json.loads((run / "metrics.json").read_text())["no_reference"] is None
 
 
+def test_eval_scores_tfp_keyframes_against_the_window_mean_of_a_window_aware_run(
+    demo: Path, monkeypatch
+) -> None:  # type: ignore[no-untyped-def]
+    import spikenerf.eval.evaluate as ev
+
+    _, config, dataset = load_run(demo / "run")
+    seen: list[np.ndarray] = []
+    real = ev.render_image
+
+    def spy(m, pose, *args, **kw):  # type: ignore[no-untyped-def]
+        seen.append(np.asarray(pose))
+        return real(m, pose, *args, **kw)
+
+    monkeypatch.setattr(ev, "render_image", spy)
+    result = ev.evaluate_run(demo / "run", lpips_backbone=None, progress=False, noref="off")
+    assert result["view_poses"] == config.targets.poses_per_target() == WINDOW_POSES
+    window = int(dataset.config["imported"]["window"])
+    first = window_steps(len(dataset.trajectory), window, WINDOW_POSES)[20]  # test keyframe 20
+    ckpt = torch.load(demo / "run" / "checkpoint.pt", weights_only=True)
+    path = ev.refined_dataset(ckpt, config, dataset).trajectory.poses  # the run refined its poses
+    assert len(seen) == 3 * WINDOW_POSES and np.allclose(np.stack(seen[:WINDOW_POSES]), path[first])
+    # the views themselves are not keyframes of the stream (no imported test_keyframes): one render each
+    assert ev.keyframe_windows(dataclasses.replace(dataset, config={}), WINDOW_POSES, dataset.test) is None
+    assert ev.keyframe_windows(dataset, 1, dataset.test) is None
+
+
 def test_eval_without_views_to_score_runs_the_checks_alone(demo: Path, capsys) -> None:
     """An imported dataset has no sharp GT frames (and may have no test views): eval still reports the
     no-reference checks instead of refusing the only metrics real data has."""

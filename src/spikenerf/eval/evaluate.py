@@ -24,8 +24,8 @@ from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.data.dataset import PosedImages, SpikeDataset
-from spikenerf.data.holdout import read_record
-from spikenerf.data.targets import image_channels
+from spikenerf.data.holdout import check_steps, read_record
+from spikenerf.data.targets import image_channels, window_steps
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
@@ -61,6 +61,24 @@ def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
         source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"
         raise InputError(f"the dataset has no {split} views (expected {source})", path=dataset.root)
     return views
+
+
+def keyframe_windows(dataset: SpikeDataset, count: int, views: PosedImages) -> np.ndarray | None:
+    """Trajectory indices (V, S) whose mean render each test view is scored against, or None (one render
+    at each view's pose).
+
+    Only where the test views are TFP keyframes of the stream, i.e. an imported dataset with
+    ``keyframe_images: tfp`` whose test views are its ``test_keyframes`` (in that order, as ``import``
+    writes them; each the mean light of its keyframe window), and the run was trained with window-aware
+    targets (``count`` = its poses per target > 1): it then renders sharp images, and the mean of
+    ``count`` renders over the keyframe's window is what the keyframe shows.
+    """
+    imported = (dataset.config or {}).get("imported") or {}
+    keys = imported.get("test_keyframes") or []
+    if count < 2 or imported.get("keyframe_images", "tfp") != "tfp" or len(keys) != len(views) or not keys:
+        return None
+    steps, _ = check_steps(dataset, len(keys))  # stream indices, checked
+    return window_steps(len(dataset.trajectory), int(imported["window"]), count)[steps]
 
 
 def display(linear: torch.Tensor | np.ndarray, channels: int) -> torch.Tensor:
@@ -184,9 +202,12 @@ def _evaluate_locked(
     if reason and log:
         log(f"LPIPS skipped: {reason}")
     per_view = []
+    windows = keyframe_windows(dataset, config.targets.poses_per_target(), views) if split == "test" else None
+    path = refined_dataset(ckpt, config, dataset).trajectory.poses if windows is not None else None
     for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
-        out = render_image(model, views.poses[i], k, dataset.near, dataset.far, chunk)
-        pred = display(out.color, model.channels)
+        poses = [views.poses[i]] if windows is None else [path[j] for j in windows[i]]
+        colors = [render_image(model, p, k, dataset.near, dataset.far, chunk).color for p in poses]
+        pred = display(torch.stack(colors).mean(dim=0), model.channels)
         target = display(views.images[i], model.channels)
         per_view.append({"index": i, **score_view(pred, target, backbone)})
     result = {
@@ -196,6 +217,7 @@ def _evaluate_locked(
         "field": config.field,
         "iterations": run_iteration(run_dir),
         "views": len(per_view),
+        "view_poses": 1 if windows is None else int(windows.shape[1]),
         "mean": {m: mean_or_none([v[m] for v in per_view]) for m in ("psnr", "ssim", "lpips")},
         "per_view": per_view,
         "lpips_backbone": backbone,
