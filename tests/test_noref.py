@@ -113,6 +113,8 @@ def test_eval_scores_tfp_keyframes_against_the_window_mean_of_a_window_aware_run
     # the views themselves are not keyframes of the stream (no imported test_keyframes): one render each
     assert ev.keyframe_windows(dataclasses.replace(dataset, config={}), WINDOW_POSES, dataset.test) is None
     assert ev.keyframe_windows(dataset, 1, dataset.test) is None
+    older = {**dataset.config, "imported": {**dataset.config["imported"], "window": None}}
+    assert ev.keyframe_windows(dataclasses.replace(dataset, config=older), WINDOW_POSES, dataset.test) is None
 
 
 def test_eval_without_views_to_score_runs_the_checks_alone(demo: Path, capsys) -> None:

@@ -193,6 +193,9 @@ def test_a_run_config_from_before_window_poses_resumes_with_one_pose(tmp_path: P
     tfi = TrainConfig(method="nerf-recon")
     tfi.targets.recon = "tfi"
     assert tfi.resolved().targets.window_poses == 1 and tfi.targets.window_poses is None
+    for method in ("nerf-gt", "nerf-blur", "nerf-blur-aware", "nerf-bad"):  # no stream targets: one pose
+        other = TrainConfig(method=method)  # type: ignore[arg-type]
+        assert other.window_poses() == 1 and other.resolved().targets.window_poses == 1, method
 
 
 def test_runs_record_their_pose_count_and_older_runs_resume_with_theirs(

@@ -71,14 +71,17 @@ def keyframe_windows(dataset: SpikeDataset, count: int, views: PosedImages) -> n
     ``keyframe_images: tfp`` whose test views are its ``test_keyframes`` (in that order, as ``import``
     writes them; each the mean light of its keyframe window), and the run was trained with window-aware
     targets (``count`` = its poses per target > 1): it then renders sharp images, and the mean of
-    ``count`` renders over the keyframe's window is what the keyframe shows.
+    ``count`` renders over the keyframe's window is what the keyframe shows. None as well for an import
+    that did not record its keyframe ``window`` (older versions).
     """
     imported = (dataset.config or {}).get("imported") or {}
-    keys = imported.get("test_keyframes") or []
-    if count < 2 or imported.get("keyframe_images", "tfp") != "tfp" or len(keys) != len(views) or not keys:
+    keys, window = imported.get("test_keyframes") or [], imported.get("window")
+    if count < 2 or imported.get("keyframe_images", "tfp") != "tfp" or not isinstance(window, int):
+        return None  # one pose, learned keyframes, or an import from before the window was recorded
+    if len(keys) != len(views) or not keys:  # views that are not the recorded test keyframes
         return None
     steps, _ = check_steps(dataset, len(keys))  # stream indices, checked
-    return window_steps(len(dataset.trajectory), int(imported["window"]), count)[steps]
+    return window_steps(len(dataset.trajectory), window, count)[steps]
 
 
 def display(linear: torch.Tensor | np.ndarray, channels: int) -> torch.Tensor:
@@ -202,7 +205,7 @@ def _evaluate_locked(
     if reason and log:
         log(f"LPIPS skipped: {reason}")
     per_view = []
-    windows = keyframe_windows(dataset, config.targets.poses_per_target(), views) if split == "test" else None
+    windows = keyframe_windows(dataset, config.window_poses(), views) if split == "test" else None
     path = refined_dataset(ckpt, config, dataset).trajectory.poses if windows is not None else None
     for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
         poses = [views.poses[i]] if windows is None else [path[j] for j in windows[i]]

@@ -153,7 +153,7 @@ def score_step(
     recon = _channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
     mask = torch.as_tensor(spike_masks(raw, n=t.mask_n, frames=slice(i, i + 1))[0])  # (H, W) or (3, H, W)
     # what the run was trained to match: one render at the step, or the mean over its TFP window's poses
-    count = t.poses_per_target()
+    count = config.window_poses()
     poses = window_steps(total, t.window, count)[step] if count > 1 else [step]
     color = torch.stack([
         render_image(model, dataset.trajectory.poses[j], dataset.intrinsics, dataset.near, dataset.far).color

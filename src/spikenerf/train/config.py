@@ -21,7 +21,7 @@ import yaml
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.samplers import WindowOrder
-from spikenerf.data.targets import Method, TargetRecon, TrainColor
+from spikenerf.data.targets import STREAM_METHODS, Method, TargetRecon, TrainColor
 from spikenerf.fields import FIELD_KINDS, FieldKind
 from spikenerf.train.amp import AmpMode
 from spikenerf.train.exposure_poses import ExposurePoseConfig
@@ -228,10 +228,15 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def window_poses(self) -> int:
+        """Poses per image target this run renders and averages over a TFP window: the resolved
+        ``targets.window_poses`` for the stream methods (nerf-recon, spike-nerf), 1 for the others."""
+        return self.targets.poses_per_target() if self.method in STREAM_METHODS else 1
+
     def resolved(self) -> TrainConfig:
-        """A copy with the defaults that depend on other fields filled in (``targets.window_poses``), as a
-        new run records them in its ``config.yaml``."""
-        targets = dataclasses.replace(self.targets, window_poses=self.targets.poses_per_target())
+        """A copy with the defaults that depend on other fields filled in (``targets.window_poses``: see
+        :meth:`window_poses`), as a new run records them in its ``config.yaml``."""
+        targets = dataclasses.replace(self.targets, window_poses=self.window_poses())
         return dataclasses.replace(self, targets=targets)
 
     @classmethod

@@ -272,12 +272,12 @@ class NerfRecon(TrainMethod):
     name, uses_stream = "nerf-recon", True
 
     def poses_per_view(self) -> int:
-        return self.config.targets.poses_per_target()
+        return self.config.window_poses()
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         t = self.config.targets
         return stream_targets(dataset, self.config.color, t.recon, t.window, self.uses_mask, t.mask_n,
-                              stream, t.poses_per_target())  # fmt: skip
+                              stream, self.config.window_poses())  # fmt: skip
 
 
 class SpikeNeRF(NerfRecon):
