@@ -89,20 +89,26 @@ def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path
     assert json.loads((run / "metrics.json").read_text())["no_reference"] is None
 
 
+def _spy_renders(monkeypatch, module) -> list[np.ndarray]:  # type: ignore[no-untyped-def]
+    """Record the pose of every ``render_image`` call made through ``module``; the list it fills."""
+    seen: list[np.ndarray] = []
+    real = module.render_image
+
+    def spy(m, pose, *args, **kw):  # type: ignore[no-untyped-def]
+        seen.append(np.asarray(pose))
+        return real(m, pose, *args, **kw)
+
+    monkeypatch.setattr(module, "render_image", spy)
+    return seen
+
+
 def test_eval_scores_tfp_keyframes_against_the_window_mean_of_a_window_aware_run(
     demo: Path, monkeypatch
 ) -> None:  # type: ignore[no-untyped-def]
     import spikenerf.eval.evaluate as ev
 
     _, config, dataset = load_run(demo / "run")
-    seen: list[np.ndarray] = []
-    real = ev.render_image
-
-    def spy(m, pose, *args, **kw):  # type: ignore[no-untyped-def]
-        seen.append(np.asarray(pose))
-        return real(m, pose, *args, **kw)
-
-    monkeypatch.setattr(ev, "render_image", spy)
+    seen = _spy_renders(monkeypatch, ev)
     result = ev.evaluate_run(demo / "run", lpips_backbone=None, progress=False, noref="off")
     assert result["view_poses"] == config.targets.poses_per_target() == WINDOW_POSES
     window = int(dataset.config["imported"]["window"])
@@ -163,14 +169,7 @@ def test_a_good_model_scores_better_than_broken_ones(demo: Path) -> None:
 def test_masked_scores_render_what_the_run_was_trained_to_match(demo: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     model, config, dataset = load_run(demo / "run")
     assert config.targets.window_poses == WINDOW_POSES > 1  # the default run: window-aware targets
-    seen: list[np.ndarray] = []
-    real = noref.render_image
-
-    def spy(m, pose, *args, **kw):  # type: ignore[no-untyped-def]
-        seen.append(np.asarray(pose))
-        return real(m, pose, *args, **kw)
-
-    monkeypatch.setattr(noref, "render_image", spy)
+    seen = _spy_renders(monkeypatch, noref)
     step, total = 40, len(dataset.trajectory)
     pixels = torch.tensor([[3, 4], [10, 12]])
     for poses in (WINDOW_POSES, 1):
