@@ -351,15 +351,20 @@ def save_config(config: TrainConfig, path: str | Path) -> None:
     write_text_atomic(path, yaml.safe_dump(config.to_dict(), sort_keys=False))
 
 
-def load_config(path: str | Path) -> TrainConfig:
-    """Read ``config.yaml`` written by :func:`save_config` (or a ``--config`` file)."""
+def _read_config(path: str | Path) -> tuple[Path, Any]:
+    """The parsed YAML of a config file (InputError when missing or malformed)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("missing run config (not a run folder written by `spikenerf train`?)", path=path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        return path, yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as err:
         raise InputError(f"malformed YAML ({err})", path=path) from err
+
+
+def load_config(path: str | Path) -> TrainConfig:
+    """Read ``config.yaml`` written by :func:`save_config` (or a ``--config`` file)."""
+    path, data = _read_config(path)
     return TrainConfig.from_dict(data, path).validate()
 
 
@@ -367,8 +372,8 @@ def load_run_config(path: str | Path) -> TrainConfig:
     """A run folder's ``config.yaml`` as that run trained: :func:`load_config`, but a run written before
     ``targets.window_poses`` existed (its targets section lacks the key) trained with one pose per target,
     not today's default. (A run written since records the resolved count: :meth:`TrainConfig.resolved`.)"""
-    config = load_config(path)
-    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    path, data = _read_config(path)
+    config = TrainConfig.from_dict(data, path).validate()
     if isinstance(data.get("targets"), dict) and "window_poses" not in data["targets"]:
         config.targets.window_poses = 1
     return config
