@@ -103,6 +103,10 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "bad_yaml_run").mkdir()
     shutil.copy(root / "run" / "checkpoint.pt", root / "bad_yaml_run" / "checkpoint.pt")
     (root / "bad_yaml_run" / "config.yaml").write_text("method: [spike-nerf\n")
+    (root / "bad_metrics_run").mkdir()
+    for name in ("checkpoint.pt", "config.yaml"):
+        shutil.copy(root / "run" / name, root / "bad_metrics_run" / name)
+    (root / "bad_metrics_run" / "metrics.json").write_text('{"split": "test", "views": ')
     seq = root / "seq"
     seq.mkdir()
     pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
@@ -235,6 +239,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("info-missing", ["info", f"{R}/nope"], "nope"),
     ("info-pickle-ckpt", ["info", f"{R}/pickle_ckpt"], "checkpoint.pt"),
     ("info-bad-yaml-ds", ["info", f"{R}/yaml_ds"], "config.yaml"),
+    ("info-bad-metrics", ["info", f"{R}/bad_metrics_run"], "metrics.json"),
     # import: outputs (the dataset's own spikes and config.yaml are a valid recording)
     ("import-overwrite-foreign", [*IMP, "--overwrite", "--out", f"{R}/thesis"], "thesis"),
     ("import-overwrite-run", [*IMP, "--overwrite", "--out", f"{R}/run"], "run folder"),

@@ -15,6 +15,7 @@ import yaml
 from helpers import run_cli
 from spikenerf.camera.io import read_dat
 from spikenerf.cli import main
+from spikenerf.core.errors import InputError
 from spikenerf.data.targets import window_steps
 from spikenerf.eval import noref
 from spikenerf.eval.evaluate import display
@@ -121,6 +122,21 @@ def test_eval_scores_tfp_keyframes_against_the_window_mean_of_a_window_aware_run
     assert ev.keyframe_windows(dataset, 1, dataset.test) is None
     older = {**dataset.config, "imported": {**dataset.config["imported"], "window": None}}
     assert ev.keyframe_windows(dataclasses.replace(dataset, config=older), WINDOW_POSES, dataset.test) is None
+    # test views that are not the recorded keyframes (an edited dataset): refused, not scored on one render
+    fewer = dataclasses.replace(dataset.test, poses=dataset.test.poses[:2], images=dataset.test.images[:2])
+    with pytest.raises(InputError, match=r"2 test views but config\.yaml records 3 imported test keyframes"):
+        ev.keyframe_windows(dataset, WINDOW_POSES, fewer)
+    assert ev.keyframe_windows(dataset, 1, fewer) is None  # a one-pose run does not use the keyframes
+
+
+def test_info_says_how_a_window_aware_run_trains_and_was_scored(demo: Path, capsys) -> None:
+    run = demo / "run"
+    code, out, err = run_cli(capsys, "eval", run, "--device", "cpu", "--lpips", "none", "--noref", "off",
+                             "--quiet")  # fmt: skip
+    assert code == 0, err
+    code, out, _ = run_cli(capsys, "info", run)
+    assert code == 0 and f"each the mean of {WINDOW_POSES} renders across its TFP window" in out
+    assert f"metrics.json (test, 3 views, each against the mean of {WINDOW_POSES} renders): psnr" in out
 
 
 def test_eval_without_views_to_score_runs_the_checks_alone(demo: Path, capsys) -> None:

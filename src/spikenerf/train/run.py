@@ -94,6 +94,8 @@ def describe_run(run_dir: str | Path) -> str:
         f"iterations: {done} of {config.iters}"
         + ("" if done >= config.iters else "  (resume with --resume)"),
     ]
+    if (poses := config.window_poses()) > 1:
+        lines.append(f"targets: window-aware, each the mean of {poses} renders across its TFP window")
     if (held := read_record(run_dir)) is not None:
         lines.append(
             f"held out: steps {', '.join(map(str, held.get('step_numbers', held['check_steps'])))} "
@@ -105,13 +107,24 @@ def describe_run(run_dir: str | Path) -> str:
             f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
             f"train PSNR {last['train_psnr']:.2f} dB, test PSNR {last['test_psnr']:.2f} dB"
         )
-    if (run_dir / "metrics.json").exists():
-        metrics = json.loads((run_dir / "metrics.json").read_text())
-        for label, mean in (("metrics.json", metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
+    if (path := run_dir / "metrics.json").exists():
+        try:
+            metrics = json.loads(path.read_text())
+            scored = f"metrics.json ({metrics['split']}, {metrics['views']} views{_per_view(metrics)})"
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise InputError(f"malformed metrics ({err}); run eval again to rewrite it", path=path) from err
+        for label, mean in ((scored, metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
             if mean:
                 values = "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None)
                 lines.append(f"{label}: {values}")
     return "\n".join(lines)
+
+
+def _per_view(metrics: dict) -> str:
+    """How each view was scored: ", each against the mean of S renders" where eval averaged S > 1 poses
+    (``view_poses``; absent in metrics written before it was recorded)."""
+    poses = metrics.get("view_poses") or 1
+    return f", each against the mean of {poses} renders" if poses > 1 else ""
 
 
 def _noref_mean(metrics: dict) -> dict | None:
