@@ -103,10 +103,12 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "bad_yaml_run").mkdir()
     shutil.copy(root / "run" / "checkpoint.pt", root / "bad_yaml_run" / "checkpoint.pt")
     (root / "bad_yaml_run" / "config.yaml").write_text("method: [spike-nerf\n")
-    (root / "bad_metrics_run").mkdir()
-    for name in ("checkpoint.pt", "config.yaml"):
-        shutil.copy(root / "run" / name, root / "bad_metrics_run" / name)
-    (root / "bad_metrics_run" / "metrics.json").write_text('{"split": "test", "views": ')
+    for run, metrics in (("bad_metrics_run", '{"split": "test", "views": '),
+                         ("odd_metrics_run", '{"split": "test", "views": 2, "mean": ["psnr"]}')):  # fmt: skip
+        (root / run).mkdir()
+        for name in ("checkpoint.pt", "config.yaml"):
+            shutil.copy(root / "run" / name, root / run / name)
+        (root / run / "metrics.json").write_text(metrics)
     seq = root / "seq"
     seq.mkdir()
     pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
@@ -240,6 +242,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("info-pickle-ckpt", ["info", f"{R}/pickle_ckpt"], "checkpoint.pt"),
     ("info-bad-yaml-ds", ["info", f"{R}/yaml_ds"], "config.yaml"),
     ("info-bad-metrics", ["info", f"{R}/bad_metrics_run"], "metrics.json"),
+    ("info-odd-metrics", ["info", f"{R}/odd_metrics_run"], "metrics.json"),
     # import: outputs (the dataset's own spikes and config.yaml are a valid recording)
     ("import-overwrite-foreign", [*IMP, "--overwrite", "--out", f"{R}/thesis"], "thesis"),
     ("import-overwrite-run", [*IMP, "--overwrite", "--out", f"{R}/run"], "run folder"),

@@ -111,12 +111,12 @@ def describe_run(run_dir: str | Path) -> str:
         try:
             metrics = json.loads(path.read_text())
             scored = f"metrics.json ({metrics['split']}, {metrics['views']} views{_per_view(metrics)})"
-        except (OSError, ValueError, KeyError, TypeError) as err:
+            for label, mean in ((scored, metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
+                if mean:
+                    values = "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None)
+                    lines.append(f"{label}: {values}")
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
             raise InputError(f"malformed metrics ({err}); run eval again to rewrite it", path=path) from err
-        for label, mean in ((scored, metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
-            if mean:
-                values = "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None)
-                lines.append(f"{label}: {values}")
     return "\n".join(lines)
 
 
