@@ -117,6 +117,14 @@ def test_eval_scores_tfp_keyframes_against_the_window_mean_of_a_window_aware_run
     ckpt = torch.load(demo / "run" / "checkpoint.pt", weights_only=True)
     path = ev.refined_dataset(ckpt, config, dataset).trajectory.poses  # the run refined its poses
     assert len(seen) == 3 * WINDOW_POSES and np.allclose(np.stack(seen[:WINDOW_POSES]), path[first])
+    # the test-time pose fit moves each keyframe's S poses by one correction and scores their mean render
+    seen.clear()
+    fit = (3, 2e-3)
+    result = ev.evaluate_run(demo / "run", lpips_backbone=None, progress=False, noref="off", test_pose=fit)
+    fitted = np.stack(seen[3 * WINDOW_POSES :])
+    assert len(fitted) == 3 * WINDOW_POSES and not np.allclose(fitted[:WINDOW_POSES], path[first])
+    moved = np.linalg.inv(path[first]) @ fitted[:WINDOW_POSES]  # each pose's camera-frame correction
+    assert np.allclose(moved, moved[0], atol=1e-4) and result["test_pose_optimised"]["mean"]["psnr"] > 10
     # the views themselves are not keyframes of the stream (no imported test_keyframes): one render each
     assert ev.keyframe_windows(dataclasses.replace(dataset, config={}), WINDOW_POSES, dataset.test) is None
     assert ev.keyframe_windows(dataset, 1, dataset.test) is None

@@ -149,3 +149,30 @@ def test_bad_settings_name_their_parameter(kwargs: dict, param: str) -> None:
     with pytest.raises(InputError) as err:
         fit_view_poses(model, truth, _views(model, truth), K, **kwargs)
     assert param in err.value.params and param in str(err.value)
+
+
+def test_a_view_of_a_camera_motion_is_fitted_through_the_mean_of_its_window_renders() -> None:
+    """A view showing the mean light of S poses (a TFP keyframe of a window-aware run) is fitted with one
+    correction that moves all S, through the mean of their renders."""
+    model, truth = FogModel(), _truth()
+    turn = torch.zeros(4, 6)
+    turn[:, 1] = torch.linspace(-0.08, 0.08, 4)  # a 9° pan across the window, in the camera frame
+    window = truth[:, None] @ se3_exp(turn)  # (V, S, 4, 4)
+    with torch.no_grad():
+        images = torch.stack([_views(model, window[:, s]) for s in range(4)]).mean(0)  # (V, H, W, 1)
+    g = torch.Generator().manual_seed(5)
+    xi = torch.randn(len(truth), 6, generator=g)
+    xi[:, :3] *= math.radians(3.0) / xi[:, :3].norm(dim=1, keepdim=True)
+    xi[:, 3:] *= 0.1 / xi[:, 3:].norm(dim=1, keepdim=True)
+    start = window @ se3_exp(xi)[:, None]  # one unknown correction per view, the same for its S poses
+    fit = fit_view_poses(model, start, images, K, steps=300, lr=5e-3, batch=128)
+    assert fit.poses.shape == window.shape
+    errors = [_rotation_error_deg(fit.poses[:, s], window[:, s]) for s in range(4)]
+    assert max(e.max() for e in errors) < 0.5, errors  # 3° → under a sixth of it
+    assert fit.loss_last < 0.01 * fit.loss_first
+    # one pose per view given as (V, 1, 4, 4) is the (V, 4, 4) fit
+    a = fit_view_poses(model, start[:, 0], images, K, steps=5, batch=64)
+    b = fit_view_poses(model, start[:, :1], images, K, steps=5, batch=64)
+    assert b.poses.shape == (2, 1, 4, 4) and torch.equal(a.poses, b.poses[:, 0])
+    with pytest.raises(ValueError, match="do not match"):
+        fit_view_poses(model, start[:1], images, K, steps=1)

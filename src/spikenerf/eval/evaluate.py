@@ -42,7 +42,8 @@ SPACE = "sRGB-encoded [0,1]"
 POSE_BATCH = 1024
 POSE_PROTOCOL = (
     "each test view's pose fitted to its own test image (6 numbers per view, Adam on the linear MSE of "
-    "random pixels; the field frozen), then scored; reported beside the plain score, never instead of it"
+    "random pixels; the field frozen; a view scored against the mean of view_poses renders moves them "
+    "together), then scored; reported beside the plain score, never instead of it"
 )
 
 
@@ -129,19 +130,29 @@ def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | N
     return (None, reason) if reason else (backbone, None)
 
 
+def mean_render(model: Any, poses: Any, k: Any, dataset: SpikeDataset, chunk: int) -> torch.Tensor:
+    """The displayed (C, H, W) mean of the renders at ``poses`` (S, 4, 4): one pose, or a TFP keyframe's
+    S poses across its window."""
+    colors = [render_image(model, p, k, dataset.near, dataset.far, chunk).color for p in poses]
+    return display(torch.stack(colors).mean(dim=0), model.channels)
+
+
 def pose_optimised(
     model: Any, views: PosedImages, k: Any, dataset: SpikeDataset, backbone: str | None, chunk: int,
-    test_pose: tuple[int, float],
+    test_pose: tuple[int, float], window: np.ndarray | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Scores of ``views`` (V poses (V, 4, 4), images (V, H, W, 3)) after fitting each pose to its own image
-    with the model frozen (:func:`spikenerf.train.pose_fit.fit_view_poses`, ``test_pose`` = (steps, lr))."""
+    with the model frozen (:func:`spikenerf.train.pose_fit.fit_view_poses`, ``test_pose`` = (steps, lr)).
+    ``window`` (V, S, 4, 4): each view's S poses whose mean render it shows (``keyframe_windows``), fitted
+    with one correction per view and scored by their mean render; None: the views' own poses."""
     steps, lr = test_pose
     targets = image_channels(np.asarray(views.images), "gray" if model.channels == 1 else "rgb")
-    fit = fit_view_poses(model, torch.as_tensor(np.asarray(views.poses)), targets, k, dataset.near,
-                         dataset.far, steps=steps, lr=lr, batch=POSE_BATCH)  # fmt: skip
+    start = np.asarray(views.poses)[:, None] if window is None else np.asarray(window)
+    fit = fit_view_poses(model, torch.as_tensor(start), targets, k, dataset.near, dataset.far, steps=steps,
+                         lr=lr, batch=POSE_BATCH)  # fmt: skip
     per_view = []
-    for i, pose in enumerate(fit.poses):
-        pred = display(render_image(model, pose, k, dataset.near, dataset.far, chunk).color, model.channels)
+    for i, poses in enumerate(fit.poses):
+        pred = mean_render(model, poses, k, dataset, chunk)
         scores = score_view(pred, display(views.images[i], model.channels), backbone)
         size = {"rotation_deg": float(fit.rotation_deg[i]), "translation": float(fit.translation[i])}
         per_view.append({"index": i, **scores, **size})
@@ -215,11 +226,11 @@ def _evaluate_locked(
         log(f"LPIPS skipped: {reason}")
     per_view = []
     windows = keyframe_windows(dataset, config.window_poses(), views) if split == "test" else None
-    path = refined_dataset(ckpt, config, dataset).trajectory.poses if windows is not None else None
+    window = None  # each test keyframe's S poses on the run's (refined) path: (V, S, 4, 4)
+    if windows is not None:
+        window = np.asarray(refined_dataset(ckpt, config, dataset).trajectory.poses)[windows]
     for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
-        poses = [views.poses[i]] if windows is None else [path[j] for j in windows[i]]
-        colors = [render_image(model, p, k, dataset.near, dataset.far, chunk).color for p in poses]
-        pred = display(torch.stack(colors).mean(dim=0), model.channels)
+        pred = mean_render(model, [views.poses[i]] if window is None else window[i], k, dataset, chunk)
         target = display(views.images[i], model.channels)
         per_view.append({"index": i, **score_view(pred, target, backbone)})
     result = {
@@ -240,7 +251,9 @@ def _evaluate_locked(
         "seconds": 0.0,
     }
     if test_pose[0] > 0 and len(views):
-        result["test_pose_optimised"] = pose_optimised(model, views, k, dataset, backbone, chunk, test_pose)
+        result["test_pose_optimised"] = pose_optimised(
+            model, views, k, dataset, backbone, chunk, test_pose, window
+        )
     if use_noref:
 
         def bar(steps: Any) -> Any:

@@ -5,8 +5,10 @@ SPARF): a run trained on estimated poses lives in its own slightly rotated and s
 views are first registered to it. Each view gets a 6-DoF correction ``ξ = (ω, ρ)`` (so(3) × R³, the same
 camera-frame correction as :mod:`spikenerf.train.pose_refine`: ``c2w' = c2w · [exp(ω) | ρ]``), fitted by
 Adam on random pixels of that view for a fixed number of steps, with every field parameter frozen. Only the
-6 numbers per view move. docs/metrics.md explains why this is reported beside the plain score, never
-instead of it.
+6 numbers per view move. A view that shows the mean light of a camera motion (a TFP keyframe scored for a
+run with window-aware targets) is given as S poses across that motion: one correction moves all S, and the
+fitted image is the mean of their S renders. docs/metrics.md explains why this is reported beside the plain
+score, never instead of it.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ class PoseFit:
     """The result of :func:`fit_view_poses`.
 
     Attributes:
-        poses: (V, 4, 4) float32 corrected camera-to-world poses, on the CPU.
+        poses: (V, 4, 4) or (V, S, 4, 4) float32 corrected camera-to-world poses (as given), on the CPU.
         rotation_deg: (V,) float64 angle of each view's rotation correction (degrees).
         translation: (V,) float64 length of each view's shift (scene units).
         loss_first: mean squared error (linear) of the first step's batch, all views.
@@ -74,28 +76,30 @@ def fit_view_poses(
 
     Args:
         model: the trained radiance model; its parameters are not changed (nor is their ``requires_grad``).
-        poses: (V, 4, 4) initial camera-to-world poses (OpenGL axes).
+        poses: (V, 4, 4) initial camera-to-world poses (OpenGL axes), or (V, S, 4, 4): S poses per view whose
+            mean render the image shows; one correction per view moves all S (each in its camera frame).
         images: (V, H, W, C) linear target images, C = ``model.channels``.
         intrinsics: the views' pinhole camera (H × W). near/far: optional scalar ray limits.
         steps: Adam steps (0: the poses come back unchanged). lr: Adam's first rate (radians and scene
             units per step), decaying exponentially to ``FINAL_RATIO`` · lr at the last step.
-        batch: random pixels per view and step; views are fitted in groups of ``MAX_RAYS // batch`` (each
-            view's fit is independent: Adam works per element). seed: the pixel draws (same seed → same
+        batch: random pixels per view and step; views are fitted in groups of ``MAX_RAYS // (batch · S)``
+            (each view's fit is independent: Adam works per element). seed: the pixel draws (same seed → same
             result).
     Returns:
         a :class:`PoseFit`: corrected poses (V, 4, 4) and each view's correction size.
     """
     check_fit_args(steps, lr, batch)
-    poses = torch.as_tensor(poses).to(model.device, torch.float32)
+    given = torch.as_tensor(poses).to(model.device, torch.float32)
     images = torch.as_tensor(images).to(model.device, torch.float32)
     v, h, w = images.shape[:3]
-    if poses.shape != (v, 4, 4) or (h, w) != (intrinsics.height, intrinsics.width):
-        raise ValueError(f"poses {tuple(poses.shape)} and images {tuple(images.shape)} do not match")
+    poses = given[:, None] if given.ndim == 3 else given  # (V, S, 4, 4)
+    if poses.shape[::2] != (v, 4) or poses.shape[-1] != 4 or (h, w) != (intrinsics.height, intrinsics.width):
+        raise ValueError(f"poses {tuple(given.shape)} and images {tuple(images.shape)} do not match")
     gen = torch.Generator().manual_seed(seed)
     frozen = [p for p in model.parameters() if p.requires_grad]
     was_training = model.training
     model.eval()
-    group = max(1, MAX_RAYS // batch)  # views fitted together: memory stays that of a training step
+    group = max(1, MAX_RAYS // (batch * poses.shape[1]))  # views fitted together: a training step's memory
     xis, firsts, lasts = [], [], []
     try:
         for p in frozen:
@@ -114,7 +118,7 @@ def fit_view_poses(
         model.train(was_training)
     xi = torch.cat(xis) if xis else torch.zeros(0, 6, device=model.device)
     with torch.no_grad():
-        fitted = (poses @ se3_exp(xi)).cpu()
+        fitted = (poses @ se3_exp(xi)[:, None]).reshape(given.shape).cpu()
     return PoseFit(
         poses=fitted,
         rotation_deg=torch.rad2deg(xi[:, :3].norm(dim=1)).double().cpu(),
@@ -135,9 +139,10 @@ def _fit_group(
     batch: int,
     gen: torch.Generator,
 ) -> tuple[Tensor, float, float]:
-    """Fit the corrections ξ (G, 6) of G views (poses (G, 4, 4), images (G, H, W, C)) together; returns ξ
+    """Fit the corrections ξ (G, 6) of G views (poses (G, S, 4, 4), images (G, H, W, C)) together; returns ξ
     (detached) and the per-pixel loss of the first and the last step (NaN with no steps)."""
     v, h, w = images.shape[:3]
+    s = poses.shape[1]
     xi = torch.zeros(v, 6, device=model.device, requires_grad=True)
     opt = torch.optim.Adam([xi], lr=lr)
     decay = torch.optim.lr_scheduler.ExponentialLR(opt, FINAL_RATIO ** (1 / max(steps, 1)))
@@ -146,10 +151,12 @@ def _fit_group(
         idx = torch.randint(0, h * w, (v, batch), generator=gen).to(model.device)  # (G, B)
         pixels = torch.stack([idx % w, idx // w], -1).reshape(-1, 2)  # (G·B, 2) (x, y)
         view = torch.arange(v, device=model.device).repeat_interleave(batch)
-        corrected = poses @ se3_exp(xi)  # (G, 4, 4)
-        origins, dirs = pixel_rays(corrected[view], intrinsics, pixels)
+        corrected = poses @ se3_exp(xi)[:, None]  # (G, S, 4, 4)
+        origins, dirs = pixel_rays(
+            corrected[view].reshape(-1, 4, 4), intrinsics, pixels.repeat_interleave(s, 0)
+        )
         lo, hi = ray_bounds(model, origins, dirs, *bounds)
-        color = model.render_rays(origins, dirs, lo, hi, perturb=False).color
+        color = model.render_rays(origins, dirs, lo, hi, perturb=False).color.unflatten(0, (-1, s)).mean(1)
         target = images[view, pixels[:, 1], pixels[:, 0]]
         loss = ((color - target) ** 2).mean() * v  # each view's mean: its gradient does not shrink with G
         opt.zero_grad(set_to_none=True)
