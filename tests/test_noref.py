@@ -135,6 +135,11 @@ def test_eval_scores_tfp_keyframes_against_the_window_mean_of_a_window_aware_run
     with pytest.raises(InputError, match=r"2 test views but config\.yaml records 3 imported test keyframes"):
         ev.keyframe_windows(dataset, WINDOW_POSES, fewer)
     assert ev.keyframe_windows(dataset, 1, fewer) is None  # a one-pose run does not use the keyframes
+    for key, value, says in (("window", 0, "imported.window"), ("window", True, "imported.window"),
+                             ("test_keyframes", "abc", "imported.test_keyframes")):  # fmt: skip
+        edited = {**dataset.config, "imported": {**dataset.config["imported"], key: value}}
+        with pytest.raises(InputError, match=says):
+            ev.keyframe_windows(dataclasses.replace(dataset, config=edited), WINDOW_POSES, dataset.test)
 
 
 def test_info_says_how_a_window_aware_run_trains_and_was_scored(demo: Path, capsys) -> None:
@@ -157,6 +162,8 @@ def test_eval_without_views_to_score_runs_the_checks_alone(demo: Path, capsys) -
     assert "on 0 train views: PSNR n/a" in out and "no-reference at 3 check steps" in out
     result = json.loads((run / "metrics.json").read_text())
     assert result["views"] == 0 and result["no_reference"]["mean"]["masked_psnr"] is not None
+    code, out, _ = run_cli(capsys, "info", run)  # no empty "metrics.json (train, 0 views):" line
+    assert code == 0 and "0 views" not in out and "no-reference: mask_fraction" in out
     code, _, err = run_cli(capsys, "eval", run, "--split", "train", "--noref", "off", "--quiet")
     assert code == 2 and "no train views" in err
 

@@ -174,5 +174,23 @@ def test_a_view_of_a_camera_motion_is_fitted_through_the_mean_of_its_window_rend
     a = fit_view_poses(model, start[:, 0], images, K, steps=5, batch=64)
     b = fit_view_poses(model, start[:, :1], images, K, steps=5, batch=64)
     assert b.poses.shape == (2, 1, 4, 4) and torch.equal(a.poses, b.poses[:, 0])
-    with pytest.raises(ValueError, match="do not match"):
-        fit_view_poses(model, start[:1], images, K, steps=1)
+    for bad in (start[:1], start[:, :0]):  # too few views; no pose in a view's window
+        with pytest.raises(ValueError, match="do not match"):
+            fit_view_poses(model, bad, images, K, steps=1)
+
+
+def test_a_wide_window_keeps_a_step_within_max_rays(monkeypatch) -> None:
+    model, truth = FogModel(), _truth()
+    images = _views(model, truth)
+    monkeypatch.setattr(pose_fit, "MAX_RAYS", 96)
+    rays: list[int] = []
+    real = model.render_rays
+
+    def counted(origins, *args, **kw):  # type: ignore[no-untyped-def]
+        rays.append(len(origins))
+        return real(origins, *args, **kw)
+
+    monkeypatch.setattr(model, "render_rays", counted)
+    window = truth[:, None].repeat(1, 8, 1, 1)  # S = 8: 12 pixels of one view per step
+    fit = fit_view_poses(model, window, images, K, steps=3, batch=64)
+    assert rays == [96] * 6 and fit.poses.shape == (2, 8, 4, 4)  # 2 groups of one view × 3 steps

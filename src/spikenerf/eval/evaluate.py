@@ -74,23 +74,29 @@ def keyframe_windows(dataset: SpikeDataset, count: int, views: PosedImages) -> n
     targets (``count`` = its poses per target > 1): it then renders sharp images, and the mean of
     ``count`` renders over the keyframe's window is what the keyframe shows. None as well for an import
     that did not record its keyframe ``window`` (older versions), or without recorded test keyframes.
-    InputError (naming the dataset) when the test views are not as many as the recorded keyframes: the
-    dataset was edited after ``import``, and scoring one render instead would hide it.
+    InputError (naming the dataset) when the recorded keyframes or window are malformed, or the test views
+    are not as many as the recorded keyframes (the dataset was edited after ``import``; scoring one render
+    instead would hide it).
     """
     imported = (dataset.config or {}).get("imported") or {}
     keys, window = imported.get("test_keyframes") or [], imported.get("window")
     tfp = imported.get("keyframe_images", "tfp") == "tfp"
-    if count < 2 or not tfp or not isinstance(window, int) or not keys:
+    if count < 2 or not tfp or window is None or not keys:
         return None  # one pose, learned keyframes, or an import from before the window was recorded
+    if isinstance(window, bool) or not isinstance(window, int) or window < 1 or window % 2 == 0:
+        raise InputError(
+            f"config.yaml: imported.window must be an odd number of steps ≥ 1, found {window!r}",
+            path=dataset.root,
+        )
     if not len(views):  # nothing to score (the no-reference checks alone)
         return None
-    if len(keys) != len(views):
+    steps, _ = check_steps(dataset, 0)  # the recorded keyframes' stream indices, checked
+    if len(steps) != len(views):
         raise InputError(
-            f"the dataset has {len(views)} test views but config.yaml records {len(keys)} imported test "
+            f"the dataset has {len(views)} test views but config.yaml records {len(steps)} imported test "
             "keyframes (imported.test_keyframes); re-run import, or restore the test views it wrote",
             path=dataset.root,
         )
-    steps, _ = check_steps(dataset, len(keys))  # stream indices, checked
     return window_steps(len(dataset.trajectory), window, count)[steps]
 
 

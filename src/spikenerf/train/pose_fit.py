@@ -27,7 +27,8 @@ from spikenerf.train.pose_refine import se3_exp
 
 #: the rate decays exponentially to this fraction of ``lr`` over the steps (settles the random-batch noise)
 FINAL_RATIO = 0.1
-#: at most this many rays per Adam step: the views are fitted in groups of ``MAX_RAYS // batch``
+#: at most this many rays per Adam step: the views are fitted in groups of ``MAX_RAYS // (batch · S)``, and
+#: with S poses per view at most ``MAX_RAYS // S`` pixels of a view are drawn per step
 MAX_RAYS = 8192
 
 
@@ -82,23 +83,26 @@ def fit_view_poses(
         intrinsics: the views' pinhole camera (H × W). near/far: optional scalar ray limits.
         steps: Adam steps (0: the poses come back unchanged). lr: Adam's first rate (radians and scene
             units per step), decaying exponentially to ``FINAL_RATIO`` · lr at the last step.
-        batch: random pixels per view and step; views are fitted in groups of ``MAX_RAYS // (batch · S)``
-            (each view's fit is independent: Adam works per element). seed: the pixel draws (same seed → same
-            result).
+        batch: random pixels per view and step (at most ``MAX_RAYS // S``); views are fitted in groups of
+            ``MAX_RAYS // (batch · S)``, at least one (each view's fit is independent: Adam works per
+            element). seed: the pixel draws (same seed → same result).
     Returns:
-        a :class:`PoseFit`: corrected poses (V, 4, 4) and each view's correction size.
+        a :class:`PoseFit`: corrected poses shaped as given, (V, 4, 4) or (V, S, 4, 4), and each view's
+            correction size.
     """
     check_fit_args(steps, lr, batch)
     given = torch.as_tensor(poses).to(model.device, torch.float32)
     images = torch.as_tensor(images).to(model.device, torch.float32)
     v, h, w = images.shape[:3]
     poses = given[:, None] if given.ndim == 3 else given  # (V, S, 4, 4)
-    if poses.shape[::2] != (v, 4) or poses.shape[-1] != 4 or (h, w) != (intrinsics.height, intrinsics.width):
+    bad = poses.shape[::2] != (v, 4) or poses.shape[-1] != 4 or poses.shape[1] < 1
+    if bad or (h, w) != (intrinsics.height, intrinsics.width):
         raise ValueError(f"poses {tuple(given.shape)} and images {tuple(images.shape)} do not match")
     gen = torch.Generator().manual_seed(seed)
     frozen = [p for p in model.parameters() if p.requires_grad]
     was_training = model.training
     model.eval()
+    batch = min(batch, max(1, MAX_RAYS // poses.shape[1]))  # one view's rays stay within MAX_RAYS
     group = max(1, MAX_RAYS // (batch * poses.shape[1]))  # views fitted together: a training step's memory
     xis, firsts, lasts = [], [], []
     try:

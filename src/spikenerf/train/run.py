@@ -109,13 +109,19 @@ def describe_run(run_dir: str | Path) -> str:
         )
     if (path := run_dir / "metrics.json").exists():
         try:
-            metrics = json.loads(path.read_text())
+            text = path.read_text()
+        except OSError as err:
+            raise InputError(f"cannot read it ({err.strerror or err})", path=path) from err
+        try:
+            metrics = json.loads(text)
             scored = f"metrics.json ({metrics['split']}, {metrics['views']} views{_per_view(metrics)})"
             for label, mean in ((scored, metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
-                if mean:
-                    values = "   ".join(f"{k} {v:.4g}" for k, v in mean.items() if v is not None)
+                values = "   ".join(f"{k} {v:.4g}" for k, v in (mean or {}).items() if v is not None)
+                if values:
                     lines.append(f"{label}: {values}")
-        except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        except KeyError as err:
+            raise InputError(f"malformed metrics: no {err}; run eval again to rewrite it", path=path) from err
+        except (ValueError, TypeError, AttributeError) as err:
             raise InputError(f"malformed metrics ({err}); run eval again to rewrite it", path=path) from err
     return "\n".join(lines)
 
