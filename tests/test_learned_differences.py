@@ -1,0 +1,29 @@
+"""benchmarks/learned_differences.py --per-scene: each scene's paired PSNR differences, seed by seed."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+from spikenerf.pipelines.tables import Cell
+
+
+def _bench():  # type: ignore[no-untyped-def]
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "learned_differences.py"
+    spec = importlib.util.spec_from_file_location("learned_differences_under_test", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+def test_per_scene_rows_pair_the_same_seed_and_skip_missing_rows() -> None:
+    cells = [Cell(scene, variant, "gray", psnr, 0.9, seed=seed) for scene, variant, seed, psnr in (
+        ("toy", "spike-nerf", 0, 21.0), ("toy", "nerf-recon", 0, 20.5),
+        ("toy", "spike-nerf", 1, 22.0), ("toy", "nerf-recon", 1, 22.3),
+        ("food", "spike-nerf", 0, 30.0),  # no baseline cell: no pair
+    )]  # fmt: skip
+    table = _bench().per_scene_table(cells, (("spike-nerf", "nerf-recon"),)).splitlines()
+    assert table[0] == "| scene | spike-nerf − nerf-recon |"
+    assert table[2] == "| toy | +0.10 (+0.50, -0.30) |"  # mean of +0.50 and −0.30, seed 0 first
+    assert table[3] == "| food | — |"
