@@ -5,6 +5,10 @@ Import it as ``from helpers import ...`` (pytest puts ``tests/`` on ``sys.path``
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
 import pytest
 
 from spikenerf.cli import main
@@ -23,3 +27,13 @@ def run_cli(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str
         code = int(exit_.code or 0)
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def load_benchmark(name: str) -> ModuleType:
+    """``benchmarks/NAME.py`` imported from its file (benchmarks are scripts, not part of the wheel)."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"{name}_under_test", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

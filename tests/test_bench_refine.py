@@ -3,20 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
-from pathlib import Path
 
 import pytest
 import yaml
 
+from helpers import load_benchmark
+
 
 def _bench():  # type: ignore[no-untyped-def]
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_refine.py"
-    spec = importlib.util.spec_from_file_location("bench_refine_under_test", path)
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    return bench
+    return load_benchmark("bench_refine")
 
 
 def _args(**kw) -> argparse.Namespace:  # type: ignore[no-untyped-def]

@@ -2,19 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
+from helpers import load_benchmark
 from spikenerf.pipelines.tables import Cell
 
 
 def _bench():  # type: ignore[no-untyped-def]
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "learned_differences.py"
-    spec = importlib.util.spec_from_file_location("learned_differences_under_test", path)
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    return bench
+    return load_benchmark("learned_differences")
 
 
 def test_per_scene_rows_pair_the_same_seed_and_skip_missing_rows() -> None:
