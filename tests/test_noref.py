@@ -90,8 +90,11 @@ def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path
     assert json.loads((run / "metrics.json").read_text())["no_reference"] is None
 
 
-def _spy_renders(monkeypatch, module) -> list[np.ndarray]:  # type: ignore[no-untyped-def]
-    """Record the pose of every ``render_image`` call made through ``module``; the list it fills."""
+def _spy_renders(monkeypatch) -> list[np.ndarray]:  # type: ignore[no-untyped-def]
+    """Record the pose of every image render (``render_mean`` renders each of its poses through
+    ``render.model.render_image``); the list it fills."""
+    import spikenerf.render.model as module
+
     seen: list[np.ndarray] = []
     real = module.render_image
 
@@ -109,7 +112,7 @@ def test_eval_scores_tfp_keyframes_against_the_window_mean_of_a_window_aware_run
     import spikenerf.eval.evaluate as ev
 
     _, config, dataset = load_run(demo / "run")
-    seen = _spy_renders(monkeypatch, ev)
+    seen = _spy_renders(monkeypatch)
     result = ev.evaluate_run(demo / "run", lpips_backbone=None, progress=False, noref="off")
     assert result["view_poses"] == config.targets.poses_per_target() == WINDOW_POSES
     window = int(dataset.config["imported"]["window"])
@@ -200,7 +203,7 @@ def test_a_good_model_scores_better_than_broken_ones(demo: Path) -> None:
 def test_masked_scores_render_what_the_run_was_trained_to_match(demo: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     model, config, dataset = load_run(demo / "run")
     assert config.targets.window_poses == WINDOW_POSES > 1  # the default run: window-aware targets
-    seen = _spy_renders(monkeypatch, noref)
+    seen = _spy_renders(monkeypatch)
     step, total = 40, len(dataset.trajectory)
     pixels = torch.tensor([[3, 4], [10, 12]])
     for poses in (WINDOW_POSES, 1):

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from spikenerf.core.errors import InputError
 from spikenerf.data.rays import image_rays, pixel_rays, ray_box_bounds
 from spikenerf.fields import GridFieldConfig, MLPFieldConfig
-from spikenerf.render import build_model, model_from_hparams, render_image
+from spikenerf.render import build_model, model_from_hparams, render_image, render_mean
 from spikenerf.render.volume import composite, sample_pdf, weights_from_density
 from spikenerf.scenes.trajectory import Intrinsics, look_at
 
@@ -184,6 +184,10 @@ def test_render_image_shapes_and_hparams_round_trip() -> None:
     assert img.color.shape == (5, 7, 1) and img.depth.shape == (5, 7) and img.opacity.shape == (5, 7)
     clone = model_from_hparams(model.hparams(), model.state_dict())
     assert torch.equal(render_image(clone, pose, intr).color, img.color)
+    other = look_at(np.array([3.0, 0.0, 1.0]), np.zeros(3))
+    assert torch.equal(render_mean(model, [pose], intr), img.color)  # one pose: its render
+    both = (img.color + render_image(model, other, intr).color) / 2
+    assert torch.allclose(render_mean(model, np.stack([pose, other]), intr), both)
 
 
 def test_build_model_rejects_bad_input() -> None:

@@ -29,7 +29,7 @@ from spikenerf.data.targets import image_channels, window_steps
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
-from spikenerf.render import render_image
+from spikenerf.render import render_mean
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.pose_fit import check_fit_args, fit_view_poses
 from spikenerf.train.pose_refine import refined_dataset, refined_views
@@ -136,13 +136,6 @@ def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | N
     return (None, reason) if reason else (backbone, None)
 
 
-def mean_render(model: Any, poses: Any, k: Any, dataset: SpikeDataset, chunk: int) -> torch.Tensor:
-    """The displayed (C, H, W) mean of the renders at ``poses`` (S, 4, 4): one pose, or a TFP keyframe's
-    S poses across its window."""
-    colors = [render_image(model, p, k, dataset.near, dataset.far, chunk).color for p in poses]
-    return display(torch.stack(colors).mean(dim=0), model.channels)
-
-
 def pose_optimised(
     model: Any, views: PosedImages, k: Any, dataset: SpikeDataset, backbone: str | None, chunk: int,
     test_pose: tuple[int, float], window: np.ndarray | None = None,
@@ -158,7 +151,7 @@ def pose_optimised(
                          lr=lr, batch=POSE_BATCH)  # fmt: skip
     per_view = []
     for i, poses in enumerate(fit.poses):
-        pred = mean_render(model, poses, k, dataset, chunk)
+        pred = display(render_mean(model, poses, k, dataset.near, dataset.far, chunk), model.channels)
         scores = score_view(pred, display(views.images[i], model.channels), backbone)
         size = {"rotation_deg": float(fit.rotation_deg[i]), "translation": float(fit.translation[i])}
         per_view.append({"index": i, **scores, **size})
@@ -236,7 +229,8 @@ def _evaluate_locked(
     if windows is not None:
         window = np.asarray(refined_dataset(ckpt, config, dataset).trajectory.poses)[windows]
     for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
-        pred = mean_render(model, [views.poses[i]] if window is None else window[i], k, dataset, chunk)
+        poses = [views.poses[i]] if window is None else window[i]  # one pose, or a keyframe's window
+        pred = display(render_mean(model, poses, k, dataset.near, dataset.far, chunk), model.channels)
         target = display(views.images[i], model.channels)
         per_view.append({"index": i, **score_view(pred, target, backbone)})
     result = {

@@ -39,7 +39,7 @@ from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import check_steps, is_imported
 from spikenerf.data.targets import reconstruct_stream, stream_mode, window_steps
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
-from spikenerf.render import RadianceModel, render_image, render_spike_window
+from spikenerf.render import RadianceModel, render_mean, render_spike_window
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import spike_interval_violation
 
@@ -155,10 +155,7 @@ def score_step(
     # what the run was trained to match: one render at the step, or the mean over its TFP window's poses
     count = config.window_poses()
     poses = window_steps(total, t.window, count)[step] if count > 1 else [step]
-    color = torch.stack([
-        render_image(model, dataset.trajectory.poses[j], dataset.intrinsics, dataset.near, dataset.far).color
-        for j in poses
-    ]).mean(dim=0)  # fmt: skip
+    color = render_mean(model, dataset.trajectory.poses[poses], dataset.intrinsics, dataset.near, dataset.far)
     pred, target = display(color, model.channels), display(recon, model.channels)
     m = mask.expand_as(pred)
     side = min(pred.shape[-2:]) >= SSIMConfig().window

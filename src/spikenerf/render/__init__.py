@@ -9,6 +9,7 @@ from spikenerf.render.model import (
     model_from_hparams,
     ray_bounds,
     render_image,
+    render_mean,
     render_rays_chunked,
 )
 from spikenerf.render.spiking import (
@@ -33,6 +34,7 @@ __all__ = [
     "model_from_hparams",
     "ray_bounds",
     "render_image",
+    "render_mean",
     "render_rays_chunked",
     "render_spike_stream",
     "render_spike_window",

@@ -104,3 +104,17 @@ def render_image(
     return RenderOutput(
         out.color.view(h, w, -1), out.depth.view(h, w), out.opacity.view(h, w), num_samples=out.num_samples
     )
+
+
+def render_mean(
+    model: RadianceModel,
+    poses: Tensor | np.ndarray,
+    intrinsics: Intrinsics,
+    near: float | None = None,
+    far: float | None = None,
+    chunk: int = 8192,
+) -> Tensor:
+    """The mean color (H, W, C), linear, of the renders at ``poses`` (S, 4, 4): what a view shows whose light
+    was gathered over a camera motion (a TFP window, an exposure); S = 1 is :func:`render_image`'s color."""
+    colors = [render_image(model, pose, intrinsics, near, far, chunk).color for pose in poses]
+    return torch.stack(colors).mean(dim=0)
