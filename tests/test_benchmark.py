@@ -118,3 +118,30 @@ def test_disk_estimate_counts_seeds_and_every_simulated_stream(monkeypatch: pyte
     sim = estimate_resources(16, 16, 100, ("gray", "rgb", "bayer"), 1, 4, 10, 1)[1]  # what --color all writes
     cell = (one - sim) / 2  # two colours, one seed
     assert cell > 0 and three == pytest.approx(sim + 6 * cell)
+
+
+def test_set_reaches_every_cell_and_a_bad_key_fails_first(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import yaml
+
+    from spikenerf.cli import main
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    out = tmp_path / "b"
+    args = ["benchmark", "--scenes", "analytic-orbs", "--methods", "nerf-gt", "--color", "gray", "--size",
+            "16", "--frames", "40", "--iters", "2", "--device", "cpu", "--test-views", "1", "--no-render",
+            "--out"]  # fmt: skip
+    for bad, words in [("nope=1", "--set: unknown TrainConfig keys ['nope']"), ("batch", "--set: override")]:
+        with pytest.raises(SystemExit) as exit_:
+            main([*args, str(out), "--set", bad])
+        err = capsys.readouterr().err.strip()
+        assert exit_.value.code == 2 and words in err and "\n" not in err
+        assert not out.exists()
+    main([*args, str(out), "--set", "batch=64", "--set", "field_config.hidden=16"])
+    config = yaml.safe_load((out / "runs" / "analytic-orbs" / "gray" / "nerf-gt" / "config.yaml").read_text())
+    assert config["batch"] == 64 and config["field_config"]["hidden"] == 16
+    stored = json.loads((out / "benchmark.json").read_text())["settings"]["extra_train_args"]
+    assert stored == ["--set", "batch=64", "--set", "field_config.hidden=16"]
+    simulate = json.loads((out / "results.json").read_text())["commands"]["datasets"]["analytic-orbs"]
+    assert simulate[simulate.index("--jobs") + 1] == "1"  # OMP_NUM_THREADS render processes

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import imageio.v2 as iio2
@@ -114,6 +115,15 @@ def test_bad_inputs_are_one_line_errors(
     assert "config.yaml" in _cli_error(capsys, "render", tmp_path / "empty", "--out", tmp_path / "o")
     err = _cli_error(capsys, "render", run_dir, "--trajectory", "spiral", "--out", tmp_path / "o")
     assert "--trajectory" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_render_without_imageio_ffmpeg_is_one_line_before_any_work(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import now raises ImportError
+    err = _cli_error(capsys, "render", run_dir, "--device", "cpu", "--quiet", "--out", tmp_path / "o")
+    assert "pip install imageio-ffmpeg" in err
     assert not (tmp_path / "o").exists()
 
 

@@ -238,6 +238,31 @@ def test_resume_reuses_cached_frames(tmp_path: Path) -> None:
     assert small.rendered == 40
 
 
+def test_render_processes_write_the_same_dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``jobs`` > 1 renders an analytic scene in worker processes; the dataset is byte-identical."""
+    from spikenerf.data import simulate as sim
+
+    pools = []
+
+    class Recording(sim.ProcessPoolExecutor):
+        def __init__(self, *args, **kw) -> None:  # type: ignore[no-untyped-def]
+            pools.append(args[0])
+            super().__init__(*args, **kw)
+
+    monkeypatch.setattr(sim, "ProcessPoolExecutor", Recording)
+    traj = orbit(4.0, 30.0, duration=24 / 40000.0)
+    source = AnalyticSource("analytic-orbs", 16, 16, traj, novel_views(4.0, 1))
+    options = SimulateOptions(colors=("gray", "rgb"), blur_fps=4000.0)
+    simulate_dataset(source, tmp_path / "one", options, progress=False)
+    assert pools == []
+    simulate_dataset(source, tmp_path / "two", options, progress=False, jobs=2)
+    assert pools == [2]
+    for name in ["spikes_gray.dat", "spikes_rgb_g.dat", "transforms.json", "gt/00010.png", "test/00000.png"]:
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name
+    with pytest.raises(InputError, match="jobs must be ≥ 1"):
+        simulate_dataset(source, tmp_path / "zero", options, progress=False, jobs=0)
+
+
 def _fails(capsys, argv: list[str]) -> str:
     with pytest.raises(SystemExit) as exit_:
         main(argv)

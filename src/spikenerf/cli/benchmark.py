@@ -41,6 +41,11 @@ PARAM_FLAGS = {"field_kind": "--field"}
     "centred on every step), 'frames' = consecutive 400 fps frames, or N evenly spaced exposures.",
 )  # fmt: skip
 @click.option("--test-views", type=click.IntRange(min=1), default=8, show_default=True)
+@click.option(
+    "--set", "overrides", multiple=True, metavar="KEY=VALUE",
+    help="Override a TrainConfig field in every cell's training, as `train --set` (e.g. --set batch=4096 "
+    "--set field_config.n_voxels_final=27000000 for a GPU). Repeatable; kept in OUT/benchmark.json.",
+)  # fmt: skip
 @click.option("--no-render", is_flag=True, help="Skip rendering test views (no report figures).")
 @click.option(
     "--jobs",
@@ -71,8 +76,9 @@ PARAM_FLAGS = {"field_kind": "--field"}
 )
 def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
-    field: str, device: str, seed: int, seeds: str | None, blur_views: str, test_views: int, no_render: bool,
-    jobs: int, executor: str, address: str | None, retries: int, ray_cpus: float, ray_ship_results: bool,
+    field: str, device: str, seed: int, seeds: str | None, blur_views: str, test_views: int,
+    overrides: tuple[str, ...], no_render: bool, jobs: int, executor: str, address: str | None, retries: int,
+    ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
     from spikenerf.data.blur import check_blur_views
     from spikenerf.pipelines.benchmark import BenchmarkConfig, parse_seeds, resolve_scenes, resolve_variants
@@ -84,12 +90,20 @@ def command(
     if size < 8 or frames < 2:
         raise InputError(f"--size must be ≥ 8 and --frames ≥ 2, got {size} and {frames}")
     views = str(check_blur_views(blur_views, frames))
+    if overrides:  # a bad key fails here, once, not in every cell
+        from spikenerf.train.config import TrainConfig, apply_overrides
+
+        try:
+            TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), list(overrides)))
+        except InputError as err:
+            raise InputError(f"--set: {err}") from err
     cfg = BenchmarkConfig(
         scenes=resolve_scenes(scenes), variants=resolve_variants(methods), colors=colors, out=out,
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
         test_views=test_views, render=not no_render, jobs=jobs, executor=executor, address=address,
         retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus,
         seeds=None if seeds is None else parse_seeds(seeds), blur_views=views,
+        extra_train_args=[arg for item in overrides for arg in ("--set", item)],
     )  # fmt: skip
     benchmark_with_report(cfg)
     click.echo(f"wrote {out}/table1.md, table2.md, differences.md, results.csv, results.json, report.html")

@@ -104,6 +104,10 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 )  # fmt: skip
 @click.option("--list-scenes", is_flag=True, help="List the named scenes and exit.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
+@click.option(
+    "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
+    help="Processes rendering frames at once (analytic scenes; Blender and sequences render in one).",
+)  # fmt: skip
 @click.option("--no-progress", is_flag=True, help="Hide the progress bars.")
 def command(**kw: Any) -> None:
     from spikenerf.scenes import registry
@@ -147,7 +151,7 @@ def command(**kw: Any) -> None:
         extra=extra,
         raw_width=kw["raw_width"],
     )
-    out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"])
+    out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"], jobs=kw["jobs"])
     k = source.intrinsics
     click.echo(
         f"wrote {out}: {len(source.trajectory)} steps at {source.trajectory.fps:g} Hz, "

@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 import shutil
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -169,13 +172,41 @@ def _cached(path: Path, shape: tuple[int, ...]) -> bool:
         return False
 
 
-def render_missing(source: FrameSource, cache: Path, progress: bool = True) -> int:
-    """Render the steps (and the test views) not yet in ``cache``; returns the number of steps rendered."""
+#: the source a render worker process draws from (set once per worker by :func:`_init_render_worker`)
+_WORKER_SOURCE: FrameSource | None = None
+
+
+def _init_render_worker(source: FrameSource) -> None:
+    global _WORKER_SOURCE
+    _WORKER_SOURCE = source
+
+
+def _render_step(step: int) -> np.ndarray:
+    assert _WORKER_SOURCE is not None
+    return np.asarray(next(iter(_WORKER_SOURCE.frames([step]))))
+
+
+def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.ndarray]:
+    """The frames of ``steps`` in order: from ``jobs`` worker processes when the source allows it
+    (``parallel_render``: a picklable source whose frames depend on the step alone), else in this one."""
+    if jobs <= 1 or len(steps) < 2 or not getattr(source, "parallel_render", False):
+        yield from source.frames(steps)
+        return
+    ctx = multiprocessing.get_context("spawn")  # no fork of a process that may hold torch threads
+    with ProcessPoolExecutor(min(jobs, len(steps)), ctx, _init_render_worker, (source,)) as pool:
+        yield from pool.map(_render_step, steps, chunksize=max(1, min(8, len(steps) // (4 * jobs))))
+
+
+def render_missing(source: FrameSource, cache: Path, progress: bool = True, jobs: int = 1) -> int:
+    """Render the steps (and the test views) not yet in ``cache``; returns the number of steps rendered.
+
+    ``jobs`` > 1 renders in that many processes where the source sets ``parallel_render`` (analytic
+    scenes); Blender and image sequences render in this process."""
     k = source.intrinsics
     shape = (k.height, k.width, 3)
     missing = [int(s) for s in source.trajectory.steps if not _cached(cache / f"{int(s):05d}.npy", shape)]
     bar = tqdm(total=len(missing), desc="render", unit="step", disable=not progress or not missing)
-    for step, frame in zip(missing, source.frames(missing), strict=True):
+    for step, frame in zip(missing, _frames(source, missing, jobs), strict=True):
         frame = np.asarray(frame)
         if frame.shape != (k.height, k.width, 3) or not np.isfinite(frame).all():
             raise InputError(
@@ -333,34 +364,41 @@ def dataset_config(source: FrameSource, options: SimulateOptions, test_views: in
     }
 
 
-def simulate_dataset(source: FrameSource, out: Path, options: SimulateOptions, progress: bool = True) -> Path:
+def simulate_dataset(
+    source: FrameSource, out: Path, options: SimulateOptions, progress: bool = True, jobs: int = 1
+) -> Path:
     """Render ``source`` along its trajectory, simulate the spike cameras and write a dataset folder.
 
     Args:
         source: the scene (its trajectory, intrinsics, scene box and test views).
         out: the dataset folder to create; refused if it exists unless ``options.overwrite``.
         options: :class:`SimulateOptions`. progress: show tqdm bars.
+        jobs: processes rendering frames at once (sources with ``parallel_render``, :func:`render_missing`).
     Returns:
         ``out``. After an interruption, running again with the same source reuses the cached renders.
     """
     out = Path(out)
+    if jobs < 1:
+        raise InputError(f"jobs must be ≥ 1, found {jobs}", param="jobs")
     check_options(options)
     check_raw_width(options.raw_width, source.intrinsics.height, source.intrinsics.width)
     check_output(out, "dataset", overwrite=options.overwrite)
     with output_lock(out):
         recover_replaced(out)
         check_output(out, "dataset", overwrite=options.overwrite)  # again, now that no one else writes
-        return _simulate_locked(source, out, options, progress)
+        return _simulate_locked(source, out, options, progress, jobs)
 
 
-def _simulate_locked(source: FrameSource, out: Path, options: SimulateOptions, progress: bool) -> Path:
+def _simulate_locked(
+    source: FrameSource, out: Path, options: SimulateOptions, progress: bool, jobs: int
+) -> Path:
     traj, k = source.trajectory, source.intrinsics
     windows = blur_windows(len(traj), traj.fps, options.blur_fps, options.blur_views)
     work, fresh = open_work(out)
     cache = open_cache(source, work)
     clean_stale_temps(cache)
     try:
-        render_missing(source, cache, progress)
+        render_missing(source, cache, progress, jobs)
     except BaseException:
         if fresh and not any(cache.glob("*.npy")):  # nothing worth resuming: leave nothing behind
             shutil.rmtree(work, ignore_errors=True)

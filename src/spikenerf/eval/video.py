@@ -79,10 +79,20 @@ def colorize_depth(depth: np.ndarray, opacity: np.ndarray, lo: float, hi: float)
     return to_uint8(rgb * a + (1.0 - a))
 
 
+def ffmpeg_module() -> Any:
+    """``imageio_ffmpeg``; an InputError with the install line where it is missing (it is a dependency, but
+    a source checkout run with another Python, e.g. on a GPU host, may lack it)."""
+    try:
+        import imageio_ffmpeg
+    except ImportError as err:
+        raise InputError("render writes an mp4 and needs imageio-ffmpeg: pip install imageio-ffmpeg") from err
+    return imageio_ffmpeg
+
+
 def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
     """H.264 mp4 (yuv420p) of uint8 frames (H, W) or (H, W, 3), written atomically with imageio-ffmpeg's
     bundled ffmpeg; odd sizes are edge-padded to even (yuv420p needs even sizes)."""
-    import imageio_ffmpeg
+    imageio_ffmpeg = ffmpeg_module()
 
     rgb = [np.repeat(f[..., None], 3, -1) if f.ndim == 2 else f for f in frames]
     h, w = rgb[0].shape[:2]
@@ -182,6 +192,7 @@ def render_run(
             f"{fps_video}, {orbit_frames}, {spike_steps}",
             param=("fps_video", "orbit_frames", "spike_steps"),
         )
+    ffmpeg_module()  # before any work: the video is the last file written
     out = Path(out)
     check_output(out, "render", overwrite=True)
     with output_lock(out):

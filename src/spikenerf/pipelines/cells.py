@@ -127,12 +127,15 @@ def _spikenerf(*args: str) -> list[str]:
 
 
 def dataset_command(cfg: BenchmarkConfig, scene: str) -> list[str]:
-    """The ``simulate`` command of one scene's dataset (gray and RGB streams when both are asked)."""
+    """The ``simulate`` command of one scene's dataset (gray and RGB streams when both are asked); analytic
+    scenes render in ``OMP_NUM_THREADS`` processes, else the cores shared by the datasets made at once."""
     color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
+    at_once = max(1, min(cfg.jobs, len(cfg.scenes)))  # datasets are simulated before any cell trains
+    jobs = int(os.environ.get("OMP_NUM_THREADS") or max(1, (os.cpu_count() or 1) // at_once))
     return _spikenerf(
         "simulate", "--scene", scene, "--width", str(cfg.size), "--height", str(cfg.size),
         "--frames", str(cfg.frames), "--color", color, "--seed", str(cfg.seed),
-        "--test-views", str(cfg.test_views), "--blur-views", cfg.blur_views,
+        "--test-views", str(cfg.test_views), "--blur-views", cfg.blur_views, "--jobs", str(jobs),
         "--out", str(cfg.out / "datasets" / scene),
     )  # fmt: skip
 

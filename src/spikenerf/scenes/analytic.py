@@ -225,6 +225,9 @@ class AnalyticSource:
         supersample: ``s`` renders ``s × s`` stratified rays per pixel and averages them (antialiasing).
     """
 
+    #: frames depend on the step alone and the source pickles: ``simulate --jobs`` renders in processes
+    parallel_render = True
+
     def __init__(
         self,
         name: str,

@@ -1,0 +1,52 @@
+"""benchmarks/merge_results.py: several benchmark folders' cells (a seed each) as one set of tables."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from helpers import load_benchmark
+
+CONFIG = {"scenes": ["a", "b"], "size": 16, "frames": 40, "iters": 2, "field_kind": "grid", "seed": 0,
+          "test_views": 1, "blur_views": "all", "extra_train_args": []}  # fmt: skip
+
+
+def _results(path: Path, seed: int, config: dict = CONFIG) -> Path:
+    cells = [
+        {"scene": scene, "variant": variant, "color": "gray", "psnr": psnr + 0.05 * seed, "ssim": 0.9,
+         "lpips": None, "seconds": 1.0, "seed": seed}
+        for scene, base in (("a", 20.0), ("b", 22.0))
+        for variant, psnr in (("nerf-recon", base), ("spike-nerf", base + 1.0 + 0.1 * (scene == "b")))
+    ]  # fmt: skip
+    path.write_text(json.dumps({"config": config, "cells": cells, "trained_on": {"spike-nerf": "9 poses"}}))
+    return path
+
+
+def _main(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *paths: Path) -> str:
+    monkeypatch.setattr(sys, "argv", ["merge_results", *map(str, paths)])
+    load_benchmark("merge_results").main()
+    return capsys.readouterr().out
+
+
+def test_two_seeds_from_two_folders_give_error_bars_and_a_verdict(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = _main(monkeypatch, capsys, _results(tmp_path / "0.json", 0), _results(tmp_path / "1.json", 1))
+    assert "8 cells from 2 folders; Mean ± sample standard deviation over 2 training seeds (0, 1)." in out
+    assert "| Spike-NeRF (ours) | 9 poses |" in out
+    row = next(line for line in out.splitlines() if line.startswith("| Spike-NeRF (ours) − NeRF + TFP"))
+    assert "| gray | PSNR ↑ | 4 | +1.05 ± 0.06 |" in row and row.endswith("**shown** |")
+    one = _main(monkeypatch, capsys, tmp_path / "0.json")
+    assert "One training seed (0)" in one and "not shown (one seed)" in one
+
+
+def test_duplicate_cells_and_other_settings_are_refused(tmp_path: Path) -> None:
+    load = load_benchmark("merge_results").load
+    first = _results(tmp_path / "0.json", 0)
+    with pytest.raises(SystemExit, match=r"cell a/gray/nerf-recon/0 is also in an earlier file"):
+        load([first, _results(tmp_path / "again.json", 0)])
+    with pytest.raises(SystemExit, match=r"differs from .*0.json in iters"):
+        load([first, _results(tmp_path / "1.json", 1, {**CONFIG, "iters": 3})])
