@@ -93,7 +93,12 @@ PARAM_FLAGS = {
 @click.option("--field", type=click.Choice(FIELDS), default=_D.field, show_default=True)
 @click.option("--iters", type=int, default=_D.iters, show_default=True, help="Optimiser steps.")
 @click.option(
-    "--batch", type=int, default=_D.batch, show_default=True, help="Rays per step (reconstruction)."
+    "--batch",
+    type=int,
+    default=_D.batch,
+    show_default=True,
+    help="Rays per step (reconstruction). On a GPU a step costs about the same up to 16384 rays "
+    "(H100: 23 ms at 4096, 25 ms at 16384), so raise it there.",
 )
 @click.option("--lr", type=float, default=None, help="Base learning rate (default: the field's own).")
 @click.option("--seed", type=int, default=_D.seed, show_default=True)
