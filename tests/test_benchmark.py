@@ -145,3 +145,18 @@ def test_set_reaches_every_cell_and_a_bad_key_fails_first(
     assert stored == ["--set", "batch=64", "--set", "field_config.hidden=16"]
     simulate = json.loads((out / "results.json").read_text())["commands"]["datasets"]["analytic-orbs"]
     assert simulate[simulate.index("--jobs") + 1] == "1"  # OMP_NUM_THREADS render processes
+
+
+def test_render_processes_share_the_cores(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from spikenerf.pipelines.cells import render_processes
+
+    cfg = BenchmarkConfig(["analytic-orbs", "analytic-blocks"], ["nerf-gt"], ["gray"], tmp_path, jobs=16)
+    monkeypatch.setattr("os.cpu_count", lambda: 16)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    assert render_processes(cfg) == 8  # two datasets at once share the 16 cores
+    assert render_processes(replace(cfg, jobs=1)) == 16
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert render_processes(cfg) == 3
+    monkeypatch.setenv("OMP_NUM_THREADS", "4,2")  # a nested OpenMP list is not a count: fall back
+    assert render_processes(cfg) == 8
+    assert render_processes(replace(cfg, executor="ray", ray_cpus=2.5)) == 2  # the task's CPUs

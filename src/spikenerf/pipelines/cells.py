@@ -126,12 +126,22 @@ def _spikenerf(*args: str) -> list[str]:
     return [sys.executable, "-m", "spikenerf", *args]
 
 
+def render_processes(cfg: BenchmarkConfig) -> int:
+    """Render processes per dataset: a Ray task's CPUs; else ``OMP_NUM_THREADS`` (``--threads``) when it is
+    a plain count, else the cores shared by the datasets simulated at once (before any cell trains)."""
+    if cfg.executor == "ray":
+        return max(1, int(cfg.ray_cpus))
+    threads = os.environ.get("OMP_NUM_THREADS", "")
+    if threads.isdigit() and int(threads) > 0:
+        return int(threads)
+    return max(1, (os.cpu_count() or 1) // max(1, min(cfg.jobs, len(cfg.scenes))))
+
+
 def dataset_command(cfg: BenchmarkConfig, scene: str) -> list[str]:
     """The ``simulate`` command of one scene's dataset (gray and RGB streams when both are asked); analytic
-    scenes render in ``OMP_NUM_THREADS`` processes, else the cores shared by the datasets made at once."""
+    scenes render in :func:`render_processes` processes."""
     color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
-    at_once = max(1, min(cfg.jobs, len(cfg.scenes)))  # datasets are simulated before any cell trains
-    jobs = int(os.environ.get("OMP_NUM_THREADS") or max(1, (os.cpu_count() or 1) // at_once))
+    jobs = render_processes(cfg)
     return _spikenerf(
         "simulate", "--scene", scene, "--width", str(cfg.size), "--height", str(cfg.size),
         "--frames", str(cfg.frames), "--color", color, "--seed", str(cfg.seed),
