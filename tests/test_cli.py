@@ -52,6 +52,7 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
 
     from spikenerf.camera.model import COLORS, ColorMode
     from spikenerf.camera.reconstruct import METHODS, ReconMethod
+    from spikenerf.data.importer import ORIENT_CHOICES, Orient
     from spikenerf.data.targets import COLORS as TRAIN_COLORS
     from spikenerf.data.targets import METHODS as TRAIN_METHODS
     from spikenerf.data.targets import RECONS, TargetRecon
@@ -68,6 +69,7 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
     assert tuple(choices("reconstruct", "method")) == RECONS == typing.get_args(TargetRecon)
     assert tuple(choices("train", "recon")) == RECONS
     assert tuple(choices("train", "field")) == FIELD_KINDS == typing.get_args(FieldKind)
+    assert tuple(choices("import", "orient")) == ORIENT_CHOICES == typing.get_args(Orient)
     assert (
         tuple(choices("train", "method")) == TRAIN_METHODS
         and tuple(choices("train", "color")) == TRAIN_COLORS

@@ -15,11 +15,12 @@ from spikenerf.camera.spikecv import read_spikecv_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import mark
 from spikenerf.data.alignment import (
-    apply_similarity,
+    BOX_MARGIN,
     focus_point,
     normalisation,
     per_step_poses,
     trajectory_errors,
+    up_direction,
 )
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.poses import read_colmap_text
@@ -57,8 +58,10 @@ def test_spikecv_config_and_orbit_import(capsys, recording, tmp_path: Path) -> N
     np.testing.assert_array_equal(ds.spikes(), spikes)
     assert len(ds.trajectory) == T and len(ds.test) == 3  # keyframes 0, 8, ..., 32, 39: held out 8, 24, 39
     truth = orbit(4.0, 30.0, duration=T / 20000, fps=20000).poses
-    center, scale = normalisation(truth, camera_angle_x=np.radians(40))
-    np.testing.assert_allclose(ds.trajectory.poses, apply_similarity(truth, center, scale), atol=1e-5)
+    norm = normalisation(truth, camera_angle_x=np.radians(40))
+    np.testing.assert_allclose(norm.rotation, np.eye(3), atol=1e-9)  # the orbit is upright already
+    np.testing.assert_allclose(ds.trajectory.poses, norm.poses(truth), atol=1e-5)
+    scale = norm.scale
     assert np.abs(ds.trajectory.poses[:, :3, 3]).max() > 1  # cameras sit outside the unit box
     assert ds.near < 4 * scale < ds.far
 
@@ -162,13 +165,71 @@ def test_colmap_text_model_normalised_with_points(capsys, recording, tmp_path: P
     assert code == 0, err
     ds = load_dataset(tmp_path / "ds")
     norm = ds.config["imported"]["normalisation"]
-    assert norm["scale"] == pytest.approx(1 / 3, rel=0.05)  # 2nd–98th percentiles of uniform(-3, 3)
+    # 2nd–98th percentiles of uniform(-3, 3) (±2.88), widened by the margin
+    assert norm["scale"] == pytest.approx(1 / (2.88 * BOX_MARGIN), rel=0.05)
     np.testing.assert_allclose(norm["center"], [5.0, -2.0, 1.0], atol=0.2)
-    np.testing.assert_allclose(ds.trajectory.poses[keys, :3, :3], c2w[:, :3, :3], atol=1e-9)
+    rotation = np.asarray(norm["rotation"])
+    np.testing.assert_allclose(rotation[2], [0, 0, 1], atol=1e-9)  # the orbit's up stays +Z
+    np.testing.assert_allclose(ds.trajectory.poses[keys, :3, :3], rotation @ c2w[:, :3, :3], atol=1e-9)
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "kept", "--poses", model, "--orient", "none"
+    )
+    assert code == 0, err
+    kept = load_dataset(tmp_path / "kept")
+    assert kept.config["imported"]["normalisation"]["rotation"] == np.eye(3).tolist()
+    np.testing.assert_allclose(kept.trajectory.poses[keys, :3, :3], c2w[:, :3, :3], atol=1e-9)
     assert ds.intrinsics.fl_x == pytest.approx(30 * W / 48) and ds.intrinsics.fl_y == pytest.approx(
         31 * H / 16
     )
     assert 0.05 <= ds.near < 4 * 3 * norm["scale"] < ds.far
+
+
+def _turn(axis: np.ndarray, degrees: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
+
+
+def test_normalisation_turns_an_arbitrary_frame_upright_and_fits_the_box() -> None:
+    """A COLMAP-like frame (tilted, turned, shifted, scaled) of an orbit around a long flat slab: the upright
+    unit box holds all of it, with the cameras' up on +Z and the slab level in it."""
+    rng = np.random.default_rng(0)
+    slab = rng.uniform([-1.0, -0.3, -0.1], [1.0, 0.3, 0.1], (2000, 3)) @ _turn(np.array([0, 0, 1.0]), 30).T
+    cams = orbit(4.0, 30.0).poses[::25]
+    turn, shift = _turn(np.array([1.0, 2.0, 0.5]), 70), np.array([3.0, -1.0, 2.0])
+    src_cams = cams.copy()
+    src_cams[:, :3, :3] = turn @ cams[:, :3, :3]
+    src_cams[:, :3, 3] = 2 * cams[:, :3, 3] @ turn.T + shift
+    src_slab = 2 * slab @ turn.T + shift
+    up = normalisation(src_cams, src_slab)
+    np.testing.assert_allclose(up.rotation @ turn @ [0, 0, 1.0], [0, 0, 1], atol=1e-6)  # world up again
+    fitted = up.points(src_slab)
+    lo, hi = np.percentile(fitted, [2, 98], axis=0)
+    assert (np.abs(fitted).max(0) < 1.0).all()  # nothing of the slab outside the box
+    assert (hi - lo).max() == pytest.approx(2 / BOX_MARGIN, rel=1e-6)  # its longest side fills the box
+    centres = up.poses(src_cams)[:, :3, 3]
+    assert np.ptp(centres[:, 2]) < 1e-6  # the orbit is level
+    kept = normalisation(src_cams, src_slab, orient=False)
+    np.testing.assert_array_equal(kept.rotation, np.eye(3))
+    assert np.ptp(fitted[:, 2]) == pytest.approx(2 * 0.2 * up.scale, rel=0.01)  # level: z is its thickness
+    box = np.array([[-1.0, -1, -1], [1, 1, 1]])
+    np.testing.assert_array_equal(normalisation(src_cams, scene_box=box).rotation, np.eye(3))  # a stated box
+
+
+def test_up_direction_of_a_partial_arc_is_its_plane_normal() -> None:
+    quarter = orbit(4.0, 30.0).poses[:250]  # 90° of the orbit: the up axes lean towards the centre
+    mean_up = quarter[:, :3, 1].mean(0)
+    assert np.degrees(np.arccos(mean_up[2] / np.linalg.norm(mean_up))) > 5
+    np.testing.assert_allclose(up_direction(quarter), [0, 0, 1], atol=1e-9)
+    flipped = quarter.copy()
+    flipped[:, :3, :3] = (
+        np.diag([1.0, -1, -1]) @ quarter[:, :3, :3]
+    )  # upside down: the sign follows the cameras
+    flipped[:, :3, 3] = quarter[:, :3, 3] @ np.diag([1.0, -1, -1])
+    np.testing.assert_allclose(up_direction(flipped), [0, 0, -1], atol=1e-9)
+    grid = np.tile(np.eye(4), (9, 1, 1))  # forward-facing: the cameras' plane is not the ground
+    grid[:, :2, 3] = np.stack(np.meshgrid([-0.5, 0, 0.5], [-0.5, 0, 0.5]), -1).reshape(9, 2)
+    np.testing.assert_allclose(up_direction(grid), [0, 1, 0])
 
 
 def test_llff_poses_bounds(capsys, recording, tmp_path: Path) -> None:

@@ -102,6 +102,14 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     show_default=True,
     help="Smooth the keyframe poses over this many steps (local quadratic fit; 0 = off).",
 )
+@click.option(
+    "--orient",
+    type=click.Choice(["up", "none"]),
+    default="up",
+    show_default=True,
+    help="Turn the scene upright (the cameras' up to +Z) before fitting the unit box to the sparse points; "
+    "none: keep the source's axes (a pose file's scene_box always keeps them).",
+)
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--verbose", is_flag=True, help="Show COLMAP's log.")
 def command(**kw: Any) -> None:

@@ -62,19 +62,112 @@ def frustum_box(poses: np.ndarray, near: float, far: float) -> np.ndarray:
     return np.stack([pts.min(0), pts.max(0)])
 
 
+#: the sparse points' percentiles that bound the scene box (per axis, in the oriented frame)
+BOX_PERCENTILES = (2.0, 98.0)
+#: the box from sparse points is this much wider than their percentiles: the points sample textured
+#: surfaces only and the percentiles drop the extremes, so without a margin the box clips the scene's edges
+#: (docs/real-data.md measures it on the benchmark scenes)
+BOX_MARGIN = 1.2
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """The similarity that maps a source frame into the unit box: ``x' = scale · rotation @ (x − center)``.
+
+    Attributes:
+        rotation: (3, 3) turns the source frame (identity: kept as it is). center: (3,) in the source frame.
+        scale: source units → unit-box units.
+    """
+
+    rotation: np.ndarray
+    center: np.ndarray
+    scale: float
+
+    def points(self, x: np.ndarray) -> np.ndarray:
+        """Points (N, 3) of the source frame in the unit-box frame."""
+        return self.scale * (np.asarray(x, np.float64) - self.center) @ self.rotation.T
+
+    def poses(self, poses: np.ndarray) -> np.ndarray:
+        """Camera-to-world poses (N, 4, 4) of the source frame in the unit-box frame."""
+        out = np.array(poses, np.float64)
+        out[:, :3, :3] = self.rotation @ out[:, :3, :3]
+        out[:, :3, 3] = self.points(out[:, :3, 3])
+        return out
+
+    def record(self) -> dict:
+        """What ``config.yaml`` stores under ``imported.normalisation``."""
+        return {
+            "center": [float(c) for c in self.center],
+            "scale": float(self.scale),
+            "rotation": [[float(v) for v in row] for row in self.rotation],
+        }
+
+
+def up_direction(poses: np.ndarray) -> np.ndarray | None:
+    """The scene's up (3,) unit vector seen from poses (N, 4, 4): the mean of the cameras' up axes, or, when
+    the camera centres lie in a plane spread in two directions (an orbit or an arc of one) whose normal is
+    within 45° of that mean, the plane's normal (the mean of a partial arc's up axes leans towards the
+    centre). None when the up axes cancel out."""
+    up = poses[:, :3, 1].mean(0)
+    norm = float(np.linalg.norm(up))
+    if norm < 1e-6:
+        return None
+    up = up / norm
+    eyes = poses[:, :3, 3]
+    if len(eyes) >= 3:
+        _, sv, vt = np.linalg.svd(eyes - eyes.mean(0), full_matrices=False)
+        if sv[1] > 0.1 * sv[0] and sv[2] < 0.1 * sv[1] and abs(vt[2] @ up) > math.cos(math.radians(45)):
+            return vt[2] * np.sign(vt[2] @ up)
+    return up
+
+
+def upright(poses: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
+    """A rotation (3, 3) that takes :func:`up_direction` to +Z and then turns about +Z by the angle (1°
+    steps) that makes the sparse points' (N, 3) box smallest (:data:`BOX_PERCENTILES`); identity when the
+    cameras show no up."""
+    up = up_direction(poses)
+    if up is None:
+        return np.eye(3)
+    z = np.array([0.0, 0.0, 1.0])
+    axis, cos = np.cross(up, z), float(up @ z)
+    sin = float(np.linalg.norm(axis))
+    if sin < 1e-12:
+        tilt = np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
+    else:
+        k = axis / sin
+        cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        tilt = np.eye(3) + sin * cross + (1 - cos) * cross @ cross
+    if points is None or len(points) < 8:
+        return tilt
+    xy = (np.asarray(points, np.float64) @ tilt.T)[:, :2]
+    angles = np.radians(np.arange(90))
+    c, s = np.cos(angles), np.sin(angles)
+    turned = np.stack([xy[:, 0, None] * c - xy[:, 1, None] * s, xy[:, 0, None] * s + xy[:, 1, None] * c])
+    lo, hi = np.percentile(turned, BOX_PERCENTILES, axis=1)  # (2, A) each
+    best = float(angles[np.argmin((hi - lo).max(0))])
+    spin = np.array([[math.cos(best), -math.sin(best), 0], [math.sin(best), math.cos(best), 0], [0, 0, 1]])
+    return spin @ tilt
+
+
 def normalisation(
     poses: np.ndarray,
     points: np.ndarray | None = None,
     scene_box: np.ndarray | None = None,
     camera_angle_x: float = 0.69,
-) -> tuple[np.ndarray, float]:
-    """Centre (3,) and scale mapping the scene into the unit box ``[-1, 1]^3``: ``x' = (x - centre) · scale``.
+    orient: bool = True,
+) -> Normalisation:
+    """The similarity mapping the scene into the unit box ``[-1, 1]^3`` (see :class:`Normalisation`).
 
-    From the sparse points (N, 3) (2nd–98th percentile per axis) when given, else the source's scene box,
-    else the cameras' focus point with the half-width of the view frustum at the nearest camera distance.
+    The box comes from the sparse points (N, 3) (2nd–98th percentile per axis, widened by
+    :data:`BOX_MARGIN`) when given, else the source's
+    scene box (2, 3), else the cameras' focus point with the half-width of the view frustum at the nearest
+    camera distance. Without a source box and with ``orient``, the frame is first turned upright
+    (:func:`upright`): a COLMAP model's axes are arbitrary, and an axis-aligned box in them clips the scene.
     """
+    rotation = upright(poses, points) if orient and scene_box is None else np.eye(3)
     if points is not None and len(points) >= 8:
-        lo, hi = np.percentile(points, [2, 98], axis=0)
+        lo, hi = np.percentile(np.asarray(points, np.float64) @ rotation.T, BOX_PERCENTILES, axis=0)
+        lo, hi = (lo + hi) / 2 - BOX_MARGIN * (hi - lo) / 2, (lo + hi) / 2 + BOX_MARGIN * (hi - lo) / 2
     elif scene_box is not None:
         lo, hi = np.asarray(scene_box, np.float64)
     else:
@@ -90,18 +183,11 @@ def normalisation(
                 "forward-facing or straight path); give a 'scene_box' in a transforms.json, a COLMAP model "
                 "with points, or LLFF poses_bounds.npy with depth bounds"
             )
-        lo, hi = c - half, c + half
+        lo, hi = rotation @ c - half, rotation @ c + half
     half = float(np.max(hi - lo)) / 2
     if not half > 0:
         raise InputError("the scene has no extent (all sparse points or cameras coincide)")
-    return (lo + hi) / 2, 1.0 / half
-
-
-def apply_similarity(poses: np.ndarray, center: np.ndarray, scale: float) -> np.ndarray:
-    """Poses (N, 4, 4) with positions mapped by ``(x - center) · scale`` (rotations unchanged)."""
-    out = np.array(poses, np.float64)
-    out[:, :3, 3] = (out[:, :3, 3] - center) * scale
-    return out
+    return Normalisation(rotation, rotation.T @ ((lo + hi) / 2), 1.0 / half)
 
 
 def near_far_from_points(

@@ -14,6 +14,7 @@ import math
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -26,7 +27,6 @@ from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_output, mark
 from spikenerf.data.alignment import (
-    apply_similarity,
     frustum_box,
     near_far_from_points,
     normalisation,
@@ -43,6 +43,9 @@ DEFAULT_FPS = 40000.0
 COLMAP_WORK = "colmap"
 COLMAP_SEQUENTIAL = "colmap-sequential"  # the refit without loop pairs (colmap_poses)
 COLMAP_FOLDERS = (COLMAP_WORK, COLMAP_SEQUENTIAL)
+#: ``import --orient``: turn the frame upright before fitting the unit box, or keep the source's axes
+Orient = Literal["up", "none"]
+ORIENT_CHOICES: tuple[str, ...] = get_args(Orient)
 
 
 @dataclass(frozen=True)
@@ -61,7 +64,9 @@ class ImportOptions:
         ``learned`` (the shipped learned reconstructor, at its trained window). max_features, sift_peak,
         affine_sift, final_ba, contrast: COLMAP settings (:class:`spikenerf.data.colmap.ColmapSettings`).
         smooth: local quadratic smoothing of the keyframe poses over this many steps (0: off;
-        :func:`spikenerf.data.alignment.smooth_poses`).
+        :func:`spikenerf.data.alignment.smooth_poses`). orient: ``up`` turns a frame without a stated scene
+        box upright before the unit box is fitted (:func:`spikenerf.data.alignment.upright`); ``none``
+        keeps the source's axes.
     """
 
     poses: str = "colmap"
@@ -90,6 +95,7 @@ class ImportOptions:
     final_ba: bool = True
     contrast: float = 0.0
     smooth: int = 0
+    orient: Orient = "up"
     command: str = ""
 
 
@@ -103,6 +109,8 @@ def _check(options: ImportOptions) -> None:
         raise InputError(
             f"min_registered must be in [0, 1], found {options.min_registered}", param="min_registered"
         )
+    if options.orient not in ORIENT_CHOICES:
+        raise InputError(f"orient must be up or none, found {options.orient!r}", param="orient")
     if options.keyframe_images not in ("tfp", "learned"):
         raise InputError(
             f"keyframe_images must be tfp or learned, found {options.keyframe_images!r}",
@@ -329,14 +337,12 @@ def _write(
     scene_box = found.scene_box
     if scene_box is None and found.depth_bounds is not None:
         scene_box = frustum_box(found.poses, *found.depth_bounds)
-    center, scale = normalisation(found.poses, found.points, scene_box, k.camera_angle_x)
-    poses = apply_similarity(poses, center, scale)
+    norm = normalisation(found.poses, found.points, scene_box, k.camera_angle_x, opts.orient == "up")
+    poses = norm.poses(poses)
     box = np.array([[-1.0] * 3, [1.0] * 3])
-    bounds = None if found.depth_bounds is None else tuple(d * scale for d in found.depth_bounds)
+    bounds = None if found.depth_bounds is None else tuple(d * norm.scale for d in found.depth_bounds)
     if found.points is not None:
-        bounds = near_far_from_points(
-            apply_similarity(found.poses, center, scale), (found.points - center) * scale
-        )
+        bounds = near_far_from_points(norm.poses(found.poses), norm.points(found.points))
     near, far = bounds if bounds is not None else near_far(poses, box)
     used = (COLMAP_WORK, COLMAP_SEQUENTIAL) if found.note else (COLMAP_WORK,)  # the refit only when used
     for stale in work.iterdir():  # outputs of an earlier attempt (its COLMAP model only if ours now)
@@ -378,7 +384,7 @@ def _write(
             "pose_steps": [int(s) for s in np.sort(found.steps)],
             **({"pose_note": found.note} if found.note else {}),
             "test_keyframes": [int(s) for s in held],
-            "normalisation": {"center": [float(c) for c in center], "scale": float(scale)},
+            "normalisation": norm.record(),
         },
         "test_views": len(held),
         "spikenerf_version": __version__,
