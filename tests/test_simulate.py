@@ -337,6 +337,23 @@ def test_simulate_from_an_image_sequence(tmp_path: Path, capsys) -> None:
     assert "--radius" in err and "do not apply to --sequence" in err
 
 
+def test_elevation_sweep_moves_the_camera_up_and_down(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "ds"
+    _simulate(out, "--elevation-sweep", "30", "--test-views", "0")
+    ds = load_dataset(out)
+    eyes = ds.trajectory.poses[:, :3, 3]
+    elevation = np.degrees(np.arcsin(eyes[:, 2] / np.linalg.norm(eyes, axis=1)))
+    assert elevation.max() == pytest.approx(45.0, abs=0.1) and elevation.min() == pytest.approx(15.0, abs=0.1)
+    assert elevation[12] > 44.0 and elevation[38] < 16.0  # one sine period: up first, then down
+    assert ds.config["trajectory"]["elevation_sweep_deg"] == 30.0
+    forward = -ds.trajectory.poses[:, :3, 2]  # still looking at the centre
+    np.testing.assert_allclose(np.einsum("ij,ij->i", forward, -eyes / 4.0), 1.0, atol=1e-6)
+    for bad in ("-5", "140", "nan"):
+        err = _fails(capsys, ["simulate", "--scene", "analytic-orbs", "--out", str(tmp_path / "x"),
+                              "--elevation-sweep", bad])  # fmt: skip
+        assert "--elevation-sweep" in err and not (tmp_path / "x").exists()
+
+
 @pytest.mark.parametrize(("views", "count"), [("all", 12), ("5", 5)])
 def test_resource_estimate_counts_the_blur_views(tmp_path: Path, capsys, monkeypatch, views, count) -> None:
     import spikenerf.data.simulate as simulate

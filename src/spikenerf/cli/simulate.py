@@ -14,8 +14,10 @@ from spikenerf.core.errors import InputError
 DEFAULT_SIZE = 200
 DEFAULT_STEPS = 1000
 DEFAULT_TEST_VIEWS = 8
-ORBIT_OPTIONS = ("frames", "duration", "radius", "elevation", "turns")
-FLOAT_OPTIONS = ("fps", "threshold", "radius", "elevation", "turns", "duration", "blur_fps")
+ORBIT_OPTIONS = ("frames", "duration", "radius", "elevation", "elevation_sweep", "turns")
+FLOAT_OPTIONS = (
+    "fps", "threshold", "radius", "elevation", "elevation_sweep", "turns", "duration", "blur_fps"
+)  # fmt: skip
 
 
 #: camera.model.COLORS, repeated so that this module (and `simulate --help`) does not import torch;
@@ -78,6 +80,11 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     "--radius", type=float, help="Orbit radius [default: analytic 4; Blender: the scene fits the view]."
 )
 @click.option("--elevation", type=float, help="Orbit elevation in degrees [default: 30].")
+@click.option(
+    "--elevation-sweep", type=float,
+    help="Peak-to-peak elevation change in degrees, one sine period over the path (30 at --elevation 30: "
+    "15°–45°, the test views' elevations) [default: 0].",
+)  # fmt: skip
 @click.option("--turns", type=float, help="Full turns over the path [default: 1].")
 @click.option("--duration", type=float, help="Path duration in seconds [default: frames / fps = 0.025].")
 @click.option("--steps-per-frame", type=int, help="Sequences: spike steps per source image [default: 1].")
@@ -174,13 +181,19 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     radius = default_radius if kw["radius"] is None else float(kw["radius"])
     elevation = registry.DEFAULT_ELEVATION if kw["elevation"] is None else float(kw["elevation"])
     turns = 1.0 if kw["turns"] is None else float(kw["turns"])
+    sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
     if radius <= 0:
         raise InputError(f"--radius must be positive, found {radius:g}")
+    if sweep < 0 or abs(elevation) + sweep / 2 >= 90:
+        raise InputError(
+            f"--elevation-sweep must be ≥ 0 and keep the elevation inside (−90°, 90°), found {sweep:g} "
+            f"at --elevation {elevation:g}"
+        )
     width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
     height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
     views = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
     _check_resources(kw, "width/height/frames", width, height, steps, views)
-    trajectory = orbit(radius, elevation, turns=turns, duration=steps / fps, fps=fps, center=center)
+    trajectory = orbit(radius, elevation, turns, steps / fps, fps, center=center, elevation_sweep_deg=sweep)
     if kw["eval_views"] is not None:
         from spikenerf.data.dataset import read_pose_file
 
@@ -196,6 +209,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
             "radius": radius,
             "center": list(center),
             "elevation_deg": elevation,
+            **({"elevation_sweep_deg": sweep} if sweep else {}),
             "turns": turns,
             "duration_s": steps / fps,
         }
@@ -221,7 +235,8 @@ def _check_resources(kw: dict, params: str, width: int, height: int, steps: int,
 
 def _sequence_source(kw: dict) -> tuple[Any, dict]:
     """An image sequence with poses (its own trajectory and optional eval views)."""
-    given = [f"--{name}" for name in (*ORBIT_OPTIONS, "test_views", "spp") if kw[name] is not None]
+    named = (*ORBIT_OPTIONS, "test_views", "spp")
+    given = [f"--{name.replace('_', '-')}" for name in named if kw[name] is not None]
     if given:
         raise InputError(
             f"{', '.join(given)} do not apply to --sequence (its poses come from the file; "
