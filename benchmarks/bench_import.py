@@ -13,6 +13,11 @@ trajectory error (ATE RMSE, relative to the orbit radius) at the keyframes and a
 measured in the same run, is the true keyframe poses interpolated to every step the same way (the floor that
 interpolation alone sets); the ratio is ours / reference for the every-step ATE.
 
+Two checks of the import itself (analytic scenes): whether the unit box holds the scene (the largest
+|coordinate| of the scene's corners and sphere poles in the dataset's frame; over 1 is clipped), and whether
+COLMAP's observations can tell its poses from the true ones (the mean reprojection error with either pose
+set, the points re-solved by a bundle adjustment with the poses fixed).
+
 With ``--train-iters N`` it also trains ``nerf-recon`` on the exact-pose dataset and on the imported one (the
 true held-out views mapped into the estimated frame) and reports both test PSNRs.
 """
@@ -46,9 +51,10 @@ def spikenerf(*args: object) -> None:
 
 
 def simulate(scene: str, out: Path, a: argparse.Namespace) -> Path:
-    sim = out / f"sim-{scene}"
+    sim = out / f"sim-{scene}{sweep_tag(a)}"
     if not sim.exists():
         spp = ["--spp", a.spp] if a.spp else []
+        spp += ["--elevation-sweep", a.elevation_sweep] if a.elevation_sweep else []
         spikenerf(
             "simulate",
             "--scene",
@@ -71,6 +77,11 @@ def simulate(scene: str, out: Path, a: argparse.Namespace) -> Path:
             sim,
         )
     return sim
+
+
+def sweep_tag(a: argparse.Namespace) -> str:
+    """The folder suffix of a path whose elevation sweeps (``-sweepDEG``); empty for the flat orbit."""
+    return f"-sweep{a.elevation_sweep:g}" if a.elevation_sweep else ""
 
 
 def raw_recording(sim: Path, out: Path) -> Path:
@@ -137,6 +148,75 @@ def errors(sim: Path, imp: Path) -> dict:
     }
 
 
+def box_fit(sim: Path, imp: Path) -> dict:
+    """How the imported unit box holds an analytic scene: the largest |coordinate| of the scene's extreme
+    points (box corners, sphere poles) in the imported dataset's frame (over 1: clipped) and how many lie
+    outside. The truth is mapped by the similarity that aligns the imported trajectory with the true one."""
+    import itertools
+
+    from spikenerf.scenes.analytic import SCENES, Box
+
+    truth, est = load_dataset(sim), load_dataset(imp)
+    name = truth.config.get("scene")
+    if name not in SCENES:
+        return {}
+    extremes = []
+    for prim in SCENES[name][1]:
+        if isinstance(prim, Box):
+            extremes += [np.array(c) for c in itertools.product(*zip(prim.lo, prim.hi, strict=True))]
+        else:
+            extremes += [np.array(prim.center) + prim.radius * d for d in np.vstack([np.eye(3), -np.eye(3)])]
+    s, rot, t = umeyama(est.trajectory.poses[:, :3, 3], truth.trajectory.poses[:, :3, 3])
+    inside = ((np.array(extremes) - t) @ rot) / s
+    outside = int((np.abs(inside) > 1).any(1).sum())
+    return {
+        "box_max_coord": float(np.abs(inside).max()),
+        "box_outside": outside,
+        "box_extremes": len(extremes),
+    }
+
+
+def truth_reprojection(sim: Path, imp: Path) -> dict:
+    """Can COLMAP's own observations tell its poses from the true ones? The mean reprojection error of the
+    model's 2-D observations with its estimated poses and with the true poses (mapped into its frame by the
+    similarity of the camera centres), the 3-D points re-solved by a bundle adjustment with every pose and
+    the camera fixed in both cases (pycolmap)."""
+    import pycolmap
+
+    from spikenerf.data.importer import COLMAP_WORK
+    from spikenerf.data.poses import read_colmap_text
+
+    model = imp / COLMAP_WORK / "model"
+    if not (model / "images.txt").is_file():
+        return {}
+    truth = load_dataset(sim).trajectory.poses
+    found = read_colmap_text(model)
+    s, rot, t = umeyama(np.asarray(found.poses)[:, :3, 3], truth[np.asarray(found.steps)][:, :3, 3])
+
+    def solved(rec: object) -> float:
+        opts = pycolmap.BundleAdjustmentOptions()
+        opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
+        opts.print_summary = False
+        cfg = pycolmap.BundleAdjustmentConfig()
+        for image_id, image in rec.images.items():
+            cfg.add_image(image_id)
+            cfg.set_constant_rig_from_world_pose(image.frame_id)
+        for camera_id in rec.cameras:
+            cfg.set_constant_cam_intrinsics(camera_id)
+        pycolmap.create_default_bundle_adjuster(opts, cfg, rec).solve()
+        rec.update_point_3d_errors()
+        return float(rec.compute_mean_reprojection_error())
+
+    estimated = solved(pycolmap.Reconstruction(str(model)))
+    rec = pycolmap.Reconstruction(str(model))
+    for image in rec.images.values():
+        c2w = truth[int(Path(image.name).stem)]
+        w2c = (rot.T @ c2w[:3, :3] @ np.diag([1.0, -1.0, -1.0])).T  # OpenGL camera → COLMAP's, in its frame
+        centre = rot.T @ (c2w[:3, 3] - t) / s
+        rec.frames[image.frame_id].rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c), -w2c @ centre)
+    return {"reproj_estimated_px": estimated, "reproj_true_px": solved(rec)}
+
+
 def aligned_test_views(sim: Path, imp: Path, dst: Path) -> Path:
     """A copy of the imported dataset whose test views are the simulation's true ones, mapped into the
     estimated frame by the inverse of the similarity that aligns the estimated trajectory with the truth."""
@@ -174,6 +254,11 @@ def main() -> None:
     p.add_argument("--height", type=int, default=250)
     p.add_argument("--frames", type=int, default=1000)
     p.add_argument("--spp", type=int, default=0, help="render samples per pixel (0: the simulator's default)")
+    p.add_argument(
+        "--elevation-sweep", type=float, default=0.0,
+        help="simulate --elevation-sweep: peak-to-peak elevation change over the path (0: a flat orbit); "
+        "the folders get a -sweepDEG suffix",
+    )  # fmt: skip
     p.add_argument("--keyframe-every", type=int, default=20)
     p.add_argument("--window", type=int, default=21, help="TFP window of the keyframes")
     p.add_argument("--fov-only", action="store_true", help="skip the self-calibrated imports")
@@ -192,18 +277,26 @@ def main() -> None:
             except subprocess.CalledProcessError:
                 rows.append({"scene": scene, "fov": fov is not None, "registered": "failed"})
                 continue
-            row = {"scene": scene, "fov": fov is not None, **errors(sim, imp), "import_s": seconds}
+            row = {
+                "scene": scene + sweep_tag(a),
+                "fov": fov is not None,
+                **errors(sim, imp),
+                **box_fit(sim, imp),
+                **truth_reprojection(sim, imp),
+                "import_s": seconds,
+            }
             if a.train_iters and fov:
                 aligned = aligned_test_views(sim, imp, a.out / f"{imp.name}-testaligned")
-                row["psnr_exact"] = test_psnr(sim, a.out / f"run-{scene}-exact", a.train_iters)
-                row["psnr_estimated"] = test_psnr(aligned, a.out / f"run-{scene}-estimated", a.train_iters)
+                runs = a.out / f"run-{scene}{sweep_tag(a)}"
+                row["psnr_exact"] = test_psnr(sim, Path(f"{runs}-exact"), a.train_iters)
+                row["psnr_estimated"] = test_psnr(aligned, Path(f"{runs}-estimated"), a.train_iters)
             rows.append(row)
             print(json.dumps(row), flush=True)
     tag = f"-{a.tag}" if a.tag else ""
     (a.out / f"results-w{a.window}{tag}.json").write_text(json.dumps(rows, indent=1))
     head = "| scene | focal | registered | rot mean° | rot max° | ATE/r keys | ATE/r all | ATE all | ref. |"
-    print(head + " ratio |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print(head + " ratio | box max |x| | extremes outside | reproj. px, COLMAP / true poses |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         if r["registered"] == "failed":
             print(f"| {r['scene']} | {'--fov' if r['fov'] else 'estimated'} | failed | | | | | | | |")
@@ -213,7 +306,10 @@ def main() -> None:
             f"| {r['scene']} | {'--fov' if r['fov'] else 'estimated'} | {r['registered']} | "
             f"{r['rot_mean_deg']:.2f} | {r['rot_max_deg']:.2f} | {r['ate_keys_over_radius']:.4f} | "
             f"{r['ate_all_over_radius']:.4f} | {r['ate_all']:.4f} | "
-            f"{r['ate_all_reference_over_radius']:.4f} | {ratio:.1f}× |"
+            f"{r['ate_all_reference_over_radius']:.4f} | {ratio:.1f}× | "
+            f"{r.get('box_max_coord', np.nan):.2f} | "
+            f"{r.get('box_outside', '—')}/{r.get('box_extremes', '—')} | "
+            f"{r.get('reproj_estimated_px', np.nan):.3f} / {r.get('reproj_true_px', np.nan):.3f} |"
         )
 
 

@@ -59,3 +59,28 @@ def test_seed_and_holdout_reach_train_and_other_settings_are_refused(tmp_path, m
     assert calls[-1][calls[-1].index("--window-poses") + 1] == "1"
     with pytest.raises(SystemExit, match="made with"):
         bench.train(data, run, _args(window_poses=8), refine=False)
+
+
+def test_path_views_are_the_true_frames_nearest_the_interior_check_steps(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    import numpy as np
+
+    from spikenerf.cli import main
+    from spikenerf.core.color import rgb_to_gray
+    from spikenerf.data.dataset import load_dataset
+
+    sim = tmp_path / "sim"
+    main(["simulate", "--scene", "analytic-orbs", "--out", str(sim), "--width", "16", "--height", "16",
+          "--frames", "60", "--blur-fps", "0", "--test-views", "1", "--no-progress"])  # fmt: skip
+    truth = load_dataset(sim)
+    run = tmp_path / "run"
+    run.mkdir()
+    bench = _bench()
+    assert bench.path_views(run, truth, "gray") is None  # trained on every step: no held-out path views
+    (run / "holdout.json").write_text(json.dumps({"check_steps": [3, 24, 36, 58]}))
+    views = bench.path_views(run, truth, "gray")
+    assert views.steps.tolist() == [20, 40]  # 24 → 20 and 36 → 40 (gt every 10); the ends are left out
+    np.testing.assert_allclose(views.poses[:, 0].numpy(), truth.trajectory.poses[[20, 40]], atol=1e-6)
+    gt = np.asarray(truth.gt.images)[[2, 4]]
+    np.testing.assert_allclose(views.images[..., 0].numpy(), rgb_to_gray(gt, channel_axis=-1), atol=1e-3)
