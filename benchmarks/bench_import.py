@@ -14,7 +14,7 @@ measured in the same run, is the true keyframe poses interpolated to every step 
 interpolation alone sets); the ratio is ours / reference for the every-step ATE.
 
 Two checks of the import itself (analytic scenes): whether the unit box holds the scene (the largest
-|coordinate| of the scene's corners and sphere poles in the dataset's frame; over 1 is clipped), and whether
+|coordinate| of the scene's box corners and spheres in the dataset's frame; over 1 is clipped), and whether
 COLMAP's observations can tell its poses from the true ones (the mean reprojection error with either pose
 set, the points re-solved by a bundle adjustment with the poses fixed).
 
@@ -160,20 +160,17 @@ def box_fit(sim: Path, imp: Path) -> dict:
     name = truth.config.get("scene")
     if name not in SCENES:
         return {}
-    extremes = []
+    s, rot, t = umeyama(est.trajectory.poses[:, :3, 3], truth.trajectory.poses[:, :3, 3])
+    reach = []  # per extreme: its largest |coordinate| per axis in the imported frame
     for prim in SCENES[name][1]:
         if isinstance(prim, Box):
-            extremes += [np.array(c) for c in itertools.product(*zip(prim.lo, prim.hi, strict=True))]
-        else:
-            extremes += [np.array(prim.center) + prim.radius * d for d in np.vstack([np.eye(3), -np.eye(3)])]
-    s, rot, t = umeyama(est.trajectory.poses[:, :3, 3], truth.trajectory.poses[:, :3, 3])
-    inside = ((np.array(extremes) - t) @ rot) / s
-    outside = int((np.abs(inside) > 1).any(1).sum())
-    return {
-        "box_max_coord": float(np.abs(inside).max()),
-        "box_outside": outside,
-        "box_extremes": len(extremes),
-    }
+            corners = np.array(list(itertools.product(*zip(prim.lo, prim.hi, strict=True))))
+            reach += list(np.abs((corners - t) @ rot / s))
+        else:  # a sphere reaches its radius along every axis of any frame
+            reach.append(np.abs((np.array(prim.center) - t) @ rot / s) + prim.radius / s)
+    reach = np.array(reach)
+    outside = int((reach > 1).any(1).sum())
+    return {"box_max_coord": float(reach.max()), "box_outside": outside, "box_extremes": len(reach)}
 
 
 def truth_reprojection(sim: Path, imp: Path) -> dict:
@@ -275,7 +272,7 @@ def main() -> None:
             try:
                 imp, seconds = import_(rec, a.out, a, fov)
             except subprocess.CalledProcessError:
-                rows.append({"scene": scene, "fov": fov is not None, "registered": "failed"})
+                rows.append({"scene": scene + sweep_tag(a), "fov": fov is not None, "registered": "failed"})
                 continue
             row = {
                 "scene": scene + sweep_tag(a),
@@ -293,7 +290,7 @@ def main() -> None:
             rows.append(row)
             print(json.dumps(row), flush=True)
     tag = f"-{a.tag}" if a.tag else ""
-    (a.out / f"results-w{a.window}{tag}.json").write_text(json.dumps(rows, indent=1))
+    (a.out / f"results-w{a.window}{tag}{sweep_tag(a)}.json").write_text(json.dumps(rows, indent=1))
     head = "| scene | focal | registered | rot mean° | rot max° | ATE/r keys | ATE/r all | ATE all | ref. |"
     print(head + " ratio | box max |x| | extremes outside | reproj. px, COLMAP / true poses |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")

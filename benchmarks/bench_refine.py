@@ -163,14 +163,22 @@ def score(run: Path, truth_dir: Path, fit_steps: int = 0, fit_lr: float = 2e-3) 
 
 def path_views(run: Path, truth: SpikeDataset, color: str) -> ImageTargets | None:
     """True sharp views on the recorded path at the run's held-out check steps (``RUN/holdout.json``): the
-    simulation's ``gt/`` frame nearest each check step, the first and last check step left out (their
-    bands reach the ends of the stream, so training sees only one side). None without a hold-out record."""
+    simulation's ``gt/`` frame nearest each check step if it lies within half the band's radius of it, the
+    first and last check step left out (their bands reach the ends of the stream, so training sees only one
+    side). None without a hold-out record or without such frames."""
     record = read_record(run)
     gt_steps = np.asarray(truth.gt.steps, np.int64)
     if record is None or len(gt_steps) == 0:
         return None
     checks = np.asarray(record["check_steps"][1:-1], np.int64)
+    if len(checks) == 0:
+        return None
     nearest = np.abs(gt_steps[None, :] - checks[:, None]).argmin(1)
+    nearest = nearest[
+        np.abs(gt_steps[nearest] - checks) <= int(record["radius"]) // 2
+    ]  # well inside the band
+    if len(nearest) == 0:
+        return None
     images = image_channels(np.asarray(truth.gt.images)[nearest], color)
     poses = torch.as_tensor(truth.trajectory.poses[gt_steps[nearest]], dtype=torch.float32)[:, None]
     return ImageTargets(poses, images, torch.as_tensor(gt_steps[nearest]))

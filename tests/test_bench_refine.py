@@ -78,9 +78,11 @@ def test_path_views_are_the_true_frames_nearest_the_interior_check_steps(tmp_pat
     run.mkdir()
     bench = _bench()
     assert bench.path_views(run, truth, "gray") is None  # trained on every step: no held-out path views
-    (run / "holdout.json").write_text(json.dumps({"check_steps": [3, 24, 36, 58]}))
+    (run / "holdout.json").write_text(json.dumps({"check_steps": [3, 24, 36, 58], "radius": 10}))
     views = bench.path_views(run, truth, "gray")
     assert views.steps.tolist() == [20, 40]  # 24 → 20 and 36 → 40 (gt every 10); the ends are left out
     np.testing.assert_allclose(views.poses[:, 0].numpy(), truth.trajectory.poses[[20, 40]], atol=1e-6)
+    (run / "holdout.json").write_text(json.dumps({"check_steps": [3, 24, 36, 58], "radius": 6}))
+    assert bench.path_views(run, truth, "gray") is None  # the nearest frames lie 4 steps off: not well inside
     gt = np.asarray(truth.gt.images)[[2, 4]]
     np.testing.assert_allclose(views.images[..., 0].numpy(), rgb_to_gray(gt, channel_axis=-1), atol=1e-3)

@@ -21,6 +21,7 @@ from spikenerf.data.alignment import (
     per_step_poses,
     trajectory_errors,
     up_direction,
+    upright,
 )
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.poses import read_colmap_text
@@ -212,6 +213,16 @@ def test_normalisation_turns_an_arbitrary_frame_upright_and_fits_the_box() -> No
     kept = normalisation(src_cams, src_slab, orient=False)
     np.testing.assert_array_equal(kept.rotation, np.eye(3))
     assert np.ptp(fitted[:, 2]) == pytest.approx(2 * 0.2 * up.scale, rel=0.01)  # level: z is its thickness
+
+    # turned about +Z for the smallest cube: no other turn gives a smaller largest side (for this 2 × 0.6
+    # slab a turn of about 45°: the diagonal orientation, (2 + 0.6)/√2 < 2)
+    def largest_side(deg: float) -> float:
+        c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        xy = fitted[:, :2] @ np.array([[c, s], [-s, c]])
+        return float(np.ptp(np.percentile(xy, [2, 98], axis=0), axis=0).max())
+
+    assert largest_side(0) <= min(largest_side(d) for d in range(1, 90, 3)) + 1e-9
+    assert largest_side(0) < 0.95 * max(largest_side(d) for d in range(0, 90, 3))  # the turn matters
     box = np.array([[-1.0, -1, -1], [1, 1, 1]])
     np.testing.assert_array_equal(normalisation(src_cams, scene_box=box).rotation, np.eye(3))  # a stated box
 
@@ -230,6 +241,12 @@ def test_up_direction_of_a_partial_arc_is_its_plane_normal() -> None:
     grid = np.tile(np.eye(4), (9, 1, 1))  # forward-facing: the cameras' plane is not the ground
     grid[:, :2, 3] = np.stack(np.meshgrid([-0.5, 0, 0.5], [-0.5, 0, 0.5]), -1).reshape(9, 2)
     np.testing.assert_allclose(up_direction(grid), [0, 1, 0])
+    for path in (orbit(4.0, 30.0, elevation_sweep_deg=30).poses, orbit(4.0, 30.0).poses[:50]):
+        np.testing.assert_allclose(up_direction(path), [0, 0, 1], atol=1e-9)  # a rising path, an 18° arc
+    np.testing.assert_allclose(upright(flipped), np.diag([1.0, -1, -1]), atol=1e-9)  # half a turn
+    cancelling = np.stack([np.eye(4), np.diag([1.0, -1, -1, 1])])  # one camera upside down: no up
+    assert up_direction(cancelling) is None
+    np.testing.assert_array_equal(upright(cancelling), np.eye(3))
 
 
 def test_llff_poses_bounds(capsys, recording, tmp_path: Path) -> None:

@@ -107,8 +107,9 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     type=click.Choice(["up", "none"]),
     default="up",
     show_default=True,
-    help="Turn the scene upright (the cameras' up to +Z) before fitting the unit box to the sparse points; "
-    "none: keep the source's axes (a pose file's scene_box always keeps them).",
+    help="Turn the scene upright (the cameras' up to +Z) before fitting the unit box (to the sparse points, "
+    "or around the cameras' focus); none: keep the source's axes. A scene_box or LLFF bounds always keep "
+    "them.",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--verbose", is_flag=True, help="Show COLMAP's log.")

@@ -184,7 +184,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
     if radius <= 0:
         raise InputError(f"--radius must be positive, found {radius:g}")
-    if sweep < 0 or abs(elevation) + sweep / 2 >= 90:
+    if sweep and (sweep < 0 or abs(elevation) + sweep / 2 >= 90):
         raise InputError(
             f"--elevation-sweep must be ≥ 0 and keep the elevation inside (−90°, 90°), found {sweep:g} "
             f"at --elevation {elevation:g}"

@@ -70,7 +70,7 @@ BOX_PERCENTILES = (2.0, 98.0)
 BOX_MARGIN = 1.2
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Normalisation:
     """The similarity that maps a source frame into the unit box: ``x' = scale · rotation @ (x − center)``.
 
@@ -104,27 +104,27 @@ class Normalisation:
 
 
 def up_direction(poses: np.ndarray) -> np.ndarray | None:
-    """The scene's up (3,) unit vector seen from poses (N, 4, 4): the mean of the cameras' up axes, or, when
-    the camera centres lie in a plane spread in two directions (an orbit or an arc of one) whose normal is
-    within 45° of that mean, the plane's normal (the mean of a partial arc's up axes leans towards the
-    centre). None when the up axes cancel out."""
-    up = poses[:, :3, 1].mean(0)
-    norm = float(np.linalg.norm(up))
-    if norm < 1e-6:
+    """The scene's up (3,) unit vector seen from poses (N, 4, 4): the direction most nearly perpendicular to
+    every camera's right axis (a camera without roll holds its right axis level, whatever its path: an
+    orbit, an arc of one, a path that rises and falls), signed to agree with the mean of the cameras' up
+    axes. When the right axes do not spread over two directions (every camera turned alike, as in a
+    forward-facing capture) or that direction is over 45° from the mean up, the mean up itself. None when
+    the up axes nearly cancel (their mean is under 0.25 long)."""
+    mean_up = poses[:, :3, 1].mean(0)
+    length = float(np.linalg.norm(mean_up))
+    if length < 0.25:
         return None
-    up = up / norm
-    eyes = poses[:, :3, 3]
-    if len(eyes) >= 3:
-        _, sv, vt = np.linalg.svd(eyes - eyes.mean(0), full_matrices=False)
-        if sv[1] > 0.1 * sv[0] and sv[2] < 0.1 * sv[1] and abs(vt[2] @ up) > math.cos(math.radians(45)):
-            return vt[2] * np.sign(vt[2] @ up)
-    return up
+    mean_up = mean_up / length
+    _, sv, vt = np.linalg.svd(poses[:, :3, 0], full_matrices=False)
+    if len(sv) == 3 and sv[1] > 0.02 * sv[0] and abs(vt[2] @ mean_up) > math.cos(math.radians(45)):
+        return vt[2] * np.sign(vt[2] @ mean_up)
+    return mean_up
 
 
 def upright(poses: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
     """A rotation (3, 3) that takes :func:`up_direction` to +Z and then turns about +Z by the angle (1°
-    steps) that makes the sparse points' (N, 3) box smallest (:data:`BOX_PERCENTILES`); identity when the
-    cameras show no up."""
+    steps) that makes the sparse points' (N, 3) box smallest (:data:`BOX_PERCENTILES`; at most 20000 points,
+    evenly picked); identity when the cameras show no up."""
     up = up_direction(poses)
     if up is None:
         return np.eye(3)
@@ -139,7 +139,9 @@ def upright(poses: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
         tilt = np.eye(3) + sin * cross + (1 - cos) * cross @ cross
     if points is None or len(points) < 8:
         return tilt
-    xy = (np.asarray(points, np.float64) @ tilt.T)[:, :2]
+    points = np.asarray(points, np.float64)
+    points = points[np.unique(np.linspace(0, len(points) - 1, min(len(points), 20000)).astype(int))]
+    xy = (points @ tilt.T)[:, :2]
     angles = np.radians(np.arange(90))
     c, s = np.cos(angles), np.sin(angles)
     turned = np.stack([xy[:, 0, None] * c - xy[:, 1, None] * s, xy[:, 0, None] * s + xy[:, 1, None] * c])
