@@ -161,10 +161,10 @@ def normalisation(
     """The similarity mapping the scene into the unit box ``[-1, 1]^3`` (see :class:`Normalisation`).
 
     The box comes from the sparse points (N, 3) (2nd–98th percentile per axis, widened by
-    :data:`BOX_MARGIN`) when given, else the source's
-    scene box (2, 3), else the cameras' focus point with the half-width of the view frustum at the nearest
-    camera distance. Without a source box and with ``orient``, the frame is first turned upright
-    (:func:`upright`): a COLMAP model's axes are arbitrary, and an axis-aligned box in them clips the scene.
+    :data:`BOX_MARGIN`) when given, else the source's scene box (2, 3), else the cameras' focus point with
+    the half-width of the view frustum at the nearest camera distance. Without a source box and with
+    ``orient``, the frame is first turned upright (:func:`upright`): a COLMAP model's axes are arbitrary,
+    and an axis-aligned box in them clips the scene.
     """
     rotation = upright(poses, points) if orient and scene_box is None else np.eye(3)
     if points is not None and len(points) >= 8:
