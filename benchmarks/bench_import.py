@@ -181,7 +181,7 @@ def truth_reprojection(sim: Path, imp: Path) -> dict:
     import pycolmap
 
     from spikenerf.data.importer import COLMAP_WORK
-    from spikenerf.data.poses import read_colmap_text
+    from spikenerf.data.poses import CV_TO_GL, read_colmap_text
 
     model = imp / COLMAP_WORK / "model"
     if not (model / "images.txt").is_file():
@@ -208,7 +208,7 @@ def truth_reprojection(sim: Path, imp: Path) -> dict:
     rec = pycolmap.Reconstruction(str(model))
     for image in rec.images.values():
         c2w = truth[int(Path(image.name).stem)]
-        w2c = (rot.T @ c2w[:3, :3] @ np.diag([1.0, -1.0, -1.0])).T  # OpenGL camera → COLMAP's, in its frame
+        w2c = (rot.T @ c2w[:3, :3] @ CV_TO_GL[:3, :3]).T  # OpenGL camera → COLMAP's, in its frame
         centre = rot.T @ (c2w[:3, 3] - t) / s
         rec.frames[image.frame_id].rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c), -w2c @ centre)
     return {"reproj_estimated_px": estimated, "reproj_true_px": solved(rec)}

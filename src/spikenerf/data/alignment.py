@@ -125,18 +125,17 @@ def upright(poses: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
     """A rotation (3, 3) that takes :func:`up_direction` to +Z and then turns about +Z by the angle (1°
     steps) that makes the sparse points' (N, 3) box smallest (:data:`BOX_PERCENTILES`; at most 20000 points,
     evenly picked); identity when the cameras show no up."""
+    from scipy.spatial.transform import Rotation
+
     up = up_direction(poses)
     if up is None:
         return np.eye(3)
-    z = np.array([0.0, 0.0, 1.0])
-    axis, cos = np.cross(up, z), float(up @ z)
-    sin = float(np.linalg.norm(axis))
-    if sin < 1e-12:
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    sin, cos = float(np.linalg.norm(axis)), float(up[2])
+    if sin < 1e-12:  # already up, or upside down: half a turn about X
         tilt = np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
     else:
-        k = axis / sin
-        cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-        tilt = np.eye(3) + sin * cross + (1 - cos) * cross @ cross
+        tilt = Rotation.from_rotvec(axis / sin * math.atan2(sin, cos)).as_matrix()
     if points is None or len(points) < 8:
         return tilt
     points = np.asarray(points, np.float64)
@@ -146,9 +145,7 @@ def upright(poses: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
     c, s = np.cos(angles), np.sin(angles)
     turned = np.stack([xy[:, 0, None] * c - xy[:, 1, None] * s, xy[:, 0, None] * s + xy[:, 1, None] * c])
     lo, hi = np.percentile(turned, BOX_PERCENTILES, axis=1)  # (2, A) each
-    best = float(angles[np.argmin((hi - lo).max(0))])
-    spin = np.array([[math.cos(best), -math.sin(best), 0], [math.sin(best), math.cos(best), 0], [0, 0, 1]])
-    return spin @ tilt
+    return Rotation.from_euler("z", angles[np.argmin((hi - lo).max(0))]).as_matrix() @ tilt
 
 
 def normalisation(
