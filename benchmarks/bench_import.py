@@ -13,8 +13,9 @@ trajectory error (ATE RMSE, relative to the orbit radius) at the keyframes and a
 measured in the same run, is the true keyframe poses interpolated to every step the same way (the floor that
 interpolation alone sets); the ratio is ours / reference for the every-step ATE.
 
-Two checks of the import itself (analytic scenes): whether the unit box holds the scene (the largest
-|coordinate| of the scene's box corners and spheres in the dataset's frame; over 1 is clipped), and whether
+Checks of the import itself (analytic scenes): whether the unit box holds the scene (the largest
+|coordinate| of the scene's box corners and spheres in the dataset's frame; over 1 is clipped), how far its
+frame is turned off the scene's axis-aligned boxes about the up axis (``axes_off_deg``), and whether
 COLMAP's observations can tell its poses from the true ones (the mean reprojection error with either pose
 set, the points re-solved by a bundle adjustment with the poses fixed).
 
@@ -170,7 +171,50 @@ def box_fit(sim: Path, imp: Path) -> dict:
             reach.append(np.abs((np.array(prim.center) - t) @ rot / s) + prim.radius / s)
     reach = np.array(reach)
     outside = int((reach > 1).any(1).sum())
-    return {"box_max_coord": float(reach.max()), "box_outside": outside, "box_extremes": len(reach)}
+    # the scene's boxes are axis-aligned in the simulation: how far the imported frame is turned off them
+    # about the up axis (modulo 90°); import --orient up aims for 0
+    turn = math.degrees(math.atan2(rot[1, 0], rot[0, 0])) % 90
+    return {"box_max_coord": float(reach.max()), "box_outside": outside, "box_extremes": len(reach),
+            "axes_off_deg": min(turn, 90 - turn)}  # fmt: skip
+
+
+def _bundle_adjust_points(rec: object) -> float:
+    """Re-solve the 3-D points of a pycolmap reconstruction with every pose and camera fixed; the mean
+    reprojection error (px) after."""
+    import pycolmap
+
+    opts = pycolmap.BundleAdjustmentOptions()
+    opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
+    opts.print_summary = False
+    cfg = pycolmap.BundleAdjustmentConfig()
+    for image_id, image in rec.images.items():
+        cfg.add_image(image_id)
+        cfg.set_constant_rig_from_world_pose(image.frame_id)
+    for camera_id in rec.cameras:
+        cfg.set_constant_cam_intrinsics(camera_id)
+    pycolmap.create_default_bundle_adjuster(opts, cfg, rec).solve()
+    rec.update_point_3d_errors()
+    return float(rec.compute_mean_reprojection_error())
+
+
+def _with_true_poses(sim: Path, model: Path) -> object:
+    """The COLMAP model at ``model`` with every keyframe's pose replaced by the true one, mapped into the
+    model's frame by the similarity of the camera centres (the points re-solved for those poses)."""
+    import pycolmap
+
+    from spikenerf.data.poses import CV_TO_GL, read_colmap_text
+
+    truth = load_dataset(sim).trajectory.poses
+    found = read_colmap_text(model)
+    s, rot, t = umeyama(np.asarray(found.poses)[:, :3, 3], truth[np.asarray(found.steps)][:, :3, 3])
+    rec = pycolmap.Reconstruction(str(model))
+    for image in rec.images.values():
+        c2w = truth[int(Path(image.name).stem)]
+        w2c = (rot.T @ c2w[:3, :3] @ CV_TO_GL[:3, :3]).T  # OpenGL camera → COLMAP's, in its frame
+        centre = rot.T @ (c2w[:3, 3] - t) / s
+        rec.frames[image.frame_id].rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c), -w2c @ centre)
+    _bundle_adjust_points(rec)
+    return rec
 
 
 def truth_reprojection(sim: Path, imp: Path) -> dict:
@@ -181,37 +225,33 @@ def truth_reprojection(sim: Path, imp: Path) -> dict:
     import pycolmap
 
     from spikenerf.data.importer import COLMAP_WORK
-    from spikenerf.data.poses import CV_TO_GL, read_colmap_text
 
     model = imp / COLMAP_WORK / "model"
     if not (model / "images.txt").is_file():
         return {}
-    truth = load_dataset(sim).trajectory.poses
-    found = read_colmap_text(model)
-    s, rot, t = umeyama(np.asarray(found.poses)[:, :3, 3], truth[np.asarray(found.steps)][:, :3, 3])
+    estimated = _bundle_adjust_points(pycolmap.Reconstruction(str(model)))
+    true = float(_with_true_poses(sim, model).compute_mean_reprojection_error())
+    return {"reproj_estimated_px": estimated, "reproj_true_px": true}
 
-    def solved(rec: object) -> float:
-        opts = pycolmap.BundleAdjustmentOptions()
-        opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
-        opts.print_summary = False
-        cfg = pycolmap.BundleAdjustmentConfig()
-        for image_id, image in rec.images.items():
-            cfg.add_image(image_id)
-            cfg.set_constant_rig_from_world_pose(image.frame_id)
-        for camera_id in rec.cameras:
-            cfg.set_constant_cam_intrinsics(camera_id)
-        pycolmap.create_default_bundle_adjuster(opts, cfg, rec).solve()
-        rec.update_point_3d_errors()
-        return float(rec.compute_mean_reprojection_error())
 
-    estimated = solved(pycolmap.Reconstruction(str(model)))
-    rec = pycolmap.Reconstruction(str(model))
-    for image in rec.images.values():
-        c2w = truth[int(Path(image.name).stem)]
-        w2c = (rot.T @ c2w[:3, :3] @ CV_TO_GL[:3, :3]).T  # OpenGL camera → COLMAP's, in its frame
-        centre = rot.T @ (c2w[:3, 3] - t) / s
-        rec.frames[image.frame_id].rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c), -w2c @ centre)
-    return {"reproj_estimated_px": estimated, "reproj_true_px": solved(rec)}
+def truth_import(sim: Path, imp: Path, rec: Path, a: argparse.Namespace, fov: float) -> Path | None:
+    """The recording imported through the same pipeline with the **true** keyframe poses: COLMAP's model
+    with its poses replaced by the true ones (its points re-solved for them) is given as the pose source, so
+    the keyframes, the upright box from the points and near/far are made the same way; only the poses
+    differ (``IMPORT-truth``). None without a COLMAP model."""
+    from spikenerf.data.importer import COLMAP_WORK
+
+    model = imp / COLMAP_WORK / "model"
+    dst = imp.parent / f"{imp.name}-truth"
+    if not (model / "images.txt").is_file():
+        return None
+    if not dst.exists():
+        true_model = imp / COLMAP_WORK / "model-truth"
+        true_model.mkdir(exist_ok=True)
+        _with_true_poses(sim, model).write_text(str(true_model))
+        spikenerf("import", rec, "--out", dst, "--keyframe-every", a.keyframe_every, "--window", a.window,
+                  "--fov", fov, "--poses", true_model, *a.import_args.split())  # fmt: skip
+    return dst
 
 
 def aligned_test_views(sim: Path, imp: Path, dst: Path) -> Path:
@@ -262,6 +302,11 @@ def main() -> None:
     p.add_argument("--train-iters", type=int, default=0)
     p.add_argument("--tag", default="", help="suffix of the import folders (a variant of the settings)")
     p.add_argument("--import-args", default="", help="extra `spikenerf import` flags, e.g. '--no-final-ba'")
+    p.add_argument(
+        "--truth-import", action="store_true",
+        help="also import each recording with COLMAP's model given the true poses (IMPORT-truth): the same "
+        "pipeline with exact keyframe poses, for bench_refine's --imported IMPORT-truth",
+    )  # fmt: skip
     a = p.parse_args()
     rows = []
     for scene in a.scenes.split(","):
@@ -287,13 +332,16 @@ def main() -> None:
                 runs = a.out / f"run-{scene}{sweep_tag(a)}"
                 row["psnr_exact"] = test_psnr(sim, Path(f"{runs}-exact"), a.train_iters)
                 row["psnr_estimated"] = test_psnr(aligned, Path(f"{runs}-estimated"), a.train_iters)
+            if a.truth_import and fov:
+                truth_imp = truth_import(sim, imp, rec, a, fov)
+                row["truth_import"] = None if truth_imp is None else truth_imp.name
             rows.append(row)
             print(json.dumps(row), flush=True)
     tag = f"-{a.tag}" if a.tag else ""
     (a.out / f"results-w{a.window}{tag}{sweep_tag(a)}.json").write_text(json.dumps(rows, indent=1))
     head = "| scene | focal | registered | rot mean° | rot max° | ATE/r keys | ATE/r all | ATE all | ref. |"
-    print(head + " ratio | box max |x| | extremes outside | reproj. px, COLMAP / true poses |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print(head + " ratio | box max |x| | extremes outside | axes off° | reproj. px, COLMAP / true poses |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         if r["registered"] == "failed":
             print(f"| {r['scene']} | {'--fov' if r['fov'] else 'estimated'} | failed | | | | | | | |")
@@ -306,6 +354,7 @@ def main() -> None:
             f"{r['ate_all_reference_over_radius']:.4f} | {ratio:.1f}× | "
             f"{r.get('box_max_coord', np.nan):.2f} | "
             f"{r.get('box_outside', '—')}/{r.get('box_extremes', '—')} | "
+            f"{r.get('axes_off_deg', np.nan):.2f} | "
             f"{r.get('reproj_estimated_px', np.nan):.3f} / {r.get('reproj_true_px', np.nan):.3f} |"
         )
 

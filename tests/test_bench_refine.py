@@ -86,3 +86,31 @@ def test_path_views_are_the_true_frames_nearest_the_interior_check_steps(tmp_pat
     assert bench.path_views(run, truth, "gray") is None  # the nearest frames lie 4 steps off: not well inside
     gt = np.asarray(truth.gt.images)[[2, 4]]
     np.testing.assert_allclose(views.images[..., 0].numpy(), rgb_to_gray(gt, channel_axis=-1), atol=1e-3)
+
+
+def test_bench_axes_turns_the_world_and_keeps_the_images(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """benchmarks/bench_axes.py's turned copy: every pose (trajectory, gt, test views) turned about +Z and
+    shrunk about the origin, near/far shrunk with it, the spikes and images untouched."""
+    import numpy as np
+
+    from spikenerf.cli import main
+    from spikenerf.data.dataset import load_dataset
+
+    sim = tmp_path / "sim"
+    main(["simulate", "--scene", "analytic-blocks", "--out", str(sim), "--width", "16", "--height", "16",
+          "--frames", "30", "--blur-fps", "0", "--test-views", "1", "--no-progress"])  # fmt: skip
+    axes = load_benchmark("bench_axes")
+    copy = axes.turned_copy(sim, tmp_path / "data-rot30" / "sim", 30.0, 0.5)
+    before, after = load_dataset(sim), load_dataset(copy)
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    turn = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    for old, new in ((before.trajectory.poses, after.trajectory.poses), (before.test.poses, after.test.poses),
+                     (before.gt.poses, after.gt.poses)):  # fmt: skip
+        old, new = np.asarray(old), np.asarray(new)
+        np.testing.assert_allclose(new[:, :3, :3], turn @ old[:, :3, :3], atol=1e-6)
+        np.testing.assert_allclose(new[:, :3, 3], 0.5 * old[:, :3, 3] @ turn.T, atol=1e-6)
+    assert (after.near, after.far) == (0.5 * before.near, 0.5 * before.far)
+    np.testing.assert_array_equal(after.spikes(), before.spikes())
+    np.testing.assert_array_equal(np.asarray(after.test.images), np.asarray(before.test.images))
+    assert axes.turned_copy(sim, copy, 45.0, 0.5) == copy  # a finished copy is reused as it is
+    assert not (tmp_path / "data-rot30" / "sim.partial").exists()

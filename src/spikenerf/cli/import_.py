@@ -10,6 +10,7 @@ import click
 
 from spikenerf.cli import command_line
 from spikenerf.core.errors import InputError
+from spikenerf.data.alignment import ORIENTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
 PARAM_FLAGS = {"fov_deg": "--fov"}
@@ -104,12 +105,13 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
 )
 @click.option(
     "--orient",
-    type=click.Choice(["up", "none"]),
+    type=click.Choice(ORIENTS),
     default="up",
     show_default=True,
-    help="Turn the scene upright (the cameras' up to +Z) before fitting the unit box (to the sparse points, "
-    "or around the cameras' focus); none: keep the source's axes. A scene_box or LLFF bounds always keep "
-    "them.",
+    help="Turn the scene upright (the cameras' up to +Z), then about +Z so that its vertical planes (walls, "
+    "box sides in the sparse points) lie along the axes, or for the smallest box where there are none; "
+    "up-box: always the smallest box; none: keep the source's axes. Then the unit box is fitted (to the "
+    "sparse points, or around the cameras' focus). A scene_box or LLFF bounds always keep their axes.",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--verbose", is_flag=True, help="Show COLMAP's log.")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -76,12 +77,15 @@ class Normalisation:
 
     Attributes:
         rotation: (3, 3) turns the source frame (identity: kept as it is). center: (3,) in the source frame.
-        scale: source units → unit-box units.
+        scale: source units → unit-box units. turn: how the upright frame was turned about +Z (``planes``,
+        ``box``; ``none``: not turned). plane_score: :func:`plane_turn`'s score (0: not computed).
     """
 
     rotation: np.ndarray
     center: np.ndarray
     scale: float
+    turn: str = "none"
+    plane_score: float = 0.0
 
     def points(self, x: np.ndarray) -> np.ndarray:
         """Points (N, 3) of the source frame in the unit-box frame."""
@@ -100,6 +104,8 @@ class Normalisation:
             "center": [float(c) for c in self.center],
             "scale": float(self.scale),
             "rotation": [[float(v) for v in row] for row in self.rotation],
+            "turn": self.turn,
+            "plane_score": round(float(self.plane_score), 3),
         }
 
 
@@ -121,15 +127,72 @@ def up_direction(poses: np.ndarray) -> np.ndarray | None:
     return mean_up
 
 
-def upright(poses: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
-    """A rotation (3, 3) that takes :func:`up_direction` to +Z and then turns about +Z by the angle (1°
-    steps) that makes the sparse points' (N, 3) box smallest (:data:`BOX_PERCENTILES`; at most 20000 points,
-    evenly picked); identity when the cameras show no up."""
+#: how an imported frame is oriented before its unit box is fitted (``import --orient``): ``up`` turns it
+#: upright and then about +Z so that the scene's vertical planes lie along the axes (the smallest box where
+#: the points show no planes), ``up-box`` upright and turned for the smallest box, ``none`` keeps the axes
+Orient = Literal["up", "up-box", "none"]
+ORIENTS: tuple[str, ...] = get_args(Orient)
+#: :func:`upright`'s turn about +Z: the scene's vertical planes onto the axes, or the smallest box
+Turn = Literal["planes", "box"]
+TURNS: tuple[str, ...] = get_args(Turn)
+#: neighbours of a sparse point that its local plane is fitted to (:func:`plane_turn`)
+PLANE_NEIGHBOURS = 32
+#: :func:`plane_turn`'s score (the four-fold alignment of the plane normals over its value for normals that
+#: point anywhere) from which the planes decide the turn; below it the smallest box does. Normals at random
+#: angles reach 2 with probability e⁻⁴ ≈ 2% (the score is Rayleigh-distributed for them)
+PLANE_MIN_SCORE = 2.0
+
+
+def plane_turn(xyz: np.ndarray, neighbours: int = PLANE_NEIGHBOURS) -> tuple[float, float]:
+    """The turn about +Z (radians, in (−π/4, π/4]) that brings the scene's vertical planes onto the X and Y
+    axes, from sparse points (N, 3) of an upright frame, and how clearly the points show such planes.
+
+    Each point's local plane is the least-squares plane of its ``neighbours`` nearest points (PCA; its normal
+    is the direction of least spread). A normal at angle φ in the XY plane is weighted by its flatness
+    (1 − λ₀/λ₁) and how horizontal it is (|n_xy|²). Walls at right angles agree in 4φ (the Manhattan-world
+    assumption), so the turn is the angle of the weighted mean of e^{4iφ}, divided by 4 (curved surfaces
+    spread their normals evenly: they add noise, not a bias). Returns ``(turn, score)``: the score is the
+    length of that mean over its expected length for normals pointing anywhere (≈ 0.9; ≥
+    :data:`PLANE_MIN_SCORE` is a clear answer). ``(0, 0)`` for fewer than 2·``neighbours`` points."""
+    from scipy.spatial import cKDTree
+
+    xyz = np.asarray(xyz, np.float64)
+    if len(xyz) < 2 * neighbours:
+        return 0.0, 0.0
+    _, idx = cKDTree(xyz).query(xyz, k=neighbours)
+    near = xyz[idx] - xyz[idx].mean(1, keepdims=True)  # (N, k, 3)
+    spread, axes = np.linalg.eigh(np.einsum("nki,nkj->nij", near, near))  # ascending
+    normal = axes[:, :, 0]
+    weight = (1 - spread[:, 0] / np.maximum(spread[:, 1], 1e-300)) * (normal[:, 0] ** 2 + normal[:, 1] ** 2)
+    total = float(weight.sum())
+    if not total > 0:
+        return 0.0, 0.0
+    mean = complex((weight * np.exp(4j * np.arctan2(normal[:, 1], normal[:, 0]))).sum())
+    return -float(np.angle(mean)) / 4, abs(mean) / math.sqrt(float((weight**2).sum()))
+
+
+def upright(poses: np.ndarray, points: np.ndarray | None = None, turn: Turn = "planes") -> np.ndarray:
+    """A rotation (3, 3) that takes :func:`up_direction` to +Z and then turns about +Z (``turn``, one of
+    :data:`TURNS`): ``planes`` puts the scene's vertical planes on the X and Y axes (:func:`plane_turn`)
+    where the sparse points (N, 3) show them clearly (the grid field's factors are axis-aligned, so
+    axis-aligned structure costs it least; docs/real-data.md measures it), else it does what ``box`` does:
+    the angle (1° steps) that makes the points' box smallest (:data:`BOX_PERCENTILES`). At most 20000
+    points, evenly picked. No turn without points; the identity when the cameras show no up."""
+    return orientation(poses, points, turn)[0]
+
+
+def orientation(
+    poses: np.ndarray, points: np.ndarray | None = None, turn: Turn = "planes"
+) -> tuple[np.ndarray, str, float]:
+    """:func:`upright`'s rotation (3, 3) and how it turned about +Z: ``(rotation, rule, score)``, rule
+    ``planes``, ``box`` or ``none`` (no points, or no up) and :func:`plane_turn`'s score (0: not asked)."""
     from scipy.spatial.transform import Rotation
 
+    if turn not in TURNS:
+        raise InputError(f"turn must be one of {', '.join(TURNS)}, found {turn!r}", param="turn")
     up = up_direction(poses)
     if up is None:
-        return np.eye(3)
+        return np.eye(3), "none", 0.0
     axis = np.cross(up, [0.0, 0.0, 1.0])
     sin, cos = float(np.linalg.norm(axis)), float(up[2])
     if sin < 1e-12:  # already up, or upside down: half a turn about X
@@ -137,15 +200,20 @@ def upright(poses: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
     else:
         tilt = Rotation.from_rotvec(axis / sin * math.atan2(sin, cos)).as_matrix()
     if points is None or len(points) < 8:
-        return tilt
+        return tilt, "none", 0.0
     points = np.asarray(points, np.float64)
-    points = points[np.unique(np.linspace(0, len(points) - 1, min(len(points), 20000)).astype(int))]
-    xy = (points @ tilt.T)[:, :2]
+    points = points[np.unique(np.linspace(0, len(points) - 1, min(len(points), 20000)).astype(int))] @ tilt.T
+    score = 0.0
+    if turn == "planes":
+        angle, score = plane_turn(points)
+        if score >= PLANE_MIN_SCORE:
+            return Rotation.from_euler("z", angle).as_matrix() @ tilt, "planes", score
+    xy = points[:, :2]
     angles = np.radians(np.arange(90))
     c, s = np.cos(angles), np.sin(angles)
     turned = np.stack([xy[:, 0, None] * c - xy[:, 1, None] * s, xy[:, 0, None] * s + xy[:, 1, None] * c])
     lo, hi = np.percentile(turned, BOX_PERCENTILES, axis=1)  # (2, A) each
-    return Rotation.from_euler("z", angles[np.argmin((hi - lo).max(0))]).as_matrix() @ tilt
+    return Rotation.from_euler("z", angles[np.argmin((hi - lo).max(0))]).as_matrix() @ tilt, "box", score
 
 
 def normalisation(
@@ -153,17 +221,22 @@ def normalisation(
     points: np.ndarray | None = None,
     scene_box: np.ndarray | None = None,
     camera_angle_x: float = 0.69,
-    orient: bool = True,
+    orient: Orient = "up",
 ) -> Normalisation:
     """The similarity mapping the scene into the unit box ``[-1, 1]^3`` (see :class:`Normalisation`).
 
     The box comes from the sparse points (N, 3) (2nd–98th percentile per axis, widened by
     :data:`BOX_MARGIN`) when given, else the source's scene box (2, 3), else the cameras' focus point with
     the half-width of the view frustum at the nearest camera distance. Without a source box and with
-    ``orient``, the frame is first turned upright (:func:`upright`): a COLMAP model's axes are arbitrary,
-    and an axis-aligned box in them clips the scene.
+    ``orient`` (one of :data:`ORIENTS`) ``up`` or ``up-box``, the frame is first turned upright and about
+    +Z (:func:`upright`, turn ``planes`` or ``box``): a COLMAP model's axes are arbitrary, and an
+    axis-aligned box in them clips the scene.
     """
-    rotation = upright(poses, points) if orient and scene_box is None else np.eye(3)
+    if orient not in ORIENTS:
+        raise InputError(f"orient must be one of {', '.join(ORIENTS)}, found {orient!r}", param="orient")
+    rotation, turn, score = np.eye(3), "none", 0.0
+    if orient != "none" and scene_box is None:
+        rotation, turn, score = orientation(poses, points, "box" if orient == "up-box" else "planes")
     if points is not None and len(points) >= 8:
         lo, hi = np.percentile(np.asarray(points, np.float64) @ rotation.T, BOX_PERCENTILES, axis=0)
         lo, hi = (lo + hi) / 2 - BOX_MARGIN * (hi - lo) / 2, (lo + hi) / 2 + BOX_MARGIN * (hi - lo) / 2
@@ -186,7 +259,7 @@ def normalisation(
     half = float(np.max(hi - lo)) / 2
     if not half > 0:
         raise InputError("the scene has no extent (all sparse points or cameras coincide)")
-    return Normalisation(rotation, rotation.T @ ((lo + hi) / 2), 1.0 / half)
+    return Normalisation(rotation, rotation.T @ ((lo + hi) / 2), 1.0 / half, turn, score)
 
 
 def near_far_from_points(

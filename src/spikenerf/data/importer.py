@@ -14,7 +14,6 @@ import math
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal, get_args
 
 import numpy as np
 
@@ -27,6 +26,8 @@ from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_output, mark
 from spikenerf.data.alignment import (
+    ORIENTS,
+    Orient,
     frustum_box,
     near_far_from_points,
     normalisation,
@@ -43,9 +44,8 @@ DEFAULT_FPS = 40000.0
 COLMAP_WORK = "colmap"
 COLMAP_SEQUENTIAL = "colmap-sequential"  # the refit without loop pairs (colmap_poses)
 COLMAP_FOLDERS = (COLMAP_WORK, COLMAP_SEQUENTIAL)
-#: ``import --orient``: turn the frame upright before fitting the unit box, or keep the source's axes
-Orient = Literal["up", "none"]
-ORIENT_CHOICES: tuple[str, ...] = get_args(Orient)
+#: ``import --orient`` (defined with the geometry: :data:`spikenerf.data.alignment.ORIENTS`)
+ORIENT_CHOICES: tuple[str, ...] = ORIENTS
 
 
 @dataclass(frozen=True)
@@ -65,8 +65,9 @@ class ImportOptions:
         affine_sift, final_ba, contrast: COLMAP settings (:class:`spikenerf.data.colmap.ColmapSettings`).
         smooth: local quadratic smoothing of the keyframe poses over this many steps (0: off;
         :func:`spikenerf.data.alignment.smooth_poses`). orient: ``up`` turns a frame without a stated scene
-        box upright before the unit box is fitted (:func:`spikenerf.data.alignment.upright`); ``none``
-        keeps the source's axes.
+        box upright and its vertical planes onto the axes (the smallest box where the points show none),
+        ``up-box`` upright and for the smallest box, before the unit box is fitted
+        (:func:`spikenerf.data.alignment.upright`); ``none`` keeps the source's axes.
     """
 
     poses: str = "colmap"
@@ -110,7 +111,9 @@ def _check(options: ImportOptions) -> None:
             f"min_registered must be in [0, 1], found {options.min_registered}", param="min_registered"
         )
     if options.orient not in ORIENT_CHOICES:
-        raise InputError(f"orient must be up or none, found {options.orient!r}", param="orient")
+        raise InputError(
+            f"orient must be one of {', '.join(ORIENT_CHOICES)}, found {options.orient!r}", param="orient"
+        )
     if options.keyframe_images not in ("tfp", "learned"):
         raise InputError(
             f"keyframe_images must be tfp or learned, found {options.keyframe_images!r}",
@@ -337,7 +340,7 @@ def _write(
     scene_box = found.scene_box
     if scene_box is None and found.depth_bounds is not None:
         scene_box = frustum_box(found.poses, *found.depth_bounds)
-    norm = normalisation(found.poses, found.points, scene_box, k.camera_angle_x, opts.orient == "up")
+    norm = normalisation(found.poses, found.points, scene_box, k.camera_angle_x, opts.orient)
     poses = norm.poses(poses)
     box = np.array([[-1.0] * 3, [1.0] * 3])
     bounds = None if found.depth_bounds is None else tuple(d * norm.scale for d in found.depth_bounds)
