@@ -143,6 +143,12 @@ PLANE_NEIGHBOURS = 32
 PLANE_MIN_SCORE = 2.0
 
 
+def check_orient(orient: str) -> None:
+    """InputError naming ``orient`` unless it is one of :data:`ORIENTS`."""
+    if orient not in ORIENTS:
+        raise InputError(f"orient must be one of {', '.join(ORIENTS)}, found {orient!r}", param="orient")
+
+
 def plane_turn(xyz: np.ndarray, neighbours: int = PLANE_NEIGHBOURS) -> tuple[float, float]:
     """The turn about +Z (radians, in (−π/4, π/4]) that brings the scene's vertical planes onto the X and Y
     axes, from sparse points (N, 3) of an upright frame, and how clearly the points show such planes.
@@ -232,8 +238,7 @@ def normalisation(
     +Z (:func:`upright`, turn ``planes`` or ``box``): a COLMAP model's axes are arbitrary, and an
     axis-aligned box in them clips the scene.
     """
-    if orient not in ORIENTS:
-        raise InputError(f"orient must be one of {', '.join(ORIENTS)}, found {orient!r}", param="orient")
+    check_orient(orient)
     rotation, turn, score = np.eye(3), "none", 0.0
     if orient != "none" and scene_box is None:
         rotation, turn, score = orientation(poses, points, "box" if orient == "up-box" else "planes")

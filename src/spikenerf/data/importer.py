@@ -28,6 +28,7 @@ from spikenerf.core.marker import MARKER, check_output, mark
 from spikenerf.data.alignment import (
     ORIENTS,
     Orient,
+    check_orient,
     frustum_box,
     near_far_from_points,
     normalisation,
@@ -110,10 +111,7 @@ def _check(options: ImportOptions) -> None:
         raise InputError(
             f"min_registered must be in [0, 1], found {options.min_registered}", param="min_registered"
         )
-    if options.orient not in ORIENT_CHOICES:
-        raise InputError(
-            f"orient must be one of {', '.join(ORIENT_CHOICES)}, found {options.orient!r}", param="orient"
-        )
+    check_orient(options.orient)
     if options.keyframe_images not in ("tfp", "learned"):
         raise InputError(
             f"keyframe_images must be tfp or learned, found {options.keyframe_images!r}",
