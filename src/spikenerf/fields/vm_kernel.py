@@ -8,24 +8,33 @@ The lookups are random reads of a grid larger than the L2 cache, so each loop pr
 point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (``-O3``,
 ``-march=native`` on x86-64, ``-fopenmp`` on Linux so its loops use torch's threads; cached under
 ``~/.cache/torch_extensions`` in a folder named by the source, the flags and the CPU's feature flags;
-20–90 s the first time on a machine). Where that is not possible (no
+20–90 s the first time on a machine; a process that finds the module compiled imports it at once, and
+concurrent first builds are serialised by an ``flock`` that dies with its holder). Where that is not possible (no
 compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``) callers
 fall back to ``grid_sample``; :func:`available` says which path is used.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import importlib.util
 import os
 import platform
 import sys
 import time
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not on Unix: no build lock
+    fcntl = None  # type: ignore[assignment]
 
 _SOURCE = r"""
 #include <torch/extension.h>
@@ -220,44 +229,93 @@ def _name(cflags: list[str], ldflags: list[str]) -> str:
     )
 
 
-STALE_LOCK_S = 600.0  # a build lock older than this was left by a killed build
+BUILD_WAIT_S = 900.0  # the longest we wait for another process's build before using grid_sample
+_BUILD_LOCK = "spikenerf-build.lock"  # our own lock file in the build folder (torch's is ``lock``)
 
 
-def _wait_for_lock(build_dir: Path) -> bool:
-    """Wait while another process builds (its ``lock`` file exists); False when the lock is stale.
+@contextlib.contextmanager
+def _build_lock(build_dir: Path, wait_s: float | None = None) -> Iterator[bool]:
+    """Hold an exclusive ``flock`` on ``build_dir/spikenerf-build.lock`` for the block; yields False when
+    another process held it for ``wait_s`` seconds (default :data:`BUILD_WAIT_S`).
 
-    torch's own wait loops forever on a lock left by a process killed mid-build; here a lock older than
-    :data:`STALE_LOCK_S` makes the caller fall back to ``grid_sample`` instead.
+    The kernel drops a ``flock`` when its holder dies (even by SIGKILL), so a lock file left behind never
+    blocks anyone: only a live process building the kernel is waited for. Without ``fcntl`` (not Unix)
+    nothing is locked.
     """
-    lock = build_dir / "lock"
-    while True:
+    if fcntl is None:  # pragma: no cover - not on Unix
+        yield True
+        return
+    wait_s = BUILD_WAIT_S if wait_s is None else wait_s
+    build_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(build_dir / _BUILD_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        deadline, told = time.monotonic() + wait_s, False
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    yield False
+                    return
+                if not told:
+                    print("waiting for another process building the fused CPU kernel…", file=sys.stderr)
+                    told = True
+                time.sleep(0.2)
         try:
-            age = time.time() - lock.stat().st_mtime
-        except FileNotFoundError:
-            return True
-        if age > STALE_LOCK_S:
-            return False
-        time.sleep(0.5)
+            yield True
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
+
+
+def _import_built(name: str, library: Path) -> Any:
+    """Import an already compiled extension module from its ``.so`` (None when it cannot be loaded: a
+    truncated or foreign file, which the caller then rebuilds)."""
+    spec = importlib.util.spec_from_file_location(name, library)
+    if spec is None or spec.loader is None:
+        return None
+    try:
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    except ImportError:
+        return None
+    return module if hasattr(module, "forward") and hasattr(module, "backward") else None
 
 
 def _build(cflags: list[str], ldflags: list[str]) -> Any:
-    """Compile (or load the cached) module with these extra flags; None when a killed build left its lock."""
+    """Load the cached module, or compile it, with these extra flags; None when another process's build
+    held the build lock for :data:`BUILD_WAIT_S` seconds.
+
+    Under our own ``flock`` (:func:`_build_lock`): a compiled ``.so`` is imported at once, without torch's
+    build machinery; otherwise torch's own ``lock`` file is removed first (no live spikenerf process can be
+    building this folder while we hold the flock, so it is stale, or, with torch ≥ 2.14, simply left in
+    place after every build) and the module is built with ``load_inline``.
+    """
     from torch.utils.cpp_extension import _get_build_directory, load_inline
 
     name = _name(_CFLAGS + cflags, ldflags)
     build_dir = Path(_get_build_directory(name, verbose=False))
-    if not _wait_for_lock(build_dir):
-        warnings.warn(
-            f"VM CPU kernel: stale build lock {build_dir / 'lock'} (a build was killed; delete the file to"
-            " rebuild), using grid_sample",
-            stacklevel=3,
-        )
-        return None
-    if not (build_dir / f"{name}.so").exists():
+    with _build_lock(build_dir) as locked:
+        if not locked:
+            warnings.warn(
+                f"VM CPU kernel: another process held {build_dir / _BUILD_LOCK} for {BUILD_WAIT_S:.0f} s"
+                " while building the kernel, using grid_sample",
+                stacklevel=3,
+            )
+            return None
+        library = build_dir / f"{name}.so"
+        if library.exists():
+            module = _import_built(name, library)
+            if module is not None:
+                return module
+        with contextlib.suppress(FileNotFoundError):
+            (build_dir / "lock").unlink()
         print("building the fused CPU kernel (once, ~1 min)…", file=sys.stderr, flush=True)
-    return load_inline(
-        name, cpp_sources=[_SOURCE], extra_cflags=_CFLAGS + cflags, extra_ldflags=ldflags, with_cuda=False
-    )
+        return load_inline(
+            name, cpp_sources=[_SOURCE], extra_cflags=_CFLAGS + cflags, extra_ldflags=ldflags, with_cuda=False
+        )
 
 
 def _load() -> Any:
