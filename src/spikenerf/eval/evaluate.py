@@ -30,6 +30,7 @@ from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_mean
+from spikenerf.render.inference import check_precision, inference_chunk
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.pose_fit import check_fit_args, fit_view_poses
 from spikenerf.train.pose_refine import refined_dataset, refined_views
@@ -138,7 +139,7 @@ def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | N
 
 def pose_optimised(
     model: Any, views: PosedImages, k: Any, dataset: SpikeDataset, backbone: str | None, chunk: int,
-    test_pose: tuple[int, float], window: np.ndarray | None = None,
+    test_pose: tuple[int, float], window: np.ndarray | None = None, precision: str = "fp32",
 ) -> dict[str, Any]:  # fmt: skip
     """Scores of ``views`` (V poses (V, 4, 4), images (V, H, W, 3)) after fitting each pose to its own image
     with the model frozen (:func:`spikenerf.train.pose_fit.fit_view_poses`, ``test_pose`` = (steps, lr)).
@@ -151,7 +152,8 @@ def pose_optimised(
                          lr=lr, batch=POSE_BATCH)  # fmt: skip
     per_view = []
     for i, poses in enumerate(fit.poses):
-        pred = display(render_mean(model, poses, k, dataset.near, dataset.far, chunk), model.channels)
+        color = render_mean(model, poses, k, dataset.near, dataset.far, chunk, precision)
+        pred = display(color, model.channels)
         scores = score_view(pred, display(views.images[i], model.channels), backbone)
         size = {"rotation_deg": float(fit.rotation_deg[i]), "translation": float(fit.translation[i])}
         per_view.append({"index": i, **scores, **size})
@@ -178,6 +180,7 @@ def evaluate_run(
     noref: str = "auto",
     noref_options: NoRefOptions | None = None,
     test_pose: tuple[int, float] = (0, 2e-3),
+    precision: str = "fp32",
 ) -> dict[str, Any]:
     """Render every view of ``split``, score it and write ``RUN/metrics.json`` atomically.
 
@@ -186,13 +189,16 @@ def evaluate_run(
         split: ``test`` (held-out novel views) or ``train`` (sharp GT along the training path).
         device: auto | cpu | cuda. dataset_root: the dataset if it moved since training.
         lpips_backbone: ``alex`` (default), ``vgg`` or None (skip LPIPS).
-        chunk: rays per render call.
+        chunk: rays per render call; 0 = automatic (8192 off CUDA, sized from the free GPU memory on CUDA;
+            :func:`spikenerf.render.inference.inference_chunk`).
+        precision: fp32 (default), fp16 (CUDA) or bf16: the renders' autocast precision (the no-reference
+            checks render in fp32).
         noref: ``auto`` (on for imported datasets), ``on`` or ``off``: the no-reference checks against the
             recording itself (:mod:`spikenerf.eval.noref`). noref_options: their settings.
     Returns:
         The metrics.json content (see docs/formats.md): split, method, color, field, iterations, views,
         mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, no_reference,
-        test_pose_optimised (None when off), seconds.
+        test_pose_optimised (None when off), precision, seconds.
     """
     noref_options = NoRefOptions() if noref_options is None else noref_options
     noref_options.check()
@@ -200,17 +206,19 @@ def evaluate_run(
     with output_lock(run_dir, "RUN"):
         return _evaluate_locked(
             Path(run_dir), split, device, dataset_root, lpips_backbone, chunk, progress, log,
-            (noref, noref_options), test_pose,
+            (noref, noref_options), test_pose, precision,
         )  # fmt: skip
 
 
 def _evaluate_locked(
     run_dir: Path, split: str, device: str, dataset_root: str | Path | None, lpips_backbone: str | None,
     chunk: int, progress: bool, log: Callable[[str], None] | None, noref: tuple[str, NoRefOptions],
-    test_pose: tuple[int, float],
+    test_pose: tuple[int, float], precision: str,
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device)
+    check_precision(precision, model.device)
+    chunk = inference_chunk(model, chunk)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)
     held = read_record(run_dir)
     use_noref = wants_noref(noref[0], dataset, held is not None)
@@ -230,7 +238,8 @@ def _evaluate_locked(
         window = np.asarray(refined_dataset(ckpt, config, dataset).trajectory.poses)[windows]
     for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
         poses = [views.poses[i]] if window is None else window[i]  # one pose, or a keyframe's window
-        pred = display(render_mean(model, poses, k, dataset.near, dataset.far, chunk), model.channels)
+        color = render_mean(model, poses, k, dataset.near, dataset.far, chunk, precision)
+        pred = display(color, model.channels)
         target = display(views.images[i], model.channels)
         per_view.append({"index": i, **score_view(pred, target, backbone)})
     result = {
@@ -248,11 +257,12 @@ def _evaluate_locked(
         "space": SPACE,
         "no_reference": None,
         "test_pose_optimised": None,
+        "precision": precision,
         "seconds": 0.0,
     }
     if test_pose[0] > 0 and len(views):
         result["test_pose_optimised"] = pose_optimised(
-            model, views, k, dataset, backbone, chunk, test_pose, window
+            model, views, k, dataset, backbone, chunk, test_pose, window, precision
         )
     if use_noref:
 

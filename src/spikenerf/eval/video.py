@@ -41,6 +41,7 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, read_pose_file
 from spikenerf.render import iter_spike_stream, render_image
+from spikenerf.render.inference import check_precision, inference_chunk
 from spikenerf.scenes.trajectory import orbit
 from spikenerf.train.run import load_run
 
@@ -183,8 +184,11 @@ def render_run(
     chunk: int = 8192,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
+    precision: str = "fp32",
 ) -> dict[str, Any]:
-    """Render a run along ``trajectory`` into ``out`` (see the module doc); returns render.json's content."""
+    """Render a run along ``trajectory`` into ``out`` (see the module doc); returns render.json's content.
+    ``chunk``: rays per render call (0 = automatic); ``precision``: fp32 | fp16 | bf16 of the views
+    (:mod:`spikenerf.render.inference`; the spike stream renders in fp32)."""
     bad_steps = spike_steps is not None and spike_steps < 1
     if not (0 < fps_video < float("inf")) or orbit_frames < 1 or bad_steps:
         raise InputError(
@@ -198,7 +202,7 @@ def render_run(
     with output_lock(out):
         return _render_locked(
             run_dir, out, trajectory, spikes, fps_video, orbit_frames, spike_steps, seed, device,
-            dataset_root, chunk, progress, log,
+            dataset_root, chunk, progress, log, precision,
         )  # fmt: skip
 
 
@@ -213,10 +217,12 @@ def check_render_resources(dataset: SpikeDataset, views: int, spike_steps: int, 
 def _render_locked(
     run_dir: str | Path, out: Path, trajectory: str, spikes: bool, fps_video: float, orbit_frames: int,
     spike_steps: int | None, seed: int, device: str, dataset_root: str | Path | None, chunk: int,
-    progress: bool, log: Callable[[str], None] | None,
+    progress: bool, log: Callable[[str], None] | None, precision: str = "fp32",
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, _, dataset = load_run(run_dir, dataset_root, device)
+    check_precision(precision, model.device)
+    chunk = inference_chunk(model, chunk)
     views = orbit_frames if trajectory == "orbit" else len(dataset.test) if trajectory == "test" else 0
     n_spikes = (spike_steps or len(dataset.trajectory)) if spikes and trajectory == "orbit" else views
     check_render_resources(dataset, views, n_spikes if spikes else 0, out)
@@ -226,7 +232,7 @@ def _render_locked(
     k = dataset.intrinsics
     colors, depths, opacities = [], [], []
     for pose in tqdm(poses, desc=f"render {name}", unit="view", disable=not progress):
-        r = render_image(model, pose, k, dataset.near, dataset.far, chunk)
+        r = render_image(model, pose, k, dataset.near, dataset.far, chunk, precision)
         colors.append(to_uint8(srgb_encode(r.color.float().cpu().numpy())))
         depths.append(r.depth.float().cpu().numpy())
         opacities.append(r.opacity.float().cpu().numpy())
@@ -256,6 +262,7 @@ def _render_locked(
         "fps_video": fps_video,
         "spike_steps": n_spike,
         "spike_seed": seed if spikes else None,
+        "precision": precision,
         "threshold": dataset.threshold,
         "files": files,
         "seconds": round(time.perf_counter() - t0, 3),

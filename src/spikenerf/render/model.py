@@ -12,6 +12,7 @@ from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
 from spikenerf.fields import FIELD_KINDS, build_field
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
+from spikenerf.render.inference import render_autocast
 from spikenerf.render.mlp_model import MLPModel
 from spikenerf.render.volume import RenderOutput
 from spikenerf.scenes.trajectory import Intrinsics
@@ -61,20 +62,23 @@ def ray_bounds(
 
 @torch.no_grad()
 def render_rays_chunked(
-    model: RadianceModel, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, chunk: int = 8192
-) -> RenderOutput:
-    """Deterministic render of many rays in chunks: a :class:`RenderOutput` with colour (N, C), depth (N,),
-    opacity (N,) and the summed ``num_samples`` (no per-sample weights)."""
-    parts = [
-        model.render_rays(
-            origins[i : i + chunk], dirs[i : i + chunk], near[i : i + chunk], far[i : i + chunk]
-        )
-        for i in range(0, origins.shape[0], chunk)
-    ]
+    model: RadianceModel, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, chunk: int = 8192,
+    precision: str = "fp32",
+) -> RenderOutput:  # fmt: skip
+    """Deterministic render of many rays in chunks of ``chunk`` rays: a :class:`RenderOutput` with colour
+    (N, C), depth (N,), opacity (N,) float32 and the summed ``num_samples`` (no per-sample weights).
+    ``precision``: fp32, or fp16/bf16 autocast (:mod:`spikenerf.render.inference`)."""
+    parts = []
+    for i in range(0, origins.shape[0], chunk):
+        with render_autocast(model.device, precision):
+            p = model.render_rays(
+                origins[i : i + chunk], dirs[i : i + chunk], near[i : i + chunk], far[i : i + chunk]
+            )
+        parts.append(p)
     return RenderOutput(
-        color=torch.cat([p.color for p in parts]),
-        depth=torch.cat([p.depth for p in parts]),
-        opacity=torch.cat([p.opacity for p in parts]),
+        color=torch.cat([p.color.float() for p in parts]),
+        depth=torch.cat([p.depth.float() for p in parts]),
+        opacity=torch.cat([p.opacity.float() for p in parts]),
         num_samples=sum(p.num_samples for p in parts),
     )
 
@@ -87,11 +91,13 @@ def render_image(
     near: float | None = None,
     far: float | None = None,
     chunk: int = 8192,
+    precision: str = "fp32",
 ) -> RenderOutput:
     """Render one view (no perturbation, no gradients) on the model's device.
 
     Args:
         c2w: (4, 4) camera-to-world (OpenGL axes). near/far: optional scalar limits inside the scene box.
+        chunk: rays per render call. precision: fp32 | fp16 | bf16 (see :func:`render_rays_chunked`).
     Returns:
         a :class:`RenderOutput` shaped as the image: ``color`` (H, W, C) linear in [0, 1] on white, ``depth``
         (H, W) world distance along the ray (0 where empty), ``opacity`` (H, W).
@@ -99,7 +105,7 @@ def render_image(
     pose = as_poses(c2w, model.device)
     origins, dirs = image_rays(pose, intrinsics)
     lo, hi = ray_bounds(model, origins, dirs, near, far)
-    out = render_rays_chunked(model, origins, dirs, lo, hi, chunk)
+    out = render_rays_chunked(model, origins, dirs, lo, hi, chunk, precision)
     h, w = intrinsics.height, intrinsics.width
     return RenderOutput(
         out.color.view(h, w, -1), out.depth.view(h, w), out.opacity.view(h, w), num_samples=out.num_samples
@@ -113,8 +119,9 @@ def render_mean(
     near: float | None = None,
     far: float | None = None,
     chunk: int = 8192,
+    precision: str = "fp32",
 ) -> Tensor:
     """The mean color (H, W, C), linear, of the renders at ``poses`` (S, 4, 4): what a view shows whose light
     was gathered over a camera motion (a TFP window, an exposure); S = 1 is :func:`render_image`'s color."""
-    colors = [render_image(model, pose, intrinsics, near, far, chunk).color for pose in poses]
+    colors = [render_image(model, pose, intrinsics, near, far, chunk, precision).color for pose in poses]
     return torch.stack(colors).mean(dim=0)
