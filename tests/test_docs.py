@@ -1,24 +1,198 @@
-"""The docs stay true: docs/cli.md matches the commands' --help, and relative links resolve."""
+"""The docs stay true for users.
+
+- docs/cli.md matches the commands' --help, and documents every subcommand;
+- every relative link in README.md, CHANGELOG.md and docs/ (lab notes included) resolves, to the file and to
+  the heading its #anchor names;
+- no user page (README.md, docs/*.md; not docs/lab/ or CHANGELOG.md) is over 400 lines or speaks of the
+  lab's sessions or machine load ("stop 12", "the idle box", "load average 5");
+- docs/index.md lists every user page;
+- a newcomer's path: the commands of docs/getting-started.md run, in order, in an empty folder, and print
+  what the page shows; and the README's Python example runs.
+"""
 
 from __future__ import annotations
 
+import os
 import re
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 
+import click
+import pytest
+
+from spikenerf.cli import cli
 from spikenerf.cli.reference import cli_reference
 
 ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+USER_PAGES = [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
+ALL_PAGES = [*USER_PAGES, ROOT / "CHANGELOG.md", *sorted((DOCS / "lab").glob("*.md"))]
+MAX_LINES = 400
+#: generated from --help (checked by test_cli_reference_is_current): it grows with every option
+LENGTH_EXEMPT = {"cli.md"}
+DIARY = re.compile(
+    r"\bstops? \d+"  # "stop 12", "stops 9–10"
+    r"|\b(?:this|that|each|every|last|next|earlier|previous) stop\b"
+    r"|\bidle (?:2-core )?box\b|\b(?:shared|loaded|overloaded|busy) (?:2-core )?box\b"
+    r"|\bload average\b|\bload (?:of )?[≈~]?\s?\d",  # "load average 5", "load ≈ 10", "load 13–17"
+    re.IGNORECASE,
+)
+#: the getting-started commands run at this size in the test (the page shows the full command)
+TINY = {"--iters 300": "--iters 20"}
+RUN_MARK = "<!-- test_docs: run -->"
+
+
+def _strip_code(text: str) -> str:
+    """The page without fenced code blocks and inline code spans (links there are not links)."""
+    text = re.sub(r"^```.*?^```[^\n]*$", "", text, flags=re.MULTILINE | re.DOTALL)
+    return re.sub(r"`[^`\n]*`", "", text)
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
+    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", heading.strip()).lower()
+    return re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+
+
+def _anchors(page: Path) -> set[str]:
+    """The anchors of a page's headings, with GitHub's -1, -2 suffixes for repeats."""
+    seen: dict[str, int] = {}
+    found = set()
+    text = re.sub(r"^```.*?^```[^\n]*$", "", page.read_text(), flags=re.MULTILINE | re.DOTALL)
+    for heading in re.findall(r"^#{1,6} +(.+?) *#*$", text, flags=re.MULTILINE):
+        base = _anchor(heading)
+        n = seen.get(base, 0)
+        seen[base] = n + 1
+        found.add(base if n == 0 else f"{base}-{n}")
+    return found
+
+
+def _links(page: Path) -> list[str]:
+    targets = re.findall(r"\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)", _strip_code(page.read_text()))
+    return [t for t in targets if not re.match(r"[a-z]+:", t)]
 
 
 def test_cli_reference_is_current() -> None:
-    committed = (ROOT / "docs" / "cli.md").read_text()
+    committed = (DOCS / "cli.md").read_text()
     assert committed == cli_reference(), "regenerate: python -m spikenerf.cli.reference > docs/cli.md"
 
 
-def test_relative_links_in_docs_resolve() -> None:
-    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
-        for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", page.read_text()):
-            assert (page.parent / target).exists(), f"{page.name}: broken link {target}"
+def test_every_subcommand_is_in_the_cli_reference() -> None:
+    page = (DOCS / "cli.md").read_text()
+    with click.Context(cli, info_name="spikenerf") as ctx:
+        commands = cli.list_commands(ctx)
+    assert len(commands) > 5
+    missing = [name for name in commands if f"\n## spikenerf {name}\n" not in page]
+    assert not missing, f"docs/cli.md lacks {missing}: python -m spikenerf.cli.reference > docs/cli.md"
+
+
+def test_relative_links_and_anchors_resolve() -> None:
+    broken = []
+    for page in ALL_PAGES:
+        for target in _links(page):
+            path, _, anchor = target.partition("#")
+            dest = (page.parent / path).resolve() if path else page
+            if not dest.exists():
+                broken.append(f"{page.relative_to(ROOT)}: {target} (no such file)")
+            elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
+                broken.append(f"{page.relative_to(ROOT)}: {target} (no such heading)")
+    assert not broken, "broken links:\n" + "\n".join(broken)
+
+
+def test_the_link_check_sees_a_broken_anchor() -> None:
+    assert _anchor("The acceptance run, gray: six scenes, 200×200, 3 seeds") == (
+        "the-acceptance-run-gray-six-scenes-200200-3-seeds"
+    )
+    assert _anchor("Test-time pose optimisation (`--test-pose-opt N`)") == (
+        "test-time-pose-optimisation---test-pose-opt-n"
+    )
+    assert "where-we-differ-from-the-paper" in _anchors(DOCS / "method.md")
+    assert "no-such-heading" not in _anchors(DOCS / "method.md")
+
+
+def test_user_pages_are_short() -> None:
+    long = [
+        f"{page.relative_to(ROOT)}: {n} lines"
+        for page in USER_PAGES
+        if page.name not in LENGTH_EXEMPT and (n := len(page.read_text().splitlines())) > MAX_LINES
+    ]
+    hint = "move history to docs/lab/, details to a page of their own"
+    assert not long, f"over {MAX_LINES} lines ({hint}):\n" + "\n".join(long)
+
+
+def test_user_pages_keep_no_lab_diary() -> None:
+    hits = [
+        f"{page.relative_to(ROOT)}:{i}: {m.group(0)!r}"
+        for page in USER_PAGES
+        for i, line in enumerate(page.read_text().splitlines(), 1)
+        for m in DIARY.finditer(line)
+    ]
+    assert not hits, "session or load wording in a user page (it belongs in docs/lab/ or CHANGELOG.md):\n" + (
+        "\n".join(hits)
+    )
+
+
+def test_the_diary_check_sees_diary_wording() -> None:
+    for text in ["measured in stop 12", "stops 9–10", "on the idle box", "load average 3–11", "load ≈ 10"]:
+        assert DIARY.search(text), text
+    for text in ["a scene box", "the spike loss stops", "loads the weights", "non-stop"]:
+        assert not DIARY.search(text), text
+
+
+def test_the_index_lists_every_user_page() -> None:
+    index = (DOCS / "index.md").read_text()
+    missing = [p.name for p in DOCS.glob("*.md") if p.name != "index.md" and f"]({p.name}" not in index]
+    assert not missing, f"docs/index.md does not list {missing}"
+
+
+def _getting_started_blocks() -> list[tuple[list[str], list[str]]]:
+    """(commands, the output shown after them) for each marked block of getting-started.md."""
+    text = (DOCS / "getting-started.md").read_text()
+    found = []
+    for block in text.split(RUN_MARK)[1:]:
+        code = block.split("```bash\n", 1)[1].split("```", 1)[0]
+        commands = [c for c in code.replace("\\\n", " ").splitlines() if c.strip() and not c.startswith("#")]
+        after = block.split("```", 2)[2].lstrip("\n")  # what follows the block: its shown output, if any
+        shown = []
+        if after.startswith("```text\n"):
+            shown = after.removeprefix("```text\n").split("```", 1)[0].splitlines()
+        found.append((commands, shown))
+    return found
+
+
+def test_getting_started_commands_run_in_order(tmp_path: Path) -> None:
+    """A newcomer's path: simulate → reconstruct → train → eval → render, at a tiny size (TINY)."""
+    blocks = _getting_started_blocks()
+    assert [c.split()[1] for commands, _ in blocks for c in commands] == [
+        "simulate", "info", "reconstruct", "train", "eval", "render", "info"
+    ]  # fmt: skip
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    for commands, shown in blocks:
+        printed = ""
+        for command in commands:
+            for full, tiny in TINY.items():
+                command = command.replace(full, tiny)
+            argv = shlex.split(command)
+            assert argv[0] == "spikenerf", command
+            done = subprocess.run(
+                [sys.executable, "-m", "spikenerf", *argv[1:]],
+                cwd=tmp_path,
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=300,
+            )
+            assert done.returncode == 0, f"{command}\n{(done.stdout + done.stderr)[-2000:]}"
+            printed += done.stdout + done.stderr
+        for line in shown:
+            if line.strip() != "...":  # the shown output up to its first number must be printed
+                stem = re.split(r"\d", line, maxsplit=1)[0]
+                assert stem in printed, f"{commands}: the page shows {line!r}, they printed\n{printed}"
+    assert (tmp_path / "orbs" / "spikes_gray.dat").is_file() and (tmp_path / "tfp.png").is_file()
+    assert (tmp_path / "run" / "metrics.json").is_file()
+    assert (tmp_path / "render" / "spikes_gray.dat").is_file()
 
 
 def test_readme_python_example_runs(tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
@@ -31,3 +205,8 @@ def test_readme_python_example_runs(tmp_path: Path, monkeypatch, capsys) -> None
     assert (tmp_path / "orbs" / "transforms_tfp.json").is_file() and (
         tmp_path / "orbs_run" / "summary.json"
     ).is_file()
+
+
+@pytest.mark.parametrize("page", ["getting-started.md", "index.md", "results.md", "real-data.md"])
+def test_the_readme_reaches_the_user_pages(page: str) -> None:
+    assert f"](docs/{page}" in (ROOT / "README.md").read_text()

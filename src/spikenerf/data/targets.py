@@ -109,11 +109,10 @@ def reconstruct_stream(
     """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI or the shipped learned
     reconstructor (its trained window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb
     stream → float32 linear (N, ...)."""
-    if recon == "learned":
-        from spikenerf.recon.infer import reconstruct_learned
+    if recon == "learned":  # on the training device and cached in the run folder inside a trainer
+        from spikenerf.data.recon_cache import learned_stream
 
-        mode = "rgb" if np.ndim(spikes) == 4 else "gray"
-        return reconstruct_learned(spikes, mode, threshold, frames=frames, window=window)
+        return learned_stream(spikes, threshold, frames, window)
     if recon == "tfp":
         return tfp(spikes, window=window, threshold=threshold, frames=frames)
     if recon == "tfi":
