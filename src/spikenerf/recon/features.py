@@ -110,7 +110,8 @@ class RunningFeatures:
     """
 
     def __init__(self, frames: Tensor, window: int) -> None:
-        """``frames``: (T, H, W) uint8 0/1 spikes (e.g. ``torch.from_numpy`` of a memory map)."""
+        """``frames``: (T, H, W) uint8 0/1 spikes (e.g. ``torch.from_numpy`` of a memory map), on any device
+        (the counts and features are made there)."""
         self.frames, self.k = frames, window
         self.spans = rate_spans(window)
         self.steps: np.ndarray | None = None
@@ -124,7 +125,7 @@ class RunningFeatures:
         else:
             self.counts = []
             for a, b in self.spans:
-                cnt = torch.zeros(f.shape[1:], dtype=torch.float32)
+                cnt = torch.zeros(f.shape[1:], dtype=torch.float32, device=f.device)
                 for j in steps[a:b]:
                     cnt.add_(f[j])
                 self.counts.append(cnt)
@@ -140,13 +141,14 @@ class RunningFeatures:
             raise ValueError(f"a window has {self.k} steps, found {len(steps)}")
         self._count(np.asarray(steps))
         k, c, f = self.k, self.k // 2, self.frames
-        last = torch.zeros(f.shape[1:], dtype=torch.uint8)
+        last = torch.zeros(f.shape[1:], dtype=torch.uint8, device=f.device)
         for j in range(c):  # 1 + position of the last spike before the middle step
             torch.maximum(last, f[steps[j]] * (j + 1), out=last)
         first = torch.zeros_like(last)
         for j in range(c, k):  # K − position of the first spike at or after it
             torch.maximum(first, f[steps[j]] * (k - j), out=first)
         total = float(self.counts[len(nested_lengths(k)) - 1].sum(dtype=torch.float64))
-        scale = torch.tensor([max(total / (k * last.numel()), MIN_SCALE)], dtype=torch.float32)
+        rate = max(total / (k * last.numel()), MIN_SCALE)
+        scale = torch.full((1,), rate, dtype=torch.float32, device=f.device)
         prev, nxt = last.to(torch.int32) - 1, k - first.to(torch.int32)
         return stack_features(k, [cnt[None] for cnt in self.counts], prev[None], nxt[None], scale), scale

@@ -20,6 +20,9 @@ from spikenerf.recon.net import ReconNet
 #: tile side (pixels) and margin on each side; a 250 × 400 frame runs as one tile
 TILE = 512
 MARGIN = 32
+#: frames per network call on CUDA (16 frames of 400 × 400: about 1 GiB of activations by estimate, not
+#: measured)
+CUDA_BATCH = 16
 
 
 def frame_scale(window: np.ndarray | torch.Tensor) -> float:
@@ -31,17 +34,21 @@ def frame_scale(window: np.ndarray | torch.Tensor) -> float:
     return max(total / max(w.numel(), 1), MIN_SCALE)
 
 
-def tiled(run: Callable[[int, int, int, int], torch.Tensor], h: int, w: int, tile: int = TILE) -> np.ndarray:
-    """Assemble an (H, W) float32 image from ``run(y0, y1, x0, x1)`` → (y1-y0, x1-x0) tiles with margins."""
+def tiled(
+    run: Callable[[int, int, int, int], torch.Tensor], h: int, w: int, tile: int = TILE,
+    lead: tuple[int, ...] = (),
+) -> np.ndarray:  # fmt: skip
+    """Assemble an (..., H, W) float32 image from ``run(y0, y1, x0, x1)`` → (..., y1-y0, x1-x0) tiles with
+    margins; ``lead``: the leading dimensions ``...`` (e.g. (B,) for a batch of frames; () for one)."""
     if tile < 16 or tile % 4:
         raise InputError(f"tile must be a multiple of 4 and ≥ 16, found {tile}")
-    out = np.empty((h, w), np.float32)
+    out = np.empty((*lead, h, w), np.float32)
     for y in range(0, h, tile):
         for x in range(0, w, tile):
             y0, x0 = max(0, y - MARGIN), max(0, x - MARGIN)
             pred = run(y0, min(h, y + tile + MARGIN), x0, min(w, x + tile + MARGIN)).cpu().numpy()
             ty, tx = min(tile, h - y), min(tile, w - x)
-            out[y : y + ty, x : x + tx] = pred[y - y0 : y - y0 + ty, x - x0 : x - x0 + tx]
+            out[..., y : y + ty, x : x + tx] = pred[..., y - y0 : y - y0 + ty, x - x0 : x - x0 + tx]
     return out
 
 
@@ -136,6 +143,8 @@ def learned_frames(
     threshold: float = 1.0,
     tile: int = TILE,
     progress: Callable[[int], None] | None = None,
+    device: torch.device | str | None = None,
+    batch: int = 1,
 ) -> np.ndarray:
     """Learned reconstruction of frames ``start:stop`` of a long stream, reading only the frames needed.
 
@@ -146,7 +155,10 @@ def learned_frames(
     Args:
         read: ``read(a, b)`` returns frames ``a:b``, (b-a, H, W) or (b-a, 3, H, W) 0/1. total: T.
         mode: gray | rgb | bayer. threshold: φ (intensity = rate · φ).
-        progress: called with 1 after each frame.
+        progress: called with the number of frames done after each batch of frames.
+        device: where the features and the network run (None: the network's device; ``net`` is moved
+            there in place); the stream's frames are copied there once.
+        batch: frames per network call (each of them tiled; 1 = frame by frame).
     Returns:
         float32 (stop-start, H, W) or (stop-start, 3, H, W) linear intensity.
     Raises:
@@ -157,27 +169,33 @@ def learned_frames(
         raise InputError(
             f"the learned reconstructor's window of {k} steps is longer than the stream ({total} steps)"
         )
+    if batch < 1:
+        raise InputError(f"batch must be ≥ 1, found {batch}", param="batch")
     half = k // 2
     lo, hi = max(0, start - half), min(total, stop + half)
+    device = next(net.parameters()).device if device is None else torch.device(device)
     sub = spike_tensor(read(lo, hi))
+    if device.type != "cpu":
+        sub = sub.to(device)
     views = plane_views(tuple(sub.shape[1:]), mode)
     runs = [RunningFeatures(sub[(slice(None), *view)], k) for view in views]
-    fast_layout(net)
-    device = next(net.parameters()).device
+    fast_layout(net.to(device))
     out = np.empty((stop - start, *sub.shape[1:]), np.float32)
-    for i, f in enumerate(range(start, stop)):
-        steps = mirrored(f, half, total) - lo
+    for a in range(start, stop, batch):
+        frames = range(a, min(stop, a + batch))
+        rows = slice(a - start, a - start + len(frames))
         for view, run in zip(views, runs, strict=True):
-            feats, scale = run(steps)
+            made = [run(mirrored(f, half, total) - lo) for f in frames]  # in order: running counts
+            feats, scale = torch.cat([m[0] for m in made]), torch.cat([m[1] for m in made])
 
             def piece(y0: int, y1: int, x0: int, x1: int, feats=feats, scale=scale) -> torch.Tensor:
                 x = feats[:, :, y0:y1, x0:x1].to(device).contiguous(memory_format=torch.channels_last)
-                return net.decode(x, scale.to(device))[0]
+                return net.decode(x, scale.to(device))
 
-            out[(i, *view)] = tiled(piece, feats.shape[2], feats.shape[3], tile)
-        out[i] *= np.float32(threshold)
+            out[(rows, *view)] = tiled(piece, feats.shape[2], feats.shape[3], tile, (len(frames),))
+        out[rows] *= np.float32(threshold)
         if progress is not None:
-            progress(1)
+            progress(len(frames))
     return out
 
 
@@ -188,6 +206,8 @@ def reconstruct_learned(
     weights=None,
     frames: slice | None = None,
     window: int | None = None,
+    device: torch.device | str | None = None,
+    batch: int | None = None,
 ) -> np.ndarray:
     """Learned reconstruction of an in-memory stream (the counterpart of ``tfp``/``tfi``).
 
@@ -195,6 +215,8 @@ def reconstruct_learned(
         spikes: (T, H, W) gray/bayer or (T, 3, H, W) rgb 0/1. mode: gray | rgb | bayer. threshold: φ.
         weights: a weights file (None = the shipped one). frames: output frames (None = all).
         window: if given, must equal the weights' window K (the network only runs at its trained window).
+        device: where the network runs (None: the CPU). batch: frames per network call (None: 1 on a
+            CPU, :data:`CUDA_BATCH` on CUDA).
     Returns:
         float32 (N, ...) linear intensity.
     """
@@ -207,7 +229,10 @@ def reconstruct_learned(
     if len(sel) == 0:
         raise InputError(f"frames: the selection {frames} of {x.shape[0]} frames is empty")
     lo, hi = min(sel), max(sel) + 1  # the span, then the selected frames (any step, also negative)
-    out = learned_frames(net, lambda a, b: x[a:b], x.shape[0], lo, hi, mode, threshold)
+    device = torch.device("cpu") if device is None else torch.device(device)
+    batch = (CUDA_BATCH if device.type == "cuda" else 1) if batch is None else batch
+    out = learned_frames(net, lambda a, b: x[a:b], x.shape[0], lo, hi, mode, threshold, device=device,
+                         batch=batch)  # fmt: skip
     return out if sel.step == 1 else out[[i - lo for i in sel]]
 
 

@@ -29,6 +29,7 @@ from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.holdout import write_record
 from spikenerf.data.rays import pixel_rays
+from spikenerf.data.recon_cache import learned_targets_in
 from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields import field_config, field_memory
 from spikenerf.render import RadianceModel, RenderOutput, build_model, model_from_hparams, ray_bounds
@@ -124,15 +125,28 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
 
 
+def learned_cache(config: TrainConfig, uses_stream: bool) -> bool:
+    """Whether the run caches whole-stream learned reconstructions in its folder (``data/recon_cache.py``)."""
+    return uses_stream and config.targets.recon == "learned"
+
+
 def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path) -> None:
-    """Refuse a run whose estimated memory (targets, field, one batch) or checkpoint exceeds the machine's."""
+    """Refuse a run whose estimated memory (targets, field, one batch) or checkpoint (and learned-target
+    cache) exceeds the machine's."""
     k, steps = dataset.intrinsics, len(dataset.trajectory)
     method = make_method(config)
     targets = float(steps) * k.height * k.width * method.channels * 10 if method.uses_stream else 0.0
     params, per_ray, ckpt = field_memory(config.field, model_config(config))
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     rays = (config.batch + spike_rays) * per_ray
-    check_resources(targets + params + rays, 2 * ckpt, out, "batch" if rays >= params else "field_config")
+    cache = (
+        float(steps) * k.height * k.width * method.channels * 2
+        if learned_cache(config, method.uses_stream)
+        else 0
+    )
+    check_resources(
+        targets + params + rays, 2 * ckpt + cache, out, "batch" if rays >= params else "field_config"
+    )
 
 
 class Trainer:
@@ -170,7 +184,11 @@ class Trainer:
         check_train_resources(self.config, self.dataset, self.out)
         self.device = resolve_device(config.device)
         self.method = make_method(self.config)
-        self.method.build_targets(self.dataset)
+        cache = self.out if learned_cache(self.config, self.method.uses_stream) else None
+        if cache is not None:
+            mark(self.out, "run")  # the cache is written into a marked run folder
+        with learned_targets_in(cache, self.device, dataset_fingerprint(self.dataset)):
+            self.method.build_targets(self.dataset)  # learned targets: on the training device, cached
         holdout = self.method.hold_out(self.dataset)
         self.holdout = None if holdout is None else holdout.record(self.dataset.trajectory.steps)
         self.height, self.width = self.dataset.intrinsics.height, self.dataset.intrinsics.width
