@@ -3,8 +3,9 @@
 - docs/cli.md matches the commands' --help, and documents every subcommand;
 - every relative link in README.md, CHANGELOG.md and docs/ (lab notes included) resolves, to the file and to
   the heading its #anchor names;
-- no user page (README.md, docs/*.md; not docs/lab/ or CHANGELOG.md) is over 400 lines or speaks of the
-  lab's sessions or machine load ("stop 12", "the idle box", "load average 5");
+- no user page (README.md, docs/*.md; not docs/lab/ or CHANGELOG.md) is over 400 lines, speaks of the
+  lab's sessions or machine load ("stop 12", "the idle box", "load average 5") or links docs/lab/ on its
+  first screen;
 - docs/index.md lists every user page;
 - a newcomer's path: the commands of docs/getting-started.md run, in order, in an empty folder, and print
   what the page shows; and the README's Python example runs.
@@ -71,9 +72,14 @@ def _anchors(page: Path) -> set[str]:
     return found
 
 
-def _links(page: Path) -> list[str]:
-    targets = re.findall(r"\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)", _strip_code(page.read_text()))
+def _links_in(text: str) -> list[str]:
+    """The relative link targets of markdown text, outside code."""
+    targets = re.findall(r"\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)", _strip_code(text))
     return [t for t in targets if not re.match(r"[a-z]+:", t)]
+
+
+def _links(page: Path) -> list[str]:
+    return _links_in(page.read_text())
 
 
 def test_cli_reference_is_current() -> None:
@@ -148,6 +154,16 @@ def test_the_diary_check_sees_diary_wording() -> None:
         assert DIARY.search(text), text
     for text in ["a scene box", "the spike loss stops", "loads the weights", "non-stop"]:
         assert not DIARY.search(text), text
+
+
+def test_user_pages_do_not_open_with_the_lab_notes() -> None:
+    """History lives in docs/lab/; a user page may point there, but not on its first screen."""
+    early = [
+        page.name
+        for page in USER_PAGES
+        if any("lab/" in target for target in _links_in("\n".join(page.read_text().splitlines()[:40])))
+    ]
+    assert not early, f"a link into docs/lab/ in the first 40 lines of {early}"
 
 
 def test_the_index_lists_every_user_page() -> None:
