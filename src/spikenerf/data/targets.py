@@ -25,6 +25,7 @@ Which method uses which targets is decided by its class in :mod:`spikenerf.train
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, get_args
 
@@ -76,8 +77,16 @@ class ImageTargets:
         return int(self.images.shape[0])
 
     def gather(self, index: Tensor, pixels: Tensor) -> Tensor:
-        """Target values (B, C) float32 of images ``index`` (B,) at pixels (B, 2) int ``(x, y)``."""
+        """Target values (B, C) float32 of images ``index`` (B,) at pixels (B, 2) int ``(x, y)``, gathered
+        on the images' device (the indices are copied there)."""
+        dev = self.images.device
+        index, pixels = index.to(dev), pixels.to(dev)
         return self.images[index, pixels[:, 1], pixels[:, 0]].float()
+
+    def images_on(self, device: torch.device | str) -> ImageTargets:
+        """The same targets with ``images`` on ``device`` (a training GPU gathers there); poses and steps stay
+        where they are (the pose refiners read steps on the host)."""
+        return dataclasses.replace(self, images=self.images.to(device))
 
 
 @dataclass
@@ -95,8 +104,14 @@ class SpikeTargets:
     threshold: float
 
     def window(self, start: int, length: int, pixels: Tensor) -> Tensor:
-        """Recorded spikes (L, P, C) float32 of steps ``start..start+L-1`` at pixels (P, 2) int ``(x, y)``."""
+        """Recorded spikes (L, P, C) float32 of steps ``start..start+L-1`` at pixels (P, 2) int ``(x, y)``,
+        gathered on the spikes' device (the pixels are copied there)."""
+        pixels = pixels.to(self.spikes.device)
         return self.spikes[start : start + length, pixels[:, 1], pixels[:, 0]].float()
+
+    def spikes_on(self, device: torch.device | str) -> SpikeTargets:
+        """The same targets with ``spikes`` on ``device``; poses stay where they are."""
+        return dataclasses.replace(self, spikes=self.spikes.to(device))
 
 
 def reconstruct_stream(

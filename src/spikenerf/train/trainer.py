@@ -43,6 +43,7 @@ from spikenerf.train.checkpoint import (
     save_checkpoint,
 )
 from spikenerf.train.config import TrainConfig, load_run_config, save_config
+from spikenerf.train.device import check_batch_fits, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
@@ -149,6 +150,16 @@ def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path)
     )
 
 
+def check_step_memory(
+    config: TrainConfig, method: Any, device: torch.device, free: int | None = None
+) -> None:
+    """Refuse, before any work, a step whose rays (the batch and a spike window) do not fit in a CUDA
+    device's free memory by estimate (:func:`spikenerf.train.device.check_batch_fits`)."""
+    spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
+    params, _, _ = field_memory(config.field, model_config(config))
+    check_batch_fits(config.field, model_config(config), config.batch + spike_rays, params, device, free)
+
+
 class Trainer:
     """Holds the model, optimiser, targets and samplers of one run folder.
 
@@ -184,6 +195,7 @@ class Trainer:
         check_train_resources(self.config, self.dataset, self.out)
         self.device = resolve_device(config.device)
         self.method = make_method(self.config)
+        check_step_memory(self.config, self.method, self.device)
         cache = self.out if learned_cache(self.config, self.method.uses_stream) else None
         if cache is not None:
             mark(self.out, "run")  # the cache is written into a marked run folder
@@ -216,6 +228,7 @@ class Trainer:
             )
             if learner is not None
         }
+        self.resident = keep_targets_on_device(self.method, self.device)
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []

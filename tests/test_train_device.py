@@ -1,0 +1,94 @@
+"""The training GPU on a CPU-only machine: targets kept on the device (the decision with fake free memory, the
+gathers on the tensors' device), the batch-memory estimate refused up front (fake free memory), and
+``--device cuda`` without CUDA as one line with exit 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+import test_train
+from spikenerf.cli import main
+from spikenerf.core.errors import InputError
+from spikenerf.core.limits import NO_LIMITS_ENV
+from spikenerf.data.targets import ImageTargets, SpikeTargets
+from spikenerf.train.device import batch_bytes, check_batch_fits, keep_targets_on_device, resident_names
+from spikenerf.train.methods import make_method
+from spikenerf.train.trainer import check_step_memory, model_config
+
+dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
+CUDA = torch.device("cuda")  # only its name is used with a fake free-memory value: no CUDA call is made
+
+
+def test_targets_go_to_the_gpu_while_they_fit_in_half_its_free_memory() -> None:
+    sizes = {"targets": 100, "spikes": 50}
+    assert resident_names(sizes, None) == []  # not a GPU
+    assert resident_names(sizes, 400) == ["targets", "spikes"]
+    assert resident_names(sizes, 220) == ["targets"]
+    assert resident_names(sizes, 100) == ["spikes"]
+
+
+def test_nothing_moves_off_cuda(dataset_dir: Path, dataset) -> None:  # type: ignore[no-untyped-def]
+    method = make_method(test_train._config(dataset_dir, method="spike-nerf"))
+    method.build_targets(dataset)
+    targets, spikes = method.targets, method.spikes
+    assert keep_targets_on_device(method, torch.device("cpu"), free=2**40) == []
+    assert method.targets is targets and method.spikes is spikes
+
+
+def test_gathers_run_on_the_tensors_device_and_equal_the_host_ones() -> None:
+    gen = torch.Generator().manual_seed(0)
+    images = torch.rand(5, 6, 7, 3, generator=gen).half()
+    targets = ImageTargets(torch.eye(4).expand(5, 1, 4, 4), images, torch.arange(5))
+    index, pixels = torch.tensor([0, 4, 2]), torch.tensor([[6, 5], [0, 0], [3, 2]])
+    moved = targets.images_on("cpu")
+    assert torch.equal(moved.gather(index, pixels), targets.gather(index, pixels))
+    assert torch.equal(moved.gather(index, pixels)[0], images[0, 5, 6].float())
+    assert moved.poses is targets.poses and moved.steps is targets.steps  # the host keeps poses and steps
+    spikes = SpikeTargets(
+        (torch.rand(9, 6, 7, 1, generator=gen) < 0.5).to(torch.uint8), torch.eye(4).expand(9, 4, 4), 1.0
+    )
+    window = spikes.spikes_on("cpu").window(2, 4, pixels)
+    assert window.shape == (4, 3, 1) and torch.equal(window, spikes.window(2, 4, pixels))
+
+
+def test_a_batch_that_does_not_fit_the_gpu_is_refused_up_front(
+    dataset_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = test_train._config(dataset_dir, method="nerf-gt")
+    field = model_config(cfg)
+    need = batch_bytes(cfg.field, field, 1 << 20, 0.0)
+    assert need > 2 * batch_bytes(cfg.field, field, 1 << 19, 0.0) - 1  # linear in the rays
+    check_batch_fits(cfg.field, field, 1 << 20, 0.0, CUDA, free=int(need) + 1)  # fits
+    with pytest.raises(InputError, match=r"batch: 1048576 rays a step need about .* of GPU memory") as err:
+        check_batch_fits(cfg.field, field, 1 << 20, 0.0, CUDA, free=int(need) - 1)
+    assert err.value.params == ("batch", "no_limits") and "\n" not in str(err.value)
+    check_batch_fits(cfg.field, field, 1 << 20, 0.0, torch.device("cpu"), free=1)  # a CPU: not checked
+    monkeypatch.setenv(NO_LIMITS_ENV, "1")
+    check_batch_fits(cfg.field, field, 1 << 20, 0.0, CUDA, free=1)  # --no-limits: not checked
+    monkeypatch.delenv(NO_LIMITS_ENV)
+    cfg.batch = 10**8  # the trainer's check: the batch and the spike window, before any work
+    with pytest.raises(InputError, match="rays a step need about"):
+        check_step_memory(cfg, make_method(cfg), CUDA, free=80 * 2**30)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks a machine without CUDA")
+@pytest.mark.parametrize("command", ["train", "eval"])
+def test_device_cuda_without_cuda_is_one_line_with_exit_2(
+    dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    args = [command, str(dataset_dir), "--device", "cuda", "--quiet"]
+    if command == "train":
+        args += ["--iters", "1", "--out", str(tmp_path / "run")]
+    else:  # eval of a finished run
+        main(["train", str(dataset_dir), "--iters", "1", "--batch", "16", "--device", "cpu", "--quiet",
+              "--eval-every", "0", "--out", str(tmp_path / "run")])  # fmt: skip
+        args[1] = str(tmp_path / "run")
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err
+    assert err.startswith("spikenerf: error: ") and "--device" in err and "no CUDA device" in err
