@@ -37,6 +37,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "log": (None, "log"),
     "log_every": (None, "log_every"),
     "amp": (None, "amp"),
+    "compile": (None, "compile"),
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
     "blur_samples": ("targets", "blur_samples"),
@@ -180,6 +181,13 @@ PARAM_FLAGS = {
     default=_D.amp,
     show_default=True,
     help="Mixed-precision training step (bf16 also on a CPU; fp16 with a gradient scaler, for CUDA).",
+)
+@click.option(
+    "--compile",
+    is_flag=True,
+    default=_D.compile,
+    help="torch.compile the field's per-sample functions (compiles for tens of seconds first; falls back "
+    "to eager with a warning on failure).",
 )
 @click.option(
     "--field-option",

@@ -118,6 +118,8 @@ class TrainConfig:
         log_every: iterations between reads of the loss terms (progress bar, TensorBoard scalars): the
             per-step values are summed on the device and read only then.
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
+        compile: ``torch.compile`` the field's per-sample functions (``fields/compiled.py``; falls back to
+            eager with a warning when compilation fails).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
         poses: pose refinement (``--refine-poses``, train/pose_refine.py).
         exposure: the learned exposure start and end poses of nerf-bad (train/exposure_poses.py).
@@ -144,6 +146,7 @@ class TrainConfig:
     log: LogKind = "none"
     log_every: int = 25
     amp: AmpMode = "none"
+    compile: bool = False
     holdout: bool | None = None
     holdout_steps: int = 8
     holdout_radius: int | None = None

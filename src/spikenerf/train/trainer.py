@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,7 @@ from spikenerf.data.rays import pixel_rays
 from spikenerf.data.recon_cache import learned_targets_in
 from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields import field_config, field_memory
+from spikenerf.fields.compiled import compile_field
 from spikenerf.render import RadianceModel, RenderOutput, build_model, model_from_hparams, ray_bounds
 from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import (
@@ -53,7 +55,7 @@ from spikenerf.train.run import dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
 #: options that may change when a run is resumed (everything else must match the stored config)
-RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every")
+RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every", "compile")
 
 
 @dataclass
@@ -124,6 +126,11 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
             param=("resume", "out"),
         )
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
+
+
+def warn(message: str) -> None:
+    """One warning line on stderr (``spikenerf: warning: ...``)."""
+    print(f"spikenerf: warning: {message}", file=sys.stderr)
 
 
 def learned_cache(config: TrainConfig, uses_stream: bool) -> bool:
@@ -215,6 +222,8 @@ class Trainer:
         else:
             self.model = model_from_hparams(ckpt["hparams"], ckpt["model"])
         self.model.to(self.device)
+        if self.config.compile:  # eager again, with a warning, when compilation fails
+            compile_field(self.model.field, warn)
         self.optimizer = make_optimizer(self.model, config)
         self.pose_refine = pose_refinement(
             self.config, self.dataset, self.model, self.device, self.method.targets
