@@ -69,6 +69,7 @@ def dataset(dataset_dir: Path):  # type: ignore[no-untyped-def]
 
 def _config(dataset_dir: Path, **kw) -> TrainConfig:  # type: ignore[no-untyped-def]
     spike = kw.pop("spike", {})
+    kw.setdefault("method", "spike-nerf")  # these tests exercise spike-nerf's parts (train's default differs)
     cfg = TrainConfig(
         dataset=str(dataset_dir),
         iters=6,

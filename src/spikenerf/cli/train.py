@@ -42,6 +42,8 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "window": ("targets", "window"),
     "blur_samples": ("targets", "blur_samples"),
     "window_poses": ("targets", "window_poses"),
+    "integral_window": ("integral", "lengths"),
+    "integral_samples": ("integral", "samples"),
     "lam": ("spike", "lam"),
     "spike_loss": ("spike", "kind"),
     "spike_window": ("spike", "window"),
@@ -65,7 +67,10 @@ PARAM_FLAGS = {
 
 @click.command(
     help="Train a radiance field on a spike dataset folder (written by `spikenerf simulate`) into RUN.\n\n"
-    "Methods: spike-nerf (masked TFP/TFI targets + differentiable spike loss), nerf-recon (TFP/TFI targets), "
+    "Methods: spike-integral (the default; ours, not in the paper: spike-count means over short windows "
+    "compared with renders at steps drawn inside each window, at their own poses; --integral-window, "
+    "--integral-samples), spike-nerf (the paper's method: masked TFP/TFI targets + differentiable spike "
+    "loss; with --window-poses 1 exactly the paper's targets), nerf-recon (TFP/TFI targets), "
     "nerf-blur (the dataset's 400 fps blur views), nerf-blur-aware (deblur NeRF given the true trajectory: "
     "blur views, exposure-averaged renders), nerf-bad (BAD-NeRF-like: learns each blur view's exposure "
     "start and end pose from the blurred frames alone; --set exposure.lr=...), nerf-gt "
@@ -120,6 +125,21 @@ PARAM_FLAGS = {
     help="Poses per TFP target, spread over its window and averaged (nerf-recon, spike-nerf; "
     "1 = the paper's; > 1 = window-aware targets, --recon tfp) "
     f"[default: {WINDOW_POSES} with --recon tfp, else 1].",
+)
+@click.option(
+    "--integral-window",
+    type=str,
+    default=",".join(map(str, _D.integral.lengths)),
+    show_default=True,
+    callback=lambda ctx, param, value: _lengths(value),
+    help="spike-integral: window length(s) in steps, comma-separated (each target draws one).",
+)
+@click.option(
+    "--integral-samples",
+    type=int,
+    default=_D.integral.samples,
+    show_default=True,
+    help="spike-integral: steps rendered per window (stratified; their mean estimates the window's).",
 )
 @click.option(
     "--spike-window", type=int, default=_D.spike.window, show_default=True, help="Steps per window."
@@ -260,6 +280,17 @@ def command(
         f"({summary.rays_per_second:.0f} rays/s); train PSNR {summary.train_psnr:.2f} dB, "
         f"test PSNR {test} → {out}"
     )
+
+
+def _lengths(text: str) -> list[int]:
+    """``--integral-window 11`` or ``5,11,21`` → [11] or [5, 11, 21] (one line naming the flag otherwise)."""
+    try:
+        values = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"expected window lengths such as 11 or 5,11,21, found {text!r}") from None
+    if not values or min(values) < 1:
+        raise click.BadParameter(f"window lengths must be ≥ 1, found {text!r}")
+    return values
 
 
 def _field_options(items: tuple[str, ...]) -> dict[str, object]:

@@ -46,7 +46,9 @@ if TYPE_CHECKING:
 TargetRecon = Literal[ReconMethod, "learned"]
 RECONS: tuple[str, ...] = get_args(TargetRecon)
 #: training methods (each one a class in ``spikenerf.train.methods`` that builds its targets from here)
-Method = Literal["spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-bad", "nerf-gt"]
+Method = Literal[
+    "spike-integral", "spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-bad", "nerf-gt"
+]
 METHODS: tuple[str, ...] = get_args(Method)
 #: the methods whose image targets are reconstructions of the stream (``stream_targets``; the window-aware
 #: targets apply to them only)

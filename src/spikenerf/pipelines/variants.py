@@ -66,6 +66,7 @@ VARIANTS: dict[str, Variant] = {
     "spike-nerf-window": Variant(
         "spike-nerf", "Spike-NeRF, window-aware targets", (("targets.window_poses", WINDOW_POSES),)
     ),
+    "spike-integral": Variant("spike-integral", "Spike-integral (ours, train's default)"),
     "spike-nerf-no-mask": Variant("spike-nerf", "W/O spike masks", (*PAPER_TARGETS, ("targets.mask", False))),
     "spike-nerf-no-spike-loss": Variant(
         "spike-nerf", "W/O spike loss", (*PAPER_TARGETS, ("spike.enabled", False))
@@ -83,6 +84,7 @@ TABLE1_VARIANTS = (
     "spike-nerf-learned",
     "nerf-recon-window",
     "spike-nerf-window",
+    "spike-integral",
 )
 ABLATION_VARIANTS = ("spike-nerf-no-mask", "spike-nerf-no-spike-loss", "spike-nerf")
 #: the paired differences the paper claims: (ours, baseline); ours should be better on every metric

@@ -30,11 +30,13 @@ from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
 from spikenerf.train.pose_refine import PoseRefineConfig
 
 FIELDS = FIELD_KINDS
-__all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "SpikeLossConfig", "TargetConfig", "TrainConfig"]
+__all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "IntegralConfig", "SpikeLossConfig", "TargetConfig", "TrainConfig"]
 
 
 #: the default poses per TFP target (window-aware targets; docs/method.md, Targets)
 WINDOW_POSES = 4
+#: spike-integral's default window length and steps rendered per window (docs/method.md, Spike-integral)
+INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 11, 2
 
 
 @dataclass
@@ -62,6 +64,37 @@ class TargetConfig:
         if self.window_poses is None:
             return WINDOW_POSES if self.recon == "tfp" else 1
         return self.window_poses
+
+
+@dataclass
+class IntegralConfig:
+    """spike-integral: each target is a window's spike-count mean ``φ N / L``, compared with the mean of
+    renders at steps drawn inside the window at their own poses (docs/method.md, *Spike-integral*).
+
+    Attributes:
+        lengths: window lengths L in steps; each target draws one uniformly.
+        samples: S steps rendered per estimate of a window's mean render (stratified over the window).
+        groups: G independent estimates per window: 1 squared error; ≥ 2 the unbiased product form.
+        band: count errors within the interval ``± φ / L`` of a noise-free pixel as 0.
+    """
+
+    lengths: list[int] = dataclasses.field(default_factory=lambda: [INTEGRAL_WINDOW])
+    samples: int = INTEGRAL_SAMPLES
+    groups: int = 1
+    band: bool = False
+
+    def check(self) -> None:
+        """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1 or
+        ``groups`` < 1."""
+        if not self.lengths or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
+                                       for n in self.lengths):  # fmt: skip
+            raise InputError(
+                f"integral.lengths must be a list of window lengths ≥ 1, found {self.lengths!r}",
+                param="integral.lengths",
+            )
+        for name, value in (("integral.samples", self.samples), ("integral.groups", self.groups)):
+            if value < 1:
+                raise InputError(f"{name} must be ≥ 1, found {value}", param=name)
 
 
 @dataclass
@@ -106,8 +139,8 @@ class TrainConfig:
     """One training run.
 
     Attributes:
-        dataset: dataset folder. method: spike-nerf | nerf-recon | nerf-blur | nerf-blur-aware | nerf-bad |
-            nerf-gt.
+        dataset: dataset folder. method: spike-integral (the default) | spike-nerf | nerf-recon | nerf-blur |
+            nerf-blur-aware | nerf-bad | nerf-gt.
         color: gray | rgb. field: grid | mlp. iters: optimiser steps. batch: rays per step (reconstruction).
         lr: base learning rate (None = the field's own); the grid keeps its grid/network ratio.
         lr_final_ratio: exponential decay to this fraction of the rate at ``iters`` (None = the field's).
@@ -131,7 +164,7 @@ class TrainConfig:
     """
 
     dataset: str = ""
-    method: Method = "spike-nerf"
+    method: Method = "spike-integral"
     color: TrainColor = "gray"
     field: FieldKind = "grid"
     iters: int = 5000
@@ -152,6 +185,7 @@ class TrainConfig:
     holdout_radius: int | None = None
     targets: TargetConfig = dataclasses.field(default_factory=TargetConfig)
     spike: SpikeLossConfig = dataclasses.field(default_factory=SpikeLossConfig)
+    integral: IntegralConfig = dataclasses.field(default_factory=IntegralConfig)
     poses: PoseRefineConfig = dataclasses.field(default_factory=PoseRefineConfig)
     exposure: ExposurePoseConfig = dataclasses.field(default_factory=ExposurePoseConfig)
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -215,6 +249,7 @@ class TrainConfig:
             )
         self.poses.check()
         self.exposure.check()
+        self.integral.check()
         if self.method == "nerf-bad" and self.targets.blur_samples < 2:
             raise InputError(
                 f"targets.blur_samples must be ≥ 2 for nerf-bad (a start and an end pose), "
@@ -317,7 +352,7 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
                 where = ".".join(sections[: i + 1])
                 raise InputError(
                     f"override {key}: {where!r} is not a section "
-                    "(targets, spike, poses, exposure, field_config)"
+                    "(targets, spike, integral, poses, exposure, field_config)"
                 )
             node = node[section]
         node[leaf] = value
@@ -336,6 +371,7 @@ def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
     nested = {
         "targets": TargetConfig,
         "spike": SpikeLossConfig,
+        "integral": IntegralConfig,
         "poses": PoseRefineConfig,
         "exposure": ExposurePoseConfig,
     }

@@ -40,6 +40,39 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
 
 
+def window_mean_loss(
+    means: torch.Tensor, target: torch.Tensor, band: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Spike-integral loss: rendered window means against the windows' spike-count means.
+
+    ``means`` holds G independent unbiased estimates of each window's mean render (each the mean of renders
+    at steps drawn by ``data.integral.stratified_steps``). With G = 1 the loss is the squared error, whose
+    expectation is the squared bias plus the estimate's variance: the variance term pulls the renders inside
+    a window together (a blur along the motion). With G ≥ 2 it is the U-statistic
+    ``mean_{i≠j} (m_i − t)(m_j − t)``, an unbiased estimate of ``(E m − t)²`` with no variance term, so
+    its gradient is unbiased for the exact forward model's (docs/method.md, *Spike-integral*).
+
+    Args:
+        means: (B, G, C) linear window-mean estimates. target: (B, C) ``φ N / L`` of each window.
+        band: (B, 1) half-width of each window's feasible interval, ``φ / L`` (None: 0). Errors within it
+            count as 0 (the interval constraint of a noise-free pixel), beyond it by their distance to it.
+    Returns:
+        Scalar loss (linear intensity squared; may be slightly negative for G ≥ 2, never in expectation).
+    """
+    if means.dim() != 3 or target.shape != (means.shape[0], means.shape[2]):
+        raise ValueError(f"means must be (B, G, C) and target (B, C), found {tuple(means.shape)}, "
+                         f"{tuple(target.shape)}")  # fmt: skip
+    d = means - target.to(means.dtype)[:, None]
+    if band is not None:
+        width = band.to(d.dtype)[:, None]
+        d = torch.sign(d) * torch.relu(d.abs() - width)
+    g = means.shape[1]
+    if g == 1:
+        return torch.mean(d**2)
+    total = d.sum(dim=1)
+    return torch.mean((total**2 - (d**2).sum(dim=1)) / (g * (g - 1)))
+
+
 def spike_prefix(intensity: torch.Tensor, spikes: torch.Tensor, threshold: float) -> torch.Tensor:
     """Prefix residuals ``D_m = Σ_{k≤m} I_k − φ·N_m`` of a window, with ``D_0 = 0``.
 

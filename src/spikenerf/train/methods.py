@@ -34,6 +34,7 @@ from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
+from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
 from spikenerf.data.samplers import RaySampler, WindowSampler
 from spikenerf.data.targets import (
     METHODS,
@@ -48,7 +49,13 @@ from spikenerf.data.targets import (
 from spikenerf.render import RadianceModel, RenderOutput, render_spike_window
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.exposure_poses import ExposureLearner
-from spikenerf.train.losses import paper_spike_loss, recon_loss, spike_interval_loss, spike_weight
+from spikenerf.train.losses import (
+    paper_spike_loss,
+    recon_loss,
+    spike_interval_loss,
+    spike_weight,
+    window_mean_loss,
+)
 from spikenerf.train.pose_refine import PoseLearner, PoseRefinement
 
 
@@ -355,9 +362,73 @@ class SpikeNeRF(NerfRecon):
         return loss, s.window * s.pixels
 
 
+class SpikeIntegral(TrainMethod):
+    """Spike-integral (ours, not in the paper): every target is a window's spike-count mean ``φ N / L``, read
+    from the stream's prefix counts for any window, and compared with the mean of renders at steps drawn
+    inside that window, each at its own pose (``integral`` config; docs/method.md, *Spike-integral*). No
+    reconstruction and no mask: a window without spikes has target 0."""
+
+    name, uses_stream = "spike-integral", True
+
+    def __init__(self, config: TrainConfig) -> None:
+        super().__init__(config)
+        self.counts: CountTargets | None = None
+
+    def poses_per_view(self) -> int:
+        return self.config.integral.samples * self.config.integral.groups
+
+    def build_targets(self, dataset: SpikeDataset) -> None:
+        stream = load_stream(dataset, self.config.color)
+        self.counts = count_targets(stream, dataset.trajectory.poses, dataset.threshold)
+        longest = max(self.config.integral.lengths)
+        if longest > self.counts.steps:
+            raise InputError(
+                f"integral.lengths: a {longest}-step window exceeds the {self.counts.steps} recorded steps",
+                param="integral.lengths",
+            )
+
+    def make_samplers(self, height: int, width: int) -> dict[str, Any]:
+        assert self.counts is not None, "build_targets first"
+        c = self.config.integral
+        starts = None
+        if self.holdout is not None:
+            starts = {n: self.holdout.window_starts(n) for n in set(c.lengths)}
+            for n, allowed in starts.items():
+                checked(self.holdout, len(allowed), f"{n}-step window")
+        sampler = WindowTargetSampler(self.counts.steps, height, width, c.lengths, c.samples, c.groups,
+                                      self.config.seed, starts)  # fmt: skip
+        return {"windows": sampler}
+
+    def losses(self, state: TrainState, iteration: int) -> StepLosses:
+        recon, srgb_mse, rays = self.integral_term(state)
+        return StepLosses({"recon": recon, "reg": state.model.regularization()}, srgb_mse, rays)
+
+    def integral_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
+        """The window-mean loss of one batch → (loss, sRGB MSE of the mean estimates, rays rendered)."""
+        counts, c = self.counts, self.config.integral
+        assert counts is not None, "build_targets first"
+        per = c.samples * c.groups
+        start, end, pixels, steps = state.samplers["windows"].sample(max(1, state.config.batch // per))
+        target = counts.window_mean(start, end, pixels).to(state.device)
+        band = (counts.threshold / (end - start).float())[:, None].to(state.device) if c.band else None
+        poses = counts.poses[steps.reshape(-1)].to(state.device)
+        if state.pose_refine is not None:  # the refiner takes step numbers
+            poses = state.pose_refine(poses, np.asarray(state.dataset.trajectory.steps)[steps.reshape(-1)])
+        out = state.render_rays(poses, pixels.repeat_interleave(per, dim=0))
+        shape = (-1, c.groups, c.samples, self.channels)
+        means = out.color.view(shape).mean(dim=2)
+        loss = window_mean_loss(means, target, band)
+        if out.coarse_color is not None:
+            loss = loss + window_mean_loss(out.coarse_color.view(shape).mean(dim=2), target, band)
+        with torch.no_grad():
+            mean = means.mean(dim=1).float()
+            srgb_mse = torch.mean((srgb_encode(mean.clamp(0, 1)) - srgb_encode(target.clamp(0, 1))) ** 2)
+        return loss, srgb_mse, poses.shape[0]
+
+
 #: ``--method`` -> its class; the names are the ``Method`` Literal of ``spikenerf.data.targets``
 METHOD_CLASSES: dict[str, type[TrainMethod]] = {
-    cls.name: cls for cls in (SpikeNeRF, NerfRecon, NerfBlur, NerfBlurAware, NerfBAD, NerfGT)
+    cls.name: cls for cls in (SpikeIntegral, SpikeNeRF, NerfRecon, NerfBlur, NerfBlurAware, NerfBAD, NerfGT)
 }
 
 

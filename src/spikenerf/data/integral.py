@@ -1,0 +1,170 @@
+"""Spike-count targets over arbitrary windows, and unbiased per-step pose samples inside them.
+
+A spike camera pixel that fired ``N`` times over the steps ``a … b − 1`` saw a mean intensity (over those
+``L = b − a`` steps, each at its own pose) within ``φ(N ± 1)/L`` (docs/method.md, *Spike-integral*). So
+the prefix counts ``C_t = Σ_{k<t} s_k`` of the stream are targets for *every* window at once: the window
+``[a, b)`` has the mean ``φ (C_b − C_a) / L``. :class:`CountTargets` holds them; :func:`window_bounds`
+places windows of the chosen lengths around random steps, and :func:`stratified_steps` draws S steps of a
+window (one uniform step in each of S equal parts), whose mean render is an unbiased estimate of the
+window's mean render.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from spikenerf.camera.layout import to_channels_last
+from spikenerf.core.errors import InputError
+
+
+@dataclass
+class CountTargets:
+    """Prefix spike counts and per-step poses of a recorded stream.
+
+    Attributes:
+        counts: (T + 1, H, W, C) int16 (int32 past 32767 steps) ``C_t``, the spikes of steps ``0 … t − 1``.
+        poses: (T, 4, 4) float32 camera-to-world of each step.
+        threshold: φ of the camera.
+    """
+
+    counts: Tensor
+    poses: Tensor
+    threshold: float
+
+    @property
+    def steps(self) -> int:
+        """T, the recorded steps."""
+        return int(self.counts.shape[0]) - 1
+
+    def window_mean(self, start: Tensor, end: Tensor, pixels: Tensor) -> Tensor:
+        """Mean intensity ``φ (C_end − C_start) / (end − start)`` of each window, (B, C) float32.
+
+        Args:
+            start, end: (B,) int64 window bounds, ``0 ≤ start < end ≤ T``. pixels: (B, 2) int64 ``(x, y)``.
+        """
+        x, y = pixels[:, 0], pixels[:, 1]
+        n = (self.counts[end, y, x].int() - self.counts[start, y, x].int()).float()
+        return self.threshold * n / (end - start).float()[:, None]
+
+
+def count_targets(stream: np.ndarray, poses: np.ndarray, threshold: float) -> CountTargets:
+    """:class:`CountTargets` of a (T, H, W) gray or (T, 3, H, W) rgb 0/1 stream and its (T, 4, 4) poses.
+
+    Raises:
+        InputError: the poses do not match the stream's steps (names ``poses``).
+    """
+    spikes = to_channels_last(np.asarray(stream))
+    if len(poses) != spikes.shape[0]:
+        raise InputError(f"poses: {len(poses)} poses for a stream of {spikes.shape[0]} steps", param="poses")
+    dtype = torch.int16 if spikes.shape[0] <= torch.iinfo(torch.int16).max else torch.int32
+    counts = torch.zeros((spikes.shape[0] + 1, *spikes.shape[1:]), dtype=dtype)
+    running = torch.zeros(spikes.shape[1:], dtype=torch.int32)
+    for t in range(spikes.shape[0]):  # one step at a time: no (T, H, W, C) int32 temporary
+        running += torch.as_tensor(np.asarray(spikes[t], dtype=np.uint8))
+        counts[t + 1] = running.to(dtype)
+    return CountTargets(counts, torch.as_tensor(np.asarray(poses), dtype=torch.float32), float(threshold))
+
+
+def window_bounds(centre: Tensor, length: Tensor, steps: int) -> tuple[Tensor, Tensor]:
+    """Windows of ``length`` steps around ``centre``, shifted (not cut) to lie inside ``0 … steps − 1``.
+
+    Args:
+        centre: (B,) int64 steps. length: (B,) int64 window lengths, each in ``1 … steps``.
+        steps: T.
+    Returns:
+        start, end: (B,) int64 with ``end − start = length``.
+    """
+    start = (centre - length // 2).clamp(min=0)
+    start = torch.minimum(start, steps - length)
+    return start, start + length
+
+
+def stratified_steps(start: Tensor, end: Tensor, samples: int, generator: torch.Generator) -> Tensor:
+    """S steps of each window ``[start, end)``: one uniform step in each of S equal parts of it.
+
+    Every step of the window is drawn with the same probability per part, so the mean of the S renders is
+    an unbiased estimate of the window's mean render (exactly so when S divides L; otherwise each part's
+    steps carry the part's weight, a bias below 1/L of a step's share).
+
+    Args:
+        start, end: (B,) int64 window bounds. samples: S ≥ 1. generator: seeded generator.
+    Returns:
+        (B, S) int64 steps, ascending within each row.
+    """
+    if samples < 1:
+        raise InputError(f"samples must be ≥ 1, found {samples}", param="samples")
+    length = (end - start).double()[:, None]
+    u = torch.rand((len(start), samples), generator=generator, dtype=torch.float64)
+    frac = (torch.arange(samples, dtype=torch.float64) + u) / samples
+    offset = torch.minimum(torch.floor(frac * length), length - 1).long()
+    return start[:, None] + offset
+
+
+class WindowTargetSampler:
+    """Seeded, resumable draws of (window, pixel, steps) for the spike-integral targets.
+
+    Each target draws a length from ``lengths`` uniformly, then its first step uniformly among the allowed
+    starts of that length (every ``0 … T − L``, or those whose window overlaps no held-out band), a pixel
+    uniformly, and S stratified steps per estimate (:func:`stratified_steps`), G estimates each.
+
+    Args:
+        steps: T. height, width: image size. lengths: window lengths, each in ``1 … T``.
+        samples: S steps per estimate. groups: G independent estimates per window. seed: generator seed.
+        starts: length -> (N,) int64 allowed first steps (None: all).
+    """
+
+    def __init__(
+        self,
+        steps: int,
+        height: int,
+        width: int,
+        lengths: tuple[int, ...] | list[int],
+        samples: int,
+        groups: int = 1,
+        seed: int = 0,
+        starts: dict[int, Tensor] | None = None,
+    ) -> None:
+        if not lengths or any(not 1 <= n <= steps for n in lengths):
+            raise InputError(
+                f"lengths: every window length must be between 1 and the {steps} recorded steps, found "
+                f"{list(lengths)}",
+                param="lengths",
+            )
+        if samples < 1 or groups < 1:
+            raise InputError(f"samples and groups must be ≥ 1, found {samples}, {groups}", param="samples")
+        self.steps, self.height, self.width = steps, height, width
+        self.lengths = torch.as_tensor(list(lengths), dtype=torch.int64)
+        self.samples, self.groups = samples, groups
+        tables = [torch.arange(steps - n + 1) if starts is None else starts[n] for n in lengths]
+        if any(len(t) == 0 for t in tables):
+            raise InputError(f"no window of lengths {list(lengths)} to train on among the {steps} steps")
+        self.counts = torch.as_tensor([len(t) for t in tables], dtype=torch.float64)
+        self.table = torch.zeros((len(tables), max(len(t) for t in tables)), dtype=torch.int64)
+        for i, t in enumerate(tables):
+            self.table[i, : len(t)] = t
+        self.generator = torch.Generator()
+        self.generator.manual_seed(int(seed))
+
+    def sample(self, windows: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """``windows`` targets → start, end (B,) int64; pixels (B, 2) int64 ``(x, y)``; steps (B, G·S)
+        int64 (G groups of S stratified steps, group-major)."""
+        g = self.generator
+        which = torch.randint(0, len(self.lengths), (windows,), generator=g)
+        u = torch.rand(windows, generator=g, dtype=torch.float64)
+        pick = torch.minimum(torch.floor(u * self.counts[which]).long(), self.counts[which].long() - 1)
+        start = self.table[which, pick]
+        end = start + self.lengths[which]
+        flat = torch.randint(0, self.height * self.width, (windows,), generator=g)
+        pixels = torch.stack([flat % self.width, flat // self.width], dim=-1)
+        parts = [stratified_steps(start, end, self.samples, g) for _ in range(self.groups)]
+        return start, end, pixels, torch.cat(parts, dim=1)
+
+    def state_dict(self) -> dict[str, Tensor]:
+        return {"generator": self.generator.get_state()}
+
+    def load_state_dict(self, state: dict[str, Tensor]) -> None:
+        self.generator.set_state(state["generator"])

@@ -1,0 +1,190 @@
+"""spike-integral: count targets over any window, stratified steps, the window-mean loss (smoke, exception,
+gradcheck, unbiasedness), the sampler's hold-out and resume, the gradient reaching the field, and the CLI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import test_train
+from spikenerf.camera.model import fire
+from spikenerf.camera.reconstruct import tfp
+from spikenerf.core.errors import InputError
+from spikenerf.data.integral import (
+    WindowTargetSampler,
+    count_targets,
+    stratified_steps,
+    window_bounds,
+)
+from spikenerf.train.losses import window_mean_loss
+from spikenerf.train.trainer import Trainer
+
+dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
+
+
+def _stream(steps: int = 60, h: int = 3, w: int = 4, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    light = rng.uniform(0, 1, (steps, h, w)).astype(np.float32)
+    acc, spikes = torch.as_tensor(rng.uniform(0, 1, (h, w)).astype(np.float32)), []
+    for step in torch.as_tensor(light):  # the camera's own rule, from a random start in [0, φ)
+        fired, acc = fire(acc, step, 1.0)
+        spikes.append(fired)
+    return torch.stack(spikes).to(torch.uint8).numpy(), light
+
+
+def test_count_window_mean_is_tfp_for_a_centred_window_and_within_the_interval() -> None:
+    spikes, light = _stream()
+    poses = np.tile(np.eye(4, dtype=np.float32), (len(spikes), 1, 1))
+    counts = count_targets(spikes, poses, 1.0)
+    assert counts.steps == 60 and counts.counts.dtype == torch.int16
+    xs, ys = np.meshgrid(np.arange(4), np.arange(3))
+    pixels = torch.as_tensor(np.stack([xs.ravel(), ys.ravel()], -1))
+    k, window = 30, 11
+    start = torch.full((len(pixels),), k - window // 2)
+    mean = counts.window_mean(start, start + window, pixels)[:, 0]
+    expected = tfp(spikes, window=window, threshold=1.0, frames=slice(k, k + 1))[0]
+    assert torch.allclose(mean, torch.as_tensor(expected[ys.ravel(), xs.ravel()]), atol=1e-6)
+    truth = light[k - 5 : k + 6, ys.ravel(), xs.ravel()].mean(axis=0)  # |mean − truth| < φ / L
+    assert np.all(np.abs(mean.numpy() - truth) < 1.0 / window)
+
+
+def test_count_targets_refuse_poses_of_another_length() -> None:
+    spikes, _ = _stream()
+    with pytest.raises(InputError, match="poses"):
+        count_targets(spikes, np.zeros((5, 4, 4), np.float32), 1.0)
+
+
+def test_window_bounds_shift_inside_the_stream() -> None:
+    start, end = window_bounds(torch.tensor([0, 50, 99]), torch.tensor([11, 11, 11]), 100)
+    assert start.tolist() == [0, 45, 89] and (end - start).tolist() == [11, 11, 11]
+
+
+def test_stratified_steps_cover_each_window_uniformly() -> None:
+    gen = torch.Generator().manual_seed(0)
+    start, end = torch.full((20000,), 10), torch.full((20000,), 22)  # L = 12, S = 3 divides it
+    steps = stratified_steps(start, end, 3, gen)
+    assert steps.shape == (20000, 3) and bool((steps >= 10).all() and (steps < 22).all())
+    assert bool((steps[:, 1:] >= steps[:, :-1]).all())
+    freq = torch.bincount(steps.reshape(-1) - 10, minlength=12).double() / steps.numel()
+    assert torch.allclose(freq, torch.full((12,), 1 / 12, dtype=torch.float64), atol=0.01)
+    with pytest.raises(InputError, match="samples"):
+        stratified_steps(start, end, 0, gen)
+
+
+def test_window_mean_loss_smoke_and_exceptions() -> None:
+    t = torch.tensor([[0.2], [0.5]])
+    assert float(window_mean_loss(t[:, None], t)) == 0.0
+    assert float(window_mean_loss(t[:, None] + 0.1, t)) == pytest.approx(0.01)
+    band = torch.tensor([[0.05], [0.2]])  # errors inside ± band are free; beyond it, the distance
+    assert float(window_mean_loss(t[:, None] + 0.1, t, band)) == pytest.approx(0.05**2 / 2)
+    with pytest.raises(ValueError, match="means must be"):
+        window_mean_loss(t, t)
+
+
+def test_gradcheck_window_mean_loss() -> None:
+    gen = torch.Generator().manual_seed(1)
+    target = torch.rand(5, 2, generator=gen, dtype=torch.float64)
+    band = torch.full((5, 1), 0.01, dtype=torch.float64)
+    for groups in (1, 3):
+        means = torch.rand(5, groups, 2, generator=gen, dtype=torch.float64).requires_grad_()
+        assert torch.autograd.gradcheck(lambda m: window_mean_loss(m, target), (means,))
+        assert torch.autograd.gradcheck(lambda m: window_mean_loss(m, target, band), (means,))
+
+
+def test_two_groups_are_unbiased_and_one_group_adds_the_variance() -> None:
+    """Renders inside a window vary; E[loss] with G = 2 is the squared bias alone, with G = 1 plus Var."""
+    gen = torch.Generator().manual_seed(2)
+    renders = torch.tensor([0.1, 0.3, 0.5, 0.9], dtype=torch.float64)  # one window, four steps
+    target = torch.tensor([[0.35]], dtype=torch.float64)
+    bias2 = float((renders.mean() - target) ** 2)
+    draws = renders[torch.randint(0, 4, (200000, 2), generator=gen)]  # S = 1 step per group
+    unbiased = window_mean_loss(draws[:, :, None], target.expand(200000, 1))
+    single = window_mean_loss(draws[:, :1, None], target.expand(200000, 1))
+    assert float(unbiased) == pytest.approx(bias2, abs=2e-3)
+    assert float(single) == pytest.approx(bias2 + float(renders.var(unbiased=False)), abs=2e-3)
+
+
+def test_sampler_resumes_and_keeps_out_of_held_out_windows() -> None:
+    starts = {5: torch.tensor([0, 1, 2, 40]), 11: torch.tensor([3, 30])}
+    a = WindowTargetSampler(60, 3, 4, [5, 11], 2, 2, seed=7, starts=starts)
+    first = a.sample(64)
+    state = a.state_dict()
+    second = a.sample(64)
+    b = WindowTargetSampler(60, 3, 4, [5, 11], 2, 2, seed=99, starts=starts)
+    b.load_state_dict(state)
+    assert all(torch.equal(x, y) for x, y in zip(second, b.sample(64), strict=True))
+    start, end, pixels, steps = first
+    length = end - start
+    assert set(length.tolist()) <= {5, 11} and steps.shape == (64, 4)
+    for s, n in zip(start.tolist(), length.tolist(), strict=True):
+        assert s in starts[n].tolist()
+    assert bool((steps >= start[:, None]).all() and (steps < end[:, None]).all())
+    assert bool((pixels[:, 0] < 4).all() and (pixels[:, 1] < 3).all())
+    with pytest.raises(InputError, match="lengths"):
+        WindowTargetSampler(60, 3, 4, [61], 2)
+
+
+def _grads(dataset_dir: Path, dataset, out: Path, **integral) -> dict[str, torch.Tensor]:  # type: ignore[no-untyped-def]
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    for key, value in integral.items():
+        setattr(cfg.integral, key, value)
+    trainer = Trainer(cfg, out, dataset, progress=False)
+    trainer.train(stop_after=1)
+    return {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
+
+
+def test_window_loss_reaches_the_field_through_the_trainer_step(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """The only data term of spike-integral: its gradient reaches the grid, and the window and group
+    settings change it (a ``.detach()`` before the loss would leave the regulariser's gradient alone)."""
+    one = _grads(dataset_dir, dataset, tmp_path / "a", lengths=[5], samples=2, groups=1)
+    again = _grads(dataset_dir, dataset, tmp_path / "b", lengths=[5], samples=2, groups=1)
+    other = _grads(dataset_dir, dataset, tmp_path / "c", lengths=[3], samples=2, groups=2)
+    grid = [k for k in one if "planes" in k or "lines" in k]
+    assert grid and all(torch.equal(one[k], again[k]) for k in one)
+    assert sum(float((one[k] - other[k]).abs().sum()) for k in grid) > 1e-3 * sum(
+        float(one[k].abs().sum()) for k in grid
+    )
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "spikenerf", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.mark.parametrize(
+    ("flags", "named"),
+    [
+        (["--integral-window", "0"], "--integral-window"),
+        (["--integral-window", "5,abc"], "--integral-window"),
+        (["--integral-window", "100000"], "--integral-window"),
+        (["--integral-samples", "0"], "--integral-samples"),
+        (["--set", "integral.groups=-1"], "integral.groups"),
+        (["--set", "integral.lengths=[]"], "--integral-window"),
+    ],
+)
+def test_bad_window_settings_are_one_line(
+    dataset_dir: Path, tmp_path: Path, flags: list[str], named: str
+) -> None:
+    out = tmp_path / "run"
+    run = _cli("train", str(dataset_dir), "--iters", "2", "--out", str(out), *flags)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0] and "Traceback" not in run.stderr
+    assert not out.exists()
+
+
+def test_default_method_trains_and_records_its_windows(dataset_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    run = _cli("train", str(dataset_dir), "--iters", "3", "--batch", "64", "--integral-window", "3,5",
+               "--out", str(out), "--quiet")  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    text = (out / "config.yaml").read_text()
+    assert "method: spike-integral" in text and "- 3" in text and "- 5" in text
