@@ -92,3 +92,12 @@ def test_a_changed_key_rebuilds_and_replaces_the_cache(
     assert len(list((folder / CACHE_DIR).glob("learned-*.npy"))) == 1  # the old keys' files are gone
     outside = recon_cache.learned_stream(stream, dataset.threshold, None, 41)  # no context: no cache
     assert len(calls) == 3 and np.array_equal(outside.astype(np.float16).astype(np.float32), a)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_batched_learned_inference_on_cuda_equals_the_cpu() -> None:
+    spikes = _stream("rgb")
+    cpu = reconstruct_learned(spikes, "rgb", 1.5)
+    gpu = reconstruct_learned(spikes, "rgb", 1.5, device="cuda")  # CUDA_BATCH frames per call
+    np.testing.assert_allclose(gpu, cpu, rtol=1e-4, atol=1e-4)

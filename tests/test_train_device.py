@@ -92,3 +92,18 @@ def test_device_cuda_without_cuda_is_one_line_with_exit_2(
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and "\n" not in err
     assert err.startswith("spikenerf: error: ") and "--device" in err and "no CUDA device" in err
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_targets_and_spikes_stay_on_the_gpu_while_training(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.train.trainer import Trainer
+
+    cfg = test_train._config(dataset_dir, method="spike-nerf")
+    cfg.device = "cuda"
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    assert trainer.resident == ["targets", "spikes"]
+    assert trainer.method.targets.images.is_cuda and trainer.method.spikes.spikes.is_cuda
+    assert trainer.train().iteration == cfg.iters
