@@ -4,6 +4,7 @@ gathers on the tensors' device), the batch-memory estimate refused up front (fak
 
 from __future__ import annotations
 
+import traceback
 from pathlib import Path
 
 import pytest
@@ -92,6 +93,54 @@ def test_device_cuda_without_cuda_is_one_line_with_exit_2(
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and "\n" not in err
     assert err.startswith("spikenerf: error: ") and "--device" in err and "no CUDA device" in err
+
+
+def _host_reads(trainer, steps: int) -> dict[tuple[str, str], int]:  # type: ignore[no-untyped-def]
+    """(tensor method, calling file) → calls of the ways a tensor's value reaches the host (a sync on a GPU)
+    during ``steps`` training steps."""
+    reads: dict[tuple[str, str], int] = {}
+    names = ("item", "tolist", "cpu", "numpy", "__int__", "__float__", "__bool__", "__index__")
+    originals = {name: getattr(torch.Tensor, name) for name in names}
+
+    def hooked(name: str):  # type: ignore[no-untyped-def]
+        def read(self, *args, **kw):  # type: ignore[no-untyped-def]
+            caller = traceback.extract_stack(limit=2)[0].filename.split("spikenerf/")[-1]
+            reads[(name, caller)] = reads.get((name, caller), 0) + 1
+            return originals[name](self, *args, **kw)
+
+        return read
+
+    try:
+        for name in names:
+            setattr(torch.Tensor, name, hooked(name))
+        trainer.train(stop_after=steps)
+    finally:
+        for name, original in originals.items():
+            setattr(torch.Tensor, name, original)
+    return reads
+
+
+@pytest.mark.parametrize("field", ["mlp", "grid"])
+def test_the_training_loop_reads_no_device_value_per_step(
+    dataset_dir: Path, dataset, tmp_path: Path, field: str
+) -> None:  # type: ignore[no-untyped-def]
+    """Methods, losses, targets and the trainer read nothing back per step (logged values are read every
+    log_every steps); with the grid, only its renderer (the packed march's sample count) and the occupancy
+    updates on their schedule do."""
+    from spikenerf.train.trainer import Trainer
+
+    cfg = test_train._config(dataset_dir, method="spike-nerf", field=field)
+    cfg.iters, cfg.eval_every, cfg.ckpt_every, cfg.log_every = 40, 0, 1000, 1000
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    trainer.checkpoint = lambda *_a, **_k: None  # type: ignore[method-assign]
+    trainer.evaluate = lambda *_a, **_k: float("nan")  # type: ignore[method-assign]
+    trainer.train(stop_after=12)  # past the spike loss's warm-up and ramp
+    reads = _host_reads(trainer, 10)
+    assert {caller for _, caller in reads} <= {"train/logger.py", "render/grid_model.py", "fields/grid.py",
+                                               "fields/occupancy.py"}, reads  # fmt: skip
+    assert sum(n for (_, caller), n in reads.items() if caller == "train/logger.py") <= 2  # the last read
+    if field == "mlp":
+        assert {caller for _, caller in reads} == {"train/logger.py"}
 
 
 @pytest.mark.cuda
