@@ -97,11 +97,12 @@ def test_an_infinite_density_leaves_the_other_rays_weights_finite() -> None:
         assert packed[0, 2:].eq(0).all()  # after it: transmittance 0
 
 
+@pytest.mark.parametrize("method", ["spike-nerf", "spike-integral"])
 def test_training_loop_reads_no_tensor_value_per_step(
-    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch, method: str
 ) -> None:  # type: ignore[no-untyped-def]
     """``.item()`` is a host–device sync on a GPU: the loop reads values back only every log_every steps."""
-    cfg = _config(dataset_dir, method="spike-nerf")
+    cfg = _config(dataset_dir, method=method)
     cfg.iters, cfg.eval_every, cfg.ckpt_every = 20, 0, 100
     trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
     trainer.evaluate = lambda: float("nan")  # type: ignore[method-assign]

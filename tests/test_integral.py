@@ -168,6 +168,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--integral-samples", "0"], "--integral-samples"),
         (["--set", "integral.groups=-1"], "integral.groups"),
         (["--set", "integral.lengths=[]"], "--integral-window"),
+        (["--recon", "learned"], "--recon"),
     ],
 )
 def test_bad_window_settings_are_one_line(
@@ -188,3 +189,21 @@ def test_default_method_trains_and_records_its_windows(dataset_dir: Path, tmp_pa
     assert run.returncode == 0, run.stderr
     text = (out / "config.yaml").read_text()
     assert "method: spike-integral" in text and "- 3" in text and "- 5" in text
+
+
+def test_counts_move_to_the_device_and_give_the_same_means() -> None:
+    spikes, _ = _stream()
+    counts = count_targets(spikes, np.tile(np.eye(4, dtype=np.float32), (60, 1, 1)), 1.0)
+    moved = counts.on("cpu")
+    args = (torch.tensor([3, 10]), torch.tensor([14, 15]), torch.tensor([[1, 2], [3, 0]]))
+    assert torch.equal(moved.window_mean(*args), counts.window_mean(*args))
+
+
+@pytest.mark.cuda
+def test_counts_stay_on_the_training_gpu(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    if not torch.cuda.is_available():
+        pytest.skip("no CUDA device")
+    cfg = test_train._config(dataset_dir, method="spike-integral", device="cuda")
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    assert "counts" in trainer.resident and trainer.method.counts.counts.is_cuda
+    assert trainer.train().iteration == cfg.iters

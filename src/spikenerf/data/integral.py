@@ -40,12 +40,19 @@ class CountTargets:
         """T, the recorded steps."""
         return int(self.counts.shape[0]) - 1
 
+    def on(self, device: torch.device | str) -> CountTargets:
+        """A copy whose counts and poses live on ``device`` (the training GPU), gathered there."""
+        return CountTargets(self.counts.to(device), self.poses.to(device), self.threshold)
+
     def window_mean(self, start: Tensor, end: Tensor, pixels: Tensor) -> Tensor:
-        """Mean intensity ``φ (C_end − C_start) / (end − start)`` of each window, (B, C) float32.
+        """Mean intensity ``φ (C_end − C_start) / (end − start)`` of each window, (B, C) float32, on the
+        counts' device.
 
         Args:
             start, end: (B,) int64 window bounds, ``0 ≤ start < end ≤ T``. pixels: (B, 2) int64 ``(x, y)``.
         """
+        device = self.counts.device
+        start, end, pixels = start.to(device), end.to(device), pixels.to(device)
         x, y = pixels[:, 0], pixels[:, 1]
         n = (self.counts[end, y, x].int() - self.counts[start, y, x].int()).float()
         return self.threshold * n / (end - start).float()[:, None]

@@ -250,6 +250,12 @@ class TrainConfig:
         self.poses.check()
         self.exposure.check()
         self.integral.check()
+        if self.method == "spike-integral" and self.targets.recon != "tfp":
+            raise InputError(
+                f"targets.recon {self.targets.recon!r}: spike-integral reads spike counts, not reconstructed "
+                "images (use nerf-recon or spike-nerf for reconstruction targets)",
+                param="targets.recon",
+            )
         if self.method == "nerf-bad" and self.targets.blur_samples < 2:
             raise InputError(
                 f"targets.blur_samples must be ≥ 2 for nerf-bad (a start and an end pose), "

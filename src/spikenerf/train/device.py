@@ -45,11 +45,15 @@ def keep_targets_on_device(method: Any, device: torch.device, free: int | None =
         sizes["targets"] = method.targets.images.nbytes
     if getattr(method, "spikes", None) is not None:
         sizes["spikes"] = method.spikes.spikes.nbytes
+    if getattr(method, "counts", None) is not None:  # spike-integral's prefix counts
+        sizes["counts"] = method.counts.counts.nbytes
     names = resident_names(sizes, free_device_memory(device) if free is None else free)
     if "targets" in names:
         method.targets = method.targets.images_on(device)
     if "spikes" in names:
         method.spikes = method.spikes.spikes_on(device)
+    if "counts" in names:
+        method.counts = method.counts.on(device)
     return names
 
 

@@ -411,7 +411,7 @@ class SpikeIntegral(TrainMethod):
         start, end, pixels, steps = state.samplers["windows"].sample(max(1, state.config.batch // per))
         target = counts.window_mean(start, end, pixels).to(state.device)
         band = (counts.threshold / (end - start).float())[:, None].to(state.device) if c.band else None
-        poses = counts.poses[steps.reshape(-1)].to(state.device)
+        poses = counts.poses[steps.reshape(-1).to(counts.poses.device)].to(state.device)
         if state.pose_refine is not None:  # the refiner takes step numbers
             poses = state.pose_refine(poses, np.asarray(state.dataset.trajectory.steps)[steps.reshape(-1)])
         out = state.render_rays(poses, pixels.repeat_interleave(per, dim=0))
