@@ -7,6 +7,7 @@ as it was, with nothing new written (no partial output).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import pickle
@@ -16,8 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from spikenerf.cli import main
+from spikenerf.core.lock import output_lock
 
 SIM = [
     "simulate",
@@ -127,8 +130,79 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
     json_ds = root / "json_ds"
     shutil.copytree(root / "ds", json_ds)
     (json_ds / "transforms.json").write_text('{"frames": 3}')
+    _round_two(root)
     PWNED[0] = str(root / "PWNED")
     return root
+
+
+def _round_two(root: Path) -> None:
+    """Issue 29's sandbox: look-alike and mixed folders, links, broken checkpoints, bad poses, PNG bombs."""
+    _cli(*SIM, "--frames", "40", "--seed", "1", "--out", root / "ds_seed1")  # the same dataset re-simulated
+    (root / "userds").mkdir()  # a user's folder that looks like a dataset: no marker
+    for name in ("transforms.json", "config.yaml"):
+        shutil.copy(root / "ds" / name, root / "userds" / name)
+    (root / "userds" / "notes.txt").write_text("mine\n")
+    shutil.copytree(root / "ds", root / "mixed_ds")  # a dataset the user added notes to
+    (root / "mixed_ds" / "notes.txt").write_text("mine\n")
+    shutil.copytree(root / "ds", root / "nested_ds")  # a dataset with a trained run inside it
+    shutil.copytree(root / "run", root / "nested_ds" / "run")
+    shutil.copytree(root / "ds", root / "oldcase")  # beside it the user's own .oldcase.old
+    (root / ".oldcase.old").mkdir()
+    (root / ".oldcase.old" / "mine.txt").write_text("mine\n")
+    (root / "link_ds").symlink_to(root / "ds")
+    (root / "link_run").symlink_to(root / "run")
+    (root / "photos").mkdir()  # a user's photos, one named like a frame
+    shutil.copy(root / "ds" / "test" / "00000.png", root / "photos" / "00000.png")
+    shutil.copy(root / "ds" / "test" / "00000.png", root / "photos" / "00009.png")
+    ckpt = torch.load(root / "run" / "checkpoint.pt", weights_only=True)
+    first = next(iter(ckpt["model"]))
+    broken = {
+        "ck_missing": {k: v for k, v in ckpt.items() if k != "model"},
+        "ck_type": {**ckpt, "model": [1, 2], "iteration": "two"},
+        "ck_shape": {**ckpt, "model": {**ckpt["model"], first: torch.zeros(3)}},
+        "ck_rng": {**ckpt, "rng": {"torch": "none"}, "optimizer": {"state": 5}},
+    }
+    for name, data in broken.items():
+        shutil.copytree(root / "run", root / name)
+        torch.save(data, root / name / "checkpoint.pt")
+    shutil.copytree(root / "run", root / "ck_foreign")  # another run's checkpoint copied into a run
+    config = (root / "run" / "config.yaml").read_text()
+    (root / "ck_foreign" / "config.yaml").write_text(config.replace("seed: 0", "seed: 7"))
+    for name, edit in (("zero_pose_ds", _zero_pose), ("dec_time_ds", _decreasing_time)):
+        shutil.copytree(root / "ds", root / name)
+        data = json.loads((root / name / "transforms.json").read_text())
+        edit(data["frames"])
+        (root / name / "transforms.json").write_text(json.dumps(data))
+    w = h = 40000  # a 16-bit PNG bomb: its header claims 9.6 GB; and a small header over a big payload
+    (root / "bomb.png").write_bytes(_png16(w, h, b"\0" * 1_000_000))
+    (root / "liar.png").write_bytes(_png16(16, 16, b"\0" * 20_000_000))
+    for name in ("bomb", "liar"):
+        (root / f"seq_{name}").mkdir()
+        text = (root / "seq" / "transforms.json").read_text().replace("a.png", f"{name}.png")
+        (root / f"seq_{name}" / "transforms.json").write_text(text)
+        shutil.copy(root / f"{name}.png", root / f"seq_{name}" / f"{name}.png")
+
+
+def _zero_pose(frames: list[dict]) -> None:
+    for f in frames:
+        f["transform_matrix"] = [[0.0] * 4 for _ in range(4)]
+
+
+def _decreasing_time(frames: list[dict]) -> None:
+    frames[3]["time"], frames[4]["time"] = frames[4]["time"], frames[3]["time"]
+
+
+def _png16(w: int, h: int, payload: bytes) -> bytes:
+    """A 16-bit RGB PNG of size ``w``×``h`` whose IDAT inflates to ``payload``."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0)
+    idat = zlib.compress(payload, 9)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
 
 
 R = "{root}"
@@ -218,7 +292,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("eval-bad-yaml", ["eval", f"{R}/bad_yaml_run", "--device", "cpu"], "config.yaml"),
     ("eval-other-dataset", ["eval", f"{R}/run", "--dataset", f"{R}/other_ds", "--device", "cpu", "--quiet"],
      "--dataset"),
-    ("eval-chunk-zero", ["eval", f"{R}/run", "--chunk", "0"], "--chunk"),
+    ("eval-chunk-negative", ["eval", f"{R}/run", "--chunk", "-1"], "--chunk"),
     # render
     ("render-out-dataset", ["render", f"{R}/run", "--spikes", "--device", "cpu", "--out", f"{R}/ds"], "ds"),
     ("render-out-run", ["render", f"{R}/run", "--device", "cpu", "--out", f"{R}/run"], "run"),
@@ -264,7 +338,84 @@ CASES: list[tuple[str, list[str], str]] = [
     # sequences with broken images
     ("sim-seq-pickle-npy", ["simulate", "--sequence", f"{R}/seq_npy/transforms.json", "--out", f"{R}/o"],
      "obj.npy"),
+    # round two (issue 29): ownership, never destroying what spikenerf did not write
+    ("sim-overwrite-lookalike", [*SIM, "--overwrite", "--out", f"{R}/userds"], "userds"),
+    ("import-overwrite-lookalike", [*IMP, "--overwrite", "--out", f"{R}/userds"], "userds"),
+    ("sim-overwrite-mixed", [*SIM, "--overwrite", "--out", f"{R}/mixed_ds"], "notes.txt"),
+    ("import-overwrite-mixed", [*IMP, "--overwrite", "--out", f"{R}/mixed_ds"], "notes.txt"),
+    ("sim-overwrite-nested-run", [*SIM, "--overwrite", "--out", f"{R}/nested_ds"], "run"),
+    ("sim-overwrite-user-old", [*SIM, "--overwrite", "--out", f"{R}/oldcase"], ".oldcase.old"),
+    ("import-overwrite-user-old", [*IMP, "--overwrite", "--out", f"{R}/oldcase"], ".oldcase.old"),
+    ("sim-overwrite-symlink", [*SIM, "--overwrite", "--out", f"{R}/link_ds"], "link_ds"),
+    ("import-overwrite-symlink", [*IMP, "--overwrite", "--out", f"{R}/link_ds"], "link_ds"),
+    ("recon-out-photos", [*DAT, "--frames", "0:2", "--out", f"{R}/photos"], "photos"),
+    ("recon-out-dataset", [*DAT, "--frames", "0:2", "--out", f"{R}/ds/test"], "test"),
+    ("recon-data-out-dataset", ["recon-data", "--train-draws", "2", "--val-draws", "2", "--size", "16",
+                                "--out", f"{R}/ds"], "dataset folder"),
+    ("recon-data-out-foreign", ["recon-data", "--train-draws", "2", "--val-draws", "2", "--size", "16",
+                                "--out", f"{R}/thesis"], "thesis"),
+    ("recon-train-out-dataset", ["recon-train", f"{R}/nope", "--out", f"{R}/ds"], "dataset folder"),
+    ("recon-train-out-foreign", ["recon-train", f"{R}/nope", "--out", f"{R}/thesis"], "thesis"),
+    # second writers: {R}/run is locked by this process during these cases (LOCKED)
+    ("locked-eval-link", ["eval", f"{R}/link_run", "--device", "cpu", "--quiet"], "in use"),
+    ("locked-render", ["render", f"{R}/run", "--device", "cpu", "--quiet", "--out", f"{R}/o"], "in use"),
+    ("locked-train-link", [*T, "--resume", "--out", f"{R}/link_run"], "in use"),
+    ("locked-recon-train", ["recon-train", f"{R}/nope", "--out", f"{R}/run_recon"], "in use"),
+    # checkpoints with the right format tag but wrong contents
+    ("eval-ckpt-missing", ["eval", f"{R}/ck_missing", "--device", "cpu"], "checkpoint.pt"),
+    ("render-ckpt-missing", ["render", f"{R}/ck_missing", "--device", "cpu", "--out", f"{R}/o"],
+     "checkpoint.pt"),
+    ("info-ckpt-missing", ["info", f"{R}/ck_missing"], "checkpoint.pt"),
+    ("train-resume-ckpt-missing", [*T, "--resume", "--out", f"{R}/ck_missing"], "checkpoint.pt"),
+    ("eval-ckpt-type", ["eval", f"{R}/ck_type", "--device", "cpu"], "checkpoint.pt"),
+    ("info-ckpt-type", ["info", f"{R}/ck_type"], "checkpoint.pt"),
+    ("train-resume-ckpt-type", [*T, "--resume", "--out", f"{R}/ck_type"], "checkpoint.pt"),
+    ("eval-ckpt-shape", ["eval", f"{R}/ck_shape", "--device", "cpu"], "checkpoint.pt"),
+    ("render-ckpt-shape", ["render", f"{R}/ck_shape", "--device", "cpu", "--out", f"{R}/o"],
+     "checkpoint.pt"),
+    ("train-resume-ckpt-shape", [*T, "--resume", "--out", f"{R}/ck_shape"], "checkpoint.pt"),
+    ("train-resume-ckpt-rng", [*T, "--resume", "--out", f"{R}/ck_rng"], "checkpoint.pt"),
+    ("eval-ckpt-foreign", ["eval", f"{R}/ck_foreign", "--device", "cpu"], "checkpoint.pt"),
+    ("render-ckpt-foreign", ["render", f"{R}/ck_foreign", "--device", "cpu", "--out", f"{R}/o"],
+     "checkpoint.pt"),
+    # integers out of range, binary configs, non-finite orbits
+    ("sim-seed-huge", [*SIM, "--seed", "99999999999999999999999", "--out", f"{R}/o"], "--seed"),
+    ("train-seed-huge", [*T, "--seed", "99999999999999999999999", "--out", f"{R}/o"], "--seed"),
+    ("train-set-seed-huge", [*T, "--set", "seed=99999999999999999999999", "--out", f"{R}/o"], "seed"),
+    ("train-iters-huge", [*T, "--iters", "99999999999999999999999", "--out", f"{R}/o"], "--iters"),
+    ("train-set-iters-1e23", [*T, "--set", "iters=1.0e+23", "--out", f"{R}/o"], "iters"),
+    ("render-seed-huge", ["render", f"{R}/run", "--seed", "99999999999999999999999", "--out", f"{R}/o"],
+     "--seed"),
+    ("recon-data-seed-huge", ["recon-data", "--seed", "99999999999999999999999", "--out", f"{R}/o"],
+     "--seed"),
+    ("train-config-png", [*T, "--config", f"{R}/ds/test/00000.png", "--out", f"{R}/o"], "00000.png"),
+    ("train-config-dat", [*T, "--config", f"{R}/ds/spikes_gray.dat", "--out", f"{R}/o"], "spikes_gray.dat"),
+    ("import-orbit-nan", [*IMP, "--orbit", "nan,30", "--out", f"{R}/o"], "--orbit"),
+    ("import-orbit-inf-turns", [*IMP, "--orbit", "4,30,inf", "--out", f"{R}/o"], "--orbit"),
+    ("import-orbit-inf-elevation", [*IMP, "--orbit", "4,inf", "--out", f"{R}/o"], "--orbit"),
+    ("import-orbit-nan-azimuth", [*IMP, "--orbit", "4,30,1,nan", "--out", f"{R}/o"], "--orbit"),
+    # wrong successes
+    ("train-zero-poses", ["train", f"{R}/zero_pose_ds", *TRAIN, "--out", f"{R}/o"], "transforms.json"),
+    ("train-decreasing-times", ["train", f"{R}/dec_time_ds", *TRAIN, "--out", f"{R}/o"], "time"),
+    ("info-fps-nan", ["info", f"{R}/ds/spikes_gray.dat", "--fps", "nan"], "--fps"),
+    ("info-fps-inf", ["info", f"{R}/ds/spikes_gray.dat", "--fps", "inf"], "--fps"),
+    ("train-resume-resimulated", ["train", f"{R}/ds_seed1", *TRAIN, "--resume", "--out", f"{R}/run"],
+     "ds_seed1"),
+    ("train-resume-iters-below", [*T, "--resume", "--iters", "1", "--out", f"{R}/run"], "--iters"),
+    # nothing created before the checks pass, not even a parent folder
+    ("render-traj-garbage-deep", ["render", f"{R}/run", "--trajectory", f"{R}/garbage.json", "--device",
+                                  "cpu", "--out", f"{R}/new/deeper/r"], "garbage.json"),
+    ("import-one-pose-deep", ["import", f"{R}/ds/spikes_gray.dat", "--poses", f"{R}/seq/transforms.json",
+                              "--fov", "40", "--out", f"{R}/new/deeper/o"], "transforms.json"),
+    # a 16-bit PNG bomb: bounded by its header before inflating
+    ("sim-seq-png-bomb", ["simulate", "--sequence", f"{R}/seq_bomb/transforms.json", "--out", f"{R}/o"],
+     "bomb.png"),
+    ("sim-seq-png-liar", ["simulate", "--sequence", f"{R}/seq_liar/transforms.json", "--out", f"{R}/o"],
+     "more data"),
 ]
+#: cases run while this process holds the writer lock of the sandbox folder named here
+LOCKED = {"locked-eval-link": "run", "locked-render": "run",
+          "locked-train-link": "run", "locked-recon-train": "run_recon"}
 # fmt: on
 
 
@@ -280,15 +431,16 @@ def seq_npy(sandbox: Path) -> Path:
     return seq
 
 
-@pytest.mark.parametrize(("argv", "needle"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+@pytest.mark.parametrize(("case", "argv", "needle"), CASES, ids=[c[0] for c in CASES])
 def test_bad_input_is_one_line_exit_2_and_harmless(
-    sandbox: Path, seq_npy: Path, argv: list[str], needle: str, capsys: pytest.CaptureFixture[str]
+    sandbox: Path, seq_npy: Path, case: str, argv: list[str], needle: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     before = _tree(sandbox)
     args = [a.replace(R, str(sandbox)) for a in argv]
     capsys.readouterr()
     t0 = time.perf_counter()
-    with pytest.raises(SystemExit) as exit_:
+    held = output_lock(sandbox / LOCKED[case]) if case in LOCKED else contextlib.nullcontext()
+    with pytest.raises(SystemExit) as exit_, held:
         _cli(*args)
     TIMES[" ".join(argv[:1])] = max(TIMES.get(argv[0], 0.0), time.perf_counter() - t0)
     err = capsys.readouterr().err

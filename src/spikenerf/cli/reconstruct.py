@@ -23,7 +23,6 @@ from spikenerf.data.targets import RECONS
 DEFAULT_WINDOW = 41
 #: output frames reconstructed per block (bounds memory; one progress-bar step)
 BLOCK_FRAMES = 128
-_FRAME_PNG = re.compile(r"^\d{5}\.png$")
 
 
 def parse_range(text: str) -> slice:
@@ -68,17 +67,11 @@ def output_kind(out: Path) -> str:
 
 
 def check_out_dir(out: Path) -> None:
-    """A folder output replaces ``out`` whole, so it must be absent, empty or a previous frame folder."""
-    if out.exists() and not out.is_dir():
-        raise InputError("--out names an existing file, expected a folder (or a .png/.npy path)", path=out)
-    if out.is_dir():
-        strangers = [p.name for p in out.iterdir() if not _FRAME_PNG.match(p.name)]
-        if strangers:
-            raise InputError(
-                f"--out folder is not empty and holds {len(strangers)} entries that are not frame PNGs "
-                f"(e.g. {strangers[0]!r}); refusing to replace it",
-                path=out,
-            )
+    """A folder output writes only its own frame PNGs (never deleting others): ``out`` must be absent, empty,
+    or a frame folder spikenerf wrote (its ``.spikenerf`` marker); a link is followed."""
+    from spikenerf.core.marker import check_output
+
+    check_output(out, "frames", overwrite=True)
 
 
 def blocks(frames: range, method: str) -> Iterator[range]:
@@ -194,10 +187,11 @@ def command(
                 dest.flush()
                 del dest
         else:
-            with atomic_path(out) as tmp:
-                tmp.mkdir()
-                for block, image in images():
-                    for index, frame_image in zip(block, image, strict=True):
-                        (tmp / f"{index:05d}.png").write_bytes(to_png_bytes(frame_image, encoding))
-                        bar.update(1)
+            from spikenerf.core.marker import mark
+
+            for block, image in images():
+                mark(out, "frames")  # once the first frames are made: nothing is created before
+                for index, frame_image in zip(block, image, strict=True):
+                    write_bytes_atomic(out / f"{index:05d}.png", to_png_bytes(frame_image, encoding))
+                    bar.update(1)
     click.echo(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''}, {method})")

@@ -139,7 +139,7 @@ def command(**kw: Any) -> None:
             raise InputError(f"--{name.replace('_', '-')}: expected a finite number, found {kw[name]}")
     from spikenerf.core.marker import check_output
 
-    check_output(kw["out"], "dataset", overwrite=bool(kw["overwrite"]))
+    check_output(kw["out"], "dataset", overwrite=bool(kw["overwrite"]), replace=True)
     source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
     from spikenerf.data.blur import parse_blur_views
     from spikenerf.data.simulate import SimulateOptions, simulate_dataset

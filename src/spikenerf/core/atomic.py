@@ -27,9 +27,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         failpoint(f"write:{path.name}")
-        if tmp.is_dir() and path.is_dir():
-            old = path.with_name(f".{path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
+        if tmp.is_dir() and path.is_dir():  # swapped out under a fresh name: never a user's .NAME.old
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old.tmp", dir=path.parent))
+            old.rmdir()
             path.rename(old)
             tmp.rename(path)
             shutil.rmtree(old, ignore_errors=True)

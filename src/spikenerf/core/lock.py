@@ -23,10 +23,10 @@ except ImportError:  # pragma: no cover - not on Unix: no locking
 
 
 def lock_path(folder: str | Path) -> Path:
-    """The lock file of an output folder: ``.<name>.lock`` in its parent (resolved: ``d/../out`` and ``out``
-    share one lock)."""
-    folder = Path(folder).absolute()
-    return folder.parent.resolve() / f".{folder.name}.lock"
+    """The lock file of an output folder: ``.<name>.lock`` beside the folder it resolves to (``d/../out``,
+    ``out`` and a symbolic link to ``out`` share one lock)."""
+    folder = Path(folder).resolve()
+    return folder.parent / f".{folder.name}.lock"
 
 
 def holder(folder: str | Path) -> int | None:
@@ -73,13 +73,18 @@ def output_lock(folder: str | Path, param: str = "out") -> Iterator[Path]:
     if fcntl is None:
         yield path
         return
+    made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
         raise InputError(
             f"{param}: a parent of this path is a regular file", path=folder, param=param
         ) from None
-    fd = _acquire(path, folder, param)
+    try:
+        fd = _acquire(path, folder, param)
+    except BaseException:
+        _remove_empty(made)
+        raise
     try:
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
@@ -88,3 +93,14 @@ def output_lock(folder: str | Path, param: str = "out") -> Iterator[Path]:
         with contextlib.suppress(OSError):
             path.unlink()
         os.close(fd)
+        _remove_empty(made)
+
+
+def _remove_empty(made: list[Path]) -> None:
+    """Remove the parent folders the lock created, innermost first, where the command left them empty
+    (a refusal leaves nothing behind, not even the folders above ``--out``)."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:
+            return

@@ -1,34 +1,64 @@
 """Which folders spikenerf wrote: a ``.spikenerf`` marker file, so that nothing else is ever replaced.
 
-Every output folder (dataset, run, render, benchmark) gets the marker with its kind. ``--overwrite`` replaces
-only a marked folder (or an empty one), and outputs are never written into a folder of another kind (e.g.
-``render --out`` into a dataset). Folders written before the marker existed are recognised by their files.
+Every output folder (dataset, run, render, benchmark, recon pairs and runs, reconstructed frames) gets
+the marker with its kind; a finished dataset's marker also lists its files. Outputs are never written
+into a folder of another kind (e.g. ``render --out`` into a dataset) or into a non-empty folder without
+the marker. Folders written before the marker existed are recognised by their files, but only a marked
+folder whose files are exactly the ones its marker lists is ever replaced (``--overwrite``): a
+look-alike, a link, or a dataset holding the user's notes or a trained run is refused. The swapped-out
+``.<name>.old`` of a replacement carries a ``retired`` marker, so a user's own ``.<name>.old`` is never
+deleted or moved into place.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from pathlib import Path
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 
 MARKER = ".spikenerf"
-KINDS = ("dataset", "run", "render", "benchmark")
+KINDS = ("dataset", "run", "render", "benchmark", "pairs", "recon", "frames")
 #: files that identify a folder of each kind written before the marker existed
 _LEGACY = {
     "dataset": ("transforms.json", "config.yaml"),
     "run": ("checkpoint.pt", "config.yaml"),
     "render": ("render.json",),
     "benchmark": ("results.json",),
+    "pairs": ("manifest.json",),
+    "recon": ("checkpoint.pt", "config.json"),
 }
 
 
-def mark(folder: str | Path, kind: str) -> None:
-    """Write the marker of ``kind`` into ``folder`` (created if needed)."""
+def _inventory(folder: Path) -> list[str]:
+    """Every file (and link) under ``folder``, relative, except the marker."""
+    found = []
+    for base, dirs, files in os.walk(folder):
+        rel = Path(base).relative_to(folder)
+        found += [str(rel / n) for n in files + [d for d in dirs if (Path(base) / d).is_symlink()]]
+    return sorted(f for f in found if f != MARKER)
+
+
+def mark(folder: str | Path, kind: str, files: bool = False) -> None:
+    """Write the marker of ``kind`` into ``folder`` (created if needed); ``files``: also list every file in
+    it (a finished folder that may later be replaced whole)."""
     if kind not in KINDS:
         raise ValueError(f"unknown folder kind {kind!r}")
-    write_text_atomic(Path(folder) / MARKER, json.dumps({"kind": kind}) + "\n")
+    entry: dict = {"kind": kind}
+    if files:
+        entry["files"] = _inventory(Path(folder))
+    write_text_atomic(Path(folder) / MARKER, json.dumps(entry) + "\n")
+
+
+def _marker(folder: Path) -> dict:
+    try:
+        data = json.loads((folder / MARKER).read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
 
 
 def folder_kind(folder: str | Path) -> str | None:
@@ -36,29 +66,83 @@ def folder_kind(folder: str | Path) -> str | None:
     folder = Path(folder)
     if not folder.is_dir():
         return None
-    try:
-        kind = json.loads((folder / MARKER).read_text()).get("kind")
-        if kind in KINDS:
-            return kind
-    except (OSError, ValueError, AttributeError):
-        pass
+    kind = _marker(folder).get("kind")
+    if kind in KINDS:
+        return kind
     for kind, names in _LEGACY.items():
         if all((folder / name).is_file() for name in names):
             return kind
     return None
 
 
-def check_output(path: str | Path, kind: str, param: str = "out", overwrite: bool = False) -> None:
+def strangers(folder: Path) -> list[str]:
+    """What ``folder`` holds beyond the files its marker lists (all of it when the marker lists none)."""
+    listed = _marker(folder).get("files")
+    have = _inventory(folder)
+    if not isinstance(listed, list):
+        return have
+    return [f for f in have if f not in set(listed)]
+
+
+def old_path(out: Path) -> Path:
+    """Where a replacement swaps out the previous ``out``: ``.<name>.old`` beside it."""
+    return out.with_name(f".{out.name}.old")
+
+
+def is_retired(old: Path) -> bool:
+    """Whether ``old`` is a folder that a replacement of spikenerf swapped out (not the user's)."""
+    return old.is_dir() and not old.is_symlink() and _marker(old).get("retired") is True
+
+
+def retire(out: Path) -> Path:
+    """Swap the folder ``out`` out of the way (to :func:`old_path`, marked retired); returns that path.
+    A retired leftover there is deleted first; anything else there is an InputError, untouched."""
+    old = old_path(out)
+    if old.exists() or old.is_symlink():
+        if not is_retired(old):
+            raise InputError("is in the way of a replacement and spikenerf did not write it; move it", old)
+        shutil.rmtree(old)
+    write_text_atomic(out / MARKER, json.dumps({**_marker(out), "retired": True}) + "\n")
+    out.rename(old)
+    return old
+
+
+def recover_retired(out: Path) -> None:
+    """Finish a replacement killed between its renames (call it holding the lock): a retired ``.<out>.old``
+    is restored when ``out`` is missing, else deleted. A ``.<out>.old`` spikenerf did not retire is left."""
+    old = old_path(out)
+    if not is_retired(old):
+        return
+    if out.exists() or out.is_symlink():
+        shutil.rmtree(old)
+        return
+    entry = {k: v for k, v in _marker(old).items() if k != "retired"}
+    write_text_atomic(old / MARKER, json.dumps(entry) + "\n")
+    old.rename(out)
+
+
+def check_output(
+    path: str | Path, kind: str, param: str = "out", overwrite: bool = False, replace: bool = False
+) -> None:
     """InputError unless ``path`` may receive output of ``kind``.
 
     Accepted: a path that does not exist (its parents must be folders), an empty folder, or a folder that
     spikenerf wrote as ``kind``; with ``overwrite=False`` an existing output of ``kind`` is refused too
-    (callers that resume or update in place pass ``overwrite=True``).
+    (callers that resume or update in place pass ``overwrite=True``). ``replace``: the caller replaces the
+    folder whole, so it must not be a link, must carry our marker and hold only the files it lists, and a
+    ``.<name>.old`` beside it must be one spikenerf retired.
     """
     path = Path(path)
     for parent in path.absolute().parents:
         if parent.exists() and not parent.is_dir():
             raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
+    if replace and path.is_symlink():
+        raise InputError(
+            f"{param}: is a symbolic link; spikenerf replaces an output folder whole and will not replace "
+            "a link: give the folder it points to",
+            path=path,
+            param=param,
+        )
     if not (path.exists() or path.is_symlink()):
         return
     if not path.is_dir():
@@ -79,3 +163,31 @@ def check_output(path: str | Path, kind: str, param: str = "out", overwrite: boo
         )
     if found == kind and not overwrite:
         raise InputError("output already exists; pass overwrite to replace it", path=path, param="overwrite")
+    if replace and any(path.iterdir()):
+        _check_replaceable(path, kind, param)
+
+
+def _check_replaceable(path: Path, kind: str, param: str) -> None:
+    if _marker(path).get("kind") != kind or not isinstance(_marker(path).get("files"), list):
+        raise InputError(
+            f"{param}: looks like a {kind} folder but has no complete {MARKER} marker (not written whole by "
+            "this spikenerf); refusing to replace it: delete it yourself or choose another",
+            path=path,
+            param=param,
+        )
+    extra = strangers(path)
+    if extra:
+        shown = ", ".join(extra[:3]) + (f" and {len(extra) - 3} more" if len(extra) > 3 else "")
+        raise InputError(
+            f"{param}: holds files spikenerf did not write ({shown}); refusing to replace it: move them away",
+            path=path,
+            param=param,
+        )
+    old = old_path(path)
+    if (old.exists() or old.is_symlink()) and not is_retired(old):
+        raise InputError(
+            f"{param}: {old.name} beside it was not written by spikenerf and is in the way of the "
+            "replacement; move it away",
+            path=old,
+            param=param,
+        )

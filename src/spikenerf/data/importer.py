@@ -290,7 +290,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
             dat,
             param="frame_range",
         )
-    check_output(out, "dataset", overwrite=opts.overwrite)
+    check_output(out, "dataset", overwrite=opts.overwrite, replace=True)
     rel_keys = keyframe_steps(n, opts.keyframe_every, keyframe_window(opts))
     if len(rel_keys) < 2:
         raise InputError(
@@ -300,7 +300,9 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
         )
     with output_lock(out):
         recover_replaced(out)
-        check_output(out, "dataset", overwrite=opts.overwrite)  # again, now that no one else writes
+        check_output(
+            out, "dataset", overwrite=opts.overwrite, replace=True
+        )  # again, now that no one else writes
         _import_locked(dat, out, opts, (sel, fps, threshold, raw, rc.path), (h, w, rel_keys))
     return out
 
@@ -397,6 +399,6 @@ def _write(
             path = work / folder / name
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     writer.finish(Trajectory(poses, steps / fps, steps, fps), config, None)
-    mark(work, "dataset")
+    mark(work, "dataset", files=True)
     failpoint("import.publish")
     _replace_dir(work, out)

@@ -30,7 +30,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_output, folder_kind, mark
+from spikenerf.core.marker import MARKER, check_output, folder_kind, mark, recover_retired, retire
 from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
 from spikenerf.data.dataset import MODES, near_far, spike_files
 from spikenerf.data.recording import RAW_DIR, check_raw_width, write_raw_recording
@@ -260,26 +260,17 @@ def check_options(options: SimulateOptions) -> None:
 
 def recover_replaced(out: Path) -> None:
     """Finish a :func:`_replace_dir` that was killed between its renames (call it holding the lock): the
-    swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted."""
-    old = out.with_name(f".{out.name}.old")
-    if not (old.exists() or old.is_symlink()):
-        return
-    if out.exists() or out.is_symlink():
-        shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink()
-    else:
-        old.rename(out)
+    swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted; only one spikenerf retired
+    (``core/marker.py``), never the user's own ``.<out>.old``."""
+    recover_retired(out)
 
 
 def _replace_dir(work: Path, out: Path) -> None:
     """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is swapped out, then deleted)."""
-    old = None
-    if out.exists() or out.is_symlink():
-        old = out.with_name(f".{out.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        out.rename(old)
+    old = retire(out) if out.exists() or out.is_symlink() else None
     work.rename(out)
     if old is not None:
-        shutil.rmtree(old) if old.is_dir() else old.unlink()
+        shutil.rmtree(old)
 
 
 def stream_steps(
@@ -382,10 +373,12 @@ def simulate_dataset(
         raise InputError(f"jobs must be ≥ 1, found {jobs}", param="jobs")
     check_options(options)
     check_raw_width(options.raw_width, source.intrinsics.height, source.intrinsics.width)
-    check_output(out, "dataset", overwrite=options.overwrite)
+    check_output(out, "dataset", overwrite=options.overwrite, replace=True)
     with output_lock(out):
         recover_replaced(out)
-        check_output(out, "dataset", overwrite=options.overwrite)  # again, now that no one else writes
+        check_output(
+            out, "dataset", overwrite=options.overwrite, replace=True
+        )  # again, now that no one else writes
         return _simulate_locked(source, out, options, progress, jobs)
 
 
@@ -421,7 +414,7 @@ def _simulate_locked(
         write_raw_recording(
             work / spike_files("gray")[0], k.height, k.width, traj.fps, work / RAW_DIR, options.raw_width
         )
-    mark(work, "dataset")
+    mark(work, "dataset", files=True)
     failpoint("simulate.publish")
     shutil.rmtree(cache)
     _replace_dir(work, out)

@@ -33,7 +33,7 @@ from tqdm import tqdm
 from spikenerf.camera.io import write_dat, write_dat_rgb
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.reconstruct import tfp
-from spikenerf.core.atomic import atomic_path, write_bytes_atomic, write_text_atomic
+from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
@@ -199,11 +199,27 @@ def render_run(
     ffmpeg_module()  # before any work: the video is the last file written
     out = Path(out)
     check_output(out, "render", overwrite=True)
-    with output_lock(out):
+    with output_lock(out), output_lock(run_dir, "RUN"):  # no train may write the run meanwhile
         return _render_locked(
             run_dir, out, trajectory, spikes, fps_video, orbit_frames, spike_steps, seed, device,
             dataset_root, chunk, progress, log, precision,
         )  # fmt: skip
+
+
+def clear_previous_render(out: Path) -> None:
+    """Delete what an earlier render left in its folder ``out`` (marked ``render``): its frames, depth maps,
+    video and temporaries, so no view of another trajectory stays beside the new ones."""
+    try:
+        previous = json.loads((out / "render.json").read_text()).get("files", {}).get("video")
+    except (OSError, ValueError, AttributeError):
+        previous = None
+    for folder in (out, out / "images", out / "depth"):
+        clean_stale_temps(folder)
+    stale = [*(out / "images").glob("[0-9]*.png"), *(out / "depth").glob("[0-9]*.*")]
+    if isinstance(previous, str) and Path(previous).name == previous:
+        stale.append(out / previous)
+    for path in stale:
+        path.unlink(missing_ok=True)
 
 
 def check_render_resources(dataset: SpikeDataset, views: int, spike_steps: int, out: Path) -> None:
@@ -229,6 +245,7 @@ def _render_locked(
     name, poses = resolve_trajectory(trajectory, dataset, orbit_frames)
     check_render_resources(dataset, len(poses), n_spikes if spikes else 0, out)
     mark(out, "render")
+    clear_previous_render(out)
     k = dataset.intrinsics
     colors, depths, opacities = [], [], []
     for pose in tqdm(poses, desc=f"render {name}", unit="view", disable=not progress):

@@ -12,8 +12,10 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict
 from pathlib import Path
 
-from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.recon.pairs import PairConfig, Sample, analytic_pairs, source_pairs
 from spikenerf.recon.store import MANIFEST, shard_path, write_shard
 from spikenerf.scenes.base import FrameSource
@@ -70,9 +72,20 @@ def write_pairs(
     Raises:
         InputError: ``out`` holds pairs made with other settings.
     """
+    out = Path(out)
+    check_output(out, "pairs", overwrite=True)
+    with output_lock(out):
+        check_output(out, "pairs", overwrite=True)
+        clean_stale_temps(out)
+        return _write_locked(out, cfg, train_draws, val_draws, seed, extra, extra_draws, command, progress)
+
+
+def _write_locked(
+    out: Path, cfg: PairConfig, train_draws: int, val_draws: int, seed: int,
+    extra: dict[str, FrameSource] | None, extra_draws: int, command: str, progress: bool,
+) -> dict:  # fmt: skip
     from tqdm import tqdm
 
-    out = Path(out)
     manifest = {
         "config": asdict(cfg),
         "train_draws": train_draws,
@@ -89,7 +102,7 @@ def write_pairs(
             raise InputError(
                 "out holds pairs made with other settings; use a new folder", path=out, param="out"
             )
-    out.mkdir(parents=True, exist_ok=True)
+    mark(out, "pairs")
     write_text_atomic(path, json.dumps({**manifest, "command": command}, indent=2))
     counters = dict.fromkeys(("train", "val"), 0)
     jobs = plan(cfg, train_draws, val_draws, seed, extra or {}, extra_draws)

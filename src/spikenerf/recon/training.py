@@ -19,8 +19,10 @@ from pathlib import Path
 
 import torch
 
-from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.recon.features import brightness_scale
 from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights
@@ -110,10 +112,20 @@ def train_recon(
 
     ``stop_at`` ends the run after that many steps without the final export (an interruption, for tests).
     """
-    from tqdm import tqdm
-
     cfg.check()
     out = Path(out)
+    check_output(out, "recon", overwrite=True)
+    with output_lock(out):
+        check_output(out, "recon", overwrite=True)
+        clean_stale_temps(out)
+        return _train_locked(pairs_dir, out, cfg, command, progress, stop_at)
+
+
+def _train_locked(
+    pairs_dir: str | Path, out: Path, cfg: ReconTrainConfig, command: str, progress: bool, stop_at: int | None
+) -> dict:
+    from tqdm import tqdm
+
     manifest = read_manifest(pairs_dir)
     train, val = load_split(pairs_dir, "train"), load_split(pairs_dir, "val")
     net = ReconNet(NetConfig(window=train.window, width=cfg.width))
@@ -121,7 +133,7 @@ def train_recon(
     gen = torch.Generator().manual_seed(cfg.seed)
     pairs_hash = hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()
     start, elapsed, running = _resume(out, cfg, net, opt, gen, pairs_hash)
-    out.mkdir(parents=True, exist_ok=True)
+    mark(out, "recon")
     write_text_atomic(
         out / "config.json",
         json.dumps({"config": asdict(cfg), "pairs": str(pairs_dir), "command": command}, indent=2),
