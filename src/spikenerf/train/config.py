@@ -273,9 +273,12 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
     def window_poses(self) -> int:
-        """Poses per image target this run renders and averages over a TFP window: the resolved
-        ``targets.window_poses`` for the stream methods (nerf-recon, spike-nerf), 1 for the others."""
-        return self.targets.poses_per_target() if self.method in STREAM_METHODS else 1
+        """Poses per TFP image this run's renders are averaged over (its targets, and ``eval``'s TFP
+        keyframes and no-reference checks): the resolved ``targets.window_poses`` for the stream methods
+        (nerf-recon, spike-nerf) and for spike-integral, which renders sharp images as window-aware runs do;
+        1 for the others."""
+        sharp = self.method in STREAM_METHODS or self.method == "spike-integral"
+        return self.targets.poses_per_target() if sharp else 1
 
     def resolved(self) -> TrainConfig:
         """A copy with the defaults that depend on other fields filled in (``targets.window_poses``: see
@@ -312,8 +315,8 @@ def _matches(value: Any, hint: Any) -> bool:
         return value is None
     if hint is float:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is int:  # 64 bits: torch and numpy overflow beyond
+        return isinstance(value, int) and not isinstance(value, bool) and abs(value) < 2**63
     return isinstance(value, origin or hint)
 
 
@@ -396,13 +399,26 @@ def save_config(config: TrainConfig, path: str | Path) -> None:
     write_text_atomic(path, yaml.safe_dump(config.to_dict(), sort_keys=False))
 
 
+#: the largest config file read (a config is a few kB; a larger file is surely not one)
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def _read_config(path: str | Path) -> tuple[Path, Any]:
     """The parsed YAML of a config file (InputError when missing or malformed)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("missing run config (not a run folder written by `spikenerf train`?)", path=path)
+    if path.stat().st_size > MAX_CONFIG_BYTES:
+        raise InputError(f"is {path.stat().st_size} bytes, too large for a YAML config", path=path)
+    raw = path.read_bytes()
     try:
-        return path, yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = "\0"
+    if "\0" in text:
+        raise InputError("is a binary file, not a YAML config", path=path)
+    try:
+        return path, yaml.safe_load(text)
     except yaml.YAMLError as err:
         raise InputError(f"malformed YAML ({err})", path=path) from err
 

@@ -259,14 +259,18 @@ def pose_refinement(
     config: Any, dataset: Any, model: Any, device: Any, targets: Any
 ) -> PoseRefinement | None:
     """The run's :class:`PoseRefinement`, or None when refinement is off (``config.poses.refine``; None: on
-    for an imported dataset). Every image target (``targets``) must know its spike step; where one does not,
+    for an imported dataset). Every image target (``targets``; None for spike-integral, whose windows are
+    stream steps) must know its spike step; where one does not,
     asking for refinement is an InputError and the imported-dataset default simply stays off."""
     cfg: PoseRefineConfig = config.poses
     cfg.check()
     auto = is_imported(dataset) and config.method != "nerf-bad"  # nerf-bad learns its own exposure poses
     if not (auto if cfg.refine is None else cfg.refine):
         return None
-    steps = targets.steps if targets.pose_steps is None else targets.pose_steps
+    if targets is None:  # spike-integral: its windows are stream steps, always placed
+        steps = torch.zeros(1, dtype=torch.int64)
+    else:
+        steps = targets.steps if targets.pose_steps is None else targets.pose_steps
     unplaced = bool((steps < 0).any())
     if unplaced and cfg.refine is None:
         return None
