@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError, comma_list
 from spikenerf.pipelines.variants import VARIANTS
 
@@ -29,7 +30,7 @@ PARAM_FLAGS = {"field_kind": "--field"}
     "--device", type=click.Choice(["auto", "cpu", "cuda", "mps"]), default="auto", show_default=True,
     help="Where cells train.",
 )  # fmt: skip
-@click.option("--seed", type=int, default=0, show_default=True, help="Dataset (simulation) seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Dataset (simulation) seed.")
 @click.option(
     "--seeds",
     help="Training seeds, comma-separated (e.g. 0,1,2): every cell is trained once per seed; tables show "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -76,6 +77,6 @@ def command(
         click.echo(describe(path))
         return
     height, width, raw_width = dat_frame_size(path, height, width, raw_width)
-    if fps <= 0:
-        raise InputError(f"--fps must be positive, found {fps}")
+    if not 0 < fps < math.inf:
+        raise InputError(f"--fps must be a finite number > 0, found {fps}")
     click.echo("\n".join(describe_dat(path, height, width, layout, raw_width, fps)))

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError, comma_list
 
 
@@ -85,7 +86,7 @@ from spikenerf.core.errors import InputError, comma_list
     show_default=True,
     help="Draws per --scene / --sequence source.",
 )
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 def command(
     out: Path,
     train_draws: int,

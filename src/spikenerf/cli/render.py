@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.cli.types import SEED
 from spikenerf.render.inference import PRECISIONS
 
 
@@ -23,7 +24,9 @@ from spikenerf.render.inference import PRECISIONS
     "--spike-steps", type=int,
     help="Spike steps along the orbit [default: the dataset's]; test/FILE: one step per pose.",
 )  # fmt: skip
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the spike accumulators' start.")
+@click.option(
+    "--seed", type=SEED, default=0, show_default=True, help="Seed of the spike accumulators' start."
+)
 @click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda.")
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
 @click.option(

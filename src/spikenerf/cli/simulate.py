@@ -9,6 +9,7 @@ from typing import Any
 import click
 
 from spikenerf.cli import command_line
+from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError
 
 DEFAULT_SIZE = 200
@@ -67,7 +68,7 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 @click.option("--color", type=click.Choice([*CAMERA_COLORS, "all"]), default="gray", show_default=True)
 @click.option("--threshold", type=float, default=1.0, show_default=True, help="Spike threshold φ.")
 @click.option("--noise", type=click.Choice(["ideal", "realistic"]), default="ideal", show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True, help="Camera (and render) seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Camera (and render) seed.")
 @click.option(
     "--warmup", type=int, default=0, show_default=True, help="Camera warm-up steps on the first frame."
 )

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.cli.types import COUNT, SEED
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, METHODS, RECONS
 from spikenerf.train.amp import AMP_MODES
@@ -97,7 +98,7 @@ PARAM_FLAGS = {
 )
 @click.option("--color", type=click.Choice(COLORS), default=_D.color, show_default=True)
 @click.option("--field", type=click.Choice(FIELDS), default=_D.field, show_default=True)
-@click.option("--iters", type=int, default=_D.iters, show_default=True, help="Optimiser steps.")
+@click.option("--iters", type=COUNT, default=_D.iters, show_default=True, help="Optimiser steps.")
 @click.option(
     "--batch",
     type=int,
@@ -107,7 +108,7 @@ PARAM_FLAGS = {
     "(H100: 23 ms at 4096, 25 ms at 16384), so raise it there.",
 )
 @click.option("--lr", type=float, default=None, help="Base learning rate (default: the field's own).")
-@click.option("--seed", type=int, default=_D.seed, show_default=True)
+@click.option("--seed", type=SEED, default=_D.seed, show_default=True)
 @click.option("--device", default=_D.device, show_default=True, help="auto | cpu | cuda | mps (Apple GPUs)")
 @click.option("--recon", type=click.Choice(RECONS), default=_D.targets.recon, show_default=True)
 @click.option("--window", type=int, default=_D.targets.window, show_default=True, help="TFP window (odd).")

@@ -18,6 +18,8 @@ from spikenerf.core.errors import InputError
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}  # colour type -> samples per pixel (palette never has 16 bits)
+#: the most bytes a 16-bit PNG may inflate to (a 12000 × 12000 RGB image), checked on its header
+MAX_PNG_BYTES = 1 << 30
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
@@ -57,12 +59,23 @@ def decode_png16(data: bytes, path: Path) -> np.ndarray:
     if interlace:
         raise InputError("interlaced 16-bit PNGs are not supported: save it without interlacing", path=path)
     c = _PNG_CHANNELS[ctype]
+    expected = h * (1 + w * 2 * c)
+    if expected > MAX_PNG_BYTES:  # checked on the header, before anything is inflated
+        raise InputError(
+            f"a {w}×{h} 16-bit PNG inflates to {expected} bytes, over the {MAX_PNG_BYTES}-byte limit "
+            "(a decompression bomb, or an image far too large)",
+            path=path,
+        )
     try:
-        raw = np.frombuffer(zlib.decompress(payload), dtype=np.uint8)
+        inflater = zlib.decompressobj()
+        raw = inflater.decompress(payload, expected)  # never more than the header allows
+        if inflater.unconsumed_tail and inflater.decompress(inflater.unconsumed_tail, 1):
+            raise InputError(f"PNG holds more data than its {w}×{h} header allows", path=path)
     except zlib.error as err:
         raise InputError(f"corrupt PNG data ({err})", path=path) from err
-    if raw.size != h * (1 + w * 2 * c):
-        raise InputError(f"PNG data has {raw.size} bytes, expected {h * (1 + w * 2 * c)}", path=path)
+    raw = np.frombuffer(raw, dtype=np.uint8)
+    if raw.size != expected:
+        raise InputError(f"PNG data has {raw.size} bytes, expected {expected}", path=path)
     rows = raw.reshape(h, 1 + w * 2 * c)
     filters, samples = rows[:, :1], rows[:, 1:].reshape(h, w, c, 2)
     halves = []

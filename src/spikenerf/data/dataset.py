@@ -173,6 +173,11 @@ def _pose(obj: dict, path: Path, where: str) -> np.ndarray:
         raise InputError(
             f"field {where}'transform_matrix': expected a finite 4×4 matrix, found {found}", path
         )
+    det = float(np.linalg.det(m[:3, :3]))
+    if abs(det - 1) > 1e-2:  # all zeros, a scaled or mirrored camera: no rotation
+        raise InputError(
+            f"field {where}'transform_matrix': its rotation has determinant {det:.3g}, expected 1", path
+        )
     return m
 
 
@@ -312,6 +317,8 @@ def load_dataset(root: str | Path) -> SpikeDataset:
         where = f"frames[{i}]."
         poses.append(_pose(f, tpath, where))
         times.append(_number(f, "time", tpath, where))
+        if len(times) > 1 and not times[-1] > times[-2]:
+            raise InputError(f"field {where}'time': expected increasing times, found {times[-1]}", tpath)
         step = _number(f, "step", tpath, where)
         if step != int(step) or (steps and step <= steps[-1]):
             raise InputError(f"field {where}'step': expected increasing integers, found {step}", path=tpath)

@@ -226,9 +226,9 @@ def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
         values = [float(v) for v in spec.split(",")]
     except ValueError:
         values = []
-    if not 2 <= len(values) <= 4 or values[0] <= 0:
+    if not 2 <= len(values) <= 4 or not all(map(math.isfinite, values)) or values[0] <= 0:
         raise InputError(
-            f"orbit: expected RADIUS,ELEVATION[,TURNS[,AZIMUTH]] with RADIUS > 0, found {spec!r}",
+            f"orbit: expected finite RADIUS,ELEVATION[,TURNS[,AZIMUTH]] with RADIUS > 0, found {spec!r}",
             param="orbit",
         )
     turns = values[2] if len(values) > 2 else 1.0

@@ -56,7 +56,7 @@ def _reading(path: Path) -> Iterator[None]:
         raise
     except FileNotFoundError as err:
         raise InputError("image file not found", path=path) from err
-    except (OSError, ValueError, SyntaxError) as err:
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as err:
         raise InputError(f"cannot read image ({err})", path=path) from err
 
 

@@ -65,7 +65,63 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise InputError(f"unreadable checkpoint ({type(err).__name__}: {first})", path=path) from err
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"not a spikenerf checkpoint (expected format {FORMAT!r})", path=path)
+    check_schema(data, path)
     return data
+
+
+#: the entries every checkpoint holds and their types, checked before any is used
+SCHEMA: dict[str, type | tuple[type, ...]] = {
+    "iteration": int, "elapsed": (int, float), "model": dict, "hparams": dict, "optimizer": dict,
+    "rng": dict, "config": dict,
+}  # fmt: skip
+
+
+def check_schema(data: dict[str, Any], path: str | Path) -> None:
+    """InputError naming ``path`` when a checkpoint with the right format tag misses an entry or holds one
+    of the wrong type (a damaged or hand-made file): model tensors by name, Adam's state and param groups,
+    the CPU random state."""
+
+    def bad(what: str) -> InputError:
+        return InputError(f"damaged checkpoint: {what}", path=path)
+
+    for key, kind in SCHEMA.items():
+        if key not in data:
+            raise bad(f"missing entry {key!r}")
+        if not isinstance(data[key], kind) or isinstance(data[key], bool):
+            raise bad(f"entry {key!r} is a {type(data[key]).__name__}")
+    if data["iteration"] < 0:
+        raise bad(f"iteration {data['iteration']} is negative")
+    if not all(isinstance(k, str) and torch.is_tensor(v) for k, v in data["model"].items()):
+        raise bad("entry 'model' must map names to tensors")
+    optimizer = data["optimizer"]
+    if not isinstance(optimizer.get("state"), dict) or not isinstance(optimizer.get("param_groups"), list):
+        raise bad("entry 'optimizer' lacks its 'state' and 'param_groups'")
+    if not (torch.is_tensor(data["rng"].get("torch")) and data["rng"]["torch"].dtype == torch.uint8):
+        raise bad("entry 'rng' lacks the torch random state")
+
+
+def model_of(ckpt: dict[str, Any], path: str | Path) -> Any:
+    """The model a checkpoint stores (rebuilt from its hparams, its tensors loaded); InputError naming
+    ``path`` when they do not fit (a wrong shape, an unknown entry)."""
+    from spikenerf.render import model_from_hparams
+
+    try:
+        return model_from_hparams(ckpt["hparams"], ckpt["model"])
+    except InputError:
+        raise
+    except Exception as err:  # load_state_dict: RuntimeError; a bad hparams entry: KeyError/TypeError
+        first = str(err).strip().split("\n")[0]
+        raise InputError(f"damaged checkpoint: its model does not load ({first})", path=path) from err
+
+
+def check_same_run(ckpt: dict[str, Any], config: dict[str, Any], path: str | Path) -> None:
+    """InputError when the checkpoint at ``path`` was trained with another method, field, colour or seed
+    than the run folder's ``config`` says (another run's checkpoint copied in)."""
+    stored = ckpt["config"]
+    diff = [k for k in ("method", "field", "color", "seed") if k in stored and stored[k] != config.get(k)]
+    if diff:
+        shown = ", ".join(f"{k} {stored[k]!r} (config.yaml: {config.get(k)!r})" for k in diff)
+        raise InputError(f"belongs to another run: {shown}", path=path)
 
 
 def match_state_layout(optimizer: torch.optim.Optimizer) -> None:

@@ -8,10 +8,10 @@ import torch
 
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
-from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
 from spikenerf.data.holdout import read_record
-from spikenerf.render import RadianceModel, model_from_hparams
-from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.render import RadianceModel
+from spikenerf.train.checkpoint import CHECKPOINT, check_same_run, load_checkpoint, model_of
 from spikenerf.train.config import TrainConfig, load_run_config
 from spikenerf.train.methods import make_method
 
@@ -33,7 +33,8 @@ def load_run(
     run_dir = Path(run_dir)
     config = load_run_config(run_dir / CONFIG_FILE)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)
-    model = model_from_hparams(ckpt["hparams"], ckpt["model"])
+    check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)
+    model = model_of(ckpt, run_dir / CHECKPOINT)
     model.to(resolve_device(device)).eval()
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset)
     check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
@@ -49,7 +50,34 @@ def dataset_fingerprint(dataset: SpikeDataset) -> dict:
         "steps": len(dataset.trajectory),
         "fps": float(dataset.trajectory.fps),
         "box": box,
+        "content": content_digest(dataset),
     }
+
+
+def content_digest(dataset: SpikeDataset, edge: int = 1 << 16) -> str:
+    """A digest of what a dataset holds, cheap for any size: its ``transforms.json``, its config (without
+    the recorded command line), and each spike file's size with its first and last ``edge`` bytes. A
+    dataset simulated or imported again with other settings (or another seed) differs; the same folder
+    moved does not."""
+    import hashlib
+    import json
+
+    digest = hashlib.sha256()
+    path = dataset.root / "transforms.json"
+    digest.update(path.read_bytes() if path.is_file() else b"")
+    config = {k: v for k, v in dataset.config.items() if k != "command"}  # the command names --out
+    digest.update(json.dumps(config, sort_keys=True, default=str).encode())
+    for mode in dataset.modes:
+        for name in spike_files(mode):
+            if not (dataset.root / name).is_file():
+                continue
+            with open(dataset.root / name, "rb") as fh:
+                size = fh.seek(0, 2)
+                fh.seek(0)
+                head = fh.read(edge)
+                fh.seek(max(0, size - edge))
+                digest.update(f"{name}:{size}".encode() + head + fh.read(edge))
+    return digest.hexdigest()[:16]
 
 
 def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
@@ -65,11 +93,25 @@ def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
             fits = torch.allclose(torch.tensor(value).double(), torch.tensor(have[key]).double(), atol=1e-4)
         else:
             fits = have.get(key) == value
-        if not fits:
+        if key == "content" and not fits:
+            diff.append("its files changed since the run was trained (simulated or imported again?)")
+        elif not fits:
             diff.append(f"{key} {have.get(key)} (run: {value})")
     if diff:
         raise InputError(
             f"{param}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root, param=param
+        )
+
+
+def check_resume_fits(ckpt: dict, config: TrainConfig, dataset: SpikeDataset) -> None:
+    """InputError unless a resume continues the checkpoint's run: on the dataset it was trained on (its
+    fingerprint, files included) and to at least the iterations it has done."""
+    check_dataset_fits(ckpt, dataset, "dataset")
+    done = int(ckpt["iteration"])
+    if config.iters < done:
+        raise InputError(
+            f"iters {config.iters} is below the {done} iterations this run has done; give at least {done}",
+            param="iters",
         )
 
 

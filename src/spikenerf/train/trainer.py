@@ -34,12 +34,13 @@ from spikenerf.data.recon_cache import learned_targets_in
 from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields import field_config, field_memory
 from spikenerf.fields.compiled import compile_field
-from spikenerf.render import RadianceModel, RenderOutput, build_model, model_from_hparams, ray_bounds
+from spikenerf.render import RadianceModel, RenderOutput, build_model, ray_bounds
 from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import (
     CHECKPOINT,
     load_checkpoint,
     match_state_layout,
+    model_of,
     restore_rng,
     rng_state,
     save_checkpoint,
@@ -51,7 +52,7 @@ from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
 from spikenerf.train.methods import make_method
 from spikenerf.train.pose_refine import pose_refinement
-from spikenerf.train.run import dataset_fingerprint
+from spikenerf.train.run import check_resume_fits, dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
 #: options that may change when a run is resumed (everything else must match the stored config)
@@ -199,6 +200,8 @@ class Trainer:
             config = _check_resume(*_stored_and_given(self.out / CONFIG_FILE, config), self.out / CONFIG_FILE)
         self.config = config.validate().resolved()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
+        if ckpt is not None:  # the same dataset, and not fewer iterations than already done
+            check_resume_fits(ckpt, self.config, self.dataset)
         check_train_resources(self.config, self.dataset, self.out)
         self.device = resolve_device(config.device)
         self.method = make_method(self.config)
@@ -220,7 +223,7 @@ class Trainer:
                 config.field, self.channels, self.dataset.scene_box, model_config(config)
             )
         else:
-            self.model = model_from_hparams(ckpt["hparams"], ckpt["model"])
+            self.model = model_of(ckpt, ckpt_path)
         self.model.to(self.device)
         if self.config.compile:  # eager again, with a warning, when compilation fails
             compile_field(self.model.field, warn)

@@ -1,0 +1,32 @@
+"""Click parameter types shared by the subcommands: integers bounded so that no value overflows later."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+#: the largest integer any option takes: torch and numpy hold seeds and counts in 64 bits
+INT64_MAX = 2**63 - 1
+
+
+class BoundedInt(click.ParamType):
+    """An ``INTEGER`` from ``low`` to 2⁶³ − 1: a bigger one would overflow in torch or numpy, so it is
+    refused in one line naming the flag."""
+
+    name = "integer"
+
+    def __init__(self, low: int = 0) -> None:
+        self.low = low
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> int:
+        number = click.INT.convert(value, param, ctx)
+        if not self.low <= number <= INT64_MAX:
+            self.fail(f"{number} is out of range: expected {self.low} to 2^63 - 1", param, ctx)
+        return number
+
+
+#: a seed: 0 … 2⁶³ − 1 (numpy refuses negative seeds, torch ones of 2⁶⁴ and more)
+SEED = BoundedInt(0)
+#: a count of steps or iterations: 0 … 2⁶³ − 1 (the command checks its own lower bound)
+COUNT = BoundedInt(0)
