@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import os
 import pickle
 import shutil
 import time
@@ -461,3 +462,68 @@ def test_bad_input_is_one_line_exit_2_and_harmless(
 def test_case_table_is_large_and_distinct() -> None:
     assert len({c[0] for c in CASES}) == len(CASES) >= 50
     assert len({tuple(c[1]) for c in CASES}) == len(CASES)
+
+
+# ------------------------------------------------------------------------------- round two, beyond the table
+def test_a_users_old_folder_is_never_moved_and_our_own_dataset_is_replaced(tmp_path: Path) -> None:
+    """A user's ``.NAME.old`` beside a new output stays where it is, untouched; a dataset spikenerf wrote is
+    replaced by ``--overwrite`` with nothing left beside it."""
+    out, old = tmp_path / "ds", tmp_path / ".ds.old"
+    old.mkdir()
+    (old / "mine.txt").write_text("mine\n")
+    _cli(*SIM, "--out", out)
+    assert (old / "mine.txt").read_text() == "mine\n" and not (out / "mine.txt").exists()
+    mine = tmp_path / "mine"
+    _cli(*SIM, "--out", mine)
+    before = (mine / "spikes_gray.dat").read_bytes()
+    _cli(*SIM, "--overwrite", "--threshold", "2", "--out", mine)
+    assert (mine / "spikes_gray.dat").read_bytes() != before
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".ds.old", "ds", "mine"]
+
+
+def test_render_into_a_used_folder_keeps_only_the_new_views(sandbox: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r"
+    _cli("render", sandbox / "run", "--trajectory", "orbit", "--orbit-frames", "3", "--device", "cpu",
+         "--quiet", "--out", out)  # fmt: skip
+    assert len(list((out / "images").glob("*.png"))) == 3
+    (out / ".render.json.abc.tmp").write_text("a killed render's temporary")
+    _cli("render", sandbox / "run", "--device", "cpu", "--quiet", "--out", out)  # the 1 test view
+    assert sorted(p.name for p in (out / "images").iterdir()) == ["00000.png"]
+    assert sorted(p.name for p in (out / "depth").iterdir()) == ["00000.npy", "00000.png"]
+    assert not list(out.glob("*.tmp")) and not (out / "orbit.mp4").exists()
+
+
+def test_eval_removes_a_killed_writers_temporaries(sandbox: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(sandbox / "run", run)
+    (run / ".metrics.json.abc.tmp").write_text("{")
+    (run / ".checkpoint.pt.def.tmp").write_bytes(b"\0")
+    _cli("eval", run, "--device", "cpu", "--quiet")
+    assert not list(run.glob(".*.tmp")) and (run / "metrics.json").is_file()
+
+
+def test_a_full_disk_while_checkpointing_is_one_line(
+    sandbox: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """torch.save on a full disk (here: a file-size limit, EFBIG) gives one line naming the checkpoint."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    capsys.readouterr()
+    resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, hard))  # the checkpoint is about 300 kB
+    try:
+        with pytest.raises(SystemExit) as exit_:
+            _cli("train", sandbox / "ds", *TRAIN, "--out", tmp_path / "run")
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and err.count("\n") == 0 and "Traceback" not in err, err
+    assert "checkpoint.pt" in err and "disk full" in err, err
+    assert not list((tmp_path / "run").glob(".*.tmp")) and not (tmp_path / ".run.lock").exists()
+
+
+def test_simulate_jobs_are_capped_by_cores_and_work() -> None:
+    from spikenerf.data.simulate import usable_jobs
+
+    assert usable_jobs(100000, 10**6) <= (os.cpu_count() or 1)
+    assert usable_jobs(100000, 1) == 1 and usable_jobs(1, 50) == 1

@@ -282,3 +282,39 @@ def test_benchmark_killed_in_its_second_cell_resumes_without_redoing_the_first(t
         ("train", True),
         ("eval", False),
     ]
+
+
+def test_sigterm_unwinds_like_ctrl_c(reference: Path, tmp_path: Path) -> None:
+    """SIGTERM: one line, exit 143, the lock released and no temporary left; the run then resumes."""
+    run = tmp_path / "run"
+    first = _spawn(["train", reference / "ds", *TRAIN, "--out", run], "train.iteration:3:STOP")
+    try:
+        deadline = time.monotonic() + 60
+        while not _stopped(first.pid) and time.monotonic() < deadline and first.poll() is None:
+            time.sleep(0.05)
+        assert _stopped(first.pid) and holder(run) == first.pid
+        first.send_signal(signal.SIGTERM)
+    finally:
+        first.send_signal(signal.SIGCONT)
+    _, err = first.communicate(timeout=60)
+    assert first.returncode == 143 and err.strip().splitlines()[-1] == "spikenerf: terminated", err
+    assert "Traceback" not in err and not lock_path(run).exists() and not list(run.glob(".*.tmp"))
+    _cli("train", reference / "ds", *TRAIN, "--resume", "--out", run)
+    assert _curves(run) == _curves(reference / "run")
+
+
+def test_resume_onto_a_dataset_simulated_again_is_refused(
+    reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    ds, run = tmp_path / "ds", tmp_path / "run"
+    shutil.copytree(reference / "ds", ds)
+    _cli("train", ds, *TRAIN, "--iters", "2", "--out", run)
+    _cli(*SIM, "--overwrite", "--threshold", "2", "--out", ds)  # the same folder, other spikes
+    before = (run / "checkpoint.pt").read_bytes()
+    capsys.readouterr()
+    for command in (["train", ds, *TRAIN, "--resume", "--out", run], ["eval", run, "--device", "cpu"]):
+        with pytest.raises(SystemExit) as exit_:
+            _cli(*command)
+        err = capsys.readouterr().err.strip()
+        assert exit_.value.code == 2 and err.count("\n") == 0 and "files changed" in err, err
+    assert (run / "checkpoint.pt").read_bytes() == before and not (run / "metrics.json").exists()

@@ -6,9 +6,13 @@ Each subcommand lives in ``spikenerf.cli.<name>`` as a click command named ``com
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 
 import click
 
@@ -140,11 +144,42 @@ def _fail(message: str, code: int = 2) -> None:
     sys.exit(code)
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds like Ctrl-C (locks released, temporaries removed), then exit 143."""
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """While the command runs, SIGTERM raises :class:`Terminated` in this process (a worker process it
+    forked dies as by default); the previous handler is restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pid = os.getpid()
+
+    def handler(signum: int, frame: object) -> None:
+        if os.getpid() != pid:  # a forked worker: die as the default would
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the group; bad input (InputError, a usage error, a path the system refuses,
-    an allocation that fails) → one line on stderr, exit code 2."""
+    an allocation that fails) → one line on stderr, exit code 2. Ctrl-C → "aborted", exit 130; SIGTERM →
+    "terminated", exit 143, after the same unwinding (locks released)."""
     try:
-        cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
+        with _sigterm_unwinds():
+            cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
+    except Terminated:
+        click.echo("spikenerf: terminated", err=True)
+        sys.exit(143)
     except InputError as err:
         _fail(err.shown(lambda param: flag_of(param, LazyGroup.invoked)))
     except click.exceptions.Abort:

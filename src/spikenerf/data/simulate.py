@@ -186,14 +186,25 @@ def _render_step(step: int) -> np.ndarray:
     return np.asarray(next(iter(_WORKER_SOURCE.frames([step]))))
 
 
+def usable_jobs(jobs: int, work: int) -> int:
+    """Worker processes worth starting for ``work`` items: ``jobs``, but no more than the items and the
+    CPU cores this process may use (``--jobs 100000`` starts a process per core, not per step)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(jobs, work, cores))
+
+
 def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.ndarray]:
     """The frames of ``steps`` in order: from ``jobs`` worker processes when the source allows it
     (``parallel_render``: a picklable source whose frames depend on the step alone), else in this one."""
-    if jobs <= 1 or len(steps) < 2 or not getattr(source, "parallel_render", False):
+    jobs = usable_jobs(jobs, len(steps))
+    if jobs <= 1 or not getattr(source, "parallel_render", False):
         yield from source.frames(steps)
         return
     ctx = multiprocessing.get_context("spawn")  # no fork of a process that may hold torch threads
-    with ProcessPoolExecutor(min(jobs, len(steps)), ctx, _init_render_worker, (source,)) as pool:
+    with ProcessPoolExecutor(jobs, ctx, _init_render_worker, (source,)) as pool:
         yield from pool.map(_render_step, steps, chunksize=max(1, min(8, len(steps) // (4 * jobs))))
 
 

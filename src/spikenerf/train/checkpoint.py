@@ -7,6 +7,7 @@ dict)}. It is written to a temporary sibling and moved into place with ``os.repl
 
 from __future__ import annotations
 
+import errno
 import pickle
 import warnings
 from pathlib import Path
@@ -42,7 +43,13 @@ def restore_rng(state: dict[str, Any], samplers: dict[str, Any]) -> None:
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
     """Write ``payload`` (tensors, numbers, strings, lists, tuples, dicts) atomically."""
     with atomic_path(path) as tmp:
-        torch.save({"format": FORMAT, **payload}, tmp)
+        try:
+            torch.save({"format": FORMAT, **payload}, tmp)
+        except RuntimeError as err:  # torch's writer turns a failed write (a full disk) into RuntimeError
+            first = str(err).strip().split("\n")[0]
+            raise OSError(
+                errno.EIO, f"could not write the checkpoint ({first}; disk full?)", str(path)
+            ) from err
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
