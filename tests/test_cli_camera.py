@@ -91,13 +91,13 @@ def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
     out = tmp_path / "frames"
     args = ["reconstruct", topdown, "--height", H, "--width", W, "--method", "tfp", "--layout", "topdown"]
     assert run_cli(capsys, *args, "--frames", "5:9", "--out", out)[0] == 0
-    assert sorted(p.name for p in out.iterdir()) == ["00005.png", "00006.png", "00007.png", "00008.png"]
+    frames = ["00005.png", "00006.png", "00007.png", "00008.png"]
+    assert sorted(p.name for p in out.iterdir()) == [".spikenerf", *frames]
     expect = np.round(srgb_encode(tfp(spikes, 41)[8].astype(np.float64)) * 255).astype(np.uint8)
     np.testing.assert_array_equal(iio.imread(out / "00008.png"), expect)
-    assert (
-        run_cli(capsys, *args, "--frames", "0:2", "--out", out)[0] == 0
-    )  # a previous frame folder is replaced
-    assert sorted(p.name for p in out.iterdir()) == ["00000.png", "00001.png"]
+    (out / "notes.txt").write_text("mine")  # the frames it wrote before are replaced; the user's file stays
+    assert run_cli(capsys, *args, "--frames", "0:2", "--out", out)[0] == 0
+    assert sorted(p.name for p in out.iterdir()) == [".spikenerf", "00000.png", "00001.png", "notes.txt"]
 
 
 @pytest.mark.parametrize(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -492,19 +493,24 @@ def test_near_far_from_points_memory_is_bounded() -> None:
 
 def test_one_lock_per_folder_and_a_killed_swap_is_finished(capsys, recording, tmp_path) -> None:
     from spikenerf.core.lock import lock_path
+    from spikenerf.core.marker import retire
 
     (tmp_path / "d").mkdir()
     assert lock_path(tmp_path / "d" / ".." / "ds") == lock_path(tmp_path / "ds")
     rec, _ = recording
     code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
     assert code == 0, err
-    (tmp_path / "ds").rename(tmp_path / ".ds.old")  # killed between the two renames of --overwrite
+    retire(tmp_path / "ds")  # killed between the two renames of --overwrite: swapped out, marked retired
     code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT)
     assert code == 2 and "--overwrite" in err  # the earlier dataset is back, so it is not replaced silently
     assert load_dataset(tmp_path / "ds") and not (tmp_path / ".ds.old").exists()
-    (tmp_path / ".ds.old").mkdir()  # a leftover beside an existing dataset: deleted
+    retire(tmp_path / "ds")
+    shutil.copytree(tmp_path / ".ds.old", tmp_path / "ds")  # a retired leftover beside a dataset: deleted
     code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, "--overwrite")
     assert code == 0 and not (tmp_path / ".ds.old").exists(), err
+    (tmp_path / ".ds.old").mkdir()  # the user's own .ds.old: never deleted, so the replacement is refused
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, "--overwrite")
+    assert code == 2 and ".ds.old" in err and (tmp_path / ".ds.old").is_dir(), err
 
 
 def test_a_pycolmap_failure_is_one_input_error(tmp_path, monkeypatch) -> None:

@@ -280,8 +280,12 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path: Path, capsys) -> None:
         capsys, ["simulate", "--scene", "analytic-orbs", "--out", str(out), *ARGS]
     )
     assert (out / "marker").exists()  # refused: nothing touched
+    assert "did not write (marker)" in _fails(  # a file the user added: --overwrite would delete it
+        capsys, ["simulate", "--scene", "analytic-orbs", "--overwrite", "--out", str(out), *ARGS]
+    )
+    (out / "marker").unlink()
     _simulate(out, "--overwrite", "--frames", "20")
-    assert not (out / "marker").exists() and load_dataset(out).config["steps"] == 20
+    assert load_dataset(out).config["steps"] == 20
     bad = tmp_path / "bad.json"
     bad.write_text('{"frames": [')
     err = _fails(

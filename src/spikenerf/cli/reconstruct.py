@@ -67,8 +67,9 @@ def output_kind(out: Path) -> str:
 
 
 def check_out_dir(out: Path) -> None:
-    """A folder output writes only its own frame PNGs (never deleting others): ``out`` must be absent, empty,
-    or a frame folder spikenerf wrote (its ``.spikenerf`` marker); a link is followed."""
+    """A folder output writes only its own frame PNGs, replacing those it wrote there before and no other
+    file: ``out`` must be absent, empty, or a frame folder spikenerf wrote (its ``.spikenerf`` marker lists
+    its frames); a link is followed."""
     from spikenerf.core.marker import check_output
 
     check_output(out, "frames", overwrite=True)
@@ -187,11 +188,15 @@ def command(
                 dest.flush()
                 del dest
         else:
-            from spikenerf.core.marker import mark
+            from spikenerf.core.marker import listed, mark
 
+            previous, names = set(listed(out)), [f"{i:05d}.png" for i in frames]
             for block, image in images():
-                mark(out, "frames")  # once the first frames are made: nothing is created before
+                mark(out, "frames", [*previous | set(names)])  # once frames are made: nothing before
                 for index, frame_image in zip(block, image, strict=True):
                     write_bytes_atomic(out / f"{index:05d}.png", to_png_bytes(frame_image, encoding))
                     bar.update(1)
+            for name in previous - set(names):  # frames this command wrote before: replaced, no others
+                (out / name).unlink(missing_ok=True)
+            mark(out, "frames", names)
     click.echo(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''}, {method})")

@@ -42,15 +42,21 @@ def _inventory(folder: Path) -> list[str]:
     return sorted(f for f in found if f != MARKER)
 
 
-def mark(folder: str | Path, kind: str, files: bool = False) -> None:
+def mark(folder: str | Path, kind: str, files: bool | list[str] = False) -> None:
     """Write the marker of ``kind`` into ``folder`` (created if needed); ``files``: also list every file in
-    it (a finished folder that may later be replaced whole)."""
+    it (True: a finished folder that may later be replaced whole) or these (the files a command wrote)."""
     if kind not in KINDS:
         raise ValueError(f"unknown folder kind {kind!r}")
     entry: dict = {"kind": kind}
-    if files:
-        entry["files"] = _inventory(Path(folder))
+    if files is not False:
+        entry["files"] = _inventory(Path(folder)) if files is True else sorted(files)
     write_text_atomic(Path(folder) / MARKER, json.dumps(entry) + "\n")
+
+
+def listed(folder: str | Path) -> list[str]:
+    """The files ``folder``'s marker lists as spikenerf's ([] when none)."""
+    files = _marker(Path(folder)).get("files")
+    return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
 
 
 def _marker(folder: Path) -> dict:
