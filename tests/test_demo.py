@@ -54,7 +54,7 @@ def test_quick_demo_runs_end_to_end(demo: tuple[Path, str]) -> None:
     for method in ("spike-nerf", "nerf-blur"):
         run = out / "runs" / "analytic-orbs" / "gray" / method
         assert (run / "metrics.json").is_file() and (run / "render" / "images" / "00000.png").is_file()
-    assert "| Spike-NeRF (ours) |" in stdout and "| NeRF on 400 fps blur |" in stdout
+    assert "| Spike-NeRF (paper) |" in stdout and "| NeRF on 400 fps blur |" in stdout
     assert f"report: {(out / 'report.html').resolve()}" in stdout and "s CPU" in stdout
     cells = json.loads((out / "results.json").read_text())["cells"]
     assert len(cells) == 2 and all(c["lpips"] is None for c in cells)  # 16 px: below LPIPS' minimum

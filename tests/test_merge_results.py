@@ -36,8 +36,8 @@ def test_two_seeds_from_two_folders_give_error_bars_and_a_verdict(
 ) -> None:
     out = _main(monkeypatch, capsys, _results(tmp_path / "0.json", 0), _results(tmp_path / "1.json", 1))
     assert "8 cells from 2 folders; Mean ± sample standard deviation over 2 training seeds (0, 1)." in out
-    assert "| Spike-NeRF (ours) | 9 poses |" in out
-    row = next(line for line in out.splitlines() if line.startswith("| Spike-NeRF (ours) − NeRF + TFP"))
+    assert "| Spike-NeRF (paper) | 9 poses |" in out
+    row = next(line for line in out.splitlines() if line.startswith("| Spike-NeRF (paper) − NeRF + TFP"))
     assert "| gray | PSNR ↑ | 4 | +1.05 ± 0.06 |" in row and row.endswith("**shown** |")
     one = _main(monkeypatch, capsys, tmp_path / "0.json")
     assert "One training seed (0)" in one and "not shown (one seed)" in one

@@ -66,7 +66,7 @@ def test_table1_marks_best_and_second_and_dashes() -> None:
     page = table1_html(cells, ["nerf-gt", "nerf-blur", "spike-nerf", "nerf-recon"], ["s"], "gray")
     rows = {r.split("</td>")[0]: r for r in page.split("<tr><td>")[1:]}
     assert '<td class="n best">30.00</td>' in rows["NeRF on sharp GT (oracle)"]
-    assert '<td class="n second">25.00</td>' in rows["Spike-NeRF (ours)"]
+    assert '<td class="n second">25.00</td>' in rows["Spike-NeRF (paper)"]
     assert '<td class="n ">20.00</td>' in rows["NeRF on 400 fps blur"]
     assert rows["NeRF + TFP reconstruction"].count("–") == 4  # missing scene and average, SSIM and PSNR
     rgb = table1_html(cells, ["nerf-gt"], ["s"], "rgb")  # no rgb cells: dashes, never a mark
@@ -102,9 +102,9 @@ def test_report_has_every_section_and_only_inline_png(report: str, bench: Benchm
 
 
 def test_report_notes_missing_pieces(report: str) -> None:
-    assert "Spike-NeRF (ours): no result (the cell has not finished)" in report
+    assert "Spike-NeRF (paper): no result (the cell has not finished)" in report
     assert "LPIPS – (images 20×20 are smaller than LPIPS-alex" in report
-    assert "– no rendered test view for: Spike-NeRF (ours)." in report
+    assert "– no rendered test view for: Spike-NeRF (paper)." in report
     assert "figure not available" not in report
     assert "spikenerf render " in report and "spikenerf simulate --scene analytic-orbs" in report
     assert "spikenerf reconstruct " in report and "--method tfp --window 41" in report

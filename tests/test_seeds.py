@@ -76,7 +76,7 @@ def test_differences_known_interval_and_verdicts() -> None:
     assert scenes_only.low is not None and scenes_only.low > 0  # the interval excludes 0 across scenes …
     assert scenes_only.verdict == "not shown (one seed)"  # … but seed noise is not in it
     md = to_markdown(differences_table([psnr, tight["psnr"], wide]))
-    row = "| Spike-NeRF (ours) − NeRF + TFP reconstruction | gray | PSNR ↑ | 4 |"
+    row = "| Spike-NeRF (paper) − NeRF + TFP reconstruction | gray | PSNR ↑ | 4 |"
     assert f"{row} +1.03 ± 0.17 | [+0.75, +1.30] | [-0.56, +2.61] | not shown |" in md
     assert f"{row} +1.10 ± 0.12 | [+0.91, +1.29] | [+1.07, +1.13] | **shown** |" in md
     assert "**shown**" in md and md.rstrip().endswith("| not shown |")
@@ -92,7 +92,7 @@ def test_tables_show_mean_and_std_over_seeds() -> None:
     avg = summarize([(21.0 + 21.8) / 2, (22.2 + 23.1) / 2])  # per seed, the mean over scenes
     assert s1 is not None and avg is not None
     assert f"**{s1.mean:.2f} ± {s1.std:.2f}**" in row and f"**{avg.mean:.2f} ± {avg.std:.2f}**" in row
-    assert row.startswith("| Spike-NeRF (ours) | 40 poses |") and "| method | trained on |" in md
+    assert row.startswith("| Spike-NeRF (paper) | 40 poses |") and "| method | trained on |" in md
     table2_markdown(cells, "gray")  # ablation rows missing: dashes, no error
     one = [c for c in cells if c.seed == 0]
     assert "±" not in table1_markdown(one, ["spike-nerf"], ["s1", "s2"], "gray")
@@ -131,7 +131,7 @@ def test_tiny_two_seed_benchmark(tmp_path: Path) -> None:
     assert "analytic-orbs/gray/spike-nerf/seed1" in results["commands"]["cells"]
     table = (cfg.out / "table1.md").read_text()
     assert "±" in table and "| NeRF on 400 fps blur | 40 blur views |" in table
-    assert "Spike-NeRF (ours) − NeRF on 400 fps blur" in (cfg.out / "differences.md").read_text()
+    assert "Spike-NeRF (paper) − NeRF on 400 fps blur" in (cfg.out / "differences.md").read_text()
     page = (cfg.out / "report.html").read_text()
     assert "id='differences'" in page and "trained on" in page and "± " in page
     assert run_benchmark(cfg) == cells  # every seed's cell is reused on resume

@@ -31,5 +31,5 @@ def test_table2_missing_lpips_shows_dash() -> None:
         for v, p in [("spike-nerf", 29.0), ("spike-nerf-no-mask", 28.0), ("spike-nerf-no-spike-loss", 28.5)]
     ]
     md = table2_markdown(cells, "rgb")
-    assert "| Spike-NeRF (ours) | **0.900** | **29.00** | – |" in md
+    assert "| Spike-NeRF (paper) | **0.900** | **29.00** | – |" in md
     assert cells_csv(cells).splitlines()[0].startswith("scene,variant,color,psnr")

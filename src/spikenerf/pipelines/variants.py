@@ -53,7 +53,7 @@ VARIANTS: dict[str, Variant] = {
         "nerf-bad", "BAD-NeRF-like: deblur NeRF that learns each exposure's start and end pose"
     ),
     "nerf-recon": Variant("nerf-recon", "NeRF + TFP reconstruction", PAPER_TARGETS),
-    "spike-nerf": Variant("spike-nerf", "Spike-NeRF (ours)", PAPER_TARGETS),
+    "spike-nerf": Variant("spike-nerf", "Spike-NeRF (paper)", PAPER_TARGETS),
     "nerf-recon-learned": Variant(
         "nerf-recon", "NeRF + learned reconstruction (Spk2ImgNet+NeRF)", (("targets.recon", "learned"),)
     ),
