@@ -47,8 +47,9 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ds, run = root / "ds", root / "run"
     _cli("simulate", "--scene", "analytic-orbs", "--width", SIZE, "--height", SIZE, "--frames", 100,
          "--test-views", 3, "--out", ds)  # fmt: skip
-    _cli("train", ds, "--iters", 5, "--batch", 256, "--eval-every", 0, "--eval-views", 1, "--spike-warmup", 2,
-         "--spike-window", 4, "--spike-pixels", 8, "--device", "cpu", "--quiet", "--out", run)  # fmt: skip
+    _cli("train", ds, "--method", "spike-nerf", "--iters", 5, "--batch", 256, "--eval-every", 0,
+         "--eval-views", 1, "--spike-warmup", 2, "--spike-window", 4, "--spike-pixels", 8, "--device", "cpu",
+         "--quiet", "--out", run)  # fmt: skip
     return run
 
 

@@ -140,7 +140,8 @@ def test_default_simulated_run_writes_no_record(dataset_dir: Path, tmp_path: Pat
 @pytest.mark.parametrize(
     ("args", "what"),
     [
-        (["--holdout-radius", 30], "image target"),
+        (["--holdout-radius", 30, "--method", "spike-nerf"], "image target"),
+        (["--holdout-radius", 30], "11-step window"),  # spike-integral, train's default
         (["--holdout-radius", 12, "--holdout-steps", 2, "--method", "spike-nerf", "--spike-window", 30],
          "30-step spike window"),
     ],
@@ -165,7 +166,8 @@ def test_a_negative_radius_exits_2(dataset_dir: Path, tmp_path: Path, capsys) ->
 def test_the_trainer_samples_only_outside_the_bands(dataset_dir: Path, tmp_path: Path) -> None:
     from spikenerf.train.trainer import Trainer
 
-    cfg = TrainConfig(dataset=str(dataset_dir), device="cpu", holdout=True, holdout_steps=2, holdout_radius=3)
+    cfg = TrainConfig(dataset=str(dataset_dir), device="cpu", holdout=True, holdout_steps=2, holdout_radius=3,
+                      method="spike-nerf")  # fmt: skip
     cfg.spike.window = 4
     trainer = Trainer(cfg, tmp_path / "run", progress=False)
     band = set(range(17, 24)) | set(range(36, 43))
@@ -175,6 +177,14 @@ def test_the_trainer_samples_only_outside_the_bands(dataset_dir: Path, tmp_path:
     for _ in range(100):
         start = windows.sample(1)[0]
         assert not set(range(start, start + 4)) & band, start
+    # spike-integral: no window of counts, and no step it renders, reaches into a band
+    cfg = dataclasses.replace(cfg, method="spike-integral")
+    cfg.integral.lengths = [3, 5]
+    integral = Trainer(cfg, tmp_path / "integral", progress=False).samplers["windows"]
+    start, end, _, steps = integral.sample(4096)
+    for a, b in zip(start.tolist(), end.tolist(), strict=True):
+        assert not set(range(a, b)) & band, (a, b)
+    assert not set(steps.reshape(-1).tolist()) & band
 
 
 def test_a_run_from_before_the_hold_out_resumes_without_one(dataset_dir: Path, tmp_path: Path) -> None:
