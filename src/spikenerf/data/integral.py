@@ -1,7 +1,7 @@
 """Spike-count targets over arbitrary windows, and unbiased per-step pose samples inside them.
 
 A spike camera pixel that fired ``N`` times over the steps ``a … b − 1`` saw a mean intensity (over those
-``L = b − a`` steps, each at its own pose) within ``φ(N ± 1)/L`` (docs/method.md, *Spike-integral*). So
+``L = b − a`` steps, each at its own pose) within ``φ(N ± 1)/L`` (docs/spike-integral.md). So
 the prefix counts ``C_t = Σ_{k<t} s_k`` of the stream are targets for *every* window at once: the window
 ``[a, b)`` has the mean ``φ (C_b − C_a) / L``. :class:`CountTargets` holds them; :func:`window_bounds`
 places windows of the chosen lengths around random steps, and :func:`stratified_steps` draws S steps of a

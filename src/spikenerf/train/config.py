@@ -69,7 +69,7 @@ class TargetConfig:
 @dataclass
 class IntegralConfig:
     """spike-integral: each target is a window's spike-count mean ``φ N / L``, compared with the mean of
-    renders at steps drawn inside the window at their own poses (docs/method.md, *Spike-integral*).
+    renders at steps drawn inside the window at their own poses (docs/spike-integral.md).
 
     Attributes:
         lengths: window lengths L in steps; each target draws one uniformly.

@@ -50,7 +50,7 @@ def window_mean_loss(
     expectation is the squared bias plus the estimate's variance: the variance term pulls the renders inside
     a window together (a blur along the motion). With G ≥ 2 it is the U-statistic
     ``mean_{i≠j} (m_i − t)(m_j − t)``, an unbiased estimate of ``(E m − t)²`` with no variance term, so
-    its gradient is unbiased for the exact forward model's (docs/method.md, *Spike-integral*).
+    its gradient is unbiased for the exact forward model's (docs/spike-integral.md).
 
     Args:
         means: (B, G, C) linear window-mean estimates. target: (B, C) ``φ N / L`` of each window.

@@ -15,6 +15,7 @@ nerf-blur-aware    blur views at ``blur_samples`` exposure poses   recon (exposu
 nerf-bad           blur views at learned exposure start/end poses  recon (exposure-averaged), reg
 nerf-recon         Î_k at every step (``stream_targets``)          recon, reg
 spike-nerf         M_k ⊙ Î_k at every step + the recorded stream   recon, reg, λ(it) · spike
+spike-integral     spike counts of L-step windows (``integral``)   recon (S steps per window), reg
 =================  ==============================================  ==================================
 
 With ``targets.window_poses`` S > 1 (the default for TFP targets: 4), nerf-recon and spike-nerf render each
@@ -365,7 +366,7 @@ class SpikeNeRF(NerfRecon):
 class SpikeIntegral(TrainMethod):
     """Spike-integral (ours, not in the paper): every target is a window's spike-count mean ``φ N / L``, read
     from the stream's prefix counts for any window, and compared with the mean of renders at steps drawn
-    inside that window, each at its own pose (``integral`` config; docs/method.md, *Spike-integral*). No
+    inside that window, each at its own pose (``integral`` config; docs/spike-integral.md). No
     reconstruction and no mask: a window without spikes has target 0."""
 
     name, uses_stream = "spike-integral", True
