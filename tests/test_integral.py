@@ -19,7 +19,6 @@ from spikenerf.data.integral import (
     WindowTargetSampler,
     count_targets,
     stratified_steps,
-    window_bounds,
 )
 from spikenerf.train.losses import window_mean_loss
 from spikenerf.train.trainer import Trainer
@@ -57,11 +56,6 @@ def test_count_targets_refuse_poses_of_another_length() -> None:
     spikes, _ = _stream()
     with pytest.raises(InputError, match="poses"):
         count_targets(spikes, np.zeros((5, 4, 4), np.float32), 1.0)
-
-
-def test_window_bounds_shift_inside_the_stream() -> None:
-    start, end = window_bounds(torch.tensor([0, 50, 99]), torch.tensor([11, 11, 11]), 100)
-    assert start.tolist() == [0, 45, 89] and (end - start).tolist() == [11, 11, 11]
 
 
 def test_stratified_steps_cover_each_window_uniformly() -> None:

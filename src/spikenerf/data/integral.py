@@ -1,12 +1,12 @@
 """Spike-count targets over arbitrary windows, and unbiased per-step pose samples inside them.
 
 A spike camera pixel that fired ``N`` times over the steps ``a … b − 1`` saw a mean intensity (over those
-``L = b − a`` steps, each at its own pose) within ``φ(N ± 1)/L`` (docs/spike-integral.md). So
-the prefix counts ``C_t = Σ_{k<t} s_k`` of the stream are targets for *every* window at once: the window
-``[a, b)`` has the mean ``φ (C_b − C_a) / L``. :class:`CountTargets` holds them; :func:`window_bounds`
-places windows of the chosen lengths around random steps, and :func:`stratified_steps` draws S steps of a
-window (one uniform step in each of S equal parts), whose mean render is an unbiased estimate of the
-window's mean render.
+``L = b − a`` steps, each at its own pose) between ``φ(N − 1)/L`` and ``φ(N + 1)/L``
+(docs/spike-integral.md). So the prefix counts ``C_t = Σ_{k<t} s_k`` of the stream are targets for *every*
+window at once: the window ``[a, b)`` has the mean ``φ (C_b − C_a) / L``. :class:`CountTargets` holds
+them; :class:`WindowTargetSampler` draws windows of the chosen lengths inside the stream (or outside its
+held-out bands), and :func:`stratified_steps` draws S steps of a window (one uniform step in each of S
+equal parts), whose mean render is an unbiased estimate of the window's mean render.
 """
 
 from __future__ import annotations
@@ -74,20 +74,6 @@ def count_targets(stream: np.ndarray, poses: np.ndarray, threshold: float) -> Co
         running += torch.as_tensor(np.asarray(spikes[t], dtype=np.uint8))
         counts[t + 1] = running.to(dtype)
     return CountTargets(counts, torch.as_tensor(np.asarray(poses), dtype=torch.float32), float(threshold))
-
-
-def window_bounds(centre: Tensor, length: Tensor, steps: int) -> tuple[Tensor, Tensor]:
-    """Windows of ``length`` steps around ``centre``, shifted (not cut) to lie inside ``0 … steps − 1``.
-
-    Args:
-        centre: (B,) int64 steps. length: (B,) int64 window lengths, each in ``1 … steps``.
-        steps: T.
-    Returns:
-        start, end: (B,) int64 with ``end − start = length``.
-    """
-    start = (centre - length // 2).clamp(min=0)
-    start = torch.minimum(start, steps - length)
-    return start, start + length
 
 
 def stratified_steps(start: Tensor, end: Tensor, samples: int, generator: torch.Generator) -> Tensor:
