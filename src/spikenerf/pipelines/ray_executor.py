@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from tqdm import tqdm
 
@@ -35,8 +35,17 @@ from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.steps import run_step
 
-if TYPE_CHECKING:
-    from spikenerf.pipelines.benchmark import BenchmarkConfig
+
+class BenchmarkConfig(Protocol):
+    """What the Ray executor reads of the benchmark's settings (``pipelines.benchmark.BenchmarkConfig``)."""
+
+    out: Path
+    address: str | None
+    device: str
+    ray_cpus: float
+    retries: int
+    ship_results: bool
+
 
 INSTALL_HINT = "executor ray needs Ray: pip install 'spikenerf[cluster]'"
 #: shipped files whose paths are rewritten between a worker's scratch root and the benchmark folder

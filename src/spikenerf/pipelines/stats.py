@@ -13,12 +13,23 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from spikenerf.pipelines.variants import COMPARISONS
 
-if TYPE_CHECKING:
-    from spikenerf.pipelines.tables import Cell
+
+@dataclass(frozen=True)
+class Cell:
+    """One finished (scene, method variant, colour, seed) run and its mean test metrics (None = n/a)."""
+
+    scene: str
+    variant: str
+    color: str
+    psnr: float
+    ssim: float
+    lpips: float | None = None
+    seconds: float | None = None
+    seed: int = 0
+
 
 #: metric name -> True when higher is better
 HIGHER_IS_BETTER = {"ssim": True, "psnr": True, "lpips": False}

@@ -12,26 +12,12 @@ import io
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
-from spikenerf.pipelines.stats import HIGHER_IS_BETTER, Difference, Stat, summarize
+from spikenerf.pipelines.stats import HIGHER_IS_BETTER, Cell, Difference, Stat, summarize
 from spikenerf.pipelines.variants import ABLATION_VARIANTS, label
 
 __all__ = ["HIGHER_IS_BETTER", "Cell", "Table"]
 
 TRAINED_ON = "trained on"
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One finished (scene, method variant, colour, seed) run and its mean test metrics (None = n/a)."""
-
-    scene: str
-    variant: str
-    color: str
-    psnr: float
-    ssim: float
-    lpips: float | None = None
-    seconds: float | None = None
-    seed: int = 0
 
 
 @dataclass(frozen=True)
