@@ -79,7 +79,18 @@ def iter_window_counts(
         yield j, acc, hi - lo
 
 
-def tfp(spikes: Array, window: int = 41, threshold: float = 1.0, frames: slice | int | None = None) -> Array:
+#: the TFP window in frames (odd) that every default in spikenerf uses: targets, previews, videos, figures
+DEFAULT_WINDOW = 41
+
+
+def fitting_window(steps: int, window: int = DEFAULT_WINDOW) -> int:
+    """The largest odd TFP window of at most ``window`` frames that a ``steps``-step stream holds."""
+    return min(window, steps if steps % 2 else steps - 1)
+
+
+def tfp(
+    spikes: Array, window: int = DEFAULT_WINDOW, threshold: float = 1.0, frames: slice | int | None = None
+) -> Array:
     """Texture from playback: ``Î_k = φ · (spikes in the window around k) / (frames in the window)``.
 
     The window is ``K = 2h+1`` frames centred on k, clipped to the stream; the count is divided by the
@@ -206,7 +217,7 @@ def reconstruct_frames(
     start: int,
     stop: int,
     method: str = "tfp",
-    window: int = 41,
+    window: int = DEFAULT_WINDOW,
     threshold: float = 1.0,
 ) -> np.ndarray:
     """Reconstruct frames ``start:stop`` of a long stream, reading only the frames the result depends on.

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError, comma_list
 
@@ -36,7 +37,9 @@ from spikenerf.core.errors import InputError, comma_list
     help="Random draws for the held-out val split.",
 )
 @click.option("--size", type=click.IntRange(min=16), default=64, show_default=True, help="Sample side P.")
-@click.option("--window", type=int, default=41, show_default=True, help="K, steps per spike window (odd).")
+@click.option(
+    "--window", type=int, default=DEFAULT_WINDOW, show_default=True, help="K, steps per spike window (odd)."
+)
 @click.option(
     "--color",
     "modes",

@@ -16,11 +16,11 @@ from pathlib import Path
 import click
 import numpy as np
 
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import RECONS
 
-DEFAULT_WINDOW = 41
 #: output frames reconstructed per block (bounds memory; one progress-bar step)
 BLOCK_FRAMES = 128
 

@@ -12,7 +12,7 @@ import yaml
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.model import COLORS as MODES
-from spikenerf.camera.reconstruct import tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window, tfp
 from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
@@ -29,7 +29,7 @@ from spikenerf.data.dataset import (
 
 PREVIEW = "preview.png"
 #: TFP window of the preview (frames), shortened for streams with fewer steps
-PREVIEW_WINDOW = 41
+PREVIEW_WINDOW = DEFAULT_WINDOW
 #: the preview is upscaled (nearest neighbour) to at least this height in pixels
 PREVIEW_MIN_HEIGHT = 128
 
@@ -50,7 +50,7 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
         pos = int(np.searchsorted(steps, target))
     else:
         pos = n // 2
-    window = min(PREVIEW_WINDOW, n if n % 2 else n - 1)
+    window = fitting_window(n, PREVIEW_WINDOW)
     half = window // 2
     lo, hi = max(pos - half, 0), min(pos + half + 1, n)
     recon = tfp(ds.spikes(mode, slice(lo, hi)), window, ds.threshold, frames=pos - lo)[0]

@@ -35,7 +35,7 @@ from torch import Tensor
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
-from spikenerf.camera.reconstruct import ReconMethod, tfi, tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, tfi, tfp
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
 
@@ -119,7 +119,7 @@ class SpikeTargets:
 def reconstruct_stream(
     spikes: np.ndarray,
     recon: str = "tfp",
-    window: int = 41,
+    window: int = DEFAULT_WINDOW,
     threshold: float = 1.0,
     frames: slice | None = None,
 ) -> np.ndarray:
@@ -140,7 +140,7 @@ def reconstruct_stream(
 def masked_reconstruction(
     spikes: np.ndarray,
     recon: str = "tfp",
-    window: int = 41,
+    window: int = DEFAULT_WINDOW,
     threshold: float = 1.0,
     mask: bool = True,
     mask_n: int = 5,
@@ -240,7 +240,7 @@ def stream_targets(
     dataset: SpikeDataset,
     color: str = "gray",
     recon: str = "tfp",
-    window: int = 41,
+    window: int = DEFAULT_WINDOW,
     mask: bool = True,
     mask_n: int = 5,
     spikes: np.ndarray | None = None,

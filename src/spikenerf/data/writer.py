@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.io import encode_frames, read_dat
-from spikenerf.camera.reconstruct import tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, tfp
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.data.dataset import (
     BLUR_ARRAY,
@@ -37,7 +37,7 @@ def _matrix(pose: np.ndarray) -> list[list[float]]:
 
 
 #: TFP window (frames) of the keyframes in ``tfp/`` (the paper's and ``reconstruct``'s default)
-TFP_WINDOW = 41
+TFP_WINDOW = DEFAULT_WINDOW
 
 
 def split_fields(train: list[dict], test: list[dict]) -> dict:

@@ -32,7 +32,7 @@ from tqdm import tqdm
 
 from spikenerf.camera.io import write_dat, write_dat_rgb
 from spikenerf.camera.layout import to_channels_last
-from spikenerf.camera.reconstruct import tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window, tfp
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
@@ -47,7 +47,7 @@ from spikenerf.train.run import load_run
 
 TRAJECTORIES = ("test", "orbit")
 DEFAULT_ORBIT_FRAMES = 120
-TFP_WINDOW = 41
+TFP_WINDOW = DEFAULT_WINDOW
 
 
 def to_uint8(display: np.ndarray) -> np.ndarray:
@@ -163,7 +163,7 @@ def write_spikes(
     else:
         files = write_dat_rgb(out / "spikes_rgb", spikes)
     t = len(spikes)
-    window = min(TFP_WINDOW, t if t % 2 else t - 1)
+    window = fitting_window(t, TFP_WINDOW)
     preview = tfp(spikes, window=max(window, 1), threshold=dataset.threshold, frames=t // 2)[0]
     preview = to_channels_last(preview, frame=True)
     write_bytes_atomic(out / "spikes_tfp.png", png_bytes(to_uint8(srgb_encode(preview))))

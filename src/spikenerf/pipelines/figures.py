@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.psnr import mse_to_psnr
 
@@ -22,7 +23,7 @@ ERROR_VMAX = 0.3
 ERROR_CMAP = "inferno"
 DPI = 100
 #: TFP window (frames) and the length of the static-pose novel-view spike streams (steps)
-TFP_WINDOW, NOVEL_STEPS = 41, 101
+TFP_WINDOW, NOVEL_STEPS = DEFAULT_WINDOW, 101
 
 
 def _png(fig: Figure) -> bytes:
@@ -230,7 +231,7 @@ def novel_spikes(
     gt_spikes = simulate(
         [frame] * steps, k.height, k.width, CameraConfig(threshold=phi, color=color, seed=seed)
     )
-    window = min(TFP_WINDOW, steps if steps % 2 else steps - 1)
+    window = fitting_window(steps, TFP_WINDOW)
     images = []
     for s in (gt_spikes, pred_spikes):
         rec = tfp(s.astype(np.uint8), window=window, threshold=phi, frames=steps // 2)[0]

@@ -22,6 +22,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
+from spikenerf.camera.reconstruct import fitting_window
 from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.data.dataset import SpikeDataset, load_dataset
@@ -217,7 +218,7 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
     stream = ds.spikes(mode)  # (T, H, W) or (T, 3, H, W)
     gray = stream if stream.ndim == 3 else stream.max(axis=1)
     t, h, w = gray.shape
-    window = min(figures.TFP_WINDOW, t if t % 2 else t - 1)
+    window = fitting_window(t, figures.TFP_WINDOW)
     k = int(ds.gt.steps[np.argmin(np.abs(ds.gt.steps - t // 2))]) if len(ds.gt) else t // 2
     rate = gray.mean(0).ravel()
     picks = figures.raster_pixels(rate, RASTER_PIXELS)

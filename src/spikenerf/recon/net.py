@@ -18,6 +18,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import atomic_path
 from spikenerf.core.errors import InputError
 from spikenerf.recon.features import feature_count, nested_lengths, spike_features
@@ -34,7 +35,7 @@ MODES = ("gray", "rgb", "bayer")
 class NetConfig:
     """Architecture: ``window`` K (odd, steps) and ``width`` (channels at full resolution)."""
 
-    window: int = 41
+    window: int = DEFAULT_WINDOW
     width: int = 16
 
     def check(self) -> NetConfig:

@@ -19,6 +19,7 @@ import numpy as np
 from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera, bayer_mosaic
 from spikenerf.camera.noise import RealisticNoise
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.scenes import analytic
 from spikenerf.scenes.base import FrameSource
@@ -43,7 +44,7 @@ class PairConfig:
     """
 
     size: int = 64
-    window: int = 41
+    window: int = DEFAULT_WINDOW
     modes: tuple[str, ...] = ("gray", "rgb", "bayer")
     noises: tuple[str, ...] = ("ideal", "realistic")
     brightness: tuple[float, float] = (0.04, 1.0)

@@ -18,6 +18,7 @@ from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 import yaml
 
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.samplers import WindowOrder
@@ -53,7 +54,7 @@ class TargetConfig:
     """
 
     recon: TargetRecon = "tfp"
-    window: int = 41
+    window: int = DEFAULT_WINDOW
     mask: bool = True
     mask_n: int = 5
     blur_samples: int = 8
