@@ -163,6 +163,8 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.groups=-1"], "integral.groups"),
         (["--set", "integral.lengths=[]"], "--integral-window"),
         (["--recon", "learned"], "--recon"),
+        (["--integral-samples", "12"], "--integral-samples"),  # more steps than the 11-step window holds
+        (["--batch", "1", "--integral-samples", "2"], "--batch"),
     ],
 )
 def test_bad_window_settings_are_one_line(

@@ -96,6 +96,12 @@ class IntegralConfig:
         for name, value in (("integral.samples", self.samples), ("integral.groups", self.groups)):
             if value < 1:
                 raise InputError(f"{name} must be ≥ 1, found {value}", param=name)
+        if self.samples > min(self.lengths):
+            raise InputError(
+                f"integral.samples: {self.samples} steps per window do not fit in a "
+                f"{min(self.lengths)}-step window (integral.lengths)",
+                param=("integral.samples", "integral.lengths"),
+            )
 
 
 @dataclass
@@ -251,6 +257,13 @@ class TrainConfig:
         self.poses.check()
         self.exposure.check()
         self.integral.check()
+        rays = self.integral.samples * self.integral.groups
+        if self.method == "spike-integral" and self.batch < rays:
+            raise InputError(
+                f"batch: {self.batch} rays a step cannot render one window of {rays} steps "
+                "(integral.samples × integral.groups)",
+                param=("batch", "integral.samples"),
+            )
         if self.method == "spike-integral" and self.targets.recon != "tfp":
             raise InputError(
                 f"targets.recon {self.targets.recon!r}: spike-integral reads spike counts, not reconstructed "
