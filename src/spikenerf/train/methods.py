@@ -374,6 +374,7 @@ class SpikeIntegral(TrainMethod):
     def __init__(self, config: TrainConfig) -> None:
         super().__init__(config)
         self.counts: CountTargets | None = None
+        self.step_numbers = torch.zeros(0, dtype=torch.int64)
 
     def poses_per_view(self) -> int:
         return self.config.integral.samples * self.config.integral.groups
@@ -381,6 +382,7 @@ class SpikeIntegral(TrainMethod):
     def build_targets(self, dataset: SpikeDataset) -> None:
         stream = load_stream(dataset, self.config.color)
         self.counts = count_targets(stream, dataset.trajectory.poses, dataset.threshold)
+        self.step_numbers = torch.as_tensor(np.asarray(dataset.trajectory.steps))  # what the refiner takes
         longest = max(self.config.integral.lengths)
         if longest > self.counts.steps:
             raise InputError(
@@ -413,8 +415,8 @@ class SpikeIntegral(TrainMethod):
         target = counts.window_mean(start, end, pixels).to(state.device)
         band = (counts.threshold / (end - start).float())[:, None].to(state.device) if c.band else None
         poses = counts.poses[steps.reshape(-1).to(counts.poses.device)].to(state.device)
-        if state.pose_refine is not None:  # the refiner takes step numbers
-            poses = state.pose_refine(poses, np.asarray(state.dataset.trajectory.steps)[steps.reshape(-1)])
+        if state.pose_refine is not None:
+            poses = state.pose_refine(poses, self.step_numbers[steps.reshape(-1)])
         out = state.render_rays(poses, pixels.repeat_interleave(per, dim=0))
         shape = (-1, c.groups, c.samples, self.channels)
         means = out.color.view(shape).mean(dim=2)

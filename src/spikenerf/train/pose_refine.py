@@ -267,11 +267,8 @@ def pose_refinement(
     auto = is_imported(dataset) and config.method != "nerf-bad"  # nerf-bad learns its own exposure poses
     if not (auto if cfg.refine is None else cfg.refine):
         return None
-    if targets is None:  # spike-integral: its windows are stream steps, always placed
-        steps = torch.zeros(1, dtype=torch.int64)
-    else:
-        steps = targets.steps if targets.pose_steps is None else targets.pose_steps
-    unplaced = bool((steps < 0).any())
+    steps = None if targets is None else targets.steps if targets.pose_steps is None else targets.pose_steps
+    unplaced = steps is not None and bool((steps < 0).any())  # None: spike-integral, stream steps only
     if unplaced and cfg.refine is None:
         return None
     if unplaced:
