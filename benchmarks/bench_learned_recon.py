@@ -1,6 +1,7 @@
 """Learned reconstruction vs TFP and TFI (same window) on held-out scenes, and its speed at 250×400.
 
-Run: ``OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_learned_recon [--draws N] [--weights FILE]``.
+Run: ``OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_learned_recon [--draws N] [--weights FILE]
+[--content analytic|natural]``.
 
 Quality: pairs drawn like the training pairs (random still/orbit/pan motion up to 1.5°/step, log-uniform
 brightness 0.04–1) but from the two analytic scenes held out of training (``analytic-orbs``,
@@ -10,6 +11,10 @@ noise parameter × 1.5, shot noise × 1.5). Each reconstruction and the sharp fr
 brightness (i.e. shown at the right exposure), clipped to [0, 1], sRGB-encoded, and scored by PSNR and SSIM
 (RGB: over the three channels of one image; Bayer: over the mosaic). Δ is learned − TFP per draw, with a 95 %
 interval (t, paired over draws).
+
+``--content natural`` draws from the photographs held out of every training split instead
+(``spikenerf.recon.natural.NATURAL_HELDOUT``: a camera panning, rolling or zooming over them; needs
+scikit-image), at the same size, motion speeds and brightness.
 
 Speed: frames/s of the learned reconstruction of 8 consecutive frames of a 250 × 400 gray stream (one tile) at
 1 and 2 torch threads: the fast path (``learned_frames``: running-count features, channels-last network)
@@ -34,6 +39,7 @@ from spikenerf.core.color import srgb_encode
 from spikenerf.eval.metrics import psnr, ssim
 from spikenerf.recon.generate import VAL_SCENES
 from spikenerf.recon.infer import learned_frames, mirrored, predict_frame, predict_plane
+from spikenerf.recon.natural import NATURAL_HELDOUT, load_images, natural_pairs
 from spikenerf.recon.net import load_weights
 from spikenerf.recon.pairs import PairConfig, analytic_pairs
 
@@ -72,10 +78,18 @@ def _draw_images(net, samples, mode: str) -> dict[str, tuple[np.ndarray, np.ndar
     return {m: (np.stack(p), np.stack(targets)) for m, p in preds.items()}
 
 
-def quality(net, draws: int, size: int = 96) -> list[str]:
-    """Markdown rows: config, noise, colour, then PSNR / SSIM of TFP, TFI, learned and Δ PSNR ± 95 %."""
+def quality(net, draws: int, size: int = 96, content: str = "analytic") -> list[str]:
+    """Markdown rows: config, noise, colour, then PSNR / SSIM of TFP, TFI, learned and Δ PSNR ± 95 %
+    (``content``: the held-out analytic scenes, or the held-out photographs)."""
     rows = []
     k = net.config.window
+    images = load_images(NATURAL_HELDOUT) if content == "natural" else {}
+
+    def draw(cfg: PairConfig):
+        if images:
+            return natural_pairs(images, range(draws), cfg, seed=2024)
+        return analytic_pairs(VAL_SCENES, range(draws), cfg, seed=2024)
+
     for label, phi, noise_scale in CONFIGS:
         for noise in ("ideal", "realistic"):
             for mode in ("gray", "rgb", "bayer"):
@@ -89,7 +103,7 @@ def quality(net, draws: int, size: int = 96) -> list[str]:
                 )
                 scores: dict[str, list[tuple[float, float]]] = {"TFP": [], "TFI": [], "learned": []}
                 group: list = []
-                for s in analytic_pairs(VAL_SCENES, range(draws), cfg, seed=2024):
+                for s in draw(cfg):
                     group.append(s)
                     if len(group) < {"gray": 1, "rgb": 3, "bayer": 4}[mode]:
                         continue
@@ -164,6 +178,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--draws", type=int, default=16, help="draws per (config, noise, colour) cell")
     parser.add_argument("--weights", default=None, help="weights file [default: the shipped one]")
+    parser.add_argument("--content", choices=("analytic", "natural"), default="analytic",
+                        help="held-out analytic scenes, or held-out photographs (scikit-image)")  # fmt: skip
     parser.add_argument("--no-speed", action="store_true")
     parser.add_argument("--speed-only", action="store_true")
     args = parser.parse_args()
@@ -181,7 +197,7 @@ def main() -> None:
         "| Δ PSNR vs TFP (95 %) |"
     )
     print("|---|---|---|---|---|---|---|")
-    for row in quality(net, args.draws):
+    for row in quality(net, args.draws, content=args.content):
         print(row, flush=True)
     if not args.no_speed:
         print()

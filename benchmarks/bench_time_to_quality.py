@@ -65,7 +65,7 @@ class Options:
     eval_seconds: float
     clock: str  # "wall" | "cpu": the clock of the budget and of the evaluation spacing
     eval_views: int
-    batch: int
+    batch: int | None
     seed: int
     wall_limit: float  # stop (after the next evaluation) once this many seconds of wall time have passed
 
@@ -163,8 +163,7 @@ def run_all(runs: list[tuple[str, int]], opts: Options, jobs: int, threads: int,
         opts.clock,
         "--eval-views",
         str(opts.eval_views),
-        "--batch",
-        str(opts.batch),
+        *(("--batch", str(opts.batch)) if opts.batch is not None else ()),
         "--seed",
         str(opts.seed),
         "--wall-limit",
@@ -278,7 +277,7 @@ def main() -> None:
     )
     parser.add_argument("--clock", choices=("wall", "cpu"), default="wall")
     parser.add_argument("--eval-views", type=int, default=8, help="held-out views evaluated (evenly spaced)")
-    parser.add_argument("--batch", type=int, default=TrainConfig.batch)
+    parser.add_argument("--batch", type=int, default=None, help="rays per step (default: each method's own)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="threads per training process")
     parser.add_argument("--jobs", type=int, default=2, help="training processes at a time")

@@ -187,6 +187,26 @@ def test_default_method_trains_and_records_its_windows(dataset_dir: Path, tmp_pa
     assert "method: spike-integral" in text and "- 3" in text and "- 5" in text
 
 
+@pytest.mark.parametrize(("method", "given", "rays"), [
+    ("spike-integral", None, 2048), ("nerf-gt", None, 1024), ("spike-nerf", None, 1024),
+    ("spike-integral", 512, 512),
+])  # fmt: skip
+def test_default_batch_is_per_method_and_recorded_resolved(method: str, given: int | None, rays: int) -> None:
+    from spikenerf.train.config import TrainConfig
+
+    config = TrainConfig(dataset="d", method=method, batch=given).validate()  # type: ignore[arg-type]
+    assert config.rays_per_step() == rays and config.resolved().batch == rays
+    assert TrainConfig.from_dict(config.resolved().to_dict()).batch == rays  # a resumed run keeps it
+
+
+def test_spike_integral_renders_its_default_batch_of_windows(dataset_dir: Path, tmp_path: Path) -> None:
+    """Without --batch a spike-integral step renders 2048 rays: 1024 windows × 2 steps."""
+    out = tmp_path / "run"
+    run = _cli("train", str(dataset_dir), "--iters", "1", "--out", str(out), "--quiet", "--eval-every", "0")
+    assert run.returncode == 0, run.stderr
+    assert "batch: 2048" in (out / "config.yaml").read_text()
+
+
 def test_counts_move_to_the_device_and_give_the_same_means() -> None:
     spikes, _ = _stream()
     counts = count_targets(spikes, np.tile(np.eye(4, dtype=np.float32), (60, 1, 1)), 1.0)

@@ -17,7 +17,8 @@ from spikenerf.core.errors import InputError, comma_list
 @click.command(
     help="Write (spike window of K steps, sharp frame at its middle step) pairs for `spikenerf recon-train`: "
     "random procedural scenes for training (plus --scene Blender/analytic scenes and --sequence image "
-    "sequences), held-out analytic scenes for validation; gray, per-channel RGB and Bayer planes; ideal and "
+    "sequences, --natural photographs), held-out analytic scenes (and photographs) for validation; gray, "
+    "per-channel RGB and Bayer planes; ideal and "
     "realistic noise; still, orbiting and panning cameras; a log-uniform brightness range. Resumable: "
     "re-running the same command finishes an interrupted folder."
 )
@@ -89,6 +90,15 @@ from spikenerf.core.errors import InputError, comma_list
     show_default=True,
     help="Draws per --scene / --sequence source.",
 )
+@click.option(
+    "--natural",
+    "natural_draws",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Also draw this many train pairs from photographs that scikit-image ships, filmed by a panning, "
+    "rolling or zooming camera (held-out photographs join the val split; needs scikit-image).",
+)
 @click.option("--seed", type=SEED, default=0, show_default=True)
 def command(
     out: Path,
@@ -104,6 +114,7 @@ def command(
     scenes: tuple[str, ...],
     sequences: tuple[Path, ...],
     extra_draws: int,
+    natural_draws: int,
     seed: int,
 ) -> None:
     from spikenerf.recon.generate import VAL_SCENES, write_pairs
@@ -126,7 +137,8 @@ def command(
         raise InputError(f"--scene: {', '.join(VAL_SCENES)} are held out for validation")
     extra = _sources(scenes, sequences, size, window, seed)
     command_line = "spikenerf " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    write_pairs(out, cfg, train_draws, val_draws, seed, extra, extra_draws, command_line)
+    write_pairs(out, cfg, train_draws, val_draws, seed, extra, extra_draws, command_line,
+                natural_draws=natural_draws)  # fmt: skip
     click.echo(f"wrote {out}")
 
 

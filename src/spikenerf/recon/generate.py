@@ -1,8 +1,9 @@
 """``recon-data``: write a pair folder (train and held-out val splits), resumable shard by shard.
 
-Train pairs come from random procedural scenes (seeded by ``seed``), plus optional Blender scenes and image
-sequences; val pairs come from scenes never used for training: the named analytic scenes
-(:data:`VAL_SCENES`) and random scenes of another seed stream.
+Train pairs come from random procedural scenes (seeded by ``seed``), plus optional Blender scenes, image
+sequences and natural photographs (``recon/natural.py``); val pairs come from scenes never used for training:
+the named analytic scenes (:data:`VAL_SCENES`), random scenes of another seed stream and, with photographs,
+the held-out ones.
 """
 
 from __future__ import annotations
@@ -16,6 +17,13 @@ from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
+from spikenerf.recon.natural import (
+    NATURAL_HELDOUT,
+    NATURAL_TRAIN,
+    load_images,
+    natural_pairs,
+    require_skimage,
+)
 from spikenerf.recon.pairs import PairConfig, Sample, analytic_pairs, source_pairs
 from spikenerf.recon.store import MANIFEST, shard_path, write_shard
 from spikenerf.scenes.base import FrameSource
@@ -38,12 +46,20 @@ def plan(
     seed: int,
     extra: dict[str, FrameSource],
     extra_draws: int,
+    natural_draws: int = 0,
 ) -> list[Job]:
-    """The jobs (split, draw function of a range of draw indices, draw count) of a pair folder, in order."""
+    """The jobs (split, draw function of a range of draw indices, draw count) of a pair folder, in order.
+    ``natural_draws`` > 0 adds that many photograph draws to train and a quarter of ``val_draws`` of the
+    held-out photographs to val."""
     jobs: list[Job] = [("train", lambda d: analytic_pairs(None, d, cfg, seed), train_draws)]
     for k, name in enumerate(sorted(extra)):
         src_seed = seed * 1000 + k + 1
         jobs.append(("train", lambda d, s=extra[name], q=src_seed: source_pairs(s, d, cfg, q), extra_draws))
+    if natural_draws > 0:
+        train, held = load_images(NATURAL_TRAIN), load_images(NATURAL_HELDOUT)
+        jobs.append(("train", lambda d: natural_pairs(train, d, cfg, seed * 1000 + 999), natural_draws))
+        held_seed = seed + 3 * VAL_SEED_OFFSET
+        jobs.append(("val", lambda d: natural_pairs(held, d, cfg, held_seed), val_draws // 4))
     half = val_draws // 2
     jobs.append(
         ("val", lambda d: analytic_pairs(VAL_SCENES, d, cfg, seed + VAL_SEED_OFFSET), val_draws - half)
@@ -62,6 +78,7 @@ def write_pairs(
     extra_draws: int = 0,
     command: str = "",
     progress: bool = True,
+    natural_draws: int = 0,
 ) -> dict:
     """Generate (or finish) the pair folder ``out``; returns the manifest.
 
@@ -69,20 +86,25 @@ def write_pairs(
         cfg: pair settings. train_draws / val_draws: random draws per split (a draw gives 1, 3 or 4 samples).
         extra: named FrameSources (Blender scenes, sequences) added to the train split, ``extra_draws`` each.
         command: the command line, recorded in the manifest.
+        natural_draws: photograph draws added to the train split (``recon/natural.py``; needs scikit-image).
     Raises:
         InputError: ``out`` holds pairs made with other settings.
     """
     out = Path(out)
+    if natural_draws > 0:
+        require_skimage()  # before anything is written
     check_output(out, "pairs", overwrite=True)
     with output_lock(out):
         check_output(out, "pairs", overwrite=True)
         clean_stale_temps(out)
-        return _write_locked(out, cfg, train_draws, val_draws, seed, extra, extra_draws, command, progress)
+        return _write_locked(
+            out, cfg, train_draws, val_draws, seed, extra, extra_draws, command, progress, natural_draws
+        )
 
 
 def _write_locked(
     out: Path, cfg: PairConfig, train_draws: int, val_draws: int, seed: int,
-    extra: dict[str, FrameSource] | None, extra_draws: int, command: str, progress: bool,
+    extra: dict[str, FrameSource] | None, extra_draws: int, command: str, progress: bool, natural_draws: int,
 ) -> dict:  # fmt: skip
     from tqdm import tqdm
 
@@ -95,6 +117,9 @@ def _write_locked(
         "extra_draws": extra_draws,
         "val_scenes": [*VAL_SCENES, f"random scenes of seed {seed + 2 * VAL_SEED_OFFSET}"],
     }
+    if natural_draws > 0:  # only then, so that folders made before photographs existed still resume
+        manifest.update(natural_draws=natural_draws, natural_train=list(NATURAL_TRAIN))
+        manifest["val_scenes"] += [f"natural:{name}" for name in NATURAL_HELDOUT]
     path = out / MANIFEST
     if path.is_file():
         old = json.loads(path.read_text())
@@ -105,7 +130,7 @@ def _write_locked(
     mark(out, "pairs")
     write_text_atomic(path, json.dumps({**manifest, "command": command}, indent=2))
     counters = dict.fromkeys(("train", "val"), 0)
-    jobs = plan(cfg, train_draws, val_draws, seed, extra or {}, extra_draws)
+    jobs = plan(cfg, train_draws, val_draws, seed, extra or {}, extra_draws, natural_draws)
     total = sum(-(-n // DRAWS_PER_SHARD) for _, _, n in jobs)
     with tqdm(total=total, unit="shard", desc="recon pairs", disable=not progress) as bar:
         for split, draw, count in jobs:

@@ -181,7 +181,8 @@ def _scaled_noise(factor: float) -> RealisticNoise:
     )
 
 
-def _draw(rng: np.random.Generator, cfg: PairConfig) -> tuple[str, str, float]:
+def draw_settings(rng: np.random.Generator, cfg: PairConfig) -> tuple[str, str, float]:
+    """A random colour mode, noise preset and log-uniform brightness of ``cfg``'s ranges."""
     mode, noise = str(rng.choice(cfg.modes)), str(rng.choice(cfg.noises))
     lo, hi = cfg.brightness
     return mode, noise, float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
@@ -192,7 +193,7 @@ def analytic_pairs(scenes: list[str] | None, draws: range, cfg: PairConfig, seed
     random procedural scene per draw. Each draw is deterministic in ``(seed, index)``."""
     for i in draws:
         rng = np.random.default_rng([seed, i])
-        mode, noise, bright = _draw(rng, cfg)
+        mode, noise, bright = draw_settings(rng, cfg)
         if scenes is None:
             prims, name = random_scene(rng), f"random-{seed}-{i}"
         else:
@@ -213,7 +214,7 @@ def source_pairs(source: FrameSource, draws: range, cfg: PairConfig, seed: int) 
     h, w = source.intrinsics.height, source.intrinsics.width
     for i in draws:
         rng = np.random.default_rng([seed, i])
-        mode, noise, bright = _draw(rng, cfg)
+        mode, noise, bright = draw_settings(rng, cfg)
         size = cfg.size * (2 if mode == "bayer" else 1)
         if len(steps) < cfg.window or min(h, w) < size:
             return

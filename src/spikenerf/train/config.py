@@ -38,6 +38,10 @@ __all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "IntegralConfig", "SpikeLossConfig", "T
 WINDOW_POSES = 4
 #: spike-integral's default window length and steps rendered per window (docs/method.md, Spike-integral)
 INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 11, 2
+#: rays per step when ``batch`` is not given: 1024 targets, and for spike-integral 1024 windows of
+#: ``INTEGRAL_SAMPLES`` renders each (the oracle's 1024 targets a step; docs/spike-integral.md, Batch)
+DEFAULT_BATCH = 1024
+METHOD_BATCH: dict[str, int] = {"spike-integral": DEFAULT_BATCH * INTEGRAL_SAMPLES}
 
 
 @dataclass
@@ -148,7 +152,8 @@ class TrainConfig:
     Attributes:
         dataset: dataset folder. method: spike-integral (the default) | spike-nerf | nerf-recon | nerf-blur |
             nerf-blur-aware | nerf-bad | nerf-gt.
-        color: gray | rgb. field: grid | mlp. iters: optimiser steps. batch: rays per step (reconstruction).
+        color: gray | rgb. field: grid | mlp. iters: optimiser steps.
+        batch: rays per step (reconstruction; None: :meth:`rays_per_step`'s default for the method).
         lr: base learning rate (None = the field's own); the grid keeps its grid/network ratio.
         lr_final_ratio: exponential decay to this fraction of the rate at ``iters`` (None = the field's).
         seed: seeds the initialisation, the samplers and the perturbations. device: auto | cpu | cuda.
@@ -175,7 +180,7 @@ class TrainConfig:
     color: TrainColor = "gray"
     field: FieldKind = "grid"
     iters: int = 5000
-    batch: int = 1024
+    batch: int | None = None
     lr: float | None = None
     lr_final_ratio: float | None = None
     seed: int = 0
@@ -202,7 +207,7 @@ class TrainConfig:
         check_types(self)
         positive = {  # errors name the config key; the CLI maps keys to its flags
             "iters": self.iters,
-            "batch": self.batch,
+            "batch": self.rays_per_step(),
             "spike.window": self.spike.window,
             "spike.pixels": self.spike.pixels,
             "spike.every": self.spike.every,
@@ -258,9 +263,9 @@ class TrainConfig:
         self.exposure.check()
         self.integral.check()
         rays = self.integral.samples * self.integral.groups
-        if self.method == "spike-integral" and self.batch < rays:
+        if self.method == "spike-integral" and self.rays_per_step() < rays:
             raise InputError(
-                f"batch: {self.batch} rays a step cannot render one window of {rays} steps "
+                f"batch: {self.rays_per_step()} rays a step cannot render one window of {rays} steps "
                 "(integral.samples × integral.groups)",
                 param=("batch", "integral.samples"),
             )
@@ -294,11 +299,17 @@ class TrainConfig:
         sharp = self.method in STREAM_METHODS or self.method == "spike-integral"
         return self.targets.poses_per_target() if sharp else 1
 
+    def rays_per_step(self) -> int:
+        """``batch``, or where it is None the method's default: :data:`METHOD_BATCH` (spike-integral: 2048,
+        1024 windows × 2 renders), else :data:`DEFAULT_BATCH` (1024)."""
+        return self.batch if self.batch is not None else METHOD_BATCH.get(self.method, DEFAULT_BATCH)
+
     def resolved(self) -> TrainConfig:
         """A copy with the defaults that depend on other fields filled in (``targets.window_poses``: see
-        :meth:`window_poses`), as a new run records them in its ``config.yaml``."""
+        :meth:`window_poses`; ``batch``: :meth:`rays_per_step`), as a new run records them in its
+        ``config.yaml``."""
         targets = dataclasses.replace(self.targets, window_poses=self.window_poses())
-        return dataclasses.replace(self, targets=targets)
+        return dataclasses.replace(self, targets=targets, batch=self.rays_per_step())
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], path: str | Path | None = None) -> TrainConfig:

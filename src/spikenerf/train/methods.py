@@ -194,7 +194,7 @@ class TrainMethod:
         targets = self.targets
         assert targets is not None, "build_targets first"
         views, channels = self.poses_per_view(), self.channels
-        index, pixels = state.samplers["rays"].sample(max(1, state.config.batch // views))
+        index, pixels = state.samplers["rays"].sample(max(1, state.config.rays_per_step() // views))
         target = targets.gather(index, pixels).to(state.device)
         poses = self.image_poses(state, index)  # (B·S, 4, 4), S poses averaged per ray
         out = state.render_rays(poses, pixels.repeat_interleave(views, dim=0))
@@ -411,7 +411,7 @@ class SpikeIntegral(TrainMethod):
         counts, c = self.counts, self.config.integral
         assert counts is not None, "build_targets first"
         per = c.samples * c.groups
-        start, end, pixels, steps = state.samplers["windows"].sample(max(1, state.config.batch // per))
+        start, end, pixels, steps = state.samplers["windows"].sample(max(1, state.config.rays_per_step() // per))
         target = counts.window_mean(start, end, pixels).to(state.device)
         band = (counts.threshold / (end - start).float())[:, None].to(state.device) if c.band else None
         poses = counts.poses[steps.reshape(-1).to(counts.poses.device)].to(state.device)

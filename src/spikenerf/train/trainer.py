@@ -147,7 +147,7 @@ def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path)
     targets = float(steps) * k.height * k.width * method.channels * 10 if method.uses_stream else 0.0
     params, per_ray, ckpt = field_memory(config.field, model_config(config))
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
-    rays = (config.batch + spike_rays) * per_ray
+    rays = (config.rays_per_step() + spike_rays) * per_ray
     cache = (
         float(steps) * k.height * k.width * method.channels * 2
         if learned_cache(config, method.uses_stream)
@@ -165,7 +165,7 @@ def check_step_memory(
     device's free memory by estimate (:func:`spikenerf.train.device.check_batch_fits`)."""
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     params, _, _ = field_memory(config.field, model_config(config))
-    check_batch_fits(config.field, model_config(config), config.batch + spike_rays, params, device, free)
+    check_batch_fits(config.field, model_config(config), config.rays_per_step() + spike_rays, params, device, free)
 
 
 class Trainer:
