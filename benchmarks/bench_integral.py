@@ -7,7 +7,8 @@ Run (one dataset, every setting trained with the same seed and thread count, the
     python -m benchmarks.bench_integral DS --iters 1000 --settings 11x1,11x2,11x4,11x8,41x4,41x8 --out OUT
 
 With ``--paired DS2,DS3 --seeds 0,1,2`` it instead trains the oracle, window-aware NeRF + TFP, window-aware
-Spike-NeRF and spike-integral's defaults on every dataset and seed, and prints the paired differences with
+Spike-NeRF, NeRF on learned reconstructions and spike-integral's defaults (``--variants`` picks some of them,
+``--color rgb`` trains the RGB stream) on every dataset and seed, and prints the paired differences with
 95% intervals (``pipelines.stats.differences``, the benchmark's own statistics).
 
 Each row prints the test PSNR, its difference to the oracle, and the seconds per iteration as a ratio to
@@ -62,6 +63,7 @@ PAIRED = {
     "nerf-gt": ["--method", "nerf-gt"],
     "nerf-recon-window": ["--method", "nerf-recon", "--window-poses", "4"],
     "spike-nerf-window": ["--method", "spike-nerf", "--window-poses", "4"],
+    "nerf-recon-learned": ["--method", "nerf-recon", "--recon", "learned"],
     "spike-integral": ["--method", "spike-integral"],
 }
 #: (ours, baseline) pairs printed by ``--paired``
@@ -69,27 +71,39 @@ PAIRS = (
     ("spike-integral", "nerf-gt"),
     ("spike-integral", "spike-nerf-window"),
     ("spike-integral", "nerf-recon-window"),
+    ("spike-integral", "nerf-recon-learned"),
 )
 
 
-def paired(datasets: list[Path], seeds: list[int], out: Path, iters: int) -> None:
-    """Train every :data:`PAIRED` row on each dataset and seed; print per-row means and the paired table."""
+def paired(
+    datasets: list[Path], seeds: list[int], out: Path, iters: int, variants: list[str], color: str = "gray"
+) -> None:
+    """Train the ``variants`` (:data:`PAIRED` names) on each dataset and seed (``OUT/DATASET/VARIANT-sK``);
+    print per-row and per-scene means and the paired table of the :data:`PAIRS` among them."""
     from spikenerf.pipelines.stats import differences
     from spikenerf.pipelines.tables import Cell, differences_table, to_markdown
 
     cells = []
     for dataset in datasets:
         for seed in seeds:
-            for variant, flags in PAIRED.items():
+            for variant in variants:
                 folder = out / dataset.name / f"{variant}-s{seed}"
+                flags = [*PAIRED[variant], "--color", color]
                 psnr, per_iter = train_and_eval(dataset, folder, flags, iters, seed)
                 ssim = json.loads((folder / "metrics.json").read_text())["mean"]["ssim"]
-                cells.append(Cell(dataset.name, variant, "gray", psnr, ssim, None, per_iter, seed))
-    for variant in PAIRED:
-        values = [c.psnr for c in cells if c.variant == variant]
-        print(f"{variant}: mean PSNR {sum(values) / len(values):.2f} dB over {len(values)} runs")
-    colors = sorted({c.color for c in cells})
-    print(to_markdown(differences_table(differences(cells, colors, PAIRS))))
+                cells.append(Cell(dataset.name, variant, color, psnr, ssim, None, per_iter, seed))
+    print("| variant | " + " | ".join(d.name for d in datasets) + " | mean |")
+    print("|---|" + "---:|" * (len(datasets) + 1))
+    for variant in variants:
+        means = [
+            sum(c.psnr for c in cells if c.variant == variant and c.scene == d.name) / len(seeds)
+            for d in datasets
+        ]
+        print(
+            f"| {variant} | " + " | ".join(f"{m:.2f}" for m in means) + f" | {sum(means) / len(means):.2f} |"
+        )
+    pairs = tuple(p for p in PAIRS if p[0] in variants and p[1] in variants)
+    print(to_markdown(differences_table(differences(cells, [color], pairs))))
 
 
 def main() -> None:
@@ -101,10 +115,16 @@ def main() -> None:
     parser.add_argument("--settings", default="11x1,11x2,11x4,11x8,41x4,41x8", help="LxS,LxS,…")
     parser.add_argument("--paired", default="", help="more datasets (comma list): the paired comparison")
     parser.add_argument("--seeds", default="0", help="training seeds of the paired comparison")
+    parser.add_argument("--variants", default=",".join(PAIRED), help="rows of the paired comparison")
+    parser.add_argument("--color", choices=("gray", "rgb"), default="gray", help="stream of the comparison")
     args = parser.parse_args()
     if args.paired:
         datasets = [args.dataset, *(Path(p) for p in args.paired.split(","))]
-        paired(datasets, [int(s) for s in args.seeds.split(",")], args.out, args.iters)
+        variants = args.variants.split(",")
+        unknown = sorted(set(variants) - set(PAIRED))
+        if unknown:
+            parser.error(f"--variants: unknown {', '.join(unknown)} (known: {', '.join(PAIRED)})")
+        paired(datasets, [int(s) for s in args.seeds.split(",")], args.out, args.iters, variants, args.color)
         return
     rows = []
     for name, flags in REFERENCES:
