@@ -77,3 +77,19 @@ def test_comma_list_keeps_known_names_and_words_the_error_through_the_caller() -
     for spec, unknown in (("rgb,cmyk,x", "['cmyk', 'x']"), (" , ", "[]"), ("", "[]")):
         with pytest.raises(InputError, match=rf"^--color: {re.escape(unknown)}$"):
             comma_list(spec, known, lambda bad: f"--color: {bad}")
+
+
+def test_replace_dir_swaps_a_finished_folder_in(tmp_path) -> None:
+    from spikenerf.core.marker import mark, replace_dir
+
+    out, work = tmp_path / "out", tmp_path / "work"
+    out.mkdir()
+    mark(out, "dataset")
+    (out / "old.txt").write_text("old")
+    work.mkdir()
+    (work / "new.txt").write_text("new")
+    replace_dir(work, out)
+    assert sorted(p.name for p in out.iterdir()) == ["new.txt"] and not work.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # the retired folder is gone
+    with pytest.raises(FileNotFoundError):
+        replace_dir(tmp_path / "nothing", tmp_path / "else")

@@ -111,3 +111,23 @@ def test_no_error_below_the_cli_names_a_flag() -> None:
     assert not bad, "name the parameter (InputError(..., param=NAME)); the CLI maps it:\n" + "\n".join(
         sorted(bad)
     )
+
+
+@pytest.mark.parametrize(("command", "flag"), [("reconstruct", "--frames"), ("import", "--range")])
+def test_one_range_parser_names_each_commands_flag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str, flag: str
+) -> None:
+    from spikenerf.core.errors import parse_range
+
+    with pytest.raises(InputError, match=r"^frame_range: expected A:B") as err:
+        parse_range("1-3", "frame_range")
+    assert err.value.params == ("frame_range",) and parse_range("-5:", "frame_range") == slice(-5, None)
+    dat = tmp_path / "s.dat"
+    dat.write_bytes(bytes(8 * 8 // 8 * 4))
+    args = [command, str(dat), "--height", "8", "--width", "8", flag, "1-3", "--out", str(tmp_path / "o")]
+    if command == "reconstruct":
+        args += ["--method", "tfp"]
+    with pytest.raises(SystemExit) as code:
+        main(args)
+    line = capsys.readouterr().err.strip()
+    assert code.value.code == 2 and line.startswith(f"spikenerf: error: {flag}: expected A:B"), line

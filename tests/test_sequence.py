@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 
 from spikenerf.core.color import srgb_decode
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, parse_range
 from spikenerf.core.png16 import decode_png16
 from spikenerf.scenes.image_io import read_image, resample
 from spikenerf.scenes.sequence import (
     OPEN_END,
     SequenceSource,
     estimate_scene_box,
-    parse_range,
     step_schedule,
 )
 from spikenerf.scenes.trajectory import (
@@ -81,23 +80,25 @@ def tiny(tmp_path: Path) -> Path:
 
 # ---------------------------------------------------------------------------------------------- ranges
 def test_parse_range() -> None:
-    assert parse_range("2:5") == (2, 5)
-    assert parse_range(" 3: ") == (3, OPEN_END)
-    assert parse_range(":4") == (0, 4)
-    assert parse_range("-3:-1") == (-3, -1)
+    assert parse_range("2:5", "sequence_range") == slice(2, 5)
+    assert parse_range(" 3: ", "sequence_range") == slice(3, None)
+    assert parse_range(":4", "sequence_range") == slice(None, 4)
+    assert parse_range("-3:-1", "sequence_range") == slice(-3, -1)
     for bad in ["abc", "3", "1:2:3", "a:b", "5:2", "4:4", "-1:-3"]:
-        with pytest.raises(InputError, match="sequence_range"):
-            parse_range(bad)
+        with pytest.raises(InputError, match="sequence_range") as err:
+            parse_range(bad, "sequence_range")
+        assert err.value.params == ("sequence_range",)
 
 
 def test_range_selects_frames(tiny: Path) -> None:
     src = SequenceSource(tiny, frame_range=(2, 5))
     assert src.frame_indices.tolist() == [2, 3, 4] and len(src.trajectory) == 3
     np.testing.assert_allclose(next(src.frames([0])), _expected(2), atol=1e-6)
-    tail = SequenceSource(tiny, frame_range=parse_range("-2:"))
+    tail = SequenceSource(tiny, frame_range=parse_range("-2:", "sequence_range"))
     assert tail.frame_indices.tolist() == [4, 5]
     np.testing.assert_array_equal(tail.trajectory.poses[1], SequenceSource(tiny).frame_poses[5])
-    for empty in [(5, -3), (10, OPEN_END)]:
+    assert SequenceSource(tiny, frame_range=slice(2, 5)).frame_indices.tolist() == [2, 3, 4]
+    for empty in [(5, -3), (10, OPEN_END), slice(10, None)]:
         with pytest.raises(InputError, match="selects no frames"):
             SequenceSource(tiny, frame_range=empty)
 
@@ -314,7 +315,7 @@ def _set_frame(i: int, **fields: object):
 
 
 ERRORS = {
-    "not valid JSON": lambda p: p.write_text("{frames: ["),
+    "malformed JSON": lambda p: p.write_text("{frames: ["),
     "expected a JSON object": lambda p: p.write_text("[1, 2]"),
     "field 'frames'": lambda p: _edit(p, lambda m: m.pop("frames")),
     "non-empty list": lambda p: _edit(p, lambda m: m.update(frames=[])),

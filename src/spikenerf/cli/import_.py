@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from spikenerf.cli import command_line
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import parse_range
 from spikenerf.data.alignment import ORIENTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
@@ -116,15 +116,9 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--verbose", is_flag=True, help="Show COLMAP's log.")
 def command(**kw: Any) -> None:
-    from spikenerf.cli.reconstruct import parse_range
     from spikenerf.data.importer import ImportOptions, import_recording
 
-    frame_range = None
-    if kw["frame_range"] is not None:
-        try:
-            frame_range = parse_range(kw["frame_range"])
-        except InputError as err:
-            raise InputError(str(err).replace("--frames", "--range")) from None
+    frame_range = None if kw["frame_range"] is None else parse_range(kw["frame_range"], "frame_range")
     flag = {"fov_deg": "fov"}  # ImportOptions field → click parameter, where the names differ
     given = {f.name: kw[flag.get(f.name, f.name)] for f in fields(ImportOptions) if f.name != "command"}
     opts = ImportOptions(**given | {"frame_range": frame_range, "command": command_line()})

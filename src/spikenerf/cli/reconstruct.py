@@ -9,7 +9,6 @@ TFI widens its margin until every pixel's surrounding intervals are known (see `
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,20 +17,11 @@ import numpy as np
 
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic
-from spikenerf.core.errors import InputError
-from spikenerf.data.targets import RECONS
+from spikenerf.core.errors import InputError, parse_range
+from spikenerf.data.reconstruction import RECONS
 
 #: output frames reconstructed per block (bounds memory; one progress-bar step)
 BLOCK_FRAMES = 128
-
-
-def parse_range(text: str) -> slice:
-    """``"A:B"`` (either side may be empty, negatives count from the end) as a slice."""
-    match = re.fullmatch(r"\s*(-?\d*)\s*:\s*(-?\d*)\s*", text)
-    if not match:
-        raise InputError(f"--frames must look like A:B (e.g. 100:200), found {text!r}")
-    start, stop = (int(g) if g else None for g in match.groups())
-    return slice(start, stop)
 
 
 #: value encodings of the outputs; the default is per file kind (.png → srgb, .npy → linear)
@@ -126,24 +116,20 @@ def command(
     from tqdm import tqdm
 
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
-    from spikenerf.camera.reconstruct import reconstruct_frames
     from spikenerf.cli.info import dat_frame_size
+    from spikenerf.data.reconstruction import reconstructor
 
     height, width, raw_width = dat_frame_size(spikes, height, width, raw_width)
 
     if method == "tfi" and window is not None:
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
-    if method == "learned":
-        from spikenerf.recon.infer import learned_reconstructor
-
-        recon = learned_reconstructor(weights, color, window, threshold)
-    window = DEFAULT_WINDOW if window is None else window
+    recon = reconstructor(method, window, threshold, weights=weights, color=color)
     if frame is not None and frame_range is not None:
         raise InputError("give either --frame I or --frames A:B, not both")
     total = count_frames(spikes, height, width, raw_width)
     if total == 0:
         raise InputError("the spike file holds no frames", path=spikes)
-    selection = frame if frame is not None else parse_range(frame_range) if frame_range else None
+    selection = parse_range(frame_range, "frame_range") if frame_range else frame
     frames = resolve_frames(selection, total, spikes)
     kind = output_kind(out)
     encoding = encoding or ("linear" if kind == "npy" else "srgb")
@@ -160,13 +146,7 @@ def command(
 
     def images() -> Iterator[tuple[range, np.ndarray]]:
         for block in blocks(frames, method):
-            if method == "learned":
-                yield block, recon(read, total, block.start, block.stop)
-            else:
-                yield (
-                    block,
-                    reconstruct_frames(read, total, block.start, block.stop, method, window, threshold),
-                )
+            yield block, recon(read, total, block.start, block.stop)
 
     bar = tqdm(
         total=len(frames), unit="frame", desc=f"{method} {spikes.name}", disable=len(frames) < 32 or None

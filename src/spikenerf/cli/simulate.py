@@ -243,9 +243,11 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
             f"{', '.join(given)} do not apply to --sequence (its poses come from the file; "
             "use --sequence-range, --steps-per-frame and --eval-views)"
         )
-    from spikenerf.scenes.sequence import SequenceSource, parse_range
+    from spikenerf.core.errors import parse_range
+    from spikenerf.scenes.sequence import SequenceSource
 
-    frame_range = None if kw["sequence_range"] is None else parse_range(str(kw["sequence_range"]))
+    given_range = kw["sequence_range"]
+    frame_range = None if given_range is None else parse_range(given_range, "sequence_range")
     source = SequenceSource(
         Path(kw["sequence"]),
         width=kw["width"],

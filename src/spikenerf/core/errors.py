@@ -71,3 +71,22 @@ def parse_int(text: str, param: str, expected: str) -> int:
         return int(text)
     except ValueError:
         raise InputError(f"{param}: expected {expected}, found {text!r}", param=param) from None
+
+
+def parse_range(text: str, param: str) -> slice:
+    """``"A:B"`` → ``slice(A, B)``: a Python slice, either side may be empty (``None``), negatives count from
+    the end. InputError naming ``param`` when the text is not ``A:B`` or, A and B of one sign, ``A >= B``
+    (it selects nothing whatever the length)."""
+    parts = str(text).strip().split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        start, stop = (int(p) if p.strip() else None for p in parts)
+    except ValueError:
+        raise InputError(
+            f"{param}: expected A:B (a Python slice, e.g. 0:100; either side may be empty), found {text!r}",
+            param=param,
+        ) from None
+    if start is not None and stop is not None and (start >= 0) == (stop >= 0) and start >= stop:
+        raise InputError(f"{param}: {text!r} selects no frames (need A < B)", param=param)
+    return slice(start, stop)

@@ -127,6 +127,15 @@ def recover_retired(out: Path) -> None:
     old.rename(out)
 
 
+def replace_dir(work: Path, out: Path) -> None:
+    """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is retired, then deleted); a
+    replacement killed between its renames is finished by :func:`recover_retired`."""
+    old = retire(out) if out.exists() or out.is_symlink() else None
+    work.rename(out)
+    if old is not None:
+        shutil.rmtree(old)
+
+
 def check_output(
     path: str | Path, kind: str, param: str = "out", overwrite: bool = False, replace: bool = False
 ) -> None:

@@ -7,8 +7,6 @@ sRGB-encoded linear radiance clipped to [0, 1]; every array handed out is linear
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +21,15 @@ from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
+from spikenerf.scenes.transforms import (
+    frame_poses,
+    frames_of,
+    intrinsics,
+    number,
+    pose,
+    read_transforms,
+    scene_box,
+)
 
 TRANSFORMS, TRANSFORMS_BLUR, TRANSFORMS_TEST, CONFIG = (
     "transforms.json",
@@ -35,6 +42,7 @@ TRANSFORMS_GT, TRANSFORMS_TFP = "transforms_gt.json", "transforms_tfp.json"
 MODES = COLORS  # the colour modes a dataset may hold (camera.model.ColorMode)
 #: blur views stored as one array (named by ``images_npy`` in transforms_blur.json; frames carry ``index``)
 BLUR_ARRAY = "blur/views.npy"
+_MISSING = "missing file (not a dataset folder written by `spikenerf simulate`?)"
 
 
 def spike_files(mode: str) -> list[str]:
@@ -133,52 +141,26 @@ def near_far(poses: np.ndarray, scene_box: np.ndarray) -> tuple[float, float]:
 
 
 def _read_mapping(path: Path, fmt: str = "JSON") -> dict:
-    """The top-level mapping of a dataset folder's JSON or YAML (``fmt``) file; InputError when the file is
-    missing, malformed or not a mapping."""
+    """The top-level mapping of a dataset folder's JSON (read by ``scenes.transforms.read_transforms``) or
+    YAML (``fmt``) file; InputError when the file is missing, malformed or not a mapping."""
+    if fmt == "JSON":
+        return read_transforms(path, missing=_MISSING)
     if not path.is_file():
-        raise InputError("missing file (not a dataset folder written by `spikenerf simulate`?)", path=path)
+        raise InputError(_MISSING, path=path)
     try:
-        text = path.read_text(encoding="utf-8")
-        data = json.loads(text) if fmt == "JSON" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError, UnicodeDecodeError) as err:
-        raise InputError(f"malformed {fmt} ({err})", path=path) from err
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as err:
+        raise InputError(f"malformed YAML ({err})", path=path) from err
     if not isinstance(data, dict):
-        what = "a JSON object" if fmt == "JSON" else "a mapping"
-        raise InputError(f"expected {what} at the top level, found {type(data).__name__}", path=path)
+        raise InputError(f"expected a mapping at the top level, found {type(data).__name__}", path=path)
     return data
 
 
-def _number(obj: dict, key: str, path: Path, where: str = "", positive: bool = False) -> float:
-    if key not in obj:
-        raise InputError(f"missing field {where}{key!r}", path=path)
-    v = obj[key]
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-    if not ok or (positive and v <= 0):
-        kind = "a positive number" if positive else "a finite number"
-        raise InputError(f"field {where}{key!r}: expected {kind}, found {v!r}", path=path)
-    return float(v)
-
-
 def _pose(obj: dict, path: Path, where: str) -> np.ndarray:
+    """``obj["transform_matrix"]`` of the frame ``where`` (``"frames[3]."``), checked by the one reader."""
     if "transform_matrix" not in obj:
         raise InputError(f"missing field {where}'transform_matrix'", path=path)
-    try:
-        m = np.asarray(obj["transform_matrix"], dtype=np.float64)
-    except (TypeError, ValueError) as err:
-        raise InputError(
-            f"field {where}'transform_matrix': expected a 4×4 list of numbers ({err})", path
-        ) from err
-    if m.shape != (4, 4) or not np.isfinite(m).all():
-        found = f"shape {m.shape}" if m.shape != (4, 4) else "NaN/inf values"
-        raise InputError(
-            f"field {where}'transform_matrix': expected a finite 4×4 matrix, found {found}", path
-        )
-    det = float(np.linalg.det(m[:3, :3]))
-    if abs(det - 1) > 1e-2:  # all zeros, a scaled or mirrored camera: no rotation
-        raise InputError(
-            f"field {where}'transform_matrix': its rotation has determinant {det:.3g}, expected 1", path
-        )
-    return m
+    return pose(obj["transform_matrix"], f"{where}transform_matrix", path)
 
 
 def _file(root: Path, obj: dict, path: Path, where: str) -> Path:
@@ -196,21 +178,11 @@ def _file(root: Path, obj: dict, path: Path, where: str) -> Path:
 
 
 def _frames(data: dict, path: Path) -> list[dict]:
-    frames = data.get("frames")
-    if not isinstance(frames, list) or not all(isinstance(f, dict) for f in frames):
-        raise InputError("field 'frames': expected a list of objects", path=path)
-    return frames
+    return frames_of(data, path, empty=True)
 
 
 def _check_camera(data: dict, path: Path, k: Intrinsics | None) -> Intrinsics:
-    w, h = (_number(data, key, path, positive=True) for key in ("w", "h"))
-    if w != int(w) or h != int(h):
-        raise InputError(f"fields 'w', 'h': expected integers, found {w}, {h}", path=path)
-    if all(key in data for key in ("fl_x", "fl_y", "cx", "cy")):
-        fl_x, fl_y = (_number(data, key, path, positive=True) for key in ("fl_x", "fl_y"))
-        found = Intrinsics(int(w), int(h), fl_x, fl_y, _number(data, "cx", path), _number(data, "cy", path))
-    else:
-        found = Intrinsics.from_fov(int(w), int(h), _number(data, "camera_angle_x", path, positive=True))
+    found = intrinsics(data, path)
     if k is not None and (found.width, found.height) != (k.width, k.height):
         raise InputError(
             f"image size {found.width}×{found.height} differs from transforms.json's "
@@ -242,7 +214,7 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
         elif f.get("index") != i:
             raise InputError(f"field {where}'index': expected {i}, found {f.get('index')!r}", path=path)
         if blur:
-            s0, s1 = (_number(f, key, path, where) for key in ("step_start", "step_end"))
+            s0, s1 = (number(f, key, path, where) for key in ("step_start", "step_end"))
             if not (s0 == int(s0) and s1 == int(s1) and 0 <= s0 < s1):
                 raise InputError(
                     f"fields {where}step_start/step_end: expected integers 0 ≤ a < b, found {s0}, {s1}",
@@ -296,19 +268,11 @@ def load_dataset(root: str | Path) -> SpikeDataset:
     tpath = root / TRANSFORMS
     data = _read_mapping(tpath)
     k = _check_camera(data, tpath, None)
-    fps = _number(data, "fps", tpath, positive=True)
-    near, far = _number(data, "near", tpath, positive=True), _number(data, "far", tpath, positive=True)
+    fps = number(data, "fps", tpath, positive=True)
+    near, far = number(data, "near", tpath, positive=True), number(data, "far", tpath, positive=True)
     if near >= far:
         raise InputError(f"fields 'near', 'far': expected near < far, found {near}, {far}", path=tpath)
-    try:
-        box = np.asarray(data.get("scene_box"), dtype=np.float64)
-    except (TypeError, ValueError):
-        box = np.zeros(0)
-    if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
-        raise InputError(
-            f"field 'scene_box': expected [[min x,y,z],[max x,y,z]], found {data.get('scene_box')!r}",
-            path=tpath,
-        )
+    box = scene_box(data, tpath, required=True)
     frames = _frames(data, tpath)
     if not frames:
         raise InputError("field 'frames' is empty: expected one frame per spike step", path=tpath)
@@ -316,10 +280,10 @@ def load_dataset(root: str | Path) -> SpikeDataset:
     for i, f in enumerate(frames):
         where = f"frames[{i}]."
         poses.append(_pose(f, tpath, where))
-        times.append(_number(f, "time", tpath, where))
+        times.append(number(f, "time", tpath, where))
         if len(times) > 1 and not times[-1] > times[-2]:
             raise InputError(f"field {where}'time': expected increasing times, found {times[-1]}", tpath)
-        step = _number(f, "step", tpath, where)
+        step = number(f, "step", tpath, where)
         if step != int(step) or (steps and step <= steps[-1]):
             raise InputError(f"field {where}'step': expected increasing integers, found {step}", path=tpath)
         steps.append(int(step))
@@ -355,9 +319,9 @@ def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
     path = root / CONFIG
     config = _read_mapping(path, "YAML")
     for key, want in (("spike_h", k.height), ("spike_w", k.width), ("fps", fps)):
-        if _number(config, key, path, positive=True) != want:
+        if number(config, key, path, positive=True) != want:
             raise InputError(f"field {key!r} is {config[key]}, but transforms.json says {want}", path=path)
-    _number(config, "threshold", path, positive=True)
+    number(config, "threshold", path, positive=True)
     colors = config.get("colors")
     if not isinstance(colors, list) or not colors or any(c not in MODES for c in colors):
         raise InputError(
@@ -369,8 +333,4 @@ def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
 def read_pose_file(path: str | Path) -> np.ndarray:
     """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``)."""
     path = Path(path)
-    data = _read_mapping(path)
-    poses = [_pose(f, path, f"frames[{i}].") for i, f in enumerate(_frames(data, path))]
-    if not poses:
-        raise InputError("field 'frames' is empty: expected at least one pose", path=path)
-    return np.stack(poses)
+    return frame_poses(_read_mapping(path), path)

@@ -19,12 +19,11 @@ import numpy as np
 
 from spikenerf import __version__
 from spikenerf.camera.io import count_frames, frame_bytes, iter_dat, read_dat, resolve_frames
-from spikenerf.camera.reconstruct import tfp
 from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_output, mark
+from spikenerf.core.marker import MARKER, check_output, mark, replace_dir
 from spikenerf.data.alignment import (
     ORIENTS,
     Orient,
@@ -37,7 +36,8 @@ from spikenerf.data.alignment import (
 )
 from spikenerf.data.dataset import near_far
 from spikenerf.data.poses import PoseSet, orbit_poses, read_pose_source
-from spikenerf.data.simulate import _replace_dir, open_work, recover_replaced
+from spikenerf.data.reconstruction import reconstructor
+from spikenerf.data.simulate import open_work, recover_replaced
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
@@ -180,19 +180,14 @@ def keyframe_images(
     threshold: float,
 ) -> np.ndarray:
     """TFP (or learned) keyframes (N, H, W) float32 linear at absolute ``steps``, windows in [first, stop)."""
-    half, (h, w, raw) = opts.window // 2, shape
-    if opts.keyframe_images == "learned":
-        from spikenerf.recon.infer import learned_reconstructor
-
-        recon = learned_reconstructor(threshold=threshold)
-        read = lambda a, b: read_dat(dat, h, w, slice(first + a, first + b), opts.layout, raw)  # noqa: E731
-        return np.stack([recon(read, stop - first, int(s) - first, int(s) - first + 1)[0] for s in steps])
+    (h, w, raw), learned = shape, opts.keyframe_images == "learned"
+    recon = reconstructor(opts.keyframe_images, None if learned else opts.window, threshold)
+    read = lambda a, b: read_dat(dat, h, w, slice(first + a, first + b), opts.layout, raw)  # noqa: E731
     out = []
     for s in steps:
-        lo, hi = max(first, int(s) - half), min(stop, int(s) + half + 1)
-        chunk = read_dat(dat, h, w, slice(lo, hi), opts.layout, raw)
-        out.append(tfp(chunk, opts.window, threshold, frames=int(s) - lo)[0])
-        failpoint("import.keyframe")
+        out.append(recon(read, stop - first, int(s) - first, int(s) - first + 1)[0])
+        if not learned:
+            failpoint("import.keyframe")
     return np.stack(out)
 
 
@@ -401,4 +396,4 @@ def _write(
     writer.finish(Trajectory(poses, steps / fps, steps, fps), config, None)
     mark(work, "dataset", files=True)
     failpoint("import.publish")
-    _replace_dir(work, out)
+    replace_dir(work, out)

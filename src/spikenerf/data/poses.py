@@ -8,7 +8,6 @@ Blender ``transforms.json``, a COLMAP model folder (``cameras``, ``images``, ``p
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import tempfile
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from spikenerf.core.errors import InputError
+from spikenerf.scenes import transforms
 from spikenerf.scenes.trajectory import Intrinsics, orbit, quaternion_to_matrix
 
 #: OpenCV camera axes (COLMAP: +X right, +Y down, +Z forward) → OpenGL (+Y up, looking down −Z)
@@ -75,36 +75,20 @@ def steps_from_names(names: list[str]) -> np.ndarray | None:
 # ------------------------------------------------------------------------------------- transforms.json
 def read_transforms_poses(path: Path) -> PoseSet:
     """A nerfstudio/Blender ``transforms.json``: ``frames[].transform_matrix`` (+ ``step`` when present)."""
-    from spikenerf.data.dataset import read_pose_file
-
-    poses = check_poses(read_pose_file(path), path)
-    data = json.loads(path.read_text(encoding="utf-8"))
+    data = transforms.read_transforms(path)
+    poses = check_poses(transforms.frame_poses(data, path), path)
     frames = data["frames"]
     steps = None
     if all(isinstance(f.get("step"), int) for f in frames):
         steps = np.array([f["step"] for f in frames], np.int64)
     elif all(isinstance(f.get("file_path"), str) for f in frames):
         steps = steps_from_names([f["file_path"] for f in frames])
-    k, fov = None, None
-    if all(isinstance(data.get(key), (int, float)) for key in ("w", "h", "fl_x", "fl_y", "cx", "cy")):
-        for key in ("w", "h", "fl_x", "fl_y"):
-            if not (math.isfinite(data[key]) and data[key] > 0):
-                raise InputError(f"field '{key}': expected a number > 0, found {data[key]}", path)
-        k = Intrinsics(
-            int(data["w"]), int(data["h"]), *(float(data[key]) for key in ("fl_x", "fl_y", "cx", "cy"))
-        )
-    elif isinstance(data.get("camera_angle_x"), (int, float)) and data["camera_angle_x"] > 0:
-        fov = float(data["camera_angle_x"])
-    box = None
-    if "scene_box" in data:
-        try:
-            box = np.asarray(data["scene_box"], np.float64)
-        except (TypeError, ValueError):
-            box = np.zeros(0)
-        if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
-            raise InputError(
-                f"field 'scene_box': expected [[min x,y,z],[max x,y,z]], found {data['scene_box']!r}", path
-            )
+    k, fov, cam = None, None, transforms.camera(data, path)
+    if all(key in cam for key in ("fl_x", "w", "h")):
+        k = transforms.intrinsics(data, path)
+    elif "camera_angle_x" in cam:
+        fov = transforms.field_of_view(cam, path)
+    box = transforms.scene_box(data, path)
     names = tuple(str(f.get("file_path", i)) for i, f in enumerate(frames))
     return PoseSet(poses, steps, k, None, box, names, fov)
 

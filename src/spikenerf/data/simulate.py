@@ -30,7 +30,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_output, folder_kind, mark, recover_retired, retire
+from spikenerf.core.marker import MARKER, check_output, folder_kind, mark, recover_retired, replace_dir
 from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
 from spikenerf.data.dataset import MODES, near_far, spike_files
 from spikenerf.data.recording import RAW_DIR, check_raw_width, write_raw_recording
@@ -270,18 +270,10 @@ def check_options(options: SimulateOptions) -> None:
 
 
 def recover_replaced(out: Path) -> None:
-    """Finish a :func:`_replace_dir` that was killed between its renames (call it holding the lock): the
-    swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted; only one spikenerf retired
-    (``core/marker.py``), never the user's own ``.<out>.old``."""
+    """Finish a :func:`~spikenerf.core.marker.replace_dir` that was killed between its renames (call it
+    holding the lock): the swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted;
+    only one spikenerf retired (``core/marker.py``), never the user's own ``.<out>.old``."""
     recover_retired(out)
-
-
-def _replace_dir(work: Path, out: Path) -> None:
-    """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is swapped out, then deleted)."""
-    old = retire(out) if out.exists() or out.is_symlink() else None
-    work.rename(out)
-    if old is not None:
-        shutil.rmtree(old)
 
 
 def stream_steps(
@@ -428,5 +420,5 @@ def _simulate_locked(
     mark(work, "dataset", files=True)
     failpoint("simulate.publish")
     shutil.rmtree(cache)
-    _replace_dir(work, out)
+    replace_dir(work, out)
     return out

@@ -12,7 +12,7 @@ import yaml
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.model import COLORS as MODES
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window, tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
@@ -26,6 +26,7 @@ from spikenerf.data.dataset import (
     load_dataset,
     spike_files,
 )
+from spikenerf.data.reconstruction import frame_at
 
 PREVIEW = "preview.png"
 #: TFP window of the preview (frames), shortened for streams with fewer steps
@@ -51,9 +52,8 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
     else:
         pos = n // 2
     window = fitting_window(n, PREVIEW_WINDOW)
-    half = window // 2
-    lo, hi = max(pos - half, 0), min(pos + half + 1, n)
-    recon = tfp(ds.spikes(mode, slice(lo, hi)), window, ds.threshold, frames=pos - lo)[0]
+    read = lambda a, b: ds.spikes(mode, slice(a, b))  # noqa: E731
+    recon = frame_at(read, pos, "tfp", window, ds.threshold, n)
     recon = np.repeat(to_channels_last(recon, frame=True), 3 if mode != "rgb" else 1, -1)  # (H, W, 3)
     h = recon.shape[0]
     panels = [recon]

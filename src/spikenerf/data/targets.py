@@ -35,16 +35,16 @@ from torch import Tensor
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, tfi, tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
+from spikenerf.data.reconstruction import RECONS as RECONS
+from spikenerf.data.reconstruction import TargetRecon as TargetRecon
+from spikenerf.data.reconstruction import reconstruct_stream
 
 if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
 
-#: image reconstructions for targets: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
-TargetRecon = Literal[ReconMethod, "learned"]
-RECONS: tuple[str, ...] = get_args(TargetRecon)
 #: training methods (each one a class in ``spikenerf.train.methods`` that builds its targets from here)
 Method = Literal[
     "spike-integral", "spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-bad", "nerf-gt"
@@ -114,27 +114,6 @@ class SpikeTargets:
     def spikes_on(self, device: torch.device | str) -> SpikeTargets:
         """The same targets with ``spikes`` on ``device``; poses stay where they are."""
         return dataclasses.replace(self, spikes=self.spikes.to(device))
-
-
-def reconstruct_stream(
-    spikes: np.ndarray,
-    recon: str = "tfp",
-    window: int = DEFAULT_WINDOW,
-    threshold: float = 1.0,
-    frames: slice | None = None,
-) -> np.ndarray:
-    """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI or the shipped learned
-    reconstructor (its trained window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb
-    stream → float32 linear (N, ...)."""
-    if recon == "learned":  # on the training device and cached in the run folder inside a trainer
-        from spikenerf.data.recon_cache import learned_stream
-
-        return learned_stream(spikes, threshold, frames, window)
-    if recon == "tfp":
-        return tfp(spikes, window=window, threshold=threshold, frames=frames)
-    if recon == "tfi":
-        return tfi(spikes, threshold=threshold, frames=frames)
-    raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
 
 
 def masked_reconstruction(

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.io import encode_frames, read_dat
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW, tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.data.dataset import (
     BLUR_ARRAY,
@@ -29,6 +29,7 @@ from spikenerf.data.dataset import (
     spike_files,
     write_image,
 )
+from spikenerf.data.reconstruction import frame_at
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 
@@ -179,16 +180,17 @@ class DatasetWriter:
         reads only its own window of the stream."""
         modes = list(config.get("colors", ["gray"]))
         mode = "rgb" if "rgb" in modes else modes[0]
-        k, half, total = self.intrinsics, TFP_WINDOW // 2, len(trajectory.steps)
+        k, total, threshold = self.intrinsics, len(trajectory.steps), float(config["threshold"])
         index = {int(s): i for i, s in enumerate(trajectory.steps)}
+        readers = [  # read only each keyframe's window: the stream may be long
+            lambda a, b, path=self.root / name: read_dat(path, k.height, k.width, slice(a, b))
+            for name in spike_files(mode)
+        ]
         out = []
-        for frame in keyframes:  # read only each keyframe's window: the stream may be long
+        for frame in keyframes:
             i, rel = index[frame["step"]], f"tfp/{frame['step']:05d}.png"
-            lo = max(0, i - half)
-            window = slice(lo, min(total, i + half + 1))
-            streams = [read_dat(self.root / name, k.height, k.width, window) for name in spike_files(mode)]
             image = np.stack(
-                [tfp(s, TFP_WINDOW, float(config["threshold"]), frames=i - lo)[0] for s in streams], axis=-1
+                [frame_at(read, i, "tfp", TFP_WINDOW, threshold, total) for read in readers], axis=-1
             )
             write_image(self.root / rel, np.broadcast_to(image, (*image.shape[:2], 3)))
             out.append({**frame, "file_path": rel})

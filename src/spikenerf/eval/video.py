@@ -32,7 +32,7 @@ from tqdm import tqdm
 
 from spikenerf.camera.io import write_dat, write_dat_rgb
 from spikenerf.camera.layout import to_channels_last
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window, tfp
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
@@ -40,6 +40,7 @@ from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, read_pose_file
+from spikenerf.data.reconstruction import frame_at
 from spikenerf.render import iter_spike_stream, render_image
 from spikenerf.render.inference import check_precision, inference_chunk
 from spikenerf.scenes.trajectory import orbit
@@ -164,7 +165,7 @@ def write_spikes(
         files = write_dat_rgb(out / "spikes_rgb", spikes)
     t = len(spikes)
     window = fitting_window(t, TFP_WINDOW)
-    preview = tfp(spikes, window=max(window, 1), threshold=dataset.threshold, frames=t // 2)[0]
+    preview = frame_at(spikes, t // 2, "tfp", max(window, 1), dataset.threshold)
     preview = to_channels_last(preview, frame=True)
     write_bytes_atomic(out / "spikes_tfp.png", png_bytes(to_uint8(srgb_encode(preview))))
     return [p.name for p in files] + ["spikes_tfp.png"]

@@ -214,7 +214,7 @@ def novel_spikes(
     """
     from spikenerf.camera.layout import to_camera_layout, to_channels_last
     from spikenerf.camera.model import CameraConfig, simulate
-    from spikenerf.camera.reconstruct import tfp
+    from spikenerf.data.reconstruction import frame_at
     from spikenerf.render import render_image
     from spikenerf.render.spiking import fire_sequence, random_start
     from spikenerf.train.run import load_run
@@ -234,7 +234,7 @@ def novel_spikes(
     window = fitting_window(steps, TFP_WINDOW)
     images = []
     for s in (gt_spikes, pred_spikes):
-        rec = tfp(s.astype(np.uint8), window=window, threshold=phi, frames=steps // 2)[0]
+        rec = frame_at(s.astype(np.uint8), steps // 2, "tfp", window, phi)
         images.append(srgb_encode(rec if rec.ndim == 2 else to_channels_last(rec, frame=True)))
     mse = float(np.mean((images[0] - images[1]) ** 2))
     return NovelSpikes(

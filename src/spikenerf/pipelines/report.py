@@ -212,7 +212,7 @@ def _views_fig(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str, color: str) -
 def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig]:
     from spikenerf.camera.layout import to_channels_last
     from spikenerf.camera.masks import spike_masks
-    from spikenerf.camera.reconstruct import tfp
+    from spikenerf.data.reconstruction import frame_at
 
     mode = "gray" if "gray" in ds.modes else ds.modes[0]
     stream = ds.spikes(mode)  # (T, H, W) or (T, 3, H, W)
@@ -234,7 +234,7 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
         figures.raster_figure(raster, labels, f"{scene} · {mode} stream · spike raster"),
         [sim],
     )
-    rec = tfp(stream, window=window, threshold=ds.threshold, frames=k)[0]
+    rec = frame_at(stream, k, "tfp", window, ds.threshold)
     rec = rec if rec.ndim == 2 else to_channels_last(rec, frame=True)
     mask = spike_masks(stream, n=MASK_N, frames=k)[0]
     mask = mask.any(0) if mask.ndim == 3 else mask

@@ -8,61 +8,40 @@ steps ``i·s … i·s + s − 1`` (``s = steps_per_frame``): held by default, or
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from spikenerf.core.errors import InputError
+from spikenerf.scenes import transforms
 from spikenerf.scenes.image_io import find_image, image_size, load_frame
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory, interpolate_poses
 
-#: the stop of an open range "A:" (Python slices clamp it to the number of frames).
+#: the stop of an open range ``(A, OPEN_END)`` (Python slices clamp it to the number of frames).
 OPEN_END = sys.maxsize
+#: a selection of the listed frames: a slice, or ``(start, stop)`` as a Python slice's bounds
+FrameRange = slice | tuple[int, int]
 #: half-size of an estimated scene box, as a fraction of the nearest camera's distance to the box centre.
 SCENE_BOX_FACTOR = 0.5
-_CAMERA_KEYS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")
-_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-#: nerfstudio ``camera_model`` values that are a pinhole camera once the distortion terms are zero
-_PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 
 
 # ----------------------------------------------------------------------------------------------- ranges
-def parse_range(text: str) -> tuple[int, int]:
-    """Parse ``--sequence-range "A:B"`` (Python slice of the listed frames; ``A:`` and ``:B`` allowed).
+def select_range(count: int, frame_range: FrameRange | None, path: Path | None = None) -> range:
+    """The listed-frame indices ``range(count)[A:B]``; an empty selection is an :class:`InputError`.
 
-    Returns:
-        (start, stop); an open stop is :data:`OPEN_END`. Negative values count from the end.
-    """
-    parts = str(text).strip().split(":")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        start = int(parts[0]) if parts[0].strip() else 0
-        stop = int(parts[1]) if parts[1].strip() else OPEN_END
-    except ValueError:
-        raise InputError(
-            f"sequence_range: expected A:B (a Python slice of the listed frames, e.g. 0:100), got {text!r}",
-            param="sequence_range",
-        ) from None
-    if (start >= 0) == (stop >= 0) and start >= stop:
-        raise InputError(f"sequence_range: {text!r} selects no frames (need A < B)", param="sequence_range")
-    return start, stop
-
-
-def select_range(count: int, frame_range: tuple[int, int] | None, path: Path | None = None) -> range:
-    """The listed-frame indices ``range(count)[A:B]``; an empty selection is an :class:`InputError`."""
+    ``frame_range`` is a slice (``core.errors.parse_range("A:B", "sequence_range")``) or ``(A, B)``."""
     if frame_range is None:
         return range(count)
-    start, stop = frame_range
+    start, stop = (
+        (frame_range.start, frame_range.stop) if isinstance(frame_range, slice) else tuple(frame_range)
+    )
     selected = range(count)[slice(start, stop)]
     if len(selected) == 0:
-        shown = f"{start}:{'' if stop == OPEN_END else stop}"
+        shown = f"{'' if start is None else start}:{'' if stop in (None, OPEN_END) else stop}"
         raise InputError(
             f"sequence_range {shown} selects no frames out of {count} listed",
             path=path,
@@ -144,129 +123,12 @@ class SequenceFrames:
     scene_box: np.ndarray | None
 
 
-def read_json(path: Path) -> dict[str, Any]:
-    """Load a transforms JSON object with a non-empty ``frames`` list."""
-    if not path.is_file():
-        raise InputError("transforms file not found", path=path)
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"not valid JSON ({err})", path=path) from err
-    if not isinstance(meta, dict):
-        raise InputError(f"expected a JSON object, found {type(meta).__name__}", path=path)
-    frames = meta.get("frames")
-    if not isinstance(frames, list) or not frames:
-        raise InputError(f"field 'frames': expected a non-empty list, found {frames!r:.40}", path=path)
-    for i, frame in enumerate(frames):
-        if not isinstance(frame, dict):
-            raise InputError(f"frames[{i}]: expected an object, found {type(frame).__name__}", path=path)
-        for key in ("file_path", "transform_matrix"):
-            if key not in frame:
-                raise InputError(f"frames[{i}]: missing field '{key}'", path=path)
-    return meta
-
-
-def parse_pose(value: object, field: str, path: Path) -> np.ndarray:
-    """A 4×4 rigid camera-to-world matrix (finite, orthonormal rotation, last row 0 0 0 1)."""
-    try:
-        m = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{field}: expected a 4×4 list of numbers, found {value!r:.60}", path=path) from None
-    if m.shape != (4, 4):
-        raise InputError(f"{field}: expected a 4×4 matrix, found shape {m.shape}", path=path)
-    if not np.isfinite(m).all():
-        raise InputError(f"{field}: matrix holds NaN or infinite values", path=path)
-    rot = m[:3, :3]
-    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
-        raise InputError(f"{field}: last row must be [0, 0, 0, 1], found {m[3].tolist()}", path=path)
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
-        raise InputError(f"{field}: rotation part is not a rotation (scaled, sheared or mirrored)", path=path)
-    return m
-
-
-def _number(value: object, field: str, path: Path, positive: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(f"field '{field}': expected a finite number, found {value!r}", path=path)
-    if positive and value <= 0:
-        raise InputError(f"field '{field}': expected a positive number, found {value!r}", path=path)
-    return float(value)
-
-
-def parse_intrinsics(meta: dict[str, Any], size: tuple[int, int], path: Path) -> Intrinsics:
-    """The shared camera: ``fl_x`` [``fl_y``, ``cx``, ``cy``, ``w``, ``h``] or ``camera_angle_x``.
-
-    Keys are read at the top level, else from the first frame; every frame that repeats a key must agree
-    (per-frame cameras and lens distortion are not supported). ``size`` = (width, height) of the images.
-    """
-    frames = meta["frames"]
-    source = meta if ("fl_x" in meta or "camera_angle_x" in meta) else frames[0]
-    cam = {k: source[k] for k in _CAMERA_KEYS if k in source}
-    for i, frame in enumerate(frames):
-        for key in [k for k in _CAMERA_KEYS if k in frame and k in cam and frame[k] != cam[k]]:
-            raise InputError(
-                f"frames[{i}].{key} differs from {cam[key]!r}: per-frame cameras unsupported", path
-            )
-    model = meta.get("camera_model", "PINHOLE")
-    if model not in _PERSPECTIVE_MODELS:
-        raise InputError(
-            f"field 'camera_model': {model!r} is not a perspective camera (need a pinhole)", path
-        )
-    for key in [k for d in (meta, *frames) for k in _DISTORTION_KEYS if d.get(k, 0) not in (0, 0.0)]:
-        raise InputError(
-            f"field '{key}': {model} lens distortion is not supported; undistort the images first (e.g. "
-            "COLMAP image_undistorter, which writes a PINHOLE camera) and drop k1…p2",
-            path,
-        )
-    width, height = size
-    for key, found in (("w", width), ("h", height)):
-        if key in cam and cam[key] != found:
-            raise InputError(
-                f"field '{key}' = {cam[key]!r} but the images are {width}×{height} pixels", path=path
-            )
-    if "fl_x" in cam:
-        fl_x = _number(cam["fl_x"], "fl_x", path)
-        fl_y = _number(cam.get("fl_y", fl_x), "fl_y", path)
-        cx = _number(cam.get("cx", width / 2.0), "cx", path, positive=False)
-        cy = _number(cam.get("cy", height / 2.0), "cy", path, positive=False)
-        return Intrinsics(width, height, fl_x, fl_y, cx, cy)
-    if "camera_angle_x" in cam:
-        angle = _number(cam["camera_angle_x"], "camera_angle_x", path)
-        if angle >= math.pi:
-            raise InputError(f"field 'camera_angle_x': expected radians in (0, π), found {angle}", path=path)
-        return Intrinsics.from_fov(width, height, angle)
-    raise InputError(
-        "missing camera: expected 'camera_angle_x' or 'fl_x' (with optional fl_y, cx, cy)", path=path
-    )
-
-
-def _parse_box(meta: dict[str, Any], path: Path) -> np.ndarray | None:
-    for key in ("scene_box", "aabb"):
-        if key in meta:
-            try:
-                box = np.asarray(meta[key], dtype=np.float64)
-            except (TypeError, ValueError):
-                box = np.zeros(0)
-            if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
-                raise InputError(
-                    f"field '{key}': expected [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max, "
-                    f"found {meta[key]!r:.80}",
-                    path=path,
-                )
-            return box
-    return None
-
-
-def load_sequence(transforms_json: str | Path, frame_range: tuple[int, int] | None = None) -> SequenceFrames:
+def load_sequence(transforms_json: str | Path, frame_range: FrameRange | None = None) -> SequenceFrames:
     """Read and validate a transforms.json: every listed pose, and the images of the selected frames."""
     path = Path(transforms_json)
-    meta = read_json(path)
-    frames = meta["frames"]
-    all_poses = np.stack(
-        [
-            parse_pose(f["transform_matrix"], f"frames[{i}].transform_matrix", path)
-            for i, f in enumerate(frames)
-        ]
-    )
+    meta = transforms.read_transforms(path)
+    frames = transforms.frames_of(meta, path, ("file_path", "transform_matrix"))
+    all_poses = transforms.frame_poses(meta, path)
     indices = np.asarray(select_range(len(frames), frame_range, path), dtype=np.int64)
     root = path.parent
     images = [find_image(root, frames[i]["file_path"], f"frames[{i}].file_path", path) for i in indices]
@@ -279,9 +141,9 @@ def load_sequence(transforms_json: str | Path, frame_range: tuple[int, int] | No
                 f"{size[0]}×{size[1]}: all images must have the same size",
                 path=path,
             )
-    intrinsics = parse_intrinsics(meta, size, path)
+    intrinsics = transforms.intrinsics(meta, path, size)
     return SequenceFrames(
-        path, indices, images, all_poses[indices], all_poses, intrinsics, _parse_box(meta, path)
+        path, indices, images, all_poses[indices], all_poses, intrinsics, transforms.scene_box(meta, path)
     )
 
 
@@ -306,7 +168,7 @@ class SequenceSource:
     Args:
         transforms_json: NeRF-Blender JSON; images are resolved relative to its folder.
         width, height: output size (one alone keeps the aspect ratio); None = the images' size.
-        frame_range: (start, stop) Python slice of the listed frames (see :func:`parse_range`).
+        frame_range: a slice (or (start, stop)) of the listed frames (``core.errors.parse_range``).
         steps_per_frame: spike steps per source frame, T = frames × steps_per_frame.
         interpolate: blend intensity and interpolate poses between neighbouring frames instead of holding.
         eval_views: a second transforms.json of held-out views with ground truth (the test split).
@@ -324,7 +186,7 @@ class SequenceSource:
         transforms_json: Path,
         width: int | None = None,
         height: int | None = None,
-        frame_range: tuple[int, int] | None = None,
+        frame_range: FrameRange | None = None,
         steps_per_frame: int = 1,
         interpolate: bool = False,
         eval_views: Path | None = None,

@@ -1,0 +1,107 @@
+"""Images from spikes, in one place: TFP or TFI (:mod:`spikenerf.camera.reconstruct`) or the shipped learned
+reconstructor (:mod:`spikenerf.recon`, imported only when asked for).
+
+One dispatch, :func:`reconstructor` (``tfp``, ``tfi``, ``learned``), in three forms:
+
+* :func:`reconstructor` → ``recon(read, total, start, stop)``: frames ``start:stop`` of a long stream that
+  ``read(a, b)`` reads on demand, only the frames the result depends on (``reconstruct``, ``import``);
+* :func:`frame_at`: frame ``k`` of a stream, an array or a reader (dataset previews and TFP keyframes, the
+  novel-view spike preview, the report's figures);
+* :func:`reconstruct_stream`: every step (or a slice) of an in-memory stream, the training targets; there the
+  learned reconstruction of a whole stream is made on the training device and cached in the run folder
+  (:mod:`spikenerf.data.recon_cache`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Literal, get_args
+
+import numpy as np
+
+from spikenerf.camera.io import resolve_frames
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, reconstruct_frames
+from spikenerf.core.errors import InputError
+
+#: image reconstructions: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
+TargetRecon = Literal[ReconMethod, "learned"]
+RECONS: tuple[str, ...] = get_args(TargetRecon)
+#: ``read(a, b)`` → frames ``a:b`` (b − a, ...) of a stream, 0/1
+Reader = Callable[[int, int], np.ndarray]
+#: ``recon(read, total, start, stop)`` → float32 (stop − start, ...) linear frames of a ``total``-frame stream
+Reconstructor = Callable[[Reader, int, int, int], np.ndarray]
+
+
+def reconstructor(
+    recon: str = "tfp",
+    window: int | None = None,
+    threshold: float = 1.0,
+    *,
+    weights: object = None,
+    color: str = "gray",
+) -> Reconstructor:
+    """The reconstruction ``recon`` as ``recon(read, total, start, stop)`` (see :data:`Reconstructor`).
+
+    Args:
+        recon: ``tfp``, ``tfi`` or ``learned``.
+        window: TFP's window in frames, odd (None = ``DEFAULT_WINDOW``); for ``learned``, the window the
+            network must have been trained on (None = not checked); TFI has none (ignored).
+        threshold: φ of the camera.
+        weights, color: ``learned`` only: the weights file (None = shipped) and the stream's colour
+            (gray, one channel of an rgb recording, or a Bayer mosaic). The weights are checked now.
+    Returns:
+        A function whose result equals the whole stream's reconstruction at ``start:stop`` exactly.
+    """
+    if recon == "learned":
+        from spikenerf.recon.infer import learned_reconstructor
+
+        return learned_reconstructor(weights, color, window, threshold)
+    if recon not in RECONS:
+        raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
+    tfp_window = DEFAULT_WINDOW if window is None else window
+    return lambda read, total, start, stop: reconstruct_frames(
+        read, total, start, stop, recon, tfp_window, threshold
+    )
+
+
+def frame_at(
+    spikes: np.ndarray | Reader,
+    k: int,
+    recon: str = "tfp",
+    window: int | None = DEFAULT_WINDOW,
+    threshold: float = 1.0,
+    total: int | None = None,
+) -> np.ndarray:
+    """Frame ``k`` (...) float32 linear of a (T, ...) stream, reading only the frames it depends on.
+
+    ``spikes`` is the stream (an array or memory map) or a :data:`Reader` of a ``total``-frame stream;
+    ``recon``, ``window``, ``threshold``: see :func:`reconstructor`.
+    """
+    if callable(spikes):
+        if total is None:
+            raise InputError("total: the number of frames is needed with a reader", param="total")
+        read = spikes
+    else:
+        stream = spikes
+        read, total = (lambda a, b: stream[a:b]), len(stream)
+    return reconstructor(recon, window, threshold)(read, total, int(k), int(k) + 1)[0]
+
+
+def reconstruct_stream(
+    spikes: np.ndarray,
+    recon: str = "tfp",
+    window: int = DEFAULT_WINDOW,
+    threshold: float = 1.0,
+    frames: slice | None = None,
+) -> np.ndarray:
+    """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI or the shipped learned
+    reconstructor (its trained window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb
+    stream → float32 linear (N, ...)."""
+    if recon == "learned":  # on the training device and cached in the run folder inside a trainer
+        from spikenerf.data.recon_cache import learned_stream
+
+        return learned_stream(spikes, threshold, frames, window)
+    recon_frames = reconstructor(recon, window, threshold)
+    selected = resolve_frames(frames, len(spikes))
+    images = recon_frames(lambda a, b: spikes[a:b], len(spikes), selected.start, selected.stop)
+    return images if selected.step == 1 else images[:: selected.step]

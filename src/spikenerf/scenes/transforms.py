@@ -1,0 +1,192 @@
+"""The one reader of a NeRF "Blender" / nerfstudio ``transforms.json``: the file, its frames, their
+camera-to-world matrices, the shared camera (intrinsics), the scene box and plain numbers.
+
+Every reader of such a file uses these rules: an image sequence (:mod:`spikenerf.scenes.sequence`), a
+dataset folder (:mod:`spikenerf.data.dataset`: ``transforms.json``, ``transforms_blur.json``,
+``transforms_test.json``) and an imported recording's pose file (:mod:`spikenerf.data.poses`). Every problem
+is one :class:`~spikenerf.core.errors.InputError` line naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spikenerf.core.errors import InputError
+from spikenerf.scenes.trajectory import Intrinsics
+
+#: the shared camera's keys (nerfstudio names)
+CAMERA_KEYS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")
+#: lens distortion terms; only zero (or absent) is supported
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+#: nerfstudio ``camera_model`` values that are a pinhole camera once the distortion terms are zero
+PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+#: the scene box's keys, the first present is read: ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
+BOX_KEYS = ("scene_box", "aabb")
+_REQUIRED = object()
+
+
+def read_transforms(path: str | Path, missing: str = "transforms file not found") -> dict[str, Any]:
+    """The top-level JSON object of ``path``; InputError(``missing``) when there is no such file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(missing, path=path)
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"malformed JSON ({err})", path=path) from err
+    if not isinstance(meta, dict):
+        raise InputError(f"expected a JSON object at the top level, found {type(meta).__name__}", path=path)
+    return meta
+
+
+def frames_of(
+    meta: dict[str, Any], path: Path, required: tuple[str, ...] = (), empty: bool = False
+) -> list[dict[str, Any]]:
+    """``meta["frames"]``: a list of objects, each holding the ``required`` keys; empty only if ``empty``."""
+    frames = meta.get("frames")
+    if not isinstance(frames, list) or not (frames or empty):
+        kind = "a list" if empty else "a non-empty list"
+        raise InputError(f"field 'frames': expected {kind} of objects, found {frames!r:.40}", path=path)
+    for i, frame in enumerate(frames):
+        if not isinstance(frame, dict):
+            raise InputError(f"frames[{i}]: expected an object, found {type(frame).__name__}", path=path)
+        for key in required:
+            if key not in frame:
+                raise InputError(f"frames[{i}]: missing field '{key}'", path=path)
+    return frames
+
+
+def number(
+    obj: dict[str, Any],
+    key: str,
+    path: Path,
+    where: str = "",
+    positive: bool = False,
+    default: Any = _REQUIRED,
+) -> float:
+    """``obj[key]`` as a float: finite, and > 0 if ``positive``; ``default`` when absent (else an error).
+
+    ``where`` prefixes the key in messages (``"frames[3]."``)."""
+    if key not in obj and default is _REQUIRED:
+        raise InputError(f"missing field {where}'{key}'", path=path)
+    value = obj.get(key, default)
+    finite = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if not finite or (positive and value <= 0):
+        kind = "a positive number" if positive else "a finite number"
+        raise InputError(f"field {where}'{key}': expected {kind}, found {value!r}", path=path)
+    return float(value)
+
+
+def pose(value: object, field: str, path: Path) -> np.ndarray:
+    """A rigid 4×4 camera-to-world matrix, float64 (finite, a rotation, last row 0 0 0 1); ``field`` names
+    it in messages (``frames[3].transform_matrix``)."""
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{field}: expected a 4×4 list of numbers, found {value!r:.60}", path=path) from None
+    if m.shape != (4, 4):
+        raise InputError(f"{field}: expected a 4×4 matrix, found shape {m.shape}", path=path)
+    if not np.isfinite(m).all():
+        raise InputError(f"{field}: matrix holds NaN or infinite values", path=path)
+    rot = m[:3, :3]
+    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
+        raise InputError(f"{field}: last row must be [0, 0, 0, 1], found {m[3].tolist()}", path=path)
+    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
+        raise InputError(f"{field}: rotation part is not a rotation (scaled, sheared or mirrored)", path=path)
+    return m
+
+
+def frame_poses(meta: dict[str, Any], path: Path) -> np.ndarray:
+    """(N, 4, 4) float64 ``frames[].transform_matrix`` of a file with at least one frame."""
+    frames = frames_of(meta, path, ("transform_matrix",))
+    return np.stack(
+        [pose(f["transform_matrix"], f"frames[{i}].transform_matrix", path) for i, f in enumerate(frames)]
+    )
+
+
+def camera(meta: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The shared camera's keys, read at the top level, else from the first frame; every frame that repeats a
+    key must agree (per-frame cameras are not supported), the model must be a pinhole and the lens distortion
+    zero."""
+    listed = meta.get("frames")
+    frames = [f for f in listed if isinstance(f, dict)] if isinstance(listed, list) else []
+    source = meta if ("fl_x" in meta or "camera_angle_x" in meta or not frames) else frames[0]
+    cam = {k: source[k] for k in CAMERA_KEYS if k in source}
+    for i, frame in enumerate(frames):
+        for key in [k for k in CAMERA_KEYS if k in frame and k in cam and frame[k] != cam[k]]:
+            raise InputError(
+                f"frames[{i}].{key} differs from {cam[key]!r}: per-frame cameras unsupported", path
+            )
+    model = meta.get("camera_model", "PINHOLE")
+    if model not in PERSPECTIVE_MODELS:
+        raise InputError(
+            f"field 'camera_model': {model!r} is not a perspective camera (need a pinhole)", path
+        )
+    for key in [k for d in (meta, *frames) for k in DISTORTION_KEYS if d.get(k, 0) not in (0, 0.0)]:
+        raise InputError(
+            f"field '{key}': {model} lens distortion is not supported; undistort the images first (e.g. "
+            "COLMAP image_undistorter, which writes a PINHOLE camera) and drop k1…p2",
+            path,
+        )
+    return cam
+
+
+def field_of_view(cam: dict[str, Any], path: Path) -> float:
+    """``camera_angle_x`` of :func:`camera`'s keys: radians in (0, π)."""
+    angle = number(cam, "camera_angle_x", path, positive=True)
+    if angle >= math.pi:
+        raise InputError(f"field 'camera_angle_x': expected radians in (0, π), found {angle}", path=path)
+    return angle
+
+
+def intrinsics(meta: dict[str, Any], path: Path, size: tuple[int, int] | None = None) -> Intrinsics:
+    """The shared camera (:func:`camera`): ``fl_x`` [``fl_y``, ``cx``, ``cy``] or ``camera_angle_x``.
+
+    ``size`` = (width, height) of the images when known: ``w``/``h``, if given, must match it; without it
+    ``w`` and ``h`` are required (positive integers). ``fl_y`` defaults to ``fl_x``, ``cx``/``cy`` to the
+    image centre.
+    """
+    cam = camera(meta, path)
+    if size is None:
+        w, h = (number(cam, key, path, positive=True) for key in ("w", "h"))
+        if w != int(w) or h != int(h):
+            raise InputError(f"fields 'w', 'h': expected integers, found {w}, {h}", path=path)
+        size = (int(w), int(h))
+    width, height = size
+    for key, found in (("w", width), ("h", height)):
+        if key in cam and cam[key] != found:
+            raise InputError(f"field '{key}' = {cam[key]!r} but the images are {width}×{height} pixels", path)
+    if "fl_x" in cam:
+        fl_x = number(cam, "fl_x", path, positive=True)
+        fl_y = number(cam, "fl_y", path, positive=True, default=fl_x)
+        cx = number(cam, "cx", path, default=width / 2.0)
+        cy = number(cam, "cy", path, default=height / 2.0)
+        return Intrinsics(width, height, fl_x, fl_y, cx, cy)
+    if "camera_angle_x" in cam:
+        return Intrinsics.from_fov(width, height, field_of_view(cam, path))
+    raise InputError("missing camera: expected 'camera_angle_x' or 'fl_x' (with optional fl_y, cx, cy)", path)
+
+
+def scene_box(meta: dict[str, Any], path: Path, required: bool = False) -> np.ndarray | None:
+    """(2, 3) float64 (min, max) from ``scene_box`` (or ``aabb``) with min < max; None when absent."""
+    for key in BOX_KEYS:
+        if key in meta:
+            try:
+                box = np.asarray(meta[key], dtype=np.float64)
+            except (TypeError, ValueError):
+                box = np.zeros(0)
+            if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
+                raise InputError(
+                    f"field '{key}': expected [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max, "
+                    f"found {meta[key]!r:.80}",
+                    path=path,
+                )
+            return box
+    if required:
+        raise InputError("missing field 'scene_box': expected [[xmin, ymin, zmin], [xmax, ymax, zmax]]", path)
+    return None

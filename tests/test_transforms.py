@@ -1,0 +1,81 @@
+"""The one transforms.json reader (scenes/transforms.py): every rule once, one error per function."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spikenerf.core.errors import InputError
+from spikenerf.scenes import transforms
+from spikenerf.scenes.trajectory import Intrinsics
+
+
+def _pose(x: float = 0.0) -> list[list[float]]:
+    m = np.eye(4)
+    m[0, 3] = x
+    return m.tolist()
+
+
+def _write(path: Path, **meta: object) -> Path:
+    data = {
+        "w": 8,
+        "h": 6,
+        "camera_angle_x": 0.9,
+        "frames": [{"transform_matrix": _pose(i)} for i in range(3)],
+    }
+    path.write_text(json.dumps({**data, **meta}))
+    return path
+
+
+def test_a_file_reads_into_poses_intrinsics_and_box(tmp_path: Path) -> None:
+    path = _write(tmp_path / "t.json", scene_box=[[-1, -1, -1], [1, 1, 1]])
+    meta = transforms.read_transforms(path)
+    poses = transforms.frame_poses(meta, path)
+    assert poses.shape == (3, 4, 4) and poses.dtype == np.float64 and poses[2, 0, 3] == 2.0
+    assert transforms.intrinsics(meta, path) == Intrinsics.from_fov(8, 6, 0.9)
+    assert transforms.scene_box(meta, path).tolist() == [[-1, -1, -1], [1, 1, 1]]
+    assert transforms.scene_box({}, path) is None
+    full = {**meta, "fl_x": 10.0}  # fl_y, cx, cy default to fl_x and the image centre
+    assert transforms.intrinsics(full, path) == Intrinsics(8, 6, 10.0, 10.0, 4.0, 3.0)
+    assert transforms.intrinsics(full, path, size=(8, 6)) == Intrinsics(8, 6, 10.0, 10.0, 4.0, 3.0)
+    assert transforms.number({"a": 2}, "a", path, positive=True) == 2.0
+    assert transforms.number({}, "a", path, default=0.5) == 0.5
+    assert transforms.field_of_view({"camera_angle_x": 1.0}, path) == 1.0
+
+
+def test_each_rule_is_one_error_naming_the_file_and_the_key(tmp_path: Path) -> None:
+    path = _write(tmp_path / "t.json")
+    with pytest.raises(InputError, match=r"missing\.json: gone"):
+        transforms.read_transforms(tmp_path / "missing.json", "gone")
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(InputError, match=r"bad\.json: malformed JSON"):
+        transforms.read_transforms(tmp_path / "bad.json")
+    with pytest.raises(InputError, match=r"t\.json: frames\[0\]: missing field 'file_path'"):
+        transforms.frames_of(json.loads(path.read_text()), path, ("file_path",))
+    with pytest.raises(InputError, match=r"t\.json: field 'frames': expected a non-empty list"):
+        transforms.frames_of({"frames": []}, path)
+    with pytest.raises(InputError, match=r"^.*t\.json: field frames\[0\]\.'time': expected a finite number"):
+        transforms.number({"time": math.nan}, "time", path, "frames[0].")
+    with pytest.raises(InputError, match=r"missing field 'near'"):
+        transforms.number({}, "near", path)
+    scaled = (np.eye(4) * [2, 2, 2, 1]).tolist()
+    with pytest.raises(InputError, match=r"t\.json: frames\[0\]\.transform_matrix: rotation part is not"):
+        transforms.pose(scaled, "frames[0].transform_matrix", path)
+    with pytest.raises(InputError, match=r"frames\[2\]\.transform_matrix: expected a 4×4 matrix"):
+        transforms.frame_poses(
+            {"frames": [{"transform_matrix": _pose()}] * 2 + [{"transform_matrix": [1]}]}, path
+        )
+    with pytest.raises(InputError, match=r"t\.json: field 'k1': OPENCV lens distortion is not supported"):
+        transforms.camera({"camera_model": "OPENCV", "k1": 0.1, "fl_x": 1.0}, path)
+    with pytest.raises(InputError, match=r"t\.json: field 'w' = 8 but the images are 4×6 pixels"):
+        transforms.intrinsics(json.loads(path.read_text()), path, size=(4, 6))
+    with pytest.raises(InputError, match=r"t\.json: field 'camera_angle_x': expected radians in \(0, π\)"):
+        transforms.field_of_view({"camera_angle_x": 4.0}, path)
+    with pytest.raises(InputError, match=r"t\.json: field 'aabb': expected \[\[xmin"):
+        transforms.scene_box({"aabb": [[1, 1, 1], [0, 0, 0]]}, path)
+    with pytest.raises(InputError, match=r"t\.json: missing field 'scene_box'"):
+        transforms.scene_box({}, path, required=True)
