@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from collections.abc import Iterator
 from dataclasses import replace
 
@@ -350,3 +352,51 @@ def test_a_checkpoint_from_before_decoder_bf16_keeps_a_float32_decoder() -> None
     assert model_from_hparams(hparams).field.config.decoder_bf16  # today's default, stored
     del hparams["config"]["decoder_bf16"]
     assert not model_from_hparams(hparams).field.config.decoder_bf16
+
+
+def test_every_field_kind_is_one_registry_entry_read_by_every_dispatch_site() -> None:
+    """Each ``FieldKind`` name has exactly one FIELD_REGISTRY entry (and one render model); building,
+    config parsing, the memory estimates and the CLI choices read the registry."""
+    import typing
+
+    from spikenerf.cli.benchmark import command as benchmark
+    from spikenerf.cli.train import command as train
+    from spikenerf.fields import FIELD_KINDS, FIELD_REGISTRY, FieldKind, field_memory
+    from spikenerf.fields.memory import ray_bytes
+    from spikenerf.render.model import MODELS, build_model
+
+    assert tuple(FIELD_REGISTRY) == FIELD_KINDS == typing.get_args(FieldKind) and set(MODELS) == set(
+        FIELD_KINDS
+    )
+    for command in (train, benchmark):
+        option = next(p for p in command.params if p.name in ("field", "field_kind"))
+        assert tuple(option.type.choices) == FIELD_KINDS  # type: ignore[attr-defined]
+    for kind, entry in FIELD_REGISTRY.items():
+        cfg = (
+            GridFieldConfig(n_voxels_init=8**3, n_voxels_final=8**3)
+            if kind == "grid"
+            else MLPFieldConfig.tiny()
+        )
+        assert isinstance(field_config(kind, dataclasses.asdict(cfg)), entry.config)
+        assert type(build_field(kind, 1, BOX, cfg)) is entry.field
+        assert build_model(kind, 1, BOX, cfg).kind == kind
+        assert min(field_memory(kind, cfg)) > 0 and ray_bytes(kind, cfg) > 0
+
+
+def test_field_configs_are_checked_by_the_one_config_validator() -> None:
+    """Types, finiteness and BOUNDS (spikenerf.core.config), as for TrainConfig: errors name the key."""
+    assert field_config("mlp", {"lr": 1}).lr == 1.0 and isinstance(field_config("mlp", {"lr": 1}).lr, float)
+    assert field_config("grid", {"lr": "2e-2"}).lr == 2e-2
+    for kind, entry, words in [
+        ("grid", {"lr": -1.0}, "field_config.lr must be a finite number > 0"),
+        ("grid", {"lr_final_ratio": 2.0}, "field_config.lr_final_ratio must be a finite number in (0, 1]"),
+        ("grid", {"n_voxels_init": 4}, "field_config.n_voxels_init must be ≥ 8"),
+        ("grid", {"upsample_steps": [1, -2]}, "field_config.upsample_steps must be a list of integers ≥ 0"),
+        ("grid", {"occupancy": 1}, "field_config.occupancy must be true or false"),
+        ("grid", {"hidden": 1.5}, "field_config.hidden must be an integer"),
+        ("mlp", {"raw_noise_std": float("nan")}, "field_config.raw_noise_std must be a finite number"),
+        ("mlp", {"depth": 0}, "field_config.depth must be > 0"),
+    ]:
+        with pytest.raises(InputError, match=re.escape(words)):
+            field_config(kind, entry)
+    assert field_config("grid", {"density_shift": -30.0}).density_shift == -30.0

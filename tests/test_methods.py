@@ -29,6 +29,64 @@ def test_one_class_per_method_literal() -> None:
         make_method(TrainConfig(method="nerf-foo"))  # type: ignore[arg-type]
 
 
+def test_every_literal_name_has_exactly_one_registry_entry() -> None:
+    """The ``Method`` Literal names the methods; METHOD_CLASSES holds one class per name, and every place
+    that lists or dispatches on methods reads that table (no name list elsewhere in train/ or the CLI)."""
+    names = typing.get_args(Method)
+    assert len(set(names)) == len(names) and tuple(METHOD_CLASSES) == names
+    assert len({cls for cls in METHOD_CLASSES.values()}) == len(names)
+    from spikenerf.cli.train import command
+
+    option = next(p for p in command.params if p.name == "method")
+    assert tuple(option.type.choices) == tuple(METHOD_CLASSES)  # type: ignore[attr-defined]
+    assert all(f"{name} ({cls.summary})" in (command.help or "") for name, cls in METHOD_CLASSES.items())
+
+
+def test_a_new_method_is_one_registry_entry(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Registering a class is all it takes: TrainConfig accepts the name, its defaults and rules apply, and
+    make_method builds it."""
+    from spikenerf.train.methods import NerfGT
+
+    class Dummy(NerfGT):
+        name, uses_stream, default_batch, learns_poses = "dummy", True, 96, True
+
+        @classmethod
+        def check(cls, config: TrainConfig) -> None:
+            if config.iters > 100:
+                raise InputError("iters: dummy trains ≤ 100 iterations", param="iters")
+
+    with pytest.raises(InputError, match="method must be one of"):
+        TrainConfig(method="dummy").validate()  # type: ignore[arg-type]
+    monkeypatch.setitem(METHOD_CLASSES, "dummy", Dummy)
+    config = TrainConfig(dataset="d", method="dummy", iters=50).validate()  # type: ignore[arg-type]
+    assert type(make_method(config)) is Dummy and config.method_class() is Dummy
+    assert config.rays_per_step() == 96 and config.window_poses() == config.targets.poses_per_target()
+    with pytest.raises(InputError, match="dummy trains") as err:
+        TrainConfig(dataset="d", method="dummy", iters=500).validate()  # type: ignore[arg-type]
+    assert err.value.params == ("iters",)
+    loaded = TrainConfig.from_dict({**config.to_dict(), "iters": 60})
+    assert loaded.method == "dummy" and loaded.validate().iters == 60
+
+
+def test_method_rules_live_with_the_method() -> None:
+    """spike-integral's and nerf-bad's config rules are their classes' ``check``, called by validate."""
+    from spikenerf.train.methods import NerfBAD, SpikeIntegral
+
+    bad = TrainConfig(dataset="d", method="nerf-bad")
+    bad.targets.blur_samples = 1
+    with pytest.raises(InputError, match="nerf-bad") as err:
+        NerfBAD.check(bad)
+    assert err.value.params == ("targets.blur_samples",)
+    with pytest.raises(InputError, match="nerf-bad"):
+        bad.validate()
+    TrainConfig(dataset="d", method="nerf-gt", targets=bad.targets).validate()  # the rule is nerf-bad's
+    tfi = TrainConfig(dataset="d", method="spike-integral")
+    tfi.targets.recon, tfi.targets.window_poses = "tfi", 1
+    with pytest.raises(InputError, match="spike-integral reads spike counts"):
+        SpikeIntegral.check(tfi)
+    assert TrainConfig(method="spike-integral").rays_per_step() == SpikeIntegral.default_batch == 2048
+
+
 def test_step_losses_sum_the_weighted_terms_in_order() -> None:
     terms = {"recon": torch.tensor(1.0), "reg": torch.tensor(2.0), "spike": torch.tensor(3.0)}
     step = StepLosses(dict(terms), torch.tensor(0.0), rays=4, weights={"spike": 0.5})

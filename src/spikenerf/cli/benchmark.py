@@ -8,6 +8,7 @@ import click
 
 from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError, comma_list
+from spikenerf.fields import FIELD_KINDS
 from spikenerf.pipelines.variants import VARIANTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
@@ -25,7 +26,7 @@ PARAM_FLAGS = {"field_kind": "--field"}
 @click.option("--size", type=int, default=100, show_default=True, help="Image width = height in pixels.")
 @click.option("--frames", type=int, default=1000, show_default=True, help="Spike steps on the orbit.")
 @click.option("--iters", type=click.IntRange(min=1), help="Training iterations per run [default: trainer's].")
-@click.option("--field", type=click.Choice(["grid", "mlp"]), default="grid", show_default=True)
+@click.option("--field", type=click.Choice(FIELD_KINDS), default="grid", show_default=True)
 @click.option(
     "--device", type=click.Choice(["auto", "cpu", "cuda", "mps"]), default="auto", show_default=True,
     help="Where cells train.",

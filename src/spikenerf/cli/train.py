@@ -8,10 +8,10 @@ import click
 
 from spikenerf.cli.types import COUNT, SEED
 from spikenerf.core.errors import InputError
-from spikenerf.data.targets import COLORS, METHODS, RECONS
+from spikenerf.data.targets import COLORS, RECONS
+from spikenerf.fields import FIELD_KINDS
 from spikenerf.train.amp import AMP_MODES
 from spikenerf.train.config import (
-    FIELDS,
     SPIKE_LOSS_KINDS,
     WINDOW_POSES,
     TrainConfig,
@@ -20,6 +20,7 @@ from spikenerf.train.config import (
     load_run_config,
 )
 from spikenerf.train.logger import LOG_KINDS
+from spikenerf.train.methods import METHOD_CLASSES
 from spikenerf.train.trainer import CONFIG_FILE, train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
@@ -68,14 +69,9 @@ PARAM_FLAGS = {
 
 @click.command(
     help="Train a radiance field on a spike dataset folder (written by `spikenerf simulate`) into RUN.\n\n"
-    "Methods: spike-integral (the default; ours, not in the paper: spike-count means over short windows "
-    "compared with renders at steps drawn inside each window, at their own poses; --integral-window, "
-    "--integral-samples), spike-nerf (the paper's method: masked TFP/TFI targets + differentiable spike "
-    "loss; with --window-poses 1 exactly the paper's targets), nerf-recon (TFP/TFI targets), "
-    "nerf-blur (the dataset's 400 fps blur views), nerf-blur-aware (deblur NeRF given the true trajectory: "
-    "blur views, exposure-averaged renders), nerf-bad (BAD-NeRF-like: learns each blur view's exposure "
-    "start and end pose from the blurred frames alone; --set exposure.lr=...), nerf-gt "
-    "(sharp ground truth, an oracle). Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
+    "Methods: "
+    + ", ".join(f"{name} ({cls.summary})" for name, cls in METHOD_CLASSES.items())
+    + ". Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
     "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones).\n\n"
     "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "
     "left out); options given on the command line override it, and --set KEY=VALUE overrides any field "
@@ -83,7 +79,7 @@ PARAM_FLAGS = {
 )
 @click.argument("dataset", required=False, type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
-@click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True)
+@click.option("--method", type=click.Choice(tuple(METHOD_CLASSES)), default=_D.method, show_default=True)
 @click.option("--no-mask", is_flag=True, help="Ablation: spike-nerf without spike masks.")
 @click.option("--no-spike-loss", is_flag=True, help="Ablation: spike-nerf without the spike loss.")
 @click.option(
@@ -97,7 +93,7 @@ PARAM_FLAGS = {
     help="interval: differentiable integral constraint; paper: the paper's spike comparison (no gradient).",
 )
 @click.option("--color", type=click.Choice(COLORS), default=_D.color, show_default=True)
-@click.option("--field", type=click.Choice(FIELDS), default=_D.field, show_default=True)
+@click.option("--field", type=click.Choice(FIELD_KINDS), default=_D.field, show_default=True)
 @click.option("--iters", type=COUNT, default=_D.iters, show_default=True, help="Optimiser steps.")
 @click.option(
     "--batch",

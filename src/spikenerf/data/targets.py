@@ -45,14 +45,12 @@ from spikenerf.data.reconstruction import reconstruct_stream
 if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
 
-#: training methods (each one a class in ``spikenerf.train.methods`` that builds its targets from here)
+#: the names of the training methods, and only their names: each is one class, with its facts and rules, in
+#: ``spikenerf.train.methods.METHOD_CLASSES`` (which builds its targets from here)
 Method = Literal[
     "spike-integral", "spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-bad", "nerf-gt"
 ]
 METHODS: tuple[str, ...] = get_args(Method)
-#: the methods whose image targets are reconstructions of the stream (``stream_targets``; the window-aware
-#: targets apply to them only)
-STREAM_METHODS: tuple[str, ...] = ("nerf-recon", "spike-nerf")
 #: colours a radiance field is trained in
 TrainColor = Literal["gray", "rgb"]
 COLORS: tuple[str, ...] = get_args(TrainColor)

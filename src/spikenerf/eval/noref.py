@@ -27,13 +27,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
+from spikenerf.core.config import Bound, check_config
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import check_steps, is_imported
@@ -56,20 +57,18 @@ class NoRefOptions:
     """steps: check steps for a dataset without imported test keyframes. spike_window: L (None: the run's
     spike window). spike_pixels: pixels sampled per check step (0: all). seed: pixel sampling seed."""
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "steps": Bound(least=1), "spike_window": Bound(least=1), "spike_pixels": Bound(least=0),
+    }  # fmt: skip
+
     steps: int = 8
     spike_window: int | None = None
     spike_pixels: int = 4096
     seed: int = 0
 
     def check(self) -> None:
-        if self.steps < 1:
-            raise InputError(f"steps must be ≥ 1, found {self.steps}", param="steps")
-        if self.spike_window is not None and self.spike_window < 1:
-            raise InputError(f"spike_window must be ≥ 1, found {self.spike_window}", param="spike_window")
-        if self.spike_pixels < 0:
-            raise InputError(
-                f"spike_pixels must be ≥ 0 (0 = all), found {self.spike_pixels}", param="spike_pixels"
-            )
+        """InputError naming the option on a wrong type or an out-of-range value."""
+        check_config(self)
 
 
 def wants_noref(mode: str, dataset: SpikeDataset, held: bool = False) -> bool:

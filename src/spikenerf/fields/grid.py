@@ -17,11 +17,13 @@ from __future__ import annotations
 import contextlib
 import math
 from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from spikenerf.core.config import Bound
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
@@ -58,6 +60,18 @@ class GridFieldConfig:
         l1_weight: weight of the L1 sparsity prior on the density factors (see ``regularization``).
         iterations: the run length the schedules are written for (see :meth:`for_iterations`).
     """
+
+    _ABOVE0, _LEAST0 = Bound(above=0), Bound(least=0)
+    BOUNDS: ClassVar[dict[str, Bound]] = {  # ≥ 8 voxels: R ≥ 2 per axis
+        "n_voxels_init": Bound(least=8), "n_voxels_final": Bound(least=8), "upsample_steps": _LEAST0,
+        "density_components": _ABOVE0, "app_components": _ABOVE0, "app_dim": _ABOVE0, "hidden": _ABOVE0,
+        "view_freqs": _LEAST0, "init_scale": _LEAST0, "distance_scale": _ABOVE0, "step_ratio": _ABOVE0,
+        "max_samples": _ABOVE0, "weight_threshold": _LEAST0, "occupancy_start": _LEAST0,
+        "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
+        "occupancy_max_resolution": _LEAST0,
+        "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1), "batch_rays": _ABOVE0,
+        "l1_weight": _LEAST0, "iterations": _ABOVE0,
+    }  # fmt: skip
 
     n_voxels_init: int = 64**3
     n_voxels_final: int = 200**3
@@ -96,6 +110,27 @@ class GridFieldConfig:
             occupancy_every=max(1, round(self.occupancy_every * s)),
             iterations=iterations,
         )
+
+    # the memory estimates of fields/memory.py and ``field_memory``, per field kind
+    def training_size(self) -> tuple[float, float]:
+        """(parameters, samples per ray) of the training-memory estimate (``field_memory``): the VM factors
+        at the largest resolution, and the march along the box's diagonal."""
+        r = float(max(self.n_voxels_init, self.n_voxels_final)) ** (1 / 3)
+        params = 3.0 * (self.density_components + self.app_components) * (r * r + r)
+        return params, min(float(self.max_samples), r * 3**0.5 / self.step_ratio)
+
+    def samples_per_ray(self) -> float:
+        """Samples of one ray: the march across the box's side at the final resolution (capped by
+        ``max_samples``)."""
+        r = float(max(self.n_voxels_init, self.n_voxels_final)) ** (1 / 3)
+        return min(float(self.max_samples), r / self.step_ratio)
+
+    def layer_widths(self) -> list[int]:
+        """float32 words of each layer input one sample holds: plane and line values per axis, the
+        decoder input with the view encoding, its hidden layers."""
+        features = 6 * (self.density_components + self.app_components)
+        view = 3 + 6 * self.view_freqs
+        return [features, self.app_dim + view, self.hidden, self.hidden]
 
     def resolutions(self) -> list[int]:
         """Grid resolution R after 0, 1, … upsamplings."""

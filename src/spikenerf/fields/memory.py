@@ -11,7 +11,6 @@ from __future__ import annotations
 from typing import Any
 
 from spikenerf.fields import field_config
-from spikenerf.fields.grid import GridFieldConfig
 
 #: float32 bytes
 F32 = 4
@@ -21,26 +20,17 @@ GEOMETRY_WORDS = 24
 
 
 def samples_per_ray(kind: str, config: Any = None) -> float:
-    """Samples of one ray: the grid's march across the box's side at its final resolution (capped by
-    ``max_samples``), or the MLP's coarse + fine samples (the fine pass re-evaluates the coarse ones)."""
-    cfg = field_config(kind, config)
-    if isinstance(cfg, GridFieldConfig):
-        r = float(max(cfg.n_voxels_init, cfg.n_voxels_final)) ** (1 / 3)
-        return min(float(cfg.max_samples), r / cfg.step_ratio)
-    return float(cfg.n_coarse + cfg.n_coarse + cfg.n_fine)
+    """Samples of one ray (the field config's own ``samples_per_ray``): the grid's march across the box's
+    side at its final resolution (capped by ``max_samples``), or the MLP's coarse + fine samples (the fine
+    pass re-evaluates the coarse ones)."""
+    return field_config(kind, config).samples_per_ray()
 
 
 def sample_words(kind: str, config: Any = None, training: bool = True) -> float:
-    """float32 words one sample holds at the peak: training keeps every layer's input (and its gradient
-    while the backward pass runs, counted as a second copy); inference holds about two layers at once."""
-    cfg = field_config(kind, config)
-    if isinstance(cfg, GridFieldConfig):
-        features = 6 * (cfg.density_components + cfg.app_components)  # plane and line values, per axis
-        view = 3 + 6 * cfg.view_freqs
-        layers = [features, cfg.app_dim + view, cfg.hidden, cfg.hidden]
-    else:
-        enc = 3 + 6 * cfg.xyz_freqs
-        layers = [enc, *([cfg.width] * cfg.depth), enc, 3 + 6 * cfg.dir_freqs, cfg.dir_width]
+    """float32 words one sample holds at the peak (the layer inputs of the field config's
+    ``layer_widths``): training keeps every layer's input (and its gradient while the backward pass runs,
+    counted as a second copy); inference holds about two layers at once."""
+    layers = field_config(kind, config).layer_widths()
     if training:
         return GEOMETRY_WORDS + 2.0 * sum(layers)
     return GEOMETRY_WORDS + 2.0 * max(layers)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from spikenerf.core.config import Bound
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 
@@ -28,6 +30,13 @@ class MLPFieldConfig:
         batch_rays: rays per step (1024). iterations: the paper's run length (2·10⁵).
     """
 
+    _ABOVE0, _LEAST0 = Bound(above=0), Bound(least=0)
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "depth": _ABOVE0, "width": _ABOVE0, "skip": _LEAST0, "xyz_freqs": _LEAST0, "dir_freqs": _LEAST0,
+        "dir_width": _LEAST0, "n_coarse": _LEAST0, "n_fine": _LEAST0, "raw_noise_std": _LEAST0,
+        "lr": _ABOVE0, "lr_final": _ABOVE0, "batch_rays": _ABOVE0, "iterations": _ABOVE0,
+    }  # fmt: skip
+
     depth: int = 8
     width: int = 256
     skip: int = 4
@@ -45,6 +54,25 @@ class MLPFieldConfig:
     @property
     def lr_final_ratio(self) -> float:
         return self.lr_final / self.lr
+
+    def for_iterations(self, iterations: int) -> MLPFieldConfig:
+        """The same config: the MLP has no step schedules to rescale to a run's length."""
+        return self
+
+    # the memory estimates of fields/memory.py and ``field_memory``, per field kind
+    def training_size(self) -> tuple[float, float]:
+        """(parameters, samples per ray) of the training-memory estimate (``field_memory``)."""
+        return float(self.depth) * self.width * self.width * 2, float(self.n_coarse + self.n_fine)
+
+    def samples_per_ray(self) -> float:
+        """Samples of one ray: coarse + fine (the fine pass re-evaluates the coarse ones)."""
+        return float(self.n_coarse + self.n_coarse + self.n_fine)
+
+    def layer_widths(self) -> list[int]:
+        """float32 words of each layer input one sample holds: the encoding, the trunk, the encoding again,
+        the view encoding and the view head."""
+        enc = 3 + 6 * self.xyz_freqs
+        return [enc, *([self.width] * self.depth), enc, 3 + 6 * self.dir_freqs, self.dir_width]
 
     @classmethod
     def tiny(cls) -> MLPFieldConfig:

@@ -43,7 +43,7 @@ def settings(cfg: Any) -> dict:
     changed is refused rather than mixing run lengths)."""
     color = cfg.colors[0] if len(cfg.colors) == 1 else "all"
     defaults = json.loads(json.dumps(dataclasses.asdict(field_config(cfg.field_kind))))
-    if cfg.field_kind == "grid":
+    if "decoder_bf16" in defaults:  # the grid's
         defaults["decoder_bf16"] = bool(defaults["decoder_bf16"] and native_bf16(torch.device("cpu")))
     values = {k: getattr(cfg, k) for k in KEYS if k != "color"}
     values["iters"] = values["iters"] or TrainConfig().iters

@@ -4,7 +4,7 @@ from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
 from spikenerf.render.mlp_model import MLPModel
 from spikenerf.render.model import (
-    MODEL_KINDS,
+    MODELS,
     build_model,
     model_from_hparams,
     ray_bounds,
@@ -22,7 +22,7 @@ from spikenerf.render.spiking import (
 from spikenerf.render.volume import RenderOutput
 
 __all__ = [
-    "MODEL_KINDS",
+    "MODELS",
     "GridModel",
     "MLPModel",
     "RadianceModel",

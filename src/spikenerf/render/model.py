@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
-from spikenerf.fields import FIELD_KINDS, build_field
+from spikenerf.fields import FIELD_REGISTRY, build_field
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
 from spikenerf.render.inference import render_autocast
@@ -17,7 +17,8 @@ from spikenerf.render.mlp_model import MLPModel
 from spikenerf.render.volume import RenderOutput
 from spikenerf.scenes.trajectory import Intrinsics
 
-MODEL_KINDS = FIELD_KINDS
+#: field kind (a ``spikenerf.fields.FIELD_REGISTRY`` key) -> the model that pairs it with its sampler
+MODELS: dict[str, type[RadianceModel]] = {m.kind: m for m in (GridModel, MLPModel)}
 
 
 def build_model(
@@ -32,7 +33,7 @@ def build_model(
         config: None (defaults), a ``GridFieldConfig`` / ``MLPFieldConfig``, or a dict of their fields.
     """
     field = build_field(kind, channels, torch.as_tensor(np.asarray(scene_box), dtype=torch.float32), config)
-    return GridModel(field) if kind == "grid" else MLPModel(field)  # type: ignore[arg-type]
+    return MODELS[kind](field)  # type: ignore[call-arg]
 
 
 def model_from_hparams(hparams: dict[str, Any], state_dict: dict[str, Tensor] | None = None) -> RadianceModel:
@@ -40,8 +41,8 @@ def model_from_hparams(hparams: dict[str, Any], state_dict: dict[str, Tensor] | 
     dict (tensor shapes as saved: a checkpoint of an upsampled grid resizes the grid). A grid saved before
     ``decoder_bf16`` existed keeps its float32 decoder."""
     config = hparams["config"]
-    if hparams["kind"] == "grid" and isinstance(config, dict):
-        config = {"decoder_bf16": False, **config}
+    if isinstance(config, dict) and hparams["kind"] in FIELD_REGISTRY:
+        config = {**FIELD_REGISTRY[hparams["kind"]].saved_defaults, **config}
     model = build_model(hparams["kind"], hparams["channels"], np.asarray(hparams["scene_box"]), config)
     if state_dict is not None:
         model.load_state_dict(state_dict)

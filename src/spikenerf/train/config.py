@@ -2,46 +2,56 @@
 :mod:`spikenerf.train.methods`.
 
 The dataclasses are the one typed source: each choice is a ``Literal`` owned by the module that implements
-it, and :func:`check_types` validates any value (a YAML file, ``--set key.sub=value``) against the
-annotations. The ablation flags only ever switch parts off.
+it (``method``: the registered methods), each range a ``BOUNDS`` entry, and ``spikenerf.core.config``
+validates any value (a YAML file, ``--set key.sub=value``) against them, as it does the field configs; the
+rules that join several keys are in :meth:`TrainConfig.validate` and the method's own ``check``. The
+ablation flags only ever switch parts off.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import math
-import types
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
+from typing import Any, ClassVar
 
 import yaml
 
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.config import Bound, check_config, choices, from_mapping
 from spikenerf.core.errors import InputError
 from spikenerf.data.samplers import WindowOrder
-from spikenerf.data.targets import STREAM_METHODS, Method, TargetRecon, TrainColor
-from spikenerf.fields import FIELD_KINDS, FieldKind
+from spikenerf.data.targets import Method, TargetRecon, TrainColor
+from spikenerf.fields import FieldKind
 from spikenerf.train.amp import AmpMode
 from spikenerf.train.exposure_poses import ExposurePoseConfig
 from spikenerf.train.logger import LogKind
 from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
+from spikenerf.train.methods import (
+    DEFAULT_BATCH,
+    INTEGRAL_SAMPLES,
+    INTEGRAL_WINDOW,
+    METHOD_CLASSES,
+    TrainMethod,
+    method_class,
+)
 from spikenerf.train.pose_refine import PoseRefineConfig
 
-FIELDS = FIELD_KINDS
-__all__ = ["FIELDS", "SPIKE_LOSS_KINDS", "IntegralConfig", "SpikeLossConfig", "TargetConfig", "TrainConfig"]
+__all__ = [
+    "DEFAULT_BATCH",
+    "INTEGRAL_SAMPLES",
+    "INTEGRAL_WINDOW",
+    "SPIKE_LOSS_KINDS",
+    "IntegralConfig",
+    "SpikeLossConfig",
+    "TargetConfig",
+    "TrainConfig",
+]
 
 
 #: the default poses per TFP target (window-aware targets; docs/method.md, Targets)
 WINDOW_POSES = 4
-#: spike-integral's default window length and steps rendered per window (docs/method.md, Spike-integral)
-INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 11, 2
-#: rays per step when ``batch`` is not given: 1024 targets, and for spike-integral 1024 windows of
-#: ``INTEGRAL_SAMPLES`` renders each (the oracle's 1024 targets a step; docs/spike-integral.md, Batch)
-DEFAULT_BATCH = 1024
-METHOD_BATCH: dict[str, int] = {"spike-integral": DEFAULT_BATCH * INTEGRAL_SAMPLES}
 
 
 @dataclass
@@ -56,6 +66,10 @@ class TargetConfig:
             averaged (1: the target's own step, the paper's; S > 1: window-aware targets, recon tfp only;
             None: :data:`WINDOW_POSES` with tfp, 1 otherwise). :meth:`poses_per_target` resolves it.
     """
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "mask_n": Bound(least=1), "blur_samples": Bound(least=1), "window_poses": Bound(least=1),
+    }  # fmt: skip
 
     recon: TargetRecon = "tfp"
     window: int = DEFAULT_WINDOW
@@ -83,23 +97,23 @@ class IntegralConfig:
         band: count errors within the interval ``± φ / L`` of a noise-free pixel as 0.
     """
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {"samples": Bound(least=1), "groups": Bound(least=1)}
+
     lengths: list[int] = dataclasses.field(default_factory=lambda: [INTEGRAL_WINDOW])
     samples: int = INTEGRAL_SAMPLES
     groups: int = 1
     band: bool = False
 
     def check(self) -> None:
-        """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1 or
-        ``groups`` < 1."""
+        """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1,
+        ``groups`` < 1 or more ``samples`` than the shortest window holds."""
+        check_config(self, "integral.")
         if not self.lengths or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
                                        for n in self.lengths):  # fmt: skip
             raise InputError(
                 f"integral.lengths must be a list of window lengths ≥ 1, found {self.lengths!r}",
                 param="integral.lengths",
             )
-        for name, value in (("integral.samples", self.samples), ("integral.groups", self.groups)):
-            if value < 1:
-                raise InputError(f"{name} must be ≥ 1, found {value}", param=name)
         if self.samples > min(self.lengths):
             raise InputError(
                 f"integral.samples: {self.samples} steps per window do not fit in a "
@@ -123,6 +137,11 @@ class SpikeLossConfig:
         order: ``sequential`` windows along the stream (the paper's deterministic choice) or ``random``.
         every: render a spike window every this many iterations. paper_warmup: steps the paper loss discards.
     """
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "warmup_iters": Bound(least=0), "ramp_iters": Bound(least=0), "window": Bound(least=1),
+        "pixels": Bound(least=1), "every": Bound(least=1), "paper_warmup": Bound(least=0),
+    }  # fmt: skip
 
     enabled: bool = True
     kind: SpikeLossKind = "interval"
@@ -175,8 +194,15 @@ class TrainConfig:
             ``data.holdout.guard_radius`` of the TFP window, mask n and spike window).
     """
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "iters": Bound(least=1), "batch": Bound(least=1), "lr": Bound(above=0),
+        "lr_final_ratio": Bound(above=0, most=1), "eval_views": Bound(least=0), "ckpt_every": Bound(least=1),
+        "log_every": Bound(least=1), "holdout_steps": Bound(least=1), "holdout_radius": Bound(least=0),
+    }  # fmt: skip
+
     dataset: str = ""
-    method: Method = "spike-integral"
+    #: the ``Method`` Literal for typing; a value is checked against the registered methods
+    method: Method = dataclasses.field(default="spike-integral", metadata=choices(lambda: METHOD_CLASSES))
     color: TrainColor = "gray"
     field: FieldKind = "grid"
     iters: int = 5000
@@ -204,49 +230,11 @@ class TrainConfig:
 
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
-        check_types(self)
-        positive = {  # errors name the config key; the CLI maps keys to its flags
-            "iters": self.iters,
-            "batch": self.rays_per_step(),
-            "spike.window": self.spike.window,
-            "spike.pixels": self.spike.pixels,
-            "spike.every": self.spike.every,
-            "eval_views": self.eval_views + 1,
-            "ckpt_every": self.ckpt_every,
-            "log_every": self.log_every,
-            "targets.blur_samples": self.targets.blur_samples,
-            "targets.window_poses": self.targets.poses_per_target(),
-            "holdout_steps": self.holdout_steps,
-        }
-        for name, value in positive.items():
-            if value < 1:
-                raise InputError(f"{name} must be ≥ 1, found {value}", param=name)
-        for name, value in (
-            ("spike.warmup_iters", self.spike.warmup_iters),
-            ("spike.ramp_iters", self.spike.ramp_iters),
-            ("holdout_radius", self.holdout_radius),
-        ):
-            if value is not None and value < 0:
-                raise InputError(f"{name} must be ≥ 0, found {value}", param=name)
-        if self.lr is not None and not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"lr must be a finite number > 0, found {self.lr}", param="lr")
-        if not (math.isfinite(self.spike.lam) and self.spike.lam >= 0) or self.eval_every < 0:
+        check_config(self)  # types, finite floats and every BOUNDS, naming the key
+        if self.spike.lam < 0 or self.eval_every < 0:
             raise InputError(
                 f"spike.lam and eval_every must be ≥ 0, found {self.spike.lam}, {self.eval_every}",
                 param=("spike.lam", "eval_every"),
-            )
-        ratio = self.lr_final_ratio
-        if ratio is not None and not (math.isfinite(ratio) and 0 < ratio <= 1):
-            raise InputError(
-                f"lr_final_ratio must be a finite number in (0, 1], found {ratio}", param="lr_final_ratio"
-            )
-        if self.targets.mask_n < 1:
-            raise InputError(
-                f"targets.mask_n must be ≥ 1, found {self.targets.mask_n}", param="targets.mask_n"
-            )
-        if self.spike.paper_warmup < 0:
-            raise InputError(
-                f"spike.paper_warmup must be ≥ 0, found {self.spike.paper_warmup}", param="spike.paper_warmup"
             )
         if self.targets.window < 1 or self.targets.window % 2 == 0:
             raise InputError(
@@ -262,30 +250,7 @@ class TrainConfig:
         self.poses.check()
         self.exposure.check()
         self.integral.check()
-        rays = self.integral.samples * self.integral.groups
-        if self.method == "spike-integral" and self.rays_per_step() < rays:
-            raise InputError(
-                f"batch: {self.rays_per_step()} rays a step cannot render one window of {rays} steps "
-                "(integral.samples × integral.groups)",
-                param=("batch", "integral.samples"),
-            )
-        if self.method == "spike-integral" and self.targets.recon != "tfp":
-            raise InputError(
-                f"targets.recon {self.targets.recon!r}: spike-integral reads spike counts, not reconstructed "
-                "images (use nerf-recon or spike-nerf for reconstruction targets)",
-                param="targets.recon",
-            )
-        if self.method == "nerf-bad" and self.targets.blur_samples < 2:
-            raise InputError(
-                f"targets.blur_samples must be ≥ 2 for nerf-bad (a start and an end pose), "
-                f"found {self.targets.blur_samples}",
-                param="targets.blur_samples",
-            )
-        if self.method == "nerf-bad" and self.poses.refine:
-            raise InputError(
-                "poses.refine: nerf-bad learns each exposure's own start and end pose; turn refinement off",
-                param="poses.refine",
-            )
+        self.method_class().check(self)  # the method's own rules (spike-integral's, nerf-bad's, ...)
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -296,13 +261,20 @@ class TrainConfig:
         keyframes and no-reference checks): the resolved ``targets.window_poses`` for the stream methods
         (nerf-recon, spike-nerf) and for spike-integral, which renders sharp images as window-aware runs do;
         1 for the others."""
-        sharp = self.method in STREAM_METHODS or self.method == "spike-integral"
-        return self.targets.poses_per_target() if sharp else 1
+        cls = METHOD_CLASSES.get(self.method)
+        return self.targets.poses_per_target() if cls is not None and cls.uses_stream else 1
 
     def rays_per_step(self) -> int:
-        """``batch``, or where it is None the method's default: :data:`METHOD_BATCH` (spike-integral: 2048,
-        1024 windows × 2 renders), else :data:`DEFAULT_BATCH` (1024)."""
-        return self.batch if self.batch is not None else METHOD_BATCH.get(self.method, DEFAULT_BATCH)
+        """``batch``, or where it is None the method's ``default_batch`` (spike-integral: 2048, 1024
+        windows × 2 renders; the others :data:`DEFAULT_BATCH`, 1024)."""
+        if self.batch is not None:
+            return self.batch
+        cls = METHOD_CLASSES.get(self.method)
+        return DEFAULT_BATCH if cls is None else cls.default_batch
+
+    def method_class(self) -> type[TrainMethod]:
+        """The registered class of ``method`` (``spikenerf.train.methods.METHOD_CLASSES``)."""
+        return method_class(self.method)
 
     def resolved(self) -> TrainConfig:
         """A copy with the defaults that depend on other fields filled in (``targets.window_poses``: see
@@ -313,55 +285,11 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], path: str | Path | None = None) -> TrainConfig:
-        """Rebuild from :meth:`to_dict` output (e.g. ``config.yaml``); unknown keys are an InputError."""
-        return _from_dict(cls, data, path)
-
-
-def check_types(config: Any, prefix: str = "", path: str | Path | None = None) -> None:
-    """Check every field of a config dataclass (and its sections) against its annotation: ``Literal``
-    choices, int, float, bool, str, ``X | None``, dict; an InputError names the key (``spike.kind``)."""
-    hints = get_type_hints(type(config))
-    for f in dataclasses.fields(config):
-        value, name = getattr(config, f.name), f"{prefix}{f.name}"
-        if dataclasses.is_dataclass(value):
-            check_types(value, f"{name}.", path)
-        elif not _matches(value, hints[f.name]):
-            # no param=: a wrong type comes from a file or --set, where the user wrote the key itself
-            raise InputError(f"{name} must be {_describe(hints[f.name])}, found {value!r}", path=path)
-
-
-def _matches(value: Any, hint: Any) -> bool:
-    origin = get_origin(hint)
-    if origin is Literal:
-        return value in get_args(hint)
-    if origin in (Union, types.UnionType):
-        return any(_matches(value, h) for h in get_args(hint))
-    if hint is type(None):
-        return value is None
-    if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if hint is int:  # 64 bits: torch and numpy overflow beyond
-        return isinstance(value, int) and not isinstance(value, bool) and abs(value) < 2**63
-    return isinstance(value, origin or hint)
-
-
-def _coerce(value: Any, hint: Any) -> Any:
-    """A string for a number-typed key read as a float (YAML 1.1 reads ``1e-3``, no dot, as a string);
-    anything else unchanged (``--set dataset=1e3`` stays the string it is)."""
-    if isinstance(value, str) and _matches(1.0, hint) and not _matches(value, hint):
-        with contextlib.suppress(ValueError):
-            return float(value)
-    return value
-
-
-def _describe(hint: Any) -> str:
-    origin = get_origin(hint)
-    if origin is Literal:
-        return "one of " + ", ".join(map(str, get_args(hint)))
-    if origin in (Union, types.UnionType):
-        return " or ".join(_describe(h) for h in get_args(hint))
-    names = {type(None): "null", float: "a number", int: "an integer", bool: "true or false", str: "a string"}
-    return names.get(hint, f"a {getattr(origin or hint, '__name__', hint)}")
+        """Rebuild from :meth:`to_dict` output (e.g. ``config.yaml``); unknown keys and wrong types are an
+        InputError (the ranges are :meth:`validate`'s)."""
+        config = from_mapping(cls, data, path=path, sections=SECTIONS)
+        check_config(config, path=path, bounds=False)
+        return config
 
 
 def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) -> dict[str, Any]:
@@ -393,30 +321,14 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
     return data
 
 
-def _from_dict(cls: type, data: Any, path: str | Path | None) -> Any:
-    if not isinstance(data, dict):
-        raise InputError(f"expected a mapping for {cls.__name__}, found {type(data).__name__}", path=path)
-    known = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(known))
-    if unknown:
-        raise InputError(
-            f"unknown {cls.__name__} keys {unknown}; expected some of {sorted(known)}", path=path
-        )
-    nested = {
-        "targets": TargetConfig,
-        "spike": SpikeLossConfig,
-        "integral": IntegralConfig,
-        "poses": PoseRefineConfig,
-        "exposure": ExposurePoseConfig,
-    }
-    hints = get_type_hints(cls)
-    values = {
-        k: _from_dict(nested[k], v, path) if k in nested else _coerce(v, hints[k]) for k, v in data.items()
-    }
-    config = cls(**values)
-    if cls is TrainConfig:
-        check_types(config, path=path)
-    return config
+#: the sections of a TrainConfig mapping, built as their config classes
+SECTIONS: dict[str, type] = {
+    "targets": TargetConfig,
+    "spike": SpikeLossConfig,
+    "integral": IntegralConfig,
+    "poses": PoseRefineConfig,
+    "exposure": ExposurePoseConfig,
+}
 
 
 def save_config(config: TrainConfig, path: str | Path) -> None:

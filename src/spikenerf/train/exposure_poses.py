@@ -28,19 +28,19 @@ receive no gradient. That swap symmetry also means the learned start may be the 
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.config import Bound, check_config
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import step_poses
-from spikenerf.train.pose_refine import PoseLearner, check_schedule, corrected, se3_exp
+from spikenerf.train.pose_refine import PoseLearner, corrected, se3_exp
 
 EXPOSURE_POSES = "exposure_poses.json"
 
@@ -59,6 +59,11 @@ class ExposurePoseConfig:
             exposure centred on its given pose (only δ is learned: no common drift of poses and scene).
     """
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "lr": Bound(above=0), "lr_final_ratio": Bound(above=0, most=1), "warmup_iters": Bound(least=0),
+        "init_noise": Bound(above=0),
+    }  # fmt: skip
+
     lr: float = 1e-3
     lr_final_ratio: float = 0.01
     warmup_iters: int = 0
@@ -66,13 +71,8 @@ class ExposurePoseConfig:
     learn_centre: bool = True
 
     def check(self) -> None:
-        """InputError on an out-of-range value (names the config key)."""
-        check_schedule(self, "exposure")
-        if not (math.isfinite(self.init_noise) and self.init_noise > 0):
-            raise InputError(
-                f"exposure.init_noise must be a finite number > 0, found {self.init_noise}",
-                param="exposure.init_noise",
-            )
+        """InputError on a wrong type or an out-of-range value (names the config key, ``exposure.KEY``)."""
+        check_config(self, "exposure.")
 
 
 class ExposurePoses(torch.nn.Module):

@@ -20,6 +20,13 @@ spike-integral     spike counts of L-step windows (``integral``)   recon (S step
 
 With ``targets.window_poses`` S > 1 (the default for TFP targets: 4), nerf-recon and spike-nerf render each
 TFP target at S poses spread over its window and average them (window-aware targets; S = 1 is the paper's).
+
+**One registry.** A method is its class: its ``name`` (the ``--method`` value, one of the
+``spikenerf.data.targets.Method`` Literal), its facts (``views``, ``uses_stream``, ``has_spike_loss``,
+``default_batch``, ``learns_poses``) and its own config rules (:meth:`TrainMethod.check`, which
+``TrainConfig.validate`` calls), listed once in :data:`METHOD_CLASSES`; ``TrainConfig``, the CLI's
+``--method`` choices, :func:`make_method` and the benchmark read that table. Adding a method is a class
+here, its entry in :data:`METHOD_CLASSES` and its name in the ``Method`` Literal (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -38,7 +45,6 @@ from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
 from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
 from spikenerf.data.samplers import RaySampler, WindowSampler
 from spikenerf.data.targets import (
-    METHODS,
     ImageTargets,
     SpikeTargets,
     blur_targets,
@@ -48,7 +54,6 @@ from spikenerf.data.targets import (
     stream_targets,
 )
 from spikenerf.render import RadianceModel, RenderOutput, render_spike_window
-from spikenerf.train.config import TrainConfig
 from spikenerf.train.exposure_poses import ExposureLearner
 from spikenerf.train.losses import (
     paper_spike_loss,
@@ -59,11 +64,20 @@ from spikenerf.train.losses import (
 )
 from spikenerf.train.pose_refine import PoseLearner, PoseRefinement
 
+#: a :class:`spikenerf.train.config.TrainConfig` (not imported: config.py reads :data:`METHOD_CLASSES`)
+Config = Any
+
+#: rays per step when ``batch`` is not given: 1024 targets, and for spike-integral 1024 windows of
+#: ``INTEGRAL_SAMPLES`` renders each (the oracle's 1024 targets a step; docs/spike-integral.md, Batch)
+DEFAULT_BATCH = 1024
+#: spike-integral's default window length and steps rendered per window (docs/method.md, Spike-integral)
+INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 11, 2
+
 
 class TrainState(Protocol):
     """What a method reads from the trainer during a step."""
 
-    config: TrainConfig
+    config: Config
     dataset: SpikeDataset
     model: RadianceModel
     device: torch.device
@@ -105,14 +119,28 @@ class TrainMethod:
     Attributes:
         name: the ``--method`` value. views: what its targets are posed on and the benchmark counts in
             "trained on": ``steps`` (every spike step), ``gt`` (the GT renders) or ``blur`` (the blur views).
-        uses_stream: its targets are made from the recorded spike stream.
+        uses_stream: its targets are made from the recorded spike stream; its images are sharp, of a TFP
+            window (``TrainConfig.window_poses``: the resolved ``targets.window_poses`` applies to it).
+        has_spike_loss: it adds the spike loss (unless ``spike.enabled`` switches it off).
+        default_batch: rays per step when ``batch`` is not given (``TrainConfig.rays_per_step``).
+        learns_poses: it learns its views' poses itself (pose refinement stays off by default).
+        summary: what it trains on, for ``spikenerf train --help``.
     """
 
     name: ClassVar[str]
+    summary: ClassVar[str] = ""
     views: ClassVar[str] = "steps"
     uses_stream: ClassVar[bool] = False
+    has_spike_loss: ClassVar[bool] = False
+    default_batch: ClassVar[int] = DEFAULT_BATCH
+    learns_poses: ClassVar[bool] = False
 
-    def __init__(self, config: TrainConfig) -> None:
+    @classmethod
+    def check(cls, config: Config) -> None:
+        """InputError (naming the config key) on settings this method cannot train with; the last rule of
+        ``TrainConfig.validate``, after the generic ones."""
+
+    def __init__(self, config: Config) -> None:
         self.config = config
         self.channels = 1 if config.color == "gray" else 3
         self.targets: ImageTargets | None = None
@@ -128,8 +156,8 @@ class TrainMethod:
 
     @property
     def uses_spike_loss(self) -> bool:
-        """It adds the spike loss."""
-        return False
+        """It adds the spike loss (:attr:`has_spike_loss`, and ``spike.enabled``)."""
+        return self.has_spike_loss and self.config.spike.enabled
 
     def poses_per_view(self) -> int:
         """Poses rendered and averaged for each target image (S of :class:`ImageTargets`)."""
@@ -220,6 +248,7 @@ class NerfGT(TrainMethod):
     """The oracle: NeRF on the sharp ground-truth renders."""
 
     name, views = "nerf-gt", "gt"
+    summary = "sharp ground truth, an oracle"
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         return gt_targets(dataset, self.config.color, self.name)
@@ -229,6 +258,7 @@ class NerfBlur(TrainMethod):
     """NeRF on the conventional camera's blur views, each at its mid-exposure pose."""
 
     name, views = "nerf-blur", "blur"
+    summary = "the dataset's 400 fps blur views"
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         return blur_targets(dataset, self.config.color, None, self.name)
@@ -239,6 +269,7 @@ class NerfBlurAware(NerfBlur):
     ``targets.blur_samples`` poses spread over its exposure."""
 
     name = "nerf-blur-aware"
+    summary = "deblur NeRF given the true trajectory: blur views, exposure-averaged renders"
 
     def poses_per_view(self) -> int:
         return self.config.targets.blur_samples
@@ -252,9 +283,27 @@ class NerfBAD(NerfBlur):
     given pose, train/exposure_poses.py) and compares the mean of ``targets.blur_samples`` renders
     interpolated between them with the blurred image; it reads no trajectory."""
 
-    name = "nerf-bad"
+    name, learns_poses = "nerf-bad", True
+    summary = (
+        "BAD-NeRF-like: learns each blur view's exposure start and end pose from the blurred frames "
+        "alone; --set exposure.lr=..."
+    )
 
-    def __init__(self, config: TrainConfig) -> None:
+    @classmethod
+    def check(cls, config: Config) -> None:
+        if config.targets.blur_samples < 2:
+            raise InputError(
+                f"targets.blur_samples must be ≥ 2 for nerf-bad (a start and an end pose), "
+                f"found {config.targets.blur_samples}",
+                param="targets.blur_samples",
+            )
+        if config.poses.refine:
+            raise InputError(
+                "poses.refine: nerf-bad learns each exposure's own start and end pose; turn refinement off",
+                param="poses.refine",
+            )
+
+    def __init__(self, config: Config) -> None:
         super().__init__(config)
         self.exposures: ExposureLearner | None = None
 
@@ -278,6 +327,7 @@ class NerfRecon(TrainMethod):
     """NeRF on the reconstructions Î_k (TFP, TFI or learned) of every step, unmasked."""
 
     name, uses_stream = "nerf-recon", True
+    summary = "TFP/TFI targets"
 
     def poses_per_view(self) -> int:
         return self.config.window_poses()
@@ -291,15 +341,15 @@ class NerfRecon(TrainMethod):
 class SpikeNeRF(NerfRecon):
     """Spike-NeRF: masked targets ``M_k ⊙ Î_k`` plus ``λ(it) · L_spike`` (both can be switched off)."""
 
-    name = "spike-nerf"
+    name, has_spike_loss = "spike-nerf", True
+    summary = (
+        "the paper's method: masked TFP/TFI targets + differentiable spike loss; with --window-poses 1 "
+        "exactly the paper's targets"
+    )
 
     @property
     def uses_mask(self) -> bool:
         return self.config.targets.mask
-
-    @property
-    def uses_spike_loss(self) -> bool:
-        return self.config.spike.enabled
 
     def ablations(self) -> list[str]:
         off = (("no mask", self.uses_mask), ("no spike loss", self.uses_spike_loss))
@@ -370,8 +420,29 @@ class SpikeIntegral(TrainMethod):
     reconstruction and no mask: a window without spikes has target 0."""
 
     name, uses_stream = "spike-integral", True
+    summary = (
+        "the default; ours, not in the paper: spike-count means over short windows compared with renders "
+        "at steps drawn inside each window, at their own poses; --integral-window, --integral-samples"
+    )
+    default_batch = DEFAULT_BATCH * INTEGRAL_SAMPLES  # 1024 windows × 2 renders: the oracle's 1024 targets
 
-    def __init__(self, config: TrainConfig) -> None:
+    @classmethod
+    def check(cls, config: Config) -> None:
+        rays = config.integral.samples * config.integral.groups
+        if config.rays_per_step() < rays:
+            raise InputError(
+                f"batch: {config.rays_per_step()} rays a step cannot render one window of {rays} steps "
+                "(integral.samples × integral.groups)",
+                param=("batch", "integral.samples"),
+            )
+        if config.targets.recon != "tfp":
+            raise InputError(
+                f"targets.recon {config.targets.recon!r}: spike-integral reads spike counts, not "
+                "reconstructed images (use nerf-recon or spike-nerf for reconstruction targets)",
+                param="targets.recon",
+            )
+
+    def __init__(self, config: Config) -> None:
         super().__init__(config)
         self.counts: CountTargets | None = None
         self.step_numbers = torch.zeros(0, dtype=torch.int64)
@@ -411,7 +482,8 @@ class SpikeIntegral(TrainMethod):
         counts, c = self.counts, self.config.integral
         assert counts is not None, "build_targets first"
         per = c.samples * c.groups
-        start, end, pixels, steps = state.samplers["windows"].sample(max(1, state.config.rays_per_step() // per))
+        batch = max(1, state.config.rays_per_step() // per)
+        start, end, pixels, steps = state.samplers["windows"].sample(batch)
         target = counts.window_mean(start, end, pixels).to(state.device)
         band = (counts.threshold / (end - start).float())[:, None].to(state.device) if c.band else None
         poses = counts.poses[steps.reshape(-1).to(counts.poses.device)].to(state.device)
@@ -429,14 +501,20 @@ class SpikeIntegral(TrainMethod):
         return loss, srgb_mse, poses.shape[0]
 
 
-#: ``--method`` -> its class; the names are the ``Method`` Literal of ``spikenerf.data.targets``
+#: ``--method`` -> its class: the one table of training methods, in the order of the ``Method`` Literal of
+#: ``spikenerf.data.targets`` (its names; tests/test_methods.py checks that each has exactly one entry)
 METHOD_CLASSES: dict[str, type[TrainMethod]] = {
     cls.name: cls for cls in (SpikeIntegral, SpikeNeRF, NerfRecon, NerfBlur, NerfBlurAware, NerfBAD, NerfGT)
 }
 
 
-def make_method(config: TrainConfig) -> TrainMethod:
+def method_class(name: str) -> type[TrainMethod]:
+    """The :class:`TrainMethod` class of ``name`` (InputError naming ``method`` for an unknown one)."""
+    if name not in METHOD_CLASSES:
+        raise InputError(f"method must be one of {', '.join(METHOD_CLASSES)}, found {name!r}")
+    return METHOD_CLASSES[name]
+
+
+def make_method(config: Config) -> TrainMethod:
     """The :class:`TrainMethod` of ``config.method`` (InputError for an unknown one)."""
-    if config.method not in METHOD_CLASSES:
-        raise InputError(f"method must be one of {', '.join(METHODS)}, found {config.method!r}")
-    return METHOD_CLASSES[config.method](config)
+    return method_class(config.method)(config)

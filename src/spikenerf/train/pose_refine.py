@@ -13,16 +13,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.config import Bound, check_config
 from spikenerf.core.errors import InputError
 from spikenerf.data.alignment import key_brackets
 from spikenerf.data.holdout import is_imported
@@ -45,6 +45,11 @@ class PoseRefineConfig:
         keyframe_every: steps between keyframes on a dataset that was not imported.
     """
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "lr": Bound(above=0), "lr_final_ratio": Bound(above=0, most=1), "warmup_iters": Bound(least=0),
+        "keyframe_every": Bound(least=1),
+    }  # fmt: skip
+
     refine: bool | None = None
     lr: float = 1e-3
     lr_final_ratio: float = 0.05
@@ -52,31 +57,8 @@ class PoseRefineConfig:
     keyframe_every: int = 20
 
     def check(self) -> None:
-        """InputError on an out-of-range value (names the config key)."""
-        check_schedule(self, "poses")
-        if self.keyframe_every < 1:
-            raise InputError(
-                f"poses.keyframe_every must be ≥ 1, found {self.keyframe_every}", param="poses.keyframe_every"
-            )
-
-
-def check_schedule(config: Any, section: str) -> None:
-    """InputError naming ``section.KEY`` unless the pose rate schedule of ``config`` is valid: ``lr`` > 0,
-    ``lr_final_ratio`` in (0, 1], ``warmup_iters`` ≥ 0 (or None)."""
-    if not (math.isfinite(config.lr) and config.lr > 0):
-        raise InputError(
-            f"{section}.lr must be a finite number > 0, found {config.lr}", param=f"{section}.lr"
-        )
-    if not (math.isfinite(config.lr_final_ratio) and 0 < config.lr_final_ratio <= 1):
-        raise InputError(
-            f"{section}.lr_final_ratio must be in (0, 1], found {config.lr_final_ratio}",
-            param=f"{section}.lr_final_ratio",
-        )
-    if config.warmup_iters is not None and config.warmup_iters < 0:
-        raise InputError(
-            f"{section}.warmup_iters must be ≥ 0, found {config.warmup_iters}",
-            param=f"{section}.warmup_iters",
-        )
+        """InputError on a wrong type or an out-of-range value (names the config key, ``poses.KEY``)."""
+        check_config(self, "poses.")
 
 
 def so3_exp(omega: Tensor) -> Tensor:
@@ -264,7 +246,7 @@ def pose_refinement(
     asking for refinement is an InputError and the imported-dataset default simply stays off."""
     cfg: PoseRefineConfig = config.poses
     cfg.check()
-    auto = is_imported(dataset) and config.method != "nerf-bad"  # nerf-bad learns its own exposure poses
+    auto = is_imported(dataset) and not config.method_class().learns_poses  # nerf-bad: its exposure poses
     if not (auto if cfg.refine is None else cfg.refine):
         return None
     steps = None if targets is None else targets.steps if targets.pose_steps is None else targets.pose_steps

@@ -72,9 +72,10 @@ class TrainSummary:
 
 
 def model_config(config: TrainConfig) -> Any:
-    """The field config: defaults + ``config.field_config``; grid schedules rescaled to ``config.iters``."""
+    """The field config: defaults + ``config.field_config``; its schedules (the grid's) rescaled to
+    ``config.iters`` unless ``field_config`` sets ``iterations``."""
     cfg = field_config(config.field, dict(config.field_config))
-    if config.field == "grid" and "iterations" not in config.field_config:
+    if "iterations" not in config.field_config:
         cfg = cfg.for_iterations(config.iters)
     return cfg
 
@@ -165,7 +166,8 @@ def check_step_memory(
     device's free memory by estimate (:func:`spikenerf.train.device.check_batch_fits`)."""
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     params, _, _ = field_memory(config.field, model_config(config))
-    check_batch_fits(config.field, model_config(config), config.rays_per_step() + spike_rays, params, device, free)
+    rays = config.rays_per_step() + spike_rays
+    check_batch_fits(config.field, model_config(config), rays, params, device, free)
 
 
 class Trainer:
