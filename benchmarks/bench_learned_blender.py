@@ -48,7 +48,7 @@ def gains(dataset: str, weights: list[str | None], window: int) -> tuple[int, fl
     out = []
     for w in weights:
         learned = [
-            _psnr(reconstruct_learned(raw, "gray", ds.threshold, slice(s, s + 1), weights=w)[0], r)
+            _psnr(reconstruct_learned(raw, "gray", ds.threshold, weights=w, frames=slice(s, s + 1))[0], r)
             for (_, s), r in zip(keep, refs, strict=True)
         ]
         out.append(np.array(learned) - base)
