@@ -52,6 +52,46 @@ def test_count_window_mean_is_tfp_for_a_centred_window_and_within_the_interval()
     assert np.all(np.abs(mean.numpy() - truth) < 1.0 / window)
 
 
+def _constant_stream(rates: tuple[float, ...], steps: int = 400) -> np.ndarray:
+    acc = torch.as_tensor(np.random.default_rng(1).uniform(0, 1, (1, len(rates))).astype(np.float32))
+    light, spikes = torch.as_tensor(rates, dtype=torch.float32)[None], []
+    for _ in range(steps):
+        fired, acc = fire(acc, light, 1.0)
+        spikes.append(fired)
+    return torch.stack(spikes).to(torch.uint8).numpy()  # (T, 1, len(rates))
+
+
+def test_aligned_windows_hold_whole_spikes_and_are_exact_to_the_pixels_own_light() -> None:
+    rates = (0.07, 0.8)
+    spikes = _constant_stream(rates)
+    counts = count_targets(spikes, np.tile(np.eye(4, dtype=np.float32), (len(spikes), 1, 1)), 1.0)
+    g = torch.Generator().manual_seed(0)
+    start = torch.randint(0, 360, (400,), generator=g)  # room for two dark spikes after each start
+    pixels = torch.stack([torch.arange(400) % 2, torch.zeros(400, dtype=torch.int64)], dim=1)
+    a, b = counts.align(start, start + 11, pixels, g, longest=88)
+    col = counts.counts[:, 0, :, 0].long()
+    assert torch.all(a >= start) and not torch.equal(b - a, torch.full_like(a, 11))
+    for i in range(400):
+        x, lo, hi = int(pixels[i, 0]), int(a[i]), int(b[i])
+        assert spikes[hi - 1, 0, x] == 1 and col[lo, x] == col[lo - 1, x] + 1  # from a spike to a spike
+    fixed = counts.window_mean(start, start + 11, pixels)[:, 0]
+    aligned = counts.window_mean(a, b, pixels)[:, 0]
+    truth = torch.as_tensor(rates)[pixels[:, 0]]
+    assert torch.all((aligned - truth).abs() <= truth / (b - a).float() + 1e-6)  # ± I / L', not ± φ / L
+    dark = pixels[:, 0] == 0
+    assert (aligned - truth)[dark].abs().max() < 0.3 * (fixed - truth)[dark].abs().max()
+    assert int((b - a)[dark].float().mean().round()) == 14  # one spike of a 0.07 pixel: about 1 / 0.07 steps
+
+
+def test_aligned_windows_keep_their_place_without_enough_spikes_or_past_the_bound() -> None:
+    spikes = _constant_stream((0.0, 0.01), steps=300)  # no spike; about three spikes
+    counts = count_targets(spikes, np.tile(np.eye(4, dtype=np.float32), (300, 1, 1)), 1.0)
+    start = torch.tensor([10, 20, 250])
+    pixels = torch.tensor([[0, 0], [1, 0], [1, 0]])
+    a, b = counts.align(start, start + 11, pixels, torch.Generator().manual_seed(0), longest=50)
+    assert torch.equal(a, start) and torch.equal(b, start + 11)  # 0 spikes; 100-step gaps > 50; too few left
+
+
 def test_count_targets_refuse_poses_of_another_length() -> None:
     spikes, _ = _stream()
     with pytest.raises(InputError, match="poses"):
@@ -165,6 +205,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--recon", "learned"], "--recon"),
         (["--integral-samples", "12"], "--integral-samples"),  # more steps than the 11-step window holds
         (["--batch", "1", "--integral-samples", "2"], "--batch"),
+        (["--set", "integral.align=true", "--holdout"], "--holdout"),
     ],
 )
 def test_bad_window_settings_are_one_line(

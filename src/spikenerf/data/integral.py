@@ -7,10 +7,16 @@ window at once: the window ``[a, b)`` has the mean ``φ (C_b − C_a) / L``. :cl
 them; :class:`WindowTargetSampler` draws windows of the chosen lengths inside the stream (or outside its
 held-out bands), and :func:`stratified_steps` draws S steps of a window (one uniform step in each of S
 equal parts), whose mean render is an unbiased estimate of the window's mean render.
+
+:meth:`CountTargets.align` moves a window onto spikes: from the step after one spike of a pixel to the
+step of a later one, the pixel saw ``n φ`` of light to within one step's light (the accumulator's residue
+after each reset), so the mean ``n φ / L'`` is exact to ``± I / L'`` — an error proportional to the pixel's
+brightness, where a fixed window's count is only exact to ``± φ / L`` whatever the brightness.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +62,38 @@ class CountTargets:
         x, y = pixels[:, 0], pixels[:, 1]
         n = (self.counts[end, y, x].int() - self.counts[start, y, x].int()).float()
         return self.threshold * n / (end - start).float()[:, None]
+
+    def align(
+        self, start: Tensor, end: Tensor, pixels: Tensor, generator: torch.Generator, longest: int
+    ) -> tuple[Tensor, Tensor]:
+        """Spike-aligned windows: each window ``[start, end)`` of length L becomes ``[t_j + 1, t_{j+n} + 1)``,
+        from the step after the first spike ``j`` of one channel (drawn at random) at or after ``start`` to
+        the step of spike ``j + n``, with ``n = max(1, round(L · rate))`` of that pixel's mean rate, so that
+        bright pixels keep windows of about L steps and dark ones get longer ones. A window keeps its place
+        where the stream has too few spikes after ``start`` or the aligned one would exceed ``longest``.
+
+        Args:
+            start, end: (B,) int64 windows. pixels: (B, 2) int64 ``(x, y)``. generator: draws the channel.
+            longest: the longest aligned window allowed, in steps.
+        Returns:
+            start, end (B,) int64 on the counts' device; ``window_mean`` of an aligned window's channel is
+            ``n φ / L'``.
+        """
+        device, total = self.counts.device, self.steps
+        channel = torch.randint(0, self.counts.shape[-1], (len(start),), generator=generator).to(device)
+        start, end, pixels = start.to(device), end.to(device), pixels.to(device)
+        column = self.counts[:, pixels[:, 1], pixels[:, 0], channel].T.contiguous().long()  # (B, T + 1)
+        rate = column[:, -1].double() / total
+        n = torch.clamp(torch.round((end - start).double() * rate), min=1).long()
+        first = (
+            column.gather(1, start[:, None])[:, 0] + 1
+        )  # index (1-based) of the first spike at or after start
+        ok = first + n <= column[:, -1]
+        wanted = torch.stack([first, torch.where(ok, first + n, first)], dim=1)
+        at = torch.searchsorted(column, wanted) - 1  # the step of each wanted spike
+        new_start, new_end = at[:, 0] + 1, at[:, 1] + 1
+        ok &= new_end - new_start <= longest
+        return torch.where(ok, new_start, start), torch.where(ok, new_end, end)
 
 
 def count_targets(stream: np.ndarray, poses: np.ndarray, threshold: float) -> CountTargets:
@@ -108,6 +146,8 @@ class WindowTargetSampler:
         steps: T. height, width: image size. lengths: window lengths, each in ``1 … T``.
         samples: S steps per estimate. groups: G independent estimates per window. seed: generator seed.
         starts: length -> (N,) int64 allowed first steps (None: all).
+        aligner: moves the drawn windows onto spikes (:meth:`CountTargets.align` with its ``longest``
+            bound), called with (start, end, pixels, generator) before the steps are drawn; None: fixed.
     """
 
     def __init__(
@@ -120,6 +160,7 @@ class WindowTargetSampler:
         groups: int = 1,
         seed: int = 0,
         starts: dict[int, Tensor] | None = None,
+        aligner: Callable[..., tuple[Tensor, Tensor]] | None = None,
     ) -> None:
         if not lengths or any(not 1 <= n <= steps for n in lengths):
             raise InputError(
@@ -141,6 +182,7 @@ class WindowTargetSampler:
             self.table[i, : len(t)] = t
         self.generator = torch.Generator()
         self.generator.manual_seed(int(seed))
+        self.aligner = aligner
 
     def sample(self, windows: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """``windows`` targets → start, end (B,) int64; pixels (B, 2) int64 ``(x, y)``; steps (B, G·S)
@@ -153,6 +195,8 @@ class WindowTargetSampler:
         end = start + self.lengths[which]
         flat = torch.randint(0, self.height * self.width, (windows,), generator=g)
         pixels = torch.stack([flat % self.width, flat // self.width], dim=-1)
+        if self.aligner is not None:
+            start, end = (x.cpu() for x in self.aligner(start, end, pixels, g))
         parts = [stratified_steps(start, end, self.samples, g) for _ in range(self.groups)]
         return start, end, pixels, torch.cat(parts, dim=1)
 

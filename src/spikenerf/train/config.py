@@ -95,6 +95,8 @@ class IntegralConfig:
         samples: S steps rendered per estimate of a window's mean render (stratified over the window).
         groups: G independent estimates per window: 1 squared error; ≥ 2 the unbiased product form.
         band: count errors within the interval ``± φ / L`` of a noise-free pixel as 0.
+        align: move each window onto spikes of its pixel (``CountTargets.align``: exact to the pixel's own
+            light, not to ``± φ / L``), up to ``ALIGN_LONGEST`` times the longest length; needs holdout off.
     """
 
     BOUNDS: ClassVar[dict[str, Bound]] = {"samples": Bound(least=1), "groups": Bound(least=1)}
@@ -103,6 +105,7 @@ class IntegralConfig:
     samples: int = INTEGRAL_SAMPLES
     groups: int = 1
     band: bool = False
+    align: bool = False
 
     def check(self) -> None:
         """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1,

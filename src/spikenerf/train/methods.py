@@ -31,6 +31,7 @@ here, its entry in :data:`METHOD_CLASSES` and its name in the ``Method`` Literal
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
 
@@ -72,6 +73,8 @@ Config = Any
 DEFAULT_BATCH = 1024
 #: spike-integral's default window length and steps rendered per window (docs/method.md, Spike-integral)
 INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 11, 2
+#: a spike-aligned window (``integral.align``) spans at most this many times the longest window length
+ALIGN_LONGEST = 8
 
 
 class TrainState(Protocol):
@@ -469,8 +472,16 @@ class SpikeIntegral(TrainMethod):
             starts = {n: self.holdout.window_starts(n) for n in set(c.lengths)}
             for n, allowed in starts.items():
                 checked(self.holdout, len(allowed), f"{n}-step window")
+        aligner = None
+        if c.align:
+            if self.holdout is not None:
+                raise InputError(
+                    "integral.align: spike-aligned windows can reach into held-out steps; set holdout false",
+                    param=("integral.align", "holdout"),
+                )
+            aligner = functools.partial(self.counts.align, longest=ALIGN_LONGEST * max(c.lengths))
         sampler = WindowTargetSampler(self.counts.steps, height, width, c.lengths, c.samples, c.groups,
-                                      self.config.seed, starts)  # fmt: skip
+                                      self.config.seed, starts, aligner)  # fmt: skip
         return {"windows": sampler}
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
