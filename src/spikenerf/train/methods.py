@@ -69,7 +69,7 @@ from spikenerf.train.pose_refine import PoseLearner, PoseRefinement
 Config = Any
 
 #: rays per step when ``batch`` is not given: 1024 targets, and for spike-integral 1024 windows of
-#: ``INTEGRAL_SAMPLES`` renders each (the oracle's 1024 targets a step; docs/spike-integral.md, Batch)
+#: ``INTEGRAL_SAMPLES`` renders each (the oracle's 1024 targets a step; docs/spike-integral.md, Cost)
 DEFAULT_BATCH = 1024
 #: spike-integral's default window length and steps rendered per window (docs/method.md, Spike-integral)
 INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 11, 2
