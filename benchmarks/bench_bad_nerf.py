@@ -28,10 +28,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from spikenerf.data.dataset import load_dataset
-from spikenerf.data.simulate import SimulateOptions, simulate_dataset
 from spikenerf.pipelines.stats import summarize, t_interval
+
+from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.data.dataset import load_dataset
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.config import TrainConfig

@@ -6,9 +6,9 @@ keyframes made without the final pass (``spikenerf import --no-final-ba``: DATAS
 named by spike step). ``--truth`` may be given once per model (``--truth A M1 --truth B M2``), or once.
 Each model is scored against the truth
 after similarity alignment (rotation error mean/max in degrees at the keyframes), then the final pass
-(``data/colmap.py: _global_ba``: Cauchy loss, 0.5 px, focal fixed with ``--fixed-focal``) runs on it and it
-is scored again. Prints one row per model, the ratio after/before, and the mean paired difference with its
-95% Student-t interval.
+(``importing/colmap.py: _global_ba``: Cauchy loss, 0.5 px, focal fixed with ``--fixed-focal``) runs on it
+and it is scored again. Prints one row per model, the ratio after/before, and the mean paired difference with
+its 95% Student-t interval.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from spikenerf.data.alignment import trajectory_errors
-from spikenerf.data.colmap import _global_ba, _no_stderr, require_pycolmap
 from spikenerf.data.dataset import load_dataset
-from spikenerf.data.poses import read_colmap_text
+from spikenerf.importing.alignment import trajectory_errors
+from spikenerf.importing.colmap import _global_ba, _no_stderr, require_pycolmap
+from spikenerf.importing.poses import read_colmap_text
 
 
 def score(model: Path, truth: np.ndarray) -> dict[str, float]:

@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from spikenerf.data.alignment import per_step_poses, trajectory_errors, umeyama
+from spikenerf.capture.recording import RAW_FILE, write_raw_recording
 from spikenerf.data.dataset import TRANSFORMS_TEST, SpikeDataset, load_dataset
-from spikenerf.data.importer import keyframe_steps
-from spikenerf.data.recording import RAW_FILE, write_raw_recording
+from spikenerf.importing.alignment import per_step_poses, trajectory_errors, umeyama
+from spikenerf.importing.importer import keyframe_steps
 
 RAW_EXTRA = 16
 
@@ -202,7 +202,7 @@ def _with_true_poses(sim: Path, model: Path) -> object:
     model's frame by the similarity of the camera centres (the points re-solved for those poses)."""
     import pycolmap
 
-    from spikenerf.data.poses import CV_TO_GL, read_colmap_text
+    from spikenerf.importing.poses import CV_TO_GL, read_colmap_text
 
     truth = load_dataset(sim).trajectory.poses
     found = read_colmap_text(model)
@@ -224,7 +224,7 @@ def truth_reprojection(sim: Path, imp: Path) -> dict:
     the camera fixed in both cases (pycolmap)."""
     import pycolmap
 
-    from spikenerf.data.importer import COLMAP_WORK
+    from spikenerf.importing.importer import COLMAP_WORK
 
     model = imp / COLMAP_WORK / "model"
     if not (model / "images.txt").is_file():
@@ -239,7 +239,7 @@ def truth_import(sim: Path, imp: Path, rec: Path, a: argparse.Namespace, fov: fl
     with its poses replaced by the true ones (its points re-solved for them) is given as the pose source, so
     the keyframes, the upright box from the points and near/far are made the same way; only the poses
     differ (``IMPORT-truth``). None without a COLMAP model."""
-    from spikenerf.data.importer import COLMAP_WORK
+    from spikenerf.importing.importer import COLMAP_WORK
 
     model = imp / COLMAP_WORK / "model"
     dst = imp.parent / f"{imp.name}-truth"

@@ -7,8 +7,8 @@ Per scene, three runs of the same training (``--method``, ``--iters``, a reduced
 simulated dataset), the COLMAP-estimated poses as imported (``--no-refine-poses``) and the estimated poses
 with ``--refine-poses``. Every run is scored on the simulation's true held-out views (novel views off the
 orbit): the run's trajectory (per step; refined where refined) is aligned with the true one by a similarity
-(Umeyama on the positions, ``data/alignment.py``), the true test poses are mapped into the run's frame by the
-inverse of that alignment, rendered, and compared with the true images (PSNR on sRGB-encoded gray). The
+(Umeyama on the positions, ``importing/alignment.py``), the true test poses are mapped into the run's frame by
+the inverse of that alignment, rendered, and compared with the true images (PSNR on sRGB-encoded gray). The
 exact run goes through the same alignment (≈ the identity): it is the reference, and the table gives each
 run's PSNR minus the exact run's. The rotation error (mean / max, degrees) at the refined keyframes is given
 before and after refinement (after the same similarity alignment).
@@ -44,10 +44,10 @@ import numpy as np
 import torch
 import yaml
 
-from spikenerf.data.alignment import trajectory_errors, umeyama
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.holdout import read_record
 from spikenerf.data.targets import ImageTargets, eval_view_targets, image_channels
+from spikenerf.importing.alignment import trajectory_errors, umeyama
 from spikenerf.train.checkpoint import load_checkpoint
 from spikenerf.train.evaluate import evaluate_views
 from spikenerf.train.pose_fit import fit_view_poses

@@ -92,6 +92,7 @@ def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
     """Without ``--iters`` the folder records the trainer's default, so a folder started under an older
     default (recorded as null) is refused instead of mixing 3000- and 8000-iteration cells."""
     from spikenerf.pipelines.settings import NAME, check_settings, settings
+
     from spikenerf.train.config import TrainConfig
 
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=16, frames=100,
@@ -105,7 +106,7 @@ def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
 
 
 def test_disk_estimate_counts_seeds_and_every_simulated_stream(monkeypatch: pytest.MonkeyPatch) -> None:
-    from spikenerf.data.simulate import estimate_resources
+    from spikenerf.capture.simulate import estimate_resources
     from spikenerf.pipelines import resources
 
     seen: list[float] = []

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
+from spikenerf.capture.blur import RunningExposures, blur_windows, check_blur_views
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
-from spikenerf.data.blur import RunningExposures, blur_windows, check_blur_views
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.summary import view_counts
 from spikenerf.data.targets import blur_targets

@@ -52,11 +52,11 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
 
     from spikenerf.camera.model import COLORS, ColorMode
     from spikenerf.camera.reconstruct import METHODS, ReconMethod
-    from spikenerf.data.importer import ORIENT_CHOICES, Orient
     from spikenerf.data.targets import COLORS as TRAIN_COLORS
     from spikenerf.data.targets import METHODS as TRAIN_METHODS
     from spikenerf.data.targets import RECONS, TargetRecon
     from spikenerf.fields import FIELD_KINDS, FieldKind
+    from spikenerf.importing.importer import ORIENT_CHOICES, Orient
 
     def choices(command: str, option: str) -> list[str]:
         params = importlib.import_module(SUBCOMMANDS[command][0]).command.params

@@ -13,11 +13,11 @@ import pytest
 import torch
 
 from helpers import run_cli
+from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.holdout import HOLDOUT_FILE, Holdout, guard_radius, read_record
 from spikenerf.data.samplers import RaySampler, WindowSampler
-from spikenerf.data.simulate import SimulateOptions, simulate_dataset
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.config import TrainConfig

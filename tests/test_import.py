@@ -15,7 +15,8 @@ from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.camera.spikecv import read_spikecv_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import mark
-from spikenerf.data.alignment import (
+from spikenerf.data.dataset import load_dataset
+from spikenerf.importing.alignment import (
     BOX_MARGIN,
     PLANE_MIN_SCORE,
     focus_point,
@@ -27,8 +28,7 @@ from spikenerf.data.alignment import (
     up_direction,
     upright,
 )
-from spikenerf.data.dataset import load_dataset
-from spikenerf.data.poses import read_colmap_text
+from spikenerf.importing.poses import read_colmap_text
 from spikenerf.scenes.trajectory import matrix_to_quaternion, orbit
 
 H, W, T = 8, 24, 40  # 40 frames of 8×24 are not a whole number of 8×40 raw frames, and vice versa
@@ -449,7 +449,7 @@ def test_stale_colmap_work_is_not_published_with_other_poses(capsys, recording, 
 
 
 def test_a_finished_colmap_model_is_reused_only_for_the_same_keyframe_images(tmp_path, monkeypatch) -> None:
-    from spikenerf.data.colmap import ColmapSettings, colmap_fingerprint, run_colmap
+    from spikenerf.importing.colmap import ColmapSettings, colmap_fingerprint, run_colmap
 
     keys, images = np.array([0, 13, 26, 39]), np.random.default_rng(2).random((4, H, W)).astype(np.float32)
     work = tmp_path / "colmap"
@@ -479,7 +479,7 @@ def test_a_foreign_partial_folder_is_refused_untouched(capsys, recording, tmp_pa
 def test_near_far_from_points_memory_is_bounded() -> None:
     import tracemalloc
 
-    from spikenerf.data.alignment import near_far_from_points
+    from spikenerf.importing.alignment import near_far_from_points
 
     poses = _truth(400)  # 400 cameras on a radius-4 orbit, 30k points in the unit ball
     points = np.random.default_rng(0).normal(size=(30000, 3)) * 0.3
@@ -516,7 +516,7 @@ def test_one_lock_per_folder_and_a_killed_swap_is_finished(capsys, recording, tm
 def test_a_pycolmap_failure_is_one_input_error(tmp_path, monkeypatch) -> None:
     from unittest import mock
 
-    from spikenerf.data.colmap import run_colmap
+    from spikenerf.importing.colmap import run_colmap
 
     fake = mock.MagicMock()
     fake.extract_features.side_effect = RuntimeError("Check failed: camera\n(stack trace)")
@@ -594,7 +594,7 @@ def test_read_dat_of_the_fixture_is_bottom_up(recording) -> None:
 
 def test_colmap_recovers_a_textured_orbit(tmp_path: Path) -> None:
     pytest.importorskip("pycolmap")
-    from spikenerf.data.colmap import ColmapSettings, run_colmap
+    from spikenerf.importing.colmap import ColmapSettings, run_colmap
     from spikenerf.scenes.analytic import AnalyticSource
 
     truth = orbit(4.0, 30.0, turns=0.5, duration=24 / 40000, fps=40000)  # 24 views, 7.5° apart

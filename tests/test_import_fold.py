@@ -11,10 +11,10 @@ from helpers import run_cli
 from spikenerf.camera.io import write_dat
 from spikenerf.cli import flag_of
 from spikenerf.core.errors import InputError
-from spikenerf.data import colmap
-from spikenerf.data.alignment import trajectory_jump
 from spikenerf.data.dataset import load_dataset
-from spikenerf.data.poses import PoseSet
+from spikenerf.importing import colmap
+from spikenerf.importing.alignment import trajectory_jump
+from spikenerf.importing.poses import PoseSet
 from spikenerf.scenes.trajectory import look_at
 
 

@@ -12,9 +12,9 @@ import pytest
 from helpers import run_cli
 from spikenerf.camera.io import write_dat
 from spikenerf.core.errors import InputError
-from spikenerf.data.alignment import smooth_poses, trajectory_errors
-from spikenerf.data.colmap import ColmapSettings, colmap_fingerprint, local_contrast, run_colmap
 from spikenerf.data.dataset import load_dataset
+from spikenerf.importing.alignment import smooth_poses, trajectory_errors
+from spikenerf.importing.colmap import ColmapSettings, colmap_fingerprint, local_contrast, run_colmap
 from spikenerf.scenes.trajectory import orbit
 
 H, W, T = 8, 24, 60
@@ -149,8 +149,8 @@ def _synthetic_model(folder: Path, truth: np.ndarray, focal: float, seed: int = 
 
 def test_the_robust_final_bundle_adjustment_resists_biased_wrong_matches(tmp_path) -> None:
     pycolmap = pytest.importorskip("pycolmap")
-    from spikenerf.data.colmap import _global_ba
-    from spikenerf.data.poses import read_colmap_text
+    from spikenerf.importing.colmap import _global_ba
+    from spikenerf.importing.poses import read_colmap_text
 
     truth = orbit(4.0, 30.0, turns=0.25, duration=12 / 40000, fps=40000).poses
     _synthetic_model(tmp_path / "in", truth, 555.0)
@@ -170,12 +170,12 @@ def test_the_robust_final_bundle_adjustment_resists_biased_wrong_matches(tmp_pat
 
 
 def test_the_import_benchmark_measures_ate_against_the_orbit_radius_about_its_centre() -> None:
-    # benchmarks/bench_import.py divides the ATE by the orbit radius; Blender orbits need not be centred on
-    # the origin, so the radius is taken about the simulation's recorded `trajectory.center`
+    # benchmarks/experiments/bench_import.py divides the ATE by the orbit radius; Blender orbits need not be
+    # centred on the origin, so the radius is taken about the simulation's recorded `trajectory.center`
     import importlib.util
     from types import SimpleNamespace
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_import.py"
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "experiments" / "bench_import.py"
     spec = importlib.util.spec_from_file_location("bench_import_under_test", path)
     assert spec is not None and spec.loader is not None
     bench = importlib.util.module_from_spec(spec)

@@ -28,7 +28,7 @@ from spikenerf.cli import main
 from spikenerf.core.faults import KILL_ENV
 from spikenerf.core.lock import holder, lock_path
 from spikenerf.core.marker import mark
-from spikenerf.data.simulate import work_dir
+from spikenerf.data.writer import work_dir
 from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
 
 SIM = ["simulate", "--scene", "analytic-orbs", "--width", "16", "--height", "16", "--frames", "60",

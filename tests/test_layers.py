@@ -8,7 +8,21 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "spikenerf"
-ORDER = ["core", "camera", "scenes", "recon", "data", "fields", "render", "train", "eval", "pipelines", "cli"]
+ORDER = [
+    "core",
+    "camera",
+    "scenes",
+    "recon",
+    "data",
+    "capture",
+    "importing",
+    "fields",
+    "render",
+    "train",
+    "eval",
+    "pipelines",
+    "cli",
+]
 
 
 def _imports(path: Path) -> set[str]:

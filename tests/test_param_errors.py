@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from spikenerf.capture.blur import parse_blur_views
 from spikenerf.cli import flag_of, main
 from spikenerf.core.errors import InputError
-from spikenerf.data.blur import parse_blur_views
 from spikenerf.train.config import TrainConfig
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "spikenerf"

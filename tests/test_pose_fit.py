@@ -11,8 +11,8 @@ import torch
 from torch import Tensor
 
 from spikenerf.core.errors import InputError
-from spikenerf.data.alignment import rotation_angles_deg
 from spikenerf.data.rays import image_rays
+from spikenerf.importing.alignment import rotation_angles_deg
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.volume import RenderOutput
 from spikenerf.scenes.trajectory import Intrinsics, look_at

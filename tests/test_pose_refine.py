@@ -12,10 +12,10 @@ import pytest
 import torch
 
 from helpers import run_cli
+from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
 from spikenerf.core.errors import InputError
-from spikenerf.data.alignment import trajectory_errors
 from spikenerf.data.dataset import load_dataset
-from spikenerf.data.simulate import SimulateOptions, simulate_dataset
+from spikenerf.importing.alignment import trajectory_errors
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.config import TrainConfig

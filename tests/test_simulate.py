@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 import yaml
 
+from spikenerf.capture.simulate import (
+    SimulateOptions,
+    blur_windows,
+    simulate_dataset,
+)
 from spikenerf.cli import main
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
-from spikenerf.data.simulate import (
-    SimulateOptions,
-    blur_windows,
-    simulate_dataset,
-    work_dir,
-)
+from spikenerf.data.writer import work_dir
 from spikenerf.scenes import analytic
 from spikenerf.scenes.analytic import (
     AnalyticSource,
@@ -240,7 +240,7 @@ def test_resume_reuses_cached_frames(tmp_path: Path) -> None:
 
 def test_render_processes_write_the_same_dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``jobs`` > 1 renders an analytic scene in worker processes; the dataset is byte-identical."""
-    from spikenerf.data import simulate as sim
+    from spikenerf.capture import simulate as sim
 
     pools = []
 
@@ -360,7 +360,7 @@ def test_elevation_sweep_moves_the_camera_up_and_down(tmp_path: Path, capsys) ->
 
 @pytest.mark.parametrize(("views", "count"), [("all", 12), ("5", 5)])
 def test_resource_estimate_counts_the_blur_views(tmp_path: Path, capsys, monkeypatch, views, count) -> None:
-    import spikenerf.data.simulate as simulate
+    import spikenerf.capture.simulate as simulate
 
     seen = {}
 

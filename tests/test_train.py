@@ -14,11 +14,11 @@ import pytest
 import torch
 import yaml
 
+from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.samplers import RaySampler, WindowSampler
-from spikenerf.data.simulate import SimulateOptions, simulate_dataset
 from spikenerf.data.targets import (
     blur_targets,
     build_spike_targets,

@@ -82,7 +82,7 @@ def command(
     overrides: tuple[str, ...], no_render: bool, jobs: int, executor: str, address: str | None, retries: int,
     ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
-    from spikenerf.data.blur import check_blur_views
+    from spikenerf.capture.blur import check_blur_views
     from spikenerf.pipelines.benchmark import BenchmarkConfig, parse_seeds, resolve_scenes, resolve_variants
     from spikenerf.pipelines.suite import benchmark_with_report
 

@@ -10,7 +10,7 @@ import click
 
 from spikenerf.cli import command_line
 from spikenerf.core.errors import parse_range
-from spikenerf.data.alignment import ORIENTS
+from spikenerf.importing.alignment import ORIENTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
 PARAM_FLAGS = {"fov_deg": "--fov"}
@@ -116,7 +116,7 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--verbose", is_flag=True, help="Show COLMAP's log.")
 def command(**kw: Any) -> None:
-    from spikenerf.data.importer import ImportOptions, import_recording
+    from spikenerf.importing.importer import ImportOptions, import_recording
 
     frame_range = None if kw["frame_range"] is None else parse_range(kw["frame_range"], "frame_range")
     flag = {"fov_deg": "fov"}  # ImportOptions field → click parameter, where the names differ

@@ -142,8 +142,8 @@ def command(**kw: Any) -> None:
 
     check_output(kw["out"], "dataset", overwrite=bool(kw["overwrite"]), replace=True)
     source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
-    from spikenerf.data.blur import parse_blur_views
-    from spikenerf.data.simulate import SimulateOptions, simulate_dataset
+    from spikenerf.capture.blur import parse_blur_views
+    from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
 
     options = SimulateOptions(
         colors=_colors(str(kw["color"])),
@@ -224,8 +224,8 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
 def _check_resources(kw: dict, params: str, width: int, height: int, steps: int, views: int) -> None:
     """Refuse (InputError naming ``params``, shown as their flags) a run larger than this machine's memory
     or free disk."""
-    from spikenerf.data.blur import blur_windows
-    from spikenerf.data.simulate import check_simulate_resources
+    from spikenerf.capture.blur import blur_windows
+    from spikenerf.capture.simulate import check_simulate_resources
 
     blur = len(blur_windows(steps, kw["fps"], kw["blur_fps"] or 0.0, kw["blur_views"]))  # --blur-views too
     check_simulate_resources(

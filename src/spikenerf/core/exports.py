@@ -15,7 +15,8 @@ from typing import Any
 PUBLIC_API: dict[str, dict[str, str]] = {
     "spikenerf": {
         "spikenerf.camera": "simulate read_dat write_dat tfp tfi",
-        "spikenerf.data": "load_dataset simulate_dataset",
+        "spikenerf.data": "load_dataset",
+        "spikenerf.capture": "simulate_dataset",
         "spikenerf.train": "TrainConfig load_run",  # train(): spikenerf.train is the subpackage
         "spikenerf.eval": "evaluate_run",
     },
@@ -31,7 +32,9 @@ PUBLIC_API: dict[str, dict[str, str]] = {
     },
     "spikenerf.data": {
         "spikenerf.data.dataset": "SpikeDataset load_dataset",
-        "spikenerf.data.simulate": "SimulateOptions simulate_dataset",
+    },
+    "spikenerf.capture": {
+        "spikenerf.capture.simulate": "SimulateOptions simulate_dataset",
     },
     "spikenerf.train": {
         "spikenerf.train.config": "TrainConfig load_config",

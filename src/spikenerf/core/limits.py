@@ -1,7 +1,7 @@
 """Resource limits: refuse a job whose estimated memory or disk exceeds what the machine has, before work.
 
 Each command estimates its peak memory and the disk it will write from its arguments (the estimators live
-beside the code they describe, e.g. ``data/simulate.py``); :func:`check_resources` compares them with the
+beside the code they describe, e.g. ``capture/simulate.py``); :func:`check_resources` compares them with the
 available memory (``psutil``, else ``/proc/meminfo``) and the free space under the output folder. The global
 ``spikenerf --no-limits`` (environment ``SPIKENERF_NO_LIMITS=1``, inherited by the runs that benchmark and
 demo start) skips the check for users who know better (swap, memory that frees up later).

@@ -18,6 +18,8 @@ import yaml
 from spikenerf.camera.io import encode_frames, read_dat
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+from spikenerf.core.marker import folder_kind, mark, recover_retired
 from spikenerf.data.dataset import (
     BLUR_ARRAY,
     CONFIG,
@@ -195,3 +197,31 @@ class DatasetWriter:
             write_image(self.root / rel, np.broadcast_to(image, (*image.shape[:2], 3)))
             out.append({**frame, "file_path": rel})
         return out
+
+
+def work_dir(out: Path) -> Path:
+    """The work folder of an output folder: ``<out>.partial``."""
+    return out.with_name(out.name + ".partial")
+
+
+def open_work(out: Path) -> tuple[Path, bool]:
+    """Create (or reopen) the work folder ``<out>.partial`` marked as ours; returns it and whether it is new.
+
+    A non-empty ``.partial`` folder without our dataset marker is someone else's: InputError, untouched.
+    """
+    work = work_dir(out)
+    fresh = not work.exists()
+    if not fresh and (not work.is_dir() or any(work.iterdir())) and folder_kind(work) != "dataset":
+        raise InputError(
+            "is in the way of the work folder and spikenerf did not write it; move it away", work
+        )
+    work.mkdir(parents=True, exist_ok=True)
+    mark(work, "dataset")  # written first: a later run knows the folder is its own to resume or clean
+    return work, fresh
+
+
+def recover_replaced(out: Path) -> None:
+    """Finish a :func:`~spikenerf.core.marker.replace_dir` that was killed between its renames (call it
+    holding the lock): the swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted;
+    only one spikenerf retired (``core/marker.py``), never the user's own ``.<out>.old``."""
+    recover_retired(out)

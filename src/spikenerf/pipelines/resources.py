@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from spikenerf.capture.simulate import estimate_resources
 from spikenerf.core.limits import check_resources
-from spikenerf.data.simulate import estimate_resources
 from spikenerf.fields import field_config, field_memory
 from spikenerf.pipelines.cells import training_seeds
 

@@ -3,8 +3,8 @@ camera-to-world matrices, the shared camera (intrinsics), the scene box and plai
 
 Every reader of such a file uses these rules: an image sequence (:mod:`spikenerf.scenes.sequence`), a
 dataset folder (:mod:`spikenerf.data.dataset`: ``transforms.json``, ``transforms_blur.json``,
-``transforms_test.json``) and an imported recording's pose file (:mod:`spikenerf.data.poses`). Every problem
-is one :class:`~spikenerf.core.errors.InputError` line naming the file and the key.
+``transforms_test.json``) and an imported recording's pose file (:mod:`spikenerf.importing.poses`). Every
+problem is one :class:`~spikenerf.core.errors.InputError` line naming the file and the key.
 """
 
 from __future__ import annotations

@@ -24,7 +24,10 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_output, mark, replace_dir
-from spikenerf.data.alignment import (
+from spikenerf.data.dataset import near_far
+from spikenerf.data.reconstruction import reconstructor
+from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
+from spikenerf.importing.alignment import (
     ORIENTS,
     Orient,
     check_orient,
@@ -34,18 +37,14 @@ from spikenerf.data.alignment import (
     per_step_poses,
     smooth_poses,
 )
-from spikenerf.data.dataset import near_far
-from spikenerf.data.poses import PoseSet, orbit_poses, read_pose_source
-from spikenerf.data.reconstruction import reconstructor
-from spikenerf.data.simulate import open_work, recover_replaced
-from spikenerf.data.writer import DatasetWriter
+from spikenerf.importing.poses import PoseSet, orbit_poses, read_pose_source
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 DEFAULT_FPS = 40000.0
 COLMAP_WORK = "colmap"
 COLMAP_SEQUENTIAL = "colmap-sequential"  # the refit without loop pairs (colmap_poses)
 COLMAP_FOLDERS = (COLMAP_WORK, COLMAP_SEQUENTIAL)
-#: ``import --orient`` (defined with the geometry: :data:`spikenerf.data.alignment.ORIENTS`)
+#: ``import --orient`` (defined with the geometry: :data:`spikenerf.importing.alignment.ORIENTS`)
 ORIENT_CHOICES: tuple[str, ...] = ORIENTS
 
 
@@ -63,12 +62,13 @@ class ImportOptions:
         sequential matching only (symmetric scenes). min_registered: fraction of keyframes
         COLMAP must register. verbose: show COLMAP's log. keyframe_images: ``tfp`` (window ``window``) or
         ``learned`` (the shipped learned reconstructor, at its trained window). max_features, sift_peak,
-        affine_sift, final_ba, contrast: COLMAP settings (:class:`spikenerf.data.colmap.ColmapSettings`).
-        smooth: local quadratic smoothing of the keyframe poses over this many steps (0: off;
-        :func:`spikenerf.data.alignment.smooth_poses`). orient: ``up`` turns a frame without a stated scene
-        box upright and its vertical planes onto the axes (the smallest box where the points show none),
-        ``up-box`` upright and for the smallest box, before the unit box is fitted
-        (:func:`spikenerf.data.alignment.upright`); ``none`` keeps the source's axes.
+        affine_sift, final_ba, contrast: COLMAP settings
+        (:class:`spikenerf.importing.colmap.ColmapSettings`). smooth: local quadratic smoothing of the
+        keyframe poses over this many steps (0: off; :func:`spikenerf.importing.alignment.smooth_poses`).
+        orient: ``up`` turns a frame without a stated scene box upright and its vertical planes onto the axes
+        (the smallest box where the points show none), ``up-box`` upright and for the smallest box, before
+        the unit box is fitted (:func:`spikenerf.importing.alignment.upright`); ``none`` keeps the source's
+        axes.
     """
 
     poses: str = "colmap"
@@ -211,8 +211,8 @@ def keyframe_poses(
 
 def colmap_poses(opts: ImportOptions, images: np.ndarray, key_steps: np.ndarray, work: Path) -> PoseSet:
     """COLMAP's poses of the keyframes (N, H, W) at ``key_steps`` (N,), checked for folds
-    (:func:`spikenerf.data.colmap.unfolded_colmap`)."""
-    from spikenerf.data.colmap import ColmapSettings, unfolded_colmap
+    (:func:`spikenerf.importing.colmap.unfolded_colmap`)."""
+    from spikenerf.importing.colmap import ColmapSettings, unfolded_colmap
 
     focal = None
     if opts.fov_deg is not None:

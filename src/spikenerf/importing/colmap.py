@@ -2,7 +2,7 @@
 
 Keyframes are TFP reconstructions written as 8-bit sRGB PNGs named by their spike step; COLMAP extracts SIFT
 features (one shared camera), matches them sequentially (a video) and runs incremental mapping. The largest
-model is written as text and read back by :func:`spikenerf.data.poses.read_colmap_text`, so estimated and
+model is written as text and read back by :func:`spikenerf.importing.poses.read_colmap_text`, so estimated and
 imported COLMAP models share one reader. The work folder is kept between attempts: a finished model is reused.
 """
 
@@ -22,8 +22,8 @@ import numpy as np
 
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
-from spikenerf.data.alignment import trajectory_jump
-from spikenerf.data.poses import COLMAP_MISSING, PoseSet, read_colmap_text
+from spikenerf.importing.alignment import trajectory_jump
+from spikenerf.importing.poses import COLMAP_MISSING, PoseSet, read_colmap_text
 
 MODEL_DIR = "model"
 #: reprojection error (pixels) where the final bundle adjustment's Cauchy loss starts to flatten
@@ -155,7 +155,7 @@ def unfolded_colmap(
     """:func:`run_colmap` in ``folders[0]``, checked for a folded model.
 
     When the model matched every pair (the loop) and its trajectory has a jump
-    (:func:`spikenerf.data.alignment.trajectory_jump`), the keyframes are mapped again with sequential
+    (:func:`spikenerf.importing.alignment.trajectory_jump`), the keyframes are mapped again with sequential
     matching only, in ``folders[1]``, and that model is kept when it has none (its ``note`` says so).
 
     Args:

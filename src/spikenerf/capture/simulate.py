@@ -25,16 +25,16 @@ from tqdm import tqdm
 from spikenerf import __version__
 from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera
+from spikenerf.capture.blur import RunningExposures, blur_windows, parse_blur_views
+from spikenerf.capture.recording import RAW_DIR, check_raw_width, write_raw_recording
 from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_output, folder_kind, mark, recover_retired, replace_dir
-from spikenerf.data.blur import RunningExposures, blur_windows, parse_blur_views
+from spikenerf.core.marker import MARKER, check_output, mark, replace_dir
 from spikenerf.data.dataset import MODES, near_far, spike_files
-from spikenerf.data.recording import RAW_DIR, check_raw_width, write_raw_recording
-from spikenerf.data.writer import DatasetWriter
+from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
 from spikenerf.scenes.base import FrameSource
 from spikenerf.scenes.trajectory import Trajectory, pose_at
 
@@ -53,12 +53,12 @@ class SimulateOptions:
         gt_every: store the sharp render of every k-th step in ``gt/``.
         blur_fps: conventional camera rate (Hz); each frame averages ``round(fps / blur_fps)`` step renders
             (a window cut by the end of the path keeps its real exposure). 0 writes no blur frames.
-        blur_views: which exposures (data/blur.py): ``frames`` (consecutive, as PNGs), ``all`` (one centred
+        blur_views: which exposures (capture/blur.py): ``frames`` (consecutive, as PNGs), ``all`` (one centred
             on every step, the paper's) or N evenly spaced centres (both stored in ``blur/views.npy``).
         overwrite: replace an existing ``out``. command: recorded in ``config.yaml``.
         extra: more entries for ``config.yaml`` (e.g. the trajectory parameters).
         raw_width: also write the gray stream as a raw recording with this row width, no poses
-            (``raw/``, data/recording.py); None: not.
+            (``raw/``, capture/recording.py); None: not.
     """
 
     colors: tuple[str, ...] = ("gray",)
@@ -73,27 +73,6 @@ class SimulateOptions:
     command: str = ""
     extra: dict = field(default_factory=dict)
     raw_width: int | None = None
-
-
-def work_dir(out: Path) -> Path:
-    """The work folder of an output folder: ``<out>.partial``."""
-    return out.with_name(out.name + ".partial")
-
-
-def open_work(out: Path) -> tuple[Path, bool]:
-    """Create (or reopen) the work folder ``<out>.partial`` marked as ours; returns it and whether it is new.
-
-    A non-empty ``.partial`` folder without our dataset marker is someone else's: InputError, untouched.
-    """
-    work = work_dir(out)
-    fresh = not work.exists()
-    if not fresh and (not work.is_dir() or any(work.iterdir())) and folder_kind(work) != "dataset":
-        raise InputError(
-            "is in the way of the work folder and spikenerf did not write it; move it away", work
-        )
-    work.mkdir(parents=True, exist_ok=True)
-    mark(work, "dataset")  # written first: a later run knows the folder is its own to resume or clean
-    return work, fresh
 
 
 def _fingerprint(source: FrameSource) -> dict:
@@ -267,13 +246,6 @@ def check_options(options: SimulateOptions) -> None:
         )
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
-
-
-def recover_replaced(out: Path) -> None:
-    """Finish a :func:`~spikenerf.core.marker.replace_dir` that was killed between its renames (call it
-    holding the lock): the swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted;
-    only one spikenerf retired (``core/marker.py``), never the user's own ``.<out>.old``."""
-    recover_retired(out)
 
 
 def stream_steps(
