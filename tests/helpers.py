@@ -30,9 +30,10 @@ def run_cli(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str
 
 
 def load_benchmark(name: str) -> ModuleType:
-    """``benchmarks/NAME.py`` imported from its file (benchmarks are scripts, not part of the wheel)."""
+    """``benchmarks/NAME.py`` imported from its file, e.g. ``experiments/bench_refine`` (benchmarks are
+    scripts, not part of the wheel)."""
     path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"{name}_under_test", path)
+    spec = importlib.util.spec_from_file_location(f"{Path(name).name}_under_test", path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

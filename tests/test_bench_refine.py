@@ -1,4 +1,5 @@
-"""benchmarks/bench_refine.py's settings: seed and hold-out reach `train`, and never mix in one run folder."""
+"""benchmarks/experiments/bench_refine.py's settings: seed and hold-out reach `train`, and never mix in one
+run folder."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from helpers import load_benchmark
 
 
 def _bench():  # type: ignore[no-untyped-def]
-    return load_benchmark("bench_refine")
+    return load_benchmark("experiments/bench_refine")
 
 
 def _args(**kw) -> argparse.Namespace:  # type: ignore[no-untyped-def]
@@ -89,8 +90,8 @@ def test_path_views_are_the_true_frames_nearest_the_interior_check_steps(tmp_pat
 
 
 def test_bench_axes_turns_the_world_and_keeps_the_images(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """benchmarks/bench_axes.py's turned copy: every pose (trajectory, gt, test views) turned about +Z and
-    shrunk about the origin, near/far shrunk with it, the spikes and images untouched."""
+    """benchmarks/experiments/bench_axes.py's turned copy: every pose (trajectory, gt, test views) turned
+    about +Z and shrunk about the origin, near/far shrunk with it, the spikes and images untouched."""
     import numpy as np
 
     from spikenerf.cli import main
@@ -99,7 +100,7 @@ def test_bench_axes_turns_the_world_and_keeps_the_images(tmp_path) -> None:  # t
     sim = tmp_path / "sim"
     main(["simulate", "--scene", "analytic-blocks", "--out", str(sim), "--width", "16", "--height", "16",
           "--frames", "30", "--blur-fps", "0", "--test-views", "1", "--no-progress"])  # fmt: skip
-    axes = load_benchmark("bench_axes")
+    axes = load_benchmark("experiments/bench_axes")
     copy = axes.turned_copy(sim, tmp_path / "data-rot30" / "sim", 30.0, 0.5)
     before, after = load_dataset(sim), load_dataset(copy)
     c, s = np.cos(np.radians(30)), np.sin(np.radians(30))

@@ -12,7 +12,8 @@ import pytest
 
 from helpers import BENCHMARK_TRAIN
 from spikenerf.core.errors import InputError
-from spikenerf.pipelines.benchmark import BenchmarkConfig, _parallel, run_benchmark
+from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
+from spikenerf.pipelines.benchmark.local_executor import _parallel
 
 
 def test_parallel_keeps_order_runs_at_once_and_stops_on_failure() -> None:
@@ -91,8 +92,7 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
 def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
     """Without ``--iters`` the folder records the trainer's default, so a folder started under an older
     default (recorded as null) is refused instead of mixing 3000- and 8000-iteration cells."""
-    from spikenerf.pipelines.settings import NAME, check_settings, settings
-
+    from spikenerf.pipelines.benchmark.settings import NAME, check_settings, settings
     from spikenerf.train.config import TrainConfig
 
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=16, frames=100,
@@ -107,7 +107,7 @@ def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
 
 def test_disk_estimate_counts_seeds_and_every_simulated_stream(monkeypatch: pytest.MonkeyPatch) -> None:
     from spikenerf.capture.simulate import estimate_resources
-    from spikenerf.pipelines import resources
+    from spikenerf.pipelines.benchmark import resources
 
     seen: list[float] = []
     monkeypatch.setattr(resources, "check_resources", lambda memory, disk, *_: seen.append(disk))
@@ -149,7 +149,7 @@ def test_set_reaches_every_cell_and_a_bad_key_fails_first(
 
 
 def test_render_processes_share_the_cores(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from spikenerf.pipelines.cells import render_processes
+    from spikenerf.pipelines.benchmark.cells import render_processes
 
     cfg = BenchmarkConfig(["analytic-orbs", "analytic-blocks"], ["nerf-gt"], ["gray"], tmp_path, jobs=16)
     monkeypatch.setattr("os.cpu_count", lambda: 16)

@@ -70,7 +70,7 @@ def _module_graph() -> dict[str, set[str]]:
 
 def test_no_import_cycles_between_modules() -> None:
     graph = _module_graph()
-    assert "spikenerf.pipelines.benchmark" in graph["spikenerf.pipelines.report"]  # the check sees imports
+    assert "spikenerf.pipelines.benchmark.cells" in graph["spikenerf.pipelines.report"]  # it sees imports
     state: dict[str, int] = {}  # 1 = on the current path, 2 = done
 
     def visit(name: str, path: list[str]) -> None:

@@ -1,13 +1,9 @@
-"""benchmarks/learned_differences.py --per-scene: each scene's paired PSNR differences, seed by seed."""
+"""The differences beyond the paper's claims (``benchmarks/tools/learned_differences.py``): each scene's
+paired PSNR differences, seed by seed."""
 
 from __future__ import annotations
 
-from helpers import load_benchmark
-from spikenerf.pipelines.tables import Cell
-
-
-def _bench():  # type: ignore[no-untyped-def]
-    return load_benchmark("learned_differences")
+from spikenerf.pipelines.benchmark.tables import Cell, per_scene_table
 
 
 def test_per_scene_rows_pair_the_same_seed_and_skip_missing_rows() -> None:
@@ -16,7 +12,7 @@ def test_per_scene_rows_pair_the_same_seed_and_skip_missing_rows() -> None:
         ("toy", "spike-nerf", 1, 22.0), ("toy", "nerf-recon", 1, 22.3),
         ("food", "spike-nerf", 0, 30.0),  # no baseline cell: no pair
     )]  # fmt: skip
-    table = _bench().per_scene_table(cells, (("spike-nerf", "nerf-recon"),)).splitlines()
+    table = per_scene_table(cells, (("spike-nerf", "nerf-recon"),)).splitlines()
     assert table[0] == "| scene | spike-nerf − nerf-recon |"
     assert table[2] == "| toy | +0.10 (+0.50, -0.30) |"  # mean of +0.50 and −0.30, seed 0 first
     assert table[3] == "| food | — |"

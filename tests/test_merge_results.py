@@ -1,4 +1,5 @@
-"""benchmarks/merge_results.py: several benchmark folders' cells (a seed each) as one set of tables."""
+"""Several benchmark folders' cells (a seed each) as one set of tables (``results.merged_markdown``, the
+library behind ``benchmarks/tools/merge_results.py``)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ from pathlib import Path
 import pytest
 
 from helpers import load_benchmark
+from spikenerf.core.errors import InputError
+from spikenerf.pipelines.benchmark.results import merged_markdown, read_results
 
 CONFIG = {"scenes": ["a", "b"], "size": 16, "frames": 40, "iters": 2, "field_kind": "grid", "seed": 0,
           "test_views": 1, "blur_views": "all", "extra_train_args": []}  # fmt: skip
@@ -26,9 +29,12 @@ def _results(path: Path, seed: int, config: dict = CONFIG) -> Path:
 
 
 def _main(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *paths: Path) -> str:
+    """The script's output (a thin wrapper: it prints :func:`merged_markdown`)."""
     monkeypatch.setattr(sys, "argv", ["merge_results", *map(str, paths)])
-    load_benchmark("merge_results").main()
-    return capsys.readouterr().out
+    load_benchmark("tools/merge_results").main()
+    out = capsys.readouterr().out
+    assert out == merged_markdown(list(paths)) + "\n"
+    return out
 
 
 def test_two_seeds_from_two_folders_give_error_bars_and_a_verdict(
@@ -43,10 +49,14 @@ def test_two_seeds_from_two_folders_give_error_bars_and_a_verdict(
     assert "One training seed (0)" in one and "not shown (one seed)" in one
 
 
-def test_duplicate_cells_and_other_settings_are_refused(tmp_path: Path) -> None:
-    load = load_benchmark("merge_results").load
+def test_duplicate_cells_and_other_settings_are_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     first = _results(tmp_path / "0.json", 0)
-    with pytest.raises(SystemExit, match=r"cell a/gray/nerf-recon/0 is also in an earlier file"):
-        load([first, _results(tmp_path / "again.json", 0)])
-    with pytest.raises(SystemExit, match=r"differs from .*0.json in iters"):
-        load([first, _results(tmp_path / "1.json", 1, {**CONFIG, "iters": 3})])
+    with pytest.raises(InputError, match=r"cell a/gray/nerf-recon/0 is also in an earlier file"):
+        read_results([first, _results(tmp_path / "again.json", 0)])
+    with pytest.raises(InputError, match=r"differs from .*0.json in iters"):
+        read_results([first, _results(tmp_path / "1.json", 1, {**CONFIG, "iters": 3})])
+    monkeypatch.setattr(sys, "argv", ["merge_results", str(first), str(tmp_path / "again.json")])
+    with pytest.raises(SystemExit, match=r"again.json: cell a/gray/nerf-recon/0 is also in an earlier file"):
+        load_benchmark("tools/merge_results").main()  # the script exits with the one line

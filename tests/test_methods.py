@@ -11,9 +11,9 @@ import torch
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import METHODS, Method
-from spikenerf.pipelines.cells import BenchmarkConfig, cell_commands
-from spikenerf.pipelines.stats import COMPARISONS
-from spikenerf.pipelines.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, VARIANTS
+from spikenerf.pipelines.benchmark.cells import BenchmarkConfig, cell_commands
+from spikenerf.pipelines.benchmark.stats import COMPARISONS
+from spikenerf.pipelines.benchmark.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, VARIANTS
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import spike_weight
 from spikenerf.train.methods import METHOD_CLASSES, StepLosses, make_method
@@ -121,7 +121,7 @@ def test_each_method_owns_its_parts() -> None:
 
 
 def test_paper_rows_train_the_papers_targets_and_window_rows_window_aware() -> None:
-    from spikenerf.pipelines import variants
+    from spikenerf.pipelines.benchmark import variants
     from spikenerf.train import config
 
     assert variants.WINDOW_POSES == config.WINDOW_POSES  # the rows show train's default
@@ -159,8 +159,8 @@ def test_variant_command_trains_its_config(name: str, tmp_path: Path, monkeypatc
 
 
 def test_trained_on_follows_each_variants_method(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    from spikenerf.pipelines import results
-    from spikenerf.pipelines.cells import run_dir
+    from spikenerf.pipelines.benchmark import results
+    from spikenerf.pipelines.benchmark.cells import run_dir
     from spikenerf.train.config import save_config
 
     monkeypatch.setattr(results, "view_counts", lambda root: {"steps": 40, "gt": 4, "blur": 10})

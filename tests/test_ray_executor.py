@@ -20,7 +20,8 @@ from helpers import BENCHMARK_TRAIN
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
-from spikenerf.pipelines.ray_executor import INSTALL_HINT, Job, execute, rebase, scratch_root
+from spikenerf.pipelines.benchmark.ray_executor import INSTALL_HINT, execute, rebase, scratch_root
+from spikenerf.pipelines.benchmark.steps import Job
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 WORKER = re.compile(r"Ray worker pid (\d+)")

@@ -14,8 +14,8 @@ import pytest
 from spikenerf.cli import main
 from spikenerf.pipelines import figures
 from spikenerf.pipelines.benchmark import BenchmarkConfig, read_cell, run_dir
+from spikenerf.pipelines.benchmark.tables import Cell
 from spikenerf.pipelines.report import SECTIONS, build_report, table1_html, table2_html
-from spikenerf.pipelines.tables import Cell
 
 SCENE, SIZE = "analytic-orbs", 20
 CHROMIUM = Path("/usr/bin/chromium")

@@ -11,9 +11,15 @@ import pytest
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark import BenchmarkConfig, cell_keys, parse_seeds, run_benchmark, run_dir
-from spikenerf.pipelines.stats import differences, summarize
+from spikenerf.pipelines.benchmark.stats import differences, summarize
+from spikenerf.pipelines.benchmark.tables import (
+    Cell,
+    differences_table,
+    table1_markdown,
+    table2_markdown,
+    to_markdown,
+)
 from spikenerf.pipelines.suite import benchmark_with_report
-from spikenerf.pipelines.tables import Cell, differences_table, table1_markdown, table2_markdown, to_markdown
 
 #: t(0.975, dof) from printed tables (independent of scipy)
 T975 = {2: 4.302653, 3: 3.182446}

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from spikenerf.pipelines.tables import Cell, cells_csv, rank_marks, table1_markdown, table2_markdown
+from spikenerf.pipelines.benchmark.tables import Cell, cells_csv, rank_marks, table1_markdown, table2_markdown
 
 
 def test_rank_marks_respects_metric_direction() -> None:

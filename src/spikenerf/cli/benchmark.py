@@ -9,7 +9,8 @@ import click
 from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError, comma_list
 from spikenerf.fields import FIELD_KINDS
-from spikenerf.pipelines.variants import VARIANTS
+from spikenerf.pipelines.benchmark.executor import EXECUTORS
+from spikenerf.pipelines.benchmark.variants import VARIANTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
 PARAM_FLAGS = {"field_kind": "--field"}
@@ -57,7 +58,7 @@ PARAM_FLAGS = {"field_kind": "--field"}
     help="Steps run at once (outputs go to OUT/logs/; each gets cpu_count // jobs threads unless "
     "OMP_NUM_THREADS is set).",
 )
-@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+@click.option("--executor", type=click.Choice(list(EXECUTORS)), default="local", show_default=True,
               help="local: --jobs processes on this machine; ray: every dataset and cell a Ray task (needs "
               "'spikenerf[cluster]'; OUT on shared storage, see docs/cluster.md).")  # fmt: skip
 @click.option("--address", help="Ray cluster: 'auto', HOST:PORT or 'local' (a new one here) [default: "
@@ -83,7 +84,12 @@ def command(
     ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
     from spikenerf.capture.blur import check_blur_views
-    from spikenerf.pipelines.benchmark import BenchmarkConfig, parse_seeds, resolve_scenes, resolve_variants
+    from spikenerf.pipelines.benchmark.cells import (
+        BenchmarkConfig,
+        parse_seeds,
+        resolve_scenes,
+        resolve_variants,
+    )
     from spikenerf.pipelines.suite import benchmark_with_report
 
     colors = comma_list(

@@ -34,7 +34,8 @@ def command(
     out: Path, quick: bool, device: str, size: int | None, iters: int | None, frames: int | None,
     test_views: int | None, scene: str | None, color: str, methods: str | None,
 ) -> None:  # fmt: skip
-    from spikenerf.pipelines.benchmark import VARIANTS, resolve_scenes
+    from spikenerf.pipelines.benchmark.cells import resolve_scenes
+    from spikenerf.pipelines.benchmark.variants import VARIANTS
     from spikenerf.pipelines.demo import DEFAULT_SCENE, DEMO_METHODS, DemoConfig, run_demo
 
     cfg = DemoConfig(

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from spikenerf.core.errors import InputError
-from spikenerf.pipelines.benchmark import BenchmarkConfig
+from spikenerf.pipelines.benchmark.cells import BenchmarkConfig
+from spikenerf.pipelines.benchmark.tables import Cell, table1_markdown
 from spikenerf.pipelines.suite import benchmark_with_report
-from spikenerf.pipelines.tables import Cell, table1_markdown
 
 DEFAULT_SCENE = "analytic-orbs"
 DEMO_METHODS = ("nerf-gt", "nerf-blur", "nerf-recon", "spike-nerf")
@@ -133,7 +133,7 @@ def run_demo(cfg: DemoConfig, echo: Callable[[str], None] = print) -> DemoResult
     t0, c0 = time.perf_counter(), cpu_seconds()
     cells = benchmark_with_report(bcfg)
     wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
-    from spikenerf.pipelines.results import trained_on
+    from spikenerf.pipelines.benchmark.results import trained_on
 
     views = trained_on(bcfg)
     table = "\n\n".join(table1_markdown(cells, bcfg.variants, bcfg.scenes, c, views) for c in bcfg.colors)

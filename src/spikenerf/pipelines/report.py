@@ -27,7 +27,7 @@ from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.pipelines import figures
-from spikenerf.pipelines.benchmark import (
+from spikenerf.pipelines.benchmark.cells import (
     BenchmarkConfig,
     cell_commands,
     cell_keys,
@@ -36,15 +36,15 @@ from spikenerf.pipelines.benchmark import (
     run_dir,
     training_seeds,
 )
-from spikenerf.pipelines.stats import differences
-from spikenerf.pipelines.tables import (
+from spikenerf.pipelines.benchmark.stats import differences
+from spikenerf.pipelines.benchmark.tables import (
     Cell,
     Table,
     differences_table,
     table1,
     table2,
 )
-from spikenerf.pipelines.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, label
+from spikenerf.pipelines.benchmark.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, label
 
 REPORT, FIGURES = "report.html", "figures"
 SECTIONS = ("tables", "views", "spikes", "curves", "novel-spikes", "environment")
@@ -93,7 +93,8 @@ def _esc(text: object) -> str:
 
 # ----------------------------------------------------------------------------------------------- tables
 def table_html(table: Table) -> str:
-    """A :class:`~spikenerf.pipelines.tables.Table` as HTML (numbers right-aligned; best, second, shown)."""
+    """A :class:`~spikenerf.pipelines.benchmark.tables.Table` as HTML (numbers right-aligned; best, second,
+    shown)."""
     head = "".join(f"<th>{_esc(h)}</th>" for h in table.header)
     body = "".join(
         f"<tr><td>{_esc(row)}</td>"
@@ -146,7 +147,7 @@ def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
 
 
 def _tables_section(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> str:
-    from spikenerf.pipelines.results import differences_note, seed_note, trained_on
+    from spikenerf.pipelines.benchmark.results import differences_note, seed_note, trained_on
 
     t1 = [v for v in cfg.variants if v in TABLE1_VARIANTS] or list(cfg.variants)
     views = trained_on(cfg)

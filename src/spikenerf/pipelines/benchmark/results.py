@@ -1,0 +1,203 @@
+"""The benchmark's written results: table1.md, table2.md, differences.md, results.csv, results.json (and
+the report), from the finished cells; see docs/results.md for what each table means. Read back: the cells
+of several folders' results.json as one set of tables (:func:`merged_markdown`, the script
+``benchmarks/tools/merge_results.py``) and the differences beyond the paper's claims
+(:func:`extra_differences_markdown`, ``benchmarks/tools/learned_differences.py``)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.errors import InputError
+from spikenerf.data.summary import view_counts
+from spikenerf.pipelines.benchmark import cells as plan
+from spikenerf.pipelines.benchmark.stats import Difference, differences
+from spikenerf.pipelines.benchmark.tables import (
+    Cell,
+    cells_csv,
+    differences_table,
+    per_scene_table,
+    table1_markdown,
+    table2_markdown,
+    to_markdown,
+)
+from spikenerf.pipelines.benchmark.variants import (
+    ABLATION_VARIANTS,
+    COMPARISONS,
+    LEARNED_COMPARISONS,
+    TABLE1_VARIANTS,
+    VARIANTS,
+    WINDOW_COMPARISONS,
+)
+
+#: config entries that must agree between merged benchmark folders (:func:`read_results`)
+MERGE_KEYS = (
+    "scenes", "size", "frames", "iters", "field_kind", "seed", "test_views", "blur_views", "extra_train_args",
+)  # fmt: skip
+#: a method's ``views`` (what its targets are posed on) -> how "trained on" counts them
+VIEW_TEXT = {"steps": "{} poses", "gt": "{} GT views", "blur": "{} blur views"}
+
+
+def poses_per_view(run: Path, variant: str) -> int:
+    """Poses a cell's run renders per target view (its ``config.yaml``; else the variant's defaults), e.g.
+    ``blur_samples`` for ``nerf-blur-aware`` and ``nerf-bad``."""
+    from spikenerf.train.config import load_run_config
+    from spikenerf.train.methods import make_method
+
+    try:
+        config = load_run_config(run / "config.yaml")
+    except InputError:
+        config = VARIANTS[variant].config()
+    return make_method(config).poses_per_view()
+
+
+def trained_on(cfg: plan.BenchmarkConfig) -> dict[str, str]:
+    """variant -> what its runs trained on, counted from the datasets (values differing by scene joined by /).
+
+    Its method's ``views`` says what: every step's pose (spike methods), the stored GT renders (``nerf-gt``)
+    or the blur views; ``× N poses`` when each view is rendered at N poses (``nerf-blur-aware``,
+    ``nerf-bad``: its ``blur_samples`` poses of the exposure; window-aware targets: "T targets × N poses"
+    of each TFP window; from the run config).
+    """
+    from spikenerf.train.methods import METHOD_CLASSES
+
+    counts = [view_counts(root) for s in cfg.scenes if (root := cfg.out / "datasets" / s).is_dir()]
+    out = {}
+    for v in cfg.variants:
+        views = METHOD_CLASSES[VARIANTS[v].method].views
+        texts = {VIEW_TEXT[views].format(c[views]) for c in counts}
+        samples = {poses_per_view(plan.run_dir(cfg, *k), v) for k in plan.cell_keys(cfg) if k.variant == v}
+        if samples - {1}:
+            if views == "steps":  # window-aware targets: each step's target at N poses of its window
+                texts = {f"{c['steps']} targets" for c in counts}
+            texts = {f"{t} × {'/'.join(map(str, sorted(samples)))} poses" for t in texts}
+        out[v] = " / ".join(sorted(texts)) or "–"
+    return out
+
+
+def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
+    """table1.md, table2.md, differences.md, results.csv and results.json (the report: suite.py)."""
+    views, seeds = trained_on(cfg), plan.training_seeds(cfg)
+    t1_variants = [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants
+    t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
+    note = (
+        f"{seed_note(seeds)} Test views: {cfg.test_views} per scene; 'trained on' counted from the datasets."
+    )
+    write_text_atomic(cfg.out / "table1.md", f"# Table I: comparison (test views)\n\n{note}\n\n{t1}\n")
+    if any(v in ABLATION_VARIANTS for v in cfg.variants):
+        t2 = "\n\n".join(table2_markdown(cells, c, views) for c in cfg.colors)
+        write_text_atomic(
+            cfg.out / "table2.md", f"# Table II: ablation (mean over scenes)\n\n{note}\n\n{t2}\n"
+        )
+    diffs = differences(cells, cfg.colors)
+    write_text_atomic(cfg.out / "differences.md", differences_markdown(diffs))
+    write_text_atomic(cfg.out / "results.csv", cells_csv(cells))
+    config = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    results = {
+        "config": config,
+        "environment": plan.environment(),
+        "cells": [asdict(c) for c in cells],
+        "trained_on": views,
+        "differences": [asdict(d) for d in diffs],
+        "commands": {
+            "datasets": {s: plan.dataset_command(cfg, s)[2:] for s in cfg.scenes},
+            "cells": {
+                "/".join(map(str, k[:3])) + ("" if k.seed == cfg.seed else f"/seed{k.seed}"): [
+                    cmd[2:] for cmd in plan.cell_commands(cfg, *k)
+                ]
+                for k in plan.cell_keys(cfg)
+            },
+            "this_run": log,
+        },
+    }
+    write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
+
+
+def seed_note(seeds: Sequence[int]) -> str:
+    if len(seeds) == 1:
+        return f"One training seed ({seeds[0]}): no error bars."
+    return (
+        f"Mean ± sample standard deviation over {len(seeds)} training seeds ({', '.join(map(str, seeds))})."
+    )
+
+
+def differences_note() -> str:
+    """How the differences table is computed (shown above it in Markdown and HTML)."""
+    return (
+        "Each difference (ours − baseline) is paired over scene × seed: the same dataset and training seed. "
+        "95% confidence interval = mean ± t(0.975, n−1)·std/√n (Student t). Pairs of one scene "
+        "share its effect, so the per-seed 95% CI repeats it over the per-seed means (scenes averaged, "
+        "seeds − 1 degrees "
+        "of freedom). A claim is 'shown' only when both intervals exclude 0 on the claimed side (higher "
+        "PSNR/SSIM, lower LPIPS); otherwise 'not shown' ('reversed' when the pair interval excludes 0 on the "
+        "other side). One pair gives no interval; with one "
+        "training seed the interval spans scenes only, not seed noise, so nothing is 'shown'."
+    )
+
+
+def differences_markdown(diffs: Sequence[Difference]) -> str:
+    """``differences.md``: the paired differences the paper claims, with 95% Student-t intervals."""
+    table = to_markdown(differences_table(diffs)) if diffs else "No comparable pairs were run."
+    return f"# Paired differences (ours − baseline)\n\n{differences_note()}\n\n{table}\n"
+
+
+def read_results(paths: Sequence[Path]) -> tuple[dict, list[Cell], dict[str, str]]:
+    """The shared config (:data:`MERGE_KEYS`), every cell and the 'trained on' texts of several benchmark
+    folders' ``results.json`` (``paths``); InputError when a file's config differs from the first's or a cell
+    (scene, colour, variant, seed) is in two files."""
+    config, cells, trained_on, seen = None, [], {}, set()
+    for path in paths:
+        data = json.loads(path.read_text())
+        mine = {k: data["config"][k] for k in MERGE_KEYS}
+        if config is not None and mine != config:
+            diff = [k for k in MERGE_KEYS if mine[k] != config[k]]
+            raise InputError(f"{path}: its benchmark differs from {paths[0]} in {', '.join(diff)}")
+        config = mine
+        for c in data["cells"]:
+            key = (c["scene"], c["color"], c["variant"], c["seed"])
+            if key in seen:
+                raise InputError(f"{path}: cell {'/'.join(map(str, key))} is also in an earlier file")
+            seen.add(key)
+            cells.append(Cell(**c))
+        trained_on.update(data.get("trained_on", {}))
+    assert config is not None
+    return config, cells, trained_on
+
+
+def merged_markdown(paths: Sequence[Path]) -> str:
+    """Tables I/II and the paired differences of the cells of several ``results.json`` taken together (e.g.
+    one ``benchmark --seeds K`` call each), as a single ``--seeds 0,1,...`` run would have written them."""
+    config, cells, views = read_results(paths)
+    colors = sorted({c.color for c in cells}, key=["gray", "rgb"].index)
+    variants = list(dict.fromkeys(c.variant for c in cells))
+    seeds = sorted({c.seed for c in cells})
+    parts = [f"{len(cells)} cells from {len(paths)} folders; {seed_note(seeds)}\n"]
+    t1 = [v for v in variants if v in TABLE1_VARIANTS]
+    blocks = [table1_markdown(cells, t1, config["scenes"], c, views) for c in colors]
+    parts.append("# Table I\n\n" + "\n\n".join(blocks))
+    if any(v in ABLATION_VARIANTS for v in variants):
+        parts.append("\n# Table II\n\n" + "\n\n".join(table2_markdown(cells, c, views) for c in colors))
+    parts.append("\n" + differences_markdown(differences(cells, colors)))
+    return "\n".join(parts)
+
+
+def extra_differences_markdown(path: Path, per_scene: bool = False) -> str:
+    """The paired differences beyond the paper's claims (:data:`~.variants.LEARNED_COMPARISONS`,
+    :data:`~.variants.WINDOW_COMPARISONS`) of a benchmark's ``results.json``, pairs it lacks left out; with
+    ``per_scene``, each scene's PSNR differences too (the paper's headline pair and the window pairs)."""
+    cells = [Cell(**c) for c in json.loads(path.read_text())["cells"]]
+    colors = sorted({c.color for c in cells})
+    parts = [
+        to_markdown(differences_table(differences(cells, colors, LEARNED_COMPARISONS + WINDOW_COMPARISONS)))
+    ]
+    if per_scene:
+        for color in colors:
+            parts.append(f"\n{color}, PSNR (dB):\n")
+            parts.append(
+                per_scene_table([c for c in cells if c.color == color], COMPARISONS[:1] + WINDOW_COMPARISONS)
+            )
+    return "\n".join(parts)

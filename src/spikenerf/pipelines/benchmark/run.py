@@ -1,0 +1,123 @@
+"""The paper's comparison (Table I), ablation (Table II) and paired differences, resumable cell by cell.
+
+Every step is one ``spikenerf`` command run in a subprocess, so the exact commands are recorded in
+``results.json`` and a user can re-run any cell by hand. A cell (scene, colour, method variant, training seed)
+is finished when its run folder holds ``metrics.json``; finished cells are reused when the benchmark is
+restarted. :func:`~spikenerf.pipelines.benchmark.cells.cell_keys` says which cells there are;
+:func:`run_benchmark` lists each scene's dataset and each cell as a job and hands them to the executor that
+``cfg.executor`` names (:mod:`spikenerf.pipelines.benchmark.executor`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from functools import partial
+from pathlib import Path
+
+from spikenerf.core.atomic import clean_stale_temps
+from spikenerf.core.errors import InputError
+from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import check_output, mark
+from spikenerf.data.summary import view_counts
+from spikenerf.pipelines.benchmark.cells import (
+    BenchmarkConfig,
+    CellKey,
+    cell_commands,
+    cell_keys,
+    cell_name,
+    dataset_command,
+    read_cell,
+    run_dir,
+)
+from spikenerf.pipelines.benchmark.executor import Executor, get_executor
+from spikenerf.pipelines.benchmark.resources import check_benchmark_resources
+from spikenerf.pipelines.benchmark.results import write_all
+from spikenerf.pipelines.benchmark.settings import check_settings, write_settings
+from spikenerf.pipelines.benchmark.steps import Job
+from spikenerf.pipelines.benchmark.tables import Cell
+
+
+def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
+    """Simulate each scene once, then train/eval every missing cell; write the tables (the HTML report:
+    :func:`spikenerf.pipelines.suite.benchmark_with_report`). ``on_cell`` is called with each cell once it
+    has finished (now or before)."""
+    executor = get_executor(cfg.executor)
+    executor.check(cfg)  # e.g. without Ray: one line, before anything is written
+    check_output(cfg.out, "benchmark", overwrite=True)  # a folder it wrote before is resumed
+    check_settings(cfg)  # … with the settings it was started with
+    check_benchmark_resources(cfg)
+    with output_lock(cfg.out):
+        nonce = check_settings(cfg)
+        mark(cfg.out, "benchmark")
+        if nonce is None:
+            nonce = write_settings(cfg, None)
+        clean_stale_temps(cfg.out)
+        return _run_benchmark_locked(cfg, executor, on_cell, nonce)
+
+
+def _run_benchmark_locked(
+    cfg: BenchmarkConfig, executor: Executor, on_cell: Callable[[Cell], None] | None, nonce: str
+) -> list[Cell]:
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    log: list[dict] = []
+    keys = cell_keys(cfg)
+    _check_datasets(cfg)
+    jobs = _jobs(cfg, keys)
+    key_of = {cell_name(cfg, key): key for key in keys}
+
+    def finished(job: Job) -> None:
+        key = key_of.get(job.name)
+        if key is None:
+            return  # a dataset
+        run = run_dir(cfg, *key)
+        cell = read_cell(run, *key[:3], seed=key.seed)
+        if cell is None:
+            raise InputError("eval finished without writing metrics.json", path=run)
+        if on_cell:
+            on_cell(cell)
+
+    executor.run(cfg, jobs, log, nonce, finished)
+    cells = [read_cell(run_dir(cfg, *key), *key[:3], seed=key.seed) for key in keys]
+    if None in cells:
+        raise InputError("a cell finished without metrics.json; run the benchmark again", path=cfg.out)
+    write_results(cfg, cells, log)  # type: ignore[arg-type]
+    return cells  # type: ignore[return-value]
+
+
+def _check_datasets(cfg: BenchmarkConfig) -> None:
+    """Refuse a dataset simulated before with other blur views than the benchmark asks for."""
+    for scene in cfg.scenes:
+        root = cfg.out / "datasets" / scene
+        if not (root / "transforms.json").is_file():
+            continue
+        have = str(view_counts(root)["blur_views"])
+        if have != cfg.blur_views:
+            raise InputError(
+                f"blur_views: the dataset was simulated with {have} blur views, but the benchmark asks for "
+                f"{cfg.blur_views}; pass {have} or delete the dataset to re-simulate it",
+                path=root,
+                param="blur_views",
+            )
+
+
+def _commands_at(cfg: BenchmarkConfig, key: tuple, root: Path) -> list[list[str]]:
+    """A job's commands for the benchmark folder at ``root``: a dataset's for ``(scene,)``, else a cell's."""
+    here = replace(cfg, out=root)
+    return [dataset_command(here, key[0])] if len(key) == 1 else cell_commands(here, *key)
+
+
+def _jobs(cfg: BenchmarkConfig, keys: list[CellKey]) -> list[Job]:
+    """Each scene's dataset, then each cell (``keys``, in order) after its scene's dataset."""
+    jobs = [Job(f"simulate-{s}", partial(_commands_at, cfg, (s,)), f"datasets/{s}",
+                f"datasets/{s}/transforms.json") for s in cfg.scenes]  # fmt: skip
+    for key in keys:
+        run = run_dir(cfg, *key).relative_to(cfg.out).as_posix()
+        jobs.append(Job(cell_name(cfg, key), partial(_commands_at, cfg, key), run, f"{run}/metrics.json",
+                        needs=f"simulate-{key[0]}"))  # fmt: skip
+    return jobs
+
+
+def write_results(cfg: BenchmarkConfig, cells: Sequence[Cell], log: list[dict]) -> None:
+    """table1.md, table2.md, differences.md, results.csv and results.json (see results.py)."""
+    write_all(cfg, cells, log)
