@@ -6,7 +6,7 @@ The public API (each name is imported on first use)::
     from spikenerf.train import train  # (``spikenerf.train`` is the subpackage)
 
 Subpackages export more: ``spikenerf.camera``, ``spikenerf.scenes``, ``spikenerf.data``,
-``spikenerf.render``, ``spikenerf.train``, ``spikenerf.eval``.
+``spikenerf.capture`` (simulate a dataset), ``spikenerf.render``, ``spikenerf.train``, ``spikenerf.eval``.
 """
 
 from spikenerf.core.exports import lazy_exports

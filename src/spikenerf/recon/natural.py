@@ -4,7 +4,8 @@ that pans, rolls and zooms over them (a planar scene), then simulated by the spi
 The analytic scenes give the network geometry and motion; these give it natural textures and edge
 statistics that procedural textures lack. The photographs come with the ``scikit-image`` package (its
 ``skimage.data`` files that ship in the wheel; nothing is downloaded): :data:`NATURAL_TRAIN` feeds the train
-split and :data:`NATURAL_HELDOUT`, never trained on, the val split and ``benchmarks/bench_learned_natural``.
+split and :data:`NATURAL_HELDOUT`, never trained on, the val split and
+``python -m benchmarks.experiments.bench_learned_recon --content natural``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from spikenerf.camera.layout import to_camera_layout
 from spikenerf.core.color import srgb_decode
 from spikenerf.core.errors import InputError
 from spikenerf.recon.pairs import PairConfig, Sample, draw_settings, simulate_samples
@@ -108,7 +110,8 @@ def motion_grids(
 def render_motion(image: np.ndarray, grids: torch.Tensor, ss: int) -> np.ndarray:
     """Linear RGB frames (K, 3, size, size) of ``image`` (H, W, 3) sampled along ``grids`` (bilinear,
     mirrored at the borders, ``ss × ss`` sub-samples averaged per pixel)."""
-    source = torch.from_numpy(image).permute(2, 0, 1)[None].expand(len(grids), -1, -1, -1)
+    source = torch.from_numpy(np.ascontiguousarray(to_camera_layout(image, frame=True)))
+    source = source[None].expand(len(grids), -1, -1, -1)
     frames = F.grid_sample(source, grids, mode="bilinear", padding_mode="reflection", align_corners=False)
     return F.avg_pool2d(frames, ss).numpy() if ss > 1 else frames.numpy()
 
