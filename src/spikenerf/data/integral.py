@@ -85,9 +85,8 @@ class CountTargets:
         column = self.counts[:, pixels[:, 1], pixels[:, 0], channel].T.contiguous().long()  # (B, T + 1)
         rate = column[:, -1].double() / total
         n = torch.clamp(torch.round((end - start).double() * rate), min=1).long()
-        first = (
-            column.gather(1, start[:, None])[:, 0] + 1
-        )  # index (1-based) of the first spike at or after start
+        # the (1-based) index of the first spike at or after each start
+        first = column.gather(1, start[:, None])[:, 0] + 1
         ok = first + n <= column[:, -1]
         wanted = torch.stack([first, torch.where(ok, first + n, first)], dim=1)
         at = torch.searchsorted(column, wanted) - 1  # the step of each wanted spike
