@@ -285,6 +285,47 @@ def test_tiny_fit_lowers_the_loss(kind: str) -> None:
         assert model.field.resolution == 24 and 0.0 < model.field.occupancy.occupied_fraction() < 1.0
 
 
+def test_total_variation_values_and_gradient() -> None:
+    """Mean squared neighbour difference along H and W (lines: H only); 0 on a constant; exact gradient."""
+    from spikenerf.fields.grid import total_variation
+
+    assert float(total_variation(torch.full((3, 2, 5, 5), 0.7))) == 0.0
+    ramp = torch.arange(6.0)[:, None].expand(6, 4)[None, None].expand(3, 2, 6, 4)  # +1 along H, flat along W
+    assert float(total_variation(ramp)) == pytest.approx(1.0)
+    assert float(total_variation(2 * ramp[..., :1])) == pytest.approx(4.0)  # a line: H only
+    x = torch.randn(3, 2, 5, 4, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(total_variation, (x,))
+    line = torch.randn(3, 2, 5, 1, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(total_variation, (line,))
+
+
+def test_tv_prior_is_weighted_and_runs_every_tv_every_steps() -> None:
+    """regularization(step): 0 without weights; with them, tv_every × weight × TV at multiples of tv_every
+    and 0 between (step None: every call, unscaled); the prior smooths the factors it is applied to."""
+    from spikenerf.fields.grid import total_variation
+
+    field = build_field("grid", 1, BOX, CFG)
+    assert float(field.regularization(0)) == 0.0
+    cfg = replace(CFG, tv_app=0.5, tv_density=0.25, tv_every=3)
+    field = build_field("grid", 1, BOX, cfg)
+    tv_d = total_variation(field.density_planes) + total_variation(field.density_lines)
+    tv_a = total_variation(field.app_planes) + total_variation(field.app_lines)
+    expected = 0.25 * tv_d.item() + 0.5 * tv_a.item()
+    assert float(field.regularization()) == pytest.approx(expected)
+    assert float(field.regularization(6)) == pytest.approx(3 * expected)
+    assert float(field.regularization(7)) == 0.0
+    only_app = build_field("grid", 1, BOX, replace(CFG, tv_app=1.0, tv_every=1))
+    only_app.regularization(5).backward()
+    assert only_app.density_planes.grad is None and only_app.app_planes.grad is not None
+    opt = torch.optim.Adam(only_app.parameters(), lr=0.02)
+    before = float(total_variation(only_app.app_planes))
+    for step in range(20):
+        opt.zero_grad()
+        only_app.regularization(step).backward()
+        opt.step()
+    assert float(total_variation(only_app.app_planes)) < 0.5 * before
+
+
 def test_occupancy_update_never_empties_the_grid() -> None:
     from spikenerf.fields.occupancy import OccupancyGrid
 
@@ -396,6 +437,9 @@ def test_field_configs_are_checked_by_the_one_config_validator() -> None:
         ("grid", {"hidden": 1.5}, "field_config.hidden must be an integer"),
         ("mlp", {"raw_noise_std": float("nan")}, "field_config.raw_noise_std must be a finite number"),
         ("mlp", {"depth": 0}, "field_config.depth must be > 0"),
+        ("grid", {"tv_app": -0.1}, "field_config.tv_app must be a finite number ≥ 0"),
+        ("grid", {"tv_density": float("inf")}, "field_config.tv_density must be a finite number"),
+        ("grid", {"tv_every": 0}, "field_config.tv_every must be ≥ 1"),
     ]:
         with pytest.raises(InputError, match=re.escape(words)):
             field_config(kind, entry)

@@ -47,8 +47,9 @@ class Field(nn.Module):
         """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""
         raise NotImplementedError
 
-    def regularization(self) -> Tensor:
-        """A scalar () prior to add to the loss (already weighted); zero unless the field defines one."""
+    def regularization(self, step: int | None = None) -> Tensor:
+        """A scalar () prior to add to the loss at optimiser step ``step`` (None: not in training; already
+        weighted); zero unless the field defines one."""
         return self.scene_box.new_zeros(())
 
     def param_groups(self, base_lr: float | None = None) -> list[dict]:

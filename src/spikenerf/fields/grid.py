@@ -58,6 +58,10 @@ class GridFieldConfig:
         lr_grid / lr: Adam learning rates of the grids and of the networks; both decay exponentially to
             ``lr_final_ratio`` times their value over the run (trainer side). batch_rays: rays per step.
         l1_weight: weight of the L1 sparsity prior on the density factors (see ``regularization``).
+        tv_density / tv_app: weights of the total-variation prior on the density and appearance factors
+            (TensoRF's smoothness prior; against fitting the noise of spike-count targets; see
+            ``regularization``). tv_every: the prior is evaluated every this many steps, weighted by it
+            (the same weight per step on average at a fraction of the cost).
         iterations: the run length the schedules are written for (see :meth:`for_iterations`).
     """
 
@@ -70,7 +74,8 @@ class GridFieldConfig:
         "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
         "occupancy_max_resolution": _LEAST0,
         "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1), "batch_rays": _ABOVE0,
-        "l1_weight": _LEAST0, "iterations": _ABOVE0,
+        "l1_weight": _LEAST0, "tv_density": _LEAST0, "tv_app": _LEAST0,
+        "tv_every": Bound(least=1), "iterations": _ABOVE0,
     }  # fmt: skip
 
     n_voxels_init: int = 64**3
@@ -98,6 +103,9 @@ class GridFieldConfig:
     lr_final_ratio: float = 0.1
     batch_rays: int = 4096
     l1_weight: float = 0.0
+    tv_density: float = 0.0
+    tv_app: float = 0.0
+    tv_every: int = 4
     iterations: int = 3000
 
     def for_iterations(self, iterations: int) -> GridFieldConfig:
@@ -210,6 +218,15 @@ def _factor(values: Tensor) -> nn.Parameter:
     return nn.Parameter(values.contiguous(memory_format=torch.channels_last))
 
 
+def total_variation(factor: Tensor) -> Tensor:
+    """Scalar (): mean squared difference of neighbouring texels of a factor (3, C, H, W) along H and W
+    (a line, W = 1, along H only)."""
+    tv = (factor[..., 1:, :] - factor[..., :-1, :]).pow(2).mean()
+    if factor.shape[-1] > 1:
+        tv = tv + (factor[..., :, 1:] - factor[..., :, :-1]).pow(2).mean()
+    return tv
+
+
 class GridField(Field):
     """Radiance field on TensoRF-VM grids.
 
@@ -312,13 +329,23 @@ class GridField(Field):
             self.occupancy_step.fill_(step)
         return changed
 
-    def regularization(self) -> Tensor:
-        """Scalar () ``l1_weight`` × mean |density factor| (a sparsity prior against floaters); 0 by
-        default."""
-        if self.config.l1_weight == 0:
-            return self.density_planes.new_zeros(())
-        l1 = self.density_planes.abs().mean() + self.density_lines.abs().mean()
-        return self.config.l1_weight * l1
+    def regularization(self, step: int | None = None) -> Tensor:
+        """Scalar (): ``l1_weight`` × mean |density factor| (a sparsity prior against floaters) plus, at
+        steps that are multiples of ``tv_every`` (every call when ``step`` is None), ``tv_every`` ×
+        ``tv_density`` / ``tv_app`` × the total variation of the density / appearance factors
+        (:func:`total_variation`); 0 by default."""
+        cfg = self.config
+        reg = self.density_planes.new_zeros(())
+        if cfg.l1_weight:
+            reg = reg + cfg.l1_weight * (self.density_planes.abs().mean() + self.density_lines.abs().mean())
+        if not (cfg.tv_density or cfg.tv_app) or (step is not None and step % cfg.tv_every):
+            return reg
+        every = 1 if step is None else cfg.tv_every
+        for weight, planes, lines in ((cfg.tv_density, self.density_planes, self.density_lines),
+                                      (cfg.tv_app, self.app_planes, self.app_lines)):  # fmt: skip
+            if weight:
+                reg = reg + every * weight * (total_variation(planes) + total_variation(lines))
+        return reg
 
     def param_groups(self, base_lr: float | None = None) -> list[dict]:
         """Adam groups: grids at ``lr_grid``, networks at ``lr`` (scaled by ``base_lr / lr``)."""

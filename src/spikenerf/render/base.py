@@ -75,9 +75,10 @@ class RadianceModel(nn.Module):
         """
         return self.field.param_groups(base_lr)
 
-    def regularization(self) -> Tensor:
-        """A scalar () prior to add to the loss (already weighted; zero unless the config enables one)."""
-        return self.field.regularization()
+    def regularization(self, step: int | None = None) -> Tensor:
+        """A scalar () prior to add to the loss at optimiser step ``step`` (already weighted; zero unless
+        the config enables one; :meth:`spikenerf.fields.base.Field.regularization`)."""
+        return self.field.regularization(step)
 
     def hparams(self) -> dict[str, Any]:
         """Everything ``build_model`` needs to rebuild this model (store it beside the checkpoint)."""

@@ -217,7 +217,7 @@ class TrainMethod:
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
         """The loss terms of one step: ``recon`` and ``reg`` (subclasses add theirs)."""
         recon, srgb_mse, rays = self.recon_term(state)
-        return StepLosses({"recon": recon, "reg": state.model.regularization()}, srgb_mse, rays)
+        return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
 
     def recon_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
         """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered);
@@ -486,7 +486,7 @@ class SpikeIntegral(TrainMethod):
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
         recon, srgb_mse, rays = self.integral_term(state)
-        return StepLosses({"recon": recon, "reg": state.model.regularization()}, srgb_mse, rays)
+        return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
 
     def integral_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
         """The window-mean loss of one batch → (loss, sRGB MSE of the mean estimates, rays rendered)."""
