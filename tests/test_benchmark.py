@@ -105,6 +105,24 @@ def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
     assert check_settings(replace(cfg, iters=3000)) == "n"  # the caller names the old default
 
 
+def test_a_folder_from_before_an_added_field_entry_resumes_when_it_trains_as_before(tmp_path: Path) -> None:
+    """A record without the entries added since (ADDED_DEFAULTS: the TV prior, off) is read with their
+    earlier behaviour; one that recorded another value is refused."""
+    from spikenerf.pipelines.benchmark.settings import ADDED_DEFAULTS, NAME, check_settings, settings
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=16, frames=100,
+                          test_views=1, render=False, iters=4)  # fmt: skip
+    now = settings(cfg)
+    assert all(now["field_defaults"][k] == v for k, v in ADDED_DEFAULTS.items())
+    older = {k: v for k, v in now["field_defaults"].items() if k not in ADDED_DEFAULTS}
+    (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": older}, "nonce": "n"}))
+    assert check_settings(cfg) == "n"
+    other = {**now["field_defaults"], "tv_app": 0.5}
+    (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": other}, "nonce": "n"}))
+    with pytest.raises(InputError, match=r"other field defaults \(tv_app 0.5 → 0.0"):
+        check_settings(cfg)
+
+
 def test_disk_estimate_counts_seeds_and_every_simulated_stream(monkeypatch: pytest.MonkeyPatch) -> None:
     from spikenerf.capture.simulate import estimate_resources
     from spikenerf.pipelines.benchmark import resources

@@ -103,8 +103,12 @@ def test_each_method_owns_its_parts() -> None:
             setattr(getattr(cfg, section), field, value)
         return make_method(cfg)
 
-    spike = method("spike-nerf")
+    spike = method("spike-nerf", targets__window_poses=1)  # the paper's targets: masked by default
     assert spike.uses_mask and spike.uses_spike_loss and spike.describe() == "spike-nerf"
+    window = method("spike-nerf")  # window-aware targets (train's default): no masks unless asked
+    assert not window.uses_mask and window.describe() == "spike-nerf (no mask)"
+    assert method("spike-nerf", targets__mask=True).uses_mask
+    assert not method("spike-nerf", targets__window_poses=1, targets__mask=False).uses_mask
     its = (0, 19, 20, 29, 39, 99)
     assert [spike.lam(it) for it in its] == [spike_weight(it, 1.0, 20, 20) for it in its]
     assert spike.lam(19) == 0 and spike.lam(39) == 1.0

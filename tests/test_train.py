@@ -225,6 +225,27 @@ def test_runs_record_their_pose_count_and_older_runs_resume_with_theirs(
         Trainer(asked, tmp_path / "old", dataset, resume=True, progress=False)
 
 
+def test_runs_record_their_masks_and_older_runs_resume_with_theirs(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """Masks default to on for the paper's targets and off for window-aware ones; a run records the
+    resolved choice, and a run written before (``mask: true`` with window-aware targets) keeps its masks."""
+    assert TrainConfig(method="spike-nerf").resolved().targets.mask is False
+    paper = TrainConfig(method="spike-nerf")
+    paper.targets.window_poses = 1
+    assert paper.resolved().targets.mask is True
+    cfg = _config(dataset_dir, method="spike-nerf")
+    assert cfg.targets.mask is None
+    Trainer(cfg, tmp_path / "run", dataset, progress=False).train(stop_after=2)
+    stored = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
+    assert stored["targets"]["mask"] is False and stored["targets"]["window_poses"] == WINDOW_POSES
+    stored["targets"]["mask"] = True  # as every run before this default recorded it
+    (tmp_path / "run" / "config.yaml").write_text(yaml.safe_dump(stored))
+    again = Trainer(_config(dataset_dir, method="spike-nerf"), tmp_path / "run", dataset, resume=True,
+                    progress=False)  # fmt: skip
+    assert again.method.uses_mask and again.config.targets.mask is True
+
+
 def test_missing_stream_is_input_error(dataset) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(InputError, match=r"bayer|color"):
         stream_targets(dataset, "bayer")

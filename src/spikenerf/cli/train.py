@@ -80,7 +80,12 @@ PARAM_FLAGS = {
 @click.argument("dataset", required=False, type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
 @click.option("--method", type=click.Choice(tuple(METHOD_CLASSES)), default=_D.method, show_default=True)
-@click.option("--no-mask", is_flag=True, help="Ablation: spike-nerf without spike masks.")
+@click.option(
+    "--no-mask",
+    is_flag=True,
+    help="spike-nerf without spike masks: the ablation with the paper's targets, and the default with "
+    "window-aware ones (--set targets.mask=true keeps them there).",
+)
 @click.option("--no-spike-loss", is_flag=True, help="Ablation: spike-nerf without the spike loss.")
 @click.option(
     "--lambda", "lam", type=float, default=_D.spike.lam, show_default=True, help="Spike-loss weight λ."

@@ -60,7 +60,9 @@ class TargetConfig:
 
     Attributes:
         recon: tfp | tfi (image reconstruction of the stream). window: TFP window, frames (odd).
-        mask: multiply by the spike masks (spike-nerf). mask_n: mask half window n (2n+1 frames, paper: 5).
+        mask: multiply by the spike masks (spike-nerf); None: on with the paper's targets (one pose per
+            target), off with window-aware ones, where they gained nothing (docs/spike-integral.md, masks).
+            :meth:`masked` resolves it. mask_n: mask half window n (2n+1 frames, paper: 5).
         blur_samples: poses per exposure averaged by nerf-blur-aware and nerf-bad (its virtual frames).
         window_poses: poses per TFP target of nerf-recon and spike-nerf, spread over its window and
             averaged (1: the target's own step, the paper's; S > 1: window-aware targets, recon tfp only;
@@ -73,7 +75,7 @@ class TargetConfig:
 
     recon: TargetRecon = "tfp"
     window: int = DEFAULT_WINDOW
-    mask: bool = True
+    mask: bool | None = None
     mask_n: int = 5
     blur_samples: int = 8
     window_poses: int | None = None
@@ -83,6 +85,11 @@ class TargetConfig:
         if self.window_poses is None:
             return WINDOW_POSES if self.recon == "tfp" else 1
         return self.window_poses
+
+    def masked(self) -> bool:
+        """``mask`` resolved: when unset, on for one pose per target (the paper's), off for window-aware
+        targets."""
+        return self.mask if self.mask is not None else self.poses_per_target() == 1
 
 
 @dataclass
@@ -281,9 +288,10 @@ class TrainConfig:
 
     def resolved(self) -> TrainConfig:
         """A copy with the defaults that depend on other fields filled in (``targets.window_poses``: see
-        :meth:`window_poses`; ``batch``: :meth:`rays_per_step`), as a new run records them in its
-        ``config.yaml``."""
+        :meth:`window_poses`; ``targets.mask``: :meth:`TargetConfig.masked` of those; ``batch``:
+        :meth:`rays_per_step`), as a new run records them in its ``config.yaml``."""
         targets = dataclasses.replace(self.targets, window_poses=self.window_poses())
+        targets = dataclasses.replace(targets, mask=targets.masked())
         return dataclasses.replace(self, targets=targets, batch=self.rays_per_step())
 
     @classmethod

@@ -352,7 +352,7 @@ class SpikeNeRF(NerfRecon):
 
     @property
     def uses_mask(self) -> bool:
-        return self.config.targets.mask
+        return self.config.targets.masked()
 
     def ablations(self) -> list[str]:
         off = (("no mask", self.uses_mask), ("no spike loss", self.uses_spike_loss))

@@ -105,7 +105,7 @@ def _lr_final_ratio(config: TrainConfig, model: RadianceModel) -> float:
 def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, TrainConfig]:
     """The run's stored config and ``given``; a run from before the hold-out (its config.yaml has no
     ``holdout`` key) trained on every step, so it resumes without one unless ``given`` asks for it. Window
-    poses and rays per step that ``given`` leaves to their defaults are the run's own."""
+    poses, masks and rays per step that ``given`` leaves to their defaults are the run's own."""
     stored = load_run_config(path)
     if not any(line.startswith("holdout:") for line in path.read_text(encoding="utf-8").splitlines()):
         stored.holdout = False
@@ -114,6 +114,10 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
     if given.targets.window_poses is None:  # not asked: the count the run trained with
         targets = dataclasses.replace(given.targets, window_poses=stored.targets.window_poses)
         given = dataclasses.replace(given, targets=targets)
+    if given.targets.mask is None:  # not asked: the masks the run trained with (runs before: on)
+        given = dataclasses.replace(
+            given, targets=dataclasses.replace(given.targets, mask=stored.targets.mask)
+        )
     if given.batch is None:  # not asked: the rays per step the run trained with
         given = dataclasses.replace(given, batch=stored.batch)
     return stored, given

@@ -27,6 +27,9 @@ from spikenerf.fields.grid import native_bf16
 from spikenerf.train.config import TrainConfig
 
 NAME = "benchmark.json"
+#: field-config entries added after folders were started, with the value that trains as before they
+#: existed: a record without one reads it so (the grid's total-variation prior, off)
+ADDED_DEFAULTS: dict[str, Any] = {"tv_density": 0.0, "tv_app": 0.0, "tv_every": 4}
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
 KEYS = (
     "size", "frames", "seed", "test_views", "blur_views", "color", "iters", "field_kind", "extra_train_args",
@@ -87,6 +90,8 @@ def check_settings(cfg: Any) -> str | None:
             param=(*bad, "out"),
         )
     was = old.get("field_defaults")
+    if was is not None:
+        was = {**{k: v for k, v in ADDED_DEFAULTS.items() if k in new["field_defaults"]}, **was}
     if was != new["field_defaults"]:
         what = "unrecorded (an earlier version)" if was is None else ", ".join(
             f"{k} {was.get(k)!r} → {v!r}" for k, v in new["field_defaults"].items() if was.get(k) != v

@@ -63,8 +63,10 @@ VARIANTS: dict[str, Variant] = {
     "nerf-recon-window": Variant(
         "nerf-recon", "NeRF + TFP, window-aware targets", (("targets.window_poses", WINDOW_POSES),)
     ),
-    "spike-nerf-window": Variant(
-        "spike-nerf", "Spike-NeRF, window-aware targets", (("targets.window_poses", WINDOW_POSES),)
+    "spike-nerf-window": Variant(  # with the masks it was measured with (train's default drops them there)
+        "spike-nerf",
+        "Spike-NeRF, window-aware targets",
+        (("targets.window_poses", WINDOW_POSES), ("targets.mask", True)),
     ),
     "spike-integral": Variant("spike-integral", "Spike-integral (ours, train's default)"),
     "spike-nerf-no-mask": Variant("spike-nerf", "W/O spike masks", (*PAPER_TARGETS, ("targets.mask", False))),
