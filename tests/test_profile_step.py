@@ -1,0 +1,37 @@
+"""``benchmarks/tools/profile_cuda_step.py``: its GPU-time sum and a CPU smoke run (the CUDA figures come from
+a GPU host, docs/performance.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from torch.autograd import DeviceType
+
+from helpers import load_benchmark, run_cli
+
+TOOL = load_benchmark("tools/profile_cuda_step")
+
+
+def test_gpu_time_counts_each_kernel_once() -> None:
+    # the profiler gives an op the device time of the kernels it launched, and the kernels their own
+    op = SimpleNamespace(device_type=DeviceType.CPU, self_device_time_total=5.0)
+    kernel = SimpleNamespace(device_type=DeviceType.CUDA, self_device_time_total=5.0)
+    copy = SimpleNamespace(device_type=DeviceType.CUDA, self_device_time_total=1.5)
+    assert TOOL.gpu_us([op, kernel, copy]) == 6.5
+    assert TOOL.gpu_us([op]) == 0.0
+
+
+def test_profile_case_on_the_cpu(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    ds = tmp_path / "ds"
+    code, _, err = run_cli(capsys, "simulate", "--scene", "analytic-orbs", "--width", 16, "--height", 16,
+                           "--frames", 60, "--test-views", 1, "--out", ds)  # fmt: skip
+    assert code == 0, err
+    args = argparse.Namespace(device="cpu", warmup=1, steps=2, profile_steps=1, compile=False)
+    out = TOOL.profile_case(ds, "nerf-gt", 64, args, tmp_path)
+    assert out["rays_per_second"] > 0 and out["ms_per_step"] > 0
+    assert out["gpu_kernel_ms_per_step"] == 0.0 and out["launches_per_step"] == 0.0
+    assert out["top_host_ops"] and not out["top_device_ops"]
+    assert "nerf-gt batch 64:" in capsys.readouterr().out
