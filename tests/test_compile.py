@@ -58,6 +58,42 @@ def test_compiled_field_renders_and_differentiates_like_eager(kind: str) -> None
     assert list(model.state_dict()) == list(_model(kind).state_dict())  # checkpoints unchanged
 
 
+@pytest.mark.parametrize("bf16", [False, True])
+def test_grid_field_functions_trace_without_graph_breaks(bf16: bool) -> None:
+    # host queries (thread count, bf16 support) used to break the graph: on the H200 the break in
+    # ``color_norm`` recompiled its resume function for every sample count until dynamo's limit
+    torch.manual_seed(0)
+    field = build_model("grid", 3, BOX, GridFieldConfig(**{**GRID.__dict__, "decoder_bf16": bf16})).field
+    xyz = (torch.rand(300, 3) * 1.8 - 0.9).requires_grad_(True)  # the grid_sample path (no fused kernel)
+    dirs = torch.nn.functional.normalize(torch.randn(300, 3), dim=-1)
+    for fn, args in ((field.density_norm, (xyz,)), (field.color_norm, (xyz, dirs))):
+        explained = torch._dynamo.explain(fn)(*args)
+        assert (explained.graph_count, explained.graph_break_count) == (1, 0), fn.__name__
+
+
+def test_compiled_grid_function_compiles_once_for_many_sample_counts() -> None:
+    torch.manual_seed(0)
+    field = build_model("grid", 3, BOX, GRID).field
+    graphs: list[int] = []
+
+    def backend(gm: torch.fx.GraphModule, _inputs: list) -> object:
+        graphs.append(1)
+        return gm.forward
+
+    torch._dynamo.reset()
+    fn = torch.compile(field.color_norm, backend=backend, dynamic=True)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # one point chunk per plane whatever the count (vm_splits)
+    try:
+        for m in (300, 517, 1024, 2999, 4100):
+            xyz = (torch.rand(m, 3) * 1.8 - 0.9).requires_grad_(True)
+            dirs = torch.nn.functional.normalize(torch.randn(m, 3), dim=-1)
+            torch.testing.assert_close(fn(xyz, dirs), field.color_norm(xyz, dirs))
+    finally:
+        torch.set_num_threads(threads)
+    assert len(graphs) == 1
+
+
 @pytest.mark.parametrize("kind", ["grid", "mlp"])
 def test_a_failing_compiler_leaves_the_field_eager_with_one_warning(
     kind: str, monkeypatch: pytest.MonkeyPatch

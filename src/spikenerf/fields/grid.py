@@ -151,6 +151,7 @@ class GridFieldConfig:
         return self.resolutions()[sum(1 for k in self.upsample_steps if step >= k)]
 
 
+@torch.compiler.assume_constant_result  # a host query: fixed per device, traced as a constant
 def vm_splits(device: torch.device) -> int:
     """Point chunks per plane so that the CPU kernel's batch threads balance (1 off the CPU).
 
@@ -173,7 +174,7 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
         (3, C, M) ``P_m(xyz) · L_m(xyz)``.
     """
     m, c = xyz.shape[0], planes.shape[1]
-    k = splits if m >= 4096 * splits else 1
+    k = splits if splits > 1 and m >= 4096 * splits else 1  # splits 1 (CUDA): no guard on m under compile
     pad = (-m) % k
     if pad:
         xyz = torch.cat([xyz, xyz.new_zeros(pad, 3)])
@@ -191,6 +192,7 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
     return out[..., :m] if pad else out
 
 
+@torch.compiler.assume_constant_result  # a host query: fixed per device, traced as a constant
 def native_bf16(device: torch.device) -> bool:
     """Whether ``device`` multiplies bfloat16 matrices natively (else bf16 would be emulated, slower)."""
     if device.type == "cuda":  # emulated bf16 (V100, T4) would count by default: ask for the real thing
