@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -261,6 +262,30 @@ def test_render_processes_write_the_same_dataset(tmp_path: Path, monkeypatch: py
         assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name
     with pytest.raises(InputError, match="jobs must be ≥ 1"):
         simulate_dataset(source, tmp_path / "zero", options, progress=False, jobs=0)
+
+
+class _ThreadProbe:
+    """A parallel source whose every frame holds the worker's thread settings (BLAS, OpenMP)."""
+
+    parallel_render = True
+
+    def frames(self, steps: list[int]):  # type: ignore[no-untyped-def]
+        names = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
+        for _ in steps:
+            yield np.array([float(os.environ.get(n, "0")) for n in names])
+
+
+def test_render_workers_get_their_share_of_the_cores(monkeypatch: pytest.MonkeyPatch) -> None:
+    # without it, each of 14 workers on a 16-core host may start a BLAS pool of 16 threads
+    from spikenerf.capture import simulate as sim
+
+    monkeypatch.setattr(sim, "_cores", lambda: 8)
+    for name in sim.THREAD_VARS:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # a setting of the user's is kept
+    frames = list(sim._frames(_ThreadProbe(), list(range(6)), 2))  # type: ignore[arg-type]
+    assert [f.tolist() for f in frames] == [[4.0, 3.0]] * 6
+    assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["OMP_NUM_THREADS"] == "3"
 
 
 def _fails(capsys, argv: list[str]) -> str:

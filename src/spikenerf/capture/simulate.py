@@ -165,14 +165,30 @@ def _render_step(step: int) -> np.ndarray:
     return np.asarray(next(iter(_WORKER_SOURCE.frames([step]))))
 
 
+#: thread-count variables of the math libraries a render worker may use (numpy's BLAS, OpenMP, MKL)
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _cores() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
+
+
 def usable_jobs(jobs: int, work: int) -> int:
     """Worker processes worth starting for ``work`` items: ``jobs``, but no more than the items and the
     CPU cores this process may use (``--jobs 100000`` starts a process per core, not per step)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(jobs, work, cores))
+    return max(1, min(jobs, work, _cores()))
+
+
+def worker_env(jobs: int) -> dict[str, str]:
+    """Thread counts for ``jobs`` worker processes: each its share of the cores, so that their math
+    libraries (numpy's BLAS threads a frame's large products) do not start a pool per core in every worker;
+    a variable already set is kept."""
+    share = str(max(1, _cores() // jobs))
+    return {name: os.environ.get(name, share) for name in THREAD_VARS}
 
 
 def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.ndarray]:
@@ -183,8 +199,23 @@ def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.nda
         yield from source.frames(steps)
         return
     ctx = multiprocessing.get_context("spawn")  # no fork of a process that may hold torch threads
-    with ProcessPoolExecutor(jobs, ctx, _init_render_worker, (source,)) as pool:
-        yield from pool.map(_render_step, steps, chunksize=max(1, min(8, len(steps) // (4 * jobs))))
+    saved = {name: os.environ.get(name) for name in THREAD_VARS}
+    os.environ.update(worker_env(jobs))  # read by the workers as they start (all of them in map())
+    try:
+        with ProcessPoolExecutor(jobs, ctx, _init_render_worker, (source,)) as pool:
+            frames = pool.map(_render_step, steps, chunksize=max(1, min(8, len(steps) // (4 * jobs))))
+            _restore(saved)
+            yield from frames
+    finally:
+        _restore(saved)
+
+
+def _restore(saved: dict[str, str | None]) -> None:
+    for name, value in saved.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
 
 
 def render_missing(source: FrameSource, cache: Path, progress: bool = True, jobs: int = 1) -> int:
