@@ -150,3 +150,29 @@ def test_test_pose_optimisation_is_reported_beside_the_plain_score(
     for flag, value in (("--test-pose-opt", "-1"), ("--test-pose-lr", "0")):
         assert flag in _cli_error(capsys, "eval", run_dir, "--device", "cpu", flag, value)
     assert json.loads((run_dir / "metrics.json").read_text()) == data  # nothing rewritten on bad input
+
+
+def test_eval_and_render_leave_the_gt_renders_undecoded(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a 400×400 dataset's 100 GT PNGs took seconds to decode per eval; test views need none of them
+    import shutil
+
+    from spikenerf.core.errors import InputError
+    from spikenerf.data.dataset import load_dataset
+
+    ds, run = tmp_path / "ds", tmp_path / "run"
+    shutil.copytree(run_dir.parent / "ds", ds)
+    shutil.copytree(run_dir, run)
+    gt = sorted((ds / "gt").glob("*.png"))[0]
+    gt.write_bytes(b"not a png")
+    with pytest.raises(InputError, match=gt.name):
+        load_dataset(ds)
+    assert len(load_dataset(ds, train_images=False).gt) == 0
+    assert len(load_dataset(ds, train_images=False).test) == 3
+    _cli("eval", run, "--dataset", ds, "--lpips", "none", "--quiet")
+    assert json.loads((run / "metrics.json").read_text())["views"] == 3
+    _cli("render", run, "--dataset", ds, "--trajectory", "test", "--out", tmp_path / "r", "--quiet")
+    assert "not a png" not in capsys.readouterr().err
+    err = _cli_error(capsys, "eval", run, "--dataset", ds, "--split", "train", "--lpips", "none")
+    assert gt.name in err

@@ -255,14 +255,19 @@ def _stack(
     )
 
 
-def load_dataset(root: str | Path) -> SpikeDataset:
+def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
     """Load and validate a dataset folder (every problem is an InputError naming the file and field).
 
+    Args:
+        root: the dataset folder.
+        train_images: decode the training images, the sharp GT renders and the blur frames; False leaves
+            ``gt`` empty (its paths still checked) and ``blur`` None, for ``eval`` and ``render``, which use
+            the test views only (a 400×400 dataset's 100 GT PNGs take seconds to decode).
     Returns:
         A :class:`SpikeDataset`: per-step trajectory, intrinsics, threshold, scene box, near/far, the config,
         the colour modes present, GT renders (with their steps), blur frames (or None) and test views.
     """
-    root = Path(root)
+    root, decode_gt = Path(root), train_images  # decode_gt: the GT renders and blur frames
     if not root.is_dir():
         raise InputError("dataset folder not found", path=root)
     tpath = root / TRANSFORMS
@@ -288,9 +293,11 @@ def load_dataset(root: str | Path) -> SpikeDataset:
             raise InputError(f"field {where}'step': expected increasing integers, found {step}", path=tpath)
         steps.append(int(step))
         if "file_path" in f:
-            gt_images.append(load_image(_file(root, f, tpath, where), (k.height, k.width)))
-            gt_poses.append(poses[-1])
-            gt_steps.append(int(step))
+            image = _file(root, f, tpath, where)
+            if decode_gt:
+                gt_images.append(load_image(image, (k.height, k.width)))
+                gt_poses.append(poses[-1])
+                gt_steps.append(int(step))
     traj = Trajectory(np.stack(poses), np.asarray(times), np.asarray(steps, np.int64), fps)
     config = _load_config(root, k, fps)
     modes = list(config["colors"])
@@ -310,7 +317,7 @@ def load_dataset(root: str | Path) -> SpikeDataset:
         config=config,
         modes=modes,
         gt=_stack(k, gt_poses, gt_images, gt_steps),
-        blur=_posed(root, TRANSFORMS_BLUR, k, blur=True),
+        blur=_posed(root, TRANSFORMS_BLUR, k, blur=True) if decode_gt else None,
         test=_posed(root, TRANSFORMS_TEST, k, blur=False) or _stack(k, [], []),
     )
 

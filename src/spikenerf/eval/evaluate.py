@@ -217,7 +217,7 @@ def _evaluate_locked(
     test_pose: tuple[int, float], precision: str,
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
-    model, config, dataset = load_run(run_dir, dataset_root, device)
+    model, config, dataset = load_run(run_dir, dataset_root, device, train_images=split != "test")
     check_precision(precision, model.device)
     chunk = inference_chunk(model, chunk)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)

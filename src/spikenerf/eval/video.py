@@ -237,7 +237,7 @@ def _render_locked(
     progress: bool, log: Callable[[str], None] | None, precision: str = "fp32",
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
-    model, _, dataset = load_run(run_dir, dataset_root, device)
+    model, _, dataset = load_run(run_dir, dataset_root, device, train_images=False)  # renders new views only
     check_precision(precision, model.device)
     chunk = inference_chunk(model, chunk)
     views = orbit_frames if trajectory == "orbit" else len(dataset.test) if trajectory == "test" else 0

@@ -19,7 +19,10 @@ CONFIG_FILE = "config.yaml"
 
 
 def load_run(
-    run_dir: str | Path, dataset_root: str | Path | None = None, device: str = "cpu"
+    run_dir: str | Path,
+    dataset_root: str | Path | None = None,
+    device: str = "cpu",
+    train_images: bool = True,
 ) -> tuple[RadianceModel, TrainConfig, SpikeDataset]:
     """The trained model (eval mode, on ``device``), its config and its dataset.
 
@@ -27,6 +30,8 @@ def load_run(
         run_dir: a run folder written by ``spikenerf train``.
         dataset_root: the dataset folder if it moved since training (default: the path in ``config.yaml``).
         device: auto | cpu | cuda.
+        train_images: decode the dataset's GT renders and blur frames (:func:`load_dataset`; False: no
+            ``dataset.gt`` views, no ``dataset.blur``).
     Returns:
         (model, config, dataset). Problems (missing files, foreign checkpoint) raise InputError.
     """
@@ -36,7 +41,7 @@ def load_run(
     check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)
     model = model_of(ckpt, run_dir / CHECKPOINT)
     model.to(resolve_device(device)).eval()
-    dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset)
+    dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset, train_images)
     check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
     return model, config, dataset
 
