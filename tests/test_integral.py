@@ -187,6 +187,35 @@ def test_window_loss_reaches_the_field_through_the_trainer_step(
     )
 
 
+def test_learned_prior_adds_its_weighted_term_and_its_gradient(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """``integral.prior=learned``: a weighted reconstruction term on learned targets at each step's pose,
+    over its own rays, whose gradient reaches the grid; its targets are cached in the run folder."""
+    base = _grads(dataset_dir, dataset, tmp_path / "a", lengths=[5])
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    cfg.integral.lengths, cfg.integral.prior, cfg.integral.prior_rays = [5], "learned", 32
+    trainer = Trainer(cfg, tmp_path / "b", dataset, progress=False)
+    step = trainer.method.losses(trainer, 0)
+    assert set(step.terms) == {"recon", "reg", "prior"} and step.weights["prior"] == 1.0
+    assert step.rays == cfg.rays_per_step() + 32
+    trainer.train(stop_after=1)
+    prior = {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
+    grid = [k for k in base if "planes" in k or "lines" in k]
+    assert sum(float((prior[k] - base[k]).abs().sum()) for k in grid) > 1e-3 * sum(
+        float(base[k].abs().sum()) for k in grid
+    )
+    assert list((tmp_path / "b" / "targets").glob("learned-*.npy"))
+    cfg.integral.prior_weight = 0.0  # weight 0: the window means' gradient alone
+    zero = _grads_of(Trainer(cfg, tmp_path / "c", dataset, progress=False))
+    assert all(torch.allclose(zero[k], base[k]) for k in grid)
+
+
+def _grads_of(trainer: Trainer) -> dict[str, torch.Tensor]:
+    trainer.train(stop_after=1)
+    return {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
+
+
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "spikenerf", *args], capture_output=True, text=True, timeout=300
@@ -206,6 +235,10 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--integral-samples", "12"], "--integral-samples"),  # more steps than the 11-step window holds
         (["--batch", "1", "--integral-samples", "2"], "--batch"),
         (["--set", "integral.align=true", "--holdout"], "--holdout"),
+        (["--set", "integral.prior=tfp"], "integral.prior"),
+        (["--set", "integral.prior_weight=-1"], "integral.prior_weight"),
+        (["--set", "integral.prior_weight=nan"], "integral.prior_weight"),
+        (["--set", "integral.prior_rays=0"], "integral.prior_rays"),
     ],
 )
 def test_bad_window_settings_are_one_line(

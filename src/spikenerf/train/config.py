@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import yaml
 
@@ -37,6 +37,9 @@ from spikenerf.train.methods import (
     method_class,
 )
 from spikenerf.train.pose_refine import PoseRefineConfig
+
+#: spike-integral's optional image prior (``integral.prior``)
+IntegralPrior = Literal["none", "learned"]
 
 __all__ = [
     "DEFAULT_BATCH",
@@ -104,15 +107,24 @@ class IntegralConfig:
         band: count errors within the interval ``± φ / L`` of a noise-free pixel as 0.
         align: move each window onto spikes of its pixel (``CountTargets.align``: exact to the pixel's own
             light, not to ``± φ / L``), up to ``ALIGN_LONGEST`` times the longest length; needs holdout off.
+        prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step
+            (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
+            step; ``none`` (the default): the window means alone.
     """
 
-    BOUNDS: ClassVar[dict[str, Bound]] = {"samples": Bound(least=1), "groups": Bound(least=1)}
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "samples": Bound(least=1), "groups": Bound(least=1), "prior_weight": Bound(least=0),
+        "prior_rays": Bound(least=1),
+    }  # fmt: skip
 
     lengths: list[int] = dataclasses.field(default_factory=lambda: [INTEGRAL_WINDOW])
     samples: int = INTEGRAL_SAMPLES
     groups: int = 1
     band: bool = False
     align: bool = False
+    prior: IntegralPrior = "none"
+    prior_weight: float = 1.0
+    prior_rays: int = 256
 
     def check(self) -> None:
         """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1,

@@ -153,6 +153,12 @@ class TrainMethod:
 
     # ---------------------------------------------------------------------------------------------- facts
     @property
+    def uses_learned(self) -> bool:
+        """Its targets include the learned reconstructions of the stream (built on the training device and
+        cached in the run folder)."""
+        return self.uses_stream and self.config.targets.recon == "learned"
+
+    @property
     def uses_mask(self) -> bool:
         """Its image targets are multiplied by the spike masks."""
         return False
@@ -219,13 +225,17 @@ class TrainMethod:
         recon, srgb_mse, rays = self.recon_term(state)
         return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
 
-    def recon_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
-        """Reconstruction loss of one random batch → (loss, sRGB MSE for the train PSNR, rays rendered);
-        the MSE stays a 0-d tensor on the device (no synchronisation)."""
+    def recon_term(
+        self, state: TrainState, rays: int | None = None, views: int | None = None
+    ) -> tuple[Tensor, Tensor, int]:
+        """Reconstruction loss of one random batch of ``rays`` (None: the step's), ``views`` poses per target
+        (None: :meth:`poses_per_view`) → (loss, sRGB MSE for the train PSNR, rays rendered); the MSE stays a
+        0-d tensor on the device (no synchronisation)."""
         targets = self.targets
         assert targets is not None, "build_targets first"
-        views, channels = self.poses_per_view(), self.channels
-        index, pixels = state.samplers["rays"].sample(max(1, state.config.rays_per_step() // views))
+        views, channels = self.poses_per_view() if views is None else views, self.channels
+        rays = state.config.rays_per_step() if rays is None else rays
+        index, pixels = state.samplers["rays"].sample(max(1, rays // views))
         target = targets.gather(index, pixels).to(state.device)
         poses = self.image_poses(state, index)  # (B·S, 4, 4), S poses averaged per ray
         out = state.render_rays(poses, pixels.repeat_interleave(views, dim=0))
@@ -453,8 +463,16 @@ class SpikeIntegral(TrainMethod):
     def poses_per_view(self) -> int:
         return self.config.integral.samples * self.config.integral.groups
 
+    @property
+    def uses_learned(self) -> bool:
+        return self.config.integral.prior == "learned"
+
     def build_targets(self, dataset: SpikeDataset) -> None:
         stream = load_stream(dataset, self.config.color)
+        if self.uses_learned:  # the image prior: the learned reconstruction of every step, at its pose
+            t = self.config.targets
+            self.targets = stream_targets(dataset, self.config.color, "learned", t.window, False, t.mask_n,
+                                          stream, 1)  # fmt: skip
         self.counts = count_targets(stream, dataset.trajectory.poses, dataset.threshold)
         self.step_numbers = torch.as_tensor(np.asarray(dataset.trajectory.steps))  # what the refiner takes
         longest = max(self.config.integral.lengths)
@@ -482,11 +500,21 @@ class SpikeIntegral(TrainMethod):
             aligner = functools.partial(self.counts.align, longest=ALIGN_LONGEST * max(c.lengths))
         sampler = WindowTargetSampler(self.counts.steps, height, width, c.lengths, c.samples, c.groups,
                                       self.config.seed, starts, aligner)  # fmt: skip
-        return {"windows": sampler}
+        samplers: dict[str, Any] = {"windows": sampler}
+        if self.uses_learned:  # the prior's pixels: their own seeded stream
+            rays = super().make_samplers(height, width)["rays"]
+            samplers["rays"] = RaySampler(rays.num_images, height, width, self.config.seed + 2, rays.images)
+        return samplers
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
         recon, srgb_mse, rays = self.integral_term(state)
-        return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
+        step = StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
+        c = self.config.integral
+        if self.uses_learned:
+            step.terms["prior"], _, prior_rays = self.recon_term(state, c.prior_rays, views=1)
+            step.weights["prior"] = c.prior_weight
+            step.rays += prior_rays
+        return step
 
     def integral_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
         """The window-mean loss of one batch → (loss, sRGB MSE of the mean estimates, rays rendered)."""

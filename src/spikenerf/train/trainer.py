@@ -142,9 +142,9 @@ def warn(message: str) -> None:
     print(f"spikenerf: warning: {message}", file=sys.stderr)
 
 
-def learned_cache(config: TrainConfig, uses_stream: bool) -> bool:
+def learned_cache(method: Any) -> bool:
     """Whether the run caches whole-stream learned reconstructions in its folder (``data/recon_cache.py``)."""
-    return uses_stream and config.targets.recon == "learned"
+    return bool(method.uses_learned)
 
 
 def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path) -> None:
@@ -158,7 +158,7 @@ def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path)
     rays = (config.rays_per_step() + spike_rays) * per_ray
     cache = (
         float(steps) * k.height * k.width * method.channels * 2
-        if learned_cache(config, method.uses_stream)
+        if learned_cache(method)
         else 0
     )
     check_resources(
@@ -215,7 +215,7 @@ class Trainer:
         self.device = resolve_device(config.device)
         self.method = make_method(self.config)
         check_step_memory(self.config, self.method, self.device)
-        cache = self.out if learned_cache(self.config, self.method.uses_stream) else None
+        cache = self.out if learned_cache(self.method) else None
         if cache is not None:
             mark(self.out, "run")  # the cache is written into a marked run folder
         with learned_targets_in(cache, self.device, dataset_fingerprint(self.dataset)):
