@@ -267,7 +267,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
         A :class:`SpikeDataset`: per-step trajectory, intrinsics, threshold, scene box, near/far, the config,
         the colour modes present, GT renders (with their steps), blur frames (or None) and test views.
     """
-    root, decode_gt = Path(root), train_images  # decode_gt: the GT renders and blur frames
+    root = Path(root)
     if not root.is_dir():
         raise InputError("dataset folder not found", path=root)
     tpath = root / TRANSFORMS
@@ -294,7 +294,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
         steps.append(int(step))
         if "file_path" in f:
             image = _file(root, f, tpath, where)
-            if decode_gt:
+            if train_images:
                 gt_images.append(load_image(image, (k.height, k.width)))
                 gt_poses.append(poses[-1])
                 gt_steps.append(int(step))
@@ -317,7 +317,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
         config=config,
         modes=modes,
         gt=_stack(k, gt_poses, gt_images, gt_steps),
-        blur=_posed(root, TRANSFORMS_BLUR, k, blur=True) if decode_gt else None,
+        blur=_posed(root, TRANSFORMS_BLUR, k, blur=True) if train_images else None,
         test=_posed(root, TRANSFORMS_TEST, k, blur=False) or _stack(k, [], []),
     )
 

@@ -156,11 +156,7 @@ def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path)
     params, per_ray, ckpt = field_memory(config.field, model_config(config))
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     rays = (config.rays_per_step() + spike_rays) * per_ray
-    cache = (
-        float(steps) * k.height * k.width * method.channels * 2
-        if learned_cache(method)
-        else 0
-    )
+    cache = float(steps) * k.height * k.width * method.channels * 2 if learned_cache(method) else 0
     check_resources(
         targets + params + rays, 2 * ckpt + cache, out, "batch" if rays >= params else "field_config"
     )
