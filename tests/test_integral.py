@@ -211,6 +211,18 @@ def test_learned_prior_adds_its_weighted_term_and_its_gradient(
     assert all(torch.allclose(zero[k], base[k]) for k in grid)
 
 
+def test_prior_weight_is_constant_or_falls_linearly_to_zero() -> None:
+    from spikenerf.train.config import TrainConfig
+    from spikenerf.train.methods import SpikeIntegral
+
+    config = TrainConfig(dataset="d", iters=11)
+    config.integral.prior, config.integral.prior_weight = "learned", 2.0
+    method = SpikeIntegral(config)
+    assert [method.prior_weight(i) for i in (0, 5, 10)] == [2.0, 2.0, 2.0]
+    config.integral.prior_decay = True
+    assert [method.prior_weight(i) for i in (0, 5, 10)] == [2.0, 1.0, 0.0]
+
+
 def _grads_of(trainer: Trainer) -> dict[str, torch.Tensor]:
     trainer.train(stop_after=1)
     return {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}

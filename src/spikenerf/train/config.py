@@ -109,7 +109,8 @@ class IntegralConfig:
             light, not to ``± φ / L``), up to ``ALIGN_LONGEST`` times the longest length; needs holdout off.
         prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step
             (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
-            step; ``none`` (the default): the window means alone.
+            step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
+            from ``prior_weight`` at the first iteration to 0 at the last (the counts alone finish the run).
     """
 
     BOUNDS: ClassVar[dict[str, Bound]] = {
@@ -125,6 +126,7 @@ class IntegralConfig:
     prior: IntegralPrior = "none"
     prior_weight: float = 1.0
     prior_rays: int = 256
+    prior_decay: bool = False
 
     def check(self) -> None:
         """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1,

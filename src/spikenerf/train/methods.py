@@ -512,9 +512,17 @@ class SpikeIntegral(TrainMethod):
         c = self.config.integral
         if self.uses_learned:
             step.terms["prior"], _, prior_rays = self.recon_term(state, c.prior_rays, views=1)
-            step.weights["prior"] = c.prior_weight
+            step.weights["prior"] = self.prior_weight(iteration)
             step.rays += prior_rays
         return step
+
+    def prior_weight(self, iteration: int) -> float:
+        """The learned prior's weight at ``iteration`` (``integral.prior_weight``, falling linearly to 0 at
+        the last iteration with ``integral.prior_decay``)."""
+        c = self.config.integral
+        if not c.prior_decay:
+            return c.prior_weight
+        return c.prior_weight * max(0.0, 1.0 - iteration / max(1, self.config.iters - 1))
 
     def integral_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
         """The window-mean loss of one batch → (loss, sRGB MSE of the mean estimates, rays rendered)."""
