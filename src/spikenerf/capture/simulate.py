@@ -204,7 +204,7 @@ def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.nda
     try:
         with ProcessPoolExecutor(jobs, ctx, _init_render_worker, (source,)) as pool:
             frames = pool.map(_render_step, steps, chunksize=max(1, min(8, len(steps) // (4 * jobs))))
-            _restore(saved)
+            _restore(saved)  # the workers have started: the caller iterates with its own settings
             yield from frames
     finally:
         _restore(saved)

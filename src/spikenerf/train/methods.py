@@ -203,12 +203,16 @@ class TrainMethod:
 
     def make_samplers(self, height: int, width: int) -> dict[str, Any]:
         """The seeded samplers of its steps, by name (their states are checkpointed under these names)."""
+        return {"rays": self.ray_sampler(height, width, self.config.seed)}
+
+    def ray_sampler(self, height: int, width: int, seed: int) -> RaySampler:
+        """Random rays over the image targets, held-out steps excluded."""
         assert self.targets is not None, "build_targets first"
         images = None
         if self.holdout is not None:
             images = self.holdout.image_indices(self.targets.steps, self.stream_steps)
             checked(self.holdout, len(images), "image target")
-        return {"rays": RaySampler(len(self.targets), height, width, self.config.seed, images)}
+        return RaySampler(len(self.targets), height, width, seed, images)
 
     def learner(self, device: torch.device) -> PoseLearner | None:
         """Pose parameters the method learns with its own optimiser (None: none); call after
@@ -502,8 +506,7 @@ class SpikeIntegral(TrainMethod):
                                       self.config.seed, starts, aligner)  # fmt: skip
         samplers: dict[str, Any] = {"windows": sampler}
         if self.uses_learned:  # the prior's pixels: their own seeded stream
-            rays = super().make_samplers(height, width)["rays"]
-            samplers["rays"] = RaySampler(rays.num_images, height, width, self.config.seed + 2, rays.images)
+            samplers["rays"] = self.ray_sampler(height, width, self.config.seed + 2)
         return samplers
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
