@@ -47,6 +47,14 @@ class GridFieldConfig:
         step_ratio: marching step in cells (0.5 before issue 9; TensoRF's 0.5). max_samples: cap on samples
             per ray.
         weight_threshold: colour is decoded only where the compositing weight exceeds it.
+        static_samples: 0 (the default): the renderer packs exactly the samples it keeps (shapes depend on
+            the data, so the host reads sample counts back). N > 0: a fixed budget of ``N × rays`` sample
+            slots per render call, N per ray on average, with no data-dependent shape and no host sync
+            (for CUDA graphs / ``torch.compile(fullgraph=True)``); density and colour are evaluated in
+            every slot, those off the ray or in empty cells get zero density. Slots are given to the rays in
+            order, so when a call's rays need more than the budget the samples past it are dropped (the
+            ray at the end of the budget loses its tail, later rays get none; the render output counts
+            them). See ``GridModel``.
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
@@ -70,8 +78,8 @@ class GridFieldConfig:
         "n_voxels_init": Bound(least=8), "n_voxels_final": Bound(least=8), "upsample_steps": _LEAST0,
         "density_components": _ABOVE0, "app_components": _ABOVE0, "app_dim": _ABOVE0, "hidden": _ABOVE0,
         "view_freqs": _LEAST0, "init_scale": _LEAST0, "distance_scale": _ABOVE0, "step_ratio": _ABOVE0,
-        "max_samples": _ABOVE0, "weight_threshold": _LEAST0, "occupancy_start": _LEAST0,
-        "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
+        "max_samples": _ABOVE0, "weight_threshold": _LEAST0, "static_samples": _LEAST0,
+        "occupancy_start": _LEAST0, "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
         "occupancy_max_resolution": _LEAST0,
         "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1), "batch_rays": _ABOVE0,
         "l1_weight": _LEAST0, "tv_density": _LEAST0, "tv_app": _LEAST0,
@@ -92,6 +100,7 @@ class GridFieldConfig:
     step_ratio: float = 0.75
     max_samples: int = 1024
     weight_threshold: float = 1e-4
+    static_samples: int = 0
     decoder_bf16: bool = True
     occupancy: bool = True
     occupancy_start: int = 250
@@ -122,16 +131,19 @@ class GridFieldConfig:
     # the memory estimates of fields/memory.py and ``field_memory``, per field kind
     def training_size(self) -> tuple[float, float]:
         """(parameters, samples per ray) of the training-memory estimate (``field_memory``): the VM factors
-        at the largest resolution, and the march along the box's diagonal."""
+        at the largest resolution, and the march along the box's diagonal (or the ``static_samples``
+        budget)."""
         r = float(max(self.n_voxels_init, self.n_voxels_final)) ** (1 / 3)
         params = 3.0 * (self.density_components + self.app_components) * (r * r + r)
-        return params, min(float(self.max_samples), r * 3**0.5 / self.step_ratio)
+        return params, float(self.static_samples) or min(
+            float(self.max_samples), r * 3**0.5 / self.step_ratio
+        )
 
     def samples_per_ray(self) -> float:
         """Samples of one ray: the march across the box's side at the final resolution (capped by
-        ``max_samples``)."""
+        ``max_samples``), or the ``static_samples`` budget where one is set."""
         r = float(max(self.n_voxels_init, self.n_voxels_final)) ** (1 / 3)
-        return min(float(self.max_samples), r / self.step_ratio)
+        return float(self.static_samples) or min(float(self.max_samples), r / self.step_ratio)
 
     def layer_widths(self) -> list[int]:
         """float32 words of each layer input one sample holds: plane and line values per axis, the
@@ -267,7 +279,11 @@ class GridField(Field):
         return self.config.step_ratio * self._box_size() / (self.resolution - 1)
 
     def _box_size(self) -> float:
-        """Mean box edge, read from the device once per box (no host sync per rendered batch)."""
+        """Mean box edge, read from the device once per box (no host sync per rendered batch). Traced by
+        ``torch.compile``, the value an eager call read is a constant (the box's pointer cannot be traced):
+        call once eagerly first, and recompile after changing the box."""
+        if torch.compiler.is_compiling() and hasattr(self, "_box_mean"):
+            return self._box_mean
         key = (self.scene_box.data_ptr(), self.scene_box._version)
         if getattr(self, "_box_key", None) != key:
             self._box_key, self._box_mean = key, (self.scene_box[1] - self.scene_box[0]).mean().item()

@@ -19,6 +19,10 @@ class GridModel(RadianceModel):
     samples kept are exactly those of the full march) and density is evaluated only in occupied cells;
     colour is decoded only where the compositing weight exceeds ``config.weight_threshold``. Skipped samples
     count as zero density: only the near-empty haze of culled cells is lost.
+
+    With the field's ``static_samples`` N > 0 the same samples lie in a fixed budget of N × rays slots
+    (:meth:`_march_static`): no data-dependent shape and no host sync, for CUDA graphs and
+    ``torch.compile(fullgraph=True)``; rays beyond the budget are cut (``RenderOutput.dropped_samples``).
     """
 
     kind = "grid"
@@ -42,6 +46,23 @@ class GridModel(RadianceModel):
         hi = torch.minimum(far, leave)
         return lo, torch.maximum(hi, lo)
 
+    def _counts(self, near: Tensor, far: Tensor, step: float) -> Tensor:
+        """Sample slots (N,) int64 of each ray: the steps starting in ``[near, far)``, ≤ ``max_samples``."""
+        counts = torch.floor((far - near) / step).long().add_(1).clamp_(0, self.field.config.max_samples)
+        return torch.where(far > near, counts, torch.zeros_like(counts))
+
+    def _kept(
+        self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float, ray: Tensor, k: Tensor
+    ) -> Tensor:
+        """Which slots (M,) bool of rays ``ray`` (M,), steps ``k`` (M,) start before ``far`` and (with
+        ``use_occupancy``) have their midpoint in an occupied cell."""
+        t_start = near[ray] + step * k
+        inside = t_start < far[ray]
+        if self.use_occupancy:
+            t_mid = t_start + 0.5 * (far[ray] - t_start).clamp(max=step)
+            inside &= self.field.occupancy.lookup(torch.addcmul(o_n[ray], t_mid[:, None], d_n[ray]))
+        return inside
+
     @torch.no_grad()
     def _march(
         self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float
@@ -52,20 +73,56 @@ class GridModel(RadianceModel):
         covers ``[near + k·step, min(near + (k+1)·step, far))``. No padding: the work is the total number of
         slots, not rays × the longest ray. The occupancy test uses the slot's midpoint.
         """
-        counts = torch.floor((far - near) / step).long().add_(1).clamp_(0, self.field.config.max_samples)
-        counts = torch.where(far > near, counts, torch.zeros_like(counts))
+        counts = self._counts(near, far, step)
         total = int(counts.sum())
         ray = torch.repeat_interleave(
             torch.arange(len(counts), device=near.device), counts, output_size=total
         )
         first = torch.cumsum(counts, dim=0) - counts
         k = torch.arange(total, device=near.device) - first[ray]
-        t_start = near[ray] + step * k
-        inside = t_start < far[ray]
-        if self.use_occupancy:
-            t_mid = t_start + 0.5 * (far[ray] - t_start).clamp(max=step)
-            inside &= self.field.occupancy.lookup(torch.addcmul(o_n[ray], t_mid[:, None], d_n[ray]))
+        inside = self._kept(o_n, d_n, near, far, step, ray, k)
         return ray[inside], k[inside]
+
+    @torch.no_grad()
+    def _march_static(
+        self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float, budget: int
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """The slots of :meth:`_march` laid out in a fixed ``budget`` B of slots: no compaction, no host sync.
+
+        Slot i belongs to the ray whose cumulated slot count first exceeds i (a ``searchsorted``), so the
+        rays and steps are those of the packed march, in its order, unkept slots included; the slots past
+        every ray's last one are unused (ray N − 1, step 0). When the rays need more than B slots, the march
+        is cut at the end of the budget: the ray there loses its tail and the later rays get no slot.
+        Returns ray (B,) (non-decreasing) and step number k (B,) int64, keep (B,) bool (the slots the
+        packed march keeps, unused ones False), and dropped () int64: the slots cut off by the budget.
+        """
+        counts = self._counts(near, far, step)
+        ends = torch.cumsum(counts, dim=0)
+        slot = torch.arange(budget, device=near.device)
+        ray = torch.searchsorted(ends, slot, right=True)
+        used = ray < len(counts)
+        ray = ray.clamp_(max=len(counts) - 1)
+        k = torch.where(used, slot - (ends - counts)[ray], 0)
+        keep = used & self._kept(o_n, d_n, near, far, step, ray, k)
+        return ray, k, keep, (ends[-1] - budget).clamp_min(0)
+
+    @staticmethod
+    def _points(
+        o_n: Tensor,
+        d_n: Tensor,
+        near: Tensor,
+        far: Tensor,
+        step: float,
+        ray: Tensor,
+        k: Tensor,
+        perturb: bool,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """Distances t (M,), interval lengths (M,) and normalised points (M, 3) of slots ``ray``, ``k`` (M,):
+        the slot's centre, or a uniform draw in it with ``perturb``."""
+        t_start = near[ray] + step * k
+        deltas = (far[ray] - t_start).clamp(0.0, step)
+        t = t_start + (torch.rand_like(t_start) if perturb else 0.5) * deltas
+        return t, deltas, torch.addcmul(o_n[ray], t[:, None], d_n[ray])
 
     def render_rays(
         self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, perturb: bool = False
@@ -76,14 +133,33 @@ class GridModel(RadianceModel):
             near, far = self._shorten(origins, dirs, near, far, step)
         o_n = field.normalize(origins)
         d_n = dirs * (2.0 / (field.scene_box[1] - field.scene_box[0]))
+        if cfg.static_samples and n:
+            return self._render_static(o_n, d_n, dirs, near, far, step, perturb)
         ray, k = self._march(o_n, d_n, near, far, step)
-        t_start = near[ray] + step * k
-        deltas = (far[ray] - t_start).clamp(0.0, step)
-        t = t_start + (torch.rand_like(t_start) if perturb else 0.5) * deltas
-        xn = torch.addcmul(o_n[ray], t[:, None], d_n[ray])
+        t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
         sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
         weights = packed_weights(sigma, deltas, ray, n)
         app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
         rgb = field.color_norm(xn[app], dirs[ray[app]]) if len(app) else t.new_zeros(0, field.channels)
         color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app)
         return RenderOutput(color, depth, opacity, num_samples=len(ray))
+
+    def _render_static(
+        self, o_n: Tensor, d_n: Tensor, dirs: Tensor, near: Tensor, far: Tensor, step: float, perturb: bool
+    ) -> RenderOutput:
+        """:meth:`render_rays` in ``static_samples`` × N slots (:meth:`_march_static`), for normalised
+        origins and directions (N, 3), unit ``dirs`` (N, 3), near/far (N,): every shape is fixed by N.
+
+        Unkept slots get zero density (so zero weight); colour is decoded in every slot and counted where
+        the weight exceeds ``weight_threshold``, so the result is the packed path's when all samples fit.
+        """
+        field, cfg, n = self.field, self.field.config, o_n.shape[0]
+        budget = n * cfg.static_samples
+        ray, k, keep, dropped = self._march_static(o_n, d_n, near, far, step, budget)
+        t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
+        sigma = torch.where(keep, field.density_norm(xn), 0.0)
+        weights = packed_weights(sigma, deltas, ray, n)
+        shown = weights.detach() > cfg.weight_threshold
+        rgb = torch.where(shown[:, None], field.color_norm(xn, dirs[ray]), 0.0)
+        color, depth, opacity = packed_composite(weights, ray, n, t, rgb, None)
+        return RenderOutput(color, depth, opacity, num_samples=budget, dropped_samples=dropped)

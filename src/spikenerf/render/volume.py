@@ -29,7 +29,10 @@ class RenderOutput:
         weights: (N, S) compositing weights of the final pass, or None.
         coarse_color: (N, C) the coarse network's colour (NeRF's two-pass MLP only, else None). The trainer
             supervises it with the same target and loss as ``color``.
-        num_samples: how many density evaluations the pass made (after empty-space skipping).
+        num_samples: how many density evaluations the pass made (after empty-space skipping; with a static
+            sample budget, the budget).
+        dropped_samples: () int64, the sample slots that did not fit in a static sample budget (the grid's
+            ``static_samples``; None otherwise). A tensor, so that no host sync is needed to make it.
     """
 
     color: Tensor
@@ -38,6 +41,7 @@ class RenderOutput:
     weights: Tensor | None = None
     coarse_color: Tensor | None = None
     num_samples: int = 0
+    dropped_samples: Tensor | None = None
 
 
 def weights_from_density(sigma: Tensor, deltas: Tensor) -> Tensor:
@@ -88,7 +92,7 @@ def packed_composite(
     n_rays: int,
     t: Tensor,
     colors: Tensor,
-    color_index: Tensor,
+    color_index: Tensor | None,
     background: float = BACKGROUND,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`composite` of packed samples → colour (N, C), depth (N,), opacity (N,).
@@ -96,12 +100,16 @@ def packed_composite(
     Args:
         weights: (M,) from :func:`packed_weights`. ray: (M,) ray of each sample. t: (M,) sample distances.
         colors: (K, C) colours of the samples ``color_index`` (K,); the other samples count as colour 0
-            (the renderers decode colour only where the weight matters).
+            (the renderers decode colour only where the weight matters). With ``color_index`` None,
+            colours (M, C) of every sample (a fixed shape: zero the colours that should not count).
     """
     opacity = weights.new_zeros(n_rays).index_add(0, ray, weights)
     depth = weights.new_zeros(n_rays).index_add(0, ray, weights * t) / opacity.clamp_min(1e-10)
-    wc = weights[color_index, None] * colors
-    color = wc.new_zeros(n_rays, colors.shape[-1]).index_add(0, ray[color_index], wc)
+    if color_index is None:
+        wc, target = weights[:, None] * colors, ray
+    else:
+        wc, target = weights[color_index, None] * colors, ray[color_index]
+    color = wc.new_zeros(n_rays, colors.shape[-1]).index_add(0, target, wc)
     return color + (1.0 - opacity)[:, None] * background, depth, opacity
 
 

@@ -28,8 +28,8 @@ from spikenerf.train.config import TrainConfig
 
 NAME = "benchmark.json"
 #: field-config entries added after folders were started, with the value that trains as before they
-#: existed: a record without one reads it so (the grid's total-variation prior, off)
-ADDED_DEFAULTS: dict[str, Any] = {"tv_density": 0.0, "tv_app": 0.0, "tv_every": 4}
+#: existed: a record without one reads it so (the grid's total-variation prior, off; its packed dynamic march)
+ADDED_DEFAULTS: dict[str, Any] = {"tv_density": 0.0, "tv_app": 0.0, "tv_every": 4, "static_samples": 0}
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
 KEYS = (
     "size", "frames", "seed", "test_views", "blur_views", "color", "iters", "field_kind", "extra_train_args",

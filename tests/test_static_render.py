@@ -1,0 +1,144 @@
+"""The grid's static-shape render path (``static_samples``, issue 27): the packed path's result when every
+sample fits, a counted truncation when not, no graph break under ``torch.compile(fullgraph=True)`` (the CPU
+proxy for "no host sync"), and ``train --field-option static_samples=N`` end to end."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+import test_train
+from spikenerf.data.rays import image_rays
+from spikenerf.fields import GridFieldConfig
+from spikenerf.fields import grid as grid_module
+from spikenerf.render import build_model
+from spikenerf.render.model import ray_bounds
+from spikenerf.scenes.trajectory import Intrinsics, look_at
+
+dataset_dir = test_train.dataset_dir  # the module's fixture: a 16×16 simulated dataset
+BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+#: R = 16, so a step of 0.75 · 2 / 15 = 0.1 and at most 35 samples along the box's diagonal; a coarse colour
+#: threshold so that decoding colour in every slot without the threshold mask would show
+GRID = GridFieldConfig(n_voxels_init=16**3, n_voxels_final=16**3, init_scale=0.5, density_shift=-1.0,
+                       distance_scale=5.0, decoder_bf16=False, weight_threshold=1e-2)  # fmt: skip
+ALL_FIT = 40
+
+
+def _model(occupancy: bool):  # type: ignore[no-untyped-def]
+    """A random grid; with ``occupancy`` about half of the cells culled in a pattern (and a shortened box)."""
+    torch.manual_seed(0)
+    model = build_model("grid", 3, BOX, GRID)
+    model.use_occupancy = occupancy
+    if occupancy:
+        pattern = lambda x: 10.0 * ((torch.sin(5 * x).sum(-1) > 0) & (x[:, 0] < 0.6)).float()  # noqa: E731
+        model.field.occupancy.update(pattern, model.field.step_size, dilation=0)
+        assert 0.2 < model.field.occupancy.occupied_fraction() < 0.8
+    return model
+
+
+def _rays(model, size: tuple[int, int] = (12, 10)) -> tuple[torch.Tensor, ...]:  # type: ignore[no-untyped-def]
+    pose = torch.as_tensor(look_at(np.array([0.3, 2.5, 1.2]), np.zeros(3)), dtype=torch.float32)
+    origins, dirs = image_rays(pose, Intrinsics.from_fov(*size, 0.8))
+    return (origins, dirs, *ray_bounds(model, origins, dirs))
+
+
+def _static(model, samples: int) -> None:  # type: ignore[no-untyped-def]
+    model.field.config = dataclasses.replace(model.field.config, static_samples=samples)
+
+
+def _render(model, rays) -> tuple[object, list[torch.Tensor]]:  # type: ignore[no-untyped-def]
+    """The output and the gradients of colour + depth + opacity w.r.t. every parameter."""
+    model.zero_grad(set_to_none=True)
+    out = model.render_rays(*rays)
+    (out.color.sum() + out.depth.sum() + out.opacity.sum()).backward()
+    return out, [p.grad.clone() for p in model.parameters()]
+
+
+@pytest.mark.parametrize("occupancy", [False, True])
+def test_static_path_equals_the_packed_path_when_every_sample_fits(occupancy: bool) -> None:
+    model = _model(occupancy)
+    rays = _rays(model)
+    packed, packed_grads = _render(model, rays)
+    assert packed.dropped_samples is None and 0 < packed.opacity.mean() < 0.95  # rays hit and miss
+    _static(model, ALL_FIT)
+    static, static_grads = _render(model, rays)
+    assert int(static.dropped_samples) == 0 and static.num_samples == ALL_FIT * len(rays[0])
+    assert static.num_samples > packed.num_samples
+    for name in ("color", "depth", "opacity"):
+        torch.testing.assert_close(getattr(static, name), getattr(packed, name), atol=1e-5, rtol=1e-5)
+    for g, e in zip(static_grads, packed_grads, strict=True):
+        torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-4)
+
+
+def test_a_small_budget_cuts_the_march_at_its_end_and_counts_the_dropped_slots() -> None:
+    model = _model(occupancy=False)
+    step = model.field.step_size
+    origins = torch.tensor([[x, 0.1, -1.0] for x in (-0.5, -0.2, 0.2, 0.5)])
+    dirs = torch.tensor([[0.0, 0.0, 1.0]]).repeat(4, 1)
+    near = torch.full((4,), 0.5)
+    rays = (origins, dirs, near, near + 2.5 * step)  # 3 slots a ray: 12 in all
+    packed = model.render_rays(*rays)
+    assert packed.num_samples == 12
+    _static(model, 2)  # 8 slots: rays 0 and 1 whole, ray 2 two of its three, ray 3 none
+    with torch.no_grad():
+        static = model.render_rays(*rays)
+    assert static.dropped_samples.dtype == torch.int64 and int(static.dropped_samples) == 4
+    assert torch.isfinite(static.color).all() and torch.isfinite(static.depth).all()
+    torch.testing.assert_close(static.color[:2], packed.color[:2], atol=1e-6, rtol=1e-6)
+    assert 0 < static.opacity[2] < packed.opacity[2] - 1e-3
+    assert static.opacity[3] == 0 and torch.equal(static.color[3], torch.ones(3))
+
+
+def test_a_tiny_budget_with_occupancy_stays_finite_and_an_empty_batch_renders() -> None:
+    model = _model(occupancy=True)
+    _static(model, 1)
+    rays = _rays(model)
+    out = model.render_rays(*rays)
+    assert int(out.dropped_samples) > 0 and torch.isfinite(out.color).all()
+    empty = model.render_rays(*(r[:0] for r in rays))
+    assert empty.color.shape == (0, 3) and empty.num_samples == 0
+
+
+def test_static_render_traces_as_one_graph_and_the_packed_one_does_not(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the fused VM kernel (CPU only: a C++ extension that dynamo cannot trace) stays outside any graph
+    monkeypatch.setattr(grid_module, "usable", lambda *_: False)
+    model = _model(occupancy=True)
+    rays = _rays(model, (6, 5))
+    explained = torch._dynamo.explain(model.render_rays)(*rays)
+    assert explained.graph_break_count > 0  # int(counts.sum()), masks, nonzero: data-dependent shapes
+    _static(model, ALL_FIT)
+    explained = torch._dynamo.explain(model.render_rays)(*rays, True)
+    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
+    torch._dynamo.reset()
+    compiled = torch.compile(model.render_rays, backend="eager", fullgraph=True)
+    out, eager = compiled(*rays), model.render_rays(*rays)
+    torch.testing.assert_close(out.color, eager.color)
+    out.color.sum().backward()
+    assert model.field.density_planes.grad.abs().sum() > 0
+
+
+def test_train_with_static_samples_runs_and_a_bad_value_is_one_line(
+    dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from spikenerf.cli import main
+
+    args = ["train", str(dataset_dir), "--method", "nerf-gt", "--iters", "3", "--batch", "32"]
+    args += ["--eval-every", "0", "--device", "cpu", "--quiet"]
+    args += [f"--field-option={k}={v}" for k, v in test_train.TINY_GRID.items()]
+    main([*args, "--field-option", "static_samples=24", "--out", str(tmp_path / "run")])
+    assert "trained 3 iterations" in capsys.readouterr().out
+    saved = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
+    assert saved["field_config"]["static_samples"] == 24
+    for bad in ("-1", "1.5", "many"):
+        with pytest.raises(SystemExit) as exit_:
+            main([*args, "--field-option", f"static_samples={bad}", "--out", str(tmp_path / "bad")])
+        err = capsys.readouterr().err.strip()
+        assert exit_.value.code == 2 and "\n" not in err and "static_samples" in err, err
+    assert not (tmp_path / "bad").exists()
