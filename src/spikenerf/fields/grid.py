@@ -252,6 +252,7 @@ class GridField(Field):
 
     def __init__(self, channels: int, scene_box: Tensor, config: GridFieldConfig | None = None) -> None:
         super().__init__(channels, scene_box, config or GridFieldConfig())
+        self._box_size()  # read here, where the box is made: a trace before any eager render reads none
         cfg = self.config
         r, s = cfg.resolutions()[0], cfg.init_scale
         self.density_planes = _factor(s * torch.randn(3, cfg.density_components, r, r))
@@ -281,7 +282,8 @@ class GridField(Field):
     def _box_size(self) -> float:
         """Mean box edge, read from the device once per box (no host sync per rendered batch). Traced by
         ``torch.compile``, the value an eager call read is a constant (the box's pointer cannot be traced):
-        call once eagerly first, and recompile after changing the box."""
+        the constructor reads it first (on the box's device), an eager call on another device reads it again;
+        recompile after changing the box."""
         if torch.compiler.is_compiling() and hasattr(self, "_box_mean"):
             return self._box_mean
         key = (self.scene_box.data_ptr(), self.scene_box._version)

@@ -225,9 +225,29 @@ class TrainMethod:
         return 0.0
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
-        """The loss terms of one step: ``recon`` and ``reg`` (subclasses add theirs)."""
-        recon, srgb_mse, rays = self.recon_term(state)
+        """The loss terms of one step: ``recon`` and ``reg`` (subclasses add theirs); :meth:`draw` on the
+        host, then :meth:`step_losses`."""
+        return self.step_losses(state, iteration, self.draw(state))
+
+    def draw(self, state: TrainState) -> tuple[Tensor, ...]:
+        """The step's random draws for :meth:`step_losses`, made on the host by the samplers' own generators
+        (no device value is read): the rays' image indices (B,) and pixels (B, 2)."""
+        return self.draw_rays(state)
+
+    def step_losses(self, state: TrainState, iteration: int, drawn: tuple[Tensor, ...]) -> StepLosses:
+        """The device part of :meth:`losses` for the draws ``drawn`` of :meth:`draw`: with a grid field's
+        ``static_samples`` it traces as one graph, with no host sync (tests/test_step_graph.py)."""
+        recon, srgb_mse, rays = self.recon_of(state, *drawn)
         return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
+
+    def draw_rays(
+        self, state: TrainState, rays: int | None = None, views: int | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """Image indices (B,) and pixels (B, 2) of ``rays`` (None: the step's) rays rendered at ``views``
+        poses per target (None: :meth:`poses_per_view`): B = rays // views targets."""
+        views = self.poses_per_view() if views is None else views
+        rays = state.config.rays_per_step() if rays is None else rays
+        return state.samplers["rays"].sample(max(1, rays // views))
 
     def recon_term(
         self, state: TrainState, rays: int | None = None, views: int | None = None
@@ -235,11 +255,15 @@ class TrainMethod:
         """Reconstruction loss of one random batch of ``rays`` (None: the step's), ``views`` poses per target
         (None: :meth:`poses_per_view`) → (loss, sRGB MSE for the train PSNR, rays rendered); the MSE stays a
         0-d tensor on the device (no synchronisation)."""
+        return self.recon_of(state, *self.draw_rays(state, rays, views), views)
+
+    def recon_of(
+        self, state: TrainState, index: Tensor, pixels: Tensor, views: int | None = None
+    ) -> tuple[Tensor, Tensor, int]:
+        """:meth:`recon_term` of the drawn targets ``index`` (B,) at ``pixels`` (B, 2)."""
         targets = self.targets
         assert targets is not None, "build_targets first"
         views, channels = self.poses_per_view() if views is None else views, self.channels
-        rays = state.config.rays_per_step() if rays is None else rays
-        index, pixels = state.samplers["rays"].sample(max(1, rays // views))
         target = targets.gather(index, pixels).to(state.device)
         poses = self.image_poses(state, index)  # (B·S, 4, 4), S poses averaged per ray
         out = state.render_rays(poses, pixels.repeat_interleave(views, dim=0))
@@ -509,9 +533,18 @@ class SpikeIntegral(TrainMethod):
             samplers["rays"] = self.ray_sampler(height, width, self.config.seed + 2)
         return samplers
 
+    def draw(self, state: TrainState) -> tuple[Tensor, ...]:
+        """The step's windows: start, end (B,), pixels (B, 2) and steps (B, G·S), drawn on the host
+        (:class:`WindowTargetSampler`; ``integral.align`` reads the counts, a sync where a GPU keeps them)."""
+        per = self.config.integral.samples * self.config.integral.groups
+        return state.samplers["windows"].sample(max(1, state.config.rays_per_step() // per))
+
+    def step_losses(self, state: TrainState, iteration: int, drawn: tuple[Tensor, ...]) -> StepLosses:
+        recon, srgb_mse, rays = self.integral_term(state, drawn)
+        return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
+
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
-        recon, srgb_mse, rays = self.integral_term(state)
-        step = StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
+        step = super().losses(state, iteration)
         c = self.config.integral
         if self.uses_learned:
             step.terms["prior"], _, prior_rays = self.recon_term(state, c.prior_rays, views=1)
@@ -527,13 +560,15 @@ class SpikeIntegral(TrainMethod):
             return c.prior_weight
         return c.prior_weight * max(0.0, 1.0 - iteration / max(1, self.config.iters - 1))
 
-    def integral_term(self, state: TrainState) -> tuple[Tensor, Tensor, int]:
-        """The window-mean loss of one batch → (loss, sRGB MSE of the mean estimates, rays rendered)."""
+    def integral_term(
+        self, state: TrainState, drawn: tuple[Tensor, ...] | None = None
+    ) -> tuple[Tensor, Tensor, int]:
+        """The window-mean loss of one batch (``drawn`` by :meth:`draw`; None: draw it) → (loss, sRGB MSE of
+        the mean estimates, rays rendered)."""
         counts, c = self.counts, self.config.integral
         assert counts is not None, "build_targets first"
         per = c.samples * c.groups
-        batch = max(1, state.config.rays_per_step() // per)
-        start, end, pixels, steps = state.samplers["windows"].sample(batch)
+        start, end, pixels, steps = self.draw(state) if drawn is None else drawn
         target = counts.window_mean(start, end, pixels).to(state.device)
         band = (counts.threshold / (end - start).float())[:, None].to(state.device) if c.band else None
         poses = counts.poses[steps.reshape(-1).to(counts.poses.device)].to(state.device)
