@@ -10,8 +10,8 @@ point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils
 ``~/.cache/torch_extensions`` in a folder named by the source, the flags and the CPU's feature flags;
 20–90 s the first time on a machine; a process that finds the module compiled imports it at once, and
 concurrent first builds are serialised by an ``flock`` that dies with its holder). Where that is not possible (no
-compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``) callers
-fall back to ``grid_sample``; :func:`available` says which path is used.
+compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``, inside
+:func:`suspended`) callers fall back to ``grid_sample``; :func:`available` says which path is used.
 """
 
 from __future__ import annotations
@@ -362,10 +362,29 @@ def available() -> bool:
     return _load() is not None
 
 
+#: set within :func:`suspended`: :func:`usable` says no (read by ``torch.compile`` as a guarded constant)
+_SUSPENDED = False
+
+
+@contextlib.contextmanager
+def suspended() -> Iterator[None]:
+    """Within: the kernel is not used (:func:`usable` is False), so callers take the ``grid_sample`` path: for a
+    region that ``torch.compile(fullgraph=True)`` traces whole, where the C++ call would break the graph
+    (``train/compiled_step.py``). Outside it, nothing changes."""
+    global _SUSPENDED
+    before, _SUSPENDED = _SUSPENDED, True
+    try:
+        yield
+    finally:
+        _SUSPENDED = before
+
+
 def usable(planes: Tensor, xyz: Tensor) -> bool:
-    """The kernel applies: CPU float32 tensors, no gradient wanted for the points, and it builds."""
+    """The kernel applies: not :func:`suspended`, CPU float32 tensors, no gradient wanted for the points, and
+    it builds."""
     return (
-        planes.device.type == "cpu"
+        not _SUSPENDED
+        and planes.device.type == "cpu"
         and planes.dtype == torch.float32
         and xyz.dtype == torch.float32
         and not xyz.requires_grad

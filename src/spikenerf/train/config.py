@@ -206,8 +206,9 @@ class TrainConfig:
         log_every: iterations between reads of the loss terms (progress bar, TensorBoard scalars): the
             per-step values are summed on the device and read only then.
         amp: mixed precision of the training step, none | bf16 | fp16 (see ``train/amp.py``).
-        compile: ``torch.compile`` the field's per-sample functions (``fields/compiled.py``; falls back to
-            eager with a warning when compilation fails).
+        compile: ``torch.compile`` the field's per-sample functions (``fields/compiled.py``), or with the
+            grid's ``static_samples`` the device part of each step as one graph (``train/compiled_step.py``);
+            falls back to eager with a warning when compilation fails.
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
         poses: pose refinement (``--refine-poses``, train/pose_refine.py).
         exposure: the learned exposure start and end poses of nerf-bad (train/exposure_poses.py).
@@ -289,7 +290,7 @@ class TrainConfig:
         return self.targets.poses_per_target() if cls is not None and cls.uses_stream else 1
 
     def rays_per_step(self) -> int:
-        """``batch``, or where it is None the method's ``default_batch`` (spike-integral: 2048, 1024
+        """``batch``, or where it is None the method's ``default_batch`` (spike-integral: 4096, 2048
         windows × 2 renders; the others :data:`DEFAULT_BATCH`, 1024)."""
         if self.batch is not None:
             return self.batch

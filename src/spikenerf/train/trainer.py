@@ -45,6 +45,7 @@ from spikenerf.train.checkpoint import (
     rng_state,
     save_checkpoint,
 )
+from spikenerf.train.compiled_step import compile_step, static_samples
 from spikenerf.train.config import TrainConfig, load_run_config, save_config
 from spikenerf.train.device import check_batch_fits, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
@@ -230,7 +231,7 @@ class Trainer:
         else:
             self.model = model_of(ckpt, ckpt_path)
         self.model.to(self.device)
-        if self.config.compile:  # eager again, with a warning, when compilation fails
+        if self.config.compile and not static_samples(self.model):  # eager again, with a warning, on failure
             compile_field(self.model.field, warn)
         self.optimizer = make_optimizer(self.model, config)
         self.pose_refine = pose_refinement(
@@ -246,6 +247,8 @@ class Trainer:
             if learner is not None
         }
         self.resident = keep_targets_on_device(self.method, self.device)
+        if self.config.compile and static_samples(self.model):  # the whole device part of the step instead
+            compile_step(self.method, self.model, self.device, warn)
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []

@@ -1,0 +1,138 @@
+"""``train --compile`` with the grid's ``static_samples``: a step's device part as one graph (issue 27).
+
+With ``static_samples`` N > 0 the part of a step after its host draws (:meth:`TrainMethod.step_losses`:
+gather the targets, render, loss) has fixed shapes and reads no device value, so :func:`compile_step`
+compiles it as one graph, ``torch.compile(fullgraph=True)``: ``mode="reduce-overhead"`` (CUDA graphs) on
+CUDA, the default mode on a CPU. Its backward is the graph's compiled backward; the host draws, the
+optimiser, the schedules and the logging stay eager. Without ``static_samples`` ``--compile`` compiles the
+field's functions instead (``fields/compiled.py``).
+
+- The fused CPU VM kernel (a C++ call that Dynamo cannot trace) is :func:`~spikenerf.fields.vm_kernel.
+  suspended` inside the compiled call: the CPU graph samples the factors with ``grid_sample``.
+- Recompiles: one per grid resolution (the factors are new parameters of a new shape after each upsampling,
+  and the occupancy grid is resized), and with a total-variation prior (``tv_density``/``tv_app``) one more
+  per resolution for the steps where ``iteration % tv_every`` is 0 (only that prior reads the iteration;
+  Dynamo makes it a symbolic int after its first change: no recompile per step). Dynamo's recompile limit
+  (per method instance) is raised to cover them; a resumed run compiles its remaining resolutions again.
+- CUDA graphs: each call starts a new cudagraph-tree step (its outputs of the previous step are dead by
+  then); the method's target tensors kept on the GPU are marked static (not copied into the graph's pool at
+  every replay); the draws stay CPU tensors, copied to the device inside the graph (inductor's graph
+  partition, on by default in recent torch, keeps those CPU ops out of the CUDA graph; without it inductor
+  skips CUDA graphs for the step, which stays correct). Not yet run on a GPU.
+- Fallback: if ``torch.compile`` or a compiled call raises (no compiler, a graph break, the recompile limit),
+  one warning line and the step runs eagerly from then on, the same function (the global RNG states are put
+  back to where the failed call began).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from spikenerf.core.errors import one_line
+from spikenerf.fields.vm_kernel import suspended
+from spikenerf.render import RadianceModel
+from spikenerf.train.methods import StepLosses, TrainMethod
+
+FAILED = "torch.compile of the training step failed, training eagerly: "
+#: the ``torch.compile`` backend (None: its default, inductor, in :func:`step_mode`); tests set a cheaper one
+BACKEND: str | None = None
+
+
+def static_samples(model: RadianceModel) -> int:
+    """The field's ``static_samples`` (0: the default packed render, or a field without the option)."""
+    return int(getattr(model.field.config, "static_samples", 0) or 0)
+
+
+def step_mode(device: torch.device) -> str | None:
+    """The ``torch.compile`` mode of the step on ``device``: CUDA graphs on CUDA, the default elsewhere."""
+    return "reduce-overhead" if device.type == "cuda" else None
+
+
+def compiles_needed(model: RadianceModel) -> int:
+    """Compiles a run's step may need: two per grid resolution (see the module doc) and a margin."""
+    resolutions = getattr(model.field.config, "resolutions", lambda: [0])
+    return 2 * len(resolutions()) + 4
+
+
+def _rng_state(device: torch.device) -> tuple[torch.Tensor, torch.Tensor | None]:
+    cuda = torch.cuda.get_rng_state(device) if device.type == "cuda" else None
+    return torch.get_rng_state(), cuda
+
+
+def _set_rng_state(device: torch.device, state: tuple[torch.Tensor, torch.Tensor | None]) -> None:
+    torch.set_rng_state(state[0])
+    if state[1] is not None:
+        torch.cuda.set_rng_state(state[1], device)
+
+
+def _mark_static_targets(method: TrainMethod) -> None:
+    """Mark the method's target tensors on a CUDA device as fixed addresses (CUDA graphs read them there)."""
+    for holder in (getattr(method, name, None) for name in ("targets", "counts", "spikes")):
+        if holder is None or not dataclasses.is_dataclass(holder):
+            continue
+        for f in dataclasses.fields(holder):
+            value = getattr(holder, f.name)
+            if isinstance(value, torch.Tensor) and value.device.type == "cuda":
+                torch._dynamo.mark_static_address(value)
+
+
+class CompiledStep:
+    """``method.step_losses`` compiled (see the module doc); eager from its first failure on (``warn`` told
+    once, and ``method.step_losses`` is the class's method again)."""
+
+    def __init__(self, method: TrainMethod, device: torch.device, warn: Callable[[str], None]) -> None:
+        self.method, self.device, self.warn = method, device, warn
+        self.eager = method.step_losses
+        mode = step_mode(device)
+        options: dict[str, Any] = {"mode": mode} if BACKEND is None else {"backend": BACKEND}
+        self.compiled = torch.compile(self.eager, fullgraph=True, **options)
+        self.cuda_graphs = BACKEND is None and mode == "reduce-overhead"
+        self.failed: str | None = None
+
+    def __call__(self, state: Any, iteration: int, drawn: tuple[torch.Tensor, ...]) -> StepLosses:
+        if self.failed is None:
+            rng = _rng_state(self.device)
+            try:
+                with suspended():
+                    if self.cuda_graphs:
+                        torch.compiler.cudagraph_mark_step_begin()
+                    step = self.compiled(state, iteration, drawn)
+                # fresh containers: a method adds its eager terms (the learned prior) to them
+                return StepLosses(dict(step.terms), step.srgb_mse, step.rays, dict(step.weights))
+            except Exception as err:  # any compiler failure: the eager step is always a correct answer
+                _set_rng_state(self.device, rng)
+                self.fail(one_line(f"{type(err).__name__}: {err}"))
+        return self.eager(state, iteration, drawn)
+
+    def fail(self, reason: str) -> None:
+        """Go eager for good, with one warning line."""
+        self.failed = reason
+        vars(self.method).pop("step_losses", None)  # the class's eager method again
+        self.warn(FAILED + reason)
+
+
+def compile_step(
+    method: TrainMethod, model: RadianceModel, device: torch.device, warn: Callable[[str], None]
+) -> bool:
+    """Replace ``method.step_losses``, on the instance only, by its :class:`CompiledStep` (compiled on its
+    first call); True when installed, False (after ``warn``, one line) when ``torch.compile`` itself fails.
+    Call after the targets are on their device."""
+    # a graph break (a C++ call) is a fullgraph failure, told in the one warning line: not twice
+    warnings.filterwarnings("ignore", message="Dynamo does not know how to trace", category=UserWarning)
+    limit = compiles_needed(model)
+    config = torch._dynamo.config  # cache_size_limit: recompile_limit's older name, in every torch ≥ 2.3
+    if config.cache_size_limit < limit:  # only ever raised (a process-wide setting)
+        config.cache_size_limit = limit
+    try:
+        if device.type == "cuda":
+            _mark_static_targets(method)
+        method.step_losses = CompiledStep(method, device, warn)  # type: ignore[method-assign]
+    except Exception as err:
+        warn(FAILED + one_line(f"{type(err).__name__}: {err}"))
+        return False
+    return True

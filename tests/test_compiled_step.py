@@ -1,0 +1,205 @@
+"""``train --compile`` with the grid's ``static_samples`` (issue 27, ``train/compiled_step.py``): the device
+part of a step compiled as one graph trains and resumes like the eager static step, recompiles only at the
+upsamplings, keeps the fused CPU kernel out of the graph; a failing compiler leaves the step eager with one
+warning and the eager run's parameters; without ``static_samples`` ``--compile`` still compiles the field's
+functions.
+
+Most tests compile with ``backend="aot_eager"`` (the graph traced and run as aten ops, no C++ build); one uses
+inductor, the real default, and one CUDA graphs (``mode="reduce-overhead"``, skipped without a GPU)."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from torch._dynamo.utils import counters
+
+import test_train
+from spikenerf.fields import grid as grid_module
+from spikenerf.fields import vm_kernel
+from spikenerf.train import compiled_step
+from spikenerf.train import trainer as trainer_module
+from spikenerf.train.compiled_step import CompiledStep, compile_step
+from spikenerf.train.trainer import Trainer
+
+dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
+WARNING = "spikenerf: warning: torch.compile of the training step failed, training eagerly: "
+
+
+@pytest.fixture(autouse=True)
+def fresh_dynamo():  # type: ignore[no-untyped-def]
+    torch._dynamo.reset()
+    counters.clear()
+    yield
+    torch._dynamo.reset()
+
+
+@pytest.fixture
+def aot_eager(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(compiled_step, "BACKEND", "aot_eager")
+
+
+def _config(dataset_dir: Path, method: str, compile: bool, static: int = 24, **field):  # type: ignore[no-untyped-def]
+    cfg = test_train._config(dataset_dir, method=method)
+    cfg.field_config = {**cfg.field_config, "static_samples": static, **field}
+    cfg.compile = compile
+    return cfg
+
+
+def _run(cfg, out: Path, dataset, stop_after: int | None = None, resume: bool = False):  # type: ignore[no-untyped-def]
+    """(trainer, the total loss of each step it ran) of training ``cfg`` into ``out``."""
+    trainer = Trainer(cfg, out, dataset, resume=resume, progress=False)
+    recorded: list[torch.Tensor] = []
+    losses = trainer.method.losses
+
+    def spy(state, iteration):  # type: ignore[no-untyped-def]
+        step = losses(state, iteration)
+        recorded.append(step.total().detach())
+        return step
+
+    trainer.method.losses = spy  # type: ignore[method-assign]
+    trainer.train(stop_after)
+    return trainer, [float(x) for x in recorded]
+
+
+def _graphs() -> int:
+    return int(counters["stats"]["unique_graphs"])
+
+
+@pytest.mark.parametrize(("method", "field"), [("nerf-gt", {}), ("spike-integral", {"tv_density": 0.1})])
+def test_the_compiled_step_trains_and_resumes_like_the_eager_static_step(
+    dataset_dir: Path,
+    dataset,
+    tmp_path: Path,
+    method: str,
+    field: dict,
+    aot_eager: None,
+    capsys,  # type: ignore[no-untyped-def]
+) -> None:
+    kernel: dict[bool, int] = {False: 0, True: 0}  # fused-kernel calls of the eager and the compiled run
+    lookup = grid_module.vm_lookup
+
+    def counted(*args):  # type: ignore[no-untyped-def]
+        kernel[cfg.compile] += 1
+        return lookup(*args)
+
+    cfg = _config(dataset_dir, method, False, **field)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(grid_module, "vm_lookup", counted)
+        _, eager = _run(cfg, tmp_path / "eager", dataset)
+        cfg = _config(dataset_dir, method, True, **field)
+        trainer, first = _run(cfg, tmp_path / "compiled", dataset, stop_after=3)
+        step = vars(trainer.method)["step_losses"]
+        assert isinstance(step, CompiledStep) and step.failed is None
+        # one graph per grid resolution (12, 15: upsampled after step 2), whatever the iteration; with the
+        # TV prior one more for the steps where iteration % tv_every == 0
+        assert _graphs() == (3 if field else 2), counters["stats"]
+        resumed, rest = _run(cfg, tmp_path / "compiled", dataset, resume=True)
+    assert resumed.iteration == cfg.iters and isinstance(vars(resumed.method)["step_losses"], CompiledStep)
+    assert "warning" not in capsys.readouterr().err
+    compiled = first + rest
+    assert len(compiled) == len(eager) == cfg.iters and all(map(math.isfinite, compiled))
+    assert compiled[:2] == pytest.approx(eager[:2], rel=1e-4)
+    assert compiled == pytest.approx(eager, rel=1e-3)
+    if vm_kernel.available():  # an eager step calls it twice (density, colour), a compiled one never; the
+        assert kernel[False] - kernel[True] == 2 * cfg.iters  # evaluations and occupancy updates the same
+    assert all(torch.isfinite(p).all() for p in resumed.model.parameters())
+
+
+@pytest.mark.parametrize("failure", ["raises", "graph break"])
+def test_a_failing_compiled_step_trains_eagerly_with_one_warning(
+    dataset_dir: Path,
+    dataset,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys,
+    failure: str,
+    aot_eager: None,  # type: ignore[no-untyped-def]
+) -> None:
+    if failure == "graph break" and not vm_kernel.available():
+        pytest.skip("the fused CPU kernel (the graph break here) does not build on this machine")
+    _, eager_losses = _run(_config(dataset_dir, "nerf-gt", False), tmp_path / "eager", dataset)
+    eager = torch.load(tmp_path / "eager" / "checkpoint.pt", weights_only=False)["model"]
+    capsys.readouterr()
+
+    def broken(fn, **kw):  # type: ignore[no-untyped-def]
+        def run(*args, **kwargs):  # type: ignore[no-untyped-def]
+            torch.rand(1000)  # a failure after the call drew random numbers: they are drawn again
+            raise RuntimeError("no compiler\nhere")
+
+        return run
+
+    if failure == "raises":
+        monkeypatch.setattr(compiled_step.torch, "compile", broken)
+    else:  # the fused kernel left on inside the graph: a C++ call that fullgraph=True refuses
+        monkeypatch.setattr(compiled_step, "suspended", contextlib.nullcontext)
+    trainer, losses = _run(_config(dataset_dir, "nerf-gt", True), tmp_path / "broken", dataset)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(lines) == 1 and lines[0].startswith(WARNING)
+    if failure == "raises":
+        assert lines == [WARNING + "RuntimeError: no compiler here"]
+    assert trainer.iteration == trainer.config.iters and "step_losses" not in vars(trainer.method)
+    assert losses == eager_losses  # the eager step, with the random stream of a run without --compile
+    state = trainer.model.state_dict()
+    assert all(torch.equal(state[k], v) for k, v in eager.items())
+
+
+def test_a_compiler_that_fails_at_once_leaves_the_method_eager(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    trainer = Trainer(_config(dataset_dir, "nerf-gt", False), tmp_path / "run", dataset, progress=False)
+
+    def broken(fn, **kw):  # type: ignore[no-untyped-def]
+        raise RuntimeError("no backend")
+
+    monkeypatch.setattr(compiled_step.torch, "compile", broken)
+    told: list[str] = []
+    assert not compile_step(trainer.method, trainer.model, trainer.device, told.append)
+    assert told == [WARNING.removeprefix("spikenerf: warning: ") + "RuntimeError: no backend"]
+    assert "step_losses" not in vars(trainer.method)
+
+
+@pytest.mark.parametrize("static", [0, 24])
+def test_compile_without_static_samples_still_compiles_the_field(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, static: int
+) -> None:  # type: ignore[no-untyped-def]
+    calls: list[str] = []
+    monkeypatch.setattr(trainer_module, "compile_field", lambda field, warn: calls.append("field"))
+    monkeypatch.setattr(trainer_module, "compile_step", lambda *a: calls.append("step"))
+    Trainer(_config(dataset_dir, "nerf-gt", True, static), tmp_path / "run", dataset, progress=False)
+    assert calls == (["step"] if static else ["field"])
+
+
+def test_the_inductor_compiled_step_gives_the_eager_losses(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    # the real default backend, for the two steps before the first upsampling (one graph, C++ built here)
+    _, eager = _run(_config(dataset_dir, "nerf-gt", False), tmp_path / "eager", dataset, stop_after=2)
+    trainer, compiled = _run(
+        _config(dataset_dir, "nerf-gt", True), tmp_path / "compiled", dataset, stop_after=2
+    )
+    assert vars(trainer.method)["step_losses"].failed is None and _graphs() == 1
+    assert compiled == pytest.approx(eager, rel=1e-4)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("method", ["nerf-gt", "spike-integral"])
+def test_the_cuda_graph_step_trains_like_eager(
+    dataset_dir: Path, dataset, tmp_path: Path, method: str, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    monkeypatch.setattr(torch._inductor.config, "fallback_random", True)  # eager's random stream
+    runs = []
+    for compile in (False, True):
+        cfg = _config(dataset_dir, method, compile)
+        cfg.device = "cuda"
+        runs.append(_run(cfg, tmp_path / str(compile), dataset))
+    (_, eager), (trainer, compiled) = runs
+    step = vars(trainer.method)["step_losses"]
+    assert isinstance(step, CompiledStep) and step.cuda_graphs and step.failed is None
+    assert all(map(math.isfinite, compiled))
+    assert compiled[:2] == pytest.approx(eager[:2], rel=1e-3)  # inductor's kernels: other rounding
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
