@@ -179,3 +179,23 @@ def test_render_processes_share_the_cores(tmp_path: Path, monkeypatch: pytest.Mo
     monkeypatch.setenv("OMP_NUM_THREADS", "4,2")  # a nested OpenMP list is not a count: fall back
     assert render_processes(cfg) == 8
     assert render_processes(replace(cfg, executor="ray", ray_cpus=2.5)) == 2  # the task's CPUs
+
+
+def test_a_folder_whose_spike_integral_cells_other_defaults_trained_is_refused(tmp_path: Path) -> None:
+    """spike-integral's window, renders and batch defaults are recorded; a folder from before the record
+    (the 11 × 2, 2048-ray defaults) or with others is refused when it has spike-integral cells, and a
+    folder without them resumes."""
+    from spikenerf.pipelines.benchmark.settings import NAME, PREVIOUS_INTEGRAL, check_settings, settings
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["spike-integral"], ["gray"], tmp_path, size=16, frames=100,
+                          test_views=1, render=False, iters=4)  # fmt: skip
+    now = settings(cfg)
+    assert now["integral_defaults"] == {"window": 5, "samples": 1, "batch": 4096}
+    (tmp_path / NAME).write_text(json.dumps({"settings": now, "nonce": "n"}))
+    assert check_settings(cfg) == "n"
+    unrecorded = {k: v for k, v in now.items() if k != "integral_defaults"}
+    (tmp_path / NAME).write_text(json.dumps({"settings": unrecorded, "nonce": "n"}))
+    with pytest.raises(InputError, match=r"spike-integral cells .*window 11 → 5, samples 2 → 1, batch 2048"):
+        check_settings(cfg)
+    assert PREVIOUS_INTEGRAL == {"window": 11, "samples": 2, "batch": 2048}
+    assert check_settings(replace(cfg, variants=["nerf-gt"])) == "n"  # no spike-integral cell: resumes

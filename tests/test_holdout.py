@@ -141,7 +141,7 @@ def test_default_simulated_run_writes_no_record(dataset_dir: Path, tmp_path: Pat
     ("args", "what"),
     [
         (["--holdout-radius", 30, "--method", "spike-nerf"], "image target"),
-        (["--holdout-radius", 30], "11-step window"),  # spike-integral, train's default
+        (["--holdout-radius", 30], "5-step window"),  # spike-integral, train's default
         (["--holdout-radius", 12, "--holdout-steps", 2, "--method", "spike-nerf", "--spike-window", 30],
          "30-step spike window"),
     ],

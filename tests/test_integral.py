@@ -274,7 +274,7 @@ def test_default_method_trains_and_records_its_windows(dataset_dir: Path, tmp_pa
 
 
 @pytest.mark.parametrize(("method", "given", "rays"), [
-    ("spike-integral", None, 2048), ("nerf-gt", None, 1024), ("spike-nerf", None, 1024),
+    ("spike-integral", None, 4096), ("nerf-gt", None, 1024), ("spike-nerf", None, 1024),
     ("spike-integral", 512, 512),
 ])  # fmt: skip
 def test_default_batch_is_per_method_and_recorded_resolved(method: str, given: int | None, rays: int) -> None:
@@ -286,11 +286,11 @@ def test_default_batch_is_per_method_and_recorded_resolved(method: str, given: i
 
 
 def test_spike_integral_renders_its_default_batch_of_windows(dataset_dir: Path, tmp_path: Path) -> None:
-    """Without --batch a spike-integral step renders 2048 rays: 1024 windows × 2 steps."""
+    """Without --batch a spike-integral step renders 4096 rays: 4096 windows × 1 step."""
     out = tmp_path / "run"
     run = _cli("train", str(dataset_dir), "--iters", "1", "--out", str(out), "--quiet", "--eval-every", "0")
     assert run.returncode == 0, run.stderr
-    assert "batch: 2048" in (out / "config.yaml").read_text()
+    assert "batch: 4096" in (out / "config.yaml").read_text()
 
 
 def test_counts_move_to_the_device_and_give_the_same_means() -> None:

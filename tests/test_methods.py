@@ -84,7 +84,7 @@ def test_method_rules_live_with_the_method() -> None:
     tfi.targets.recon, tfi.targets.window_poses = "tfi", 1
     with pytest.raises(InputError, match="spike-integral reads spike counts"):
         SpikeIntegral.check(tfi)
-    assert TrainConfig(method="spike-integral").rays_per_step() == SpikeIntegral.default_batch == 2048
+    assert TrainConfig(method="spike-integral").rays_per_step() == SpikeIntegral.default_batch == 4096
 
 
 def test_step_losses_sum_the_weighted_terms_in_order() -> None:

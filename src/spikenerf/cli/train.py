@@ -104,7 +104,7 @@ PARAM_FLAGS = {
     "--batch",
     type=int,
     default=_D.batch,
-    help="Rays per step (reconstruction). Default: 1024; spike-integral 4096 (2048 windows × 2 renders; "
+    help="Rays per step (reconstruction). Default: 1024; spike-integral 4096 (4096 windows × 1 render; "
     "docs/spike-integral.md). On a GPU a step costs little more up to 16384 rays "
     "(H200: 9.6 ms at 4096, 16.3 ms at 16384 for nerf-gt), so raise it there.",
 )

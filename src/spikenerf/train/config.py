@@ -290,8 +290,8 @@ class TrainConfig:
         return self.targets.poses_per_target() if cls is not None and cls.uses_stream else 1
 
     def rays_per_step(self) -> int:
-        """``batch``, or where it is None the method's ``default_batch`` (spike-integral: 4096, 2048
-        windows × 2 renders; the others :data:`DEFAULT_BATCH`, 1024)."""
+        """``batch``, or where it is None the method's ``default_batch`` (spike-integral: 4096, 4096
+        windows × 1 render; the others :data:`DEFAULT_BATCH`, 1024)."""
         if self.batch is not None:
             return self.batch
         cls = METHOD_CLASSES.get(self.method)

@@ -68,11 +68,12 @@ from spikenerf.train.pose_refine import PoseLearner, PoseRefinement
 #: a :class:`spikenerf.train.config.TrainConfig` (not imported: config.py reads :data:`METHOD_CLASSES`)
 Config = Any
 
-#: rays per step when ``batch`` is not given: 1024 targets, and for spike-integral 1024 windows of
-#: ``INTEGRAL_SAMPLES`` renders each (the oracle's 1024 targets a step; docs/spike-integral.md, Cost)
+#: rays per step when ``batch`` is not given: 1024 targets (spike-integral: :data:`INTEGRAL_WINDOWS`)
 DEFAULT_BATCH = 1024
-#: spike-integral's default window length and steps rendered per window (docs/method.md, Spike-integral)
-INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 11, 2
+#: spike-integral's default window length and steps rendered per window (docs/spike-integral.md, Choosing)
+INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 5, 1
+#: spike-integral's default windows a step (docs/spike-integral.md, Cost): 4096 rays at one render each
+INTEGRAL_WINDOWS = 4096
 #: a spike-aligned window (``integral.align``) spans at most this many times the longest window length
 ALIGN_LONGEST = 8
 
@@ -465,7 +466,7 @@ class SpikeIntegral(TrainMethod):
         "the default; ours, not in the paper: spike-count means over short windows compared with renders "
         "at steps drawn inside each window, at their own poses; --integral-window, --integral-samples"
     )
-    default_batch = DEFAULT_BATCH * INTEGRAL_SAMPLES  # 1024 windows × 2 renders: the oracle's 1024 targets
+    default_batch = INTEGRAL_WINDOWS * INTEGRAL_SAMPLES
 
     @classmethod
     def check(cls, config: Config) -> None:

@@ -25,11 +25,14 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config
 from spikenerf.fields.grid import native_bf16
 from spikenerf.train.config import TrainConfig
+from spikenerf.train.methods import INTEGRAL_SAMPLES, INTEGRAL_WINDOW, SpikeIntegral
 
 NAME = "benchmark.json"
 #: field-config entries added after folders were started, with the value that trains as before they
 #: existed: a record without one reads it so (the grid's total-variation prior, off; its packed dynamic march)
 ADDED_DEFAULTS: dict[str, Any] = {"tv_density": 0.0, "tv_app": 0.0, "tv_every": 4, "static_samples": 0}
+#: spike-integral's defaults before they were recorded (2048 rays: 1024 windows of 11 steps × 2 renders)
+PREVIOUS_INTEGRAL: dict[str, int] = {"window": 11, "samples": 2, "batch": 2048}
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
 KEYS = (
     "size", "frames", "seed", "test_views", "blur_views", "color", "iters", "field_kind", "extra_train_args",
@@ -50,7 +53,8 @@ def settings(cfg: Any) -> dict:
         defaults["decoder_bf16"] = bool(defaults["decoder_bf16"] and native_bf16(torch.device("cpu")))
     values = {k: getattr(cfg, k) for k in KEYS if k != "color"}
     values["iters"] = values["iters"] or TrainConfig().iters
-    return {"color": color, **values, "field_defaults": defaults}
+    integral = {"window": INTEGRAL_WINDOW, "samples": INTEGRAL_SAMPLES, "batch": SpikeIntegral.default_batch}
+    return {"color": color, **values, "field_defaults": defaults, "integral_defaults": integral}
 
 
 def _differs(key: str, old: Any, new: Any) -> bool:
@@ -99,6 +103,15 @@ def check_settings(cfg: Any) -> str | None:
         raise InputError(
             f"this benchmark's cells were trained with other field defaults ({what}); finish it with the "
             "version and machine that started it, or use a new out",
+            path=cfg.out,
+            param="out",
+        )
+    was = old.get("integral_defaults", PREVIOUS_INTEGRAL)
+    if "spike-integral" in cfg.variants and was != new["integral_defaults"]:
+        what = ", ".join(f"{k} {was.get(k)!r} → {v!r}" for k, v in new["integral_defaults"].items())
+        raise InputError(
+            f"this benchmark's spike-integral cells were trained with other defaults ({what}); finish it "
+            "with the version that started it, or use a new out",
             path=cfg.out,
             param="out",
         )
