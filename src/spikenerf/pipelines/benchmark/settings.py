@@ -108,7 +108,8 @@ def check_settings(cfg: Any) -> str | None:
         )
     was = old.get("integral_defaults", PREVIOUS_INTEGRAL)
     if "spike-integral" in cfg.variants and was != new["integral_defaults"]:
-        what = ", ".join(f"{k} {was.get(k)!r} → {v!r}" for k, v in new["integral_defaults"].items())
+        new_integral = new["integral_defaults"].items()
+        what = ", ".join(f"{k} {was.get(k)!r} → {v!r}" for k, v in new_integral if was.get(k) != v)
         raise InputError(
             f"this benchmark's spike-integral cells were trained with other defaults ({what}); finish it "
             "with the version that started it, or use a new out",
