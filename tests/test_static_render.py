@@ -85,8 +85,7 @@ def test_a_small_budget_cuts_the_march_at_its_end_and_counts_the_dropped_slots()
     packed = model.render_rays(*rays)
     assert packed.num_samples == 12
     _static(model, 2)  # 8 slots: rays 0 and 1 whole, ray 2 two of its three, ray 3 none
-    with torch.no_grad():
-        static = model.render_rays(*rays)
+    static = model.render_rays(*rays)
     assert static.dropped_samples.dtype == torch.int64 and int(static.dropped_samples) == 4
     assert torch.isfinite(static.color).all() and torch.isfinite(static.depth).all()
     torch.testing.assert_close(static.color[:2], packed.color[:2], atol=1e-6, rtol=1e-6)
@@ -142,3 +141,33 @@ def test_train_with_static_samples_runs_and_a_bad_value_is_one_line(
         err = capsys.readouterr().err.strip()
         assert exit_.value.code == 2 and "\n" not in err and "static_samples" in err, err
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_render_without_gradients_takes_the_packed_path_and_cuts_nothing() -> None:
+    model = _model(occupancy=True)
+    rays = _rays(model)
+    packed = model.render_rays(*rays)
+    _static(model, 1)  # far too small for a training render
+    assert int(model.render_rays(*rays).dropped_samples) > 0
+    with torch.no_grad():
+        exact = model.render_rays(*rays)
+    assert exact.dropped_samples is None and exact.num_samples == packed.num_samples
+    torch.testing.assert_close(exact.color, packed.color)
+
+
+def test_training_with_a_small_budget_warns_once_with_a_budget_that_holds_the_samples(
+    dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from spikenerf.cli import main
+
+    args = ["train", str(dataset_dir), "--method", "nerf-gt", "--iters", "4", "--batch", "32", "--quiet"]
+    args += ["--eval-every", "0", "--device", "cpu", "--set", "log_every=1"]
+    args += [f"--field-option={k}={v}" for k, v in test_train.TINY_GRID.items()]
+    main([*args, "--field-option", "static_samples=1", "--out", str(tmp_path / "small")])
+    err = capsys.readouterr().err
+    told = [line for line in err.splitlines() if "static_samples=1 cut" in line]
+    assert len(told) == 1, err  # once, though every step cut samples
+    suggested = int(told[0].rsplit("static_samples=", 1)[1].split()[0])
+    assert suggested > 1
+    main([*args, "--field-option", f"static_samples={suggested}", "--out", str(tmp_path / "enough")])
+    assert "cut" not in capsys.readouterr().err

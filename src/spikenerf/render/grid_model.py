@@ -23,6 +23,8 @@ class GridModel(RadianceModel):
     With the field's ``static_samples`` N > 0 the same samples lie in a fixed budget of N × rays slots
     (:meth:`_march_static`): no data-dependent shape and no host sync, for CUDA graphs and
     ``torch.compile(fullgraph=True)``; rays beyond the budget are cut (``RenderOutput.dropped_samples``).
+    The budget serves the training renders only: a render without gradients (``eval``, ``render``, the test
+    views during training) takes the packed path, which cuts nothing.
     """
 
     kind = "grid"
@@ -133,7 +135,7 @@ class GridModel(RadianceModel):
             near, far = self._shorten(origins, dirs, near, far, step)
         o_n = field.normalize(origins)
         d_n = dirs * (2.0 / (field.scene_box[1] - field.scene_box[0]))
-        if cfg.static_samples and n:
+        if cfg.static_samples and n and torch.is_grad_enabled():  # images, metrics: every sample
             return self._render_static(o_n, d_n, dirs, near, far, step, perturb)
         ray, k = self._march(o_n, d_n, near, far, step)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)

@@ -103,7 +103,7 @@ class CompiledStep:
                         torch.compiler.cudagraph_mark_step_begin()
                     step = self.compiled(state, iteration, drawn)
                 # fresh containers: a method adds its eager terms (the learned prior) to them
-                return StepLosses(dict(step.terms), step.srgb_mse, step.rays, dict(step.weights))
+                return dataclasses.replace(step, terms=dict(step.terms), weights=dict(step.weights))
             except Exception as err:  # any compiler failure: the eager step is always a correct answer
                 _set_rng_state(self.device, rng)
                 self.fail(one_line(f"{type(err).__name__}: {err}"))

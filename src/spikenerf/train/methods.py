@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -100,12 +100,16 @@ class StepLosses:
         weights: name -> weight this step (λ(it) for ``spike``); a term without one is added as it is.
         srgb_mse: 0-d MSE of the sRGB-encoded batch (the train PSNR; no gradient, stays on the device).
         rays: rays rendered this step.
+        weights: name -> weight this step (see ``terms``).
+        dropped: 0-d int64 on the device: the sample slots that the grid's ``static_samples`` budget cut
+            from this step's target renders (``RenderOutput.dropped_samples``); None with the packed render.
     """
 
     terms: dict[str, Tensor]
     srgb_mse: Tensor
     rays: int
     weights: dict[str, float] = field(default_factory=dict)
+    dropped: Tensor | None = None
 
     def total(self) -> Tensor:
         """The loss to minimise: the sum of the weighted terms."""
@@ -115,6 +119,22 @@ class StepLosses:
             total = weighted if total is None else total + weighted
         assert total is not None
         return total
+
+
+class Term(NamedTuple):
+    """One rendered loss term of a step (:meth:`TrainMethod.recon_of`, :meth:`SpikeIntegral.integral_term`).
+
+    Attributes:
+        loss: 0-d loss tensor.
+        srgb_mse: 0-d MSE of the sRGB-encoded batch (the train PSNR; no gradient, stays on the device).
+        rays: rays rendered.
+        dropped: the render's ``dropped_samples`` (0-d int64; None with the packed render).
+    """
+
+    loss: Tensor
+    srgb_mse: Tensor
+    rays: int
+    dropped: Tensor | None
 
 
 class TrainMethod:
@@ -238,8 +258,9 @@ class TrainMethod:
     def step_losses(self, state: TrainState, iteration: int, drawn: tuple[Tensor, ...]) -> StepLosses:
         """The device part of :meth:`losses` for the draws ``drawn`` of :meth:`draw`: with a grid field's
         ``static_samples`` it traces as one graph, with no host sync (tests/test_step_graph.py)."""
-        recon, srgb_mse, rays = self.recon_of(state, *drawn)
-        return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
+        recon = self.recon_of(state, *drawn)
+        terms = {"recon": recon.loss, "reg": state.model.regularization(iteration)}
+        return StepLosses(terms, recon.srgb_mse, recon.rays, dropped=recon.dropped)
 
     def draw_rays(
         self, state: TrainState, rays: int | None = None, views: int | None = None
@@ -250,17 +271,12 @@ class TrainMethod:
         rays = state.config.rays_per_step() if rays is None else rays
         return state.samplers["rays"].sample(max(1, rays // views))
 
-    def recon_term(
-        self, state: TrainState, rays: int | None = None, views: int | None = None
-    ) -> tuple[Tensor, Tensor, int]:
+    def recon_term(self, state: TrainState, rays: int | None = None, views: int | None = None) -> Term:
         """Reconstruction loss of one random batch of ``rays`` (None: the step's), ``views`` poses per target
-        (None: :meth:`poses_per_view`) → (loss, sRGB MSE for the train PSNR, rays rendered); the MSE stays a
-        0-d tensor on the device (no synchronisation)."""
+        (None: :meth:`poses_per_view`); the :class:`Term`'s tensors stay on the device (no sync)."""
         return self.recon_of(state, *self.draw_rays(state, rays, views), views)
 
-    def recon_of(
-        self, state: TrainState, index: Tensor, pixels: Tensor, views: int | None = None
-    ) -> tuple[Tensor, Tensor, int]:
+    def recon_of(self, state: TrainState, index: Tensor, pixels: Tensor, views: int | None = None) -> Term:
         """:meth:`recon_term` of the drawn targets ``index`` (B,) at ``pixels`` (B, 2)."""
         targets = self.targets
         assert targets is not None, "build_targets first"
@@ -274,7 +290,7 @@ class TrainMethod:
             loss = loss + recon_loss(out.coarse_color.view(-1, views, channels).mean(dim=1), target)
         with torch.no_grad():
             srgb_mse = torch.mean((srgb_encode(color.float()) - srgb_encode(target)) ** 2)
-        return loss, srgb_mse, poses.shape[0]
+        return Term(loss, srgb_mse, poses.shape[0], out.dropped_samples)
 
     def image_poses(self, state: TrainState, index: Tensor) -> Tensor:
         """Poses (B·S, 4, 4) of image targets ``index`` (B,): their S poses each, refined when
@@ -541,16 +557,17 @@ class SpikeIntegral(TrainMethod):
         return state.samplers["windows"].sample(max(1, state.config.rays_per_step() // per))
 
     def step_losses(self, state: TrainState, iteration: int, drawn: tuple[Tensor, ...]) -> StepLosses:
-        recon, srgb_mse, rays = self.integral_term(state, drawn)
-        return StepLosses({"recon": recon, "reg": state.model.regularization(iteration)}, srgb_mse, rays)
+        integral = self.integral_term(state, drawn)
+        terms = {"recon": integral.loss, "reg": state.model.regularization(iteration)}
+        return StepLosses(terms, integral.srgb_mse, integral.rays, dropped=integral.dropped)
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
         step = super().losses(state, iteration)
         c = self.config.integral
         if self.uses_learned:
-            step.terms["prior"], _, prior_rays = self.recon_term(state, c.prior_rays, views=1)
-            step.weights["prior"] = self.prior_weight(iteration)
-            step.rays += prior_rays
+            prior = self.recon_term(state, c.prior_rays, views=1)
+            step.terms["prior"], step.weights["prior"] = prior.loss, self.prior_weight(iteration)
+            step.rays += prior.rays
         return step
 
     def prior_weight(self, iteration: int) -> float:
@@ -561,11 +578,9 @@ class SpikeIntegral(TrainMethod):
             return c.prior_weight
         return c.prior_weight * max(0.0, 1.0 - iteration / max(1, self.config.iters - 1))
 
-    def integral_term(
-        self, state: TrainState, drawn: tuple[Tensor, ...] | None = None
-    ) -> tuple[Tensor, Tensor, int]:
-        """The window-mean loss of one batch (``drawn`` by :meth:`draw`; None: draw it) → (loss, sRGB MSE of
-        the mean estimates, rays rendered)."""
+    def integral_term(self, state: TrainState, drawn: tuple[Tensor, ...] | None = None) -> Term:
+        """The window-mean loss of one batch (``drawn`` by :meth:`draw`; None: draw it); the :class:`Term`'s
+        sRGB MSE is that of the window mean estimates."""
         counts, c = self.counts, self.config.integral
         assert counts is not None, "build_targets first"
         per = c.samples * c.groups
@@ -584,7 +599,7 @@ class SpikeIntegral(TrainMethod):
         with torch.no_grad():
             mean = means.mean(dim=1).float()
             srgb_mse = torch.mean((srgb_encode(mean.clamp(0, 1)) - srgb_encode(target.clamp(0, 1))) ** 2)
-        return loss, srgb_mse, poses.shape[0]
+        return Term(loss, srgb_mse, poses.shape[0], out.dropped_samples)
 
 
 #: ``--method`` -> its class: the one table of training methods, in the order of the ``Method`` Literal of

@@ -138,6 +138,10 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
 
 
+#: the running mean of the static budget's cut slots a ray (read every ``log_every`` steps; not in curves)
+DROPPED = "dropped_per_ray"
+
+
 def warn(message: str) -> None:
     """One warning line on stderr (``spikenerf: warning: ...``)."""
     print(f"spikenerf: warning: {message}", file=sys.stderr)
@@ -250,6 +254,7 @@ class Trainer:
         if self.config.compile and static_samples(self.model):  # the whole device part of the step instead
             compile_step(self.method, self.model, self.device, warn)
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
+        self.told_dropped = False  # tell_dropped's one warning
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
         if ckpt is not None:
@@ -349,14 +354,20 @@ class Trainer:
             self.rays += step.rays
             for means in (recent, interval):
                 means.add({"loss": loss, **step.terms, "srgb_mse": step.srgb_mse})
+            if step.dropped is not None:  # static_samples: slots cut a ray, read with the log's values
+                recent.add({DROPPED: step.dropped / max(step.rays, 1)})
             bar.update()
             last = self.iteration == cfg.iters
             if self.iteration % cfg.log_every == 0 or last:  # the only per-step read of device values
                 m = recent.read()
+                dropped = m.pop(DROPPED, 0.0)
+                self.tell_dropped(dropped)
                 bar.set_postfix(loss=f"{m['loss']:.4f}", psnr=f"{mse_to_psnr(m['srgb_mse']):.2f}",
                                 rays_s=f"{self.rays_per_second:.0f}")  # fmt: skip
                 if log is not None:
                     log.scalars(self.iteration, step_scalars(m, lam, self.optimizer, self.rays_per_second))
+                    if static_samples(self.model):
+                        log.scalars(self.iteration, {"render/dropped_samples_per_ray": dropped})
             if (cfg.eval_every and self.iteration % cfg.eval_every == 0) or last:
                 renders: list | None = [] if log is not None else None
                 m = interval.read()
@@ -398,6 +409,20 @@ class Trainer:
             }
             write_text_atomic(self.out / SUMMARY, json.dumps(data, indent=2) + "\n")
         return summary
+
+    def tell_dropped(self, per_ray: float) -> None:
+        """One warning line, the first time the ``static_samples`` budget cut samples (``per_ray``: slots
+        cut a ray, averaged over the steps since the last log), with a budget that would have held them."""
+        if per_ray <= 0 or self.told_dropped:
+            return
+        self.told_dropped = True
+        budget = static_samples(self.model)
+        enough = math.ceil(1.25 * (budget + per_ray))
+        warn(
+            f"static_samples={budget} cut {per_ray:.2f} samples a ray (averaged over the last "
+            f"{self.config.log_every} steps, iteration {self.iteration}): far parts of rays are not "
+            f"rendered; --field-option static_samples={enough} would hold them"
+        )
 
     @property
     def rays_per_second(self) -> float:
