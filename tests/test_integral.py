@@ -180,11 +180,13 @@ def test_window_loss_reaches_the_field_through_the_trainer_step(
     one = _grads(dataset_dir, dataset, tmp_path / "a", lengths=[5], samples=2, groups=1)
     again = _grads(dataset_dir, dataset, tmp_path / "b", lengths=[5], samples=2, groups=1)
     other = _grads(dataset_dir, dataset, tmp_path / "c", lengths=[3], samples=2, groups=2)
+    phased = _grads(dataset_dir, dataset, tmp_path / "d", lengths=[5], samples=2, groups=1, interpolate=True)
     grid = [k for k in one if "planes" in k or "lines" in k]
     assert grid and all(torch.equal(one[k], again[k]) for k in one)
-    assert sum(float((one[k] - other[k]).abs().sum()) for k in grid) > 1e-3 * sum(
-        float(one[k].abs().sum()) for k in grid
-    )
+    for changed in (other, phased):  # the interpolated counts are other targets: another gradient
+        assert sum(float((one[k] - changed[k]).abs().sum()) for k in grid) > 1e-3 * sum(
+            float(one[k].abs().sum()) for k in grid
+        )
 
 
 def test_learned_prior_adds_its_weighted_term_and_its_gradient(
@@ -251,6 +253,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.prior_weight=-1"], "integral.prior_weight"),
         (["--set", "integral.prior_weight=nan"], "integral.prior_weight"),
         (["--set", "integral.prior_rays=0"], "integral.prior_rays"),
+        (["--set", "integral.interpolate=maybe"], "integral.interpolate"),
     ],
 )
 def test_bad_window_settings_are_one_line(
@@ -309,3 +312,61 @@ def test_counts_stay_on_the_training_gpu(dataset_dir: Path, dataset, tmp_path: P
     trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
     assert "counts" in trainer.resident and trainer.method.counts.counts.is_cuda
     assert trainer.train().iteration == cfg.iters
+
+
+def _anchors(spikes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First and last anchor (the step after a spike) of each pixel of a (T, 1, W) stream."""
+    fired = spikes[:, 0, :].astype(bool)
+    steps = np.arange(1, len(spikes) + 1)[:, None]
+    first = np.where(fired, steps, len(spikes) + 1).min(axis=0)
+    return first, np.where(fired, steps, -1).max(axis=0)
+
+
+def test_interpolated_counts_are_exact_to_one_steps_light_on_steady_pixels() -> None:
+    rates = (0.07, 0.3, 0.8)
+    spikes = _constant_stream(rates)
+    poses = np.tile(np.eye(4, dtype=np.float32), (len(spikes), 1, 1))
+    plain, fine = count_targets(spikes, poses, 1.0), count_targets(spikes, poses, 1.0, interpolate=True)
+    assert plain.phase is None and fine.phase.dtype == torch.uint8 and fine.phase.shape == fine.counts.shape
+    assert fine.nbytes == plain.nbytes + fine.phase.nbytes
+    first, last = _anchors(spikes)
+    phase = fine.phase[:, 0, :, 0]
+    for x in range(3):  # 0 outside the pixel's first and last anchors and on each anchor
+        assert not phase[: first[x] + 1, x].any() and not phase[last[x] :, x].any()
+    g = torch.Generator().manual_seed(0)
+    for length in (1, 3, 11):
+        x = torch.randint(0, 3, (600,), generator=g)
+        lo = torch.as_tensor(first)[x]
+        start = lo + (torch.rand(600, generator=g) * (torch.as_tensor(last)[x] - length - lo)).long()
+        pixels = torch.stack([x, torch.zeros_like(x)], dim=1)
+        truth = torch.as_tensor(rates)[x]
+        error = (fine.window_mean(start, start + length, pixels)[:, 0] - truth).abs()
+        assert torch.all(error <= (truth + 1 / 256) / length + 1e-6), float(error.max())
+        raw = (plain.window_mean(start, start + length, pixels)[:, 0] - truth).abs()
+        dark = x == 0
+        assert raw[dark].max() > 5 * error[dark].max()  # ± φ / L without the phases
+
+
+def test_interpolated_counts_stay_within_two_thresholds_and_beat_the_plain_counts() -> None:
+    spikes, light = _stream(steps=400, h=4, w=6, seed=3)
+    light = light * np.linspace(0.05, 0.6, 6, dtype=np.float32)  # dark to bright columns
+    acc, fired = torch.zeros(4, 6), []
+    for step in torch.as_tensor(light):
+        f, acc = fire(acc, step, 1.0)
+        fired.append(f)
+    spikes = torch.stack(fired).to(torch.uint8).numpy()
+    poses = np.tile(np.eye(4, dtype=np.float32), (400, 1, 1))
+    plain, fine = count_targets(spikes, poses, 1.0), count_targets(spikes, poses, 1.0, interpolate=True)
+    g = torch.Generator().manual_seed(1)
+    for length in (1, 5):
+        start = torch.randint(60, 340 - length, (3000,), generator=g)
+        pixels = torch.stack(
+            [torch.randint(0, 6, (3000,), generator=g), torch.randint(0, 4, (3000,), generator=g)], 1
+        )
+        sums = np.concatenate([np.zeros((1, 4, 6), np.float32), np.cumsum(light, axis=0)])
+        x, y = pixels[:, 0].numpy(), pixels[:, 1].numpy()
+        truth = torch.as_tensor((sums[start + length, y, x] - sums[start, y, x]) / length)
+        error = fine.window_mean(start, start + length, pixels)[:, 0] - truth
+        raw = plain.window_mean(start, start + length, pixels)[:, 0] - truth
+        assert error.abs().max() < 2.0 / length
+        assert error.pow(2).mean() < 0.5 * raw.pow(2).mean()

@@ -107,6 +107,8 @@ class IntegralConfig:
         band: count errors within the interval ``± φ / L`` of a noise-free pixel as 0.
         align: move each window onto spikes of its pixel (``CountTargets.align``: exact to the pixel's own
             light, not to ``± φ / L``), up to ``ALIGN_LONGEST`` times the longest length; needs holdout off.
+        interpolate: add to each count the fraction of the next spike's light gathered by then, taken
+            linearly between the pixel's spikes (``data.integral.count_phases``): sub-count targets.
         prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step
             (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
             step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
@@ -123,6 +125,7 @@ class IntegralConfig:
     groups: int = 1
     band: bool = False
     align: bool = False
+    interpolate: bool = False
     prior: IntegralPrior = "none"
     prior_weight: float = 1.0
     prior_rays: int = 256

@@ -46,7 +46,7 @@ def keep_targets_on_device(method: Any, device: torch.device, free: int | None =
     if getattr(method, "spikes", None) is not None:
         sizes["spikes"] = method.spikes.spikes.nbytes
     if getattr(method, "counts", None) is not None:  # spike-integral's prefix counts
-        sizes["counts"] = method.counts.counts.nbytes
+        sizes["counts"] = method.counts.nbytes
     names = resident_names(sizes, free_device_memory(device) if free is None else free)
     if "targets" in names:
         method.targets = method.targets.images_on(device)

@@ -518,7 +518,8 @@ class SpikeIntegral(TrainMethod):
             t = self.config.targets
             self.targets = stream_targets(dataset, self.config.color, "learned", t.window, False, t.mask_n,
                                           stream, 1)  # fmt: skip
-        self.counts = count_targets(stream, dataset.trajectory.poses, dataset.threshold)
+        c = self.config.integral
+        self.counts = count_targets(stream, dataset.trajectory.poses, dataset.threshold, c.interpolate)
         self.step_numbers = torch.as_tensor(np.asarray(dataset.trajectory.steps))  # what the refiner takes
         longest = max(self.config.integral.lengths)
         if longest > self.counts.steps:
