@@ -3,6 +3,7 @@ gradcheck, unbiasedness), the sampler's hold-out and resume, the gradient reachi
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -246,7 +247,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.groups=-1"], "integral.groups"),
         (["--set", "integral.lengths=[]"], "--integral-window"),
         (["--recon", "learned"], "--recon"),
-        (["--integral-samples", "12"], "--integral-samples"),  # more steps than the 11-step window holds
+        (["--integral-window", "5", "--integral-samples", "6"], "--integral-samples"),  # more than it holds
         (["--batch", "1", "--integral-samples", "2"], "--batch"),
         (["--set", "integral.align=true", "--holdout"], "--holdout"),
         (["--set", "integral.prior=tfp"], "integral.prior"),
@@ -254,6 +255,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.prior_weight=nan"], "integral.prior_weight"),
         (["--set", "integral.prior_rays=0"], "integral.prior_rays"),
         (["--set", "integral.interpolate=maybe"], "integral.interpolate"),
+        (["--set", "integral.interpolate=true", "--holdout"], "--holdout"),
     ],
 )
 def test_bad_window_settings_are_one_line(
@@ -370,3 +372,39 @@ def test_interpolated_counts_stay_within_two_thresholds_and_beat_the_plain_count
         raw = plain.window_mean(start, start + length, pixels)[:, 0] - truth
         assert error.abs().max() < 2.0 / length
         assert error.pow(2).mean() < 0.5 * raw.pow(2).mean()
+
+
+@pytest.mark.parametrize(
+    ("motion", "samples", "length"),
+    [(0.179, 1, 5), (0.3, 1, 5), (0.31, 1, 4), (0.48, 1, 3), (0.6, 1, 2), (3.0, 1, 2), (0.48, 4, 4),
+     (math.nan, 1, 5), (0.0, 1, 5)],
+)  # fmt: skip
+def test_the_default_window_spans_at_most_its_pixels_of_motion(
+    motion: float, samples: int, length: int
+) -> None:
+    from spikenerf.train.methods import INTEGRAL_SPAN_PX, default_window
+
+    assert default_window(motion, samples) == length
+    if samples == 1 and 2 * motion <= INTEGRAL_SPAN_PX < 5 * motion:  # the longest window that fits the span
+        assert length * motion <= INTEGRAL_SPAN_PX < (length + 1) * motion
+
+
+def test_a_run_records_the_window_its_dataset_chose_and_resumes_with_it(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.scenes.trajectory import image_motion
+    from spikenerf.train.methods import default_window
+
+    motion = image_motion(dataset.trajectory.poses, dataset.intrinsics, dataset.scene_box)
+    expected = default_window(motion)
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    assert cfg.integral.lengths is None
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    assert trainer.config.integral.lengths == [expected]
+    trainer.train(stop_after=1)
+    assert f"- {expected}" in (tmp_path / "run" / "config.yaml").read_text()
+    again = Trainer(cfg, tmp_path / "run", dataset, resume=True, progress=False)  # not asked: the run's own
+    assert again.config.integral.lengths == [expected]
+    given = test_train._config(dataset_dir, method="spike-integral")
+    given.integral.lengths = [7]
+    assert Trainer(given, tmp_path / "other", dataset, progress=False).config.integral.lengths == [7]

@@ -342,6 +342,8 @@ def test_list_scenes_and_info(tmp_path: Path, capsys) -> None:
     main(["info", str(tmp_path / "ds")])
     text = capsys.readouterr().out
     assert "steps: 50" in text and "16×16" in text and "spikes [rgb]" in text and "test views: 3" in text
+    motion = float(text.split("image motion: ", 1)[1].split()[0])
+    assert 0 < motion < 1  # a 16-pixel image on a 50-step orbit: 7.2° a step
     assert (tmp_path / "ds" / "preview.png").is_file()
 
 

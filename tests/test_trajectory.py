@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spikenerf.core.errors import InputError
-from spikenerf.scenes.trajectory import Intrinsics, look_at, novel_views, orbit
+from spikenerf.scenes.trajectory import Intrinsics, image_motion, look_at, novel_views, orbit
 
 
 def _project(c2w: np.ndarray, k: Intrinsics, point: np.ndarray) -> tuple[float, float]:
@@ -118,3 +118,24 @@ def test_orbit_properties(radius: float, elevation: float, turns: float, steps: 
     np.testing.assert_allclose(np.linalg.norm(eyes, axis=1), radius, rtol=1e-9)
     np.testing.assert_allclose(-traj.poses[:, :3, 2], -eyes / radius, atol=1e-9)
     np.testing.assert_allclose(np.linalg.det(traj.poses[:, :3, :3]), 1.0, atol=1e-9)
+
+
+def test_image_motion_of_a_sideways_camera_is_focal_times_shift_over_depth() -> None:
+    k = Intrinsics.from_fov(200, 100, 0.8)
+    poses = np.tile(np.eye(4), (5, 1, 1))
+    poses[:, 0, 3] = 0.01 * np.arange(5)  # 0.01 to the right a step, looking down −z
+    box = np.array([[-0.5, -0.3, -4.001], [0.5, 0.3, -3.999]])  # a thin slab 4 in front
+    assert image_motion(poses, k, box) == pytest.approx(k.fl_x * 0.01 / 4.0, rel=1e-3)
+    assert math.isnan(image_motion(poses[:2], k, np.add(box, [0, 0, 10])))  # behind the camera: nothing seen
+    with pytest.raises(InputError, match="poses"):
+        image_motion(poses[:1], k, box)
+
+
+def test_image_motion_doubles_with_the_image_size_on_an_orbit() -> None:
+    traj = orbit(4.0, 30.0)
+    box = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    small = image_motion(traj.poses, Intrinsics.from_fov(200, 200, 0.69), box)
+    assert 0.1 < small < 1.0
+    assert image_motion(traj.poses, Intrinsics.from_fov(400, 400, 0.69), box) == pytest.approx(
+        2 * small, rel=0.02
+    )

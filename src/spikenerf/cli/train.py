@@ -20,7 +20,7 @@ from spikenerf.train.config import (
     load_run_config,
 )
 from spikenerf.train.logger import LOG_KINDS
-from spikenerf.train.methods import METHOD_CLASSES
+from spikenerf.train.methods import INTEGRAL_SHORTEST, INTEGRAL_SPAN_PX, INTEGRAL_WINDOW, METHOD_CLASSES
 from spikenerf.train.trainer import CONFIG_FILE, train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
@@ -131,10 +131,11 @@ PARAM_FLAGS = {
 @click.option(
     "--integral-window",
     type=str,
-    default=",".join(map(str, _D.integral.lengths)),
-    show_default=True,
+    default=None,
     callback=lambda ctx, param, value: _lengths(value),
-    help="spike-integral: window length(s) in steps, comma-separated (each target draws one).",
+    help="spike-integral: window length(s) in steps, comma-separated (each target draws one) "
+    f"[default: {INTEGRAL_WINDOW}, shortened to span at most {INTEGRAL_SPAN_PX:g} px of the dataset's "
+    f"image motion (`spikenerf info` prints it), at least {INTEGRAL_SHORTEST}].",
 )
 @click.option(
     "--integral-samples",
@@ -285,8 +286,11 @@ def command(
     )
 
 
-def _lengths(text: str) -> list[int]:
-    """``--integral-window 11`` or ``5,11,21`` → [11] or [5, 11, 21] (one line naming the flag otherwise)."""
+def _lengths(text: str | None) -> list[int] | None:
+    """``--integral-window 11`` or ``5,11,21`` → [11] or [5, 11, 21] (one line naming the flag otherwise);
+    None (not given) stays None, the dataset's default."""
+    if text is None:
+        return None
     try:
         values = [int(part) for part in text.split(",")]
     except ValueError:

@@ -27,6 +27,7 @@ from spikenerf.data.dataset import (
     spike_files,
 )
 from spikenerf.data.reconstruction import frame_at
+from spikenerf.scenes.trajectory import image_motion
 
 PREVIEW = "preview.png"
 #: TFP window of the preview (frames), shortened for streams with fewer steps
@@ -115,6 +116,9 @@ def describe(path: str | Path) -> str:
         f"scene box: {ds.scene_box.tolist()}   near/far: {ds.near:.3g}/{ds.far:.3g}",
         f"GT renders: {len(ds.gt)} (every {cfg.get('gt_every', '?')} steps)   test views: {len(ds.test)}",
     ]
+    if n >= 2:  # what --integral-window should span (docs/spike-integral.md, Choosing L and S)
+        motion = image_motion(traj.poses, k, ds.scene_box)
+        lines.append(f"image motion: {motion:.3g} px a step (median over points in the scene box)")
     if ds.blur is not None and len(ds.blur):
         span = ds.blur.step_ranges[:, 1] - ds.blur.step_ranges[:, 0]
         lines.append(

@@ -236,3 +236,37 @@ def pose_at(poses: np.ndarray, position: float) -> np.ndarray:
     i0 = int(np.clip(np.floor(position), 0, len(poses) - 1))
     i1 = min(i0 + 1, len(poses) - 1)
     return interpolate_poses(poses[i0], poses[i1], float(np.clip(position - i0, 0.0, 1.0)))
+
+
+def image_motion(poses: np.ndarray, intrinsics: Intrinsics, box: np.ndarray, pairs: int = 64) -> float:
+    """How far the image moves in one step: the median, in pixels, of the displacement between consecutive
+    poses of a 6³ lattice of points inside ``box``, over ``pairs`` step pairs spread along the trajectory
+    (points behind either camera or outside the first image are left out). NaN when none is seen.
+
+    Args:
+        poses: (T, 4, 4) camera-to-world, OpenGL axes (the camera looks down −z), T ≥ 2.
+        intrinsics: the pinhole camera. box: (2, 3) scene box min/max corners.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) < 2:
+        raise InputError(f"poses must be (T ≥ 2, 4, 4), found {poses.shape}", param="poses")
+    lo, hi = np.asarray(box, dtype=np.float64)
+    grid = np.linspace(0.1, 0.9, 6)
+    points = lo + np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), -1).reshape(-1, 3) * (hi - lo)
+
+    def project(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cam = (points - c2w[:3, 3]) @ c2w[:3, :3]  # world → camera axes
+        depth = -cam[:, 2]
+        safe = np.where(depth > 1e-9, depth, 1.0)
+        u = intrinsics.fl_x * cam[:, 0] / safe + intrinsics.cx
+        v = -intrinsics.fl_y * cam[:, 1] / safe + intrinsics.cy
+        return np.stack([u, v], axis=-1), depth
+
+    moves = []
+    for k in np.unique(np.linspace(0, len(poses) - 2, pairs).astype(int)):
+        (a, za), (b, zb) = project(poses[k]), project(poses[k + 1])
+        seen = (za > 1e-9) & (zb > 1e-9) & (a[:, 0] >= 0) & (a[:, 0] < intrinsics.width)
+        seen &= (a[:, 1] >= 0) & (a[:, 1] < intrinsics.height)
+        moves.append(np.linalg.norm(b - a, axis=-1)[seen])
+    moved = np.concatenate(moves)
+    return float(np.median(moved)) if len(moved) else math.nan

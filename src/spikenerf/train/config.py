@@ -101,14 +101,18 @@ class IntegralConfig:
     renders at steps drawn inside the window at their own poses (docs/spike-integral.md).
 
     Attributes:
-        lengths: window lengths L in steps; each target draws one uniformly.
+        lengths: window lengths L in steps; each target draws one uniformly. None (the default): one
+            length from the dataset, ``INTEGRAL_WINDOW`` steps shortened to span at most
+            ``INTEGRAL_SPAN_PX`` pixels of image motion (``train.methods.default_window``), recorded
+            resolved in the run's config.yaml.
         samples: S steps rendered per estimate of a window's mean render (stratified over the window).
         groups: G independent estimates per window: 1 squared error; ≥ 2 the unbiased product form.
         band: count errors within the interval ``± φ / L`` of a noise-free pixel as 0.
         align: move each window onto spikes of its pixel (``CountTargets.align``: exact to the pixel's own
             light, not to ``± φ / L``), up to ``ALIGN_LONGEST`` times the longest length; needs holdout off.
         interpolate: add to each count the fraction of the next spike's light gathered by then, taken
-            linearly between the pixel's spikes (``data.integral.count_phases``): sub-count targets.
+            linearly between the pixel's spikes (``data.integral.count_phases``): sub-count targets;
+            needs holdout off.
         prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step
             (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
             step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
@@ -120,7 +124,7 @@ class IntegralConfig:
         "prior_rays": Bound(least=1),
     }  # fmt: skip
 
-    lengths: list[int] = dataclasses.field(default_factory=lambda: [INTEGRAL_WINDOW])
+    lengths: list[int] | None = None
     samples: int = INTEGRAL_SAMPLES
     groups: int = 1
     band: bool = False
@@ -135,6 +139,8 @@ class IntegralConfig:
         """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1,
         ``groups`` < 1 or more ``samples`` than the shortest window holds."""
         check_config(self, "integral.")
+        if self.lengths is None:  # chosen from the dataset (at least ``samples`` steps)
+            return
         if not self.lengths or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
                                        for n in self.lengths):  # fmt: skip
             raise InputError(

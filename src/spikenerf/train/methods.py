@@ -31,7 +31,9 @@ here, its entry in :data:`METHOD_CLASSES` and its name in the ``Method`` Literal
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple, Protocol
 
@@ -55,6 +57,7 @@ from spikenerf.data.targets import (
     stream_targets,
 )
 from spikenerf.render import RadianceModel, RenderOutput, render_spike_window
+from spikenerf.scenes.trajectory import image_motion
 from spikenerf.train.exposure_poses import ExposureLearner
 from spikenerf.train.losses import (
     paper_spike_loss,
@@ -70,12 +73,30 @@ Config = Any
 
 #: rays per step when ``batch`` is not given: 1024 targets (spike-integral: :data:`INTEGRAL_WINDOWS`)
 DEFAULT_BATCH = 1024
-#: spike-integral's default window length and steps rendered per window (docs/spike-integral.md, Choosing)
+#: spike-integral's longest default window and steps rendered per window (docs/spike-integral.md, Choosing)
 INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 5, 1
+#: the default window is shortened so that the image moves at most this many pixels in it, to no fewer steps
+#: than INTEGRAL_SHORTEST (:func:`default_window`)
+INTEGRAL_SPAN_PX, INTEGRAL_SHORTEST = 1.5, 2
 #: spike-integral's default windows a step (docs/spike-integral.md, Cost): 4096 rays at one render each
 INTEGRAL_WINDOWS = 4096
 #: a spike-aligned window (``integral.align``) spans at most this many times the longest window length
 ALIGN_LONGEST = 8
+
+
+def default_window(motion: float, samples: int = 1) -> int:
+    """spike-integral's window length when none is given: :data:`INTEGRAL_WINDOW` steps, shortened so that
+    the image moves at most :data:`INTEGRAL_SPAN_PX` pixels in it, to no fewer than
+    :data:`INTEGRAL_SHORTEST` steps nor fewer than ``samples`` (the renders a window needs).
+
+    Args:
+        motion: pixels the image moves a step (``scenes.trajectory.image_motion``); NaN or ≤ 0: unknown,
+            the longest window.
+    """
+    length = INTEGRAL_WINDOW
+    if math.isfinite(motion) and motion > 0:
+        length = min(INTEGRAL_WINDOW, max(INTEGRAL_SHORTEST, math.floor(INTEGRAL_SPAN_PX / motion)))
+    return max(length, samples)
 
 
 class TrainState(Protocol):
@@ -211,6 +232,12 @@ class TrainMethod:
         """Build :attr:`targets` (and the spike targets of a method with a spike loss)."""
         stream = load_stream(dataset, self.config.color) if self.uses_stream else None
         self.targets = self.image_targets(dataset, stream)
+
+    @classmethod
+    def for_dataset(cls, config: Config, dataset: SpikeDataset) -> Config:
+        """``config`` with the defaults that depend on the dataset filled in (none here; a run records
+        them in its ``config.yaml``)."""
+        return config
 
     def hold_out(self, dataset: SpikeDataset) -> Holdout | None:
         """Decide the held-out check steps (``config.holdout``; None: trains on every step), which
@@ -500,6 +527,16 @@ class SpikeIntegral(TrainMethod):
                 param="targets.recon",
             )
 
+    @classmethod
+    def for_dataset(cls, config: Config, dataset: SpikeDataset) -> Config:
+        """The window length, where none is given: :func:`default_window` of the dataset's image motion."""
+        c = config.integral
+        if c.lengths is not None:
+            return config
+        motion = image_motion(dataset.trajectory.poses, dataset.intrinsics, dataset.scene_box)
+        integral = dataclasses.replace(c, lengths=[default_window(motion, c.samples)])
+        return dataclasses.replace(config, integral=integral)
+
     def __init__(self, config: Config) -> None:
         super().__init__(config)
         self.counts: CountTargets | None = None
@@ -536,6 +573,12 @@ class SpikeIntegral(TrainMethod):
             starts = {n: self.holdout.window_starts(n) for n in set(c.lengths)}
             for n, allowed in starts.items():
                 checked(self.holdout, len(allowed), f"{n}-step window")
+        if c.interpolate and self.holdout is not None:
+            raise InputError(
+                "integral.interpolate: a phase reads the spikes around its step, held-out ones too; set "
+                "holdout false",
+                param=("integral.interpolate", "holdout"),
+            )
         aligner = None
         if c.align:
             if self.holdout is not None:

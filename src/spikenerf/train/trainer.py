@@ -51,7 +51,7 @@ from spikenerf.train.device import check_batch_fits, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
-from spikenerf.train.methods import make_method
+from spikenerf.train.methods import make_method, method_class
 from spikenerf.train.pose_refine import pose_refinement
 from spikenerf.train.run import check_resume_fits, dataset_fingerprint
 
@@ -121,6 +121,9 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
         )
     if given.batch is None:  # not asked: the rays per step the run trained with
         given = dataclasses.replace(given, batch=stored.batch)
+    if given.integral.lengths is None:  # not asked: the windows the run trained with
+        integral = dataclasses.replace(given.integral, lengths=stored.integral.lengths)
+        given = dataclasses.replace(given, integral=integral)
     return stored, given
 
 
@@ -210,6 +213,7 @@ class Trainer:
             config = _check_resume(*_stored_and_given(self.out / CONFIG_FILE, config), self.out / CONFIG_FILE)
         self.config = config.validate().resolved()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
+        self.config = method_class(self.config.method).for_dataset(self.config, self.dataset).validate()
         if ckpt is not None:  # the same dataset, and not fewer iterations than already done
             check_resume_fits(ckpt, self.config, self.dataset)
         check_train_resources(self.config, self.dataset, self.out)
