@@ -121,7 +121,6 @@ class StepLosses:
         weights: name -> weight this step (λ(it) for ``spike``); a term without one is added as it is.
         srgb_mse: 0-d MSE of the sRGB-encoded batch (the train PSNR; no gradient, stays on the device).
         rays: rays rendered this step.
-        weights: name -> weight this step (see ``terms``).
         dropped: 0-d int64 on the device: the sample slots that the grid's ``static_samples`` budget cut
             from this step's target renders (``RenderOutput.dropped_samples``); None with the packed render.
     """
