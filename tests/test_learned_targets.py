@@ -100,4 +100,6 @@ def test_batched_learned_inference_on_cuda_equals_the_cpu() -> None:
     spikes = _stream("rgb")
     cpu = reconstruct_learned(spikes, "rgb", 1.5)
     gpu = reconstruct_learned(spikes, "rgb", 1.5, device="cuda")  # CUDA_BATCH frames per call
-    np.testing.assert_allclose(gpu, cpu, rtol=1e-4, atol=1e-4)
+    # cuDNN convolves in TF32 by default (10-bit mantissa): 5.8e-4 apart on an H200, about one float16 step
+    # of the stored targets at 0.5 (4.9e-4); a wrong frame order or tile seam would be off by far more
+    np.testing.assert_allclose(gpu, cpu, rtol=0, atol=2e-3)

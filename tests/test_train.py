@@ -70,6 +70,7 @@ def dataset(dataset_dir: Path):  # type: ignore[no-untyped-def]
 def _config(dataset_dir: Path, **kw) -> TrainConfig:  # type: ignore[no-untyped-def]
     spike = kw.pop("spike", {})
     kw.setdefault("method", "spike-nerf")  # these tests exercise spike-nerf's parts (train's default differs)
+    kw.setdefault("device", "cpu")
     cfg = TrainConfig(
         dataset=str(dataset_dir),
         iters=6,
@@ -77,7 +78,6 @@ def _config(dataset_dir: Path, **kw) -> TrainConfig:  # type: ignore[no-untyped-
         eval_every=3,
         eval_views=1,
         ckpt_every=3,
-        device="cpu",
         **kw,
     )
     cfg.field_config = dict(TINY_GRID) if cfg.field == "grid" else {**_TINY_MLP}

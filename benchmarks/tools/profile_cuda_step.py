@@ -4,7 +4,7 @@ Usage (from the repository root; meant for a CUDA host, runs on a CPU too)::
 
     PYTHONPATH=src python -m benchmarks.tools.profile_cuda_step DATASET [--device cuda]
         [--methods nerf-gt,spike-integral] [--batches 4096,16384] [--warmup 100] [--steps 100]
-        [--profile-steps 10] [--json OUT.json]
+        [--profile-steps 10] [--compile] [--field-option KEY=VALUE ...] [--json OUT.json]
 
 For each method × batch a fresh ``Trainer`` (evaluation and checkpoints off) trains ``--warmup``
 iterations, then ``--steps`` more are timed with the device synchronised before and after (ms per step,
@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import torch
+import yaml
 from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
@@ -61,7 +62,8 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
     """Time and profile one method × batch; returns the figures printed."""
     device = torch.device(args.device)
     cfg = TrainConfig(dataset=str(dataset), method=method, batch=batch, iters=10**6, eval_every=0,  # type: ignore[arg-type]
-                      eval_views=1, device=args.device, compile=args.compile)  # fmt: skip
+                      eval_views=1, device=args.device, compile=args.compile,
+                      field_config=dict(args.field_option))  # fmt: skip
     trainer = Trainer(cfg, root / f"{method}-{batch}", progress=False)
     trainer.evaluate = lambda *_a, **_k: float("nan")  # type: ignore[method-assign]
     trainer.checkpoint = lambda *_a, **_k: None  # type: ignore[method-assign]
@@ -84,6 +86,8 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
     out = {
         "method": method,
         "batch": batch,
+        "compile": args.compile,
+        "field_options": dict(args.field_option),
         "ms_per_step": ms,
         "rays_per_second": rays / wall,
         "gpu_kernel_ms_per_step": kernel_us / 1000,
@@ -102,13 +106,22 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
     gpu, busy = out["gpu_kernel_ms_per_step"], 100 * out["gpu_busy_share"]
     calls = ", ".join(f"{v:.0f} {k}" for k, v in counts.items())
     rate = out["rays_per_second"] / 1e3
-    print(f"{method} batch {batch}: {ms:.2f} ms/step, {rate:.1f} k rays/s, GPU {gpu:.2f} ms/step "
+    opts = "".join(f" {k}={v}" for k, v in args.field_option) + (" --compile" if args.compile else "")
+    print(f"{method} batch {batch}{opts}: {ms:.2f} ms/step, {rate:.1f} k rays/s, GPU {gpu:.2f} ms/step "
           f"({busy:.0f} % busy), {calls} per step", flush=True)  # fmt: skip
     for title, key in (("host", "top_host_ops"), ("device", "top_device_ops")):
         print(f"  most {title} time (ms/step, calls/step):")
         for name, t, c in out[key]:
             print(f"    {t:8.3f} {c:7.1f}  {name[:90]}")
     return out
+
+
+def field_option(item: str) -> tuple[str, object]:
+    """``KEY=VALUE`` as (key, YAML-parsed value), for ``--field-option``."""
+    key, sep, value = item.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, found {item!r}")
+    return key, yaml.safe_load(value)
 
 
 def main() -> None:
@@ -121,6 +134,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--profile-steps", type=int, default=10)
     parser.add_argument("--compile", action="store_true", help="train with --compile")
+    parser.add_argument("--field-option", type=field_option, action="append", default=[], metavar="KEY=VALUE",
+                        help="a field config entry (e.g. static_samples=64); repeatable")  # fmt: skip
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args()
     if args.device != "cpu":
