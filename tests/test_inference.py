@@ -21,8 +21,8 @@ from spikenerf.render.inference import (
     MAX_CHUNK,
     MEMORY_SHARE,
     auto_chunk,
-    check_precision,
     inference_chunk,
+    resolve_precision,
 )
 from spikenerf.scenes.trajectory import Intrinsics, look_at
 from spikenerf.train.trainer import Trainer
@@ -66,12 +66,14 @@ def test_bf16_autocast_renders_float32_close_to_fp32(kind: str) -> None:
 
 
 def test_precision_is_checked_and_fp16_needs_cuda() -> None:
-    check_precision("bf16", torch.device("cpu"))
+    assert resolve_precision("bf16", torch.device("cpu")) == "bf16"
+    assert resolve_precision("auto", torch.device("cpu")) == "fp32"
+    assert resolve_precision("auto", torch.device("cuda")) == "fp16"
     with pytest.raises(InputError, match="precision fp16 needs a CUDA device") as err:
-        check_precision("fp16", torch.device("cpu"))
+        resolve_precision("fp16", torch.device("cpu"))
     assert err.value.params == ("precision",)
-    with pytest.raises(InputError, match="precision must be one of fp32, fp16, bf16"):
-        check_precision("fp8", torch.device("cpu"))
+    with pytest.raises(InputError, match="precision must be one of auto, fp32, fp16, bf16"):
+        resolve_precision("fp8", torch.device("cpu"))
 
 
 def test_automatic_chunk_follows_the_free_memory() -> None:

@@ -93,6 +93,29 @@ def test_a_small_budget_cuts_the_march_at_its_end_and_counts_the_dropped_slots()
     assert static.opacity[3] == 0 and torch.equal(static.color[3], torch.ones(3))
 
 
+def test_the_spare_slots_spread_over_spare_rays_at_distinct_points() -> None:
+    """Budget left over goes to rays N … 2N − 1, evenly and at distinct points: no scatter index or grid
+    texel is shared by the whole remainder (on a GPU that serialised a step's backward)."""
+    model = _model(occupancy=True)
+    origins, dirs, near, far = _rays(model)
+    n, step = len(near), model.field.step_size
+    o_n, d_n = (
+        model.field.normalize(origins),
+        dirs * (2.0 / (model.field.scene_box[1] - model.field.scene_box[0])),
+    )
+    counts = model._counts(near, far, step)
+    budget = ALL_FIT * n
+    ray, ray_at, k, keep, dropped = model._march_static(o_n, d_n, near, far, step, budget)
+    spare = ray >= n
+    used = int(counts.sum())
+    assert int(dropped) == 0 and int(spare.sum()) == budget - used > n
+    assert torch.all(ray[1:] >= ray[:-1]) and int(ray.max()) == 2 * n - 1 and not keep[spare].any()
+    per_ray = torch.bincount(ray, minlength=2 * n)
+    assert torch.equal(per_ray[:n], counts) and int(per_ray[n:].max()) <= -(-(budget - used) // n)
+    points = ray_at[spare] * (budget + 1) + k[spare]
+    assert len(torch.unique(points)) == len(points) and int(ray_at.max()) < n
+
+
 def test_a_tiny_budget_with_occupancy_stays_finite_and_an_empty_batch_renders() -> None:
     model = _model(occupancy=True)
     _static(model, 1)

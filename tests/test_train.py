@@ -71,10 +71,10 @@ def _config(dataset_dir: Path, **kw) -> TrainConfig:  # type: ignore[no-untyped-
     spike = kw.pop("spike", {})
     kw.setdefault("method", "spike-nerf")  # these tests exercise spike-nerf's parts (train's default differs)
     kw.setdefault("device", "cpu")
+    kw.setdefault("batch", 64)
     cfg = TrainConfig(
         dataset=str(dataset_dir),
         iters=6,
-        batch=64,
         eval_every=3,
         eval_views=1,
         ckpt_every=3,

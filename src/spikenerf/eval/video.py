@@ -42,7 +42,7 @@ from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, read_pose_file
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.render import iter_spike_stream, render_image
-from spikenerf.render.inference import check_precision, inference_chunk
+from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.scenes.trajectory import orbit
 from spikenerf.train.run import load_run
 
@@ -185,10 +185,10 @@ def render_run(
     chunk: int = 8192,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
-    precision: str = "fp32",
+    precision: str = "auto",
 ) -> dict[str, Any]:
     """Render a run along ``trajectory`` into ``out`` (see the module doc); returns render.json's content.
-    ``chunk``: rays per render call (0 = automatic); ``precision``: fp32 | fp16 | bf16 of the views
+    ``chunk``: rays per render call (0 = automatic); ``precision``: auto | fp32 | fp16 | bf16 of the views
     (:mod:`spikenerf.render.inference`; the spike stream renders in fp32)."""
     bad_steps = spike_steps is not None and spike_steps < 1
     if not (0 < fps_video < float("inf")) or orbit_frames < 1 or bad_steps:
@@ -234,11 +234,11 @@ def check_render_resources(dataset: SpikeDataset, views: int, spike_steps: int, 
 def _render_locked(
     run_dir: str | Path, out: Path, trajectory: str, spikes: bool, fps_video: float, orbit_frames: int,
     spike_steps: int | None, seed: int, device: str, dataset_root: str | Path | None, chunk: int,
-    progress: bool, log: Callable[[str], None] | None, precision: str = "fp32",
+    progress: bool, log: Callable[[str], None] | None, precision: str = "auto",
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
     model, _, dataset = load_run(run_dir, dataset_root, device, train_images=False)  # renders new views only
-    check_precision(precision, model.device)
+    precision = resolve_precision(precision, model.device)
     chunk = inference_chunk(model, chunk)
     views = orbit_frames if trajectory == "orbit" else len(dataset.test) if trajectory == "test" else 0
     n_spikes = (spike_steps or len(dataset.trajectory)) if spikes and trajectory == "orbit" else views

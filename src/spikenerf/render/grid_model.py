@@ -88,25 +88,34 @@ class GridModel(RadianceModel):
     @torch.no_grad()
     def _march_static(
         self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float, budget: int
-    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """The slots of :meth:`_march` laid out in a fixed ``budget`` B of slots: no compaction, no host sync.
 
         Slot i belongs to the ray whose cumulated slot count first exceeds i (a ``searchsorted``), so the
-        rays and steps are those of the packed march, in its order, unkept slots included; the slots past
-        every ray's last one are unused (ray N − 1, step 0). When the rays need more than B slots, the march
-        is cut at the end of the budget: the ray there loses its tail and the later rays get no slot.
-        Returns ray (B,) (non-decreasing) and step number k (B,) int64, keep (B,) bool (the slots the
-        packed march keeps, unused ones False), and dropped () int64: the slots cut off by the budget.
+        rays and steps are those of the packed march, in its order, unkept slots included. When the rays
+        need more than B slots, the march is cut at the end of the budget: the ray there loses its tail and
+        the later rays get no slot. The U slots left after every ray's last one are spread evenly over N
+        empty *spare* rays N … 2N − 1 (in order) and placed at distinct points (ray j mod N, step j div N
+        for the j-th of them): were they all one ray at one point, the backward's scatters (``before[ray]``
+        in :func:`packed_weights`, the grid lookups) would pile up on one address, serialised on a GPU.
+        Returns ray (B,) in [0, 2N) (non-decreasing; composite over 2N rays and keep the first N), ray_at
+        (B,) in [0, N) (the ray whose geometry the slot takes) and step number k (B,) int64, keep (B,) bool
+        (the slots the packed march keeps, spare ones False), and dropped () int64: the slots cut off.
         """
+        n = len(near)
         counts = self._counts(near, far, step)
         ends = torch.cumsum(counts, dim=0)
         slot = torch.arange(budget, device=near.device)
         ray = torch.searchsorted(ends, slot, right=True)
-        used = ray < len(counts)
-        ray = ray.clamp_(max=len(counts) - 1)
-        k = torch.where(used, slot - (ends - counts)[ray], 0)
-        keep = used & self._kept(o_n, d_n, near, far, step, ray, k)
-        return ray, k, keep, (ends[-1] - budget).clamp_min(0)
+        used = ray < n
+        real = ray.clamp(max=n - 1)
+        spare = (slot - ends[-1]).clamp_min(0)  # j for the spare slots
+        spare_ray = n + spare * n // (budget - ends[-1]).clamp_min(1)
+        ray = torch.where(used, ray, spare_ray)
+        ray_at = torch.where(used, real, spare % n)
+        k = torch.where(used, slot - (ends - counts)[real], spare // n)
+        keep = used & self._kept(o_n, d_n, near, far, step, ray_at, k)
+        return ray, ray_at, k, keep, (ends[-1] - budget).clamp_min(0)
 
     @staticmethod
     def _points(
@@ -157,11 +166,11 @@ class GridModel(RadianceModel):
         """
         field, cfg, n = self.field, self.field.config, o_n.shape[0]
         budget = n * cfg.static_samples
-        ray, k, keep, dropped = self._march_static(o_n, d_n, near, far, step, budget)
-        t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
+        ray, ray_at, k, keep, dropped = self._march_static(o_n, d_n, near, far, step, budget)
+        t, deltas, xn = self._points(o_n, d_n, near, far, step, ray_at, k, perturb)
         sigma = torch.where(keep, field.density_norm(xn), 0.0)
-        weights = packed_weights(sigma, deltas, ray, n)
+        weights = packed_weights(sigma, deltas, ray, 2 * n)
         shown = weights.detach() > cfg.weight_threshold
-        rgb = torch.where(shown[:, None], field.color_norm(xn, dirs[ray]), 0.0)
-        color, depth, opacity = packed_composite(weights, ray, n, t, rgb, None)
-        return RenderOutput(color, depth, opacity, num_samples=budget, dropped_samples=dropped)
+        rgb = torch.where(shown[:, None], field.color_norm(xn, dirs[ray_at]), 0.0)
+        color, depth, opacity = packed_composite(weights, ray, 2 * n, t, rgb, None)
+        return RenderOutput(color[:n], depth[:n], opacity[:n], num_samples=budget, dropped_samples=dropped)

@@ -30,6 +30,7 @@ from spikenerf.train.logger import LogKind
 from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
 from spikenerf.train.methods import (
     DEFAULT_BATCH,
+    GPU_BATCH_SCALE,
     INTEGRAL_SAMPLES,
     INTEGRAL_WINDOW,
     METHOD_CLASSES,
@@ -205,7 +206,8 @@ class TrainConfig:
         dataset: dataset folder. method: spike-integral (the default) | spike-nerf | nerf-recon | nerf-blur |
             nerf-blur-aware | nerf-bad | nerf-gt.
         color: gray | rgb. field: grid | mlp. iters: optimiser steps.
-        batch: rays per step (reconstruction; None: :meth:`rays_per_step`'s default for the method).
+        batch: rays per step (reconstruction; None: :meth:`rays_per_step`'s default for the method and
+            device).
         lr: base learning rate (None = the field's own); the grid keeps its grid/network ratio.
         lr_final_ratio: exponential decay to this fraction of the rate at ``iters`` (None = the field's).
         seed: seeds the initialisation, the samplers and the perturbations. device: auto | cpu | cuda.
@@ -298,25 +300,27 @@ class TrainConfig:
         cls = METHOD_CLASSES.get(self.method)
         return self.targets.poses_per_target() if cls is not None and cls.uses_stream else 1
 
-    def rays_per_step(self) -> int:
+    def rays_per_step(self, device_type: str = "cpu") -> int:
         """``batch``, or where it is None the method's ``default_batch`` (spike-integral: 4096, 4096
-        windows × 1 render; the others :data:`DEFAULT_BATCH`, 1024)."""
+        windows × 1 render; the others :data:`DEFAULT_BATCH`, 1024), :data:`GPU_BATCH_SCALE` times that on
+        a ``cuda`` device."""
         if self.batch is not None:
             return self.batch
         cls = METHOD_CLASSES.get(self.method)
-        return DEFAULT_BATCH if cls is None else cls.default_batch
+        rays = DEFAULT_BATCH if cls is None else cls.default_batch
+        return rays * GPU_BATCH_SCALE if device_type == "cuda" else rays
 
     def method_class(self) -> type[TrainMethod]:
         """The registered class of ``method`` (``spikenerf.train.methods.METHOD_CLASSES``)."""
         return method_class(self.method)
 
-    def resolved(self) -> TrainConfig:
+    def resolved(self, device_type: str = "cpu") -> TrainConfig:
         """A copy with the defaults that depend on other fields filled in (``targets.window_poses``: see
         :meth:`window_poses`; ``targets.mask``: :meth:`TargetConfig.masked` of those; ``batch``:
-        :meth:`rays_per_step`), as a new run records them in its ``config.yaml``."""
+        :meth:`rays_per_step` on ``device_type``), as a new run records them in its ``config.yaml``."""
         targets = dataclasses.replace(self.targets, window_poses=self.window_poses())
         targets = dataclasses.replace(targets, mask=targets.masked())
-        return dataclasses.replace(self, targets=targets, batch=self.rays_per_step())
+        return dataclasses.replace(self, targets=targets, batch=self.rays_per_step(device_type))
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], path: str | Path | None = None) -> TrainConfig:

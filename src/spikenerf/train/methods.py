@@ -73,6 +73,9 @@ Config = Any
 
 #: rays per step when ``batch`` is not given: 1024 targets (spike-integral: :data:`INTEGRAL_WINDOWS`)
 DEFAULT_BATCH = 1024
+#: on CUDA the default batch is this many times the CPU one (where it fits): a GPU step costs about the same
+#: up to 16384 rays (H200: 21.8 ms at 4096, 21.9 ms at 16384 for spike-integral; docs/performance.md)
+GPU_BATCH_SCALE = 4
 #: spike-integral's longest default window and steps rendered per window (docs/spike-integral.md, Choosing)
 INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 5, 1
 #: the default window is shortened so that the image moves at most this many pixels in it, to no fewer steps

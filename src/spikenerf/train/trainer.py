@@ -181,6 +181,23 @@ def check_step_memory(
     check_batch_fits(config.field, model_config(config), rays, params, device, free)
 
 
+def gpu_default_batch(
+    given: TrainConfig, config: TrainConfig, device: torch.device, free: int | None = None
+) -> TrainConfig:
+    """``config`` with the CUDA default batch (``given.rays_per_step("cuda")``, 4× the CPU one) where
+    ``given`` named no batch, the run trains on CUDA and that step fits the device's ``free`` bytes (None:
+    read from the device) by estimate; else ``config`` unchanged (its batch the CPU default, or the one
+    asked for or stored)."""
+    if given.batch is not None or device.type != "cuda":
+        return config
+    wide = dataclasses.replace(config, batch=given.rays_per_step("cuda"))
+    try:
+        check_step_memory(wide, make_method(wide), device, free)
+    except InputError:
+        return config
+    return wide
+
+
 class Trainer:
     """Holds the model, optimiser, targets and samplers of one run folder.
 
@@ -211,13 +228,14 @@ class Trainer:
                 )
             ckpt = load_checkpoint(ckpt_path)
             config = _check_resume(*_stored_and_given(self.out / CONFIG_FILE, config), self.out / CONFIG_FILE)
+        self.device = resolve_device(config.device)
         self.config = config.validate().resolved()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
         self.config = method_class(self.config.method).for_dataset(self.config, self.dataset).validate()
         if ckpt is not None:  # the same dataset, and not fewer iterations than already done
             check_resume_fits(ckpt, self.config, self.dataset)
+        self.config = gpu_default_batch(config, self.config, self.device)
         check_train_resources(self.config, self.dataset, self.out)
-        self.device = resolve_device(config.device)
         self.method = make_method(self.config)
         check_step_memory(self.config, self.method, self.device)
         cache = self.out if learned_cache(self.method) else None
