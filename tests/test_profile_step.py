@@ -30,8 +30,15 @@ def test_profile_case_on_the_cpu(tmp_path: Path, capsys: pytest.CaptureFixture[s
                            "--frames", 60, "--test-views", 1, "--out", ds)  # fmt: skip
     assert code == 0, err
     args = argparse.Namespace(device="cpu", warmup=1, steps=2, profile_steps=1, compile=False)
+    args.field_option = []
     out = TOOL.profile_case(ds, "nerf-gt", 64, args, tmp_path)
     assert out["rays_per_second"] > 0 and out["ms_per_step"] > 0
     assert out["gpu_kernel_ms_per_step"] == 0.0 and out["launches_per_step"] == 0.0
     assert out["top_host_ops"] and not out["top_device_ops"]
     assert "nerf-gt batch 64:" in capsys.readouterr().out
+    args.field_option = [TOOL.field_option("static_samples=40")]
+    out = TOOL.profile_case(ds, "nerf-gt", 64, args, tmp_path / "static")
+    assert out["field_options"] == {"static_samples": 40} and out["rays_per_second"] > 0
+    assert "nerf-gt batch 64 static_samples=40:" in capsys.readouterr().out
+    with pytest.raises(argparse.ArgumentTypeError, match="expected KEY=VALUE"):
+        TOOL.field_option("static_samples")
