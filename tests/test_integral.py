@@ -256,6 +256,11 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.prior_rays=0"], "integral.prior_rays"),
         (["--set", "integral.interpolate=maybe"], "integral.interpolate"),
         (["--set", "integral.interpolate=true", "--holdout"], "--holdout"),
+        (["--set", "integral.interpolate_span=4"], "integral.interpolate_span"),  # without interpolate
+        (
+            ["--set", "integral.interpolate=true", "--set", "integral.interpolate_span=-1"],
+            "integral.interpolate_span",
+        ),
     ],
 )
 def test_bad_window_settings_are_one_line(
@@ -347,6 +352,19 @@ def test_interpolated_counts_are_exact_to_one_steps_light_on_steady_pixels() -> 
         raw = (plain.window_mean(start, start + length, pixels)[:, 0] - truth).abs()
         dark = x == 0
         assert raw[dark].max() > 5 * error[dark].max()  # ± φ / L without the phases
+
+
+def test_a_span_limit_interpolates_only_between_close_spikes() -> None:
+    rates = (0.07, 0.3, 0.8)  # spikes about 14, 3.3 and 1.25 steps apart
+    spikes = _constant_stream(rates)
+    poses = np.tile(np.eye(4, dtype=np.float32), (len(spikes), 1, 1))
+    every = count_targets(spikes, poses, 1.0, interpolate=True)
+    close = count_targets(spikes, poses, 1.0, interpolate=True, max_span=5)
+    assert torch.equal(close.counts, every.counts)
+    assert not close.phase[:, 0, 0].any() and every.phase[:, 0, 0].any()  # the dark pixel: plain counts
+    for x in (1, 2):  # spans of 3–4 and 1–2 steps: interpolated as without a limit
+        assert torch.equal(close.phase[:, 0, x], every.phase[:, 0, x])
+    assert torch.equal(count_targets(spikes, poses, 1.0, interpolate=True, max_span=0).phase, every.phase)
 
 
 def test_interpolated_counts_stay_within_two_thresholds_and_beat_the_plain_counts() -> None:

@@ -109,7 +109,7 @@ class CountTargets:
         return torch.where(ok, new_start, start), torch.where(ok, new_end, end)
 
 
-def count_phases(counts: Tensor) -> Tensor:
+def count_phases(counts: Tensor, max_span: int = 0) -> Tensor:
     """Interpolated spike phases of prefix counts ``C`` (T + 1, H, W, C): (T + 1, H, W, C) uint8.
 
     The step after a pixel's spike is an *anchor*: its accumulator has just been reset, so the light
@@ -120,7 +120,9 @@ def count_phases(counts: Tensor) -> Tensor:
     get 0, the plain count. A window's mean ``φ (C_b + f_b − C_a − f_a) / L`` is then exact to within one
     step's light over L (plus the rounding) where the light is steady between the spikes, instead of
     ``± φ / L``; where it is not, the error stays below ``2 φ / L`` (each end is off by less than ``φ``: the
-    interpolated and the true accumulator both rise from 0 to ``φ`` between two anchors).
+    interpolated and the true accumulator both rise from 0 to ``φ`` between two anchors). With
+    ``max_span`` > 0 only anchors at most that many steps apart are interpolated between (elsewhere 0, the
+    plain count): a long span spreads a window's light over the image motion of the whole span.
     """
     steps = counts.shape[0]
     shape = counts.shape[1:]
@@ -135,8 +137,9 @@ def count_phases(counts: Tensor) -> Tensor:
     following = torch.full(shape, -1, dtype=torch.int32)  # first anchor after t (−1: none)
     for t in range(steps - 1, -1, -1):
         before = last[t].int()
-        inside = (before >= 0) & (following > 0)
-        span = (following - before).clamp_min(1).float()
+        span = (following - before).clamp_min(1)
+        inside = (before >= 0) & (following > 0) & ((span <= max_span) | (max_span <= 0))
+        span = span.float()
         frac = torch.round((t - before).float() / span * PHASE_SCALE).clamp_max(PHASE_SCALE - 1)
         phase[t] = torch.where(inside, frac, 0.0).to(torch.uint8)
         if t > 0:
@@ -145,10 +148,10 @@ def count_phases(counts: Tensor) -> Tensor:
 
 
 def count_targets(
-    stream: np.ndarray, poses: np.ndarray, threshold: float, interpolate: bool = False
+    stream: np.ndarray, poses: np.ndarray, threshold: float, interpolate: bool = False, max_span: int = 0
 ) -> CountTargets:
     """:class:`CountTargets` of a (T, H, W) gray or (T, 3, H, W) rgb 0/1 stream and its (T, 4, 4) poses;
-    ``interpolate``: with :func:`count_phases`.
+    ``interpolate``: with :func:`count_phases` (between spikes at most ``max_span`` steps apart; 0: any).
 
     Raises:
         InputError: the poses do not match the stream's steps (names ``poses``).
@@ -162,7 +165,7 @@ def count_targets(
     for t in range(spikes.shape[0]):  # one step at a time: no (T, H, W, C) int32 temporary
         running += torch.as_tensor(np.asarray(spikes[t], dtype=np.uint8))
         counts[t + 1] = running.to(dtype)
-    phase = count_phases(counts) if interpolate else None
+    phase = count_phases(counts, max_span) if interpolate else None
     poses_t = torch.as_tensor(np.asarray(poses), dtype=torch.float32)
     return CountTargets(counts, poses_t, float(threshold), phase)
 

@@ -113,7 +113,8 @@ class IntegralConfig:
             light, not to ``± φ / L``), up to ``ALIGN_LONGEST`` times the longest length; needs holdout off.
         interpolate: add to each count the fraction of the next spike's light gathered by then, taken
             linearly between the pixel's spikes (``data.integral.count_phases``): sub-count targets;
-            needs holdout off.
+            needs holdout off. interpolate_span: interpolate only between spikes at most this many steps
+            apart (0: any), plain counts elsewhere; needs ``interpolate``.
         prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step
             (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
             step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
@@ -122,7 +123,7 @@ class IntegralConfig:
 
     BOUNDS: ClassVar[dict[str, Bound]] = {
         "samples": Bound(least=1), "groups": Bound(least=1), "prior_weight": Bound(least=0),
-        "prior_rays": Bound(least=1),
+        "prior_rays": Bound(least=1), "interpolate_span": Bound(least=0),
     }  # fmt: skip
 
     lengths: list[int] | None = None
@@ -131,6 +132,7 @@ class IntegralConfig:
     band: bool = False
     align: bool = False
     interpolate: bool = False
+    interpolate_span: int = 0
     prior: IntegralPrior = "none"
     prior_weight: float = 1.0
     prior_rays: int = 256
@@ -138,8 +140,13 @@ class IntegralConfig:
 
     def check(self) -> None:
         """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1,
-        ``groups`` < 1 or more ``samples`` than the shortest window holds."""
+        ``groups`` < 1, more ``samples`` than the shortest window holds, or ``interpolate_span`` without
+        ``interpolate``."""
         check_config(self, "integral.")
+        if self.interpolate_span and not self.interpolate:
+            raise InputError(
+                "integral.interpolate_span needs integral.interpolate=true", param="integral.interpolate_span"
+            )
         if self.lengths is None:  # chosen from the dataset (at least ``samples`` steps)
             return
         if not self.lengths or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1

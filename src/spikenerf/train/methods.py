@@ -558,7 +558,9 @@ class SpikeIntegral(TrainMethod):
             self.targets = stream_targets(dataset, self.config.color, "learned", t.window, False, t.mask_n,
                                           stream, 1)  # fmt: skip
         c = self.config.integral
-        self.counts = count_targets(stream, dataset.trajectory.poses, dataset.threshold, c.interpolate)
+        self.counts = count_targets(
+            stream, dataset.trajectory.poses, dataset.threshold, c.interpolate, c.interpolate_span
+        )
         self.step_numbers = torch.as_tensor(np.asarray(dataset.trajectory.steps))  # what the refiner takes
         longest = max(self.config.integral.lengths)
         if longest > self.counts.steps:
