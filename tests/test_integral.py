@@ -21,6 +21,7 @@ from spikenerf.data.integral import (
     count_targets,
     stratified_steps,
 )
+from spikenerf.data.rays import pixel_rays
 from spikenerf.train.losses import window_mean_loss
 from spikenerf.train.trainer import Trainer
 
@@ -190,6 +191,41 @@ def test_window_loss_reaches_the_field_through_the_trainer_step(
         )
 
 
+def test_a_one_step_track_is_the_steps_count_at_the_pixel(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    counts = trainer.method.counts
+    _, _, pixels, steps = trainer.method.draw(trainer)
+    step = steps[:, 0]
+    origins, dirs = pixel_rays(counts.poses[step], dataset.intrinsics, pixels)
+    points = origins + 2.5 * dirs  # any depth: the point lies on the pixel's ray
+    one = counts.track_mean(points, step, 0, dataset.intrinsics)
+    torch.testing.assert_close(one, counts.window_mean(step, step + 1, pixels), atol=0, rtol=0)
+    longer = counts.track_mean(points, step, 3, dataset.intrinsics)
+    assert longer.shape == one.shape and not torch.equal(longer, one)
+    assert torch.all((longer >= 0) & (longer <= counts.threshold))  # a mean of 0/1 spikes
+    behind = counts.track_mean(origins - dirs, step, 3, dataset.intrinsics)  # behind every camera: no step
+    assert torch.equal(behind, torch.zeros_like(behind))
+
+
+def test_track_targets_start_at_track_after_and_reach_the_field(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    plain = _grads(dataset_dir, dataset, tmp_path / "a", lengths=[3], samples=1, groups=1)
+    later = _grads(
+        dataset_dir, dataset, tmp_path / "b", lengths=[3], samples=1, groups=1, track=4, track_after=3
+    )
+    track = _grads(
+        dataset_dir, dataset, tmp_path / "c", lengths=[3], samples=1, groups=1, track=4, track_after=0
+    )
+    grid = [k for k in plain if "planes" in k or "lines" in k]
+    assert grid and all(torch.equal(plain[k], later[k]) for k in plain)  # iteration 0 < 3: plain windows
+    assert all(float(track[k].abs().sum()) > 0 for k in grid)
+    assert sum(float((plain[k] - track[k]).abs().sum()) for k in grid) > 1e-3 * sum(
+        float(plain[k].abs().sum()) for k in grid
+    )
+
+
 def test_learned_prior_adds_its_weighted_term_and_its_gradient(
     dataset_dir: Path, dataset, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]
@@ -257,6 +293,9 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.interpolate=maybe"], "integral.interpolate"),
         (["--set", "integral.interpolate=true", "--holdout"], "--holdout"),
         (["--set", "integral.interpolate_span=4"], "integral.interpolate_span"),  # without interpolate
+        (["--set", "integral.track=-1"], "integral.track"),
+        (["--set", "integral.track=3", "--integral-samples", "2"], "integral.track"),
+        (["--set", "integral.track=3", "--holdout"], "--holdout"),
         (
             ["--set", "integral.interpolate=true", "--set", "integral.interpolate_span=-1"],
             "integral.interpolate_span",

@@ -154,7 +154,8 @@ def test_variant_command_trains_its_config(name: str, tmp_path: Path, monkeypatc
     command = cell_commands(cfg, "analytic-orbs", "gray", name)[0]
     main(command[command.index("train") :])
     assert len(seen) == 1
-    fields = {k: getattr(seen[0], k) for k in ("dataset", "color", "field", "seed", "device")}
+    fields = {k: getattr(seen[0], k) for k in ("dataset", "color", "field", "seed", "device", "batch")}
+    assert fields["batch"] == VARIANTS[name].config().rays_per_step()  # the CPU default on any device
     want = VARIANTS[name].config(**fields)
     assert seen[0] == want and make_method(want).describe().startswith(VARIANTS[name].method)
     if name.endswith("learned"):

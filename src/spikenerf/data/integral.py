@@ -25,6 +25,7 @@ from torch import Tensor
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.core.errors import InputError
+from spikenerf.scenes.trajectory import Intrinsics
 
 #: :attr:`CountTargets.phase` counts a spike's light in 1/256
 PHASE_SCALE = 256
@@ -76,6 +77,29 @@ class CountTargets:
         if self.phase is not None:
             n = n + (self.phase[end, y, x].float() - self.phase[start, y, x].float()) / PHASE_SCALE
         return self.threshold * n / (end - start).float()[:, None]
+
+    def track_mean(self, points: Tensor, steps: Tensor, half: int, intrinsics: Intrinsics) -> Tensor:
+        """Mean spike intensity (B, C) float32 along the image tracks of world ``points`` (B, 3): over the
+        steps ``steps − half … steps + half`` of ``steps`` (B,) int64, the spike of each step read at the
+        pixel the point projects to in that step's pose (OpenGL axes), ``φ/L' Σ_j s_j(pixel_j)`` over the
+        L' steps inside the stream whose pixel is inside the image. On the counts' device; no host sync.
+        A one-step track (``half`` 0) of a point on pixel p's ray at step k is ``window_mean(k, k + 1, p)``.
+        """
+        device, prefix = self.counts.device, self.counts
+        j = steps.to(device)[:, None] + torch.arange(-half, half + 1, device=device)[None]  # (B, L)
+        valid = (j >= 0) & (j < prefix.shape[0] - 1)
+        j = j.clamp(0, prefix.shape[0] - 2)
+        c2w = self.poses.to(device)[j]  # (B, L, 4, 4)
+        rel = points.to(device, torch.float32)[:, None, :] - c2w[..., :3, 3]
+        cam = torch.einsum("blij,bli->blj", c2w[..., :3, :3], rel)  # world → camera axes
+        depth = -cam[..., 2]
+        safe = torch.where(depth > 1e-6, depth, torch.ones_like(depth))
+        x = torch.floor(intrinsics.fl_x * cam[..., 0] / safe + intrinsics.cx).long()
+        y = torch.floor(intrinsics.cy - intrinsics.fl_y * cam[..., 1] / safe).long()
+        valid &= (depth > 1e-6) & (x >= 0) & (x < intrinsics.width) & (y >= 0) & (y < intrinsics.height)
+        x, y = x.clamp(0, intrinsics.width - 1), y.clamp(0, intrinsics.height - 1)
+        spikes = (prefix[j + 1, y, x].int() - prefix[j, y, x].int()).float() * valid[..., None]
+        return self.threshold * spikes.sum(dim=1) / valid.sum(dim=1).clamp_min(1)[:, None].float()
 
     def align(
         self, start: Tensor, end: Tensor, pixels: Tensor, generator: torch.Generator, longest: int

@@ -115,6 +115,10 @@ class IntegralConfig:
             linearly between the pixel's spikes (``data.integral.count_phases``): sub-count targets;
             needs holdout off. interpolate_span: interpolate only between spikes at most this many steps
             apart (0: any), plain counts elsewhere; needs ``interpolate``.
+        track: h > 0: from iteration ``track_after`` on, compare each render with the spike counts along the
+            image track of its point over the 2h + 1 steps around its step (``CountTargets.track_mean``; the
+            field's depth, detached), not with its own pixel's window; 0 (the default): off. Needs
+            ``samples`` and ``groups`` 1 and holdout off. track_after: iterations of plain windows first.
         prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step
             (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
             step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
@@ -123,7 +127,8 @@ class IntegralConfig:
 
     BOUNDS: ClassVar[dict[str, Bound]] = {
         "samples": Bound(least=1), "groups": Bound(least=1), "prior_weight": Bound(least=0),
-        "prior_rays": Bound(least=1), "interpolate_span": Bound(least=0),
+        "prior_rays": Bound(least=1), "interpolate_span": Bound(least=0), "track": Bound(least=0),
+        "track_after": Bound(least=0),
     }  # fmt: skip
 
     lengths: list[int] | None = None
@@ -133,6 +138,8 @@ class IntegralConfig:
     align: bool = False
     interpolate: bool = False
     interpolate_span: int = 0
+    track: int = 0
+    track_after: int = 400
     prior: IntegralPrior = "none"
     prior_weight: float = 1.0
     prior_rays: int = 256
@@ -143,6 +150,12 @@ class IntegralConfig:
         ``groups`` < 1, more ``samples`` than the shortest window holds, or ``interpolate_span`` without
         ``interpolate``."""
         check_config(self, "integral.")
+        if self.track and (self.samples != 1 or self.groups != 1):
+            raise InputError(
+                f"integral.track renders one step per target: set integral.samples and integral.groups to 1 "
+                f"(found {self.samples} and {self.groups})",
+                param=("integral.track", "integral.samples"),
+            )
         if self.interpolate_span and not self.interpolate:
             raise InputError(
                 "integral.interpolate_span needs integral.interpolate=true", param="integral.interpolate_span"

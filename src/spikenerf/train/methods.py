@@ -46,6 +46,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
 from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
+from spikenerf.data.rays import pixel_rays
 from spikenerf.data.samplers import RaySampler, WindowSampler
 from spikenerf.data.targets import (
     ImageTargets,
@@ -583,6 +584,12 @@ class SpikeIntegral(TrainMethod):
                 "holdout false",
                 param=("integral.interpolate", "holdout"),
             )
+        if c.track and self.holdout is not None:
+            raise InputError(
+                "integral.track: a track reads the spikes of the steps around its own, held-out ones too; "
+                "set holdout false",
+                param=("integral.track", "holdout"),
+            )
         aligner = None
         if c.align:
             if self.holdout is not None:
@@ -605,7 +612,7 @@ class SpikeIntegral(TrainMethod):
         return state.samplers["windows"].sample(max(1, state.config.rays_per_step() // per))
 
     def step_losses(self, state: TrainState, iteration: int, drawn: tuple[Tensor, ...]) -> StepLosses:
-        integral = self.integral_term(state, drawn)
+        integral = self.integral_term(state, drawn, iteration)
         terms = {"recon": integral.loss, "reg": state.model.regularization(iteration)}
         return StepLosses(terms, integral.srgb_mse, integral.rays, dropped=integral.dropped)
 
@@ -626,13 +633,18 @@ class SpikeIntegral(TrainMethod):
             return c.prior_weight
         return c.prior_weight * max(0.0, 1.0 - iteration / max(1, self.config.iters - 1))
 
-    def integral_term(self, state: TrainState, drawn: tuple[Tensor, ...] | None = None) -> Term:
+    def integral_term(
+        self, state: TrainState, drawn: tuple[Tensor, ...] | None = None, iteration: int | None = None
+    ) -> Term:
         """The window-mean loss of one batch (``drawn`` by :meth:`draw`; None: draw it); the :class:`Term`'s
-        sRGB MSE is that of the window mean estimates."""
+        sRGB MSE is that of the window mean estimates. With ``integral.track`` from iteration
+        ``integral.track_after`` on: :meth:`track_term`."""
         counts, c = self.counts, self.config.integral
         assert counts is not None, "build_targets first"
         per = c.samples * c.groups
         start, end, pixels, steps = self.draw(state) if drawn is None else drawn
+        if c.track and iteration is not None and iteration >= c.track_after:
+            return self.track_term(state, pixels, steps[:, 0])
         target = counts.window_mean(start, end, pixels).to(state.device)
         band = (counts.threshold / (end - start).float())[:, None].to(state.device) if c.band else None
         poses = counts.poses[steps.reshape(-1).to(counts.poses.device)].to(state.device)
@@ -647,6 +659,29 @@ class SpikeIntegral(TrainMethod):
         with torch.no_grad():
             mean = means.mean(dim=1).float()
             srgb_mse = torch.mean((srgb_encode(mean.clamp(0, 1)) - srgb_encode(target.clamp(0, 1))) ** 2)
+        return Term(loss, srgb_mse, poses.shape[0], out.dropped_samples)
+
+    def track_term(self, state: TrainState, pixels: Tensor, steps: Tensor) -> Term:
+        """The loss of one render per target, at pixels (B, 2) of steps (B,), against the spike counts along
+        the image track of the rendered point (its depth detached; :meth:`CountTargets.track_mean` over
+        ``2 · integral.track + 1`` steps): a long window without the image motion's blur."""
+        counts, c = self.counts, self.config.integral
+        assert counts is not None, "build_targets first"
+        poses = counts.poses[steps.to(counts.poses.device)].to(state.device)
+        if state.pose_refine is not None:
+            poses = state.pose_refine(poses, self.step_numbers[steps])
+        pixels = pixels.to(state.device)
+        out = state.render_rays(poses, pixels)
+        with torch.no_grad():
+            origins, dirs = pixel_rays(poses, state.dataset.intrinsics, pixels)
+            points = origins + out.depth.detach()[:, None] * dirs
+            target = counts.track_mean(points, steps, c.track, state.dataset.intrinsics).to(state.device)
+        loss = window_mean_loss(out.color[:, None], target, None)
+        if out.coarse_color is not None:
+            loss = loss + window_mean_loss(out.coarse_color[:, None], target, None)
+        with torch.no_grad():
+            color = out.color.float().clamp(0, 1)
+            srgb_mse = torch.mean((srgb_encode(color) - srgb_encode(target.clamp(0, 1))) ** 2)
         return Term(loss, srgb_mse, poses.shape[0], out.dropped_samples)
 
 

@@ -162,13 +162,17 @@ def cell_name(cfg: BenchmarkConfig, key: CellKey) -> str:
 def cell_commands(
     cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: int | None = None
 ) -> list[list[str]]:
-    """train (resuming an interrupted run), eval, and optionally render, for one cell."""
+    """train (resuming an interrupted run), eval, and optionally render, for one cell. The cell's batch is
+    the method's CPU default unless the extra train arguments name one, so that a cell trains the same rays
+    on any device (``train`` alone takes more on CUDA)."""
     seed = cfg.seed if seed is None else seed
     run = run_dir(cfg, scene, color, variant, seed)
+    rays = VARIANTS[variant].config().rays_per_step()
+    batch = [] if "--batch" in cfg.extra_train_args else ["--batch", str(rays)]
     train = _spikenerf(
         "train", str(cfg.out / "datasets" / scene), *VARIANTS[variant].train_args(), "--color", color,
         "--field", cfg.field_kind, "--device", cfg.device, "--seed", str(seed), "--out", str(run),
-        *(["--iters", str(cfg.iters)] if cfg.iters else []), *cfg.extra_train_args,
+        *(["--iters", str(cfg.iters)] if cfg.iters else []), *batch, *cfg.extra_train_args,
     )  # fmt: skip
     if (run / "checkpoint.pt").exists():
         train.append("--resume")
