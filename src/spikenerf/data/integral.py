@@ -25,7 +25,7 @@ from torch import Tensor
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.core.errors import InputError
-from spikenerf.scenes.trajectory import Intrinsics
+from spikenerf.scenes.trajectory import Intrinsics, project_points
 
 #: :attr:`CountTargets.phase` counts a spike's light in 1/256
 PHASE_SCALE = 256
@@ -89,13 +89,10 @@ class CountTargets:
         j = steps.to(device)[:, None] + torch.arange(-half, half + 1, device=device)[None]  # (B, L)
         valid = (j >= 0) & (j < prefix.shape[0] - 1)
         j = j.clamp(0, prefix.shape[0] - 2)
-        c2w = self.poses.to(device)[j]  # (B, L, 4, 4)
-        rel = points.to(device, torch.float32)[:, None, :] - c2w[..., :3, 3]
-        cam = torch.einsum("blij,bli->blj", c2w[..., :3, :3], rel)  # world → camera axes
-        depth = -cam[..., 2]
-        safe = torch.where(depth > 1e-6, depth, torch.ones_like(depth))
-        x = torch.floor(intrinsics.fl_x * cam[..., 0] / safe + intrinsics.cx).long()
-        y = torch.floor(intrinsics.cy - intrinsics.fl_y * cam[..., 1] / safe).long()
+        u, v, depth = project_points(
+            self.poses.to(device)[j], points.to(device, torch.float32)[:, None], intrinsics
+        )
+        x, y = torch.floor(u).long(), torch.floor(v).long()
         valid &= (depth > 1e-6) & (x >= 0) & (x < intrinsics.width) & (y >= 0) & (y < intrinsics.height)
         x, y = x.clamp(0, intrinsics.width - 1), y.clamp(0, intrinsics.height - 1)
         spikes = (prefix[j + 1, y, x].int() - prefix[j, y, x].int()).float() * valid[..., None]

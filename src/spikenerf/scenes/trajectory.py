@@ -238,6 +238,20 @@ def pose_at(poses: np.ndarray, position: float) -> np.ndarray:
     return interpolate_poses(poses[i0], poses[i1], float(np.clip(position - i0, 0.0, 1.0)))
 
 
+def project_points(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-untyped-def]
+    """Image coordinates of world ``points`` (..., 3) in cameras ``c2w`` (..., 4, 4) (OpenGL axes; both numpy
+    arrays or both torch tensors, broadcast): (u, v, depth), each (...). Pixel ``(x, y)`` covers
+    ``[x, x + 1) × [y, y + 1)`` (its centre is ``x + 0.5``, as :func:`spikenerf.data.rays.camera_directions`
+    casts it); depth > 0 in front of the camera, where u and v are meaningful."""
+    rel = (points - c2w[..., :3, 3])[..., None, :]
+    cam = (rel @ c2w[..., :3, :3])[..., 0, :]  # world → camera axes
+    depth = -cam[..., 2]
+    safe = depth * (depth > 1e-9) + 1.0 * (depth <= 1e-9)  # any value where the point is behind
+    u = intrinsics.fl_x * cam[..., 0] / safe + intrinsics.cx
+    v = -intrinsics.fl_y * cam[..., 1] / safe + intrinsics.cy
+    return u, v, depth
+
+
 def image_motion(poses: np.ndarray, intrinsics: Intrinsics, box: np.ndarray, pairs: int = 64) -> float:
     """How far the image moves in one step: the median, in pixels, of the displacement between consecutive
     poses of a 6³ lattice of points inside ``box``, over ``pairs`` step pairs spread along the trajectory
@@ -255,11 +269,7 @@ def image_motion(poses: np.ndarray, intrinsics: Intrinsics, box: np.ndarray, pai
     points = lo + np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), -1).reshape(-1, 3) * (hi - lo)
 
     def project(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        cam = (points - c2w[:3, 3]) @ c2w[:3, :3]  # world → camera axes
-        depth = -cam[:, 2]
-        safe = np.where(depth > 1e-9, depth, 1.0)
-        u = intrinsics.fl_x * cam[:, 0] / safe + intrinsics.cx
-        v = -intrinsics.fl_y * cam[:, 1] / safe + intrinsics.cy
+        u, v, depth = project_points(c2w, points, intrinsics)
         return np.stack([u, v], axis=-1), depth
 
     moves = []
