@@ -190,7 +190,9 @@ def test_a_folder_whose_spike_integral_cells_other_defaults_trained_is_refused(t
     cfg = BenchmarkConfig(["analytic-orbs"], ["spike-integral"], ["gray"], tmp_path, size=16, frames=100,
                           test_views=1, render=False, iters=4)  # fmt: skip
     now = settings(cfg)
-    assert now["integral_defaults"] == {"window": 5, "samples": 1, "batch": 4096, "window_span_px": 1.5}
+    assert now["integral_defaults"] == {
+        "window": 5, "samples": 1, "batch": 4096, "window_span_px": 1.5, "track": 5
+    }  # fmt: skip
     (tmp_path / NAME).write_text(json.dumps({"settings": now, "nonce": "n"}))
     assert check_settings(cfg) == "n"
     unrecorded = {k: v for k, v in now.items() if k != "integral_defaults"}
@@ -201,5 +203,12 @@ def test_a_folder_whose_spike_integral_cells_other_defaults_trained_is_refused(t
     fixed = {**now, "integral_defaults": {"window": 5, "samples": 1, "batch": 4096}}  # before the motion rule
     (tmp_path / NAME).write_text(json.dumps({"settings": fixed, "nonce": "n"}))
     with pytest.raises(InputError, match=r"window_span_px None → 1.5"):
+        check_settings(cfg)
+    untracked = {
+        **now,
+        "integral_defaults": {k: v for k, v in now["integral_defaults"].items() if k != "track"},
+    }
+    (tmp_path / NAME).write_text(json.dumps({"settings": untracked, "nonce": "n"}))  # before track windows
+    with pytest.raises(InputError, match=r"track None → 5"):
         check_settings(cfg)
     assert check_settings(replace(cfg, variants=["nerf-gt"])) == "n"  # no spike-integral cell: resumes

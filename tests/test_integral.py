@@ -22,6 +22,7 @@ from spikenerf.data.integral import (
     stratified_steps,
 )
 from spikenerf.data.rays import pixel_rays
+from spikenerf.render import RenderOutput
 from spikenerf.train.losses import window_mean_loss
 from spikenerf.train.trainer import Trainer
 
@@ -226,6 +227,32 @@ def test_track_targets_start_at_track_after_and_reach_the_field(
     )
 
 
+def test_a_ray_that_hits_nothing_is_compared_with_its_pixels_own_window(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """Depth 0 (nothing hit, the white background) has no point to track: the target of such a ray is its
+    pixel's window over the track's steps, so the background's loss stays at its count noise (it read the
+    camera's centre before, 0 almost everywhere: a loss of 1 a ray and a train PSNR near 0 dB)."""
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    cfg.integral.samples, cfg.integral.groups, cfg.integral.track = 1, 1, 3
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    method, counts = trainer.method, trainer.method.counts
+    _, _, pixels, steps = method.draw(trainer)
+    step = steps[:, 0]
+
+    def background(poses, pixels, perturb=True):  # type: ignore[no-untyped-def]
+        n = len(pixels)
+        return RenderOutput(torch.ones(n, 1, requires_grad=True), torch.zeros(n), torch.zeros(n))
+
+    trainer.render_rays = background  # type: ignore[method-assign]
+    term = method.track_term(trainer, pixels, step)
+    own = counts.window_mean((step - 3).clamp_min(0), (step + 4).clamp_max(counts.steps), pixels)
+    torch.testing.assert_close(term.loss, window_mean_loss(torch.ones(len(step), 1, 1), own, None))
+    behind = counts.track_mean(*pixel_rays(counts.poses[step], dataset.intrinsics, pixels)[:1], step, 3,
+                               dataset.intrinsics)  # fmt: skip
+    assert float(term.loss) < float(window_mean_loss(torch.ones(len(step), 1, 1), behind, None))
+
+
 def test_learned_prior_adds_its_weighted_term_and_its_gradient(
     dataset_dir: Path, dataset, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]
@@ -293,9 +320,10 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.interpolate=maybe"], "integral.interpolate"),
         (["--set", "integral.interpolate=true", "--holdout"], "--holdout"),
         (["--set", "integral.interpolate_span=4"], "integral.interpolate_span"),  # without interpolate
-        (["--set", "integral.track=-1"], "integral.track"),
-        (["--set", "integral.track=3", "--integral-samples", "2"], "integral.track"),
-        (["--set", "integral.track=3", "--holdout"], "--holdout"),
+        (["--set", "integral.track=-1"], "--integral-track"),
+        (["--integral-track", "-1"], "--integral-track"),
+        (["--integral-track", "3", "--integral-samples", "2"], "--integral-track"),
+        (["--integral-track", "3", "--holdout"], "--holdout"),
         (
             ["--set", "integral.interpolate=true", "--set", "integral.interpolate_span=-1"],
             "integral.interpolate_span",
@@ -465,3 +493,40 @@ def test_a_run_records_the_window_its_dataset_chose_and_resumes_with_it(
     given = test_train._config(dataset_dir, method="spike-integral")
     given.integral.lengths = [7]
     assert Trainer(given, tmp_path / "other", dataset, progress=False).config.integral.lengths == [7]
+
+
+@pytest.mark.parametrize(
+    ("motion", "options", "half"),
+    [(0.179, {}, 0), (0.3, {}, 0), (0.31, {}, 5), (0.48, {}, 5), (3.0, {}, 5), (math.nan, {}, 0),
+     (0.48, {"samples": 2}, 0), (0.48, {"groups": 2}, 0), (0.48, {"held_out": True}, 0)],
+)  # fmt: skip
+def test_tracks_are_the_default_where_the_motion_shortens_the_window(
+    motion: float, options: dict, half: int
+) -> None:
+    from spikenerf.train.methods import TRACK_HALF, default_track
+
+    assert TRACK_HALF == 5 and default_track(motion, **options) == half
+
+
+def test_a_run_records_its_default_track_and_a_run_from_before_tracks_resumes_without(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """An image that moves 0.48 px a step (3-step windows; the fixture's, 16 px wide, moves less): tracks on
+    by default, recorded; off with held-out steps and where it moves less; a run whose config.yaml has no
+    ``track`` (written before it existed) resumes with none."""
+    import spikenerf.train.methods as methods
+
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    assert cfg.integral.track is None
+    assert Trainer(cfg, tmp_path / "slow", dataset, progress=False).config.integral.track == 0
+    monkeypatch.setattr(methods, "image_motion", lambda *args: 0.48)
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    assert trainer.config.integral.track == 5 and trainer.config.integral.lengths == [3]
+    trainer.train(stop_after=1)
+    config = tmp_path / "run" / "config.yaml"
+    assert "  track: 5\n" in config.read_text()
+    assert Trainer(cfg, tmp_path / "run", dataset, resume=True, progress=False).config.integral.track == 5
+    held = test_train._config(dataset_dir, method="spike-integral", holdout=True)
+    assert methods.SpikeIntegral.for_dataset(held, dataset).integral.track == 0
+    config.write_text(config.read_text().replace("  track: 5\n", ""))  # a run from before track windows
+    assert Trainer(cfg, tmp_path / "run", dataset, resume=True, progress=False).config.integral.track == 0

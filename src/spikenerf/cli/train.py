@@ -20,7 +20,13 @@ from spikenerf.train.config import (
     load_run_config,
 )
 from spikenerf.train.logger import LOG_KINDS
-from spikenerf.train.methods import INTEGRAL_SHORTEST, INTEGRAL_SPAN_PX, INTEGRAL_WINDOW, METHOD_CLASSES
+from spikenerf.train.methods import (
+    INTEGRAL_SHORTEST,
+    INTEGRAL_SPAN_PX,
+    INTEGRAL_WINDOW,
+    METHOD_CLASSES,
+    TRACK_HALF,
+)
 from spikenerf.train.trainer import CONFIG_FILE, train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
@@ -46,6 +52,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "window_poses": ("targets", "window_poses"),
     "integral_window": ("integral", "lengths"),
     "integral_samples": ("integral", "samples"),
+    "integral_track": ("integral", "track"),
     "lam": ("spike", "lam"),
     "spike_loss": ("spike", "kind"),
     "spike_window": ("spike", "window"),
@@ -143,6 +150,16 @@ PARAM_FLAGS = {
     default=_D.integral.samples,
     show_default=True,
     help="spike-integral: steps rendered per window (stratified; their mean estimates the window's).",
+)
+@click.option(
+    "--integral-track",
+    type=int,
+    default=None,
+    help="spike-integral: h > 0 compares each render, after "
+    f"{_D.integral.track_after} iterations (--set integral.track_after), with the spikes along its point's "
+    "image track over 2h + 1 steps; 0: its pixel's window (docs/spike-integral.md) [default: "
+    f"{TRACK_HALF} where the image moves more than {INTEGRAL_SPAN_PX / INTEGRAL_WINDOW:g} px a step, "
+    "else 0].",
 )
 @click.option(
     "--spike-window", type=int, default=_D.spike.window, show_default=True, help="Steps per window."

@@ -98,7 +98,9 @@ class CompiledStep:
         if self.failed is None:
             rng = _rng_state(self.device)
             try:
-                with suspended():
+                # cuDNN's grid sampler has no fake-tensor kernel (a 16384-ray step failed to compile on an
+                # H200); the step uses no other cuDNN op, so the graph is traced without it
+                with suspended(), torch.backends.cudnn.flags(enabled=False):
                     if self.cuda_graphs:
                         torch.compiler.cudagraph_mark_step_begin()
                     step = self.compiled(state, iteration, drawn)

@@ -117,8 +117,10 @@ class IntegralConfig:
             apart (0: any), plain counts elsewhere; needs ``interpolate``.
         track: h > 0: from iteration ``track_after`` on, compare each render with the spike counts along the
             image track of its point over the 2h + 1 steps around its step (``CountTargets.track_mean``; the
-            field's depth, detached), not with its own pixel's window; 0 (the default): off. Needs
-            ``samples`` and ``groups`` 1 and holdout off. track_after: iterations of plain windows first.
+            field's depth, detached), not with its own pixel's window; 0: off. Needs ``samples`` and
+            ``groups`` 1 and holdout off. None (the default): ``TRACK_HALF`` where the image motion
+            shortens the default window, else 0 (``train.methods.default_track``), recorded resolved.
+            track_after: iterations of plain windows first.
         prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step
             (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
             step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
@@ -138,7 +140,7 @@ class IntegralConfig:
     align: bool = False
     interpolate: bool = False
     interpolate_span: int = 0
-    track: int = 0
+    track: int | None = None
     track_after: int = 400
     prior: IntegralPrior = "none"
     prior_weight: float = 1.0

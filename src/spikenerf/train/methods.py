@@ -44,7 +44,7 @@ from torch import Tensor
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
-from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
+from spikenerf.data.holdout import Holdout, checked, guard_radius, is_imported, make_holdout
 from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.samplers import RaySampler, WindowSampler
@@ -84,6 +84,9 @@ INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 5, 1
 INTEGRAL_SPAN_PX, INTEGRAL_SHORTEST = 1.5, 2
 #: spike-integral's default windows a step (docs/spike-integral.md, Cost): 4096 rays at one render each
 INTEGRAL_WINDOWS = 4096
+#: ``integral.track``'s default where the image motion shortens the default window (:func:`default_track`):
+#: tracks of 2 · TRACK_HALF + 1 steps (docs/spike-integral.md, Track windows)
+TRACK_HALF = 5
 #: a spike-aligned window (``integral.align``) spans at most this many times the longest window length
 ALIGN_LONGEST = 8
 
@@ -101,6 +104,15 @@ def default_window(motion: float, samples: int = 1) -> int:
     if math.isfinite(motion) and motion > 0:
         length = min(INTEGRAL_WINDOW, max(INTEGRAL_SHORTEST, math.floor(INTEGRAL_SPAN_PX / motion)))
     return max(length, samples)
+
+
+def default_track(motion: float, samples: int = 1, groups: int = 1, held_out: bool = False) -> int:
+    """spike-integral's ``integral.track`` when none is given: :data:`TRACK_HALF` where the image moves so
+    fast that :func:`default_window` is shorter than :data:`INTEGRAL_WINDOW` (over
+    ``INTEGRAL_SPAN_PX / INTEGRAL_WINDOW`` pixels a step: 0.3), else 0; also 0 with more than one render a
+    window (``samples``, ``groups``) or with held-out steps (``held_out``), which tracks do not support."""
+    shortened = default_window(motion) < INTEGRAL_WINDOW
+    return TRACK_HALF if shortened and samples == 1 and groups == 1 and not held_out else 0
 
 
 class TrainState(Protocol):
@@ -532,12 +544,18 @@ class SpikeIntegral(TrainMethod):
 
     @classmethod
     def for_dataset(cls, config: Config, dataset: SpikeDataset) -> Config:
-        """The window length, where none is given: :func:`default_window` of the dataset's image motion."""
+        """The window length and the track, where none is given: :func:`default_window` and
+        :func:`default_track` of the dataset's image motion."""
         c = config.integral
-        if c.lengths is not None:
+        if c.lengths is not None and c.track is not None:
             return config
         motion = image_motion(dataset.trajectory.poses, dataset.intrinsics, dataset.scene_box)
-        integral = dataclasses.replace(c, lengths=[default_window(motion, c.samples)])
+        held_out = is_imported(dataset) if config.holdout is None else bool(config.holdout)
+        integral = dataclasses.replace(
+            c,
+            lengths=[default_window(motion, c.samples)] if c.lengths is None else c.lengths,
+            track=default_track(motion, c.samples, c.groups, held_out) if c.track is None else c.track,
+        )
         return dataclasses.replace(config, integral=integral)
 
     def __init__(self, config: Config) -> None:
@@ -676,6 +694,13 @@ class SpikeIntegral(TrainMethod):
             origins, dirs = pixel_rays(poses, state.dataset.intrinsics, pixels)
             points = origins + out.depth.detach()[:, None] * dirs
             target = counts.track_mean(points, steps, c.track, state.dataset.intrinsics).to(state.device)
+            # a ray that hits nothing (depth 0: the white background) has no point to track: its pixel's
+            # own window over the same steps (it read the camera's centre, mostly 0, before)
+            k = steps.to(counts.counts.device)
+            own = counts.window_mean(
+                (k - c.track).clamp_min(0), (k + c.track + 1).clamp_max(counts.steps), pixels
+            ).to(state.device)
+            target = torch.where(out.depth.detach()[:, None] > 0, target, own)
         loss = window_mean_loss(out.color[:, None], target, None)
         if out.coarse_color is not None:
             loss = loss + window_mean_loss(out.coarse_color[:, None], target, None)

@@ -106,8 +106,11 @@ def _lr_final_ratio(config: TrainConfig, model: RadianceModel) -> float:
 def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, TrainConfig]:
     """The run's stored config and ``given``; a run from before the hold-out (its config.yaml has no
     ``holdout`` key) trained on every step, so it resumes without one unless ``given`` asks for it. Window
-    poses, masks and rays per step that ``given`` leaves to their defaults are the run's own."""
+    poses, masks, rays per step, windows and tracks that ``given`` leaves to their defaults are the run's
+    own; a run from before track windows has none."""
     stored = load_run_config(path)
+    if stored.integral.track is None:  # a run from before track windows: none
+        stored.integral.track = 0
     if not any(line.startswith("holdout:") for line in path.read_text(encoding="utf-8").splitlines()):
         stored.holdout = False
         if given.holdout is None:
@@ -123,6 +126,9 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
         given = dataclasses.replace(given, batch=stored.batch)
     if given.integral.lengths is None:  # not asked: the windows the run trained with
         integral = dataclasses.replace(given.integral, lengths=stored.integral.lengths)
+        given = dataclasses.replace(given, integral=integral)
+    if given.integral.track is None:  # not asked: the run's tracks
+        integral = dataclasses.replace(given.integral, track=stored.integral.track)
         given = dataclasses.replace(given, integral=integral)
     return stored, given
 

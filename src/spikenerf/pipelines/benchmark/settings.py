@@ -25,7 +25,13 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config
 from spikenerf.fields.grid import native_bf16
 from spikenerf.train.config import TrainConfig
-from spikenerf.train.methods import INTEGRAL_SAMPLES, INTEGRAL_SPAN_PX, INTEGRAL_WINDOW, SpikeIntegral
+from spikenerf.train.methods import (
+    INTEGRAL_SAMPLES,
+    INTEGRAL_SPAN_PX,
+    INTEGRAL_WINDOW,
+    TRACK_HALF,
+    SpikeIntegral,
+)
 
 NAME = "benchmark.json"
 #: field-config entries added after folders were started, with the value that trains as before they
@@ -54,7 +60,7 @@ def settings(cfg: Any) -> dict:
     values = {k: getattr(cfg, k) for k in KEYS if k != "color"}
     values["iters"] = values["iters"] or TrainConfig().iters
     integral = {"window": INTEGRAL_WINDOW, "samples": INTEGRAL_SAMPLES, "batch": SpikeIntegral.default_batch,
-                "window_span_px": INTEGRAL_SPAN_PX}  # fmt: skip
+                "window_span_px": INTEGRAL_SPAN_PX, "track": TRACK_HALF}  # fmt: skip
     return {"color": color, **values, "field_defaults": defaults, "integral_defaults": integral}
 
 
