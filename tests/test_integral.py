@@ -17,6 +17,7 @@ from spikenerf.camera.model import fire
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.core.errors import InputError
 from spikenerf.data.integral import (
+    CountTargets,
     WindowTargetSampler,
     count_targets,
     stratified_steps,
@@ -323,7 +324,6 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.track=-1"], "--integral-track"),
         (["--integral-track", "-1"], "--integral-track"),
         (["--integral-track", "3", "--integral-samples", "2"], "--integral-track"),
-        (["--integral-track", "3", "--holdout"], "--holdout"),
         (
             ["--set", "integral.interpolate=true", "--set", "integral.interpolate_span=-1"],
             "integral.interpolate_span",
@@ -498,7 +498,7 @@ def test_a_run_records_the_window_its_dataset_chose_and_resumes_with_it(
 @pytest.mark.parametrize(
     ("motion", "options", "half"),
     [(0.179, {}, 0), (0.3, {}, 0), (0.31, {}, 5), (0.48, {}, 5), (3.0, {}, 5), (math.nan, {}, 0),
-     (0.48, {"samples": 2}, 0), (0.48, {"groups": 2}, 0), (0.48, {"held_out": True}, 0)],
+     (0.48, {"samples": 2}, 0), (0.48, {"groups": 2}, 0)],
 )  # fmt: skip
 def test_tracks_are_the_default_where_the_motion_shortens_the_window(
     motion: float, options: dict, half: int
@@ -512,7 +512,7 @@ def test_a_run_records_its_default_track_and_a_run_from_before_tracks_resumes_wi
     dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:  # type: ignore[no-untyped-def]
     """An image that moves 0.48 px a step (3-step windows; the fixture's, 16 px wide, moves less): tracks on
-    by default, recorded; off with held-out steps and where it moves less; a run whose config.yaml has no
+    by default (held-out steps too), recorded; off where it moves less; a run whose config.yaml has no
     ``track`` (written before it existed) resumes with none."""
     import spikenerf.train.methods as methods
 
@@ -526,7 +526,50 @@ def test_a_run_records_its_default_track_and_a_run_from_before_tracks_resumes_wi
     config = tmp_path / "run" / "config.yaml"
     assert "  track: 5\n" in config.read_text()
     assert Trainer(cfg, tmp_path / "run", dataset, resume=True, progress=False).config.integral.track == 5
-    held = test_train._config(dataset_dir, method="spike-integral", holdout=True)
-    assert methods.SpikeIntegral.for_dataset(held, dataset).integral.track == 0
+    held = test_train._config(dataset_dir, method="spike-integral", holdout=True, holdout_radius=2)
+    held.integral.track_after = 0
+    run = Trainer(held, tmp_path / "held", dataset, progress=False)
+    assert run.config.integral.track == 5 and run.method.holdout is not None
+    usable = run.method.counts.usable  # tracks skip the hold-out's bands
+    assert usable is not None and torch.equal(usable.cpu(), torch.as_tensor(~run.method.holdout.band()))
+    assert math.isfinite(run.train(stop_after=1).train_psnr)
     config.write_text(config.read_text().replace("  track: 5\n", ""))  # a run from before track windows
     assert Trainer(cfg, tmp_path / "run", dataset, resume=True, progress=False).config.integral.track == 0
+
+
+def test_still_tracks_are_clipped_windows_and_tracks_skip_unusable_steps(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """``still_mean`` is the pixel's window over the track's steps; with ``usable`` (a hold-out's bands
+    excluded) neither mean reads an excluded step: a stream whose spikes all lie in excluded steps reads 0."""
+    import dataclasses
+
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    counts = Trainer(cfg, tmp_path / "run", dataset, progress=False).method.counts
+    step = torch.tensor([0, 1, 7, counts.steps - 2, counts.steps - 1])
+    pixels = torch.tensor([[0, 0], [3, 5], [15, 15], [8, 2], [4, 4]])
+    for half in (0, 2, 5):
+        window = counts.window_mean(
+            (step - half).clamp_min(0), (step + half + 1).clamp_max(counts.steps), pixels
+        )
+        torch.testing.assert_close(counts.still_mean(pixels, step, half), window)
+    origins, dirs = pixel_rays(counts.poses[step], dataset.intrinsics, pixels)
+    points = origins + 3.0 * dirs
+    usable = torch.rand(counts.steps, generator=torch.Generator().manual_seed(0)) < 0.5
+    usable[step] = True
+    masked = dataclasses.replace(counts, usable=usable)
+    spikes = counts.counts[1:].int() - counts.counts[:-1].int()  # (T, H, W, C)
+
+    def keep(steps: torch.Tensor) -> CountTargets:  # the stream with the spikes of ``steps`` only
+        kept = counts.counts.clone()
+        kept[1:] = torch.cumsum(spikes * steps[:, None, None, None], dim=0).to(kept.dtype)
+        return dataclasses.replace(masked, counts=kept)
+
+    means = (
+        lambda c: c.still_mean(pixels, step, 4),
+        lambda c: c.track_mean(points, step, 4, dataset.intrinsics),
+    )
+    for fn in means:
+        assert torch.equal(fn(keep(~usable)), torch.zeros_like(fn(masked)))  # reads no unusable step
+        torch.testing.assert_close(fn(keep(usable)), fn(masked), atol=0, rtol=0)
+        assert not torch.equal(fn(dataclasses.replace(keep(usable), usable=None)), fn(counts))

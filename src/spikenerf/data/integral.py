@@ -41,12 +41,15 @@ class CountTargets:
         threshold: φ of the camera.
         phase: None, or (T + 1, H, W, C) uint8: the interpolated fraction of a spike's light already gathered
             before step t, in 1/256 (:func:`count_phases`); ``window_mean`` then reads ``C_t + phase_t/256``.
+        usable: None (every step), or (T,) bool: the steps that :meth:`track_mean` and :meth:`still_mean`
+            may read (a run's held-out bands excluded, ``data.holdout.Holdout.band``).
     """
 
     counts: Tensor
     poses: Tensor
     threshold: float
     phase: Tensor | None = None
+    usable: Tensor | None = None
 
     @property
     def steps(self) -> int:
@@ -56,7 +59,8 @@ class CountTargets:
     def on(self, device: torch.device | str) -> CountTargets:
         """A copy whose counts and poses live on ``device`` (the training GPU), gathered there."""
         phase = None if self.phase is None else self.phase.to(device)
-        return CountTargets(self.counts.to(device), self.poses.to(device), self.threshold, phase)
+        usable = None if self.usable is None else self.usable.to(device)
+        return CountTargets(self.counts.to(device), self.poses.to(device), self.threshold, phase, usable)
 
     @property
     def nbytes(self) -> int:
@@ -78,25 +82,47 @@ class CountTargets:
             n = n + (self.phase[end, y, x].float() - self.phase[start, y, x].float()) / PHASE_SCALE
         return self.threshold * n / (end - start).float()[:, None]
 
+    def _track_steps(self, steps: Tensor, half: int) -> tuple[Tensor, Tensor]:
+        """The steps ``steps − half … steps + half`` (B, L) int64, clamped into the stream, and (B, L) bool:
+        inside the stream and :attr:`usable`."""
+        device, total = self.counts.device, self.steps
+        j = steps.to(device)[:, None] + torch.arange(-half, half + 1, device=device)[None]
+        valid = (j >= 0) & (j < total)
+        j = j.clamp(0, total - 1)
+        if self.usable is not None:
+            valid &= self.usable.to(device)[j]
+        return j, valid
+
+    def _mean_along(self, j: Tensor, x: Tensor, y: Tensor, valid: Tensor) -> Tensor:
+        """``φ/L' Σ s_j(x_j, y_j)`` (B, C) over the L' ``valid`` of the (B, L) steps ``j`` and pixels."""
+        spikes = (self.counts[j + 1, y, x].int() - self.counts[j, y, x].int()).float() * valid[..., None]
+        return self.threshold * spikes.sum(dim=1) / valid.sum(dim=1).clamp_min(1)[:, None].float()
+
     def track_mean(self, points: Tensor, steps: Tensor, half: int, intrinsics: Intrinsics) -> Tensor:
         """Mean spike intensity (B, C) float32 along the image tracks of world ``points`` (B, 3): over the
         steps ``steps − half … steps + half`` of ``steps`` (B,) int64, the spike of each step read at the
         pixel the point projects to in that step's pose (OpenGL axes), ``φ/L' Σ_j s_j(pixel_j)`` over the
-        L' steps inside the stream whose pixel is inside the image. On the counts' device; no host sync.
-        A one-step track (``half`` 0) of a point on pixel p's ray at step k is ``window_mean(k, k + 1, p)``.
+        L' steps inside the stream (and :attr:`usable`) whose pixel is inside the image. On the counts'
+        device; no host sync. A one-step track (``half`` 0) of a point on pixel p's ray at step k is
+        ``window_mean(k, k + 1, p)``.
         """
-        device, prefix = self.counts.device, self.counts
-        j = steps.to(device)[:, None] + torch.arange(-half, half + 1, device=device)[None]  # (B, L)
-        valid = (j >= 0) & (j < prefix.shape[0] - 1)
-        j = j.clamp(0, prefix.shape[0] - 2)
+        j, valid = self._track_steps(steps, half)
         u, v, depth = project_points(
-            self.poses.to(device)[j], points.to(device, torch.float32)[:, None], intrinsics
+            self.poses.to(j.device)[j], points.to(j.device, torch.float32)[:, None], intrinsics
         )
         x, y = torch.floor(u).long(), torch.floor(v).long()
         valid &= (depth > 1e-6) & (x >= 0) & (x < intrinsics.width) & (y >= 0) & (y < intrinsics.height)
         x, y = x.clamp(0, intrinsics.width - 1), y.clamp(0, intrinsics.height - 1)
-        spikes = (prefix[j + 1, y, x].int() - prefix[j, y, x].int()).float() * valid[..., None]
-        return self.threshold * spikes.sum(dim=1) / valid.sum(dim=1).clamp_min(1)[:, None].float()
+        return self._mean_along(j, x, y, valid)
+
+    def still_mean(self, pixels: Tensor, steps: Tensor, half: int) -> Tensor:
+        """:meth:`track_mean` of a track that stays at ``pixels`` (B, 2) int64 ``(x, y)``: the pixel's own
+        mean spike intensity (B, C) over the same steps; without :attr:`usable`, ``window_mean`` of the
+        window ``[steps − half, steps + half + 1)`` clipped to the stream."""
+        j, valid = self._track_steps(steps, half)
+        pixels = pixels.to(j.device)
+        x, y = pixels[:, :1].expand_as(j), pixels[:, 1:].expand_as(j)
+        return self._mean_along(j, x, y, valid)
 
     def align(
         self, start: Tensor, end: Tensor, pixels: Tensor, generator: torch.Generator, longest: int

@@ -118,7 +118,7 @@ class IntegralConfig:
         track: h > 0: from iteration ``track_after`` on, compare each render with the spike counts along the
             image track of its point over the 2h + 1 steps around its step (``CountTargets.track_mean``; the
             field's depth, detached), not with its own pixel's window; 0: off. Needs ``samples`` and
-            ``groups`` 1 and holdout off. None (the default): ``TRACK_HALF`` where the image motion
+            ``groups`` 1; skips held-out steps. None (the default): ``TRACK_HALF`` where the image motion
             shortens the default window, else 0 (``train.methods.default_track``), recorded resolved.
             track_after: iterations of plain windows first.
         prior: ``learned``: add a reconstruction term on the shipped network's reconstructions of every step

@@ -44,7 +44,7 @@ from torch import Tensor
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
-from spikenerf.data.holdout import Holdout, checked, guard_radius, is_imported, make_holdout
+from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
 from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.samplers import RaySampler, WindowSampler
@@ -106,13 +106,13 @@ def default_window(motion: float, samples: int = 1) -> int:
     return max(length, samples)
 
 
-def default_track(motion: float, samples: int = 1, groups: int = 1, held_out: bool = False) -> int:
+def default_track(motion: float, samples: int = 1, groups: int = 1) -> int:
     """spike-integral's ``integral.track`` when none is given: :data:`TRACK_HALF` where the image moves so
     fast that :func:`default_window` is shorter than :data:`INTEGRAL_WINDOW` (over
     ``INTEGRAL_SPAN_PX / INTEGRAL_WINDOW`` pixels a step: 0.3), else 0; also 0 with more than one render a
-    window (``samples``, ``groups``) or with held-out steps (``held_out``), which tracks do not support."""
+    window (``samples``, ``groups``), which tracks do not support."""
     shortened = default_window(motion) < INTEGRAL_WINDOW
-    return TRACK_HALF if shortened and samples == 1 and groups == 1 and not held_out else 0
+    return TRACK_HALF if shortened and samples == 1 and groups == 1 else 0
 
 
 class TrainState(Protocol):
@@ -550,11 +550,10 @@ class SpikeIntegral(TrainMethod):
         if c.lengths is not None and c.track is not None:
             return config
         motion = image_motion(dataset.trajectory.poses, dataset.intrinsics, dataset.scene_box)
-        held_out = is_imported(dataset) if config.holdout is None else bool(config.holdout)
         integral = dataclasses.replace(
             c,
             lengths=[default_window(motion, c.samples)] if c.lengths is None else c.lengths,
-            track=default_track(motion, c.samples, c.groups, held_out) if c.track is None else c.track,
+            track=default_track(motion, c.samples, c.groups) if c.track is None else c.track,
         )
         return dataclasses.replace(config, integral=integral)
 
@@ -602,12 +601,9 @@ class SpikeIntegral(TrainMethod):
                 "holdout false",
                 param=("integral.interpolate", "holdout"),
             )
-        if c.track and self.holdout is not None:
-            raise InputError(
-                "integral.track: a track reads the spikes of the steps around its own, held-out ones too; "
-                "set holdout false",
-                param=("integral.track", "holdout"),
-            )
+        if c.track and self.holdout is not None:  # tracks skip the held-out bands' spikes
+            usable = torch.as_tensor(~self.holdout.band())
+            self.counts = dataclasses.replace(self.counts, usable=usable.to(self.counts.counts.device))
         aligner = None
         if c.align:
             if self.holdout is not None:
@@ -695,11 +691,8 @@ class SpikeIntegral(TrainMethod):
             points = origins + out.depth.detach()[:, None] * dirs
             target = counts.track_mean(points, steps, c.track, state.dataset.intrinsics).to(state.device)
             # a ray that hits nothing (depth 0: the white background) has no point to track: its pixel's
-            # own window over the same steps (it read the camera's centre, mostly 0, before)
-            k = steps.to(counts.counts.device)
-            own = counts.window_mean(
-                (k - c.track).clamp_min(0), (k + c.track + 1).clamp_max(counts.steps), pixels
-            ).to(state.device)
+            # own spikes over the same steps (it read the camera's centre, mostly 0, before)
+            own = counts.still_mean(pixels, steps, c.track).to(state.device)
             target = torch.where(out.depth.detach()[:, None] > 0, target, own)
         loss = window_mean_loss(out.color[:, None], target, None)
         if out.coarse_color is not None:
