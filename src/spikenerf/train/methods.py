@@ -522,7 +522,8 @@ class SpikeIntegral(TrainMethod):
     name, uses_stream = "spike-integral", True
     summary = (
         "the default; ours, not in the paper: spike-count means over short windows compared with renders "
-        "at steps drawn inside each window, at their own poses; --integral-window, --integral-samples"
+        "at steps drawn inside each window, at their own poses, and where the image moves fast the spikes "
+        "along each rendered point's image track; --integral-window, --integral-samples, --integral-track"
     )
     default_batch = INTEGRAL_WINDOWS * INTEGRAL_SAMPLES
 
