@@ -146,6 +146,60 @@ def test_static_render_traces_as_one_graph_and_the_packed_one_does_not(
     assert model.field.density_planes.grad.abs().sum() > 0
 
 
+def _colours(model, count: int) -> None:  # type: ignore[no-untyped-def]
+    model.field.config = dataclasses.replace(model.field.config, static_colors=count)
+
+
+@pytest.mark.parametrize("occupancy", [False, True])
+def test_a_colour_budget_that_holds_every_shown_slot_changes_nothing(occupancy: bool) -> None:
+    """``static_colors``: colour decoded only in the C × N slots of largest weight; where they hold every
+    slot above the threshold, colour, depth, opacity and gradients are those of every slot decoded."""
+    model = _model(occupancy)
+    rays = _rays(model)
+    _static(model, ALL_FIT)
+    full, full_grads = _render(model, rays)
+    assert full.dropped_colors is None
+    _colours(model, 20)  # 20 × N slots: more than this grid shows above its 1e-2 threshold (checked below)
+    part, part_grads = _render(model, rays)
+    assert part.dropped_colors is not None and int(part.dropped_colors) == 0
+    for name in ("color", "depth", "opacity"):
+        torch.testing.assert_close(getattr(part, name), getattr(full, name), atol=1e-6, rtol=1e-6)
+    for g, e in zip(part_grads, full_grads, strict=True):
+        torch.testing.assert_close(g, e, atol=1e-6, rtol=1e-5)
+
+
+def test_a_small_colour_budget_keeps_the_heaviest_slots_and_counts_the_rest() -> None:
+    from spikenerf.render.grid_model import colour_slots
+
+    weights = torch.tensor([0.5, 0.0, 0.2, 0.05, 0.3, 0.001])
+    shown = weights > 0.01
+    slots, lost = colour_slots(weights, shown, 2)
+    assert sorted(slots.tolist()) == [0, 4] and int(lost) == 2  # 0.2 and 0.05 left out
+    slots, lost = colour_slots(weights, shown, 5)
+    assert set(slots.tolist()) >= {0, 2, 3, 4} and int(lost) == 0
+    model = _model(occupancy=False)
+    rays = _rays(model)
+    _static(model, ALL_FIT)
+    full = model.render_rays(*rays)
+    _colours(model, 1)
+    one = model.render_rays(*rays)
+    assert int(one.dropped_colors) > 0 and torch.isfinite(one.color).all()
+    torch.testing.assert_close(one.opacity, full.opacity)  # density is every slot's still
+    assert not torch.allclose(one.color, full.color)
+    _colours(model, ALL_FIT)  # a budget as large as the slots': every slot decoded, as without one
+    assert model.render_rays(*rays).dropped_colors is None
+
+
+def test_a_colour_budget_traces_as_one_graph(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(grid_module, "usable", lambda *_: False)
+    model = _model(occupancy=True)
+    rays = _rays(model, (6, 5))
+    _static(model, ALL_FIT)
+    _colours(model, 4)
+    explained = torch._dynamo.explain(model.render_rays)(*rays, True)
+    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
+
+
 def test_train_with_static_samples_runs_and_a_bad_value_is_one_line(
     dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

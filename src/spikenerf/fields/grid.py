@@ -55,6 +55,11 @@ class GridFieldConfig:
             order, so when a call's rays need more than the budget the samples past it are dropped (the
             ray at the end of the budget loses its tail, later rays get none; the render output counts
             them). See ``GridModel``.
+        static_colors: with ``static_samples``: 0 (the default): colour is decoded in every slot. C > 0:
+            colour is decoded in ``C × rays`` slots only, those with the largest weights above
+            ``weight_threshold`` in the call (``torch.topk``: still no data-dependent shape); a weight
+            beyond them keeps its place in the opacity but adds no colour (the render output counts them
+            in ``dropped_colors``).
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
@@ -79,6 +84,7 @@ class GridFieldConfig:
         "density_components": _ABOVE0, "app_components": _ABOVE0, "app_dim": _ABOVE0, "hidden": _ABOVE0,
         "view_freqs": _LEAST0, "init_scale": _LEAST0, "distance_scale": _ABOVE0, "step_ratio": _ABOVE0,
         "max_samples": _ABOVE0, "weight_threshold": _LEAST0, "static_samples": _LEAST0,
+        "static_colors": _LEAST0,
         "occupancy_start": _LEAST0, "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
         "occupancy_max_resolution": _LEAST0,
         "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1), "batch_rays": _ABOVE0,
@@ -101,6 +107,7 @@ class GridFieldConfig:
     max_samples: int = 1024
     weight_threshold: float = 1e-4
     static_samples: int = 0
+    static_colors: int = 0
     decoder_bf16: bool = True
     occupancy: bool = True
     occupancy_start: int = 250

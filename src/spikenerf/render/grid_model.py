@@ -161,8 +161,10 @@ class GridModel(RadianceModel):
         """:meth:`render_rays` in ``static_samples`` × N slots (:meth:`_march_static`), for normalised
         origins and directions (N, 3), unit ``dirs`` (N, 3), near/far (N,): every shape is fixed by N.
 
-        Unkept slots get zero density (so zero weight); colour is decoded in every slot and counted where
-        the weight exceeds ``weight_threshold``, so the result is the packed path's when all samples fit.
+        Unkept slots get zero density (so zero weight); colour is counted where the weight exceeds
+        ``weight_threshold``, so the result is the packed path's when all samples fit. Colour is decoded in
+        every slot, or with ``static_colors`` C > 0 in the C × N slots of largest weight only
+        (:func:`colour_slots`).
         """
         field, cfg, n = self.field, self.field.config, o_n.shape[0]
         budget = n * cfg.static_samples
@@ -171,6 +173,21 @@ class GridModel(RadianceModel):
         sigma = torch.where(keep, field.density_norm(xn), 0.0)
         weights = packed_weights(sigma, deltas, ray, 2 * n)
         shown = weights.detach() > cfg.weight_threshold
-        rgb = torch.where(shown[:, None], field.color_norm(xn, dirs[ray_at]), 0.0)
+        lost = None
+        if cfg.static_colors and n * cfg.static_colors < budget:
+            slots, lost = colour_slots(weights.detach(), shown, n * cfg.static_colors)
+            picked = field.color_norm(xn[slots], dirs[ray_at[slots]]) * shown[slots, None]
+            rgb = picked.new_zeros(budget, picked.shape[1]).index_put((slots,), picked)
+        else:
+            rgb = torch.where(shown[:, None], field.color_norm(xn, dirs[ray_at]), 0.0)
         color, depth, opacity = packed_composite(weights, ray, 2 * n, t, rgb, None)
-        return RenderOutput(color[:n], depth[:n], opacity[:n], num_samples=budget, dropped_samples=dropped)
+        return RenderOutput(color[:n], depth[:n], opacity[:n], num_samples=budget, dropped_samples=dropped,
+                            dropped_colors=lost)  # fmt: skip
+
+
+def colour_slots(weights: Tensor, shown: Tensor, count: int) -> tuple[Tensor, Tensor]:
+    """The ``count`` slots (count,) int64 of largest ``weights`` (B,) among the ``shown`` (B,) bool ones
+    (unshown slots fill the rest), and () int64: the shown slots left out. Fixed shapes, no host sync."""
+    score = torch.where(shown, weights, -1.0)
+    slots = torch.topk(score, count, sorted=False).indices
+    return slots, (shown.sum() - shown[slots].sum()).clamp_min(0)

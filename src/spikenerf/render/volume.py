@@ -33,6 +33,8 @@ class RenderOutput:
             sample budget, the budget).
         dropped_samples: () int64, the sample slots that did not fit in a static sample budget (the grid's
             ``static_samples``; None otherwise). A tensor, so that no host sync is needed to make it.
+        dropped_colors: () int64, the slots above the weight threshold whose colour the grid's
+            ``static_colors`` budget left out (None without that budget).
     """
 
     color: Tensor
@@ -42,6 +44,7 @@ class RenderOutput:
     coarse_color: Tensor | None = None
     num_samples: int = 0
     dropped_samples: Tensor | None = None
+    dropped_colors: Tensor | None = None
 
 
 def weights_from_density(sigma: Tensor, deltas: Tensor) -> Tensor:
