@@ -190,6 +190,15 @@ def test_a_small_colour_budget_keeps_the_heaviest_slots_and_counts_the_rest() ->
     assert model.render_rays(*rays).dropped_colors is None
 
 
+def test_a_colour_budget_without_a_sample_budget_is_refused() -> None:
+    from spikenerf.core.errors import InputError
+    from spikenerf.fields import field_config
+
+    with pytest.raises(InputError, match=r"field_config\.static_colors 8 needs a static sample budget"):
+        field_config("grid", {"static_colors": 8})
+    assert field_config("grid", {"static_colors": 8, "static_samples": 64}).static_colors == 8
+
+
 def test_a_colour_budget_traces_as_one_graph(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(grid_module, "usable", lambda *_: False)
     model = _model(occupancy=True)

@@ -83,6 +83,8 @@ def field_config(kind: str, config: Any = None) -> Any:
     if isinstance(config, dict):  # checked like every config: types and BOUNDS (spikenerf.core.config)
         cfg = from_mapping(cls, config, f"{kind} field config")
         check_config(cfg, "field_config.")
+        if hasattr(cfg, "check"):  # relations between keys
+            cfg.check()
         return cfg
     raise InputError(f"{kind} field config must be a {cls.__name__} or a dict, got {type(config).__name__}")
 

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from spikenerf.core.config import Bound
+from spikenerf.core.errors import InputError
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
@@ -136,6 +137,15 @@ class GridFieldConfig:
         )
 
     # the memory estimates of fields/memory.py and ``field_memory``, per field kind
+    def check(self) -> None:
+        """InputError (naming ``field_config.static_colors``) for a colour budget without a sample budget."""
+        if self.static_colors and not self.static_samples:
+            raise InputError(
+                f"field_config.static_colors {self.static_colors} needs a static sample budget: set "
+                "field_config.static_samples too (e.g. 64)",
+                param="field_config.static_colors",
+            )
+
     def training_size(self) -> tuple[float, float]:
         """(parameters, samples per ray) of the training-memory estimate (``field_memory``): the VM factors
         at the largest resolution, and the march along the box's diagonal (or the ``static_samples``
