@@ -136,7 +136,6 @@ class GridFieldConfig:
             iterations=iterations,
         )
 
-    # the memory estimates of fields/memory.py and ``field_memory``, per field kind
     def check(self) -> None:
         """InputError (naming ``field_config.static_colors``) for a colour budget without a sample budget."""
         if self.static_colors and not self.static_samples:
@@ -146,6 +145,7 @@ class GridFieldConfig:
                 param="field_config.static_colors",
             )
 
+    # the memory estimates of fields/memory.py and ``field_memory``, per field kind
     def training_size(self) -> tuple[float, float]:
         """(parameters, samples per ray) of the training-memory estimate (``field_memory``): the VM factors
         at the largest resolution, and the march along the box's diagonal (or the ``static_samples``
