@@ -109,6 +109,39 @@ def test_the_compiled_step_trains_and_resumes_like_the_eager_static_step(
     assert all(torch.isfinite(p).all() for p in resumed.model.parameters())
 
 
+def test_one_recompile_serves_every_later_grid_resolution(
+    dataset_dir: Path, dataset, tmp_path: Path, aot_eager: None
+) -> None:  # type: ignore[no-untyped-def]
+    cfg = _config(dataset_dir, "nerf-gt", True)
+    trainer, losses = _run(cfg, tmp_path / "run", dataset)
+    assert trainer.model.field.resolution == 20 and len(losses) == cfg.iters  # 12, 15, 20: upsampled twice
+    assert vars(trainer.method)["step_losses"].failed is None
+    assert _graphs() == 2, counters["stats"]  # the first resolution's graph, then one with symbolic sizes
+
+
+def test_draws_go_to_the_gpu_only_where_every_target_lives_there(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.train.compiled_step import draws_to_device
+
+    trainer = Trainer(_config(dataset_dir, "nerf-gt", False), tmp_path / "run", dataset, progress=False)
+    assert trainer.method.targets is not None
+    assert not draws_to_device(trainer.method, torch.device("cpu"))
+    assert not draws_to_device(trainer.method, torch.device("cuda"))  # its targets are host tensors
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_pinned_copies_reach_the_gpu_unchanged() -> None:
+    from spikenerf.train.compiled_step import pinned_copies
+
+    drawn = (torch.arange(6), torch.rand(3, 2))
+    moved = pinned_copies(drawn, torch.device("cuda"))
+    assert all(m.is_cuda for m in moved)
+    for m, d in zip(moved, drawn, strict=True):
+        torch.testing.assert_close(m.cpu(), d)
+
+
 @pytest.mark.parametrize("failure", ["raises", "graph break"])
 def test_a_failing_compiled_step_trains_eagerly_with_one_warning(
     dataset_dir: Path,

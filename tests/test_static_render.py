@@ -116,6 +116,40 @@ def test_the_spare_slots_spread_over_spare_rays_at_distinct_points() -> None:
     assert len(torch.unique(points)) == len(points) and int(ray_at.max()) < n
 
 
+def test_the_budget_holds_the_kept_samples_only_not_the_empty_space_between_them() -> None:
+    """The march's empty slots (culled cells) are compacted away: a budget smaller than the march but as
+    large as the packed path's samples renders the packed result and cuts nothing; its spare slots lie at
+    distinct points of rays N … 2N − 1."""
+    model = _model(occupancy=True)
+    rays = _rays(model)
+    n, step = len(rays[0]), model.field.step_size
+    packed, packed_grads = _render(model, rays)
+    near, far = model._shorten(rays[0], rays[1], rays[2], rays[3], step)
+    slots = int(model._counts(near, far, step).sum())
+    samples = -(-packed.num_samples // n) + 1
+    assert samples * n < slots  # the march itself would not fit
+    _static(model, samples)
+    static, static_grads = _render(model, rays)
+    assert int(static.dropped_samples) == 0
+    torch.testing.assert_close(static.color, packed.color, atol=1e-5, rtol=1e-5)
+    for g, e in zip(static_grads, packed_grads, strict=True):
+        torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-4)
+    from spikenerf.render.grid_model import compact_slots
+
+    o_n = model.field.normalize(rays[0])
+    d_n = rays[1] * (2.0 / (model.field.scene_box[1] - model.field.scene_box[0]))
+    marched = model._march_static(o_n, d_n, near, far, step, 4 * samples * n)
+    ray, ray_at, k, keep, dropped = compact_slots(*marched, n, samples * n)
+    packed_ray, packed_k = model._march(o_n, d_n, near, far, step)
+    used = int(keep.sum())
+    assert used == len(packed_ray) and torch.equal(ray[:used], packed_ray) and torch.equal(k[:used], packed_k)
+    assert torch.all(ray[1:] >= ray[:-1]) and int(ray.max()) == 2 * n - 1 and not keep[used:].any()
+    points = ray_at[used:] * (samples * n + 1) + k[used:]
+    assert len(torch.unique(points)) == len(points)
+    ray, _, _, keep, dropped = compact_slots(*marched, n, used - 5)  # five kept slots too many
+    assert int(dropped) == 5 and bool(keep.all()) and torch.equal(ray, packed_ray[: used - 5])
+
+
 def test_a_tiny_budget_with_occupancy_stays_finite_and_an_empty_batch_renders() -> None:
     model = _model(occupancy=True)
     _static(model, 1)

@@ -4,9 +4,11 @@ Usage (from the repository root; meant for a CUDA host, runs on a CPU too)::
 
     PYTHONPATH=src python -m benchmarks.tools.profile_cuda_step DATASET [--device cuda]
         [--methods nerf-gt,spike-integral] [--batches 4096,16384] [--warmup 100] [--steps 100]
-        [--profile-steps 10] [--compile] [--field-option KEY=VALUE ...] [--json OUT.json]
+        [--profile-steps 10] [--compile] [--field-option KEY=VALUE ...] [--start METHOD=RUN ...]
+        [--json OUT.json]
 
-For each method × batch a fresh ``Trainer`` (evaluation and checkpoints off) trains ``--warmup``
+For each method × batch a fresh ``Trainer`` (evaluation and checkpoints off; with ``--start``, one
+resumed from a copy of a finished run, so that the step is the one at the end of training) trains ``--warmup``
 iterations, then ``--steps`` more are timed with the device synchronised before and after (ms per step,
 rays per second), then ``--profile-steps`` more run under ``torch.profiler`` (CPU and CUDA activities).
 Printed per case: wall ms per step; GPU time per step (kernels and copies, each counted once) and its
@@ -17,7 +19,9 @@ synchronisations per step; and the ops with the most host time and the most devi
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -27,7 +31,9 @@ import yaml
 from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
-from spikenerf.train.config import TrainConfig
+from spikenerf.train.checkpoint import save_checkpoint
+from spikenerf.train.compiled_step import CompiledStep, static_samples
+from spikenerf.train.config import TrainConfig, load_config, save_config
 from spikenerf.train.trainer import Trainer
 
 #: runtime calls counted per step (host side of the CUDA API)
@@ -61,10 +67,14 @@ def gpu_us(events: list) -> float:
 def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespace, root: Path) -> dict:
     """Time and profile one method × batch; returns the figures printed."""
     device = torch.device(args.device)
-    cfg = TrainConfig(dataset=str(dataset), method=method, batch=batch, iters=10**6, eval_every=0,  # type: ignore[arg-type]
-                      eval_views=1, device=args.device, compile=args.compile,
-                      field_config=dict(args.field_option))  # fmt: skip
-    trainer = Trainer(cfg, root / f"{method}-{batch}", progress=False)
+    out, start = root / f"{method}-{batch}", dict(args.start).get(method)
+    if start is None:
+        cfg = TrainConfig(dataset=str(dataset), method=method, batch=batch, iters=10**6, eval_every=0,  # type: ignore[arg-type]
+                          eval_views=1, device=args.device, compile=args.compile,
+                          field_config=dict(args.field_option))  # fmt: skip
+        trainer = Trainer(cfg, out, progress=False)
+    else:
+        trainer = resumed(Path(start), out, batch, args)
     trainer.evaluate = lambda *_a, **_k: float("nan")  # type: ignore[method-assign]
     trainer.checkpoint = lambda *_a, **_k: None  # type: ignore[method-assign]
     trainer.train(stop_after=args.warmup)
@@ -79,6 +89,7 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
         trainer.train(stop_after=args.profile_steps)
         _sync(device)
     events = prof.key_averages()
+    step = trainer.method.step_losses
     n = args.profile_steps
     counts = {key: sum(e.count for e in events if e.key in names) / n for key, names in API_CALLS.items()}
     kernel_us = gpu_us(list(events)) / n
@@ -88,6 +99,8 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
         "batch": batch,
         "compile": args.compile,
         "field_options": dict(args.field_option),
+        "static_samples": static_samples(trainer.model),  # as rendered (a resumed model's own config)
+        "compiled_step": isinstance(step, CompiledStep) and step.failed is None,
         "ms_per_step": ms,
         "rays_per_second": rays / wall,
         "gpu_kernel_ms_per_step": kernel_us / 1000,
@@ -107,6 +120,7 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
     calls = ", ".join(f"{v:.0f} {k}" for k, v in counts.items())
     rate = out["rays_per_second"] / 1e3
     opts = "".join(f" {k}={v}" for k, v in args.field_option) + (" --compile" if args.compile else "")
+    opts += " (compiled step)" if out["compiled_step"] else ""
     print(f"{method} batch {batch}{opts}: {ms:.2f} ms/step, {rate:.1f} k rays/s, GPU {gpu:.2f} ms/step "
           f"({busy:.0f} % busy), {calls} per step", flush=True)  # fmt: skip
     for title, key in (("host", "top_host_ops"), ("device", "top_device_ops")):
@@ -114,6 +128,29 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
         for name, t, c in out[key]:
             print(f"    {t:8.3f} {c:7.1f}  {name[:90]}")
     return out
+
+
+def resumed(run: Path, out: Path, batch: int, args: argparse.Namespace) -> Trainer:
+    """A trainer continuing a copy (at ``out``) of the finished ``run``: its grid resolution and occupancy,
+    with ``batch`` rays, ``--compile`` and the ``--field-option`` entries added to its field config."""
+    shutil.copytree(run, out)
+    cfg = load_config(out / "config.yaml")
+    field = {**cfg.field_config, **dict(args.field_option)}
+    cfg = dataclasses.replace(cfg, batch=batch, iters=cfg.iters + 10**5, eval_every=0, device=args.device,
+                              compile=args.compile, field_config=field)  # fmt: skip
+    save_config(cfg, out / "config.yaml")  # the copy's options are the ones asked: nothing to refuse
+    ckpt = torch.load(out / "checkpoint.pt", map_location="cpu", weights_only=True)
+    ckpt["hparams"]["config"].update(dict(args.field_option))  # a resumed model is built from these
+    save_checkpoint(out / "checkpoint.pt", ckpt)
+    return Trainer(cfg, out, resume=True, progress=False)
+
+
+def method_run(item: str) -> tuple[str, str]:
+    """``METHOD=RUN`` for ``--start``."""
+    method, sep, run = item.partition("=")
+    if not sep or not method or not Path(run, "checkpoint.pt").is_file():
+        raise argparse.ArgumentTypeError(f"expected METHOD=RUN with a finished run, found {item!r}")
+    return method, run
 
 
 def field_option(item: str) -> tuple[str, object]:
@@ -136,6 +173,9 @@ def main() -> None:
     parser.add_argument("--compile", action="store_true", help="train with --compile")
     parser.add_argument("--field-option", type=field_option, action="append", default=[], metavar="KEY=VALUE",
                         help="a field config entry (e.g. static_samples=64); repeatable")  # fmt: skip
+    parser.add_argument("--start", type=method_run, action="append", default=[], metavar="METHOD=RUN",
+                        help="profile METHOD from a copy of the finished RUN (its final grid and occupancy) "
+                        "instead of a fresh field; repeatable")  # fmt: skip
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args()
     if args.device != "cpu":

@@ -51,11 +51,11 @@ class GridFieldConfig:
         static_samples: 0 (the default): the renderer packs exactly the samples it keeps (shapes depend on
             the data, so the host reads sample counts back). N > 0: a fixed budget of ``N × rays`` sample
             slots per render call, N per ray on average, with no data-dependent shape and no host sync
-            (for CUDA graphs / ``torch.compile(fullgraph=True)``); density and colour are evaluated in
-            every slot, those off the ray or in empty cells get zero density. Slots are given to the rays in
-            order, so when a call's rays need more than the budget the samples past it are dropped (the
-            ray at the end of the budget loses its tail, later rays get none; the render output counts
-            them). See ``GridModel``.
+            (for CUDA graphs / ``torch.compile(fullgraph=True)``): the march lays out 4 × that many
+            candidate steps, and those inside occupied cells are moved, in order, into the budget, where
+            density and colour are evaluated (unfilled slots get zero density). When a call's rays keep
+            more samples than the budget the samples past it are dropped (the ray at the end of the
+            budget loses its tail, later rays get none; the render output counts them). See ``GridModel``.
         static_colors: with ``static_samples``: 0 (the default): colour is decoded in every slot. C > 0:
             colour is decoded in ``C × rays`` slots only, those with the largest weights above
             ``weight_threshold`` in the call (``torch.topk``: still no data-dependent shape); a weight

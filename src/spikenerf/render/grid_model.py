@@ -10,6 +10,9 @@ from spikenerf.fields.grid import GridField
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.volume import RenderOutput, packed_composite, packed_weights
 
+#: slots the static march lays out for each slot of the ``static_samples`` budget (most are empty space)
+MARCH_SLOTS = 4
+
 
 class GridModel(RadianceModel):
     """Renders a :class:`~spikenerf.fields.grid.GridField`.
@@ -21,8 +24,9 @@ class GridModel(RadianceModel):
     count as zero density: only the near-empty haze of culled cells is lost.
 
     With the field's ``static_samples`` N > 0 the same samples lie in a fixed budget of N × rays slots
-    (:meth:`_march_static`): no data-dependent shape and no host sync, for CUDA graphs and
-    ``torch.compile(fullgraph=True)``; rays beyond the budget are cut (``RenderOutput.dropped_samples``).
+    (:meth:`_march_static` over ``MARCH_SLOTS`` times as many, then :func:`compact_slots`): no
+    data-dependent shape and no host sync, for CUDA graphs and ``torch.compile(fullgraph=True)``; samples
+    beyond the budget are cut (``RenderOutput.dropped_samples``).
     The budget serves the training renders only: a render without gradients (``eval``, ``render``, the test
     views during training) takes the packed path, which cuts nothing.
     """
@@ -158,17 +162,21 @@ class GridModel(RadianceModel):
     def _render_static(
         self, o_n: Tensor, d_n: Tensor, dirs: Tensor, near: Tensor, far: Tensor, step: float, perturb: bool
     ) -> RenderOutput:
-        """:meth:`render_rays` in ``static_samples`` × N slots (:meth:`_march_static`), for normalised
-        origins and directions (N, 3), unit ``dirs`` (N, 3), near/far (N,): every shape is fixed by N.
+        """:meth:`render_rays` in ``static_samples`` × N slots, for normalised origins and directions (N, 3),
+        unit ``dirs`` (N, 3), near/far (N,): every shape is fixed by N.
 
-        Unkept slots get zero density (so zero weight); colour is counted where the weight exceeds
+        The march lays out ``MARCH_SLOTS`` × that many slots (:meth:`_march_static`: cheap, points and an
+        occupancy lookup), and :func:`compact_slots` moves the kept ones (inside the ray, in occupied
+        cells) into the budget, where the field is evaluated. Unkept and spare slots get zero density (so
+        zero weight); colour is counted where the weight exceeds
         ``weight_threshold``, so the result is the packed path's when all samples fit. Colour is decoded in
         every slot, or with ``static_colors`` C > 0 in the C × N slots of largest weight only
         (:func:`colour_slots`).
         """
         field, cfg, n = self.field, self.field.config, o_n.shape[0]
         budget = n * cfg.static_samples
-        ray, ray_at, k, keep, dropped = self._march_static(o_n, d_n, near, far, step, budget)
+        marched = self._march_static(o_n, d_n, near, far, step, MARCH_SLOTS * budget)
+        ray, ray_at, k, keep, dropped = compact_slots(*marched, n, budget)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray_at, k, perturb)
         sigma = torch.where(keep, field.density_norm(xn), 0.0)
         weights = packed_weights(sigma, deltas, ray, 2 * n)
@@ -183,6 +191,33 @@ class GridModel(RadianceModel):
         color, depth, opacity = packed_composite(weights, ray, 2 * n, t, rgb, None)
         return RenderOutput(color[:n], depth[:n], opacity[:n], num_samples=budget, dropped_samples=dropped,
                             dropped_colors=lost)  # fmt: skip
+
+
+def compact_slots(
+    ray: Tensor, ray_at: Tensor, k: Tensor, keep: Tensor, dropped: Tensor, n: int, budget: int
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """The kept slots of a static march moved, in order, into ``budget`` B slots: fixed shapes, no host sync.
+
+    Takes :meth:`GridModel._march_static`'s ray, ray_at, k, keep (M,) and dropped () for N rays; returns the
+    same five for B slots. Slot i holds the (i+1)-th kept slot of the march (a ``searchsorted`` over the
+    running count of kept slots), so each ray's kept samples stay in order and the rays in theirs. Kept
+    slots beyond B are cut and added to ``dropped``. The slots left after the last kept one are spare, laid
+    out as the march lays out its own (rays N … 2N − 1 evenly, distinct points, ``keep`` False).
+    """
+    seen = torch.cumsum(keep, dim=0)
+    total = seen[-1]
+    slot = torch.arange(budget, device=keep.device)
+    filled = slot < total
+    source = torch.searchsorted(seen, slot, right=True).clamp_(max=len(keep) - 1)
+    spare = (slot - total).clamp_min(0)
+    spare_ray = n + spare * n // (budget - total).clamp_min(1)
+    return (
+        torch.where(filled, ray[source], spare_ray),
+        torch.where(filled, ray_at[source], spare % n),
+        torch.where(filled, k[source], spare // n),
+        filled,
+        dropped + (total - budget).clamp_min(0),
+    )
 
 
 def colour_slots(weights: Tensor, shown: Tensor, count: int) -> tuple[Tensor, Tensor]:
