@@ -119,6 +119,16 @@ def test_one_recompile_serves_every_later_grid_resolution(
     assert _graphs() == 2, counters["stats"]  # the first resolution's graph, then one with symbolic sizes
 
 
+def test_the_gather_lookup_compiles_and_trains_like_grid_sample(
+    dataset_dir: Path, dataset, tmp_path: Path, aot_eager: None
+) -> None:  # type: ignore[no-untyped-def]
+    _, reference = _run(_config(dataset_dir, "spike-integral", False), tmp_path / "eager", dataset)
+    cfg = _config(dataset_dir, "spike-integral", True, gather_lookup=True)
+    trainer, gathered = _run(cfg, tmp_path / "gather", dataset)
+    assert vars(trainer.method)["step_losses"].failed is None and _graphs() == 2
+    assert gathered == pytest.approx(reference, rel=1e-3)
+
+
 def test_draws_go_to_the_gpu_only_where_every_target_lives_there(
     dataset_dir: Path, dataset, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]

@@ -28,10 +28,9 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
+from spikenerf.fields.vm_gather import MAT, VEC, gather_vm
 from spikenerf.fields.vm_kernel import cpu_has, usable, vm_lookup
 
-MAT = ((0, 1), (0, 2), (1, 2))
-VEC = (2, 1, 0)
 FACTORS = ("density_planes", "density_lines", "app_planes", "app_lines")
 
 
@@ -61,6 +60,10 @@ class GridFieldConfig:
             ``weight_threshold`` in the call (``torch.topk``: still no data-dependent shape); a weight
             beyond them keeps its place in the opacity but adds no colour (the render output counts them
             in ``dropped_colors``).
+        gather_lookup: look the factors up by index gathers of channel rows (``fields/vm_gather.py``)
+            instead of ``grid_sample`` or the fused CPU kernel: the same values, as ops that
+            ``torch.compile`` can fuse with its backward (for the compiled CUDA step; slower eager and on a
+            CPU). False (the default): ``grid_sample`` (the CPU kernel where it applies).
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
@@ -109,6 +112,7 @@ class GridFieldConfig:
     weight_threshold: float = 1e-4
     static_samples: int = 0
     static_colors: int = 0
+    gather_lookup: bool = False
     decoder_bf16: bool = True
     occupancy: bool = True
     occupancy_start: int = 250
@@ -322,9 +326,11 @@ class GridField(Field):
             logit = self.decoder(torch.cat([feats, view.to(feats.dtype)], dim=-1))
         return torch.sigmoid(logit.float())
 
-    @staticmethod
-    def _vm(planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
-        """VM products (M, 3, C): the fused CPU kernel where it applies, else ``grid_sample``."""
+    def _vm(self, planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
+        """VM products (M, 3, C): index gathers with ``gather_lookup``, else the fused CPU kernel where it
+        applies, else ``grid_sample``."""
+        if self.config.gather_lookup:
+            return gather_vm(planes, lines, xyz_norm)
         if usable(planes, xyz_norm):
             return vm_lookup(planes, lines, xyz_norm)
         return sample_vm(planes, lines, xyz_norm, vm_splits(xyz_norm.device)).permute(2, 0, 1)

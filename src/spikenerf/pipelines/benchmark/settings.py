@@ -38,6 +38,7 @@ NAME = "benchmark.json"
 #: existed: a record without one reads it so (the grid's total-variation prior, off; its packed dynamic march)
 ADDED_DEFAULTS: dict[str, Any] = {
     "tv_density": 0.0, "tv_app": 0.0, "tv_every": 4, "static_samples": 0, "static_colors": 0,
+    "gather_lookup": False,
 }  # fmt: skip
 #: spike-integral's defaults before they were recorded (2048 rays: 1024 windows of 11 steps × 2 renders)
 PREVIOUS_INTEGRAL: dict[str, int] = {"window": 11, "samples": 2, "batch": 2048}
