@@ -21,6 +21,7 @@ OTHER_LAYOUTS = {
     "eval/lpips.py": "convolution kernels HWIO → OIHW",
     "fields/grid.py": "VM products (3, C, M) → (M, 3, C)",
     "fields/vm_kernel.py": "grid factors (3, C, R, R) for the fused kernel",
+    "fields/vm_gather.py": "grid factors (3, C, R, R) as rows of channels (3·R·R, C) for index gathers",
     "scenes/trajectory.py": "quaternion components to the front",
 }
 
