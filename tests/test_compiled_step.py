@@ -140,6 +140,18 @@ def test_draws_go_to_the_gpu_only_where_every_target_lives_there(
     assert not draws_to_device(trainer.method, torch.device("cuda"))  # its targets are host tensors
 
 
+def test_a_tensor_on_cuda_0_is_on_the_training_device_cuda(monkeypatch: pytest.MonkeyPatch) -> None:
+    from spikenerf.train.compiled_step import same_device
+
+    monkeypatch.setattr(compiled_step.torch.cuda, "current_device", lambda: 0)
+    cuda, cuda0, cuda1 = torch.device("cuda"), torch.device("cuda:0"), torch.device("cuda:1")
+    assert cuda0 != cuda  # why the comparison needs more than ==
+    assert same_device(cuda0, cuda) and same_device(cuda1, cuda1) and same_device(cuda0, cuda0)
+    assert not same_device(cuda1, cuda) and not same_device(cuda0, cuda1)
+    cpu = torch.device("cpu")
+    assert not same_device(cpu, cuda) and same_device(cpu, cpu)
+
+
 @pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_pinned_copies_reach_the_gpu_unchanged() -> None:

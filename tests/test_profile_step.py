@@ -68,3 +68,6 @@ def test_a_profile_can_start_from_a_finished_run(
     assert "static_samples" not in (run / "config.yaml").read_text()  # the finished run is untouched
     with pytest.raises(argparse.ArgumentTypeError, match="METHOD=RUN"):
         TOOL.method_run(f"nerf-gt={tmp_path / 'nowhere'}")
+    args.start = [TOOL.method_run(f"spike-integral={run}")]
+    with pytest.raises(SystemExit, match="that run trained nerf-gt"):
+        TOOL.profile_case(ds, "spike-integral", 48, args, tmp_path / "profiles")

@@ -31,7 +31,7 @@ import yaml
 from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
-from spikenerf.train.checkpoint import save_checkpoint
+from spikenerf.train.checkpoint import load_checkpoint, save_checkpoint
 from spikenerf.train.compiled_step import CompiledStep, static_samples
 from spikenerf.train.config import TrainConfig, load_config, save_config
 from spikenerf.train.trainer import Trainer
@@ -74,7 +74,7 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
                           field_config=dict(args.field_option))  # fmt: skip
         trainer = Trainer(cfg, out, progress=False)
     else:
-        trainer = resumed(Path(start), out, batch, args)
+        trainer = resumed(Path(start), method, out, batch, args)
     trainer.evaluate = lambda *_a, **_k: float("nan")  # type: ignore[method-assign]
     trainer.checkpoint = lambda *_a, **_k: None  # type: ignore[method-assign]
     trainer.train(stop_after=args.warmup)
@@ -130,16 +130,19 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
     return out
 
 
-def resumed(run: Path, out: Path, batch: int, args: argparse.Namespace) -> Trainer:
-    """A trainer continuing a copy (at ``out``) of the finished ``run``: its grid resolution and occupancy,
-    with ``batch`` rays, ``--compile`` and the ``--field-option`` entries added to its field config."""
+def resumed(run: Path, method: str, out: Path, batch: int, args: argparse.Namespace) -> Trainer:
+    """A trainer continuing a copy (at ``out``) of the finished ``method`` run ``run``: its grid resolution
+    and occupancy, with ``batch`` rays, ``--compile`` and the ``--field-option`` entries added to its field
+    config."""
+    cfg = load_config(run / "config.yaml")
+    if cfg.method != method:
+        raise SystemExit(f"--start {method}={run}: that run trained {cfg.method}")
     shutil.copytree(run, out)
-    cfg = load_config(out / "config.yaml")
     field = {**cfg.field_config, **dict(args.field_option)}
     cfg = dataclasses.replace(cfg, batch=batch, iters=cfg.iters + 10**5, eval_every=0, device=args.device,
                               compile=args.compile, field_config=field)  # fmt: skip
     save_config(cfg, out / "config.yaml")  # the copy's options are the ones asked: nothing to refuse
-    ckpt = torch.load(out / "checkpoint.pt", map_location="cpu", weights_only=True)
+    ckpt = load_checkpoint(out / "checkpoint.pt")
     ckpt["hparams"]["config"].update(dict(args.field_option))  # a resumed model is built from these
     save_checkpoint(out / "checkpoint.pt", ckpt)
     return Trainer(cfg, out, resume=True, progress=False)

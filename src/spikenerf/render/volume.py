@@ -31,8 +31,11 @@ class RenderOutput:
             supervises it with the same target and loss as ``color``.
         num_samples: how many density evaluations the pass made (after empty-space skipping; with a static
             sample budget, the budget).
-        dropped_samples: () int64, the sample slots that did not fit in a static sample budget (the grid's
-            ``static_samples``; None otherwise). A tensor, so that no host sync is needed to make it.
+        dropped_samples: () int64, the samples that did not fit in a static sample budget (the grid's
+            ``static_samples``; None otherwise): kept samples past the budget plus the candidate steps
+            past its march (``MARCH_SLOTS`` = 4 per budget slot), which are not tested for occupancy and
+            count whole: an upper bound, so that the budget raised by the count holds them. A tensor,
+            so that no host sync is needed to make it.
         dropped_colors: () int64, the slots above the weight threshold whose colour the grid's
             ``static_colors`` budget left out (None without that budget).
     """

@@ -100,7 +100,17 @@ def draws_to_device(method: TrainMethod, device: torch.device) -> bool:
     """Whether the step's host draws go to ``device`` before the compiled call: on CUDA, where every target
     tensor of the method lives there (so nothing in the step indexes a host tensor with them)."""
     targets = _target_tensors(method)
-    return device.type == "cuda" and bool(targets) and all(t.device == device for t in targets)
+    return device.type == "cuda" and bool(targets) and all(same_device(t.device, device) for t in targets)
+
+
+def same_device(where: torch.device, device: torch.device) -> bool:
+    """Whether a tensor on ``where`` lives on ``device``, where ``cuda`` without an index means the current
+    one (a tensor moved there reports ``cuda:0``, which does not compare equal to ``cuda``)."""
+    if where.type != device.type:
+        return False
+    if device.index is None and where.type == "cuda":
+        return where.index == torch.cuda.current_device()
+    return device.index is None or where.index == device.index
 
 
 def pinned_copies(drawn: tuple[torch.Tensor, ...], device: torch.device) -> tuple[torch.Tensor, ...]:
