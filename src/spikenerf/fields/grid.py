@@ -62,8 +62,8 @@ class GridFieldConfig:
             in ``dropped_colors``).
         gather_lookup: look the factors up by index gathers of channel rows (``fields/vm_gather.py``)
             instead of ``grid_sample`` or the fused CPU kernel: the same values, as ops that
-            ``torch.compile`` can fuse with its backward (for the compiled CUDA step; slower eager and on a
-            CPU). False (the default): ``grid_sample`` (the CPU kernel where it applies).
+            ``torch.compile`` can fuse with its backward (for the compiled CUDA step, not yet measured
+            there; slower on a CPU). False (the default): ``grid_sample`` (the CPU kernel where it applies).
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
