@@ -10,7 +10,9 @@ inductor, the real default, and one CUDA graphs (``mode="reduce-overhead"``, ski
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
+import warnings
 from pathlib import Path
 
 import pytest
@@ -140,6 +142,23 @@ def test_draws_go_to_the_gpu_only_where_every_target_lives_there(
     assert not draws_to_device(trainer.method, torch.device("cuda"))  # its targets are host tensors
 
 
+def test_the_draws_follow_the_images_and_poses_while_the_steps_stay_on_the_host(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.train.compiled_step import draws_to_device
+
+    # "meta" stands in for the GPU: what train/device.py moves there (images and poses), not the steps
+    monkeypatch.setattr(compiled_step, "same_device", lambda where, device: where.type == "meta")
+    trainer = Trainer(_config(dataset_dir, "nerf-gt", False), tmp_path / "run", dataset, progress=False)
+    method, cuda = trainer.method, torch.device("cuda")
+    on_host = method.targets
+    method.targets = on_host.images_on("meta")
+    assert method.targets.steps is on_host.steps and method.targets.poses.device.type == "meta"
+    assert draws_to_device(method, cuda)  # the host's steps are not read by the step
+    method.targets = dataclasses.replace(method.targets, poses=on_host.poses)
+    assert not draws_to_device(method, cuda)  # a step that indexes host poses keeps its draws there
+
+
 def test_a_tensor_on_cuda_0_is_on_the_training_device_cuda(monkeypatch: pytest.MonkeyPatch) -> None:
     from spikenerf.train.compiled_step import same_device
 
@@ -150,6 +169,34 @@ def test_a_tensor_on_cuda_0_is_on_the_training_device_cuda(monkeypatch: pytest.M
     assert not same_device(cuda1, cuda) and not same_device(cuda0, cuda1)
     cpu = torch.device("cpu")
     assert not same_device(cpu, cuda) and same_device(cpu, cpu)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("method", ["nerf-gt", "spike-integral"])
+def test_a_cuda_graph_step_makes_no_host_sync(
+    dataset_dir: Path, dataset, tmp_path: Path, method: str
+) -> None:  # type: ignore[no-untyped-def]
+    cfg = _config(dataset_dir, method, True)
+    cfg.device = "cuda"
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    trainer.train(stop_after=4)  # compiled and its CUDA graphs recorded
+    method_, optimizer = trainer.method, trainer.optimizer
+    torch.cuda.synchronize()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            for it in range(trainer.iteration, trainer.iteration + 3):  # draws, graph, backward, Adam
+                loss = method_.losses(trainer, it).total()
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+    syncs = [f"{w.filename}:{w.lineno}" for w in caught if "synchroniz" in str(w.message)]
+    assert vars(method_)["step_losses"].failed is None
+    assert syncs == [], syncs
 
 
 @pytest.mark.cuda
@@ -255,9 +302,10 @@ def test_the_cuda_graph_step_trains_like_eager(
     (_, eager), (trainer, compiled) = runs
     step = vars(trainer.method)["step_losses"]
     assert isinstance(step, CompiledStep) and step.cuda_graphs and step.failed is None
-    # spike-integral keeps its counts and poses on the GPU, so its draws go there from page-locked memory;
-    # nerf-gt's image targets keep their poses on the host (the pose refiners read them there)
-    assert step.move_draws == (method == "spike-integral")
+    # both keep what the step reads (counts or images, and poses) on the GPU, so the draws go there from
+    # page-locked memory; the image targets' steps stay on the host (the pose refiners read them there)
+    assert step.move_draws
+    assert trainer.method.targets is None or trainer.method.targets.steps.device.type == "cpu"
     assert all(map(math.isfinite, compiled))
     assert compiled[:2] == pytest.approx(eager[:2], rel=1e-3)  # inductor's kernels: other rounding
     assert all(torch.isfinite(p).all() for p in trainer.model.parameters())

@@ -1,4 +1,4 @@
-"""Time to quality (issue 9, item 2): test PSNR against training time for ``nerf-gt`` and ``spike-nerf``.
+"""Time to quality (issue 9, item 2; issue 27, item 6 on a GPU): test PSNR against training time.
 
 Each (method, schedule) trains in its own process (``--threads`` threads each, ``--jobs`` at a time) with the
 project's ``Trainer`` for up to ``--budget`` seconds of training; every ``--eval-seconds`` of training the
@@ -10,14 +10,19 @@ excluded from both clocks). Each point records the training wall seconds and the
 ``--iters`` is the schedule length (learning-rate decay, grid upsampling, occupancy and spike-loss ramp all
 rescale to it); a schedule that ends before the budget simply stops there. Several schedules may be given.
 
-Prints, per run, the time to 25 dB and 28 dB (the first evaluation at or above, so an upper bound within one
-evaluation spacing) and the best PSNR, and per schedule the ratio spike-nerf / nerf-gt (reference) of the
-speed to each threshold and of the PSNR at the latest time both runs reached.
+Prints, per run, the time to each ``--thresholds`` PSNR (25 and 28 dB unless given; the first evaluation at
+or above, so an upper bound within one evaluation spacing) and the best PSNR, and per schedule the ratio of
+every other method to ``nerf-gt`` (the reference) of the speed to each threshold (on ``--clock``) and of
+the PSNR at the latest time both runs reached. ``--device cuda``, ``--compile`` and ``--field-option
+KEY=VALUE`` go to every run (``train``'s options of the same names).
 
     spikenerf --threads 1 simulate --scene bricks --out data/bricks200       # 200×200 gray, needs Blender
     python -m benchmarks.experiments.bench_time_to_quality --dataset data/bricks200 --iters 1500,6000 \\
         --jobs 4 --budget 1800 --csv ttq.csv --plot ttq.png
     python -m benchmarks.experiments.bench_time_to_quality --summarize ttq.csv  # tables (and --plot) of a CSV
+    # on a GPU: the oracle and the default spike method at 400×400, PSNR every 20 s of training
+    python -m benchmarks.experiments.bench_time_to_quality --dataset orbs400 --device cuda --jobs 1 \
+        --runs nerf-gt:20000,spike-integral:20000 --budget 240 --eval-seconds 20 --thresholds 28,30
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from pathlib import Path
 
 from benchmarks._table import Row, format_table
 from benchmarks.suites.bench_time_to_psnr import first_time_at
+from benchmarks.tools.profile_cuda_step import field_option
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.trainer import Trainer
 
@@ -68,6 +74,9 @@ class Options:
     batch: int | None
     seed: int
     wall_limit: float  # stop (after the next evaluation) once this many seconds of wall time have passed
+    device: str = "cpu"
+    compile: bool = False
+    field_options: tuple[tuple[str, object], ...] = ()  # (key, value) pairs, train's --field-option
 
 
 def write_points(path: Path, points: list[Point]) -> None:
@@ -104,11 +113,13 @@ def train_curve(method: str, iters: int, opts: Options, out: Path, csv_path: Pat
         iters=iters,
         batch=opts.batch,
         seed=opts.seed,
-        device="cpu",
+        device=opts.device,
         eval_every=0,
         eval_views=opts.eval_views,
         ckpt_every=10**9,
+        compile=opts.compile,
     )
+    config.field_config = {**config.field_config, **dict(opts.field_options)}
     trainer = Trainer(config, out, progress=False)
     trainer.checkpoint = lambda: None  # type: ignore[method-assign]  # time training, not checkpoint writes
     views, trainer.test_views = trainer.test_views, None  # the trainer's own final evaluation is skipped
@@ -170,6 +181,10 @@ def run_all(runs: list[tuple[str, int]], opts: Options, jobs: int, threads: int,
         str(opts.wall_limit),
         "--threads",
         str(threads),
+        "--device",
+        opts.device,
+        *(("--compile",) if opts.compile else ()),
+        *(a for key, value in opts.field_options for a in ("--field-option", f"{key}={value}")),
     ]
     pending = list(zip(runs, parts, strict=True))
     active: list[subprocess.Popen] = []
@@ -195,23 +210,25 @@ def run_all(runs: list[tuple[str, int]], opts: Options, jobs: int, threads: int,
     write_points(csv_path, [pt for part in parts if part.exists() for pt in read_points(part)])
 
 
-def summarize(points: list[Point]) -> str:
-    """Per run: times to the thresholds and best PSNR; per schedule: spike-nerf / nerf-gt ratios."""
+def summarize(points: list[Point], thresholds: tuple[float, ...] = THRESHOLDS, clock: str = "cpu") -> str:
+    """Per run: times to the ``thresholds`` and best PSNR; per schedule: each method against nerf-gt, on
+    ``clock`` ("cpu": process CPU seconds, "wall": training seconds)."""
     lines = [
         "| method | iters | iterations run | train s | CPU s | "
-        + " | ".join(f"to {t:.0f} dB (train s / CPU s)" for t in THRESHOLDS)
+        + " | ".join(f"to {t:g} dB (train s / CPU s)" for t in thresholds)
         + " | best PSNR (at train s / CPU s) |"
     ]
-    lines.append("|---|---:|---:|---:|---:|" + "---:|" * len(THRESHOLDS) + "---:|")
+    lines.append("|---|---:|---:|---:|---:|" + "---:|" * len(thresholds) + "---:|")
     rows: list[Row] = []
+    methods = list(dict.fromkeys(p.method for p in points))  # in the order they ran
     for iters in sorted({p.iters for p in points}):
-        runs = {m: [p for p in points if p.iters == iters and p.method == m] for m in METHODS}
+        runs = {m: [p for p in points if p.iters == iters and p.method == m] for m in methods}
         for method, pts in runs.items():
             if not pts:
                 continue
             last, best = pts[-1], max(pts, key=lambda p: p.psnr)
             cells = []
-            for t in THRESHOLDS:
+            for t in thresholds:
                 wall = first_time_at([(p.train_s, p.psnr) for p in pts], t)
                 cpu = first_time_at([(p.cpu_s, p.psnr) for p in pts], t)
                 cells.append("not reached" if wall is None else f"{wall:.0f} / {cpu:.0f}")
@@ -220,31 +237,54 @@ def summarize(points: list[Point]) -> str:
                 + " | ".join(cells)
                 + f" | {best.psnr:.2f} ({best.train_s:.0f} / {best.cpu_s:.0f}) |"
             )
-        rows += ratio_rows(runs["spike-nerf"], runs[REFERENCE], iters)
+        for method in methods:
+            if method != REFERENCE:
+                rows += ratio_rows(runs[method], runs.get(REFERENCE, []), iters, thresholds, clock)
     return "\n".join(lines) + ("\n\n" + format_table(rows) if rows else "")
 
 
-def ratio_rows(ours: list[Point], ref: list[Point], iters: int) -> list[Row]:
-    """spike-nerf against nerf-gt: speed (1/CPU s) to each threshold both reached, PSNR at equal CPU time."""
+def ratio_rows(
+    ours: list[Point],
+    ref: list[Point],
+    iters: int,
+    thresholds: tuple[float, ...] = THRESHOLDS,
+    clock: str = "cpu",
+) -> list[Row]:
+    """A method (``ours``) against nerf-gt (``ref``): speed (1/s on ``clock``) to each threshold both
+    reached, PSNR at equal time."""
     if not ours or not ref:
         return []
-    rows = []
-    for t in THRESHOLDS:
-        a = first_time_at([(p.cpu_s, p.psnr) for p in ours], t)
-        b = first_time_at([(p.cpu_s, p.psnr) for p in ref], t)
+
+    def time_of(p: Point) -> float:
+        return p.cpu_s if clock == "cpu" else p.train_s
+
+    unit, rows, name = ("CPU s" if clock == "cpu" else "train s"), [], ours[0].method
+    for t in thresholds:
+        a = first_time_at([(time_of(p), p.psnr) for p in ours], t)
+        b = first_time_at([(time_of(p), p.psnr) for p in ref], t)
         if a is not None and b is not None:
-            rows.append(Row(f"speed to {t:.0f} dB, {iters} iters", 1 / a, 1 / b, "1/CPU s", REFERENCE))
-    common = min(ours[-1].cpu_s, ref[-1].cpu_s)
+            rows.append(
+                Row(f"{name}: speed to {t:g} dB, {iters} iters", 1 / a, 1 / b, f"1/{unit}", REFERENCE)
+            )
+    common = min(time_of(ours[-1]), time_of(ref[-1]))
 
     def at(pts: list[Point]) -> float:
-        return max((p for p in pts if p.cpu_s <= common), key=lambda p: p.cpu_s, default=pts[0]).psnr
+        return max((p for p in pts if time_of(p) <= common), key=time_of, default=pts[0]).psnr
 
-    rows.append(Row(f"PSNR at {common:.0f} CPU s, {iters} iters", at(ours), at(ref), "dB", REFERENCE))
+    rows.append(
+        Row(f"{name}: PSNR at {common:.0f} {unit}, {iters} iters", at(ours), at(ref), "dB", REFERENCE)
+    )
     return rows
 
 
-def plot(points: list[Point], path: Path) -> None:
-    """PSNR against CPU seconds, one line per run, as a small PNG."""
+def plot(
+    points: list[Point],
+    path: Path,
+    thresholds: tuple[float, ...] = THRESHOLDS,
+    clock: str = "cpu",
+    title: str = "",
+) -> None:
+    """PSNR against time on ``clock``, one line per run, as a small PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -253,10 +293,12 @@ def plot(points: list[Point], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 3.6), dpi=80)
     for (method, iters), pts in itertools.groupby(points, key=lambda p: (p.method, p.iters)):
         pts = list(pts)
-        ax.plot([p.cpu_s / 60 for p in pts], [p.psnr for p in pts], marker=".", label=f"{method}, {iters} it")
-    for t in THRESHOLDS:
+        x = [(p.cpu_s if clock == "cpu" else p.train_s) / 60 for p in pts]
+        ax.plot(x, [p.psnr for p in pts], marker=".", label=f"{method}, {iters} it")
+    for t in thresholds:
         ax.axhline(t, color="gray", lw=0.6, ls="--")
-    ax.set(xlabel="training CPU minutes (1 thread)", ylabel="test PSNR (dB)", title="bricks 200×200, gray")
+    xlabel = "training CPU minutes" if clock == "cpu" else "training minutes (wall)"
+    ax.set(xlabel=xlabel, ylabel="test PSNR (dB)", title=title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -289,6 +331,11 @@ def main() -> None:
     parser.add_argument(
         "--summarize", type=Path, nargs="+", help="only print the tables (and --plot) of CSVs"
     )
+    parser.add_argument("--thresholds", default="25,28", help="PSNRs (dB) whose times are reported")
+    parser.add_argument("--device", default="cpu", help="the training device (train's --device)")
+    parser.add_argument("--compile", action="store_true", help="train's --compile")
+    parser.add_argument("--field-option", type=field_option, action="append", default=[], metavar="KEY=VALUE",
+                        help="train's --field-option, for every run")  # fmt: skip
     parser.add_argument("--worker", help=argparse.SUPPRESS)  # METHOD:ITERS, one run (used by the parent)
     args = parser.parse_args()
     if args.summarize:
@@ -305,6 +352,9 @@ def main() -> None:
             args.batch,
             args.seed,
             args.wall_limit,
+            args.device,
+            args.compile,
+            tuple(args.field_option),
         )
         with tempfile.TemporaryDirectory(prefix="ttq-") as tmp:
             csv_path = args.csv or Path(tmp) / "ttq.csv"
@@ -320,9 +370,11 @@ def main() -> None:
                 runs = [(r.split(":")[0], int(r.split(":")[1])) for r in args.runs.split(",")]
             run_all(runs, opts, args.jobs, args.threads, csv_path)
             points = read_points(csv_path)
-    print(summarize(points))
+    thresholds = tuple(float(t) for t in args.thresholds.split(","))
+    print(summarize(points, thresholds, args.clock))
     if args.plot:
-        plot(points, args.plot)
+        title = "" if args.summarize else Path(args.dataset).name
+        plot(points, args.plot, thresholds, args.clock, title)
 
 
 if __name__ == "__main__":

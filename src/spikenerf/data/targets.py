@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, get_args
+from typing import TYPE_CHECKING, ClassVar, Literal, get_args
 
 import numpy as np
 import torch
@@ -73,6 +73,9 @@ class ImageTargets:
     steps: Tensor
     pose_steps: Tensor | None = None
 
+    #: read on the host only (the pose refiners, the holdout), never by the device part of a training step
+    HOST_FIELDS: ClassVar[tuple[str, ...]] = ("steps", "pose_steps")
+
     def __len__(self) -> int:
         return int(self.images.shape[0])
 
@@ -84,9 +87,10 @@ class ImageTargets:
         return self.images[index, pixels[:, 1], pixels[:, 0]].float()
 
     def images_on(self, device: torch.device | str) -> ImageTargets:
-        """The same targets with ``images`` on ``device`` (a training GPU gathers there); poses and steps stay
-        where they are (the pose refiners read steps on the host)."""
-        return dataclasses.replace(self, images=self.images.to(device))
+        """The same targets with ``images`` and ``poses`` on ``device`` (a training GPU gathers both there,
+        so a step copies nothing from the host but its draws); ``steps`` and ``pose_steps`` stay where they
+        are (:data:`HOST_FIELDS`: the pose refiners read them on the host, with host indices)."""
+        return dataclasses.replace(self, images=self.images.to(device), poses=self.poses.to(device))
 
 
 @dataclass

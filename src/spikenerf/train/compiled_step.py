@@ -23,8 +23,9 @@ field's functions instead (``fields/compiled.py``).
   skips CUDA graphs for the step, which stays correct). Where every target tensor lives on the GPU (and no
   pose refiner indexes host tensors with them) the draws are copied there before the call instead, from
   page-locked memory without waiting (:func:`pinned_copies`; a copy from pageable memory synchronises the
-  stream). The H200 profile before this change: 4.3 host synchronisations a step, 2.4 ms of a 13.2 ms step
-  at 16384 rays; the effect of the change is not measured yet.
+  stream): spike-integral's counts and poses, and the image targets' images and poses, are kept there
+  (``train/device.py``). The H200 profile before this change: 4.3 host synchronisations a step, 2.4 ms of
+  a 13.2 ms step at 16384 rays (nerf-gt); the effect of the change is not measured yet.
 - Fallback: if ``torch.compile`` or a compiled call raises (no compiler, a graph break, the recompile limit),
   one warning line and the step runs eagerly from then on, the same function (the global RNG states are put
   back to where the failed call began).
@@ -79,12 +80,14 @@ def _set_rng_state(device: torch.device, state: tuple[torch.Tensor, torch.Tensor
 
 
 def _target_tensors(method: TrainMethod) -> list[torch.Tensor]:
-    """The tensors of the method's target holders (``targets``, ``counts``, ``spikes``)."""
+    """The tensors that a step reads from the method's target holders (``targets``, ``counts``,
+    ``spikes``): every tensor field but a holder's ``HOST_FIELDS`` (read on the host only)."""
     found = []
     for holder in (getattr(method, name, None) for name in ("targets", "counts", "spikes")):
         if holder is None or not dataclasses.is_dataclass(holder):
             continue
-        values = (getattr(holder, f.name) for f in dataclasses.fields(holder))
+        host = getattr(holder, "HOST_FIELDS", ())
+        values = (getattr(holder, f.name) for f in dataclasses.fields(holder) if f.name not in host)
         found += [value for value in values if isinstance(value, torch.Tensor)]
     return found
 
