@@ -84,9 +84,9 @@ def test_the_compiled_step_trains_and_resumes_like_the_eager_static_step(
     kernel: dict[bool, int] = {False: 0, True: 0}  # fused-kernel calls of the eager and the compiled run
     lookup = grid_module.vm_lookup
 
-    def counted(*args):  # type: ignore[no-untyped-def]
+    def counted(*args, **kwargs):  # type: ignore[no-untyped-def]
         kernel[cfg.compile] += 1
-        return lookup(*args)
+        return lookup(*args, **kwargs)
 
     cfg = _config(dataset_dir, method, False, **field)
     with pytest.MonkeyPatch.context() as mp:

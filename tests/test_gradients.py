@@ -147,6 +147,57 @@ def test_fused_vm_kernel_matches_grid_sample_forward_and_backward() -> None:
     assert not vm_kernel.usable(planes, xyz.clone().requires_grad_())  # point gradients: grid_sample
 
 
+def test_the_summed_fused_lookup_is_the_sum_of_the_products_forward_and_backward() -> None:
+    """``summed=True`` (the density): the kernel sums over axis pairs and channels itself; values and
+    gradients are those of the (M, 3, C) products summed, on 1 and 2 threads (> 4096 points) and outside
+    the grid."""
+    from spikenerf.fields.grid import sample_vm
+
+    vm_kernel = _kernel_or_skip()
+    gen = torch.Generator().manual_seed(11)
+    planes = torch.randn(3, 6, 10, 10, generator=gen, requires_grad=True)
+    lines = torch.randn(3, 6, 10, 1, generator=gen, requires_grad=True)
+    xyz = torch.rand(9000, 3, generator=gen) * 2.4 - 1.2  # some points outside [-1, 1]
+    ref = sample_vm(planes, lines, xyz).permute(2, 0, 1).sum(dim=(1, 2))
+    grad = torch.randn(ref.shape, generator=gen)
+    want = torch.autograd.grad(ref, (planes, lines), grad)
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            out = vm_kernel.vm_lookup(planes, lines, xyz, summed=True)
+            assert out.shape == (9000,) and torch.allclose(out, ref, atol=1e-4)
+            got = torch.autograd.grad(out, (planes, lines), grad)
+            assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got, want, strict=True))
+    finally:
+        torch.set_num_threads(threads)
+    # gradcheck in float32 is too coarse: compare with the unsummed kernel's gradients of the same sum
+    small = xyz[:50]
+    summed = torch.autograd.grad(
+        vm_kernel.vm_lookup(planes, lines, small, summed=True).sum(), (planes, lines)
+    )
+    full = torch.autograd.grad(vm_kernel.vm_lookup(planes, lines, small).sum(), (planes, lines))
+    assert all(torch.allclose(a, b, atol=1e-5) for a, b in zip(summed, full, strict=True))
+
+
+def test_the_grid_density_takes_the_summed_kernel_and_equals_grid_sample(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.fields import grid as grid_module
+
+    vm_kernel = _kernel_or_skip()
+    field = grid_module.GridField(1, torch.tensor([[-1.0, -1, -1], [1, 1, 1]]))
+    x = torch.rand(700, 3) * 2 - 1
+    calls: list[bool] = []
+    lookup = vm_kernel.vm_lookup
+    monkeypatch.setattr(
+        grid_module, "vm_lookup", lambda *a, **k: calls.append(k.get("summed", False)) or lookup(*a, **k)
+    )
+    fused = field.density_norm(x)
+    assert calls == [True]
+    with vm_kernel.suspended():
+        plain = field.density_norm(x)  # grid_sample, summed by torch
+    assert torch.allclose(fused, plain, rtol=1e-5, atol=1e-6)
+
+
 def _kernel_or_skip():  # type: ignore[no-untyped-def]
     from spikenerf.fields import vm_kernel
 

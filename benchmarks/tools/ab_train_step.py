@@ -3,6 +3,7 @@
 Usage (from the repository root)::
 
     .venv/bin/python -m benchmarks.tools.ab_train_step RUN before=OLD/src after=src [--rounds 3] [--steps 8]
+        [--iters N]
 
 Each round runs ``benchmarks.tools.profile_train_step RUN --steps N --time-only`` once per build
 (``NAME=SRC``, ``SRC`` first on ``PYTHONPATH``, one thread) in the order given, so a load change on a shared
@@ -20,7 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root
 
 
 def main() -> None:
@@ -29,6 +30,7 @@ def main() -> None:
     parser.add_argument("builds", nargs="+", help="NAME=SRC (a checkout's src folder)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--steps", type=int, default=8)
+    parser.add_argument("--iters", type=int, help="the run's --iters (a finished run: more than it ran)")
     args = parser.parse_args()
     builds = dict(b.split("=", 1) for b in args.builds)
     times: dict[str, list[float]] = {name: [] for name in builds}
@@ -37,6 +39,7 @@ def main() -> None:
             env = {**os.environ, "PYTHONPATH": str(Path(src).resolve()), "OMP_NUM_THREADS": "1"}
             cmd = [sys.executable, "-m", "benchmarks.tools.profile_train_step", str(args.run)]
             cmd += ["--steps", str(args.steps), "--time-only"]
+            cmd += ["--iters", str(args.iters)] if args.iters else []
             out = subprocess.run(cmd, env=env, cwd=ROOT, check=True, capture_output=True, text=True).stdout
             times[name].append(float(out.split()[-1]))
             print(f"round {r} {name}: {times[name][-1]:.1f} CPU ms/it", flush=True)

@@ -314,7 +314,7 @@ class GridField(Field):
 
     def density_norm(self, xyz_norm: Tensor) -> Tensor:
         """Density per world unit (M,) at normalised points (M, 3)."""
-        raw = self._vm(self.density_planes, self.density_lines, xyz_norm).sum(dim=(1, 2))
+        raw = self._vm_sum(self.density_planes, self.density_lines, xyz_norm)
         return self.config.distance_scale * F.softplus(raw + self.config.density_shift)
 
     def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
@@ -334,6 +334,13 @@ class GridField(Field):
         if usable(planes, xyz_norm):
             return vm_lookup(planes, lines, xyz_norm)
         return sample_vm(planes, lines, xyz_norm, vm_splits(xyz_norm.device)).permute(2, 0, 1)
+
+    def _vm_sum(self, planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
+        """:meth:`_vm` summed over axis pairs and channels (M,): inside the fused CPU kernel where it applies
+        (no (M, 3, C) tensor forward or backward)."""
+        if not self.config.gather_lookup and usable(planes, xyz_norm):
+            return vm_lookup(planes, lines, xyz_norm, summed=True)
+        return self._vm(planes, lines, xyz_norm).sum(dim=(1, 2))
 
     def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
         """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""

@@ -41,7 +41,7 @@ class OccupancyGrid(nn.Module):
 
     def lookup(self, xyz_norm: Tensor) -> Tensor:
         """Occupancy of the cells of normalised points (M, 3) → (M,) bool (outside: the nearest cell)."""
-        return self.grid.reshape(-1)[self.cell_index(xyz_norm)]
+        return self.grid.reshape(-1).index_select(0, self.cell_index(xyz_norm))
 
     def query(self, xyz_norm: Tensor) -> Tensor:
         """Occupancy of normalised points (M, 3) → (M,) bool (points outside ``[−1, 1]³`` are False)."""

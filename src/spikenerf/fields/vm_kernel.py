@@ -4,6 +4,8 @@
 kernel reads the factors channels-last and does one pass over the points: forward ``P_m(x)·L_m(x)`` for the
 three axis pairs; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into channels-last gradients (no races:
 each of ≤ 4 threads scatters into its own buffer; ≈ 11 M multiply-adds for a 58 k-point, 16-channel batch).
+For the density (``summed``) it adds the products up itself, so that no (M, 3, C) tensor is written,
+summed by torch and, in the backward, expanded back into a contiguous copy.
 The lookups are random reads of a grid larger than the L2 cache, so each loop prefetches the texels of the
 point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (``-O3``,
 ``-march=native`` on x86-64, ``-fopenmp`` on Linux so its loops use torch's threads; cached under
@@ -72,14 +74,22 @@ static inline void prefetch_point(const float *P, const float *L, const float *x
   }
 }
 
-torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz) {
+// the bilinear plane value and linear line value of channel j at point weights w.. / a., b. (the four texels
+// p00 … p11, the two l0, l1)
+#define PLANE_J(j) (w00 * p00[j] + w01 * p01[j] + w10 * p10[j] + w11 * p11[j])
+#define LINE_J(j) (al * l0[j] + bl * l1[j])
+
+// summed = false: out (M, 3, C), the product per axis pair and channel; summed = true: out (M,), the sum of
+// those 3·C products (the density: no (M, 3, C) intermediate is written, read back or kept for backward)
+torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, bool summed) {
   const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
-  auto out = torch::empty({m, 3, c}, xyz.options());
+  auto out = summed ? torch::empty({m}, xyz.options()) : torch::empty({m, 3, c}, xyz.options());
   const float *P = planes.data_ptr<float>(), *L = lines.data_ptr<float>(), *X = xyz.data_ptr<float>();
   float *O = out.data_ptr<float>();
   at::parallel_for(0, m, 256, [&](int64_t b, int64_t e) {
     for (int64_t n = b; n < e; ++n) {
       if (n + PF < e) prefetch_point(P, L, X + (n + PF) * 3, r, c);
+      float total = 0.f;
       for (int k = 0; k < 3; ++k) {
         int ic, ir, il; float ac, bc, ar, br, al, bl;
         cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
@@ -87,22 +97,46 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
         const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
         const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
         const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
-        float *o = O + (n * 3 + k) * c;
-        for (int64_t j = 0; j < c; ++j) {
-          float pv = w00 * p00[j] + w01 * p01[j] + w10 * p10[j] + w11 * p11[j];
-          o[j] = pv * (al * l0[j] + bl * l1[j]);
+        if (summed) {
+          float acc = 0.f;
+          for (int64_t j = 0; j < c; ++j) acc += PLANE_J(j) * LINE_J(j);
+          total += acc;
+        } else {
+          float *o = O + (n * 3 + k) * c;
+          for (int64_t j = 0; j < c; ++j) o[j] = PLANE_J(j) * LINE_J(j);
         }
       }
+      if (summed) O[n] = total;
     }
   });
   return out;
+}
+
+// one point and axis pair of the backward: the scatter of the gradient g (channel j: g[j], or g[0] for every
+// channel when SUMMED) into the plane and line gradients
+template <bool SUMMED>
+static inline void scatter_pair(int64_t c, const float *__restrict__ P, const float *__restrict__ L,
+                                float *__restrict__ GP, float *__restrict__ GL, int64_t o00, int64_t o01,
+                                int64_t o10, int64_t o11, int64_t q0, int64_t q1, float w00, float w01,
+                                float w10, float w11, float al, float bl, const float *__restrict__ g) {
+#pragma GCC ivdep
+  for (int64_t j = 0; j < c; ++j) {
+    const float gj = SUMMED ? g[0] : g[j];
+    const float pv = w00 * P[o00 + j] + w01 * P[o01 + j] + w10 * P[o10 + j] + w11 * P[o11 + j];
+    const float lv = al * L[q0 + j] + bl * L[q1 + j];
+    const float gpl = gj * lv, glp = gj * pv;
+    GP[o00 + j] += w00 * gpl; GP[o01 + j] += w01 * gpl; GP[o10 + j] += w10 * gpl; GP[o11 + j] += w11 * gpl;
+    GL[q0 + j] += al * glp; GL[q1 + j] += bl * glp;
+  }
 }
 
 std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz,
                                        torch::Tensor grad) {
   // each thread scatters into its own zeroed gradient buffer (no races); the buffers are summed at the end.
   // At most 4 buffers (3·R²·C floats each); the sum order depends on the thread count (not bit-identical).
+  // grad: (M, 3, C), or (M,) for a summed forward (one value for all 3·C products of a point).
   const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
+  const bool summed = grad.dim() == 1;
   const int64_t threads = std::min<int64_t>(4, at::get_num_threads());
   const int64_t nt = std::max<int64_t>(1, std::min<int64_t>(threads, (m + 4095) / 4096));
   auto gp = torch::zeros({nt, 3, r, r, c}, planes.options()), gl = torch::zeros({nt, 3, r, c}, lines.options());
@@ -123,15 +157,11 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
           const int64_t o00 = ((k * r + ir) * r + ic) * c, o01 = o00 + c, o10 = o00 + r * c, o11 = o10 + c;
           const int64_t q0 = (k * r + il) * c, q1 = q0 + c;
           const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
-          const float *__restrict__ g = G + (n * 3 + k) * c;
-#pragma GCC ivdep
-          for (int64_t j = 0; j < c; ++j) {
-            const float pv = w00 * P[o00 + j] + w01 * P[o01 + j] + w10 * P[o10 + j] + w11 * P[o11 + j];
-            const float lv = al * L[q0 + j] + bl * L[q1 + j];
-            const float gpl = g[j] * lv, glp = g[j] * pv;
-            GP[o00 + j] += w00 * gpl; GP[o01 + j] += w01 * gpl; GP[o10 + j] += w10 * gpl; GP[o11 + j] += w11 * gpl;
-            GL[q0 + j] += al * glp; GL[q1 + j] += bl * glp;
-          }
+          if (summed)
+            scatter_pair<true>(c, P, L, GP, GL, o00, o01, o10, o11, q0, q1, w00, w01, w10, w11, al, bl, G + n);
+          else
+            scatter_pair<false>(c, P, L, GP, GL, o00, o01, o10, o11, q0, q1, w00, w01, w10, w11, al, bl,
+                                G + (n * 3 + k) * c);
         }
       }
     }
@@ -394,31 +424,34 @@ def usable(planes: Tensor, xyz: Tensor) -> bool:
 
 class _VM(torch.autograd.Function):
     @staticmethod
-    def forward(ctx: Any, planes: Tensor, lines: Tensor, xyz: Tensor) -> Tensor:  # type: ignore[override]
+    def forward(ctx: Any, planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:  # type: ignore[override]
         p = planes.detach().permute(0, 2, 3, 1).contiguous()  # (3, R, R, C)
         ln = lines.detach()[..., 0].permute(0, 2, 1).contiguous()  # (3, R, C)
         x = xyz.detach().contiguous()
         ctx.save_for_backward(p, ln, x)
-        return _MODULE.forward(p, ln, x)
+        return _MODULE.forward(p, ln, x, summed)
 
     @staticmethod
-    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None]:  # type: ignore[override]
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:  # type: ignore[override]
         p, ln, x = ctx.saved_tensors
-        gp, gl = _MODULE.backward(p, ln, x, grad.contiguous())
-        return gp.permute(0, 3, 1, 2), gl.permute(0, 2, 1)[..., None], None
+        gp, gl = _MODULE.backward(p, ln, x, grad.contiguous())  # (M,) after a summed forward
+        return gp.permute(0, 3, 1, 2), gl.permute(0, 2, 1)[..., None], None, None
 
 
-def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor) -> Tensor:
+def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) -> Tensor:
     """``P_m(xyz)·L_m(xyz)`` per axis pair with the fused kernel (check :func:`usable` first).
 
     Args:
         planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3), normally in [−1, 1]; outside, zeros padding
             as ``grid_sample`` (a NaN coordinate gives NaN).
+        summed: return the sum over axis pairs and channels instead, computed in the kernel (the density:
+            no (M, 3, C) tensor is written forward or materialised for the backward).
     Returns:
-        (M, 3, C), the same values as :func:`spikenerf.fields.grid.sample_vm` transposed.
+        (M, 3, C), the same values as :func:`spikenerf.fields.grid.sample_vm` transposed; (M,) when
+        ``summed``.
     Raises:
         RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False).
     """
     if _load() is None:
         raise RuntimeError("vm_lookup: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
-    return _VM.apply(planes, lines, xyz)
+    return _VM.apply(planes, lines, xyz, summed)

@@ -62,11 +62,13 @@ class GridModel(RadianceModel):
     ) -> Tensor:
         """Which slots (M,) bool of rays ``ray`` (M,), steps ``k`` (M,) start before ``far`` and (with
         ``use_occupancy``) have their midpoint in an occupied cell."""
-        t_start = near[ray] + step * k
-        inside = t_start < far[ray]
+        t_start = near.index_select(0, ray) + step * k
+        far_at = far.index_select(0, ray)
+        inside = t_start < far_at
         if self.use_occupancy:
-            t_mid = t_start + 0.5 * (far[ray] - t_start).clamp(max=step)
-            inside &= self.field.occupancy.lookup(torch.addcmul(o_n[ray], t_mid[:, None], d_n[ray]))
+            t_mid = t_start + 0.5 * (far_at - t_start).clamp(max=step)
+            mid = torch.addcmul(o_n.index_select(0, ray), t_mid[:, None], d_n.index_select(0, ray))
+            inside &= self.field.occupancy.lookup(mid)
         return inside
 
     @torch.no_grad()
@@ -85,7 +87,7 @@ class GridModel(RadianceModel):
             torch.arange(len(counts), device=near.device), counts, output_size=total
         )
         first = torch.cumsum(counts, dim=0) - counts
-        k = torch.arange(total, device=near.device) - first[ray]
+        k = torch.arange(total, device=near.device) - first.index_select(0, ray)
         inside = self._kept(o_n, d_n, near, far, step, ray, k)
         return ray[inside], k[inside]
 
@@ -117,7 +119,7 @@ class GridModel(RadianceModel):
         spare_ray = n + spare * n // (budget - ends[-1]).clamp_min(1)
         ray = torch.where(used, ray, spare_ray)
         ray_at = torch.where(used, real, spare % n)
-        k = torch.where(used, slot - (ends - counts)[real], spare // n)
+        k = torch.where(used, slot - (ends - counts).index_select(0, real), spare // n)
         keep = used & self._kept(o_n, d_n, near, far, step, ray_at, k)
         return ray, ray_at, k, keep, (ends[-1] - budget).clamp_min(0)
 
@@ -134,10 +136,10 @@ class GridModel(RadianceModel):
     ) -> tuple[Tensor, Tensor, Tensor]:
         """Distances t (M,), interval lengths (M,) and normalised points (M, 3) of slots ``ray``, ``k`` (M,):
         the slot's centre, or a uniform draw in it with ``perturb``."""
-        t_start = near[ray] + step * k
-        deltas = (far[ray] - t_start).clamp(0.0, step)
+        t_start = near.index_select(0, ray) + step * k
+        deltas = (far.index_select(0, ray) - t_start).clamp(0.0, step)
         t = t_start + (torch.rand_like(t_start) if perturb else 0.5) * deltas
-        return t, deltas, torch.addcmul(o_n[ray], t[:, None], d_n[ray])
+        return t, deltas, torch.addcmul(o_n.index_select(0, ray), t[:, None], d_n.index_select(0, ray))
 
     def render_rays(
         self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor, perturb: bool = False
@@ -155,7 +157,10 @@ class GridModel(RadianceModel):
         sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
         weights = packed_weights(sigma, deltas, ray, n)
         app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
-        rgb = field.color_norm(xn[app], dirs[ray[app]]) if len(app) else t.new_zeros(0, field.channels)
+        if len(app):
+            rgb = field.color_norm(xn.index_select(0, app), dirs.index_select(0, ray.index_select(0, app)))
+        else:
+            rgb = t.new_zeros(0, field.channels)
         color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app)
         return RenderOutput(color, depth, opacity, num_samples=len(ray))
 
@@ -184,10 +189,12 @@ class GridModel(RadianceModel):
         lost = None
         if cfg.static_colors and n * cfg.static_colors < budget:
             slots, lost = colour_slots(weights.detach(), shown, n * cfg.static_colors)
-            picked = field.color_norm(xn[slots], dirs[ray_at[slots]]) * shown[slots, None]
+            at = ray_at.index_select(0, slots)
+            picked = field.color_norm(xn.index_select(0, slots), dirs.index_select(0, at))
+            picked = picked * shown.index_select(0, slots)[:, None]
             rgb = picked.new_zeros(budget, picked.shape[1]).index_put((slots,), picked)
         else:
-            rgb = torch.where(shown[:, None], field.color_norm(xn, dirs[ray_at]), 0.0)
+            rgb = torch.where(shown[:, None], field.color_norm(xn, dirs.index_select(0, ray_at)), 0.0)
         color, depth, opacity = packed_composite(weights, ray, 2 * n, t, rgb, None)
         return RenderOutput(color[:n], depth[:n], opacity[:n], num_samples=budget, dropped_samples=dropped,
                             dropped_colors=lost)  # fmt: skip
@@ -212,9 +219,9 @@ def compact_slots(
     spare = (slot - total).clamp_min(0)
     spare_ray = n + spare * n // (budget - total).clamp_min(1)
     return (
-        torch.where(filled, ray[source], spare_ray),
-        torch.where(filled, ray_at[source], spare % n),
-        torch.where(filled, k[source], spare // n),
+        torch.where(filled, ray.index_select(0, source), spare_ray),
+        torch.where(filled, ray_at.index_select(0, source), spare % n),
+        torch.where(filled, k.index_select(0, source), spare // n),
         filled,
         dropped + (total - budget).clamp_min(0),
     )
@@ -225,4 +232,4 @@ def colour_slots(weights: Tensor, shown: Tensor, count: int) -> tuple[Tensor, Te
     (unshown slots fill the rest), and () int64: the shown slots left out. Fixed shapes, no host sync."""
     score = torch.where(shown, weights, -1.0)
     slots = torch.topk(score, count, sorted=False).indices
-    return slots, (shown.sum() - shown[slots].sum()).clamp_min(0)
+    return slots, (shown.sum() - shown.index_select(0, slots).sum()).clamp_min(0)

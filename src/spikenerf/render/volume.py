@@ -88,7 +88,7 @@ def packed_weights(sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int) -> T
     tau64 = torch.where(tau64.isnan(), MAX_TAU, tau64.clamp(max=MAX_TAU))
     per_ray = tau64.new_zeros(n_rays).index_add(0, ray, tau64)
     before = torch.cumsum(per_ray, dim=0) - per_ray  # optical depth of all earlier rays
-    depth = torch.cumsum(tau64, dim=0) - tau64 - before[ray]
+    depth = torch.cumsum(tau64, dim=0) - tau64 - before.index_select(0, ray)
     return torch.exp(-depth).to(tau.dtype) * (1.0 - torch.exp(-tau))
 
 
@@ -114,7 +114,7 @@ def packed_composite(
     if color_index is None:
         wc, target = weights[:, None] * colors, ray
     else:
-        wc, target = weights[color_index, None] * colors, ray[color_index]
+        wc, target = weights.index_select(0, color_index)[:, None] * colors, ray.index_select(0, color_index)
     color = wc.new_zeros(n_rays, colors.shape[-1]).index_add(0, target, wc)
     return color + (1.0 - opacity)[:, None] * background, depth, opacity
 
