@@ -444,3 +444,19 @@ def test_field_configs_are_checked_by_the_one_config_validator() -> None:
         with pytest.raises(InputError, match=re.escape(words)):
             field_config(kind, entry)
     assert field_config("grid", {"density_shift": -30.0}).density_shift == -30.0
+
+
+@pytest.mark.parametrize("resolution", [5, 128])
+def test_occupancy_cells_are_the_flat_index_of_the_truncated_coordinates(resolution: int) -> None:
+    from spikenerf.fields.occupancy import OccupancyGrid
+
+    occ = OccupancyGrid(resolution)
+    gen = torch.Generator().manual_seed(4)
+    xyz = torch.rand(5000, 3, generator=gen) * 2.6 - 1.3  # some outside: the nearest cell
+    xyz[:4] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [-1.0, 1.0, 0.999]])
+    ijk = ((xyz + 1.0) * (0.5 * resolution)).long().clamp(0, resolution - 1)  # the int64 formula
+    want = (ijk[:, 0] * resolution + ijk[:, 1]) * resolution + ijk[:, 2]
+    got = occ.cell_index(xyz)
+    assert got.dtype == torch.int64 and torch.equal(got, want)
+    occ.grid.view(-1)[want[::2]] = False
+    assert torch.equal(occ.lookup(xyz), occ.grid.view(-1)[want])

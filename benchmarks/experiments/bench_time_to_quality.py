@@ -21,8 +21,9 @@ KEY=VALUE`` go to every run (``train``'s options of the same names).
         --jobs 4 --budget 1800 --csv ttq.csv --plot ttq.png
     python -m benchmarks.experiments.bench_time_to_quality --summarize ttq.csv  # tables (and --plot) of a CSV
     # on a GPU: the oracle and the default spike method at 400×400, PSNR every 20 s of training
-    python -m benchmarks.experiments.bench_time_to_quality --dataset orbs400 --device cuda --jobs 1 \
-        --runs nerf-gt:20000,spike-integral:20000 --budget 240 --eval-seconds 20 --thresholds 28,30
+    python -m benchmarks.experiments.bench_time_to_quality --dataset orbs400 --device cuda --jobs 1 \\
+        --runs nerf-gt:20000,spike-integral:20000 --batch 16384 --budget 240 --eval-seconds 20 \\
+        --thresholds 28,30
 """
 
 from __future__ import annotations

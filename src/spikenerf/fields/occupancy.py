@@ -35,9 +35,10 @@ class OccupancyGrid(nn.Module):
 
     def cell_index(self, xyz_norm: Tensor) -> Tensor:
         """Flat cell index of normalised points (M, 3) in [−1, 1] → (M,) int64 (clamped to the grid)."""
-        r = self.resolution
-        ijk = ((xyz_norm + 1.0) * (0.5 * r)).long().clamp_(0, r - 1)
-        return (ijk[:, 0] * r + ijk[:, 1]) * r + ijk[:, 2]
+        r = self.resolution  # int32 cells where R³ fits (half the bytes of the (M, 3) int64 ones)
+        cells = torch.int32 if r**3 < 2**31 else torch.int64
+        ijk = ((xyz_norm + 1.0) * (0.5 * r)).to(cells).clamp_(0, r - 1)
+        return ((ijk[:, 0] * r + ijk[:, 1]) * r + ijk[:, 2]).long()
 
     def lookup(self, xyz_norm: Tensor) -> Tensor:
         """Occupancy of the cells of normalised points (M, 3) → (M,) bool (outside: the nearest cell)."""

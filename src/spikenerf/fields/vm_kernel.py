@@ -99,6 +99,7 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
         const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
         if (summed) {
           float acc = 0.f;
+#pragma omp simd reduction(+ : acc)
           for (int64_t j = 0; j < c; ++j) acc += PLANE_J(j) * LINE_J(j);
           total += acc;
         } else {
