@@ -43,7 +43,10 @@ def test_a_worker_trains_with_the_given_field_options(
                            "--frames", 40, "--test-views", 1, "--out", ds)  # fmt: skip
     assert code == 0, err
     opts = TTQ.Options(str(ds), 1e9, 1e9, "wall", 1, 64, 0, float("inf"), "cpu", False,
-                       (("static_samples", 24),))  # fmt: skip
+                       ("static_samples=24", "weight_threshold=0.00001"))  # fmt: skip
     points = TTQ.train_curve("nerf-gt", 3, opts, tmp_path / "run", tmp_path / "t.csv")
     assert [p.iteration for p in points] == [3] and TTQ.read_points(tmp_path / "t.csv") == points
-    assert "static_samples: 24" in (tmp_path / "run" / "config.yaml").read_text()
+    config = (tmp_path / "run" / "config.yaml").read_text()
+    assert "static_samples: 24" in config and "weight_threshold: 1.0e-05" in config
+    args = TTQ.worker_options(opts, 2)  # a worker gets the texts as given (1e-05 would read as a string)
+    assert args[args.index("--field-option") + 3] == "weight_threshold=0.00001" and "--compile" not in args

@@ -178,9 +178,9 @@ def test_a_cuda_graph_step_makes_no_host_sync(
     dataset_dir: Path, dataset, tmp_path: Path, method: str
 ) -> None:  # type: ignore[no-untyped-def]
     cfg = _config(dataset_dir, method, True)
-    cfg.device = "cuda"
+    cfg.device, cfg.iters, cfg.eval_every, cfg.ckpt_every = "cuda", 16, 0, 100
     trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
-    trainer.train(stop_after=4)  # compiled and its CUDA graphs recorded
+    trainer.train(stop_after=12)  # past the last upsampling (rescaled to 16 iterations): graphs replayed
     method_, optimizer = trainer.method, trainer.optimizer
     torch.cuda.synchronize()
     with warnings.catch_warnings(record=True) as caught:

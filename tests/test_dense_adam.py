@@ -54,9 +54,16 @@ def test_dense_adam_steps_like_adam_and_keeps_the_layout(fused: bool) -> None:
     DenseAdam(ours, lr=0.01, fused=fused).load_state_dict(b.state_dict())
 
 
-def test_the_fused_cpu_step_copies_no_channels_last_factor() -> None:
-    p = torch.nn.Parameter(torch.randn(3, 8, 32, 32).contiguous(memory_format=torch.channels_last))
-    p.grad = torch.randn_like(p)
+@pytest.mark.parametrize("shape", [(3, 8, 32, 32), (3, 8, 32, 1)])
+def test_the_fused_cpu_step_copies_no_channels_last_factor(shape: tuple[int, ...]) -> None:
+    p = torch.nn.Parameter(torch.randn(shape).contiguous(memory_format=torch.channels_last))
+    # the fused VM kernel's gradient: (3, R, R, C) or, for a line, (3, R, C) row-major, permuted back; a
+    # line's size-1 dimension then has another stride than the parameter's (autograd keeps it as it comes)
+    rows = (
+        torch.randn(3, shape[2], shape[3], shape[1]) if shape[3] > 1 else torch.randn(3, shape[2], shape[1])
+    )
+    p.grad = rows.permute(0, 3, 1, 2) if shape[3] > 1 else rows.permute(0, 2, 1)[..., None]
+    layout = p.stride()
     for adam, copies in ((torch.optim.Adam, True), (DenseAdam, False)):
         opt = adam([p], lr=0.01, fused=True)
         opt.step()
@@ -65,4 +72,4 @@ def test_the_fused_cpu_step_copies_no_channels_last_factor() -> None:
         names = ("aten::copy_", "aten::clone", "aten::contiguous")
         big = [e for e in prof.events() if e.name in names and any(s and s[0] == 3 for s in e.input_shapes)]
         assert bool(big) == copies, [(e.name, e.input_shapes) for e in big]
-        assert p.stride() == torch.empty(3, 8, 32, 32).contiguous(memory_format=torch.channels_last).stride()
+        assert p.stride() == layout and p.grad.shape == p.shape

@@ -39,6 +39,8 @@ import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+import torch
+
 from benchmarks._table import Row, format_table
 from benchmarks.suites.bench_time_to_psnr import first_time_at
 from benchmarks.tools.profile_cuda_step import field_option
@@ -77,7 +79,7 @@ class Options:
     wall_limit: float  # stop (after the next evaluation) once this many seconds of wall time have passed
     device: str = "cpu"
     compile: bool = False
-    field_options: tuple[tuple[str, object], ...] = ()  # (key, value) pairs, train's --field-option
+    field_options: tuple[str, ...] = ()  # train's --field-option KEY=VALUE texts, passed on as given
 
 
 def write_points(path: Path, points: list[Point]) -> None:
@@ -106,6 +108,15 @@ def read_points(path: Path) -> list[Point]:
         ]
 
 
+def drain(device: torch.device) -> float:
+    """Seconds spent waiting for ``device`` to finish its queued work (0 off CUDA)."""
+    if device.type != "cuda":
+        return 0.0
+    t0 = time.perf_counter()
+    torch.cuda.synchronize(device)
+    return time.perf_counter() - t0
+
+
 def train_curve(method: str, iters: int, opts: Options, out: Path, csv_path: Path) -> list[Point]:
     """Train one run, evaluating every ``opts.eval_seconds`` on ``opts.clock``; the CSV grows as it goes."""
     config = TrainConfig(
@@ -120,7 +131,7 @@ def train_curve(method: str, iters: int, opts: Options, out: Path, csv_path: Pat
         ckpt_every=10**9,
         compile=opts.compile,
     )
-    config.field_config = {**config.field_config, **dict(opts.field_options)}
+    config.field_config = {**config.field_config, **dict(map(field_option, opts.field_options))}
     trainer = Trainer(config, out, progress=False)
     trainer.checkpoint = lambda: None  # type: ignore[method-assign]  # time training, not checkpoint writes
     views, trainer.test_views = trainer.test_views, None  # the trainer's own final evaluation is skipped
@@ -138,6 +149,7 @@ def train_curve(method: str, iters: int, opts: Options, out: Path, csv_path: Pat
         chunk = min(2 * chunk, max(1, round((goal - now()) * rate))) if rate > 0 else chunk
         before, c0, it0 = now(), time.process_time(), trainer.iteration
         trainer.train(stop_after=chunk)
+        trainer.elapsed += drain(trainer.device)  # the GPU's queued steps count as training time
         cpu += time.process_time() - c0
         rate = (trainer.iteration - it0) / max(now() - before, 1e-9)
         out_of_time = time.monotonic() - start >= opts.wall_limit
@@ -160,11 +172,9 @@ def train_curve(method: str, iters: int, opts: Options, out: Path, csv_path: Pat
     return points
 
 
-def run_all(runs: list[tuple[str, int]], opts: Options, jobs: int, threads: int, csv_path: Path) -> None:
-    """One worker process per run, ``jobs`` at a time, each with ``threads`` threads; merges their CSVs."""
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
-    parts = [csv_path.with_name(f"{csv_path.stem}.{m}-{n}.csv") for m, n in runs]
-    common = [
+def worker_options(opts: Options, threads: int) -> list[str]:
+    """The command-line options that give a worker process ``opts`` (and ``threads`` threads)."""
+    return [
         "--dataset",
         opts.dataset,
         "--budget",
@@ -185,8 +195,15 @@ def run_all(runs: list[tuple[str, int]], opts: Options, jobs: int, threads: int,
         "--device",
         opts.device,
         *(("--compile",) if opts.compile else ()),
-        *(a for key, value in opts.field_options for a in ("--field-option", f"{key}={value}")),
+        *(a for text in opts.field_options for a in ("--field-option", text)),
     ]
+
+
+def run_all(runs: list[tuple[str, int]], opts: Options, jobs: int, threads: int, csv_path: Path) -> None:
+    """One worker process per run, ``jobs`` at a time, each with ``threads`` threads; merges their CSVs."""
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    parts = [csv_path.with_name(f"{csv_path.stem}.{m}-{n}.csv") for m, n in runs]
+    common = worker_options(opts, threads)
     pending = list(zip(runs, parts, strict=True))
     active: list[subprocess.Popen] = []
     while pending or active:
@@ -306,6 +323,12 @@ def plot(
     fig.savefig(path)
 
 
+def _checked_option(text: str) -> str:
+    """``--field-option``: checked here, kept as given (re-printing a parsed value could change its type)."""
+    field_option(text)
+    return text
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -318,7 +341,11 @@ def main() -> None:
     parser.add_argument(
         "--eval-seconds", type=float, default=60.0, help="training seconds between evaluations"
     )
-    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall")
+    parser.add_argument(
+        "--clock",
+        choices=("wall", "cpu"),
+        help="the clock of the budget and the ratios [wall; cpu with --summarize]",
+    )
     parser.add_argument("--eval-views", type=int, default=8, help="held-out views evaluated (evenly spaced)")
     parser.add_argument("--batch", type=int, default=None, help="rays per step (default: each method's own)")
     parser.add_argument("--seed", type=int, default=0)
@@ -328,17 +355,18 @@ def main() -> None:
         "--wall-limit", type=float, default=float("inf"), help="wall seconds per run, at most"
     )
     parser.add_argument("--csv", type=Path, help="where the points go [default: a temporary file]")
-    parser.add_argument("--plot", type=Path, help="a PNG of PSNR against CPU time")
+    parser.add_argument("--plot", type=Path, help="a PNG of PSNR against time on --clock")
     parser.add_argument(
         "--summarize", type=Path, nargs="+", help="only print the tables (and --plot) of CSVs"
     )
     parser.add_argument("--thresholds", default="25,28", help="PSNRs (dB) whose times are reported")
     parser.add_argument("--device", default="cpu", help="the training device (train's --device)")
     parser.add_argument("--compile", action="store_true", help="train's --compile")
-    parser.add_argument("--field-option", type=field_option, action="append", default=[], metavar="KEY=VALUE",
-                        help="train's --field-option, for every run")  # fmt: skip
+    parser.add_argument("--field-option", type=_checked_option, action="append", default=[],
+                        metavar="KEY=VALUE", help="train's --field-option, for every run")  # fmt: skip
     parser.add_argument("--worker", help=argparse.SUPPRESS)  # METHOD:ITERS, one run (used by the parent)
     args = parser.parse_args()
+    clock = args.clock or ("cpu" if args.summarize else "wall")  # the summaries of old CSVs were on CPU time
     if args.summarize:
         points = [p for path in args.summarize for p in read_points(path)]
     else:
@@ -348,7 +376,7 @@ def main() -> None:
             args.dataset,
             args.budget,
             args.eval_seconds,
-            args.clock,
+            clock,
             args.eval_views,
             args.batch,
             args.seed,
@@ -360,8 +388,6 @@ def main() -> None:
         with tempfile.TemporaryDirectory(prefix="ttq-") as tmp:
             csv_path = args.csv or Path(tmp) / "ttq.csv"
             if args.worker:
-                import torch
-
                 torch.set_num_threads(args.threads)
                 method, iters = args.worker.split(":")
                 train_curve(method, int(iters), opts, Path(tmp) / "run", csv_path)
@@ -372,10 +398,10 @@ def main() -> None:
             run_all(runs, opts, args.jobs, args.threads, csv_path)
             points = read_points(csv_path)
     thresholds = tuple(float(t) for t in args.thresholds.split(","))
-    print(summarize(points, thresholds, args.clock))
+    print(summarize(points, thresholds, clock))
     if args.plot:
         title = "" if args.summarize else Path(args.dataset).name
-        plot(points, args.plot, thresholds, args.clock, title)
+        plot(points, args.plot, thresholds, clock, title)
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ class OccupancyGrid(nn.Module):
         """Flat cell index of normalised points (M, 3) in [−1, 1] → (M,) int64 (clamped to the grid)."""
         r = self.resolution  # int32 cells where R³ fits (half the bytes of the (M, 3) int64 ones)
         cells = torch.int32 if r**3 < 2**31 else torch.int64
-        ijk = ((xyz_norm + 1.0) * (0.5 * r)).to(cells).clamp_(0, r - 1)
+        ijk = ((xyz_norm + 1.0) * (0.5 * r)).clamp_(0, r - 1).to(cells)  # clamped first: no int overflow
         return ((ijk[:, 0] * r + ijk[:, 1]) * r + ijk[:, 2]).long()
 
     def lookup(self, xyz_norm: Tensor) -> Tensor:

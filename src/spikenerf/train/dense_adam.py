@@ -53,16 +53,18 @@ class DenseAdam(torch.optim.Adam):
                 state[key] = value.permute(order)
 
     def _swappable(self, p: Tensor) -> list[int] | None:
+        """The permutation that views ``p`` row-major, where it views its gradient and state row-major too
+        (strides of size-1 dimensions may differ: autograd keeps a line factor's gradient as it comes)."""
         order = dense_order(p)
-        if order is None or (p.grad is not None and p.grad.stride() != p.stride()):
+        if order is None:
             return None
-        state = self.state.get(p, {})
-        same = all(
-            v.stride() == p.stride() for v in state.values() if torch.is_tensor(v) and v.shape == p.shape
-        )
-        return order if same else None
+        others = [p.grad] if p.grad is not None else []
+        others += [v for v in self.state.get(p, {}).values() if torch.is_tensor(v) and v.shape == p.shape]
+        return order if all(t.permute(order).is_contiguous() for t in others) else None
 
     def step(self, closure: Callable[[], Any] | None = None) -> Any:  # type: ignore[override]
+        # (hooks registered on this optimiser would run twice, once on the permuted views, where torch has
+        # hooked Adam.step too; none are registered)
         swapped = []
         for group in self.param_groups:
             for p in group["params"]:
