@@ -19,7 +19,8 @@ def test_dense_order_views_a_channels_last_tensor_row_major() -> None:
     assert dense_order(torch.randn(5)) is None
 
 
-def _pair(fused: bool) -> tuple[list[torch.nn.Parameter], list[torch.nn.Parameter]]:
+def _pair() -> tuple[list[torch.nn.Parameter], list[torch.nn.Parameter]]:
+    """Two identical parameter lists: a channels-last plane and line factor, and a row-major matrix."""
     gen = torch.Generator().manual_seed(0)
     values = [
         torch.randn(3, 6, 9, 9, generator=gen).contiguous(memory_format=torch.channels_last),
@@ -31,7 +32,7 @@ def _pair(fused: bool) -> tuple[list[torch.nn.Parameter], list[torch.nn.Paramete
 
 @pytest.mark.parametrize("fused", [True, False])
 def test_dense_adam_steps_like_adam_and_keeps_the_layout(fused: bool) -> None:
-    ours, theirs = _pair(fused)
+    ours, theirs = _pair()
     a = DenseAdam(ours, lr=0.01, betas=(0.9, 0.99), fused=fused)
     b = torch.optim.Adam(theirs, lr=0.01, betas=(0.9, 0.99), fused=fused)
     gen = torch.Generator().manual_seed(1)
