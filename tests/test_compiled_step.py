@@ -174,10 +174,11 @@ def test_a_tensor_on_cuda_0_is_on_the_training_device_cuda(monkeypatch: pytest.M
 @pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 @pytest.mark.parametrize("method", ["nerf-gt", "spike-integral"])
+@pytest.mark.parametrize("field", [{}, {"static_visible": 12}])
 def test_a_cuda_graph_step_makes_no_host_sync(
-    dataset_dir: Path, dataset, tmp_path: Path, method: str
+    dataset_dir: Path, dataset, tmp_path: Path, method: str, field: dict
 ) -> None:  # type: ignore[no-untyped-def]
-    cfg = _config(dataset_dir, method, True)
+    cfg = _config(dataset_dir, method, True, **field)
     cfg.device, cfg.iters, cfg.eval_every, cfg.ckpt_every = "cuda", 16, 0, 100
     trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
     trainer.train(stop_after=12)  # past the last upsampling (rescaled to 16 iterations): graphs replayed

@@ -160,6 +160,7 @@ def test_the_summed_fused_lookup_is_the_sum_of_the_products_forward_and_backward
     xyz = torch.rand(9000, 3, generator=gen) * 2.4 - 1.2  # some points outside [-1, 1]
     ref = sample_vm(planes, lines, xyz).permute(2, 0, 1).sum(dim=(1, 2))
     grad = torch.randn(ref.shape, generator=gen)
+    grad[::3] = 0.0  # points the backward skips (behind a ray's early stop)
     want = torch.autograd.grad(ref, (planes, lines), grad)
     threads = torch.get_num_threads()
     try:

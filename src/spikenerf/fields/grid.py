@@ -47,6 +47,10 @@ class GridFieldConfig:
         step_ratio: marching step in cells (0.5 before issue 9; TensoRF's 0.5). max_samples: cap on samples
             per ray.
         weight_threshold: colour is decoded only where the compositing weight exceeds it.
+        early_stop: early ray termination in training renders: the samples behind which a ray's
+            transmittance has fallen below it count as empty (zero density, no gradient: a sample's
+            gradient is at most about its transmittance), so the backward skips them; 0 keeps every sample.
+            Renders without gradients (``eval``, ``render``) keep every sample.
         static_samples: 0 (the default): the renderer packs exactly the samples it keeps (shapes depend on
             the data, so the host reads sample counts back). N > 0: a fixed budget of ``N × rays`` sample
             slots per render call, N per ray on average, with no data-dependent shape and no host sync
@@ -60,6 +64,12 @@ class GridFieldConfig:
             ``weight_threshold`` in the call (``torch.topk``: still no data-dependent shape); a weight
             beyond them keeps its place in the opacity but adds no colour (the render output counts them
             in ``dropped_colors``).
+        static_visible: with ``static_samples`` and ``early_stop``: 0 (the default): density and its
+            gradient are evaluated in every slot of the budget. V > 0: the density is first evaluated there
+            without gradient, and the slots before each ray's early stop are moved, in order, into a second
+            budget of ``V × rays`` slots, where it is evaluated again with its gradient (and colour decoded):
+            the backward, which costs the most on a GPU, sees V slots a ray, not N. Samples past it are cut
+            and counted like the first budget's.
         gather_lookup: look the factors up by index gathers of channel rows (``fields/vm_gather.py``)
             instead of ``grid_sample`` or the fused CPU kernel: the same values, as ops that
             ``torch.compile`` can fuse with its backward (for the compiled CUDA step, not yet measured
@@ -87,8 +97,9 @@ class GridFieldConfig:
         "n_voxels_init": Bound(least=8), "n_voxels_final": Bound(least=8), "upsample_steps": _LEAST0,
         "density_components": _ABOVE0, "app_components": _ABOVE0, "app_dim": _ABOVE0, "hidden": _ABOVE0,
         "view_freqs": _LEAST0, "init_scale": _LEAST0, "distance_scale": _ABOVE0, "step_ratio": _ABOVE0,
-        "max_samples": _ABOVE0, "weight_threshold": _LEAST0, "static_samples": _LEAST0,
-        "static_colors": _LEAST0,
+        "max_samples": _ABOVE0, "weight_threshold": _LEAST0, "early_stop": Bound(least=0, most=0.5),
+        "static_samples": _LEAST0,
+        "static_colors": _LEAST0, "static_visible": _LEAST0,
         "occupancy_start": _LEAST0, "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
         "occupancy_max_resolution": _LEAST0,
         "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1), "batch_rays": _ABOVE0,
@@ -110,8 +121,10 @@ class GridFieldConfig:
     step_ratio: float = 0.75
     max_samples: int = 1024
     weight_threshold: float = 1e-4
+    early_stop: float = 1e-4
     static_samples: int = 0
     static_colors: int = 0
+    static_visible: int = 0
     gather_lookup: bool = False
     decoder_bf16: bool = True
     occupancy: bool = True
@@ -141,12 +154,20 @@ class GridFieldConfig:
         )
 
     def check(self) -> None:
-        """InputError (naming ``field_config.static_colors``) for a colour budget without a sample budget."""
-        if self.static_colors and not self.static_samples:
+        """InputError (naming the option) for a colour or visible budget without a sample budget, or a
+        visible budget without ``early_stop``."""
+        for name in ("static_colors", "static_visible"):
+            if getattr(self, name) and not self.static_samples:
+                raise InputError(
+                    f"field_config.{name} {getattr(self, name)} needs a static sample budget: set "
+                    "field_config.static_samples too (e.g. 64)",
+                    param=f"field_config.{name}",
+                )
+        if self.static_visible and not self.early_stop:
             raise InputError(
-                f"field_config.static_colors {self.static_colors} needs a static sample budget: set "
-                "field_config.static_samples too (e.g. 64)",
-                param="field_config.static_colors",
+                f"field_config.static_visible {self.static_visible} needs field_config.early_stop > 0 "
+                "(the transmittance at which a ray stops)",
+                param=("field_config.static_visible", "field_config.early_stop"),
             )
 
     # the memory estimates of fields/memory.py and ``field_memory``, per field kind

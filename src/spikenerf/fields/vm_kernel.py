@@ -150,6 +150,7 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
       float *__restrict__ GP = GP0 + t * sp, *__restrict__ GL = GL0 + t * sl;
       const int64_t end = std::min(m, (t + 1) * chunk);
       for (int64_t n = t * chunk; n < end; ++n) {
+        if (summed && G[n] == 0.0f) continue;  // e.g. behind a ray's early stop: nothing to scatter
         if (n + PF < end) prefetch_point(P, L, X + (n + PF) * 3, r, c);
         for (int k = 0; k < 3; ++k) {
           int ic, ir, il; float ac, bc, ar, br, al, bl;

@@ -8,7 +8,7 @@ from torch import Tensor
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridField
 from spikenerf.render.base import RadianceModel
-from spikenerf.render.volume import RenderOutput, packed_composite, packed_weights
+from spikenerf.render.volume import RenderOutput, early_stop_mask, packed_composite, packed_weights
 
 #: slots the static march lays out for each slot of the ``static_samples`` budget (most are empty space)
 MARCH_SLOTS = 4
@@ -155,6 +155,8 @@ class GridModel(RadianceModel):
         ray, k = self._march(o_n, d_n, near, far, step)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
         sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
+        if cfg.early_stop and len(ray) and torch.is_grad_enabled():
+            sigma = torch.where(early_stop_mask(sigma, deltas, ray, n, cfg.early_stop), sigma, 0.0)
         weights = packed_weights(sigma, deltas, ray, n)
         app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
         if len(app):
@@ -174,16 +176,29 @@ class GridModel(RadianceModel):
         occupancy lookup), and :func:`compact_slots` moves the kept ones (inside the ray, in occupied
         cells) into the budget, where the field is evaluated. Unkept and spare slots get zero density (so
         zero weight); colour is counted where the weight exceeds
-        ``weight_threshold``, so the result is the packed path's when all samples fit. Colour is decoded in
-        every slot, or with ``static_colors`` C > 0 in the C × N slots of largest weight only
-        (:func:`colour_slots`).
+        ``weight_threshold``, so the result is the packed path's when all samples fit. With ``early_stop``
+        the slots behind each ray's early stop count as empty; with ``static_visible`` V they are found by
+        a density pass without gradient and the others moved into V × N slots (:func:`compact_slots`
+        again), where density, colour and the backward run. Colour is decoded in every slot, or with
+        ``static_colors`` C > 0 in the C × N slots of largest weight only (:func:`colour_slots`).
         """
         field, cfg, n = self.field, self.field.config, o_n.shape[0]
         budget = n * cfg.static_samples
         marched = self._march_static(o_n, d_n, near, far, step, MARCH_SLOTS * budget)
         ray, ray_at, k, keep, dropped = compact_slots(*marched, n, budget)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray_at, k, perturb)
-        sigma = torch.where(keep, field.density_norm(xn), 0.0)
+        if cfg.static_visible and cfg.early_stop:  # a no-grad pass finds where each ray stops
+            with torch.no_grad():
+                sigma = torch.where(keep, field.density_norm(xn), 0.0)
+                keep = keep & early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop)
+            budget = n * cfg.static_visible
+            ray, ray_at, k, keep, dropped = compact_slots(ray, ray_at, k, keep, dropped, n, budget)
+            t, deltas, xn = self._points(o_n, d_n, near, far, step, ray_at, k, perturb)
+            sigma = torch.where(keep, field.density_norm(xn), 0.0)
+        else:
+            sigma = torch.where(keep, field.density_norm(xn), 0.0)
+            if cfg.early_stop:
+                sigma = torch.where(early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop), sigma, 0.0)
         weights = packed_weights(sigma, deltas, ray, 2 * n)
         shown = weights.detach() > cfg.weight_threshold
         lost = None

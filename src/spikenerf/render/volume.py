@@ -7,10 +7,13 @@ densities ``σ`` are per world unit. Compositing is on a white background:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+
+from spikenerf.core.errors import InputError
 
 BACKGROUND = 1.0
 MAX_TAU = 1e3  # optical depth at which transmittance is 0 in float32 and float64
@@ -34,7 +37,8 @@ class RenderOutput:
         dropped_samples: () int64, the samples that did not fit in a static sample budget (the grid's
             ``static_samples``; None otherwise): kept samples past the budget plus the candidate steps
             past its march (``MARCH_SLOTS`` = 4 per budget slot), which are not tested for occupancy and
-            count whole: an upper bound, so that the budget raised by the count holds them. A tensor,
+            count whole, and (with ``static_visible``) the slots before an early stop past that second
+            budget: an upper bound, so that the budgets raised by the count hold them. A tensor,
             so that no host sync is needed to make it.
         dropped_colors: () int64, the slots above the weight threshold whose colour the grid's
             ``static_colors`` budget left out (None without that budget).
@@ -76,20 +80,51 @@ def packed_weights(sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int) -> T
         ray: (M,) int64 ray of each sample, non-decreasing (samples of a ray are contiguous and in order).
         n_rays: N, the number of rays (rays without samples are allowed).
     Returns:
-        (M,) weights ``Tᵢ (1 − exp(−σᵢ δᵢ))``; ``Tᵢ`` sums only the earlier samples of the same ray. The
-        running sum is taken in float64 (float32 on MPS, which has no float64) over all samples, then each
-        ray's offset is removed, so a ray's transmittance does not depend on how much optical depth the rays
-        before it had. The scan sees ``τ`` clamped to ≤ 1e3 (NaN → 1e3): ``exp(−1e3)`` is already 0, so
-        no weight changes, and one infinite or NaN sample cannot make ``inf − inf`` for every later ray.
+        (M,) weights ``Tᵢ (1 − exp(−σᵢ δᵢ))``; ``Tᵢ`` sums only the earlier samples of the same ray
+        (:func:`packed_depth_before`).
     """
     tau = sigma * deltas
+    return torch.exp(-packed_depth_before(tau, ray, n_rays)).to(tau.dtype) * (1.0 - torch.exp(-tau))
+
+
+def packed_depth_before(tau: Tensor, ray: Tensor, n_rays: int) -> Tensor:
+    """Optical depth (M,) of the same ray's earlier samples, ``Σ_{j<i} τⱼ``, for M packed samples.
+
+    Args:
+        tau: (M,) optical depth ``σ δ`` of each sample. ray: (M,) non-decreasing ray of each sample.
+        n_rays: N, the number of rays.
+    Returns:
+        (M,) float64 (float32 on MPS, which has no float64). The running sum is taken in that precision over
+        all samples, then each ray's offset is removed, so a ray's depth does not depend on how much optical
+        depth the rays before it had. The scan sees ``τ`` clamped to ≤ 1e3 (NaN → 1e3): ``exp(−1e3)`` is
+        already 0, so no weight changes, and one infinite or NaN sample cannot make ``inf − inf`` for every
+        later ray.
+    """
     wide = torch.float32 if tau.device.type == "mps" else torch.float64
     tau64 = tau.to(wide)
     tau64 = torch.where(tau64.isnan(), MAX_TAU, tau64.clamp(max=MAX_TAU))
     per_ray = tau64.new_zeros(n_rays).index_add(0, ray, tau64)
     before = torch.cumsum(per_ray, dim=0) - per_ray  # optical depth of all earlier rays
-    depth = torch.cumsum(tau64, dim=0) - tau64 - before.index_select(0, ray)
-    return torch.exp(-depth).to(tau.dtype) * (1.0 - torch.exp(-tau))
+    return torch.cumsum(tau64, dim=0) - tau64 - before.index_select(0, ray)
+
+
+@torch.no_grad()
+def early_stop_mask(
+    sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int, min_transmittance: float
+) -> Tensor:
+    """Early ray termination (instant-ngp, nerfacc's ``early_stop_eps``): (M,) bool, True for the packed
+    samples before which the ray's transmittance is still ≥ ``min_transmittance`` (a prefix of each ray).
+
+    Args as :func:`packed_weights` (no gradient flows); ``min_transmittance`` in [0, 1): 0 keeps every
+    sample. A sample left out has weight < ``min_transmittance``, and so have all the later ones together.
+    """
+    if not 0.0 <= min_transmittance < 1.0:
+        raise InputError(
+            f"min_transmittance must lie in [0, 1), found {min_transmittance}", param="min_transmittance"
+        )
+    if min_transmittance == 0.0:
+        return torch.ones_like(ray, dtype=torch.bool)
+    return packed_depth_before(sigma * deltas, ray, n_rays) <= -math.log(min_transmittance)
 
 
 def packed_composite(

@@ -447,12 +447,15 @@ class Trainer:
         if per_ray <= 0 or self.told_dropped:
             return
         self.told_dropped = True
-        budget = static_samples(self.model)
-        enough = math.ceil(1.25 * (budget + per_ray))
+        budgets = {"static_samples": static_samples(self.model)}
+        visible = int(getattr(self.model.field.config, "static_visible", 0) or 0)
+        if visible:  # either budget may have cut: raise both
+            budgets["static_visible"] = visible
+        now = " ".join(f"{k}={v}" for k, v in budgets.items())
+        enough = " ".join(f"--field-option {k}={math.ceil(1.25 * (v + per_ray))}" for k, v in budgets.items())
         warn(
-            f"static_samples={budget} cut {per_ray:.2f} samples a ray (averaged over the last "
-            f"{self.config.log_every} steps, iteration {self.iteration}): far parts of rays are not "
-            f"rendered; --field-option static_samples={enough} would hold them"
+            f"{now} cut {per_ray:.2f} samples a ray (averaged over the last {self.config.log_every} steps,"
+            f" iteration {self.iteration}): far parts of rays are not rendered; {enough} would hold them"
         )
 
     @property
