@@ -1,0 +1,88 @@
+#!/usr/bin/env bash
+# Issue 27's GPU checks in parts, each sized for a device call of at most 10 minutes on an H100/H200.
+#
+# Usage (from the repository root, on the GPU host; PYTHONPATH=src when the package is not installed):
+#
+#   PYTHONPATH=src bash benchmarks/suites/gpu_check.sh OUT PART...
+#
+# Parts, in order, each under its own time limit (seconds); a part that runs over is cut and marked so:
+#   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views) into WORK
+#   tests    (240) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
+#   train    (120) nerf-gt, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
+#   profile  (3 × 160) profile_cuda_step from that run's last step, nerf-gt at BATCH and SMALL rays, the
+#            compiled static step (static_samples=64 static_colors=16) alone, with static_visible=24 and
+#            with gather_lookup=true: ms a step, rays/s, GPU-busy share, launches and host syncs
+#   ttq      (560) the oracle's time-to-quality curve: PSNR every 20 s for 480 s of training
+# Suggested calls: `data tests train` then `profile`; `ttq` in a third call when device time is left.
+#
+# OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
+# docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
+# keeps the dataset and the run between calls on a warm machine. Environment: DEVICE (cuda), SIZE (400),
+# BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), WARMUP/STEPS/PSTEPS
+# (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), VARIANTS (the profile's field options,
+# `base` for none), PYTHON (python). The CPU test runs `data train profile` at a tiny size
+# (tests/test_gpu_check.py).
+set -u -o pipefail
+OUT=${1:?usage: gpu_check.sh OUT PART...}
+shift
+DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-4096} ITERS=${ITERS:-2000}
+COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
+PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work}
+VARIANTS=${VARIANTS:-base static_visible=24 gather_lookup=true}
+DATA=$WORK/orbs$SIZE RUN=$WORK/gt$SIZE
+STATIC=(--field-option static_samples=64 --field-option static_colors=16)
+mkdir -p "$OUT" "$WORK"
+SUMMARY=$OUT/summary.txt
+
+note() { echo "$*" | tee -a "$SUMMARY"; }
+
+# part NAME LIMIT GREP COMMAND...: run COMMAND into OUT/NAME.txt under LIMIT s; note its code and the
+# output lines matching GREP (an extended regex)
+part() {
+  local name=$1 limit=$2 pattern=$3
+  shift 3
+  local start=$SECONDS
+  timeout "$limit" "$@" >"$OUT/$name.txt" 2>&1
+  local code=$?
+  local how="rc $code"
+  [ "$code" -eq 124 ] && how="cut at $limit s"
+  note "== $name: $how, $((SECONDS - start)) s"
+  grep -E "$pattern" "$OUT/$name.txt" | tail -n 40 | tee -a "$SUMMARY"
+  return 0
+}
+
+note "gpu_check $(date -u +%FT%TZ) device=$DEVICE size=$SIZE batch=$BATCH iters=$ITERS compile='$COMPILE'"
+note "$($PYTHON -c 'import torch; print("torch", torch.__version__, "cuda", torch.cuda.is_available(),
+  torch.cuda.get_device_name() if torch.cuda.is_available() else "")' 2>&1)"
+for name in "$@"; do
+  case $name in
+    data)
+      [ -f "$DATA/transforms.json" ] && { note "== data: $DATA is there"; continue; }
+      part data 150 "^wrote" "$PYTHON" -m spikenerf simulate --scene analytic-orbs --width "$SIZE" \
+        --height "$SIZE" --color gray --out "$DATA" ;;
+    tests)
+      part tests 240 "passed|failed|error" "$PYTHON" -m pytest -m cuda -q -p no:cacheprovider \
+        tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
+        tests/test_integral.py tests/test_learned_targets.py tests/test_train_device.py ;;
+    train)
+      rm -rf "$RUN"
+      part train 120 "^trained" "$PYTHON" -m spikenerf train "$DATA" --method nerf-gt --batch "$BATCH" \
+        --iters "$ITERS" --eval-every 250 --eval-views 8 --quiet --device "$DEVICE" --out "$RUN"
+      [ -f "$RUN/curves.csv" ] && note "$(cat "$RUN/curves.csv")" ;;
+    profile)
+      for variant in $VARIANTS; do
+        extra=()
+        [ "$variant" != base ] && extra=(--field-option "$variant")
+        part "profile-${variant%%=*}" 160 "ms/step" "$PYTHON" -m benchmarks.tools.profile_cuda_step "$DATA" \
+          --device "$DEVICE" --methods nerf-gt --start "nerf-gt=$RUN" --batches "$BATCH,$SMALL" \
+          --warmup "$WARMUP" --steps "$STEPS" --profile-steps "$PSTEPS" $COMPILE "${STATIC[@]}" "${extra[@]}"
+      done ;;
+    ttq)
+      part ttq 560 "^\|" "$PYTHON" -m benchmarks.experiments.bench_time_to_quality \
+        --dataset "$DATA" --device "$DEVICE" --jobs 1 --runs nerf-gt:40000 --batch "$BATCH" --budget 480 \
+        --wall-limit 540 --eval-seconds 20 --thresholds 28,30 --csv "$OUT/ttq.csv" ;;
+    *)
+      note "== $name: unknown part (data tests train profile ttq)"
+      exit 2 ;;
+  esac
+done

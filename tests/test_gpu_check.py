@@ -1,0 +1,54 @@
+"""``benchmarks/suites/gpu_check.sh`` (issue 27's GPU checks in parts): its parts run end to end on the CPU at
+a tiny size and write the summary; an unknown part stops it with exit 2. The figures it prints on a GPU are
+measurements (docs/performance.md)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "suites" / "gpu_check.sh"
+
+
+def _run(out: Path, work: Path, *parts: str) -> subprocess.CompletedProcess:
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT / "src"),
+        "PYTHON": sys.executable,
+        "DEVICE": "cpu",
+        "SIZE": "16",
+        "BATCH": "128",
+        "SMALL": "64",
+        "ITERS": "10",
+        "COMPILE": "",
+        "WARMUP": "1",
+        "STEPS": "1",
+        "PSTEPS": "1",
+        "VARIANTS": "base static_visible=8",
+        "WORK": str(work),
+        "OMP_NUM_THREADS": "1",
+    }
+    cmd = ["bash", str(SCRIPT), str(out), *parts]
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+
+
+def test_the_parts_run_on_a_cpu_and_write_their_summary(tmp_path: Path) -> None:
+    out, work = tmp_path / "out", tmp_path / "work"
+    done = _run(out, work, "data", "train", "profile")
+    assert done.returncode == 0, done.stdout + done.stderr
+    summary = (out / "summary.txt").read_text()
+    for line in ("== data: rc 0", "wrote", "== train: rc 0", "trained 10 iterations", "== profile-base: rc 0",
+                 "== profile-static_visible: rc 0", "static_visible=8:"):  # fmt: skip
+        assert line in summary, summary
+    assert summary.count("ms/step") >= 4  # two batches × two variants
+    assert (work / "orbs16" / "transforms.json").is_file() and (work / "gt16" / "curves.csv").is_file()
+    again = _run(out, work, "data")  # the dataset is kept between calls
+    assert again.returncode == 0 and "is there" in (out / "summary.txt").read_text()
+
+
+def test_an_unknown_part_stops_with_exit_2(tmp_path: Path) -> None:
+    done = _run(tmp_path / "out", tmp_path / "work", "everything")
+    assert done.returncode == 2 and "unknown part" in done.stdout
