@@ -33,6 +33,8 @@ from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
 VARIANTS = ["nerf-gt", "nerf-blur", "nerf-recon", "spike-nerf"]
 TRAIN = ["--eval-every", "1000", "--eval-views", "1"]
 DEFAULT_CONFIGS = "local:1,local:2,ray:1,ray:2"
+#: this checkout's package folder, which Ray workers import
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 def parse_configs(text: str) -> dict[str, tuple[str, int]]:
@@ -88,8 +90,7 @@ def main() -> None:
     args = parser.parse_args()
     configs = parse_configs(args.configs)
     os.environ["OMP_NUM_THREADS"] = "1"
-    src = str(Path(__file__).resolve().parents[1] / "src")  # Ray workers import this checkout
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [src, os.environ.get("PYTHONPATH")]))
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(SRC), os.environ.get("PYTHONPATH")]))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         seed = config(root / "seed", args, "local", 1)

@@ -34,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository root
 
 
 def run_train(src: Path, dataset: Path, out: Path, args: argparse.Namespace, extra: list[str]) -> dict:
