@@ -1,6 +1,8 @@
 """Early ray termination in training renders (``GridFieldConfig.early_stop``, issue 27): which samples it
-leaves out, that a render changes by less than the threshold, that the gradients stay those of the full
-render, that renders without gradients keep every sample, and that a bad value is one line."""
+leaves out, that a render changes by less than the threshold and its gradients by an error that shrinks
+with it, that renders without gradients keep every sample, and that a bad value is one line; and the
+second, visible budget of the static path (``static_visible``): equal to one budget where it holds the
+slots, one graph, the compiled step's losses, its prerequisites and its warning."""
 
 from __future__ import annotations
 

@@ -48,9 +48,9 @@ class GridFieldConfig:
             per ray.
         weight_threshold: colour is decoded only where the compositing weight exceeds it.
         early_stop: early ray termination in training renders: the samples behind which a ray's
-            transmittance has fallen below it count as empty (zero density, no gradient: a sample's
-            gradient is at most about its transmittance), so the backward skips them; 0 keeps every sample.
-            Renders without gradients (``eval``, ``render``) keep every sample.
+            transmittance has fallen below it count as empty (zero density and gradient; the gradients
+            they would get scale with their transmittance), so the CPU kernel's backward skips them; 0 keeps
+            every sample. Renders without gradients (``eval``, ``render``) keep every sample.
         static_samples: 0 (the default): the renderer packs exactly the samples it keeps (shapes depend on
             the data, so the host reads sample counts back). N > 0: a fixed budget of ``N × rays`` sample
             slots per render call, N per ray on average, with no data-dependent shape and no host sync
