@@ -17,7 +17,8 @@ and their medians. ``--ours-args`` adds train options to this checkout's runs on
 ``--ours-args "--field-option step_ratio=0.5"`` to time the previous defaults). Ours trains with
 ``--window-poses 1`` (one pose per TFP target, as a reference before 8041e5c; ``--ref-window-poses`` pins
 a later reference too), unless ``--ours-args`` says otherwise.
-Without ``--dataset`` an ``analytic-orbs`` 100×100, 1000-step gray dataset is simulated first.
+Without ``--dataset`` an ``analytic-orbs`` 100×100, 1000-step gray dataset is simulated first, by the
+reference build (this checkout reads an older build's dataset; an older build may not read a newer one).
 """
 
 from __future__ import annotations
@@ -95,7 +96,7 @@ def main() -> None:
                 subprocess.run(
                     [sys.executable, "-m", "spikenerf", "simulate", "--scene", "analytic-orbs",
                      "--width", "100", "--height", "100", "--out", str(dataset), "--no-progress"],
-                    env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+                    env={**os.environ, "PYTHONPATH": str(ref / "src")},  # both builds read the older format
                     check=True,
                 )  # fmt: skip
             builds = {"reference": ref / "src", "ours": ROOT / "src"}
