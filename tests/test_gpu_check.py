@@ -20,6 +20,7 @@ def _run(out: Path, work: Path, *parts: str) -> subprocess.CompletedProcess:
         "PYTHON": sys.executable,
         "DEVICE": "cpu",
         "SIZE": "16",
+        "JOBS": "1",
         "BATCH": "128",
         "SMALL": "64",
         "ITERS": "10",

@@ -6,19 +6,20 @@
 #   PYTHONPATH=src bash benchmarks/suites/gpu_check.sh OUT PART...
 #
 # Parts, in order, each under its own time limit (seconds); a part that runs over is cut and marked so:
-#   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views) into WORK
-#   tests    (240) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
+#   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views; JOBS workers) into WORK
+#   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
 #   train    (120) nerf-gt, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
 #   profile  (3 × 160) profile_cuda_step from that run's last step, nerf-gt at BATCH and SMALL rays, the
 #            compiled static step (static_samples=64 static_colors=16) alone, with static_visible=24 and
 #            with gather_lookup=true: ms a step, rays/s, GPU-busy share, launches and host syncs
 #   ttq      (560) the oracle's time-to-quality curve: PSNR every 20 s for 480 s of training
-# Suggested calls: `data tests train` then `profile`; `ttq` in a third call when device time is left.
+# Suggested calls, most needed first (a session has about 15 minutes of device time, starts included):
+# `data train profile` (about 9 minutes at most), then `tests`, then `ttq` where time is left.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
 # keeps the dataset and the run between calls on a warm machine. Environment: DEVICE (cuda), SIZE (400),
-# BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), WARMUP/STEPS/PSTEPS
+# JOBS (8), BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), WARMUP/STEPS/PSTEPS
 # (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), VARIANTS (the profile's field options,
 # `base` for none), PYTHON (python). The CPU test runs `data train profile` at a tiny size
 # (tests/test_gpu_check.py).
@@ -27,7 +28,7 @@ OUT=${1:?usage: gpu_check.sh OUT PART...}
 shift
 DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-4096} ITERS=${ITERS:-2000}
 COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
-PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work}
+PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8}
 VARIANTS=${VARIANTS:-base static_visible=24 gather_lookup=true}
 DATA=$WORK/orbs$SIZE RUN=$WORK/gt$SIZE
 STATIC=(--field-option static_samples=64 --field-option static_colors=16)
@@ -59,9 +60,9 @@ for name in "$@"; do
     data)
       [ -f "$DATA/transforms.json" ] && { note "== data: $DATA is there"; continue; }
       part data 150 "^wrote" "$PYTHON" -m spikenerf simulate --scene analytic-orbs --width "$SIZE" \
-        --height "$SIZE" --color gray --out "$DATA" ;;
+        --height "$SIZE" --color gray --jobs "$JOBS" --out "$DATA" ;;
     tests)
-      part tests 240 "passed|failed|error" "$PYTHON" -m pytest -m cuda -q -p no:cacheprovider \
+      part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -q -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
         tests/test_integral.py tests/test_learned_targets.py tests/test_train_device.py ;;
     train)
