@@ -192,8 +192,13 @@ class GridModel(RadianceModel):
                 sigma = torch.where(keep, field.density_norm(xn), 0.0)
                 keep = keep & early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop)
             budget = n * cfg.static_visible
+            source, filled, _ = slot_sources(keep, budget)
             ray, ray_at, k, keep, dropped = compact_slots(ray, ray_at, k, keep, dropped, n, budget)
-            t, deltas, xn = self._points(o_n, d_n, near, far, step, ray_at, k, perturb)
+            # the kept slots keep the points the stop was found at; the spare ones get distinct new points
+            t_new, d_new, x_new = self._points(o_n, d_n, near, far, step, ray_at, k, perturb)
+            t = torch.where(filled, t.index_select(0, source), t_new)
+            deltas = torch.where(filled, deltas.index_select(0, source), d_new)
+            xn = torch.where(filled[:, None], xn.index_select(0, source), x_new)
             sigma = torch.where(keep, field.density_norm(xn), 0.0)
         else:
             sigma = torch.where(keep, field.density_norm(xn), 0.0)
@@ -226,11 +231,8 @@ def compact_slots(
     slots beyond B are cut and added to ``dropped``. The slots left after the last kept one are spare, laid
     out as the march lays out its own (rays N … 2N − 1 evenly, distinct points, ``keep`` False).
     """
-    seen = torch.cumsum(keep, dim=0)
-    total = seen[-1]
+    source, filled, total = slot_sources(keep, budget)
     slot = torch.arange(budget, device=keep.device)
-    filled = slot < total
-    source = torch.searchsorted(seen, slot, right=True).clamp_(max=len(keep) - 1)
     spare = (slot - total).clamp_min(0)
     spare_ray = n + spare * n // (budget - total).clamp_min(1)
     return (
@@ -240,6 +242,16 @@ def compact_slots(
         filled,
         dropped + (total - budget).clamp_min(0),
     )
+
+
+def slot_sources(keep: Tensor, budget: int) -> tuple[Tensor, Tensor, Tensor]:
+    """Where each of ``budget`` B slots of :func:`compact_slots` comes from: source (B,) int64, the index of
+    the (i+1)-th True of ``keep`` (M,) bool (clamped to M − 1 past the last one), filled (B,) bool (slot i
+    has a source) and () int64, the number of True in ``keep``."""
+    seen = torch.cumsum(keep, dim=0)
+    total = seen[-1]
+    slot = torch.arange(budget, device=keep.device)
+    return torch.searchsorted(seen, slot, right=True).clamp_(max=len(keep) - 1), slot < total, total
 
 
 def colour_slots(weights: Tensor, shown: Tensor, count: int) -> tuple[Tensor, Tensor]:
