@@ -42,7 +42,7 @@ def test_the_parts_run_on_a_cpu_and_write_their_summary(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stdout + done.stderr
     summary = (out / "summary.txt").read_text()
     for line in ("== data: rc 0", "wrote", "== train: rc 0", "trained 10 iterations", "== profile-base: rc 0",
-                 "== profile-static_visible: rc 0", "static_visible=8:"):  # fmt: skip
+                 "== profile-static_visible-8: rc 0", "static_visible=8:"):  # fmt: skip
         assert line in summary, summary
     assert summary.count("ms/step") >= 4  # two batches × two variants
     assert (work / "orbs16" / "transforms.json").is_file() and (work / "gt16" / "curves.csv").is_file()

@@ -74,9 +74,9 @@ for name in "$@"; do
       for variant in $VARIANTS; do
         extra=()
         [ "$variant" != base ] && extra=(--field-option "$variant")
-        part "profile-${variant%%=*}" 160 "ms/step" "$PYTHON" -m benchmarks.tools.profile_cuda_step "$DATA" \
+        part "profile-${variant//=/-}" 160 "ms/step" "$PYTHON" -m benchmarks.tools.profile_cuda_step "$DATA" \
           --device "$DEVICE" --methods nerf-gt --start "nerf-gt=$RUN" --batches "$BATCH,$SMALL" \
-          --warmup "$WARMUP" --steps "$STEPS" --profile-steps "$PSTEPS" $COMPILE "${STATIC[@]}" "${extra[@]}"
+          --warmup "$WARMUP" --steps "$STEPS" --profile-steps "$PSTEPS" $COMPILE "${STATIC[@]}" ${extra[@]+"${extra[@]}"}
       done ;;
     ttq)
       part ttq 560 "^\|" "$PYTHON" -m benchmarks.experiments.bench_time_to_quality \
