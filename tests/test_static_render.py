@@ -243,24 +243,33 @@ def test_a_colour_budget_traces_as_one_graph(monkeypatch: pytest.MonkeyPatch) ->
     assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
 
 
-def test_train_with_static_samples_runs_and_a_bad_value_is_one_line(
-    dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def train_option_then_refuse(dataset_dir: Path, tmp_path: Path, capsys, option: str, good: str,  # type: ignore[no-untyped-def]
+                             bad: tuple[str, ...]) -> dict:  # fmt: skip
+    """``train --field-option option=good`` runs (returns its saved field config); each ``option=bad``
+    value is refused in one line naming the option, with exit 2 and no run folder."""
     from spikenerf.cli import main
 
     args = ["train", str(dataset_dir), "--method", "nerf-gt", "--iters", "3", "--batch", "32"]
     args += ["--eval-every", "0", "--device", "cpu", "--quiet"]
     args += [f"--field-option={k}={v}" for k, v in test_train.TINY_GRID.items()]
-    main([*args, "--field-option", "static_samples=24", "--out", str(tmp_path / "run")])
+    main([*args, "--field-option", f"{option}={good}", "--out", str(tmp_path / "run")])
     assert "trained 3 iterations" in capsys.readouterr().out
-    saved = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
-    assert saved["field_config"]["static_samples"] == 24
-    for bad in ("-1", "1.5", "many"):
+    for value in bad:
         with pytest.raises(SystemExit) as exit_:
-            main([*args, "--field-option", f"static_samples={bad}", "--out", str(tmp_path / "bad")])
+            main([*args, "--field-option", f"{option}={value}", "--out", str(tmp_path / "bad")])
         err = capsys.readouterr().err.strip()
-        assert exit_.value.code == 2 and "\n" not in err and "static_samples" in err, err
+        assert exit_.value.code == 2 and "\n" not in err and option in err, err
     assert not (tmp_path / "bad").exists()
+    return yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["field_config"]
+
+
+def test_train_with_static_samples_runs_and_a_bad_value_is_one_line(
+    dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    saved = train_option_then_refuse(
+        dataset_dir, tmp_path, capsys, "static_samples", "24", ("-1", "1.5", "many")
+    )
+    assert saved["static_samples"] == 24
 
 
 def test_a_render_without_gradients_takes_the_packed_path_and_cuts_nothing() -> None:

@@ -155,7 +155,7 @@ class GridModel(RadianceModel):
         ray, k = self._march(o_n, d_n, near, far, step)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
         sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
-        if cfg.early_stop and len(ray) and torch.is_grad_enabled():
+        if cfg.early_stop and len(ray) and torch.is_grad_enabled():  # on σ, so its gradient is exactly 0
             sigma = torch.where(early_stop_mask(sigma, deltas, ray, n, cfg.early_stop), sigma, 0.0)
         weights = packed_weights(sigma, deltas, ray, n)
         app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
