@@ -108,7 +108,13 @@ def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:
 def test_a_folder_from_before_an_added_field_entry_resumes_when_it_trains_as_before(tmp_path: Path) -> None:
     """A record without the entries added since (ADDED_DEFAULTS: the TV prior, off) is read with their
     earlier behaviour; one that recorded another value is refused."""
-    from spikenerf.pipelines.benchmark.settings import ADDED_DEFAULTS, NAME, check_settings, settings
+    from spikenerf.pipelines.benchmark.settings import (
+        ADDED_DEFAULTS,
+        NAME,
+        REMOVED_DEFAULTS,
+        check_settings,
+        settings,
+    )
 
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=16, frames=100,
                           test_views=1, render=False, iters=4)  # fmt: skip
@@ -117,6 +123,13 @@ def test_a_folder_from_before_an_added_field_entry_resumes_when_it_trains_as_bef
     older = {k: v for k, v in now["field_defaults"].items() if k not in ADDED_DEFAULTS}
     (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": older}, "nonce": "n"}))
     assert check_settings(cfg) == "n"
+    removed = {**older, **REMOVED_DEFAULTS}  # an entry since removed, at the value that trains as now
+    (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": removed}, "nonce": "n"}))
+    assert check_settings(cfg) == "n"
+    gathered = {**now["field_defaults"], "gather_lookup": True}
+    (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": gathered}, "nonce": "n"}))
+    with pytest.raises(InputError, match=r"other field defaults \(gather_lookup True → None"):
+        check_settings(cfg)
     other = {**now["field_defaults"], "tv_app": 0.5}
     (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": other}, "nonce": "n"}))
     with pytest.raises(InputError, match=r"other field defaults \(tv_app 0.5 → 0.0"):

@@ -21,7 +21,7 @@ from torch._dynamo.utils import counters
 
 import test_train
 from spikenerf.fields import grid as grid_module
-from spikenerf.fields import vm_kernel
+from spikenerf.fields import vm_kernel, vm_triton
 from spikenerf.train import compiled_step
 from spikenerf.train import trainer as trainer_module
 from spikenerf.train.compiled_step import CompiledStep, compile_step
@@ -125,10 +125,27 @@ def test_the_gather_lookup_compiles_and_trains_like_grid_sample(
     dataset_dir: Path, dataset, tmp_path: Path, aot_eager: None
 ) -> None:  # type: ignore[no-untyped-def]
     _, reference = _run(_config(dataset_dir, "spike-integral", False), tmp_path / "eager", dataset)
-    cfg = _config(dataset_dir, "spike-integral", True, gather_lookup=True)
+    cfg = _config(dataset_dir, "spike-integral", True, lookup="gather")
     trainer, gathered = _run(cfg, tmp_path / "gather", dataset)
     assert vars(trainer.method)["step_losses"].failed is None and _graphs() == 2
     assert gathered == pytest.approx(reference, rel=1e-3)
+
+
+@pytest.mark.skipif(
+    not (vm_triton.installed() and vm_triton.interpreted()), reason="needs triton and TRITON_INTERPRET=1"
+)
+def test_the_triton_lookup_compiles_and_trains_like_grid_sample(
+    dataset_dir: Path, dataset, tmp_path: Path, aot_eager: None
+) -> None:  # type: ignore[no-untyped-def]
+    """On the CPU in Triton's interpreter (tests/conftest.py): the kernels' custom ops in a compiled step."""
+    eager = _config(dataset_dir, "nerf-gt", False)
+    cfg = _config(dataset_dir, "nerf-gt", True, lookup="triton")
+    for c in (eager, cfg):
+        c.eval_every = 0  # the interpreter is slow: no test-view renders
+    _, reference = _run(eager, tmp_path / "eager", dataset, stop_after=3)
+    trainer, kernels = _run(cfg, tmp_path / "triton", dataset, stop_after=3)
+    assert vars(trainer.method)["step_losses"].failed is None and _graphs() <= 2
+    assert len(kernels) == 3 and kernels == pytest.approx(reference, rel=1e-3)
 
 
 def test_draws_go_to_the_gpu_only_where_every_target_lives_there(

@@ -53,3 +53,14 @@ def test_the_parts_run_on_a_cpu_and_write_their_summary(tmp_path: Path) -> None:
 def test_an_unknown_part_stops_with_exit_2(tmp_path: Path) -> None:
     done = _run(tmp_path / "out", tmp_path / "work", "everything")
     assert done.returncode == 2 and "unknown part" in done.stdout
+
+
+def test_every_test_file_the_parts_name_exists() -> None:
+    """The `kernels` and `tests` parts run only on a GPU host: a renamed test file must fail here first."""
+    import re
+
+    named = set(re.findall(r"tests/[\w/]+\.py", SCRIPT.read_text()))
+    assert {"tests/test_vm_triton.py", "tests/test_cuda.py"} <= named
+    assert all((ROOT / path).is_file() for path in named), sorted(
+        p for p in named if not (ROOT / p).is_file()
+    )

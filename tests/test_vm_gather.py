@@ -1,5 +1,6 @@
-"""``fields/vm_gather.py``: the VM lookup by index gathers equals ``grid_sample``'s (values, gradients, zeros
-outside the grid), passes gradcheck, serves the grid field with ``gather_lookup`` and traces as one graph."""
+"""``fields/vm_gather.py``: the VM lookup by index gathers equals ``grid_sample``'s (values, gradients,
+zeros outside the grid), passes gradcheck, serves the grid field with ``lookup="gather"`` and traces as one
+graph."""
 
 from __future__ import annotations
 
@@ -61,22 +62,22 @@ def test_corners_weights_sum_to_one_inside_and_vanish_outside() -> None:
     assert lo.tolist()[:5] == [0, 1, 2, 3, 4] and w_lo[4] == 1  # 1.0 is the last texel's centre
 
 
-def test_the_grid_field_with_gather_lookup_gives_its_default_lookups_values() -> None:
+def test_the_grid_field_with_lookup_gather_gives_its_default_lookups_values() -> None:
     config = GridFieldConfig(n_voxels_init=9**3, n_voxels_final=9**3, decoder_bf16=False)
     field = GridField(3, BOX, config)
     xyz, dirs = _points(100, 1.0), torch.nn.functional.normalize(torch.randn(104, 3), dim=-1)
     sigma, rgb = field.density_norm(xyz), field.color_norm(xyz, dirs)
-    field.config = dataclasses.replace(config, gather_lookup=True)
+    field.config = dataclasses.replace(config, lookup="gather")
     torch.testing.assert_close(field.density_norm(xyz), sigma, atol=1e-4, rtol=1e-5)
     torch.testing.assert_close(field.color_norm(xyz, dirs), rgb, atol=1e-5, rtol=1e-5)
     explained = torch._dynamo.explain(field.density_norm)(xyz)
     assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
 
 
-def test_a_bad_gather_lookup_value_names_the_key() -> None:
-    assert field_config("grid", {"gather_lookup": True}).gather_lookup is True
-    with pytest.raises(InputError, match="gather_lookup"):
-        field_config("grid", {"gather_lookup": "sometimes"})
+def test_a_bad_lookup_value_names_the_key_and_the_choices() -> None:
+    assert field_config("grid", {"lookup": "gather"}).lookup == "gather"
+    with pytest.raises(InputError, match=r"lookup.*one of auto, gather, triton"):
+        field_config("grid", {"lookup": "sometimes"})
 
 
 @pytest.mark.cuda

@@ -7,14 +7,19 @@
 #
 # Parts, in order, each under its own time limit (seconds); a part that runs over is cut and marked so:
 #   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views; JOBS workers) into WORK
+#   kernels  (90)  the Triton and gather lookups against grid_sample on the GPU (tests/test_vm_triton.py,
+#            tests/test_vm_gather.py): run before `profile` times them
+#   lookup   (90)  bench_lookup: each lookup's forward + backward against grid_sample's, 2²⁰ points, R 300
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
 #   train    (120) nerf-gt, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
-#   profile  (3 × 160) profile_cuda_step from that run's last step, nerf-gt at BATCH and SMALL rays, the
-#            compiled static step (static_samples=64 static_colors=16) alone, with static_visible=24 and
-#            with gather_lookup=true: ms a step, rays/s, GPU-busy share, launches and host syncs
+#   profile  (160 per variant) profile_cuda_step from that run's last step, nerf-gt at BATCH and SMALL rays,
+#            the compiled static step (static_samples=64 static_colors=16) with each of VARIANTS (default:
+#            lookup=triton, as it is, static_visible=24, lookup=gather): ms a step, rays/s, GPU-busy share,
+#            launches and host syncs
 #   ttq      (560) the oracle's time-to-quality curve: PSNR every 20 s for 480 s of training
 # Suggested calls, most needed first (a session has about 15 minutes of device time, starts included):
-# `data train profile` (about 9 minutes at most), then `tests`, then `ttq` where time is left.
+# VARIANTS="lookup=triton base" with `data kernels lookup train profile` (limits 770 s in all; a part cut
+# by the call's end is lost, the ones before it are in OUT), then `tests`, then the other VARIANTS or `ttq`.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
@@ -29,7 +34,7 @@ shift
 DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-4096} ITERS=${ITERS:-2000}
 COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
 PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8}
-VARIANTS=${VARIANTS:-base static_visible=24 gather_lookup=true}
+VARIANTS=${VARIANTS:-lookup=triton base static_visible=24 lookup=gather}
 DATA=$WORK/orbs$SIZE RUN=$WORK/gt$SIZE
 STATIC=(--field-option static_samples=64 --field-option static_colors=16)
 mkdir -p "$OUT" "$WORK"
@@ -61,6 +66,11 @@ for name in "$@"; do
       [ -f "$DATA/transforms.json" ] && { note "== data: $DATA is there"; continue; }
       part data 150 "^wrote" "$PYTHON" -m spikenerf simulate --scene analytic-orbs --width "$SIZE" \
         --height "$SIZE" --color gray --jobs "$JOBS" --out "$DATA" ;;
+    kernels)
+      part kernels 90 "passed|failed|error" "$PYTHON" -m pytest -q -p no:cacheprovider \
+        tests/test_vm_triton.py tests/test_vm_gather.py ;;
+    lookup)
+      part lookup 90 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" ;;
     tests)
       part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -q -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
@@ -83,7 +93,7 @@ for name in "$@"; do
         --dataset "$DATA" --device "$DEVICE" --jobs 1 --runs nerf-gt:40000 --batch "$BATCH" --budget 480 \
         --wall-limit 540 --eval-seconds 20 --thresholds 28,30 --csv "$OUT/ttq.csv" ;;
     *)
-      note "== $name: unknown part (data tests train profile ttq)"
+      note "== $name: unknown part (data kernels lookup tests train profile ttq)"
       exit 2 ;;
   esac
 done

@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import math
 from dataclasses import dataclass, replace
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import torch
 import torch.nn.functional as F
@@ -30,8 +30,12 @@ from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
 from spikenerf.fields.vm_gather import MAT, VEC, gather_vm
 from spikenerf.fields.vm_kernel import cpu_has, usable, vm_lookup
+from spikenerf.fields.vm_triton import applies, triton_vm, why_not
 
 FACTORS = ("density_planes", "density_lines", "app_planes", "app_lines")
+
+#: how the grid field reads its factors (``GridFieldConfig.lookup``)
+Lookup = Literal["auto", "gather", "triton"]
 
 
 @dataclass(frozen=True)
@@ -70,10 +74,12 @@ class GridFieldConfig:
             budget of ``V × rays`` slots, where it is evaluated again with its gradient (and colour decoded):
             the backward, which costs the most on a GPU, sees V slots a ray, not N. Samples past it are cut
             and counted like the first budget's.
-        gather_lookup: look the factors up by index gathers of channel rows (``fields/vm_gather.py``)
-            instead of ``grid_sample`` or the fused CPU kernel: the same values, as ops that
-            ``torch.compile`` can fuse with its backward (for the compiled CUDA step, not yet measured
-            there; slower on a CPU). False (the default): ``grid_sample`` (the CPU kernel where it applies).
+        lookup: how the factors are read (:data:`Lookup`). "auto" (the default): the fused CPU kernel
+            where it applies, else ``grid_sample``. "gather": index gathers of channel rows
+            (``fields/vm_gather.py``): the same values, as ops that ``torch.compile`` can fuse with its
+            backward (slower on a CPU). "triton": the Triton kernels of ``fields/vm_triton.py`` on CUDA
+            (training refuses a device they cannot run on; elsewhere, e.g. ``eval`` on a CPU, "auto").
+            Neither of the last two is measured on a GPU yet.
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
@@ -125,7 +131,7 @@ class GridFieldConfig:
     static_samples: int = 0
     static_colors: int = 0
     static_visible: int = 0
-    gather_lookup: bool = False
+    lookup: Lookup = "auto"
     decoder_bf16: bool = True
     occupancy: bool = True
     occupancy_start: int = 250
@@ -169,6 +175,12 @@ class GridFieldConfig:
                 "(the transmittance at which a ray stops)",
                 param=("field_config.static_visible", "field_config.early_stop"),
             )
+
+    def check_device(self, device: torch.device) -> None:
+        """InputError (naming the option) for ``lookup`` "triton" on a device where its kernels cannot run."""
+        reason = why_not(device) if self.lookup == "triton" else ""
+        if reason:
+            raise InputError(f"field_config.lookup triton: {reason}", param="field_config.lookup")
 
     # the memory estimates of fields/memory.py and ``field_memory``, per field kind
     def training_size(self) -> tuple[float, float]:
@@ -348,18 +360,24 @@ class GridField(Field):
         return torch.sigmoid(logit.float())
 
     def _vm(self, planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
-        """VM products (M, 3, C): index gathers with ``gather_lookup``, else the fused CPU kernel where it
-        applies, else ``grid_sample``."""
-        if self.config.gather_lookup:
+        """VM products (M, 3, C) by ``lookup``: index gathers ("gather"), the Triton kernels ("triton", where
+        they apply), else the fused CPU kernel where it applies, else ``grid_sample``."""
+        lookup = self.config.lookup
+        if lookup == "gather":
             return gather_vm(planes, lines, xyz_norm)
+        if lookup == "triton" and applies(planes, xyz_norm):
+            return triton_vm(planes, lines, xyz_norm)
         if usable(planes, xyz_norm):
             return vm_lookup(planes, lines, xyz_norm)
         return sample_vm(planes, lines, xyz_norm, vm_splits(xyz_norm.device)).permute(2, 0, 1)
 
     def _vm_sum(self, planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
-        """:meth:`_vm` summed over axis pairs and channels (M,): inside the fused CPU kernel where it applies
-        (no (M, 3, C) tensor forward or backward)."""
-        if not self.config.gather_lookup and usable(planes, xyz_norm):
+        """:meth:`_vm` summed over axis pairs and channels (M,): inside the Triton or fused CPU kernel where
+        one applies (no (M, 3, C) tensor forward or backward)."""
+        lookup = self.config.lookup
+        if lookup == "triton" and applies(planes, xyz_norm):
+            return triton_vm(planes, lines, xyz_norm, summed=True)
+        if lookup != "gather" and usable(planes, xyz_norm):
             return vm_lookup(planes, lines, xyz_norm, summed=True)
         return self._vm(planes, lines, xyz_norm).sum(dim=(1, 2))
 

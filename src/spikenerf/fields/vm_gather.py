@@ -5,7 +5,7 @@ point's gradient into the factors one channel at a time, at scattered addresses 
 5.0 of the compiled step's 8.75 ms at 16384 rays, ``docs/performance.md``). Written as gathers of whole
 channel rows of the channels-last factors (memory order 3, R, R, C) times bilinear weights, the lookup and
 its backward (an indexed accumulation of rows) are ordinary ops that the compiler can fuse with their
-neighbours. Opt-in (``GridFieldConfig.gather_lookup``): its GPU speed is not measured yet.
+neighbours. Opt-in (``GridFieldConfig.lookup = "gather"``): its GPU speed is not measured yet.
 
 Conventions are :func:`~spikenerf.fields.grid.sample_vm`'s: ``align_corners=True`` (−1 and 1 are the first
 and last texel centres), zeros outside the grid, planes indexed by ``(coord[MAT[m][0]] ↔ w,

@@ -247,6 +247,9 @@ class Trainer:
         check_train_resources(self.config, self.dataset, self.out)
         self.method = make_method(self.config)
         check_step_memory(self.config, self.method, self.device)
+        field_cfg = model_config(self.config)
+        if hasattr(field_cfg, "check_device"):  # e.g. the grid's Triton lookup needs CUDA
+            field_cfg.check_device(self.device)
         cache = self.out if learned_cache(self.method) else None
         if cache is not None:
             mark(self.out, "run")  # the cache is written into a marked run folder

@@ -38,8 +38,11 @@ NAME = "benchmark.json"
 #: existed: a record without one reads it so (the grid's total-variation prior, off; its packed dynamic march)
 ADDED_DEFAULTS: dict[str, Any] = {
     "tv_density": 0.0, "tv_app": 0.0, "tv_every": 4, "static_samples": 0, "static_colors": 0,
-    "gather_lookup": False,
+    "lookup": "auto",
 }  # fmt: skip
+#: field-config entries since removed, with the value that trained as the defaults do now: a record with
+#: that value reads as without it (``gather_lookup`` false is ``lookup`` "auto")
+REMOVED_DEFAULTS: dict[str, Any] = {"gather_lookup": False}
 #: spike-integral's defaults before they were recorded (2048 rays: 1024 windows of 11 steps × 2 renders)
 PREVIOUS_INTEGRAL: dict[str, int] = {"window": 11, "samples": 2, "batch": 2048}
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
@@ -106,9 +109,11 @@ def check_settings(cfg: Any) -> str | None:
     was = old.get("field_defaults")
     if was is not None:
         was = {**{k: v for k, v in ADDED_DEFAULTS.items() if k in new["field_defaults"]}, **was}
+        was = {k: v for k, v in was.items() if k not in REMOVED_DEFAULTS or v != REMOVED_DEFAULTS[k]}
     if was != new["field_defaults"]:
         what = "unrecorded (an earlier version)" if was is None else ", ".join(
-            f"{k} {was.get(k)!r} → {v!r}" for k, v in new["field_defaults"].items() if was.get(k) != v
+            f"{k} {was.get(k)!r} → {new['field_defaults'].get(k)!r}"
+            for k in {**was, **new["field_defaults"]} if was.get(k) != new["field_defaults"].get(k)
         )  # fmt: skip
         raise InputError(
             f"this benchmark's cells were trained with other field defaults ({what}); finish it with the "

@@ -1,0 +1,126 @@
+"""Time of the grid's factor lookup, forward and backward, by implementation, against ``grid_sample`` in the
+same run.
+
+Usage (from the repository root; on a GPU host ``PYTHONPATH=src python -m …``)::
+
+    .venv/bin/python -m benchmarks.tools.bench_lookup [--device auto] [--points 1048576] [--resolution 300]
+        [--channels 16,24] [--repeats 20] [--rounds 3]
+
+Points lie along random rays through the box, 64 consecutive samples a ray a cell apart (as a march lays
+them out, so neighbouring points share texels, as they do in training). For each channel count C (16: the
+density factors, summed over pairs and channels as the density is; 24: the appearance factors, (M, 3, C)
+out) every lookup that runs on the device (``grid_sample``; ``gather``; ``triton`` on CUDA; the fused CPU
+kernel on a CPU) does a forward and a backward with a random output gradient, interleaved, ``--rounds``
+rounds of ``--repeats`` (after 3 untimed). Printed: the median ms of each, its ratio to ``grid_sample``
+(above 1: faster) and the largest difference of its values and gradients from ``grid_sample``'s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from spikenerf.core.device import resolve_device
+from spikenerf.fields import vm_kernel, vm_triton
+from spikenerf.fields.grid import _factor, sample_vm, vm_splits
+from spikenerf.fields.vm_gather import gather_vm
+
+Lookup = Callable[[Tensor, Tensor, Tensor], Tensor]
+
+
+def ray_points(m: int, resolution: int, device: torch.device, per_ray: int = 64) -> Tensor:
+    """(m, 3) points in [−1, 1]: ``per_ray`` consecutive samples a cell apart along random rays."""
+    g = torch.Generator().manual_seed(0)
+    rays = -(-m // per_ray)
+    origin = torch.rand(rays, 1, 3, generator=g) * 1.6 - 0.8
+    direction = torch.nn.functional.normalize(torch.randn(rays, 1, 3, generator=g), dim=-1)
+    t = torch.arange(per_ray).view(1, -1, 1) * (2.0 / (resolution - 1))
+    return (origin + t * direction).reshape(-1, 3)[:m].clamp(-1, 1).contiguous().to(device)
+
+
+def lookups(device: torch.device) -> dict[str, Lookup]:
+    """The implementations that run on ``device``, by name (each returns (M, 3, C))."""
+    found: dict[str, Lookup] = {
+        "grid_sample": lambda p, ln, x: sample_vm(p, ln, x, vm_splits(x.device)).permute(2, 0, 1),
+        "gather": gather_vm,
+    }
+    probe = torch.zeros(1, device=device)
+    if vm_triton.applies(probe, probe) and not vm_triton.interpreted():
+        found["triton"] = vm_triton.triton_vm
+    if vm_kernel.usable(probe, probe):
+        found["cpu kernel"] = vm_kernel.vm_lookup
+    return found
+
+
+def step(fn: Lookup, planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor, summed: bool) -> list[Tensor]:
+    """One forward and backward → [output, plane gradient, line gradient]."""
+    out = fn(planes, lines, xyz)
+    out = out.sum(dim=(1, 2)) if summed else out
+    gp, gl = torch.autograd.grad(out, [planes, lines], grad)
+    return [out.detach(), gp, gl]
+
+
+def summed_lookup(name: str, fn: Lookup) -> Lookup:
+    """The density's form of a lookup: the kernels sum inside (no (M, 3, C) tensor), the others after."""
+    if name == "triton":
+        return lambda p, ln, x: vm_triton.triton_vm(p, ln, x, summed=True)[:, None, None]
+    if name == "cpu kernel":
+        return lambda p, ln, x: vm_kernel.vm_lookup(p, ln, x, summed=True)[:, None, None]
+    return fn
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--points", type=int, default=1 << 20)
+    parser.add_argument("--resolution", type=int, default=300)
+    parser.add_argument("--channels", default="16,24")
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--rounds", type=int, default=3)
+    args = parser.parse_args()
+    device = resolve_device(args.device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    xyz = ray_points(args.points, args.resolution, device)
+    found = lookups(device)
+    print(f"device {device}, {args.points} points along rays, R {args.resolution}, "
+          f"{torch.get_num_threads()} CPU thread(s); lookups: {', '.join(found)}")  # fmt: skip
+    for channels in (int(c) for c in args.channels.split(",")):
+        summed = channels == 16
+        torch.manual_seed(channels)
+        r = args.resolution
+        planes = _factor((0.1 * torch.randn(3, channels, r, r)).to(device))
+        lines = _factor((0.1 * torch.randn(3, channels, r, 1)).to(device))
+        shape = (args.points,) if summed else (args.points, 3, channels)
+        grad = torch.randn(shape, device=device)
+        fns = {name: summed_lookup(name, fn) if summed else fn for name, fn in found.items()}
+        reference = step(fns["grid_sample"], planes, lines, xyz, grad, summed)
+        times: dict[str, list[float]] = {name: [] for name in fns}
+        for _ in range(args.rounds):
+            for name, fn in fns.items():
+                for _ in range(3):
+                    step(fn, planes, lines, xyz, grad, summed)
+                sync()
+                start = time.perf_counter()
+                for _ in range(args.repeats):
+                    step(fn, planes, lines, xyz, grad, summed)
+                sync()
+                times[name].append(1000 * (time.perf_counter() - start) / args.repeats)
+        base = statistics.median(times["grid_sample"])
+        print(f"\nC = {channels} ({'summed, as the density' if summed else '(M, 3, C), as the appearance'})")
+        print("| lookup | forward + backward ms | ratio to grid_sample | largest difference: value, "
+              "plane grad, line grad |")  # fmt: skip
+        print("|---|---:|---:|---|")
+        for name, fn in fns.items():
+            ms = statistics.median(times[name])
+            diffs = [(a - b).abs().max().item() for a, b in zip(step(fn, planes, lines, xyz, grad, summed),
+                                                                  reference, strict=True)]  # fmt: skip
+            print(f"| {name} | {ms:.2f} | {base / ms:.2f}× | {', '.join(f'{d:.1e}' for d in diffs)} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,138 @@
+"""The VM lookup and its backward as Triton kernels, for CUDA (opt-in: ``GridFieldConfig.lookup = "triton"``).
+
+On a GPU ``grid_sample``'s backward was the largest part of the compiled training step (5.0 of 8.75 ms on an
+H200 at 16384 rays, docs/performance.md): it adds each point's gradient into the factors one channel at a
+time, at addresses a plane apart. These kernels do what the fused CPU kernel (``fields/vm_kernel.py``) does,
+one block of points per program: read the channels-last factors (memory order 3, R, R, C) a whole channel
+row at a time, form ``P_m(x)·L_m(x)`` for the three axis pairs (summed over pairs and channels in the kernel
+for the density, so no (M, 3, C) tensor is written), and in the backward add each point's row of gradients
+into the four plane texels and two line texels with atomic adds (one buffer, no per-thread copies). Points
+whose (summed) gradient is 0, such as those behind a ray's early stop, add nothing.
+
+Both kernels are ``torch.library`` custom ops with a fake implementation and an autograd formula, so
+``torch.compile(fullgraph=True)`` keeps them in one graph as opaque calls. No gradient for the points (pose
+refinement falls back to ``grid_sample``). Where Triton runs (``triton`` importable and a CUDA tensor, or
+``TRITON_INTERPRET=1`` with CPU tensors, which the tests use) is :func:`applies`. GPU speed: not measured yet.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from typing import Any
+
+import torch
+from torch import Tensor
+
+BLOCK = 64  # points per program
+
+
+@torch.compiler.assume_constant_result  # a host query: fixed per process, traced as a constant
+def installed() -> bool:
+    """Whether the ``triton`` package can be imported (it comes with CUDA builds of torch)."""
+    return importlib.util.find_spec("triton") is not None
+
+
+def interpreted() -> bool:
+    """Whether Triton runs kernels in its CPU interpreter (``TRITON_INTERPRET=1``; Triton itself reads it as
+    it is imported, so it must be set before anything imports triton: ``tests/conftest.py``)."""
+    return os.environ.get("TRITON_INTERPRET", "0") == "1"
+
+
+def applies(planes: Tensor, xyz: Tensor) -> bool:
+    """The kernels can run here: Triton installed, float32 factors and points on CUDA (on the CPU under the
+    interpreter), no gradient wanted for the points."""
+    on = planes.device.type == "cuda" or (planes.device.type == "cpu" and interpreted())
+    return (
+        on
+        and planes.dtype == torch.float32
+        and xyz.dtype == torch.float32
+        and not xyz.requires_grad
+        and installed()
+    )
+
+
+def why_not(device: torch.device) -> str:
+    """The reason, in a few words, why the kernels cannot run on ``device`` ("" where they can)."""
+    if not installed():
+        return "the triton package is not installed (pip install triton; CUDA builds of torch include it)"
+    if device.type != "cuda" and not (device.type == "cpu" and interpreted()):
+        return f"Triton kernels need a CUDA device, not {device.type}"
+    return ""
+
+
+def _launch(kernel_name: str, planes: Tensor, *args: Tensor, summed: bool) -> None:
+    """Run one of the kernels over the points (``args[1]``, (M, 3)) in blocks of :data:`BLOCK`; imports
+    triton and the kernels module (which Triton compiles, or interprets, on first use)."""
+    import triton
+
+    from spikenerf.fields.vm_triton_kernels import backward_kernel, forward_kernel
+
+    m, c = args[1].shape[0], planes.shape[-1]
+    kernel = {"forward": forward_kernel, "backward": backward_kernel}[kernel_name]
+    kernel[(triton.cdiv(m, BLOCK),)](planes, *args, m, planes.shape[1], c, SUMMED=summed, BLOCK=BLOCK,
+                                     CP=triton.next_power_of_2(c))  # fmt: skip
+
+
+# The ops take the factors channels-last as (3, R, R, C) planes and (3, R, C) lines; opaque to torch.compile.
+@torch.library.custom_op("spikenerf::vm_triton_forward", mutates_args=())
+def _forward(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+    m, c = xyz.shape[0], planes.shape[-1]
+    out = xyz.new_empty((m,) if summed else (m, 3, c))
+    if m:
+        _launch("forward", planes, lines, xyz, out, summed=summed)
+    return out
+
+
+@_forward.register_fake
+def _(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+    m, c = xyz.shape[0], planes.shape[-1]
+    return xyz.new_empty((m,) if summed else (m, 3, c))
+
+
+@torch.library.custom_op("spikenerf::vm_triton_backward", mutates_args=())
+def _backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
+    gp, gl = torch.zeros_like(planes), torch.zeros_like(lines)
+    if xyz.shape[0]:
+        _launch("backward", planes, lines, xyz, grad, gp, gl, summed=grad.dim() == 1)
+    return gp, gl
+
+
+@_backward.register_fake
+def _(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
+    return torch.empty_like(planes), torch.empty_like(lines)
+
+
+def _setup_context(ctx: Any, inputs: tuple, output: Tensor) -> None:
+    planes, lines, xyz, _ = inputs
+    ctx.save_for_backward(planes, lines, xyz)
+
+
+def _grad(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:
+    planes, lines, xyz = ctx.saved_tensors
+    gp, gl = torch.ops.spikenerf.vm_triton_backward.default(planes, lines, xyz, grad.contiguous())
+    return gp, gl, None, None
+
+
+_forward.register_autograd(_grad, setup_context=_setup_context)
+
+
+def triton_vm(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) -> Tensor:
+    """``P_m(xyz)·L_m(xyz)`` per axis pair with the Triton kernels (check :func:`applies` first).
+
+    Args:
+        planes: (3, C, R, R), best stored channels-last (then no copy is made). lines: (3, C, R, 1).
+        xyz: (M, 3), normally in [−1, 1]; outside, zeros padding as ``grid_sample`` (NaN gives NaN).
+        summed: return the sum over axis pairs and channels instead (the density), computed in the kernel.
+    Returns:
+        (M, 3, C), the values of :func:`spikenerf.fields.grid.sample_vm` transposed; (M,) when ``summed``.
+        Gradients flow to ``planes`` and ``lines``, not to ``xyz``.
+    Raises:
+        RuntimeError: Triton cannot run here (:func:`applies` is False), naming why.
+    """
+    if not applies(planes, xyz):
+        reason = why_not(planes.device) or "float32 factors and points without gradient are needed"
+        raise RuntimeError(f"triton_vm: {reason}")
+    p = planes.permute(0, 2, 3, 1).contiguous()  # (3, R, R, C): a view of channels-last factors
+    ln = lines[..., 0].permute(0, 2, 1).contiguous()  # (3, R, C)
+    return torch.ops.spikenerf.vm_triton_forward.default(p, ln, xyz.contiguous(), summed)

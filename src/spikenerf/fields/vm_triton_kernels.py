@@ -1,0 +1,118 @@
+"""The Triton kernels of ``fields/vm_triton.py`` (imported by it on first use: this module needs ``triton``).
+
+Layout as the fused CPU kernel's: planes (3, R, R, C) and lines (3, R, C) channels-last, points (M, 3) in
+[−1, 1], ``align_corners=True``, zeros outside the grid; plane k reads (coord[MAT[k][0]] ↔ w,
+coord[MAT[k][1]] ↔ h), line k coord[VEC[k]], with ``MAT = ((0, 1), (0, 2), (1, 2))`` and
+``VEC = (2, 1, 0)`` (``fields/vm_gather.py``). Offsets are int64 (eval batches pass 2³¹ channel values).
+"""
+
+import triton
+import triton.language as tl
+
+
+@triton.jit
+def corner(coord, size):
+    # the texels either side of coord in [-1, 1] over `size` texels (align_corners=True): both indices
+    # clamped into the grid, and their weights, 0 for a texel outside it, NaN for a NaN/inf coordinate
+    u = (coord + 1.0) * 0.5 * (size - 1)
+    finite = (u == u) & (tl.abs(u) < float("inf"))
+    u = tl.minimum(tl.maximum(tl.where(finite, u, 0.0), -2.0), size + 1.0)
+    low = tl.floor(u)
+    frac = u - low
+    lo = low.to(tl.int64)
+    hi = lo + 1
+    w_lo = tl.where((lo >= 0) & (lo < size), 1.0 - frac, 0.0)
+    w_hi = tl.where((hi >= 0) & (hi < size), frac, 0.0)
+    w_lo = tl.where(finite, w_lo, float("nan"))
+    w_hi = tl.where(finite, w_hi, float("nan"))
+    lo = tl.minimum(tl.maximum(lo, 0), size - 1)
+    hi = tl.minimum(tl.maximum(hi, 0), size - 1)
+    return lo, hi, w_lo, w_hi
+
+
+@triton.jit
+def pair(k, u, v, z, size, channels):
+    # plane k's four texel offsets and weights at (u ↔ w, v ↔ h), line k's two at z (per point)
+    c0, c1, wc0, wc1 = corner(u, size)
+    r0, r1, wr0, wr1 = corner(v, size)
+    l0, l1, wl0, wl1 = corner(z, size)
+    base = k * size
+    o00 = ((base + r0) * size + c0) * channels
+    o01 = ((base + r0) * size + c1) * channels
+    o10 = ((base + r1) * size + c0) * channels
+    o11 = ((base + r1) * size + c1) * channels
+    q0 = (base + l0) * channels
+    q1 = (base + l1) * channels
+    return o00, o01, o10, o11, wr0 * wc0, wr0 * wc1, wr1 * wc0, wr1 * wc1, q0, q1, wl0, wl1
+
+
+@triton.jit
+def axes(X, n, live, k: tl.constexpr):
+    # the (w, h, line) coordinates of axis pair k: MAT[k] = (k // 2, k + 1 - k // 2), VEC[k] = 2 - k
+    a: tl.constexpr = k // 2
+    b: tl.constexpr = k + 1 - k // 2
+    c: tl.constexpr = 2 - k
+    u = tl.load(X + n * 3 + a, mask=live, other=0.0)
+    v = tl.load(X + n * 3 + b, mask=live, other=0.0)
+    z = tl.load(X + n * 3 + c, mask=live, other=0.0)
+    return u, v, z
+
+
+@triton.jit
+def values(P, L, o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1, ch, mask):
+    # the bilinear plane rows and linear line rows (BLOCK, CP) of one axis pair
+    pv = w00[:, None] * tl.load(P + o00[:, None] + ch[None, :], mask=mask, other=0.0)
+    pv += w01[:, None] * tl.load(P + o01[:, None] + ch[None, :], mask=mask, other=0.0)
+    pv += w10[:, None] * tl.load(P + o10[:, None] + ch[None, :], mask=mask, other=0.0)
+    pv += w11[:, None] * tl.load(P + o11[:, None] + ch[None, :], mask=mask, other=0.0)
+    lv = wl0[:, None] * tl.load(L + q0[:, None] + ch[None, :], mask=mask, other=0.0)
+    lv += wl1[:, None] * tl.load(L + q1[:, None] + ch[None, :], mask=mask, other=0.0)
+    return pv, lv
+
+
+@triton.jit
+def forward_kernel(P, L, X, OUT, M, size, channels, SUMMED: tl.constexpr, BLOCK: tl.constexpr,
+                   CP: tl.constexpr):  # fmt: skip
+    n = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
+    live = n < M
+    ch = tl.arange(0, CP)
+    mask = live[:, None] & (ch < channels)[None, :]
+    total = tl.zeros([BLOCK], dtype=tl.float32)
+    for k in tl.static_range(3):
+        u, v, z = axes(X, n, live, k)
+        o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1 = pair(k, u, v, z, size, channels)
+        pv, lv = values(P, L, o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1, ch, mask)
+        if SUMMED:
+            total += tl.sum(pv * lv, axis=1)
+        else:
+            tl.store(OUT + (n * 3 + k)[:, None] * channels + ch[None, :], pv * lv, mask=mask)
+    if SUMMED:
+        tl.store(OUT + n, total, mask=live)
+
+
+@triton.jit
+def backward_kernel(P, L, X, G, GP, GL, M, size, channels, SUMMED: tl.constexpr, BLOCK: tl.constexpr,
+                    CP: tl.constexpr):  # fmt: skip
+    n = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
+    live = n < M
+    ch = tl.arange(0, CP)
+    if SUMMED:
+        g_point = tl.load(G + n, mask=live, other=0.0)
+        live = live & (g_point != 0.0)  # e.g. behind a ray's early stop: nothing to add
+    mask = live[:, None] & (ch < channels)[None, :]
+    for k in tl.static_range(3):
+        u, v, z = axes(X, n, live, k)
+        o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1 = pair(k, u, v, z, size, channels)
+        pv, lv = values(P, L, o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1, ch, mask)
+        if SUMMED:
+            g = g_point[:, None] + tl.zeros([BLOCK, CP], dtype=tl.float32)
+        else:
+            g = tl.load(G + (n * 3 + k)[:, None] * channels + ch[None, :], mask=mask, other=0.0)
+        gp, gl = g * lv, g * pv
+        cols = ch[None, :]
+        tl.atomic_add(GP + o00[:, None] + cols, w00[:, None] * gp, mask=mask, sem="relaxed")
+        tl.atomic_add(GP + o01[:, None] + cols, w01[:, None] * gp, mask=mask, sem="relaxed")
+        tl.atomic_add(GP + o10[:, None] + cols, w10[:, None] * gp, mask=mask, sem="relaxed")
+        tl.atomic_add(GP + o11[:, None] + cols, w11[:, None] * gp, mask=mask, sem="relaxed")
+        tl.atomic_add(GL + q0[:, None] + cols, wl0[:, None] * gl, mask=mask, sem="relaxed")
+        tl.atomic_add(GL + q1[:, None] + cols, wl1[:, None] * gl, mask=mask, sem="relaxed")

@@ -1,0 +1,200 @@
+"""``fields/vm_triton.py``: the Triton VM lookup equals ``grid_sample``'s values and gradients (per channel
+and summed, zeros outside the grid, NaN for a NaN point), serves the grid field with ``lookup="triton"``,
+stays one graph under ``torch.compile`` and is refused, in one line, where it cannot run.
+
+Without a GPU the kernels run in Triton's CPU interpreter (``TRITON_INTERPRET=1``, set by ``conftest.py``
+before anything imports triton), which executes the same kernel source with numpy: it checks the indexing,
+masks, atomics and the custom ops, not GPU speed. On a CUDA host the same tests run the compiled kernels."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import test_train
+from spikenerf.core.errors import InputError
+from spikenerf.fields import field_config, vm_triton
+from spikenerf.fields.grid import GridField, GridFieldConfig, _factor, sample_vm
+from spikenerf.fields.vm_triton import applies, triton_vm
+
+pytest.importorskip("triton", reason="the triton package (pip install triton) runs these kernels")
+
+BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+
+#: where the kernels run: the GPU, else the interpreter on the CPU
+DEVICE = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+if DEVICE.type == "cpu" and not vm_triton.interpreted():
+    pytest.skip(
+        "TRITON_INTERPRET=1 is needed without CUDA (tests/conftest.py sets it)", allow_module_level=True
+    )
+dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
+
+
+def _factors(c: int = 5, r: int = 7) -> tuple[torch.Tensor, torch.Tensor]:
+    torch.manual_seed(0)
+    planes, lines = torch.randn(3, c, r, r), torch.randn(3, c, r, 1)
+    return _factor(planes.to(DEVICE)), _factor(lines.to(DEVICE))
+
+
+def _points(m: int = 300, spread: float = 1.8) -> torch.Tensor:
+    """Points in [−spread, spread]³ (some outside the grid), the box's corners and texel centres."""
+    torch.manual_seed(1)
+    edge = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 0.0], [1 / 3, -2 / 3, 0.0]])
+    return torch.cat([(torch.rand(m, 3) * 2 - 1) * spread, edge]).to(DEVICE)
+
+
+def _grads(out: torch.Tensor, weights: torch.Tensor, inputs: list[torch.Tensor]) -> tuple[torch.Tensor, ...]:
+    return torch.autograd.grad((out * weights).sum(), inputs)
+
+
+@pytest.mark.parametrize("channels", [5, 16])
+def test_values_and_gradients_equal_grid_sample_inside_and_outside_the_grid(channels: int) -> None:
+    planes, lines = _factors(c=channels)
+    xyz = _points()
+    expected = sample_vm(planes, lines, xyz).permute(2, 0, 1)
+    got = triton_vm(planes, lines, xyz)
+    assert got.shape == (len(xyz), 3, channels)
+    torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
+    outside = (xyz.abs() > 1 + 2 / 6).all(dim=1)  # more than a texel (2 / (R − 1)) outside
+    assert outside.any() and got[outside].abs().max() == 0  # zeros padding
+    weights = torch.randn_like(got)
+    for g, e in zip(_grads(got, weights, [planes, lines]), _grads(expected, weights, [planes, lines]),
+                    strict=True):  # fmt: skip
+        assert g.stride() == e.stride() or g.is_contiguous(memory_format=torch.channels_last)
+        torch.testing.assert_close(g, e, atol=1e-4, rtol=1e-4)
+
+
+def test_the_summed_lookup_equals_the_sum_and_skips_zero_gradients() -> None:
+    planes, lines = _factors(c=6)
+    xyz = _points(200, 1.1)
+    expected = sample_vm(planes, lines, xyz).sum(dim=(0, 1))
+    got = triton_vm(planes, lines, xyz, summed=True)
+    assert got.shape == (len(xyz),)
+    torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
+    weights = torch.randn(len(xyz))
+    weights[::3] = 0  # points behind an early stop: their (zero) gradient adds nothing either way
+    for g, e in zip(_grads(got, weights, [planes, lines]), _grads(expected, weights, [planes, lines]),
+                    strict=True):  # fmt: skip
+        torch.testing.assert_close(g, e, atol=1e-4, rtol=1e-4)
+
+
+def test_a_nan_point_gives_nan_and_no_points_give_empty_results() -> None:
+    planes, lines = _factors()
+    xyz = torch.tensor([[0.1, float("nan"), 0.2], [0.1, 0.2, 0.3]], device=DEVICE)
+    got = triton_vm(planes, lines, xyz, summed=True)
+    assert got[0].isnan() and got[1].isfinite()
+    none = torch.zeros(0, 3, device=DEVICE)
+    assert triton_vm(planes, lines, none).shape == (0, 3, 5)
+    empty = triton_vm(planes, lines, none, summed=True)
+    assert empty.shape == (0,)
+
+
+def test_the_grid_field_with_lookup_triton_gives_its_default_lookups_values_and_gradients() -> None:
+    config = GridFieldConfig(n_voxels_init=9**3, n_voxels_final=9**3, decoder_bf16=False)
+    field = GridField(3, BOX, config).to(DEVICE)
+    xyz = _points(100, 1.0)
+    dirs = torch.nn.functional.normalize(torch.randn(104, 3), dim=-1).to(DEVICE)
+
+    def run() -> tuple[torch.Tensor, ...]:
+        field.zero_grad()
+        sigma, rgb = field.density_norm(xyz), field.color_norm(xyz, dirs)
+        (sigma.sum() + rgb.square().sum()).backward()
+        return sigma.detach(), rgb.detach(), field.density_planes.grad.clone(), field.app_lines.grad.clone()
+
+    default = run()
+    field.config = dataclasses.replace(config, lookup="triton")
+    for got, expected in zip(run(), default, strict=True):
+        torch.testing.assert_close(got, expected, atol=1e-4, rtol=1e-4)
+
+
+def test_the_custom_ops_pass_opcheck_and_compile_as_one_graph() -> None:
+    planes, lines = _factors(c=4, r=5)
+    xyz = _points(40, 1.0)
+    op = torch.ops.spikenerf.vm_triton_forward.default
+    p, ln = (
+        planes.detach().permute(0, 2, 3, 1).contiguous(),
+        lines.detach()[..., 0].permute(0, 2, 1).contiguous(),
+    )
+    for summed in (False, True):
+        torch.library.opcheck(op, (p.requires_grad_(True), ln.requires_grad_(True), xyz, summed))
+
+    def density(planes: torch.Tensor, lines: torch.Tensor, xyz: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.softplus(triton_vm(planes, lines, xyz, summed=True) - 1)
+
+    torch._dynamo.reset()
+    explained = torch._dynamo.explain(density)(planes, lines, xyz)
+    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
+    compiled = torch.compile(density, backend="aot_eager", fullgraph=True)
+    got, expected = compiled(planes, lines, xyz), density(planes, lines, xyz)
+    torch.testing.assert_close(got, expected)
+    torch.testing.assert_close(torch.autograd.grad(got.sum(), planes)[0],
+                               torch.autograd.grad(expected.sum(), planes)[0])  # fmt: skip
+
+
+def test_where_the_kernels_cannot_run_they_are_refused_naming_why(monkeypatch: pytest.MonkeyPatch) -> None:
+    planes, lines = _factors()
+    planes, lines = planes.cpu(), lines.cpu()
+    assert not applies(planes, _points(3).cpu().requires_grad_(True))  # point gradients: grid_sample's
+    monkeypatch.setenv("TRITON_INTERPRET", "0")
+    assert not applies(planes, _points(3).cpu())
+    with pytest.raises(RuntimeError, match="need a CUDA device, not cpu"):
+        triton_vm(planes, lines, _points(3).cpu())
+    cfg = field_config("grid", {"lookup": "triton"})
+    with pytest.raises(InputError, match=r"field_config\.lookup triton: Triton kernels need a CUDA device"):
+        cfg.check_device(torch.device("cpu"))
+    field_config("grid", {}).check_device(torch.device("cpu"))  # the default lookup runs anywhere
+    monkeypatch.setattr(vm_triton, "installed", lambda: False)
+    with pytest.raises(InputError, match=r"not installed \(pip install triton"):
+        cfg.check_device(torch.device("cuda"))
+
+
+def test_a_field_trained_with_the_triton_lookup_evaluates_where_it_cannot_run(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    config = GridFieldConfig(n_voxels_init=9**3, n_voxels_final=9**3, decoder_bf16=False)
+    field = GridField(1, BOX, dataclasses.replace(config, lookup="triton")).to(DEVICE)
+    xyz = _points(50, 1.0)
+    with torch.no_grad():
+        kernels = field.density_norm(xyz).cpu()
+        monkeypatch.setenv("TRITON_INTERPRET", "0")  # a CPU without the interpreter: the default lookup
+        torch.testing.assert_close(field.cpu().density_norm(xyz.cpu()), kernels, atol=1e-4, rtol=1e-5)
+
+
+def test_train_with_the_triton_lookup_on_a_cpu_is_one_line_and_exit_2(
+    dataset_dir: Path, tmp_path: Path
+) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "spikenerf", "train", str(dataset_dir), "--out", str(out), "--iters", "2",
+         "--field-option", "lookup=triton", "--device", "cpu"],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "lookup" in proc.stderr and "CUDA" in proc.stderr, proc.stderr
+    assert not (out / "checkpoint.pt").exists()
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_triton_equals_grid_sample_on_cuda(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TRITON_INTERPRET", "0")
+    planes, lines = (f.cuda() for f in _factors(c=16, r=33))
+    planes, lines = _factor(planes.detach()), _factor(lines.detach())
+    xyz = _points(20000).cuda()
+    for summed in (False, True):
+        expected = sample_vm(planes, lines, xyz).permute(2, 0, 1)
+        expected = expected.sum(dim=(1, 2)) if summed else expected
+        got = triton_vm(planes, lines, xyz, summed=summed)
+        torch.testing.assert_close(got, expected, atol=1e-4, rtol=1e-4)
+        weights = torch.randn_like(got)
+        for g, e in zip(_grads(got, weights, [planes, lines]), _grads(expected, weights, [planes, lines]),
+                        strict=True):  # fmt: skip
+            torch.testing.assert_close(g, e, atol=1e-3, rtol=1e-4)
