@@ -22,6 +22,7 @@ OTHER_LAYOUTS = {
     "fields/grid.py": "VM products (3, C, M) → (M, 3, C)",
     "fields/vm_kernel.py": "grid factors (3, C, R, R) for the fused kernel",
     "fields/vm_gather.py": "grid factors (3, C, R, R) as rows of channels (3·R·R, C) for index gathers",
+    "fields/vm_triton.py": "grid factors (3, C, R, R) channels-last for the Triton kernels",
     "scenes/trajectory.py": "quaternion components to the front",
 }
 

@@ -17,6 +17,7 @@ refinement falls back to ``grid_sample``). Where Triton runs (``triton`` importa
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import os
 from typing import Any
@@ -70,8 +71,10 @@ def _launch(kernel_name: str, planes: Tensor, *args: Tensor, summed: bool) -> No
 
     m, c = args[1].shape[0], planes.shape[-1]
     kernel = {"forward": forward_kernel, "backward": backward_kernel}[kernel_name]
-    kernel[(triton.cdiv(m, BLOCK),)](planes, *args, m, planes.shape[1], c, SUMMED=summed, BLOCK=BLOCK,
-                                     CP=triton.next_power_of_2(c))  # fmt: skip
+    on = torch.cuda.device(planes.device) if planes.is_cuda else contextlib.nullcontext()
+    with on:  # Triton launches on the current device, not the tensors'
+        kernel[(triton.cdiv(m, BLOCK),)](planes, *args, m, planes.shape[1], channels=c, SUMMED=summed,
+                                         BLOCK=BLOCK, CP=triton.next_power_of_2(c))  # fmt: skip
 
 
 # The ops take the factors channels-last as (3, R, R, C) planes and (3, R, C) lines; opaque to torch.compile.

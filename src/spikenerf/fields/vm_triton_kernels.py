@@ -4,6 +4,10 @@ Layout as the fused CPU kernel's: planes (3, R, R, C) and lines (3, R, C) channe
 [−1, 1], ``align_corners=True``, zeros outside the grid; plane k reads (coord[MAT[k][0]] ↔ w,
 coord[MAT[k][1]] ↔ h), line k coord[VEC[k]], with ``MAT = ((0, 1), (0, 2), (1, 2))`` and
 ``VEC = (2, 1, 0)`` (``fields/vm_gather.py``). Offsets are int64 (eval batches pass 2³¹ channel values).
+The channel count is a compile-time constant: as a runtime int that is not a multiple of 16 (24, the
+appearance rank) Triton cannot prove the rows aligned, and the backward spilled registers (3248 B of
+stack a thread for sm_90, ``benchmarks/tools/triton_compile_report.py``) instead of using vector loads and
+atomics; one compile per channel count.
 """
 
 import triton
@@ -71,8 +75,8 @@ def values(P, L, o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1, ch, m
 
 
 @triton.jit
-def forward_kernel(P, L, X, OUT, M, size, channels, SUMMED: tl.constexpr, BLOCK: tl.constexpr,
-                   CP: tl.constexpr):  # fmt: skip
+def forward_kernel(P, L, X, OUT, M, size, channels: tl.constexpr, SUMMED: tl.constexpr,
+                   BLOCK: tl.constexpr, CP: tl.constexpr):  # fmt: skip
     n = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     live = n < M
     ch = tl.arange(0, CP)
@@ -91,8 +95,8 @@ def forward_kernel(P, L, X, OUT, M, size, channels, SUMMED: tl.constexpr, BLOCK:
 
 
 @triton.jit
-def backward_kernel(P, L, X, G, GP, GL, M, size, channels, SUMMED: tl.constexpr, BLOCK: tl.constexpr,
-                    CP: tl.constexpr):  # fmt: skip
+def backward_kernel(P, L, X, G, GP, GL, M, size, channels: tl.constexpr, SUMMED: tl.constexpr,
+                    BLOCK: tl.constexpr, CP: tl.constexpr):  # fmt: skip
     n = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     live = n < M
     ch = tl.arange(0, CP)

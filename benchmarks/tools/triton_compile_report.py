@@ -1,0 +1,94 @@
+"""Compile the Triton VM-lookup kernels for a GPU architecture without a GPU; print registers and spills.
+
+Usage (from the repository root; ``triton`` installed, ``TRITON_INTERPRET`` unset)::
+
+    .venv/bin/python -m benchmarks.tools.triton_compile_report [--arch 90] [--warps 4] [--block 64]
+        [--channels 16,24]
+
+Each kernel of ``fields/vm_triton_kernels.py`` (forward, backward) is compiled by Triton's own compiler and
+the bundled ``ptxas`` to a cubin for ``sm_<arch>`` (90: H100/H200), summed for 16 channels (the density)
+and per channel for the others (24: the appearance), with float32 pointers 16-byte aligned as torch
+allocates them. Printed per variant: registers a thread, stack and local bytes (spilled registers; 0 is
+wanted) and shared memory, from ``cuobjdump -res-usage``. A compile error fails the run (exit 1). What the
+GPU then does with them (speed) is ``bench_lookup``'s to measure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+
+def compile_variants(arch: int, warps: int, block: int, channels: list[int]) -> list[dict]:
+    """One row per (kernel, channel count): its name, summed, channels and the resource usage fields
+    (``REG``, ``STACK``, ``LOCAL``, ``SHARED``) as ints."""
+    if os.environ.get("TRITON_INTERPRET", "0") == "1":
+        raise SystemExit("triton_compile_report: unset TRITON_INTERPRET (the interpreter does not compile)")
+    import triton
+    from triton.backends.compiler import GPUTarget
+    from triton.compiler import ASTSource
+
+    from spikenerf.fields import vm_triton_kernels as kernels
+
+    tools = Path(triton.__file__).parent / "backends" / "nvidia" / "bin"
+    aligned = [["tt.divisibility", 16]]
+    pointers = {"forward": ["P", "L", "X", "OUT"], "backward": ["P", "L", "X", "G", "GP", "GL"]}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, ptrs in pointers.items():
+            kernel = getattr(kernels, f"{name}_kernel")
+            names = kernel.arg_names
+            for c in channels:
+                summed = c == 16
+                values = {"channels": c, "SUMMED": summed, "BLOCK": block, "CP": triton.next_power_of_2(c)}
+                declared = {names[i] for i in kernel.constexprs}  # as the kernel declares them
+                consts = {k: v for k, v in values.items() if k in declared}
+                signature = {
+                    n: "constexpr" if n in consts else "*fp32" if n in ptrs else "i32" for n in names
+                }
+                attrs = {(names.index(p),): aligned for p in ptrs}
+                if "channels" not in declared and c % 16 == 0:  # a runtime int: as Triton specialises it
+                    attrs[(names.index("channels"),)] = aligned
+                source = ASTSource(fn=kernel, signature=signature, constexprs=consts, attrs=attrs)
+                done = triton.compile(
+                    source, target=GPUTarget("cuda", arch, 32), options={"num_warps": warps}
+                )
+                cubin = Path(tmp) / f"{name}{c}.cubin"
+                cubin.write_bytes(done.asm["cubin"])
+                usage = subprocess.run([str(tools / "cuobjdump"), "-res-usage", str(cubin)], check=True,
+                                       capture_output=True, text=True).stdout  # fmt: skip
+                fields = dict(re.findall(r"\b(REG|STACK|SHARED|LOCAL):(\d+)", usage))
+                rows.append(
+                    {
+                        "kernel": name,
+                        "summed": summed,
+                        "channels": c,
+                        **{k: int(v) for k, v in fields.items()},
+                    }
+                )
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--arch", type=int, default=90, help="compute capability × 10 (90: H100/H200)")
+    parser.add_argument("--warps", type=int, default=4)
+    parser.add_argument("--block", type=int, default=64, help="points per program (vm_triton.BLOCK)")
+    parser.add_argument("--channels", default="16,24")
+    args = parser.parse_args()
+    rows = compile_variants(args.arch, args.warps, args.block, [int(c) for c in args.channels.split(",")])
+    print(f"sm_{args.arch}, {args.warps} warps, {args.block} points a program")
+    print("| kernel | channels | registers | stack B | local B (spills) | shared B |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for r in rows:
+        label = f"{r['channels']}{' summed' if r['summed'] else ''}"
+        print(f"| {r['kernel']} | {label} | {r['REG']} | {r['STACK']} | {r['LOCAL']} | {r['SHARED']} |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
