@@ -67,12 +67,12 @@ for name in "$@"; do
       part data 150 "^wrote" "$PYTHON" -m spikenerf simulate --scene analytic-orbs --width "$SIZE" \
         --height "$SIZE" --color gray --jobs "$JOBS" --out "$DATA" ;;
     kernels)
-      part kernels 90 "passed|failed|error" "$PYTHON" -m pytest -q -p no:cacheprovider \
+      part kernels 90 "passed|failed|error" "$PYTHON" -m pytest -p no:cacheprovider \
         tests/test_vm_triton.py tests/test_vm_gather.py ;;
     lookup)
       part lookup 90 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" ;;
     tests)
-      part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -q -p no:cacheprovider \
+      part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
         tests/test_integral.py tests/test_learned_targets.py tests/test_train_device.py ;;
     train)
