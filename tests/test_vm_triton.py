@@ -19,6 +19,7 @@ import pytest
 import torch
 
 import test_train
+import test_vm_gather
 from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config, vm_triton
 from spikenerf.fields.grid import GridField, GridFieldConfig, _factor, sample_vm
@@ -40,16 +41,14 @@ dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module'
 
 
 def _factors(c: int = 5, r: int = 7) -> tuple[torch.Tensor, torch.Tensor]:
-    torch.manual_seed(0)
-    planes, lines = torch.randn(3, c, r, r), torch.randn(3, c, r, 1)
-    return _factor(planes.to(DEVICE)), _factor(lines.to(DEVICE))
+    """``test_vm_gather``'s factors, on :data:`DEVICE`."""
+    planes, lines = test_vm_gather._factors(c, r)
+    return _factor(planes.detach().to(DEVICE)), _factor(lines.detach().to(DEVICE))
 
 
 def _points(m: int = 300, spread: float = 1.8) -> torch.Tensor:
-    """Points in [−spread, spread]³ (some outside the grid), the box's corners and texel centres."""
-    torch.manual_seed(1)
-    edge = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 0.0], [1 / 3, -2 / 3, 0.0]])
-    return torch.cat([(torch.rand(m, 3) * 2 - 1) * spread, edge]).to(DEVICE)
+    """``test_vm_gather``'s points (some outside the grid) on :data:`DEVICE`."""
+    return test_vm_gather._points(m, spread).to(DEVICE)
 
 
 def _grads(out: torch.Tensor, weights: torch.Tensor, inputs: list[torch.Tensor]) -> tuple[torch.Tensor, ...]:
