@@ -13,6 +13,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config
 from spikenerf.fields.grid import GridField, GridFieldConfig, _factor, sample_vm
 from spikenerf.fields.vm_gather import corners, gather_vm
+from spikenerf.render.model import model_from_hparams
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
@@ -78,6 +79,21 @@ def test_a_bad_lookup_value_names_the_key_and_the_choices() -> None:
     assert field_config("grid", {"lookup": "gather"}).lookup == "gather"
     with pytest.raises(InputError, match=r"lookup.*one of auto, gather, triton"):
         field_config("grid", {"lookup": "sometimes"})
+
+
+def test_the_old_gather_lookup_key_still_loads_as_lookup() -> None:
+    """Checkpoints and config.yaml files written before the rename hold ``gather_lookup``."""
+    assert field_config("grid", {"gather_lookup": True}).lookup == "gather"
+    assert field_config("grid", {"gather_lookup": False}).lookup == "auto"
+    assert field_config("grid", {"gather_lookup": True, "lookup": "triton"}).lookup == "triton"
+    with pytest.raises(InputError, match=r"field_config.gather_lookup must be true or false, got 'yes'"):
+        field_config("grid", {"gather_lookup": "yes"})
+    hparams = model_from_hparams(
+        {"kind": "grid", "channels": 1, "scene_box": BOX.tolist(), "config": {}}
+    ).hparams()
+    hparams["config"] = {**hparams["config"], "gather_lookup": True}
+    hparams["config"].pop("lookup")
+    assert model_from_hparams(hparams).field.config.lookup == "gather"
 
 
 @pytest.mark.cuda

@@ -9,7 +9,7 @@ carries the per-kind estimates (``training_size``, ``samples_per_ray``, ``layer_
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
@@ -35,16 +35,31 @@ class FieldEntry:
         config: its typed config dataclass (with ``for_iterations`` and the memory estimates).
         field: its :class:`Field` class, built as ``field(channels, scene_box, config)``.
         saved_defaults: config values that a checkpoint saved before the key existed trained with.
+        renamed: keys since renamed → a function of the old value giving the entries that replace it, so
+            that checkpoints and ``config.yaml`` files written before the rename still load.
     """
 
     config: type
     field: type[Field]
     saved_defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    renamed: Mapping[str, Callable[[Any], dict[str, Any]]] = dataclasses.field(default_factory=dict)
+
+
+def _gather_lookup(on: Any) -> dict[str, Any]:
+    """``gather_lookup`` (before ``lookup``): true was ``lookup`` "gather", false the default."""
+    if not isinstance(on, bool):
+        raise InputError(
+            f"field_config.gather_lookup must be true or false, got {on!r}",
+            param="field_config.gather_lookup",
+        )
+    return {"lookup": "gather"} if on else {}
 
 
 #: field kind -> its entry, in :data:`FIELD_KINDS` order
 FIELD_REGISTRY: dict[str, FieldEntry] = {
-    "grid": FieldEntry(GridFieldConfig, GridField, {"decoder_bf16": False}),
+    "grid": FieldEntry(
+        GridFieldConfig, GridField, {"decoder_bf16": False}, {"gather_lookup": _gather_lookup}
+    ),
     "mlp": FieldEntry(MLPFieldConfig, MLPField),
 }
 
@@ -75,18 +90,28 @@ def field_entry(kind: str) -> FieldEntry:
 
 def field_config(kind: str, config: Any = None) -> Any:
     """The typed config of ``kind`` from None (defaults), a dataclass, or a dict (e.g. read from YAML)."""
-    cls = field_entry(kind).config
+    entry = field_entry(kind)
+    cls = entry.config
     if config is None:
         return cls()
     if isinstance(config, cls):
         return config
     if isinstance(config, dict):  # checked like every config: types and BOUNDS (spikenerf.core.config)
-        cfg = from_mapping(cls, config, f"{kind} field config")
+        cfg = from_mapping(cls, _renamed(entry, config), f"{kind} field config")
         check_config(cfg, "field_config.")
         if hasattr(cfg, "check"):  # relations between keys
             cfg.check()
         return cfg
     raise InputError(f"{kind} field config must be a {cls.__name__} or a dict, got {type(config).__name__}")
+
+
+def _renamed(entry: FieldEntry, config: dict) -> dict:
+    """``config`` with the keys that ``entry`` renamed written the new way (an explicit new key wins)."""
+    out = {k: v for k, v in config.items() if k not in entry.renamed}
+    for old, new in entry.renamed.items():
+        if old in config:
+            out = {**new(config[old]), **out}
+    return out
 
 
 def field_memory(kind: str, config: Any) -> tuple[float, float, float]:
