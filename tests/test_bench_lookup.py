@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from helpers import load_benchmark
-from spikenerf.fields import vm_kernel
+from spikenerf.fields import vm_kernel, vm_triton
 
 TOOL = load_benchmark("tools/bench_lookup")
 
@@ -25,7 +25,7 @@ def test_each_lookup_is_timed_against_grid_sample_and_agrees_with_it(
     names = ["grid_sample", "gather"] + (["cpu kernel"] if vm_kernel.available() else [])
     assert "triton" not in out.split("\n", 1)[1]  # not timed in Triton's interpreter
     for name in names:
-        rows = re.findall(rf"^\| {name} \| [\d.]+ \| [\d.]+× \| (.+) \|$", out, flags=re.M)
+        rows = re.findall(rf"^\| {name} \| [\d.]+ \| [\d.]+ \| [\d.]+× \| (.+) \|$", out, flags=re.M)
         assert len(rows) == 2, out
         assert all(float(d) < 1e-3 for row in rows for d in row.split(", ")), rows
     assert out.count("| grid_sample |") == 2 and "| 1.00× |" in out
@@ -36,3 +36,17 @@ def test_points_follow_rays_inside_the_box() -> None:
     assert xyz.shape == (1000, 3) and xyz.abs().max() <= 1
     steps = (xyz[1:64] - xyz[:63]).norm(dim=1)
     assert steps.max() <= 2 / 19 + 1e-6  # a cell apart (or less where clamped at the box)
+
+
+def test_launch_shapes_parse_and_bad_ones_name_the_item() -> None:
+    assert TOOL.launch_shapes("64x4, 32x8") == [(64, 4), (32, 8)]
+    for bad, why in (("64", "not POINTSxWARPS"), ("48x4", "a power of 2"), ("64x3", "warps one of")):
+        with pytest.raises(TOOL.argparse.ArgumentTypeError, match=why):
+            TOOL.launch_shapes(bad)
+
+
+def test_a_launch_shape_applies_within_and_is_restored_after() -> None:
+    before = dict(vm_triton.LAUNCH)
+    with TOOL.launched(16, 2):
+        assert vm_triton.LAUNCH == {"forward": (16, 2), "backward": (16, 2)}
+    assert before == vm_triton.LAUNCH

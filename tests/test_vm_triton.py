@@ -86,6 +86,22 @@ def test_the_summed_lookup_equals_the_sum_and_skips_zero_gradients() -> None:
         torch.testing.assert_close(g, e, atol=1e-4, rtol=1e-4)
 
 
+@pytest.mark.parametrize("launch", [(16, 1), (128, 8)])
+def test_other_launch_shapes_give_the_same_values_and_gradients(
+    launch: tuple[int, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    planes, lines = _factors(c=6)
+    xyz = _points(300)  # not a multiple of either block: a part-filled last program
+    weights = torch.randn(len(xyz), 3, 6, device=DEVICE)
+    expected = triton_vm(planes, lines, xyz)
+    expected_grads = _grads(expected, weights, [planes, lines])
+    monkeypatch.setattr(vm_triton, "LAUNCH", {"forward": launch, "backward": launch})
+    got = triton_vm(planes, lines, xyz)
+    torch.testing.assert_close(got, expected, atol=1e-6, rtol=1e-6)
+    for g, e in zip(_grads(got, weights, [planes, lines]), expected_grads, strict=True):
+        torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-5)
+
+
 def test_a_nan_point_gives_nan_and_no_points_give_empty_results() -> None:
     planes, lines = _factors()
     xyz = torch.tensor([[0.1, float("nan"), 0.2], [0.1, 0.2, 0.3]], device=DEVICE)

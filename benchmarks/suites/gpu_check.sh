@@ -9,7 +9,8 @@
 #   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views; JOBS workers) into WORK
 #   kernels  (90)  the Triton and gather lookups against grid_sample on the GPU (tests/test_vm_triton.py,
 #            tests/test_vm_gather.py): run before `profile` times them
-#   lookup   (90)  bench_lookup: each lookup's forward + backward against grid_sample's, 2²⁰ points, R 300
+#   lookup   (120) bench_lookup: each lookup's forward, and forward + backward, against grid_sample's, 2²⁰
+#            points, R 300; the Triton kernels at each of LAUNCHES (points x warps a program)
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
 #   train    (120) nerf-gt, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
 #   profile  (160 per variant) profile_cuda_step from that run's last step, nerf-gt at BATCH and SMALL rays,
@@ -18,14 +19,15 @@
 #            launches and host syncs
 #   ttq      (560) the oracle's time-to-quality curve: PSNR every 20 s for 480 s of training
 # Suggested calls, most needed first (a session has about 15 minutes of device time, starts included):
-# VARIANTS="lookup=triton base" with `data kernels lookup train profile` (limits 770 s in all; a part cut
+# VARIANTS="lookup=triton base" with `data kernels lookup train profile` (limits 800 s in all; a part cut
 # by the call's end is lost, the ones before it are in OUT), then `tests`, then the other VARIANTS or `ttq`.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
 # keeps the dataset and the run between calls on a warm machine. Environment: DEVICE (cuda), SIZE (400),
 # JOBS (8), BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), WARMUP/STEPS/PSTEPS
-# (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), VARIANTS (the profile's field options,
+# (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), LAUNCHES (64x4,32x4,128x4,64x8),
+# VARIANTS (the profile's field options,
 # `base` for none), PYTHON (python). The CPU test runs `data train profile` at a tiny size
 # (tests/test_gpu_check.py).
 set -u -o pipefail
@@ -33,7 +35,7 @@ OUT=${1:?usage: gpu_check.sh OUT PART...}
 shift
 DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-4096} ITERS=${ITERS:-2000}
 COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
-PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8}
+PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8} LAUNCHES=${LAUNCHES:-64x4,32x4,128x4,64x8}
 VARIANTS=${VARIANTS:-lookup=triton base static_visible=24 lookup=gather}
 DATA=$WORK/orbs$SIZE RUN=$WORK/gt$SIZE
 STATIC=(--field-option static_samples=64 --field-option static_colors=16)
@@ -70,7 +72,8 @@ for name in "$@"; do
       part kernels 90 "passed|failed|error" "$PYTHON" -m pytest -p no:cacheprovider \
         tests/test_vm_triton.py tests/test_vm_gather.py ;;
     lookup)
-      part lookup 90 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" ;;
+      part lookup 120 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" \
+        --triton-launch "$LAUNCHES" ;;
     tests)
       part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \

@@ -78,7 +78,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arch", type=int, default=90, help="compute capability × 10 (90: H100/H200)")
     parser.add_argument("--warps", type=int, default=4)
-    parser.add_argument("--block", type=int, default=64, help="points per program (vm_triton.BLOCK)")
+    parser.add_argument("--block", type=int, default=64, help="points per program (vm_triton.LAUNCH)")
     parser.add_argument("--channels", default="16,24")
     args = parser.parse_args()
     rows = compile_variants(args.arch, args.warps, args.block, [int(c) for c in args.channels.split(",")])

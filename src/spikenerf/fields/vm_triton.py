@@ -25,7 +25,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
-BLOCK = 64  # points per program
+#: kernel → (points a program, warps a program); not yet tuned on a GPU (``bench_lookup --triton-launch``)
+LAUNCH: dict[str, tuple[int, int]] = {"forward": (64, 4), "backward": (64, 4)}
 
 
 @torch.compiler.assume_constant_result  # a host query: fixed per process, traced as a constant
@@ -63,18 +64,21 @@ def why_not(device: torch.device) -> str:
 
 
 def _launch(kernel_name: str, planes: Tensor, *args: Tensor, summed: bool) -> None:
-    """Run one of the kernels over the points (``args[1]``, (M, 3)) in blocks of :data:`BLOCK`; imports
-    triton and the kernels module (which Triton compiles, or interprets, on first use)."""
+    """Run one of the kernels over the points (``args[1]``, (M, 3)) as :data:`LAUNCH` says; imports triton
+    and the kernels module (which Triton compiles, or interprets, on first use)."""
     import triton
 
     from spikenerf.fields.vm_triton_kernels import backward_kernel, forward_kernel
 
     m, c = args[1].shape[0], planes.shape[-1]
     kernel = {"forward": forward_kernel, "backward": backward_kernel}[kernel_name]
+    block, warps = LAUNCH[kernel_name]
     on = torch.cuda.device(planes.device) if planes.is_cuda else contextlib.nullcontext()
     with on:  # Triton launches on the current device, not the tensors'
-        kernel[(triton.cdiv(m, BLOCK),)](planes, *args, m, planes.shape[1], channels=c, SUMMED=summed,
-                                         BLOCK=BLOCK, CP=triton.next_power_of_2(c))  # fmt: skip
+        shape = {"BLOCK": block, "CP": triton.next_power_of_2(c), "num_warps": warps}
+        kernel[(triton.cdiv(m, block),)](
+            planes, *args, m, planes.shape[1], channels=c, SUMMED=summed, **shape
+        )
 
 
 # The ops take the factors channels-last as (3, R, R, C) planes and (3, R, C) lines; opaque to torch.compile.
