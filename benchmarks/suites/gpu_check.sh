@@ -26,7 +26,7 @@
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
 # keeps the dataset and the run between calls on a warm machine. Environment: DEVICE (cuda), SIZE (400),
 # JOBS (8), BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), WARMUP/STEPS/PSTEPS
-# (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), LAUNCHES (64x4,32x4,128x4,64x8),
+# (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), LAUNCHES (64x4,32x4,64x8,128x8),
 # VARIANTS (the profile's field options,
 # `base` for none), PYTHON (python). The CPU test runs `data train profile` at a tiny size
 # (tests/test_gpu_check.py).
@@ -35,7 +35,7 @@ OUT=${1:?usage: gpu_check.sh OUT PART...}
 shift
 DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-4096} ITERS=${ITERS:-2000}
 COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
-PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8} LAUNCHES=${LAUNCHES:-64x4,32x4,128x4,64x8}
+PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8} LAUNCHES=${LAUNCHES:-64x4,32x4,64x8,128x8}
 VARIANTS=${VARIANTS:-lookup=triton base static_visible=24 lookup=gather}
 DATA=$WORK/orbs$SIZE RUN=$WORK/gt$SIZE
 STATIC=(--field-option static_samples=64 --field-option static_colors=16)

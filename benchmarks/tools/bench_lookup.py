@@ -4,7 +4,7 @@ same run.
 Usage (from the repository root; on a GPU host ``PYTHONPATH=src python -m …``)::
 
     .venv/bin/python -m benchmarks.tools.bench_lookup [--device auto] [--points 1048576] [--resolution 300]
-        [--channels 16,24] [--repeats 20] [--rounds 3] [--triton-launch 64x4,32x4,128x4,64x8]
+        [--channels 16,24] [--repeats 20] [--rounds 3] [--triton-launch 64x4,32x4,64x8,128x8]
 
 Points lie along random rays through the box, 64 consecutive samples a ray a cell apart (as a march lays
 them out, so neighbouring points share texels, as they do in training). For each channel count C (16: the
