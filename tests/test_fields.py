@@ -146,6 +146,20 @@ def test_upsampling_keeps_the_function_approximately() -> None:
     assert (color1 - color0).abs().max() < 0.01
 
 
+def test_resized_names_the_dimensions_that_upsampling_changes() -> None:
+    field = build_field("grid", 1, BOX, replace(CFG, occupancy_max_resolution=20))
+    names = [*FACTORS, "occupancy"]
+    before = [getattr(field, n) for n in FACTORS] + [field.occupancy.grid]
+    resized = field.resized()  # all five: the occupancy grid grows from 16 to 20
+    assert len(resized) == 5 and all(t is b for (t, _), b in zip(resized, before, strict=True))
+    field.upsample(28)
+    after = [getattr(field, n) for n in FACTORS] + [field.occupancy.grid]
+    for name, (old, dims), new in zip(names, resized, after, strict=True):
+        changed = tuple(i for i, (a, b) in enumerate(zip(old.shape, new.shape, strict=True)) if a != b)
+        assert changed == dims, name
+    assert field.resized() == []  # at the last resolution, the occupancy grid at its largest
+
+
 def test_state_dict_round_trip_after_upsampling() -> None:
     model = build_model("grid", 3, BOX, CFG)
     assert model.on_step(9) is False

@@ -386,6 +386,17 @@ class GridField(Field):
         x = self.normalize(xyz)
         return self.density_norm(x), self.color_norm(x, dirs)
 
+    def resized(self) -> list[tuple[Tensor, tuple[int, ...]]]:
+        """The tensors that later upsamplings replace by others of a new size, with the dimensions that
+        change: the factors' R while it is under the last resolution, the occupancy grid's while it is under
+        ``occupancy_max_resolution`` (none once the grid is at its final size)."""
+        cfg, found = self.config, []
+        if cfg.resolutions()[-1] > self.resolution:
+            found += [(getattr(self, n), (2, 3) if n.endswith("planes") else (2,)) for n in FACTORS]
+        if min(cfg.resolutions()[-1], cfg.occupancy_max_resolution) > self.occupancy.grid.shape[0]:
+            found.append((self.occupancy.grid, (0, 1, 2)))
+        return found
+
     @torch.no_grad()
     def upsample(self, resolution: int) -> None:
         """Resample all factors to ``resolution`` (bilinear, so the function is kept approximately)."""

@@ -9,13 +9,15 @@ field's functions instead (``fields/compiled.py``).
 
 - The fused CPU VM kernel (a C++ call that Dynamo cannot trace) is :func:`~spikenerf.fields.vm_kernel.
   suspended` inside the compiled call: the CPU graph samples the factors with ``grid_sample``.
-- Recompiles: the first graph is specialised to the first grid resolution; after the first upsampling
-  (new factor parameters of a new shape, a resized occupancy grid) the sizes are traced as symbols
-  (``force_parameter_static_shapes`` off inside the call), so that one recompile serves every later
-  resolution (2 compiles a run instead of one per resolution; on an H200 about 60 s and 20 s). A
-  total-variation prior (``tv_density``/``tv_app``) adds the steps where ``iteration % tv_every`` is 0
-  (only that prior reads the iteration; Dynamo makes it a symbolic int after its first change: no
-  recompile per step). Dynamo's recompile limit (per method instance) is raised to cover them.
+- One graph for every grid resolution: the sizes that upsampling changes (the factors' R, the occupancy
+  grid's; ``GridField.resized``) are traced as symbols from the first call (``maybe_mark_dynamic``, with
+  ``force_parameter_static_shapes`` off inside the call). Before, the first graph was specialised to the
+  first resolution and the first upsampling recompiled with symbolic sizes: two compiles a run (on an
+  H200 about 60 s and 20 s; on the CPU 55 s and 56 s, against one of 77 s now,
+  ``benchmarks/tools/bench_compile_cache.py``). A total-variation prior (``tv_density``/``tv_app``)
+  adds a graph for the steps where ``iteration % tv_every`` is 0 (only that prior reads the iteration;
+  Dynamo makes it a symbolic int after its first change: no recompile per step). Dynamo's recompile
+  limit (per method instance) is raised to cover them.
 - CUDA graphs: each call starts a new cudagraph-tree step (its outputs of the previous step are dead by
   then); the method's target tensors kept on the GPU are marked static (not copied into the graph's pool at
   every replay); the draws stay CPU tensors, copied to the device inside the graph (inductor's graph
@@ -50,6 +52,10 @@ DYNAMIC_PARAMETERS = torch._dynamo.config.patch(force_parameter_static_shapes=Fa
 FAILED = "torch.compile of the training step failed, training eagerly: "
 #: the ``torch.compile`` backend (None: its default, inductor, in :func:`step_mode`); tests set a cheaper one
 BACKEND: str | None = None
+#: trace the sizes that upsampling changes as symbols from the first call (one graph a run); False: the
+#: first graph specialised to the first resolution, a recompile after the first upsampling (two graphs;
+#: ``benchmarks/tools/bench_compile_cache.py`` times both)
+SYMBOLIC_FROM_START = True
 
 
 def static_samples(model: RadianceModel) -> int:
@@ -136,6 +142,7 @@ class CompiledStep:
         self.cuda_graphs = BACKEND is None and mode == "reduce-overhead"
         self.move_draws = draws_to_device(method, device)
         self.failed: str | None = None
+        self.traced = False
 
     def __call__(self, state: Any, iteration: int, drawn: tuple[torch.Tensor, ...]) -> StepLosses:
         if self.failed is None:
@@ -144,6 +151,10 @@ class CompiledStep:
                 # cuDNN's grid sampler has no fake-tensor kernel (a 16384-ray step failed to compile on an
                 # H200); the step uses no other cuDNN op, so the graph is traced without it
                 with suspended(), torch.backends.cudnn.flags(enabled=False), DYNAMIC_PARAMETERS:
+                    if not self.traced and SYMBOLIC_FROM_START:
+                        self.traced = True
+                        for tensor, dims in getattr(state.model.field, "resized", list)():
+                            torch._dynamo.maybe_mark_dynamic(tensor, dims)
                     if self.cuda_graphs:
                         torch.compiler.cudagraph_mark_step_begin()
                     if self.move_draws and getattr(state, "pose_refine", None) is None:
