@@ -18,9 +18,11 @@
 #            lookup=triton, as it is, static_visible=24, lookup=gather): ms a step, rays/s, GPU-busy share,
 #            launches and host syncs
 #   ttq      (560) the oracle's time-to-quality curve: PSNR every 20 s for 480 s of training
+#   compile  (330) bench_compile_cache: seconds spent compiling the static step (SMALL rays, 200 steps),
+#            one graph a run against two, and with a warm cache
 # Suggested calls, most needed first (a session has about 15 minutes of device time, starts included):
 # VARIANTS="lookup=triton base" with `data kernels lookup train profile` (limits 800 s in all; a part cut
-# by the call's end is lost, the ones before it are in OUT), then `tests`, then the other VARIANTS or `ttq`.
+# by the call's end is lost, the ones before it are in OUT), then `tests`, then the other VARIANTS with `compile`, or `ttq`.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
@@ -95,8 +97,11 @@ for name in "$@"; do
       part ttq 560 "^\|" "$PYTHON" -m benchmarks.experiments.bench_time_to_quality \
         --dataset "$DATA" --device "$DEVICE" --jobs 1 --runs nerf-gt:40000 --batch "$BATCH" --budget 480 \
         --wall-limit 540 --eval-seconds 20 --thresholds 28,30 --csv "$OUT/ttq.csv" ;;
+    compile)
+      part compile 330 "compil|step" "$PYTHON" -m benchmarks.tools.bench_compile_cache --dataset "$DATA" \
+        --device "$DEVICE" --batch "$SMALL" --static-samples 64 ;;
     *)
-      note "== $name: unknown part (data kernels lookup tests train profile ttq)"
+      note "== $name: unknown part (data kernels lookup tests train profile ttq compile)"
       exit 2 ;;
   esac
 done

@@ -388,8 +388,9 @@ class GridField(Field):
 
     def resized(self) -> list[tuple[Tensor, tuple[int, ...]]]:
         """The tensors that later upsamplings replace by others of a new size, with the dimensions that
-        change: the factors' R while it is under the last resolution, the occupancy grid's while it is under
-        ``occupancy_max_resolution`` (none once the grid is at its final size)."""
+        change: the factors' R while it is under the last resolution (planes (3, C, R, R): dims 2, 3; lines
+        (3, C, R, 1): dim 2), the occupancy grid's (G, G, G) while G is under ``occupancy_max_resolution``
+        (none once the grid is at its final size)."""
         cfg, found = self.config, []
         if cfg.resolutions()[-1] > self.resolution:
             found += [(getattr(self, n), (2, 3) if n.endswith("planes") else (2,)) for n in FACTORS]
