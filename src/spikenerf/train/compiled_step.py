@@ -142,7 +142,7 @@ class CompiledStep:
         self.cuda_graphs = BACKEND is None and mode == "reduce-overhead"
         self.move_draws = draws_to_device(method, device)
         self.failed: str | None = None
-        self.traced = False
+        self.marked = False  # the resized sizes marked symbolic (on the first call)
 
     def __call__(self, state: Any, iteration: int, drawn: tuple[torch.Tensor, ...]) -> StepLosses:
         if self.failed is None:
@@ -151,8 +151,8 @@ class CompiledStep:
                 # cuDNN's grid sampler has no fake-tensor kernel (a 16384-ray step failed to compile on an
                 # H200); the step uses no other cuDNN op, so the graph is traced without it
                 with suspended(), torch.backends.cudnn.flags(enabled=False), DYNAMIC_PARAMETERS:
-                    if not self.traced and SYMBOLIC_FROM_START:
-                        self.traced = True
+                    if not self.marked and SYMBOLIC_FROM_START:
+                        self.marked = True
                         for tensor, dims in getattr(state.model.field, "resized", list)():
                             torch._dynamo.maybe_mark_dynamic(tensor, dims)
                     if self.cuda_graphs:
