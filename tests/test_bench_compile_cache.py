@@ -29,7 +29,8 @@ def test_the_warm_child_finds_the_first_childs_cache_and_the_two_graph_child_a_c
     def fake_run(argv: list[str], env: dict | None = None, **_: object) -> subprocess.CompletedProcess:
         calls.append((argv, (env or {}).get("TORCHINDUCTOR_CACHE_DIR", "")))
         graphs = argv[argv.index("--graphs") + 1]
-        return subprocess.CompletedProcess(argv, 0, stdout=json.dumps({"steps": steps[graphs].pop(0)}) + "\n")
+        out = json.dumps({"steps": steps[graphs].pop(0)}) + "\n"
+        return subprocess.CompletedProcess(argv, 0, stdout=out, stderr="")
 
     monkeypatch.setattr(TOOL.subprocess, "run", fake_run)
     monkeypatch.setattr(sys, "argv", ["bench_compile_cache", "--dataset", str(tmp_path), "--iters", "3"])
@@ -40,3 +41,16 @@ def test_the_warm_child_finds_the_first_childs_cache_and_the_two_graph_child_a_c
     assert "one graph, cold cache: compiling 59.9 s (step 0: 60.0 s)" in out
     assert "two graphs, cold cache: compiling 69.8 s" in out  # 70.3 s less 5 × 0.1 s
     assert "two graphs / one graph (cold): 1.17×; one graph, cold / warm cache: 7.6×" in out
+
+
+def test_a_failing_child_stops_the_run_with_its_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def failing(argv: list[str], **_: object) -> subprocess.CompletedProcess:
+        return subprocess.CompletedProcess(argv, 1, stdout="", stderr="Traceback …\nRuntimeError: no CUDA\n")
+
+    monkeypatch.setattr(TOOL.subprocess, "run", failing)
+    monkeypatch.setattr(sys, "argv", ["bench_compile_cache", "--dataset", str(tmp_path)])
+    failed = r"(?s)one graph, cold cache: the child failed \(exit 1\):\n.*no CUDA"
+    with pytest.raises(SystemExit, match=failed):
+        TOOL.main()

@@ -95,8 +95,9 @@ def main() -> None:
         seconds = {}
         for case, (graphs, cache) in cases.items():
             env = {**os.environ, "TORCHINDUCTOR_CACHE_DIR": str(Path(tmp) / f"cache-{cache}")}
-            done = subprocess.run([*argv, "--graphs", str(graphs)], env=env, check=True, capture_output=True,
-                                  text=True)  # fmt: skip
+            done = subprocess.run([*argv, "--graphs", str(graphs)], env=env, capture_output=True, text=True)
+            if done.returncode != 0:
+                raise SystemExit(f"{case}: the child failed (exit {done.returncode}):\n{done.stderr[-3000:]}")
             steps = json.loads(done.stdout.strip().splitlines()[-1])["steps"]
             seconds[case] = compile_seconds(steps)
             slow = ", ".join(f"step {i}: {s:.1f} s" for i, s in enumerate(steps) if s > 1)
