@@ -228,7 +228,7 @@ PARAM_FLAGS = {
     default=_D.compile,
     help="torch.compile the field's per-sample functions; with --field-option static_samples=N the whole "
     "step's forward and loss instead, as one graph (CUDA graphs on CUDA). Compiles for tens of seconds "
-    "first; falls back to eager with a warning on failure.",
+    "first; falls back to eager with a warning on failure. For a GPU: on a CPU its steps are slower.",
 )
 @click.option(
     "--field-option",
