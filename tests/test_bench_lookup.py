@@ -45,8 +45,31 @@ def test_launch_shapes_parse_and_bad_ones_name_the_item() -> None:
             TOOL.launch_shapes(bad)
 
 
-def test_a_launch_shape_applies_within_and_is_restored_after() -> None:
+def test_each_launch_shape_holds_for_its_whole_steps_backward_included(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The Triton lookups in the table (here in the interpreter, which the tool itself leaves out)."""
+    pytest.importorskip("triton", reason="the triton package runs the kernels")
+    if not (vm_triton.interpreted() or TOOL.torch.cuda.is_available()):
+        pytest.skip("needs TRITON_INTERPRET=1 (tests/conftest.py) or CUDA")
     before = dict(vm_triton.LAUNCH)
-    with TOOL.launched(16, 2):
-        assert vm_triton.LAUNCH == {"forward": (16, 2), "backward": (16, 2)}
+    seen: set[tuple[str, tuple[int, int]]] = set()
+    launch = vm_triton._launch
+
+    def spy(kernel_name: str, *args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.add((kernel_name, vm_triton.LAUNCH[kernel_name]))
+        return launch(kernel_name, *args, **kwargs)
+
+    monkeypatch.setattr(vm_triton, "_launch", spy)
+    applies = vm_triton.applies(TOOL.torch.zeros(1), TOOL.torch.zeros(1))
+    monkeypatch.setattr(vm_triton, "interpreted", lambda: False)  # the tool leaves out the interpreter:
+    monkeypatch.setattr(vm_triton, "applies", lambda *_: applies)  # time them there all the same
+    argv = ["bench_lookup", "--points", "64", "--resolution", "6", "--repeats", "1", "--rounds", "1"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--channels", "5", "--triton-launch", "32x2,64x1"])
+    TOOL.main()
+    assert seen == {(k, s) for k in ("forward", "backward") for s in ((32, 2), (64, 1))}
     assert before == vm_triton.LAUNCH
+    rows = re.findall(
+        r"^\| triton (32x2|64x1) \| [\d.]+ \| [\d.]+ \| [\d.]+× \| (.+) \|$", capsys.readouterr().out, re.M
+    )
+    assert len(rows) == 2 and all(float(d) < 1e-3 for _, row in rows for d in row.split(", ")), rows

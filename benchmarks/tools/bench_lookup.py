@@ -23,7 +23,7 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 
 import torch
 from torch import Tensor
@@ -73,15 +73,12 @@ def launched(block: int, warps: int) -> Iterator[None]:
         vm_triton.LAUNCH.update(before)
 
 
-def triton_at(block: int, warps: int, summed: bool = False) -> Lookup:
-    """The Triton lookup at one launch shape (summed: the density's form, (M, 1, 1))."""
-
-    def lookup(p: Tensor, ln: Tensor, x: Tensor) -> Tensor:
-        with launched(block, warps):
-            out = vm_triton.triton_vm(p, ln, x, summed=summed)
-        return out[:, None, None] if summed else out
-
-    return lookup
+def launch_of(name: str) -> AbstractContextManager:
+    """Where the lookup ``name`` runs the Triton kernels ("triton PxW"), its launch shape for a whole step,
+    the backward included (autograd launches that kernel after the forward has returned); else nothing."""
+    if not name.startswith("triton "):
+        return nullcontext()
+    return launched(*launch_shapes(name.split()[1])[0])
 
 
 def lookups(device: torch.device, launches: list[tuple[int, int]] | None = None) -> dict[str, Lookup]:
@@ -94,7 +91,7 @@ def lookups(device: torch.device, launches: list[tuple[int, int]] | None = None)
     probe = torch.zeros(1, device=device)
     if vm_triton.applies(probe, probe) and not vm_triton.interpreted():
         for block, warps in launches or [vm_triton.LAUNCH["backward"]]:
-            found[f"triton {block}x{warps}"] = triton_at(block, warps)
+            found[f"triton {block}x{warps}"] = vm_triton.triton_vm  # at that shape: launch_of(name)
     if vm_kernel.usable(probe, probe):
         found["cpu kernel"] = vm_kernel.vm_lookup
     return found
@@ -115,8 +112,7 @@ def step(
 def summed_lookup(name: str, fn: Lookup) -> Lookup:
     """The density's form of a lookup: the kernels sum inside (no (M, 3, C) tensor), the others after."""
     if name.startswith("triton "):
-        block, warps = launch_shapes(name.split()[1])[0]
-        return triton_at(block, warps, summed=True)
+        return lambda p, ln, x: vm_triton.triton_vm(p, ln, x, summed=True)[:, None, None]
     if name == "cpu kernel":
         return lambda p, ln, x: vm_kernel.vm_lookup(p, ln, x, summed=True)[:, None, None]
     return fn
@@ -152,13 +148,14 @@ def main() -> None:
         times: dict[tuple[str, bool], list[float]] = {(n, b): [] for n in fns for b in (False, True)}
         for _ in range(args.rounds):
             for (name, backward), spent in times.items():
-                for _ in range(3):
-                    step(fns[name], planes, lines, xyz, grad, summed, backward)
-                sync()
-                start = time.perf_counter()
-                for _ in range(args.repeats):
-                    step(fns[name], planes, lines, xyz, grad, summed, backward)
-                sync()
+                with launch_of(name):
+                    for _ in range(3):
+                        step(fns[name], planes, lines, xyz, grad, summed, backward)
+                    sync()
+                    start = time.perf_counter()
+                    for _ in range(args.repeats):
+                        step(fns[name], planes, lines, xyz, grad, summed, backward)
+                    sync()
                 spent.append(1000 * (time.perf_counter() - start) / args.repeats)
         base = statistics.median(times["grid_sample", True])
         print(f"\nC = {channels} ({'summed, as the density' if summed else '(M, 3, C), as the appearance'})")
@@ -167,8 +164,9 @@ def main() -> None:
         print("|---|---:|---:|---:|---|")
         for name, fn in fns.items():
             ms, forward = statistics.median(times[name, True]), statistics.median(times[name, False])
-            diffs = [(a - b).abs().max().item() for a, b in zip(step(fn, planes, lines, xyz, grad, summed),
-                                                                  reference, strict=True)]  # fmt: skip
+            with launch_of(name):
+                got = step(fn, planes, lines, xyz, grad, summed)
+            diffs = [(a - b).abs().max().item() for a, b in zip(got, reference, strict=True)]
             differences = ", ".join(f"{d:.1e}" for d in diffs)
             print(f"| {name} | {forward:.2f} | {ms:.2f} | {base / ms:.2f}× | {differences} |")
 
