@@ -94,6 +94,39 @@ def test_compiled_grid_function_compiles_once_for_many_sample_counts() -> None:
     assert len(graphs) == 1
 
 
+def test_compiled_field_functions_do_not_recompile_for_each_grid_resolution(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Upsampling replaces the factors by larger ones; their sizes are traced as symbols after the first
+    change, so later resolutions reuse the graphs (a run's four upsamplings, with grad on and off, passed
+    Dynamo's recompile limit of 8 and left the field eager with a log warning)."""
+    torch.manual_seed(0)
+    field = build_model("grid", 1, BOX, GRID).field
+    graphs: list[int] = []
+
+    def backend(gm: torch.fx.GraphModule, _inputs: list) -> object:
+        graphs.append(1)
+        return gm.forward
+
+    compile_ = torch.compile
+    monkeypatch.setattr(compiled_mod.torch, "compile", lambda fn, **kw: compile_(fn, backend=backend, **kw))
+    torch._dynamo.reset()
+    assert compile_field(field, pytest.fail)
+    counts = []
+    for r in (24, 30, 37, 45, 56):
+        field.upsample(r)
+        for grad in (True, False):
+            with torch.set_grad_enabled(grad):
+                xyz = torch.rand(200 + r, 3) * 1.8 - 0.9
+                dirs = torch.nn.functional.normalize(torch.randn(200 + r, 3), dim=-1)
+                field.density_norm(xyz).sum() + field.color_norm(xyz, dirs).sum()
+        counts.append(len(graphs))
+    torch._dynamo.reset()
+    assert counts[2:] == [counts[1]] * 3, counts  # none after the first change of size
+    assert all(isinstance(getattr(field, n), Fallback) and getattr(field, n).failed is None
+               for n in ("density_norm", "color_norm"))  # fmt: skip
+
+
 @pytest.mark.parametrize("kind", ["grid", "mlp"])
 def test_a_failing_compiler_leaves_the_field_eager_with_one_warning(
     kind: str, monkeypatch: pytest.MonkeyPatch

@@ -207,6 +207,40 @@ def _kernel_or_skip():  # type: ignore[no-untyped-def]
     return vm_kernel
 
 
+def test_the_fused_kernels_custom_ops_pass_opcheck_and_compile_as_one_graph() -> None:
+    """The kernel is a torch.library op pair: schema, fake tensors and autograd pass ``opcheck``, and the
+    grid's density and colour trace as one graph with it (no break) and give the eager values and
+    gradients."""
+    from spikenerf.fields.grid import GridField
+
+    vm_kernel = _kernel_or_skip()
+    gen = torch.Generator().manual_seed(5)
+    p = torch.randn(3, 7, 7, 4, generator=gen, requires_grad=True)  # channels-last (3, R, R, C)
+    ln = torch.randn(3, 7, 4, generator=gen, requires_grad=True)  # (3, R, C)
+    xyz = torch.rand(50, 3, generator=gen) * 2.2 - 1.1
+    for summed in (False, True):
+        torch.library.opcheck(torch.ops.spikenerf.vm_cpu_forward.default, (p, ln, xyz, summed))
+
+    field = GridField(1, torch.tensor([[-1.0, -1, -1], [1, 1, 1]]))
+    dirs = torch.nn.functional.normalize(torch.randn(300, 3, generator=gen), dim=-1)
+    x = torch.rand(300, 3, generator=gen) * 2 - 1
+    assert vm_kernel.usable(field.density_planes, x)
+
+    def both(x: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+        return field.density_norm(x).sum() + field.color_norm(x, dirs).sum()
+
+    torch._dynamo.reset()
+    explained = torch._dynamo.explain(both)(x, dirs)
+    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
+    params = [field.density_planes, field.density_lines, field.app_planes, field.app_lines]
+    got = torch.compile(both, backend="aot_eager", fullgraph=True)(x, dirs)
+    expected = both(x, dirs)
+    torch.testing.assert_close(got, expected)
+    for g, e in zip(torch.autograd.grad(got, params), torch.autograd.grad(expected, params), strict=True):
+        torch.testing.assert_close(g, e)
+    torch._dynamo.reset()
+
+
 def test_fused_vm_kernel_nan_point_gives_nan_not_a_crash() -> None:
     """A NaN coordinate used to become a wild index (segfault); now NaN exactly where grid_sample has NaN."""
     from spikenerf.fields.grid import sample_vm

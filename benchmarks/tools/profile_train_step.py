@@ -27,8 +27,8 @@ from spikenerf.train.trainer import Trainer
 
 #: op-name fragments → category (first match wins; everything else is "other tensor ops")
 CATEGORIES = (
-    ("_VMBackward", "VM lookup backward (fused kernel)"),
-    ("_VM", "VM lookup forward (fused kernel)"),
+    ("vm_cpu_backward", "VM lookup backward (fused kernel)"),
+    ("vm_cpu_forward", "VM lookup forward (fused kernel)"),
     ("grid_sampler_2d_backward", "grid_sample backward"),
     ("grid_sampler", "grid_sample forward"),
     ("embedding_bag", "gather (embedding_bag)"),

@@ -228,7 +228,8 @@ PARAM_FLAGS = {
     default=_D.compile,
     help="torch.compile the field's per-sample functions; with --field-option static_samples=N the whole "
     "step's forward and loss instead, as one graph (CUDA graphs on CUDA). Compiles for tens of seconds "
-    "first; falls back to eager with a warning on failure. For a GPU: on a CPU its steps are slower.",
+    "first (cached for later runs); falls back to eager with a warning on failure. For long GPU runs: on a "
+    "CPU the compiled step gained little (docs/performance.md).",
 )
 @click.option(
     "--field-option",

@@ -10,7 +10,6 @@ goes on.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -27,8 +26,14 @@ def compiled_parts(field: Field) -> dict[str, tuple[Any, str]]:
     return {name: (getattr(field, name), "forward") for name in ("coarse", "fine") if hasattr(field, name)}
 
 
+#: parameter sizes traced as symbols once they change (a grid's upsampling): without it every new resolution
+#: recompiles, and a run's upsamplings (× grad on and off) pass Dynamo's recompile limit
+DYNAMIC_PARAMETERS = torch._dynamo.config.patch(force_parameter_static_shapes=False)
+
+
 class Fallback:
-    """Calls ``compiled``; after its first failure, ``eager`` from then on (``on_fail`` is told once)."""
+    """Calls ``compiled`` (with :data:`DYNAMIC_PARAMETERS`); after its first failure, ``eager`` from then on
+    (``on_fail`` is told once)."""
 
     def __init__(self, eager: Callable, compiled: Callable, on_fail: Callable[[str], None]) -> None:
         self.eager, self.compiled, self.on_fail = eager, compiled, on_fail
@@ -37,7 +42,8 @@ class Fallback:
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
         if self.failed is None:
             try:
-                return self.compiled(*args, **kwargs)
+                with DYNAMIC_PARAMETERS:
+                    return self.compiled(*args, **kwargs)
             except Exception as err:  # any compiler failure: eager is always a correct answer
                 self.failed = one_line(f"{type(err).__name__}: {err}")
                 self.on_fail(self.failed)
@@ -65,8 +71,6 @@ def compile_field(field: Field, warn: Callable[[str], None]) -> bool:
     are in use, False (after ``warn`` with the reason, one line) when the field stays eager."""
     parts = compiled_parts(field)
     eager = {name: getattr(owner, attr) for name, (owner, attr) in parts.items()}
-    # the grid's fused CPU kernel is a C++ call that Dynamo runs outside the graph: expected, not news
-    warnings.filterwarnings("ignore", message="Dynamo does not know how to trace", category=UserWarning)
 
     def restore(reason: str) -> None:
         for name, (owner, attr) in parts.items():

@@ -14,6 +14,8 @@ point 8 ahead. It is compiled with the system C++ compiler through ``torch.utils
 concurrent first builds are serialised by an ``flock`` that dies with its holder). Where that is not possible (no
 compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``, inside
 :func:`suspended`) callers fall back to ``grid_sample``; :func:`available` says which path is used.
+The forward and the backward are ``torch.library`` custom ops, so ``torch.compile(fullgraph=True)`` keeps them
+in its graph (``train --compile`` on a CPU; before, the compiled step fell back to ``grid_sample``).
 """
 
 from __future__ import annotations
@@ -389,6 +391,7 @@ def parallel_threads(n: int = 64) -> int:
     return int(_MODULE.parallel_threads(n))
 
 
+@torch.compiler.assume_constant_result  # builds or imports on the first call: a constant to a trace
 def available() -> bool:
     """Whether the fused CPU kernel can be used in this process (builds it on the first call)."""
     return _load() is not None
@@ -400,9 +403,8 @@ _SUSPENDED = False
 
 @contextlib.contextmanager
 def suspended() -> Iterator[None]:
-    """Within: the kernel is not used (:func:`usable` is False), so callers take the ``grid_sample`` path: for a
-    region that ``torch.compile(fullgraph=True)`` traces whole, where the C++ call would break the graph
-    (``train/compiled_step.py``). Outside it, nothing changes."""
+    """Within: the kernel is not used (:func:`usable` is False), so callers take the ``grid_sample`` path (to
+    compare the two). Outside it, nothing changes."""
     global _SUSPENDED
     before, _SUSPENDED = _SUSPENDED, True
     try:
@@ -424,20 +426,43 @@ def usable(planes: Tensor, xyz: Tensor) -> bool:
     )
 
 
-class _VM(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx: Any, planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:  # type: ignore[override]
-        p = planes.detach().permute(0, 2, 3, 1).contiguous()  # (3, R, R, C)
-        ln = lines.detach()[..., 0].permute(0, 2, 1).contiguous()  # (3, R, C)
-        x = xyz.detach().contiguous()
-        ctx.save_for_backward(p, ln, x)
-        return _MODULE.forward(p, ln, x, summed)
+# The kernel as torch.library custom ops (factors channels-last: planes (3, R, R, C), lines (3, R, C)), with
+# fake implementations and an autograd formula, so that ``torch.compile(fullgraph=True)`` keeps them in its
+# graph as opaque calls (a bare C++ call would break the graph).
+@torch.library.custom_op("spikenerf::vm_cpu_forward", mutates_args=())
+def _forward(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+    return _MODULE.forward(planes, lines, xyz, summed)
 
-    @staticmethod
-    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:  # type: ignore[override]
-        p, ln, x = ctx.saved_tensors
-        gp, gl = _MODULE.backward(p, ln, x, grad.contiguous())  # (M,) after a summed forward
-        return gp.permute(0, 3, 1, 2), gl.permute(0, 2, 1)[..., None], None, None
+
+@_forward.register_fake
+def _(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+    m, c = xyz.shape[0], planes.shape[-1]
+    return xyz.new_empty((m,) if summed else (m, 3, c))
+
+
+@torch.library.custom_op("spikenerf::vm_cpu_backward", mutates_args=())
+def _backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
+    gp, gl = _MODULE.backward(planes, lines, xyz, grad)  # (M,) grad after a summed forward
+    return gp, gl
+
+
+@_backward.register_fake
+def _(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
+    return torch.empty_like(planes), torch.empty_like(lines)
+
+
+def _setup_context(ctx: Any, inputs: tuple, output: Tensor) -> None:
+    planes, lines, xyz, _ = inputs
+    ctx.save_for_backward(planes, lines, xyz)
+
+
+def _grad(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:
+    planes, lines, xyz = ctx.saved_tensors
+    gp, gl = torch.ops.spikenerf.vm_cpu_backward.default(planes, lines, xyz, grad.contiguous())
+    return gp, gl, None, None
+
+
+_forward.register_autograd(_grad, setup_context=_setup_context)
 
 
 def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) -> Tensor:
@@ -456,4 +481,6 @@ def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
     """
     if _load() is None:
         raise RuntimeError("vm_lookup: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
-    return _VM.apply(planes, lines, xyz, summed)
+    p = planes.permute(0, 2, 3, 1).contiguous()  # (3, R, R, C): a view of channels-last factors
+    ln = lines[..., 0].permute(0, 2, 1).contiguous()  # (3, R, C)
+    return torch.ops.spikenerf.vm_cpu_forward.default(p, ln, xyz.contiguous(), summed)
