@@ -71,15 +71,21 @@ def test_grid_field_functions_trace_without_graph_breaks(bf16: bool) -> None:
         assert (explained.graph_count, explained.graph_break_count) == (1, 0), fn.__name__
 
 
-def test_compiled_grid_function_compiles_once_for_many_sample_counts() -> None:
-    torch.manual_seed(0)
-    field = build_model("grid", 3, BOX, GRID).field
-    graphs: list[int] = []
+def _counting(graphs: list[int]):  # type: ignore[no-untyped-def]
+    """A ``torch.compile`` backend that runs each graph as traced and appends 1 to ``graphs`` per graph."""
 
     def backend(gm: torch.fx.GraphModule, _inputs: list) -> object:
         graphs.append(1)
         return gm.forward
 
+    return backend
+
+
+def test_compiled_grid_function_compiles_once_for_many_sample_counts() -> None:
+    torch.manual_seed(0)
+    field = build_model("grid", 3, BOX, GRID).field
+    graphs: list[int] = []
+    backend = _counting(graphs)
     torch._dynamo.reset()
     fn = torch.compile(field.color_norm, backend=backend, dynamic=True)
     threads = torch.get_num_threads()
@@ -103,11 +109,7 @@ def test_compiled_field_functions_do_not_recompile_for_each_grid_resolution(
     torch.manual_seed(0)
     field = build_model("grid", 1, BOX, GRID).field
     graphs: list[int] = []
-
-    def backend(gm: torch.fx.GraphModule, _inputs: list) -> object:
-        graphs.append(1)
-        return gm.forward
-
+    backend = _counting(graphs)
     compile_ = torch.compile
     monkeypatch.setattr(compiled_mod.torch, "compile", lambda fn, **kw: compile_(fn, backend=backend, **kw))
     torch._dynamo.reset()

@@ -35,6 +35,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.fields.vm_ops import channels_last, register_pair
+
 try:
     import fcntl
 except ImportError:  # pragma: no cover - not on Unix: no build lock
@@ -426,43 +428,13 @@ def usable(planes: Tensor, xyz: Tensor) -> bool:
     )
 
 
-# The kernel as torch.library custom ops (factors channels-last: planes (3, R, R, C), lines (3, R, C)), with
-# fake implementations and an autograd formula, so that ``torch.compile(fullgraph=True)`` keeps them in its
-# graph as opaque calls (a bare C++ call would break the graph).
-@torch.library.custom_op("spikenerf::vm_cpu_forward", mutates_args=())
-def _forward(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
-    return _MODULE.forward(planes, lines, xyz, summed)
-
-
-@_forward.register_fake
-def _(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
-    m, c = xyz.shape[0], planes.shape[-1]
-    return xyz.new_empty((m,) if summed else (m, 3, c))
-
-
-@torch.library.custom_op("spikenerf::vm_cpu_backward", mutates_args=())
 def _backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
     gp, gl = _MODULE.backward(planes, lines, xyz, grad)  # (M,) grad after a summed forward
     return gp, gl
 
 
-@_backward.register_fake
-def _(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
-    return torch.empty_like(planes), torch.empty_like(lines)
-
-
-def _setup_context(ctx: Any, inputs: tuple, output: Tensor) -> None:
-    planes, lines, xyz, _ = inputs
-    ctx.save_for_backward(planes, lines, xyz)
-
-
-def _grad(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:
-    planes, lines, xyz = ctx.saved_tensors
-    gp, gl = torch.ops.spikenerf.vm_cpu_backward.default(planes, lines, xyz, grad.contiguous())
-    return gp, gl, None, None
-
-
-_forward.register_autograd(_grad, setup_context=_setup_context)
+#: ``spikenerf::vm_cpu_forward`` (and ``_backward``): the kernel as custom ops, so compiled graphs keep it
+_OP = register_pair("vm_cpu", lambda p, ln, x, summed: _MODULE.forward(p, ln, x, summed), _backward)
 
 
 def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) -> Tensor:
@@ -481,6 +453,4 @@ def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
     """
     if _load() is None:
         raise RuntimeError("vm_lookup: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
-    p = planes.permute(0, 2, 3, 1).contiguous()  # (3, R, R, C): a view of channels-last factors
-    ln = lines[..., 0].permute(0, 2, 1).contiguous()  # (3, R, C)
-    return torch.ops.spikenerf.vm_cpu_forward.default(p, ln, xyz.contiguous(), summed)
+    return _OP(*channels_last(planes, lines), xyz.contiguous(), summed)

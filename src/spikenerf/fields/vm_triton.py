@@ -20,10 +20,11 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import os
-from typing import Any
 
 import torch
 from torch import Tensor
+
+from spikenerf.fields.vm_ops import channels_last, register_pair
 
 #: kernel → (points a program, warps a program); not yet tuned on a GPU (``bench_lookup --triton-launch``)
 LAUNCH: dict[str, tuple[int, int]] = {"forward": (64, 4), "backward": (64, 4)}
@@ -81,8 +82,6 @@ def _launch(kernel_name: str, planes: Tensor, *args: Tensor, summed: bool) -> No
         )
 
 
-# The ops take the factors channels-last as (3, R, R, C) planes and (3, R, C) lines; opaque to torch.compile.
-@torch.library.custom_op("spikenerf::vm_triton_forward", mutates_args=())
 def _forward(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
     m, c = xyz.shape[0], planes.shape[-1]
     out = xyz.new_empty((m,) if summed else (m, 3, c))
@@ -91,13 +90,6 @@ def _forward(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor
     return out
 
 
-@_forward.register_fake
-def _(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
-    m, c = xyz.shape[0], planes.shape[-1]
-    return xyz.new_empty((m,) if summed else (m, 3, c))
-
-
-@torch.library.custom_op("spikenerf::vm_triton_backward", mutates_args=())
 def _backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
     gp, gl = torch.zeros_like(planes), torch.zeros_like(lines)
     if xyz.shape[0]:
@@ -105,23 +97,8 @@ def _backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple
     return gp, gl
 
 
-@_backward.register_fake
-def _(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
-    return torch.empty_like(planes), torch.empty_like(lines)
-
-
-def _setup_context(ctx: Any, inputs: tuple, output: Tensor) -> None:
-    planes, lines, xyz, _ = inputs
-    ctx.save_for_backward(planes, lines, xyz)
-
-
-def _grad(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:
-    planes, lines, xyz = ctx.saved_tensors
-    gp, gl = torch.ops.spikenerf.vm_triton_backward.default(planes, lines, xyz, grad.contiguous())
-    return gp, gl, None, None
-
-
-_forward.register_autograd(_grad, setup_context=_setup_context)
+#: ``spikenerf::vm_triton_forward`` (and ``_backward``): the kernels as custom ops, opaque to torch.compile
+_OP = register_pair("vm_triton", _forward, _backward)
 
 
 def triton_vm(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) -> Tensor:
@@ -140,6 +117,4 @@ def triton_vm(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
     if not applies(planes, xyz):
         reason = why_not(planes.device) or "float32 factors and points without gradient are needed"
         raise RuntimeError(f"triton_vm: {reason}")
-    p = planes.permute(0, 2, 3, 1).contiguous()  # (3, R, R, C): a view of channels-last factors
-    ln = lines[..., 0].permute(0, 2, 1).contiguous()  # (3, R, C)
-    return torch.ops.spikenerf.vm_triton_forward.default(p, ln, xyz.contiguous(), summed)
+    return _OP(*channels_last(planes, lines), xyz.contiguous(), summed)

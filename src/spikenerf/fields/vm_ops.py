@@ -1,0 +1,61 @@
+"""A VM lookup kernel pair as ``torch.library`` custom ops: one registration for the fused CPU kernel
+(``vm_kernel.py``) and the Triton kernels (``vm_triton.py``).
+
+Each pair is a forward op and a backward op over channels-last factors, with fake implementations (shapes
+only) and an autograd formula, so that ``torch.compile(fullgraph=True)`` keeps them in its graph as opaque
+calls (a bare C++ or Triton launch would break the graph). No gradient for the points.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from torch import Tensor
+
+#: forward(planes (3, R, R, C), lines (3, R, C), xyz (M, 3), summed) → (M, 3, C), or (M,) when summed
+Forward = Callable[[Tensor, Tensor, Tensor, bool], Tensor]
+#: backward(planes, lines, xyz, grad (M, 3, C) or (M,)) → (∂/∂planes (3, R, R, C), ∂/∂lines (3, R, C))
+Backward = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
+
+
+def channels_last(planes: Tensor, lines: Tensor) -> tuple[Tensor, Tensor]:
+    """Planes (3, C, R, R) and lines (3, C, R, 1) → (3, R, R, C) and (3, R, C): views of channels-last
+    factors (no copy), copies otherwise; gradients flow back through them."""
+    return planes.permute(0, 2, 3, 1).contiguous(), lines[..., 0].permute(0, 2, 1).contiguous()
+
+
+def register_pair(name: str, forward: Forward, backward: Backward) -> Any:
+    """Register ``spikenerf::{name}_forward`` and ``spikenerf::{name}_backward`` calling ``forward`` and
+    ``backward`` (which must return new tensors); returns the forward op (``.default`` overload), whose
+    gradient goes to the planes and lines."""
+
+    @torch.library.custom_op(f"spikenerf::{name}_forward", mutates_args=())
+    def forward_op(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+        return forward(planes, lines, xyz, summed)
+
+    @forward_op.register_fake
+    def _(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+        m, c = xyz.shape[0], planes.shape[-1]
+        return xyz.new_empty((m,) if summed else (m, 3, c))
+
+    @torch.library.custom_op(f"spikenerf::{name}_backward", mutates_args=())
+    def backward_op(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
+        return backward(planes, lines, xyz, grad)
+
+    @backward_op.register_fake
+    def _(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
+        return torch.empty_like(planes), torch.empty_like(lines)
+
+    def setup_context(ctx: Any, inputs: tuple, output: Tensor) -> None:
+        planes, lines, xyz, _ = inputs
+        ctx.save_for_backward(planes, lines, xyz)
+
+    def grad_of(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:
+        planes, lines, xyz = ctx.saved_tensors
+        gp, gl = backward_op(planes, lines, xyz, grad.contiguous())
+        return gp, gl, None, None
+
+    forward_op.register_autograd(grad_of, setup_context=setup_context)
+    return getattr(torch.ops.spikenerf, f"{name}_forward").default
