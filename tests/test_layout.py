@@ -20,9 +20,8 @@ OTHER_LAYOUTS = {
     "eval/evaluate.py": "images as (C, H, W) for SSIM/LPIPS convolutions, C = 1 kept",
     "eval/lpips.py": "convolution kernels HWIO → OIHW",
     "fields/grid.py": "VM products (3, C, M) → (M, 3, C)",
-    "fields/vm_kernel.py": "grid factors (3, C, R, R) for the fused kernel",
+    "fields/vm_ops.py": "grid factors (3, C, R, R) channels-last for the fused CPU and Triton kernels",
     "fields/vm_gather.py": "grid factors (3, C, R, R) as rows of channels (3·R·R, C) for index gathers",
-    "fields/vm_triton.py": "grid factors (3, C, R, R) channels-last for the Triton kernels",
     "scenes/trajectory.py": "quaternion components to the front",
 }
 
