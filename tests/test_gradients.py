@@ -257,7 +257,7 @@ def test_fused_vm_kernel_nan_point_gives_nan_not_a_crash() -> None:
 
 
 def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:
-    """> 4096 points on 2 threads: the per-thread gradient buffers and their sum."""
+    """> 4096 points on 2 threads: each thread's band of plane rows and the sum of the line buffers."""
     from spikenerf.fields.grid import sample_vm
 
     vm_kernel = _kernel_or_skip()
@@ -276,6 +276,46 @@ def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:
     want = torch.autograd.grad(ref, (planes, lines), torch.ones_like(ref))
     assert torch.allclose(out, ref, atol=1e-5)
     assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got, want, strict=True))
+
+
+@pytest.mark.parametrize("summed", [False, True])
+def test_fused_vm_kernel_backward_has_the_same_plane_gradient_on_any_number_of_threads(summed: bool) -> None:
+    """The backward gives each thread a band of plane rows: every plane gradient element is summed in point
+    order by one thread, so 1, 2 and 3 threads give the same bits (the line gradients, summed over the
+    threads' buffers, agree to rounding), and ``grid_sample``'s gradients, with points crowded into a few
+    rows, points on texel rows (band edges) and outside the grid, and, for the density, a zero gradient at
+    every third point."""
+    from spikenerf.fields.grid import sample_vm
+
+    vm_kernel = _kernel_or_skip()
+    gen = torch.Generator().manual_seed(8)
+    r = 12
+    planes = torch.randn(3, 5, r, r, generator=gen, requires_grad=True)
+    lines = torch.randn(3, 5, r, 1, generator=gen, requires_grad=True)
+    spread = torch.rand(7000, 3, generator=gen) * 2.2 - 1.1
+    few_rows = torch.tensor([2.0, 0.1, 0.1])  # y and z within about one texel
+    crowded = torch.rand(4000, 3, generator=gen) * few_rows - torch.tensor([1.0, 0.3, 0.3])
+    on_rows = -1 + 2 * torch.randint(0, r, (2000, 3), generator=gen) / (r - 1)
+    xyz = torch.cat([spread, crowded, on_rows])[torch.randperm(13000, generator=gen)]
+    ref = sample_vm(planes, lines, xyz).permute(2, 0, 1)
+    if summed:
+        ref = ref.sum(dim=(1, 2))
+    grad = torch.randn(ref.shape, generator=gen)
+    if summed:
+        grad[::3] = 0.0
+    want = torch.autograd.grad(ref, (planes, lines), grad)
+    threads, got = torch.get_num_threads(), {}
+    try:
+        for n in (1, 2, 3):
+            torch.set_num_threads(n)
+            out = vm_kernel.vm_lookup(planes, lines, xyz, summed=summed)
+            got[n] = torch.autograd.grad(out, (planes, lines), grad)
+    finally:
+        torch.set_num_threads(threads)
+    for n in (2, 3):
+        assert torch.equal(got[n][0], got[1][0]), f"plane gradient on {n} threads"
+        assert torch.allclose(got[n][1], got[1][1], rtol=1e-5, atol=1e-4)
+    assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got[1], want, strict=True))
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="built with OpenMP on Linux only")

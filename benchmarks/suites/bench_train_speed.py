@@ -13,8 +13,8 @@ that a load change on a shared machine hits both. Each run reports its own ``sum
 (rendered rays over the loop's time, evaluation and checkpoints excluded) and the test PSNR after the same
 iterations on all held-out views, and the process's CPU time (``getrusage`` of the child: start-up and
 evaluation included). Printed: every run, the per-round ratios ours / reference of rays/s and of CPU time,
-and their medians. ``--ours-args`` adds train options to this checkout's runs only (e.g.
-``--ours-args "--field-option step_ratio=0.5"`` to time the previous defaults). Ours trains with
+and their medians, means and 95 % t intervals. ``--ours-args`` adds train options to this checkout's runs
+only (e.g. ``--ours-args "--field-option step_ratio=0.5"`` to time the previous defaults). Ours trains with
 ``--window-poses 1`` (one pose per TFP target, as a reference before 8041e5c; ``--ref-window-poses`` pins
 a later reference too), unless ``--ours-args`` says otherwise.
 Without ``--dataset`` an ``analytic-orbs`` 100×100, 1000-step gray dataset is simulated first, by the
@@ -34,6 +34,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from spikenerf.pipelines.benchmark.stats import t_interval
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository root
 
@@ -60,6 +62,14 @@ def run_train(src: Path, dataset: Path, out: Path, args: argparse.Namespace, ext
     summary = json.loads((out / "summary.json").read_text())
     summary["wall"], summary["cpu"] = time.perf_counter() - start, _children_cpu() - cpu0
     return summary
+
+
+def mean_and_interval(ratios: list[float]) -> str:
+    """ ", mean R× [lo×, hi×]": the per-round ratios' mean and 95 % t interval ("" for one round)."""
+    interval = t_interval(ratios)
+    if interval is None:
+        return ""
+    return f", mean {statistics.mean(ratios):.2f}× [{interval[0]:.2f}×, {interval[1]:.2f}×] (95 % t)"
 
 
 def _children_cpu() -> float:
@@ -135,11 +145,12 @@ def main() -> None:
         o["test_psnr"] - b["test_psnr"] for o, b in zip(results["ours"], results["reference"], strict=True)
     ]
     print(f"\nrays/s ratio ours / {args.ref} per round: {', '.join(f'{x:.2f}×' for x in ratios)}")
-    print(f"median ratio: {statistics.median(ratios):.2f}×")
+    print(f"median ratio: {statistics.median(ratios):.2f}×{mean_and_interval(ratios)}")
     cpu = [b["cpu"] / o["cpu"] for o, b in zip(results["ours"], results["reference"], strict=True)]
     print(f"process CPU time reference / ours per round: {', '.join(f'{x:.2f}×' for x in cpu)}")
     print(
-        f"median CPU ratio: {statistics.median(cpu):.2f}× (whole processes: start-up and evaluation included)"
+        f"median CPU ratio: {statistics.median(cpu):.2f}×{mean_and_interval(cpu)} (whole processes: start-up"
+        " and evaluation included)"
     )
     print(f"test PSNR ours − reference per round (dB): {', '.join(f'{x:+.2f}' for x in dpsnr)}")
 

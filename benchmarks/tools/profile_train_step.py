@@ -58,7 +58,8 @@ def main() -> None:
     parser.add_argument("run", type=Path)
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--iters", type=int, default=None, help="the run's --iters (default: as stored)")
-    parser.add_argument("--time-only", action="store_true", help="print only the CPU ms per iteration")
+    parser.add_argument("--time-only", action="store_true", help="print only the ms per iteration (--clock)")
+    parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="--time-only: process/wall")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         run = Path(tmp) / "run"
@@ -73,7 +74,7 @@ def main() -> None:
         trainer.train(stop_after=args.steps)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
         if args.time_only:
-            print(f"{1000 * cpu / args.steps:.1f}")
+            print(f"{1000 * (cpu if args.clock == 'cpu' else wall) / args.steps:.1f}")
             return
         with profile() as prof:
             trainer.train(stop_after=args.steps)

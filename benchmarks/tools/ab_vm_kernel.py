@@ -1,0 +1,113 @@
+"""The fused CPU VM kernel of two checkouts, forward and backward, in one process, interleaved (A/B).
+
+Usage (from the repository root)::
+
+    git worktree add /tmp/before HEAD~1
+    .venv/bin/python -m benchmarks.tools.ab_vm_kernel /tmp/before/src/spikenerf/fields/vm_kernel.py \
+        src/spikenerf/fields/vm_kernel.py [--points 100000] [--resolution 200] [--repeats 60] [--threads 1,2]
+
+Each file's C++ source (its ``_SOURCE``) is built with this checkout's flags under a name of its own (the
+first build of a source takes about a minute, then it is cached), so both run in the same process on the
+same tensors: the density's form (16 channels, summed, a zero gradient at every third point, as early ray
+termination leaves them) and the appearance's (24 channels, (M, 3, C) out). Points lie along random rays,
+64 samples a cell apart (``bench_lookup.ray_points``). For each thread count and form: ``--repeats``
+backward calls of each build, alternating which goes first, after 3 untimed; then as many forward calls.
+Printed: the median ms of each, the median of the per-call ratios before / after (above 1: after is faster)
+with its quartiles, and the largest difference of the outputs and gradients.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import hashlib
+import statistics
+import time
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch.utils.cpp_extension import load_inline
+
+from benchmarks.tools.bench_lookup import ray_points
+from spikenerf.fields import vm_kernel
+
+
+def kernel_source(path: Path) -> str:
+    """The ``_SOURCE`` string of a ``vm_kernel.py`` (read, not imported: both would register one op)."""
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "_SOURCE" for t in node.targets):
+            return ast.literal_eval(node.value)
+    raise SystemExit(f"{path}: no _SOURCE string")
+
+
+def build(source: str, tag: str) -> Any:
+    """The extension module of ``source``, built with this checkout's flags (cached by source and flags)."""
+    flags, ldflags = vm_kernel._CFLAGS + vm_kernel._OPENMP_CFLAGS, vm_kernel._OPENMP_LDFLAGS
+    key = "\0".join([source, *flags, *ldflags, vm_kernel._CPU]).encode()
+    name = f"ab_vm_{tag}_{hashlib.sha256(key).hexdigest()[:12]}"
+    return load_inline(name, cpp_sources=[source], extra_cflags=flags, extra_ldflags=ldflags, with_cuda=False)
+
+
+def timed(calls: dict[str, Callable[[], Any]], repeats: int) -> dict[str, list[float]]:
+    """Seconds of each call, ``repeats`` times, alternating which build goes first, after 3 untimed each."""
+    for fn in calls.values():
+        for _ in range(3):
+            fn()
+    times: dict[str, list[float]] = {name: [] for name in calls}
+    for i in range(repeats):
+        for name in list(calls) if i % 2 == 0 else list(calls)[::-1]:
+            start = time.perf_counter()
+            calls[name]()
+            times[name].append(time.perf_counter() - start)
+    return times
+
+
+def report(what: str, times: dict[str, list[float]]) -> None:
+    before, after = times["before"], times["after"]
+    ratios = sorted(b / a for b, a in zip(before, after, strict=True))
+    q = len(ratios) // 4
+    print(
+        f"| {what} | {1e3 * statistics.median(before):.2f} | {1e3 * statistics.median(after):.2f} | "
+        f"{statistics.median(ratios):.3f}× ({ratios[q]:.3f}–{ratios[-q - 1]:.3f}) |",
+        flush=True,
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("before", type=Path, help="a checkout's src/spikenerf/fields/vm_kernel.py")
+    parser.add_argument("after", type=Path, help="another (this checkout's, say)")
+    parser.add_argument("--points", type=int, default=100_000)
+    parser.add_argument("--resolution", type=int, default=200)
+    parser.add_argument("--repeats", type=int, default=60)
+    parser.add_argument("--threads", default="1,2", help="thread counts, comma-separated")
+    args = parser.parse_args()
+    modules = {
+        tag: build(kernel_source(path), tag) for tag, path in (("before", args.before), ("after", args.after))
+    }
+    r, gen = args.resolution, torch.Generator().manual_seed(0)
+    xyz = ray_points(args.points, r, torch.device("cpu"))
+    print(f"{args.points} points along rays, R {r}; ms per call, median of {args.repeats}")
+    print("| call | before ms | after ms | before / after (quartiles) |\n|---|---:|---:|---:|")
+    for threads in (int(t) for t in args.threads.split(",")):
+        torch.set_num_threads(threads)
+        for c, summed in ((16, True), (24, False)):
+            planes, lines = torch.randn(3, r, r, c, generator=gen), torch.randn(3, r, c, generator=gen)
+            grad = torch.randn((xyz.shape[0],) if summed else (xyz.shape[0], 3, c), generator=gen)
+            if summed:
+                grad[::3] = 0.0
+            form = f"{threads} thread(s), C {c}{' summed' if summed else ''}"
+            back = {t: partial(m.backward, planes, lines, xyz, grad) for t, m in modules.items()}
+            fwd = {t: partial(m.forward, planes, lines, xyz, summed) for t, m in modules.items()}
+            report(f"backward, {form}", timed(back, args.repeats))
+            report(f"forward, {form}", timed(fwd, args.repeats))
+            outs = {t: [fwd[t](), *back[t]()] for t in modules}
+            diff = max((a - b).abs().max().item() for a, b in zip(outs["before"], outs["after"], strict=True))
+            print(f"|   largest difference (output, plane and line gradients) | {diff:.1e} | | |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,32 @@
+"""``benchmarks/tools/ab_vm_kernel.py``: it reads a checkout's kernel source without importing it, alternates
+which build goes first and prints before / after (its timings are measurements, docs/performance.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from helpers import load_benchmark
+from spikenerf.fields import vm_kernel
+
+TOOL = load_benchmark("tools/ab_vm_kernel")
+
+
+def test_the_kernel_source_is_read_from_the_file(tmp_path: Path) -> None:
+    assert TOOL.kernel_source(Path(vm_kernel.__file__)) == vm_kernel._SOURCE
+    other = tmp_path / "vm_kernel.py"
+    other.write_text("SOURCE = 'not the name'\n")
+    with pytest.raises(SystemExit, match="no _SOURCE"):
+        TOOL.kernel_source(other)
+
+
+def test_the_builds_take_turns_going_first_and_the_ratio_is_before_over_after(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    order: list[str] = []
+    times = TOOL.timed({"before": lambda: order.append("b"), "after": lambda: order.append("a")}, 4)
+    assert order == ["b"] * 3 + ["a"] * 3 + ["b", "a", "a", "b", "b", "a", "a", "b"]
+    assert [len(v) for v in times.values()] == [4, 4]
+    TOOL.report("backward", {"before": [0.002] * 4, "after": [0.001] * 4})
+    assert "| backward | 2.00 | 1.00 | 2.000× (2.000–2.000) |" in capsys.readouterr().out
