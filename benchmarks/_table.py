@@ -3,9 +3,12 @@ process, so the ratio is meaningful even on a busy machine."""
 
 from __future__ import annotations
 
+import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+
+from spikenerf.pipelines.benchmark.stats import t_interval
 
 
 @dataclass
@@ -33,6 +36,14 @@ def best_seconds(
         fn()
         best = min(best, clock() - start)
     return best
+
+
+def mean_and_interval(ratios: list[float]) -> str:
+    """ ", mean R× [lo×, hi×]": the per-round ratios' mean and 95 % t interval ("" for one round)."""
+    interval = t_interval(ratios)
+    if interval is None:
+        return ""
+    return f", mean {statistics.mean(ratios):.2f}× [{interval[0]:.2f}×, {interval[1]:.2f}×] (95 % t)"
 
 
 def format_table(rows: list[Row]) -> str:

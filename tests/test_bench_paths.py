@@ -31,7 +31,8 @@ def test_the_paths_a_benchmark_hands_its_subprocesses_are_this_checkouts(
 
 
 def test_the_speed_benchmark_prints_the_mean_ratio_with_its_interval() -> None:
-    """``bench_train_speed`` prints the rounds' mean ratio and 95 % t interval (none for a single round)."""
+    """``bench_train_speed`` (and ``ab_train_step``) print the rounds' mean ratio and 95 % t interval (none
+    for a single round)."""
     tool = load_benchmark("suites/bench_train_speed")
     rounds = [2.63, 2.61, 2.53, 2.08, 2.72, 2.53, 2.29, 2.19, 3.25, 2.73]
     assert tool.mean_and_interval(rounds) == ", mean 2.56× [2.32×, 2.79×] (95 % t)"

@@ -35,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from spikenerf.pipelines.benchmark.stats import t_interval
+from benchmarks._table import mean_and_interval
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository root
 
@@ -62,14 +62,6 @@ def run_train(src: Path, dataset: Path, out: Path, args: argparse.Namespace, ext
     summary = json.loads((out / "summary.json").read_text())
     summary["wall"], summary["cpu"] = time.perf_counter() - start, _children_cpu() - cpu0
     return summary
-
-
-def mean_and_interval(ratios: list[float]) -> str:
-    """ ", mean R× [lo×, hi×]": the per-round ratios' mean and 95 % t interval ("" for one round)."""
-    interval = t_interval(ratios)
-    if interval is None:
-        return ""
-    return f", mean {statistics.mean(ratios):.2f}× [{interval[0]:.2f}×, {interval[1]:.2f}×] (95 % t)"
 
 
 def _children_cpu() -> float:

@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from spikenerf.pipelines.benchmark.stats import t_interval
+from benchmarks._table import mean_and_interval
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository root
 
@@ -56,9 +56,7 @@ def main() -> None:
         print(f"{name}: median {med:.1f} {unit} ({speed:.2f}× the first build's speed)")
         if v is not base and len(v) > 1:
             ratios = [b / x for b, x in zip(base, v, strict=True)]
-            mean, (lo, hi) = statistics.mean(ratios), t_interval(ratios)
-            rounds = ", ".join(f"{x:.2f}×" for x in ratios)
-            print(f"  per round: {rounds}; mean {mean:.2f}× [{lo:.2f}×, {hi:.2f}×]")
+            print(f"  per round: {', '.join(f'{x:.2f}×' for x in ratios)}{mean_and_interval(ratios)}")
 
 
 if __name__ == "__main__":

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import hashlib
 import statistics
 import time
 from collections.abc import Callable
@@ -46,8 +45,7 @@ def kernel_source(path: Path) -> str:
 def build(source: str, tag: str) -> Any:
     """The extension module of ``source``, built with this checkout's flags (cached by source and flags)."""
     flags, ldflags = vm_kernel._CFLAGS + vm_kernel._OPENMP_CFLAGS, vm_kernel._OPENMP_LDFLAGS
-    key = "\0".join([source, *flags, *ldflags, vm_kernel._CPU]).encode()
-    name = f"ab_vm_{tag}_{hashlib.sha256(key).hexdigest()[:12]}"
+    name = vm_kernel._name(flags, ldflags, source, prefix=f"ab_vm_{tag}_")
     return load_inline(name, cpp_sources=[source], extra_cflags=flags, extra_ldflags=ldflags, with_cuda=False)
 
 

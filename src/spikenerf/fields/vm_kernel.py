@@ -330,12 +330,9 @@ def cpu_has(*flags: str) -> bool:
 _CFLAGS = _cflags() if _CPU else ["-O3"]
 
 
-def _name(cflags: list[str], ldflags: list[str]) -> str:
+def _name(cflags: list[str], ldflags: list[str], source: str = _SOURCE, prefix: str = "spikenerf_vm_") -> str:
     """One build folder per source, flags (the OpenMP library's path included) and CPU."""
-    return (
-        "spikenerf_vm_"
-        + hashlib.sha256("\0".join([_SOURCE, *cflags, *ldflags, _CPU]).encode()).hexdigest()[:12]
-    )
+    return prefix + hashlib.sha256("\0".join([source, *cflags, *ldflags, _CPU]).encode()).hexdigest()[:12]
 
 
 BUILD_WAIT_S = 900.0  # the longest we wait for another process's build before using grid_sample
