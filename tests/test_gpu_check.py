@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "suites" / "gpu_check.sh"
 
 
-def _run(out: Path, work: Path, *parts: str) -> subprocess.CompletedProcess:
+def _run(out: Path, work: Path, *parts: str, **extra: str) -> subprocess.CompletedProcess:
     env = {
         **os.environ,
         "PYTHONPATH": str(ROOT / "src"),
@@ -31,6 +31,7 @@ def _run(out: Path, work: Path, *parts: str) -> subprocess.CompletedProcess:
         "VARIANTS": "base static_visible=8",
         "WORK": str(work),
         "OMP_NUM_THREADS": "1",
+        **extra,
     }
     cmd = ["bash", str(SCRIPT), str(out), *parts]
     return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
@@ -45,9 +46,19 @@ def test_the_parts_run_on_a_cpu_and_write_their_summary(tmp_path: Path) -> None:
                  "== profile-static_visible-8: rc 0", "static_visible=8:"):  # fmt: skip
         assert line in summary, summary
     assert summary.count("ms/step") >= 4  # two batches × two variants
-    assert (work / "orbs16" / "transforms.json").is_file() and (work / "gt16" / "curves.csv").is_file()
+    assert (work / "orbs16" / "transforms.json").is_file() and (work / "nerf-gt16" / "curves.csv").is_file()
     again = _run(out, work, "data")  # the dataset is kept between calls
     assert again.returncode == 0 and "is there" in (out / "summary.txt").read_text()
+
+
+def test_the_default_spike_method_trains_and_profiles_in_its_own_run(tmp_path: Path) -> None:
+    out, work = tmp_path / "out", tmp_path / "work"
+    done = _run(out, work, "data", "train", "profile", METHOD="spike-integral", VARIANTS="base")
+    assert done.returncode == 0, done.stdout + done.stderr
+    summary = (out / "summary.txt").read_text()
+    assert "method=spike-integral" in summary and "== profile-base: rc 0" in summary, summary
+    assert summary.count("spike-integral batch") == 2, summary  # the profile resumed the method's own run
+    assert (work / "spike-integral16" / "curves.csv").is_file()
 
 
 def test_an_unknown_part_stops_with_exit_2(tmp_path: Path) -> None:

@@ -79,7 +79,7 @@ def test_the_summed_lookup_equals_the_sum_and_skips_zero_gradients() -> None:
     got = triton_vm(planes, lines, xyz, summed=True)
     assert got.shape == (len(xyz),)
     torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
-    weights = torch.randn(len(xyz))
+    weights = torch.randn(len(xyz), device=DEVICE)
     weights[::3] = 0  # points behind an early stop: their (zero) gradient adds nothing either way
     for g, e in zip(_grads(got, weights, [planes, lines]), _grads(expected, weights, [planes, lines]),
                     strict=True):  # fmt: skip

@@ -7,17 +7,17 @@
 #
 # Parts, in order, each under its own time limit (seconds); a part that runs over is cut and marked so:
 #   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views; JOBS workers) into WORK
-#   kernels  (90)  the Triton and gather lookups against grid_sample on the GPU (tests/test_vm_triton.py,
+#   kernels  (180) the Triton and gather lookups against grid_sample on the GPU (tests/test_vm_triton.py,
 #            tests/test_vm_gather.py): run before `profile` times them
 #   lookup   (120) bench_lookup: each lookup's forward, and forward + backward, against grid_sample's, 2²⁰
 #            points, R 300; the Triton kernels at each of LAUNCHES (points x warps a program)
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
-#   train    (120) nerf-gt, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
-#   profile  (160 per variant) profile_cuda_step from that run's last step, nerf-gt at BATCH and SMALL rays,
+#   train    (120) METHOD, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
+#   profile  (160 per variant) profile_cuda_step from that run's last step, METHOD at BATCH and SMALL rays,
 #            the compiled static step (static_samples=64 static_colors=16) with each of VARIANTS (default:
 #            lookup=triton, as it is, static_visible=24, lookup=gather): ms a step, rays/s, GPU-busy share,
 #            launches and host syncs
-#   ttq      (560) the oracle's time-to-quality curve: PSNR every 20 s for 480 s of training
+#   ttq      (560) METHOD's time-to-quality curve (the oracle's by default): PSNR every 20 s for 480 s of training
 #   compile  (330) bench_compile_cache: seconds spent compiling the static step (SMALL rays, 200 steps),
 #            one graph a run against two, and with a warm cache
 # Suggested calls, most needed first (a session has about 15 minutes of device time, starts included):
@@ -26,7 +26,8 @@
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
-# keeps the dataset and the run between calls on a warm machine. Environment: DEVICE (cuda), SIZE (400),
+# keeps the dataset and the run between calls on a warm machine. Environment: METHOD (nerf-gt; spike-integral
+# is the default spike method), DEVICE (cuda), SIZE (400),
 # JOBS (8), BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), WARMUP/STEPS/PSTEPS
 # (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), LAUNCHES (64x4,32x4,64x8,128x8),
 # VARIANTS (the profile's field options,
@@ -39,7 +40,8 @@ DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-40
 COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
 PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8} LAUNCHES=${LAUNCHES:-64x4,32x4,64x8,128x8}
 VARIANTS=${VARIANTS:-lookup=triton base static_visible=24 lookup=gather}
-DATA=$WORK/orbs$SIZE RUN=$WORK/gt$SIZE
+METHOD=${METHOD:-nerf-gt}
+DATA=$WORK/orbs$SIZE RUN=$WORK/$METHOD$SIZE
 STATIC=(--field-option static_samples=64 --field-option static_colors=16)
 mkdir -p "$OUT" "$WORK"
 SUMMARY=$OUT/summary.txt
@@ -61,7 +63,7 @@ part() {
   return 0
 }
 
-note "gpu_check $(date -u +%FT%TZ) device=$DEVICE size=$SIZE batch=$BATCH iters=$ITERS compile='$COMPILE'"
+note "gpu_check $(date -u +%FT%TZ) method=$METHOD device=$DEVICE size=$SIZE batch=$BATCH iters=$ITERS compile='$COMPILE'"
 note "$($PYTHON -c 'import torch; print("torch", torch.__version__, "cuda", torch.cuda.is_available(),
   torch.cuda.get_device_name() if torch.cuda.is_available() else "")' 2>&1)"
 for name in "$@"; do
@@ -71,7 +73,7 @@ for name in "$@"; do
       part data 150 "^wrote" "$PYTHON" -m spikenerf simulate --scene analytic-orbs --width "$SIZE" \
         --height "$SIZE" --color gray --jobs "$JOBS" --out "$DATA" ;;
     kernels)
-      part kernels 90 "passed|failed|error" "$PYTHON" -m pytest -p no:cacheprovider \
+      part kernels 180 "passed|failed|error" "$PYTHON" -m pytest -p no:cacheprovider \
         tests/test_vm_triton.py tests/test_vm_gather.py ;;
     lookup)
       part lookup 120 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" \
@@ -82,7 +84,7 @@ for name in "$@"; do
         tests/test_integral.py tests/test_learned_targets.py tests/test_train_device.py ;;
     train)
       rm -rf "$RUN"
-      part train 120 "^trained" "$PYTHON" -m spikenerf train "$DATA" --method nerf-gt --batch "$BATCH" \
+      part train 120 "^trained" "$PYTHON" -m spikenerf train "$DATA" --method "$METHOD" --batch "$BATCH" \
         --iters "$ITERS" --eval-every 250 --eval-views 8 --quiet --device "$DEVICE" --out "$RUN"
       [ -f "$RUN/curves.csv" ] && note "$(cat "$RUN/curves.csv")" ;;
     profile)
@@ -90,12 +92,12 @@ for name in "$@"; do
         extra=()
         [ "$variant" != base ] && extra=(--field-option "$variant")
         part "profile-${variant//=/-}" 160 "ms/step" "$PYTHON" -m benchmarks.tools.profile_cuda_step "$DATA" \
-          --device "$DEVICE" --methods nerf-gt --start "nerf-gt=$RUN" --batches "$BATCH,$SMALL" \
+          --device "$DEVICE" --methods "$METHOD" --start "$METHOD=$RUN" --batches "$BATCH,$SMALL" \
           --warmup "$WARMUP" --steps "$STEPS" --profile-steps "$PSTEPS" $COMPILE "${STATIC[@]}" ${extra[@]+"${extra[@]}"}
       done ;;
     ttq)
       part ttq 560 "^\|" "$PYTHON" -m benchmarks.experiments.bench_time_to_quality \
-        --dataset "$DATA" --device "$DEVICE" --jobs 1 --runs nerf-gt:40000 --batch "$BATCH" --budget 480 \
+        --dataset "$DATA" --device "$DEVICE" --jobs 1 --runs "$METHOD:40000" --batch "$BATCH" --budget 480 \
         --wall-limit 540 --eval-seconds 20 --thresholds 28,30 --csv "$OUT/ttq.csv" ;;
     compile)
       part compile 330 "compil|step" "$PYTHON" -m benchmarks.tools.bench_compile_cache --dataset "$DATA" \
