@@ -53,12 +53,16 @@ def test_the_parts_run_on_a_cpu_and_write_their_summary(tmp_path: Path) -> None:
 
 def test_the_default_spike_method_trains_and_profiles_in_its_own_run(tmp_path: Path) -> None:
     out, work = tmp_path / "out", tmp_path / "work"
-    done = _run(out, work, "data", "train", "profile", METHOD="spike-integral", VARIANTS="base")
+    done = _run(out, work, "data", "train", "fast", "profile", METHOD="spike-integral", VARIANTS="base",
+                LOOKUP="auto")  # fmt: skip
     assert done.returncode == 0, done.stdout + done.stderr
     summary = (out / "summary.txt").read_text()
     assert "method=spike-integral" in summary and "== profile-base: rc 0" in summary, summary
     assert summary.count("spike-integral batch") == 2, summary  # the profile resumed the method's own run
+    assert "== fast: rc 0" in summary and summary.count("trained 10 iterations") == 2, summary
     assert (work / "spike-integral16" / "curves.csv").is_file()
+    fast = (work / "spike-integral16-fast" / "config.yaml").read_text()
+    assert "static_samples: 64" in fast and "lookup: auto" in fast, fast
 
 
 def test_an_unknown_part_stops_with_exit_2(tmp_path: Path) -> None:

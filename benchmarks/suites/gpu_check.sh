@@ -17,18 +17,23 @@
 #            the compiled static step (static_samples=64 static_colors=16) with each of VARIANTS (default:
 #            lookup=triton, as it is, static_visible=24, lookup=gather): ms a step, rays/s, GPU-busy share,
 #            launches and host syncs
+#   fast     (300) METHOD trained as `train` does with the fast GPU recipe: COMPILE, the static budget
+#            (static_samples=64 static_colors=16) and lookup=LOOKUP (triton), compiling included in its
+#            seconds; its test PSNR against `train`'s is what a default needs
 #   ttq      (560) METHOD's time-to-quality curve (the oracle's by default): PSNR every 20 s for 480 s of training
 #   compile  (330) bench_compile_cache: seconds spent compiling the static step (SMALL rays, 200 steps),
 #            one graph a run against two, and with a warm cache
-# Suggested calls, most needed first (a session has about 15 minutes of device time, starts included):
-# VARIANTS="lookup=triton base" with `data kernels lookup train profile` (limits 800 s in all; a part cut
-# by the call's end is lost, the ones before it are in OUT), then `tests`, then the other VARIANTS with `compile`, or `ttq`.
+# Suggested calls, most needed first (a session has about 15 minutes of device time, starts included; a
+# part cut by the call's end is lost, the ones before it are in OUT): METHOD=spike-integral
+# VARIANTS="lookup=triton base" with `data kernels train fast profile`, then `tests`, then
+# VARIANTS="lookup=triton static_visible=24" with `profile compile`, or `ttq` (docs/performance.md).
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)
 # keeps the dataset and the run between calls on a warm machine. Environment: METHOD (nerf-gt; spike-integral
 # is the default spike method), DEVICE (cuda), SIZE (400),
-# JOBS (8), BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), WARMUP/STEPS/PSTEPS
+# JOBS (8), BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), LOOKUP
+# (the `fast` part's lookup: triton), WARMUP/STEPS/PSTEPS
 # (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), LAUNCHES (64x4,32x4,64x8,128x8),
 # VARIANTS (the profile's field options,
 # `base` for none), PYTHON (python). The CPU test runs `data train profile` at a tiny size
@@ -38,7 +43,7 @@ OUT=${1:?usage: gpu_check.sh OUT PART...}
 shift
 DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-4096} ITERS=${ITERS:-2000}
 COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
-PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8} LAUNCHES=${LAUNCHES:-64x4,32x4,64x8,128x8}
+PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8} LOOKUP=${LOOKUP:-triton} LAUNCHES=${LAUNCHES:-64x4,32x4,64x8,128x8}
 VARIANTS=${VARIANTS:-lookup=triton base static_visible=24 lookup=gather}
 METHOD=${METHOD:-nerf-gt}
 DATA=$WORK/orbs$SIZE RUN=$WORK/$METHOD$SIZE
@@ -87,6 +92,12 @@ for name in "$@"; do
       part train 120 "^trained" "$PYTHON" -m spikenerf train "$DATA" --method "$METHOD" --batch "$BATCH" \
         --iters "$ITERS" --eval-every 250 --eval-views 8 --quiet --device "$DEVICE" --out "$RUN"
       [ -f "$RUN/curves.csv" ] && note "$(cat "$RUN/curves.csv")" ;;
+    fast)
+      rm -rf "$RUN-fast"
+      part fast 300 "^trained" "$PYTHON" -m spikenerf train "$DATA" --method "$METHOD" --batch "$BATCH" \
+        --iters "$ITERS" --eval-every 250 --eval-views 8 --quiet --device "$DEVICE" --out "$RUN-fast" \
+        $COMPILE "${STATIC[@]}" --field-option "lookup=$LOOKUP"
+      [ -f "$RUN-fast/curves.csv" ] && note "$(cat "$RUN-fast/curves.csv")" ;;
     profile)
       for variant in $VARIANTS; do
         extra=()
@@ -103,7 +114,7 @@ for name in "$@"; do
       part compile 330 "compil|step" "$PYTHON" -m benchmarks.tools.bench_compile_cache --dataset "$DATA" \
         --device "$DEVICE" --batch "$SMALL" --static-samples 64 ;;
     *)
-      note "== $name: unknown part (data kernels lookup tests train profile ttq compile)"
+      note "== $name: unknown part (data kernels lookup tests train fast profile ttq compile)"
       exit 2 ;;
   esac
 done
