@@ -28,6 +28,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
+from spikenerf.fields.row_buckets import bucket_rows, bucketing, pad_rows
 from spikenerf.fields.vm_gather import MAT, VEC, gather_vm
 from spikenerf.fields.vm_kernel import cpu_has, usable, vm_lookup
 from spikenerf.fields.vm_triton import applies, triton_vm, why_not
@@ -79,11 +80,14 @@ class GridFieldConfig:
             (``fields/vm_gather.py``): the same values, as ops that ``torch.compile`` can fuse with its
             backward (slower on a CPU). "triton": the Triton kernels of ``fields/vm_triton.py`` on CUDA
             (training refuses a device they cannot run on; elsewhere, e.g. ``eval`` on a CPU, "auto").
-            Neither of the last two is measured on a GPU yet.
+            On an H200 a "triton" lookup ran 5–7× as fast as ``grid_sample`` and a "gather" one 3–6× as
+            slow (docs/performance.md).
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
             GPU with bf16); float32 elsewhere, and everywhere with ``False`` (the default before issue 9).
+            On a CPU its rows are padded to a bucket (``fields/row_buckets.py``): oneDNN builds a bf16
+            kernel for each new row count, which cost more than the products themselves.
         occupancy / occupancy_*: the occupancy grid is rebuilt at ``occupancy_start`` and every
             ``occupancy_every`` steps after (and after each upsampling once started); cells whose one-step
             opacity is below ``occupancy_threshold`` are skipped; its resolution is
@@ -354,10 +358,15 @@ class GridField(Field):
         """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3)."""
         feats = self._vm(self.app_planes, self.app_lines, xyz_norm)
         view = positional_encoding(dirs, self.config.view_freqs)
+        m = feats.shape[0]
+        feats = feats.reshape(m, -1)
         with _low_precision(xyz_norm.device, self.config.decoder_bf16):
-            feats = self.basis(feats.reshape(feats.shape[0], -1))
+            if bucketing(xyz_norm.device):  # bf16 on a CPU: rows padded to a bucket (fields/row_buckets.py)
+                rows = bucket_rows(m)
+                feats, view = pad_rows(feats, rows, torch.bfloat16), pad_rows(view, rows, torch.bfloat16)
+            feats = self.basis(feats)
             logit = self.decoder(torch.cat([feats, view.to(feats.dtype)], dim=-1))
-        return torch.sigmoid(logit.float())
+        return torch.sigmoid(logit[:m].float())
 
     def _vm(self, planes: Tensor, lines: Tensor, xyz_norm: Tensor) -> Tensor:
         """VM products (M, 3, C) by ``lookup``: index gathers ("gather"), the Triton kernels ("triton", where
