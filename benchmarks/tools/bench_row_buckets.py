@@ -6,13 +6,13 @@ Usage (from the repository root)::
     .venv/bin/python -m benchmarks.tools.bench_row_buckets [--rows 69836] [--calls 40] [--rounds 3]
         [--threads 2] [--dtype bf16]
 
-Each call runs the colour decoder of a default grid field (appearance basis, three layers) forward and
-backward on ``rows`` + a different small offset of rows each call (as the sample count of a render changes),
-as training does it (``GridField.color_norm``'s products under CPU autocast for ``bf16``). Three ways,
-interleaved, ``--rounds`` rounds of ``--calls`` calls (the first call of a way in a round untimed):
-``changing`` (the rows as they come), ``bucketed`` (padded to :func:`bucket_rows`) and ``fixed`` (always
-``rows``: the floor, no kernel ever built twice). Printed: median ms a call of each, and the ratio of
-``changing`` to ``bucketed`` (above 1: the buckets are faster).
+Each call runs the colour decoder of a default grid field (``GridField``'s own appearance basis and
+three layers) forward and backward on ``rows`` + a different small offset of rows each call (as the
+sample count of a render changes), as training does it (``GridField.color_norm``'s products under CPU
+autocast for ``bf16``). Three ways, interleaved, ``--rounds`` rounds of ``--calls`` calls (the first
+call of a way in a round untimed): ``changing`` (the rows as they come), ``bucketed`` (padded by
+:func:`pad_to_bucket`) and ``fixed`` (always ``rows``: the floor, no kernel ever built twice). Printed:
+median ms a call of each, and the ratio of ``changing`` to ``bucketed`` (above 1: the buckets are faster).
 """
 
 from __future__ import annotations
@@ -25,32 +25,27 @@ from contextlib import nullcontext
 import torch
 from torch import Tensor, nn
 
-from spikenerf.fields.grid import GridFieldConfig
-from spikenerf.fields.row_buckets import bucket_rows, pad_rows
+from spikenerf.fields.encoding import encoded_size
+from spikenerf.fields.grid import GridField, GridFieldConfig
+from spikenerf.fields.row_buckets import pad_to_bucket
 
 WAYS = ("changing", "bucketed", "fixed")
 
 
-def decoder(cfg: GridFieldConfig, channels: int = 1) -> tuple[nn.Module, nn.Module]:
-    """A grid field's appearance basis and decoder, as ``GridField`` builds them (view encoding of 15)."""
-    basis = nn.Linear(3 * cfg.app_components, cfg.app_dim, bias=False)
-    layers = nn.Sequential(
-        nn.Linear(cfg.app_dim + 15, cfg.hidden), nn.ReLU(inplace=True),
-        nn.Linear(cfg.hidden, cfg.hidden), nn.ReLU(inplace=True), nn.Linear(cfg.hidden, channels),
-    )  # fmt: skip
-    return basis, layers
+def decoder(channels: int = 1) -> tuple[nn.Module, nn.Module, int]:
+    """A default grid field's appearance basis and decoder, and its view encoding's width."""
+    field = GridField(channels, torch.tensor([[-1.0] * 3, [1.0] * 3]), GridFieldConfig())
+    return field.basis, field.decoder, encoded_size(3, field.config.view_freqs)
 
 
 def one_call(
     basis: nn.Module, layers: nn.Module, feats: Tensor, view: Tensor, bucket: bool, low: bool
 ) -> None:
-    """Forward and backward of the decoder on ``feats`` (M, 3C) and ``view`` (M, 15)."""
+    """Forward and backward of the decoder on ``feats`` (M, 3C) and the view encoding ``view`` (M, V)."""
     m = feats.shape[0]
     with torch.autocast("cpu", torch.bfloat16) if low else nullcontext():
         if bucket:
-            rows = bucket_rows(m)
-            dtype = torch.bfloat16 if low else feats.dtype
-            feats, view = pad_rows(feats, rows, dtype), pad_rows(view, rows, dtype)
+            feats, view = pad_to_bucket((feats, view), torch.bfloat16 if low else feats.dtype)
         logit = layers(torch.cat([basis(feats), view.to(feats.dtype)], dim=-1))
     logit[:m].float().sum().backward()
 
@@ -66,11 +61,11 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     cfg = GridFieldConfig()
-    basis, layers = decoder(cfg)
+    basis, layers, width = decoder()
     low = args.dtype == "bf16"
     top = args.rows + 7 * (args.calls + 1) * args.rounds * len(WAYS)
     feats = torch.randn(top, 3 * cfg.app_components, requires_grad=True)
-    view = torch.randn(top, 15)
+    view = torch.randn(top, width)
     times: dict[str, list[float]] = {way: [] for way in WAYS}
     offset = 0
     for _ in range(args.rounds):

@@ -28,7 +28,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
-from spikenerf.fields.row_buckets import bucket_rows, bucketing, pad_rows
+from spikenerf.fields.row_buckets import bucketing, pad_to_bucket
 from spikenerf.fields.vm_gather import MAT, VEC, gather_vm
 from spikenerf.fields.vm_kernel import cpu_has, usable, vm_lookup
 from spikenerf.fields.vm_triton import applies, triton_vm, why_not
@@ -362,8 +362,7 @@ class GridField(Field):
         feats = feats.reshape(m, -1)
         with _low_precision(xyz_norm.device, self.config.decoder_bf16):
             if bucketing(xyz_norm.device):  # bf16 on a CPU: rows padded to a bucket (fields/row_buckets.py)
-                rows = bucket_rows(m)
-                feats, view = pad_rows(feats, rows, torch.bfloat16), pad_rows(view, rows, torch.bfloat16)
+                feats, view = pad_to_bucket((feats, view), torch.bfloat16)
             feats = self.basis(feats)
             logit = self.decoder(torch.cat([feats, view.to(feats.dtype)], dim=-1))
         return torch.sigmoid(logit[:m].float())

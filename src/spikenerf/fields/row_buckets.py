@@ -50,3 +50,9 @@ def pad_rows(x: Tensor, rows: int, dtype: torch.dtype) -> Tensor:
     out[m:].zero_()
     out[:m] = x
     return out
+
+
+def pad_to_bucket(tensors: tuple[Tensor, ...], dtype: torch.dtype) -> tuple[Tensor, ...]:
+    """Each (M, K_i) tensor of ``tensors`` (one M) padded by :func:`pad_rows` to :func:`bucket_rows` (M)."""
+    rows = bucket_rows(tensors[0].shape[0])
+    return tuple(pad_rows(t, rows, dtype) for t in tensors)
