@@ -31,6 +31,7 @@ from spikenerf.fields.occupancy import OccupancyGrid
 from spikenerf.fields.row_buckets import bucketing, pad_to_bucket
 from spikenerf.fields.vm_gather import MAT, VEC, gather_vm
 from spikenerf.fields.vm_kernel import cpu_has, usable, vm_lookup
+from spikenerf.fields.vm_lattice import vm_lattice_sum
 from spikenerf.fields.vm_triton import applies, triton_vm, why_not
 
 FACTORS = ("density_planes", "density_lines", "app_planes", "app_lines")
@@ -351,8 +352,17 @@ class GridField(Field):
 
     def density_norm(self, xyz_norm: Tensor) -> Tensor:
         """Density per world unit (M,) at normalised points (M, 3)."""
-        raw = self._vm_sum(self.density_planes, self.density_lines, xyz_norm)
+        return self._density_of(self._vm_sum(self.density_planes, self.density_lines, xyz_norm))
+
+    def _density_of(self, raw: Tensor) -> Tensor:
+        """Density per world unit from the summed VM lookups (any shape)."""
         return self.config.distance_scale * F.softplus(raw + self.config.density_shift)
+
+    def density_lattice(self, coords: Tensor) -> Tensor:
+        """Density per world unit (G, G, G) at every point of the lattice ``coords``³ ((G,) normalised
+        coordinates, index order x, y, z): :meth:`density_norm`'s values there, computed by separable
+        interpolation (``fields/vm_lattice.py``) instead of G³ lookups."""
+        return self._density_of(vm_lattice_sum(self.density_planes, self.density_lines, coords))
 
     def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
         """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3)."""
@@ -418,8 +428,10 @@ class GridField(Field):
 
     @torch.no_grad()
     def update_occupancy(self) -> float:
-        """Rebuild the occupancy grid from the current density; returns the occupied fraction."""
-        return self.occupancy.update(self.density_norm, self.step_size, self.config.occupancy_threshold)
+        """Rebuild the occupancy grid from the current density at its cell centres; returns the occupied
+        fraction."""
+        sigma = self.density_lattice(self.occupancy.axis_centres())
+        return self.occupancy.update_from(sigma, self.step_size, self.config.occupancy_threshold)
 
     def on_step(self, step: int) -> bool:
         """Run the schedules after ``step`` completed optimiser steps; True if parameter shapes changed.
