@@ -65,6 +65,14 @@ def test_the_default_spike_method_trains_and_profiles_in_its_own_run(tmp_path: P
     assert "static_samples: 64" in fast and "lookup: auto" in fast, fast
 
 
+def test_the_occupancy_part_times_both_ways(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    done = _run(out, tmp_path / "work", "occupancy")
+    assert done.returncode == 0, done.stdout + done.stderr
+    summary = (out / "summary.txt").read_text()
+    assert "== occupancy: rc 0" in summary and "points / lattice:" in summary, summary
+
+
 def test_an_unknown_part_stops_with_exit_2(tmp_path: Path) -> None:
     done = _run(tmp_path / "out", tmp_path / "work", "everything")
     assert done.returncode == 2 and "unknown part" in done.stdout

@@ -109,3 +109,22 @@ def test_update_from_rejects_a_density_of_another_shape() -> None:
     grid = OccupancyGrid(4)
     with pytest.raises(ValueError, match="sigma"):
         grid.update_from(torch.ones(4, 4, 5), step_size=0.1)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_a_cuda_update_builds_the_grid_the_cpu_update_builds() -> None:
+    torch.manual_seed(2)
+    field = GridField(
+        1, torch.tensor([[-1.0] * 3, [1.0] * 3]), GridFieldConfig(n_voxels_init=24**3, n_voxels_final=24**3)
+    )
+    with torch.no_grad():
+        field.density_planes.mul_(20.0)
+        want = field.density_norm(field.occupancy.cell_centres())
+        field.update_occupancy()
+        on_gpu = field.to("cuda")
+        got = on_gpu.density_lattice(on_gpu.occupancy.axis_centres())
+        cpu_grid = field.occupancy.grid.clone()
+        on_gpu.update_occupancy()
+    torch.testing.assert_close(got.cpu().reshape(-1), want, rtol=1e-4, atol=1e-4)
+    assert torch.equal(on_gpu.occupancy.grid.cpu(), cpu_grid)

@@ -12,6 +12,7 @@
 #   lookup   (120) bench_lookup: each lookup's forward, and forward + backward, against grid_sample's, 2²⁰
 #            points, R 300; the Triton kernels at each of LAUNCHES (points x warps a program)
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
+#   occupancy (60) bench_occupancy: an occupancy update on the lattice against the point lookups, R 300, G 128
 #   train    (120) METHOD, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
 #   profile  (160 per variant) profile_cuda_step from that run's last step, METHOD at BATCH and SMALL rays,
 #            the compiled static step (static_samples=64 static_colors=16) with each of VARIANTS (default:
@@ -86,7 +87,10 @@ for name in "$@"; do
     tests)
       part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
-        tests/test_integral.py tests/test_learned_targets.py tests/test_train_device.py ;;
+        tests/test_integral.py tests/test_learned_targets.py tests/test_train_device.py tests/test_vm_lattice.py ;;
+    occupancy)
+      part occupancy 60 "^R |ms|points /" "$PYTHON" -m benchmarks.tools.bench_occupancy --device "$DEVICE" \
+        --resolution 300 --cells 128 ;;
     train)
       rm -rf "$RUN"
       part train 120 "^trained" "$PYTHON" -m spikenerf train "$DATA" --method "$METHOD" --batch "$BATCH" \
@@ -114,7 +118,7 @@ for name in "$@"; do
       part compile 330 "compil|step" "$PYTHON" -m benchmarks.tools.bench_compile_cache --dataset "$DATA" \
         --device "$DEVICE" --batch "$SMALL" --static-samples 64 ;;
     *)
-      note "== $name: unknown part (data kernels lookup tests train fast profile ttq compile)"
+      note "== $name: unknown part (data kernels lookup tests occupancy train fast profile ttq compile)"
       exit 2 ;;
   esac
 done
