@@ -270,6 +270,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-fopt-voxels-3", [*T, "--field-option", "n_voxels_init=3", "--out", f"{R}/o"], "n_voxels_init"),
     ("train-fopt-occupancy-0", [*T, "--field-option", "occupancy_every=0", "--out", f"{R}/o"],
      "occupancy_every"),
+    ("train-fopt-occupancy-grid-0", [*T, "--field-option", "occupancy_max_resolution=0", "--out", f"{R}/o"],
+     "occupancy_max_resolution"),
     ("train-set-lr-ratio-neg", [*T, "--set", "lr_final_ratio=-1", "--out", f"{R}/o"], "lr_final_ratio"),
     ("train-set-lr-ratio-nan", [*T, "--set", "lr_final_ratio=.nan", "--out", f"{R}/o"], "lr_final_ratio"),
     ("train-set-mask-n-0", [*T, "--set", "targets.mask_n=0", "--out", f"{R}/o"], "mask"),

@@ -112,7 +112,7 @@ class GridFieldConfig:
         "static_samples": _LEAST0,
         "static_colors": _LEAST0, "static_visible": _LEAST0,
         "occupancy_start": _LEAST0, "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
-        "occupancy_max_resolution": _LEAST0,
+        "occupancy_max_resolution": Bound(least=1),
         "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1), "batch_rays": _ABOVE0,
         "l1_weight": _LEAST0, "tv_density": _LEAST0, "tv_app": _LEAST0,
         "tv_every": Bound(least=1), "iterations": _ABOVE0,
