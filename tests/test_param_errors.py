@@ -26,9 +26,13 @@ def test_a_lower_layer_error_names_the_parameter() -> None:
     assert err.value.params == ("blur_views",)
     config = TrainConfig(dataset="d")
     config.spike.lam = -1.0
-    with pytest.raises(InputError, match=r"^spike\.lam and eval_every must be ≥ 0") as err:
+    with pytest.raises(InputError, match=r"^spike\.lam must be a finite number ≥ 0") as err:
         config.validate()
-    assert err.value.params == ("spike.lam", "eval_every") and "--" not in str(err.value)
+    assert err.value.params == ("spike.lam",) and "--" not in str(err.value)
+    config = TrainConfig(dataset="d", eval_every=-1)
+    with pytest.raises(InputError, match=r"^eval_every must be ≥ 0, found -1") as err:  # only the bad one
+        config.validate()
+    assert err.value.params == ("eval_every",)
 
 
 def test_the_cli_prints_the_flag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

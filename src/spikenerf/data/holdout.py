@@ -108,12 +108,14 @@ class Holdout:
 
 
 def checked(holdout: Holdout, trainable: int, what: str) -> None:
-    """InputError naming ``holdout_radius`` when the bands leave nothing of ``what`` to train on."""
+    """InputError naming ``holdout_radius`` and ``holdout_steps`` when the bands leave nothing of ``what`` to
+    train on."""
     if trainable < 1:
         raise InputError(
             f"holdout_radius {holdout.radius} around {len(holdout.steps)} check steps leaves no {what} of "
-            f"the {holdout.total} steps to train on; lower it or turn the hold-out off",
-            param="holdout_radius",
+            f"the {holdout.total} steps to train on; lower it, check fewer holdout_steps or turn the "
+            "hold-out off",
+            param=("holdout_radius", "holdout_steps"),
         )
 
 

@@ -195,8 +195,9 @@ class SpikeLossConfig:
     """
 
     BOUNDS: ClassVar[dict[str, Bound]] = {
-        "warmup_iters": Bound(least=0), "ramp_iters": Bound(least=0), "window": Bound(least=1),
-        "pixels": Bound(least=1), "every": Bound(least=1), "paper_warmup": Bound(least=0),
+        "lam": Bound(least=0), "warmup_iters": Bound(least=0), "ramp_iters": Bound(least=0),
+        "window": Bound(least=1), "pixels": Bound(least=1), "every": Bound(least=1),
+        "paper_warmup": Bound(least=0),
     }  # fmt: skip
 
     enabled: bool = True
@@ -254,7 +255,8 @@ class TrainConfig:
 
     BOUNDS: ClassVar[dict[str, Bound]] = {
         "iters": Bound(least=1), "batch": Bound(least=1), "lr": Bound(above=0),
-        "lr_final_ratio": Bound(above=0, most=1), "eval_views": Bound(least=0), "ckpt_every": Bound(least=1),
+        "lr_final_ratio": Bound(above=0, most=1), "eval_every": Bound(least=0), "eval_views": Bound(least=0),
+        "ckpt_every": Bound(least=1),
         "log_every": Bound(least=1), "holdout_steps": Bound(least=1), "holdout_radius": Bound(least=0),
     }  # fmt: skip
 
@@ -289,11 +291,6 @@ class TrainConfig:
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
         check_config(self)  # types, finite floats and every BOUNDS, naming the key
-        if self.spike.lam < 0 or self.eval_every < 0:
-            raise InputError(
-                f"spike.lam and eval_every must be ≥ 0, found {self.spike.lam}, {self.eval_every}",
-                param=("spike.lam", "eval_every"),
-            )
         if self.targets.window < 1 or self.targets.window % 2 == 0:
             raise InputError(
                 f"targets.window must be an odd number of frames, found {self.targets.window}",
