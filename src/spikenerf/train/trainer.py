@@ -169,14 +169,19 @@ def check_train_resources(config: TrainConfig, dataset: SpikeDataset, out: Path)
     cache) exceeds the machine's."""
     k, steps = dataset.intrinsics, len(dataset.trajectory)
     method = make_method(config)
+    if method.uses_spike_loss and config.spike.window > steps:  # before its memory: the clearer complaint
+        raise InputError(
+            f"spike.window: a {config.spike.window}-step window exceeds the {steps} recorded steps",
+            param="spike.window",
+        )
     targets = float(steps) * k.height * k.width * method.channels * 10 if method.uses_stream else 0.0
     params, per_ray, ckpt = field_memory(config.field, model_config(config))
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     rays = (config.rays_per_step() + spike_rays) * per_ray
     cache = float(steps) * k.height * k.width * method.channels * 2 if learned_cache(method) else 0
-    check_resources(
-        targets + params + rays, 2 * ckpt + cache, out, "batch" if rays >= params else "field_config"
-    )
+    sizes = "batch/spike.window/spike.pixels" if spike_rays else "batch"
+    sizes = sizes if rays >= params else "field_config"
+    check_resources(targets + params + rays, 2 * ckpt + cache, out, sizes)
 
 
 def check_step_memory(
