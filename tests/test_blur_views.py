@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from spikenerf.capture.blur import RunningExposures, blur_windows, check_blur_views
+from spikenerf.capture.blur import RunningExposures, blur_window_count, blur_windows, check_blur_views
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
@@ -37,6 +37,21 @@ def test_windows_all_frames_and_n() -> None:
     assert [(a + b) // 2 for a, b in four] == [125, 375, 625, 875]  # centres floor((j + 0.5)·T/N)
     assert blur_windows(1000, 40000, 400, 1000) == every
     assert blur_windows(10, 40000, 0, "all") == []
+
+
+@pytest.mark.parametrize("views", ["frames", "all", 7, "3"])
+@pytest.mark.parametrize(("steps", "blur_fps"), [(1000, 400), (999, 400), (40, 4000), (10, 0), (7, 40000)])
+def test_window_count_is_the_list_length_without_the_list(
+    views: str | int, steps: int, blur_fps: float
+) -> None:
+    windows = blur_windows(steps, 40000, blur_fps, views)
+    assert blur_window_count(steps, 40000, blur_fps, views) == len(windows)
+
+
+def test_window_count_of_a_huge_stream_is_instant() -> None:
+    assert blur_window_count(10**11, 40000, 400, "frames") == 10**9  # no list of a billion windows
+    with pytest.raises(InputError, match="blur_fps"):
+        blur_window_count(100, 400, 4000, "frames")
 
 
 @pytest.mark.parametrize("views", ["frames", "all", 7])

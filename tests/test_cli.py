@@ -5,8 +5,11 @@ from __future__ import annotations
 import subprocess
 import sys
 import typing
+from pathlib import Path
 
-from spikenerf.cli import SUBCOMMANDS, main
+import pytest
+
+from spikenerf.cli import OUT_OF_MEMORY, SUBCOMMANDS, main
 from spikenerf.core.errors import InputError
 
 
@@ -74,3 +77,35 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
         tuple(choices("train", "method")) == TRAIN_METHODS
         and tuple(choices("train", "color")) == TRAIN_COLORS
     )
+
+
+@pytest.mark.parametrize(
+    ("raised", "one_line"),
+    [
+        (
+            RuntimeError("[enforce fail at alloc_cpu.cpp:127] DefaultCPUAllocator: can't allocate memory"),
+            True,
+        ),
+        (RuntimeError("CUDA out of memory. Tried to allocate 2.00 GiB"), True),
+        (MemoryError(), True),
+        (RuntimeError("an internal bug"), False),
+    ],
+)
+def test_a_failed_allocation_is_one_line_and_a_bug_is_not_hidden(
+    capsys, monkeypatch, tmp_path: Path, raised: BaseException, one_line: bool
+) -> None:
+    import spikenerf.core.device
+
+    def fail(name: str = "auto"):
+        raise raised
+
+    monkeypatch.setattr(spikenerf.core.device, "resolve_device", fail)
+    if not one_line:
+        with pytest.raises(RuntimeError, match="internal bug"):
+            main(["demo", "--out", str(tmp_path / "d")])
+        return
+    with pytest.raises(SystemExit) as exit_:
+        main(["demo", "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.strip() == f"spikenerf: error: {OUT_OF_MEMORY}"
+    assert not (tmp_path / "d").exists()

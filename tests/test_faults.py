@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 import pickle
+import re
 import shutil
 import time
 from pathlib import Path
@@ -132,8 +133,30 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
     shutil.copytree(root / "ds", json_ds)
     (json_ds / "transforms.json").write_text('{"frames": 3}')
     _round_two(root)
+    _round_three(root)
     PWNED[0] = str(root / "PWNED")
     return root
+
+
+def _round_three(root: Path) -> None:
+    """The CLI sweep's cases: damaged curves and run configs, a frame step past 64 bits, a user's image."""
+    for name, change in (("bad_curves_run", ("curves.csv", "a,b\n1,2,3\n")),
+                         ("neg_iters_run", ("config.yaml", None))):  # fmt: skip
+        (root / name).mkdir()
+        for file in ("checkpoint.pt", "config.yaml", "curves.csv"):
+            shutil.copy(root / "run" / file, root / name / file)
+        if change[1] is not None:
+            (root / name / change[0]).write_text(change[1])
+    config = root / "neg_iters_run" / "config.yaml"
+    config.write_text(re.sub(r"(?m)^iters: .*$", "iters: -5", config.read_text()))
+    data = json.loads((root / "ds" / "transforms.json").read_text())
+    for i, frame in enumerate(data["frames"]):
+        frame["step"] = 10**30 if i == 1 else i
+    (root / "huge_step.json").write_text(json.dumps(data))
+    (root / "mine.png").write_bytes(b"the user's own picture")
+    (root / "no_config_run").mkdir()
+    for file in (".spikenerf", "checkpoint.pt"):
+        shutil.copy(root / "run" / file, root / "no_config_run" / file)
 
 
 def _round_two(root: Path) -> None:
@@ -413,6 +436,34 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-resume-resimulated", [*T, "--resume", "--out", f"{R}/run_resim"], "files changed"),
     ("eval-resimulated", ["eval", f"{R}/run_resim", "--device", "cpu"], "files changed"),
     ("train-resume-iters-below", [*T, "--resume", "--iters", "1", "--out", f"{R}/run"], "--iters"),
+    # the CLI sweep: refused up front in one line, nothing half-written, no traceback
+    ("sim-frames-huge", [*SIM, "--frames", "100000000000", "--out", f"{R}/o"], "--frames"),
+    ("sim-elevation-huge", [*SIM, "--elevation", "1e308", "--out", f"{R}/o"], "--elevation"),
+    ("sim-turns-huge", [*SIM, "--turns", "1e308", "--out", f"{R}/o"], "--turns"),
+    ("import-orbit-turns-overflow", [*IMP, "--orbit", "4,30,1e308", "--out", f"{R}/o"], "--orbit"),
+    ("import-orbit-elevation-big", [*IMP, "--orbit", "4,1e308", "--out", f"{R}/o"], "--orbit"),
+    ("import-step-huge", [*IMP[:3], f"{R}/huge_step.json", *IMP[6:], "--out", f"{R}/o"], "frames[1].step"),
+    ("info-bad-curves", ["info", f"{R}/bad_curves_run"], "curves.csv"),
+    ("info-run-config-value", ["info", f"{R}/neg_iters_run"], "config.yaml: iters"),
+    ("render-run-config-value", ["render", f"{R}/neg_iters_run", "--out", f"{R}/o"], "config.yaml: iters"),
+    ("recon-train-lr-inf", ["recon-train", f"{R}/nope", "--lr", "inf", "--out", f"{R}/o"], "--lr"),
+    ("recon-out-existing-file", [*DAT, "--height", "16", "--width", "16", "--frame", "3",
+                                 "--out", f"{R}/mine.png"], "--overwrite"),
+    ("recon-out-in-dataset", [*DAT, "--height", "16", "--width", "16", "--frame", "3",
+                              "--out", f"{R}/ds/test/00000.png", "--overwrite"], "dataset folder"),
+    ("recon-out-in-run", [*DAT, "--height", "16", "--width", "16", "--frame", "3",
+                          "--out", f"{R}/run/x.npy"], "run folder"),
+    ("demo-device-mps", ["demo", "--quick", "--device", "mps", "--out", f"{R}/o"], "--device"),
+    ("bench-device-mps", [*B, "--device", "mps", "--out", f"{R}/o"], "--device"),
+    ("bench-set-batch-neg", [*B, "--set", "batch=-1", "--out", f"{R}/o"], "batch"),
+    ("recon-data-window-bomb", ["recon-data", "--train-draws", "1", "--val-draws", "2", "--size", "16",
+                                "--window", "99999999", "--out", f"{R}/o"], "--window"),
+    ("recon-data-draws-bomb", ["recon-data", "--train-draws", "99999999999", "--val-draws", "2",
+                               "--size", "16", "--out", f"{R}/o"], "--train-draws"),
+    ("sim-duration-negative", [*SIM[:-5], "--duration", "-1", "--out", f"{R}/o"], "--duration"),
+    ("import-keyframe-every-huge", [*IMP[:8], "--keyframe-every", "99999999999999999999", "--window", "3",
+                                    "--out", f"{R}/o"], "--keyframe-every"),
+    ("info-run-without-config", ["info", f"{R}/no_config_run"], "config.yaml"),
     # nothing created before the checks pass, not even a parent folder
     ("render-traj-garbage-deep", ["render", f"{R}/run", "--trajectory", f"{R}/garbage.json", "--device",
                                   "cpu", "--out", f"{R}/new/deeper/r"], "garbage.json"),
@@ -497,6 +548,22 @@ def test_render_into_a_used_folder_keeps_only_the_new_views(sandbox: Path, tmp_p
     assert sorted(p.name for p in (out / "images").iterdir()) == ["00000.png"]
     assert sorted(p.name for p in (out / "depth").iterdir()) == ["00000.npy", "00000.png"]
     assert not list(out.glob("*.tmp")) and not (out / "orbit.mp4").exists()
+
+
+def test_a_render_into_its_folder_keeps_the_users_files_and_drops_its_old_spikes(
+    sandbox: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "r"
+    args = ["render", sandbox / "run", "--device", "cpu", "--quiet", "--out", out]
+    _cli(*args[:2], "--trajectory", "orbit", "--orbit-frames", "3", "--spikes", *args[2:])
+    assert (out / "spikes_gray.dat").is_file() and (out / "spikes_tfp.png").is_file()
+    mine = [out / "images" / "2023_holiday.png", out / "depth" / "1notes.txt", out / "mine.mp4"]
+    for path in mine:
+        path.write_text("the user's")
+    _cli(*args)  # the test views, no spikes
+    assert all(path.read_text() == "the user's" for path in mine)
+    assert not (out / "spikes_gray.dat").exists() and not (out / "spikes_tfp.png").exists()
+    assert sorted(p.name for p in (out / "images").iterdir()) == ["00000.png", "2023_holiday.png"]
 
 
 def test_eval_removes_a_killed_writers_temporaries(sandbox: Path, tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ from spikenerf.recon.infer import predict_plane, reconstruct_learned
 from spikenerf.recon.net import NetConfig, ReconNet, load_weights, save_weights
 from spikenerf.recon.pairs import PairConfig, analytic_pairs, simulate_samples
 from spikenerf.recon.store import load_split
-from spikenerf.recon.training import ReconTrainConfig, psnr, train_recon
+from spikenerf.recon.training import ReconTrainConfig, psnr, train_memory, train_recon
 
 TINY = PairConfig(size=16, window=7, supersample=1)
 
@@ -242,3 +242,18 @@ def test_recon_resume_with_a_foreign_optimiser_state_is_an_input_error(pairs: Pa
     torch.save(data, tmp_path / "r" / "checkpoint.pt")
     with pytest.raises(InputError, match="does not fit"):
         train_recon(pairs, tmp_path / "r", _cfg(), progress=False)
+
+
+@pytest.mark.parametrize("kw", [{"batch": 10**9}, {"width": 10**5}, {"crop": 16, "batch": 10**7}])
+def test_recon_train_beyond_memory_is_refused_before_writing(pairs: Path, tmp_path: Path, kw: dict) -> None:
+    with pytest.raises(InputError, match="batch/crop/width") as err:
+        train_recon(pairs, tmp_path / "big", _cfg(**kw), progress=False)
+    assert set(err.value.params) >= {"batch", "crop", "width"}
+    assert not (tmp_path / "big").exists()
+    assert train_memory(_cfg(), 7, 20) < 64 * 2**20  # the test's own runs stay far below any machine
+
+
+def test_recon_train_refuses_a_learning_rate_that_is_not_finite() -> None:
+    for lr in (float("inf"), float("nan"), 0.0, -1.0):
+        with pytest.raises(InputError, match="lr"):
+            _cfg(lr=lr).check()

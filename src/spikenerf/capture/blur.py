@@ -73,6 +73,17 @@ def blur_windows(
     return [(max(int(a), 0), min(int(a) + size, num_steps)) for a in starts]
 
 
+def blur_window_count(num_steps: int, fps: float, blur_fps: float, views: str | int = "frames") -> int:
+    """``len(blur_windows(...))`` without building the list (the resource estimate runs it before a size
+    is known to fit)."""
+    if blur_fps <= 0:
+        return 0
+    views = check_blur_views(views, num_steps)
+    if views == "frames":
+        return -(-num_steps // exposure_length(fps, blur_fps))
+    return num_steps if views == "all" else int(views)
+
+
 class RunningExposures:
     """Mean image of every exposure window by a running sum over frames pushed in step order.
 

@@ -170,6 +170,17 @@ def _sigterm_unwinds() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+OUT_OF_MEMORY = "out of memory: lower the sizes (frames, width, height, batch, grid size)"
+
+
+def is_allocation_failure(err: BaseException) -> bool:
+    """Whether ``err`` is an allocation that failed: torch's CPU allocator ("can't allocate memory") or its
+    CUDA one (``torch.OutOfMemoryError``, "out of memory")."""
+    text = str(err)
+    named = type(err).__name__ == "OutOfMemoryError"
+    return named or "can't allocate memory" in text or "out of memory" in text
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the group; bad input (InputError, a usage error, a path the system refuses,
     an allocation that fails) → one line on stderr, exit code 2. Ctrl-C → "aborted", exit 130; SIGTERM →
@@ -196,6 +207,11 @@ def main(argv: list[str] | None = None) -> None:
         where = f"{err.filename}: " if err.filename else ""
         _fail(f"{where}{err.strerror or err}")
     except MemoryError:
-        _fail("out of memory: lower the sizes (frames, width, height, batch, grid size)")
+        _fail(OUT_OF_MEMORY)
+    # torch's allocators raise RuntimeError (CPU) or its OutOfMemoryError subclass (CUDA)
+    except RuntimeError as err:
+        if not is_allocation_failure(err):
+            raise
+        _fail(OUT_OF_MEMORY)
     except click.exceptions.Exit as err:
         sys.exit(err.exit_code)

@@ -102,9 +102,13 @@ def command(
         from spikenerf.train.config import TrainConfig, apply_overrides
 
         try:
-            TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), list(overrides)))
+            TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), list(overrides))).validate()
         except InputError as err:
             raise InputError(f"--set: {err}") from err
+    if executor != "ray":  # a Ray cluster's workers may have the device the head lacks
+        from spikenerf.core.device import resolve_device
+
+        resolve_device(device)
     cfg = BenchmarkConfig(
         scenes=resolve_scenes(scenes), variants=resolve_variants(methods), colors=colors, out=out,
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from spikenerf.cli.types import COUNT
+
 
 def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
     from spikenerf.core.errors import comma_list
@@ -22,9 +24,15 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
 )
 @click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)
 @click.option("--quick", is_flag=True, help="32 px, 200 spike steps, 200 iterations: a few minutes on a CPU.")
-@click.option("--device", default="auto", show_default=True, help="auto (GPU when present) | cpu | cuda.")
+@click.option(
+    "--device",
+    type=click.Choice(["auto", "cpu", "cuda", "mps"]),
+    default="auto",
+    show_default=True,
+    help="auto (GPU when present) | cpu | cuda | mps.",
+)
 @click.option("--size", type=int, help="Image width = height in pixels [default 64, quick 32].")
-@click.option("--iters", type=int, help="Training iterations per method [default 300, quick 200].")
+@click.option("--iters", type=COUNT, help="Training iterations per method [default 300, quick 200].")
 @click.option("--frames", type=int, hidden=True, help="Spike steps on the orbit [default 1000, quick 200].")
 @click.option("--test-views", type=int, hidden=True, help="Held-out views [default 4, quick 2].")
 @click.option("--scene", default=None, hidden=True, help="Another named scene (see simulate --list-scenes).")
@@ -34,10 +42,12 @@ def command(
     out: Path, quick: bool, device: str, size: int | None, iters: int | None, frames: int | None,
     test_views: int | None, scene: str | None, color: str, methods: str | None,
 ) -> None:  # fmt: skip
+    from spikenerf.core.device import resolve_device
     from spikenerf.pipelines.benchmark.cells import resolve_scenes
     from spikenerf.pipelines.benchmark.variants import VARIANTS
     from spikenerf.pipelines.demo import DEFAULT_SCENE, DEMO_METHODS, DemoConfig, run_demo
 
+    resolve_device(device)  # before the dataset is simulated
     cfg = DemoConfig(
         out=out, quick=quick, device=device, size=size, iters=iters, frames=frames, test_views=test_views,
         scene=resolve_scenes(scene)[0] if scene else DEFAULT_SCENE,

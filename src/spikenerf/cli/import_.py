@@ -9,6 +9,7 @@ from typing import Any
 import click
 
 from spikenerf.cli import command_line
+from spikenerf.cli.types import COUNT
 from spikenerf.core.errors import parse_range
 from spikenerf.importing.alignment import ORIENTS
 
@@ -39,7 +40,7 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
 @click.option("--threshold", type=float, help="Spike threshold φ [default: config.yaml, else 1].")
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--range", "frame_range", help="A:B, the steps of the recording to import.")
-@click.option("--keyframe-every", type=int, default=20, show_default=True, help="Steps between keyframes.")
+@click.option("--keyframe-every", type=COUNT, default=20, show_default=True, help="Steps between keyframes.")
 @click.option(
     "--window", type=int, default=21, show_default=True, help="TFP window of the keyframes (odd frames)."
 )

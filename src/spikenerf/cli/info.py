@@ -66,7 +66,9 @@ def command(
 ) -> None:
     if not path.exists():
         raise InputError("no such file or folder", path=path)
-    if path.is_dir() and (path / "checkpoint.pt").exists() and (path / "config.yaml").exists():
+    from spikenerf.core.marker import folder_kind
+
+    if path.is_dir() and folder_kind(path) == "run":  # a run's missing file is named as such
         from spikenerf.train.run import describe_run
 
         click.echo(describe_run(path))

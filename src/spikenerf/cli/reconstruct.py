@@ -97,6 +97,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
     help="Output values: linear (SpikeCV/spikezoo PNGs) or srgb [default: srgb for .png, linear for .npy].",
 )
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="FILE.png, FILE.npy or a folder.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing --out FILE.png or FILE.npy.")
 def command(
     spikes: Path,
     height: int | None,
@@ -112,6 +113,7 @@ def command(
     threshold: float,
     encoding: str | None,
     out: Path,
+    overwrite: bool,
 ) -> None:
     from tqdm import tqdm
 
@@ -140,6 +142,10 @@ def command(
         )
     if kind == "dir":
         check_out_dir(out)
+    else:
+        from spikenerf.core.marker import check_file_output
+
+        check_file_output(out, overwrite=overwrite)
 
     def read(a: int, b: int) -> np.ndarray:
         return read_dat(spikes, height, width, slice(a, b), layout, raw_width)

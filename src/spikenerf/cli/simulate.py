@@ -37,6 +37,8 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     if fps <= 0:
         raise InputError(f"--fps must be positive, found {fps:g}")
     if duration is not None:
+        if not 0 < duration < math.inf:
+            raise InputError(f"--duration must be a finite number of seconds > 0, found {duration:g}")
         n = round(duration * fps)
         if frames is not None and frames != n:
             raise InputError(
@@ -171,7 +173,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     """A named scene or .blend on an orbit (with its novel test views) and the config entries it adds."""
     import numpy as np
 
-    from spikenerf.scenes.trajectory import novel_views, orbit
+    from spikenerf.scenes.trajectory import novel_views, orbit, orbit_angle_problem
 
     if kw["sequence_range"] is not None or kw["steps_per_frame"] is not None or kw["interpolate"]:
         raise InputError("--sequence-range, --steps-per-frame and --interpolate apply to --sequence only")
@@ -185,6 +187,8 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
     if radius <= 0:
         raise InputError(f"--radius must be positive, found {radius:g}")
+    if problem := orbit_angle_problem(elevation, turns):
+        raise InputError(problem, param=("elevation", "turns"))
     if sweep and (sweep < 0 or abs(elevation) + sweep / 2 >= 90):
         raise InputError(
             f"--elevation-sweep must be ≥ 0 and keep the elevation inside (−90°, 90°), found {sweep:g} "
@@ -224,10 +228,10 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
 def _check_resources(kw: dict, params: str, width: int, height: int, steps: int, views: int) -> None:
     """Refuse (InputError naming ``params``, shown as their flags) a run larger than this machine's memory
     or free disk."""
-    from spikenerf.capture.blur import blur_windows
+    from spikenerf.capture.blur import blur_window_count
     from spikenerf.capture.simulate import check_simulate_resources
 
-    blur = len(blur_windows(steps, kw["fps"], kw["blur_fps"] or 0.0, kw["blur_views"]))  # --blur-views too
+    blur = blur_window_count(steps, kw["fps"], kw["blur_fps"] or 0.0, kw["blur_views"])  # --blur-views too
     check_simulate_resources(
         Path(kw["out"]), params, width=width, height=height, steps=steps, colors=_colors(str(kw["color"])),
         test_views=views, spp=kw["spp"] or 16, gt_every=max(1, int(kw["gt_every"])), blur_frames=blur,

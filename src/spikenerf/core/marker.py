@@ -182,6 +182,27 @@ def check_output(
         _check_replaceable(path, kind, param)
 
 
+def check_file_output(path: str | Path, param: str = "out", overwrite: bool = False) -> None:
+    """InputError unless ``path`` may receive a single output file: its parents must be folders, none of
+    them marked as one that spikenerf wrote (a dataset, a run, a frame folder…: a file added there would be
+    a stranger in it, or replace one of its own), and an existing file is replaced only with ``overwrite``.
+    (Unmarked look-alikes, :data:`_LEGACY`, are not refused: a user's folder may hold a ``manifest.json``.)"""
+    path = Path(path)
+    for parent in path.absolute().parents:
+        if parent.exists() and not parent.is_dir():
+            raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
+        if (kind := _marker(parent).get("kind")) in KINDS:
+            raise InputError(
+                f"{param}: lies inside a {kind} folder spikenerf wrote ({parent}); write it elsewhere",
+                path=path,
+                param=param,
+            )
+    if path.is_dir():
+        raise InputError(f"{param}: is a folder, not a file", path=path, param=param)
+    if path.exists() and not overwrite:
+        raise InputError("exists; pass overwrite to replace it", path=path, param="overwrite")
+
+
 def _check_replaceable(path: Path, kind: str, param: str) -> None:
     if _marker(path).get("kind") != kind or not isinstance(_marker(path).get("files"), list):
         raise InputError(

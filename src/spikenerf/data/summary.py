@@ -17,6 +17,7 @@ from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
+from spikenerf.core.marker import folder_kind, listed, mark
 from spikenerf.data.dataset import (
     CONFIG,
     TRANSFORMS,
@@ -140,5 +141,8 @@ def describe(path: str | Path) -> str:
     buf = io.BytesIO()
     iio.imwrite(buf, image, extension=".png")
     write_bytes_atomic(path / PREVIEW, buf.getvalue())
+    own = listed(path)
+    if own and PREVIEW not in own and folder_kind(path) == "dataset":  # ours: `--overwrite` may replace it
+        mark(path, "dataset", [*own, PREVIEW])
     lines.append(caption)
     return "\n".join(lines)

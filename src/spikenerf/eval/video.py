@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -207,18 +208,32 @@ def render_run(
         )  # fmt: skip
 
 
+#: the names a render gives its frames and depth maps (``00000.png``, ``00000.npy``; more digits past 99999)
+FRAME_NAME = re.compile(r"\d{5,}\.(png|npy)")
+#: the names of a novel-view spike stream and its preview (:func:`write_spikes`)
+SPIKE_NAME = re.compile(r"spikes_(gray\.dat|rgb_[rgb]\.dat|tfp\.png)")
+
+
 def clear_previous_render(out: Path) -> None:
-    """Delete what an earlier render left in its folder ``out`` (marked ``render``): its frames, depth maps,
-    video and temporaries, so no view of another trajectory stays beside the new ones."""
+    """Delete what an earlier render left in its folder ``out`` (marked ``render``): its frames and depth
+    maps (named as :data:`FRAME_NAME`), the video and spike files its ``render.json`` lists, and
+    temporaries, so no view of another trajectory stays beside the new ones. Other files stay."""
     try:
-        previous = json.loads((out / "render.json").read_text()).get("files", {}).get("video")
-    except (OSError, ValueError, AttributeError):
-        previous = None
+        files = json.loads((out / "render.json").read_text()).get("files", {})
+        listed = [files.get("video"), *(files.get("spikes") or [])]
+    except (OSError, ValueError, AttributeError, TypeError):
+        listed = []
     for folder in (out, out / "images", out / "depth"):
         clean_stale_temps(folder)
-    stale = [*(out / "images").glob("[0-9]*.png"), *(out / "depth").glob("[0-9]*.*")]
-    if isinstance(previous, str) and Path(previous).name == previous:
-        stale.append(out / previous)
+    stale = [p for p in (out / "images").glob("*.png") if FRAME_NAME.fullmatch(p.name)]
+    stale += [p for p in (out / "depth").glob("*.*") if FRAME_NAME.fullmatch(p.name)]
+    for name in listed:
+        if (
+            isinstance(name, str)
+            and (name == Path(name).name)
+            and (SPIKE_NAME.fullmatch(name) or name.endswith(".mp4"))
+        ):
+            stale.append(out / name)
     for path in stale:
         path.unlink(missing_ok=True)
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from spikenerf.core.errors import InputError
 from spikenerf.scenes import transforms
-from spikenerf.scenes.trajectory import Intrinsics, orbit, quaternion_to_matrix
+from spikenerf.scenes.trajectory import Intrinsics, orbit, orbit_angle_problem, quaternion_to_matrix
 
 #: OpenCV camera axes (COLMAP: +X right, +Y down, +Z forward) → OpenGL (+Y up, looking down −Z)
 CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -79,8 +79,11 @@ def read_transforms_poses(path: Path) -> PoseSet:
     poses = check_poses(transforms.frame_poses(data, path), path)
     frames = data["frames"]
     steps = None
-    if all(isinstance(f.get("step"), int) for f in frames):
-        steps = np.array([f["step"] for f in frames], np.int64)
+    given = [f.get("step") for f in frames]
+    if all(isinstance(v, int) and not isinstance(v, bool) for v in given):
+        if (i := next((i for i, v in enumerate(given) if not -(2**63) <= v < 2**63), None)) is not None:
+            raise InputError(f"frames[{i}].step {given[i]} is beyond a 64-bit step number", path=path)
+        steps = np.array(given, np.int64)
     elif all(isinstance(f.get("file_path"), str) for f in frames):
         steps = steps_from_names([f["file_path"] for f in frames])
     k, fov, cam = None, None, transforms.camera(data, path)
@@ -217,5 +220,7 @@ def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
         )
     turns = values[2] if len(values) > 2 else 1.0
     start = values[3] if len(values) > 3 else 0.0
+    if problem := orbit_angle_problem(values[1], turns):
+        raise InputError(f"orbit: {problem} (in {spec!r})", param="orbit")
     traj = orbit(values[0], values[1], turns, steps / fps, fps, start_azimuth_deg=start)
     return PoseSet(traj.poses, traj.steps.copy())

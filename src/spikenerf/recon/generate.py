@@ -15,6 +15,7 @@ from pathlib import Path
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.recon.natural import (
@@ -68,6 +69,16 @@ def plan(
     return jobs
 
 
+def pairs_resources(cfg: PairConfig, draws: int) -> tuple[float, float]:
+    """Estimated (peak memory, disk) bytes of ``draws`` random draws of pairs: at most 4 samples a draw
+    (Bayer), each a packed K-step window of P² bits and a float32 P² target; in memory one shard's samples
+    unpacked and the frames a draw simulates (K steps at 2P a side, a few float32 copies)."""
+    k, p = cfg.window, cfg.size
+    sample = k * p * -(-p // 8) + 4.0 * p * p
+    memory = DRAWS_PER_SHARD * 4 * 5.0 * k * p * p + 16.0 * k * (2 * p) ** 2 * 4
+    return memory, draws * 4 * sample
+
+
 def write_pairs(
     out: str | Path,
     cfg: PairConfig,
@@ -93,6 +104,8 @@ def write_pairs(
     out = Path(out)
     if natural_draws > 0:
         require_skimage()  # before anything is written
+    draws = train_draws + val_draws + extra_draws * len(extra or {}) + natural_draws
+    check_resources(*pairs_resources(cfg, draws), out, "train_draws/val_draws/window/size")
     check_output(out, "pairs", overwrite=True)
     with output_lock(out):
         check_output(out, "pairs", overwrite=True)

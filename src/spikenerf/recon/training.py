@@ -21,10 +21,11 @@ import torch
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.core.psnr import mse_to_psnr
-from spikenerf.recon.features import brightness_scale
+from spikenerf.recon.features import brightness_scale, feature_count
 from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights
 from spikenerf.recon.store import PairSet, load_split, read_manifest
 
@@ -51,9 +52,22 @@ class ReconTrainConfig:
         for name in ("iters", "batch", "crop", "width", "eval_every", "ckpt_every", "val_samples"):
             if getattr(self, name) < 1:
                 raise InputError(f"{name} must be ≥ 1, found {getattr(self, name)}", param=name)
-        if not self.lr > 0:
-            raise InputError(f"lr must be > 0, found {self.lr}", param="lr")
+        if not 0 < self.lr < math.inf:
+            raise InputError(f"lr must be finite and > 0, found {self.lr}", param="lr")
         return self
+
+
+def train_memory(cfg: ReconTrainConfig, window: int, size: int) -> float:
+    """Estimated peak bytes of a training step on pairs of ``window`` K steps and ``size`` P pixels a side:
+    the unpacked batch (B·K·P², uint8 bits then float32), the crops' activations and their gradients (about
+    32 maps of ``width`` channels at crop size per sample, in float32), the features, the network's weights
+    with gradients and Adam's moments (about 900·width² values), and a validation pass at full size."""
+    crop, w = min(cfg.crop, size), cfg.width
+    batch = cfg.batch * window * size * size * 6.0
+    maps = cfg.batch * crop * crop * 4.0 * (32 * w + feature_count(window) + window)
+    weights = 900.0 * w * w * 4 * 4
+    val = min(cfg.val_samples, 32) * size * size * 4.0 * 16 * w
+    return batch + maps + weights + val
 
 
 def learning_rate(cfg: ReconTrainConfig, it: int) -> float:
@@ -128,6 +142,8 @@ def _train_locked(
 
     manifest = read_manifest(pairs_dir)
     train, val = load_split(pairs_dir, "train"), load_split(pairs_dir, "val")
+    memory = train_memory(cfg, train.window, int(train.targets.shape[-1]))
+    check_resources(memory, 0.0, out, "batch/crop/width")  # before anything is written
     net = ReconNet(NetConfig(window=train.window, width=cfg.width))
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)

@@ -92,6 +92,20 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -
     return c2w
 
 
+#: the most turns an orbit may make (a bound far above any camera path, well inside float precision)
+MAX_TURNS = 1e6
+
+
+def orbit_angle_problem(elevation_deg: float, turns: float) -> str | None:
+    """What is wrong with an orbit's elevation (degrees, within [−90, 90]) and turns (|turns| ≤
+    :data:`MAX_TURNS`), in words naming ``elevation`` or ``turns``; None when both are fine."""
+    if not abs(elevation_deg) <= 90:
+        return f"elevation must lie within [-90, 90] degrees, found {elevation_deg:g}"
+    if not abs(turns) <= MAX_TURNS:
+        return f"turns must lie within ±{MAX_TURNS:g}, found {turns:g}"
+    return None
+
+
 def orbit(
     radius: float,
     elevation_deg: float,
@@ -121,6 +135,8 @@ def orbit(
     n = round(duration * fps)
     if n < 1 or radius <= 0 or fps <= 0:
         raise InputError(f"orbit: need radius > 0 and duration·fps ≥ 1, got radius={radius}, steps={n}")
+    if problem := orbit_angle_problem(elevation_deg, turns):
+        raise InputError(f"orbit: {problem}", param=("elevation", "turns"))
     steps = np.arange(n, dtype=np.int64)
     frac = steps / n
     azimuth = np.deg2rad(start_azimuth_deg) + 2 * np.pi * turns * frac

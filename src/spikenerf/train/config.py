@@ -421,7 +421,18 @@ def _read_config(path: str | Path) -> tuple[Path, Any]:
 def load_config(path: str | Path) -> TrainConfig:
     """Read ``config.yaml`` written by :func:`save_config` (or a ``--config`` file)."""
     path, data = _read_config(path)
-    return TrainConfig.from_dict(data, path).validate()
+    return _validated(TrainConfig.from_dict(data, path), path)
+
+
+def _validated(config: TrainConfig, path: Path) -> TrainConfig:
+    """``config.validate()``, its refusals naming the file ``path`` the values came from (and its fields,
+    not the command's flags)."""
+    try:
+        return config.validate()
+    except InputError as err:
+        if err.path is not None:
+            raise
+        raise InputError(err.message, path=path) from err
 
 
 def load_run_config(path: str | Path) -> TrainConfig:
@@ -429,7 +440,7 @@ def load_run_config(path: str | Path) -> TrainConfig:
     ``targets.window_poses`` existed (its targets section lacks the key) trained with one pose per target,
     not today's default. (A run written since records the resolved count: :meth:`TrainConfig.resolved`.)"""
     path, data = _read_config(path)
-    config = TrainConfig.from_dict(data, path).validate()
+    config = _validated(TrainConfig.from_dict(data, path), path)
     if isinstance(data.get("targets"), dict) and "window_poses" not in data["targets"]:
         config.targets.window_poses = 1
     return config

@@ -12,6 +12,7 @@ import torch
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.color import srgb_encode
+from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.targets import ImageTargets
@@ -65,16 +66,23 @@ def write_curves(path: str | Path, rows: list[dict[str, float]]) -> None:
 
 
 def read_curves(path: str | Path) -> list[dict[str, float]]:
-    """Rows of ``curves.csv`` (empty if the file does not exist; loss columns absent in older files → NaN)."""
+    """Rows of ``curves.csv`` (empty if the file does not exist; loss columns absent in older files → NaN).
+    InputError naming the file when it is not such a table (a missing column, a value that is no number,
+    bytes that are not text)."""
     path = Path(path)
     if not path.is_file():
         return []
-    with open(path, newline="", encoding="utf-8") as fh:
-        return [
-            {
-                "iteration": int(r["iteration"]),
-                **{k: float(r[k]) for k in COLUMNS[1:]},
-                **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
-            }
-            for r in csv.DictReader(fh)
-        ]
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            return [
+                {
+                    "iteration": int(r["iteration"]),
+                    **{k: float(r[k]) for k in COLUMNS[1:]},
+                    **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
+                }
+                for r in csv.DictReader(fh)
+            ]
+    except KeyError as err:
+        raise InputError(f"not a training curve table: no column {err.args[0]!r}", path=path) from err
+    except (ValueError, TypeError, UnicodeDecodeError, csv.Error) as err:
+        raise InputError(f"not a training curve table ({type(err).__name__}: {err})", path=path) from err
