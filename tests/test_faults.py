@@ -464,6 +464,10 @@ CASES: list[tuple[str, list[str], str]] = [
     ("import-keyframe-every-huge", [*IMP[:8], "--keyframe-every", "99999999999999999999", "--window", "3",
                                     "--out", f"{R}/o"], "--keyframe-every"),
     ("info-run-without-config", ["info", f"{R}/no_config_run"], "config.yaml"),
+    ("sim-blend-not-blend", ["simulate", "--blend", f"{R}/afile", "--out", f"{R}/o"], "--blend"),
+    ("sim-warmup-negative", [*SIM, "--warmup", "-1", "--out", f"{R}/o"], "--warmup must be"),
+    ("recon-data-unknown-scene", ["recon-data", "--scene", "nope", "--out", f"{R}/o"],
+     "`spikenerf simulate --list-scenes`"),
     # nothing created before the checks pass, not even a parent folder
     ("render-traj-garbage-deep", ["render", f"{R}/run", "--trajectory", f"{R}/garbage.json", "--device",
                                   "cpu", "--out", f"{R}/new/deeper/r"], "garbage.json"),

@@ -111,19 +111,15 @@ class CameraConfig:
         t = self.threshold
         number = isinstance(t, (int, float, np.integer, np.floating)) and not isinstance(t, bool)
         if not number or not math.isfinite(t) or not 0 < np.float32(t) < np.inf:
-            raise InputError(f"camera config field 'threshold' must be a finite number > 0, got {t!r}")
+            raise InputError(f"threshold must be a finite number > 0, got {t!r}", param="threshold")
         if self.color not in COLORS:
-            raise InputError(
-                f"camera config field 'color' must be one of {'|'.join(COLORS)}, got {self.color!r}"
-            )
+            raise InputError(f"color must be one of {'|'.join(COLORS)}, got {self.color!r}", param="color")
         if self.noise not in NOISES:
-            raise InputError(
-                f"camera config field 'noise' must be one of {'|'.join(NOISES)}, got {self.noise!r}"
-            )
+            raise InputError(f"noise must be one of {'|'.join(NOISES)}, got {self.noise!r}", param="noise")
         for name in ("seed", "warmup"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-                raise InputError(f"camera config field {name!r} must be an integer ≥ 0, got {v!r}")
+                raise InputError(f"{name} must be an integer ≥ 0, got {v!r}", param=name)
 
 
 def bayer_channel_index(height: int, width: int) -> np.ndarray:

@@ -120,7 +120,10 @@ def command_line() -> str:
 
 #: parameters of lower layers whose flag is not ``--`` + the name with dashes, for every subcommand
 #: (a subcommand module adds its own as ``PARAM_FLAGS``)
-PARAM_FLAGS = {"no_limits": "`spikenerf --no-limits ...`"}
+PARAM_FLAGS = {
+    "no_limits": "`spikenerf --no-limits ...`",
+    "list_scenes": "`spikenerf simulate --list-scenes`",
+}
 
 
 def flag_of(param: str, command: str | None = None) -> str | None:

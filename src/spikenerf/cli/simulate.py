@@ -179,6 +179,8 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
         raise InputError("--sequence-range, --steps-per-frame and --interpolate apply to --sequence only")
     fps = float(kw["fps"])
     steps = _orbit_steps(kw["frames"], kw["duration"], fps)
+    if kw["blend"] is not None and Path(kw["blend"]).suffix.lower() != ".blend":
+        raise InputError("--blend: expected a Blender .blend file", path=kw["blend"])
     scene = kw["scene"] if kw["scene"] is not None else kw["blend"]
     default_radius, center = registry.default_orbit(scene, int(kw["seed"]))
     radius = default_radius if kw["radius"] is None else float(kw["radius"])
