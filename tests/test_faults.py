@@ -464,6 +464,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("import-keyframe-every-huge", [*IMP[:8], "--keyframe-every", "99999999999999999999", "--window", "3",
                                     "--out", f"{R}/o"], "--keyframe-every"),
     ("info-run-without-config", ["info", f"{R}/no_config_run"], "config.yaml"),
+    ("render-spike-steps-alone", ["render", f"{R}/run", "--spike-steps", "5", "--out", f"{R}/o"],
+     "--spike-steps"),
     ("sim-blend-not-blend", ["simulate", "--blend", f"{R}/afile", "--out", f"{R}/o"], "--blend"),
     ("sim-warmup-negative", [*SIM, "--warmup", "-1", "--out", f"{R}/o"], "--warmup must be"),
     ("recon-data-unknown-scene", ["recon-data", "--scene", "nope", "--out", f"{R}/o"],

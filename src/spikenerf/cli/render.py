@@ -53,6 +53,11 @@ def command(
 
     if chunk < 0:
         raise InputError(f"--chunk must be ≥ 0 (0 = automatic), found {chunk}")
+    if spike_steps is not None and not (spikes and trajectory == "orbit"):
+        raise InputError(
+            "--spike-steps sets the spike stream's length along --trajectory orbit and needs --spikes "
+            "(with test or FILE the stream has one step per pose)"
+        )
     if not run.is_dir():
         raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
     render_run(
