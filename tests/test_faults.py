@@ -606,3 +606,27 @@ def test_simulate_jobs_are_capped_by_cores_and_work() -> None:
 
     assert usable_jobs(100000, 10**6) <= (os.cpu_count() or 1)
     assert usable_jobs(100000, 1) == 1 and usable_jobs(1, 50) == 1
+
+
+def test_info_lists_its_preview_so_overwrite_still_replaces_the_dataset(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    _cli(*SIM, "--out", out)
+    _cli("info", out)
+    assert (out / "preview.png").is_file()
+    _cli(*SIM, "--overwrite", "--threshold", "2", "--out", out)  # refused before: preview.png a stranger
+    assert not (out / "preview.png").exists() and (out / "transforms.json").is_file()
+
+
+def test_a_single_output_file_may_go_into_an_unmarked_look_alike(tmp_path: Path) -> None:
+    """Only a real marker protects a folder from a single file: a user's folder with a ``manifest.json`` is
+    not a pair folder."""
+    from spikenerf.core.errors import InputError
+    from spikenerf.core.marker import check_file_output, mark
+
+    mine = tmp_path / "project"
+    mine.mkdir()
+    (mine / "manifest.json").write_text("{}")
+    check_file_output(mine / "frame.png")
+    mark(mine, "pairs")
+    with pytest.raises(InputError, match="inside a pairs folder"):
+        check_file_output(mine / "frame.png")
