@@ -173,7 +173,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     """A named scene or .blend on an orbit (with its novel test views) and the config entries it adds."""
     import numpy as np
 
-    from spikenerf.scenes.trajectory import novel_views, orbit, orbit_angle_problem
+    from spikenerf.scenes.trajectory import novel_views, orbit
 
     if kw["sequence_range"] is not None or kw["steps_per_frame"] is not None or kw["interpolate"]:
         raise InputError("--sequence-range, --steps-per-frame and --interpolate apply to --sequence only")
@@ -189,8 +189,6 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
     if radius <= 0:
         raise InputError(f"--radius must be positive, found {radius:g}")
-    if problem := orbit_angle_problem(elevation, turns):
-        raise InputError(problem, param=("elevation", "turns"))
     if sweep and (sweep < 0 or abs(elevation) + sweep / 2 >= 90):
         raise InputError(
             f"--elevation-sweep must be ≥ 0 and keep the elevation inside (−90°, 90°), found {sweep:g} "

@@ -149,8 +149,7 @@ def check_output(
     """
     path = Path(path)
     for parent in path.absolute().parents:
-        if parent.exists() and not parent.is_dir():
-            raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
+        _check_parent(parent, path, param)
     if replace and path.is_symlink():
         raise InputError(
             f"{param}: is a symbolic link; spikenerf replaces an output folder whole and will not replace "
@@ -182,6 +181,12 @@ def check_output(
         _check_replaceable(path, kind, param)
 
 
+def _check_parent(parent: Path, path: Path, param: str) -> None:
+    """InputError when ``parent`` of the output ``path`` exists as something other than a folder."""
+    if parent.exists() and not parent.is_dir():
+        raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
+
+
 def check_file_output(path: str | Path, param: str = "out", overwrite: bool = False) -> None:
     """InputError unless ``path`` may receive a single output file: its parents must be folders, none of
     them marked as one that spikenerf wrote (a dataset, a run, a frame folder…: a file added there would be
@@ -189,8 +194,7 @@ def check_file_output(path: str | Path, param: str = "out", overwrite: bool = Fa
     (Unmarked look-alikes, :data:`_LEGACY`, are not refused: a user's folder may hold a ``manifest.json``.)"""
     path = Path(path)
     for parent in path.absolute().parents:
-        if parent.exists() and not parent.is_dir():
-            raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
+        _check_parent(parent, path, param)
         if (kind := _marker(parent).get("kind")) in KINDS:
             raise InputError(
                 f"{param}: lies inside a {kind} folder spikenerf wrote ({parent}); write it elsewhere",
