@@ -94,6 +94,30 @@ def test_render_test_views_and_file_trajectory(run_dir: Path, tmp_path: Path) ->
     _cli("render", run_dir, "--trajectory", path, "--device", "cpu", "--quiet", "--out", out / "file")
     assert json.loads((out / "file" / "render.json").read_text())["views"] == 2
     assert (out / "file" / "path.mp4").stat().st_size > 0
+    assert np.array_equal(
+        iio.imread(out / "file" / "images" / "00001.png"), iio.imread(out / "images" / "00001.png")
+    )
+    # the file's own camera (wider, another size) and bounds, with a spike stream of one step a pose
+    frames = [{"transform_matrix": f["transform_matrix"]} for f in poses]
+    path.write_text(json.dumps({"camera_angle_x": 1.2, "w": SIZE + 4, "h": SIZE - 2, "near": 1.5, "far": 6.5,
+                                "frames": frames}))  # fmt: skip
+    _cli(
+        "render",
+        run_dir,
+        "--trajectory",
+        path,
+        "--spikes",
+        "--device",
+        "cpu",
+        "--quiet",
+        "--out",
+        out / "wide",
+    )
+    manifest = json.loads((out / "wide" / "render.json").read_text())
+    assert manifest["size"] == [SIZE + 4, SIZE - 2] and manifest["near_far"] == [1.5, 6.5]
+    assert manifest["camera"]["cx"] == (SIZE + 4) / 2 and manifest["spike_steps"] == 2
+    assert iio.imread(out / "wide" / "images" / "00000.png").shape == (SIZE - 2, SIZE + 4)
+    assert read_dat(out / "wide" / "spikes_gray.dat", SIZE - 2, SIZE + 4).shape == (2, SIZE - 2, SIZE + 4)
 
 
 def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path) -> None:

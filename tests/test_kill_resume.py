@@ -1,5 +1,6 @@
-"""Kill and resume: SIGKILL ``simulate``, ``import`` and ``train`` at three points each, resume, compare with
-an uninterrupted run; two concurrent writers; a stale lock; a truncated cache frame (docs/reliability.md).
+"""Kill and resume: SIGKILL ``simulate``, ``import``, ``train`` and ``render`` at three points each, resume,
+compare with an uninterrupted run; two concurrent writers; a stale lock; a truncated cache frame
+(docs/reliability.md).
 
 Kills are real SIGKILLs delivered at named fail points (``SPIKENERF_KILL_AT``, see core/faults.py), so the
 place of each kill is exact and the test is deterministic.
@@ -17,18 +18,20 @@ import sys
 import time
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
 import yaml
 
 from helpers import BENCHMARK_TRAIN
-from spikenerf.camera.io import write_dat
+from spikenerf.camera.io import read_dat, write_dat
 from spikenerf.cli import main
 from spikenerf.core.faults import KILL_ENV
 from spikenerf.core.lock import holder, lock_path
 from spikenerf.core.marker import mark
 from spikenerf.data.writer import work_dir
+from spikenerf.eval.render_cache import CACHE
 from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
 
 SIM = ["simulate", "--scene", "analytic-orbs", "--width", "16", "--height", "16", "--frames", "60",
@@ -161,6 +164,60 @@ def test_train_with_holdout_killed_then_resumed_is_bit_identical(reference: Path
     assert _curves(run) == _curves(tmp_path / "whole")
     assert (run / "holdout.json").read_bytes() == (tmp_path / "whole" / "holdout.json").read_bytes()
     assert json.loads((run / "holdout.json").read_text())["check_steps"] == [20, 39]
+
+
+#: 6 orbit views and an 80-step stream: spike states saved at steps 32 and 64 (SPIKE_STATE_EVERY)
+RENDER = ["--trajectory", "orbit", "--orbit-frames", "6", "--spikes", "--spike-steps", "80", "--quiet"]
+
+
+def _render_files(root: Path) -> dict[str, bytes]:
+    """Every file's bytes; render.json without its ``seconds``."""
+    files = {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+    manifest = json.loads(files["render.json"])
+    assert manifest.pop("seconds") >= 0
+    files["render.json"] = json.dumps(manifest).encode()
+    return files
+
+
+@pytest.fixture(scope="module")
+def rendered(reference: Path) -> Path:
+    """An uninterrupted render of the reference run."""
+    _cli("render", reference / "run", *RENDER, "--out", reference / "render")
+    return reference / "render"
+
+
+@pytest.mark.parametrize("point", ["render.view:3", "render.spikes:2", "write:spikes_gray.dat:1"])
+def test_render_killed_then_rerun_is_bit_identical(
+    reference: Path, rendered: Path, tmp_path: Path, point: str
+) -> None:
+    out = tmp_path / "render"
+    _killed_at(["render", reference / "run", *RENDER, "--out", out], point)
+    assert (out / CACHE / "key.json").is_file() and not (out / "render.json").exists()
+    _cli("render", reference / "run", *RENDER, "--out", out)
+    assert _render_files(out) == _render_files(rendered)
+    assert not (out / CACHE).exists() and not lock_path(out).exists()
+
+
+def test_a_rerun_render_reuses_what_it_kept_and_only_under_the_same_settings(
+    reference: Path, rendered: Path, tmp_path: Path
+) -> None:
+    """Marked cache entries show up in the output: the views and the spike steps before the kill are not
+    rendered again; with another orbit the cache is started afresh."""
+    out, args = tmp_path / "render", ["render", reference / "run", *RENDER]
+    _killed_at([*args, "--out", out], "render.spikes:2")  # all views and 64 spike steps kept
+    with np.load(out / CACHE / "views" / "00000.npz") as data:
+        view = dict(data)
+    np.savez(out / CACHE / "views" / "00000.npz", **{**view, "color": np.full_like(view["color"], 7)})
+    bits = out / CACHE / "spikes.bits"
+    bits.write_bytes(b"\xff" * 32 + bits.read_bytes()[32:])  # the first step (16 × 16 bits): all fired
+    _cli(*args, "--out", out)
+    assert np.all(iio.imread(out / "images" / "00000.png") == 7)
+    spikes, want = read_dat(out / "spikes_gray.dat", 16, 16), read_dat(rendered / "spikes_gray.dat", 16, 16)
+    assert spikes[0].all() and not want[0].all() and np.array_equal(spikes[1:], want[1:])
+    _killed_at([*args, "--out", out], "render.view:3")
+    np.savez(out / CACHE / "views" / "00000.npz", **{**view, "color": np.full_like(view["color"], 7)})
+    _cli("render", reference / "run", *RENDER[:3], "7", *RENDER[4:], "--out", out)  # 7 orbit views
+    assert not np.all(iio.imread(out / "images" / "00000.png") == 7)
 
 
 def test_second_writer_is_refused_naming_the_holder(

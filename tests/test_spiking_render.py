@@ -17,6 +17,7 @@ from spikenerf.fields import GridFieldConfig, MLPFieldConfig
 from spikenerf.render import (
     build_model,
     fire_sequence,
+    iter_spike_states,
     render_image,
     render_spike_stream,
     render_spike_window,
@@ -155,3 +156,21 @@ def test_spike_stream_equals_fire_sequence_over_rendered_images_and_seeds_repeat
     assert 0 < stream.float().mean() < 0.6
     assert torch.equal(render_spike_stream(model, poses, INTR, 2.5, start_accumulator=4), stream)
     assert not torch.equal(render_spike_stream(model, poses, INTR, 2.5, start_accumulator=5), stream)
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_a_stream_continued_from_a_yielded_accumulator_fires_the_same_spikes(channels: int) -> None:
+    """What ``render`` relies on to resume a stream: the state after step k, passed back as the start of
+    the remaining poses, gives the uninterrupted stream's spikes bit for bit."""
+    torch.manual_seed(1)
+    model = build_model("grid", channels, BOX, GRID)
+    with torch.no_grad():
+        model.field.density_lines.mul_(60.0)
+    poses = _poses(7)
+    whole = render_spike_stream(model, poses, INTR, threshold=2.5, start_accumulator=3)
+    states = list(iter_spike_states(model, poses[:4], INTR, 2.5, start_accumulator=3))
+    spikes, acc = states[-1]
+    assert acc.shape == spikes.shape and acc.dtype == torch.float32  # both in the camera layout
+    rest = render_spike_stream(model, poses[4:], INTR, 2.5, start_accumulator=acc.cpu().clone())
+    assert torch.equal(torch.cat([torch.stack([s for s, _ in states]), rest]), whole)
+    assert 0 < whole.float().mean() < 0.9

@@ -15,7 +15,7 @@ from spikenerf.cli.types import SEED
 @click.option(
     "--trajectory", default="test", show_default=True,
     help="test (held-out views), orbit (a closed orbit like the training path) or a transforms.json FILE "
-    "with frames[].transform_matrix.",
+    "with frames[].transform_matrix (and its own camera and near/far, where it gives them).",
 )  # fmt: skip
 @click.option("--spikes", is_flag=True, help="Also fire a novel-view spike stream (.dat + TFP preview).")
 @click.option("--fps-video", type=float, default=30.0, show_default=True, help="Frame rate of the mp4.")

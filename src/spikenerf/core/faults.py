@@ -6,7 +6,8 @@ Points: ``simulate.render`` (after each cached frame), ``simulate.spikes`` (afte
 cameras), ``simulate.publish`` (a finished work folder, before it is renamed), ``import.keyframe`` (after each
 keyframe reconstruction), ``import.spikes`` (after each chunk of steps copied into the dataset),
 ``import.publish`` (like ``simulate.publish``), ``train.iteration`` (after
-each optimiser step) and ``write:NAME`` (an atomic write of a file called NAME, after its temporary is
+each optimiser step), ``render.view`` (after each cached view), ``render.spikes`` (after each saved spike
+state) and ``write:NAME`` (an atomic write of a file called NAME, after its temporary is
 complete and before it replaces the file). Unset, a point costs one dictionary lookup.
 """
 

@@ -22,6 +22,8 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 from spikenerf.scenes.transforms import (
+    CAMERA_KEYS,
+    camera,
     frame_poses,
     frames_of,
     intrinsics,
@@ -341,3 +343,35 @@ def read_pose_file(path: str | Path) -> np.ndarray:
     """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``)."""
     path = Path(path)
     return frame_poses(_read_mapping(path), path)
+
+
+@dataclass
+class CameraPath:
+    """A trajectory file's cameras: ``poses`` (N, 4, 4) float64 c2w; ``intrinsics``, None where the file
+    gives no camera; ``bounds`` (near, far), None where it gives neither."""
+
+    poses: np.ndarray
+    intrinsics: Intrinsics | None
+    bounds: tuple[float, float] | None
+
+
+def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
+    """A transforms JSON of poses (``frames[].transform_matrix``) with its optional shared camera
+    (``camera_angle_x`` or ``fl_x`` [``fl_y``, ``cx``, ``cy``]; ``w`` and ``h`` together, else ``size`` =
+    (width, height)) and ``near``/``far`` (both, near < far)."""
+    path = Path(path)
+    meta = _read_mapping(path)
+    poses = frame_poses(meta, path)
+    cam = camera(meta, path)
+    k, given = None, [key for key in CAMERA_KEYS if key in meta or key in cam]
+    if given and not ("fl_x" in cam or "camera_angle_x" in cam):
+        raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'", path=path)
+    if given:
+        k = intrinsics(meta, path, None if ("w" in cam or "h" in cam) else size)
+    bounds = None
+    if "near" in meta or "far" in meta:
+        near, far = number(meta, "near", path, positive=True), number(meta, "far", path, positive=True)
+        if near >= far:
+            raise InputError(f"fields 'near', 'far': expected near < far, found {near}, {far}", path=path)
+        bounds = (near, far)
+    return CameraPath(poses, k, bounds)

@@ -19,16 +19,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import re
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from spikenerf.camera.io import write_dat, write_dat_rgb
@@ -40,11 +43,12 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
-from spikenerf.data.dataset import SpikeDataset, read_pose_file
+from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path
 from spikenerf.data.reconstruction import frame_at
-from spikenerf.render import iter_spike_stream, render_image
+from spikenerf.eval.render_cache import RenderCache, digest_array, render_key
+from spikenerf.render import iter_spike_states, render_image
 from spikenerf.render.inference import inference_chunk, resolve_precision
-from spikenerf.scenes.trajectory import orbit
+from spikenerf.scenes.trajectory import Intrinsics, orbit
 from spikenerf.train.run import load_run
 
 TRAJECTORIES = ("test", "orbit")
@@ -135,38 +139,70 @@ def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
     return traj.poses
 
 
-def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> tuple[str, np.ndarray]:
-    """(name, poses (N, 4, 4)) for ``test``, ``orbit`` (``count`` poses) or a transforms.json path."""
+@dataclass
+class RenderPath:
+    """What a render follows: ``name`` (the video's stem), ``poses`` (N, 4, 4) c2w, the camera and the
+    ray bounds."""
+
+    name: str
+    poses: np.ndarray
+    intrinsics: Intrinsics
+    near: float
+    far: float
+
+
+def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPath:
+    """The :class:`RenderPath` of ``test``, ``orbit`` (``count`` poses) or a transforms.json path; the first
+    two use the dataset's camera and bounds, a file its own camera where it gives one (``w``/``h`` default
+    to the dataset's size) and its ``near``/``far``, else bounds around the scene box from its poses."""
+    k, near, far = dataset.intrinsics, dataset.near, dataset.far
     if spec == "test":
         if len(dataset.test) == 0:
             raise InputError("the dataset has no test views (transforms_test.json)", path=dataset.root)
-        return "test", np.asarray(dataset.test.poses, np.float64)
+        return RenderPath("test", np.asarray(dataset.test.poses, np.float64), k, near, far)
     if spec == "orbit":
-        return "orbit", orbit_poses(dataset, count)
+        return RenderPath("orbit", orbit_poses(dataset, count), k, near, far)
     path = Path(spec)
     if not path.is_file():
         raise InputError(
             f"trajectory: expected test, orbit or a transforms.json file, found {spec!r}", param="trajectory"
         )
-    return path.stem, read_pose_file(path)
+    found = read_camera_path(path, (k.width, k.height))
+    near, far = found.bounds or near_far(found.poses, dataset.scene_box)
+    return RenderPath(path.stem, found.poses, found.intrinsics or k, near, far)
 
 
 def write_spikes(
-    model: Any, poses: np.ndarray, dataset: SpikeDataset, out: Path, seed: int, chunk: int, progress: bool
-) -> list[str]:
-    """Fire a novel-view spike stream along ``poses`` (one step each); write .dat file(s) + a TFP preview."""
-    k = dataset.intrinsics
-    steps = iter_spike_stream(model, poses, k, dataset.threshold, seed, chunk, dataset.near, dataset.far)
-    bar = tqdm(steps, total=len(poses), desc="spikes", unit="step", disable=not progress)
-    spikes = np.stack([s.numpy() for s in bar]).astype(np.uint8)  # camera layout: (T, H, W) | (T, 3, H, W)
-    if spikes.ndim == 3:
+    model: Any, path: RenderPath, dataset: SpikeDataset, out: Path, seed: int, chunk: int, progress: bool,
+    cache: RenderCache,
+) -> list[str]:  # fmt: skip
+    """Fire a novel-view spike stream along ``path`` (one step a pose), continuing what ``cache`` holds of
+    it; write .dat file(s) + a TFP preview."""
+    k = path.intrinsics
+    shape = (k.height, k.width) if model.channels == 1 else (3, k.height, k.width)
+    resumed = cache.spike_state(shape)
+    done, start = resumed if resumed is not None else ([], seed)
+    cache.start_spikes(len(done), shape)
+    states = iter_spike_states(
+        model, path.poses[len(done) :], k, dataset.threshold, torch.as_tensor(start) if done else seed,
+        chunk, path.near, path.far,
+    )  # fmt: skip
+    bar = tqdm(total=len(path.poses), initial=len(done), desc="spikes", unit="step", disable=not progress)
+    steps = list(done)
+    for spikes, acc in states:
+        steps.append(spikes.numpy())
+        cache.put_spike_step(len(steps), steps[-1], acc)
+        bar.update()
+    bar.close()
+    stream = np.stack(steps).astype(np.uint8)  # camera layout: (T, H, W) | (T, 3, H, W)
+    if stream.ndim == 3:
         files = [out / "spikes_gray.dat"]
-        write_dat(files[0], spikes)
+        write_dat(files[0], stream)
     else:
-        files = write_dat_rgb(out / "spikes_rgb", spikes)
-    t = len(spikes)
+        files = write_dat_rgb(out / "spikes_rgb", stream)
+    t = len(stream)
     window = fitting_window(t, TFP_WINDOW)
-    preview = frame_at(spikes, t // 2, "tfp", max(window, 1), dataset.threshold)
+    preview = frame_at(stream, t // 2, "tfp", max(window, 1), dataset.threshold)
     preview = to_channels_last(preview, frame=True)
     write_bytes_atomic(out / "spikes_tfp.png", png_bytes(to_uint8(srgb_encode(preview))))
     return [p.name for p in files] + ["spikes_tfp.png"]
@@ -238,12 +274,34 @@ def clear_previous_render(out: Path) -> None:
         path.unlink(missing_ok=True)
 
 
-def check_render_resources(dataset: SpikeDataset, views: int, spike_steps: int, out: Path) -> None:
-    """Refuse a render whose frames (kept for the video and the depth range) or files exceed the machine."""
-    px = float(dataset.intrinsics.width) * dataset.intrinsics.height
+def check_render_resources(k: Intrinsics, views: int, spike_steps: int, out: Path) -> None:
+    """Refuse a render whose frames (kept for the video and the depth range), its cache or its files exceed
+    the machine (``k``: the camera rendered)."""
+    px = float(k.width) * k.height
     memory = views * (px * 16 + 256) + spike_steps * (px * 3 + 256)
-    disk = views * px * 14 + spike_steps * px * 3 / 8
+    disk = views * px * 25 + spike_steps * (px * 3 / 4 + 256)
     check_resources(memory, disk, out, "orbit_frames/spike_steps/trajectory")
+
+
+def render_views(
+    model: Any, path: RenderPath, cache: RenderCache, chunk: int, precision: str, progress: bool
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Each view of ``path`` as (8-bit sRGB colour (H, W) or (H, W, 3), depth (H, W), opacity (H, W)),
+    from ``cache`` where it holds the view, else rendered and kept there."""
+    k, views = path.intrinsics, ([], [], [])
+    for i, pose in enumerate(tqdm(path.poses, desc=f"render {path.name}", unit="view", disable=not progress)):
+        found = cache.view(i, (k.height, k.width))
+        if found is None:
+            r = render_image(model, pose, k, path.near, path.far, chunk, precision)
+            found = (
+                to_uint8(srgb_encode(r.color.float().cpu().numpy())),
+                r.depth.float().cpu().numpy(),
+                r.opacity.float().cpu().numpy(),
+            )
+            cache.put_view(i, *found)
+        for kept, value in zip(views, found, strict=True):
+            kept.append(value)
+    return views
 
 
 def _render_locked(
@@ -255,45 +313,48 @@ def _render_locked(
     model, _, dataset = load_run(run_dir, dataset_root, device, train_images=False)  # renders new views only
     precision = resolve_precision(precision, model.device)
     chunk = inference_chunk(model, chunk)
-    views = orbit_frames if trajectory == "orbit" else len(dataset.test) if trajectory == "test" else 0
-    n_spikes = (spike_steps or len(dataset.trajectory)) if spikes and trajectory == "orbit" else views
-    check_render_resources(dataset, views, n_spikes if spikes else 0, out)
-    name, poses = resolve_trajectory(trajectory, dataset, orbit_frames)
-    check_render_resources(dataset, len(poses), n_spikes if spikes else 0, out)
+    on_orbit = trajectory == "orbit"  # (a file called orbit.json is not: it fires one step a pose)
+    views = orbit_frames if on_orbit else len(dataset.test) if trajectory == "test" else 0
+    n_spikes = (spike_steps or len(dataset.trajectory)) if on_orbit else views
+    check_render_resources(dataset.intrinsics, views, n_spikes if spikes else 0, out)
+    path = resolve_trajectory(trajectory, dataset, orbit_frames)  # a file: its camera, one step a pose
+    k, poses, n_spikes = path.intrinsics, path.poses, n_spikes if on_orbit else len(path.poses)
+    check_render_resources(k, len(poses), n_spikes if spikes else 0, out)
+    spike_path = None
+    if spikes:
+        spike_poses = orbit_poses(dataset, n_spikes) if on_orbit else poses
+        spike_path = RenderPath(path.name, spike_poses, k, path.near, path.far)
+    key = render_key(
+        model, poses=poses, camera=[float(v) for v in dataclasses.astuple(k)], bounds=[path.near, path.far],
+        precision=precision, chunk=chunk, device=model.device.type,
+        spikes=None if spike_path is None else [digest_array(spike_path.poses), seed, dataset.threshold],
+    )  # fmt: skip
     mark(out, "render")
     clear_previous_render(out)
-    k = dataset.intrinsics
-    colors, depths, opacities = [], [], []
-    for pose in tqdm(poses, desc=f"render {name}", unit="view", disable=not progress):
-        r = render_image(model, pose, k, dataset.near, dataset.far, chunk, precision)
-        colors.append(to_uint8(srgb_encode(r.color.float().cpu().numpy())))
-        depths.append(r.depth.float().cpu().numpy())
-        opacities.append(r.opacity.float().cpu().numpy())
+    cache = RenderCache.open(out, key)
+    colors, depths, opacities = render_views(model, path, cache, chunk, precision, progress)
     depth_all, op_all = np.stack(depths), np.stack(opacities)
     lo, hi = depth_range(depth_all, op_all)
     for i, (color, depth, opacity) in enumerate(zip(colors, depths, opacities, strict=True)):
         write_bytes_atomic(out / "images" / f"{i:05d}.png", png_bytes(color))
         _write_npy(out / "depth" / f"{i:05d}.npy", depth.astype(np.float32))
         write_bytes_atomic(out / "depth" / f"{i:05d}.png", png_bytes(colorize_depth(depth, opacity, lo, hi)))
-    video = f"{name}.mp4"
+    video = f"{path.name}.mp4"
     write_video(out / video, colors, fps_video)
     files: dict[str, Any] = {"images": "images/NNNNN.png", "depth": "depth/NNNNN.{png,npy}", "video": video}
-    n_spike = None
-    if spikes:
-        spike_poses = (
-            orbit_poses(dataset, spike_steps or len(dataset.trajectory)) if name == "orbit" else poses
-        )
-        files["spikes"] = write_spikes(model, spike_poses, dataset, out, seed, chunk, progress)
-        n_spike = len(spike_poses)
+    if spike_path is not None:
+        files["spikes"] = write_spikes(model, spike_path, dataset, out, seed, chunk, progress, cache)
     manifest = {
         "run": str(run_dir),
-        "trajectory": name,
+        "trajectory": path.name,
         "views": len(poses),
         "channels": model.channels,
         "size": [k.width, k.height],
+        "camera": {"fl_x": float(k.fl_x), "fl_y": float(k.fl_y), "cx": float(k.cx), "cy": float(k.cy)},
+        "near_far": [float(path.near), float(path.far)],
         "depth_range": [lo, hi],
         "fps_video": fps_video,
-        "spike_steps": n_spike,
+        "spike_steps": None if spike_path is None else len(spike_path.poses),
         "spike_seed": seed if spikes else None,
         "precision": precision,
         "threshold": dataset.threshold,
@@ -301,6 +362,7 @@ def _render_locked(
         "seconds": round(time.perf_counter() - t0, 3),
     }
     write_text_atomic(out / "render.json", json.dumps(manifest, indent=2) + "\n")
+    cache.close()
     if log:
-        log(f"wrote {out}: {len(poses)} {name} views, {video}" + (", spike stream" if spikes else ""))
+        log(f"wrote {out}: {len(poses)} {path.name} views, {video}" + (", spike stream" if spikes else ""))
     return manifest

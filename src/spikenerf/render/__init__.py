@@ -15,6 +15,7 @@ from spikenerf.render.model import (
 from spikenerf.render.spiking import (
     SpikeWindow,
     fire_sequence,
+    iter_spike_states,
     iter_spike_stream,
     render_spike_stream,
     render_spike_window,
@@ -30,6 +31,7 @@ __all__ = [
     "SpikeWindow",
     "build_model",
     "fire_sequence",
+    "iter_spike_states",
     "iter_spike_stream",
     "model_from_hparams",
     "ray_bounds",

@@ -107,7 +107,7 @@ def random_start(
 
 
 @torch.no_grad()
-def iter_spike_stream(
+def iter_spike_states(
     model: RadianceModel,
     poses: Tensor | np.ndarray,
     intrinsics: Intrinsics,
@@ -116,9 +116,11 @@ def iter_spike_stream(
     chunk: int = 8192,
     near: float | None = None,
     far: float | None = None,
-) -> Iterator[Tensor]:
-    """Yield the spikes of each step of ``poses`` (T, 4, 4), one full render per step: bool on the CPU in
-    the camera layout (:mod:`spikenerf.camera.layout`), (H, W) gray or (3, H, W) rgb.
+) -> Iterator[tuple[Tensor, Tensor]]:
+    """Yield ``(spikes, accumulator)`` for each step of ``poses`` (T, 4, 4), one full render per step: the
+    spikes bool on the CPU and the accumulators after the step on the model's device, both in the camera
+    layout (:mod:`spikenerf.camera.layout`), (H, W) gray or (3, H, W) rgb. Passing an accumulator back as
+    ``start_accumulator`` with the remaining poses continues the stream exactly.
 
     ``start_accumulator``: the same layout, or an int seed for a uniform [0, φ) start (None → seed 0).
     """
@@ -131,7 +133,23 @@ def iter_spike_stream(
     for pose in as_poses(poses, model.device):
         color = render_image(model, pose, intrinsics, near, far, chunk).color
         spikes, acc = fire(acc, color, threshold)
-        yield to_camera_layout(spikes.cpu(), frame=True)
+        yield to_camera_layout(spikes.cpu(), frame=True), to_camera_layout(acc, frame=True)
+
+
+def iter_spike_stream(
+    model: RadianceModel,
+    poses: Tensor | np.ndarray,
+    intrinsics: Intrinsics,
+    threshold: float = 1.0,
+    start_accumulator: Tensor | int | None = None,
+    chunk: int = 8192,
+    near: float | None = None,
+    far: float | None = None,
+) -> Iterator[Tensor]:
+    """The spikes of :func:`iter_spike_states`: bool on the CPU in the camera layout, (H, W) gray or
+    (3, H, W) rgb, one step of ``poses`` after another."""
+    states = iter_spike_states(model, poses, intrinsics, threshold, start_accumulator, chunk, near, far)
+    return (spikes for spikes, _ in states)
 
 
 def render_spike_stream(
