@@ -2,7 +2,9 @@
 
 ``RUN/checkpoint.pt`` = {"format", "iteration", "elapsed", "model" (state dict), "hparams" (to rebuild the
 model), "optimizer" (state dict), "rng" (torch CPU/CUDA states and the samplers'), "config" (TrainConfig as a
-dict)}. It is written to a temporary sibling and moved into place with ``os.replace``.
+dict)}. It is written to a temporary sibling and moved into place with ``os.replace``. ``torch.save`` writes
+a zip whose every record carries a CRC-32; ``torch.load`` does not check them, :func:`load_checkpoint` does
+(:func:`check_crc`), so bytes changed on disk since the write are refused rather than used.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import errno
 import pickle
 import warnings
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -42,14 +45,20 @@ def restore_rng(state: dict[str, Any], samplers: dict[str, Any]) -> None:
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
     """Write ``payload`` (tensors, numbers, strings, lists, tuples, dicts) atomically."""
+    serialization = torch.serialization
+    crc = getattr(serialization, "get_crc32_options", lambda: True)()
+    set_crc = getattr(serialization, "set_crc32_options", lambda _on: None)  # torch < 2.4: always on
     with atomic_path(path) as tmp:
         try:
+            set_crc(True)  # load_checkpoint checks them (torch's default: on)
             torch.save({"format": FORMAT, **payload}, tmp)
         except RuntimeError as err:  # torch's writer turns a failed write (a full disk) into RuntimeError
             first = str(err).strip().split("\n")[0]
             raise OSError(
                 errno.EIO, f"could not write the checkpoint ({first}; disk full?)", str(path)
             ) from err
+        finally:
+            set_crc(crc)
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
@@ -72,8 +81,25 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise InputError(f"unreadable checkpoint ({type(err).__name__}: {first})", path=path) from err
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f"not a spikenerf checkpoint (expected format {FORMAT!r})", path=path)
+    check_crc(path)
     check_schema(data, path)
     return data
+
+
+def check_crc(path: Path) -> None:
+    """InputError naming ``path`` when a record of the checkpoint's zip fails its CRC-32: its bytes changed
+    on disk after ``torch.save`` wrote it (a bit flip, a bad copy, an edit)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError) as err:
+        raise InputError(f"unreadable checkpoint ({type(err).__name__}: {err})", path=path) from err
+    if bad is not None:
+        raise InputError(
+            f"damaged checkpoint: its record {bad!r} fails its CRC-32 check (its bytes changed on disk "
+            "after it was written)",
+            path=path,
+        )
 
 
 #: the entries every checkpoint holds and their types, checked before any is used

@@ -1,0 +1,59 @@
+"""``train/checkpoint.py``: the zip's CRC-32 of every record is checked on load, so bytes changed on disk
+after the write are refused in one line instead of used."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import pytest
+import torch
+
+from spikenerf.core.errors import InputError
+from spikenerf.train.checkpoint import FORMAT, load_checkpoint, save_checkpoint
+
+PAYLOAD = {
+    "iteration": 3, "elapsed": 1.5, "model": {"w": torch.arange(4096, dtype=torch.float32)}, "hparams": {},
+    "optimizer": {"state": {}, "param_groups": []}, "rng": {"torch": torch.get_rng_state()}, "config": {},
+}  # fmt: skip
+
+
+def _flip_in_record(path: Path, name_end: str) -> None:
+    """Flip one byte inside the stored data of the zip record whose name ends with ``name_end``."""
+    with zipfile.ZipFile(path) as archive:
+        info = next(i for i in archive.infolist() if i.filename.endswith(name_end))
+    raw = bytearray(path.read_bytes())
+    header = info.header_offset
+    start = header + 30 + int.from_bytes(raw[header + 26 : header + 28], "little")
+    start += int.from_bytes(raw[header + 28 : header + 30], "little")  # past the name and extra field
+    raw[start + info.compress_size // 2] ^= 0x01
+    path.write_bytes(bytes(raw))
+
+
+def test_a_saved_checkpoint_loads_whole(tmp_path: Path) -> None:
+    save_checkpoint(tmp_path / "checkpoint.pt", PAYLOAD)
+    data = load_checkpoint(tmp_path / "checkpoint.pt")
+    assert data["format"] == FORMAT and torch.equal(data["model"]["w"], PAYLOAD["model"]["w"])
+
+
+def test_a_bit_changed_in_a_tensor_is_refused_naming_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "checkpoint.pt"
+    save_checkpoint(path, PAYLOAD)
+    _flip_in_record(path, "data/0")
+    torch.load(path, weights_only=True)  # torch itself reads the changed tensor without complaint
+    with pytest.raises(InputError, match="fails its CRC-32 check") as err:
+        load_checkpoint(path)
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_crc_is_written_even_where_the_process_switched_it_off(tmp_path: Path) -> None:
+    serialization = torch.serialization
+    if not hasattr(serialization, "set_crc32_options"):
+        pytest.skip("torch < 2.4 always writes the CRC-32")
+    serialization.set_crc32_options(False)
+    try:
+        save_checkpoint(tmp_path / "checkpoint.pt", PAYLOAD)
+        assert not serialization.get_crc32_options()  # the process's choice is put back
+    finally:
+        serialization.set_crc32_options(True)
+    load_checkpoint(tmp_path / "checkpoint.pt")
