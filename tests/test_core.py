@@ -93,3 +93,38 @@ def test_replace_dir_swaps_a_finished_folder_in(tmp_path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # the retired folder is gone
     with pytest.raises(FileNotFoundError):
         replace_dir(tmp_path / "nothing", tmp_path / "else")
+
+
+def test_an_output_where_no_file_can_be_made_is_named_as_such(tmp_path, monkeypatch) -> None:
+    """A read-only file system, a folder without write permission, or a virtual file system (no size, and
+    a file cannot be made there) is refused for what it is, naming the parameter and the path; a
+    file system that reports no size but takes files (ramfs) is accepted, and the probe leaves nothing."""
+    import os
+    from types import SimpleNamespace
+
+    from spikenerf.core import marker
+
+    out = tmp_path / "new" / "ds"
+    marker.check_output(out, "dataset")
+    real = os.statvfs(tmp_path)
+    fake = {"f_flag": real.f_flag, "f_blocks": real.f_blocks}
+    monkeypatch.setattr(os, "statvfs", lambda _: SimpleNamespace(**fake))
+    fake["f_flag"] = real.f_flag | os.ST_RDONLY
+    with pytest.raises(InputError, match=r"ds: out: cannot write there: .* is on a read-only file") as err:
+        marker.check_output(out, "dataset")
+    assert err.value.params == ("out",) and err.value.path == str(out)
+    fake["f_flag"], fake["f_blocks"] = real.f_flag, 0
+    marker.check_output(out, "dataset")  # no size, but it takes a file
+    marker.check_file_output(tmp_path / "x.png", param="out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(marker.tempfile, "mkstemp", refuse)
+    with pytest.raises(InputError, match="virtual file system that cannot hold files"):
+        marker.check_file_output(tmp_path / "x.png", param="out")
+    fake["f_blocks"] = real.f_blocks
+    monkeypatch.setattr(os, "access", lambda *args, **kwargs: False)
+    with pytest.raises(InputError, match="no permission"):
+        marker.check_output(out, "dataset")

@@ -368,6 +368,9 @@ def test_other_bad_arguments(tmp_path: Path, tiny: Path) -> None:
         SequenceSource(tmp_path / "missing.json")
     with pytest.raises(InputError, match="steps per frame"):
         SequenceSource(tiny, steps_per_frame=0)
+    with pytest.raises(InputError, match=r"^steps_per_frame: this needs about .* of memory") as err:
+        SequenceSource(tiny, steps_per_frame=10**15)  # refused before its schedule is allocated
+    assert err.value.params == ("steps_per_frame", "no_limits")
     with pytest.raises(InputError, match=r"^fps: expected a positive number"):
         SequenceSource(tiny, fps=-1.0)
     with pytest.raises(InputError, match="transforms file not found"):

@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from spikenerf.cli import command_line
-from spikenerf.cli.types import SEED
+from spikenerf.cli.types import COUNT, SEED
 from spikenerf.core.errors import InputError
 
 DEFAULT_SIZE = 200
@@ -90,7 +90,7 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 )  # fmt: skip
 @click.option("--turns", type=float, help="Full turns over the path [default: 1].")
 @click.option("--duration", type=float, help="Path duration in seconds [default: frames / fps = 0.025].")
-@click.option("--steps-per-frame", type=int, help="Sequences: spike steps per source image [default: 1].")
+@click.option("--steps-per-frame", type=COUNT, help="Sequences: spike steps per source image [default: 1].")
 @click.option(
     "--interpolate", is_flag=True, help="Sequences: blend between source images instead of holding."
 )
@@ -132,7 +132,7 @@ def command(**kw: Any) -> None:
         raise InputError("--out DIR is required (the dataset folder to write)")
     if kw["test_views"] is not None and kw["eval_views"] is not None:
         raise InputError("give either --test-views N or --eval-views transforms.json, not both")
-    for name in ("width", "height", "spp", "test_views", "steps_per_frame"):
+    for name in ("width", "height", "spp", "test_views"):
         if kw[name] is not None and (kw[name] < 1 if name != "test_views" else kw[name] < 0):
             raise InputError(
                 f"--{name.replace('_', '-')} must be ≥ {0 if name == 'test_views' else 1}, found {kw[name]}"
@@ -263,7 +263,8 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
         fps=float(kw["fps"]),
     )
     k = source.intrinsics
-    _check_resources(kw, "width/height/sequence_range", k.width, k.height, len(source.trajectory), 8)
+    steps = len(source.trajectory)
+    _check_resources(kw, "width/height/sequence_range/steps_per_frame", k.width, k.height, steps, 8)
     extra = {
         "trajectory": {
             "kind": "sequence",

@@ -11,8 +11,8 @@ INT64_MAX = 2**63 - 1
 
 
 class BoundedInt(click.ParamType):
-    """An ``INTEGER`` from ``low`` to 2⁶³ − 1: a bigger one would overflow in torch or numpy, so it is
-    refused in one line naming the flag."""
+    """An ``INTEGER`` from ``low`` to 2⁶³ − 1: a bigger one would overflow in torch or numpy, and one below
+    ``low`` is meaningless to the command; either is refused in one line naming the flag and the range."""
 
     name = "integer"
 
@@ -28,5 +28,5 @@ class BoundedInt(click.ParamType):
 
 #: a seed: 0 … 2⁶³ − 1 (numpy refuses negative seeds, torch ones of 2⁶⁴ and more)
 SEED = BoundedInt(0)
-#: a count of steps or iterations: 0 … 2⁶³ − 1 (the command checks its own lower bound)
-COUNT = BoundedInt(0)
+#: a count of steps or iterations: 1 … 2⁶³ − 1 (every command using it needs at least one)
+COUNT = BoundedInt(1)

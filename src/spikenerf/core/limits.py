@@ -71,11 +71,21 @@ def check_resources(memory: float, disk: float, out: str | Path, params: str) ->
     """
     if limits_disabled():
         return
-    checks = (("memory", memory, available_memory()), ("disk space", disk, free_disk(out)))
-    for what, need, have in checks:
-        if have is not None and need > have:
-            raise InputError(
-                f"{params}: this needs about {human(need)} of {what}, but only {human(have)} is available; "
-                "lower them, or pass no_limits to try anyway",
-                param=(*params.split("/"), "no_limits"),
-            )
+    _check(params, "memory", memory, available_memory())
+    _check(params, "disk space", disk, free_disk(out))
+
+
+def check_memory(memory: float, params: str) -> None:
+    """:func:`check_resources` for a step that writes nothing: InputError (naming ``params``) when the
+    estimated peak ``memory`` exceeds the memory available."""
+    if not limits_disabled():
+        _check(params, "memory", memory, available_memory())
+
+
+def _check(params: str, what: str, need: float, have: int | None) -> None:
+    if have is not None and need > have:
+        raise InputError(
+            f"{params}: this needs about {human(need)} of {what}, but only {human(have)} is available; "
+            "lower them, or pass no_limits to try anyway",
+            param=(*params.split("/"), "no_limits"),
+        )

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 from spikenerf.core.atomic import write_text_atomic
@@ -145,7 +146,8 @@ def check_output(
     spikenerf wrote as ``kind``; with ``overwrite=False`` an existing output of ``kind`` is refused too
     (callers that resume or update in place pass ``overwrite=True``). ``replace``: the caller replaces the
     folder whole, so it must not be a link, must carry our marker and hold only the files it lists, and a
-    ``.<name>.old`` beside it must be one spikenerf retired.
+    ``.<name>.old`` beside it must be one spikenerf retired. The folder that will hold it (and the folder
+    itself, when it exists) must take new files (:func:`check_writable`).
     """
     path = Path(path)
     for parent in path.absolute().parents:
@@ -158,6 +160,7 @@ def check_output(
             param=param,
         )
     if not (path.exists() or path.is_symlink()):
+        check_writable(path, param)
         return
     if not path.is_dir():
         raise InputError(
@@ -179,6 +182,7 @@ def check_output(
         raise InputError("output already exists; pass overwrite to replace it", path=path, param="overwrite")
     if replace and any(path.iterdir()):
         _check_replaceable(path, kind, param)
+    check_writable(path, param)
 
 
 def _check_parent(parent: Path, path: Path, param: str) -> None:
@@ -187,11 +191,50 @@ def _check_parent(parent: Path, path: Path, param: str) -> None:
         raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
 
 
+def check_writable(path: str | Path, param: str = "out") -> None:
+    """InputError (naming ``param`` and ``path``) when the output ``path`` cannot be created: the nearest
+    existing folder above it (where its lock, temporaries and parents go), and ``path`` itself when it is an
+    existing folder, must be writable by this user on a writable file system that stores files; a virtual
+    one such as ``/proc`` or ``/sys`` does not. Checked before any size estimate, so that such a path is
+    not blamed on the free disk space (a virtual file system reports none)."""
+    path = Path(path).absolute()
+    base = path.parent
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    for folder in (base, path) if path.is_dir() else (base,):
+        problem = _unwritable(folder)
+        if problem is not None:
+            raise InputError(f"{param}: cannot write there: {folder} {problem}", path=path, param=param)
+
+
+def _unwritable(folder: Path) -> str | None:
+    """Why no file can be created in the existing ``folder`` (None: it can, or it cannot be told)."""
+    if not folder.is_dir() or not hasattr(os, "statvfs"):
+        return None
+    try:
+        fs = os.statvfs(folder)
+    except OSError:
+        return None
+    if fs.f_flag & os.ST_RDONLY:
+        return "is on a read-only file system"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return "is not writable by this user (no permission)"
+    if fs.f_blocks == 0:  # reports no size: /proc, /sys, cgroup; but also ramfs and some FUSE mounts
+        try:  # so try: a virtual file system refuses the file, ramfs takes it
+            fd, probe = tempfile.mkstemp(prefix=".spikenerf-probe-", dir=folder)
+        except OSError:
+            return "is on a virtual file system that cannot hold files (like /proc or /sys)"
+        os.close(fd)
+        os.unlink(probe)
+    return None
+
+
 def check_file_output(path: str | Path, param: str = "out", overwrite: bool = False) -> None:
     """InputError unless ``path`` may receive a single output file: its parents must be folders, none of
     them marked as one that spikenerf wrote (a dataset, a run, a frame folder…: a file added there would be
-    a stranger in it, or replace one of its own), and an existing file is replaced only with ``overwrite``.
-    (Unmarked look-alikes, :data:`_LEGACY`, are not refused: a user's folder may hold a ``manifest.json``.)"""
+    a stranger in it, or replace one of its own), the folder must take new files (:func:`check_writable`),
+    and an existing file is replaced only with ``overwrite``. (Unmarked look-alikes, :data:`_LEGACY`, are
+    not refused: a user's folder may hold a ``manifest.json``.)"""
     path = Path(path)
     for parent in path.absolute().parents:
         _check_parent(parent, path, param)
@@ -205,6 +248,7 @@ def check_file_output(path: str | Path, param: str = "out", overwrite: bool = Fa
         raise InputError(f"{param}: is a folder, not a file", path=path, param=param)
     if path.exists() and not overwrite:
         raise InputError("exists; pass overwrite to replace it", path=path, param="overwrite")
+    check_writable(path, param)
 
 
 def _check_replaceable(path: Path, kind: str, param: str) -> None:

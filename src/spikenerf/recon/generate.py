@@ -105,8 +105,8 @@ def write_pairs(
     if natural_draws > 0:
         require_skimage()  # before anything is written
     draws = train_draws + val_draws + extra_draws * len(extra or {}) + natural_draws
+    check_output(out, "pairs", overwrite=True)  # first: an unwritable --out is not a size problem
     check_resources(*pairs_resources(cfg, draws), out, "train_draws/val_draws/window/size")
-    check_output(out, "pairs", overwrite=True)
     with output_lock(out):
         check_output(out, "pairs", overwrite=True)
         clean_stale_temps(out)

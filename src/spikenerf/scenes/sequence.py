@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from spikenerf.core.errors import InputError
+from spikenerf.core.limits import check_memory
 from spikenerf.scenes import transforms
 from spikenerf.scenes.image_io import find_image, image_size, load_frame
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory, interpolate_poses
@@ -27,6 +28,8 @@ OPEN_END = sys.maxsize
 FrameRange = slice | tuple[int, int]
 #: half-size of an estimated scene box, as a fraction of the nearest camera's distance to the box centre.
 SCENE_BOX_FACTOR = 0.5
+#: peak bytes per spike step while a source builds its step schedule and poses (measured about 740)
+SCHEDULE_BYTES = 1024
 
 
 # ----------------------------------------------------------------------------------------------- ranges
@@ -199,6 +202,8 @@ class SequenceSource:
             raise InputError(f"fps: expected a positive number, found {fps!r}", param="fps")
         path = Path(transforms_json)
         seq = load_sequence(path, frame_range)
+        # the schedule and its poses are built here, before any simulate-wide estimate: bound them first
+        check_memory(len(seq.images) * steps_per_frame * SCHEDULE_BYTES, "steps_per_frame")
         self.native_size = (seq.intrinsics.width, seq.intrinsics.height)
         size = _output_size(self.native_size, width, height)
         self.name = name or path.resolve().parent.name or "sequence"
