@@ -19,7 +19,8 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
 
 @click.command(
     help="Run the whole pipeline on the embedded default scene (analytic-orbs): simulate a spike camera, "
-    "train spike-nerf, nerf-recon, nerf-blur and nerf-gt, evaluate, render and write OUT/report.html. "
+    "train spike-integral (the default), spike-nerf, nerf-recon, nerf-blur and nerf-gt, evaluate, render and "
+    "write OUT/report.html. "
     "Resumable: re-running reuses finished steps. Default size: ≤ 20 min on 2 CPU cores; --quick: minutes."
 )
 @click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)

@@ -1,6 +1,7 @@
 """``spikenerf demo``: the whole pipeline on the embedded default scene, as a one-scene benchmark.
 
-simulate → train ``spike-nerf`` and the main baselines (``nerf-recon``, ``nerf-blur``, ``nerf-gt``) → eval →
+simulate → train ``spike-integral`` (``train``'s default), ``spike-nerf`` and the main baselines
+(``nerf-recon``, ``nerf-blur``, ``nerf-gt``) → eval →
 render → report, all through :func:`spikenerf.pipelines.suite.benchmark_with_report`, so an interrupted demo
 resumes where it stopped. The default scene is the analytic ``analytic-orbs`` (no Blender needed, ms per
 frame); see docs/report.md for the choice and measured timings.
@@ -19,7 +20,7 @@ from spikenerf.pipelines.benchmark.tables import Cell, table1_markdown
 from spikenerf.pipelines.suite import benchmark_with_report
 
 DEFAULT_SCENE = "analytic-orbs"
-DEMO_METHODS = ("nerf-gt", "nerf-blur", "nerf-recon", "spike-nerf")
+DEMO_METHODS = ("nerf-gt", "nerf-blur", "nerf-recon", "spike-nerf", "spike-integral")
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,8 @@ class Preset:
     spike_pixels: int
 
 
-#: measured on 2 CPU cores (docs/report.md): default 281 s quiet / 993 s under load; quick 255 s quiet. Runs
+#: measured on 2 CPU cores (docs/report.md): default 187 s quiet (five methods; four on earlier builds: 281 s
+#: quiet, 993 s under load; quick 255 s quiet). Runs
 #: under ~200 iterations stop learning (the grid's first occupancy update empties it), hence quick's 200.
 PRESETS = {
     "default": Preset(size=64, frames=1000, iters=300, test_views=4, batch=512, spike_window=16,

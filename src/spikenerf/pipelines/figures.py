@@ -7,6 +7,7 @@ Images handed in are *display* values in [0, 1] (sRGB-encoded): (H, W) gray or (
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +23,8 @@ from spikenerf.core.psnr import mse_to_psnr
 ERROR_VMAX = 0.3
 ERROR_CMAP = "inferno"
 DPI = 100
+#: method labels above the views are wrapped at this many characters (a panel is 1.9 in wide)
+LABEL_WIDTH = 24
 #: TFP window (frames) and the length of the static-pose novel-view spike streams (steps)
 TFP_WINDOW, NOVEL_STEPS = DEFAULT_WINDOW, 101
 
@@ -82,9 +85,11 @@ def views_figure(gt: np.ndarray, preds: Mapping[str, np.ndarray | None], title: 
     axes = fig.subplots(2, n, squeeze=False)
     _show(axes[0, 0], gt[rs, cs], "ground truth")
     axes[1, 0].axis("off")
-    mappable = None
+    mappable, lines = None, 2
     for j, (label, pred) in enumerate(preds.items(), start=1):
-        _show(axes[0, j], None if pred is None else pred[rs, cs], label)
+        wrapped = "\n".join(textwrap.fill(line, LABEL_WIDTH) for line in label.split("\n"))
+        lines = max(lines, wrapped.count("\n") + 1)
+        _show(axes[0, j], None if pred is None else pred[rs, cs], wrapped)
         err = None if pred is None else error_map(pred, gt)[rs, cs]
         title_err = "|pred − GT|" if err is None else f"|pred − GT|\nmean {err.mean():.3f}"
         m = _show(axes[1, j], err, title_err, cmap=ERROR_CMAP, vmin=0.0, vmax=ERROR_VMAX)
@@ -92,7 +97,7 @@ def views_figure(gt: np.ndarray, preds: Mapping[str, np.ndarray | None], title: 
     if mappable is not None:
         cb = fig.colorbar(mappable, ax=list(axes[1, 1:]), fraction=0.02, pad=0.01)
         cb.ax.tick_params(labelsize=7)
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(title, fontsize=9, y=0.98 + 0.035 * (lines - 2))  # above labels of more than two lines
     return _png(fig)
 
 
