@@ -210,6 +210,10 @@ def test_a_folder_whose_spike_integral_cells_other_defaults_trained_is_refused(t
     assert check_settings(cfg) == "n"
     unrecorded = {k: v for k, v in now.items() if k != "integral_defaults"}
     (tmp_path / NAME).write_text(json.dumps({"settings": unrecorded, "nonce": "n"}))
+    assert check_settings(cfg) == "n"  # no spike-integral cell trained yet (a demo folder of four methods)
+    cell = tmp_path / "runs" / "analytic-orbs" / "gray" / "spike-integral"
+    cell.mkdir(parents=True)
+    (cell / "checkpoint.pt").write_bytes(b"")
     with pytest.raises(InputError, match=r"spike-integral cells .*window 11 → 5, samples 2 → 1, batch 2048"):
         check_settings(cfg)
     assert PREVIOUS_INTEGRAL == {"window": 11, "samples": 2, "batch": 2048}
@@ -225,3 +229,17 @@ def test_a_folder_whose_spike_integral_cells_other_defaults_trained_is_refused(t
     with pytest.raises(InputError, match=r"track None → 5"):
         check_settings(cfg)
     assert check_settings(replace(cfg, variants=["nerf-gt"])) == "n"  # no spike-integral cell: resumes
+
+
+def test_a_cell_is_done_when_its_render_is(tmp_path: Path) -> None:
+    """With renders on, a cell whose eval finished but whose render was killed runs again (the render
+    resumes from its cache); without them the metrics end it."""
+    from spikenerf.pipelines.benchmark.cells import cell_keys
+    from spikenerf.pipelines.benchmark.run import _jobs
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=16, frames=100,
+                          test_views=1, iters=4)  # fmt: skip
+    cell = _jobs(cfg, cell_keys(cfg))[-1]
+    assert cell.done.endswith("nerf-gt/render/render.json") and cfg.render
+    assert _jobs(replace(cfg, render=False), cell_keys(cfg))[-1].done.endswith("nerf-gt/metrics.json")
+    assert cell.commands(tmp_path)[-1][3:5] == ["render", str(tmp_path / cell.folder)]

@@ -47,6 +47,7 @@ def test_a_bit_changed_in_a_tensor_is_refused_naming_the_file(tmp_path: Path) ->
 
 
 def test_the_crc_is_written_even_where_the_process_switched_it_off(tmp_path: Path) -> None:
+    """save_checkpoint writes CRCs for load_checkpoint to check; a file saved without them still loads."""
     serialization = torch.serialization
     if not hasattr(serialization, "set_crc32_options"):
         pytest.skip("torch < 2.4 always writes the CRC-32")
@@ -54,6 +55,22 @@ def test_the_crc_is_written_even_where_the_process_switched_it_off(tmp_path: Pat
     try:
         save_checkpoint(tmp_path / "checkpoint.pt", PAYLOAD)
         assert not serialization.get_crc32_options()  # the process's choice is put back
+        torch.save({"format": FORMAT, **PAYLOAD}, tmp_path / "plain.pt")  # every CRC 0
     finally:
         serialization.set_crc32_options(True)
-    load_checkpoint(tmp_path / "checkpoint.pt")
+    _flip_in_record(tmp_path / "checkpoint.pt", "data/0")
+    with pytest.raises(InputError, match="CRC-32"):  # it has its CRCs
+        load_checkpoint(tmp_path / "checkpoint.pt")
+    assert load_checkpoint(tmp_path / "plain.pt")["iteration"] == 3
+
+
+def test_files_without_crcs_are_left_to_torch_load(tmp_path: Path) -> None:
+    """torch's legacy (non-zip) format has no CRCs: it loads; a cut file is torch.load's one-line error."""
+    legacy = tmp_path / "legacy.pt"
+    torch.save({"format": FORMAT, **PAYLOAD}, legacy, _use_new_zipfile_serialization=False)
+    assert load_checkpoint(legacy)["iteration"] == 3
+    cut = tmp_path / "cut.pt"
+    save_checkpoint(cut, PAYLOAD)
+    cut.write_bytes(cut.read_bytes()[:300])
+    with pytest.raises(InputError, match="unreadable checkpoint"):
+        load_checkpoint(cut)

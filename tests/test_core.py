@@ -115,6 +115,9 @@ def test_an_output_where_no_file_can_be_made_is_named_as_such(tmp_path, monkeypa
     assert err.value.params == ("out",) and err.value.path == str(out)
     fake["f_flag"], fake["f_blocks"] = real.f_flag, 0
     marker.check_output(out, "dataset")  # no size, but it takes a file
+    from spikenerf.core.limits import free_disk
+
+    assert free_disk(out) is None  # nor is its free space blamed: unknown, so not checked
     marker.check_file_output(tmp_path / "x.png", param="out")
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 

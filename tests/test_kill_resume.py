@@ -220,6 +220,25 @@ def test_a_rerun_render_reuses_what_it_kept_and_only_under_the_same_settings(
     assert not np.all(iio.imread(out / "images" / "00000.png") == 7)
 
 
+def test_a_render_after_a_killed_one_leaves_no_file_of_either_stale(reference: Path, tmp_path: Path) -> None:
+    """The old render.json goes as a new render starts (its files are cleared), and the video an
+    interrupted render wrote, listed in no render.json, goes with the next render of another trajectory."""
+    out, run = tmp_path / "render", reference / "run"
+    _cli("render", run, "--trajectory", "test", "--quiet", "--out", out)
+    assert (out / "test.mp4").is_file() and (out / "render.json").is_file()
+    _killed_at(["render", run, *RENDER, "--out", out], "render.spikes:1")  # orbit.mp4 written, no manifest
+    assert (out / "orbit.mp4").is_file() and not (out / "test.mp4").exists()
+    assert not (out / "render.json").exists()
+    _cli("render", run, "--trajectory", "test", "--quiet", "--out", out)
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".spikenerf",
+        "depth",
+        "images",
+        "render.json",
+        "test.mp4",
+    ]
+
+
 def test_second_writer_is_refused_naming_the_holder(
     reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

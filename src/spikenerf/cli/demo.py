@@ -1,4 +1,5 @@
-"""``spikenerf demo``: simulate, train Spike-NeRF and the baselines, evaluate, render, report (resumable)."""
+"""``spikenerf demo``: simulate, train spike-integral, Spike-NeRF and the baselines, evaluate, render, report
+(resumable)."""
 
 from __future__ import annotations
 

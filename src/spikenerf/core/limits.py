@@ -46,8 +46,11 @@ def free_disk(path: str | Path) -> int | None:
     p = Path(path).absolute()
     while not p.exists() and p != p.parent:
         p = p.parent
+    folder = p if p.is_dir() else p.parent
     try:
-        return int(shutil.disk_usage(p if p.is_dir() else p.parent).free)
+        if hasattr(os, "statvfs") and os.statvfs(folder).f_blocks == 0:
+            return None  # a file system that reports no size (ramfs, some FUSE mounts): free space unknown
+        return int(shutil.disk_usage(folder).free)
     except OSError:
         return None
 

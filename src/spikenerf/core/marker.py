@@ -197,7 +197,7 @@ def check_writable(path: str | Path, param: str = "out") -> None:
     existing folder, must be writable by this user on a writable file system that stores files; a virtual
     one such as ``/proc`` or ``/sys`` does not. Checked before any size estimate, so that such a path is
     not blamed on the free disk space (a virtual file system reports none)."""
-    path = Path(path).absolute()
+    path = Path(path).resolve()  # a link's target's folder holds the lock and the files, as in lock_path
     base = path.parent
     while not base.exists() and base != base.parent:
         base = base.parent

@@ -366,8 +366,8 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
     k, given = None, [key for key in CAMERA_KEYS if key in meta or key in cam]
     if given and not ("fl_x" in cam or "camera_angle_x" in cam):
         raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'", path=path)
-    if given:
-        k = intrinsics(meta, path, None if ("w" in cam or "h" in cam) else size)
+    if given:  # w/h given anywhere are the size (intrinsics() reads them beside the focal length)
+        k = intrinsics(meta, path, None if any(key in d for key in ("w", "h") for d in (meta, cam)) else size)
     bounds = None
     if "near" in meta or "far" in meta:
         near, far = number(meta, "near", path, positive=True), number(meta, "far", path, positive=True)

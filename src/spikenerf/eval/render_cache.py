@@ -2,9 +2,11 @@
 
 The cache lives in ``OUT/.render-cache/`` while a render runs and is deleted when ``render.json`` is written:
 
-- ``key.json``: what the views depend on (:func:`render_key`: a digest of the model's tensors, of the poses,
-  the camera, near/far, precision, chunk, device type; for the spike stream its poses, seed and threshold).
-  A cache with another key is deleted, so a changed run or trajectory never mixes with the old views.
+- ``key.json``: what the views depend on (:func:`render_key`: a digest of the model's tensors, its config,
+  the versions of spikenerf and torch, the poses, the camera, near/far, precision, the requested chunk and
+  the device type; for the spike stream its poses, seed and threshold), and the values resolved when the
+  cache began (the automatic chunk), which a resumed render reuses. A cache with another key is deleted,
+  so a changed run or trajectory never mixes with the old views.
 - ``views/NNNNN.npz``: each rendered view (8-bit colour, float32 depth and opacity), written atomically
   after it is rendered. An unreadable or mis-sized file is rendered again.
 - ``spikes.bits`` and ``spikes.npz``: the spike stream so far, one packed step after another, and, every
@@ -33,19 +35,21 @@ CACHE = ".render-cache"
 #: steps between two saved spike states: the state (float32 accumulators) costs 32 steps' packed spikes
 SPIKE_STATE_EVERY = 32
 #: what reading a damaged ``.npz`` raises (a cut zip, a missing member, a bad header)
-UNREADABLE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
+UNREADABLE = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile)
 
 
 def digest_array(array: np.ndarray | torch.Tensor) -> str:
     """sha256 of an array's dtype, shape and bytes."""
     if isinstance(array, torch.Tensor):
         array = array.detach().cpu().contiguous()
-        raw = array.reshape(-1).view(torch.uint8).numpy().tobytes() if array.numel() else b""
         head = f"{array.dtype}{tuple(array.shape)}"
+        raw = array.reshape(-1).view(torch.uint8).numpy() if array.numel() else np.zeros(0, np.uint8)
     else:
         array = np.ascontiguousarray(array)
-        raw, head = array.tobytes(), f"{array.dtype}{array.shape}"
-    return hashlib.sha256(head.encode() + raw).hexdigest()
+        head, raw = f"{array.dtype}{array.shape}", array.reshape(-1).view(np.uint8)
+    h = hashlib.sha256(head.encode())
+    h.update(raw)  # a 1-D uint8 view of the same memory: no copy
+    return h.hexdigest()
 
 
 def model_digest(model: torch.nn.Module) -> str:
@@ -69,23 +73,31 @@ class RenderCache:
 
     def __init__(self, root: Path) -> None:
         self.root = root
+        self.pinned: dict[str, Any] = {}
 
     @classmethod
-    def open(cls, out: Path, key: dict[str, Any]) -> RenderCache:
-        """The cache in ``out``, kept where its ``key.json`` equals ``key`` and started afresh otherwise."""
+    def open(cls, out: Path, key: dict[str, Any], pinned: dict[str, Any] | None = None) -> RenderCache:
+        """The cache in ``out``, kept where its ``key.json`` holds ``key`` and started afresh otherwise.
+        ``pinned``: values that were resolved when the cache was started (e.g. the automatic chunk, which
+        depends on the free GPU memory) and must stay the same for a resumed render; :attr:`pinned` holds
+        the cache's own where it is kept, these otherwise."""
         root = out / CACHE
-        text = json.dumps(key, sort_keys=True)
+        wanted = json.loads(json.dumps(key, sort_keys=True, default=str))
         try:
-            same = (root / "key.json").read_text() == text
-        except (OSError, UnicodeDecodeError):
-            same = False
-        if not same:
-            shutil.rmtree(root, ignore_errors=True)
-            (root / "views").mkdir(parents=True)
-            write_text_atomic(root / "key.json", text)
+            stored = json.loads((root / "key.json").read_text())
+            kept = stored["key"] == wanted and isinstance(stored.get("pinned"), dict)
+        except (OSError, UnicodeDecodeError, ValueError, TypeError, KeyError):
+            kept = False
+        if not kept:
+            _remove(root)
+            (root / "views").mkdir(parents=True, exist_ok=True)
+            stored = {"key": wanted, "pinned": json.loads(json.dumps(pinned or {}, default=str))}
+            write_text_atomic(root / "key.json", json.dumps(stored, sort_keys=True))
         for folder in (root, root / "views"):  # a killed writer's temporaries (the caller holds the lock)
             clean_stale_temps(folder)
-        return cls(root)
+        cache = cls(root)
+        cache.pinned = stored["pinned"]
+        return cache
 
     def _view_path(self, index: int) -> Path:
         return self.root / "views" / f"{index:05d}.npz"
@@ -113,7 +125,7 @@ class RenderCache:
         from the last saved state, or None (nothing saved, or the files disagree)."""
         try:
             with np.load(self.root / "spikes.npz") as data:
-                count, acc = int(data["steps"]), data["accumulator"]
+                count, acc = int(data["steps"].item()), data["accumulator"]
             bits = (self.root / "spikes.bits").read_bytes()
         except UNREADABLE:
             return None
@@ -145,7 +157,21 @@ class RenderCache:
 
     def close(self) -> None:
         """Delete the cache (the render is complete)."""
-        shutil.rmtree(self.root, ignore_errors=True)
+        _remove(self.root)
+
+
+def cache_bytes(out: Path) -> int:
+    """Bytes the cache in ``out`` holds (0 without one): space a resumed render will not need again."""
+    root = out / CACHE
+    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file()) if root.is_dir() else 0
+
+
+def _remove(root: Path) -> None:
+    """Delete the cache folder ``root`` (or a file in its place)."""
+    if root.is_dir() and not root.is_symlink():
+        shutil.rmtree(root)
+    else:
+        root.unlink(missing_ok=True)
 
 
 def _packed_size(step_shape: tuple[int, ...]) -> int:

@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import io
 import json
@@ -26,6 +27,7 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +36,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from spikenerf.camera.io import write_dat, write_dat_rgb
+from spikenerf.camera.io import rgb_paths, write_dat, write_dat_rgb
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic, write_text_atomic
@@ -45,7 +47,7 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path
 from spikenerf.data.reconstruction import frame_at
-from spikenerf.eval.render_cache import RenderCache, digest_array, render_key
+from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_array, render_key
 from spikenerf.render import iter_spike_states, render_image
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.scenes.trajectory import Intrinsics, orbit
@@ -250,15 +252,31 @@ FRAME_NAME = re.compile(r"\d{5,}\.(png|npy)")
 SPIKE_NAME = re.compile(r"spikes_(gray\.dat|rgb_[rgb]\.dat|tfp\.png)")
 
 
-def clear_previous_render(out: Path) -> None:
-    """Delete what an earlier render left in its folder ``out`` (marked ``render``): its frames and depth
-    maps (named as :data:`FRAME_NAME`), the video and spike files its ``render.json`` lists, and
-    temporaries, so no view of another trajectory stays beside the new ones. Other files stay."""
-    try:
+def planned_files(name: str, channels: int, spikes: bool) -> list[str]:
+    """The video and spike files a render of trajectory ``name`` writes (see :func:`write_spikes`)."""
+    streams = ["spikes_gray.dat"] if channels == 1 else [p.name for p in rgb_paths("spikes_rgb")]
+    return [f"{name}.mp4", *streams, "spikes_tfp.png"] if spikes else [f"{name}.mp4"]
+
+
+def _listed_files(out: Path) -> list[object]:
+    """The video and spike files of earlier renders into ``out``: those its ``render.json`` lists, and
+    those an interrupted render planned (its cache's ``key.json``)."""
+    listed: list[object] = []
+    with contextlib.suppress(OSError, ValueError, AttributeError, TypeError):
         files = json.loads((out / "render.json").read_text()).get("files", {})
-        listed = [files.get("video"), *(files.get("spikes") or [])]
-    except (OSError, ValueError, AttributeError, TypeError):
-        listed = []
+        listed += [files.get("video"), *(files.get("spikes") or [])]
+    with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+        listed += list(json.loads((out / CACHE / "key.json").read_text())["pinned"]["files"])
+    return listed
+
+
+def clear_previous_render(out: Path) -> None:
+    """Delete what earlier renders left in their folder ``out`` (marked ``render``): the frames and depth
+    maps (named as :data:`FRAME_NAME`), ``render.json`` and the video and spike files it lists or an
+    interrupted render planned, and temporaries, so no view of another trajectory stays beside the new ones
+    and no manifest describes files that are gone. Other files stay."""
+    listed = _listed_files(out)
+    (out / "render.json").unlink(missing_ok=True)
     for folder in (out, out / "images", out / "depth"):
         clean_stale_temps(folder)
     stale = [p for p in (out / "images").glob("*.png") if FRAME_NAME.fullmatch(p.name)]
@@ -276,11 +294,20 @@ def clear_previous_render(out: Path) -> None:
 
 def check_render_resources(k: Intrinsics, views: int, spike_steps: int, out: Path) -> None:
     """Refuse a render whose frames (kept for the video and the depth range), its cache or its files exceed
-    the machine (``k``: the camera rendered)."""
+    the machine (``k``: the camera rendered; the space an interrupted render's cache holds counts as
+    free)."""
     px = float(k.width) * k.height
     memory = views * (px * 16 + 256) + spike_steps * (px * 3 + 256)
-    disk = views * px * 25 + spike_steps * (px * 3 / 4 + 256)
+    disk = views * px * 25 + spike_steps * (px * 3 / 4 + 256) - cache_bytes(out)
     check_resources(memory, disk, out, "orbit_frames/spike_steps/trajectory")
+
+
+def package_version() -> str:
+    """spikenerf's installed version ("source" when it runs from a checkout that is not installed)."""
+    try:
+        return metadata.version("spikenerf")
+    except metadata.PackageNotFoundError:
+        return "source"
 
 
 def render_views(
@@ -312,7 +339,7 @@ def _render_locked(
     t0 = time.perf_counter()
     model, _, dataset = load_run(run_dir, dataset_root, device, train_images=False)  # renders new views only
     precision = resolve_precision(precision, model.device)
-    chunk = inference_chunk(model, chunk)
+    requested, chunk = chunk, inference_chunk(model, chunk)
     on_orbit = trajectory == "orbit"  # (a file called orbit.json is not: it fires one step a pose)
     views = orbit_frames if on_orbit else len(dataset.test) if trajectory == "test" else 0
     n_spikes = (spike_steps or len(dataset.trajectory)) if on_orbit else views
@@ -325,13 +352,16 @@ def _render_locked(
         spike_poses = orbit_poses(dataset, n_spikes) if on_orbit else poses
         spike_path = RenderPath(path.name, spike_poses, k, path.near, path.far)
     key = render_key(
-        model, poses=poses, camera=[float(v) for v in dataclasses.astuple(k)], bounds=[path.near, path.far],
-        precision=precision, chunk=chunk, device=model.device.type,
+        model, config=model.hparams(), versions=[package_version(), torch.__version__], poses=poses,
+        camera=[float(v) for v in dataclasses.astuple(k)], bounds=[path.near, path.far], precision=precision,
+        chunk=requested, device=model.device.type,
         spikes=None if spike_path is None else [digest_array(spike_path.poses), seed, dataset.threshold],
     )  # fmt: skip
     mark(out, "render")
     clear_previous_render(out)
-    cache = RenderCache.open(out, key)
+    files = planned_files(path.name, model.channels, spike_path is not None)
+    cache = RenderCache.open(out, key, pinned={"chunk": chunk, "files": files})
+    chunk = int(cache.pinned.get("chunk", chunk))  # a resumed render renders as it began (the auto chunk)
     colors, depths, opacities = render_views(model, path, cache, chunk, precision, progress)
     depth_all, op_all = np.stack(depths), np.stack(opacities)
     lo, hi = depth_range(depth_all, op_all)

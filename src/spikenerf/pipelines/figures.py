@@ -87,7 +87,8 @@ def views_figure(gt: np.ndarray, preds: Mapping[str, np.ndarray | None], title: 
     axes[1, 0].axis("off")
     mappable, lines = None, 2
     for j, (label, pred) in enumerate(preds.items(), start=1):
-        wrapped = "\n".join(textwrap.fill(line, LABEL_WIDTH) for line in label.split("\n"))
+        parts = (textwrap.fill(line, LABEL_WIDTH, break_on_hyphens=False) for line in label.split("\n"))
+        wrapped = "\n".join(parts)
         lines = max(lines, wrapped.count("\n") + 1)
         _show(axes[0, j], None if pred is None else pred[rs, cs], wrapped)
         err = None if pred is None else error_map(pred, gt)[rs, cs]

@@ -113,7 +113,9 @@ def _jobs(cfg: BenchmarkConfig, keys: list[CellKey]) -> list[Job]:
                 f"datasets/{s}/transforms.json") for s in cfg.scenes]  # fmt: skip
     for key in keys:
         run = run_dir(cfg, *key).relative_to(cfg.out).as_posix()
-        jobs.append(Job(cell_name(cfg, key), partial(_commands_at, cfg, key), run, f"{run}/metrics.json",
+        # a cell is done when its last command is: a render killed after eval is run again (it resumes)
+        done = f"{run}/render/render.json" if cfg.render else f"{run}/metrics.json"
+        jobs.append(Job(cell_name(cfg, key), partial(_commands_at, cfg, key), run, done,
                         needs=f"simulate-{key[0]}"))  # fmt: skip
     return jobs
 

@@ -122,7 +122,8 @@ def check_settings(cfg: Any) -> str | None:
             param="out",
         )
     was = old.get("integral_defaults", PREVIOUS_INTEGRAL)
-    if "spike-integral" in cfg.variants and was != new["integral_defaults"]:
+    trained = any(cfg.out.glob("runs/*/*/spike-integral*/checkpoint.pt"))  # a folder without such cells
+    if "spike-integral" in cfg.variants and trained and was != new["integral_defaults"]:
         new_integral = new["integral_defaults"].items()
         what = ", ".join(f"{k} {was.get(k)!r} → {v!r}" for k, v in new_integral if was.get(k) != v)
         raise InputError(
