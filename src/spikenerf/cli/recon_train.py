@@ -25,7 +25,13 @@ _D = ReconTrainConfig()
 @click.option("--out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
 @click.option("--iters", type=COUNT, default=_D.iters, show_default=True, help="Optimiser steps.")
 @click.option("--batch", type=int, default=_D.batch, show_default=True, help="Crops per step.")
-@click.option("--crop", type=int, default=_D.crop, show_default=True, help="Crop side in pixels.")
+@click.option(
+    "--crop",
+    type=int,
+    default=_D.crop,
+    show_default=True,
+    help="Crop side in pixels (a larger one takes the whole pair).",
+)
 @click.option("--lr", type=float, default=_D.lr, show_default=True, help="Adam learning rate (cosine decay).")
 @click.option("--width", type=int, default=_D.width, show_default=True, help="Network channels at full size.")
 @click.option("--seed", type=SEED, default=_D.seed, show_default=True)

@@ -86,7 +86,9 @@ def blocks(frames: range, method: str) -> Iterator[range]:
     help="learned: the stream is gray, one channel of a per-channel RGB recording, or a Bayer RGGB mosaic.",
 )
 @click.option("--window", type=int, help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}].")
-@click.option("--frame", type=int, help="One frame index: .npy gets shape (H, W).")
+@click.option(
+    "--frame", type=int, help="One frame index (negative: from the end, -1 = the last): .npy gets (H, W)."
+)
 @click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
