@@ -198,7 +198,13 @@ def test_a_folder_whose_spike_integral_cells_other_defaults_trained_is_refused(t
     """spike-integral's window, renders and batch defaults are recorded; a folder from before the record
     (the 11 × 2, 2048-ray defaults) or with others is refused when it has spike-integral cells, and a
     folder without them resumes."""
-    from spikenerf.pipelines.benchmark.settings import NAME, PREVIOUS_INTEGRAL, check_settings, settings
+    from spikenerf.pipelines.benchmark.settings import (
+        NAME,
+        PREVIOUS_INTEGRAL,
+        adopt_integral_defaults,
+        check_settings,
+        settings,
+    )
 
     cfg = BenchmarkConfig(["analytic-orbs"], ["spike-integral"], ["gray"], tmp_path, size=16, frames=100,
                           test_views=1, render=False, iters=4)  # fmt: skip
@@ -211,9 +217,13 @@ def test_a_folder_whose_spike_integral_cells_other_defaults_trained_is_refused(t
     unrecorded = {k: v for k, v in now.items() if k != "integral_defaults"}
     (tmp_path / NAME).write_text(json.dumps({"settings": unrecorded, "nonce": "n"}))
     assert check_settings(cfg) == "n"  # no spike-integral cell trained yet (a demo folder of four methods)
+    adopt_integral_defaults(cfg)  # its cells will train with today's defaults: recorded
     cell = tmp_path / "runs" / "analytic-orbs" / "gray" / "spike-integral"
     cell.mkdir(parents=True)
     (cell / "checkpoint.pt").write_bytes(b"")
+    assert check_settings(cfg) == "n"
+    (tmp_path / NAME).write_text(json.dumps({"settings": unrecorded, "nonce": "n"}))
+    adopt_integral_defaults(cfg)  # a trained cell: nothing adopted
     with pytest.raises(InputError, match=r"spike-integral cells .*window 11 → 5, samples 2 → 1, batch 2048"):
         check_settings(cfg)
     assert PREVIOUS_INTEGRAL == {"window": 11, "samples": 2, "batch": 2048}
@@ -243,3 +253,7 @@ def test_a_cell_is_done_when_its_render_is(tmp_path: Path) -> None:
     assert cell.done.endswith("nerf-gt/render/render.json") and cfg.render
     assert _jobs(replace(cfg, render=False), cell_keys(cfg))[-1].done.endswith("nerf-gt/metrics.json")
     assert cell.commands(tmp_path)[-1][3:5] == ["render", str(tmp_path / cell.folder)]
+    assert len(cell.commands(tmp_path)) == 3  # train, eval, render
+    (tmp_path / cell.folder).mkdir(parents=True)
+    (tmp_path / cell.folder / "metrics.json").write_text("{}")  # killed in its render: only that again
+    assert [c[3] for c in cell.commands(tmp_path)] == ["render"]

@@ -74,3 +74,15 @@ def test_files_without_crcs_are_left_to_torch_load(tmp_path: Path) -> None:
     cut.write_bytes(cut.read_bytes()[:300])
     with pytest.raises(InputError, match="unreadable checkpoint"):
         load_checkpoint(cut)
+
+
+def test_a_changed_zip_directory_entry_is_one_damaged_line(tmp_path: Path) -> None:
+    """A flipped compression method in the central directory makes zipfile raise NotImplementedError."""
+    path = tmp_path / "checkpoint.pt"
+    save_checkpoint(path, PAYLOAD)
+    raw = bytearray(path.read_bytes())
+    entry = raw.index(b"PK\x01\x02")  # the first central-directory entry; its method is at offset 10
+    raw[entry + 10] = 1
+    path.write_bytes(bytes(raw))
+    with pytest.raises(InputError, match="damaged checkpoint: its records cannot be read"):
+        load_checkpoint(path)

@@ -110,3 +110,15 @@ def test_a_bad_trajectory_camera_is_one_error_naming_the_file(
     with pytest.raises(InputError, match=needle) as err:
         read_camera_path(path, (16, 12))
     assert str(path) in str(err.value)
+
+
+def test_pinned_values_are_the_first_starts_and_the_plan_is_the_latest(tmp_path: Path) -> None:
+    first = RenderCache.open(tmp_path, {"k": 1}, pinned={"chunk": 65536}, plan=["orbit.mp4"])
+    first.put_view(0, *_view(9))
+    again = RenderCache.open(tmp_path, {"k": 1}, pinned={"chunk": 8192}, plan=["b.mp4"])
+    assert again.pinned == {"chunk": 65536} and again.view(0, (4, 5)) is not None
+    assert json.loads((tmp_path / CACHE / "key.json").read_text())["plan"] == ["b.mp4"]
+    stored = json.loads((tmp_path / CACHE / "key.json").read_text())
+    (tmp_path / CACHE / "key.json").write_text(json.dumps({**stored, "pinned": {"chunk": None}}))
+    odd = RenderCache.open(tmp_path, {"k": 1}, pinned={"chunk": 8192})  # a pinned value of another type
+    assert odd.pinned == {"chunk": 8192} and odd.view(0, (4, 5)) is None

@@ -25,7 +25,10 @@ except ImportError:  # pragma: no cover - not on Unix: no locking
 def lock_path(folder: str | Path) -> Path:
     """The lock file of an output folder: ``.<name>.lock`` beside the folder it resolves to (``d/../out``,
     ``out`` and a symbolic link to ``out`` share one lock)."""
-    folder = Path(folder).resolve()
+    try:
+        folder = Path(folder).resolve()
+    except RuntimeError as err:  # a link loop (Python < 3.13; later ones raise OSError)
+        raise InputError(f"cannot resolve the path ({err})", path=folder) from err
     return folder.parent / f".{folder.name}.lock"
 
 

@@ -191,13 +191,16 @@ def _check_parent(parent: Path, path: Path, param: str) -> None:
         raise InputError(f"{param}: {parent} is a regular file, not a folder", path=path, param=param)
 
 
-def check_writable(path: str | Path, param: str = "out") -> None:
+def check_writable(path: str | Path, param: str = "out", file: bool = False) -> None:
     """InputError (naming ``param`` and ``path``) when the output ``path`` cannot be created: the nearest
     existing folder above it (where its lock, temporaries and parents go), and ``path`` itself when it is an
     existing folder, must be writable by this user on a writable file system that stores files; a virtual
     one such as ``/proc`` or ``/sys`` does not. Checked before any size estimate, so that such a path is
-    not blamed on the free disk space (a virtual file system reports none)."""
-    path = Path(path).resolve()  # a link's target's folder holds the lock and the files, as in lock_path
+    not blamed on the free disk space (a virtual file system reports none). A folder output that is a link
+    is checked at its target (where ``lock_path`` puts the lock); a ``file`` output's link is replaced
+    itself, so only its parent folder's links are followed."""
+    path = Path(path)
+    path = _resolved(path.parent) / path.name if file else _resolved(path)
     base = path.parent
     while not base.exists() and base != base.parent:
         base = base.parent
@@ -205,6 +208,14 @@ def check_writable(path: str | Path, param: str = "out") -> None:
         problem = _unwritable(folder)
         if problem is not None:
             raise InputError(f"{param}: cannot write there: {folder} {problem}", path=path, param=param)
+
+
+def _resolved(path: Path) -> Path:
+    """``path`` with its links resolved (a link loop: as it is; the write will name the loop)."""
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):
+        return path.absolute()
 
 
 def _unwritable(folder: Path) -> str | None:
@@ -248,7 +259,7 @@ def check_file_output(path: str | Path, param: str = "out", overwrite: bool = Fa
         raise InputError(f"{param}: is a folder, not a file", path=path, param=param)
     if path.exists() and not overwrite:
         raise InputError("exists; pass overwrite to replace it", path=path, param="overwrite")
-    check_writable(path, param)
+    check_writable(path, param, file=True)
 
 
 def _check_replaceable(path: Path, kind: str, param: str) -> None:

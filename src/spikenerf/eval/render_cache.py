@@ -3,10 +3,11 @@
 The cache lives in ``OUT/.render-cache/`` while a render runs and is deleted when ``render.json`` is written:
 
 - ``key.json``: what the views depend on (:func:`render_key`: a digest of the model's tensors, its config,
-  the versions of spikenerf and torch, the poses, the camera, near/far, precision, the requested chunk and
-  the device type; for the spike stream its poses, seed and threshold), and the values resolved when the
-  cache began (the automatic chunk), which a resumed render reuses. A cache with another key is deleted,
-  so a changed run or trajectory never mixes with the old views.
+  the versions of spikenerf and torch, the poses, the camera, near/far, precision and the device type; for
+  the spike stream its poses, seed and threshold), the values resolved when the cache began (the automatic
+  chunk), which a resumed render reuses, and the files the render will write (its ``plan``, for the next
+  render to clear). A cache with another key is deleted, so a changed run or trajectory never mixes with
+  the old views.
 - ``views/NNNNN.npz``: each rendered view (8-bit colour, float32 depth and opacity), written atomically
   after it is rendered. An unreadable or mis-sized file is rendered again.
 - ``spikes.bits`` and ``spikes.npz``: the spike stream so far, one packed step after another, and, every
@@ -76,23 +77,29 @@ class RenderCache:
         self.pinned: dict[str, Any] = {}
 
     @classmethod
-    def open(cls, out: Path, key: dict[str, Any], pinned: dict[str, Any] | None = None) -> RenderCache:
+    def open(
+        cls, out: Path, key: dict[str, Any], pinned: dict[str, Any] | None = None, plan: Any = None
+    ) -> RenderCache:
         """The cache in ``out``, kept where its ``key.json`` holds ``key`` and started afresh otherwise.
-        ``pinned``: values that were resolved when the cache was started (e.g. the automatic chunk, which
-        depends on the free GPU memory) and must stay the same for a resumed render; :attr:`pinned` holds
-        the cache's own where it is kept, these otherwise."""
+        ``pinned``: values resolved when the cache was started (the automatic chunk, which depends on the
+        free GPU memory) that a resumed render reuses; :attr:`pinned` holds the cache's own where it is kept
+        (each still of its given type), these otherwise. ``plan``: what this render will write (JSON), kept
+        in ``key.json`` for the next render to clear should this one be interrupted."""
         root = out / CACHE
         wanted = json.loads(json.dumps(key, sort_keys=True, default=str))
+        given = json.loads(json.dumps(pinned or {}, default=str))
         try:
             stored = json.loads((root / "key.json").read_text())
-            kept = stored["key"] == wanted and isinstance(stored.get("pinned"), dict)
+            kept = stored["key"] == wanted and set(stored["pinned"]) == set(given)
+            kept = kept and all(type(stored["pinned"][k]) is type(v) for k, v in given.items())
         except (OSError, UnicodeDecodeError, ValueError, TypeError, KeyError):
             kept = False
         if not kept:
             _remove(root)
             (root / "views").mkdir(parents=True, exist_ok=True)
-            stored = {"key": wanted, "pinned": json.loads(json.dumps(pinned or {}, default=str))}
-            write_text_atomic(root / "key.json", json.dumps(stored, sort_keys=True))
+            stored = {"key": wanted, "pinned": given}
+        stored["plan"] = plan
+        write_text_atomic(root / "key.json", json.dumps(stored, sort_keys=True))
         for folder in (root, root / "views"):  # a killed writer's temporaries (the caller holds the lock)
             clean_stale_temps(folder)
         cache = cls(root)
@@ -156,8 +163,8 @@ class RenderCache:
             failpoint("render.spikes")
 
     def close(self) -> None:
-        """Delete the cache (the render is complete)."""
-        _remove(self.root)
+        """Delete the cache (the render is complete: a cache that cannot be deleted is left, not an error)."""
+        shutil.rmtree(self.root, ignore_errors=True)
 
 
 def cache_bytes(out: Path) -> int:

@@ -266,7 +266,7 @@ def _listed_files(out: Path) -> list[object]:
         files = json.loads((out / "render.json").read_text()).get("files", {})
         listed += [files.get("video"), *(files.get("spikes") or [])]
     with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
-        listed += list(json.loads((out / CACHE / "key.json").read_text())["pinned"]["files"])
+        listed += list(json.loads((out / CACHE / "key.json").read_text())["plan"])
     return listed
 
 
@@ -354,14 +354,15 @@ def _render_locked(
     key = render_key(
         model, config=model.hparams(), versions=[package_version(), torch.__version__], poses=poses,
         camera=[float(v) for v in dataclasses.astuple(k)], bounds=[path.near, path.far], precision=precision,
-        chunk=requested, device=model.device.type,
+        device=model.device.type,
         spikes=None if spike_path is None else [digest_array(spike_path.poses), seed, dataset.threshold],
     )  # fmt: skip
     mark(out, "render")
     clear_previous_render(out)
-    files = planned_files(path.name, model.channels, spike_path is not None)
-    cache = RenderCache.open(out, key, pinned={"chunk": chunk, "files": files})
-    chunk = int(cache.pinned.get("chunk", chunk))  # a resumed render renders as it began (the auto chunk)
+    plan = planned_files(path.name, model.channels, spike_path is not None)
+    cache = RenderCache.open(out, key, pinned={"chunk": chunk}, plan=plan)
+    if not requested and cache.pinned["chunk"] > 0:  # resumed: the automatic chunk it began with
+        chunk = cache.pinned["chunk"]
     colors, depths, opacities = render_views(model, path, cache, chunk, precision, progress)
     depth_all, op_all = np.stack(depths), np.stack(opacities)
     lo, hi = depth_range(depth_all, op_all)

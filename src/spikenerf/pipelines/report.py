@@ -141,7 +141,7 @@ def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
         metrics = _read_json(run / "metrics.json")
         if metrics.get("mean", {}).get("lpips") is None:
             notes.append(f"{where}: LPIPS – ({metrics.get('lpips_reason') or 'not computed'}).")
-        if cfg.render and not (run / "render" / "images").is_dir():
+        if cfg.render and not (run / "render" / "render.json").is_file():
             notes.append(f"{where}: no rendered test views (render did not run).")
     return notes
 

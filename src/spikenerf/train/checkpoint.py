@@ -92,13 +92,18 @@ def check_crc(path: Path) -> None:
     zip (torch's legacy format, or no checkpoint at all: ``torch.load`` tells), or saved with torch's CRCs
     switched off (every record's CRC 0)."""
     try:
-        with zipfile.ZipFile(path) as archive:
-            records = archive.infolist()
-            if all(r.CRC == 0 for r in records if r.file_size):
-                return
-            bad = archive.testzip()
+        archive = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, OSError, EOFError, ValueError):
         return  # not a zip, or its directory is cut: torch.load's own error names the file
+    with archive:
+        if all(r.CRC == 0 for r in archive.infolist() if r.file_size):
+            return
+        try:
+            bad = archive.testzip()
+        except Exception as err:  # a changed directory entry: a bad size, method or flag (zlib, EOF, …)
+            raise InputError(
+                f"damaged checkpoint: its records cannot be read ({type(err).__name__}: {err})", path=path
+            ) from err
     if bad is not None:
         raise InputError(
             f"damaged checkpoint: its record {bad!r} fails its CRC-32 check (its bytes changed on disk "

@@ -162,7 +162,8 @@ def cell_name(cfg: BenchmarkConfig, key: CellKey) -> str:
 def cell_commands(
     cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: int | None = None
 ) -> list[list[str]]:
-    """train (resuming an interrupted run), eval, and optionally render, for one cell. The cell's batch is
+    """train (resuming an interrupted run), eval, and optionally render, for one cell (only the render where
+    ``metrics.json`` is there: the cell was killed in its render, which resumes). The cell's batch is
     the method's CPU default unless the extra train arguments name one, so that a cell trains the same rays
     on any device (``train`` alone takes more on CUDA)."""
     seed = cfg.seed if seed is None else seed
@@ -178,7 +179,10 @@ def cell_commands(
         train.append("--resume")
     commands = [train, _spikenerf("eval", str(run), "--device", cfg.device)]
     if cfg.render:
-        commands.append(_spikenerf("render", str(run), "--out", str(run / "render"), "--device", cfg.device))
+        render = _spikenerf("render", str(run), "--out", str(run / "render"), "--device", cfg.device)
+        if (run / "metrics.json").is_file():  # trained and scored before a kill in its render: render only
+            return [render]
+        commands.append(render)
     return commands
 
 

@@ -2,10 +2,11 @@
 
 Every step is one ``spikenerf`` command run in a subprocess, so the exact commands are recorded in
 ``results.json`` and a user can re-run any cell by hand. A cell (scene, colour, method variant, training seed)
-is finished when its run folder holds ``metrics.json``; finished cells are reused when the benchmark is
-restarted. :func:`~spikenerf.pipelines.benchmark.cells.cell_keys` says which cells there are;
-:func:`run_benchmark` lists each scene's dataset and each cell as a job and hands them to the executor that
-``cfg.executor`` names (:mod:`spikenerf.pipelines.benchmark.executor`).
+is finished when its run folder holds ``render/render.json`` (``metrics.json`` with renders off); finished
+cells are reused when the benchmark is restarted, and a cell killed during its render only renders again.
+:func:`~spikenerf.pipelines.benchmark.cells.cell_keys` says which cells there are; :func:`run_benchmark`
+lists each scene's dataset and each cell as a job and hands them to the executor that ``cfg.executor``
+names (:mod:`spikenerf.pipelines.benchmark.executor`).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from spikenerf.pipelines.benchmark.cells import (
 from spikenerf.pipelines.benchmark.executor import Executor, get_executor
 from spikenerf.pipelines.benchmark.resources import check_benchmark_resources
 from spikenerf.pipelines.benchmark.results import write_all
-from spikenerf.pipelines.benchmark.settings import check_settings, write_settings
+from spikenerf.pipelines.benchmark.settings import adopt_integral_defaults, check_settings, write_settings
 from spikenerf.pipelines.benchmark.steps import Job
 from spikenerf.pipelines.benchmark.tables import Cell
 
@@ -52,6 +53,7 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
         mark(cfg.out, "benchmark")
         if nonce is None:
             nonce = write_settings(cfg, None)
+        adopt_integral_defaults(cfg)
         clean_stale_temps(cfg.out)
         return _run_benchmark_locked(cfg, executor, on_cell, nonce)
 

@@ -122,8 +122,7 @@ def check_settings(cfg: Any) -> str | None:
             param="out",
         )
     was = old.get("integral_defaults", PREVIOUS_INTEGRAL)
-    trained = any(cfg.out.glob("runs/*/*/spike-integral*/checkpoint.pt"))  # a folder without such cells
-    if "spike-integral" in cfg.variants and trained and was != new["integral_defaults"]:
+    if "spike-integral" in cfg.variants and integral_trained(cfg) and was != new["integral_defaults"]:
         new_integral = new["integral_defaults"].items()
         what = ", ".join(f"{k} {was.get(k)!r} → {v!r}" for k, v in new_integral if was.get(k) != v)
         raise InputError(
@@ -133,6 +132,25 @@ def check_settings(cfg: Any) -> str | None:
             param="out",
         )
     return nonce
+
+
+def integral_trained(cfg: Any) -> bool:
+    """Whether the folder holds a spike-integral cell that has begun training (a checkpoint)."""
+    return any(cfg.out.glob("runs/*/*/spike-integral*/checkpoint.pt"))
+
+
+def adopt_integral_defaults(cfg: Any) -> None:
+    """Record this version's spike-integral defaults in a folder with no spike-integral cell yet (one
+    started before the method joined it, e.g. a four-method demo): its cells train with them now. Call
+    under the folder's lock, after :func:`check_settings` accepted it."""
+    path = cfg.out / NAME
+    if "spike-integral" not in cfg.variants or integral_trained(cfg) or not path.is_file():
+        return
+    stored = json.loads(path.read_text())
+    current = settings(cfg)["integral_defaults"]
+    if stored["settings"].get("integral_defaults") != current:
+        stored["settings"]["integral_defaults"] = current
+        write_text_atomic(path, json.dumps(stored, indent=2) + "\n")
 
 
 def write_settings(cfg: Any, nonce: str | None) -> str:
