@@ -91,6 +91,13 @@ def test_a_trajectory_file_gives_its_camera_and_bounds(tmp_path: Path) -> None:
     assert (wide.intrinsics.width, wide.intrinsics.height) == (16, 12) and wide.bounds == (1, 3)
     own = read_camera_path(_write(tmp_path / "c.json", fl_x=30, w=40, h=20), (16, 12)).intrinsics
     assert (own.width, own.height, own.fl_x, own.cx, own.cy) == (40, 20, 30, 20, 10)
+    framed = {"frames": [{"transform_matrix": POSE, "fl_x": 30, "w": 40, "h": 20}]}  # the camera in the frame
+    (tmp_path / "d.json").write_text(json.dumps(framed))
+    assert read_camera_path(tmp_path / "d.json", (16, 12)).intrinsics == own
+    mixed = {"w": 40, "h": 20, "frames": [{"transform_matrix": POSE, "fl_x": 30}]}  # size apart from it
+    (tmp_path / "e.json").write_text(json.dumps(mixed))
+    with pytest.raises(InputError, match="belong beside the camera"):
+        read_camera_path(tmp_path / "e.json", (16, 12))
 
 
 @pytest.mark.parametrize(

@@ -366,8 +366,11 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
     k, given = None, [key for key in CAMERA_KEYS if key in meta or key in cam]
     if given and not ("fl_x" in cam or "camera_angle_x" in cam):
         raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'", path=path)
-    if given:  # w/h given anywhere are the size (intrinsics() reads them beside the focal length)
-        k = intrinsics(meta, path, None if any(key in d for key in ("w", "h") for d in (meta, cam)) else size)
+    sized = [d for d in (meta, cam) if "w" in d or "h" in d]
+    if sized and sized[0] is meta and cam and not any(key in meta for key in ("fl_x", "camera_angle_x")):
+        raise InputError("fields 'w', 'h' belong beside the camera's 'fl_x' or 'camera_angle_x'", path=path)
+    if given:  # w/h given are the size
+        k = intrinsics(meta, path, None if sized else size)
     bounds = None
     if "near" in meta or "far" in meta:
         near, far = number(meta, "near", path, positive=True), number(meta, "far", path, positive=True)
