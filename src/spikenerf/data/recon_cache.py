@@ -69,12 +69,13 @@ def _digest(chunks: Iterable[bytes]) -> str:
 
 
 def stream_digest(spikes: np.ndarray) -> str:
-    """A digest of a (T, ...) stream's shape, dtype and bytes (read 64 steps at a time)."""
-    a = np.asarray(spikes)
+    """A digest of an array's shape, dtype and bytes, e.g. a (T, ...) stream; read about 1 MB of leading
+    rows at a time, so a memory-mapped stream is never loaded whole (a scalar counts as one row)."""
+    a = np.atleast_1d(np.asarray(spikes))
     head = [repr((a.shape, str(a.dtype))).encode()]
-    return _digest(
-        itertools.chain(head, (np.ascontiguousarray(a[i : i + 64]).tobytes() for i in range(0, len(a), 64)))
-    )
+    rows = max(1, (1 << 20) // max(a[:1].nbytes, 1))
+    chunks = (np.ascontiguousarray(a[i : i + rows]).tobytes() for i in range(0, len(a), rows))
+    return _digest(itertools.chain(head, chunks))
 
 
 def cache_key(

@@ -31,6 +31,7 @@ import torch
 
 from spikenerf.core.atomic import clean_stale_temps, write_bytes_atomic, write_text_atomic
 from spikenerf.core.faults import failpoint
+from spikenerf.data.recon_cache import stream_digest
 
 CACHE = ".render-cache"
 #: steps between two saved spike states: the state (float32 accumulators) costs 32 steps' packed spikes
@@ -40,17 +41,13 @@ UNREADABLE = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZip
 
 
 def digest_array(array: np.ndarray | torch.Tensor) -> str:
-    """sha256 of an array's dtype, shape and bytes."""
-    if isinstance(array, torch.Tensor):
-        array = array.detach().cpu().contiguous()
-        head = f"{array.dtype}{tuple(array.shape)}"
-        raw = array.reshape(-1).view(torch.uint8).numpy() if array.numel() else np.zeros(0, np.uint8)
-    else:
-        array = np.ascontiguousarray(array)
-        head, raw = f"{array.dtype}{array.shape}", array.reshape(-1).view(np.uint8)
-    h = hashlib.sha256(head.encode())
-    h.update(raw)  # a 1-D uint8 view of the same memory: no copy
-    return h.hexdigest()
+    """A digest of an array's dtype, shape and bytes (``data.recon_cache.stream_digest``; a tensor of any
+    dtype, bfloat16 included, through a byte view of its memory)."""
+    if not isinstance(array, torch.Tensor):
+        return stream_digest(array)
+    t = array.detach().cpu().contiguous()
+    raw = t.reshape(-1).view(torch.uint8).numpy() if t.numel() else np.zeros(0, np.uint8)
+    return f"{t.dtype}{tuple(t.shape)}:{stream_digest(raw)}"
 
 
 def model_digest(model: torch.nn.Module) -> str:
