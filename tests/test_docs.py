@@ -235,3 +235,28 @@ def test_readme_python_example_runs(tmp_path: Path, monkeypatch, capsys) -> None
 @pytest.mark.parametrize("page", ["getting-started.md", "index.md", "results.md", "real-data.md"])
 def test_the_readme_reaches_the_user_pages(page: str) -> None:
     assert f"](docs/{page}" in (ROOT / "README.md").read_text()
+
+
+def _python_imports(text: str) -> list[tuple[str, list[str]]]:
+    """(module, names) of each `from spikenerf… import …` or `import spikenerf…` in ```python blocks."""
+    found = []
+    for block in re.findall(r"^```python\n(.*?)^```", text, flags=re.MULTILINE | re.DOTALL):
+        for module, names in re.findall(r"^\s*from (spikenerf[\w.]*) import ([\w, ]+)$", block, flags=re.M):
+            found.append((module, [n.strip() for n in names.split(",") if n.strip()]))
+        found += [(module, []) for module in re.findall(r"^\s*import (spikenerf[\w.]*)$", block, flags=re.M)]
+    return found
+
+
+def test_the_python_examples_import_what_exists() -> None:
+    """Every spikenerf name a ```python block of the docs imports exists (the examples' first line runs)."""
+    import importlib
+
+    checked = 0
+    for page in ALL_PAGES:
+        for module, names in _python_imports(page.read_text()):
+            loaded = importlib.import_module(module)
+            missing = [n for n in names if not hasattr(loaded, n)]
+            assert not missing, f"{page.relative_to(ROOT)}: {module} has no {', '.join(missing)}"
+            checked += 1
+    assert checked >= 3
+    assert _python_imports("```python\nfrom spikenerf.x import a, b\n```\n") == [("spikenerf.x", ["a", "b"])]

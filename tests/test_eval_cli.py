@@ -166,7 +166,11 @@ def test_test_pose_optimisation_is_reported_beside_the_plain_score(
     assert data["mean"] == plain["mean"] and data["per_view"] == plain["per_view"]  # the plain score stays
     opt = data["test_pose_optimised"]
     assert (opt["steps"], opt["lr"], len(opt["per_view"])) == (3, 2e-3, 3) and "fitted" in opt["protocol"]
-    assert all(v["rotation_deg"] > 0 and v["translation"] > 0 for v in opt["per_view"])
+    assert opt["fits_kept"] == sum(v["fit_kept"] for v in opt["per_view"])
+    for fitted, given in zip(opt["per_view"], plain["per_view"], strict=True):
+        assert fitted["psnr"] >= given["psnr"]  # a fit that images the view worse is not kept
+        moved = fitted["rotation_deg"] > 0 and fitted["translation"] > 0
+        assert moved if fitted["fit_kept"] else fitted["psnr"] == given["psnr"] and not fitted["rotation_deg"]
     assert math.isclose(opt["mean"]["psnr"], float(np.mean([v["psnr"] for v in opt["per_view"]])))
     assert (
         abs(opt["mean"]["psnr"] - plain["mean"]["psnr"]) < 1.0
@@ -174,6 +178,25 @@ def test_test_pose_optimisation_is_reported_beside_the_plain_score(
     for flag, value in (("--test-pose-opt", "-1"), ("--test-pose-lr", "0")):
         assert flag in _cli_error(capsys, "eval", run_dir, "--device", "cpu", flag, value)
     assert json.loads((run_dir / "metrics.json").read_text()) == data  # nothing rewritten on bad input
+
+
+def test_a_test_pose_fit_that_scores_worse_keeps_the_given_pose(run_dir: Path) -> None:
+    from spikenerf.eval.evaluate import pose_optimised
+    from spikenerf.train.run import load_run
+
+    model, _, dataset = load_run(run_dir)
+    views = dataset.test
+    given = [  # view 0's given pose scored "better" than any fit can, view 1's worse
+        {"index": 0, "psnr": math.inf, "ssim": 1.0, "lpips": None},
+        {"index": 1, "psnr": -math.inf, "ssim": 0.0, "lpips": None},
+        {"index": 2, "psnr": -math.inf, "ssim": 0.0, "lpips": None},
+    ]
+    opt = pose_optimised(model, views, dataset.intrinsics, dataset, None, 4096, (2, 2e-3), given=given)
+    first, *others = opt["per_view"]
+    assert opt["fits_kept"] == 2 and not first["fit_kept"] and all(v["fit_kept"] for v in others)
+    assert first["psnr"] == math.inf and first["rotation_deg"] == first["translation"] == 0.0
+    assert all(math.isfinite(v["psnr"]) and v["rotation_deg"] > 0 for v in others)
+    assert opt["mean"]["rotation_deg"] == pytest.approx(sum(v["rotation_deg"] for v in others) / 3)
 
 
 def test_eval_and_render_leave_the_gt_renders_undecoded(

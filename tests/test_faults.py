@@ -246,6 +246,7 @@ CASES: list[tuple[str, list[str], str]] = [
     # simulate: sizes, non-finite numbers, outputs
     ("sim-memory-bomb", [*SIM, "--width", "100000", "--height", "100000", "--out", f"{R}/o"], "--width"),
     ("sim-frames-bomb", [*SIM, "--frames", "100000000", "--out", f"{R}/o"], "--frames"),
+    ("sim-size-not-8", [*SIM, "--width", "15", "--height", "15", "--out", f"{R}/o"], "multiple of 8"),
     ("sim-seq-width-bomb", ["simulate", "--sequence", f"{R}/seq/transforms.json", "--width", "100000",
                             "--out", f"{R}/o"], "--width"),
     ("sim-fps-nan", [*SIM, "--fps", "nan", "--out", f"{R}/o"], "--fps"),
@@ -293,6 +294,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-grid-bomb", [*T, "--field-option", "n_voxels_final=1000000000000",
                          "--out", f"{R}/o"], "--field-option"),
     ("train-fopt-abc", [*T, "--field-option", "lr=abc", "--out", f"{R}/o"], "lr"),
+    ("train-compile-optimizer-fp16", [*T, "--compile-optimizer", "--amp", "fp16", "--out", f"{R}/o"],
+     "--compile-optimizer"),
     ("train-fopt-neg", [*T, "--field-option", "n_voxels_init=-1", "--out", f"{R}/o"],
      "n_voxels_init"),
     ("train-fopt-noeq", [*T, "--field-option", "novalue", "--out", f"{R}/o"],
@@ -326,6 +329,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "checkpoint.pt"),
     # eval
     ("eval-missing", ["eval", f"{R}/nope", "--device", "cpu"], "nope"),
+    ("eval-dataset-folder", ["eval", f"{R}/ds", "--device", "cpu"], "is a dataset folder, not a run folder"),
+    ("render-dataset-folder", ["render", f"{R}/ds", "--out", f"{R}/o"], "is a dataset folder, not a run"),
     ("eval-garbage-ckpt", ["eval", f"{R}/garbage_ckpt", "--device", "cpu"], "checkpoint.pt"),
     ("eval-pickle-ckpt", ["eval", f"{R}/pickle_ckpt", "--device", "cpu"], "checkpoint.pt"),
     ("eval-bad-yaml", ["eval", f"{R}/bad_yaml_run", "--device", "cpu"], "config.yaml"),

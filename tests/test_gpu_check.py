@@ -28,7 +28,8 @@ def _run(out: Path, work: Path, *parts: str, **extra: str) -> subprocess.Complet
         "WARMUP": "1",
         "STEPS": "1",
         "PSTEPS": "1",
-        "VARIANTS": "base static_visible=8",
+        "VARIANTS": "base static_visible=8+compile-optimizer",
+        "GRID": "10",
         "WORK": str(work),
         "OMP_NUM_THREADS": "1",
         **extra,
@@ -43,7 +44,8 @@ def test_the_parts_run_on_a_cpu_and_write_their_summary(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stdout + done.stderr
     summary = (out / "summary.txt").read_text()
     for line in ("== data: rc 0", "wrote", "== train: rc 0", "trained 10 iterations", "== profile-base: rc 0",
-                 "== profile-static_visible-8: rc 0", "static_visible=8:"):  # fmt: skip
+                 "== profile-static_visible-8+compile-optimizer: rc 0",
+                 "static_visible=8 --compile-optimizer:"):  # fmt: skip
         assert line in summary, summary
     assert summary.count("ms/step") >= 4  # two batches × two variants
     assert (work / "orbs16" / "transforms.json").is_file() and (work / "nerf-gt16" / "curves.csv").is_file()
@@ -65,12 +67,13 @@ def test_the_default_spike_method_trains_and_profiles_in_its_own_run(tmp_path: P
     assert "static_samples: 64" in fast and "lookup: auto" in fast, fast
 
 
-def test_the_occupancy_part_times_both_ways(tmp_path: Path) -> None:
+def test_the_occupancy_and_optimiser_parts_time_both_ways(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    done = _run(out, tmp_path / "work", "occupancy")
+    done = _run(out, tmp_path / "work", "occupancy", "optim")
     assert done.returncode == 0, done.stdout + done.stderr
     summary = (out / "summary.txt").read_text()
     assert "== occupancy: rc 0" in summary and "points / lattice:" in summary, summary
+    assert "== optim: rc 0" in summary and "grid R 10:" in summary and "compiled / eager speed" in summary
 
 
 def test_an_unknown_part_stops_with_exit_2(tmp_path: Path) -> None:

@@ -365,7 +365,7 @@ def test_simulate_from_an_image_sequence(tmp_path: Path, capsys) -> None:
     assert ds.config["trajectory"]["kind"] == "sequence" and ds.config["trajectory"]["steps_per_frame"] == 2
     np.testing.assert_allclose(ds.gt.images[0], next(src.frames([0])), atol=2e-3)
     err = _fails(capsys, ["simulate", "--sequence", str(seq), "--radius", "3", "--out", str(tmp_path / "x")])
-    assert "--radius" in err and "do not apply to --sequence" in err
+    assert "--radius" in err and "not used with --sequence" in err
 
 
 def test_elevation_sweep_moves_the_camera_up_and_down(tmp_path: Path, capsys) -> None:

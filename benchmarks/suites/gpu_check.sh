@@ -12,12 +12,15 @@
 #   lookup   (120) bench_lookup: each lookup's forward, and forward + backward, against grid_sample's, 2²⁰
 #            points, R 300; the Triton kernels at each of LAUNCHES (points x warps a program)
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
+#   optim    (120) bench_optimizer: one Adam update of the R GRID grid model, train's fused Adam against
+#            --compile-optimizer's compiled update (compiling timed apart)
 #   occupancy (60) bench_occupancy: an occupancy update on the lattice against the point lookups, R 300, G 128
 #   train    (120) METHOD, BATCH rays, ITERS iterations, eager, PSNR every 250: the run `profile` starts from
 #   profile  (160 per variant) profile_cuda_step from that run's last step, METHOD at BATCH and SMALL rays,
 #            the compiled static step (static_samples=64 static_colors=16) with each of VARIANTS (default:
-#            lookup=triton, as it is, static_visible=24, lookup=gather): ms a step, rays/s, GPU-busy share,
-#            launches and host syncs
+#            lookup=triton, as it is, static_visible=24, lookup=gather; a variant joins field options and
+#            compile-optimizer with +, e.g. lookup=triton+compile-optimizer): ms a step, rays/s, GPU-busy
+#            share, launches and host syncs
 #   fast     (300) METHOD trained as `train` does with the fast GPU recipe: COMPILE, the static budget
 #            (static_samples=64 static_colors=16) and lookup=LOOKUP (triton), compiling included in its
 #            seconds; its test PSNR against `train`'s is what a default needs
@@ -34,7 +37,7 @@
 # keeps the dataset and the run between calls on a warm machine. Environment: METHOD (nerf-gt; spike-integral
 # is the default spike method), DEVICE (cuda), SIZE (400),
 # JOBS (8), BATCH (16384), SMALL (4096), ITERS (2000), COMPILE (--compile; empty for the eager step), LOOKUP
-# (the `fast` part's lookup: triton), WARMUP/STEPS/PSTEPS
+# (the `fast` part's lookup: triton), GRID (the `optim` part's grid resolution: 300), WARMUP/STEPS/PSTEPS
 # (profile_cuda_step's --warmup/--steps/--profile-steps: 15/60/3), LAUNCHES (64x4,32x4,64x8,128x8),
 # VARIANTS (the profile's field options,
 # `base` for none), PYTHON (python). The CPU test runs `data train profile` at a tiny size
@@ -46,7 +49,7 @@ DEVICE=${DEVICE:-cuda} SIZE=${SIZE:-400} BATCH=${BATCH:-16384} SMALL=${SMALL:-40
 COMPILE=${COMPILE---compile} WARMUP=${WARMUP:-15} STEPS=${STEPS:-60} PSTEPS=${PSTEPS:-3}
 PYTHON=${PYTHON:-python} WORK=${WORK:-.gpu-work} JOBS=${JOBS:-8} LOOKUP=${LOOKUP:-triton} LAUNCHES=${LAUNCHES:-64x4,32x4,64x8,128x8}
 VARIANTS=${VARIANTS:-lookup=triton base static_visible=24 lookup=gather}
-METHOD=${METHOD:-nerf-gt}
+METHOD=${METHOD:-nerf-gt} GRID=${GRID:-300}
 DATA=$WORK/orbs$SIZE RUN=$WORK/$METHOD$SIZE
 STATIC=(--field-option static_samples=64 --field-option static_colors=16)
 mkdir -p "$OUT" "$WORK"
@@ -88,6 +91,9 @@ for name in "$@"; do
       part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
         tests/test_integral.py tests/test_learned_targets.py tests/test_train_device.py tests/test_vm_lattice.py ;;
+    optim)
+      part optim 120 "^grid|compil|ms an update|speed" "$PYTHON" -m benchmarks.tools.bench_optimizer \
+        --device "$DEVICE" --resolution "$GRID" ;;
     occupancy)
       part occupancy 60 "^R |ms|points /" "$PYTHON" -m benchmarks.tools.bench_occupancy --device "$DEVICE" \
         --resolution 300 --cells 128 ;;
@@ -104,8 +110,14 @@ for name in "$@"; do
       [ -f "$RUN-fast/curves.csv" ] && note "$(cat "$RUN-fast/curves.csv")" ;;
     profile)
       for variant in $VARIANTS; do
-        extra=()
-        [ "$variant" != base ] && extra=(--field-option "$variant")
+        extra=()  # VARIANT: base, or KEY=VALUE field options and compile-optimizer joined by +
+        for piece in ${variant//+/ }; do
+          case $piece in
+            base) ;;
+            compile-optimizer) extra+=(--compile-optimizer) ;;
+            *) extra+=(--field-option "$piece") ;;
+          esac
+        done
         part "profile-${variant//=/-}" 160 "ms/step" "$PYTHON" -m benchmarks.tools.profile_cuda_step "$DATA" \
           --device "$DEVICE" --methods "$METHOD" --start "$METHOD=$RUN" --batches "$BATCH,$SMALL" \
           --warmup "$WARMUP" --steps "$STEPS" --profile-steps "$PSTEPS" $COMPILE "${STATIC[@]}" ${extra[@]+"${extra[@]}"}

@@ -4,8 +4,8 @@ Usage (from the repository root; meant for a CUDA host, runs on a CPU too)::
 
     PYTHONPATH=src python -m benchmarks.tools.profile_cuda_step DATASET [--device cuda]
         [--methods nerf-gt,spike-integral] [--batches 4096,16384] [--warmup 100] [--steps 100]
-        [--profile-steps 10] [--compile] [--field-option KEY=VALUE ...] [--start METHOD=RUN ...]
-        [--json OUT.json]
+        [--profile-steps 10] [--compile] [--compile-optimizer] [--field-option KEY=VALUE ...]
+        [--start METHOD=RUN ...] [--json OUT.json]
 
 For each method × batch a fresh ``Trainer`` (evaluation and checkpoints off; with ``--start``, one
 resumed from a copy of a finished run, so that the step is the one at the end of training) trains ``--warmup``
@@ -71,6 +71,7 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
     if start is None:
         cfg = TrainConfig(dataset=str(dataset), method=method, batch=batch, iters=10**6, eval_every=0,  # type: ignore[arg-type]
                           eval_views=1, device=args.device, compile=args.compile,
+                          compile_optimizer=args.compile_optimizer,
                           field_config=dict(args.field_option))  # fmt: skip
         trainer = Trainer(cfg, out, progress=False)
     else:
@@ -98,6 +99,7 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
         "method": method,
         "batch": batch,
         "compile": args.compile,
+        "compile_optimizer": args.compile_optimizer,
         "field_options": dict(args.field_option),
         "static_samples": static_samples(trainer.model),  # as rendered (a resumed model's own config)
         "compiled_step": isinstance(step, CompiledStep) and step.failed is None,
@@ -120,6 +122,7 @@ def profile_case(dataset: Path, method: str, batch: int, args: argparse.Namespac
     calls = ", ".join(f"{v:.0f} {k}" for k, v in counts.items())
     rate = out["rays_per_second"] / 1e3
     opts = "".join(f" {k}={v}" for k, v in args.field_option) + (" --compile" if args.compile else "")
+    opts += " --compile-optimizer" if args.compile_optimizer else ""
     opts += " (compiled step)" if out["compiled_step"] else ""
     print(f"{method} batch {batch}{opts}: {ms:.2f} ms/step, {rate:.1f} k rays/s, GPU {gpu:.2f} ms/step "
           f"({busy:.0f} % busy), {calls} per step", flush=True)  # fmt: skip
@@ -140,7 +143,8 @@ def resumed(run: Path, method: str, out: Path, batch: int, args: argparse.Namesp
     shutil.copytree(run, out)
     field = {**cfg.field_config, **dict(args.field_option)}
     cfg = dataclasses.replace(cfg, batch=batch, iters=cfg.iters + 10**5, eval_every=0, device=args.device,
-                              compile=args.compile, field_config=field)  # fmt: skip
+                              compile=args.compile, compile_optimizer=args.compile_optimizer,
+                              field_config=field)  # fmt: skip
     save_config(cfg, out / "config.yaml")  # the copy's options are the ones asked: nothing to refuse
     ckpt = load_checkpoint(out / "checkpoint.pt")
     ckpt["hparams"]["config"].update(dict(args.field_option))  # a resumed model is built from these
@@ -174,6 +178,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--profile-steps", type=int, default=10)
     parser.add_argument("--compile", action="store_true", help="train with --compile")
+    parser.add_argument("--compile-optimizer", action="store_true", help="train with --compile-optimizer")
     parser.add_argument("--field-option", type=field_option, action="append", default=[], metavar="KEY=VALUE",
                         help="a field config entry (e.g. static_samples=64); repeatable")  # fmt: skip
     parser.add_argument("--start", type=method_run, action="append", default=[], metavar="METHOD=RUN",

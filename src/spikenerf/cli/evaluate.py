@@ -102,7 +102,8 @@ def command(
         click.echo(
             f"test-pose-optimised ({opt['steps']} steps, each test pose fitted to its own image, field "
             f"frozen): PSNR {fmt(m['psnr'], 2)} dB, SSIM {fmt(m['ssim'], 4)}, LPIPS {fmt(m['lpips'], 4)}; "
-            f"mean correction {fmt(m['rotation_deg'], 3)}°, {fmt(m['translation'], 4)} scene units"
+            f"mean correction {fmt(m['rotation_deg'], 3)}°, {fmt(m['translation'], 4)} scene units; "
+            f"{opt['fits_kept']} of {len(opt['per_view'])} fits kept (a fit that scores lower is not)"
         )
     nr = result["no_reference"]
     if nr is not None:

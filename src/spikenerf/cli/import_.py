@@ -131,5 +131,6 @@ def command(**kw: Any) -> None:
     click.echo(
         f"wrote {out}: {len(ds.trajectory)} steps, {ds.intrinsics.width}×{ds.intrinsics.height}, poses from "
         f"{imported['poses']} ({imported['poses_known']} poses, {imported['keyframes']} keyframes), "
-        f"{len(ds.test)} test views" + (f"; {imported['pose_note']}" if imported.get("pose_note") else "")
+        f"{len(ds.test)} test view{'' if len(ds.test) == 1 else 's'}"
+        + (f"; {imported['pose_note']}" if imported.get("pose_note") else "")
     )

@@ -74,8 +74,16 @@ def blocks(frames: range, method: str) -> Iterator[range]:
 
 @click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI, or the learned reconstructor).")
 @click.argument("spikes", type=click.Path(path_type=Path))
-@click.option("--height", type=int, help="Frame height in pixels [default: spike_h of ./config.yaml].")
-@click.option("--width", type=int, help="Frame width in pixels [default: spike_w of ./config.yaml].")
+@click.option(
+    "--height",
+    type=int,
+    help="Frame height in pixels [default: spike_h of the config.yaml beside the file, or one folder up].",
+)
+@click.option(
+    "--width",
+    type=int,
+    help="Frame width in pixels [default: spike_w of the config.yaml beside the file, or one folder up].",
+)
 @click.option("--method", type=click.Choice(RECONS), required=True)
 @click.option("--weights", type=click.Path(path_type=Path), help="learned: weights file [default: shipped].")
 @click.option(

@@ -244,7 +244,7 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
     given = [f"--{name.replace('_', '-')}" for name in named if kw[name] is not None]
     if given:
         raise InputError(
-            f"{', '.join(given)} do not apply to --sequence (its poses come from the file; "
+            f"{', '.join(given)}: not used with --sequence (its poses come from the file; "
             "use --sequence-range, --steps-per-frame and --eval-views)"
         )
     from spikenerf.core.errors import parse_range

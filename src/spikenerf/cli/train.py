@@ -46,6 +46,7 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
     "log_every": (None, "log_every"),
     "amp": (None, "amp"),
     "compile": (None, "compile"),
+    "compile_optimizer": (None, "compile_optimizer"),
     "recon": ("targets", "recon"),
     "window": ("targets", "window"),
     "blur_samples": ("targets", "blur_samples"),
@@ -176,8 +177,8 @@ PARAM_FLAGS = {
 @click.option(
     "--refine-poses/--no-refine-poses",
     default=None,
-    help="Learn SE(3) corrections of the keyframe poses while training (poses.* in --set) "
-    "[default: on for imported datasets; see docs/real-data.md].",
+    help="Learn rotation and translation corrections (so(3)×R³) of the keyframe poses while training "
+    "(poses.* in --set) [default: on for imported datasets; see docs/real-data.md].",
 )
 @click.option(
     "--holdout/--no-holdout",
@@ -230,6 +231,14 @@ PARAM_FLAGS = {
     "step's forward and loss instead, as one graph (CUDA graphs on CUDA). Compiles for tens of seconds "
     "first (cached for later runs); falls back to eager with a warning on failure. For long GPU runs: on a "
     "CPU the compiled step gained little (docs/performance.md).",
+)
+@click.option(
+    "--compile-optimizer",
+    is_flag=True,
+    default=_D.compile_optimizer,
+    help="torch.compile the Adam update of every parameter as one graph (a few seconds' compiling per grid "
+    "resolution; eager with a warning on failure; not with --amp fp16). For CUDA, where it is not measured "
+    "yet; on a CPU it is slower (docs/performance.md).",
 )
 @click.option(
     "--field-option",
@@ -293,7 +302,8 @@ def command(
         raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
     dataset = Path(base.dataset) if dataset is None else dataset
     if not dataset.is_dir():
-        raise InputError("dataset folder not found", path=dataset)
+        found = "is a file, not a dataset folder" if dataset.exists() else "dataset folder not found"
+        raise InputError(found, path=dataset)
     base.dataset = str(dataset.resolve())
     summary = train(base.validate(), out, resume=resume, progress=not quiet)
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"

@@ -271,7 +271,9 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
     """
     root = Path(root)
     if not root.is_dir():
-        raise InputError("dataset folder not found", path=root)
+        raise InputError(
+            "is a file, not a dataset folder" if root.exists() else "dataset folder not found", path=root
+        )
     tpath = root / TRANSFORMS
     data = _read_mapping(tpath)
     k = _check_camera(data, tpath, None)

@@ -44,7 +44,8 @@ POSE_BATCH = 1024
 POSE_PROTOCOL = (
     "each test view's pose fitted to its own test image (6 numbers per view, Adam on the linear MSE of "
     "random pixels; the field frozen; a view scored against the mean of view_poses renders moves them "
-    "together), then scored; reported beside the plain score, never instead of it"
+    "together), then scored; a view whose fitted pose scores a lower PSNR keeps its given pose and plain "
+    "score; reported beside the plain score, never instead of it"
 )
 
 
@@ -140,11 +141,14 @@ def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | N
 def pose_optimised(
     model: Any, views: PosedImages, k: Any, dataset: SpikeDataset, backbone: str | None, chunk: int,
     test_pose: tuple[int, float], window: np.ndarray | None = None, precision: str = "fp32",
+    given: list[dict[str, Any]] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Scores of ``views`` (V poses (V, 4, 4), images (V, H, W, 3)) after fitting each pose to its own image
     with the model frozen (:func:`spikenerf.train.pose_fit.fit_view_poses`, ``test_pose`` = (steps, lr)).
     ``window`` (V, S, 4, 4): each view's S poses whose mean render it shows (``keyframe_windows``), fitted
-    with one correction per view and scored by their mean render; None: the views' own poses."""
+    with one correction per view and scored by their mean render; None: the views' own poses. ``given``: the
+    plain per-view scores at those poses; a view whose fitted pose scores a lower PSNR keeps them (the fit,
+    on random pixels, can end worse than it began), with ``fit_kept`` False and a zero correction."""
     steps, lr = test_pose
     targets = image_channels(np.asarray(views.images), "gray" if model.channels == 1 else "rgb")
     start = np.asarray(views.poses)[:, None] if window is None else np.asarray(window)
@@ -156,7 +160,11 @@ def pose_optimised(
         pred = display(color, model.channels)
         scores = score_view(pred, display(views.images[i], model.channels), backbone)
         size = {"rotation_deg": float(fit.rotation_deg[i]), "translation": float(fit.translation[i])}
-        per_view.append({"index": i, **scores, **size})
+        kept = given is None or given[i]["psnr"] <= scores["psnr"]  # else the given pose images it better
+        if not kept:
+            scores = {m: given[i][m] for m in ("psnr", "ssim", "lpips")}  # type: ignore[index]
+            size = {"rotation_deg": 0.0, "translation": 0.0}
+        per_view.append({"index": i, **scores, **size, "fit_kept": kept})
     keys = ("psnr", "ssim", "lpips", "rotation_deg", "translation")
     return {
         "protocol": POSE_PROTOCOL,
@@ -164,6 +172,7 @@ def pose_optimised(
         "lr": lr,
         "batch": POSE_BATCH,
         "mean": {m: mean_or_none([v[m] for v in per_view]) for m in keys},
+        "fits_kept": sum(v["fit_kept"] for v in per_view),
         "per_view": per_view,
     }
 
@@ -263,7 +272,7 @@ def _evaluate_locked(
     }
     if test_pose[0] > 0 and len(views):
         result["test_pose_optimised"] = pose_optimised(
-            model, views, k, dataset, backbone, chunk, test_pose, window, precision
+            model, views, k, dataset, backbone, chunk, test_pose, window, precision, per_view
         )
     if use_noref:
 

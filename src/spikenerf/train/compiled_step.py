@@ -73,6 +73,14 @@ def compiles_needed(model: RadianceModel) -> int:
     return 2 * len(resolutions()) + 4
 
 
+def allow_recompiles(limit: int) -> None:
+    """Raise Dynamo's recompile limit (per code object) to ``limit``; only ever raised (a process-wide
+    setting)."""
+    config = torch._dynamo.config  # cache_size_limit: recompile_limit's older name, in every torch ≥ 2.3
+    if config.cache_size_limit < limit:
+        config.cache_size_limit = limit
+
+
 def _rng_state(device: torch.device) -> tuple[torch.Tensor, torch.Tensor | None]:
     cuda = torch.cuda.get_rng_state(device) if device.type == "cuda" else None
     return torch.get_rng_state(), cuda
@@ -182,10 +190,7 @@ def compile_step(
     Call after the targets are on their device."""
     # a graph break is a fullgraph failure, told in the one warning line: not twice
     warnings.filterwarnings("ignore", message="Dynamo does not know how to trace", category=UserWarning)
-    limit = compiles_needed(model)
-    config = torch._dynamo.config  # cache_size_limit: recompile_limit's older name, in every torch ≥ 2.3
-    if config.cache_size_limit < limit:  # only ever raised (a process-wide setting)
-        config.cache_size_limit = limit
+    allow_recompiles(compiles_needed(model))
     try:
         if device.type == "cuda":
             _mark_static_targets(method)

@@ -21,6 +21,7 @@ from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.config import Bound, check_config, choices, from_mapping
 from spikenerf.core.errors import InputError
+from spikenerf.core.marker import folder_kind
 from spikenerf.data.samplers import WindowOrder
 from spikenerf.data.targets import Method, TargetRecon, TrainColor
 from spikenerf.fields import FieldKind
@@ -243,6 +244,8 @@ class TrainConfig:
         compile: ``torch.compile`` the field's per-sample functions (``fields/compiled.py``), or with the
             grid's ``static_samples`` the device part of each step as one graph (``train/compiled_step.py``);
             falls back to eager with a warning when compilation fails.
+        compile_optimizer: ``torch.compile`` the Adam update (``train/compiled_optim.py``); not with
+            ``amp`` fp16 (its gradient scaler steps the optimiser itself).
         field_config: overrides of the field's config (GridFieldConfig / MLPFieldConfig fields).
         poses: pose refinement (``--refine-poses``, train/pose_refine.py).
         exposure: the learned exposure start and end poses of nerf-bad (train/exposure_poses.py).
@@ -278,6 +281,7 @@ class TrainConfig:
     log_every: int = 25
     amp: AmpMode = "none"
     compile: bool = False
+    compile_optimizer: bool = False
     holdout: bool | None = None
     holdout_steps: int = 8
     holdout_radius: int | None = None
@@ -301,6 +305,12 @@ class TrainConfig:
                 f"targets.window_poses > 1 models the TFP window; targets.recon {self.targets.recon!r} "
                 "has none (use tfp)",
                 param=("targets.window_poses", "targets.recon"),
+            )
+        if self.compile_optimizer and self.amp == "fp16":
+            raise InputError(
+                "compile_optimizer does not work with amp fp16, whose gradient scaler steps the optimiser "
+                "itself (use bf16 or none)",
+                param=("compile_optimizer", "amp"),
             )
         self.poses.check()
         self.exposure.check()
@@ -438,7 +448,15 @@ def _validated(config: TrainConfig, path: Path) -> TrainConfig:
 def load_run_config(path: str | Path) -> TrainConfig:
     """A run folder's ``config.yaml`` as that run trained: :func:`load_config`, but a run written before
     ``targets.window_poses`` existed (its targets section lacks the key) trained with one pose per target,
-    not today's default. (A run written since records the resolved count: :meth:`TrainConfig.resolved`.)"""
+    not today's default. (A run written since records the resolved count: :meth:`TrainConfig.resolved`.)
+    A dataset folder's config (its camera's) is refused as such."""
+    folder = Path(path).parent
+    if (kind := folder_kind(folder)) not in (None, "run"):
+        raise InputError(
+            f"is a {kind} folder, not a run folder (train a run on a dataset first: spikenerf train DATASET "
+            "--out RUN)",
+            path=folder,
+        )
     path, data = _read_config(path)
     config = _validated(TrainConfig.from_dict(data, path), path)
     if isinstance(data.get("targets"), dict) and "window_poses" not in data["targets"]:

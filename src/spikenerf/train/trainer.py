@@ -45,7 +45,8 @@ from spikenerf.train.checkpoint import (
     rng_state,
     save_checkpoint,
 )
-from spikenerf.train.compiled_step import compile_step, static_samples
+from spikenerf.train.compiled_optim import CompiledAdamStep, load_state, set_lr, use_tensor_lr
+from spikenerf.train.compiled_step import compile_step, compiles_needed, static_samples
 from spikenerf.train.config import TrainConfig, load_run_config, save_config
 from spikenerf.train.dense_adam import DenseAdam
 from spikenerf.train.device import check_batch_fits, keep_targets_on_device
@@ -58,7 +59,10 @@ from spikenerf.train.run import check_resume_fits, dataset_fingerprint
 
 CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
 #: options that may change when a run is resumed (everything else must match the stored config)
-RESUMABLE = ("iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every", "compile")
+RESUMABLE = (
+    "iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every", "compile",
+    "compile_optimizer",
+)  # fmt: skip
 
 
 @dataclass
@@ -89,6 +93,10 @@ def make_optimizer(model: RadianceModel, config: TrainConfig) -> torch.optim.Ada
         g["base_lr"] = g["lr"]
     # the fused kernel updates each tensor in one pass (7× faster than the per-op loop on a CPU); on a CPU
     # it copies a channels-last tensor (the grid's factors) unless stepped through row-major views
+    if config.compile_optimizer:  # plain Adam with tensor rates, stepped by CompiledAdamStep
+        optimizer = torch.optim.Adam(groups, betas=(0.9, 0.99))
+        use_tensor_lr(optimizer)
+        return optimizer
     adam = DenseAdam if model.device.type == "cpu" else torch.optim.Adam
     return adam(groups, betas=(0.9, 0.99), fused=model.device.type in ("cpu", "cuda"))
 
@@ -99,7 +107,7 @@ def set_learning_rate(
     """Exponential decay ``lr = base_lr · final_ratio^(iteration / iters)``."""
     factor = final_ratio ** (iteration / max(iters, 1))
     for g in optimizer.param_groups:
-        g["lr"] = g["base_lr"] * factor
+        set_lr(g, g["base_lr"] * factor)
 
 
 def _lr_final_ratio(config: TrainConfig, model: RadianceModel) -> float:
@@ -277,6 +285,12 @@ class Trainer:
         if self.config.compile and not static_samples(self.model):  # eager again, with a warning, on failure
             compile_field(self.model.field, warn)
         self.optimizer = make_optimizer(self.model, config)
+        #: --compile-optimizer: the compiled Adam update (None: ``optimizer.step`` eagerly)
+        self.adam_step = (
+            CompiledAdamStep(self.optimizer, warn, compiles_needed(self.model))
+            if config.compile_optimizer
+            else None
+        )
         self.pose_refine = pose_refinement(
             self.config, self.dataset, self.model, self.device, self.method.targets
         )
@@ -300,7 +314,7 @@ class Trainer:
             means = ckpt.get("interval_means", {"sums": {}, "counts": {}})  # absent from older checkpoints
             self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
             self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
-            self.optimizer.load_state_dict(ckpt["optimizer"])
+            load_state(self.optimizer, ckpt["optimizer"])  # this run's implementation flags kept
             match_state_layout(self.optimizer)
             for name, learner in self.learners.items():
                 learner.load_state_dict(ckpt[name])
@@ -382,13 +396,18 @@ class Trainer:
                 learner.begin(it)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
                 self.scaler.scale(loss).backward()
-                self.scaler.step(self.optimizer)
+                if self.adam_step is not None:  # never with fp16's scaler (TrainConfig.validate)
+                    self.adam_step()
+                else:
+                    self.scaler.step(self.optimizer)
                 for learner in self.learners.values():
                     self.scaler.step(learner.optimizer)
                 self.scaler.update()
             self.iteration = it + 1
             if self.model.on_step(self.iteration, self.optimizer):
                 self.optimizer = make_optimizer(self.model, cfg)
+                if self.adam_step is not None:
+                    self.adam_step.use(self.optimizer)
             self.elapsed += time.perf_counter() - t0
             self.rays += step.rays
             for means in (recent, interval):
