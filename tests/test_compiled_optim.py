@@ -172,3 +172,26 @@ def test_fp16_amp_with_a_compiled_optimiser_is_refused(dataset_dir: Path) -> Non
     with pytest.raises(InputError, match="gradient scaler") as err:
         cfg.validate()
     assert err.value.params == ("compile_optimizer", "amp")
+
+
+def test_a_compiled_update_that_ran_and_then_raises_is_not_retried_eagerly(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(compiled_optim, "BACKEND", "aot_eager")
+    b = _params()
+    plain = torch.optim.Adam(_groups(b), betas=(0.9, 0.99))
+    use_tensor_lr(plain)
+    step = CompiledAdamStep(plain, pytest.fail, compiles=4)
+    for p in b:
+        p.grad = torch.ones_like(p)
+    step()
+    assert step.ran
+
+    def broken() -> None:  # e.g. out of memory half-way through the update
+        raise RuntimeError("out of memory")
+
+    step.compiled = broken  # type: ignore[method-assign]
+    before = [p.detach().clone() for p in b]
+    with pytest.raises(RuntimeError, match="out of memory"):
+        step()
+    assert step.failed is None and all(torch.equal(p, q) for p, q in zip(b, before, strict=True))

@@ -186,15 +186,16 @@ def test_a_test_pose_fit_that_scores_worse_keeps_the_given_pose(run_dir: Path) -
 
     model, _, dataset = load_run(run_dir)
     views = dataset.test
-    given = [  # view 0's given pose scored "better" than any fit can, view 1's worse
-        {"index": 0, "psnr": math.inf, "ssim": 1.0, "lpips": None},
+    given = [  # view 0's given score not a number (None: an exact render's inf PSNR), the others' worse
+        {"index": 0, "psnr": None, "ssim": 1.0, "lpips": None},
         {"index": 1, "psnr": -math.inf, "ssim": 0.0, "lpips": None},
         {"index": 2, "psnr": -math.inf, "ssim": 0.0, "lpips": None},
     ]
     opt = pose_optimised(model, views, dataset.intrinsics, dataset, None, 4096, (2, 2e-3), given=given)
     first, *others = opt["per_view"]
     assert opt["fits_kept"] == 2 and not first["fit_kept"] and all(v["fit_kept"] for v in others)
-    assert first["psnr"] == math.inf and first["rotation_deg"] == first["translation"] == 0.0
+    assert first["psnr"] is None and first["ssim"] == 1.0
+    assert first["rotation_deg"] == first["translation"] == 0.0
     assert all(math.isfinite(v["psnr"]) and v["rotation_deg"] > 0 for v in others)
     assert opt["mean"]["rotation_deg"] == pytest.approx(sum(v["rotation_deg"] for v in others) / 3)
 

@@ -153,6 +153,13 @@ def _round_three(root: Path) -> None:
     for i, frame in enumerate(data["frames"]):
         frame["step"] = 10**30 if i == 1 else i
     (root / "huge_step.json").write_text(json.dumps(data))
+    data["frames"][1]["step"] = 1.5
+    (root / "frac_step.json").write_text(json.dumps(data))
+    data["frames"][1]["step"] = 1
+    del data["frames"][2]["step"]
+    (root / "gap_step.json").write_text(json.dumps(data))
+    data["frames"][2]["step"] = 1
+    (root / "dup_step.json").write_text(json.dumps(data))
     (root / "mine.png").write_bytes(b"the user's own picture")
     (root / "no_config_run").mkdir()
     for file in (".spikenerf", "checkpoint.pt"):
@@ -247,6 +254,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("sim-memory-bomb", [*SIM, "--width", "100000", "--height", "100000", "--out", f"{R}/o"], "--width"),
     ("sim-frames-bomb", [*SIM, "--frames", "100000000", "--out", f"{R}/o"], "--frames"),
     ("sim-size-not-8", [*SIM, "--width", "15", "--height", "15", "--out", f"{R}/o"], "multiple of 8"),
+    ("sim-size-not-8-raw", [*SIM, "--width", "15", "--height", "15", "--raw-width", "16", "--out", f"{R}/o"],
+     "multiple of 8"),
     ("sim-seq-width-bomb", ["simulate", "--sequence", f"{R}/seq/transforms.json", "--width", "100000",
                             "--out", f"{R}/o"], "--width"),
     ("sim-fps-nan", [*SIM, "--fps", "nan", "--out", f"{R}/o"], "--fps"),
@@ -365,6 +374,9 @@ CASES: list[tuple[str, list[str], str]] = [
     ("import-overwrite-foreign", [*IMP, "--overwrite", "--out", f"{R}/thesis"], "thesis"),
     ("import-overwrite-run", [*IMP, "--overwrite", "--out", f"{R}/run"], "run folder"),
     ("import-exists", [*IMP, "--out", f"{R}/ds"], "--overwrite"),
+    ("import-overwrite-own-input", [*IMP, "--overwrite", "--out", f"{R}/ds"], "holds the input"),
+    ("sim-seq-overwrite-own-input", ["simulate", "--sequence", f"{R}/ds/transforms_test.json", "--overwrite",
+     "--out", f"{R}/ds"], "holds the input"),
     ("import-out-is-file", [*IMP, "--overwrite", "--out", f"{R}/afile"], "afile"),
     ("import-out-under-file", [*IMP, "--out", f"{R}/afile/ds"], "afile"),
     # benchmark, demo
@@ -420,6 +432,13 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-resume-ckpt-shape", [*T, "--resume", "--out", f"{R}/ck_shape"], "checkpoint.pt"),
     ("train-resume-ckpt-rng", [*T, "--resume", "--out", f"{R}/ck_rng"], "checkpoint.pt"),
     ("eval-ckpt-foreign", ["eval", f"{R}/ck_foreign", "--device", "cpu"], "checkpoint.pt"),
+    ("info-ckpt-foreign", ["info", f"{R}/ck_foreign"], "belongs to another run"),
+    ("eval-test-pose-opt-huge", ["eval", f"{R}/run", "--device", "cpu", "--test-pose-opt", "9" * 20],
+     "--test-pose-opt"),
+    ("eval-noref-steps-huge", ["eval", f"{R}/run", "--device", "cpu", "--noref", "on", "--noref-steps",
+                               "9" * 20], "--noref-steps"),
+    ("sim-warmup-huge", [*SIM, "--warmup", "9" * 20, "--out", f"{R}/o"], "--warmup"),
+    ("sim-spp-bomb", [*SIM, "--spp", "99999999999999", "--out", f"{R}/o"], "--spp"),
     ("render-ckpt-foreign", ["render", f"{R}/ck_foreign", "--device", "cpu", "--out", f"{R}/o"],
      "checkpoint.pt"),
     # integers out of range, binary configs, non-finite orbits
@@ -452,6 +471,13 @@ CASES: list[tuple[str, list[str], str]] = [
     ("import-orbit-turns-overflow", [*IMP, "--orbit", "4,30,1e308", "--out", f"{R}/o"], "--orbit"),
     ("import-orbit-elevation-big", [*IMP, "--orbit", "4,1e308", "--out", f"{R}/o"], "--orbit"),
     ("import-step-huge", [*IMP[:3], f"{R}/huge_step.json", *IMP[6:], "--out", f"{R}/o"], "frames[1].step"),
+    ("import-step-fraction", [*IMP[:3], f"{R}/frac_step.json", *IMP[6:], "--out", f"{R}/o"],
+     "frames[1].step: expected an integer"),
+    ("import-step-missing", [*IMP[:3], f"{R}/gap_step.json", *IMP[6:], "--out", f"{R}/o"],
+     "frames[2]: has no step"),
+    ("import-step-twice", [*IMP[:3], f"{R}/dup_step.json", *IMP[6:], "--out", f"{R}/o"],
+     "frames[1] and frames[2] share step 1"),
+    ("import-a-folder", ["import", f"{R}/ds", *IMP[2:], "--out", f"{R}/o"], "is a folder, not a .dat"),
     ("info-bad-curves", ["info", f"{R}/bad_curves_run"], "curves.csv"),
     ("info-run-config-value", ["info", f"{R}/neg_iters_run"], "config.yaml: iters"),
     ("render-run-config-value", ["render", f"{R}/neg_iters_run", "--out", f"{R}/o"], "config.yaml: iters"),
@@ -480,7 +506,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("render-spike-steps-alone", ["render", f"{R}/run", "--spike-steps", "5", "--out", f"{R}/o"],
      "--spike-steps"),
     ("sim-blend-not-blend", ["simulate", "--blend", f"{R}/afile", "--out", f"{R}/o"], "--blend"),
-    ("sim-warmup-negative", [*SIM, "--warmup", "-1", "--out", f"{R}/o"], "--warmup must be"),
+    ("sim-warmup-negative", [*SIM, "--warmup", "-1", "--out", f"{R}/o"], "Invalid value for '--warmup'"),
     ("recon-data-unknown-scene", ["recon-data", "--scene", "nope", "--out", f"{R}/o"],
      "`spikenerf simulate --list-scenes`"),
     # nothing created before the checks pass, not even a parent folder

@@ -85,6 +85,8 @@ def recording_config(
     Raises:
         InputError: the size is known from neither (naming both ways to give it), or ``config`` is malformed.
     """
+    if Path(dat).is_dir():
+        raise InputError("is a folder, not a .dat recording: give the recording file in it", path=dat)
     found = Path(config) if config is not None else find_spikecv_config(dat)
     try:
         base = read_spikecv_config(found) if found is not None else RecordingConfig()

@@ -21,15 +21,16 @@ RAW_FILE = "recording.dat"
 
 
 def check_raw_width(raw_width: int | None, height: int, width: int) -> None:
-    """InputError unless H·W % 8 == 0 (naming ``width``/``height``; a ``.dat`` file packs 8 pixels a byte)
-    where ``raw_width`` is None, or (naming ``raw_width``) ``raw_width`` ≥ W with H·raw_width % 8 == 0."""
+    """InputError unless H·W % 8 == 0 (naming ``width``/``height``: the dataset's ``.dat`` files pack 8
+    pixels a byte) and, where ``raw_width`` is given, ``raw_width`` ≥ W with H·raw_width % 8 == 0 (naming
+    ``raw_width``)."""
+    if height > 0 and width > 0 and (height * width) % 8:
+        raise InputError(
+            f"width × height must be a multiple of 8 (a .dat file packs 8 pixels a byte), found "
+            f"{width}×{height} = {width * height}",
+            param=("width", "height"),
+        )
     if raw_width is None:
-        if height > 0 and width > 0 and (height * width) % 8:
-            raise InputError(
-                f"width × height must be a multiple of 8 (a .dat file packs 8 pixels a byte), found "
-                f"{width}×{height} = {width * height}",
-                param=("width", "height"),
-            )
         return
     if raw_width < width:
         raise InputError(f"raw_width must be ≥ the image width {width}, found {raw_width}", param="raw_width")

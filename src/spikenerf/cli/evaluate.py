@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from spikenerf.cli.options import chunk_option, precision_option
+from spikenerf.cli.types import COUNT, BoundedInt
 
 #: lower-layer parameters (eval/noref.py) → the flags that set them
 PARAM_FLAGS = {
@@ -38,7 +39,7 @@ PARAM_FLAGS = {
     "reconstructions, spike interval-violation rate); auto = on for imported datasets.",
 )  # fmt: skip
 @click.option(
-    "--noref-steps", type=int, default=8, show_default=True,
+    "--noref-steps", type=COUNT, default=8, show_default=True,
     help="Check steps along the path when the dataset has no imported test keyframes.",
 )  # fmt: skip
 @click.option(
@@ -49,7 +50,7 @@ PARAM_FLAGS = {
     help="Pixels sampled per check step for the violation rate (0 = all).",
 )  # fmt: skip
 @click.option(
-    "--test-pose-opt", "test_pose_opt", type=int, default=0, show_default=True,
+    "--test-pose-opt", "test_pose_opt", type=BoundedInt(0), default=0, show_default=True,
     help="Also score after fitting each test view's pose to its own image for N Adam steps, the field "
     "frozen (the BARF protocol for runs on estimated poses; docs/metrics.md). Reported beside the plain "
     "score as test_pose_optimised; 0 = off.",

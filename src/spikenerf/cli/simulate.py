@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from spikenerf.cli import command_line
-from spikenerf.cli.types import COUNT, SEED
+from spikenerf.cli.types import COUNT, SEED, BoundedInt
 from spikenerf.core.errors import InputError
 
 DEFAULT_SIZE = 200
@@ -72,7 +72,11 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 @click.option("--noise", type=click.Choice(["ideal", "realistic"]), default="ideal", show_default=True)
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Camera (and render) seed.")
 @click.option(
-    "--warmup", type=int, default=0, show_default=True, help="Camera warm-up steps on the first frame."
+    "--warmup",
+    type=BoundedInt(0),
+    default=0,
+    show_default=True,
+    help="Camera warm-up steps on the first frame.",
 )
 @click.option(
     "--spp", type=int, help="Samples per pixel [default: Blender 16, analytic 4 (2×2 supersampling)]."
@@ -140,9 +144,11 @@ def command(**kw: Any) -> None:
     for name in FLOAT_OPTIONS:  # nan/inf would write NaN poses or hang the camera
         if kw[name] is not None and not math.isfinite(kw[name]):
             raise InputError(f"--{name.replace('_', '-')}: expected a finite number, found {kw[name]}")
-    from spikenerf.core.marker import check_output
+    from spikenerf.core.marker import check_inputs_outside, check_output
 
     check_output(kw["out"], "dataset", overwrite=bool(kw["overwrite"]), replace=True)
+    inputs = [kw["sequence"], kw["eval_views"], kw["blend"]]
+    check_inputs_outside(kw["out"], inputs)  # replacing --out whole would delete them
     source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
     from spikenerf.capture.blur import parse_blur_views
     from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
@@ -197,7 +203,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
     height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
     views = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
-    _check_resources(kw, "width/height/frames", width, height, steps, views)
+    _check_resources(kw, "width/height/frames/spp", width, height, steps, views)
     trajectory = orbit(radius, elevation, turns, steps / fps, fps, center=center, elevation_sweep_deg=sweep)
     if kw["eval_views"] is not None:
         from spikenerf.data.dataset import read_pose_file

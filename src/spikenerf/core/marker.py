@@ -185,6 +185,23 @@ def check_output(
     check_writable(path, param)
 
 
+def check_inputs_outside(out: str | Path, inputs: list[str | Path | None], param: str = "out") -> None:
+    """InputError (naming ``param``) when an input file or folder of ``inputs`` (None: absent) is the
+    output folder ``out`` or lies inside it: the writer replaces ``out`` whole and would delete it."""
+    where = _resolved(Path(out))
+    for given in inputs:
+        if given is None:
+            continue
+        source = _resolved(Path(given))
+        if source == where or where in source.parents:
+            raise InputError(
+                f"{param}: holds the input {given}, which replacing the folder would delete; write to "
+                "another folder",
+                path=out,
+                param=param,
+            )
+
+
 def _check_parent(parent: Path, path: Path, param: str) -> None:
     """InputError when ``parent`` of the output ``path`` exists as something other than a folder."""
     if parent.exists() and not parent.is_dir():

@@ -160,7 +160,10 @@ def pose_optimised(
         pred = display(color, model.channels)
         scores = score_view(pred, display(views.images[i], model.channels), backbone)
         size = {"rotation_deg": float(fit.rotation_deg[i]), "translation": float(fit.translation[i])}
-        kept = given is None or given[i]["psnr"] <= scores["psnr"]  # else the given pose images it better
+        plain, fitted = (None, None) if given is None else (given[i]["psnr"], scores["psnr"])
+        # kept unless the given pose images the view better, or either PSNR is not a number (None: an
+        # exact render's inf or a broken one's NaN): then the plain score stands
+        kept = given is None or (plain is not None and fitted is not None and plain <= fitted)
         if not kept:
             scores = {m: given[i][m] for m in ("psnr", "ssim", "lpips")}  # type: ignore[index]
             size = {"rotation_deg": 0.0, "translation": 0.0}

@@ -23,7 +23,7 @@ from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_output, mark, replace_dir
+from spikenerf.core.marker import MARKER, check_inputs_outside, check_output, mark, replace_dir
 from spikenerf.data.dataset import near_far
 from spikenerf.data.reconstruction import reconstructor
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
@@ -286,6 +286,8 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
             param="frame_range",
         )
     check_output(out, "dataset", overwrite=opts.overwrite, replace=True)
+    pose_file = None if opts.poses in ("colmap", "orbit") else opts.poses
+    check_inputs_outside(out, [dat, rc.path, opts.config, pose_file])  # replacing out would delete them
     rel_keys = keyframe_steps(n, opts.keyframe_every, keyframe_window(opts))
     if len(rel_keys) < 2:
         raise InputError(

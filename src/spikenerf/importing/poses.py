@@ -73,17 +73,36 @@ def steps_from_names(names: list[str]) -> np.ndarray | None:
 
 
 # ------------------------------------------------------------------------------------- transforms.json
+def _step_of(frame: dict, i: int, path: Path) -> int:
+    """``frame["step"]`` as an int: an integer, or a float with an integral value (``3.0``, as some JSON
+    writers give it); InputError naming ``frames[i].step`` otherwise (a frame without one among frames with
+    one, a fraction, a string, a step beyond 64 bits)."""
+    if "step" not in frame:
+        raise InputError(f"frames[{i}]: has no step while other frames give one", path=path)
+    value = frame["step"]
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise InputError(f"frames[{i}].step: expected an integer, found {value!r}", path=path)
+    if not -(2**63) <= value < 2**63:
+        raise InputError(f"frames[{i}].step {value} is beyond a 64-bit step number", path=path)
+    return value
+
+
 def read_transforms_poses(path: Path) -> PoseSet:
     """A nerfstudio/Blender ``transforms.json``: ``frames[].transform_matrix`` (+ ``step`` when present)."""
     data = transforms.read_transforms(path)
     poses = check_poses(transforms.frame_poses(data, path), path)
     frames = data["frames"]
     steps = None
-    given = [f.get("step") for f in frames]
-    if all(isinstance(v, int) and not isinstance(v, bool) for v in given):
-        if (i := next((i for i, v in enumerate(given) if not -(2**63) <= v < 2**63), None)) is not None:
-            raise InputError(f"frames[{i}].step {given[i]} is beyond a 64-bit step number", path=path)
-        steps = np.array(given, np.int64)
+    if any("step" in f for f in frames):
+        steps = np.array([_step_of(f, i, path) for i, f in enumerate(frames)], np.int64)
+        _, first, counts = np.unique(steps, return_index=True, return_counts=True)
+        if (counts > 1).any():
+            step = int(steps[first[counts > 1][0]])
+            i, j = np.flatnonzero(steps == step)[:2]
+            message = f"frames[{i}] and frames[{j}] share step {step}: each pose needs its own"
+            raise InputError(message, path=path)
     elif all(isinstance(f.get("file_path"), str) for f in frames):
         steps = steps_from_names([f["file_path"] for f in frames])
     k, fov, cam = None, None, transforms.camera(data, path)

@@ -26,7 +26,7 @@ from spikenerf.recon.natural import (
     require_skimage,
 )
 from spikenerf.recon.pairs import PairConfig, Sample, analytic_pairs, source_pairs
-from spikenerf.recon.store import MANIFEST, shard_path, write_shard
+from spikenerf.recon.store import MANIFEST, read_manifest, shard_ok, shard_path, write_shard
 from spikenerf.scenes.base import FrameSource
 
 #: named analytic scenes held out for validation (never in the train split)
@@ -135,7 +135,7 @@ def _write_locked(
         manifest["val_scenes"] += [f"natural:{name}" for name in NATURAL_HELDOUT]
     path = out / MANIFEST
     if path.is_file():
-        old = json.loads(path.read_text())
+        old = read_manifest(out)
         if {k: old.get(k) for k in manifest} != json.loads(json.dumps(manifest)):
             raise InputError(
                 "out holds pairs made with other settings; use a new folder", path=out, param="out"
@@ -150,7 +150,7 @@ def _write_locked(
             for start in range(0, count, DRAWS_PER_SHARD):
                 target = shard_path(out, split, counters[split])
                 counters[split] += 1
-                if not target.is_file():
+                if not shard_ok(target, cfg.window, cfg.size):  # missing, or damaged: written again
                     samples = list(draw(range(start, min(start + DRAWS_PER_SHARD, count))))
                     if samples:
                         write_shard(target, samples)

@@ -141,7 +141,7 @@ def _train_locked(
     from tqdm import tqdm
 
     manifest = read_manifest(pairs_dir)
-    train, val = load_split(pairs_dir, "train"), load_split(pairs_dir, "val")
+    train, val = load_split(pairs_dir, "train", manifest), load_split(pairs_dir, "val", manifest)
     memory = train_memory(cfg, train.window, int(train.targets.shape[-1]))
     check_resources(memory, 0.0, out, "batch/crop/width")  # before anything is written
     net = ReconNet(NetConfig(window=train.window, width=cfg.width))

@@ -14,9 +14,11 @@ every parameter into a few kernels and the Python runs once, at tracing.
   factors as they are.
 - A checkpoint stores each group's flags and rate with its state; :func:`load_state` keeps the optimiser's
   own, so a run resumes with or without ``--compile-optimizer`` whichever way it was started.
-- Fallback: if compiling or the compiled call raises, one warning line and the eager ``optimizer.step``
-  from then on, for later optimisers too (a failed compile leaves the parameters untouched: tracing runs on
-  fake tensors).
+- Fallback: if compiling raises (the first call of an optimiser's compiled update), one warning line and the
+  eager ``optimizer.step`` from then on, for later optimisers too; the parameters are not updated by a
+  failed compile (Dynamo may have initialised the optimiser's state and flags, as its first step would).
+  A compiled update that ran before and raises is not retried eagerly (it may have updated part of the
+  parameters): the error propagates.
 
 On a CPU it is no faster: at a 100³ grid the compiled update took 3.35 ms against fused Adam's 1.92 ms
 (docs/performance.md). It is meant for CUDA, where it is not measured yet.
@@ -103,13 +105,17 @@ class CompiledAdamStep:
         self.optimizer = optimizer
         options: dict[str, Any] = {} if BACKEND is None else {"backend": BACKEND}
         self.compiled = torch.compile(optimizer.step, **options)
+        self.ran = False  # this optimiser's compiled update has run (a later failure is not a compile's)
 
     def __call__(self) -> None:
         if self.failed is None:
             try:
                 self.compiled()
+                self.ran = True
                 return
-            except Exception as err:  # any compiler failure: the eager step is a correct answer
+            except Exception as err:  # a compiler failure: the eager step is a correct answer
+                if self.ran:
+                    raise
                 self.failed = one_line(f"{type(err).__name__}: {err}")
                 self.warn(FAILED + self.failed)
         self.optimizer.step()

@@ -452,11 +452,8 @@ def load_run_config(path: str | Path) -> TrainConfig:
     A dataset folder's config (its camera's) is refused as such."""
     folder = Path(path).parent
     if (kind := folder_kind(folder)) not in (None, "run"):
-        raise InputError(
-            f"is a {kind} folder, not a run folder (train a run on a dataset first: spikenerf train DATASET "
-            "--out RUN)",
-            path=folder,
-        )
+        hint = " (train a run on it first: spikenerf train DATASET --out RUN)" if kind == "dataset" else ""
+        raise InputError(f"is a {kind} folder, not a run folder{hint}", path=folder)
     path, data = _read_config(path)
     config = _validated(TrainConfig.from_dict(data, path), path)
     if isinstance(data.get("targets"), dict) and "window_poses" not in data["targets"]:

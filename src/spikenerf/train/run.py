@@ -133,7 +133,11 @@ def describe_run(run_dir: str | Path) -> str:
 
     run_dir = Path(run_dir)
     config = load_run_config(run_dir / CONFIG_FILE)
-    done = run_iteration(run_dir) if (run_dir / CHECKPOINT).exists() else 0
+    done = 0
+    if (run_dir / CHECKPOINT).exists():  # another run's checkpoint copied in is refused, as eval does
+        ckpt = load_checkpoint(run_dir / CHECKPOINT, map_location=torch.device("cpu"))
+        check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)
+        done = int(ckpt["iteration"])
     lines = [
         f"run: {run_dir}",
         f"method: {make_method(config).describe()}",

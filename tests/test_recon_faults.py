@@ -1,0 +1,130 @@
+"""Damaged or hand-edited pair folders: `recon-train` refuses them with one line naming the file before
+writing anything, and a `recon-data` resume writes a damaged shard again."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from helpers import run_cli
+from spikenerf.recon.generate import write_pairs
+from spikenerf.recon.pairs import PairConfig
+from spikenerf.recon.store import load_split
+
+DATA = ["recon-data", "--train-draws", 2, "--val-draws", 2, "--size", 16, "--window", 5]
+TRAIN = ["--iters", 4, "--batch", 2, "--crop", 16, "--width", 4, "--eval-every", 2, "--ckpt-every", 2]
+SHARD = "train/shard-00000.npz"
+
+
+@pytest.fixture(scope="module")
+def pairs(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("pairs") / "p"
+    write_pairs(root, PairConfig(size=16, window=5, supersample=1), 2, 2, seed=0, progress=False)
+    return root
+
+
+def _edit_shard(path: Path, **changes) -> None:
+    with np.load(path) as z:
+        data = dict(z)
+    for key, change in changes.items():
+        data[key] = change(data[key])
+    np.savez(path, **data)
+
+
+def _edit_manifest(root: Path, change) -> None:
+    data = json.loads((root / "manifest.json").read_text())
+    change(data)
+    (root / "manifest.json").write_text(json.dumps(data))
+
+
+def _nan(a: np.ndarray) -> np.ndarray:
+    a[:] = np.nan
+    return a
+
+
+#: case → (how the folder is damaged, the file named, what the message says)
+CASES = {
+    "truncated": (
+        lambda p: (p / SHARD).write_bytes((p / SHARD).read_bytes()[:100]),
+        SHARD,
+        "unreadable pair shard (BadZipFile)",
+    ),
+    "member-missing": (lambda p: np.savez(p / SHARD, spikes=np.zeros(3)), SHARD, "unreadable pair shard"),
+    "nan-targets": (lambda p: _edit_shard(p / SHARD, targets=_nan), SHARD, "non-finite"),
+    "inf-val-target": (
+        lambda p: _edit_shard(p / "val/shard-00001.npz", targets=lambda a: a * np.float32(np.inf)),
+        "val/shard-00001.npz",
+        "non-finite",
+    ),
+    "float-spikes": (
+        lambda p: _edit_shard(p / SHARD, spikes=lambda a: _nan(a.astype(np.float32))),
+        SHARD,
+        "spikes float32",
+    ),
+    "short-targets": (
+        lambda p: _edit_shard(p / SHARD, targets=lambda a: a[:, :8]),
+        SHARD,
+        "targets float32({n}, 8, 16)",
+    ),
+    "short-window": (
+        lambda p: _edit_shard(p / SHARD, spikes=lambda a: a[:, :3]),
+        SHARD,
+        "(window 5, size 16",
+    ),
+    "info-count": (lambda p: _edit_shard(p / SHARD, info=lambda a: a[:1]), SHARD, "and 1 info entries"),
+    "manifest-window": (
+        lambda p: _edit_manifest(p, lambda m: m["config"].update(window=7)),
+        SHARD,
+        "(window 7, size 16",
+    ),
+    "manifest-config": (
+        lambda p: _edit_manifest(p, lambda m: m.update(config=5)),
+        "manifest.json",
+        "config must be an object, found 5",
+    ),
+    "manifest-size": (
+        lambda p: _edit_manifest(p, lambda m: m["config"].update(size="16")),
+        "manifest.json",
+        'config.size must be an integer ≥ 1, found "16"',
+    ),
+    "manifest-modes": (
+        lambda p: _edit_manifest(p, lambda m: m["config"].pop("modes")),
+        "manifest.json",
+        "config.modes must be a list of gray, rgb, bayer, found nothing",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_recon_train_refuses_a_damaged_pair_folder_with_one_line(
+    capsys, pairs: Path, tmp_path: Path, case: str
+) -> None:
+    damage, name, expected = CASES[case]
+    bad = tmp_path / "p"
+    shutil.copytree(pairs, bad)
+    with np.load(pairs / SHARD) as z:
+        expected = expected.format(n=len(z["targets"]))
+    damage(bad)
+    code, _, err = run_cli(capsys, "recon-train", bad, *TRAIN, "--out", tmp_path / "run")
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert f"error: {bad / name}: " in err and expected in err, err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("case", ["truncated", "nan-targets", "short-targets"])
+def test_a_recon_data_resume_writes_a_damaged_shard_again(capsys, tmp_path: Path, case: str) -> None:
+    out = tmp_path / "p"
+    assert run_cli(capsys, *DATA, "--out", out)[0] == 0
+    before = load_split(out, "train")
+    CASES[case][0](out)
+    code, stdout, err = run_cli(capsys, *DATA, "--out", out)
+    assert code == 0 and stdout.strip() == f"wrote {out}", err
+    after = load_split(out, "train")
+    assert after.info == before.info
+    assert (after.spikes == before.spikes).all() and (after.targets == before.targets).all()
+    code, stdout, err = run_cli(capsys, "recon-train", out, *TRAIN, "--out", tmp_path / "run")
+    assert code == 0, err
