@@ -63,12 +63,17 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
     before = (cfg.out / "results.json").stat().st_mtime_ns
     for change, words in [
         ({"iters": 5}, "iters 4 → 5"),
-        ({"size": 24, "seed": 1}, "size 16 → 24, seed 0 → 1"),
+        ({"size": 24, "seed": 1}, "size 16 → 24; seed 0 → 1"),
         ({"colors": ["gray", "rgb"]}, "color 'gray' → 'all'"),
         ({"field_kind": "mlp"}, "field_kind"),
+        # the demo's derived train arguments: only the options that differ
+        (
+            {"extra_train_args": [("5" if a == "2" else a) for a in cfg.extra_train_args]},
+            "extra train arguments --eval-every 2 → 5\\)",
+        ),
     ]:
         with pytest.raises(
-            InputError, match=f"other settings \\({words}.*; pass the same values .* or a new out"
+            InputError, match=f"other settings: pass the same values .* or a new out \\({words}"
         ):
             run_benchmark(replace(cfg, **change))
     # … and so is a folder whose cells another version's field defaults trained (or an unrecorded one)
@@ -257,3 +262,35 @@ def test_a_cell_is_done_when_its_render_is(tmp_path: Path) -> None:
     (tmp_path / cell.folder).mkdir(parents=True)
     (tmp_path / cell.folder / "metrics.json").write_text("{}")  # killed in its render: only that again
     assert [c[3] for c in cell.commands(tmp_path)] == ["render"]
+    from spikenerf.pipelines.benchmark.cells import cell_commands
+
+    (tmp_path / cell.folder / "checkpoint.pt").write_bytes(b"")
+    recorded = cell_commands(cfg, "analytic-orbs", "gray", "nerf-gt", todo=False)  # what results.json keeps
+    assert [c[3] for c in recorded] == ["train", "eval", "render"] and "--resume" not in recorded[0]
+
+
+def test_table_ii_of_an_earlier_run_goes_when_this_run_has_no_ablation(tmp_path: Path) -> None:
+    from spikenerf.pipelines.benchmark.results import write_all
+    from spikenerf.pipelines.benchmark.tables import Cell
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=16, frames=100,
+                          test_views=1, iters=4)  # fmt: skip
+    (tmp_path / "table2.md").write_text("# Table II of an earlier run\n")
+    write_all(cfg, [Cell("analytic-orbs", "nerf-gt", "gray", 20.0, 0.5, None, 1.0, 0)], [])
+    assert (tmp_path / "table1.md").is_file() and not (tmp_path / "table2.md").exists()
+
+
+def test_a_folder_of_datasets_simulated_first_is_adopted(tmp_path: Path) -> None:
+    """docs/cluster.md: datasets simulated first into OUT/datasets/SCENE; anything else unmarked is not."""
+    from spikenerf.core.marker import mark
+    from spikenerf.pipelines.benchmark.run import pre_simulated
+
+    out = tmp_path / "out"
+    mark(out / "datasets" / "analytic-orbs", "dataset")
+    assert pre_simulated(out)
+    (out / "notes.txt").write_text("mine")
+    assert not pre_simulated(out)
+    (out / "notes.txt").unlink()
+    (out / "datasets" / "thesis").mkdir()
+    assert not pre_simulated(out)
+    assert not pre_simulated(tmp_path / "nowhere")

@@ -26,12 +26,7 @@ dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module'
 WARNING = "spikenerf: warning: torch.compile of the optimiser step failed, stepping eagerly: "
 
 
-@pytest.fixture(autouse=True)
-def fresh_dynamo():  # type: ignore[no-untyped-def]
-    torch._dynamo.reset()
-    counters.clear()
-    yield
-    torch._dynamo.reset()
+pytestmark = pytest.mark.usefixtures("fresh_dynamo")  # tests/conftest.py
 
 
 def _params(seed: int = 0) -> list[torch.Tensor]:

@@ -31,12 +31,7 @@ dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module'
 WARNING = "spikenerf: warning: torch.compile of the training step failed, training eagerly: "
 
 
-@pytest.fixture(autouse=True)
-def fresh_dynamo():  # type: ignore[no-untyped-def]
-    torch._dynamo.reset()
-    counters.clear()
-    yield
-    torch._dynamo.reset()
+pytestmark = pytest.mark.usefixtures("fresh_dynamo")  # tests/conftest.py
 
 
 @pytest.fixture

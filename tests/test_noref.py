@@ -231,7 +231,7 @@ def test_noref_defaults_and_steps_of_simulated_data(demo: Path) -> None:
     ("args", "message"),
     [
         (["--spike-pixels", -1], "--spike-pixels must be ≥ 0"),
-        (["--noref-steps", 0], "--noref-steps must be ≥ 1"),
+        (["--noref-steps", 0], "Invalid value for '--noref-steps'"),
         (["--spike-window", 0], "--spike-window must be ≥ 1"),
     ],
 )

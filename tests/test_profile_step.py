@@ -29,7 +29,9 @@ def test_profile_case_on_the_cpu(tmp_path: Path, capsys: pytest.CaptureFixture[s
     code, _, err = run_cli(capsys, "simulate", "--scene", "analytic-orbs", "--width", 16, "--height", 16,
                            "--frames", 60, "--test-views", 1, "--out", ds)  # fmt: skip
     assert code == 0, err
-    args = argparse.Namespace(device="cpu", warmup=1, steps=2, profile_steps=1, compile=False, start=[])
+    args = argparse.Namespace(
+        device="cpu", warmup=1, steps=2, profile_steps=1, compile=False, compile_optimizer=False, start=[]
+    )
     args.field_option = []
     out = TOOL.profile_case(ds, "nerf-gt", 64, args, tmp_path)
     assert out["rays_per_second"] > 0 and out["ms_per_step"] > 0
@@ -57,7 +59,9 @@ def test_a_profile_can_start_from_a_finished_run(
     code, _, err = run_cli(capsys, "train", ds, "--method", "nerf-gt", "--iters", 6, "--batch", 32,
                            "--eval-every", 0, "--quiet", "--device", "cpu", "--out", run)  # fmt: skip
     assert code == 0, err
-    args = argparse.Namespace(device="cpu", warmup=1, steps=2, profile_steps=1, compile=True)
+    args = argparse.Namespace(
+        device="cpu", warmup=1, steps=2, profile_steps=1, compile=True, compile_optimizer=False
+    )
     args.field_option = [TOOL.field_option("static_samples=40")]
     args.start = [TOOL.method_run(f"nerf-gt={run}")]
     out = TOOL.profile_case(ds, "nerf-gt", 48, args, tmp_path / "profiles")

@@ -14,6 +14,12 @@ from spikenerf.pipelines.benchmark.variants import VARIANTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
 PARAM_FLAGS = {"field_kind": "--field"}
+#: TrainConfig keys that each cell gets from the benchmark's own flags (a --set of one would train another
+#: cell than its tables label), with those flags
+BENCHMARK_KEYS = {
+    "method": "--methods", "color": "--color", "field": "--field", "seed": "--seeds", "iters": "--iters",
+    "dataset": "--scenes", "device": "--device",
+}  # fmt: skip
 
 
 @click.command(help="Reproduce Table I (comparison) and Table II (ablation) on the built-in scenes.")
@@ -93,13 +99,19 @@ def command(
     from spikenerf.pipelines.suite import benchmark_with_report
 
     colors = comma_list(
-        color, ("gray", "rgb"), lambda _: f"--color: expected gray, rgb or gray,rgb, got {color!r}"
+        color, ("gray", "rgb"), lambda _: f"--color: expected gray, rgb or gray,rgb, got {color!r}", "color"
     )
     if size < 8 or frames < 2:
         raise InputError(f"--size must be ≥ 8 and --frames ≥ 2, got {size} and {frames}")
     views = str(check_blur_views(blur_views, frames))
     if overrides:  # a bad key fails here, once, not in every cell
         from spikenerf.train.config import TrainConfig, apply_overrides
+
+        for item in overrides:  # a cell's identity: set by the benchmark, labelled in its tables
+            key = item.partition("=")[0].strip()
+            if key in BENCHMARK_KEYS:
+                flag = BENCHMARK_KEYS[key]
+                raise InputError(f"--set {key}: the benchmark sets it for each cell; use {flag}")
 
         try:
             TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), list(overrides))).validate()
@@ -118,4 +130,5 @@ def command(
         extra_train_args=[arg for item in overrides for arg in ("--set", item)],
     )  # fmt: skip
     benchmark_with_report(cfg)
-    click.echo(f"wrote {out}/table1.md, table2.md, differences.md, results.csv, results.json, report.html")
+    names = ("table1.md", "table2.md", "differences.md", "results.csv", "results.json", "report.html")
+    click.echo(f"wrote {out}/" + ", ".join(n for n in names if (Path(out) / n).is_file()))

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.cli.types import frame_size_options
 from spikenerf.core.errors import InputError
 
 
@@ -56,16 +57,7 @@ def describe_dat(
     "SpikeCV config.yaml beside it)."
 )
 @click.argument("path", type=click.Path(path_type=Path))
-@click.option(
-    "--height",
-    type=int,
-    help="Frame height in pixels [default: spike_h of the config.yaml beside the file, or one folder up].",
-)
-@click.option(
-    "--width",
-    type=int,
-    help="Frame width in pixels [default: spike_w of the config.yaml beside the file, or one folder up].",
-)
+@frame_size_options
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
 @click.option("--fps", type=float, default=40000.0, show_default=True, help="Readout rate in Hz.")

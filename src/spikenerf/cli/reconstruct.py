@@ -16,6 +16,7 @@ import click
 import numpy as np
 
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
+from spikenerf.cli.types import frame_size_options
 from spikenerf.core.atomic import atomic_path, write_bytes_atomic
 from spikenerf.core.errors import InputError, parse_range
 from spikenerf.data.reconstruction import RECONS
@@ -74,16 +75,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
 
 @click.command(help="Reconstruct images from a .dat spike stream (TFP/TFI, or the learned reconstructor).")
 @click.argument("spikes", type=click.Path(path_type=Path))
-@click.option(
-    "--height",
-    type=int,
-    help="Frame height in pixels [default: spike_h of the config.yaml beside the file, or one folder up].",
-)
-@click.option(
-    "--width",
-    type=int,
-    help="Frame width in pixels [default: spike_w of the config.yaml beside the file, or one folder up].",
-)
+@frame_size_options
 @click.option("--method", type=click.Choice(RECONS), required=True)
 @click.option("--weights", type=click.Path(path_type=Path), help="learned: weights file [default: shipped].")
 @click.option(

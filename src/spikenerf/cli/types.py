@@ -1,7 +1,9 @@
-"""Click parameter types shared by the subcommands: integers bounded so that no value overflows later."""
+"""Click parameter types and light options shared by the subcommands: integers bounded so that no value
+overflows later; a recording's frame size (no torch import, so ``info`` stays quick)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import click
@@ -30,3 +32,14 @@ class BoundedInt(click.ParamType):
 SEED = BoundedInt(0)
 #: a count of steps or iterations: 1 … 2⁶³ − 1 (every command using it needs at least one)
 COUNT = BoundedInt(1)
+
+
+def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:
+    """``--height``/``--width`` of a ``.dat`` recording (default: the SpikeCV config.yaml beside it)."""
+    for name, key in (("width", "spike_w"), ("height", "spike_h")):
+        function = click.option(
+            f"--{name}", type=int,
+            help=f"Frame {name} in pixels [default: {key} of the config.yaml beside the file, or one "
+            "folder up].",
+        )(function)  # fmt: skip
+    return function

@@ -56,12 +56,15 @@ def comma_list(
     """``"a, b"`` → ``["a", "b"]``: the non-empty comma-separated names of ``spec``, each one of ``known``.
 
     Raises InputError(``complaint(unknown)``, ``param=param``) when a name is not known or there is none
-    (the caller words the message: it names the parameter, or the flag in cli/, and what was expected).
+    (the caller words the message: it names the parameter, or the flag in cli/, and what was expected), and
+    InputError naming ``param`` when a name is given twice (it would repeat the work and the results).
     """
     names = [n.strip() for n in spec.split(",") if n.strip()]
     unknown = [n for n in names if n not in known]
     if unknown or not names:
         raise InputError(complaint(unknown), param=param)
+    if twice := next((n for i, n in enumerate(names) if n in names[:i]), None):
+        raise InputError(f"{param or 'list'}: {twice} is given twice", param=param)
     return names
 
 

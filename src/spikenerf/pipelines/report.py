@@ -200,7 +200,7 @@ def _views_fig(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str, color: str) -
         name = label(v) + ("" if psnr is None else f"\n{psnr:.2f} dB")
         preds[name] = _read_png(run / "render" / "images" / f"{VIEW:05d}.png")
         if cfg.render:
-            commands.append(_cmd(cell_commands(cfg, scene, color, v)[-1]))
+            commands.append(_cmd(cell_commands(cfg, scene, color, v, todo=False)[-1]))
     missing = [k.split("\n")[0] for k, p in preds.items() if p is None]
     note = f"– no rendered test view for: {', '.join(missing)}." if missing else ""
     title = (
@@ -264,7 +264,7 @@ def _curves_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     return Fig(
         f"{scene}, {color}: test PSNR against training time (RUN/curves.csv)",
         figures.curves_figure(curves, f"{scene} · {color}"),
-        [_cmd(cell_commands(cfg, scene, color, v)[0]) for v in cfg.variants],
+        [_cmd(cell_commands(cfg, scene, color, v, todo=False)[0]) for v in cfg.variants],
         f"– no curves.csv for: {', '.join(missing)}." if missing else "",
     )
 
@@ -288,7 +288,7 @@ def _novel_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     cmaps = {2: (figures.ERROR_CMAP, figures.ERROR_VMAX)}
     fig = figures.panels_figure(panels, f"{scene} · {color} · novel-view spikes", cmaps=cmaps)
     commands = [
-        _cmd(cell_commands(cfg, scene, color, r.method)[0]),
+        _cmd(cell_commands(cfg, scene, color, r.method, todo=False)[0]),
         f"spikenerf.pipelines.figures.novel_spikes({str(run)!r}, view={VIEW}, steps={r.steps})",
     ]
     return Fig(title, fig, commands)

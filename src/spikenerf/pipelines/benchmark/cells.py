@@ -160,12 +160,13 @@ def cell_name(cfg: BenchmarkConfig, key: CellKey) -> str:
 
 
 def cell_commands(
-    cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: int | None = None
+    cfg: BenchmarkConfig, scene: str, color: str, variant: str, seed: int | None = None, todo: bool = True
 ) -> list[list[str]]:
     """train (resuming an interrupted run), eval, and optionally render, for one cell (only the render where
-    ``metrics.json`` is there: the cell was killed in its render, which resumes). The cell's batch is
-    the method's CPU default unless the extra train arguments name one, so that a cell trains the same rays
-    on any device (``train`` alone takes more on CUDA)."""
+    ``metrics.json`` is there: the cell was killed in its render, which resumes). ``todo=False``: the
+    cell's whole commands as a fresh run gives them, whatever is on disk (what the results and the report
+    record). The cell's batch is the method's CPU default unless the extra train arguments name one, so
+    that a cell trains the same rays on any device (``train`` alone takes more on CUDA)."""
     seed = cfg.seed if seed is None else seed
     run = run_dir(cfg, scene, color, variant, seed)
     rays = VARIANTS[variant].config().rays_per_step()
@@ -175,12 +176,12 @@ def cell_commands(
         "--field", cfg.field_kind, "--device", cfg.device, "--seed", str(seed), "--out", str(run),
         *(["--iters", str(cfg.iters)] if cfg.iters else []), *batch, *cfg.extra_train_args,
     )  # fmt: skip
-    if (run / "checkpoint.pt").exists():
+    if todo and (run / "checkpoint.pt").exists():
         train.append("--resume")
     commands = [train, _spikenerf("eval", str(run), "--device", cfg.device)]
     if cfg.render:
         render = _spikenerf("render", str(run), "--out", str(run / "render"), "--device", cfg.device)
-        if (run / "metrics.json").is_file():  # trained and scored before a kill in its render: render only
+        if todo and (run / "metrics.json").is_file():  # scored before a kill in its render: render only
             return [render]
         commands.append(render)
     return commands

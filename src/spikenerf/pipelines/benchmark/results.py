@@ -93,6 +93,8 @@ def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict])
         write_text_atomic(
             cfg.out / "table2.md", f"# Table II: ablation (mean over scenes)\n\n{note}\n\n{t2}\n"
         )
+    else:  # no ablation in this run: a table II of an earlier run here would contradict the others
+        (cfg.out / "table2.md").unlink(missing_ok=True)
     diffs = differences(cells, cfg.colors)
     write_text_atomic(cfg.out / "differences.md", differences_markdown(diffs))
     write_text_atomic(cfg.out / "results.csv", cells_csv(cells))
@@ -107,7 +109,7 @@ def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict])
             "datasets": {s: plan.dataset_command(cfg, s)[2:] for s in cfg.scenes},
             "cells": {
                 "/".join(map(str, k[:3])) + ("" if k.seed == cfg.seed else f"/seed{k.seed}"): [
-                    cmd[2:] for cmd in plan.cell_commands(cfg, *k)
+                    cmd[2:] for cmd in plan.cell_commands(cfg, *k, todo=False)
                 ]
                 for k in plan.cell_keys(cfg)
             },

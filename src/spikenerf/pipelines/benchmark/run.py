@@ -19,7 +19,7 @@ from pathlib import Path
 from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark
+from spikenerf.core.marker import check_output, folder_kind, mark
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.benchmark.cells import (
     BenchmarkConfig,
@@ -45,7 +45,8 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
     has finished (now or before)."""
     executor = get_executor(cfg.executor)
     executor.check(cfg)  # e.g. without Ray: one line, before anything is written
-    check_output(cfg.out, "benchmark", overwrite=True)  # a folder it wrote before is resumed
+    if not pre_simulated(cfg.out):  # that one is adopted (marked below)
+        check_output(cfg.out, "benchmark", overwrite=True)  # a folder it wrote before is resumed
     check_settings(cfg)  # … with the settings it was started with
     check_benchmark_resources(cfg)
     with output_lock(cfg.out):
@@ -56,6 +57,18 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
         adopt_integral_defaults(cfg)
         clean_stale_temps(cfg.out)
         return _run_benchmark_locked(cfg, executor, on_cell, nonce)
+
+
+def pre_simulated(out: Path) -> bool:
+    """Whether ``out`` is an unmarked folder that holds only ``datasets/SCENE`` dataset folders, simulated
+    first as docs/cluster.md describes (e.g. on a Blender node): the benchmark adopts it and reuses them."""
+    datasets = out / "datasets"
+    if folder_kind(out) is not None or not datasets.is_dir():
+        return False
+    if [p.name for p in out.iterdir()] != ["datasets"]:
+        return False
+    scenes = list(datasets.iterdir())
+    return bool(scenes) and all(folder_kind(scene) == "dataset" for scene in scenes)
 
 
 def _run_benchmark_locked(

@@ -74,6 +74,28 @@ def _differs(key: str, old: Any, new: Any) -> bool:
     return not (old == new or (key == "color" and old == "all"))  # an all-colour dataset serves any colour
 
 
+def _change(key: str, was: Any, now: Any) -> str:
+    """``key was → now``; for argument lists (the extra train arguments a demo derives from its flags) only
+    the options whose values differ, e.g. ``--ckpt-every 4 → 5``."""
+    if isinstance(was, list) and isinstance(now, list):
+        before, after = _options(was), _options(now)
+        differ = [f for f in {**before, **after} if before.get(f) != after.get(f)]
+        return f"{LABELS.get(key, key)} " + ", ".join(
+            f"{f} {before.get(f, '(none)')} → {after.get(f, '(none)')}" for f in differ
+        )
+    return f"{LABELS.get(key, key)} {was!r} → {now!r}"
+
+
+def _options(args: list) -> dict[str, str]:
+    """``["--a", "1", "--flag", "--b", "2"]`` → ``{"--a": "1", "--flag": "", "--b": "2"}``."""
+    found: dict[str, str] = {}
+    for i, arg in enumerate(map(str, args)):
+        if arg.startswith("--"):
+            value = str(args[i + 1]) if i + 1 < len(args) and not str(args[i + 1]).startswith("--") else ""
+            found[arg] = value
+    return found
+
+
 def check_settings(cfg: Any) -> str | None:
     """The folder's nonce (None for a new or pre-``benchmark.json`` folder); InputError when ``cfg`` asks for
     other settings than the folder was started with."""
@@ -99,10 +121,10 @@ def check_settings(cfg: Any) -> str | None:
         old = {**old, "iters": cfg.iters}  # the caller states which default trained the cells
     bad = [k for k in KEYS if _differs(k, old.get(k), new[k])]
     if bad:
-        changes = ", ".join(f"{LABELS.get(k, k)} {old.get(k)!r} → {new[k]!r}" for k in bad)
+        changes = "; ".join(_change(k, old.get(k), new[k]) for k in bad)
         raise InputError(
-            f"this benchmark was started with other settings ({changes}); pass the same values to resume it, "
-            "or a new out",
+            f"this benchmark was started with other settings: pass the same values to resume it, or a new "
+            f"out ({changes})",
             path=cfg.out,
             param=(*bad, "out"),
         )
