@@ -20,8 +20,9 @@ every parameter into a few kernels and the Python runs once, at tracing.
   A compiled update that ran before and raises is not retried eagerly (it may have updated part of the
   parameters): the error propagates.
 
-On a CPU it is no faster: at a 100³ grid the compiled update took 3.35 ms against fused Adam's 1.92 ms
-(docs/performance.md). It is meant for CUDA, where it is not measured yet.
+On a CPU it is slower: at a 100³ grid the compiled update took 3.57 ms against fused Adam's 1.60 ms, one
+thread (``benchmarks/tools/bench_optimizer.py``; docs/performance.md). It is meant for CUDA, where it is not
+measured yet.
 """
 
 from __future__ import annotations
