@@ -32,11 +32,12 @@ def _cli_error(capsys: pytest.CaptureFixture[str], *args: str) -> str:
     return err
 
 
-def _video_frames(path: Path) -> tuple[int, float]:
-    """(frames decoded, fps) of a video (the reader's length is unknown, so count while decoding)."""
+def _video_frames(path: Path, size: tuple[int, int] = (SIZE, SIZE)) -> tuple[int, float]:
+    """(frames of ``size`` (H, W) decoded, fps) of a video (the reader's length is unknown, so count while
+    decoding)."""
     reader = iio2.get_reader(str(path), format="FFMPEG")
     try:
-        return sum(1 for frame in reader if frame.shape[:2] == (SIZE, SIZE)), reader.get_meta_data()["fps"]
+        return sum(1 for frame in reader if frame.shape[:2] == size), reader.get_meta_data()["fps"]
     finally:
         reader.close()
 
@@ -99,7 +100,7 @@ def test_render_test_views_and_file_trajectory(run_dir: Path, tmp_path: Path) ->
     )
     # the file's own camera (wider, another size) and bounds, with a spike stream of one step a pose
     frames = [{"transform_matrix": f["transform_matrix"]} for f in poses]
-    path.write_text(json.dumps({"camera_angle_x": 1.2, "w": SIZE + 4, "h": SIZE - 2, "near": 1.5, "far": 6.5,
+    path.write_text(json.dumps({"camera_angle_x": 1.2, "w": SIZE + 3, "h": SIZE - 8, "near": 1.5, "far": 6.5,
                                 "frames": frames}))  # fmt: skip
     _cli(
         "render",
@@ -114,10 +115,12 @@ def test_render_test_views_and_file_trajectory(run_dir: Path, tmp_path: Path) ->
         out / "wide",
     )
     manifest = json.loads((out / "wide" / "render.json").read_text())
-    assert manifest["size"] == [SIZE + 4, SIZE - 2] and manifest["near_far"] == [1.5, 6.5]
-    assert manifest["camera"]["cx"] == (SIZE + 4) / 2 and manifest["spike_steps"] == 2
-    assert iio.imread(out / "wide" / "images" / "00000.png").shape == (SIZE - 2, SIZE + 4)
-    assert read_dat(out / "wide" / "spikes_gray.dat", SIZE - 2, SIZE + 4).shape == (2, SIZE - 2, SIZE + 4)
+    assert manifest["size"] == [SIZE + 3, SIZE - 8] and manifest["near_far"] == [1.5, 6.5]
+    assert manifest["camera"]["cx"] == (SIZE + 3) / 2 and manifest["spike_steps"] == 2
+    assert iio.imread(out / "wide" / "images" / "00000.png").shape == (SIZE - 8, SIZE + 3)
+    w, h = manifest["video_size"]  # an odd width is edge-padded to even for yuv420p
+    assert (w, h) == (SIZE + 4, SIZE - 8) and _video_frames(out / "wide" / "path.mp4", (h, w))[0] == 2
+    assert read_dat(out / "wide" / "spikes_gray.dat", SIZE - 8, SIZE + 3).shape == (2, SIZE - 8, SIZE + 3)
 
 
 def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path) -> None:

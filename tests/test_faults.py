@@ -502,6 +502,8 @@ CASES: list[tuple[str, list[str], str]] = [
                                 "--window", "99999999", "--out", f"{R}/o"], "--window"),
     ("recon-data-draws-bomb", ["recon-data", "--train-draws", "99999999999", "--val-draws", "2",
                                "--size", "16", "--out", f"{R}/o"], "--train-draws"),
+    ("recon-data-natural-bomb", ["recon-data", "--train-draws", "1", "--val-draws", "2", "--size", "16",
+                                 "--natural", "99999999999", "--out", f"{R}/o"], "--natural"),
     ("sim-duration-negative", [*SIM[:-5], "--duration", "-1", "--out", f"{R}/o"], "--duration"),
     ("import-keyframe-every-huge", [*IMP[:8], "--keyframe-every", "99999999999999999999", "--window", "3",
                                     "--out", f"{R}/o"], "--keyframe-every"),

@@ -385,6 +385,7 @@ def _render_locked(
         "near_far": [float(path.near), float(path.far)],
         "depth_range": [lo, hi],
         "fps_video": fps_video,
+        "video_size": [k.width + k.width % 2, k.height + k.height % 2],  # write_video's even padding
         "spike_steps": None if spike_path is None else len(spike_path.poses),
         "spike_seed": seed if spikes else None,
         "precision": precision,

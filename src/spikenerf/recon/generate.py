@@ -106,7 +106,9 @@ def write_pairs(
         require_skimage()  # before anything is written
     draws = train_draws + val_draws + extra_draws * len(extra or {}) + natural_draws
     check_output(out, "pairs", overwrite=True)  # first: an unwritable --out is not a size problem
-    check_resources(*pairs_resources(cfg, draws), out, "train_draws/val_draws/window/size")
+    sized = ["train_draws", "val_draws"] + ["extra_draws"] * bool(extra and extra_draws)
+    sized += ["natural_draws"] * (natural_draws > 0) + ["window", "size"]
+    check_resources(*pairs_resources(cfg, draws), out, "/".join(sized))
     with output_lock(out):
         check_output(out, "pairs", overwrite=True)
         clean_stale_temps(out)
