@@ -128,3 +128,54 @@ def test_a_recon_data_resume_writes_a_damaged_shard_again(capsys, tmp_path: Path
     assert (after.spikes == before.spikes).all() and (after.targets == before.targets).all()
     code, stdout, err = run_cli(capsys, "recon-train", out, *TRAIN, "--out", tmp_path / "run")
     assert code == 0, err
+
+
+def test_an_unfinished_pair_folder_is_refused_until_recon_data_finishes_it(
+    capsys, pairs: Path, tmp_path: Path
+) -> None:
+    bad = tmp_path / "p"
+    shutil.copytree(pairs, bad)
+    _edit_manifest(bad, lambda m: m.pop("complete"))  # as a kill before the last shard leaves it
+    code, _, err = run_cli(capsys, "recon-train", bad, *TRAIN, "--out", tmp_path / "run")
+    assert code == 2 and "unfinished pair folder" in err and f"error: {bad}: " in err, err
+    assert not (tmp_path / "run").exists()
+    stale = bad / "train" / ".shard-00000.npz.x1.tmp"  # a killed writer's temporary, in a split folder
+    stale.write_bytes(b"partial")
+    write_pairs(bad, PairConfig(size=16, window=5, supersample=1), 2, 2, seed=0, progress=False)
+    assert json.loads((bad / "manifest.json").read_text())["complete"] is True and not stale.exists()
+
+
+def test_recon_train_is_reproducible_from_its_seed(capsys, pairs: Path, tmp_path: Path) -> None:
+    import torch
+
+    weights = []
+    for name in ("a", "b"):
+        torch.manual_seed(len(name) * 1000 + ord(name))  # the global RNG differs; --seed decides
+        assert run_cli(capsys, "recon-train", pairs, *TRAIN, "--out", tmp_path / name)[0] == 0
+        weights.append(torch.load(tmp_path / name / "weights.pt", weights_only=True)["state"])
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+
+
+def test_a_diverged_recon_train_stops_with_one_line_naming_the_rate(
+    capsys, pairs: Path, tmp_path: Path
+) -> None:
+    code, _, err = run_cli(capsys, "recon-train", pairs, *TRAIN, "--lr", "1e30", "--out", tmp_path / "run")
+    last = err.strip().splitlines()[-1]  # after the progress bar's lines
+    assert code == 2 and last.startswith("spikenerf: error: ") and "diverged; lower --lr" in last, err
+    assert not (tmp_path / "run" / "weights.pt").exists()
+
+
+def test_a_resume_with_fewer_iterations_is_refused_and_the_command_line_does_not_count(
+    capsys, pairs: Path, tmp_path: Path
+) -> None:
+    run = tmp_path / "run"
+    assert run_cli(capsys, "recon-train", pairs, *TRAIN, "--out", run)[0] == 0
+    fewer = [*TRAIN[:1], 3, *TRAIN[2:]]
+    code, _, err = run_cli(capsys, "recon-train", pairs, *fewer, "--out", run)
+    assert code == 2 and "more than --iters 3" in err, err
+    moved = tmp_path / "q"
+    shutil.copytree(pairs, moved)
+    _edit_manifest(moved, lambda m: m.update(command="spikenerf --threads 1 recon-data ..."))
+    more = [*TRAIN[:1], 6, *TRAIN[2:]]
+    code, _, err = run_cli(capsys, "recon-train", moved, *more, "--out", run)
+    assert code == 0, err  # the same pairs, written by a command line that differs only in global flags

@@ -44,7 +44,9 @@ def frame_bytes(height: int, width: int, raw_width: int | None = None, path: str
     """Bytes per stored frame, ``H·W_stored/8``; InputError when the sizes are bad or H·W % 8 != 0."""
     stored = _stored_width(width, raw_width, path)
     if height <= 0 or width <= 0:
-        raise InputError(f"height and width must be positive, found {height}×{width}", path=path)
+        raise InputError(
+            f"height and width must be positive, found {height}×{width}", path=path, param=("height", "width")
+        )
     if (height * stored) % 8:
         raise InputError(
             f"H·W must be a multiple of 8 for a .dat file, found {height}×{stored} = {height * stored} "
@@ -289,7 +291,9 @@ def _stored_width(width: int, raw_width: int | None, path: str | Path | None = N
     if raw_width is None:
         return width
     if raw_width < width:
-        raise InputError(f"raw_width {raw_width} is smaller than the image width {width}", path=path)
+        raise InputError(
+            f"raw_width {raw_width} is smaller than the image width {width}", path=path, param="raw_width"
+        )
     return raw_width
 
 

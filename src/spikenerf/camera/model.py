@@ -110,7 +110,9 @@ class CameraConfig:
     def __post_init__(self) -> None:
         t = self.threshold
         number = isinstance(t, (int, float, np.integer, np.floating)) and not isinstance(t, bool)
-        if not number or not math.isfinite(t) or not 0 < np.float32(t) < np.inf:
+        with np.errstate(over="ignore"):  # a φ past float32's range is refused here, not warned about
+            representable = number and math.isfinite(t) and 0 < np.float32(t) < np.inf
+        if not representable:
             raise InputError(f"threshold must be a finite number > 0, got {t!r}", param="threshold")
         if self.color not in COLORS:
             raise InputError(f"color must be one of {'|'.join(COLORS)}, got {self.color!r}", param="color")

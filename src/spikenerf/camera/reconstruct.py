@@ -105,7 +105,7 @@ def tfp(
         float32 (N, ...) linear intensity in [0, φ], the same array type as ``spikes``.
     """
     _check_window(window)
-    _check_threshold(threshold)
+    check_threshold(threshold)
     flat, rest, out_idx = _flatten(spikes, frames)
     out = np.empty((out_idx.size, flat.shape[1]), np.float32)
     for j, acc, used in iter_window_counts(flat, (window - 1) // 2, out_idx):
@@ -129,7 +129,7 @@ def tfi(spikes: Array, threshold: float = 1.0, frames: slice | int | None = None
     Returns:
         float32 (N, ...) linear intensity in [0, φ], the same array type as ``spikes``.
     """
-    _check_threshold(threshold)
+    check_threshold(threshold)
     flat, rest, out_idx = _flatten(spikes, frames)
     total = flat.shape[0]
     # Edge rules as virtual spikes: a virtual previous spike first − start_gap and a virtual next spike
@@ -283,10 +283,12 @@ def like(result: np.ndarray, spikes: np.ndarray | torch.Tensor) -> np.ndarray | 
 def _check_window(window: int) -> None:
     if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1 or window % 2 == 0:
         raise InputError(
-            f"window must be an odd number of frames ≥ 1 (K = 2h+1 centred on the frame), found {window}"
+            f"window must be an odd number of frames ≥ 1 (K = 2h+1 centred on the frame), found {window}",
+            param="window",
         )
 
 
-def _check_threshold(threshold: float) -> None:
+def check_threshold(threshold: float) -> None:
+    """InputError (naming ``threshold``) unless φ is a finite number > 0."""
     if not np.isfinite(threshold) or threshold <= 0:
-        raise InputError(f"threshold φ must be a positive number, found {threshold}")
+        raise InputError(f"threshold φ must be a positive number, found {threshold}", param="threshold")

@@ -76,7 +76,8 @@ def recording_config(
     width: int | None = None,
     config: str | Path | None = None,
 ) -> RecordingConfig:
-    """The recording's config: explicit ``height``/``width`` win over ``config`` (default: beside ``dat``).
+    """The recording's config: explicit ``height``/``width`` win over ``config`` (default: beside ``dat``);
+    the config's ``raw_width`` (stored row width) applies only to its own frame width.
 
     A config found beside the recording (not given as ``config``) that cannot be parsed is ignored when
     ``height`` and ``width`` are both given: an unrelated file does not block a command that needs nothing
@@ -87,6 +88,8 @@ def recording_config(
     """
     if Path(dat).is_dir():
         raise InputError("is a folder, not a .dat recording: give the recording file in it", path=dat)
+    if not Path(dat).exists():
+        raise InputError("no such file", path=dat)
     found = Path(config) if config is not None else find_spikecv_config(dat)
     try:
         base = read_spikecv_config(found) if found is not None else RecordingConfig()
@@ -101,4 +104,5 @@ def recording_config(
         raise InputError(
             f"frame size unknown ({where}): pass height and width", path=dat, param=("height", "width")
         )
-    return RecordingConfig(h, w, base.fps, base.threshold, base.raw_width, found)
+    raw = base.raw_width if width is None or width == base.width else None  # the config's rows: its width's
+    return RecordingConfig(h, w, base.fps, base.threshold, raw, found)

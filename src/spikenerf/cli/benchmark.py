@@ -55,7 +55,11 @@ BENCHMARK_KEYS = {
     help="Override a TrainConfig field in every cell's training, as `train --set` (e.g. --set batch=4096 "
     "--set field_config.n_voxels_final=27000000 for a GPU). Repeatable; kept in OUT/benchmark.json.",
 )  # fmt: skip
-@click.option("--no-render", is_flag=True, help="Skip rendering test views (no report figures).")
+@click.option(
+    "--no-render",
+    is_flag=True,
+    help="Skip rendering test views (the report's view figure then shows the methods as missing).",
+)
 @click.option(
     "--jobs",
     type=click.IntRange(min=1),

@@ -16,11 +16,15 @@ def dat_frame_size(
 ) -> tuple[int, int, int | None]:
     """--height/--width/--raw-width, each defaulting to ``spike_h``/``spike_w``/``raw_width`` of a SpikeCV
     config.yaml beside the file (or one folder up)."""
-    from spikenerf.camera.spikecv import recording_config
-
-    config = recording_config(path, height, width)
+    config = _recording(path, height, width)
     raw = raw_width if raw_width is not None else config.raw_width
     return config.height, config.width, raw  # type: ignore[return-value]
+
+
+def _recording(path: Path, height: int | None, width: int | None):  # type: ignore[no-untyped-def]
+    from spikenerf.camera.spikecv import recording_config
+
+    return recording_config(path, height, width)
 
 
 def describe_dat(
@@ -60,9 +64,13 @@ def describe_dat(
 @frame_size_options
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
-@click.option("--fps", type=float, default=40000.0, show_default=True, help="Readout rate in Hz.")
+@click.option(
+    "--fps",
+    type=float,
+    help="Readout rate in Hz [default: fps of the config.yaml beside the file, else 40000].",
+)
 def command(
-    path: Path, height: int | None, width: int | None, layout: str, raw_width: int | None, fps: float
+    path: Path, height: int | None, width: int | None, layout: str, raw_width: int | None, fps: float | None
 ) -> None:
     if not path.exists():
         raise InputError("no such file or folder", path=path)
@@ -79,6 +87,8 @@ def command(
         click.echo(describe(path))
         return
     height, width, raw_width = dat_frame_size(path, height, width, raw_width)
+    if fps is None:
+        fps = _recording(path, height, width).fps or 40000.0
     if not 0 < fps < math.inf:
         raise InputError(f"--fps must be a finite number > 0, found {fps}")
     click.echo("\n".join(describe_dat(path, height, width, layout, raw_width, fps)))

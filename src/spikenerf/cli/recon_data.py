@@ -154,6 +154,7 @@ def _choices(flag: str, text: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
             text,
             allowed,
             lambda _: f"{flag} must be a comma-separated subset of {','.join(allowed)}, found {text!r}",
+            param=flag,
         )
     )
 

@@ -9,6 +9,7 @@ TFI widens its margin until every pixel's surrounding intervals are known (see `
 
 from __future__ import annotations
 
+import glob
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,8 +18,9 @@ import numpy as np
 
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.cli.types import frame_size_options
-from spikenerf.core.atomic import atomic_path, write_bytes_atomic
+from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic
 from spikenerf.core.errors import InputError, parse_range
+from spikenerf.core.lock import output_lock
 from spikenerf.data.reconstruction import RECONS
 
 #: output frames reconstructed per block (bounds memory; one progress-bar step)
@@ -159,7 +161,8 @@ def command(
     bar = tqdm(
         total=len(frames), unit="frame", desc=f"{method} {spikes.name}", disable=len(frames) < 32 or None
     )
-    with bar:
+    with output_lock(out), bar:
+        _clean_temps(out, kind)
         if kind == "png":
             (_, image), *_ = images()
             write_bytes_atomic(out, to_png_bytes(image[0], encoding))
@@ -188,3 +191,13 @@ def command(
                 (out / name).unlink(missing_ok=True)
             mark(out, "frames", names)
     click.echo(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''}, {method})")
+
+
+def _clean_temps(out: Path, kind: str) -> None:
+    """Remove what a killed reconstruct into ``out`` left: the temporaries in a frame folder, or those of
+    the file ``out`` beside it (called holding ``out``'s writer lock)."""
+    if kind == "dir":
+        clean_stale_temps(out)
+    elif out.parent.is_dir():
+        for tmp in out.parent.glob(f".{glob.escape(out.name)}.*.tmp"):
+            tmp.unlink(missing_ok=True)

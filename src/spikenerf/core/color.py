@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
+from spikenerf.core.errors import InputError
+
 if TYPE_CHECKING:
     import torch
 
@@ -30,7 +32,14 @@ def rgb_to_gray(rgb: Array, channel_axis: int = 0) -> Array:
         rgb: (..., 3, ...) with the colour axis at ``channel_axis``.
     Returns:
         The same shape with the colour axis removed.
+    Raises:
+        InputError: the colour axis does not have 3 entries.
     """
+    if rgb.shape[channel_axis] != 3:
+        raise InputError(
+            f"rgb must have 3 colour channels on axis {channel_axis}, found shape {tuple(rgb.shape)}",
+            param="rgb",
+        )
     r, g, b = (
         rgb.select(channel_axis, i) if _is_tensor(rgb) else np.take(rgb, i, channel_axis) for i in range(3)
     )

@@ -54,7 +54,7 @@ def lazy_exports(package: str) -> tuple[Callable[[str], Any], Callable[[], list[
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         return getattr(importlib.import_module(exports[name]), name)
 
-    def dir_() -> list[str]:
-        return sorted(exports)
+    def dir_() -> list[str]:  # the lazy names and what the package itself defines (``__version__``)
+        return sorted({*exports, *vars(importlib.import_module(package))})
 
     return getattr_, dir_, sorted(exports)

@@ -16,6 +16,7 @@ from typing import Any
 import torch
 
 from spikenerf.core.errors import one_line
+from spikenerf.core.tracing import prepare_compile
 from spikenerf.fields.base import Field
 
 
@@ -26,13 +27,15 @@ def compiled_parts(field: Field) -> dict[str, tuple[Any, str]]:
     return {name: (getattr(field, name), "forward") for name in ("coarse", "fine") if hasattr(field, name)}
 
 
-#: parameter sizes traced as symbols once they change (a grid's upsampling): without it every new resolution
-#: recompiles, and a run's upsamplings (× grad on and off) pass Dynamo's recompile limit
-DYNAMIC_PARAMETERS = torch._dynamo.config.patch(force_parameter_static_shapes=False)
+def dynamic_parameters() -> Any:
+    """A context in which parameter sizes are traced as symbols once they change (a grid's upsampling):
+    without it every new resolution recompiles, and a run's upsamplings (× grad on and off) pass Dynamo's
+    recompile limit. Imports Dynamo (not at import time: see ``core/tracing.py``)."""
+    return torch._dynamo.config.patch(force_parameter_static_shapes=False)
 
 
 class Fallback:
-    """Calls ``compiled`` (with :data:`DYNAMIC_PARAMETERS`); after its first failure, ``eager`` from then on
+    """Calls ``compiled`` (within :func:`dynamic_parameters`); after its first failure, ``eager`` from then on
     (``on_fail`` is told once)."""
 
     def __init__(self, eager: Callable, compiled: Callable, on_fail: Callable[[str], None]) -> None:
@@ -42,7 +45,7 @@ class Fallback:
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
         if self.failed is None:
             try:
-                with DYNAMIC_PARAMETERS:
+                with dynamic_parameters():
                     return self.compiled(*args, **kwargs)
             except Exception as err:  # any compiler failure: eager is always a correct answer
                 self.failed = one_line(f"{type(err).__name__}: {err}")
@@ -81,6 +84,7 @@ def compile_field(field: Field, warn: Callable[[str], None]) -> bool:
         warn(f"torch.compile of the {type(field).__name__} failed, training eagerly: {reason}")
 
     try:
+        prepare_compile()
         for name, (owner, attr) in parts.items():
             compiled = torch.compile(eager[name], dynamic=True)
             setattr(owner, attr, Fallback(eager[name], compiled, restore))

@@ -25,6 +25,7 @@ from torch import Tensor, nn
 
 from spikenerf.core.config import Bound
 from spikenerf.core.errors import InputError
+from spikenerf.core.tracing import constant_result
 from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
@@ -222,7 +223,7 @@ class GridFieldConfig:
         return self.resolutions()[sum(1 for k in self.upsample_steps if step >= k)]
 
 
-@torch.compiler.assume_constant_result  # a host query: fixed per device, traced as a constant
+@constant_result  # a host query: fixed per device, traced as a constant
 def vm_splits(device: torch.device) -> int:
     """Point chunks per plane so that the CPU kernel's batch threads balance (1 off the CPU).
 
@@ -263,7 +264,7 @@ def sample_vm(planes: Tensor, lines: Tensor, xyz: Tensor, splits: int = 1) -> Te
     return out[..., :m] if pad else out
 
 
-@torch.compiler.assume_constant_result  # a host query: fixed per device, traced as a constant
+@constant_result  # a host query: fixed per device, traced as a constant
 def native_bf16(device: torch.device) -> bool:
     """Whether ``device`` multiplies bfloat16 matrices natively (else bf16 would be emulated, slower)."""
     if device.type == "cuda":  # emulated bf16 (V100, T4) would count by default: ask for the real thing

@@ -38,6 +38,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.core.tracing import constant_result
 from spikenerf.fields.vm_ops import channels_last, register_pair
 
 try:
@@ -463,7 +464,7 @@ def parallel_threads(n: int = 64) -> int:
     return int(_MODULE.parallel_threads(n))
 
 
-@torch.compiler.assume_constant_result  # builds or imports on the first call: a constant to a trace
+@constant_result  # builds or imports on the first call: a constant to a trace
 def available() -> bool:
     """Whether the fused CPU kernel can be used in this process (builds it on the first call)."""
     return _load() is not None

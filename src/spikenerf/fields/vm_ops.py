@@ -28,8 +28,10 @@ def channels_last(planes: Tensor, lines: Tensor) -> tuple[Tensor, Tensor]:
 
 def register_pair(name: str, forward: Forward, backward: Backward) -> Any:
     """Register ``spikenerf::{name}_forward`` and ``spikenerf::{name}_backward`` calling ``forward`` and
-    ``backward`` (which must return new tensors); returns the forward op (``.default`` overload), whose
-    gradient goes to the planes and lines."""
+    ``backward`` (which must return new tensors); returns a function of the forward's arguments that calls
+    the forward op (``.default`` overload; its gradient goes to the planes and lines) when a trace or a
+    gradient needs it, and ``forward`` itself otherwise (renders without gradient: no dispatch, and no
+    import of Dynamo, which a custom op's first call costs, 2–3 s)."""
 
     @torch.library.custom_op(f"spikenerf::{name}_forward", mutates_args=())
     def forward_op(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
@@ -58,4 +60,13 @@ def register_pair(name: str, forward: Forward, backward: Backward) -> Any:
         return gp, gl, None, None
 
     forward_op.register_autograd(grad_of, setup_context=setup_context)
-    return getattr(torch.ops.spikenerf, f"{name}_forward").default
+    op = getattr(torch.ops.spikenerf, f"{name}_forward").default
+
+    def call(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+        if torch.compiler.is_compiling() or (
+            torch.is_grad_enabled() and (planes.requires_grad or lines.requires_grad)
+        ):
+            return op(planes, lines, xyz, summed)
+        return forward(planes, lines, xyz, summed)  # no graph, no gradient: the kernel without the dispatch
+
+    return call

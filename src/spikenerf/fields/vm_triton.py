@@ -25,6 +25,7 @@ import os
 import torch
 from torch import Tensor
 
+from spikenerf.core.tracing import constant_result
 from spikenerf.fields.vm_ops import channels_last, register_pair
 
 #: kernel → (points a program, warps a program): the fastest forward + backward of four shapes on an H200
@@ -32,7 +33,7 @@ from spikenerf.fields.vm_ops import channels_last, register_pair
 LAUNCH: dict[str, tuple[int, int]] = {"forward": (32, 4), "backward": (32, 4)}
 
 
-@torch.compiler.assume_constant_result  # a host query: fixed per process, traced as a constant
+@constant_result  # a host query: fixed per process, traced as a constant
 def installed() -> bool:
     """Whether the ``triton`` package can be imported (it comes with CUDA builds of torch)."""
     return importlib.util.find_spec("triton") is not None

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict
 from pathlib import Path
 
+from spikenerf.camera.model import CameraConfig
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
@@ -102,6 +103,7 @@ def write_pairs(
         InputError: ``out`` holds pairs made with other settings.
     """
     out = Path(out)
+    CameraConfig(threshold=cfg.threshold)  # a φ the camera refuses (past float32): refused before writing
     if natural_draws > 0:
         require_skimage()  # before anything is written
     draws = train_draws + val_draws + extra_draws * len(extra or {}) + natural_draws
@@ -111,7 +113,8 @@ def write_pairs(
     check_resources(*pairs_resources(cfg, draws), out, "/".join(sized))
     with output_lock(out):
         check_output(out, "pairs", overwrite=True)
-        clean_stale_temps(out)
+        for folder in (out, out / "train", out / "val"):  # a killed writer's temporaries, shards' included
+            clean_stale_temps(folder)
         return _write_locked(
             out, cfg, train_draws, val_draws, seed, extra, extra_draws, command, progress, natural_draws
         )
@@ -157,4 +160,6 @@ def _write_locked(
                     if samples:
                         write_shard(target, samples)
                 bar.update(1)
+    manifest["complete"] = True  # every shard written: recon-train refuses a folder without it
+    write_text_atomic(path, json.dumps({**manifest, "command": command}, indent=2))
     return manifest

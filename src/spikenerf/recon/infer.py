@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from spikenerf.camera.reconstruct import check_threshold
 from spikenerf.core.errors import InputError
 from spikenerf.recon.features import RunningFeatures
 from spikenerf.recon.net import ReconNet
@@ -222,6 +223,7 @@ def reconstruct_learned(
     """
     from spikenerf.recon.net import load_weights
 
+    check_threshold(threshold)
     net, _ = load_weights(weights, mode)
     check_window(net, window)
     x = np.asarray(spikes)
@@ -242,6 +244,7 @@ def learned_reconstructor(
     """Check the weights now; return ``recon(read, total, start, stop)``, see :func:`learned_frames`."""
     from spikenerf.recon.net import load_weights
 
+    check_threshold(threshold)
     net, _ = load_weights(weights, mode)
     check_window(net, window)
     return lambda read, total, start, stop: learned_frames(net, read, total, start, stop, mode, threshold)

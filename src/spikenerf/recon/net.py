@@ -40,9 +40,11 @@ class NetConfig:
 
     def check(self) -> NetConfig:
         if not isinstance(self.window, int) or self.window < 3 or self.window % 2 == 0:
-            raise InputError(f"window must be an odd number of steps ≥ 3, found {self.window!r}")
+            raise InputError(
+                f"window must be an odd number of steps ≥ 3, found {self.window!r}", param="window"
+            )
         if not isinstance(self.width, int) or self.width < 4:
-            raise InputError(f"width must be an integer ≥ 4, found {self.width!r}")
+            raise InputError(f"width must be an integer ≥ 4, found {self.width!r}", param="width")
         return self
 
 
@@ -158,8 +160,8 @@ def load_weights(path: str | Path | None = None, mode: str | None = None) -> tup
     Returns:
         the network in eval mode (float32, CPU) and the file's metadata (everything but ``state``).
     Raises:
-        InputError: missing, corrupt or foreign file, another architecture or format version, or a colour mode
-            the weights were not trained for.
+        InputError: missing, corrupt or foreign file, another architecture or format version, a colour mode
+            the weights were not trained for, or a weight that is not finite.
     """
     path = shipped_weights() if path is None else Path(path)
     data = read_torch(path, "weights file", FORMAT)
@@ -179,5 +181,8 @@ def load_weights(path: str | Path | None = None, mode: str | None = None) -> tup
         raise InputError(
             f"weights do not fit architecture {ARCH!r} ({type(err).__name__})", path=path
         ) from err
+    bad = [name for name, value in net.state_dict().items() if not torch.isfinite(value).all()]
+    if bad:
+        raise InputError(f"weights are not finite (NaN or inf in {bad[0]}): a diverged training", path=path)
     net.eval()
     return net, {k: v for k, v in data.items() if k != "state"}

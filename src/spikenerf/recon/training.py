@@ -3,8 +3,9 @@
 Run folder: ``config.json`` (settings + command), ``checkpoint.pt`` (atomic, ``weights_only``: model, Adam,
 the sampling generator, iteration), ``curves.csv`` (iteration, train L1, val PSNR of learned and of TFP over
 the same window, seconds) and, at the end, ``weights.pt`` (fp16, the shipped format) with ``weights.json``
-(how it was made). Every random choice comes from one ``torch.Generator`` saved in the checkpoint, so a
-resumed run is bit-identical to an uninterrupted one (same thread count).
+(how it was made). The starting weights follow the seed, and every later random choice comes from one
+``torch.Generator`` of it saved in the checkpoint, so a run is reproducible from its seed and a resumed run
+is bit-identical to an uninterrupted one (same thread count).
 """
 
 from __future__ import annotations
@@ -141,14 +142,24 @@ def _train_locked(
     from tqdm import tqdm
 
     manifest = read_manifest(pairs_dir)
+    if manifest.get("complete") is not True:
+        raise InputError(
+            "unfinished pair folder (recon-data stopped before its last shard): run the recon-data command "
+            "in its manifest.json again to finish it",
+            path=pairs_dir,
+        )
     train, val = load_split(pairs_dir, "train", manifest), load_split(pairs_dir, "val", manifest)
     memory = train_memory(cfg, train.window, int(train.targets.shape[-1]))
     check_resources(memory, 0.0, out, "batch/crop/width")  # before anything is written
-    net = ReconNet(NetConfig(window=train.window, width=cfg.width))
+    with torch.random.fork_rng(devices=[]):  # the starting weights follow --seed; the global RNG is kept
+        torch.manual_seed(cfg.seed)
+        net = ReconNet(NetConfig(window=train.window, width=cfg.width))
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
-    pairs_hash = hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()
-    start, elapsed, running = _resume(out, cfg, net, opt, gen, pairs_hash)
+    pairs_hash = _pairs_hash(manifest)
+    legacy = {k: v for k, v in manifest.items() if k != "complete"}  # what checkpoints before it hashed
+    legacy_hash = hashlib.sha256(json.dumps(legacy, sort_keys=True).encode()).hexdigest()
+    start, elapsed, running = _resume(out, cfg, net, opt, gen, (pairs_hash, legacy_hash))
     mark(out, "recon")
     write_text_atomic(
         out / "config.json",
@@ -171,6 +182,13 @@ def _train_locked(
         opt.step()
         it += 1
         value = float(loss.detach())
+        if not math.isfinite(value):  # diverged: nothing of it is saved (the last checkpoint stays)
+            bar.close()  # its last line ends before the error's
+            raise InputError(
+                f"the training loss is {value} at iteration {it}: the run diverged; lower lr",
+                path=out,
+                param="lr",
+            )
         running = value if math.isnan(running) else 0.95 * running + 0.05 * value
         bar.update(1)
         bar.set_postfix(l1=f"{running:.4f}")
@@ -217,16 +235,31 @@ def _train_locked(
     return summary
 
 
+def _pairs_hash(manifest: dict) -> str:
+    """The pair folder's identity for a resume: its manifest without the command line that wrote it (which
+    global flags such as ``--threads`` change) and without its completion flag."""
+    same = {k: v for k, v in manifest.items() if k not in ("command", "complete")}
+    return hashlib.sha256(json.dumps(same, sort_keys=True).encode()).hexdigest()
+
+
 def _resume(
-    out: Path, cfg: ReconTrainConfig, net: ReconNet, opt, gen: torch.Generator, pairs_hash: str
+    out: Path, cfg: ReconTrainConfig, net: ReconNet, opt, gen: torch.Generator, pairs: tuple[str, str]
 ) -> tuple[int, float, float]:
-    """Load ``out/checkpoint.pt`` if present; returns (iteration, elapsed seconds, running L1)."""
+    """Load ``out/checkpoint.pt`` if present; returns (iteration, elapsed seconds, running L1). ``pairs``:
+    the pair folder's hash (:func:`_pairs_hash`) and the one checkpoints before it stored."""
     if not (out / "checkpoint.pt").is_file():
         return 0, 0.0, float("nan")
     data = read_torch(out / "checkpoint.pt", "checkpoint", CHECKPOINT_FORMAT)
-    if data.get("pairs", pairs_hash) != pairs_hash:  # absent from older checkpoints
+    if data.get("pairs", pairs[0]) not in pairs:  # absent from older checkpoints
         raise InputError(
             "out holds a run trained on another pair folder (its manifest differs)", path=out, param="out"
+        )
+    if int(data.get("iteration", 0)) > cfg.iters:
+        raise InputError(
+            f"out holds a run of {int(data['iteration'])} iterations, more than --iters {cfg.iters}; pass "
+            "at least that many, or use a new folder",
+            path=out,
+            param="iters",
         )
     stored = {k: v for k, v in data.get("config", {}).items() if k != "iters"}
     if stored != {k: v for k, v in asdict(cfg).items() if k != "iters"}:

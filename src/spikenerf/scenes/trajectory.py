@@ -132,6 +132,11 @@ def orbit(
     Returns:
         A :class:`Trajectory` whose step ``k`` is at azimuth ``start + 360° · turns · k / N``.
     """
+    if not all(math.isfinite(v) for v in (radius, duration, fps, elevation_deg, turns)):
+        raise InputError(
+            f"orbit: radius, duration, fps, elevation and turns must be finite, got {radius}, {duration}, "
+            f"{fps}, {elevation_deg}, {turns}"
+        )
     n = round(duration * fps)
     if n < 1 or radius <= 0 or fps <= 0:
         raise InputError(f"orbit: need radius > 0 and duration·fps ≥ 1, got radius={radius}, steps={n}")

@@ -34,6 +34,7 @@ from typing import Any
 import torch
 
 from spikenerf.core.errors import one_line
+from spikenerf.core.tracing import prepare_compile
 from spikenerf.train.compiled_step import allow_recompiles
 
 FAILED = "torch.compile of the optimiser step failed, stepping eagerly: "
@@ -105,6 +106,7 @@ class CompiledAdamStep:
         after a failure."""
         self.optimizer = optimizer
         options: dict[str, Any] = {} if BACKEND is None else {"backend": BACKEND}
+        prepare_compile()
         self.compiled = torch.compile(optimizer.step, **options)
         self.ran = False  # this optimiser's compiled update has run (a later failure is not a compile's)
 

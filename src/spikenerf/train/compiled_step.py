@@ -44,7 +44,8 @@ from typing import Any
 import torch
 
 from spikenerf.core.errors import one_line
-from spikenerf.fields.compiled import DYNAMIC_PARAMETERS
+from spikenerf.core.tracing import prepare_compile
+from spikenerf.fields.compiled import dynamic_parameters
 from spikenerf.render import RadianceModel
 from spikenerf.train.methods import StepLosses, TrainMethod
 
@@ -145,6 +146,7 @@ class CompiledStep:
         self.eager = method.step_losses
         mode = step_mode(device)
         options: dict[str, Any] = {"mode": mode} if BACKEND is None else {"backend": BACKEND}
+        prepare_compile()
         self.compiled = torch.compile(self.eager, fullgraph=True, **options)
         self.cuda_graphs = BACKEND is None and mode == "reduce-overhead"
         self.move_draws = draws_to_device(method, device)
@@ -157,7 +159,7 @@ class CompiledStep:
             try:
                 # cuDNN's grid sampler has no fake-tensor kernel (a 16384-ray step failed to compile on an
                 # H200); the step uses no other cuDNN op, so the graph is traced without it
-                with torch.backends.cudnn.flags(enabled=False), DYNAMIC_PARAMETERS:
+                with torch.backends.cudnn.flags(enabled=False), dynamic_parameters():
                     if not self.marked and SYMBOLIC_FROM_START:
                         self.marked = True
                         for tensor, dims in getattr(state.model.field, "resized", list)():
