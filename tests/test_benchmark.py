@@ -42,6 +42,30 @@ def test_parallel_keeps_order_runs_at_once_and_stops_on_failure() -> None:
     assert len(started) < 39  # the tasks not yet started were cancelled
 
 
+def test_an_interrupted_benchmark_stops_its_running_steps() -> None:
+    import sys
+
+    from spikenerf.pipelines.benchmark.steps import run_step
+
+    log: list[dict] = []
+    started = threading.Event()
+
+    def long_step() -> None:
+        started.set()
+        run_step([sys.executable, "-c", "import time; time.sleep(60)"], log)
+
+    def interrupt() -> None:
+        started.wait(10)
+        time.sleep(1.0)  # the step's process is running
+        raise KeyboardInterrupt  # as Ctrl-C or SIGTERM (Terminated) reaches the benchmark
+
+    t0 = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        _parallel([long_step, interrupt], 2, "cells", "cell")
+    assert time.perf_counter() - t0 < 30  # the running step was stopped, not waited for
+    assert log and log[0]["rc"] != 0
+
+
 def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt", "nerf-blur"], ["gray"], tmp_path / "b", size=16,

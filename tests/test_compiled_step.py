@@ -301,6 +301,29 @@ def test_a_failing_compiled_step_trains_eagerly_with_one_warning(
     assert all(torch.equal(state[k], v) for k, v in eager.items())
 
 
+def test_a_backward_that_fails_to_compile_trains_on_eagerly_with_one_warning(
+    dataset_dir: Path, dataset, tmp_path: Path, capsys
+) -> None:  # type: ignore[no-untyped-def]
+    from torch._dynamo.backends.common import aot_autograd
+
+    def no_backward(gm, example):  # type: ignore[no-untyped-def]
+        raise RuntimeError("backward lowering failed")
+
+    name = "spikenerf_test_no_backward"
+    if name not in torch._dynamo.list_backends(exclude_tags=()):
+        backend = aot_autograd(fw_compiler=lambda gm, ex: gm.forward, bw_compiler=no_backward)
+        torch._dynamo.register_backend(backend, name=name)
+    compiled_step.BACKEND, before = name, compiled_step.BACKEND
+    try:
+        trainer, losses = _run(_config(dataset_dir, "nerf-gt", True), tmp_path / "run", dataset)
+    finally:
+        compiled_step.BACKEND = before
+    lines = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(lines) == 1 and lines[0].startswith(WARNING) and "backward lowering failed" in lines[0], lines
+    assert trainer.iteration == trainer.config.iters and "step_losses" not in vars(trainer.method)
+    assert all(math.isfinite(v) for v in losses)
+
+
 def test_a_compiler_that_fails_at_once_leaves_the_method_eager(
     dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:  # type: ignore[no-untyped-def]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import sys
 from pathlib import Path
 
@@ -227,3 +228,27 @@ def test_eval_and_render_leave_the_gt_renders_undecoded(
     assert "not a png" not in capsys.readouterr().err
     err = _cli_error(capsys, "eval", run, "--dataset", ds, "--split", "train", "--lpips", "none")
     assert gt.name in err
+
+
+def test_render_refuses_before_any_work_and_never_writes_through_a_link(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    poses = json.loads((run_dir.parent / "ds" / "transforms_test.json").read_text())["frames"][:2]
+    path = tmp_path / "odd.json"
+    frames = [{"transform_matrix": f["transform_matrix"]} for f in poses]
+    path.write_text(json.dumps({"camera_angle_x": 0.7, "w": 21, "h": 17, "frames": frames}))
+    out = tmp_path / "r"
+    err = _cli_error(capsys, "render", run_dir, "--trajectory", path, "--spikes", "--device", "cpu",
+                     "--quiet", "--out", out)  # fmt: skip
+    assert "--spikes" in err and "21×17" in err and not out.exists()  # refused before any view
+    _cli("render", run_dir, "--trajectory", path, "--device", "cpu", "--quiet", "--out", out)
+    manifest = json.loads((out / "render.json").read_text())
+    assert manifest["trajectory_file"] == str(path.resolve()) and manifest["run"] == str(run_dir.resolve())
+    mine = tmp_path / "photos"
+    mine.mkdir()
+    (mine / "00001.png").write_text("a photo of mine")
+    shutil.rmtree(out / "images")
+    (out / "images").symlink_to(mine)
+    err = _cli_error(capsys, "render", run_dir, "--device", "cpu", "--quiet", "--out", out)
+    assert "images in it is a symbolic link" in err
+    assert (mine / "00001.png").read_text() == "a photo of mine"

@@ -358,6 +358,13 @@ CASES: list[tuple[str, list[str], str]] = [
     ("render-traj-missing", ["render", f"{R}/run", "--trajectory", f"{R}/nope.json", "--out", f"{R}/o"],
      "--trajectory"),
     ("render-fps-nan", ["render", f"{R}/run", "--fps-video", "nan", "--out", f"{R}/o"], "--fps-video"),
+    ("render-fps-tiny", ["render", f"{R}/run", "--fps-video", "1e-5", "--out", f"{R}/o"],
+     "--fps-video must lie in [0.01, 100000]"),
+    ("eval-spike-pixels-huge", ["eval", f"{R}/run", "--device", "cpu", "--noref", "on", "--spike-pixels",
+                                "9" * 23], "--spike-pixels"),
+    ("train-resume-ckpt-foreign", [*T, "--seed", "7", "--resume", "--out", f"{R}/ck_foreign"],
+     "belongs to another run: seed 0"),
+    ("train-out-in-dataset", [*T, "--out", f"{R}/ds/runs/r"], "lies inside the dataset folder"),
     ("render-pickle-ckpt", ["render", f"{R}/pickle_ckpt", "--out", f"{R}/o"], "checkpoint.pt"),
     # reconstruct, info
     ("recon-truncated", ["reconstruct", f"{R}/trunc.dat", "--height", "4", "--width", "4", "--method", "tfp",
@@ -371,7 +378,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("recon-learned-threshold-neg", [*DAT[:3], "learned", "--threshold", "-1", "--frame", "3",
                                      "--out", f"{R}/o.npy"], "--threshold φ must be a positive number"),
     ("recon-missing-file", [*DAT[:1], f"{R}/nope.dat", *DAT[2:], "--frame", "1", "--out", f"{R}/o.png"],
-     "nope.dat: no such file"),
+     "nope.dat: file not found"),
     ("recon-data-threshold-huge", ["recon-data", "--train-draws", "1", "--val-draws", "2", "--size", "16",
                                    "--threshold", "1e39", "--out", f"{R}/o"], "--threshold must be a finite"),
     ("recon-data-color-twice", ["recon-data", "--color", "gray,gray", "--out", f"{R}/o"],
@@ -509,6 +516,10 @@ CASES: list[tuple[str, list[str], str]] = [
     ("bench-set-method", [*B, "--set", "method=nerf-gt", "--out", f"{R}/o"], "--set method"),
     ("bench-set-seed", [*B, "--set", "seed=7", "--out", f"{R}/o"], "--seeds"),
     ("bench-color-twice", [*B, "--color", "gray,gray", "--out", f"{R}/o"], "gray is given twice"),
+    ("bench-set-variant-key", [*B, "--set", "targets.mask=false", "--out", f"{R}/o"],
+     "--set targets.mask: the benchmark's variants set it"),
+    ("bench-set-field-typo", [*B, "--set", "field_config.bogus=1", "--out", f"{R}/o"],
+     "unknown grid field config keys ['bogus']"),
     ("recon-data-window-bomb", ["recon-data", "--train-draws", "1", "--val-draws", "2", "--size", "16",
                                 "--window", "99999999", "--out", f"{R}/o"], "--window"),
     ("recon-data-draws-bomb", ["recon-data", "--train-draws", "99999999999", "--val-draws", "2",
@@ -604,7 +615,7 @@ def test_render_into_a_used_folder_keeps_only_the_new_views(sandbox: Path, tmp_p
     _cli("render", sandbox / "run", "--trajectory", "orbit", "--orbit-frames", "3", "--device", "cpu",
          "--quiet", "--out", out)  # fmt: skip
     assert len(list((out / "images").glob("*.png"))) == 3
-    (out / ".render.json.abc.tmp").write_text("a killed render's temporary")
+    (out / ".render.json.abc1_xyz.tmp").write_text("a killed render's temporary")
     _cli("render", sandbox / "run", "--device", "cpu", "--quiet", "--out", out)  # the 1 test view
     assert sorted(p.name for p in (out / "images").iterdir()) == ["00000.png"]
     assert sorted(p.name for p in (out / "depth").iterdir()) == ["00000.npy", "00000.png"]
@@ -630,8 +641,8 @@ def test_a_render_into_its_folder_keeps_the_users_files_and_drops_its_old_spikes
 def test_eval_removes_a_killed_writers_temporaries(sandbox: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"
     shutil.copytree(sandbox / "run", run)
-    (run / ".metrics.json.abc.tmp").write_text("{")
-    (run / ".checkpoint.pt.def.tmp").write_bytes(b"\0")
+    (run / ".metrics.json.k2m9q0zz.tmp").write_text("{")
+    (run / ".checkpoint.pt.def45678.tmp").write_bytes(b"\0")
     _cli("eval", run, "--device", "cpu", "--quiet")
     assert not list(run.glob(".*.tmp")) and (run / "metrics.json").is_file()
 

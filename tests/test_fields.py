@@ -349,6 +349,10 @@ def test_occupancy_update_never_empties_the_grid() -> None:
     assert 0.0 < blob < 0.1 and occ.query(torch.zeros(1, 3)).item()
     assert occ.update(lambda x: torch.zeros(len(x)), step_size=0.1) == blob  # keeps the last useful grid
     assert torch.all(occ.bounds.abs() < 0.6)
+    addresses = occ.grid.data_ptr(), occ.bounds.data_ptr()
+    occ.update(lambda x: 100.0 * (x.norm(dim=-1) < 0.6).float(), step_size=0.1, dilation=0)
+    assert (occ.grid.data_ptr(), occ.bounds.data_ptr()) == addresses  # in place: a CUDA graph reads it
+    assert occ.occupied_fraction() > blob
 
 
 def test_decoder_bf16_is_close_to_float32_forward_and_backward(monkeypatch) -> None:  # type: ignore[no-untyped-def]

@@ -139,7 +139,7 @@ def test_an_unfinished_pair_folder_is_refused_until_recon_data_finishes_it(
     code, _, err = run_cli(capsys, "recon-train", bad, *TRAIN, "--out", tmp_path / "run")
     assert code == 2 and "unfinished pair folder" in err and f"error: {bad}: " in err, err
     assert not (tmp_path / "run").exists()
-    stale = bad / "train" / ".shard-00000.npz.x1.tmp"  # a killed writer's temporary, in a split folder
+    stale = bad / "train" / ".shard-00000.npz.x1b2c3d4.tmp"  # a killed writer's temporary, in a split folder
     stale.write_bytes(b"partial")
     write_pairs(bad, PairConfig(size=16, window=5, supersample=1), 2, 2, seed=0, progress=False)
     assert json.loads((bad / "manifest.json").read_text())["complete"] is True and not stale.exists()

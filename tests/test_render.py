@@ -197,3 +197,19 @@ def test_build_model_rejects_bad_input() -> None:
         build_model("grid", 2, BOX)
     with pytest.raises(InputError):
         build_model("grid", 3, BOX, {"no_such_key": 1})
+
+
+def test_rays_and_projections_stay_float32_under_bf16_autocast() -> None:
+    from spikenerf.scenes.trajectory import project_points
+
+    k = Intrinsics.from_fov(400, 400, 0.87)
+    gen = torch.Generator().manual_seed(0)
+    poses = torch.as_tensor(np.stack([look_at([4.0, 0.3 * i, 1.5], [0.0, 0.0, 0.0]) for i in range(64)]),
+                            dtype=torch.float32)  # fmt: skip
+    pixels = torch.randint(0, 400, (64, 2), generator=gen)
+    points = torch.rand(64, 3, generator=gen) - 0.5
+    exact = (*pixel_rays(poses, k, pixels), *project_points(poses, points, k))
+    with torch.autocast("cpu", torch.bfloat16):  # what train --amp bf16 wraps the step in
+        cast = (*pixel_rays(poses, k, pixels), *project_points(poses, points, k))
+    for a, b in zip(exact, cast, strict=True):
+        assert b.dtype == torch.float32 and torch.equal(a, b)

@@ -38,7 +38,7 @@ def test_a_damaged_or_mis_sized_view_is_rendered_again(tmp_path: Path) -> None:
     path = tmp_path / CACHE / "views" / "00001.npz"
     path.write_bytes(path.read_bytes()[:40])  # cut short
     assert cache.view(1, (4, 5)) is None
-    (tmp_path / CACHE / "views" / ".00002.npz.x.tmp").write_bytes(b"half")  # a killed writer's temporary
+    (tmp_path / CACHE / "views" / ".00002.npz.xa8b2c9q.tmp").write_bytes(b"half")  # a killed writer
     RenderCache.open(tmp_path, {"k": 1})
     assert not list((tmp_path / CACHE / "views").glob(".*.tmp"))
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -86,6 +87,17 @@ def test_differences_known_interval_and_verdicts() -> None:
     assert f"{row} +1.03 ± 0.17 | [+0.75, +1.30] | [-0.56, +2.61] | not shown |" in md
     assert f"{row} +1.10 ± 0.12 | [+0.91, +1.29] | [+1.07, +1.13] | **shown** |" in md
     assert "**shown**" in md and md.rstrip().endswith("| not shown |")
+
+
+def test_a_difference_without_spread_or_with_infinite_scores_claims_nothing() -> None:
+    same = differences(_cells([1.0, 1.0, 1.0, 1.0]), ["gray"], metrics=["psnr"])[0]
+    assert same.low == same.high == pytest.approx(1.0) and same.verdict == "not shown"  # no spread measured
+    cells = _cells([1.0, 1.2, 0.8, 1.1])
+    perfect = [  # both variants of scene s1, seed 0 render it exactly
+        c if c.scene != "s1" or c.seed else dataclasses.replace(c, psnr=math.inf) for c in cells
+    ]
+    psnr = differences(perfect, ["gray"], metrics=["psnr"])[0]  # inf − inf is no difference: left out
+    assert psnr.n == 3 and math.isfinite(psnr.mean)
 
 
 def test_tables_show_mean_and_std_over_seeds() -> None:

@@ -33,3 +33,8 @@ def test_table2_missing_lpips_shows_dash() -> None:
     md = table2_markdown(cells, "rgb")
     assert "| Spike-NeRF (paper) | **0.900** | **29.00** | – |" in md
     assert cells_csv(cells).splitlines()[0].startswith("scene,variant,color,psnr")
+
+
+def test_values_that_print_the_same_get_the_same_mark() -> None:
+    marks = rank_marks({"a": 12.793000, "b": 12.793295, "c": 12.70}, "psnr")  # both print 12.79
+    assert marks == {"a": "best", "b": "best", "c": "second"}

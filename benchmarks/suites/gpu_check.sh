@@ -27,10 +27,11 @@
 #   ttq      (560) METHOD's time-to-quality curve (the oracle's by default): PSNR every 20 s for 480 s of training
 #   compile  (330) bench_compile_cache: seconds spent compiling the static step (SMALL rays, 200 steps),
 #            one graph a run against two, and with a warm cache
-# Suggested calls, most needed first (a session has about 15 minutes of device time, starts included; a
-# part cut by the call's end is lost, the ones before it are in OUT): METHOD=spike-integral
-# VARIANTS="lookup=triton base" with `data kernels train fast profile`, then `tests`, then
-# VARIANTS="lookup=triton static_visible=24" with `profile compile`, or `ttq` (docs/performance.md).
+# Suggested calls, most needed first, each with part caps summing under a call's 600 s (a session has
+# about 15 minutes of device time, starts included; a part cut by the call's end is lost, the ones before
+# it are in OUT): METHOD=spike-integral with `data train fast`, then METHOD=spike-integral
+# VARIANTS="lookup=triton+compile-optimizer static_visible=24" with `profile`, then `kernels tests`
+# (docs/performance.md); `optim occupancy compile ttq` when time is left.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
 # docs/performance.md); OUT/PART.txt holds its whole output. WORK (default .gpu-work, ignored by git)

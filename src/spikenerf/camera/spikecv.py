@@ -89,7 +89,7 @@ def recording_config(
     if Path(dat).is_dir():
         raise InputError("is a folder, not a .dat recording: give the recording file in it", path=dat)
     if not Path(dat).exists():
-        raise InputError("no such file", path=dat)
+        raise InputError("file not found", path=dat)
     found = Path(config) if config is not None else find_spikecv_config(dat)
     try:
         base = read_spikecv_config(found) if found is not None else RecordingConfig()

@@ -108,7 +108,10 @@ def command(
     if size < 8 or frames < 2:
         raise InputError(f"--size must be ≥ 8 and --frames ≥ 2, got {size} and {frames}")
     views = str(check_blur_views(blur_views, frames))
+    variants = resolve_variants(methods)
     if overrides:  # a bad key fails here, once, not in every cell
+        from spikenerf.fields import field_config
+        from spikenerf.pipelines.benchmark.variants import VARIANTS
         from spikenerf.train.config import TrainConfig, apply_overrides
 
         for item in overrides:  # a cell's identity: set by the benchmark, labelled in its tables
@@ -116,9 +119,14 @@ def command(
             if key in BENCHMARK_KEYS:
                 flag = BENCHMARK_KEYS[key]
                 raise InputError(f"--set {key}: the benchmark sets it for each cell; use {flag}")
-
+            if owner := next((v for v in VARIANTS if key in dict(VARIANTS[v].overrides)), None):
+                raise InputError(  # it tells variants apart: a row would be labelled as another's
+                    f"--set {key}: the benchmark's variants set it (e.g. {owner}); choose the variants with "
+                    "--methods"
+                )
         try:
-            TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), list(overrides))).validate()
+            trained = TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), list(overrides)))
+            field_config(field, trained.validate().field_config)  # a field option's typo, for this field
         except InputError as err:
             raise InputError(f"--set: {err}") from err
     if executor != "ray":  # a Ray cluster's workers may have the device the head lacks
@@ -126,7 +134,7 @@ def command(
 
         resolve_device(device)
     cfg = BenchmarkConfig(
-        scenes=resolve_scenes(scenes), variants=resolve_variants(methods), colors=colors, out=out,
+        scenes=resolve_scenes(scenes), variants=variants, colors=colors, out=out,
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
         test_views=test_views, render=not no_render, jobs=jobs, executor=executor, address=address,
         retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus,

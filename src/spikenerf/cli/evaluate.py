@@ -43,10 +43,10 @@ PARAM_FLAGS = {
     help="Check steps along the path when the dataset has no imported test keyframes.",
 )  # fmt: skip
 @click.option(
-    "--spike-window", type=int, help="Steps per violation window [default: the run's spike window]."
+    "--spike-window", type=BoundedInt(1), help="Steps per violation window [default: the run's spike window]."
 )
 @click.option(
-    "--spike-pixels", type=int, default=4096, show_default=True,
+    "--spike-pixels", type=BoundedInt(0), default=4096, show_default=True,
     help="Pixels sampled per check step for the violation rate (0 = all).",
 )  # fmt: skip
 @click.option(

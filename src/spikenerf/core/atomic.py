@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -53,6 +54,11 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
+#: a temporary of :func:`atomic_path`: ``.NAME.XXXXXXXX.tmp`` (``mkstemp``'s 8 random characters), or the
+#: ``.NAME.XXXXXXXX.old.tmp`` a folder swap moves the old folder to
+TEMP_NAME = re.compile(r"\..+\.[a-z0-9_]{8}(\.old)?\.tmp")
+
+
 def clean_stale_temps(folder: str | Path) -> list[str]:
     """Delete the temporaries (``.NAME….tmp`` files or folders) a killed writer left in ``folder``.
 
@@ -62,6 +68,8 @@ def clean_stale_temps(folder: str | Path) -> list[str]:
     folder = Path(folder)
     removed = []
     for tmp in folder.glob(".*.tmp") if folder.is_dir() else []:
+        if not TEMP_NAME.fullmatch(tmp.name):  # only the names atomic_path makes, never a user's .x.tmp
+            continue
         shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
         removed.append(tmp.name)
     return removed

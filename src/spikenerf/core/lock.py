@@ -10,7 +10,10 @@ two writers can never both hold one folder.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import re
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -40,11 +43,35 @@ def holder(folder: str | Path) -> int | None:
         return None
 
 
+def _check_ours(fd: int, path: Path, folder: Path, param: str) -> None:
+    """InputError (closing ``fd``) unless the open lock file is a regular file that is empty or holds one
+    PID line, as spikenerf writes it: a user's file of that name is neither truncated nor deleted."""
+    info = os.fstat(fd)
+    head = os.pread(fd, 64, 0) if stat.S_ISREG(info.st_mode) and info.st_size <= 64 else b"x"
+    if not re.fullmatch(rb"(\d+\n)?", head):
+        os.close(fd)
+        raise InputError(
+            f"{param}: {path.name} beside it is not spikenerf's lock file (it holds other data); move it",
+            path=folder,
+            param=param,
+        )
+
+
 def _acquire(path: Path, folder: Path, param: str) -> int:
     """An open descriptor of ``path`` holding an exclusive ``flock``; InputError while another holds it."""
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:  # never through a symbolic link: its target is not ours to truncate
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        except OSError as err:
+            if err.errno != errno.ELOOP:
+                raise
+            raise InputError(
+                f"{param}: {path.name} beside it is a symbolic link, not spikenerf's lock file; move it",
+                path=folder,
+                param=param,
+            ) from None
         try:
+            _check_ours(fd, path, folder, param)
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)

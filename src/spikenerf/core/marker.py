@@ -28,7 +28,7 @@ _LEGACY = {
     "dataset": ("transforms.json", "config.yaml"),
     "run": ("checkpoint.pt", "config.yaml"),
     "render": ("render.json",),
-    "benchmark": ("results.json",),
+    "benchmark": ("results.json", "benchmark.json"),  # a results.json alone may be another tool's
     "pairs": ("manifest.json",),
     "recon": ("checkpoint.pt", "config.json"),
 }
@@ -152,6 +152,7 @@ def check_output(
     path = Path(path)
     for parent in path.absolute().parents:
         _check_parent(parent, path, param)
+    _check_container(path, kind, param)
     if replace and path.is_symlink():
         raise InputError(
             f"{param}: is a symbolic link; spikenerf replaces an output folder whole and will not replace "
@@ -183,6 +184,32 @@ def check_output(
     if replace and any(path.iterdir()):
         _check_replaceable(path, kind, param)
     check_writable(path, param)
+
+
+#: the kinds of output that a marked dataset or run may hold in a subfolder (none in a dataset, whose
+#: ``--overwrite`` refuses files it did not list; renders in a run); other kinds may hold any
+HOLDS = {"dataset": set(), "run": {"render"}}
+
+
+def owned(folder: str | Path) -> bool:
+    """Whether ``folder`` carries spikenerf's marker file (not only looks like an output of an older one)."""
+    return (Path(folder) / MARKER).is_file()
+
+
+def _check_container(path: Path, kind: str, param: str) -> None:
+    """InputError when the nearest folder above ``path`` that spikenerf marked may not hold a ``kind``
+    output (:data:`HOLDS`: a run inside a dataset would make the dataset hold a stranger)."""
+    for parent in path.absolute().parents:
+        found = _marker(parent).get("kind") if owned(parent) else None
+        if found is None:
+            continue
+        if found in HOLDS and kind not in HOLDS[found]:
+            raise InputError(
+                f"{param}: lies inside the {found} folder {parent}; write the {kind} output elsewhere",
+                path=path,
+                param=param,
+            )
+        return
 
 
 def check_inputs_outside(out: str | Path, inputs: list[str | Path | None], param: str = "out") -> None:

@@ -23,6 +23,7 @@ from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
+from spikenerf.core.marker import owned
 from spikenerf.data.dataset import PosedImages, SpikeDataset
 from spikenerf.data.holdout import check_steps, read_record
 from spikenerf.data.targets import image_channels, window_steps
@@ -216,7 +217,8 @@ def evaluate_run(
     noref_options.check()
     check_fit_args(test_pose[0], test_pose[1], POSE_BATCH)
     with output_lock(run_dir, "RUN"):
-        clean_stale_temps(run_dir)  # what a killed writer left (a train's checkpoint, an eval's metrics)
+        if owned(run_dir):
+            clean_stale_temps(run_dir)  # what a killed writer left (a train's checkpoint, an eval's metrics)
         return _evaluate_locked(
             Path(run_dir), split, device, dataset_root, lpips_backbone, chunk, progress, log,
             (noref, noref_options), test_pose, precision,

@@ -154,7 +154,9 @@ def score_step(
     # what the run was trained to match: one render at the step, or the mean over its TFP window's poses
     count = config.window_poses()
     poses = window_steps(total, t.window, count)[step] if count > 1 else [step]
-    color = render_mean(model, dataset.trajectory.poses[poses], dataset.intrinsics, dataset.near, dataset.far)
+    color = render_mean(
+        model, dataset.trajectory.poses[poses], dataset.intrinsics, dataset.near, dataset.far, chunk
+    )
     pred, target = display(color, model.channels), display(recon, model.channels)
     m = mask.expand_as(pred)
     side = min(pred.shape[-2:]) >= SSIMConfig().window

@@ -51,11 +51,15 @@ from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_
 from spikenerf.render import iter_spike_states, render_image
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.scenes.trajectory import Intrinsics, orbit
+from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import load_run
 
 TRAJECTORIES = ("test", "orbit")
 DEFAULT_ORBIT_FRAMES = 120
 TFP_WINDOW = DEFAULT_WINDOW
+#: the video rates an mp4 holds faithfully (below, ffmpeg drops frames; above about 10⁶ it clamps the rate)
+FPS_VIDEO = (1e-2, 1e5)
 
 
 def to_uint8(display: np.ndarray) -> np.ndarray:
@@ -123,6 +127,16 @@ def _write_npy(path: Path, array: np.ndarray) -> None:
     buf = io.BytesIO()
     np.save(buf, array)
     write_bytes_atomic(path, buf.getvalue())
+
+
+def refined_poses(run_dir: str | Path, config: Any, dataset: SpikeDataset) -> SpikeDataset:
+    """``dataset`` with the test views and the path at the poses the run refined (``--refine-poses``), where
+    ``eval`` scores them and the orbit is centred; unchanged for a run that did not refine poses."""
+    ckpt = load_checkpoint(Path(run_dir) / CHECKPOINT, map_location=torch.device("cpu"))
+    if not ckpt.get("poses"):
+        return dataset
+    test = refined_views(ckpt, config, dataset, dataset.test)
+    return dataclasses.replace(refined_dataset(ckpt, config, dataset), test=test)
 
 
 def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
@@ -230,7 +244,12 @@ def render_run(
     ``chunk``: rays per render call (0 = automatic); ``precision``: auto | fp32 | fp16 | bf16 of the views
     (:mod:`spikenerf.render.inference`; the spike stream renders in fp32)."""
     bad_steps = spike_steps is not None and spike_steps < 1
-    if not (0 < fps_video < float("inf")) or orbit_frames < 1 or bad_steps:
+    if not FPS_VIDEO[0] <= fps_video <= FPS_VIDEO[1]:  # ffmpeg writes too few frames or clamps outside it
+        raise InputError(
+            f"fps_video must lie in [{FPS_VIDEO[0]:g}, {FPS_VIDEO[1]:g}] frames a second, found {fps_video}",
+            param="fps_video",
+        )
+    if orbit_frames < 1 or bad_steps:
         raise InputError(
             f"fps_video, orbit_frames and spike_steps must be positive, found "
             f"{fps_video}, {orbit_frames}, {spike_steps}",
@@ -337,7 +356,8 @@ def _render_locked(
     progress: bool, log: Callable[[str], None] | None, precision: str = "auto",
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
-    model, _, dataset = load_run(run_dir, dataset_root, device, train_images=False)  # renders new views only
+    model, config, dataset = load_run(run_dir, dataset_root, device, train_images=False)  # new views only
+    dataset = refined_poses(run_dir, config, dataset)
     precision = resolve_precision(precision, model.device)
     requested, chunk = chunk, inference_chunk(model, chunk)
     on_orbit = trajectory == "orbit"  # (a file called orbit.json is not: it fires one step a pose)
@@ -346,6 +366,12 @@ def _render_locked(
     check_render_resources(dataset.intrinsics, views, n_spikes if spikes else 0, out)
     path = resolve_trajectory(trajectory, dataset, orbit_frames)  # a file: its camera, one step a pose
     k, poses, n_spikes = path.intrinsics, path.poses, n_spikes if on_orbit else len(path.poses)
+    if spikes and (k.width * k.height) % 8:  # a .dat stores 8 pixels a byte: refused before any work
+        raise InputError(
+            f"spikes: a spike stream needs W·H a multiple of 8, but the trajectory's camera is "
+            f"{k.width}×{k.height}",
+            param=("spikes", "trajectory"),
+        )
     check_render_resources(k, len(poses), n_spikes if spikes else 0, out)
     spike_path = None
     if spikes:
@@ -357,6 +383,9 @@ def _render_locked(
         device=model.device.type,
         spikes=None if spike_path is None else [digest_array(spike_path.poses), seed, dataset.threshold],
     )  # fmt: skip
+    for sub in ("images", "depth"):  # written into and cleared: never through a link to someone's folder
+        if (out / sub).is_symlink() or ((out / sub).exists() and not (out / sub).is_dir()):
+            raise InputError(f"out: {sub} in it is a symbolic link or a file; move it", path=out, param="out")
     mark(out, "render")
     clear_previous_render(out)
     plan = planned_files(path.name, model.channels, spike_path is not None)
@@ -376,8 +405,9 @@ def _render_locked(
     if spike_path is not None:
         files["spikes"] = write_spikes(model, spike_path, dataset, out, seed, chunk, progress, cache)
     manifest = {
-        "run": str(run_dir),
+        "run": str(Path(run_dir).resolve()),
         "trajectory": path.name,
+        "trajectory_file": None if trajectory in TRAJECTORIES else str(Path(trajectory).resolve()),
         "views": len(poses),
         "channels": model.channels,
         "size": [k.width, k.height],

@@ -115,8 +115,8 @@ class OccupancyGrid(nn.Module):
         occ = dilate(alpha > threshold, dilation)
         if not bool(occ.any()):
             return self.occupied_fraction()
-        self.grid = occ
-        self.bounds = self._occupied_bounds()
+        self.grid.copy_(occ)  # in place: a CUDA graph that reads the grid keeps its address
+        self.bounds.copy_(self._occupied_bounds())
         return self.occupied_fraction()
 
     def _occupied_bounds(self) -> Tensor:

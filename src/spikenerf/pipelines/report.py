@@ -190,17 +190,24 @@ def _read_png(path: Path) -> np.ndarray | None:
     return arr[..., :3] if arr.ndim == 3 else arr
 
 
+def _shown_seed(cfg: BenchmarkConfig) -> int:
+    """The training seed whose runs the figures show: the dataset seed where it was trained, else the first
+    of ``--seeds``."""
+    seeds = training_seeds(cfg)
+    return cfg.seed if cfg.seed in seeds else seeds[0]
+
+
 def _views_fig(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str, color: str) -> Fig:
     gt = _display(ds.test.images[VIEW], color)
     preds, commands = {}, [_cmd(dataset_command(cfg, scene))]
     for v in cfg.variants:
-        run = run_dir(cfg, scene, color, v)
+        run = run_dir(cfg, scene, color, v, _shown_seed(cfg))
         per_view = _read_json(run / "metrics.json").get("per_view") or [{}]
         psnr = per_view[VIEW].get("psnr") if len(per_view) > VIEW else None
         name = label(v) + ("" if psnr is None else f"\n{psnr:.2f} dB")
         preds[name] = _read_png(run / "render" / "images" / f"{VIEW:05d}.png")
         if cfg.render:
-            commands.append(_cmd(cell_commands(cfg, scene, color, v, todo=False)[-1]))
+            commands.append(_cmd(cell_commands(cfg, scene, color, v, _shown_seed(cfg), todo=False)[-1]))
     missing = [k.split("\n")[0] for k, p in preds.items() if p is None]
     note = f"– no rendered test view for: {', '.join(missing)}." if missing else ""
     title = (
@@ -259,18 +266,20 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
 def _curves_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     from spikenerf.train.evaluate import read_curves
 
-    curves = {label(v): read_curves(run_dir(cfg, scene, color, v) / "curves.csv") for v in cfg.variants}
+    seed = _shown_seed(cfg)
+    curves = {label(v): read_curves(run_dir(cfg, scene, color, v, seed) / "curves.csv") for v in cfg.variants}
     missing = [k for k, rows in curves.items() if not rows]
     return Fig(
         f"{scene}, {color}: test PSNR against training time (RUN/curves.csv)",
         figures.curves_figure(curves, f"{scene} · {color}"),
-        [_cmd(cell_commands(cfg, scene, color, v, todo=False)[0]) for v in cfg.variants],
+        [_cmd(cell_commands(cfg, scene, color, v, seed, todo=False)[0]) for v in cfg.variants],
         f"– no curves.csv for: {', '.join(missing)}." if missing else "",
     )
 
 
 def _novel_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
-    runs = [run_dir(cfg, scene, color, v) for v in ("spike-nerf", *cfg.variants) if v in cfg.variants]
+    seed = _shown_seed(cfg)
+    runs = [run_dir(cfg, scene, color, v, seed) for v in ("spike-nerf", *cfg.variants) if v in cfg.variants]
     run = next((r for r in runs if (r / "checkpoint.pt").is_file()), None)
     if run is None:
         return Fig(f"{scene}, {color}: novel-view spikes", None, note="– no trained run to render from.")
@@ -288,7 +297,7 @@ def _novel_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     cmaps = {2: (figures.ERROR_CMAP, figures.ERROR_VMAX)}
     fig = figures.panels_figure(panels, f"{scene} · {color} · novel-view spikes", cmaps=cmaps)
     commands = [
-        _cmd(cell_commands(cfg, scene, color, r.method, todo=False)[0]),
+        _cmd(cell_commands(cfg, scene, color, r.method, seed, todo=False)[0]),
         f"spikenerf.pipelines.figures.novel_spikes({str(run)!r}, view={VIEW}, steps={r.steps})",
     ]
     return Fig(title, fig, commands)

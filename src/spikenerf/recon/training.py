@@ -24,7 +24,7 @@ from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark
+from spikenerf.core.marker import check_output, mark, owned
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.recon.features import brightness_scale, feature_count
 from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights
@@ -132,7 +132,8 @@ def train_recon(
     check_output(out, "recon", overwrite=True)
     with output_lock(out):
         check_output(out, "recon", overwrite=True)
-        clean_stale_temps(out)
+        if owned(out):  # a folder of ours (one recognised by its files alone may be a user's)
+            clean_stale_temps(out)
         return _train_locked(pairs_dir, out, cfg, command, progress, stop_at)
 
 
@@ -256,7 +257,7 @@ def _resume(
         )
     if int(data.get("iteration", 0)) > cfg.iters:
         raise InputError(
-            f"out holds a run of {int(data['iteration'])} iterations, more than --iters {cfg.iters}; pass "
+            f"out holds a run of {int(data['iteration'])} iterations, more than iters {cfg.iters}; pass "
             "at least that many, or use a new folder",
             path=out,
             param="iters",

@@ -132,11 +132,8 @@ def orbit(
     Returns:
         A :class:`Trajectory` whose step ``k`` is at azimuth ``start + 360° · turns · k / N``.
     """
-    if not all(math.isfinite(v) for v in (radius, duration, fps, elevation_deg, turns)):
-        raise InputError(
-            f"orbit: radius, duration, fps, elevation and turns must be finite, got {radius}, {duration}, "
-            f"{fps}, {elevation_deg}, {turns}"
-        )
+    if not all(math.isfinite(v) for v in (radius, duration, fps)):  # the angles: orbit_angle_problem
+        raise InputError(f"orbit: radius, duration and fps must be finite, got {radius}, {duration}, {fps}")
     n = round(duration * fps)
     if n < 1 or radius <= 0 or fps <= 0:
         raise InputError(f"orbit: need radius > 0 and duration·fps ≥ 1, got radius={radius}, steps={n}")
@@ -263,7 +260,17 @@ def project_points(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-unty
     """Image coordinates of world ``points`` (..., 3) in cameras ``c2w`` (..., 4, 4) (OpenGL axes; both numpy
     arrays or both torch tensors, broadcast): (u, v, depth), each (...). Pixel ``(x, y)`` covers
     ``[x, x + 1) × [y, y + 1)`` (its centre is ``x + 0.5``, as :func:`spikenerf.data.rays.camera_directions`
-    casts it); depth > 0 in front of the camera, where u and v are meaningful."""
+    casts it); depth > 0 in front of the camera, where u and v are meaningful. Torch tensors are projected
+    with autocast off (under ``--amp bf16`` a third of the points would land in another pixel)."""
+    if hasattr(points, "device"):  # a tensor: torch is imported already
+        import torch
+
+        with torch.autocast(points.device.type, enabled=False):
+            return _project(c2w, points, intrinsics)
+    return _project(c2w, points, intrinsics)
+
+
+def _project(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-untyped-def]
     rel = (points - c2w[..., :3, 3])[..., None, :]
     cam = (rel @ c2w[..., :3, :3])[..., 0, :]  # world → camera axes
     depth = -cam[..., 2]

@@ -35,10 +35,12 @@ def rng_state(samplers: dict[str, Any]) -> dict[str, Any]:
 
 
 def restore_rng(state: dict[str, Any], samplers: dict[str, Any]) -> None:
-    """Inverse of :func:`rng_state`."""
+    """Inverse of :func:`rng_state`. CUDA states are restored for the GPUs visible now (a run resumed
+    with fewer, e.g. under another ``CUDA_VISIBLE_DEVICES``, restores those it has)."""
     torch.set_rng_state(state["torch"])
     if "cuda" in state and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])
+        for index, cuda in enumerate(state["cuda"][: torch.cuda.device_count()]):
+            torch.cuda.set_rng_state(cuda, index)
     for name, sampler in samplers.items():
         sampler.load_state_dict(state[name])
 
@@ -160,7 +162,10 @@ def model_of(ckpt: dict[str, Any], path: str | Path) -> Any:
 def check_same_run(ckpt: dict[str, Any], config: dict[str, Any], path: str | Path) -> None:
     """InputError when the checkpoint at ``path`` was trained with another method, field, colour or seed
     than the run folder's ``config`` says (another run's checkpoint copied in)."""
-    stored = ckpt["config"]
+    stored = dict(ckpt["config"])
+    kind = ckpt.get("hparams", {}).get("kind") if isinstance(ckpt.get("hparams"), dict) else None
+    if kind is not None and stored.get("field", kind) == config.get("field"):
+        stored["field"] = kind  # the model it holds (a checkpoint rewritten under another config says so)
     diff = [k for k in ("method", "field", "color", "seed") if k in stored and stored[k] != config.get(k)]
     if diff:
         shown = ", ".join(f"{k} {stored[k]!r} (config.yaml: {config.get(k)!r})" for k in diff)

@@ -152,6 +152,8 @@ class CompiledStep:
         self.move_draws = draws_to_device(method, device)
         self.failed: str | None = None
         self.marked = False  # the resized sizes marked symbolic (on the first call)
+        #: a backward of the compiled step has run (the trainer falls back to eager if the first one fails)
+        self.backward_ran = False
 
     def __call__(self, state: Any, iteration: int, drawn: tuple[torch.Tensor, ...]) -> StepLosses:
         if self.failed is None:

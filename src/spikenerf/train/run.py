@@ -146,7 +146,11 @@ def describe_run(run_dir: str | Path) -> str:
         + ("" if done >= config.iters else "  (resume with --resume)"),
     ]
     if (poses := config.window_poses()) > 1:
-        lines.append(f"targets: window-aware, each the mean of {poses} renders across its TFP window")
+        lines.append(
+            f"eval's TFP keyframes: each against the mean of {poses} renders across its window"
+            if config.method == "spike-integral"  # it trains on spike counts, not on TFP targets
+            else f"targets: window-aware, each the mean of {poses} renders across its TFP window"
+        )
     if (held := read_record(run_dir)) is not None:
         lines.append(
             f"held out: steps {', '.join(map(str, held.get('step_numbers', held['check_steps'])))} "
@@ -166,6 +170,8 @@ def describe_run(run_dir: str | Path) -> str:
         try:
             metrics = json.loads(text)
             scored = f"metrics.json ({metrics['split']}, {metrics['views']} views{_per_view(metrics)})"
+            if isinstance(scored_at := metrics.get("iterations"), int) and scored_at < done:
+                scored += f" [of iteration {scored_at}, not {done}: run eval again]"
             for label, mean in ((scored, metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
                 values = "   ".join(f"{k} {v:.4g}" for k, v in (mean or {}).items() if v is not None)
                 if values:

@@ -11,22 +11,23 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import torch
 from tqdm import tqdm
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, one_line
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark
+from spikenerf.core.marker import check_output, mark, owned
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.holdout import write_record
 from spikenerf.data.rays import pixel_rays
@@ -38,6 +39,7 @@ from spikenerf.render import RadianceModel, RenderOutput, build_model, ray_bound
 from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import (
     CHECKPOINT,
+    check_same_run,
     load_checkpoint,
     match_state_layout,
     model_of,
@@ -46,14 +48,14 @@ from spikenerf.train.checkpoint import (
     save_checkpoint,
 )
 from spikenerf.train.compiled_optim import CompiledAdamStep, load_state, set_lr, use_tensor_lr
-from spikenerf.train.compiled_step import compile_step, compiles_needed, static_samples
+from spikenerf.train.compiled_step import CompiledStep, compile_step, compiles_needed, static_samples
 from spikenerf.train.config import TrainConfig, load_run_config, save_config
 from spikenerf.train.dense_adam import DenseAdam
 from spikenerf.train.device import check_batch_fits, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
-from spikenerf.train.methods import make_method, method_class
+from spikenerf.train.methods import StepLosses, make_method, method_class
 from spikenerf.train.pose_refine import pose_refinement
 from spikenerf.train.run import check_resume_fits, dataset_fingerprint
 
@@ -144,10 +146,14 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
     return stored, given
 
 
-def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainConfig:
-    """The stored config with the resumable options of ``given``; other differences are an InputError."""
+def _check_resume(
+    stored: TrainConfig, given: TrainConfig, path: Path, also: tuple[str, ...] = ()
+) -> TrainConfig:
+    """The stored config with the resumable options (:data:`RESUMABLE` and ``also``) of ``given``; other
+    differences are an InputError."""
+    resumable = (*RESUMABLE, *also)
     a, b = stored.to_dict(), given.to_dict()
-    diff = sorted(k for k in a if k not in RESUMABLE and a[k] != b[k])
+    diff = sorted(k for k in a if k not in resumable and a[k] != b[k])
     if diff:
         detail = ", ".join(f"{k}: run has {a[k]!r}, asked {b[k]!r}" for k in diff)
         raise InputError(
@@ -155,7 +161,7 @@ def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> TrainC
             path,
             param=("resume", "out"),
         )
-    return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
+    return dataclasses.replace(stored, **{k: getattr(given, k) for k in resumable})
 
 
 #: the running mean of the static budget's cut slots a ray (read every ``log_every`` steps; not in curves)
@@ -249,7 +255,11 @@ class Trainer:
                     param=("resume", "out"),
                 )
             ckpt = load_checkpoint(ckpt_path)
-            config = _check_resume(*_stored_and_given(self.out / CONFIG_FILE, config), self.out / CONFIG_FILE)
+            # a dataset moved elsewhere may be given where the checkpoint's fingerprint checks its files
+            movable = ("dataset",) if "content" in (ckpt.get("dataset") or {}) else ()
+            stored_given = _stored_and_given(self.out / CONFIG_FILE, config)
+            config = _check_resume(*stored_given, self.out / CONFIG_FILE, movable)
+            check_same_run(ckpt, config.to_dict(), ckpt_path)  # not another run's checkpoint copied in
         self.device = resolve_device(config.device)
         self.config = config.validate().resolved()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
@@ -344,6 +354,41 @@ class Trainer:
         with torch.random.fork_rng(devices=[]):
             return evaluate_views(self.model, views, self.dataset, renders=renders)
 
+    def backward(self, step: StepLosses, loss: torch.Tensor, it: int) -> tuple[StepLosses, torch.Tensor]:
+        """``loss.backward()`` (scaled); returns the step and loss that were differentiated. The compiled
+        step's backward is compiled (or its CUDA graph captured) at its first call: if that fails, the
+        step goes eager for good (one warning line) and this iteration's losses are computed again eagerly.
+        A failure after a compiled backward has run, or of an eager one, propagates."""
+        compiled = vars(self.method).get("step_losses")
+        first = isinstance(compiled, CompiledStep) and compiled.failed is None and not compiled.backward_ran
+        try:
+            self.scaler.scale(loss).backward()
+        except Exception as err:  # a compiler or capture failure: the eager step is a correct answer
+            if not first:
+                raise
+            compiled.fail(one_line(f"{type(err).__name__}: {err}"))
+            self.optimizer.zero_grad(set_to_none=True)
+            with autocast(self.device, self.config.amp):
+                step = self.method.losses(self, it)
+                loss = step.total()
+            self.scaler.scale(loss).backward()
+        if first:
+            compiled.backward_ran = True
+        return step, loss
+
+    def non_finite(self) -> str | None:
+        """The name of the first model parameter holding a NaN or an infinity (None: all finite)."""
+        return next((n for n, p in self.model.named_parameters() if not p.isfinite().all()), None)
+
+    def diverged(self, what: str) -> NoReturn:
+        """InputError naming the rate: the run diverged (``what``); nothing of it is checkpointed."""
+        raise InputError(
+            f"training diverged by iteration {self.iteration} ({what}); an earlier checkpoint is kept: "
+            "lower lr",
+            path=self.out,
+            param="lr",
+        )
+
     def checkpoint(self) -> None:
         """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
         save_checkpoint(
@@ -395,7 +440,7 @@ class Trainer:
             for learner in self.learners.values():
                 learner.begin(it)
             if loss.requires_grad:  # False only if every sample was culled (e.g. an empty occupancy grid)
-                self.scaler.scale(loss).backward()
+                step, loss = self.backward(step, loss, it)
                 if self.adam_step is not None:  # never with fp16's scaler (TrainConfig.validate)
                     self.adam_step()
                 else:
@@ -418,6 +463,9 @@ class Trainer:
             last = self.iteration == cfg.iters
             if self.iteration % cfg.log_every == 0 or last:  # the only per-step read of device values
                 m = recent.read()
+                if not math.isfinite(m["loss"]) and cfg.amp != "fp16":  # fp16's scaler skips such steps
+                    bar.close()
+                    self.diverged(f"loss {m['loss']}")
                 dropped = m.pop(DROPPED, 0.0)
                 self.tell_dropped(dropped)
                 bar.set_postfix(loss=f"{m['loss']:.4f}", psnr=f"{mse_to_psnr(m['srgb_mse']):.2f}",
@@ -446,6 +494,10 @@ class Trainer:
                     log.scalars(self.iteration, {"psnr/train": train_psnr, "psnr/test": test_psnr})
                     log.images(self.iteration, renders or [])
             if self.iteration % cfg.ckpt_every == 0 or last or self.iteration == end:
+                scheduled = self.iteration % cfg.ckpt_every == 0 or last  # (a stop_after pause reads nothing)
+                if scheduled and (bad := self.non_finite()) is not None:
+                    bar.close()
+                    self.diverged(f"{bad} is not finite")
                 self.checkpoint()
             failpoint("train.iteration")
         if log is not None:
@@ -501,7 +553,8 @@ def train(
     """Train ``config`` into the run folder ``out`` (see :class:`Trainer`), holding its writer lock.
 
     ``out`` must be new, empty or a run folder; ``resume`` needs it to exist. Temporaries that a killed
-    writer left in it are removed first.
+    writer left in it are removed first. A folder this call created is removed again when the setup is
+    refused.
     """
     out = Path(out)
     if resume and not out.is_dir():
@@ -509,5 +562,13 @@ def train(
     check_output(out, "run", overwrite=True)
     with output_lock(out):
         check_output(out, "run", overwrite=True)
-        clean_stale_temps(out)
-        return Trainer(config, out, dataset, resume, progress).train(stop_after)
+        if owned(out):  # a folder of ours (one recognised by its files alone may be a user's)
+            clean_stale_temps(out)
+        new = not out.exists()
+        try:
+            trainer = Trainer(config, out, dataset, resume, progress)
+        except InputError:  # refused while setting up (e.g. after caching learned targets): nothing stays
+            if new:
+                shutil.rmtree(out, ignore_errors=True)
+            raise
+        return trainer.train(stop_after)

@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from spikenerf.pipelines.benchmark.steps import Job, run_step
+from spikenerf.pipelines.benchmark.steps import Job, run_step, stop_running
 
 T = TypeVar("T")
 
@@ -55,7 +55,8 @@ def _run_job(cfg: Any, job: Job, log: list[dict], finished: Callable[[Job], None
 
 def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> list[T]:
     """Run ``tasks`` ``jobs`` at a time with a progress bar; results in task order. The first failure
-    cancels the tasks not yet started, lets the running ones finish, and is raised."""
+    cancels the tasks not yet started, lets the running ones finish, and is raised; an interruption
+    (Ctrl-C, SIGTERM) also stops the steps running now (:func:`stop_running`)."""
     results: dict[int, T] = {}
     with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(tasks), desc=desc, unit=unit) as bar:
         futures = {pool.submit(task): i for i, task in enumerate(tasks)}
@@ -63,9 +64,11 @@ def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> 
             for future in as_completed(futures):
                 results[futures[future]] = future.result()
                 bar.update()
-        except BaseException:
+        except BaseException as err:
             for future in futures:
                 future.cancel()
+            if not isinstance(err, Exception):  # interrupted: the running steps too, not at their end
+                stop_running()
             raise
     return [results[i] for i in range(len(tasks))]
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, folder_kind, mark
+from spikenerf.core.marker import check_output, folder_kind, mark, owned
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.benchmark.cells import (
     BenchmarkConfig,
@@ -48,6 +48,7 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
     if not pre_simulated(cfg.out):  # that one is adopted (marked below)
         check_output(cfg.out, "benchmark", overwrite=True)  # a folder it wrote before is resumed
     check_settings(cfg)  # … with the settings it was started with
+    _check_datasets(cfg)  # … and datasets simulated with them
     check_benchmark_resources(cfg)
     with output_lock(cfg.out):
         nonce = check_settings(cfg)
@@ -55,7 +56,8 @@ def run_benchmark(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None =
         if nonce is None:
             nonce = write_settings(cfg, None)
         adopt_integral_defaults(cfg)
-        clean_stale_temps(cfg.out)
+        if owned(cfg.out):  # a folder of ours (one recognised by its files alone may be a user's)
+            clean_stale_temps(cfg.out)
         return _run_benchmark_locked(cfg, executor, on_cell, nonce)
 
 
@@ -78,6 +80,7 @@ def _run_benchmark_locked(
     log: list[dict] = []
     keys = cell_keys(cfg)
     _check_datasets(cfg)
+    forget_unscored(cfg, keys)
     jobs = _jobs(cfg, keys)
     key_of = {cell_name(cfg, key): key for key in keys}
 
@@ -101,19 +104,60 @@ def _run_benchmark_locked(
 
 
 def _check_datasets(cfg: BenchmarkConfig) -> None:
-    """Refuse a dataset simulated before with other blur views than the benchmark asks for."""
+    """Refuse a dataset simulated before (by an interrupted benchmark, or by hand into OUT/datasets) with
+    other settings than the benchmark asks for: its size, steps, seed, test views, colours, blur views."""
     for scene in cfg.scenes:
         root = cfg.out / "datasets" / scene
         if not (root / "transforms.json").is_file():
             continue
-        have = str(view_counts(root)["blur_views"])
-        if have != cfg.blur_views:
+        have = dataset_settings(root)
+        want = {"size": [cfg.size, cfg.size], "frames": cfg.frames, "seed": cfg.seed,
+                "test_views": cfg.test_views, "blur_views": cfg.blur_views}  # fmt: skip
+        for param, value in want.items():
+            if have[param] is not None and have[param] != value:
+                raise InputError(
+                    f"{param}: the dataset was simulated with {param} {have[param]}, but the benchmark asks "
+                    f"for {value}; pass that or delete the dataset to re-simulate it",
+                    path=root,
+                    param=param,
+                )
+        if have["colors"] is not None and (lacking := [c for c in cfg.colors if c not in have["colors"]]):
             raise InputError(
-                f"blur_views: the dataset was simulated with {have} blur views, but the benchmark asks for "
-                f"{cfg.blur_views}; pass {have} or delete the dataset to re-simulate it",
+                f"color: the dataset has no {', '.join(lacking)} stream; delete it to re-simulate it",
                 path=root,
-                param="blur_views",
+                param="color",
             )
+
+
+def forget_unscored(cfg: BenchmarkConfig, keys: Sequence[CellKey]) -> None:
+    """Let a cell whose ``metrics.json`` is gone (deleted, e.g. a malformed one, as the refusal advises) be
+    evaluated again: its ``render/render.json``, which marks a finished cell, is removed (the render then
+    resumes from its cache)."""
+    for key in keys:
+        run = run_dir(cfg, *key)
+        if cfg.render and not (run / "metrics.json").is_file():
+            (run / "render" / "render.json").unlink(missing_ok=True)
+
+
+def dataset_settings(root: Path) -> dict:
+    """What a dataset folder was simulated with, from its ``config.yaml`` (None where it does not say):
+    ``size`` [W, H], ``frames``, ``seed``, ``test_views``, ``colors`` and ``blur_views``."""
+    import yaml
+
+    try:
+        config = yaml.safe_load((root / "config.yaml").read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError):
+        config = {}
+    config = config if isinstance(config, dict) else {}
+    size = [config.get("spike_w"), config.get("spike_h")]
+    return {
+        "size": None if None in size else size,
+        "frames": config.get("steps"),
+        "seed": config.get("seed"),
+        "test_views": config.get("test_views"),
+        "colors": config.get("colors"),
+        "blur_views": str(view_counts(root)["blur_views"]),
+    }
 
 
 def _commands_at(cfg: BenchmarkConfig, key: tuple, root: Path) -> list[list[str]]:

@@ -87,11 +87,15 @@ def _change(key: str, was: Any, now: Any) -> str:
 
 
 def _options(args: list) -> dict[str, str]:
-    """``["--a", "1", "--flag", "--b", "2"]`` → ``{"--a": "1", "--flag": "", "--b": "2"}``."""
+    """``["--a", "1", "--flag", "--set", "k=2"]`` → ``{"--a": "1", "--flag": "", "--set k": "2"}`` (each
+    ``--set`` item by its key, so that repeated ones are told apart)."""
     found: dict[str, str] = {}
     for i, arg in enumerate(map(str, args)):
         if arg.startswith("--"):
             value = str(args[i + 1]) if i + 1 < len(args) and not str(args[i + 1]).startswith("--") else ""
+            if arg == "--set" and "=" in value:
+                key, _, value = value.partition("=")
+                arg = f"--set {key.strip()}"
             found[arg] = value
     return found
 

@@ -99,8 +99,11 @@ def t_interval(values: Sequence[float]) -> tuple[float, float] | None:
 
 
 def _claimed(interval: tuple[float, float] | None, better: bool) -> bool:
-    """Whether ``interval`` excludes 0 on the claimed side."""
-    return interval is not None and (interval[0] > 0 if better else interval[1] < 0)
+    """Whether ``interval`` excludes 0 on the claimed side; an interval of no width (every difference the
+    same) claims nothing: its spread was not measured."""
+    if interval is None or not interval[1] > interval[0]:
+        return False
+    return interval[0] > 0 if better else interval[1] < 0
 
 
 def paired_difference(
@@ -148,7 +151,7 @@ def differences(
                 for scene, seed in keys:
                     a, b = value[(scene, seed, color, ours)], value.get((scene, seed, color, base))
                     x, y = getattr(a, metric), None if b is None else getattr(b, metric)
-                    if x is not None and y is not None and not (math.isnan(x) or math.isnan(y)):
+                    if x is not None and y is not None and math.isfinite(x - y):  # not NaN, not inf − inf
                         diffs.append(x - y)
                         by_seed.setdefault(seed, []).append(x - y)
                 if diffs:

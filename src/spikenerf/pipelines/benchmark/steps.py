@@ -5,14 +5,18 @@ recorded ``spikenerf`` command run as a subprocess, by the local executor
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from spikenerf.core.errors import InputError
 
@@ -43,6 +47,32 @@ def _die_with_parent() -> None:
         _PRCTL(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
 
 
+#: the steps running now (a benchmark interrupted by SIGTERM or Ctrl-C stops them: :func:`stop_running`)
+_RUNNING: set[subprocess.Popen] = set()
+_RUNNING_LOCK = threading.Lock()
+
+
+def _run(command: list[str], env: dict | None, sink: Any = None) -> int:
+    """Run ``command`` to its end (output to ``sink``, else the terminal), registered in :data:`_RUNNING`."""
+    out = {} if sink is None else {"stdout": sink, "stderr": subprocess.STDOUT}
+    with _RUNNING_LOCK:
+        process = subprocess.Popen(command, env=env, preexec_fn=_die_with_parent, **out)
+        _RUNNING.add(process)
+    try:
+        return process.wait()
+    finally:
+        with _RUNNING_LOCK:
+            _RUNNING.discard(process)
+
+
+def stop_running() -> None:
+    """Send SIGTERM to every step running now (each unwinds and exits 143; its job then fails)."""
+    with _RUNNING_LOCK:
+        for process in _RUNNING:
+            with contextlib.suppress(OSError):
+                process.send_signal(signal.SIGTERM)
+
+
 def run_step(
     command: list[str], log: list[dict], output: Path | None = None, threads: int | None = None
 ) -> None:
@@ -50,13 +80,11 @@ def run_step(
     env = None if threads is None else {**os.environ, "OMP_NUM_THREADS": str(threads)}
     start = time.perf_counter()
     if output is None:
-        rc = subprocess.run(command, check=False, env=env, preexec_fn=_die_with_parent).returncode
+        rc = _run(command, env)
     else:
         output.parent.mkdir(parents=True, exist_ok=True)
         with output.open("a") as sink:
-            done = subprocess.run(command, check=False, env=env, stdout=sink, stderr=subprocess.STDOUT,
-                                  preexec_fn=_die_with_parent)  # fmt: skip
-        rc = done.returncode
+            rc = _run(command, env, sink)
     log.append({"command": command[2:], "seconds": round(time.perf_counter() - start, 2), "rc": rc})
     if rc != 0:
         where = f" (output in {output})" if output is not None else ""

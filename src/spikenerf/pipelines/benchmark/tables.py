@@ -29,11 +29,16 @@ class Table:
     rows: list[tuple[str, list[tuple[str, str]]]]
 
 
+def decimals(metric: str) -> int:
+    """Decimals a table prints of ``metric``: 2 for PSNR, 3 for SSIM and LPIPS."""
+    return 2 if metric == "psnr" else 3
+
+
 def fmt(stat: Stat | None, metric: str) -> str:
-    """'–', the value, or 'mean ± std' (PSNR with 2 decimals, SSIM/LPIPS with 3)."""
+    """'–', the value, or 'mean ± std' (:func:`decimals` of them)."""
     if stat is None:
         return "–"
-    digits = 2 if metric == "psnr" else 3
+    digits = decimals(metric)
     text = f"{stat.mean:.{digits}f}"
     return text if stat.std is None else f"{text} ± {stat.std:.{digits}f}"
 
@@ -42,10 +47,11 @@ def rank_marks(values: dict[str, float | None], metric: str) -> dict[str, str]:
     """'best' / 'second' / '' per key, as the paper highlights (red best, yellow second).
 
     Args:
-        values: key -> metric value (None is never ranked).
+        values: key -> metric value (None is never ranked), ranked as printed (values that print the same
+            get the same mark).
     """
     present = sorted(
-        ((v, k) for k, v in values.items() if v is not None),
+        ((round(v, decimals(metric)), k) for k, v in values.items() if v is not None),
         reverse=HIGHER_IS_BETTER[metric],
         key=lambda x: x[0],
     )
