@@ -42,11 +42,14 @@ def as_numpy(x: Any) -> np.ndarray:
 
 def frame_bytes(height: int, width: int, raw_width: int | None = None, path: str | Path | None = None) -> int:
     """Bytes per stored frame, ``H·W_stored/8``; InputError when the sizes are bad or H·W % 8 != 0."""
-    stored = _stored_width(width, raw_width, path)
-    if height <= 0 or width <= 0:
+    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (height, width))
+    if not whole or height <= 0 or width <= 0:
         raise InputError(
-            f"height and width must be positive, found {height}×{width}", path=path, param=("height", "width")
+            f"height and width must be positive integers, found {height!r}×{width!r}",
+            path=path,
+            param=("height", "width"),
         )
+    stored = _stored_width(width, raw_width, path)
     if (height * stored) % 8:
         raise InputError(
             f"H·W must be a multiple of 8 for a .dat file, found {height}×{stored} = {height * stored} "

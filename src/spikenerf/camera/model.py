@@ -179,7 +179,12 @@ class SpikeCamera:
     ) -> None:
         for name, v in (("height", height), ("width", width)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
-                raise InputError(f"spike camera {name} must be a positive integer, got {v!r}")
+                raise InputError(f"spike camera {name} must be a positive integer, got {v!r}", param=name)
+        if config is not None and not isinstance(config, CameraConfig):  # e.g. "rgb"
+            raise InputError(
+                f"config must be a CameraConfig (e.g. CameraConfig(color='rgb')), got {config!r}",
+                param="config",
+            )
         self.config = config if config is not None else CameraConfig()
         self.height, self.width = int(height), int(width)
         self.device = _resolve(device)
@@ -332,7 +337,14 @@ def simulate(
 
     Args:
         frames: T steps of intensity (see :meth:`SpikeCamera.step`), any iterable.
+        height, width: the sensor's size in pixels (positive integers).
+        config: the camera (:class:`CameraConfig`: colour mode, threshold φ, noise, seed, warm-up); None: the
+            defaults (gray, φ = 1, ideal).
+        device: None (numpy), or a torch device to integrate on.
         progress: show a tqdm progress bar.
+        noise_params: the realistic noise's parameters (default: the preset of ``camera/noise.py``).
+    Raises:
+        InputError: a size, the config or a frame is malformed.
     """
     camera = SpikeCamera(height, width, config, device, noise_params)
     total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]

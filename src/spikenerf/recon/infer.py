@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from spikenerf.camera.io import resolve_frames
 from spikenerf.camera.reconstruct import check_threshold
 from spikenerf.core.errors import InputError
 from spikenerf.recon.features import RunningFeatures
@@ -227,7 +228,10 @@ def reconstruct_learned(
     net, _ = load_weights(weights, mode)
     check_window(net, window)
     x = np.asarray(spikes)
-    sel = range(x.shape[0])[frames if frames is not None else slice(None)]
+    if isinstance(frames, (int, np.integer)) and not isinstance(frames, bool):
+        sel = resolve_frames(frames, x.shape[0])  # one frame, as tfp and tfi take it
+    else:
+        sel = range(x.shape[0])[frames if frames is not None else slice(None)]
     if len(sel) == 0:
         raise InputError(f"frames: the selection {frames} of {x.shape[0]} frames is empty")
     lo, hi = min(sel), max(sel) + 1  # the span, then the selected frames (any step, also negative)
