@@ -31,6 +31,20 @@ def test_targets_go_to_the_gpu_while_they_fit_in_half_its_free_memory() -> None:
     assert resident_names(sizes, 100) == ["spikes"]
 
 
+def test_what_stays_resident_leaves_room_for_the_step() -> None:
+    from types import SimpleNamespace
+
+    def method():  # type: ignore[no-untyped-def]
+        images = SimpleNamespace(nbytes=100)
+        return SimpleNamespace(targets=SimpleNamespace(images=images, images_on=lambda d: "on " + d.type),
+                               spikes=None, counts=None)  # fmt: skip
+
+    roomy, tight = method(), method()
+    assert keep_targets_on_device(roomy, CUDA, free=400) == ["targets"] and roomy.targets == "on cuda"
+    assert keep_targets_on_device(tight, CUDA, free=400, reserve=250) == []  # 150 left: half is 75 < 100
+    assert tight.targets.images.nbytes == 100  # not moved
+
+
 def test_nothing_moves_off_cuda(dataset_dir: Path, dataset) -> None:  # type: ignore[no-untyped-def]
     method = make_method(test_train._config(dataset_dir, method="spike-nerf"))
     method.build_targets(dataset)

@@ -34,10 +34,13 @@ def resident_names(sizes: dict[str, int], free: int | None) -> list[str]:
     return names
 
 
-def keep_targets_on_device(method: Any, device: torch.device, free: int | None = None) -> list[str]:
+def keep_targets_on_device(
+    method: Any, device: torch.device, free: int | None = None, reserve: float = 0.0
+) -> list[str]:
     """Move the method's target images and recorded spikes to a CUDA ``device`` once, so that every step
     gathers them there (no per-step host gather and copy); the names moved. Nothing moves off CUDA (the CPU
-    path is unchanged) or what does not fit (:func:`resident_names`; ``free`` None: read from the device)."""
+    path is unchanged) or what does not fit (:func:`resident_names` of ``free`` less ``reserve``, the bytes
+    a training step will take; ``free`` None: read from the device)."""
     if device.type != "cuda":
         return []
     sizes = {}
@@ -47,7 +50,8 @@ def keep_targets_on_device(method: Any, device: torch.device, free: int | None =
         sizes["spikes"] = method.spikes.spikes.nbytes
     if getattr(method, "counts", None) is not None:  # spike-integral's prefix counts
         sizes["counts"] = method.counts.nbytes
-    names = resident_names(sizes, free_device_memory(device) if free is None else free)
+    free = free_device_memory(device) if free is None else free
+    names = resident_names(sizes, None if free is None else max(0, int(free - reserve)))
     if "targets" in names:
         method.targets = method.targets.images_on(device)
     if "spikes" in names:

@@ -51,7 +51,7 @@ from spikenerf.train.compiled_optim import CompiledAdamStep, load_state, set_lr,
 from spikenerf.train.compiled_step import CompiledStep, compile_step, compiles_needed, static_samples
 from spikenerf.train.config import TrainConfig, load_run_config, save_config
 from spikenerf.train.dense_adam import DenseAdam
-from spikenerf.train.device import check_batch_fits, keep_targets_on_device
+from spikenerf.train.device import batch_bytes, check_batch_fits, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
@@ -203,10 +203,15 @@ def check_step_memory(
 ) -> None:
     """Refuse, before any work, a step whose rays (the batch and a spike window) do not fit in a CUDA
     device's free memory by estimate (:func:`spikenerf.train.device.check_batch_fits`)."""
+    check_batch_fits(config.field, model_config(config), *step_size(config, method), device, free)
+
+
+def step_size(config: TrainConfig, method: Any) -> tuple[int, float]:
+    """(rays, parameter bytes) of a training step: the batch and a spike window's rays; the field's
+    parameters with their gradients and Adam state (:func:`spikenerf.train.device.batch_bytes`)."""
     spike_rays = config.spike.window * config.spike.pixels if method.uses_spike_loss else 0
     params, _, _ = field_memory(config.field, model_config(config))
-    rays = config.rays_per_step() + spike_rays
-    check_batch_fits(config.field, model_config(config), rays, params, device, free)
+    return config.rays_per_step() + spike_rays, params
 
 
 def gpu_default_batch(
@@ -313,7 +318,9 @@ class Trainer:
             )
             if learner is not None
         }
-        self.resident = keep_targets_on_device(self.method, self.device)
+        # what stays resident leaves room for the step (its rays, gradients and Adam state, not allocated yet)
+        step = batch_bytes(self.config.field, model_config(self.config), *step_size(self.config, self.method))
+        self.resident = keep_targets_on_device(self.method, self.device, reserve=step)
         if self.config.compile and static_samples(self.model):  # the whole device part of the step instead
             compile_step(self.method, self.model, self.device, warn)
         self.iteration, self.elapsed, self.rays = 0, 0.0, 0
