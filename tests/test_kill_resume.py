@@ -99,7 +99,9 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-@pytest.mark.parametrize("point", ["simulate.render:5", "simulate.spikes:30", "simulate.publish:1"])
+@pytest.mark.parametrize(
+    "point", ["simulate.render:5", "write:00003.npy:1", "simulate.spikes:30", "simulate.publish:1"]
+)
 def test_simulate_killed_then_resumed_is_bit_identical(reference: Path, tmp_path: Path, point: str) -> None:
     out = tmp_path / "ds"
     _killed_at([*SIM, "--out", out], point)
@@ -108,6 +110,8 @@ def test_simulate_killed_then_resumed_is_bit_identical(reference: Path, tmp_path
     if point == "simulate.render:5":  # a cache frame cut short (disk full, a copy interrupted) is re-rendered
         assert len(frames) == 5
         frames[-1].write_bytes(frames[-1].read_bytes()[:50])
+    if point.startswith("write:"):  # killed inside a frame's atomic write: its temporary is left
+        assert [p.name[:10] for p in (work_dir(out) / ".frames").glob(".*.tmp")] == [".00003.npy"]
     _cli(*SIM, "--out", out)
     assert _files(out) == _files(reference / "ds")
     assert not work_dir(out).exists() and not lock_path(out).exists()

@@ -27,7 +27,7 @@ from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.capture.blur import RunningExposures, blur_windows, parse_blur_views
 from spikenerf.capture.recording import RAW_DIR, check_raw_width, write_raw_recording
-from spikenerf.core.atomic import clean_stale_temps
+from spikenerf.core.atomic import atomic_path, clean_stale_temps
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
@@ -119,10 +119,8 @@ def check_simulate_resources(out: Path, params: str, **sizes: Any) -> None:
 
 def _save_npy(path: Path, array: np.ndarray) -> None:
     """``np.save`` through a temporary sibling so an interrupted write never leaves a corrupt cache entry."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as fh:
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.save(fh, array)
-    os.replace(tmp, path)
 
 
 def open_cache(source: FrameSource, work: Path) -> Path:
@@ -240,10 +238,8 @@ def render_missing(source: FrameSource, cache: Path, progress: bool = True, jobs
     bar.close()
     if not _test_cached(cache / "test.npz"):
         poses, frames = source.test_views()
-        tmp = cache / ".test.npz.tmp"
-        with open(tmp, "wb") as fh:
+        with atomic_path(cache / "test.npz") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, poses=np.asarray(poses, np.float64), frames=np.asarray(frames, np.float32))
-        os.replace(tmp, cache / "test.npz")
     return len(missing)
 
 
