@@ -290,5 +290,5 @@ def test_render_draws_the_test_views_and_orbit_at_the_poses_the_run_refined(
     )
     video.render_run(demo / "run", tmp_path / "r", progress=False)
     assert len(seen) == len(refined) and np.allclose(np.stack(seen), refined, atol=1e-6)
-    moved = video.refined_poses(demo / "run", config, dataset)
+    moved = video.refined_poses(ckpt, config, dataset)
     assert np.allclose(moved.trajectory.poses, video.refined_dataset(ckpt, config, dataset).trajectory.poses)

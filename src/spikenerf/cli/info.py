@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -16,15 +18,16 @@ def dat_frame_size(
 ) -> tuple[int, int, int | None]:
     """--height/--width/--raw-width, each defaulting to ``spike_h``/``spike_w``/``raw_width`` of a SpikeCV
     config.yaml beside the file (or one folder up)."""
-    config = _recording(path, height, width)
-    raw = raw_width if raw_width is not None else config.raw_width
-    return config.height, config.width, raw  # type: ignore[return-value]
+    config = dat_recording(path, height, width, raw_width)
+    return config.height, config.width, config.raw_width  # type: ignore[return-value]
 
 
-def _recording(path: Path, height: int | None, width: int | None):  # type: ignore[no-untyped-def]
+def dat_recording(path: Path, height: int | None, width: int | None, raw_width: int | None) -> Any:
+    """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given."""
     from spikenerf.camera.spikecv import recording_config
 
-    return recording_config(path, height, width)
+    config = recording_config(path, height, width)
+    return config if raw_width is None else dataclasses.replace(config, raw_width=raw_width)
 
 
 def describe_dat(
@@ -86,9 +89,9 @@ def command(
 
         click.echo(describe(path))
         return
-    height, width, raw_width = dat_frame_size(path, height, width, raw_width)
-    if fps is None:
-        fps = _recording(path, height, width).fps or 40000.0
+    config = dat_recording(path, height, width, raw_width)
+    height, width, raw_width = config.height, config.width, config.raw_width
+    fps = fps if fps is not None else config.fps or 40000.0
     if not 0 < fps < math.inf:
         raise InputError(f"--fps must be a finite number > 0, found {fps}")
     click.echo("\n".join(describe_dat(path, height, width, layout, raw_width, fps)))

@@ -32,10 +32,9 @@ from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
 from spikenerf.render import render_mean
 from spikenerf.render.inference import inference_chunk, resolve_precision
-from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.pose_fit import check_fit_args, fit_view_poses
 from spikenerf.train.pose_refine import refined_dataset, refined_views
-from spikenerf.train.run import load_run, run_iteration
+from spikenerf.train.run import open_run, run_iteration
 
 METRICS_FILE = "metrics.json"
 SPLITS = ("test", "train")
@@ -231,10 +230,9 @@ def _evaluate_locked(
     test_pose: tuple[int, float], precision: str,
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
-    model, config, dataset = load_run(run_dir, dataset_root, device, train_images=split != "test")
+    model, config, dataset, ckpt = open_run(run_dir, dataset_root, device, train_images=split != "test")
     precision = resolve_precision(precision, model.device)
     chunk = inference_chunk(model, chunk)
-    ckpt = load_checkpoint(run_dir / CHECKPOINT)
     held = read_record(run_dir)
     use_noref = wants_noref(noref[0], dataset, held is not None)
     if use_noref and not has_views(dataset, split):  # real data without test views: the checks alone

@@ -51,9 +51,8 @@ from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_
 from spikenerf.render import iter_spike_states, render_image
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.scenes.trajectory import Intrinsics, orbit
-from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.pose_refine import refined_dataset, refined_views
-from spikenerf.train.run import load_run
+from spikenerf.train.run import open_run
 
 TRAJECTORIES = ("test", "orbit")
 DEFAULT_ORBIT_FRAMES = 120
@@ -129,10 +128,10 @@ def _write_npy(path: Path, array: np.ndarray) -> None:
     write_bytes_atomic(path, buf.getvalue())
 
 
-def refined_poses(run_dir: str | Path, config: Any, dataset: SpikeDataset) -> SpikeDataset:
-    """``dataset`` with the test views and the path at the poses the run refined (``--refine-poses``), where
-    ``eval`` scores them and the orbit is centred; unchanged for a run that did not refine poses."""
-    ckpt = load_checkpoint(Path(run_dir) / CHECKPOINT, map_location=torch.device("cpu"))
+def refined_poses(ckpt: dict, config: Any, dataset: SpikeDataset) -> SpikeDataset:
+    """``dataset`` with the test views and the path at the poses the run (its checkpoint ``ckpt``) refined
+    (``--refine-poses``), where ``eval`` scores them and the orbit is centred; unchanged for a run that did
+    not refine poses."""
     if not ckpt.get("poses"):
         return dataset
     test = refined_views(ckpt, config, dataset, dataset.test)
@@ -356,8 +355,8 @@ def _render_locked(
     progress: bool, log: Callable[[str], None] | None, precision: str = "auto",
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
-    model, config, dataset = load_run(run_dir, dataset_root, device, train_images=False)  # new views only
-    dataset = refined_poses(run_dir, config, dataset)
+    model, config, dataset, ckpt = open_run(run_dir, dataset_root, device, train_images=False)  # new views
+    dataset = refined_poses(ckpt, config, dataset)
     precision = resolve_precision(precision, model.device)
     requested, chunk = chunk, inference_chunk(model, chunk)
     on_orbit = trajectory == "orbit"  # (a file called orbit.json is not: it fires one step a pose)

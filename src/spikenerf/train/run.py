@@ -35,6 +35,17 @@ def load_run(
     Returns:
         (model, config, dataset). Problems (missing files, foreign checkpoint) raise InputError.
     """
+    return open_run(run_dir, dataset_root, device, train_images)[:3]  # type: ignore[return-value]
+
+
+def open_run(
+    run_dir: str | Path,
+    dataset_root: str | Path | None = None,
+    device: str = "cpu",
+    train_images: bool = True,
+) -> tuple[RadianceModel, TrainConfig, SpikeDataset, dict]:
+    """:func:`load_run` and the checkpoint it read (its ``poses`` hold the run's pose refinement), for
+    callers that need both without reading the checkpoint twice."""
     run_dir = Path(run_dir)
     config = load_run_config(run_dir / CONFIG_FILE)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)
@@ -43,7 +54,7 @@ def load_run(
     model.to(resolve_device(device)).eval()
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset, train_images)
     check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
-    return model, config, dataset
+    return model, config, dataset, ckpt
 
 
 def dataset_fingerprint(dataset: SpikeDataset) -> dict:
