@@ -36,7 +36,7 @@ from spikenerf.train.config import WINDOW_POSES, TrainConfig, load_config, load_
 from spikenerf.train.evaluate import read_curves
 from spikenerf.train.logger import RunningMeans
 from spikenerf.train.losses import spike_interval_loss
-from spikenerf.train.methods import make_method
+from spikenerf.train.methods import METHOD_CLASSES, make_method, unused_keys
 from spikenerf.train.run import load_run
 from spikenerf.train.trainer import Trainer, train
 
@@ -433,6 +433,84 @@ def test_load_run_renders(dataset_dir: Path, dataset, tmp_path: Path) -> None:  
 
     img = render_image(model, ds.test.poses[0], ds.intrinsics, ds.near, ds.far).color
     assert img.shape == (16, 16, 1) and torch.isfinite(img).all()
+
+
+#: a value other than the test config's for each method-specific key (``methods.METHOD_KEYS``)
+_CHANGED = {
+    "targets.recon": "tfi",
+    "targets.mask": False,
+    "targets.window_poses": 2,
+    "targets.blur_samples": 3,
+    "spike.lam": 0.25,
+    "spike.pixels": 4,
+    "integral.samples": 2,
+    "exposure.lr": 0.05,
+}
+
+
+@pytest.mark.parametrize("method", list(METHOD_CLASSES))
+def test_keys_a_method_does_not_read_leave_its_training_unchanged(
+    dataset_dir: Path, dataset, tmp_path: Path, method: str
+) -> None:  # type: ignore[no-untyped-def]
+    """What ``train`` warns of as unused is unused: the run's weights are the same to the bit; and changing
+    the keys the method does read changes them (so the comparison can fail)."""
+
+    def trained(changes: list[str], name: str) -> dict[str, torch.Tensor]:
+        cfg = _config(dataset_dir, method=method)
+        cfg.iters, cfg.eval_every, cfg.targets.blur_samples, cfg.targets.window_poses = 3, 0, 2, 1
+        data = cfg.to_dict()
+        for key in changes:
+            section, field = key.split(".")
+            data[section][field] = _CHANGED[key]
+        torch.manual_seed(0)
+        trainer = Trainer(TrainConfig.from_dict(data).validate(), tmp_path / name, dataset, progress=False)
+        trainer.train()
+        return trainer.model.state_dict()
+
+    unused = unused_keys(method, _CHANGED)
+    read = [key for key in _CHANGED if key not in unused and key != "targets.recon"]  # (tfi: one pose)
+    base, other = trained([], "base"), trained(unused, "unused")
+    assert unused and all(torch.equal(base[k], other[k]) for k in base)
+    if read:
+        changed = trained(read, "read")
+        assert any(not torch.equal(base[k], changed[k]) for k in base)
+
+
+def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
+    dataset_dir: Path, tmp_path: Path, capsys, monkeypatch
+) -> None:  # type: ignore[no-untyped-def]
+    import spikenerf.cli.train as cli_train
+    from helpers import run_cli
+
+    trained: list[TrainConfig] = []
+    monkeypatch.setattr(cli_train, "train", lambda config, *a, **k: trained.append(config) or sys.exit(0))
+    flags = [
+        "--lambda",
+        "0.5",
+        "--integral-window",
+        "3",
+        "--no-mask",
+        "--window",
+        "11",
+        "--set",
+        "spike.pixels=4",
+    ]
+    flags += ["--set", "spike.window=8", "--blur-samples", "3"]
+    code, _, err = run_cli(
+        capsys, "train", dataset_dir, "--out", tmp_path / "a", "--method", "nerf-gt", *flags
+    )
+    assert code == 0 and trained[-1].spike.lam == 0.5  # (kept in the config, unused)
+    assert err.splitlines() == [
+        f"spikenerf: warning: {flag} is not used by --method nerf-gt; ignored"
+        for flag in ("--blur-samples", "--integral-window", "--lambda", "--no-mask", "--set spike.pixels")
+    ]  # --window and spike.window set the hold-out guard band of every method
+    code, _, err = run_cli(
+        capsys, "train", dataset_dir, "--out", tmp_path / "b", "--method", "spike-nerf", *flags
+    )
+    assert code == 0 and err.splitlines() == [
+        f"spikenerf: warning: {flag} is not used by --method spike-nerf; ignored"
+        for flag in ("--blur-samples", "--integral-window")
+    ]
 
 
 def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -26,6 +26,7 @@ from spikenerf.train.methods import (
     INTEGRAL_WINDOW,
     METHOD_CLASSES,
     TRACK_HALF,
+    unused_keys,
 )
 from spikenerf.train.trainer import CONFIG_FILE, train
 
@@ -80,7 +81,8 @@ PARAM_FLAGS = {
     "Methods: "
     + ", ".join(f"{name} ({cls.summary})" for name, cls in METHOD_CLASSES.items())
     + ". Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
-    "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones).\n\n"
+    "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones). A "
+    "flag or --set key that the method does not use is kept in the config with a one-line warning.\n\n"
     "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "
     "left out); options given on the command line override it, and --set KEY=VALUE overrides any field "
     "last (e.g. --set spike.lam=0.5 --set targets.mask_n=3 --set field_config.n_voxels_final=2097152)."
@@ -298,6 +300,7 @@ def command(
         base.field_config = {**base.field_config, **_field_options(options["field_options"])}  # type: ignore[arg-type]
     if overrides:
         base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
+    _warn_unused(base.method, given, overrides)
     if dataset is None and not base.dataset:
         raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
     dataset = Path(base.dataset) if dataset is None else dataset
@@ -312,6 +315,20 @@ def command(
         f"({summary.rays_per_second:.0f} rays/s); train PSNR {summary.train_psnr:.2f} dB, "
         f"test PSNR {test} → {out}"
     )
+
+
+#: flags that set a config key other than their own name's (``OPTION_FIELDS`` has the rest)
+_FLAG_KEYS = {"no_mask": "targets.mask", "no_spike_loss": "spike.enabled"}
+
+
+def _warn_unused(method: str, given: set[str], overrides: tuple[str, ...]) -> None:
+    """One warning line for each given flag or ``--set`` key that ``method`` does not read (e.g. ``--lambda``
+    with ``--method nerf-gt``): the run goes on, as the same command line often trains several methods."""
+    flags = {n: _FLAG_KEYS.get(n) or ".".join(filter(None, OPTION_FIELDS.get(n, ()))) for n in sorted(given)}
+    keys = {key: PARAM_FLAGS.get(key, "--" + name.replace("_", "-")) for name, key in flags.items() if key}
+    keys |= {item.partition("=")[0].strip(): f"--set {item.partition('=')[0].strip()}" for item in overrides}
+    for key in unused_keys(method, keys):
+        click.echo(f"spikenerf: warning: {keys[key]} is not used by --method {method}; ignored", err=True)
 
 
 def _lengths(text: str | None) -> list[int] | None:

@@ -300,7 +300,7 @@ class TrainConfig:
                 f"targets.window must be an odd number of frames, found {self.targets.window}",
                 param="targets.window",
             )
-        if self.targets.poses_per_target() > 1 and self.targets.recon != "tfp":
+        if self.window_poses() > 1 and self.targets.recon != "tfp":  # (only the stream methods read both)
             raise InputError(
                 f"targets.window_poses > 1 models the TFP window; targets.recon {self.targets.recon!r} "
                 "has none (use tfp)",

@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple, Protocol
 
@@ -77,6 +78,21 @@ DEFAULT_BATCH = 1024
 #: on CUDA the default batch is this many times the CPU one (where it fits): a GPU step costs about the same
 #: up to 16384 rays (H200: 21.8 ms at 4096, 21.9 ms at 16384 for spike-integral; docs/performance.md)
 GPU_BATCH_SCALE = 4
+#: config keys that only some methods read (a key ending in "." stands for its section): each method lists
+#: those it reads in :attr:`TrainMethod.reads`, and :func:`unused_keys` names the others (``train`` warns of
+#: a given one). ``spike.window`` and ``targets.mask_n`` are not among them: every method's hold-out guard
+#: band reads them.
+METHOD_KEYS = (
+    "targets.recon",
+    "targets.mask",
+    "targets.window_poses",
+    "targets.blur_samples",
+    "spike.",
+    "integral.",
+    "exposure.",
+)
+SHARED_KEYS = ("spike.window",)
+
 #: spike-integral's longest default window and steps rendered per window (docs/spike-integral.md, Choosing)
 INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 5, 1
 #: the default window is shortened so that the image moves at most this many pixels in it, to no fewer steps
@@ -184,6 +200,7 @@ class TrainMethod:
         has_spike_loss: it adds the spike loss (unless ``spike.enabled`` switches it off).
         default_batch: rays per step when ``batch`` is not given (``TrainConfig.rays_per_step``).
         learns_poses: it learns its views' poses itself (pose refinement stays off by default).
+        reads: the :data:`METHOD_KEYS` it reads (:func:`unused_keys`).
         summary: what it trains on, for ``spikenerf train --help``.
     """
 
@@ -194,6 +211,7 @@ class TrainMethod:
     has_spike_loss: ClassVar[bool] = False
     default_batch: ClassVar[int] = DEFAULT_BATCH
     learns_poses: ClassVar[bool] = False
+    reads: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def check(cls, config: Config) -> None:
@@ -368,7 +386,7 @@ class NerfBlurAware(NerfBlur):
     """A deblurring NeRF given the true trajectory: each blur view is compared with the mean of renders at
     ``targets.blur_samples`` poses spread over its exposure."""
 
-    name = "nerf-blur-aware"
+    name, reads = "nerf-blur-aware", ("targets.blur_samples",)
     summary = "deblur NeRF given the true trajectory: blur views, exposure-averaged renders"
 
     def poses_per_view(self) -> int:
@@ -384,6 +402,7 @@ class NerfBAD(NerfBlur):
     interpolated between them with the blurred image; it reads no trajectory."""
 
     name, learns_poses = "nerf-bad", True
+    reads = ("targets.blur_samples", "exposure.")
     summary = (
         "BAD-NeRF-like: learns each blur view's exposure start and end pose from the blurred frames "
         "alone; --set exposure.lr=..."
@@ -427,6 +446,7 @@ class NerfRecon(TrainMethod):
     """NeRF on the reconstructions Î_k (TFP, TFI or learned) of every step, unmasked."""
 
     name, uses_stream = "nerf-recon", True
+    reads = ("targets.recon", "targets.window_poses")
     summary = "TFP/TFI targets"
 
     def poses_per_view(self) -> int:
@@ -442,6 +462,7 @@ class SpikeNeRF(NerfRecon):
     """Spike-NeRF: masked targets ``M_k ⊙ Î_k`` plus ``λ(it) · L_spike`` (both can be switched off)."""
 
     name, has_spike_loss = "spike-nerf", True
+    reads = (*NerfRecon.reads, "targets.mask", "spike.")
     summary = (
         "the paper's method: masked TFP/TFI targets + differentiable spike loss; with --window-poses 1 "
         "exactly the paper's targets"
@@ -520,6 +541,8 @@ class SpikeIntegral(TrainMethod):
     reconstruction and no mask: a window without spikes has target 0."""
 
     name, uses_stream = "spike-integral", True
+    #: targets.recon: only "tfp" (checked); targets.window_poses: eval's TFP keyframes (its window_poses())
+    reads = ("targets.recon", "targets.window_poses", "integral.")
     summary = (
         "the default; ours, not in the paper: spike-count means over short windows compared with renders "
         "at steps drawn inside each window, at their own poses, and where the image moves fast the spikes "
@@ -716,6 +739,17 @@ def method_class(name: str) -> type[TrainMethod]:
     if name not in METHOD_CLASSES:
         raise InputError(f"method must be one of {', '.join(METHOD_CLASSES)}, found {name!r}")
     return METHOD_CLASSES[name]
+
+
+def unused_keys(method: str, keys: Iterable[str]) -> list[str]:
+    """The config ``keys`` (dotted, e.g. ``spike.lam``) that ``method`` does not read: those of
+    :data:`METHOD_KEYS` outside its :attr:`TrainMethod.reads`, in the given order."""
+
+    def among(key: str, patterns: Iterable[str]) -> bool:
+        return any(key == p or (p.endswith(".") and key.startswith(p)) for p in patterns)
+
+    reads = method_class(method).reads
+    return [k for k in keys if among(k, METHOD_KEYS) and not among(k, (*reads, *SHARED_KEYS))]
 
 
 def make_method(config: Config) -> TrainMethod:
