@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 import sys
 import time
 import traceback
@@ -387,6 +388,10 @@ def test_resume_matches_an_uninterrupted_run(dataset_dir: Path, dataset, tmp_pat
     assert sa.keys() == sb.keys()
     for key in sa:
         assert torch.equal(sa[key], sb[key]), key
+    written = (tmp_path / "b" / "summary.json").read_bytes()
+    again = Trainer(cfg, tmp_path / "b", dataset, resume=True, progress=False).train()  # already finished
+    assert (tmp_path / "b" / "summary.json").read_bytes() == written  # not re-rounded from curves.csv
+    assert dataclasses.asdict(again) == json.loads(written)
 
 
 def test_resume_from_plain_layout_adam_state_matches(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

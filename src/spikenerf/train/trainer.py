@@ -79,6 +79,16 @@ class TrainSummary:
     device: str
 
 
+def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
+    """``out``'s ``summary.json`` when it reads back whole and reports ``iteration`` (else None)."""
+    try:
+        data = json.loads((out / SUMMARY).read_text())
+        summary = TrainSummary(**{k: math.nan if v is None else v for k, v in data.items()})
+    except (OSError, ValueError, TypeError, AttributeError):
+        return None
+    return summary if summary.iteration == iteration else None
+
+
 def model_config(config: TrainConfig) -> Any:
     """The field config: defaults + ``config.field_config``; its schedules (the grid's) rescaled to
     ``config.iters`` unless ``field_config`` sets ``iterations``."""
@@ -433,7 +443,7 @@ class Trainer:
             total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
         )
         recent, interval = RunningMeans(), self.interval
-        train_psnr = math.nan
+        train_psnr, started = math.nan, self.iteration
         test_psnr = self.curves[-1]["test_psnr"] if self.curves else math.nan
         while self.iteration < end:
             it = self.iteration
@@ -516,6 +526,8 @@ class Trainer:
             train_psnr = mse_to_psnr(m["srgb_mse"])
         elif self.curves:
             train_psnr = self.curves[-1]["train_psnr"]
+        if self.iteration == started and (stored := stored_summary(self.out, self.iteration)) is not None:
+            return stored  # a finished run resumed: its summary as written, not rounded from curves.csv
         summary = TrainSummary(
             self.iteration, self.elapsed, self.rays_per_second, train_psnr, test_psnr, str(self.device)
         )
