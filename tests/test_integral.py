@@ -573,3 +573,45 @@ def test_still_tracks_are_clipped_windows_and_tracks_skip_unusable_steps(
         assert torch.equal(fn(keep(~usable)), torch.zeros_like(fn(masked)))  # reads no unusable step
         torch.testing.assert_close(fn(keep(usable)), fn(masked), atol=0, rtol=0)
         assert not torch.equal(fn(dataclasses.replace(keep(usable), usable=None)), fn(counts))
+
+
+def test_a_track_follows_its_point_while_the_camera_moves() -> None:
+    """A camera sliding sideways sees the world origin at a different pixel each step; one spike fires exactly
+    there each step. The origin's track reads every one of them; the still window at its middle pixel
+    reads only the steps where the origin stood on that pixel."""
+    from spikenerf.scenes.trajectory import Intrinsics, look_at, project_points
+
+    intrinsics, steps = Intrinsics.from_fov(16, 16, 0.8), 11
+    eyes = [np.array([0.1 * k - 0.5, 0.0, 3.0]) for k in range(steps)]
+    poses = np.stack([look_at(e, e * np.array([1.0, 0.0, 0.0])) for e in eyes]).astype(np.float32)
+    origin = torch.zeros(1, 3)
+    u, v, _ = project_points(torch.as_tensor(poses), origin.expand(steps, 3), intrinsics)
+    x, y = torch.floor(u).long(), torch.floor(v).long()
+    assert len(set(x.tolist())) > 5  # the origin crosses the image
+    spikes = np.zeros((steps, 16, 16), np.uint8)
+    spikes[np.arange(steps), y.numpy(), x.numpy()] = 1
+    counts = count_targets(spikes, poses, 1.0)
+    middle = torch.tensor([5])
+    assert counts.track_mean(origin, middle, 5, intrinsics).item() == pytest.approx(1.0)
+    still = counts.still_mean(torch.stack([x[5:6], y[5:6]], dim=1), middle, 5).item()
+    assert still == pytest.approx(float((x == x[5]).sum()) / steps) and still < 0.5
+
+
+def test_stratified_steps_draw_one_step_in_each_part() -> None:
+    start = torch.full((500,), 10)
+    steps = stratified_steps(start, start + 12, 3, torch.Generator().manual_seed(0))
+    assert ((steps - 10) // 4 == torch.arange(3)).all()  # step k lies in part k of the 12-step window
+    assert all(len(set(steps[:, k].tolist())) == 4 for k in range(3))  # and takes each of its 4 steps
+
+
+def test_counts_on_a_device_keep_their_phases_and_usable_steps() -> None:
+    spikes, _ = _stream()
+    made = count_targets(spikes, np.tile(np.eye(4, dtype=np.float32), (60, 1, 1)), 1.0, interpolate=True)
+    usable = torch.arange(60) % 7 != 3
+    counts = CountTargets(made.counts, made.poses, made.threshold, made.phase, usable)
+    moved = counts.on("cpu")
+    assert made.phase is not None and moved.phase is not None and moved.usable is not None
+    assert torch.equal(moved.phase, made.phase) and torch.equal(moved.usable, usable)
+    assert moved.threshold == counts.threshold and torch.equal(moved.poses, counts.poses)
+    pixels, steps = torch.tensor([[1, 0], [3, 0]]), torch.tensor([10, 20])
+    assert torch.equal(moved.still_mean(pixels, steps, 4), counts.still_mean(pixels, steps, 4))

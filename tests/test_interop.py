@@ -68,7 +68,7 @@ def nerfstudio_parse(json_path: Path, split: str) -> dict:
 
 
 @pytest.mark.parametrize("view", VIEWS)
-def test_nerfstudio_parses_every_view(dataset: Path, view: str) -> None:
+def test_every_view_parses_by_our_reading_of_nerfstudios_format(dataset: Path, view: str) -> None:
     splits = {s: nerfstudio_parse(dataset / view, s) for s in ("train", "val", "test")}
     train, test = splits["train"]["images"], splits["test"]["images"]
     assert train and len(test) == 2 and not set(train) & set(test)
@@ -79,7 +79,7 @@ def test_nerfstudio_parses_every_view(dataset: Path, view: str) -> None:
     assert splits["train"]["w"] == ours["w"] == 12 and splits["train"]["fl_x"] == ours["fl_x"]
 
 
-def test_our_transforms_json_alone_is_not_a_nerfstudio_file(dataset: Path) -> None:
+def test_our_transforms_json_alone_lacks_the_keys_of_nerfstudios_format(dataset: Path) -> None:
     """Why the views exist: most spike steps have no image, and nerfstudio's parser needs one per frame."""
     with pytest.raises(KeyError, match="file_path"):
         nerfstudio_parse(dataset / "transforms.json", "train")
@@ -103,7 +103,7 @@ def test_our_loader_ignores_the_held_out_frames_of_the_blur_view(dataset: Path) 
     assert ds.blur is not None and len(ds.blur) == 4 and len(ds.test) == 2 and len(ds.gt) == 4
 
 
-def test_spikecv_loader_keys(dataset: Path) -> None:
+def test_spikecv_loader_keys_by_its_documented_format(dataset: Path) -> None:
     """SpikeCV's ``data_parameter_dict``: the task must be listed, then spike_h/spike_w size the stream."""
     cfg = yaml.safe_load((dataset / "config.yaml").read_text())
     for key in ("filename", "spike_h", "spike_w", "is_labeled", "labeled_data_type", "labeled_data_suffix"):

@@ -133,6 +133,25 @@ def test_unbounded_intensity_keeps_only_exact_bounds() -> None:
     assert spike_interval_loss(inten * 0.3, spikes, 0.4, max_intensity=1.0).item() > 0
 
 
+def test_a_window_after_saturation_does_not_assume_an_empty_start() -> None:
+    """After the pixel saturates its accumulator may hold φ or more when a window starts, so the first
+    bound of a window is unknown even where the step before it fired; the true intensity costs nothing."""
+    gen = torch.Generator().manual_seed(4)
+    inten = torch.rand(48, 50, 1, generator=gen, dtype=torch.float64)
+    inten[:10] = 1.0  # 2.5 φ a step: the accumulator climbs far above φ
+    spikes = _simulate(inten, torch.zeros(50, 1, dtype=torch.float64), 0.4)
+    assert spike_interval_loss(inten[12:], spikes[12:], 0.4, max_intensity=1.0).item() <= 1e-20
+
+
+def test_paper_spike_loss_discards_its_warmup_steps() -> None:
+    recorded = torch.zeros(8, 5, 1)
+    recorded[:2] = 1.0  # the prediction (no light: no spike) misses only the first two steps
+    silent, start = torch.zeros(8, 5, 1), torch.zeros(5, 1)
+    assert paper_spike_loss(silent, recorded, 1.0, start, warmup=2).item() == 0.0
+    assert paper_spike_loss(silent, recorded, 1.0, start, warmup=0).item() == pytest.approx(2 / 8)
+    assert paper_spike_loss(silent, recorded, 1.0, start, warmup=1).item() == pytest.approx(1 / 7)
+
+
 def test_paper_spike_loss_has_no_gradient() -> None:
     gen = torch.Generator().manual_seed(5)
     true = torch.rand(16, 30, 1, generator=gen)

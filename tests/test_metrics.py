@@ -82,6 +82,7 @@ def test_psnr_known_value_and_shapes() -> None:
     assert psnr(a[0], a[0] + 0.01).shape == ()
     assert math.isclose(float(psnr(a[0], a[0] + 0.01)), 40.0, abs_tol=1e-4)
     assert math.isinf(float(psnr(a[0], a[0])))
+    assert torch.allclose(psnr(a * 255, (a + 0.1) * 255, data_range=255.0), out)  # the range is squared
 
 
 def test_metrics_reject_mismatched_shapes() -> None:

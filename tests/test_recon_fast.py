@@ -68,3 +68,9 @@ def test_learned_frames_equal_predict_frame_of_each_mirrored_window(
         )
         np.testing.assert_allclose(fast, 2.0 * ref, rtol=1e-5, atol=1e-6)
         assert float(np.abs(ref).max()) > 0.05  # not a trivially black comparison
+
+
+def test_mirrored_reflects_the_window_at_both_ends_of_the_stream() -> None:
+    assert mirrored(0, 3, 10).tolist() == [3, 2, 1, 0, 1, 2, 3]
+    assert mirrored(9, 3, 10).tolist() == [6, 7, 8, 9, 8, 7, 6]
+    assert mirrored(5, 2, 10).tolist() == [3, 4, 5, 6, 7]

@@ -213,3 +213,31 @@ def test_rays_and_projections_stay_float32_under_bf16_autocast() -> None:
         cast = (*pixel_rays(poses, k, pixels), *project_points(poses, points, k))
     for a, b in zip(exact, cast, strict=True):
         assert b.dtype == torch.float32 and torch.equal(a, b)
+
+
+def test_depth_of_a_half_opaque_ray_is_its_weighted_mean_distance() -> None:
+    """Depth is the weight-normalised mean distance, also where the ray is not opaque (spike-integral places
+    its track points there)."""
+    from spikenerf.render.volume import packed_composite
+
+    weights, t = torch.tensor([[0.25, 0.25]]), torch.tensor([[1.0, 3.0]])
+    color, depth, opacity = composite(weights, torch.ones(1, 2, 1), t, background=0.0)
+    assert depth.item() == pytest.approx(2.0) and opacity.item() == pytest.approx(0.5)
+    assert color.item() == pytest.approx(0.5)
+    packed = packed_composite(weights[0], torch.tensor([0, 0]), 1, t[0], torch.ones(2, 1), None, 0.0)
+    assert [x.item() for x in packed] == pytest.approx([0.5, 2.0, 0.5])
+
+
+def test_sample_pdf_inverts_the_piecewise_constant_cdf() -> None:
+    edges = torch.tensor([[0.0, 1.0, 2.0]])
+    t = sample_pdf(edges, torch.tensor([[1.0, 3.0]]), 5, perturb=False)  # a quarter of the mass in bin 0
+    assert t[0].tolist() == pytest.approx([0.0, 1.0, 4 / 3, 5 / 3, 2.0], abs=1e-4)
+    uniform = sample_pdf(torch.linspace(0.5, 4.5, 5)[None], torch.ones(1, 4), 9, perturb=False)
+    assert uniform[0].tolist() == pytest.approx(torch.linspace(0.5, 4.5, 9).tolist(), abs=1e-5)
+
+
+def test_the_last_sample_reaches_the_far_bound() -> None:
+    from spikenerf.render.volume import deltas_from_samples
+
+    assert deltas_from_samples(torch.tensor([[0.5, 1.5]]), torch.tensor([2.5])).tolist() == [[1.0, 1.0]]
+    assert deltas_from_samples(torch.tensor([[0.5, 3.0]]), torch.tensor([2.5])).tolist() == [[2.5, 0.0]]
