@@ -29,6 +29,19 @@ def test_unknown_command_exits_2() -> None:
     assert _run("no-such-command").returncode == 2
 
 
+def test_no_command_prints_the_help_and_a_global_option_after_a_command_says_where_it_goes(capsys) -> None:
+    from helpers import run_cli
+
+    code, out, err = run_cli(capsys)
+    assert code == 0 and out.startswith("Usage: spikenerf") and "\nCommands:\n" in out and err == ""
+    for option, example in (("--threads", "--threads 1"), ("--no-limits", "--no-limits")):
+        code, _, err = run_cli(capsys, "info", option, *(["1"] if option == "--threads" else []), "x")
+        assert code == 2 and err.strip() == (
+            f"spikenerf: error: {option} is a global option: put it first, e.g. spikenerf {example} "
+            "COMMAND ..."
+        )
+
+
 def test_input_error_is_one_line_and_exit_2(monkeypatch, capsys) -> None:
     import click
 

@@ -203,3 +203,65 @@ def test_info_and_reconstruct_read_the_size_from_a_spikecv_config(capsys, stream
     (path.parent / "config.yaml").write_text("spike_h: 0\nspike_w: 12\n")
     code, _, err = run_cli(capsys, "info", path)
     assert code == 2 and "spike_h" in err and err.strip().count("\n") == 0
+
+
+def test_reconstruct_takes_the_recordings_threshold_unless_given(capsys, stream, tmp_path: Path) -> None:
+    path, spikes = stream
+    (path.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\nthreshold: 2.0\n")
+    for extra, phi in (((), 2.0), (("--threshold", "0.5"), 0.5)):
+        out = tmp_path / f"phi{phi}.npy"
+        code, _, _ = run_cli(capsys, "reconstruct", path, "--method=tfp", "--frame=60", "--out", out, *extra)
+        assert code == 0
+        np.testing.assert_allclose(np.load(out), tfp(spikes, 41, phi)[60], rtol=1e-6)
+
+
+def test_reconstruct_refuses_its_own_input_and_a_threshold_float32_cannot_hold(
+    capsys, stream, tmp_path: Path
+) -> None:
+    path, _ = stream
+    copy = tmp_path / "recording"  # (no suffix: read as .dat; as --out, a folder)
+    copy.write_bytes(path.read_bytes())
+    before = copy.read_bytes()
+    code, _, err = run_cli(capsys, "reconstruct", copy, "--height", H, "--width", W, "--method", "tfp",
+                           "--frames", "0:3", "--out", copy, "--overwrite")  # fmt: skip
+    assert code == 2 and "spike recording being read" in err and copy.read_bytes() == before
+    for phi in ("1e39", "1e-50"):
+        code, _, err = run_cli(capsys, "reconstruct", path, "--height", H, "--width", W, "--method", "tfp",
+                               "--frame", 3, "--threshold", phi, "--out", tmp_path / "x.npy")  # fmt: skip
+        assert code == 2 and "float32" in err and err.strip().count("\n") == 0
+    assert not (tmp_path / "x.npy").exists()
+
+
+def test_a_config_raw_width_narrower_than_the_image_names_the_config(capsys, stream) -> None:
+    path, _ = stream
+    (path.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\nraw_width: 8\n")
+    code, _, err = run_cli(capsys, "info", path)
+    assert code == 2 and "config.yaml: field 'raw_width': expected ≥ spike_w 12, found 8" in err
+
+
+def test_a_file_that_also_reads_as_raw_rows_with_silent_padding_is_named(capsys, tmp_path: Path) -> None:
+    """25 raw frames of 10×(16 + 16 padding) columns are also 50 plain 10×16 frames: info and reconstruct
+    warn, import asks which; a plain stream (its 'padding' fires) passes without a word."""
+    rng = np.random.default_rng(0)
+    raw = np.zeros((25, 10, 32), np.uint8)
+    raw[:, :, :16] = rng.random((25, 10, 16)) < 0.3
+    write_dat(tmp_path / "raw.dat", raw)
+    code, _, err = run_cli(capsys, "info", tmp_path / "raw.dat", "--height", 10, "--width", 16)
+    assert code == 0 and "warning" in err and "pass --raw-width 32" in err
+    code, _, err = run_cli(capsys, "import", tmp_path / "raw.dat", "--height", 10, "--width", 16, "--poses",
+                           "orbit", "--orbit", "4,30", "--fov", 40, "--out", tmp_path / "ds")  # fmt: skip
+    assert code == 2 and "pass --raw-width 32 for a raw recording, or 16 for plain frames" in err
+    assert not (tmp_path / "ds").exists()
+    code, out, err = run_cli(capsys, "info", tmp_path / "raw.dat", "--height", 10, "--width", 16,
+                             "--raw-width", 32)  # fmt: skip
+    assert code == 0 and err == "" and "frames: 25" in out
+    write_dat(tmp_path / "plain.dat", (rng.random((50, 10, 16)) < 0.3).astype(np.uint8))
+    code, _, err = run_cli(capsys, "info", tmp_path / "plain.dat", "--height", 10, "--width", 16)
+    assert code == 0 and err == ""
+
+
+def test_info_and_reconstruct_refuse_a_file_that_is_not_a_recording(capsys, tmp_path: Path) -> None:
+    (tmp_path / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\n")
+    for argv in (["info"], ["reconstruct", "--method", "tfp", "--out", tmp_path / "x.npy"]):
+        code, _, err = run_cli(capsys, *argv[:1], tmp_path / "config.yaml", *argv[1:])
+        assert code == 2 and "is a .yaml file, not a .dat spike recording" in err

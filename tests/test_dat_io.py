@@ -145,6 +145,11 @@ def test_rgb_round_trip(tmp_path: Path) -> None:
     write_dat(paths[1], spikes[:4, 1])
     with pytest.raises(InputError, match=r"different frame counts \[5, 4, 5\]"):
         read_dat_rgb(tmp_path / "spikes_rgb", 4, 6)
+    bad = spikes.copy()
+    bad[2, 2, 0, 0] = 7  # in the last channel: refused before any file is written
+    with pytest.raises(InputError, match="binary"):
+        write_dat_rgb(tmp_path / "other", bad)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in paths)
 
 
 def test_size_not_a_multiple_of_the_frame(tmp_path: Path) -> None:

@@ -93,6 +93,10 @@ def test_outputs_are_not_nested_in_a_dataset_but_renders_live_in_runs(tmp_path: 
     for kind in ("dataset", "run", "render"):
         check_output(tmp_path / "benchmark" / "x" / kind, kind)
     check_output(tmp_path / "render" / "file", "render")  # a render beside another's views
+    check_output(tmp_path / "dataset" / ".." / "dataset", "dataset", overwrite=True)  # the folder itself
+    (tmp_path / "link").symlink_to(tmp_path / "dataset")
+    with pytest.raises(InputError, match="lies inside the dataset folder"):
+        check_output(tmp_path / "link" / "runs" / "r1", "run")
 
 
 def test_resume_refuses_another_runs_checkpoint(capsys, dataset: Path, tmp_path: Path) -> None:

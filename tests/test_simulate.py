@@ -15,6 +15,7 @@ import yaml
 from spikenerf.capture.simulate import (
     SimulateOptions,
     blur_windows,
+    render_missing,
     simulate_dataset,
 )
 from spikenerf.cli import main
@@ -400,3 +401,63 @@ def test_resource_estimate_counts_the_blur_views(tmp_path: Path, capsys, monkeyp
     with pytest.raises(SystemExit):
         main(["simulate", *map(str, args)])
     assert seen["blur_frames"] == count
+
+
+class _BrightSource:
+    """A frame source whose second frame holds ``value`` in one pixel (what a linear .npy or EXR image
+    sequence may hold)."""
+
+    name, parallel_render = "bright", False
+
+    def __init__(self, value: float) -> None:
+        self.intrinsics = Intrinsics.from_fov(8, 8, 0.6)
+        self.trajectory = orbit(4.0, 30.0, duration=3 / 40000)
+        self.value = value
+
+    def frames(self, steps: Sequence[int]) -> Iterator[np.ndarray]:
+        for step in steps:
+            frame = np.full((8, 8, 3), 0.5, np.float32)
+            frame[0, 0] = self.value if step == 1 else 0.5
+            yield frame
+
+    def test_views(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.eye(4)[None], np.zeros((1, 8, 8, 3), np.float32)
+
+
+@pytest.mark.parametrize("value", [1e5, -5.0])
+def test_frames_the_camera_cannot_take_are_refused_naming_the_step(tmp_path: Path, value: float) -> None:
+    """A linear intensity past float16's range would cache as inf and fire at every step; a negative one
+    would silence its pixel: both are refused, in one line naming the step."""
+    with pytest.raises(InputError, match=r"step 1; the camera needs 0 to 65504"):
+        render_missing(_BrightSource(value), tmp_path / "cache", progress=False)
+    assert render_missing(_BrightSource(65504.0), tmp_path / "ok", progress=False) == 3
+
+
+def test_simulate_refuses_a_blur_camera_faster_than_the_spikes_and_records_the_realised_rate(
+    tmp_path: Path, capsys
+) -> None:
+    argv = ["simulate", "--scene", "analytic-orbs", "--out", str(tmp_path / "fast"), *ARGS]
+    assert "exceeds the spike rate" in _fails(capsys, [*argv, "--blur-fps", "50000"])
+    assert not (tmp_path / "fast").exists()
+    _simulate(tmp_path / "ds", "--blur-fps", "3000", "--frames", "40")  # exposures of round(13.3) = 13 steps
+    blur = json.loads((tmp_path / "ds" / "transforms_blur.json").read_text())
+    assert blur["fps"] == pytest.approx(40000 / 13)
+
+
+def test_simulate_refuses_a_raw_width_no_camera_has_before_rendering(tmp_path: Path, capsys) -> None:
+    argv = ["simulate", "--scene", "analytic-orbs", "--out", str(tmp_path / "raw"), *ARGS]
+    err = _fails(capsys, [*argv, "--raw-width", "99999999999999999999"])
+    assert "--raw-width" in err and "from the image width 16 to 80" in err
+    assert not (tmp_path / "raw").exists() and not (tmp_path / "raw.partial").exists()
+    assert "--warmup" in _fails(capsys, [*argv, "--warmup", "100001"])
+
+
+def test_render_workers_start_with_ctrl_c_ignored_and_the_parent_keeps_its_handler() -> None:
+    import signal
+
+    from spikenerf.capture import simulate
+
+    before = signal.getsignal(signal.SIGINT)
+    with simulate._sigint_ignored():
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN  # what the spawned workers inherit
+    assert signal.getsignal(signal.SIGINT) is before

@@ -482,13 +482,13 @@ def test_keys_a_method_does_not_read_leave_its_training_unchanged(
 
 
 def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
-    dataset_dir: Path, tmp_path: Path, capsys, monkeypatch
+    dataset_dir: Path, dataset, tmp_path: Path, capsys, monkeypatch
 ) -> None:  # type: ignore[no-untyped-def]
     import spikenerf.cli.train as cli_train
     from helpers import run_cli
 
-    trained: list[TrainConfig] = []
-    monkeypatch.setattr(cli_train, "train", lambda config, *a, **k: trained.append(config) or sys.exit(0))
+    called: list[tuple[TrainConfig, list[str]]] = []
+    monkeypatch.setattr(cli_train, "train", lambda c, *a, **k: called.append((c, k["notes"])) or sys.exit(0))
     flags = [
         "--lambda",
         "0.5",
@@ -497,25 +497,30 @@ def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
         "--no-mask",
         "--window",
         "11",
-        "--set",
-        "spike.pixels=4",
+        "--blur-samples",
+        "3",
     ]
-    flags += ["--set", "spike.window=8", "--blur-samples", "3"]
-    code, _, err = run_cli(
-        capsys, "train", dataset_dir, "--out", tmp_path / "a", "--method", "nerf-gt", *flags
-    )
-    assert code == 0 and trained[-1].spike.lam == 0.5  # (kept in the config, unused)
-    assert err.splitlines() == [
-        f"spikenerf: warning: {flag} is not used by --method nerf-gt; ignored"
-        for flag in ("--blur-samples", "--integral-window", "--lambda", "--no-mask", "--set spike.pixels")
-    ]  # --window and spike.window set the hold-out guard band of every method
-    code, _, err = run_cli(
-        capsys, "train", dataset_dir, "--out", tmp_path / "b", "--method", "spike-nerf", *flags
-    )
-    assert code == 0 and err.splitlines() == [
-        f"spikenerf: warning: {flag} is not used by --method spike-nerf; ignored"
-        for flag in ("--blur-samples", "--integral-window")
-    ]
+    flags += ["--set", "spike.pixels=4", "--set", "spike.window=8"]
+    for method, unused in [
+        ("nerf-gt", ("--blur-samples", "--integral-window", "--lambda", "--no-mask", "--set spike.pixels")),
+        ("spike-nerf", ("--blur-samples", "--integral-window")),
+    ]:  # --window and spike.window set the hold-out guard band of every method
+        code, _, _ = run_cli(
+            capsys, "train", dataset_dir, "--out", tmp_path / method, "--method", method, *flags
+        )
+        config, notes = called[-1]
+        assert code == 0 and config.spike.lam == 0.5  # (kept in the config, unused)
+        assert notes == [f"{flag} is not used by --method {method}; ignored" for flag in unused]
+    monkeypatch.undo()
+    cfg = _config(dataset_dir, method="nerf-gt")
+    cfg.iters, cfg.eval_every = 1, 0
+    train(cfg, tmp_path / "run", dataset, progress=False, notes=["--lambda is not used"])
+    assert capsys.readouterr().err.splitlines()[0] == "spikenerf: warning: --lambda is not used"
+    with pytest.raises(InputError):  # a refused setup: its error alone
+        train(
+            _config(dataset_dir, method="nerf-gt"), tmp_path / "run", dataset, notes=["--lambda is not used"]
+        )
+    assert "warning" not in capsys.readouterr().err
 
 
 def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -9,6 +9,7 @@ only used when asked for. Raw sps10 camera files store 416 columns per row, of w
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -59,20 +60,47 @@ def frame_bytes(height: int, width: int, raw_width: int | None = None, path: str
     return height * stored // 8
 
 
+#: the non-pixel columns at the end of each stored row of a raw sps10 recording (416 for a 400-pixel row)
+RAW_PADDING = 16
+
+
 def count_frames(path: str | Path, height: int, width: int, raw_width: int | None = None) -> int:
     """The number of frames in a ``.dat`` file; InputError if the size is not a whole number of frames."""
     path = _existing_file(path)
     fb = frame_bytes(height, width, raw_width, path)
     size = path.stat().st_size
     if size % fb:
+        raw = width + RAW_PADDING
+        explained = raw_width is None and (height * raw) % 8 == 0 and size % (height * raw // 8) == 0
+        hint = f" — a raw sps10 file? pass raw_width {raw}" if explained else ""
         raise InputError(
             f"file size {size} bytes is not a multiple of the frame size {fb} bytes "
             f"({height}×{_stored_width(width, raw_width, path)} pixels / 8): {size // fb} whole frames "
-            f"and a remainder of {size % fb} bytes (wrong height/width, or a truncated file?)",
+            f"and a remainder of {size % fb} bytes (wrong height/width, or a truncated file?){hint}",
             path=path,
-            param=("height", "width"),
+            param=("height", "width", "raw_width") if hint else ("height", "width"),
         )
     return size // fb
+
+
+def raw_width_guess(path: str | Path, height: int, width: int, frames: int = 64) -> int | None:
+    """``width + RAW_PADDING`` when the file, read as such raw rows, is whole raw frames whose extra columns
+    stay silent over its first ``frames`` frames while its pixels fire: a raw sps10 recording whose size
+    also fits plain ``width``-column frames (every 25th frame count at 250×400). None otherwise.
+
+    Only a file that is whole frames both ways is examined (one that is not gets :func:`count_frames`'s
+    hint); a plain stream that is dark exactly where the padding would lie is guessed raw, so callers ask
+    the user to say which rather than pick."""
+    sizes = (height, width)
+    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0 for v in sizes)
+    raw = width + RAW_PADDING if whole else 0
+    if not whole or (height * raw) % 8 or (height * width) % 8:
+        return None  # (bad sizes: count_frames names them)
+    size = _existing_file(path).stat().st_size
+    if not size or size % (height * raw // 8) or size % (height * width // 8):
+        return None
+    head = read_dat(path, height, raw, slice(0, min(frames, size // (height * raw // 8))))
+    return raw if head[:, :, :width].any() and not head[:, :, width:].any() else None
 
 
 def resolve_frames(frames: slice | int | None, total: int, path: str | Path | None = None) -> range:
@@ -245,12 +273,20 @@ def rgb_paths(prefix: str | Path) -> list[Path]:
 def write_dat_rgb(
     prefix: str | Path, spikes: np.ndarray | torch.Tensor, layout: str = "spikecv"
 ) -> list[Path]:
-    """Write a per-channel RGB stream (T, 3, H, W) as three gray ``.dat`` files; returns their paths."""
+    """Write a per-channel RGB stream (T, 3, H, W) as three gray ``.dat`` files; returns their paths. The
+    stream is checked whole first, and the three files replace the old ones together at the end, so an
+    error leaves no new channel beside old ones."""
     if spikes.ndim != 4 or spikes.shape[1] != 3:
         raise InputError(f"RGB spikes must be (T, 3, H, W), found shape {tuple(spikes.shape)}", path=prefix)
+    _check_layout(layout, prefix)
+    arr = as_numpy(spikes)
+    arr = _as_binary(arr.reshape(-1, *arr.shape[2:]), prefix).reshape(arr.shape)  # checked whole, first
+    frame_bytes(*arr.shape[2:], path=prefix)
     paths = rgb_paths(prefix)
-    for c, p in enumerate(paths):
-        write_dat(p, spikes[:, c], layout)
+    with contextlib.ExitStack() as stack:
+        temps = [stack.enter_context(atomic_path(p)) for p in paths]
+        for c, tmp in enumerate(temps):
+            write_dat(tmp, arr[:, c], layout)
     return paths
 
 

@@ -89,6 +89,10 @@ def fire_(
     return spikes
 
 
+#: the longest warm-up :class:`CameraConfig` accepts, in steps (it runs before the first recorded step)
+MAX_WARMUP = 100_000
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     """Spike camera settings.
@@ -122,6 +126,12 @@ class CameraConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
                 raise InputError(f"{name} must be an integer ≥ 0, got {v!r}", param=name)
+        if self.warmup > MAX_WARMUP:
+            raise InputError(
+                f"warmup must be at most {MAX_WARMUP} steps (2.5 s at 40 kHz: an accumulator settles within "
+                f"1/intensity steps), got {self.warmup}",
+                param="warmup",
+            )
 
 
 def bayer_channel_index(height: int, width: int) -> np.ndarray:

@@ -289,6 +289,12 @@ def _check_window(window: int) -> None:
 
 
 def check_threshold(threshold: float) -> None:
-    """InputError (naming ``threshold``) unless φ is a finite number > 0."""
-    if not np.isfinite(threshold) or threshold <= 0:
-        raise InputError(f"threshold φ must be a positive number, found {threshold}", param="threshold")
+    """InputError (naming ``threshold``) unless φ is a number > 0 that float32 holds (the images are float32:
+    a φ past its range would give inf, one below it 0)."""
+    with np.errstate(over="ignore", under="ignore"):
+        held = np.isfinite(threshold) and 0 < np.float32(threshold) < np.inf
+    if not held:
+        raise InputError(
+            f"threshold φ must be a positive number within float32's range, found {threshold}",
+            param="threshold",
+        )

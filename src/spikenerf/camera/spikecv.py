@@ -60,7 +60,7 @@ def read_spikecv_config(path: str | Path) -> RecordingConfig:
         raise InputError(f"cannot read YAML ({err})", path=path) from err
     if not isinstance(data, dict):
         raise InputError(f"expected a mapping at the top level, found {type(data).__name__}", path=path)
-    return RecordingConfig(
+    config = RecordingConfig(
         height=_value(data, "spike_h", path, True),
         width=_value(data, "spike_w", path, True),
         fps=_value(data, "fps", path, False),
@@ -68,6 +68,11 @@ def read_spikecv_config(path: str | Path) -> RecordingConfig:
         raw_width=_value(data, "raw_width", path, True),
         path=path,
     )
+    if config.raw_width is not None and config.width is not None and config.raw_width < config.width:
+        raise InputError(
+            f"field 'raw_width': expected ≥ spike_w {config.width}, found {config.raw_width}", path=path
+        )
+    return config
 
 
 def recording_config(

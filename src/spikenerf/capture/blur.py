@@ -45,7 +45,7 @@ def check_blur_views(spec: str | int, num_steps: int) -> str | int:
 def exposure_length(fps: float, blur_fps: float) -> int:
     """Steps per exposure: ``round(fps / blur_fps)``; InputError if the blur camera is faster than ``fps``."""
     size = round(fps / blur_fps)
-    if size < 1:
+    if blur_fps > fps or size < 1:
         raise InputError(
             f"blur_fps {blur_fps:g} exceeds the spike rate {fps:g} Hz (need blur_fps ≤ fps)", param="blur_fps"
         )

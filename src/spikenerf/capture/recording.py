@@ -20,10 +20,16 @@ RAW_DIR = "raw"
 RAW_FILE = "recording.dat"
 
 
+def raw_width_limit(width: int) -> int:
+    """The widest stored row that :func:`check_raw_width` accepts for an image ``width``: 2·W, at least W + 64
+    (real cameras pad a few columns: 416 for 400)."""
+    return max(2 * width, width + 64)
+
+
 def check_raw_width(raw_width: int | None, height: int, width: int) -> None:
     """InputError unless H·W % 8 == 0 (naming ``width``/``height``: the dataset's ``.dat`` files pack 8
-    pixels a byte) and, where ``raw_width`` is given, ``raw_width`` ≥ W with H·raw_width % 8 == 0 (naming
-    ``raw_width``)."""
+    pixels a byte) and, where ``raw_width`` is given, W ≤ ``raw_width`` ≤ :func:`raw_width_limit` with
+    H·raw_width % 8 == 0 (naming ``raw_width``)."""
     if height > 0 and width > 0 and (height * width) % 8:
         raise InputError(
             f"width × height must be a multiple of 8 (a .dat file packs 8 pixels a byte), found "
@@ -32,8 +38,12 @@ def check_raw_width(raw_width: int | None, height: int, width: int) -> None:
         )
     if raw_width is None:
         return
-    if raw_width < width:
-        raise InputError(f"raw_width must be ≥ the image width {width}, found {raw_width}", param="raw_width")
+    if not width <= raw_width <= raw_width_limit(width):
+        raise InputError(
+            f"raw_width must be from the image width {width} to {raw_width_limit(width)} (stored rows hold a "
+            f"few padding columns), found {raw_width}",
+            param="raw_width",
+        )
     if (height * raw_width) % 8:
         raise InputError(
             f"raw_width: H·raw_width must be a multiple of 8, found {height}×{raw_width}", param="raw_width"

@@ -8,11 +8,16 @@ a complete folder is renamed to ``out``, so a half-written dataset is never mist
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import multiprocessing
 import os
+import pickle
 import shutil
+import signal
+import tempfile
+import threading
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -25,7 +30,7 @@ from tqdm import tqdm
 from spikenerf import __version__
 from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera
-from spikenerf.capture.blur import RunningExposures, blur_windows, parse_blur_views
+from spikenerf.capture.blur import RunningExposures, blur_windows, exposure_length, parse_blur_views
 from spikenerf.capture.recording import RAW_DIR, check_raw_width, write_raw_recording
 from spikenerf.core.atomic import atomic_path, clean_stale_temps
 from spikenerf.core.errors import InputError
@@ -153,9 +158,12 @@ def _cached(path: Path, shape: tuple[int, ...]) -> bool:
 _WORKER_SOURCE: FrameSource | None = None
 
 
-def _init_render_worker(source: FrameSource) -> None:
+def _init_render_worker(source_file: str) -> None:
+    """Load the source the parent pickled to ``source_file``: passed by name, it keeps the pickle that
+    starts each worker small, so starting one does not wait for it to import torch (see :func:`_frames`)."""
     global _WORKER_SOURCE
-    _WORKER_SOURCE = source
+    with open(source_file, "rb") as fh:
+        _WORKER_SOURCE = pickle.load(fh)
 
 
 def _render_step(step: int) -> np.ndarray:
@@ -189,6 +197,10 @@ def worker_env(jobs: int) -> dict[str, str]:
     return {name: os.environ.get(name, share) for name in THREAD_VARS}
 
 
+#: the brightest linear intensity a rendered frame may hold: the frame cache stores float16
+FRAME_MAX = float(np.finfo(np.float16).max)
+
+
 def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.ndarray]:
     """The frames of ``steps`` in order: from ``jobs`` worker processes when the source allows it
     (``parallel_render``: a picklable source whose frames depend on the step alone), else in this one."""
@@ -199,13 +211,38 @@ def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.nda
     ctx = multiprocessing.get_context("spawn")  # no fork of a process that may hold torch threads
     saved = {name: os.environ.get(name) for name in THREAD_VARS}
     os.environ.update(worker_env(jobs))  # read by the workers as they start (all of them in map())
-    try:
-        with ProcessPoolExecutor(jobs, ctx, _init_render_worker, (source,)) as pool:
-            frames = pool.map(_render_step, steps, chunksize=max(1, min(8, len(steps) // (4 * jobs))))
+    pool = None
+    with tempfile.TemporaryDirectory(prefix="spikenerf-render-") as folder:
+        source_file = os.path.join(folder, "source.pkl")
+        with open(source_file, "wb") as fh:
+            pickle.dump(source, fh)
+        try:
+            # the workers start with Ctrl-C ignored, so that one during their start prints no traceback and
+            # the parent alone stops the run; starting them takes milliseconds (the source goes by file),
+            # so the parent's own Ctrl-C is not lost meanwhile
+            with _sigint_ignored():
+                pool = ProcessPoolExecutor(jobs, ctx, _init_render_worker, (source_file,))
+                frames = pool.map(_render_step, steps, chunksize=max(1, min(8, len(steps) // (4 * jobs))))
             _restore(saved)  # the workers have started: the caller iterates with its own settings
             yield from frames
+        finally:
+            _restore(saved)
+            if pool is not None:  # on an interrupt the workers finish their chunk of frames, no more
+                pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored in this process meanwhile (the main thread only), so that processes started in it
+    inherit the ignoring (Python keeps an inherited SIG_IGN) and print no traceback on a Ctrl-C."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
     finally:
-        _restore(saved)
+        signal.signal(signal.SIGINT, previous)
 
 
 def _restore(saved: dict[str, str | None]) -> None:
@@ -231,6 +268,11 @@ def render_missing(source: FrameSource, cache: Path, progress: bool = True, jobs
             raise InputError(
                 f"scene {source.name!r} gave a frame of shape {frame.shape} (or non-finite values) "
                 f"for step {step}; expected finite ({k.height}, {k.width}, 3)"
+            )
+        if frame.size and not 0 <= frame.min() <= frame.max() <= FRAME_MAX:
+            raise InputError(
+                f"scene {source.name!r} gave linear intensities from {frame.min():g} to {frame.max():g} "
+                f"for step {step}; the camera needs 0 to {FRAME_MAX:g} (scale the images)"
             )
         _save_npy(cache / f"{step:05d}.npy", frame.astype(np.float16))
         failpoint("simulate.render")
@@ -411,7 +453,8 @@ def _simulate_locked(
     for pose, image in zip(test_poses, test_frames, strict=True):
         writer.add_test(image, pose)
     config = dataset_config(source, options, len(test_poses))
-    writer.finish(traj, config, options.blur_fps if windows else None)
+    blur_rate = traj.fps / exposure_length(traj.fps, options.blur_fps) if windows else None  # as realised
+    writer.finish(traj, config, blur_rate)
     if options.raw_width is not None:
         write_raw_recording(
             work / spike_files("gray")[0], k.height, k.width, traj.fps, work / RAW_DIR, options.raw_width

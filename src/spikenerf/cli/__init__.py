@@ -64,6 +64,10 @@ class LazyGroup(click.Group):
             formatter.write_dl([(name, help_) for name, (_, help_) in SUBCOMMANDS.items()])
 
 
+#: options of the group itself: given after a command they get a hint to move them
+GLOBAL_OPTIONS = {"--threads": "--threads 1", "--no-limits": "--no-limits"}
+
+
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="spikenerf")
 @click.option(
@@ -200,7 +204,14 @@ def main(argv: list[str] | None = None) -> None:
         click.echo("spikenerf: aborted", err=True)
         sys.exit(130)
     except click.UsageError as err:
+        if type(err).__name__ == "NoArgsIsHelpError" and err.ctx is not None:  # no command (click 8.2+)
+            click.echo(err.ctx.get_help())
+            sys.exit(0)
         hint = f" (see `{err.ctx.command_path} --help`)" if err.ctx is not None else ""
+        if isinstance(err, click.NoSuchOption) and err.option_name in GLOBAL_OPTIONS:
+            example = f"spikenerf {GLOBAL_OPTIONS[err.option_name]} COMMAND ..."
+            err = click.UsageError(f"{err.option_name} is a global option: put it first, e.g. {example}")
+            hint = ""
         _fail(err.format_message() + hint, err.exit_code)
     except click.ClickException as err:
         _fail(err.format_message(), err.exit_code)

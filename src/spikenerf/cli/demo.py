@@ -22,7 +22,8 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
     help="Run the whole pipeline on the embedded default scene (analytic-orbs): simulate a spike camera, "
     "train spike-integral (the default), spike-nerf, nerf-recon, nerf-blur and nerf-gt, evaluate, render and "
     "write OUT/report.html. "
-    "Resumable: re-running reuses finished steps. Default size: ≤ 20 min on 2 CPU cores; --quick: minutes."
+    "Resumable: re-running reuses finished steps. Default size: about 3 minutes on 2 CPU cores; --quick is "
+    "smaller and faster."
 )
 @click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)
 @click.option("--quick", is_flag=True, help="32 px, 200 spike steps, 200 iterations: a few minutes on a CPU.")
@@ -35,11 +36,11 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
 )
 @click.option("--size", type=int, help="Image width = height in pixels [default 64, quick 32].")
 @click.option("--iters", type=COUNT, help="Training iterations per method [default 300, quick 200].")
-@click.option("--frames", type=int, hidden=True, help="Spike steps on the orbit [default 1000, quick 200].")
-@click.option("--test-views", type=int, hidden=True, help="Held-out views [default 4, quick 2].")
-@click.option("--scene", default=None, hidden=True, help="Another named scene (see simulate --list-scenes).")
+@click.option("--frames", type=int, help="Spike steps on the orbit [default 1000, quick 200].")
+@click.option("--test-views", type=int, help="Held-out views [default 4, quick 2].")
+@click.option("--scene", default=None, help="Another named scene (see simulate --list-scenes).")
 @click.option("--color", default="gray", show_default=True, help="gray, rgb or gray,rgb.")
-@click.option("--methods", default=None, hidden=True, help="Comma list of method variants.")
+@click.option("--methods", default=None, help="Comma list of method variants.")
 def command(
     out: Path, quick: bool, device: str, size: int | None, iters: int | None, frames: int | None,
     test_views: int | None, scene: str | None, color: str, methods: str | None,

@@ -12,22 +12,27 @@ import click
 from spikenerf.cli.types import frame_size_options
 from spikenerf.core.errors import InputError
 
-
-def dat_frame_size(
-    path: Path, height: int | None, width: int | None, raw_width: int | None = None
-) -> tuple[int, int, int | None]:
-    """--height/--width/--raw-width, each defaulting to ``spike_h``/``spike_w``/``raw_width`` of a SpikeCV
-    config.yaml beside the file (or one folder up)."""
-    config = dat_recording(path, height, width, raw_width)
-    return config.height, config.width, config.raw_width  # type: ignore[return-value]
+#: file types that are never a spike recording (a dataset's or run's other files)
+NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", ".npz", ".csv", ".html")
 
 
 def dat_recording(path: Path, height: int | None, width: int | None, raw_width: int | None) -> Any:
-    """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given."""
+    """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given;
+    one warning line when the file also reads as a raw sps10 recording (``camera.io.raw_width_guess``)."""
+    from spikenerf.camera.io import raw_width_guess
     from spikenerf.camera.spikecv import recording_config
 
+    if path.suffix.lower() in NOT_SPIKES:
+        raise InputError(f"is a {path.suffix} file, not a .dat spike recording", path=path)
     config = recording_config(path, height, width)
-    return config if raw_width is None else dataclasses.replace(config, raw_width=raw_width)
+    config = config if raw_width is None else dataclasses.replace(config, raw_width=raw_width)
+    if config.raw_width is None and (raw := raw_width_guess(path, config.height, config.width)) is not None:
+        click.echo(
+            f"spikenerf: warning: {path} also reads as raw sps10 rows of {raw} columns whose last "
+            f"{raw - config.width} stay silent: if it is a raw recording, pass --raw-width {raw}",
+            err=True,
+        )
+    return config
 
 
 def describe_dat(

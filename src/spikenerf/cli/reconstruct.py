@@ -94,7 +94,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
 @click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
-@click.option("--threshold", type=float, default=1.0, show_default=True, help="The camera threshold φ.")
+@click.option("--threshold", type=float, help="The camera threshold φ [default: config.yaml's, else 1].")
 @click.option(
     "--encoding",
     type=click.Choice(ENCODINGS),
@@ -114,7 +114,7 @@ def command(
     frame_range: str | None,
     layout: str,
     raw_width: int | None,
-    threshold: float,
+    threshold: float | None,
     encoding: str | None,
     out: Path,
     overwrite: bool,
@@ -122,10 +122,13 @@ def command(
     from tqdm import tqdm
 
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
-    from spikenerf.cli.info import dat_frame_size
+    from spikenerf.cli.info import dat_recording
     from spikenerf.data.reconstruction import reconstructor
 
-    height, width, raw_width = dat_frame_size(spikes, height, width, raw_width)
+    recording = dat_recording(spikes, height, width, raw_width)
+    height, width, raw_width = recording.height, recording.width, recording.raw_width
+    if threshold is None:  # the recording's φ (a SpikeCV config.yaml beside it), else 1
+        threshold = recording.threshold or 1.0
 
     if method == "tfi" and window is not None:
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
@@ -138,6 +141,8 @@ def command(
     selection = parse_range(frame_range, "frame_range") if frame_range else frame
     frames = resolve_frames(selection, total, spikes)
     kind = output_kind(out)
+    if out.exists() and out.resolve() == spikes.resolve():
+        raise InputError("is the spike recording being read: choose another --out", path=out)
     encoding = encoding or ("linear" if kind == "npy" else "srgb")
     if kind == "png" and len(frames) != 1:
         raise InputError(

@@ -82,7 +82,8 @@ PARAM_FLAGS = {
     + ", ".join(f"{name} ({cls.summary})" for name, cls in METHOD_CLASSES.items())
     + ". Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
     "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones). A "
-    "flag or --set key that the method does not use is kept in the config with a one-line warning.\n\n"
+    "flag or --set key that the method does not use is kept in the config with a one-line warning (not "
+    "with --ignore-unused).\n\n"
     "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "
     "left out); options given on the command line override it, and --set KEY=VALUE overrides any field "
     "last (e.g. --set spike.lam=0.5 --set targets.mask_n=3 --set field_config.n_voxels_final=2097152)."
@@ -265,6 +266,11 @@ PARAM_FLAGS = {
     "values are YAML. Repeatable; applied after every other option.",
 )
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint.")
+@click.option(
+    "--ignore-unused",
+    is_flag=True,
+    help="No warning for flags the method does not use (for scripts that give every method one set).",
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.pass_context
 def command(
@@ -274,6 +280,7 @@ def command(
     config_file: Path | None,
     overrides: tuple[str, ...],
     resume: bool,
+    ignore_unused: bool,
     quiet: bool,
     **options: object,
 ) -> None:
@@ -300,7 +307,6 @@ def command(
         base.field_config = {**base.field_config, **_field_options(options["field_options"])}  # type: ignore[arg-type]
     if overrides:
         base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
-    _warn_unused(base.method, given, overrides)
     if dataset is None and not base.dataset:
         raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
     dataset = Path(base.dataset) if dataset is None else dataset
@@ -308,7 +314,8 @@ def command(
         found = "is a file, not a dataset folder" if dataset.exists() else "dataset folder not found"
         raise InputError(found, path=dataset)
     base.dataset = str(dataset.resolve())
-    summary = train(base.validate(), out, resume=resume, progress=not quiet)
+    notes = [] if ignore_unused else _unused(base.method, given, overrides)
+    summary = train(base.validate(), out, resume=resume, progress=not quiet, notes=notes)
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
     click.echo(
         f"trained {summary.iteration} iterations in {summary.seconds:.1f} s "
@@ -321,14 +328,13 @@ def command(
 _FLAG_KEYS = {"no_mask": "targets.mask", "no_spike_loss": "spike.enabled"}
 
 
-def _warn_unused(method: str, given: set[str], overrides: tuple[str, ...]) -> None:
-    """One warning line for each given flag or ``--set`` key that ``method`` does not read (e.g. ``--lambda``
-    with ``--method nerf-gt``): the run goes on, as the same command line often trains several methods."""
+def _unused(method: str, given: set[str], overrides: tuple[str, ...]) -> list[str]:
+    """A warning for each given flag or ``--set`` key that ``method`` does not read (e.g. ``--lambda`` with
+    ``--method nerf-gt``): the run goes on, as the same command line often trains several methods."""
     flags = {n: _FLAG_KEYS.get(n) or ".".join(filter(None, OPTION_FIELDS.get(n, ()))) for n in sorted(given)}
     keys = {key: PARAM_FLAGS.get(key, "--" + name.replace("_", "-")) for name, key in flags.items() if key}
     keys |= {item.partition("=")[0].strip(): f"--set {item.partition('=')[0].strip()}" for item in overrides}
-    for key in unused_keys(method, keys):
-        click.echo(f"spikenerf: warning: {keys[key]} is not used by --method {method}; ignored", err=True)
+    return [f"{keys[key]} is not used by --method {method}; ignored" for key in unused_keys(method, keys)]
 
 
 def _lengths(text: str | None) -> list[int] | None:

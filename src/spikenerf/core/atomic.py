@@ -21,11 +21,12 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    tmp.unlink()
-    try:
+    tmp: Path | None = None
+    try:  # (an interrupt right after mkstemp still removes its file)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        tmp = Path(tmp_name)
+        os.close(fd)
+        tmp.unlink()
         yield tmp
         failpoint(f"write:{path.name}")
         if tmp.is_dir() and path.is_dir():  # swapped out under a fresh name: never a user's .NAME.old
@@ -37,7 +38,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         else:
             os.replace(tmp, path)
     finally:
-        if tmp.is_dir():
+        if tmp is None:
+            pass
+        elif tmp.is_dir():
             shutil.rmtree(tmp, ignore_errors=True)
         elif tmp.exists():
             tmp.unlink()

@@ -198,8 +198,9 @@ def owned(folder: str | Path) -> bool:
 
 def _check_container(path: Path, kind: str, param: str) -> None:
     """InputError when the nearest folder above ``path`` that spikenerf marked may not hold a ``kind``
-    output (:data:`HOLDS`: a run inside a dataset would make the dataset hold a stranger)."""
-    for parent in path.absolute().parents:
+    output (:data:`HOLDS`: a run inside a dataset would make the dataset hold a stranger). Links and ``..``
+    are resolved first: ``DS/../DS`` is DS itself, and a link into a dataset lies inside it."""
+    for parent in _resolved(path).parents:
         found = _marker(parent).get("kind") if owned(parent) else None
         if found is None:
             continue
@@ -293,6 +294,7 @@ def check_file_output(path: str | Path, param: str = "out", overwrite: bool = Fa
     path = Path(path)
     for parent in path.absolute().parents:
         _check_parent(parent, path, param)
+    for parent in (_resolved(path.parent), *_resolved(path.parent).parents):
         if (kind := _marker(parent).get("kind")) in KINDS:
             raise InputError(
                 f"{param}: lies inside a {kind} folder spikenerf wrote ({parent}); write it elsewhere",

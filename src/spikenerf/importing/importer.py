@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from spikenerf import __version__
-from spikenerf.camera.io import count_frames, frame_bytes, iter_dat, read_dat, resolve_frames
+from spikenerf.camera.io import count_frames, iter_dat, raw_width_guess, read_dat, resolve_frames
 from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
@@ -141,17 +141,19 @@ def _check(options: ImportOptions) -> None:
 
 
 def count_steps(dat: Path, height: int, width: int, raw_width: int | None) -> int:
-    """Frames in the recording; a size mismatch that a 16-column raw layout explains says so."""
-    try:
-        return count_frames(dat, height, width, raw_width)
-    except InputError as err:
-        size = dat.stat().st_size if dat.is_file() else 0
-        raw = width + 16
-        if raw_width is None and size and (height * raw) % 8 == 0 and size % frame_bytes(height, raw) == 0:
-            raise InputError(
-                f"{err} — a raw sps10 file? pass raw_width {raw}", param=(*err.params, "raw_width")
-            ) from None
-        raise
+    """Frames in the recording (``count_frames``, whose error names a raw layout that fits); a file whose
+    size fits both the plain and the raw sps10 layout, and reads as raw rows with silent padding
+    (``raw_width_guess``), is refused until ``raw_width`` says which."""
+    total = count_frames(dat, height, width, raw_width)
+    if raw_width is None and (raw := raw_width_guess(dat, height, width)) is not None:
+        raise InputError(
+            f"reads both as {width}-column frames and as raw sps10 rows of {raw} columns whose last "
+            f"{raw - width} stay silent: pass raw_width {raw} for a raw recording, or {width} for plain "
+            "frames",
+            dat,
+            param="raw_width",
+        )
+    return total
 
 
 def keyframe_steps(n: int, every: int, window: int) -> np.ndarray:

@@ -14,6 +14,7 @@ import math
 import shutil
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
@@ -568,12 +569,14 @@ def train(
     resume: bool = False,
     progress: bool = True,
     stop_after: int | None = None,
+    notes: Sequence[str] = (),
 ) -> TrainSummary:
     """Train ``config`` into the run folder ``out`` (see :class:`Trainer`), holding its writer lock.
 
     ``out`` must be new, empty or a run folder; ``resume`` needs it to exist. Temporaries that a killed
     writer left in it are removed first. A folder this call created is removed again when the setup is
-    refused.
+    refused. ``notes``: warning lines shown once the setup succeeded (a refused setup shows its one error
+    line alone).
     """
     out = Path(out)
     if resume and not out.is_dir():
@@ -590,4 +593,6 @@ def train(
             if new:
                 shutil.rmtree(out, ignore_errors=True)
             raise
+        for note in notes:
+            warn(note)
         return trainer.train(stop_after)

@@ -175,6 +175,7 @@ def cell_commands(
         "train", str(cfg.out / "datasets" / scene), *VARIANTS[variant].train_args(), "--color", color,
         "--field", cfg.field_kind, "--device", cfg.device, "--seed", str(seed), "--out", str(run),
         *(["--iters", str(cfg.iters)] if cfg.iters else []), *batch, *cfg.extra_train_args,
+        *(["--ignore-unused"] if cfg.extra_train_args else []),  # one set of flags for every method
     )  # fmt: skip
     if todo and (run / "checkpoint.pt").exists():
         train.append("--resume")
