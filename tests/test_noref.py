@@ -152,7 +152,8 @@ def test_info_says_how_a_window_aware_run_trains_and_was_scored(demo: Path, caps
     assert code == 0, err
     code, out, _ = run_cli(capsys, "info", run)
     # a spike-integral run trains on spike counts: the window-aware renders are eval's, not its targets
-    assert code == 0 and f"eval's TFP keyframes: each against the mean of {WINDOW_POSES} renders" in out
+    keyframes = "eval's TFP keyframes (an imported dataset's test views): each against the mean of"
+    assert code == 0 and f"{keyframes} {WINDOW_POSES} renders" in out
     assert f"metrics.json (test, 3 views, each against the mean of {WINDOW_POSES} renders): psnr" in out
 
 
@@ -164,10 +165,10 @@ def test_eval_without_views_to_score_runs_the_checks_alone(demo: Path, capsys) -
                              "--spike-pixels", 16, "--quiet")  # fmt: skip
     assert code == 0, err
     assert "on 0 train views: PSNR n/a" in out and "no-reference at 3 check steps" in out
-    result = json.loads((run / "metrics.json").read_text())
+    result = json.loads((run / "metrics_train.json").read_text())  # (held-out scores stay in metrics.json)
     assert result["views"] == 0 and result["no_reference"]["mean"]["masked_psnr"] is not None
-    code, out, _ = run_cli(capsys, "info", run)  # no empty "metrics.json (train, 0 views):" line
-    assert code == 0 and "0 views" not in out and "no-reference: mask_fraction" in out
+    code, out, _ = run_cli(capsys, "info", run)  # no empty "metrics_train.json (train, 0 views):" line
+    assert code == 0 and "0 views" not in out and "no-reference (metrics_train.json): mask_fraction" in out
     code, _, err = run_cli(capsys, "eval", run, "--split", "train", "--noref", "off", "--quiet")
     assert code == 2 and "no train views" in err
 
@@ -247,7 +248,7 @@ def test_bad_noref_flags_exit_2(demo: Path, capsys, args: list, message: str) ->
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--raw-width", 20], "--raw-width must be ≥ the image width 24"),
+        (["--raw-width", 20], "--raw-width must be from the image width 24 to 88"),
         (["--raw-width", 25, "--height", 7], "--raw-width: H·raw_width must be a multiple of 8"),
         (["--raw-width", 40, "--color", "rgb"], "--raw-width writes the gray stream"),
     ],

@@ -461,3 +461,18 @@ def test_render_workers_start_with_ctrl_c_ignored_and_the_parent_keeps_its_handl
     with simulate._sigint_ignored():
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN  # what the spawned workers inherit
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_a_blur_exposure_longer_than_the_path_is_warned_of(tmp_path: Path, capsys) -> None:
+    from helpers import run_cli
+
+    argv = ["simulate", "--scene", "analytic-orbs", "--width", 8, "--height", 8, "--test-views", 0]
+    code, out, err = run_cli(capsys, *argv, "--frames", 40, "--out", tmp_path / "short", "--no-progress")
+    assert code == 0 and err.strip() == (
+        "spikenerf: warning: one --blur-fps 400 exposure spans 100 steps, more than the 40-step path: every "
+        "blur view is the mean of the whole path"
+    )
+    code, out, err = run_cli(capsys, *argv, "--frames", 100, "--out", tmp_path / "whole", "--no-progress")
+    assert code == 0 and err == ""
+    code, out, _ = run_cli(capsys, "info", tmp_path / "whole")
+    assert "blur frames: 1 at 400.0 fps (100 steps of exposure each)" in out and "(every 10 steps)" in out

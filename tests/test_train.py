@@ -546,6 +546,9 @@ def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None
         assert exit_.value.code == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("spikenerf: error:") and "\n" not in err
+    with pytest.raises(SystemExit):  # a run folder given as the dataset is named as such
+        main(["train", str(out), "--out", str(tmp_path / "w")])
+    assert capsys.readouterr().err.strip().endswith("run: is a run folder, not a dataset folder")
     main([*args[:-2], "--iters", "3", "--out", str(out), "--resume"])  # extends the run by one iteration
     assert torch.load(out / CHECKPOINT, weights_only=True)["iteration"] == 3
     capsys.readouterr()

@@ -18,7 +18,10 @@ PARAM_FLAGS = {
 }
 
 
-@click.command(help="Evaluate a run on held-out views (PSNR, SSIM, LPIPS); writes RUN/metrics.json.")
+@click.command(
+    help="Evaluate a run on held-out views (PSNR, SSIM, LPIPS); writes RUN/metrics.json "
+    "(RUN/metrics_train.json with --split train)."
+)
 @click.argument("run", type=click.Path(path_type=Path))
 @click.option(
     "--split", type=click.Choice(["test", "train"]), default="test", show_default=True,
@@ -66,7 +69,7 @@ def command(
     test_pose_lr: float, quiet: bool,
 ) -> None:  # fmt: skip
     from spikenerf.core.errors import InputError
-    from spikenerf.eval.evaluate import METRICS_FILE, evaluate_run
+    from spikenerf.eval.evaluate import evaluate_run, metrics_file
     from spikenerf.eval.noref import NoRefOptions
 
     if chunk < 0:
@@ -95,7 +98,7 @@ def command(
     click.echo(
         f"{result['method']} ({result['color']}, {result['field']}, {result['iterations']} it) on "
         f"{result['views']} {split} views: PSNR {fmt(mean['psnr'], 2)} dB, SSIM {fmt(mean['ssim'], 4)}, "
-        f"LPIPS {fmt(mean['lpips'], 4)} → {run / METRICS_FILE}"
+        f"LPIPS {fmt(mean['lpips'], 4)} → {run / metrics_file(split)}"
     )
     opt = result["test_pose_optimised"]
     if opt is not None:

@@ -150,7 +150,7 @@ def command(**kw: Any) -> None:
     inputs = [kw["sequence"], kw["eval_views"], kw["blend"]]
     check_inputs_outside(kw["out"], inputs)  # replacing --out whole would delete them
     source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
-    from spikenerf.capture.blur import parse_blur_views
+    from spikenerf.capture.blur import exposure_length, parse_blur_views
     from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
 
     options = SimulateOptions(
@@ -168,11 +168,17 @@ def command(**kw: Any) -> None:
         raw_width=kw["raw_width"],
     )
     out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"], jobs=kw["jobs"])
-    k = source.intrinsics
+    k, traj = source.intrinsics, source.trajectory
     click.echo(
-        f"wrote {out}: {len(source.trajectory)} steps at {source.trajectory.fps:g} Hz, "
-        f"{k.width}×{k.height}, {', '.join(options.colors)}"
+        f"wrote {out}: {len(traj)} steps at {traj.fps:g} Hz, {k.width}×{k.height}, "
+        + ", ".join(options.colors)
     )
+    if options.blur_fps > 0 and (size := exposure_length(traj.fps, options.blur_fps)) > len(traj):
+        click.echo(
+            f"spikenerf: warning: one --blur-fps {options.blur_fps:g} exposure spans {size} steps, more than "
+            f"the {len(traj)}-step path: every blur view is the mean of the whole path",
+            err=True,
+        )
 
 
 def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:

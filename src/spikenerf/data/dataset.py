@@ -19,6 +19,7 @@ from spikenerf.camera.model import COLORS
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError
+from spikenerf.core.marker import folder_kind
 from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 from spikenerf.scenes.transforms import (
@@ -275,6 +276,8 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
             "is a file, not a dataset folder" if root.exists() else "dataset folder not found", path=root
         )
     tpath = root / TRANSFORMS
+    if not tpath.exists() and (kind := folder_kind(root)) is not None:  # another folder of ours
+        raise InputError(f"is a {kind} folder, not a dataset folder", path=root)
     data = _read_mapping(tpath)
     k = _check_camera(data, tpath, None)
     fps = number(data, "fps", tpath, positive=True)

@@ -112,20 +112,21 @@ def describe(path: str | Path) -> str:
         f"dataset: {path}",
         f"scene: {cfg.get('scene', '?')}   resolution: {k.width}×{k.height}   "
         f"fov: {math.degrees(k.camera_angle_x):.1f}°",
-        f"steps: {n} at {traj.fps:g} Hz ({n / traj.fps * 1e3:.4g} ms)   threshold φ = {ds.threshold:g}   "
-        f"noise: {cfg.get('noise', '?')}   seed: {cfg.get('seed', '?')}",
+        f"steps: {n} at {traj.fps:g} Hz ({n / traj.fps * 1e3:.4g} ms)   threshold φ = {ds.threshold:g}"
+        + "".join(f"   {key}: {cfg[key]}" for key in ("noise", "seed") if key in cfg),  # (simulated only)
         f"scene box: {ds.scene_box.tolist()}   near/far: {ds.near:.3g}/{ds.far:.3g}",
-        f"GT renders: {len(ds.gt)} (every {cfg.get('gt_every', '?')} steps)   test views: {len(ds.test)}",
+        f"GT renders: {len(ds.gt) or 'none'}"
+        + (f" (every {cfg['gt_every']} steps)" if len(ds.gt) and "gt_every" in cfg else "")
+        + f"   test views: {len(ds.test)}",
     ]
     if n >= 2:  # what --integral-window should span (docs/spike-integral.md, Choosing L and S)
         motion = image_motion(traj.poses, k, ds.scene_box)
         lines.append(f"image motion: {motion:.3g} px a step (median over points in the scene box)")
     if ds.blur is not None and len(ds.blur):
         span = ds.blur.step_ranges[:, 1] - ds.blur.step_ranges[:, 0]
-        lines.append(
-            f"blur frames: {len(ds.blur)} at {cfg.get('blur_fps', '?')} fps "
-            f"({int(span.min())}–{int(span.max())} steps of exposure each)"
-        )
+        steps = f"{int(span.min())}" if span.min() == span.max() else f"{int(span.min())}–{int(span.max())}"
+        rate = f" at {cfg['blur_fps']} fps" if "blur_fps" in cfg else ""
+        lines.append(f"blur frames: {len(ds.blur)}{rate} ({steps} steps of exposure each)")
     else:
         lines.append("blur frames: none")
     for mode in ds.modes:

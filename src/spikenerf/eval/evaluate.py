@@ -37,6 +37,15 @@ from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import open_run, run_iteration
 
 METRICS_FILE = "metrics.json"
+
+
+def metrics_file(split: str) -> str:
+    """The file a ``split``'s scores go to in the run folder: :data:`METRICS_FILE` for the held-out test
+    views (what ``info``, the benchmark and the report read), ``metrics_train.json`` for the train split, so
+    that scoring the training path keeps the held-out scores."""
+    return METRICS_FILE if split == "test" else f"metrics_{split}.json"
+
+
 SPLITS = ("test", "train")
 SPACE = "sRGB-encoded [0,1]"
 #: random pixels per view and step of the test-time pose optimisation
@@ -62,7 +71,8 @@ def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
     views = dataset.test if split == "test" else dataset.gt
     if not has_views(dataset, split):
         source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"
-        raise InputError(f"the dataset has no {split} views (expected {source})", path=dataset.root)
+        fix = "; simulate it with eval_views, or score split train" if split == "test" else ""
+        raise InputError(f"the dataset has no {split} views (expected {source}){fix}", path=dataset.root)
     return views
 
 
@@ -194,7 +204,8 @@ def evaluate_run(
     test_pose: tuple[int, float] = (0, 2e-3),
     precision: str = "auto",
 ) -> dict[str, Any]:
-    """Render every view of ``split``, score it and write ``RUN/metrics.json`` atomically.
+    """Render every view of ``split``, score it and write ``RUN/metrics.json`` (:func:`metrics_file`)
+    atomically.
 
     Args:
         run_dir: a run folder written by ``spikenerf train``.
@@ -285,5 +296,5 @@ def _evaluate_locked(
         path = refined_dataset(ckpt, config, dataset)  # the poses the model was fitted to
         result["no_reference"] = noref_metrics(model, config, path, noref[1], chunk, display, bar, held)
     result["seconds"] = round(time.perf_counter() - t0, 3)
-    write_text_atomic(run_dir / METRICS_FILE, json.dumps(result, indent=2, allow_nan=False) + "\n")
+    write_text_atomic(run_dir / metrics_file(split), json.dumps(result, indent=2, allow_nan=False) + "\n")
     return result

@@ -179,8 +179,10 @@ def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPa
         return RenderPath("orbit", orbit_poses(dataset, count), k, near, far)
     path = Path(spec)
     if not path.is_file():
+        what = "no such file" if not path.exists() else "not a file"
         raise InputError(
-            f"trajectory: expected test, orbit or a transforms.json file, found {spec!r}", param="trajectory"
+            f"trajectory: expected test, orbit or a transforms.json file, found {spec!r} ({what})",
+            param="trajectory",
         )
     found = read_camera_path(path, (k.width, k.height))
     near, far = found.bounds or near_far(found.poses, dataset.scene_box)

@@ -175,7 +175,12 @@ def read_colmap_model(folder: Path) -> PoseSet:
     if (folder / "images.txt").is_file():
         return read_colmap_text(folder)
     if not (folder / "images.bin").is_file():
-        raise InputError("not a COLMAP model folder (no images.txt or images.bin)", path=folder)
+        hint = (
+            f"; for a dataset's poses give {folder / 'transforms.json'}"
+            if (folder / "transforms.json").is_file()
+            else ""
+        )
+        raise InputError(f"not a COLMAP model folder (no images.txt or images.bin){hint}", path=folder)
     try:
         import pycolmap
     except ImportError as err:

@@ -124,6 +124,10 @@ class DemoResult:
     cpu_seconds: float
 
 
+#: fewer iterations than this tell the methods apart poorly (run_demo says so before it starts)
+SHORTEST_ITERS = 150
+
+
 def run_demo(cfg: DemoConfig, echo: Callable[[str], None] = print) -> DemoResult:
     """Run (or resume) the demo into ``cfg.out`` and print its table and where the report is."""
     bcfg = benchmark_config(cfg)
@@ -132,6 +136,11 @@ def run_demo(cfg: DemoConfig, echo: Callable[[str], None] = print) -> DemoResult
         f"{bcfg.iters} iterations per method ({', '.join(bcfg.variants)}), {', '.join(bcfg.colors)}, "
         f"device {cfg.device} → {bcfg.out}"
     )
+    if bcfg.iters < SHORTEST_ITERS:
+        echo(
+            f"note: {bcfg.iters} iterations leave the fields nearly empty: expect every method to score "
+            f"about the same (the demo's default is 300; docs/report.md)"
+        )
     t0, c0 = time.perf_counter(), cpu_seconds()
     cells = benchmark_with_report(bcfg)
     wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0

@@ -33,6 +33,8 @@ _REQUIRED = object()
 def read_transforms(path: str | Path, missing: str = "transforms file not found") -> dict[str, Any]:
     """The top-level JSON object of ``path``; InputError(``missing``) when there is no such file."""
     path = Path(path)
+    if path.is_dir() and (path / "transforms.json").is_file():
+        raise InputError(f"is a folder: give the file {path / 'transforms.json'}", path=path)
     if not path.is_file():
         raise InputError(missing, path=path)
     try:

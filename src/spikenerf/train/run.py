@@ -138,8 +138,6 @@ def run_iteration(run_dir: str | Path) -> int:
 
 def describe_run(run_dir: str | Path) -> str:
     """A few lines about a run folder: method, field, progress, last curve point and metrics if evaluated."""
-    import json
-
     from spikenerf.train.evaluate import CURVES, read_curves
 
     run_dir = Path(run_dir)
@@ -158,7 +156,8 @@ def describe_run(run_dir: str | Path) -> str:
     ]
     if (poses := config.window_poses()) > 1:
         lines.append(
-            f"eval's TFP keyframes: each against the mean of {poses} renders across its window"
+            f"eval's TFP keyframes (an imported dataset's test views): each against the mean of {poses} "
+            "renders across its window"
             if config.method == "spike-integral"  # it trains on spike counts, not on TFP targets
             else f"targets: window-aware, each the mean of {poses} renders across its TFP window"
         )
@@ -173,25 +172,36 @@ def describe_run(run_dir: str | Path) -> str:
             f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
             f"train PSNR {last['train_psnr']:.2f} dB, test PSNR {last['test_psnr']:.2f} dB"
         )
-    if (path := run_dir / "metrics.json").exists():
-        try:
-            text = path.read_text()
-        except OSError as err:
-            raise InputError(f"cannot read it ({err.strerror or err})", path=path) from err
-        try:
-            metrics = json.loads(text)
-            scored = f"metrics.json ({metrics['split']}, {metrics['views']} views{_per_view(metrics)})"
-            if isinstance(scored_at := metrics.get("iterations"), int) and scored_at < done:
-                scored += f" [of iteration {scored_at}, not {done}: run eval again]"
-            for label, mean in ((scored, metrics.get("mean")), ("no-reference", _noref_mean(metrics))):
-                values = "   ".join(f"{k} {v:.4g}" for k, v in (mean or {}).items() if v is not None)
-                if values:
-                    lines.append(f"{label}: {values}")
-        except KeyError as err:
-            raise InputError(f"malformed metrics: no {err}; run eval again to rewrite it", path=path) from err
-        except (ValueError, TypeError, AttributeError) as err:
-            raise InputError(f"malformed metrics ({err}); run eval again to rewrite it", path=path) from err
+    for name in ("metrics.json", "metrics_train.json"):  # eval's held-out scores, and --split train's
+        if (path := run_dir / name).exists():
+            lines += _metrics_lines(path, done)
     return "\n".join(lines)
+
+
+def _metrics_lines(path: Path, done: int) -> list[str]:
+    """``info``'s lines of one metrics file (InputError naming it when it is unreadable or malformed)."""
+    import json
+
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise InputError(f"cannot read it ({err.strerror or err})", path=path) from err
+    lines = []
+    try:
+        metrics = json.loads(text)
+        scored = f"{path.name} ({metrics['split']}, {metrics['views']} views{_per_view(metrics)})"
+        if isinstance(scored_at := metrics.get("iterations"), int) and scored_at < done:
+            scored += f" [of iteration {scored_at}, not {done}: run eval again]"
+        noref = "no-reference" + ("" if path.name == "metrics.json" else f" ({path.name})")
+        for label, mean in ((scored, metrics.get("mean")), (noref, _noref_mean(metrics))):
+            values = "   ".join(f"{k} {v:.4g}" for k, v in (mean or {}).items() if v is not None)
+            if values:
+                lines.append(f"{label}: {values}")
+    except KeyError as err:
+        raise InputError(f"malformed metrics: no {err}; run eval again to rewrite it", path=path) from err
+    except (ValueError, TypeError, AttributeError) as err:
+        raise InputError(f"malformed metrics ({err}); run eval again to rewrite it", path=path) from err
+    return lines
 
 
 def _per_view(metrics: dict) -> str:
