@@ -424,13 +424,15 @@ class _BrightSource:
         return np.eye(4)[None], np.zeros((1, 8, 8, 3), np.float32)
 
 
-@pytest.mark.parametrize("value", [1e5, -5.0])
-def test_frames_the_camera_cannot_take_are_refused_naming_the_step(tmp_path: Path, value: float) -> None:
-    """A linear intensity past float16's range would cache as inf and fire at every step; a negative one
-    would silence its pixel: both are refused, in one line naming the step."""
-    with pytest.raises(InputError, match=r"step 1; the camera needs 0 to 65504"):
-        render_missing(_BrightSource(value), tmp_path / "cache", progress=False)
+def test_frames_the_camera_cannot_take_are_refused_and_negative_light_is_none(tmp_path: Path) -> None:
+    """A linear intensity past float16's range would cache as inf and fire at every step: refused in one
+    line naming the step. A negative one (a denoiser's −1e-4) would be a charge debt that silences its
+    pixel: it is read as no light."""
+    with pytest.raises(InputError, match=r"intensity of 100000 for step 1; the camera takes at most 65504"):
+        render_missing(_BrightSource(1e5), tmp_path / "cache", progress=False)
     assert render_missing(_BrightSource(65504.0), tmp_path / "ok", progress=False) == 3
+    assert render_missing(_BrightSource(-5.0), tmp_path / "dark", progress=False) == 3
+    assert np.load(tmp_path / "dark" / "00001.npy")[0, 0].tolist() == [0.0, 0.0, 0.0]
 
 
 def test_simulate_refuses_a_blur_camera_faster_than_the_spikes_and_records_the_realised_rate(
@@ -475,4 +477,4 @@ def test_a_blur_exposure_longer_than_the_path_is_warned_of(tmp_path: Path, capsy
     code, out, err = run_cli(capsys, *argv, "--frames", 100, "--out", tmp_path / "whole", "--no-progress")
     assert code == 0 and err == ""
     code, out, _ = run_cli(capsys, "info", tmp_path / "whole")
-    assert "blur frames: 1 at 400.0 fps (100 steps of exposure each)" in out and "(every 10 steps)" in out
+    assert "blur frames: 1 at 400 fps (100 steps of exposure each)" in out and "(every 10 steps)" in out

@@ -481,6 +481,19 @@ def test_keys_a_method_does_not_read_leave_its_training_unchanged(
         assert any(not torch.equal(base[k], changed[k]) for k in base)
 
 
+def test_a_resume_ignores_what_the_method_does_not_read(dataset_dir: Path, dataset, tmp_path: Path) -> None:
+    """The same command with --resume works even where ``train`` said a flag was ignored (the run stores
+    nerf-gt's window poses resolved to 1, and no spike settings matter to it)."""
+    cfg = _config(dataset_dir, method="nerf-gt")
+    cfg.iters, cfg.eval_every, cfg.targets.window_poses, cfg.spike.lam = 2, 0, 4, 0.25
+    train(cfg, tmp_path / "run", dataset, progress=False)
+    again = dataclasses.replace(cfg, iters=3, spike=dataclasses.replace(cfg.spike, lam=0.5))
+    assert train(again, tmp_path / "run", dataset, resume=True, progress=False).iteration == 3
+    other = dataclasses.replace(again, iters=4, seed=5)  # what it reads still counts
+    with pytest.raises(InputError, match="different options"):
+        train(other, tmp_path / "run", dataset, resume=True, progress=False)
+
+
 def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
     dataset_dir: Path, dataset, tmp_path: Path, capsys, monkeypatch
 ) -> None:  # type: ignore[no-untyped-def]

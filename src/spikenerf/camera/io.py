@@ -274,8 +274,9 @@ def write_dat_rgb(
     prefix: str | Path, spikes: np.ndarray | torch.Tensor, layout: str = "spikecv"
 ) -> list[Path]:
     """Write a per-channel RGB stream (T, 3, H, W) as three gray ``.dat`` files; returns their paths. The
-    stream is checked whole first, and the three files replace the old ones together at the end, so an
-    error leaves no new channel beside old ones."""
+    stream is checked whole first and the three files are written before any replaces an old one, so an
+    error in the data or while writing leaves the old files as they were (a kill between the three quick
+    renames can still mix old and new channels; :func:`read_dat_rgb` refuses unequal frame counts)."""
     if spikes.ndim != 4 or spikes.shape[1] != 3:
         raise InputError(f"RGB spikes must be (T, 3, H, W), found shape {tuple(spikes.shape)}", path=prefix)
     _check_layout(layout, prefix)

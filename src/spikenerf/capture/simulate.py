@@ -210,13 +210,13 @@ def _frames(source: FrameSource, steps: list[int], jobs: int) -> Iterator[np.nda
         return
     ctx = multiprocessing.get_context("spawn")  # no fork of a process that may hold torch threads
     saved = {name: os.environ.get(name) for name in THREAD_VARS}
-    os.environ.update(worker_env(jobs))  # read by the workers as they start (all of them in map())
     pool = None
     with tempfile.TemporaryDirectory(prefix="spikenerf-render-") as folder:
         source_file = os.path.join(folder, "source.pkl")
         with open(source_file, "wb") as fh:
             pickle.dump(source, fh)
         try:
+            os.environ.update(worker_env(jobs))  # read by the workers as they start (all of them in map())
             # the workers start with Ctrl-C ignored, so that one during their start prints no traceback and
             # the parent alone stops the run; starting them takes milliseconds (the source goes by file),
             # so the parent's own Ctrl-C is not lost meanwhile
@@ -269,11 +269,12 @@ def render_missing(source: FrameSource, cache: Path, progress: bool = True, jobs
                 f"scene {source.name!r} gave a frame of shape {frame.shape} (or non-finite values) "
                 f"for step {step}; expected finite ({k.height}, {k.width}, 3)"
             )
-        if frame.size and not 0 <= frame.min() <= frame.max() <= FRAME_MAX:
+        if frame.size and frame.max() > FRAME_MAX:
             raise InputError(
-                f"scene {source.name!r} gave linear intensities from {frame.min():g} to {frame.max():g} "
-                f"for step {step}; the camera needs 0 to {FRAME_MAX:g} (scale the images)"
+                f"scene {source.name!r} gave a linear intensity of {frame.max():g} for step {step}; the "
+                f"camera takes at most {FRAME_MAX:g} (scale the images down)"
             )
+        frame = np.maximum(frame, 0.0)  # no negative light (a denoiser's −1e-4): it would be a charge debt
         _save_npy(cache / f"{step:05d}.npy", frame.astype(np.float16))
         failpoint("simulate.render")
         bar.update()

@@ -82,8 +82,8 @@ PARAM_FLAGS = {
     + ", ".join(f"{name} ({cls.summary})" for name, cls in METHOD_CLASSES.items())
     + ". Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
     "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones). A "
-    "flag or --set key that the method does not use is kept in the config with a one-line warning (not "
-    "with --ignore-unused).\n\n"
+    "flag or --set key that the method does not use is ignored with a one-line warning (none with "
+    "--ignore-unused), also on --resume.\n\n"
     "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "
     "left out); options given on the command line override it, and --set KEY=VALUE overrides any field "
     "last (e.g. --set spike.lam=0.5 --set targets.mask_n=3 --set field_config.n_voxels_final=2097152)."

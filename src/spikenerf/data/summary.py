@@ -125,8 +125,8 @@ def describe(path: str | Path) -> str:
     if ds.blur is not None and len(ds.blur):
         span = ds.blur.step_ranges[:, 1] - ds.blur.step_ranges[:, 0]
         steps = f"{int(span.min())}" if span.min() == span.max() else f"{int(span.min())}–{int(span.max())}"
-        rate = f" at {cfg['blur_fps']} fps" if "blur_fps" in cfg else ""
-        lines.append(f"blur frames: {len(ds.blur)}{rate} ({steps} steps of exposure each)")
+        rate = traj.fps / int(span.max())  # as realised: what transforms_blur.json records
+        lines.append(f"blur frames: {len(ds.blur)} at {rate:.4g} fps ({steps} steps of exposure each)")
     else:
         lines.append("blur frames: none")
     for mode in ds.modes:

@@ -81,7 +81,7 @@ GPU_BATCH_SCALE = 4
 #: config keys that only some methods read (a key ending in "." stands for its section): each method lists
 #: those it reads in :attr:`TrainMethod.reads`, and :func:`unused_keys` names the others (``train`` warns of
 #: a given one). ``spike.window`` and ``targets.mask_n`` are not among them: every method's hold-out guard
-#: band reads them.
+#: band reads them; nor, in :data:`SHARED_KEYS`, ``targets.recon``, the target of eval's no-reference checks.
 METHOD_KEYS = (
     "targets.recon",
     "targets.mask",
@@ -91,7 +91,7 @@ METHOD_KEYS = (
     "integral.",
     "exposure.",
 )
-SHARED_KEYS = ("spike.window",)
+SHARED_KEYS = ("spike.window", "targets.recon")
 
 #: spike-integral's longest default window and steps rendered per window (docs/spike-integral.md, Choosing)
 INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 5, 1

@@ -56,7 +56,7 @@ from spikenerf.train.device import batch_bytes, check_batch_fits, keep_targets_o
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
-from spikenerf.train.methods import StepLosses, make_method, method_class
+from spikenerf.train.methods import StepLosses, make_method, method_class, unused_keys
 from spikenerf.train.pose_refine import pose_refinement
 from spikenerf.train.run import check_resume_fits, dataset_fingerprint
 
@@ -131,7 +131,8 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
     """The run's stored config and ``given``; a run from before the hold-out (its config.yaml has no
     ``holdout`` key) trained on every step, so it resumes without one unless ``given`` asks for it. Window
     poses, masks, rays per step, windows and tracks that ``given`` leaves to their defaults are the run's
-    own; a run from before track windows has none."""
+    own; a run from before track windows has none. Keys the method does not read (``unused_keys``) are the
+    run's own too: a flag ``train`` called ignored does not block the resume."""
     stored = load_run_config(path)
     if stored.integral.track is None:  # a run from before track windows: none
         stored.integral.track = 0
@@ -154,6 +155,12 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
     if given.integral.track is None:  # not asked: the run's tracks
         integral = dataclasses.replace(given.integral, track=stored.integral.track)
         given = dataclasses.replace(given, integral=integral)
+    if given.method == stored.method:  # what the method does not read (train warned) cannot differ
+        data, old = given.to_dict(), stored.to_dict()
+        for section in ("targets", "spike", "integral", "exposure"):
+            for key in unused_keys(given.method, [f"{section}.{k}" for k in data[section]]):
+                data[section][key.partition(".")[2]] = old[section][key.partition(".")[2]]
+        given = TrainConfig.from_dict(data)
     return stored, given
 
 
