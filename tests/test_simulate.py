@@ -365,6 +365,7 @@ def test_simulate_from_an_image_sequence(tmp_path: Path, capsys) -> None:
     assert len(ds.trajectory) == 12 and ds.intrinsics.width == 16 and len(ds.test) == 0
     assert ds.config["trajectory"]["kind"] == "sequence" and ds.config["trajectory"]["steps_per_frame"] == 2
     np.testing.assert_allclose(ds.gt.images[0], next(src.frames([0])), atol=2e-3)
+    assert "exposure spans 100 steps, more than the 12-step path" in capsys.readouterr().err
     err = _fails(capsys, ["simulate", "--sequence", str(seq), "--radius", "3", "--out", str(tmp_path / "x")])
     assert "--radius" in err and "not used with --sequence" in err
 
