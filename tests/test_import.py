@@ -607,3 +607,59 @@ def test_colmap_recovers_a_textured_orbit(tmp_path: Path) -> None:
     # measured: 2.6° mean, 6.5° max (3.4°, 5.7° without the final BA; COLMAP on sharp 240×160 checkers);
     # a wrong axis convention gives ~90°+
     assert errors["rot_mean_deg"] < 5.0 and errors["rot_max_deg"] < 10.0 and errors["ate_rel"] < 0.1, errors
+
+
+def test_a_cut_pose_line_or_a_bad_point_in_a_colmap_model_is_named(tmp_path: Path) -> None:
+    keys = np.arange(0, 40, 4)
+    model = tmp_path / "model"
+    _write_colmap_text(model, _truth()[keys], keys, np.zeros((2, 3)))
+    assert len(read_colmap_text(model).poses) == len(keys)
+    text = (model / "images.txt").read_text().splitlines()
+    cut = [*text[:-2], " ".join(text[-2].split()[:6]), text[-1]]  # the last pose line cut to 6 fields
+    (model / "images.txt").write_text("\n".join(cut) + "\n")
+    with pytest.raises(InputError, match=r"images.txt: line 20: a pose line with 6 fields, not 10"):
+        read_colmap_text(model)
+    _write_colmap_text(tmp_path / "m2", _truth()[keys], keys, np.array([[0.0, 0.0, np.nan]]))
+    with pytest.raises(InputError, match=r"points3D.txt: points3D.txt holds NaN"):
+        read_colmap_text(tmp_path / "m2")
+    (tmp_path / "m2" / "points3D.txt").write_text("1 1.0 2.0\n")
+    with pytest.raises(InputError, match="point row 1: expected ID X Y Z R G B ERROR"):
+        read_colmap_text(tmp_path / "m2")
+
+
+def test_a_scaled_or_sheared_rotation_is_refused_naming_the_pose_file(tmp_path: Path) -> None:
+    from spikenerf.importing.poses import check_poses
+
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[1, :3, :3] = np.diag([2.0, 0.5, 1.0])  # determinant 1, not a rotation
+    with pytest.raises(InputError, match=r"poses.npy: pose 1 has a scaled or sheared rotation"):
+        check_poses(poses, tmp_path / "poses.npy")
+
+
+def test_an_imports_own_poses_reimport_with_its_range(capsys, recording, tmp_path: Path) -> None:
+    """An import's transforms.json counts steps from its range's start; importing it again as the poses of
+    the same range gives the same trajectory (before, it was refused, or shifted by the range's start)."""
+    rec, _ = recording
+    args = ["--keyframe-every", 4, "--window", 5, "--range", "10:30"]
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "a", *ORBIT, *args)
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "b", "--poses", tmp_path / "a" /
+                           "transforms.json", "--fov", 40, "--orient", "none", *args)  # fmt: skip
+    assert code == 0, err
+    a, b = load_dataset(tmp_path / "a"), load_dataset(tmp_path / "b")
+    assert a.config["imported"]["range"] == b.config["imported"]["range"] == [10, 30]
+    np.testing.assert_allclose(b.trajectory.poses[:, :3, :3], a.trajectory.poses[:, :3, :3], atol=1e-6)
+
+
+def test_too_few_registered_keeps_only_the_model_for_a_rerun(tmp_path: Path) -> None:
+    from spikenerf.importing import colmap
+
+    images, steps, settings = np.zeros((10, 8, 8)), np.arange(0, 40, 4), colmap.ColmapSettings()
+    work = tmp_path / "ds.partial" / "colmap"
+    _write_colmap_text(work / colmap.MODEL_DIR, _truth()[:3], np.arange(3), np.zeros((1, 3)))
+    (work / "steps.json").write_text(colmap.colmap_fingerprint(images, steps, settings))
+    (work / "images").mkdir()
+    (work / "database.db").write_bytes(b"x")
+    with pytest.raises(InputError, match=r"registered 3 of 10 keyframes.*its model stays in .*ds.partial"):
+        colmap.run_colmap(images, steps, work, settings, min_registered=0.5)
+    assert sorted(p.name for p in work.iterdir()) == sorted([colmap.MODEL_DIR, "steps.json"])

@@ -66,14 +66,19 @@ def test_a_camera_that_starts_or_speeds_up_is_no_jump_but_a_single_leap_is():
     assert "it moves 2.05 there" in leap.describe()
 
 
+#: the threads each faked COLMAP run was given
+THREADS: list[int] = []
+
+
 @pytest.fixture
 def fake_colmap(monkeypatch):
     """run_colmap replaced by a lookup: folder name -> poses (folded or not)."""
     calls: list[tuple[str, int]] = []
     models: dict[str, PoseSet] = {}
 
-    def fake(images, steps, work, settings, min_registered, keyframe_every, verbose=False):
+    def fake(images, steps, work, settings, min_registered, keyframe_every, threads=-1, verbose=False):
         calls.append((Path(work).name, settings.exhaustive_up_to))
+        THREADS.append(threads)
         return models[Path(work).name]
 
     monkeypatch.setattr(colmap, "run_colmap", fake)
@@ -127,7 +132,7 @@ def test_the_import_keeps_the_sequential_refit_says_so_and_publishes_no_scratch(
     write_dat(rec, (np.random.default_rng(0).random((t, 8, 24)) < 0.3).astype(np.uint8))
     (rec.parent / "config.yaml").write_text("spike_h: 8\nspike_w: 24\n")
 
-    def fake(images, steps, work, settings, min_registered, keyframe_every, verbose=False):
+    def fake(images, steps, work, settings, min_registered, keyframe_every, threads=-1, verbose=False):
         work.mkdir(parents=True, exist_ok=True)
         (work / "model").mkdir(exist_ok=True)
         (work / "database.db").write_bytes(b"scratch")  # what COLMAP leaves beside its model
@@ -151,3 +156,17 @@ def test_the_import_keeps_the_sequential_refit_says_so_and_publishes_no_scratch(
                            "--orbit", "4,30", "--fov", 40)  # fmt: skip
     assert code == 0, err
     assert not list(out.glob("colmap*")) and "pose_note" not in load_dataset(out).config["imported"]
+
+
+def test_colmap_runs_on_the_threads_spikenerf_was_given(fake_colmap, tmp_path: Path, monkeypatch) -> None:
+    """``spikenerf --threads 1`` reaches COLMAP (one thread makes its model repeatable); unset: every core."""
+    _, models = fake_colmap
+    models["colmap"] = PoseSet(
+        np.tile(np.eye(4), (50, 1, 1)), np.arange(50) * 20, None, None, None, tuple(f"{i}" for i in range(50))
+    )
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    THREADS.clear()
+    _run(tmp_path)
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    _run(tmp_path)
+    assert THREADS[0] == 1 and THREADS[-1] == -1

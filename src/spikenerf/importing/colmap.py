@@ -145,7 +145,10 @@ def run_colmap(
             raise _too_few(0, len(steps), keyframe_every)
     found = read_colmap_text(model)
     if len(found.poses) < max(3, min_registered * len(steps)):
-        raise _too_few(len(found.poses), len(steps), keyframe_every)
+        for name in ("images", "sparse", "database.db"):  # big and rebuildable; the model stays for a rerun
+            path = work / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+        raise _too_few(len(found.poses), len(steps), keyframe_every, kept=work.parent)
     return found
 
 
@@ -166,7 +169,7 @@ def unfolded_colmap(
     """
     min_registered, keyframe_every, verbose = run
     estimate = lambda folder, cs: run_colmap(  # noqa: E731
-        images, steps, folder, cs, min_registered, keyframe_every, verbose=verbose
+        images, steps, folder, cs, min_registered, keyframe_every, threads=colmap_threads(), verbose=verbose
     )
     found = estimate(folders[0], settings)
     jump = trajectory_jump(found.poses, found.steps)
@@ -277,10 +280,20 @@ def _global_ba(pycolmap: object, model: object, fixed_focal: bool, threads: int)
     pycolmap.bundle_adjustment(model, ba)
 
 
-def _too_few(registered: int, total: int, keyframe_every: int | None) -> InputError:
+def _too_few(registered: int, total: int, keyframe_every: int | None, kept: Path | None = None) -> InputError:
     hint = f" (now {keyframe_every})" if keyframe_every else ""
+    where = f" (its model stays in {kept}: a rerun with a lower min_registered takes it)" if kept else ""
     return InputError(
-        f"COLMAP registered {registered} of {total} keyframes, too few for a trajectory; try a smaller "
-        f"keyframe_every{hint} so that neighbouring keyframes overlap more, or give poses FILE",
-        param=("keyframe_every", "poses"),
+        f"COLMAP registered {registered} of {total} keyframes, too few for a trajectory{where}; try a "
+        f"smaller keyframe_every{hint} so that neighbouring keyframes overlap more, or give poses FILE",
+        param=("keyframe_every", "poses", "min_registered"),
     )
+
+
+def colmap_threads() -> int:
+    """COLMAP's threads: ``OMP_NUM_THREADS`` where set (``spikenerf --threads N`` sets it; with one thread a
+    run is repeatable), else -1, every core."""
+    try:
+        return max(int(os.environ.get("OMP_NUM_THREADS", "")), 1)
+    except ValueError:
+        return -1

@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from spikenerf import __version__
 from spikenerf.camera.io import count_frames, iter_dat, raw_width_guess, read_dat, resolve_frames
@@ -23,8 +24,15 @@ from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_inputs_outside, check_output, mark, replace_dir
-from spikenerf.data.dataset import near_far
+from spikenerf.core.marker import (
+    MARKER,
+    check_inputs_outside,
+    check_output,
+    folder_kind,
+    mark,
+    replace_dir,
+)
+from spikenerf.data.dataset import load_dataset, near_far
 from spikenerf.data.reconstruction import reconstructor
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
 from spikenerf.importing.alignment import (
@@ -203,12 +211,35 @@ def keyframe_poses(
     if opts.poses == "orbit":
         return orbit_poses(str(opts.orbit), n, fps)
     found = read_pose_source(opts.poses)
+    if found.steps is None and len(found.poses) > n:
+        raise InputError(
+            f"{len(found.poses)} poses without steps for {n} selected steps: give each pose its step (a "
+            "'step' field, or numbered names), or select at least as many steps",
+            path=opts.poses,
+        )
     if found.steps is None:  # spread evenly over the selected steps
         steps = np.round(np.linspace(0, n - 1, len(found.poses))).astype(np.int64)
     else:
-        steps = found.steps - first
+        steps = found.steps + imported_offset(opts.poses) - first
         _check_pose_steps(steps, n, first, opts.poses)
     return replace(found, steps=steps)
+
+
+def imported_offset(source: str | Path) -> int:
+    """The recording step that step 0 of ``source`` is: an imported dataset's ``transforms.json`` or
+    ``colmap/model`` counts its steps from its own range's start (``config.yaml``'s ``imported.range``);
+    0 for any other pose file."""
+    path = Path(source)
+    folder = path if path.is_dir() else path.parent
+    for dataset in (folder, *list(folder.parents)[:2]):
+        if folder_kind(dataset) != "dataset" or not (dataset / "config.yaml").is_file():
+            continue
+        try:
+            imported = yaml.safe_load((dataset / "config.yaml").read_text(encoding="utf-8")).get("imported")
+            return int(imported["range"][0])
+        except (OSError, yaml.YAMLError, AttributeError, KeyError, IndexError, TypeError, ValueError):
+            return 0
+    return 0
 
 
 def colmap_poses(opts: ImportOptions, images: np.ndarray, key_steps: np.ndarray, work: Path) -> PoseSet:
@@ -290,12 +321,18 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     check_output(out, "dataset", overwrite=opts.overwrite, replace=True)
     pose_file = None if opts.poses in ("colmap", "orbit") else opts.poses
     check_inputs_outside(out, [dat, rc.path, opts.config, pose_file])  # replacing out would delete them
-    rel_keys = keyframe_steps(n, opts.keyframe_every, keyframe_window(opts))
+    window = keyframe_window(opts)
+    if n < window:  # every keyframe's window would be clipped, centred off its step
+        raise InputError(
+            f"frame_range: {n} selected steps are fewer than the {window} steps of window (one keyframe's)",
+            param=("frame_range", "window"),
+        )
+    rel_keys = keyframe_steps(n, opts.keyframe_every, window)
     if len(rel_keys) < 2:
         raise InputError(
-            f"{n} steps give {len(rel_keys)} keyframe at keyframe_every {opts.keyframe_every}; "
-            "need at least 2",
-            param="keyframe_every",
+            f"{n} steps give {len(rel_keys)} keyframe at keyframe_every {opts.keyframe_every} with a window "
+            f"of {window} steps; need at least 2 (select more steps, or a shorter window)",
+            param=("keyframe_every", "window"),
         )
     with output_lock(out):
         recover_replaced(out)
@@ -398,6 +435,7 @@ def _write(
             path = work / folder / name
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     writer.finish(Trajectory(poses, steps / fps, steps, fps), config, None)
+    load_dataset(work, train_images=False)  # what the loader refuses is never published
     mark(work, "dataset", files=True)
     failpoint("import.publish")
     replace_dir(work, out)

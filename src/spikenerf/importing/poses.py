@@ -60,6 +60,11 @@ def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) ->
     if (np.abs(det - 1) > 1e-2).any():
         i = int(np.argmax(np.abs(det - 1)))
         raise InputError(f"pose {i} has a rotation with determinant {det[i]:.3g}, expected 1", path=path)
+    rot = poses[:, :3, :3]
+    off = np.abs(np.swapaxes(rot, 1, 2) @ rot - np.eye(3)).max(axis=(1, 2))  # the dataset loader's test
+    if (off > 1e-3).any():
+        i = int(np.argmax(off))
+        raise InputError(f"pose {i} has a scaled or sheared rotation (RᵀR off I by {off[i]:.3g})", path=path)
     return poses
 
 
@@ -123,6 +128,25 @@ def _lines(path: Path) -> list[list[str]]:
     return [ln.split() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
 
 
+def _pose_rows(path: Path, cameras: set[int]) -> list[list[str]]:
+    """The pose lines of a COLMAP ``images.txt``: two lines an image (``IMAGE_ID QW QX QY QZ TX TY TZ
+    CAMERA_ID NAME``, then its points, possibly empty); InputError naming the line of a pose that is cut
+    short or names an unknown camera (it would be dropped without a word)."""
+    if not path.is_file():
+        raise InputError("missing file of a COLMAP text model", path=path)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    lines = [(n, ln.split()) for n, ln in enumerate(text.splitlines(), 1) if not ln.lstrip().startswith("#")]
+    while lines and not lines[-1][1]:
+        lines.pop()
+    rows = []
+    for number, row in lines[0::2]:
+        if len(row) != 10 or int(row[8]) not in cameras:
+            what = "an unknown camera" if len(row) == 10 else f"{len(row)} fields, not 10"
+            raise InputError(f"line {number}: a pose line with {what} ({' '.join(row)[:60]})", path=path)
+        rows.append(row)
+    return rows
+
+
 def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
     try:
         model, w, h, params = fields[1], int(fields[2]), int(fields[3]), [float(p) for p in fields[4:]]
@@ -141,15 +165,20 @@ def read_colmap_text(folder: Path) -> PoseSet:
     """A COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``); the first camera is used."""
     try:
         cams = {int(f[0]): f for f in _lines(folder / "cameras.txt")}
-        rows = _lines(folder / "images.txt")
-        # images.txt: one pose line (10+ fields) followed by one (possibly empty, hence dropped) points line
-        pose_rows = [r for r in rows if len(r) == 10 and int(r[8]) in cams]
+        pose_rows = _pose_rows(folder / "images.txt", set(cams))
         pts_path = folder / "points3D.txt"
-        pts = [[float(v) for v in r[1:4]] for r in _lines(pts_path)] if pts_path.is_file() else []
+        rows = _lines(pts_path) if pts_path.is_file() else []
+        if (short := next((i for i, r in enumerate(rows) if len(r) < 8), None)) is not None:
+            raise InputError(
+                f"point row {short + 1}: expected ID X Y Z R G B ERROR, found {rows[short]}", pts_path
+            )
+        pts = [[float(v) for v in r[1:4]] for r in rows]
     except (ValueError, IndexError) as err:
         raise InputError(f"malformed COLMAP text model ({err})", path=folder) from err
     if not cams:
         raise InputError("no cameras in cameras.txt", path=folder)
+    if pts and not (np.abs(np.asarray(pts)) < 1e12).all():  # NaN, inf or absurd: the box would be meaningless
+        raise InputError("points3D.txt holds NaN, infinite or absurdly distant points", path=pts_path)
     pose_rows.sort(key=lambda r: r[9])
     quats = np.array([[float(v) for v in r[1:5]] for r in pose_rows]).reshape(-1, 4)
     trans = np.array([[float(v) for v in r[5:8]] for r in pose_rows]).reshape(-1, 3)
@@ -246,5 +275,11 @@ def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
     start = values[3] if len(values) > 3 else 0.0
     if problem := orbit_angle_problem(values[1], turns):
         raise InputError(f"orbit: {problem} (in {spec!r})", param="orbit")
+    if turns == 0 or abs(values[1]) == 90:  # every view from one place: no parallax to place the scene
+        raise InputError(
+            f"orbit: {spec!r} keeps the camera in one place (turns 0, or elevation ±90°); a recording needs "
+            "a path around the scene",
+            param="orbit",
+        )
     traj = orbit(values[0], values[1], turns, steps / fps, fps, start_azimuth_deg=start)
     return PoseSet(traj.poses, traj.steps.copy())
