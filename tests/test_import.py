@@ -663,3 +663,21 @@ def test_too_few_registered_keeps_only_the_model_for_a_rerun(tmp_path: Path) -> 
     with pytest.raises(InputError, match=r"registered 3 of 10 keyframes.*its model stays in .*ds.partial"):
         colmap.run_colmap(images, steps, work, settings, min_registered=0.5)
     assert sorted(p.name for p in work.iterdir()) == sorted([colmap.MODEL_DIR, "steps.json"])
+
+
+def test_two_frame_names_with_one_step_number_are_named(tmp_path: Path) -> None:
+    from spikenerf.importing.poses import steps_from_names
+
+    assert steps_from_names(["a/000120.png", "a/000130.png"]).tolist() == [120, 130]
+    assert steps_from_names(["left.png", "right.png"]) is None  # unnumbered: spread evenly
+    with pytest.raises(InputError, match=r"p.json: 'cam0_0001.png' and 'cam1_0001.png' name the same step"):
+        steps_from_names(["cam0_0001.png", "cam1_0001.png"], tmp_path / "p.json")
+
+
+def test_a_pose_file_inside_the_work_folder_is_refused(capsys, recording, tmp_path: Path) -> None:
+    rec, _ = recording
+    (tmp_path / "ds.partial").mkdir()
+    (tmp_path / "ds.partial" / "p.json").write_text("{}")
+    code, _, err = run_cli(capsys, "import", rec, "--poses", tmp_path / "ds.partial" / "p.json", "--fov", 40,
+                           "--out", tmp_path / "ds")  # fmt: skip
+    assert code == 2 and "holds the input" in err and (tmp_path / "ds.partial" / "p.json").is_file()

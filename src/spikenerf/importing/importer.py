@@ -34,7 +34,7 @@ from spikenerf.core.marker import (
 )
 from spikenerf.data.dataset import load_dataset, near_far
 from spikenerf.data.reconstruction import reconstructor
-from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
+from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced, work_dir
 from spikenerf.importing.alignment import (
     ORIENTS,
     Orient,
@@ -320,7 +320,8 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
         )
     check_output(out, "dataset", overwrite=opts.overwrite, replace=True)
     pose_file = None if opts.poses in ("colmap", "orbit") else opts.poses
-    check_inputs_outside(out, [dat, rc.path, opts.config, pose_file])  # replacing out would delete them
+    for folder in (out, work_dir(out)):  # replacing out, or publishing its work folder, would delete them
+        check_inputs_outside(folder, [dat, rc.path, opts.config, pose_file])
     window = keyframe_window(opts)
     if n < window:  # every keyframe's window would be clipped, centred off its step
         raise InputError(

@@ -68,13 +68,18 @@ def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) ->
     return poses
 
 
-def steps_from_names(names: list[str]) -> np.ndarray | None:
-    """Spike steps from frame names when every name's stem ends in a number and they are unique, else None."""
+def steps_from_names(names: list[str], path: str | Path | None = None) -> np.ndarray | None:
+    """Spike steps from frame names when every name's stem ends in a number, else None; InputError (naming
+    ``path``) when two names carry the same number (spreading their poses evenly would misplace them)."""
     found = [re.search(r"(\d+)$", Path(n).stem) for n in names]
     if not names or not all(found):
         return None
     steps = np.array([int(m.group(1)) for m in found if m], np.int64)
-    return steps if len(np.unique(steps)) == len(steps) else None
+    _, first, counts = np.unique(steps, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        i, j = np.flatnonzero(steps == steps[first[counts > 1][0]])[:2]
+        raise InputError(f"{names[i]!r} and {names[j]!r} name the same step: each pose needs its own", path)
+    return steps
 
 
 # ------------------------------------------------------------------------------------- transforms.json
@@ -109,7 +114,7 @@ def read_transforms_poses(path: Path) -> PoseSet:
             message = f"frames[{i}] and frames[{j}] share step {step}: each pose needs its own"
             raise InputError(message, path=path)
     elif all(isinstance(f.get("file_path"), str) for f in frames):
-        steps = steps_from_names([f["file_path"] for f in frames])
+        steps = steps_from_names([f["file_path"] for f in frames], path)
     k, fov, cam = None, None, transforms.camera(data, path)
     if all(key in cam for key in ("fl_x", "w", "h")):
         k = transforms.intrinsics(data, path)
@@ -195,7 +200,12 @@ def read_colmap_text(folder: Path) -> PoseSet:
     points = np.asarray(pts, np.float64).reshape(-1, 3)
     camera = _colmap_camera(cams[int(pose_rows[0][8])], folder / "cameras.txt")
     return PoseSet(
-        poses, steps_from_names(names), camera, points if len(points) else None, None, tuple(names)
+        poses,
+        steps_from_names(names, folder / "images.txt"),
+        camera,
+        points if len(points) else None,
+        None,
+        tuple(names),
     )
 
 
