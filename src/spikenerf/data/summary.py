@@ -29,6 +29,7 @@ from spikenerf.data.dataset import (
 )
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.scenes.trajectory import image_motion
+from spikenerf.scenes.transforms import read_transforms
 
 PREVIEW = "preview.png"
 #: TFP window of the preview (frames), shortened for streams with fewer steps
@@ -125,7 +126,7 @@ def describe(path: str | Path) -> str:
     if ds.blur is not None and len(ds.blur):
         span = ds.blur.step_ranges[:, 1] - ds.blur.step_ranges[:, 0]
         steps = f"{int(span.min())}" if span.min() == span.max() else f"{int(span.min())}–{int(span.max())}"
-        rate = traj.fps / int(span.max())  # as realised: what transforms_blur.json records
+        rate = read_transforms(path / TRANSFORMS_BLUR).get("fps") or traj.fps / int(span.max())  # as realised
         lines.append(f"blur frames: {len(ds.blur)} at {rate:.4g} fps ({steps} steps of exposure each)")
     else:
         lines.append("blur frames: none")

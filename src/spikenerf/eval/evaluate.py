@@ -71,7 +71,7 @@ def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
     views = dataset.test if split == "test" else dataset.gt
     if not has_views(dataset, split):
         source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"
-        fix = "; simulate it with eval_views, or score split train" if split == "test" else ""
+        fix = "; add test views when simulating it, or score the train split" if split == "test" else ""
         raise InputError(f"the dataset has no {split} views (expected {source}){fix}", path=dataset.root)
     return views
 
