@@ -174,8 +174,9 @@ def read_colmap_text(folder: Path) -> PoseSet:
         pts_path = folder / "points3D.txt"
         rows = _lines(pts_path) if pts_path.is_file() else []
         if (short := next((i for i, r in enumerate(rows) if len(r) < 8), None)) is not None:
+            found = " ".join(rows[short])[:60]
             raise InputError(
-                f"point row {short + 1}: expected ID X Y Z R G B ERROR, found {rows[short]}", pts_path
+                f"point row {short + 1}: expected ID X Y Z R G B ERROR, found {found!r}", pts_path
             )
         pts = [[float(v) for v in r[1:4]] for r in rows]
     except (ValueError, IndexError) as err:
