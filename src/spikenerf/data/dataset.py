@@ -276,7 +276,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
             "is a file, not a dataset folder" if root.exists() else "dataset folder not found", path=root
         )
     tpath = root / TRANSFORMS
-    if not tpath.exists() and (kind := folder_kind(root)) is not None:  # another folder of ours
+    if not tpath.exists() and (kind := folder_kind(root)) not in (None, "dataset"):  # another of ours
         raise InputError(f"is a {kind} folder, not a dataset folder", path=root)
     data = _read_mapping(tpath)
     k = _check_camera(data, tpath, None)
