@@ -681,3 +681,18 @@ def test_a_pose_file_inside_the_work_folder_is_refused(capsys, recording, tmp_pa
     code, _, err = run_cli(capsys, "import", rec, "--poses", tmp_path / "ds.partial" / "p.json", "--fov", 40,
                            "--out", tmp_path / "ds")  # fmt: skip
     assert code == 2 and "holds the input" in err and (tmp_path / "ds.partial" / "p.json").is_file()
+
+
+def test_an_import_leaving_one_training_keyframe_says_how_to_train_it(
+    capsys, recording, tmp_path: Path
+) -> None:
+    rec, _ = recording
+    args = ["--keyframe-every", 64, "--window", 5, "--out"]
+    code, out, err = run_cli(capsys, "import", rec, *ORBIT, *args, tmp_path / "two")
+    assert code == 0 and "2 keyframes), 1 test view" in out
+    assert err.strip() == (
+        "spikenerf: warning: 1 keyframe left after the test views: `train` refines poses between 2 or more, "
+        "so train with --no-refine-poses, or import more steps (or with --test-every 0)"
+    )
+    code, _, err = run_cli(capsys, "import", rec, *ORBIT, "--test-every", 0, *args, tmp_path / "none")
+    assert code == 0 and err == ""

@@ -134,3 +134,10 @@ def command(**kw: Any) -> None:
         f"{len(ds.test)} test view{'' if len(ds.test) == 1 else 's'}"
         + (f"; {imported['pose_note']}" if imported.get("pose_note") else "")
     )
+    if (left := imported["keyframes"] - len(imported.get("test_keyframes") or [])) < 2:
+        click.echo(
+            f"spikenerf: warning: {left} keyframe{'' if left == 1 else 's'} left after the test views: "
+            "`train` refines poses between 2 or more, so train with --no-refine-poses, or import more "
+            "steps (or with --test-every 0)",
+            err=True,
+        )
