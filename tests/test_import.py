@@ -632,7 +632,7 @@ def test_a_scaled_or_sheared_rotation_is_refused_naming_the_pose_file(tmp_path: 
 
     poses = np.tile(np.eye(4), (3, 1, 1))
     poses[1, :3, :3] = np.diag([2.0, 0.5, 1.0])  # determinant 1, not a rotation
-    with pytest.raises(InputError, match=r"poses.npy: pose 1 has a scaled or sheared rotation"):
+    with pytest.raises(InputError, match=r"poses.npy: pose 1 is not a rotation: scaled, sheared or mirrored"):
         check_poses(poses, tmp_path / "poses.npy")
 
 

@@ -56,15 +56,10 @@ def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) ->
         raise InputError(f"{bad} of {len(poses)} poses hold NaN or infinite values", path=path)
     if len(poses) < minimum:
         raise InputError(f"found {len(poses)} poses, need at least {minimum} to interpolate", path=path)
-    det = np.linalg.det(poses[:, :3, :3])
-    if (np.abs(det - 1) > 1e-2).any():
-        i = int(np.argmax(np.abs(det - 1)))
-        raise InputError(f"pose {i} has a rotation with determinant {det[i]:.3g}, expected 1", path=path)
-    rot = poses[:, :3, :3]
-    off = np.abs(np.swapaxes(rot, 1, 2) @ rot - np.eye(3)).max(axis=(1, 2))  # the dataset loader's test
-    if (off > 1e-3).any():
+    off = transforms.rotation_error(poses[:, :3, :3])  # the dataset loader's own test
+    if (off > transforms.ROTATION_TOL).any():
         i = int(np.argmax(off))
-        raise InputError(f"pose {i} has a scaled or sheared rotation (RᵀR off I by {off[i]:.3g})", path=path)
+        raise InputError(f"pose {i} is not a rotation: scaled, sheared or mirrored", path=path)
     return poses
 
 

@@ -28,6 +28,15 @@ PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "O
 #: the scene box's keys, the first present is read: ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
 BOX_KEYS = ("scene_box", "aabb")
 _REQUIRED = object()
+#: how far RᵀR may stray from I (largest entry) for a matrix to count as a rotation: pose files round
+ROTATION_TOL = 1e-3
+
+
+def rotation_error(rot: np.ndarray) -> np.ndarray:
+    """max |RᵀR − I| of each (..., 3, 3) matrix; +inf where the determinant is negative (a mirror)."""
+    rot = np.asarray(rot, dtype=np.float64)
+    off = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-2, -1))
+    return np.where(np.linalg.det(rot) < 0, np.inf, off)
 
 
 def read_transforms(path: str | Path, missing: str = "transforms file not found") -> dict[str, Any]:
@@ -98,7 +107,7 @@ def pose(value: object, field: str, path: Path) -> np.ndarray:
     rot = m[:3, :3]
     if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
         raise InputError(f"{field}: last row must be [0, 0, 0, 1], found {m[3].tolist()}", path=path)
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
+    if rotation_error(rot) > ROTATION_TOL:
         raise InputError(f"{field}: rotation part is not a rotation (scaled, sheared or mirrored)", path=path)
     return m
 
