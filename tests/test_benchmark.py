@@ -155,6 +155,9 @@ def test_a_folder_from_before_an_added_field_entry_resumes_when_it_trains_as_bef
     removed = {**older, **REMOVED_DEFAULTS}  # an entry since removed, at the value that trains as now
     (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": removed}, "nonce": "n"}))
     assert check_settings(cfg) == "n"
+    unread = {**now["field_defaults"], "batch_rays": 8192}  # never read, so any value trained as now
+    (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": unread}, "nonce": "n"}))
+    assert check_settings(cfg) == "n"
     gathered = {**now["field_defaults"], "gather_lookup": True}
     (tmp_path / NAME).write_text(json.dumps({"settings": {**now, "field_defaults": gathered}, "nonce": "n"}))
     with pytest.raises(InputError, match=r"other field defaults \(gather_lookup True → None"):

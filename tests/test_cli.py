@@ -60,6 +60,28 @@ def test_input_error_is_one_line_and_exit_2(monkeypatch, capsys) -> None:
     assert err == "spikenerf: error: x/transforms.json: expected 3 fields, found 2"
 
 
+@pytest.mark.parametrize(("command", "hint"), [("render", "run the same command again"), ("info", None)])
+def test_ctrl_c_says_how_a_command_that_resumes_continues(monkeypatch, capsys, command, hint) -> None:
+    import click
+
+    import spikenerf.cli as cli_module
+
+    @click.command()
+    def stopped() -> None:
+        raise click.exceptions.Abort()
+
+    def resolve(self, ctx, args):  # type: ignore[no-untyped-def]
+        cli_module.LazyGroup.invoked = command
+        return command, stopped, args[1:]
+
+    monkeypatch.setattr(cli_module.LazyGroup, "resolve_command", resolve)
+    with pytest.raises(SystemExit) as exit_:
+        main([command])
+    assert exit_.value.code == 130
+    err = capsys.readouterr().err.strip()
+    assert err == "spikenerf: aborted" + (f" ({hint} to continue where it stopped)" if hint else "")
+
+
 def test_cli_choices_come_from_the_owning_literals() -> None:
     """Each choice list is one ``Literal`` in the module that implements it; the CLI shows exactly those."""
     import importlib

@@ -109,6 +109,7 @@ def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
         (["--frames", "1-3"], "A:B"),
         (["--frame", "1", "--frames", "1:3"], "not both"),
         (["--method", "tfi", "--window", "41"], "tfp only"),
+        (["--method", "tfp", "--color", "bayer"], "--color applies to --method learned only"),
         (["--threshold", "0"], "threshold"),
         (["--frames", "1:3", "--out-png"], "one frame"),
         (["--frame", "1", "--out-jpg"], ".png or .npy"),
@@ -127,6 +128,16 @@ def test_reconstruct_bad_input_exits_2_and_writes_nothing(capsys, stream, tmp_pa
     assert code == 2
     assert message in err and err.strip().count("\n") == 0
     assert not out.exists() and not (out.parent.exists() and any(out.parent.iterdir()))
+
+
+def test_a_stream_shorter_than_the_learned_window_is_named(capsys, stream, tmp_path: Path) -> None:
+    _, spikes = stream
+    short = tmp_path / "short.dat"
+    write_dat(short, spikes[:20])
+    code, _, err = run_cli(capsys, "reconstruct", short, "--height", H, "--width", W, "--method", "learned",
+                           "--frame", 3, "--out", tmp_path / "l.npy")  # fmt: skip
+    assert code == 2 and err.startswith(f"spikenerf: error: {short}: the learned reconstructor's window of")
+    assert not (tmp_path / "l.npy").exists()
 
 
 def test_reconstruct_truncated_file_and_refused_folder(capsys, stream, tmp_path: Path) -> None:
@@ -203,6 +214,20 @@ def test_info_and_reconstruct_read_the_size_from_a_spikecv_config(capsys, stream
     (path.parent / "config.yaml").write_text("spike_h: 0\nspike_w: 12\n")
     code, _, err = run_cli(capsys, "info", path)
     assert code == 2 and "spike_h" in err and err.strip().count("\n") == 0
+
+
+def test_a_frame_size_flag_that_differs_from_the_config_beside_the_file_is_named(capsys, stream) -> None:
+    path, _ = stream
+    (path.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\n")
+    code, out, err = run_cli(capsys, "info", path, "--width", H, "--height", W)  # swapped (H ≠ W)
+    assert code == 0 and f"frame: {W}×{H} pixels" in out  # the flags win
+    config = path.parent / "config.yaml"
+    assert err.splitlines() == [
+        f"spikenerf: warning: {path}: --width {H} differs from spike_w {W} in {config}; using --width {H}",
+        f"spikenerf: warning: {path}: --height {W} differs from spike_h {H} in {config}; using --height {W}",
+    ]
+    code, _, err = run_cli(capsys, "info", path, "--width", W, "--height", H)  # agreeing flags: no word
+    assert code == 0 and err == ""
 
 
 def test_reconstruct_takes_the_recordings_threshold_unless_given(capsys, stream, tmp_path: Path) -> None:

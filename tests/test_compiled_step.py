@@ -1,8 +1,8 @@
 """``train --compile`` with the grid's ``static_samples`` (issue 27, ``train/compiled_step.py``): the device
-part of a step compiled as one graph trains and resumes like the eager static step, recompiles only at the
-upsamplings, runs the fused CPU kernel inside the graph; a failing compiler leaves the step eager with one
-warning and the eager run's parameters; without ``static_samples`` ``--compile`` still compiles the field's
-functions.
+part of a step compiled as one graph (spike-nerf's spike window: a second one) trains and resumes like the
+eager static step, recompiles only at the upsamplings, runs the fused CPU kernel inside the graph; a failing
+compiler leaves the step eager with one warning and the eager run's parameters; without ``static_samples``
+``--compile`` still compiles the field's functions.
 
 Most tests compile with ``backend="aot_eager"`` (the graph traced and run as aten ops, no C++ build); one uses
 inductor, the real default, and one CUDA graphs (``mode="reduce-overhead"``, skipped without a GPU)."""
@@ -66,13 +66,17 @@ def _graphs() -> int:
     return int(counters["stats"]["unique_graphs"])
 
 
-@pytest.mark.parametrize(("method", "field"), [("nerf-gt", {}), ("spike-integral", {"tv_density": 0.1})])
+@pytest.mark.parametrize(
+    ("method", "field", "graphs"),
+    [("nerf-gt", {}, 1), ("spike-integral", {"tv_density": 0.1}, 2), ("spike-nerf", {}, 2)],
+)
 def test_the_compiled_step_trains_and_resumes_like_the_eager_static_step(
     dataset_dir: Path,
     dataset,
     tmp_path: Path,
     method: str,
     field: dict,
+    graphs: int,
     aot_eager: None,
     capsys,  # type: ignore[no-untyped-def]
 ) -> None:
@@ -101,8 +105,8 @@ def test_the_compiled_step_trains_and_resumes_like_the_eager_static_step(
         assert isinstance(step, CompiledStep) and step.failed is None
         # one graph for every grid resolution (12, 15: upsampled after step 2; their sizes traced as
         # symbols), whatever the iteration; with the TV prior one more for the steps where
-        # iteration % tv_every == 0
-        assert _graphs() == (2 if field else 1), counters["stats"]
+        # iteration % tv_every == 0, and with spike-nerf's spike window (from step 1 on) one more
+        assert _graphs() == graphs, counters["stats"]
         resumed, rest = _run(cfg, tmp_path / "compiled", dataset, resume=True)
     assert resumed.iteration == cfg.iters and isinstance(vars(resumed.method)["step_losses"], CompiledStep)
     assert "warning" not in capsys.readouterr().err
@@ -203,7 +207,7 @@ def test_a_tensor_on_cuda_0_is_on_the_training_device_cuda(monkeypatch: pytest.M
 
 @pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-@pytest.mark.parametrize("method", ["nerf-gt", "spike-integral"])
+@pytest.mark.parametrize("method", ["nerf-gt", "spike-integral", "spike-nerf"])
 @pytest.mark.parametrize("field", [{}, {"static_visible": 12}])
 def test_a_cuda_graph_step_makes_no_host_sync(
     dataset_dir: Path, dataset, tmp_path: Path, method: str, field: dict

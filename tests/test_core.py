@@ -11,9 +11,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spikenerf.core.atomic import atomic_path, write_text_atomic
-from spikenerf.core.color import rgb_to_gray, srgb_decode, srgb_encode
+from spikenerf.core.color import rgb_to_gray, srgb_decode, srgb_encode, srgb_mse
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError, comma_list
+from spikenerf.core.errors import InputError, check_choice, comma_list
 
 
 @given(st.floats(0.0, 1.0))
@@ -37,6 +37,15 @@ def test_gray_weights_on_both_backends() -> None:
     assert torch.allclose(rgb_to_gray(t, channel_axis=-1), torch.ones(4, 4))
 
 
+def test_srgb_mse_compares_display_values_clipped_to_the_unit_range() -> None:
+    pred = torch.tensor([[0.0, 0.18, 1.5]], dtype=torch.float16)  # 1.5 shows as white
+    target = torch.tensor([[-0.2, 0.5, 1.0]])  # −0.2 shows as black
+    expected = (srgb_encode(0.18) - srgb_encode(0.5)) ** 2 / 3
+    assert srgb_mse(pred, target).dtype == torch.float32
+    assert srgb_mse(pred, target).item() == pytest.approx(float(expected), rel=1e-3)
+    assert srgb_mse(target, target).item() == 0.0
+
+
 def test_atomic_path_leaves_nothing_on_error(tmp_path) -> None:
     target = tmp_path / "out.txt"
     with pytest.raises(RuntimeError), atomic_path(target) as tmp:
@@ -46,6 +55,21 @@ def test_atomic_path_leaves_nothing_on_error(tmp_path) -> None:
     assert list(tmp_path.iterdir()) == []
     write_text_atomic(target, "done")
     assert target.read_text() == "done"
+
+
+def test_a_failed_write_removes_the_folders_it_created_and_keeps_the_others(tmp_path) -> None:
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "user.txt").write_text("mine")
+    with pytest.raises(RuntimeError), atomic_path(tmp_path / "kept" / "a" / "b" / "out.txt"):
+        assert (tmp_path / "kept" / "a" / "b").is_dir()
+        raise RuntimeError("interrupted")
+    assert sorted(p.name for p in (tmp_path / "kept").iterdir()) == ["user.txt"]
+    with pytest.raises(RuntimeError), atomic_path(tmp_path / "x" / "out.txt"):
+        (tmp_path / "x" / "other.txt").write_text("written meanwhile")  # no longer empty: stays
+        raise RuntimeError("interrupted")
+    assert sorted(p.name for p in (tmp_path / "x").iterdir()) == ["other.txt"]
+    write_text_atomic(tmp_path / "new" / "deep" / "out.txt", "done")  # success keeps them
+    assert (tmp_path / "new" / "deep" / "out.txt").read_text() == "done"
 
 
 def test_an_interrupt_right_after_the_temporary_is_made_leaves_nothing(tmp_path, monkeypatch) -> None:
@@ -77,8 +101,41 @@ def test_device_mps_is_accepted_where_torch_has_it(monkeypatch) -> None:
     monkeypatch.setattr(torch.backends.mps, "is_available", lambda: False)
     with pytest.raises(InputError, match="no Apple-GPU"):
         resolve_device("mps")
-    with pytest.raises(InputError, match="auto, cpu, cuda or mps"):
-        resolve_device("tpu")
+    for bad in ("tpu", "cuda:x", "cuda1", " cpu", "cuda:00", "cuda:-1", "cuda:12345"):
+        with pytest.raises(InputError, match=r"one of auto \| cpu \| cuda\[:N\] \| mps"):
+            resolve_device(bad)
+
+
+def test_a_cuda_index_the_machine_lacks_is_named(monkeypatch) -> None:
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    assert resolve_device("cuda:1") == torch.device("cuda:1")
+    for name in ("cuda:2", "cuda:256", "cuda:257"):  # torch alone reads 256 as 0, 257 as 1
+        with pytest.raises(InputError, match=f"device {name} was asked for, but torch sees 2 CUDA device"):
+            resolve_device(name)
+
+
+def test_every_command_takes_the_same_device_names() -> None:
+    """One ``--device`` option (``cli/types.device_option``): cuda:N everywhere, a typo refused as parsed."""
+    import click
+    from click.testing import CliRunner
+
+    from spikenerf.cli import cli
+
+    for command in ("train", "eval", "render", "benchmark", "demo"):
+        result = CliRunner().invoke(cli, [command, "--device", "cuda:x"])
+        assert result.exit_code == 2 and "'cuda:x' is not one of auto | cpu | cuda[:N] | mps" in result.output
+        options = {p.name: p for p in cli.get_command(click.Context(cli), command).params}
+        assert options["device"].type.name == "device", command
+
+
+def test_check_choice_names_the_parameter_and_the_choices() -> None:
+    check_choice("rgb", ("gray", "rgb"), "color")  # a choice passes
+    with pytest.raises(InputError, match=r"^colour mode must be one of gray, rgb, found 'tfx'$") as err:
+        check_choice("tfx", ("gray", "rgb"), "mode", "colour mode")
+    assert err.value.params == ("mode",)
+    with pytest.raises(InputError, match=r"^order must be one of a, b, found 3$"):
+        check_choice(3, iter("ab"), "order")
 
 
 def test_comma_list_keeps_known_names_and_words_the_error_through_the_caller() -> None:

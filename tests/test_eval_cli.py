@@ -12,6 +12,7 @@ import imageio.v2 as iio2
 import imageio.v3 as iio
 import numpy as np
 import pytest
+import yaml
 
 from spikenerf.camera.io import read_dat
 from spikenerf.cli import main
@@ -31,6 +32,13 @@ def _cli_error(capsys: pytest.CaptureFixture[str], *args: str) -> str:
     err = capsys.readouterr().err.strip()
     assert err.startswith("spikenerf: error: ") and "\n" not in err
     return err
+
+
+def _cli_output(capsys: pytest.CaptureFixture[str], *args: object) -> str:
+    """What a command that succeeds prints on stdout."""
+    capsys.readouterr()
+    _cli(*(str(a) for a in args))
+    return capsys.readouterr().out
 
 
 def _video_frames(path: Path, size: tuple[int, int] = (SIZE, SIZE)) -> tuple[int, float]:
@@ -124,7 +132,7 @@ def test_render_test_views_and_file_trajectory(run_dir: Path, tmp_path: Path) ->
     assert read_dat(out / "wide" / "spikes_gray.dat", SIZE - 8, SIZE + 3).shape == (2, SIZE - 8, SIZE + 3)
 
 
-def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path) -> None:
+def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "orbit"
     _cli("render", run_dir, "--trajectory", "orbit", "--orbit-frames", 4, "--spikes", "--spike-steps", 9,
          "--fps-video", 10, "--device", "cpu", "--quiet", "--out", out)  # fmt: skip
@@ -134,6 +142,18 @@ def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path) -> None:
     spikes = read_dat(out / "spikes_gray.dat", SIZE, SIZE)
     assert spikes.shape == (9, SIZE, SIZE) and set(np.unique(spikes)) <= {0, 1}
     assert iio.imread(out / "spikes_tfp.png").shape == (SIZE, SIZE)
+    # a SpikeCV config.yaml beside the stream: info and reconstruct read it without --height/--width
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    assert config["spike_h"] == config["spike_w"] == SIZE and config["threshold"] == manifest["threshold"]
+    assert "frames: 9" in _cli_output(capsys, "info", out / "spikes_gray.dat")
+    _cli("reconstruct", out / "spikes_gray.dat", "--method", "tfp", "--window", 3, "--frame", 4, "--out",
+         tmp_path / "tfp.npy")  # fmt: skip
+    assert np.load(tmp_path / "tfp.npy").shape == (SIZE, SIZE)
+    summary = _cli_output(capsys, "info", out)  # the render folder: what it holds, and its stream
+    assert "trajectory: orbit, 4 views" in summary and "novel spike stream: 9 steps" in summary
+    assert "frames: 9" in summary
+    (out / "render.json").unlink()
+    assert "unfinished (no render.json)" in _cli_output(capsys, "info", out)
 
 
 def test_bad_inputs_are_one_line_errors(

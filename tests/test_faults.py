@@ -318,7 +318,7 @@ CASES: list[tuple[str, list[str], str]] = [
      "occupancy_max_resolution"),
     ("train-set-lr-ratio-neg", [*T, "--set", "lr_final_ratio=-1", "--out", f"{R}/o"], "lr_final_ratio"),
     ("train-set-lr-ratio-nan", [*T, "--set", "lr_final_ratio=.nan", "--out", f"{R}/o"], "lr_final_ratio"),
-    ("train-set-mask-n-0", [*T, "--set", "targets.mask_n=0", "--out", f"{R}/o"], "mask"),
+    ("train-set-mask-n-0", [*T, "--set", "targets.mask_n=0", "--out", f"{R}/o"], "--set targets.mask_n"),
     ("train-set-paper-warmup", [*T, "--set", "spike.paper_warmup=-5", "--out", f"{R}/o"], "paper"),
     ("train-fopt-yaml", [*T, "--field-option", "lr=[1", "--out", f"{R}/o"], "lr"),
     ("train-out-under-file", [*T, "--out", f"{R}/afile/run"], "afile"),
@@ -637,6 +637,18 @@ def test_a_render_into_its_folder_keeps_the_users_files_and_drops_its_old_spikes
     assert all(path.read_text() == "the user's" for path in mine)
     assert not (out / "spikes_gray.dat").exists() and not (out / "spikes_tfp.png").exists()
     assert sorted(p.name for p in (out / "images").iterdir()) == ["00000.png", "2023_holiday.png"]
+
+
+def test_a_render_with_spikes_keeps_a_config_yaml_it_did_not_write(sandbox: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r"
+    args = ["render", sandbox / "run", "--device", "cpu", "--quiet", "--out", out]
+    _cli(*args)  # a render folder (marked), then the user's own config.yaml in it
+    (out / "config.yaml").write_text("mine: true\n")
+    _cli(*args[:2], "--trajectory", "orbit", "--orbit-frames", "2", "--spikes", *args[2:])
+    assert (out / "config.yaml").read_text() == "mine: true\n" and (out / "spikes_gray.dat").is_file()
+    assert "config.yaml" not in json.loads((out / "render.json").read_text())["files"]["spikes"]
+    _cli(*args)  # its spike files go, the user's file stays
+    assert (out / "config.yaml").read_text() == "mine: true\n" and not (out / "spikes_gray.dat").exists()
 
 
 def test_eval_removes_a_killed_writers_temporaries(sandbox: Path, tmp_path: Path) -> None:

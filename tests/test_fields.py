@@ -111,7 +111,7 @@ def test_paper_mlp_config_is_recorded() -> None:
         64,
         128,
     )
-    assert (c.lr, c.lr_final, c.batch_rays) == (5e-4, 5e-5, 1024)
+    assert (c.lr, c.lr_final) == (5e-4, 5e-5)
     field = build_field("mlp", 3, BOX, c)
     assert field.fine.trunk[5].in_features == 256 + 63 and field.fine.head.in_features == 256 + 27
 
@@ -478,3 +478,10 @@ def test_occupancy_cells_are_the_flat_index_of_the_truncated_coordinates(resolut
     assert got.dtype == torch.int64 and torch.equal(got, want)
     occ.grid.view(-1)[want[::2]] = False
     assert torch.equal(occ.lookup(xyz), occ.grid.view(-1)[want])
+
+
+def test_a_config_holding_the_removed_batch_rays_still_loads() -> None:
+    """``batch_rays`` was never read (a step's rays are train's ``batch``); checkpoints that hold it load."""
+    assert field_config("grid", {"batch_rays": 4096, "tv_app": 0.5}) == field_config("grid", {"tv_app": 0.5})
+    assert field_config("mlp", {"batch_rays": 1024}) == field_config("mlp")
+    assert not hasattr(field_config("grid"), "batch_rays")

@@ -309,7 +309,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--integral-window", "100000"], "--integral-window"),
         (["--integral-samples", "0"], "--integral-samples"),
         (["--set", "integral.groups=-1"], "integral.groups"),
-        (["--set", "integral.lengths=[]"], "--integral-window"),
+        (["--set", "integral.lengths=[]"], "--set integral.lengths"),
         (["--recon", "learned"], "--recon"),
         (["--integral-window", "5", "--integral-samples", "6"], "--integral-samples"),  # more than it holds
         (["--batch", "1", "--integral-samples", "2"], "--batch"),
@@ -321,7 +321,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--set", "integral.interpolate=maybe"], "integral.interpolate"),
         (["--set", "integral.interpolate=true", "--holdout"], "--holdout"),
         (["--set", "integral.interpolate_span=4"], "integral.interpolate_span"),  # without interpolate
-        (["--set", "integral.track=-1"], "--integral-track"),
+        (["--set", "integral.track=-1"], "--set integral.track"),
         (["--integral-track", "-1"], "--integral-track"),
         (["--integral-track", "3", "--integral-samples", "2"], "--integral-track"),
         (

@@ -26,7 +26,7 @@ import yaml
 
 from helpers import BENCHMARK_TRAIN
 from spikenerf.camera.io import read_dat, write_dat
-from spikenerf.cli import main
+from spikenerf.cli import RESUME_HINTS, main
 from spikenerf.core.faults import KILL_ENV
 from spikenerf.core.lock import holder, lock_path
 from spikenerf.core.marker import mark
@@ -377,7 +377,9 @@ def test_sigterm_unwinds_like_ctrl_c(reference: Path, tmp_path: Path) -> None:
     finally:
         first.send_signal(signal.SIGCONT)
     _, err = first.communicate(timeout=60)
-    assert first.returncode == 143 and err.strip().splitlines()[-1] == "spikenerf: terminated", err
+    last = err.strip().splitlines()[-1]
+    assert first.returncode == 143 and last == f"spikenerf: terminated ({RESUME_HINTS['train']})", err
+    assert "--resume" in last
     assert "Traceback" not in err and not lock_path(run).exists() and not list(run.glob(".*.tmp"))
     _cli("train", reference / "ds", *TRAIN, "--resume", "--out", run)
     assert _curves(run) == _curves(reference / "run")

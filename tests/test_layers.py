@@ -101,6 +101,20 @@ def test_one_psnr_implementation() -> None:
     assert users == ["core/psnr.py"], users
 
 
+def test_a_command_never_imports_another_commands_module() -> None:
+    """Shared CLI code lives in ``cli/types.py``, ``cli/options.py`` or ``cli/__init__.py``, not in a
+    command's module (``reconstruct`` imported ``info``'s recording helper before)."""
+    commands = {p.stem for p in (SRC / "cli").glob("*.py")} - {"__init__", "types", "options", "reference"}
+    found = []
+    for name in sorted(commands):
+        for node in ast.walk(ast.parse((SRC / "cli" / f"{name}.py").read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("spikenerf.cli."):
+                other = node.module.split(".")[2]
+                if other in commands and other != name:
+                    found.append(f"cli/{name}.py imports cli/{other}.py")
+    assert not found, found
+
+
 def test_public_api_resolves_and_import_spikenerf_stays_light() -> None:
     import importlib
     import subprocess

@@ -37,6 +37,17 @@ def test_running_features_equal_the_whole_window_features() -> None:
         assert torch.equal(feats, spike_features(window, ref_scale)), f
 
 
+def test_running_features_read_no_value_back_from_the_device() -> None:
+    """On a meta device every value read (``float``, ``item``, ``bool``) raises: a stream's frames make
+    their features without a host synchronisation each (on CUDA they queue up)."""
+    frames = torch.zeros(30, 6, 8, dtype=torch.uint8, device="meta")
+    run = RunningFeatures(frames, 9)
+    for f in (0, 1, 2, 20):  # mirrored, running, then recounted
+        feats, scale = run(mirrored(f, 4, 30))
+        assert feats.device.type == scale.device.type == "meta"
+        assert feats.shape == (1, feature_count(9), 6, 8) and scale.shape == (1,)
+
+
 def test_decode_equals_upsampling_before_the_1x1_convolutions() -> None:
     torch.manual_seed(1)
     net = ReconNet(NetConfig(window=7, width=8)).eval()

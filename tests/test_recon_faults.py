@@ -115,6 +115,35 @@ def test_recon_train_refuses_a_damaged_pair_folder_with_one_line(
     assert not (tmp_path / "run").exists()
 
 
+def test_recon_data_into_a_folder_of_other_settings_names_them(capsys, tmp_path: Path) -> None:
+    other = tmp_path / "p"
+    code, _, _ = run_cli(capsys, *DATA, "--out", other)
+    assert code == 0
+    args = [a if a != 16 else 24 for a in DATA]  # --size 16 → 24
+    code, _, err = run_cli(capsys, *args, "--train-draws", 3, "--out", other)
+    assert code == 2 and err.count("\n") == 1
+    assert "other settings (--size 16 → 24, --train-draws 2 → 3): give the same ones" in err, err
+
+
+def test_settings_changed_names_keys_either_side_lacks() -> None:
+    from spikenerf.recon.generate import settings_changed
+
+    old = {"config": {"size": 16, "gone": 1}, "seed": 0, "command": "a"}
+    new = {"config": {"size": 24}, "seed": 0, "command": "b"}
+    assert settings_changed(old, new) == [("size", 16, 24), ("gone", 1, None)]
+
+
+def test_recon_train_names_a_missing_pair_folder_and_reconstruct_a_folder_given_as_weights(
+    capsys, tmp_path: Path
+) -> None:
+    code, _, err = run_cli(capsys, "recon-train", tmp_path / "nope", *TRAIN, "--out", tmp_path / "run")
+    assert code == 2 and f"{tmp_path / 'nope'}: pair folder not found (write one with" in err
+    (tmp_path / "s.dat").write_bytes(bytes(50 * 2))  # 50 frames of 4×4
+    args = ["--height", 4, "--width", 4, "--method", "learned", "--weights", tmp_path, "--frame", 0]
+    code, _, err = run_cli(capsys, "reconstruct", tmp_path / "s.dat", *args, "--out", tmp_path / "o.npy")
+    assert code == 2 and f"{tmp_path}: is a folder, not a weights file" in err
+
+
 @pytest.mark.parametrize("case", ["truncated", "nan-targets", "short-targets"])
 def test_a_recon_data_resume_writes_a_damaged_shard_again(capsys, tmp_path: Path, case: str) -> None:
     out = tmp_path / "p"

@@ -18,7 +18,7 @@ from spikenerf.recon.infer import predict_plane, reconstruct_learned
 from spikenerf.recon.net import NetConfig, ReconNet, load_weights, save_weights
 from spikenerf.recon.pairs import PairConfig, analytic_pairs, simulate_samples
 from spikenerf.recon.store import load_split
-from spikenerf.recon.training import ReconTrainConfig, psnr, train_memory, train_recon
+from spikenerf.recon.training import ReconTrainConfig, rate_psnr, train_memory, train_recon
 
 TINY = PairConfig(size=16, window=7, supersample=1)
 
@@ -138,8 +138,8 @@ def test_shipped_weights_beat_tfp_on_a_held_out_analytic_scene() -> None:
     win = torch.from_numpy(np.stack([s.window for s in samples])).float()
     tgt = torch.from_numpy(np.stack([s.target for s in samples]))
     with torch.no_grad():
-        learned = psnr(net(win, win.mean(dim=(1, 2, 3)).clamp_min(1e-2)), tgt).mean()
-    tfp = psnr(win.mean(1), tgt).mean()
+        learned = rate_psnr(net(win, win.mean(dim=(1, 2, 3)).clamp_min(1e-2)), tgt).mean()
+    tfp = rate_psnr(win.mean(1), tgt).mean()
     assert learned > tfp + 1.0, (float(learned), float(tfp))
     assert set(meta["modes"]) == {"gray", "rgb", "bayer"} and "command" in meta["record"]
 

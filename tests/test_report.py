@@ -112,6 +112,22 @@ def test_report_notes_missing_pieces(report: str) -> None:
     assert "PSNR between the two TFP images" in novel and "novel_spikes(" in novel
 
 
+def test_the_spike_figures_reconstruct_commands_name_files_the_dataset_holds(tmp_path: Path) -> None:
+    """An RGB dataset holds ``spikes_rgb_{r,g,b}.dat``: one command per channel file (it named a
+    ``spikes_rgb.dat`` that nothing writes)."""
+    from spikenerf.data.dataset import load_dataset
+    from spikenerf.pipelines.report import _spikes_figs
+
+    ds = tmp_path / "rgb"
+    _cli("simulate", "--scene", SCENE, "--width", 12, "--height", 12, "--frames", 40, "--test-views", 1,
+         "--color", "rgb", "--no-progress", "--out", ds)  # fmt: skip
+    cfg = BenchmarkConfig([SCENE], ["nerf-gt"], ["rgb"], tmp_path, size=12, test_views=1)
+    commands = [c for fig in _spikes_figs(cfg, load_dataset(ds), SCENE) for c in fig.commands]
+    named = [Path(c.split()[2]) for c in commands if c.startswith("spikenerf reconstruct ")]
+    assert [p.name for p in named] == ["spikes_rgb_r.dat", "spikes_rgb_g.dat", "spikes_rgb_b.dat"]
+    assert all(p.is_file() for p in named)
+
+
 def test_a_failing_figure_becomes_a_note(bench: BenchmarkConfig, monkeypatch: pytest.MonkeyPatch) -> None:
     def broken(*args: object, **kwargs: object) -> bytes:
         raise RuntimeError("no raster today")

@@ -490,8 +490,15 @@ def test_a_resume_ignores_what_the_method_does_not_read(dataset_dir: Path, datas
     again = dataclasses.replace(cfg, iters=3, spike=dataclasses.replace(cfg.spike, lam=0.5))
     assert train(again, tmp_path / "run", dataset, resume=True, progress=False).iteration == 3
     other = dataclasses.replace(again, iters=4, seed=5)  # what it reads still counts
-    with pytest.raises(InputError, match="different options"):
+    with pytest.raises(InputError, match=r"different options \(seed: run has 0, asked 5\)"):
         train(other, tmp_path / "run", dataset, resume=True, progress=False)
+    other = dataclasses.replace(
+        again, iters=4, color="rgb", targets=dataclasses.replace(cfg.targets, mask_n=3)
+    )
+    with pytest.raises(InputError) as err:  # a section's changed entry alone, dotted (a flag in the CLI)
+        train(other, tmp_path / "run", dataset, resume=True, progress=False)
+    assert "(color: run has 'gray', asked 'rgb', targets.mask_n: run has 5, asked 3)" in err.value.message
+    assert err.value.params[:2] == ("color", "targets.mask_n")
 
 
 def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
@@ -524,6 +531,11 @@ def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
         config, notes = called[-1]
         assert code == 0 and config.spike.lam == 0.5  # (kept in the config, unused)
         assert notes == [f"{flag} is not used by --method {method}; ignored" for flag in unused]
+    for recon, said in (("tfi", True), ("tfp", False)):  # TFI's targets have no window
+        code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / recon, "--method",
+                             "nerf-recon", "--recon", recon, "--window", "21")  # fmt: skip
+        tfi = "--window does not change --recon tfi's targets (TFI has no window); it only sets the hold-out"
+        assert code == 0 and [n.startswith(tfi) for n in called[-1][1]] == ([True] if said else [])
     monkeypatch.undo()
     cfg = _config(dataset_dir, method="nerf-gt")
     cfg.iters, cfg.eval_every = 1, 0

@@ -65,8 +65,12 @@ def test_gathers_run_on_the_tensors_device_and_equal_the_host_ones() -> None:
     spikes = SpikeTargets(
         (torch.rand(9, 6, 7, 1, generator=gen) < 0.5).to(torch.uint8), torch.eye(4).expand(9, 4, 4), 1.0
     )
-    window = spikes.spikes_on("cpu").window(2, 4, pixels)
-    assert window.shape == (4, 3, 1) and torch.equal(window, spikes.window(2, 4, pixels))
+    moved = spikes.spikes_on("meta")  # the poses go with the spikes (a step indexes both there)
+    assert moved.spikes.device.type == moved.poses.device.type == "meta"
+    window = spikes.spikes_on("cpu").window(torch.arange(2, 6), pixels)
+    assert window.shape == (4, 3, 1)
+    for j, (x, y) in enumerate(pixels.tolist()):  # steps 2..5 at pixel (x, y)
+        assert torch.equal(window[:, j], spikes.spikes[2:6, y, x].float())
 
 
 def test_a_batch_that_does_not_fit_the_gpu_is_refused_up_front(

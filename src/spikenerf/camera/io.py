@@ -10,7 +10,6 @@ only used when asked for. Raw sps10 camera files store 416 columns per row, of w
 from __future__ import annotations
 
 import contextlib
-import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -18,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from spikenerf.core.atomic import atomic_path
+from spikenerf.core.color import is_tensor
 from spikenerf.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -28,12 +28,6 @@ LAYOUTS = ("spikecv", "topdown")
 RGB_SUFFIXES = ("r", "g", "b")
 #: frames decoded or encoded per block when streaming (bounds memory, keeps numpy calls large)
 CHUNK_FRAMES = 256
-
-
-def is_tensor(x: Any) -> bool:
-    """Whether ``x`` is a torch tensor, without importing torch (a tensor implies torch is loaded)."""
-    torch_module = sys.modules.get("torch")
-    return torch_module is not None and isinstance(x, torch_module.Tensor)
 
 
 def as_numpy(x: Any) -> np.ndarray:

@@ -15,8 +15,9 @@ from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 
 import numpy as np
 
-from spikenerf.camera.io import as_numpy, is_tensor, resolve_frames
-from spikenerf.core.errors import InputError
+from spikenerf.camera.io import as_numpy, resolve_frames
+from spikenerf.core.color import is_tensor
+from spikenerf.core.errors import InputError, check_choice
 
 if TYPE_CHECKING:
     import torch
@@ -233,8 +234,7 @@ def reconstruct_frames(
     Returns:
         float32 (stop-start, ...) linear intensity.
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {', '.join(METHODS)}, found {method!r}")
+    check_choice(method, METHODS, "method")
     resolve_frames(slice(start, stop), total)
     if method == "tfp":
         _check_window(window)

@@ -2,8 +2,8 @@
 
 SpikeCV keeps a ``config.yaml`` beside (or one folder above) its ``.dat`` recordings with at least ``spike_h``
 and ``spike_w``. spikenerf also reads ``fps``, ``threshold`` and ``raw_width`` (the stored row width of raw
-sps10 files, 416) when present. Every other key is ignored. This is the one reader of that file for all
-commands (``import``, ``info``, ``reconstruct``).
+sps10 files, 416) when present. Every other key is ignored. This is the one reader (and writer: ``simulate
+--raw-width``, ``render --spikes``) of that file for all commands (``import``, ``info``, ``reconstruct``).
 """
 
 from __future__ import annotations
@@ -73,6 +73,30 @@ def read_spikecv_config(path: str | Path) -> RecordingConfig:
             f"field 'raw_width': expected ≥ spike_w {config.width}, found {config.raw_width}", path=path
         )
     return config
+
+
+def write_spikecv_config(
+    folder: str | Path,
+    height: int,
+    width: int,
+    fps: float,
+    threshold: float | None = None,
+    raw_width: int | None = None,
+) -> Path:
+    """Write the SpikeCV ``config.yaml`` of the recordings in ``folder`` (atomically): spike_h, spike_w,
+    raw_width (when given), fps and threshold (when given), the keys :func:`read_spikecv_config` reads.
+    Returns its path."""
+    from spikenerf.core.atomic import write_text_atomic
+
+    config: dict[str, int | float] = {"spike_h": int(height), "spike_w": int(width)}
+    if raw_width is not None:
+        config["raw_width"] = int(raw_width)
+    config["fps"] = float(fps)
+    if threshold is not None:
+        config["threshold"] = float(threshold)
+    path = Path(folder) / CONFIG_NAME
+    write_text_atomic(path, yaml.safe_dump(config, sort_keys=False))
+    return path
 
 
 def recording_config(

@@ -10,10 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from spikenerf.camera.io import frame_bytes, iter_dat, write_dat
-from spikenerf.core.atomic import write_text_atomic
+from spikenerf.camera.spikecv import write_spikecv_config
 from spikenerf.core.errors import InputError
 
 RAW_DIR = "raw"
@@ -68,6 +67,5 @@ def write_raw_recording(
 
     rec = out_dir / RAW_FILE
     write_dat(rec, chunks())
-    config = {"spike_h": int(height), "spike_w": int(width), "raw_width": int(raw_width), "fps": float(fps)}
-    write_text_atomic(out_dir / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+    write_spikecv_config(out_dir, height, width, fps, raw_width=raw_width)
     return rec

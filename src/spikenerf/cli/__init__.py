@@ -132,8 +132,11 @@ PARAM_FLAGS = {
 
 def flag_of(param: str, command: str | None = None) -> str | None:
     """The flag that sets the lower-layer parameter ``param`` in ``command`` (None: not a flag there):
-    the command module's ``PARAM_FLAGS``, else the group's, else the option of that name."""
+    ``--set param`` where the command's ``--set`` gave it (the module's ``SET_KEYS``), else the module's
+    ``PARAM_FLAGS``, else the group's, else the option of that name."""
     module = importlib.import_module(SUBCOMMANDS[command][0]) if command in SUBCOMMANDS else None
+    if param in getattr(module, "SET_KEYS", ()):  # given as --set KEY=VALUE
+        return f"--set {param}"
     aliases = {**PARAM_FLAGS, **getattr(module, "PARAM_FLAGS", {})}
     if param in aliases:
         return aliases[param]
@@ -188,6 +191,22 @@ def is_allocation_failure(err: BaseException) -> bool:
     return named or "can't allocate memory" in text or "out of memory" in text
 
 
+#: how an interrupted command continues (docs/reliability.md, "Kill and resume is exact")
+RESUME_HINTS = {
+    "train": "once it has written a checkpoint, the same command with --resume continues from it",
+    **{
+        name: "run the same command again to continue where it stopped"
+        for name in ("simulate", "import", "render", "benchmark", "demo", "recon-data", "recon-train")
+    },
+}
+
+
+def resume_hint(command: str | None) -> str:
+    """`` (HINT)`` after "aborted" for a command that resumes (:data:`RESUME_HINTS`), else ""."""
+    hint = RESUME_HINTS.get(command or "")
+    return f" ({hint})" if hint else ""
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the group; bad input (InputError, a usage error, a path the system refuses,
     an allocation that fails) → one line on stderr, exit code 2. Ctrl-C → "aborted", exit 130; SIGTERM →
@@ -196,12 +215,12 @@ def main(argv: list[str] | None = None) -> None:
         with _sigterm_unwinds():
             cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
     except Terminated:
-        click.echo("spikenerf: terminated", err=True)
+        click.echo("spikenerf: terminated" + resume_hint(LazyGroup.invoked), err=True)
         sys.exit(143)
     except InputError as err:
         _fail(err.shown(lambda param: flag_of(param, LazyGroup.invoked)))
     except click.exceptions.Abort:
-        click.echo("spikenerf: aborted", err=True)
+        click.echo("spikenerf: aborted" + resume_hint(LazyGroup.invoked), err=True)
         sys.exit(130)
     except click.UsageError as err:
         if type(err).__name__ == "NoArgsIsHelpError" and err.ctx is not None:  # no command (click 8.2+)

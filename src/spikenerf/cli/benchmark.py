@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.types import SEED
+from spikenerf.cli.types import SEED, device_option
 from spikenerf.core.errors import InputError, comma_list
 from spikenerf.fields import FIELD_KINDS
 from spikenerf.pipelines.benchmark.executor import EXECUTORS
@@ -34,10 +34,7 @@ BENCHMARK_KEYS = {
 @click.option("--frames", type=int, default=1000, show_default=True, help="Spike steps on the orbit.")
 @click.option("--iters", type=click.IntRange(min=1), help="Training iterations per run [default: trainer's].")
 @click.option("--field", type=click.Choice(FIELD_KINDS), default="grid", show_default=True)
-@click.option(
-    "--device", type=click.Choice(["auto", "cpu", "cuda", "mps"]), default="auto", show_default=True,
-    help="Where cells train.",
-)  # fmt: skip
+@device_option(help="Where cells train.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Dataset (simulation) seed.")
 @click.option(
     "--seeds",
@@ -129,6 +126,10 @@ def command(
             field_config(field, trained.validate().field_config)  # a field option's typo, for this field
         except InputError as err:
             raise InputError(f"--set: {err}") from err
+    if executor == "ray" and device.startswith("cuda:"):
+        raise InputError(
+            f"--device {device}: Ray gives each cell its GPU; use --device cuda with --executor ray"
+        )
     if executor != "ray":  # a Ray cluster's workers may have the device the head lacks
         from spikenerf.core.device import resolve_device
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.types import COUNT
+from spikenerf.cli.types import COUNT, device_option
 
 
 def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
@@ -27,13 +27,7 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
 )
 @click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)
 @click.option("--quick", is_flag=True, help="32 px, 200 spike steps, 200 iterations: a few minutes on a CPU.")
-@click.option(
-    "--device",
-    type=click.Choice(["auto", "cpu", "cuda", "mps"]),
-    default="auto",
-    show_default=True,
-    help="auto (GPU when present) | cpu | cuda | mps.",
-)
+@device_option()
 @click.option("--size", type=int, help="Image width = height in pixels [default 64, quick 32].")
 @click.option("--iters", type=COUNT, help="Training iterations per method [default 300, quick 200].")
 @click.option("--frames", type=int, help="Spike steps on the orbit [default 1000, quick 200].")

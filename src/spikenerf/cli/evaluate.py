@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.options import chunk_option, precision_option
-from spikenerf.cli.types import COUNT, BoundedInt
+from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
+from spikenerf.cli.types import COUNT, BoundedInt, device_option
 
 #: lower-layer parameters (eval/noref.py) → the flags that set them
 PARAM_FLAGS = {
@@ -27,7 +27,7 @@ PARAM_FLAGS = {
     "--split", type=click.Choice(["test", "train"]), default="test", show_default=True,
     help="test: held-out novel views; train: sharp GT along the training path.",
 )  # fmt: skip
-@click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda.")
+@device_option()
 @click.option(
     "--lpips", "lpips_backbone", type=click.Choice(["alex", "vgg", "none"]), default="alex",
     show_default=True,
@@ -68,14 +68,10 @@ def command(
     precision: str, noref_steps: int, spike_window: int | None, spike_pixels: int, test_pose_opt: int,
     test_pose_lr: float, quiet: bool,
 ) -> None:  # fmt: skip
-    from spikenerf.core.errors import InputError
     from spikenerf.eval.evaluate import evaluate_run, metrics_file
     from spikenerf.eval.noref import NoRefOptions
 
-    if chunk < 0:
-        raise InputError(f"--chunk must be ≥ 0 (0 = automatic), found {chunk}")
-    if not run.is_dir():
-        raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
+    check_run_folder(run)
     result = evaluate_run(
         run,
         split=split,

@@ -1,38 +1,14 @@
-"""``spikenerf info PATH``: summarise a ``.dat`` spike file, or a dataset/run folder (``spikenerf.data``)."""
+"""``spikenerf info PATH``: summarise a ``.dat`` spike file, or a dataset, run or render folder."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
-from typing import Any
 
 import click
 
-from spikenerf.cli.types import frame_size_options
+from spikenerf.cli.types import dat_recording, frame_size_options
 from spikenerf.core.errors import InputError
-
-#: file types that are never a spike recording (a dataset's or run's other files)
-NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", ".npz", ".csv", ".html")
-
-
-def dat_recording(path: Path, height: int | None, width: int | None, raw_width: int | None) -> Any:
-    """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given;
-    one warning line when the file also reads as a raw sps10 recording (``camera.io.raw_width_guess``)."""
-    from spikenerf.camera.io import raw_width_guess
-    from spikenerf.camera.spikecv import recording_config
-
-    if path.suffix.lower() in NOT_SPIKES:
-        raise InputError(f"is a {path.suffix} file, not a .dat spike recording", path=path)
-    config = recording_config(path, height, width)
-    config = config if raw_width is None else dataclasses.replace(config, raw_width=raw_width)
-    if config.raw_width is None and (raw := raw_width_guess(path, config.height, config.width)) is not None:
-        click.echo(
-            f"spikenerf: warning: {path} also reads as raw sps10 rows of {raw} columns whose last "
-            f"{raw - config.width} stay silent: if it is a raw recording, pass --raw-width {raw}",
-            err=True,
-        )
-    return config
 
 
 def describe_dat(
@@ -64,8 +40,37 @@ def describe_dat(
     return lines
 
 
+def describe_render(folder: Path, layout: str = "spikecv") -> list[str]:
+    """The summary lines of a ``render`` output folder: its ``render.json`` (what was rendered, from which
+    run) and each novel-view spike stream it holds (:func:`describe_dat`); an unfinished render says so."""
+    import json
+
+    manifest = folder / "render.json"
+    if not manifest.is_file():
+        return [f"render folder: {folder}", "unfinished (no render.json): run its command again to resume"]
+    try:
+        info = json.loads(manifest.read_text(encoding="utf-8"))
+        width, height = (int(v) for v in info["size"])
+        files = info.get("files") or {}
+    except (OSError, ValueError, TypeError, KeyError) as err:
+        raise InputError(f"cannot read it ({type(err).__name__}: {err})", path=manifest) from None
+    lines = [
+        f"render folder: {folder}",
+        f"run: {info.get('run')}",
+        f"trajectory: {info.get('trajectory')}, {info.get('views')} views of {width}×{height}, "
+        f"video {files.get('video')}",
+    ]
+    streams = [name for name in files.get("spikes") or [] if str(name).endswith(".dat")]
+    if streams:
+        lines.append(f"novel spike stream: {info.get('spike_steps')} steps, φ {info.get('threshold')}")
+    for name in streams:
+        config = dat_recording(folder / name, height, width, width)  # plain frames: no raw-layout guess
+        lines += ["", *describe_dat(folder / name, height, width, layout, None, config.fps or 40000.0)]
+    return lines
+
+
 @click.command(
-    help="Summarise a dataset folder, a run folder or a .dat spike file (needs --height/--width, or a "
+    help="Summarise a dataset, run or render folder, or a .dat spike file (needs --height/--width, or a "
     "SpikeCV config.yaml beside it)."
 )
 @click.argument("path", type=click.Path(path_type=Path))
@@ -88,6 +93,9 @@ def command(
         from spikenerf.train.run import describe_run
 
         click.echo(describe_run(path))
+        return
+    if path.is_dir() and folder_kind(path) == "render":
+        click.echo("\n".join(describe_render(path, layout)))
         return
     if path.is_dir():
         from spikenerf.data.summary import describe

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
+from spikenerf.cli.types import BoundedInt
+from spikenerf.core.errors import InputError
 from spikenerf.render.inference import PRECISIONS
 
 #: ``--chunk``: rays per render call (0: sized automatically)
 chunk_option = click.option(
-    "--chunk", type=int, default=0, show_default=True,
+    "--chunk", type=BoundedInt(0), default=0, show_default=True,
     help="Rays per render call; 0 = automatic (8192 on a CPU, sized from the free GPU memory on CUDA).",
 )  # fmt: skip
 #: ``--precision``: the render precision
@@ -17,3 +21,9 @@ precision_option = click.option(
     help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); auto = fp16 on CUDA "
     "(within 0.05 dB of fp32, tested there), fp32 elsewhere.",
 )  # fmt: skip
+
+
+def check_run_folder(run: Path) -> None:
+    """InputError unless ``run`` is a folder (what is in it is checked as the run loads)."""
+    if not run.is_dir():
+        raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)

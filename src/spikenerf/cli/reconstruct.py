@@ -35,7 +35,7 @@ def encode(image: np.ndarray, encoding: str) -> np.ndarray:
     """Linear intensity (...) → float32: unchanged (``linear``) or sRGB display values [0, 1] (``srgb``)."""
     if encoding == "linear":
         return image.astype(np.float32, copy=False)
-    from spikenerf.core.color import srgb_encode  # imported here: it loads torch (seconds)
+    from spikenerf.core.color import srgb_encode
 
     return srgb_encode(image.astype(np.float64)).astype(np.float32)
 
@@ -44,7 +44,9 @@ def to_png_bytes(image: np.ndarray, encoding: str = "srgb") -> bytes:
     """Linear intensity (H, W) → 8-bit PNG bytes, sRGB-encoded or linear (values clipped to [0, 1])."""
     import imageio.v3 as iio
 
-    encoded = np.round(np.clip(encode(image, encoding), 0.0, 1.0) * 255.0).astype(np.uint8)
+    from spikenerf.core.color import display_uint8
+
+    encoded = display_uint8(encode(image, encoding))
     return iio.imwrite("<bytes>", encoded, extension=".png")
 
 
@@ -122,7 +124,7 @@ def command(
     from tqdm import tqdm
 
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
-    from spikenerf.cli.info import dat_recording
+    from spikenerf.cli.types import dat_recording
     from spikenerf.data.reconstruction import reconstructor
 
     recording = dat_recording(spikes, height, width, raw_width)
@@ -132,6 +134,8 @@ def command(
 
     if method == "tfi" and window is not None:
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
+    if method != "learned" and color != "gray":
+        raise InputError(f"--color applies to --method learned only ({method} treats every pixel alike)")
     recon = reconstructor(method, window, threshold, weights=weights, color=color)
     if frame is not None and frame_range is not None:
         raise InputError("give either --frame I or --frames A:B, not both")
@@ -161,7 +165,13 @@ def command(
 
     def images() -> Iterator[tuple[range, np.ndarray]]:
         for block in blocks(frames, method):
-            yield block, recon(read, total, block.start, block.stop)
+            try:
+                image = recon(read, total, block.start, block.stop)
+            except InputError as err:  # about the stream (e.g. shorter than the network's window): name it
+                if err.path is not None:
+                    raise
+                raise InputError(err.message, path=spikes, param=err.params) from None
+            yield block, image
 
     bar = tqdm(
         total=len(frames), unit="frame", desc=f"{method} {spikes.name}", disable=len(frames) < 32 or None

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.options import chunk_option, precision_option
-from spikenerf.cli.types import SEED
+from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
+from spikenerf.cli.types import SEED, device_option
 
 
 @click.command(help="Render images, depth, a video and novel-view spike streams from a trained run.")
@@ -27,7 +27,7 @@ from spikenerf.cli.types import SEED
 @click.option(
     "--seed", type=SEED, default=0, show_default=True, help="Seed of the spike accumulators' start."
 )
-@click.option("--device", default="auto", show_default=True, help="auto | cpu | cuda.")
+@device_option()
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
 @chunk_option
 @precision_option
@@ -51,15 +51,12 @@ def command(
     from spikenerf.core.errors import InputError
     from spikenerf.eval.video import render_run
 
-    if chunk < 0:
-        raise InputError(f"--chunk must be ≥ 0 (0 = automatic), found {chunk}")
     if spike_steps is not None and not (spikes and trajectory == "orbit"):
         raise InputError(
             "--spike-steps sets the spike stream's length along --trajectory orbit and needs --spikes "
             "(with test or FILE the stream has one step per pose)"
         )
-    if not run.is_dir():
-        raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
+    check_run_folder(run)
     render_run(
         run,
         out,

@@ -6,12 +6,13 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.types import COUNT, SEED
+from spikenerf.cli.types import COUNT, SEED, device_option
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import COLORS, RECONS
 from spikenerf.fields import FIELD_KINDS
 from spikenerf.train.amp import AMP_MODES
 from spikenerf.train.config import (
+    CONFIG_FILE,
     SPIKE_LOSS_KINDS,
     WINDOW_POSES,
     TrainConfig,
@@ -28,7 +29,7 @@ from spikenerf.train.methods import (
     TRACK_HALF,
     unused_keys,
 )
-from spikenerf.train.trainer import CONFIG_FILE, train
+from spikenerf.train.trainer import train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
 OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
@@ -70,6 +71,8 @@ OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
 _D = TrainConfig()
 #: TrainConfig key → its flag: errors raised below the CLI name the key, the CLI shows the flag
 #: (``spikenerf.cli.flag_of``)
+#: the config keys this command's ``--set`` gave (an error about one names ``--set KEY``, not its flag)
+SET_KEYS: set[str] = set()
 PARAM_FLAGS = {
     f"{section}.{key}" if section else key: "--" + ("lambda" if name == "lam" else name.replace("_", "-"))
     for name, (section, key) in OPTION_FIELDS.items()
@@ -121,7 +124,7 @@ PARAM_FLAGS = {
 )
 @click.option("--lr", type=float, default=None, help="Base learning rate (default: the field's own).")
 @click.option("--seed", type=SEED, default=_D.seed, show_default=True)
-@click.option("--device", default=_D.device, show_default=True, help="auto | cpu | cuda | mps (Apple GPUs)")
+@device_option(_D.device)
 @click.option("--recon", type=click.Choice(RECONS), default=_D.targets.recon, show_default=True)
 @click.option("--window", type=int, default=_D.targets.window, show_default=True, help="TFP window (odd).")
 @click.option(
@@ -284,6 +287,7 @@ def command(
     quiet: bool,
     **options: object,
 ) -> None:
+    SET_KEYS.clear()  # (several commands may run in one process: tests, the Python API)
     stored = out / CONFIG_FILE
     if config_file is not None:  # the file, then the options given on the command line, then --set
         base = load_config(config_file)
@@ -306,6 +310,7 @@ def command(
     if "field_options" in given:
         base.field_config = {**base.field_config, **_field_options(options["field_options"])}  # type: ignore[arg-type]
     if overrides:
+        SET_KEYS.update(item.partition("=")[0].strip() for item in overrides)  # errors name --set KEY
         base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
     if dataset is None and not base.dataset:
         raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
@@ -314,7 +319,7 @@ def command(
         found = "is a file, not a dataset folder" if dataset.exists() else "dataset folder not found"
         raise InputError(found, path=dataset)
     base.dataset = str(dataset.resolve())
-    notes = [] if ignore_unused else _unused(base.method, given, overrides)
+    notes = [] if ignore_unused else _unused(base.method, given, overrides, base.targets.recon)
     summary = train(base.validate(), out, resume=resume, progress=not quiet, notes=notes)
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
     click.echo(
@@ -328,13 +333,21 @@ def command(
 _FLAG_KEYS = {"no_mask": "targets.mask", "no_spike_loss": "spike.enabled"}
 
 
-def _unused(method: str, given: set[str], overrides: tuple[str, ...]) -> list[str]:
+def _unused(method: str, given: set[str], overrides: tuple[str, ...], recon: str = "tfp") -> list[str]:
     """A warning for each given flag or ``--set`` key that ``method`` does not read (e.g. ``--lambda`` with
-    ``--method nerf-gt``): the run goes on, as the same command line often trains several methods."""
+    ``--method nerf-gt``), or that its ``recon`` does not (``--window`` with ``--recon tfi``): the run goes
+    on, as the same command line often trains several methods."""
     flags = {n: _FLAG_KEYS.get(n) or ".".join(filter(None, OPTION_FIELDS.get(n, ()))) for n in sorted(given)}
     keys = {key: PARAM_FLAGS.get(key, "--" + name.replace("_", "-")) for name, key in flags.items() if key}
     keys |= {item.partition("=")[0].strip(): f"--set {item.partition('=')[0].strip()}" for item in overrides}
-    return [f"{keys[key]} is not used by --method {method}; ignored" for key in unused_keys(method, keys)]
+    unused = unused_keys(method, keys)
+    notes = [f"{keys[key]} is not used by --method {method}; ignored" for key in unused]
+    if recon == "tfi" and "targets.window" in keys and "targets.window" not in unused:
+        notes.append(
+            f"{keys['targets.window']} does not change --recon tfi's targets (TFI has no window); it only "
+            "sets the hold-out guard band"
+        )
+    return notes
 
 
 def _lengths(text: str | None) -> list[int] | None:

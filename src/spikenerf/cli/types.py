@@ -1,12 +1,19 @@
-"""Click parameter types and light options shared by the subcommands: integers bounded so that no value
-overflows later; a recording's frame size (no torch import, so ``info`` stays quick)."""
+"""Click parameter types, light options and helpers shared by the subcommands: integers bounded so that no
+value overflows later; the device names; a recording's frame size and config (no torch import, so ``info``
+stays quick)."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import click
+
+from spikenerf.core.device import DEVICE_CHOICES, DEVICE_NAME
+from spikenerf.core.errors import InputError
 
 #: the largest integer any option takes: torch and numpy hold seeds and counts in 64 bits
 INT64_MAX = 2**63 - 1
@@ -34,6 +41,25 @@ SEED = BoundedInt(0)
 COUNT = BoundedInt(1)
 
 
+class DeviceName(click.ParamType):
+    """A device name (``core.device.DEVICE_NAME``: auto, cpu, cuda, cuda:N, mps), checked as it is parsed;
+    whether the machine has that device is checked when the command resolves it."""
+
+    name = "device"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
+        if not DEVICE_NAME.fullmatch(str(value)):
+            self.fail(f"{value!r} is not one of {DEVICE_CHOICES}", param, ctx)
+        return str(value)
+
+
+def device_option(default: str = "auto", help: str = "") -> Callable[..., Any]:
+    """``--device``, the same for every command: ``auto`` (CUDA when present, else the CPU), ``cpu``,
+    ``cuda``, ``cuda:N`` or ``mps`` (Apple GPUs)."""
+    text = f"{DEVICE_CHOICES}; auto: CUDA when present, else the CPU." + (f" {help}" if help else "")
+    return click.option("--device", type=DeviceName(), default=default, show_default=True, help=text)
+
+
 def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:
     """``--height``/``--width`` of a ``.dat`` recording (default: the SpikeCV config.yaml beside it)."""
     for name, key in (("width", "spike_w"), ("height", "spike_h")):
@@ -43,3 +69,42 @@ def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:
             "folder up].",
         )(function)  # fmt: skip
     return function
+
+
+#: file types that are never a spike recording (a dataset's or run's other files)
+NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", ".npz", ".csv", ".html")
+
+
+def dat_recording(path: Path, height: int | None, width: int | None, raw_width: int | None) -> Any:
+    """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given;
+    one warning line when the file also reads as a raw sps10 recording (``camera.io.raw_width_guess``)."""
+    from spikenerf.camera.io import count_frames, raw_width_guess
+    from spikenerf.camera.spikecv import read_spikecv_config, recording_config
+
+    if path.suffix.lower() in NOT_SPIKES:
+        raise InputError(f"is a {path.suffix} file, not a .dat spike recording", path=path)
+    config = recording_config(path, height, width)
+    differs = []  # flags win over the file, but a mismatch is more often a typo
+    if config.path is not None:
+        with contextlib.suppress(InputError):  # (an unreadable config beside flags is ignored)
+            own = read_spikecv_config(config.path)
+            for flag, given, key, value in (("width", width, "spike_w", own.width),
+                                            ("height", height, "spike_h", own.height)):  # fmt: skip
+                if given is not None and value is not None and given != value:
+                    differs.append(f"--{flag} {given} differs from {key} {value} in {config.path}; "
+                                   f"using --{flag} {given}")  # fmt: skip
+    config = config if raw_width is None else dataclasses.replace(config, raw_width=raw_width)
+    if differs:
+        try:  # said only where the size fits the file: a size that does not is the command's one error
+            count_frames(path, config.height, config.width, config.raw_width)
+        except InputError:
+            differs = []
+    for line in differs:
+        click.echo(f"spikenerf: warning: {path}: {line}", err=True)
+    if config.raw_width is None and (raw := raw_width_guess(path, config.height, config.width)) is not None:
+        click.echo(
+            f"spikenerf: warning: {path} also reads as raw sps10 rows of {raw} columns whose last "
+            f"{raw - config.width} stay silent: if it is a raw recording, pass --raw-width {raw}",
+            err=True,
+        )
+    return config

@@ -17,11 +17,14 @@ from spikenerf.core.faults import failpoint
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
 
-    Works for files and for directories (a finished directory is swapped in whole).
+    Works for files and for directories (a finished directory is swapped in whole). Parent folders it had
+    to create are removed again on error, where still empty.
     """
     path = Path(path)
+    created = missing_folders(path.parent)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp: Path | None = None
+    done = False
     try:  # (an interrupt right after mkstemp still removes its file)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         tmp = Path(tmp_name)
@@ -37,6 +40,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
+        done = True
     finally:
         if tmp is None:
             pass
@@ -44,6 +48,26 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             shutil.rmtree(tmp, ignore_errors=True)
         elif tmp.exists():
             tmp.unlink()
+        if not done:
+            remove_empty(created)
+
+
+def missing_folders(folder: Path) -> list[Path]:
+    """The folders of ``folder``'s path that do not exist yet, deepest first (``folder`` itself included)."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return missing
+
+
+def remove_empty(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first) while they are empty; stop at the first that is not."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 def write_bytes_atomic(path: str | Path, data: bytes) -> None:

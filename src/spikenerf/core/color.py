@@ -15,8 +15,9 @@ if TYPE_CHECKING:
 Array = TypeVar("Array", np.ndarray, "torch.Tensor")
 
 
-def _is_tensor(x: Any) -> bool:
-    """True for a torch tensor, without importing torch (numpy-only callers stay fast to start)."""
+def is_tensor(x: Any) -> bool:
+    """Whether ``x`` is a torch tensor, without importing torch (a tensor implies torch is loaded, and
+    numpy-only callers stay fast to start)."""
     torch = sys.modules.get("torch")
     return torch is not None and isinstance(x, torch.Tensor)
 
@@ -41,14 +42,14 @@ def rgb_to_gray(rgb: Array, channel_axis: int = 0) -> Array:
             param="rgb",
         )
     r, g, b = (
-        rgb.select(channel_axis, i) if _is_tensor(rgb) else np.take(rgb, i, channel_axis) for i in range(3)
+        rgb.select(channel_axis, i) if is_tensor(rgb) else np.take(rgb, i, channel_axis) for i in range(3)
     )
     return GRAY_WEIGHTS[0] * r + GRAY_WEIGHTS[1] * g + GRAY_WEIGHTS[2] * b
 
 
 def srgb_encode(linear: Array) -> Array:
     """Linear [0, 1] to sRGB-encoded [0, 1] display values (IEC 61966-2-1); input is clipped to [0, 1]."""
-    if _is_tensor(linear):
+    if is_tensor(linear):
         x = linear.clamp(0.0, 1.0)
         return sys.modules["torch"].where(
             x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055
@@ -57,9 +58,20 @@ def srgb_encode(linear: Array) -> Array:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 1e-12) ** (1 / 2.4) - 0.055)
 
 
+def srgb_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean squared difference () of the sRGB display values of two linear tensors of one shape (each clipped
+    to [0, 1] by :func:`srgb_encode`), in float32 or wider: what every PSNR of a training step reports."""
+    return ((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).mean()
+
+
+def display_uint8(display: np.ndarray) -> np.ndarray:
+    """Display values (any shape, e.g. sRGB-encoded) → uint8 0…255, clipped to [0, 1] and rounded."""
+    return np.round(np.clip(display, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
 def srgb_decode(encoded: Array) -> Array:
     """sRGB-encoded [0, 1] to linear [0, 1] (the inverse of :func:`srgb_encode`)."""
-    if _is_tensor(encoded):
+    if is_tensor(encoded):
         x = encoded.clamp(0.0, 1.0)
         return sys.modules["torch"].where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
     x = np.clip(encoded, 0.0, 1.0)

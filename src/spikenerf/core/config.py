@@ -116,7 +116,7 @@ def check_config(config: Any, prefix: str = "", path: str | Path | None = None, 
             names = tuple(f.metadata["choices"]())
             if value not in names:
                 listed = ", ".join(map(str, names))
-                raise InputError(f"{name} must be one of {listed}, found {value!r}", path=path)
+                raise InputError(f"{name} must be one of {listed}, found {value!r}", path=path, param=name)
         elif not matches(value, hints[f.name]):
             raise InputError(f"{name} must be {describe(hints[f.name])}, found {value!r}", path=path)
         numbers = value if isinstance(value, tuple) else (value,)

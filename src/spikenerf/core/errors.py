@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from pathlib import Path
 
 #: longest message an InputError keeps (foreign library errors can run to pages)
@@ -48,6 +48,15 @@ class InputError(ValueError):
 
     def __reduce__(self) -> tuple:  # keep path and params across pickling (worker processes)
         return (type(self), (self.message, self.path, self.params))
+
+
+def check_choice(value: object, choices: Iterable[object], param: str, what: str | None = None) -> None:
+    """InputError naming ``param`` unless ``value`` is one of ``choices``: "WHAT must be one of A, B, found
+    'v'" (``what`` defaults to ``param``): the one wording of a refused choice below the CLI."""
+    names = tuple(choices)
+    if value not in names:
+        listed = ", ".join(map(str, names))
+        raise InputError(f"{what or param} must be one of {listed}, found {value!r}", param=param)
 
 
 def comma_list(

@@ -18,7 +18,7 @@ from spikenerf.camera.io import count_frames, read_dat, rgb_paths
 from spikenerf.camera.model import COLORS
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, check_choice
 from spikenerf.core.marker import folder_kind
 from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
@@ -50,8 +50,7 @@ _MISSING = "missing file (not a dataset folder written by `spikenerf simulate`?)
 
 def spike_files(mode: str) -> list[str]:
     """File names of one colour mode's stream: one file, or ``spikes_rgb_{r,g,b}.dat`` for ``rgb``."""
-    if mode not in MODES:
-        raise InputError(f"colour mode must be one of {', '.join(MODES)}, found {mode!r}")
+    check_choice(mode, MODES, "mode", "colour mode")
     return [p.name for p in rgb_paths("spikes_rgb")] if mode == "rgb" else [f"spikes_{mode}.dat"]
 
 
@@ -143,7 +142,7 @@ def near_far(poses: np.ndarray, scene_box: np.ndarray) -> tuple[float, float]:
     return max(float(dist.min()) - radius, 0.05), float(dist.max()) + radius
 
 
-def _read_mapping(path: Path, fmt: str = "JSON") -> dict:
+def read_mapping(path: Path, fmt: str = "JSON") -> dict:
     """The top-level mapping of a dataset folder's JSON (read by ``scenes.transforms.read_transforms``) or
     YAML (``fmt``) file; InputError when the file is missing, malformed or not a mapping."""
     if fmt == "JSON":
@@ -199,7 +198,7 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
     path = root / name
     if not path.exists():
         return None
-    data = _read_mapping(path)
+    data = read_mapping(path)
     _check_camera(data, path, k)
     frames = _frames(data, path)
     array = (
@@ -278,7 +277,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
     tpath = root / TRANSFORMS
     if not tpath.exists() and (kind := folder_kind(root)) not in (None, "dataset"):  # another of ours
         raise InputError(f"is a {kind} folder, not a dataset folder", path=root)
-    data = _read_mapping(tpath)
+    data = read_mapping(tpath)
     k = _check_camera(data, tpath, None)
     fps = number(data, "fps", tpath, positive=True)
     near, far = number(data, "near", tpath, positive=True), number(data, "far", tpath, positive=True)
@@ -331,7 +330,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
 
 def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
     path = root / CONFIG
-    config = _read_mapping(path, "YAML")
+    config = read_mapping(path, "YAML")
     for key, want in (("spike_h", k.height), ("spike_w", k.width), ("fps", fps)):
         if number(config, key, path, positive=True) != want:
             raise InputError(f"field {key!r} is {config[key]}, but transforms.json says {want}", path=path)
@@ -347,7 +346,7 @@ def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
 def read_pose_file(path: str | Path) -> np.ndarray:
     """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``)."""
     path = Path(path)
-    return frame_poses(_read_mapping(path), path)
+    return frame_poses(read_mapping(path), path)
 
 
 @dataclass
@@ -365,7 +364,7 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
     (``camera_angle_x`` or ``fl_x`` [``fl_y``, ``cx``, ``cy``]; ``w`` and ``h`` together, else ``size`` =
     (width, height)) and ``near``/``far`` (both, near < far)."""
     path = Path(path)
-    meta = _read_mapping(path)
+    meta = read_mapping(path)
     poses = frame_poses(meta, path)
     cam = camera(meta, path)
     k, given = None, [key for key in CAMERA_KEYS if key in meta or key in cam]

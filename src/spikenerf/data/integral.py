@@ -220,9 +220,9 @@ def count_targets(
 def stratified_steps(start: Tensor, end: Tensor, samples: int, generator: torch.Generator) -> Tensor:
     """S steps of each window ``[start, end)``: one uniform step in each of S equal parts of it.
 
-    Every step of the window is drawn with the same probability per part, so the mean of the S renders is
-    an unbiased estimate of the window's mean render (exactly so when S divides L; otherwise each part's
-    steps carry the part's weight, a bias below 1/L of a step's share).
+    Together the S parts draw a uniform position in the window's [0, 1) span, so each step is expected
+    S / L times among the S draws, whatever S and L: the mean of the S renders is an exactly unbiased
+    estimate of the window's mean render.
 
     Args:
         start, end: (B,) int64 window bounds. samples: S ≥ 1. generator: seeded generator.

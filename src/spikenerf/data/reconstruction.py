@@ -21,7 +21,7 @@ import numpy as np
 
 from spikenerf.camera.io import resolve_frames
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, reconstruct_frames
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, check_choice
 
 #: image reconstructions: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
 TargetRecon = Literal[ReconMethod, "learned"]
@@ -56,8 +56,7 @@ def reconstructor(
         from spikenerf.recon.infer import learned_reconstructor
 
         return learned_reconstructor(weights, color, window, threshold)
-    if recon not in RECONS:
-        raise InputError(f"recon must be one of {', '.join(RECONS)}, found {recon!r}")
+    check_choice(recon, RECONS, "recon")
     tfp_window = DEFAULT_WINDOW if window is None else window
     return lambda read, total, start, stop: reconstruct_frames(
         read, total, start, stop, recon, tfp_window, threshold

@@ -11,7 +11,7 @@ from typing import Literal, get_args
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, check_choice
 
 WindowOrder = Literal["sequential", "random"]
 WINDOW_ORDERS: tuple[str, ...] = get_args(WindowOrder)
@@ -84,8 +84,7 @@ class WindowSampler:
     ) -> None:
         if not 1 <= length <= num_steps:
             raise InputError(f"spike window length must be between 1 and the {num_steps} steps, got {length}")
-        if order not in WINDOW_ORDERS:
-            raise InputError(f"window order must be sequential or random, got {order!r}")
+        check_choice(order, WINDOW_ORDERS, "order", "window order")
         self.num_steps, self.height, self.width, self.length = num_steps, height, width, length
         self.order, self.stride = order, max(1, stride or length)
         if starts is not None and len(starts) < 1:

@@ -15,7 +15,7 @@ from spikenerf.camera.model import COLORS as MODES
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic
-from spikenerf.core.color import rgb_to_gray, srgb_encode
+from spikenerf.core.color import display_uint8, rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import folder_kind, listed, mark
 from spikenerf.data.dataset import (
@@ -23,8 +23,8 @@ from spikenerf.data.dataset import (
     TRANSFORMS,
     TRANSFORMS_BLUR,
     SpikeDataset,
-    _read_mapping,
     load_dataset,
+    read_mapping,
     spike_files,
 )
 from spikenerf.data.reconstruction import frame_at
@@ -66,7 +66,7 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
         gt = np.repeat(rgb_to_gray(gt, channel_axis=-1)[..., None], 3, -1) if mode == "gray" else gt
         panels += [np.full((h, 2, 3), 0.5, np.float32), gt]
         caption += " | GT render"
-    image = (np.round(srgb_encode(np.concatenate(panels, axis=1)) * 255)).astype(np.uint8)
+    image = display_uint8(srgb_encode(np.concatenate(panels, axis=1)))
     s = max(1, math.ceil(PREVIEW_MIN_HEIGHT / h))
     return np.repeat(np.repeat(image, s, 0), s, 1), caption
 
@@ -79,8 +79,8 @@ def view_counts(root: str | Path) -> dict:
         ``transforms_blur.json``) and ``blur_views`` (``config.yaml``; ``frames`` for older datasets).
     """
     root = Path(root)
-    frames = _read_mapping(root / TRANSFORMS).get("frames") or []
-    blur_data = _read_mapping(root / TRANSFORMS_BLUR) if (root / TRANSFORMS_BLUR).is_file() else {}
+    frames = read_mapping(root / TRANSFORMS).get("frames") or []
+    blur_data = read_mapping(root / TRANSFORMS_BLUR) if (root / TRANSFORMS_BLUR).is_file() else {}
     blur = blur_data.get("frames") or []
     train = blur_data.get("train_filenames")  # a nerfstudio view lists its held-out frames too
     if isinstance(train, list):

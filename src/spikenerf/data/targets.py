@@ -37,7 +37,7 @@ from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.color import rgb_to_gray
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, check_choice
 from spikenerf.data.reconstruction import RECONS as RECONS
 from spikenerf.data.reconstruction import TargetRecon as TargetRecon
 from spikenerf.data.reconstruction import reconstruct_stream
@@ -107,15 +107,15 @@ class SpikeTargets:
     poses: Tensor
     threshold: float
 
-    def window(self, start: int, length: int, pixels: Tensor) -> Tensor:
-        """Recorded spikes (L, P, C) float32 of steps ``start..start+L-1`` at pixels (P, 2) int ``(x, y)``,
-        gathered on the spikes' device (the pixels are copied there)."""
-        pixels = pixels.to(self.spikes.device)
-        return self.spikes[start : start + length, pixels[:, 1], pixels[:, 0]].float()
+    def window(self, steps: Tensor, pixels: Tensor) -> Tensor:
+        """Recorded spikes (L, P, C) float32 of ``steps`` (L,) int64 at pixels (P, 2) int ``(x, y)``,
+        gathered on the spikes' device (the indices are copied there; no value is read back)."""
+        steps, pixels = steps.to(self.spikes.device), pixels.to(self.spikes.device)
+        return self.spikes[steps[:, None], pixels[:, 1], pixels[:, 0]].float()
 
     def spikes_on(self, device: torch.device | str) -> SpikeTargets:
-        """The same targets with ``spikes`` on ``device``; poses stay where they are."""
-        return dataclasses.replace(self, spikes=self.spikes.to(device))
+        """The same targets with ``spikes`` and ``poses`` on ``device``."""
+        return dataclasses.replace(self, spikes=self.spikes.to(device), poses=self.poses.to(device))
 
 
 def masked_reconstruction(
@@ -139,8 +139,7 @@ def masked_reconstruction(
 
 def stream_mode(color: str) -> str:
     """Dataset spike mode used for ``--color``: gray → ``gray`` stream, rgb → per-channel ``rgb`` streams."""
-    if color not in COLORS:
-        raise InputError(f"color must be one of {', '.join(COLORS)}, found {color!r}")
+    check_choice(color, COLORS, "color")
     return color
 
 

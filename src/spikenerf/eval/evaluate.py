@@ -210,7 +210,7 @@ def evaluate_run(
     Args:
         run_dir: a run folder written by ``spikenerf train``.
         split: ``test`` (held-out novel views) or ``train`` (sharp GT along the training path).
-        device: auto | cpu | cuda. dataset_root: the dataset if it moved since training.
+        device: auto | cpu | cuda[:N] | mps. dataset_root: the dataset if it moved since training.
         lpips_backbone: ``alex`` (default), ``vgg`` or None (skip LPIPS).
         chunk: rays per render call; 0 = automatic (8192 off CUDA, sized from the free GPU memory on CUDA;
             :func:`spikenerf.render.inference.inference_chunk`).

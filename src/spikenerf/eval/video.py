@@ -36,16 +36,18 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from spikenerf.camera.io import rgb_paths, write_dat, write_dat_rgb
+from spikenerf.camera.io import write_dat, write_dat_rgb
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
+from spikenerf.camera.spikecv import CONFIG_NAME as SPIKECV_CONFIG
+from spikenerf.camera.spikecv import write_spikecv_config
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic, write_text_atomic
-from spikenerf.core.color import srgb_encode
+from spikenerf.core.color import display_uint8, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
-from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path
+from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path, spike_files
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_array, render_key
 from spikenerf.render import iter_spike_states, render_image
@@ -63,7 +65,7 @@ FPS_VIDEO = (1e-2, 1e5)
 
 def to_uint8(display: np.ndarray) -> np.ndarray:
     """Display values [0, 1] (H, W, C) → uint8 (H, W) for C = 1, (H, W, 3) for C = 3."""
-    q = np.round(np.clip(display, 0.0, 1.0) * 255.0).astype(np.uint8)
+    q = display_uint8(display)
     return q[..., 0] if q.shape[-1] == 1 else q
 
 
@@ -191,10 +193,11 @@ def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPa
 
 def write_spikes(
     model: Any, path: RenderPath, dataset: SpikeDataset, out: Path, seed: int, chunk: int, progress: bool,
-    cache: RenderCache,
+    cache: RenderCache, config: bool = True,
 ) -> list[str]:  # fmt: skip
     """Fire a novel-view spike stream along ``path`` (one step a pose), continuing what ``cache`` holds of
-    it; write .dat file(s) + a TFP preview."""
+    it; write .dat file(s), a TFP preview and (with ``config``) their SpikeCV ``config.yaml`` (size, the
+    dataset's rate, φ)."""
     k = path.intrinsics
     shape = (k.height, k.width) if model.channels == 1 else (3, k.height, k.width)
     resumed = cache.spike_state(shape)
@@ -222,7 +225,11 @@ def write_spikes(
     preview = frame_at(stream, t // 2, "tfp", max(window, 1), dataset.threshold)
     preview = to_channels_last(preview, frame=True)
     write_bytes_atomic(out / "spikes_tfp.png", png_bytes(to_uint8(srgb_encode(preview))))
-    return [p.name for p in files] + ["spikes_tfp.png"]
+    names = [p.name for p in files] + ["spikes_tfp.png"]
+    if config:  # the frame size, rate and φ beside the stream, so that info and reconstruct read it as it is
+        write_spikecv_config(out, k.height, k.width, dataset.trajectory.fps, dataset.threshold)
+        names.append(SPIKECV_CONFIG)
+    return names
 
 
 def render_run(
@@ -268,14 +275,17 @@ def render_run(
 
 #: the names a render gives its frames and depth maps (``00000.png``, ``00000.npy``; more digits past 99999)
 FRAME_NAME = re.compile(r"\d{5,}\.(png|npy)")
-#: the names of a novel-view spike stream and its preview (:func:`write_spikes`)
-SPIKE_NAME = re.compile(r"spikes_(gray\.dat|rgb_[rgb]\.dat|tfp\.png)")
+#: the names of a novel-view spike stream, its preview and its SpikeCV config (:func:`write_spikes`)
+SPIKE_NAME = re.compile(r"spikes_(gray\.dat|rgb_[rgb]\.dat|tfp\.png)|config\.yaml")
 
 
-def planned_files(name: str, channels: int, spikes: bool) -> list[str]:
-    """The video and spike files a render of trajectory ``name`` writes (see :func:`write_spikes`)."""
-    streams = ["spikes_gray.dat"] if channels == 1 else [p.name for p in rgb_paths("spikes_rgb")]
-    return [f"{name}.mp4", *streams, "spikes_tfp.png"] if spikes else [f"{name}.mp4"]
+def planned_files(name: str, channels: int, spikes: bool, config: bool = True) -> list[str]:
+    """The video and spike files a render of trajectory ``name`` writes (see :func:`write_spikes`; with
+    ``config`` its SpikeCV ``config.yaml`` too)."""
+    if not spikes:
+        return [f"{name}.mp4"]
+    streams = spike_files("gray" if channels == 1 else "rgb")
+    return [f"{name}.mp4", *streams, "spikes_tfp.png", *([SPIKECV_CONFIG] if config else [])]
 
 
 def _listed_files(out: Path) -> list[object]:
@@ -389,7 +399,9 @@ def _render_locked(
             raise InputError(f"out: {sub} in it is a symbolic link or a file; move it", path=out, param="out")
     mark(out, "render")
     clear_previous_render(out)
-    plan = planned_files(path.name, model.channels, spike_path is not None)
+    # a config.yaml still there after clear_previous_render is not one a render wrote: it stays untouched
+    own_config = not (out / SPIKECV_CONFIG).exists()
+    plan = planned_files(path.name, model.channels, spike_path is not None, own_config)
     cache = RenderCache.open(out, key, pinned={"chunk": chunk}, plan=plan)
     if not requested and cache.pinned["chunk"] > 0:  # resumed: the automatic chunk it began with
         chunk = cache.pinned["chunk"]
@@ -404,7 +416,11 @@ def _render_locked(
     write_video(out / video, colors, fps_video)
     files: dict[str, Any] = {"images": "images/NNNNN.png", "depth": "depth/NNNNN.{png,npy}", "video": video}
     if spike_path is not None:
-        files["spikes"] = write_spikes(model, spike_path, dataset, out, seed, chunk, progress, cache)
+        files["spikes"] = write_spikes(model, spike_path, dataset, out, seed, chunk, progress, cache,
+                                       own_config)  # fmt: skip
+        if not own_config and log:
+            log(f"kept the {SPIKECV_CONFIG} already in {out} (render did not write it): the stream is "
+                f"{k.width}×{k.height}")  # fmt: skip
     manifest = {
         "run": str(Path(run_dir).resolve()),
         "trajectory": path.name,

@@ -45,6 +45,12 @@ class FieldEntry:
     renamed: Mapping[str, Callable[[Any], dict[str, Any]]] = dataclasses.field(default_factory=dict)
 
 
+def _batch_rays(rays: Any) -> dict[str, Any]:
+    """``batch_rays`` (removed): nothing read it (a step's rays are train's ``batch``); a config that
+    holds it still loads."""
+    return {}
+
+
 def _gather_lookup(on: Any) -> dict[str, Any]:
     """``gather_lookup`` (before ``lookup``): true was ``lookup`` "gather", false the default."""
     if not isinstance(on, bool):
@@ -58,9 +64,12 @@ def _gather_lookup(on: Any) -> dict[str, Any]:
 #: field kind -> its entry, in :data:`FIELD_KINDS` order
 FIELD_REGISTRY: dict[str, FieldEntry] = {
     "grid": FieldEntry(
-        GridFieldConfig, GridField, {"decoder_bf16": False}, {"gather_lookup": _gather_lookup}
+        GridFieldConfig,
+        GridField,
+        {"decoder_bf16": False},
+        {"gather_lookup": _gather_lookup, "batch_rays": _batch_rays},
     ),
-    "mlp": FieldEntry(MLPFieldConfig, MLPField),
+    "mlp": FieldEntry(MLPFieldConfig, MLPField, renamed={"batch_rays": _batch_rays}),
 }
 
 __all__ = [

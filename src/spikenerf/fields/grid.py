@@ -95,7 +95,7 @@ class GridFieldConfig:
             opacity is below ``occupancy_threshold`` are skipped; its resolution is
             ``min(R, occupancy_max_resolution)``.
         lr_grid / lr: Adam learning rates of the grids and of the networks; both decay exponentially to
-            ``lr_final_ratio`` times their value over the run (trainer side). batch_rays: rays per step.
+            ``lr_final_ratio`` times their value over the run (trainer side).
         l1_weight: weight of the L1 sparsity prior on the density factors (see ``regularization``).
         tv_density / tv_app: weights of the total-variation prior on the density and appearance factors
             (TensoRF's smoothness prior; against fitting the noise of spike-count targets; see
@@ -114,7 +114,7 @@ class GridFieldConfig:
         "static_colors": _LEAST0, "static_visible": _LEAST0,
         "occupancy_start": _LEAST0, "occupancy_every": Bound(least=1), "occupancy_threshold": _LEAST0,
         "occupancy_max_resolution": Bound(least=1),
-        "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1), "batch_rays": _ABOVE0,
+        "lr_grid": _ABOVE0, "lr": _ABOVE0, "lr_final_ratio": Bound(above=0, most=1),
         "l1_weight": _LEAST0, "tv_density": _LEAST0, "tv_app": _LEAST0,
         "tv_every": Bound(least=1), "iterations": _ABOVE0,
     }  # fmt: skip
@@ -147,7 +147,6 @@ class GridFieldConfig:
     lr_grid: float = 0.02
     lr: float = 1e-3
     lr_final_ratio: float = 0.1
-    batch_rays: int = 4096
     l1_weight: float = 0.0
     tv_density: float = 0.0
     tv_app: float = 0.0

@@ -27,14 +27,14 @@ class MLPFieldConfig:
             fine one (which evaluates all ``n_coarse + n_fine``).
         raw_noise_std: std of Gaussian noise on raw density while training (0 for synthetic scenes).
         lr / lr_final: Adam learning rate, decayed exponentially to ``lr_final`` (5e-4 → 5e-5).
-        batch_rays: rays per step (1024). iterations: the paper's run length (2·10⁵).
+        iterations: the paper's run length (2·10⁵).
     """
 
     _ABOVE0, _LEAST0 = Bound(above=0), Bound(least=0)
     BOUNDS: ClassVar[dict[str, Bound]] = {
         "depth": _ABOVE0, "width": _ABOVE0, "skip": _LEAST0, "xyz_freqs": _LEAST0, "dir_freqs": _LEAST0,
         "dir_width": _LEAST0, "n_coarse": _LEAST0, "n_fine": _LEAST0, "raw_noise_std": _LEAST0,
-        "lr": _ABOVE0, "lr_final": _ABOVE0, "batch_rays": _ABOVE0, "iterations": _ABOVE0,
+        "lr": _ABOVE0, "lr_final": _ABOVE0, "iterations": _ABOVE0,
     }  # fmt: skip
 
     depth: int = 8
@@ -48,7 +48,6 @@ class MLPFieldConfig:
     raw_noise_std: float = 0.0
     lr: float = 5e-4
     lr_final: float = 5e-5
-    batch_rays: int = 1024
     iterations: int = 200_000
 
     @property

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spikenerf.core.color import srgb_encode
+from spikenerf.core.color import display_uint8, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.importing.alignment import trajectory_jump
 from spikenerf.importing.poses import COLMAP_MISSING, PoseSet, read_colmap_text
@@ -88,7 +88,7 @@ def write_keyframes(images: np.ndarray, steps: np.ndarray, folder: Path, contras
         encoded = srgb_encode(np.clip(scaled, 0, 1))
         if contrast > 0:
             encoded = local_contrast(encoded, contrast)
-        iio.imwrite(folder / name, np.round(encoded * 255).astype(np.uint8))
+        iio.imwrite(folder / name, display_uint8(encoded))
         names.append(name)
     return names
 

@@ -25,7 +25,7 @@ import numpy as np
 from spikenerf.camera.reconstruct import fitting_window
 from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
-from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
 from spikenerf.pipelines import figures
 from spikenerf.pipelines.benchmark.cells import (
     BenchmarkConfig,
@@ -235,8 +235,11 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
     raster = gray[:steps].reshape(steps, -1)[:, picks]
     labels = [f"x={x} y={y} ({rate[p]:.2f}/step)" for (x, y), p in zip(xy, picks, strict=True)]
     sim = _cmd(dataset_command(cfg, scene))
-    dat = shlex.quote(str(ds.root / f"spikes_{mode}.dat"))
-    recon = f"spikenerf reconstruct {dat} --height {h} --width {w} --method tfp --window {window} --frame {k}"
+    recon = [  # rgb: one command per channel file (spikes_rgb_{r,g,b}.dat), each that channel's image
+        f"spikenerf reconstruct {shlex.quote(str(ds.root / name))} --height {h} --width {w} --method tfp "
+        f"--window {window} --frame {k} --out tfp{name.removeprefix('spikes').removesuffix('.dat')}.png"
+        for name in spike_files(mode)
+    ]
     raster_fig = Fig(
         f"{scene}: {mode} spikes of {RASTER_PIXELS} pixels, dimmest → brightest, steps 0…{steps - 1}",
         figures.raster_figure(raster, labels, f"{scene} · {mode} stream · spike raster"),
@@ -256,7 +259,7 @@ def _spikes_figs(cfg: BenchmarkConfig, ds: SpikeDataset, scene: str) -> list[Fig
         figures.panels_figure(panels, f"{scene} · {mode} · step {k}", points=xy),
         [
             sim,
-            recon + " --out tfp.png",
+            *recon,
             f"spikenerf.camera.masks.spike_masks(spikes, n={MASK_N}, frames={k})",
         ],
     )

@@ -106,7 +106,8 @@ class RunningFeatures:
     window's shifted by one (the next frame, also with windows mirrored at the stream's ends), every count is
     updated with the step that enters and the one that leaves its span, otherwise recounted. The interval
     channel scans the window once in uint8. Counts are exact integers, so the features equal
-    :func:`spike_features` of the same window.
+    :func:`spike_features` of the same window. Nothing is read back to the host: on CUDA the frames of a
+    stream queue up without a synchronisation each.
     """
 
     def __init__(self, frames: Tensor, window: int) -> None:
@@ -147,8 +148,7 @@ class RunningFeatures:
         first = torch.zeros_like(last)
         for j in range(c, k):  # K − position of the first spike at or after it
             torch.maximum(first, f[steps[j]] * (k - j), out=first)
-        total = float(self.counts[len(nested_lengths(k)) - 1].sum(dtype=torch.float64))
-        rate = max(total / (k * last.numel()), MIN_SCALE)
-        scale = torch.full((1,), rate, dtype=torch.float32, device=f.device)
+        total = self.counts[len(nested_lengths(k)) - 1].sum(dtype=torch.float64)  # stays on the device
+        scale = (total / (k * last.numel())).clamp_min(MIN_SCALE).to(torch.float32).reshape(1)
         prev, nxt = last.to(torch.int32) - 1, k - first.to(torch.int32)
         return stack_features(k, [cnt[None] for cnt in self.counts], prev[None], nxt[None], scale), scale

@@ -120,6 +120,20 @@ def write_pairs(
         )
 
 
+def settings_changed(old: dict, new: dict) -> list[tuple[str, object, object]]:
+    """(name, recorded, asked) of each setting of a pair folder's manifest that differs: the manifest's own
+    keys and those of its ``config`` (named without the prefix, as their parameters are)."""
+
+    def flat(manifest: dict) -> dict:
+        config = manifest.get("config") if isinstance(manifest.get("config"), dict) else {}
+        rest = {k: v for k, v in manifest.items() if k not in ("config", "command", "complete")}
+        return {**config, **rest}
+
+    was, now = flat(old), flat(new)
+    keys = [*now, *(k for k in was if k not in now)]
+    return [(k, was.get(k), now.get(k)) for k in keys if was.get(k) != now.get(k)]
+
+
 def _write_locked(
     out: Path, cfg: PairConfig, train_draws: int, val_draws: int, seed: int,
     extra: dict[str, FrameSource] | None, extra_draws: int, command: str, progress: bool, natural_draws: int,
@@ -140,10 +154,15 @@ def _write_locked(
         manifest["val_scenes"] += [f"natural:{name}" for name in NATURAL_HELDOUT]
     path = out / MANIFEST
     if path.is_file():
-        old = read_manifest(out)
-        if {k: old.get(k) for k in manifest} != json.loads(json.dumps(manifest)):
+        old, new = read_manifest(out), json.loads(json.dumps(manifest))
+        if {k: old.get(k) for k in manifest} != new:
+            changed = settings_changed(old, new)
+            named = ", ".join(f"{name} {was!r} → {now!r}" for name, was, now in changed) or "its manifest"
             raise InputError(
-                "out holds pairs made with other settings; use a new folder", path=out, param="out"
+                f"out holds pairs made with other settings ({named}): give the same ones to finish it, or "
+                "use a new folder",
+                path=out,
+                param=("out", *(name for name, _, _ in changed)),
             )
     mark(out, "pairs")
     write_text_atomic(path, json.dumps({**manifest, "command": command}, indent=2))

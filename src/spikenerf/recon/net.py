@@ -136,7 +136,7 @@ def read_torch(path: Path, what: str, fmt: str) -> dict[str, Any]:
         InputError: missing, unreadable (truncated, not a torch file) or foreign (another ``format``) file.
     """
     if not path.is_file():
-        raise InputError(f"{what} not found", path=path)
+        raise InputError(f"is a folder, not a {what}" if path.is_dir() else f"{what} not found", path=path)
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many types for truncated or foreign files

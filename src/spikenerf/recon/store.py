@@ -11,7 +11,6 @@ from __future__ import annotations
 import io
 import json
 import zipfile
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,18 +41,6 @@ def write_shard(path: Path, samples: list[Sample]) -> None:
     np.savez_compressed(buf, spikes=spikes, targets=targets, size=np.int64(targets.shape[-1]), info=info)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_bytes_atomic(path, buf.getvalue())
-
-
-def batched(samples: Iterable[Sample], per_shard: int) -> Iterator[list[Sample]]:
-    """Group a sample stream into lists of ``per_shard`` (the last may be shorter)."""
-    group: list[Sample] = []
-    for s in samples:
-        group.append(s)
-        if len(group) == per_shard:
-            yield group
-            group = []
-    if group:
-        yield group
 
 
 @dataclass
@@ -141,6 +128,9 @@ def read_manifest(root: str | Path) -> dict:
     """The folder's manifest, with the fields recon-train relies on checked (``config`` with ``size``,
     ``window`` and ``modes``); InputError naming the file when it is missing, corrupt or malformed."""
     path = Path(root) / MANIFEST
+    if not Path(root).is_dir():
+        found = "is a file, not a pair folder" if Path(root).exists() else "pair folder not found"
+        raise InputError(f"{found} (write one with `spikenerf recon-data`)", path=root)
     if not path.is_file():
         raise InputError("not a pair folder written by `spikenerf recon-data` (no manifest.json)", path=root)
     try:

@@ -97,7 +97,7 @@ def sample_batch(pairs: PairSet, cfg: ReconTrainConfig, gen: torch.Generator) ->
     return torch.stack(wins), torch.stack(tgts), scale
 
 
-def psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def rate_psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Per-image PSNR (dB) of rates clipped to [0, 1], peak 1: (N, H, W) → (N,) float64."""
     mse = ((pred.clamp(0, 1) - target.clamp(0, 1)) ** 2).flatten(1).mean(1)
     return mse_to_psnr(mse.clamp_min(1e-10))
@@ -110,8 +110,8 @@ def validate(net: ReconNet, pairs: PairSet, count: int) -> tuple[float, float]:
     for a in range(0, min(count, len(pairs)), 32):
         index = torch.arange(a, min(a + 32, count, len(pairs)))
         win, tgt = pairs.windows(index), pairs.targets[index]
-        scores.append(psnr(net(win, brightness_scale(win)), tgt))
-        base.append(psnr(win.mean(1), tgt))
+        scores.append(rate_psnr(net(win, brightness_scale(win)), tgt))
+        base.append(rate_psnr(win.mean(1), tgt))
     return float(torch.cat(scores).mean()), float(torch.cat(base).mean())
 
 

@@ -15,10 +15,11 @@ field's functions instead (``fields/compiled.py``).
   ``force_parameter_static_shapes`` off inside the call). Before, the first graph was specialised to the
   first resolution and the first upsampling recompiled with symbolic sizes: two compiles a run (on an
   H200 about 60 s and 20 s; on the CPU 55 s and 56 s, against one of 77 s now,
-  ``benchmarks/tools/bench_compile_cache.py``). A total-variation prior (``tv_density``/``tv_app``)
-  adds a graph for the steps where ``iteration % tv_every`` is 0 (only that prior reads the iteration;
-  Dynamo makes it a symbolic int after its first change: no recompile per step). Dynamo's recompile
-  limit (per method instance) is raised to cover them.
+  ``benchmarks/tools/bench_compile_cache.py``). spike-nerf's steps that render a spike window (its draws of
+  :meth:`SpikeNeRF.draw_window` follow the rays' ones) make a second graph. A total-variation prior
+  (``tv_density``/``tv_app``) adds a graph for the steps where ``iteration % tv_every`` is 0 (only that prior
+  reads the iteration; Dynamo makes it a symbolic int after its first change: no recompile per step). Dynamo's
+  recompile limit (per method instance) is raised to cover them.
 - CUDA graphs: each call starts a new cudagraph-tree step (its outputs of the previous step are dead by
   then); the method's target tensors kept on the GPU are marked static (not copied into the graph's pool at
   every replay); the draws stay CPU tensors, copied to the device inside the graph (inductor's graph
@@ -68,10 +69,11 @@ def step_mode(device: torch.device) -> str | None:
     return "reduce-overhead" if device.type == "cuda" else None
 
 
-def compiles_needed(model: RadianceModel) -> int:
-    """Compiles a run's step may need: two per grid resolution (see the module doc) and a margin."""
+def compiles_needed(model: RadianceModel, variants: int = 1) -> int:
+    """Compiles a run's step may need: two per grid resolution (see the module doc) for each of the step's
+    ``variants`` (spike-nerf's steps with and without a spike window), and a margin."""
     resolutions = getattr(model.field.config, "resolutions", lambda: [0])
-    return 2 * len(resolutions()) + 4
+    return 2 * len(resolutions()) * variants + 4
 
 
 def allow_recompiles(limit: int) -> None:
@@ -194,7 +196,7 @@ def compile_step(
     Call after the targets are on their device."""
     # a graph break is a fullgraph failure, told in the one warning line: not twice
     warnings.filterwarnings("ignore", message="Dynamo does not know how to trace", category=UserWarning)
-    allow_recompiles(compiles_needed(model))
+    allow_recompiles(compiles_needed(model, method.step_variants))
     try:
         if device.type == "cuda":
             _mark_static_targets(method)

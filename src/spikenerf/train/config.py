@@ -234,7 +234,7 @@ class TrainConfig:
             device).
         lr: base learning rate (None = the field's own); the grid keeps its grid/network ratio.
         lr_final_ratio: exponential decay to this fraction of the rate at ``iters`` (None = the field's).
-        seed: seeds the initialisation, the samplers and the perturbations. device: auto | cpu | cuda.
+        seed: seeds the initialisation, the samplers and the jitter. device: auto | cpu | cuda[:N] | mps.
         eval_every: iterations between test-view evaluations (0 = only at the end). eval_views: views used.
         ckpt_every: iterations between checkpoints (always one at the end).
         log: ``none`` or ``tensorboard`` (event files in ``RUN/tensorboard/``; curves.csv is always written).
@@ -443,6 +443,10 @@ def _validated(config: TrainConfig, path: Path) -> TrainConfig:
         if err.path is not None:
             raise
         raise InputError(err.message, path=path) from err
+
+
+#: a run folder's config file (:func:`save_config` writes it, :func:`load_run_config` reads it)
+CONFIG_FILE = "config.yaml"
 
 
 def load_run_config(path: str | Path) -> TrainConfig:

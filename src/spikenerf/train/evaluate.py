@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 
 from spikenerf.core.atomic import write_text_atomic
-from spikenerf.core.color import srgb_encode
+from spikenerf.core.color import srgb_mse
 from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.data.dataset import SpikeDataset
@@ -26,7 +26,7 @@ LOSS_COLUMNS = ("loss", "recon", "spike", "reg", "lambda")
 
 def srgb_psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
     """PSNR (dB) between two linear images after sRGB encoding to display values in [0, 1]."""
-    return mse_to_psnr(torch.mean((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).item())
+    return mse_to_psnr(srgb_mse(pred, target).item())
 
 
 @torch.no_grad()

@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.core.color import srgb_encode
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, check_choice
 
 LogKind = Literal["none", "tensorboard"]
 LOG_KINDS: tuple[str, ...] = get_args(LogKind)
@@ -85,8 +85,7 @@ class TensorBoardLog:
 
 def open_log(kind: str, out: str | Path, start: int = 0) -> TensorBoardLog | None:
     """The logger of ``kind`` (``none`` → None); ``start``: see :class:`TensorBoardLog`."""
-    if kind not in LOG_KINDS:
-        raise InputError(f"log must be one of {', '.join(LOG_KINDS)}, found {kind!r}")
+    check_choice(kind, LOG_KINDS, "log")
     return TensorBoardLog(out, start) if kind == "tensorboard" else None
 
 

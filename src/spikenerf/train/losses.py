@@ -22,7 +22,6 @@ from spikenerf.camera.model import fire
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 
 PairMode = Literal["all", "window"]
-PAIR_MODES: tuple[str, ...] = get_args(PairMode)
 #: the differentiable interval loss, or the paper's spike comparison (no gradient)
 SpikeLossKind = Literal["interval", "paper"]
 SPIKE_LOSS_KINDS: tuple[str, ...] = get_args(SpikeLossKind)
@@ -56,6 +55,8 @@ def window_mean_loss(
         means: (B, G, C) linear window-mean estimates. target: (B, C) ``φ N / L`` of each window.
         band: (B, 1) half-width of each window's feasible interval, ``φ / L`` (None: 0). Errors within it
             count as 0 (the interval constraint of a noise-free pixel), beyond it by their distance to it.
+            With G ≥ 2 this is biased: each estimate is cut to the band before the U-statistic, which then
+            estimates ``(E cut(m − t))²``, not ``cut(E m − t)²`` (> 0 when ``E m`` lies inside the band).
     Returns:
         Scalar loss (linear intensity squared; may be slightly negative for G ≥ 2, never in expectation).
     """

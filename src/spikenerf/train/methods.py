@@ -42,8 +42,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from spikenerf.core.color import srgb_encode
-from spikenerf.core.errors import InputError
+from spikenerf.core.color import srgb_mse
+from spikenerf.core.errors import InputError, check_choice
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
 from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
@@ -310,6 +310,11 @@ class TrainMethod:
         host, then :meth:`step_losses`."""
         return self.step_losses(state, iteration, self.draw(state))
 
+    @property
+    def step_variants(self) -> int:
+        """How many kinds of step :meth:`step_losses` takes (each its own compiled graph)."""
+        return 1
+
     def draw(self, state: TrainState) -> tuple[Tensor, ...]:
         """The step's random draws for :meth:`step_losses`, made on the host by the samplers' own generators
         (no device value is read): the rays' image indices (B,) and pixels (B, 2)."""
@@ -349,8 +354,8 @@ class TrainMethod:
         if out.coarse_color is not None:
             loss = loss + recon_loss(out.coarse_color.view(-1, views, channels).mean(dim=1), target)
         with torch.no_grad():
-            srgb_mse = torch.mean((srgb_encode(color.float()) - srgb_encode(target)) ** 2)
-        return Term(loss, srgb_mse, poses.shape[0], out.dropped_samples)
+            mse = srgb_mse(color, target)
+        return Term(loss, mse, poses.shape[0], out.dropped_samples)
 
     def image_poses(self, state: TrainState, index: Tensor) -> Tensor:
         """Poses (B·S, 4, 4) of image targets ``index`` (B,): their S poses each, refined when
@@ -504,30 +509,53 @@ class SpikeNeRF(NerfRecon):
         return spike_weight(iteration, s.lam, *s.schedule(self.config.iters)) if self.uses_spike_loss else 0.0
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
-        step = super().losses(state, iteration)
         lam = self.lam(iteration)
-        if lam > 0 and iteration % self.config.spike.every == 0:
-            step.terms["spike"], rays = self.spike_term(state)
+        drawn = self.draw(state)
+        spike = lam > 0 and iteration % self.config.spike.every == 0
+        if spike:
+            drawn = (*drawn, *self.draw_window(state))
+        step = self.step_losses(state, iteration, drawn)
+        if spike:  # the weight stays out of the compiled step (a changing float would recompile it)
             step.weights["spike"] = lam
+        return step
+
+    @property
+    def step_variants(self) -> int:
+        return 2 if self.uses_spike_loss else 1  # steps with and without a spike window
+
+    def draw_window(self, state: TrainState) -> tuple[Tensor, Tensor, Tensor]:
+        """The spike term's draws, on the host (the window sampler's generator; the paper's random start
+        accumulators from the global one): the window's L steps (L,) int64, its P pixels (P, 2) and their
+        start accumulators (P, C), uniform in [0, φ) for the paper's loss, else 0."""
+        s, spikes = self.config.spike, self.spikes
+        assert spikes is not None, "build_targets first"
+        start, pixels = state.samplers["windows"].sample(s.pixels)
+        shape = (s.pixels, self.channels)
+        a0 = torch.rand(shape) * spikes.threshold if s.kind == "paper" else torch.zeros(shape)
+        return torch.arange(start, start + s.window), pixels, a0
+
+    def step_losses(self, state: TrainState, iteration: int, drawn: tuple[Tensor, ...]) -> StepLosses:
+        """:meth:`TrainMethod.step_losses` of the rays ``drawn[:2]``, and with the window's draws of
+        :meth:`draw_window` after them the spike term too (a second graph when compiled: no host sync)."""
+        step = super().step_losses(state, iteration, drawn[:2])
+        if len(drawn) > 2:
+            step.terms["spike"], rays = self.spike_term(state, *drawn[2:])
             step.rays += rays
         return step
 
-    def spike_term(self, state: TrainState) -> tuple[Tensor, int]:
-        """Spike loss of the next window of L consecutive steps for P pixels → (loss, rays rendered)."""
+    def spike_term(self, state: TrainState, steps: Tensor, pixels: Tensor, a0: Tensor) -> tuple[Tensor, int]:
+        """Spike loss of the window of L consecutive ``steps`` (L,) for pixels (P, 2) from start accumulators
+        ``a0`` (P, C) (:meth:`draw_window`) → (loss, rays rendered)."""
         s, spikes, ds = self.config.spike, self.spikes, state.dataset
         assert spikes is not None
-        start, pixels = state.samplers["windows"].sample(s.pixels)
-        paper = s.kind == "paper"
-        shape = (s.pixels, self.channels)
-        a0 = torch.rand(shape) * spikes.threshold if paper else torch.zeros(shape)
-        poses = spikes.poses[start : start + s.window]
+        poses = spikes.poses.index_select(0, steps.to(spikes.poses.device))
         if state.pose_refine is not None:
-            poses = state.pose_refine.window(poses, start)
-        window = render_spike_window(state.model, poses, ds.intrinsics, pixels, a0.to(state.device),
-                                     spikes.threshold, ds.near, ds.far, perturb=True)  # fmt: skip
-        recorded = spikes.window(start, s.window, pixels).to(state.device)
-        if paper:
-            a0 = a0.to(state.device)
+            poses = state.pose_refine.window(poses, steps)
+        a0 = a0.to(state.device)
+        window = render_spike_window(state.model, poses, ds.intrinsics, pixels, a0, spikes.threshold,
+                                     ds.near, ds.far, perturb=True)  # fmt: skip
+        recorded = spikes.window(steps, pixels).to(state.device)
+        if s.kind == "paper":
             loss = paper_spike_loss(window.intensity, recorded, spikes.threshold, a0, s.paper_warmup)
         else:
             loss = spike_interval_loss(window.intensity, recorded, spikes.threshold, s.pairs)  # type: ignore[arg-type]
@@ -695,9 +723,8 @@ class SpikeIntegral(TrainMethod):
         if out.coarse_color is not None:
             loss = loss + window_mean_loss(out.coarse_color.view(shape).mean(dim=2), target, band)
         with torch.no_grad():
-            mean = means.mean(dim=1).float()
-            srgb_mse = torch.mean((srgb_encode(mean.clamp(0, 1)) - srgb_encode(target.clamp(0, 1))) ** 2)
-        return Term(loss, srgb_mse, poses.shape[0], out.dropped_samples)
+            mse = srgb_mse(means.mean(dim=1), target)
+        return Term(loss, mse, poses.shape[0], out.dropped_samples)
 
     def track_term(self, state: TrainState, pixels: Tensor, steps: Tensor) -> Term:
         """The loss of one render per target, at pixels (B, 2) of steps (B,), against the spike counts along
@@ -722,9 +749,8 @@ class SpikeIntegral(TrainMethod):
         if out.coarse_color is not None:
             loss = loss + window_mean_loss(out.coarse_color[:, None], target, None)
         with torch.no_grad():
-            color = out.color.float().clamp(0, 1)
-            srgb_mse = torch.mean((srgb_encode(color) - srgb_encode(target.clamp(0, 1))) ** 2)
-        return Term(loss, srgb_mse, poses.shape[0], out.dropped_samples)
+            mse = srgb_mse(out.color, target)
+        return Term(loss, mse, poses.shape[0], out.dropped_samples)
 
 
 #: ``--method`` -> its class: the one table of training methods, in the order of the ``Method`` Literal of
@@ -736,8 +762,7 @@ METHOD_CLASSES: dict[str, type[TrainMethod]] = {
 
 def method_class(name: str) -> type[TrainMethod]:
     """The :class:`TrainMethod` class of ``name`` (InputError naming ``method`` for an unknown one)."""
-    if name not in METHOD_CLASSES:
-        raise InputError(f"method must be one of {', '.join(METHOD_CLASSES)}, found {name!r}")
+    check_choice(name, METHOD_CLASSES, "method")
     return METHOD_CLASSES[name]
 
 

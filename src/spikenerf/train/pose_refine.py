@@ -189,6 +189,7 @@ class PoseRefinement(PoseLearner):
         traj = dataset.trajectory
         self._traj_poses = torch.as_tensor(traj.poses, dtype=torch.float32)  # (T, 4, 4)
         self._traj_steps = np.asarray(traj.steps, np.int64)
+        self._traj_step_numbers = torch.as_tensor(self._traj_steps)
 
     def __call__(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
         return self.refiner(poses, steps)
@@ -198,9 +199,9 @@ class PoseRefinement(PoseLearner):
         steps = targets.steps[index, None] if targets.pose_steps is None else targets.pose_steps[index]
         return self.refiner(poses, steps.expand(len(index), targets.poses.shape[1]).reshape(-1))
 
-    def window(self, poses: Tensor, start: int) -> Tensor:
-        """Corrected poses of the trajectory slice ``poses`` (L, 4, 4) starting at index ``start``."""
-        return self.refiner(poses, self._traj_steps[start : start + len(poses)])
+    def window(self, poses: Tensor, index: Tensor) -> Tensor:
+        """Corrected poses (L, 4, 4) of ``poses`` (L, 4, 4), the trajectory's at indices ``index`` (L,)."""
+        return self.refiner(poses, self._traj_step_numbers[index.cpu()])
 
     def views(self, views: Any) -> Any:
         """The evaluation views with their first poses refined by :meth:`eval_poses`."""

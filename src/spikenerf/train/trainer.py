@@ -50,7 +50,7 @@ from spikenerf.train.checkpoint import (
 )
 from spikenerf.train.compiled_optim import CompiledAdamStep, load_state, set_lr, use_tensor_lr
 from spikenerf.train.compiled_step import CompiledStep, compile_step, compiles_needed, static_samples
-from spikenerf.train.config import TrainConfig, load_run_config, save_config
+from spikenerf.train.config import CONFIG_FILE, TrainConfig, load_run_config, save_config
 from spikenerf.train.dense_adam import DenseAdam
 from spikenerf.train.device import batch_bytes, check_batch_fits, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, evaluate_views, read_curves, write_curves
@@ -60,7 +60,7 @@ from spikenerf.train.methods import StepLosses, make_method, method_class, unuse
 from spikenerf.train.pose_refine import pose_refinement
 from spikenerf.train.run import check_resume_fits, dataset_fingerprint
 
-CONFIG_FILE, SUMMARY = "config.yaml", "summary.json"
+SUMMARY = "summary.json"
 #: options that may change when a run is resumed (everything else must match the stored config)
 RESUMABLE = (
     "iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every", "compile",
@@ -173,13 +173,27 @@ def _check_resume(
     a, b = stored.to_dict(), given.to_dict()
     diff = sorted(k for k in a if k not in resumable and a[k] != b[k])
     if diff:
-        detail = ", ".join(f"{k}: run has {a[k]!r}, asked {b[k]!r}" for k in diff)
+        leaves = [(k, x, y) for k in diff for k, x, y in _leaf_changes(k, a[k], b[k])]
+        detail = ", ".join(f"{k}: run has {x!r}, asked {y!r}" for k, x, y in leaves)
         raise InputError(
             f"resume with different options ({detail}); use a new out folder to change them",
             path,
-            param=("resume", "out"),
+            param=(*(k for k, _, _ in leaves), "resume", "out"),
         )
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in resumable})
+
+
+def _leaf_changes(key: str, was: Any, now: Any) -> list[tuple[str, Any, Any]]:
+    """The differing entries of a config section, dotted (``targets.recon``), down to its leaves: one
+    changed option is named alone, not with its whole section."""
+    if isinstance(was, dict) and isinstance(now, dict) and key != "field_config":
+        return [
+            change
+            for k in sorted({*was, *now}, key=str)
+            if was.get(k) != now.get(k)
+            for change in _leaf_changes(f"{key}.{k}", was.get(k), now.get(k))
+        ]
+    return [(key, was, now)]
 
 
 #: the running mean of the static budget's cut slots a ray (read every ``log_every`` steps; not in curves)

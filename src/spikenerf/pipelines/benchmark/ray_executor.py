@@ -185,7 +185,9 @@ def run_jobs(
         return  # all finished before: no cluster needed
     started = _connect(ray, cfg.address)
     out = str(cfg.out.resolve())
-    gpus = cfg.device == "cuda" or (cfg.device == "auto" and ray.cluster_resources().get("GPU", 0) > 0)
+    gpus = cfg.device.startswith("cuda") or (
+        cfg.device == "auto" and ray.cluster_resources().get("GPU", 0) > 0
+    )
     task = ray.remote(num_cpus=cfg.ray_cpus, max_retries=cfg.retries, retry_exceptions=True)(execute)
     refs: dict[Any, Job] = {}
     by_name: dict[str, Any] = {}

@@ -43,6 +43,8 @@ ADDED_DEFAULTS: dict[str, Any] = {
 #: field-config entries since removed, with the value that trained as the defaults do now: a record with
 #: that value reads as without it (``gather_lookup`` false is ``lookup`` "auto")
 REMOVED_DEFAULTS: dict[str, Any] = {"gather_lookup": False}
+#: field-config entries since removed that nothing read: a record's value of them, whatever it is, is ignored
+UNREAD_DEFAULTS = ("batch_rays",)
 #: spike-integral's defaults before they were recorded (2048 rays: 1024 windows of 11 steps × 2 renders)
 PREVIOUS_INTEGRAL: dict[str, int] = {"window": 11, "samples": 2, "batch": 2048}
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
@@ -136,6 +138,7 @@ def check_settings(cfg: Any) -> str | None:
     if was is not None:
         was = {**{k: v for k, v in ADDED_DEFAULTS.items() if k in new["field_defaults"]}, **was}
         was = {k: v for k, v in was.items() if k not in REMOVED_DEFAULTS or v != REMOVED_DEFAULTS[k]}
+        was = {k: v for k, v in was.items() if k not in UNREAD_DEFAULTS}
     if was != new["field_defaults"]:
         what = "unrecorded (an earlier version)" if was is None else ", ".join(
             f"{k} {was.get(k)!r} → {new['field_defaults'].get(k)!r}"

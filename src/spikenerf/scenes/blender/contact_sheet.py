@@ -13,7 +13,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from spikenerf.core.atomic import atomic_path
-from spikenerf.core.color import srgb_encode
+from spikenerf.core.color import display_uint8, srgb_encode
 from spikenerf.scenes.blender.catalog import BUILTIN_SCENES, DEFAULT_CAMERA_ANGLE_X, default_orbit_radius
 from spikenerf.scenes.blender.source import BlenderSource, scene_extent
 from spikenerf.scenes.trajectory import look_at, orbit
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--spp", type=int, default=16)
     args = parser.parse_args(argv)
     frames = [scene_frame(name, args.size, args.spp) for name in BUILTIN_SCENES]
-    png = (srgb_encode(contact_sheet(frames)) * 255.0 + 0.5).astype(np.uint8)
+    png = display_uint8(srgb_encode(contact_sheet(frames)))
     with atomic_path(args.out) as tmp:
         iio.imwrite(tmp, png, extension=".png")
     print(f"wrote {args.out} ({', '.join(BUILTIN_SCENES)})")

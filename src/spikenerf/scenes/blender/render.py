@@ -19,7 +19,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, check_choice
 from spikenerf.scenes.blender._bpy import quiet
 from spikenerf.scenes.blender.catalog import (
     DEFAULT_CAMERA_ANGLE_X,
@@ -64,10 +64,8 @@ class RenderSettings:
             raise InputError(f"render size must be positive, got {self.width}x{self.height}")
         if self.spp < 1:
             raise InputError(f"spp must be ≥ 1, got {self.spp}")
-        if self.denoise not in DENOISE_LEVELS:
-            raise InputError(f"denoise must be one of {DENOISE_LEVELS}, got {self.denoise!r}")
-        if self.device not in ("auto", "cpu", "gpu"):
-            raise InputError(f"device must be auto, cpu or gpu, got {self.device!r}")
+        check_choice(self.denoise, DENOISE_LEVELS, "denoise")
+        check_choice(self.device, ("auto", "cpu", "gpu"), "device")
         if not 0 < self.camera_angle_x < math.pi:
             raise InputError(f"camera_angle_x must be in (0, π) radians, got {self.camera_angle_x}")
 
