@@ -88,7 +88,7 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
 
     import click
 
-    from spikenerf.camera.model import COLORS, ColorMode
+    from spikenerf.camera.modes import COLORS, NOISES, ColorMode
     from spikenerf.camera.reconstruct import METHODS, ReconMethod
     from spikenerf.data.targets import COLORS as TRAIN_COLORS
     from spikenerf.data.targets import METHODS as TRAIN_METHODS
@@ -103,6 +103,7 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
         return list(param.type.choices)
 
     assert typing.get_args(ColorMode) == COLORS and choices("simulate", "color") == [*COLORS, "all"]
+    assert tuple(choices("reconstruct", "color")) == COLORS and tuple(choices("simulate", "noise")) == NOISES
     assert typing.get_args(ReconMethod) == METHODS and (*METHODS, "learned") == RECONS
     assert tuple(choices("reconstruct", "method")) == RECONS == typing.get_args(TargetRecon)
     assert tuple(choices("train", "recon")) == RECONS

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -11,7 +13,7 @@ from hypothesis.extra.numpy import arrays
 
 from spikenerf.camera.masks import spike_masks
 from spikenerf.camera.model import fire
-from spikenerf.camera.reconstruct import reconstruct_frames, tfi, tfp, window_sum
+from spikenerf.camera.reconstruct import check_window, reconstruct_frames, tfi, tfp, window_sum
 from spikenerf.core.errors import InputError
 
 small_streams = arrays(
@@ -113,6 +115,20 @@ def test_tfp_rgb_torch_and_frame_selection() -> None:
 def test_bad_window_is_an_input_error(window) -> None:
     with pytest.raises(InputError, match="odd"):
         tfp(np.zeros((5, 2, 2), np.uint8), window=window)
+
+
+def test_check_window_is_the_one_window_rule() -> None:
+    """Every window of the toolkit (TFP, train's targets, the learned network's, an import's) is checked by
+    ``check_window``: an odd integer ≥ its least, named by its parameter (and file)."""
+    assert check_window(np.int64(5)) == 5 and check_window(3, least=3) == 3
+    with pytest.raises(
+        InputError, match=r"^cfg.yaml: imported.window must be an odd number of steps ≥ 3"
+    ) as e:
+        check_window(1, "imported.window", least=3, path=Path("cfg.yaml"))
+    assert e.value.params == ("imported.window",)
+    for bad in (2, 5.0, True, "5"):
+        with pytest.raises(InputError, match=r"window must be an odd number of steps ≥ 1"):
+            check_window(bad)
 
 
 @pytest.mark.parametrize("phi", [0.0, -1.0, float("nan")])

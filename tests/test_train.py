@@ -735,7 +735,7 @@ def test_config_errors_name_the_key_and_the_cli_the_flag(dataset_dir: Path, tmp_
         main(["train", str(dataset_dir), "--window", "4", "--out", str(tmp_path / "r")])
     assert (
         capsys.readouterr().err.strip()
-        == "spikenerf: error: --window must be an odd number of frames, found 4"
+        == "spikenerf: error: --window must be an odd number of steps ≥ 1 (K = 2h+1, centred), found 4"
     )
 
 

@@ -9,22 +9,19 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import Literal, TypeVar, get_args
+from typing import TypeVar
 
 import numpy as np
 import torch
 
+from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.noise import NoiseProcess, RealisticNoise
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, check_choice
 
 Array = TypeVar("Array", np.ndarray, torch.Tensor)
 
-#: colour modes of the spike camera
-ColorMode = Literal["gray", "rgb", "bayer"]
-COLORS: tuple[str, ...] = get_args(ColorMode)
-NOISES = ("ideal", "realistic")
 #: The colour filter array of the ``bayer`` mode: (0,0)=R, (0,1)=G, (1,0)=G, (1,1)=B.
 BAYER_PATTERN = "RGGB"
 #: Steps buffered on the device before a copy to host memory in :func:`simulate`.
@@ -118,10 +115,8 @@ class CameraConfig:
             representable = number and math.isfinite(t) and 0 < np.float32(t) < np.inf
         if not representable:
             raise InputError(f"threshold must be a finite number > 0, got {t!r}", param="threshold")
-        if self.color not in COLORS:
-            raise InputError(f"color must be one of {'|'.join(COLORS)}, got {self.color!r}", param="color")
-        if self.noise not in NOISES:
-            raise InputError(f"noise must be one of {'|'.join(NOISES)}, got {self.noise!r}", param="noise")
+        check_choice(self.color, COLORS, "color")
+        check_choice(self.noise, NOISES, "noise")
         for name in ("seed", "warmup"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 
 import numpy as np
@@ -105,7 +106,7 @@ def tfp(
     Returns:
         float32 (N, ...) linear intensity in [0, φ], the same array type as ``spikes``.
     """
-    _check_window(window)
+    check_window(window)
     check_threshold(threshold)
     flat, rest, out_idx = _flatten(spikes, frames)
     out = np.empty((out_idx.size, flat.shape[1]), np.float32)
@@ -231,13 +232,15 @@ def reconstruct_frames(
         read: ``read(a, b)`` returns frames ``a:b`` of the stream, (b-a, ...) 0/1.
         total: T, the frames in the stream.
         start, stop: the output frames, ``0 <= start < stop <= total``.
+        method: ``tfp`` or ``tfi``. window: TFP window, odd (TFI has none). threshold: φ (intensity =
+            rate · φ).
     Returns:
         float32 (stop-start, ...) linear intensity.
     """
     check_choice(method, METHODS, "method")
     resolve_frames(slice(start, stop), total)
     if method == "tfp":
-        _check_window(window)
+        check_window(window)
         half = (window - 1) // 2
         lo, hi = max(0, start - half), min(total, stop + half)
         return tfp(read(lo, hi), window, threshold, slice(start - lo, stop - lo))
@@ -280,12 +283,17 @@ def like(result: np.ndarray, spikes: np.ndarray | torch.Tensor) -> np.ndarray | 
     return result
 
 
-def _check_window(window: int) -> None:
-    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1 or window % 2 == 0:
+def check_window(window: object, param: str = "window", least: int = 1, path: Path | None = None) -> int:
+    """``window`` as an int if it is an odd integer ≥ ``least`` (K = 2h + 1 steps centred on its step),
+    else InputError naming ``param`` (and ``path``): the one check of every window of the toolkit."""
+    bad = isinstance(window, bool) or not isinstance(window, (int, np.integer))
+    if bad or window < least or window % 2 == 0:  # type: ignore[operator]
         raise InputError(
-            f"window must be an odd number of frames ≥ 1 (K = 2h+1 centred on the frame), found {window}",
-            param="window",
+            f"{param} must be an odd number of steps ≥ {least} (K = 2h+1, centred), found {window!r}",
+            path=path,
+            param=param,
         )
+    return int(window)  # type: ignore[arg-type]
 
 
 def check_threshold(threshold: float) -> None:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError, comma_list
@@ -123,8 +124,8 @@ def command(
     cfg = PairConfig(
         size=size,
         window=_window(window),
-        modes=_choices("--color", modes, ("gray", "rgb", "bayer")),
-        noises=_choices("--noise", noises, ("ideal", "realistic")),
+        modes=_choices("--color", modes, COLORS),
+        noises=_choices("--noise", noises, NOISES),
         brightness=_range(brightness),
         max_speed=max_speed,
         threshold=threshold,
@@ -143,9 +144,9 @@ def command(
 
 
 def _window(window: int) -> int:
-    if window < 3 or window % 2 == 0:
-        raise InputError(f"--window must be an odd number of steps ≥ 3, found {window}")
-    return window
+    from spikenerf.camera.reconstruct import check_window
+
+    return check_window(window, "window", least=3)
 
 
 def _choices(flag: str, text: str, allowed: tuple[str, ...]) -> tuple[str, ...]:

@@ -16,6 +16,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from spikenerf.camera.modes import COLORS
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.cli.types import frame_size_options
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic
@@ -84,7 +85,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
 @click.option("--weights", type=click.Path(path_type=Path), help="learned: weights file [default: shipped].")
 @click.option(
     "--color",
-    type=click.Choice(["gray", "rgb", "bayer"]),
+    type=click.Choice(COLORS),
     default="gray",
     show_default=True,
     help="learned: the stream is gray, one channel of a per-channel RGB recording, or a Bayer RGGB mosaic.",

@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.cli import command_line
 from spikenerf.cli.types import COUNT, SEED, BoundedInt
 from spikenerf.core.errors import InputError
@@ -21,9 +22,8 @@ FLOAT_OPTIONS = (
 )  # fmt: skip
 
 
-#: camera.model.COLORS, repeated so that this module (and `simulate --help`) does not import torch;
-#: tests/test_cli.py checks that the two agree
-CAMERA_COLORS = ("gray", "rgb", "bayer")
+#: the camera's colour modes (``camera/modes.py``: no torch import, so `simulate --help` stays quick)
+CAMERA_COLORS = COLORS
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
 PARAM_FLAGS = {"colors": "--color"}
 
@@ -69,7 +69,7 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 @click.option("--fps", type=float, default=40000.0, show_default=True, help="Spike readout rate (Hz).")
 @click.option("--color", type=click.Choice([*CAMERA_COLORS, "all"]), default="gray", show_default=True)
 @click.option("--threshold", type=float, default=1.0, show_default=True, help="Spike threshold φ.")
-@click.option("--noise", type=click.Choice(["ideal", "realistic"]), default="ideal", show_default=True)
+@click.option("--noise", type=click.Choice(NOISES), default="ideal", show_default=True)
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Camera (and render) seed.")
 @click.option(
     "--warmup",

@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.io import count_frames, read_dat, rgb_paths
-from spikenerf.camera.model import COLORS
+from spikenerf.camera.modes import COLORS
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError, check_choice

@@ -11,7 +11,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.layout import to_channels_last
-from spikenerf.camera.model import COLORS as MODES
+from spikenerf.camera.modes import COLORS as MODES
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.camera.stats import dat_rate_summary
 from spikenerf.core.atomic import write_bytes_atomic

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from spikenerf.camera.reconstruct import check_window
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
@@ -95,11 +96,7 @@ def keyframe_windows(dataset: SpikeDataset, count: int, views: PosedImages) -> n
     tfp = imported.get("keyframe_images", "tfp") == "tfp"
     if count < 2 or not tfp or window is None or not keys:
         return None  # one pose, learned keyframes, or an import from before the window was recorded
-    if isinstance(window, bool) or not isinstance(window, int) or window < 1 or window % 2 == 0:
-        raise InputError(
-            f"config.yaml: imported.window must be an odd number of steps ≥ 1, found {window!r}",
-            path=dataset.root,
-        )
+    check_window(window, "imported.window", path=Path(dataset.root) / "config.yaml")
     if not len(views):  # nothing to score (the no-reference checks alone)
         return None
     steps, _ = check_steps(dataset, 0)  # the recorded keyframes' stream indices, checked
@@ -218,6 +215,9 @@ def evaluate_run(
             autocast precision (the no-reference checks render in fp32); metrics.json records the one used.
         noref: ``auto`` (on for imported datasets), ``on`` or ``off``: the no-reference checks against the
             recording itself (:mod:`spikenerf.eval.noref`). noref_options: their settings.
+        progress: progress bars. log: called with the one summary line (None: silent).
+        test_pose: (iterations, learning rate) of the test-view pose fit (iterations 0: off;
+            ``eval --test-pose-opt``, ``--test-pose-lr``).
     Returns:
         The metrics.json content (see docs/formats.md): split, method, color, field, iterations, views,
         mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, no_reference,

@@ -20,6 +20,7 @@ import yaml
 
 from spikenerf import __version__
 from spikenerf.camera.io import count_frames, iter_dat, raw_width_guess, read_dat, resolve_frames
+from spikenerf.camera.reconstruct import check_window
 from spikenerf.camera.spikecv import recording_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
@@ -113,8 +114,7 @@ def _check(options: ImportOptions) -> None:
     for name in ("keyframe_every", "window", "overlap"):
         if getattr(options, name) < 1:
             raise InputError(f"{name} must be ≥ 1, found {getattr(options, name)}", param=name)
-    if options.window % 2 == 0:
-        raise InputError(f"window must be odd, found {options.window}", param="window")
+    check_window(options.window, "window")
     if not 0 <= options.min_registered <= 1:
         raise InputError(
             f"min_registered must be in [0, 1], found {options.min_registered}", param="min_registered"

@@ -97,10 +97,11 @@ def write_pairs(
     Args:
         cfg: pair settings. train_draws / val_draws: random draws per split (a draw gives 1, 3 or 4 samples).
         extra: named FrameSources (Blender scenes, sequences) added to the train split, ``extra_draws`` each.
-        command: the command line, recorded in the manifest.
+        seed: seeds the draws (validation draws from their own offset seed). command: the command line,
+            recorded in the manifest. progress: a progress bar over the shards.
         natural_draws: photograph draws added to the train split (``recon/natural.py``; needs scikit-image).
     Raises:
-        InputError: ``out`` holds pairs made with other settings.
+        InputError: ``out`` holds pairs made with other settings (named).
     """
     out = Path(out)
     CameraConfig(threshold=cfg.threshold)  # a φ the camera refuses (past float32): refused before writing

@@ -18,7 +18,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW
+from spikenerf.camera.modes import COLORS
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
 from spikenerf.core.atomic import atomic_path
 from spikenerf.core.errors import InputError
 from spikenerf.recon.features import feature_count, nested_lengths, spike_features
@@ -28,7 +29,7 @@ ARCH = "unet2-v1"
 #: the weights shipped inside the package
 SHIPPED = "recon-v1.pt"
 #: colour modes a model can be trained for (rgb = each per-channel stream; bayer = each CFA plane)
-MODES = ("gray", "rgb", "bayer")
+MODES = COLORS
 
 
 @dataclass(frozen=True)
@@ -39,10 +40,7 @@ class NetConfig:
     width: int = 16
 
     def check(self) -> NetConfig:
-        if not isinstance(self.window, int) or self.window < 3 or self.window % 2 == 0:
-            raise InputError(
-                f"window must be an odd number of steps ≥ 3, found {self.window!r}", param="window"
-            )
+        check_window(self.window, "window", least=3)
         if not isinstance(self.width, int) or self.width < 4:
             raise InputError(f"width must be an integer ≥ 4, found {self.width!r}", param="width")
         return self

@@ -18,6 +18,7 @@ import numpy as np
 
 from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera, bayer_mosaic
+from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.noise import RealisticNoise
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.color import rgb_to_gray
@@ -45,8 +46,8 @@ class PairConfig:
 
     size: int = 64
     window: int = DEFAULT_WINDOW
-    modes: tuple[str, ...] = ("gray", "rgb", "bayer")
-    noises: tuple[str, ...] = ("ideal", "realistic")
+    modes: tuple[str, ...] = COLORS
+    noises: tuple[str, ...] = NOISES
     brightness: tuple[float, float] = (0.04, 1.0)
     max_speed: float = 1.5
     threshold: float = 1.0

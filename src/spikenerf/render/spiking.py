@@ -76,6 +76,7 @@ def render_spike_window(
     """Render intensity for N pixels over L consecutive steps and fire spikes from a start state.
 
     Args:
+        model: the radiance model rendered. intrinsics: the camera of every step.
         poses: (L, 4, 4) camera-to-world of the steps. pixels: (N, 2) int ``(x=column, y=row)``.
         start_accumulator: (N, C) accumulator before the first step (e.g. uniform in [0, φ) or a state
             carried from a previous window). threshold: φ.

@@ -126,7 +126,8 @@ def orbit(
         radius: distance from the centre (scene units). elevation_deg: elevation above the XY plane.
         turns: full 360° turns over the duration. duration: seconds. fps: steps per second.
         elevation_sweep_deg: peak-to-peak sinusoidal elevation change over the path (0 = flat orbit).
-        jitter: standard deviation of a smooth random position offset (scene units), seeded.
+        center: the point looked at. start_azimuth_deg: azimuth of step 0.
+        jitter: standard deviation of a smooth random position offset (scene units), seeded by ``seed``.
         shake: amplitude (scene units) of a look-at point circling ``center`` ``shake_cycles`` times over the
             path (and bobbing twice as fast): a fast hand-shake-like rotation of the camera (0 = none).
     Returns:

@@ -17,7 +17,7 @@ from typing import Any, ClassVar, Literal
 
 import yaml
 
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.config import Bound, check_config, choices, from_mapping
 from spikenerf.core.errors import InputError
@@ -295,11 +295,7 @@ class TrainConfig:
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
         check_config(self)  # types, finite floats and every BOUNDS, naming the key
-        if self.targets.window < 1 or self.targets.window % 2 == 0:
-            raise InputError(
-                f"targets.window must be an odd number of frames, found {self.targets.window}",
-                param="targets.window",
-            )
+        check_window(self.targets.window, "targets.window")
         if self.window_poses() > 1 and self.targets.recon != "tfp":  # (only the stream methods read both)
             raise InputError(
                 f"targets.window_poses > 1 models the TFP window; targets.recon {self.targets.recon!r} "

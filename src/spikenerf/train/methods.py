@@ -115,6 +115,7 @@ def default_window(motion: float, samples: int = 1) -> int:
     Args:
         motion: pixels the image moves a step (``scenes.trajectory.image_motion``); NaN or ≤ 0: unknown,
             the longest window.
+        samples: ``integral.samples``, the renders drawn in each window (the window is never shorter).
     """
     length = INTEGRAL_WINDOW
     if math.isfinite(motion) and motion > 0:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
+from spikenerf.camera.modes import COLORS
 from spikenerf.capture.simulate import estimate_resources
 from spikenerf.core.limits import check_resources
 from spikenerf.fields import field_config, field_memory
 from spikenerf.pipelines.benchmark.cells import training_seeds
 
 #: the streams ``simulate --color all`` writes (the benchmark's dataset command when it needs gray and rgb)
-SIMULATE_ALL = ("gray", "rgb", "bayer")
+SIMULATE_ALL = COLORS
 
 
 def check_benchmark_resources(cfg: Any) -> None:
