@@ -68,7 +68,7 @@ SCENES: dict[str, tuple[str, tuple[Primitive, ...]]] = {
         ),
     ),
     "analytic-blocks": (
-        "analytic (no Blender): a stack of checkered boxes, gray-friendly high contrast",
+        "analytic (no Blender): a stack of striped and checkered boxes and a ringed sphere, high contrast",
         (
             Box((-0.8, -0.8, -0.7), (0.8, 0.8, -0.4), Texture("checker", DARK, (0.9, 0.9, 0.9), 3.0)),
             Box((-0.45, -0.45, -0.4), (0.45, 0.45, 0.1), Texture("stripes", RED, (0.9, 0.9, 0.9), 10.0)),
