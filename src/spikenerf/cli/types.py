@@ -76,8 +76,10 @@ NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", "
 
 
 def dat_recording(path: Path, height: int | None, width: int | None, raw_width: int | None) -> Any:
-    """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given;
-    one warning line when the file also reads as a raw sps10 recording (``camera.io.raw_width_guess``)."""
+    """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given.
+    One warning line for each of ``width``/``height`` that differs from the ``config.yaml`` beside the file
+    (when the given size fits the file), and one when the file also reads as a raw sps10 recording
+    (``camera.io.raw_width_guess``)."""
     from spikenerf.camera.io import count_frames, raw_width_guess
     from spikenerf.camera.spikecv import read_spikecv_config, recording_config
 
