@@ -17,6 +17,7 @@ import stat
 from collections.abc import Iterator
 from pathlib import Path
 
+from spikenerf.core.atomic import missing_folders, remove_empty
 from spikenerf.core.errors import InputError
 
 try:
@@ -103,7 +104,7 @@ def output_lock(folder: str | Path, param: str = "out") -> Iterator[Path]:
     if fcntl is None:
         yield path
         return
-    made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
+    made = missing_folders(path.parent)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
@@ -113,7 +114,7 @@ def output_lock(folder: str | Path, param: str = "out") -> Iterator[Path]:
     try:
         fd = _acquire(path, folder, param)
     except BaseException:
-        _remove_empty(made)
+        remove_empty(made)  # a refusal leaves nothing behind, not even the folders above --out
         raise
     try:
         os.ftruncate(fd, 0)
@@ -123,14 +124,4 @@ def output_lock(folder: str | Path, param: str = "out") -> Iterator[Path]:
         with contextlib.suppress(OSError):
             path.unlink()
         os.close(fd)
-        _remove_empty(made)
-
-
-def _remove_empty(made: list[Path]) -> None:
-    """Remove the parent folders the lock created, innermost first, where the command left them empty
-    (a refusal leaves nothing behind, not even the folders above ``--out``)."""
-    for folder in made:
-        try:
-            folder.rmdir()
-        except OSError:
-            return
+        remove_empty(made)
