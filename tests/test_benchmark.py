@@ -12,8 +12,9 @@ import pytest
 
 from helpers import BENCHMARK_TRAIN
 from spikenerf.core.errors import InputError
-from spikenerf.pipelines.benchmark import BenchmarkConfig, run_benchmark
+from spikenerf.pipelines.benchmark import BenchmarkConfig, cell_keys, run_benchmark
 from spikenerf.pipelines.benchmark.local_executor import _parallel
+from spikenerf.pipelines.benchmark.run import other_finished_cells
 
 
 def test_parallel_keeps_order_runs_at_once_and_stops_on_failure() -> None:
@@ -66,7 +67,9 @@ def test_an_interrupted_benchmark_stops_its_running_steps() -> None:
     assert log and log[0]["rc"] != 0
 
 
-def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_two_jobs_write_logs_and_resume(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt", "nerf-blur"], ["gray"], tmp_path / "b", size=16,
                           frames=100, iters=4, device="cpu", test_views=1, render=False,
@@ -116,6 +119,13 @@ def test_two_jobs_write_logs_and_resume(tmp_path: Path, monkeypatch: pytest.Monk
     assert run_benchmark(replace(cfg, jobs=1)) == cells
     assert json.loads((cfg.out / "benchmark.json").read_text())["settings"]["iters"] == 4
     assert json.loads((cfg.out / "benchmark.json").read_text())["nonce"] != nonce
+    # a call with fewer methods writes tables of its own cells, and says which finished cells it leaves out
+    capsys.readouterr()
+    assert run_benchmark(replace(cfg, variants=["nerf-gt"])) == cells[:1]
+    assert "warning: the tables hold this call's 1 cells; 1 other finished cells" in capsys.readouterr().err
+    assert other_finished_cells(cfg, cell_keys(replace(cfg, variants=["nerf-gt"]))) == [
+        cfg.out / "runs" / "analytic-orbs" / "gray" / "nerf-blur"
+    ]
 
 
 def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:

@@ -145,3 +145,31 @@ def test_a_failed_allocation_is_one_line_and_a_bug_is_not_hidden(
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.strip() == f"spikenerf: error: {OUT_OF_MEMORY}"
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("scene", ["all", "analytic-orbs,analytic-blocks", "nope"])
+def test_demo_takes_one_scene_by_name(capsys, tmp_path: Path, scene: str) -> None:
+    """``demo --scene`` runs one scene: a list or ``all`` (which chose a Blender scene) is refused, not cut
+    to its first name."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["demo", "--scene", scene, "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1
+    assert err.startswith("spikenerf: error: --scene: expected one scene name of analytic-orbs")
+    assert not (tmp_path / "d").exists()
+
+
+def test_benchmark_scenes_all_without_blender_says_what_stands_in(capsys, monkeypatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Without Blender ``--scenes all`` is the analytic scenes (a Table I of other scenes): said in a line."""
+    import spikenerf.pipelines.benchmark.cells as cells
+    import spikenerf.pipelines.suite as suite
+    import spikenerf.scenes.registry as registry
+
+    ran = []
+    monkeypatch.setattr(registry, "blender_available", lambda: False)
+    monkeypatch.setattr(cells, "blender_available", lambda: False)
+    monkeypatch.setattr(suite, "benchmark_with_report", ran.append)
+    main(["benchmark", "--scenes", "all", "--out", str(tmp_path / "b")])
+    err = capsys.readouterr().err
+    assert "warning: --scenes all: Blender is not installed" in err and err.count("\n") == 1
+    assert ran[0].scenes == [s.name for s in registry.list_scenes() if not s.needs_blender]

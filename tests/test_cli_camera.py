@@ -58,6 +58,15 @@ def test_info_on_a_folder_that_is_not_a_dataset_exits_2(capsys, tmp_path: Path) 
     assert "not a dataset folder" in err and tmp_path.name in err
 
 
+def test_info_on_a_folder_refuses_the_options_of_a_dat_file(capsys, tmp_path: Path) -> None:
+    """A folder's sizes, rate and layout come from its own files: a .dat option given with one is an error,
+    not silently ignored."""
+    for option in (["--fps", "20000"], ["--layout", "topdown"], ["--height", "8"], ["--raw-width", "16"]):
+        code, _, err = run_cli(capsys, "info", tmp_path, *option)
+        assert code == 2 and err.strip().count("\n") == 0
+        assert f"{option[0]}: for a .dat file only" in err and tmp_path.name in err
+
+
 def test_reconstruct_png_is_srgb_of_tfp(capsys, stream, tmp_path: Path) -> None:
     path, spikes = stream
     out = tmp_path / "f.png"

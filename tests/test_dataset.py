@@ -261,3 +261,16 @@ def test_optional_side_files(folder: Path) -> None:
     assert ds.blur is None and len(ds.test) == 2
     with pytest.raises(InputError, match=r"'bayer' is not in this dataset"):
         ds.spikes("bayer")
+
+
+def test_an_unfinished_simulate_work_folder_is_named_as_such(tmp_path: Path) -> None:
+    """``train``/``eval`` (load_dataset) and ``info`` (describe) say that OUT.partial is unfinished work to
+    resume, not that a file is missing."""
+    from spikenerf.data.summary import describe
+
+    work = tmp_path / "ds.partial"
+    (work / ".frames").mkdir(parents=True)
+    for read in (load_dataset, describe):
+        with pytest.raises(InputError, match="unfinished `spikenerf simulate` work folder") as err:
+            read(work)
+        assert err.value.path == str(work)

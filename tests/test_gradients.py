@@ -3,6 +3,7 @@ the interval spike loss and of the compositing weights; a training loop without 
 
 from __future__ import annotations
 
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -439,3 +440,24 @@ def test_fused_vm_kernel_waits_for_a_live_builder_only(tmp_path: Path, monkeypat
     with vm_kernel._build_lock(tmp_path, wait_s=5.0) as locked:  # the dead holder's flock is gone
         assert locked
     assert time.monotonic() - start < 1.0
+
+
+def test_fused_vm_kernel_build_finds_the_ninja_of_the_pip_package(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """torch runs ``ninja`` by name: with none on PATH (a venv that is not activated) the build puts the
+    pip package's on it; a ninja already on PATH is left first."""
+    import shutil
+
+    ninja = pytest.importorskip("ninja")
+    from spikenerf.fields import vm_kernel
+
+    if shutil.which("ninja", path=ninja.BIN_DIR) is None:
+        pytest.skip(f"the ninja package of another environment: no executable in {ninja.BIN_DIR}")
+
+    monkeypatch.setenv("PATH", "/nonexistent")
+    assert shutil.which("ninja") is None
+    vm_kernel._find_ninja()
+    found = shutil.which("ninja")
+    assert found is not None and Path(found).parent == Path(ninja.BIN_DIR)
+    monkeypatch.setenv("PATH", os.pathsep.join(["/usr/bin", ninja.BIN_DIR]))
+    vm_kernel._find_ninja()
+    assert os.environ["PATH"].startswith("/usr/bin")

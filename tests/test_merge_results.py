@@ -61,3 +61,18 @@ def test_duplicate_cells_and_other_settings_are_refused(
     monkeypatch.setattr(sys, "argv", ["merge_results", str(first), str(tmp_path / "again.json")])
     with pytest.raises(SystemExit, match=r"again.json: cell a/gray/nerf-recon/0 is also in an earlier file"):
         load_benchmark("tools/merge_results").main()  # the script exits with the one line
+
+
+def test_an_unreadable_or_foreign_results_file_is_one_line_naming_it(tmp_path: Path) -> None:
+    """A missing file, bad JSON, or a JSON that is not a benchmark's results: an InputError naming the file
+    (the script printed a traceback); an old file's ``seconds`` reads as the evaluation's."""
+    bad, other = tmp_path / "bad.json", tmp_path / "other.json"
+    bad.write_text("{not json")
+    other.write_text(json.dumps({"cells": []}))
+    for path, words in ((tmp_path / "missing.json", "cannot read"), (bad, "not a benchmark's results.json"),
+                        (other, r"not a benchmark's results.json \(KeyError")):  # fmt: skip
+        with pytest.raises(InputError, match=words) as err:
+            read_results([path])
+        assert err.value.path == str(path)
+    cells = read_results([_results(tmp_path / "0.json", 0)])[1]
+    assert cells[0].eval_seconds == 1.0 and cells[0].train_seconds is None

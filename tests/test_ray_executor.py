@@ -37,7 +37,7 @@ def tiny(out: Path, variants: list[str], **kw: object) -> BenchmarkConfig:
 def numbers(out: Path) -> list[dict]:
     """results.json's cells without their timings."""
     cells = json.loads((out / "results.json").read_text())["cells"]
-    return [{k: v for k, v in c.items() if k != "seconds"} for c in cells]
+    return [{k: v for k, v in c.items() if not k.endswith("seconds")} for c in cells]
 
 
 @pytest.fixture(scope="module")
@@ -196,3 +196,61 @@ def test_without_ray_one_line_hint_exit_2(
     assert INSTALL_HINT.startswith("executor ray needs Ray")
     assert "pip install 'spikenerf[cluster]'" in err
     assert not out.exists()  # nothing written
+
+
+class _FakeRay:
+    """A Ray stand-in with no GPU and 2 CPUs: records whether the session it started was shut down."""
+
+    def __init__(self) -> None:
+        self.down = False
+
+    def is_initialized(self) -> bool:
+        return False
+
+    def init(self, **kw: object) -> None:
+        pass
+
+    def cluster_resources(self) -> dict[str, float]:
+        return {"CPU": 2.0}
+
+    def shutdown(self) -> None:
+        self.down = True
+
+
+@pytest.mark.parametrize(("kw", "param"), [({"device": "cuda"}, "device"), ({"ray_cpus": 4.0}, "ray_cpus")])
+def test_a_task_a_new_cluster_cannot_place_is_refused_not_waited_for(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, kw: dict, param: str
+) -> None:
+    """A cluster started for the benchmark never grows: cells asking for a GPU it lacks, or more CPUs than it
+    has, would wait forever (they did, with --device cuda on a CPU machine)."""
+    from spikenerf.pipelines.benchmark import ray_executor
+
+    fake = _FakeRay()
+    monkeypatch.setattr(ray_executor, "require_ray", lambda: fake)
+    cfg = tiny(tmp_path / "b", ["nerf-gt"], executor="ray", address="local")
+    cfg.device, cfg.ray_cpus = kw.get("device", "cpu"), float(kw.get("ray_cpus", 1.0))  # type: ignore[arg-type]
+    job = Job("dataset", lambda root: [], "d", "d/.done")
+    with pytest.raises(InputError, match=param) as err:
+        ray_executor.run_jobs(cfg, [job], [])
+    assert err.value.params == (param,) and fake.down
+    assert ray_executor._cluster_problem({"CPU": 4.0, "GPU": 1.0}, cfg) is None  # a cluster that can
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [(["--address", "auto", "--ray-cpus", "2"], "--address, --ray-cpus: only with --executor ray"),
+     (["--retries", "0"], "--retries: only with --executor ray"),
+     (["--ray-ship-results"], "--ray-ship-results: only with --executor ray"),
+     (["--executor", "ray", "--jobs", "2"], "--jobs: only with --executor local")],
+)  # fmt: skip
+def test_an_option_of_the_other_executor_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], expected: str
+) -> None:
+    out = tmp_path / "bench"
+    with pytest.raises(SystemExit) as exit_:
+        main(["benchmark", "--scenes", "analytic-orbs", "--out", str(out), *args])
+    assert exit_.value.code == 2 and not out.exists()
+    assert capsys.readouterr().err.splitlines() == [
+        f"spikenerf: error: {expected}"
+        + (" (Ray runs as many cells at once as it can place)" if "jobs" in expected else "")
+    ]

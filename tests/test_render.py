@@ -215,6 +215,26 @@ def test_rays_and_projections_stay_float32_under_bf16_autocast() -> None:
         assert b.dtype == torch.float32 and torch.equal(a, b)
 
 
+class _Numpy2Array(np.ndarray):
+    """An array with numpy 2's ``device`` attribute (the string "cpu"), under numpy 1 too."""
+
+    device = "cpu"
+
+
+def test_projection_of_numpy_arrays_with_a_device_attribute_stays_numpy() -> None:
+    """numpy ≥ 2 arrays have ``.device``: projecting them must not take the torch branch (it did, and
+    spike-integral's set-up failed under numpy 2 with "'str' object has no attribute 'type'")."""
+    from spikenerf.scenes.trajectory import project_points
+
+    k = Intrinsics.from_fov(32, 32, 0.87)
+    poses = np.stack([look_at([4.0, 0.1 * i, 1.5], [0.0, 0.0, 0.0]) for i in range(8)])
+    points = (np.random.default_rng(0).random((8, 3)) - 0.5).view(_Numpy2Array)
+    u, v, depth = project_points(poses.view(_Numpy2Array), points, k)
+    plain = project_points(poses, points.view(np.ndarray), k)
+    for a, b in zip((u, v, depth), plain, strict=True):
+        assert isinstance(a, np.ndarray) and np.array_equal(a, b)
+
+
 def test_depth_of_a_half_opaque_ray_is_its_weighted_mean_distance() -> None:
     """Depth is the weight-normalised mean distance, also where the ray is not opaque (spike-integral places
     its track points there)."""

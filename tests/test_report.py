@@ -206,3 +206,39 @@ def test_chromium_check_catches_broken_images_and_console_errors(tmp_path: Path)
                     '<script>console.error("boom")</script></body></html>')  # fmt: skip
     images, bad, console = load_check(page, tmp_path)
     assert (images, bad) == (1, 1) and any("boom" in line for line in console)
+
+
+def test_report_command_rebuilds_a_moved_folder_with_other_calls_merged(
+    bench: BenchmarkConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``spikenerf report OUT [RESULTS…]``: the report of a finished benchmark folder, moved after it ran,
+    its tables joined by another call's seed; a folder without results and a cell held twice are refused."""
+    import dataclasses
+    import json
+    import shutil
+
+    from spikenerf.pipelines.benchmark.results import write_all
+
+    done = tmp_path / "done"
+    shutil.copytree(bench.out, done)
+    cfg = dataclasses.replace(bench, out=done)
+    cells = [read_cell(run_dir(cfg, SCENE, "gray", "nerf-gt"), SCENE, "gray", "nerf-gt")]
+    write_all(cfg, cells, [])  # type: ignore[arg-type]
+    other = json.loads((done / "results.json").read_text())
+    for cell in other["cells"]:
+        cell.update(seed=1, psnr=cell["psnr"] + 0.5)
+    (tmp_path / "seed1.json").write_text(json.dumps(other))
+    moved = tmp_path / "moved"
+    done.rename(moved)
+    (moved / "report.html").unlink(missing_ok=True)
+    _cli("report", moved, tmp_path / "seed1.json", "--no-progress")
+    assert capsys.readouterr().out.strip() == f"wrote {moved / 'report.html'}"
+    page = (moved / "report.html").read_text(encoding="utf-8")
+    assert "over 2 training seeds (0, 1)" in page and "seed 1): LPIPS" not in page
+    assert len(data_uri_pngs(page)) >= 3  # the figures of the moved folder's own runs
+    for args, words in (([tmp_path], "no results.json: not a finished benchmark folder"),
+                        ([moved, moved / "results.json"], "is also in an earlier file")):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_:
+            _cli("report", *args, "--no-progress")
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and words in err and err.count("\n") == 1

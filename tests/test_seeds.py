@@ -156,3 +156,16 @@ def test_tiny_two_seed_benchmark(tmp_path: Path) -> None:
     cfg.blur_views = "frames"
     with pytest.raises(InputError, match="blur_views 'all' → 'frames'"):
         run_benchmark(cfg)
+
+
+def test_tiny_differences_print_their_digits_and_unfinished_cells_do_not_mix_scenes() -> None:
+    """A difference too small for the table's precision shows 2 significant digits (not "+0.00 ± 0.00" next
+    to "shown"); a seed missing a scene is averaged over the scenes every seed has."""
+    tiny = differences(_cells([1.2e-4, 1.3e-4, 1.1e-4, 1.25e-4]), ["gray"], metrics=["psnr"])[0]
+    row = to_markdown(differences_table([tiny])).splitlines()[-1]
+    assert "| +0.00012 ± 8.5e-06 | [+0.00011, +0.00013] |" in row and row.endswith("| **shown** |")
+    cells = _cells([1.0, 1.2, 0.8, 1.1])
+    unfinished = [c for c in cells if not (c.scene == "s2" and c.seed == 1)]  # seed 1 lacks scene s2
+    d = differences(unfinished, ["gray"], metrics=["psnr"])[0]
+    assert d.n == 3 and d.seed_low is not None
+    assert (d.seed_low + d.seed_high) / 2 == pytest.approx((1.0 + 1.2) / 2)  # s1 of both seeds only

@@ -400,3 +400,17 @@ def test_simulate_cli_builds_dataset_from_sequence(tiny: Path, tmp_path: Path) -
     with pytest.raises(SystemExit) as exit_:
         main(["simulate", "--sequence", str(tiny), "--out", str(tmp_path / "bad"), "--sequence-range", "4:2"])
     assert exit_.value.code == 2 and not (tmp_path / "bad").exists()
+
+
+def test_simulate_of_a_sequence_with_an_unreadable_frame_leaves_nothing(tiny: Path, tmp_path: Path) -> None:
+    """A frame that only fails when it is decoded (after earlier frames are cached) is bad input: exit 2, and
+    neither the dataset nor its work folder is left behind."""
+    from spikenerf.cli import main
+
+    png = tiny.parent / "train" / "r_3.png"
+    png.write_bytes(png.read_bytes()[:-30])  # a truncated PNG: its header (and size) still reads
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exit_:
+        main(["simulate", "--sequence", str(tiny), "--out", str(out), "--no-progress"])
+    assert exit_.value.code == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny"]

@@ -84,6 +84,37 @@ def test_novel_views_are_off_the_training_path() -> None:
     assert novel_views(4.0, 0).shape == (0, 4, 4)
 
 
+@pytest.mark.parametrize(
+    ("elevation", "sweep", "expected"),
+    [(30, 0, (15, 45)), (30, 30, (0, 60)), (60, 0, (45, 75)), (80, 0, (65, 50)), (-80, 0, (-50, -65))],
+)
+def test_held_out_views_keep_off_a_sweeping_path(elevation: float, sweep: float, expected: tuple) -> None:
+    """The held-out elevations lie 15° outside the path's elevation range (both on one side near a pole), so
+    every test camera stays ~1 scene unit from every training camera, with an elevation sweep too."""
+    from spikenerf.scenes.trajectory import held_out_elevations
+
+    both = held_out_elevations(elevation, sweep)
+    np.testing.assert_allclose(both, expected)
+    traj = orbit(4.0, elevation, elevation_sweep_deg=sweep)
+    views = novel_views(4.0, 8, both)
+    gaps = np.linalg.norm(views[:, None, :3, 3] - traj.poses[None, :, :3, 3], axis=-1).min(1)
+    assert (gaps > 1.0).all()
+
+
+def test_held_out_views_without_room_and_a_polar_orbit_are_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from spikenerf.cli import main
+    from spikenerf.scenes.trajectory import held_out_elevations
+
+    with pytest.raises(InputError, match="no room for held-out views") as err:
+        held_out_elevations(0.0, 160.0)
+    assert err.value.params == ("elevation",)
+    base = ["simulate", "--scene", "analytic-orbs", "--frames", "20", "--width", "8", "--height", "8"]
+    for extra in (["--elevation", "90"], ["--elevation", "0", "--elevation-sweep", "160"]):
+        with pytest.raises(SystemExit) as exit_:
+            main([*base, "--out", str(tmp_path / "out"), "--no-progress", *extra])
+        assert exit_.value.code == 2 and not (tmp_path / "out").exists()
+
+
 def test_look_at_straight_down_is_finite_and_bad_orbits_are_input_errors() -> None:
     pose = look_at(np.array([0.0, 0.0, 5.0]), np.zeros(3))
     assert np.isfinite(pose).all() and np.linalg.det(pose[:3, :3]) == pytest.approx(1.0)

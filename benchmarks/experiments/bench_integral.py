@@ -94,9 +94,9 @@ def paired(
             for variant in variants:
                 folder = out / dataset.name / f"{variant}-s{seed}"
                 flags = [*PAIRED[variant], "--color", color]
-                psnr, per_iter = train_and_eval(dataset, folder, flags, iters, seed)
+                psnr, _ = train_and_eval(dataset, folder, flags, iters, seed)
                 ssim = json.loads((folder / "metrics.json").read_text())["mean"]["ssim"]
-                cells.append(Cell(dataset.name, variant, color, psnr, ssim, None, per_iter, seed))
+                cells.append(Cell(dataset.name, variant, color, psnr, ssim, seed=seed))
     print("| variant | " + " | ".join(d.name for d in datasets) + " | mean |")
     print("|---|" + "---:|" * (len(datasets) + 1))
     for variant in variants:

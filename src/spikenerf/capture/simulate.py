@@ -437,8 +437,9 @@ def _simulate_locked(
     clean_stale_temps(cache)
     try:
         render_missing(source, cache, progress, jobs)
-    except BaseException:
-        if fresh and not any(cache.glob("*.npy")):  # nothing worth resuming: leave nothing behind
+    except BaseException as err:
+        # nothing worth resuming, or bad input (a frame the source cannot read): leave nothing behind
+        if fresh and (isinstance(err, InputError) or not any(cache.glob("*.npy"))):
             shutil.rmtree(work, ignore_errors=True)
         raise
 

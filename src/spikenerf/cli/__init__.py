@@ -34,6 +34,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "render": ("spikenerf.cli.render", "Render images, depth, video and novel spike streams from a run."),
     "eval": ("spikenerf.cli.evaluate", "Evaluate a run on held-out views (PSNR, SSIM, LPIPS)."),
     "benchmark": ("spikenerf.cli.benchmark", "Reproduce the paper's Table I and Table II."),
+    "report": ("spikenerf.cli.report", "Rebuild a finished benchmark's HTML report (other calls merged in)."),
     "demo": ("spikenerf.cli.demo", "Run the whole pipeline on the embedded default scene."),
 }
 

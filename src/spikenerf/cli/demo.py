@@ -32,7 +32,7 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
 @click.option("--iters", type=COUNT, help="Training iterations per method [default 300, quick 200].")
 @click.option("--frames", type=int, help="Spike steps on the orbit [default 1000, quick 200].")
 @click.option("--test-views", type=int, help="Held-out views [default 4, quick 2].")
-@click.option("--scene", default=None, help="Another named scene (see simulate --list-scenes).")
+@click.option("--scene", default=None, help="Another named scene, one (see simulate --list-scenes).")
 @click.option("--color", default="gray", show_default=True, help="gray, rgb or gray,rgb.")
 @click.option("--methods", default=None, help="Comma list of method variants.")
 def command(
@@ -40,14 +40,18 @@ def command(
     test_views: int | None, scene: str | None, color: str, methods: str | None,
 ) -> None:  # fmt: skip
     from spikenerf.core.device import resolve_device
-    from spikenerf.pipelines.benchmark.cells import resolve_scenes
+    from spikenerf.core.errors import InputError
     from spikenerf.pipelines.benchmark.variants import VARIANTS
     from spikenerf.pipelines.demo import DEFAULT_SCENE, DEMO_METHODS, DemoConfig, run_demo
+    from spikenerf.scenes.registry import list_scenes
 
     resolve_device(device)  # before the dataset is simulated
+    names = [s.name for s in list_scenes()]
+    if scene is not None and scene not in names:
+        raise InputError(f"--scene: expected one scene name of {', '.join(names)}, found {scene!r}")
     cfg = DemoConfig(
         out=out, quick=quick, device=device, size=size, iters=iters, frames=frames, test_views=test_views,
-        scene=resolve_scenes(scene)[0] if scene else DEFAULT_SCENE,
+        scene=scene or DEFAULT_SCENE,
         colors=_list(color, ("gray", "rgb"), "--color"),
         methods=_list(methods, tuple(VARIANTS), "--methods") if methods else list(DEMO_METHODS),
     )  # fmt: skip

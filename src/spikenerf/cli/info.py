@@ -40,7 +40,7 @@ def describe_dat(
     return lines
 
 
-def describe_render(folder: Path, layout: str = "spikecv") -> list[str]:
+def describe_render(folder: Path) -> list[str]:
     """The summary lines of a ``render`` output folder: its ``render.json`` (what was rendered, from which
     run) and each novel-view spike stream it holds (:func:`describe_dat`); an unfinished render says so."""
     import json
@@ -65,7 +65,7 @@ def describe_render(folder: Path, layout: str = "spikecv") -> list[str]:
         lines.append(f"novel spike stream: {info.get('spike_steps')} steps, φ {info.get('threshold')}")
     for name in streams:
         config = dat_recording(folder / name, height, width, width)  # plain frames: no raw-layout guess
-        lines += ["", *describe_dat(folder / name, height, width, layout, None, config.fps or 40000.0)]
+        lines += ["", *describe_dat(folder / name, height, width, "spikecv", None, config.fps or 40000.0)]
     return lines
 
 
@@ -75,7 +75,9 @@ def describe_render(folder: Path, layout: str = "spikecv") -> list[str]:
 )
 @click.argument("path", type=click.Path(path_type=Path))
 @frame_size_options
-@click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
+@click.option(
+    "--layout", type=click.Choice(["spikecv", "topdown"]), help="Row order of a .dat file [default: spikecv]."
+)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
 @click.option(
     "--fps",
@@ -83,11 +85,26 @@ def describe_render(folder: Path, layout: str = "spikecv") -> list[str]:
     help="Readout rate in Hz [default: fps of the config.yaml beside the file, else 40000].",
 )
 def command(
-    path: Path, height: int | None, width: int | None, layout: str, raw_width: int | None, fps: float | None
+    path: Path,
+    height: int | None,
+    width: int | None,
+    layout: str | None,
+    raw_width: int | None,
+    fps: float | None,
 ) -> None:
     if not path.exists():
         raise InputError("no such file or folder", path=path)
     from spikenerf.core.marker import folder_kind
+
+    if path.is_dir():
+        options = (("--height", height), ("--width", width), ("--layout", layout), ("--raw-width", raw_width))
+        given = [flag for flag, value in (*options, ("--fps", fps)) if value is not None]
+        if given:
+            raise InputError(
+                f"{', '.join(given)}: for a .dat file only (a folder's own files give its size and rate)",
+                path=path,
+            )
+    layout = layout or "spikecv"
 
     if path.is_dir() and folder_kind(path) == "run":  # a run's missing file is named as such
         from spikenerf.train.run import describe_run
@@ -95,7 +112,7 @@ def command(
         click.echo(describe_run(path))
         return
     if path.is_dir() and folder_kind(path) == "render":
-        click.echo("\n".join(describe_render(path, layout)))
+        click.echo("\n".join(describe_render(path)))
         return
     if path.is_dir():
         from spikenerf.data.summary import describe

@@ -86,11 +86,11 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 @click.option(
     "--radius", type=float, help="Orbit radius [default: analytic 4; Blender: the scene fits the view]."
 )
-@click.option("--elevation", type=float, help="Orbit elevation in degrees [default: 30].")
+@click.option("--elevation", type=float, help="Orbit elevation in degrees, within (−90, 90) [default: 30].")
 @click.option(
     "--elevation-sweep", type=float,
     help="Peak-to-peak elevation change in degrees, one sine period over the path (30 at --elevation 30: "
-    "15°–45°, the test views' elevations) [default: 0].",
+    "15°–45°; the test views then lie at 0° and 60°) [default: 0].",
 )  # fmt: skip
 @click.option("--turns", type=float, help="Full turns over the path [default: 1].")
 @click.option("--duration", type=float, help="Path duration in seconds [default: frames / fps = 0.025].")
@@ -185,7 +185,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     """A named scene or .blend on an orbit (with its novel test views) and the config entries it adds."""
     import numpy as np
 
-    from spikenerf.scenes.trajectory import novel_views, orbit
+    from spikenerf.scenes.trajectory import held_out_elevations, novel_views, orbit
 
     if kw["sequence_range"] is not None or kw["steps_per_frame"] is not None or kw["interpolate"]:
         raise InputError("--sequence-range, --steps-per-frame and --interpolate apply to --sequence only")
@@ -201,6 +201,8 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
     if radius <= 0:
         raise InputError(f"--radius must be positive, found {radius:g}")
+    if not abs(elevation) < 90:  # at ±90° every step of the orbit would be the same pose
+        raise InputError(f"--elevation must lie strictly between −90 and 90 degrees, found {elevation:g}")
     if sweep and (sweep < 0 or abs(elevation) + sweep / 2 >= 90):
         raise InputError(
             f"--elevation-sweep must be ≥ 0 and keep the elevation inside (−90°, 90°), found {sweep:g} "
@@ -209,14 +211,20 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
     height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
     views = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
-    _check_resources(kw, "width/height/frames/spp", width, height, steps, views)
+    _check_resources(kw, "width/height/frames/spp/test_views", width, height, steps, views)
     trajectory = orbit(radius, elevation, turns, steps / fps, fps, center=center, elevation_sweep_deg=sweep)
     if kw["eval_views"] is not None:
         from spikenerf.data.dataset import read_pose_file
 
         test_poses = read_pose_file(kw["eval_views"])
     else:
-        test_poses = novel_views(radius, views, center=center) if views else np.zeros((0, 4, 4))
+        test_poses = np.zeros((0, 4, 4))
+        if views:
+            try:
+                below_above = held_out_elevations(elevation, sweep)
+            except InputError as err:
+                raise InputError(f"{err.message}; give --eval-views or --test-views 0") from None
+            test_poses = novel_views(radius, views, below_above, center)
     source = registry.make_scene_source(
         scene, width, height, trajectory, test_poses, kw["spp"], int(kw["seed"])
     )
@@ -276,7 +284,8 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
     )
     k = source.intrinsics
     steps = len(source.trajectory)
-    _check_resources(kw, "width/height/sequence_range/steps_per_frame", k.width, k.height, steps, 8)
+    params = "width/height/sequence_range/steps_per_frame/eval_views"
+    _check_resources(kw, params, k.width, k.height, steps, source.test_view_count)
     extra = {
         "trajectory": {
             "kind": "sequence",

@@ -46,6 +46,8 @@ MODES = COLORS  # the colour modes a dataset may hold (camera.model.ColorMode)
 #: blur views stored as one array (named by ``images_npy`` in transforms_blur.json; frames carry ``index``)
 BLUR_ARRAY = "blur/views.npy"
 _MISSING = "missing file (not a dataset folder written by `spikenerf simulate`?)"
+#: a ``simulate`` work folder (``OUT.partial``) given as a dataset
+UNFINISHED = "an unfinished `spikenerf simulate` work folder: run the same command to resume"
 
 
 def spike_files(mode: str) -> list[str]:
@@ -275,6 +277,8 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
             "is a file, not a dataset folder" if root.exists() else "dataset folder not found", path=root
         )
     tpath = root / TRANSFORMS
+    if not tpath.exists() and root.name.endswith(".partial"):
+        raise InputError(UNFINISHED, path=root)
     if not tpath.exists() and (kind := folder_kind(root)) not in (None, "dataset"):  # another of ours
         raise InputError(f"is a {kind} folder, not a dataset folder", path=root)
     data = read_mapping(tpath)

@@ -22,6 +22,7 @@ from spikenerf.data.dataset import (
     CONFIG,
     TRANSFORMS,
     TRANSFORMS_BLUR,
+    UNFINISHED,
     SpikeDataset,
     load_dataset,
     read_mapping,
@@ -102,9 +103,7 @@ def describe(path: str | Path) -> str:
     path = Path(path)
     if not (path / TRANSFORMS).is_file():
         if path.name.endswith(".partial"):
-            raise InputError(
-                "an unfinished `spikenerf simulate` work folder: run the same command to resume", path
-            )
+            raise InputError(UNFINISHED, path)
         raise InputError(f"not a dataset folder (no {TRANSFORMS})", path=path)
     ds = load_dataset(path)
     cfg, k, traj = ds.config, ds.intrinsics, ds.trajectory

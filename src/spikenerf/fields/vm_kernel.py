@@ -28,6 +28,7 @@ import hashlib
 import importlib.util
 import os
 import platform
+import shutil
 import sys
 import time
 import warnings
@@ -420,9 +421,22 @@ def _build(cflags: list[str], ldflags: list[str]) -> Any:
         with contextlib.suppress(FileNotFoundError):
             (build_dir / "lock").unlink()
         print("building the fused CPU kernel (once, ~1 min)…", file=sys.stderr, flush=True)
+        _find_ninja()
         return load_inline(
             name, cpp_sources=[_SOURCE], extra_cflags=_CFLAGS + cflags, extra_ldflags=ldflags, with_cuda=False
         )
+
+
+def _find_ninja() -> None:
+    """Put the ``ninja`` of the pip package (a dependency) on ``PATH`` when none is there: torch's build
+    runs ``ninja`` by name, and a virtual environment's ``bin`` is not on ``PATH`` unless it is activated."""
+    if shutil.which("ninja") is not None:
+        return
+    with contextlib.suppress(ImportError, AttributeError):
+        import ninja  # type: ignore[import-not-found,import-untyped,unused-ignore]
+
+        if shutil.which("ninja", path=ninja.BIN_DIR) is not None:
+            os.environ["PATH"] = os.pathsep.join([ninja.BIN_DIR, os.environ.get("PATH", "")])
 
 
 def _load() -> Any:
@@ -448,7 +462,8 @@ def _load() -> Any:
         ) as err:  # no compiler, no ninja, no headers, no OpenMP: try the next, then grid_sample
             last = i == len(variants) - 1
             fallback = "using grid_sample" if last else "building it without OpenMP"
-            warnings.warn(f"VM CPU kernel: {fallback} ({type(err).__name__}: {err})", stacklevel=2)
+            hint = " (needs a C++ compiler and ninja: pip install ninja)" if last else ""
+            warnings.warn(f"VM CPU kernel: {fallback}{hint} ({type(err).__name__}: {err})", stacklevel=2)
     _FAILED = _MODULE is None
     return _MODULE
 

@@ -138,6 +138,8 @@ def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
         if key not in have:
             notes.append(f"{where}: no result (the cell has not finished).")
             continue
+        if not run.is_dir():  # a cell merged from another folder's results.json: its files are there
+            continue
         metrics = _read_json(run / "metrics.json")
         if metrics.get("mean", {}).get("lpips") is None:
             notes.append(f"{where}: LPIPS – ({metrics.get('lpips_reason') or 'not computed'}).")

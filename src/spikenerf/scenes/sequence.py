@@ -250,6 +250,11 @@ class SequenceSource:
             alpha = float(self._alpha[k])
             yield frame.copy() if alpha == 0 else blend_frames(frame, self._image(int(self._next[k])), alpha)
 
+    @property
+    def test_view_count(self) -> int:
+        """How many held-out views ``eval_views`` gives (0 without them)."""
+        return 0 if self._eval is None else len(self._eval.images)
+
     def test_views(self) -> tuple[np.ndarray, np.ndarray]:
         """Held-out poses (N, 4, 4) and linear frames (N, H, W, 3) float32 of ``eval_views`` (else N = 0)."""
         if self._test is None:

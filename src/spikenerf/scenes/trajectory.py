@@ -7,6 +7,7 @@ whose +Z is up. Spike step k happens at time ``t_k = k / fps``.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -159,6 +160,38 @@ def orbit(
     return Trajectory(poses, steps / fps, steps, float(fps))
 
 
+#: degrees between the held-out views and the training path's elevations (:func:`held_out_elevations`)
+HELD_OUT_MARGIN = 15.0
+#: the held-out views stay this far (degrees) from the poles, where ``look_at`` turns its up axis
+POLE_MARGIN = 1.0
+
+
+def held_out_elevations(
+    elevation_deg: float, sweep_deg: float = 0.0, margin_deg: float = HELD_OUT_MARGIN
+) -> tuple[float, float]:
+    """The two elevations (degrees) that :func:`novel_views` cycles through for an orbit at
+    ``elevation_deg`` sweeping ``sweep_deg`` peak to peak: ``margin_deg`` below and above the path's range
+    (15° and 45° for a flat orbit at 30°). Where one side has no room (within :data:`POLE_MARGIN` of a
+    pole), both lie on the other side, ``margin_deg`` and ``2·margin_deg`` from the path.
+
+    Raises:
+        InputError: neither side has room (the path spans almost every elevation).
+    """
+    lo, hi, limit = elevation_deg - sweep_deg / 2, elevation_deg + sweep_deg / 2, 90.0 - POLE_MARGIN
+    below, above = lo - margin_deg, hi + margin_deg
+    if above > limit:
+        above = lo - 2 * margin_deg
+    if below < -limit:
+        below = hi + 2 * margin_deg
+    if not (-limit <= below <= limit and -limit <= above <= limit):
+        raise InputError(
+            f"no room for held-out views {margin_deg:g}° off an orbit at elevation {elevation_deg:g}° "
+            f"sweeping {sweep_deg:g}°",
+            param="elevation",
+        )
+    return below, above
+
+
 def novel_views(
     radius: float,
     count: int,
@@ -263,9 +296,8 @@ def project_points(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-unty
     ``[x, x + 1) × [y, y + 1)`` (its centre is ``x + 0.5``, as :func:`spikenerf.data.rays.camera_directions`
     casts it); depth > 0 in front of the camera, where u and v are meaningful. Torch tensors are projected
     with autocast off (under ``--amp bf16`` a third of the points would land in another pixel)."""
-    if hasattr(points, "device"):  # a tensor: torch is imported already
-        import torch
-
+    torch = sys.modules.get("torch")  # a tensor needs torch imported already; numpy ≥ 2 arrays have a
+    if torch is not None and isinstance(points, torch.Tensor):  # ``device`` too (the string "cpu")
         with torch.autocast(points.device.type, enabled=False):
             return _project(c2w, points, intrinsics)
     return _project(c2w, points, intrinsics)

@@ -198,9 +198,18 @@ def read_cell(run: Path, scene: str, color: str, variant: str, seed: int = 0) ->
         mean = metrics["mean"]
         lpips = None if mean.get("lpips") is None else float(mean["lpips"])
         psnr, ssim = float(mean["psnr"]), float(mean["ssim"])
-        return Cell(scene, variant, color, psnr, ssim, lpips, metrics.get("seconds"), seed)
     except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
+    return Cell(scene, variant, color, psnr, ssim, lpips, metrics.get("seconds"), seed, _train_seconds(run))
+
+
+def _train_seconds(run: Path) -> float | None:
+    """The run's training time from its ``summary.json`` (None where it is missing or unreadable)."""
+    try:
+        seconds = json.loads((run / "summary.json").read_text()).get("seconds")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return float(seconds) if isinstance(seconds, int | float) else None
 
 
 def cpu_name() -> str:

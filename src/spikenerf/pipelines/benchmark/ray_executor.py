@@ -163,6 +163,17 @@ def _connect(ray: Any, address: str | None) -> bool:
     return True
 
 
+def _cluster_problem(resources: dict[str, float], cfg: BenchmarkConfig) -> tuple[str, str] | None:
+    """(parameter, message) when the cluster's ``resources`` cannot place a task of ``cfg`` now (Ray would
+    wait until a node that can joins), else None."""
+    if cfg.device.startswith("cuda") and resources.get("GPU", 0) < 1:
+        return "device", f"device {cfg.device}: the Ray cluster has no GPU"
+    if resources.get("CPU", 0) < cfg.ray_cpus:
+        cpus = resources.get("CPU", 0)
+        return "ray_cpus", f"ray_cpus: a task asks for {cfg.ray_cpus:g} CPUs, the Ray cluster has {cpus:g}"
+    return None
+
+
 def _threads(cpus: float) -> int:
     """Threads per step: ``OMP_NUM_THREADS`` (``--threads``) when set here, else the task's CPUs."""
     return int(os.environ.get("OMP_NUM_THREADS") or max(1, int(cpus)))
@@ -184,6 +195,11 @@ def run_jobs(
             finished(job)
         return  # all finished before: no cluster needed
     started = _connect(ray, cfg.address)
+    if problem := _cluster_problem(ray.cluster_resources(), cfg):
+        if started:  # a cluster started here never grows: its tasks would wait forever
+            ray.shutdown()
+            raise InputError(problem[1], param=problem[0])
+        print(f"warning: {problem[1]}; the cells wait until such a node joins", file=sys.stderr, flush=True)
     out = str(cfg.out.resolve())
     gpus = cfg.device.startswith("cuda") or (
         cfg.device == "auto" and ray.cluster_resources().get("GPU", 0) > 0

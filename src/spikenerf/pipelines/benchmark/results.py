@@ -153,21 +153,36 @@ def read_results(paths: Sequence[Path]) -> tuple[dict, list[Cell], dict[str, str
     (scene, colour, variant, seed) is in two files."""
     config, cells, trained_on, seen = None, [], {}, set()
     for path in paths:
-        data = json.loads(path.read_text())
-        mine = {k: data["config"][k] for k in MERGE_KEYS}
+        data, mine = _read_results(path)
         if config is not None and mine != config:
             diff = [k for k in MERGE_KEYS if mine[k] != config[k]]
             raise InputError(f"{path}: its benchmark differs from {paths[0]} in {', '.join(diff)}")
         config = mine
         for c in data["cells"]:
-            key = (c["scene"], c["color"], c["variant"], c["seed"])
+            key = (c.scene, c.color, c.variant, c.seed)
             if key in seen:
                 raise InputError(f"{path}: cell {'/'.join(map(str, key))} is also in an earlier file")
             seen.add(key)
-            cells.append(Cell(**c))
-        trained_on.update(data.get("trained_on", {}))
-    assert config is not None
+            cells.append(c)
+        trained_on.update(data["trained_on"])
+    if config is None:
+        raise InputError("no results.json given", param="paths")
     return config, cells, trained_on
+
+
+def _read_results(path: Path) -> tuple[dict, dict]:
+    """A ``results.json``'s cells (as :class:`Cell`) and 'trained on' texts, and its :data:`MERGE_KEYS`;
+    InputError naming the file when it cannot be read or is not a benchmark's results."""
+    try:
+        data = json.loads(path.read_text())
+        mine = {k: data["config"][k] for k in MERGE_KEYS}
+        cells = [Cell.from_dict(c) for c in data["cells"]]
+        trained_on = dict(data.get("trained_on", {}))
+    except OSError as err:
+        raise InputError(f"cannot read ({err.strerror or err})", path=path) from None
+    except (ValueError, KeyError, TypeError, AttributeError) as err:
+        raise InputError(f"not a benchmark's results.json ({type(err).__name__}: {err})", path=path) from None
+    return {"cells": cells, "trained_on": trained_on}, mine
 
 
 def merged_markdown(paths: Sequence[Path]) -> str:
@@ -191,7 +206,7 @@ def extra_differences_markdown(path: Path, per_scene: bool = False) -> str:
     """The paired differences beyond the paper's claims (:data:`~.variants.LEARNED_COMPARISONS`,
     :data:`~.variants.WINDOW_COMPARISONS`) of a benchmark's ``results.json``, pairs it lacks left out; with
     ``per_scene``, each scene's PSNR differences too (the paper's headline pair and the window pairs)."""
-    cells = [Cell(**c) for c in json.loads(path.read_text())["cells"]]
+    cells = _read_results(path)[0]["cells"]
     colors = sorted({c.color for c in cells})
     parts = [
         to_markdown(differences_table(differences(cells, colors, LEARNED_COMPARISONS + WINDOW_COMPARISONS)))

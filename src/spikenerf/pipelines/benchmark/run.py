@@ -11,6 +11,7 @@ names (:mod:`spikenerf.pipelines.benchmark.executor`).
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from functools import partial
@@ -100,7 +101,22 @@ def _run_benchmark_locked(
     if None in cells:
         raise InputError("a cell finished without metrics.json; run the benchmark again", path=cfg.out)
     write_results(cfg, cells, log)  # type: ignore[arg-type]
+    if others := other_finished_cells(cfg, keys):
+        print(
+            f"warning: the tables hold this call's {len(keys)} cells; {len(others)} other finished cells in "
+            f"{cfg.out / 'runs'} (other methods, scenes, colours or seeds) are left out: give those too to "
+            "include them",
+            file=sys.stderr,
+            flush=True,
+        )
     return cells  # type: ignore[return-value]
+
+
+def other_finished_cells(cfg: BenchmarkConfig, keys: Sequence[CellKey]) -> list[Path]:
+    """The run folders under ``OUT/runs`` with a ``metrics.json`` that are not cells of ``keys`` (an earlier
+    call's with other methods, scenes, colours or seeds): the written tables leave them out."""
+    mine = {run_dir(cfg, *key) for key in keys}
+    return sorted(p.parent for p in (cfg.out / "runs").glob("*/*/*/metrics.json") if p.parent not in mine)
 
 
 def _check_datasets(cfg: BenchmarkConfig) -> None:

@@ -19,7 +19,9 @@ from spikenerf.pipelines.benchmark.variants import COMPARISONS
 
 @dataclass(frozen=True)
 class Cell:
-    """One finished (scene, method variant, colour, seed) run and its mean test metrics (None = n/a)."""
+    """One finished (scene, method variant, colour, seed) run and its mean test metrics (None = n/a):
+    ``eval_seconds`` the wall time of its evaluation (``metrics.json``), ``train_seconds`` its training time
+    (``summary.json``: optimisation only, evaluation excluded)."""
 
     scene: str
     variant: str
@@ -27,8 +29,21 @@ class Cell:
     psnr: float
     ssim: float
     lpips: float | None = None
-    seconds: float | None = None
+    eval_seconds: float | None = None
     seed: int = 0
+    train_seconds: float | None = None
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Cell:
+        """A cell of ``results.json`` (``seconds``, its name before ``eval_seconds``, is read as such).
+
+        Raises:
+            TypeError: a field is missing or unknown.
+        """
+        data = dict(data)
+        if "seconds" in data and "eval_seconds" not in data:
+            data["eval_seconds"] = data.pop("seconds")
+        return cls(**data)
 
 
 #: metric name -> True when higher is better
@@ -111,15 +126,16 @@ def paired_difference(
 ) -> Difference:
     """The mean of ``diffs`` (ours − baseline, one per pair) with its t interval and verdict.
 
-    ``per_seed``: the mean difference of each training seed (over its scenes). With one seed the pair interval
-    only covers scene to scene spread, not seed noise, so no claim is 'shown' ("not shown (one seed)").
+    ``per_seed``: the mean difference of each training seed over the scenes all seeds share
+    (:func:`seed_means`; [] where they share none). With one seed the pair interval only covers scene to
+    scene spread, not seed noise, so no claim is 'shown' ("not shown (one seed)").
     """
     stat = summarize(diffs)
     if stat is None:
         raise ValueError("paired_difference needs at least one difference")
     pairs, seeds, better = t_interval(diffs), t_interval(per_seed), HIGHER_IS_BETTER[metric]
     verdict = "not shown"
-    if pairs is not None and len(per_seed) < 2:
+    if pairs is not None and len(per_seed) == 1:
         verdict = "not shown (one seed)"
     elif _claimed(pairs, better) and _claimed(seeds, better):
         verdict = "shown"
@@ -129,6 +145,16 @@ def paired_difference(
     seed_low, seed_high = seeds or (None, None)
     return Difference(ours, baseline, color, metric, stat.n, stat.mean, stat.std, low, high, verdict,
                       seed_low, seed_high)  # fmt: skip
+
+
+def seed_means(by_seed: dict[int, dict[str, float]]) -> list[float]:
+    """Each seed's mean difference over the scenes that every seed has (``by_seed``: seed → scene →
+    difference), so that no seed's mean has other scenes in it than another's (unfinished cells); [] where
+    the seeds share no scene, or there is one seed."""
+    shared = set.intersection(*(set(scenes) for scenes in by_seed.values())) if by_seed else set()
+    if len(by_seed) < 2 or not shared:
+        return [] if len(by_seed) != 1 else [sum(d.values()) / len(d) for d in by_seed.values()]
+    return [sum(d[scene] for scene in shared) / len(shared) for d in by_seed.values()]
 
 
 def differences(
@@ -153,8 +179,7 @@ def differences(
                     x, y = getattr(a, metric), None if b is None else getattr(b, metric)
                     if x is not None and y is not None and math.isfinite(x - y):  # not NaN, not inf − inf
                         diffs.append(x - y)
-                        by_seed.setdefault(seed, []).append(x - y)
+                        by_seed.setdefault(seed, {})[scene] = x - y
                 if diffs:
-                    per_seed = [sum(v) / len(v) for v in by_seed.values()]
-                    out.append(paired_difference(ours, base, color, metric, diffs, per_seed))
+                    out.append(paired_difference(ours, base, color, metric, diffs, seed_means(by_seed)))
     return out

@@ -147,8 +147,15 @@ def table2(cells: Sequence[Cell], color: str, trained_on: Mapping[str, str] | No
                             ABLATION_VARIANTS)  # fmt: skip
 
 
-def _num(x: float | None, metric: str) -> str:
-    return "–" if x is None else f"{x:+.{2 if metric == 'psnr' else 3}f}"
+def _num(x: float | None, metric: str, sign: str = "+") -> str:
+    """``x`` to the metric's table precision (2 decimals for PSNR, else 3), or to 2 significant digits where
+    that precision would round it to 0 (a tiny but nonzero difference is not shown as 0)."""
+    if x is None:
+        return "–"
+    digits = 2 if metric == "psnr" else 3
+    if x != 0 and abs(x) < 0.5 * 10.0**-digits:
+        return f"{x:{sign}.2g}"
+    return f"{x:{sign}.{digits}f}"
 
 
 def differences_table(diffs: Sequence[Difference]) -> Table:
@@ -161,7 +168,7 @@ def differences_table(diffs: Sequence[Difference]) -> Table:
             "–" if lo is None else f"[{_num(lo, d.metric)}, {_num(hi, d.metric)}]"
             for lo, hi in ((d.low, d.high), (d.seed_low, d.seed_high))
         )
-        std = "" if d.std is None else f" ± {d.std:.{2 if d.metric == 'psnr' else 3}f}"
+        std = "" if d.std is None else f" ± {_num(d.std, d.metric, sign='')}"
         arrow = "↓" if not HIGHER_IS_BETTER[d.metric] else "↑"
         mark = "shown" if d.verdict == "shown" else ""
         values = [(d.color, "text"), (f"{d.metric.upper()} {arrow}", "text"), (str(d.n), ""),
