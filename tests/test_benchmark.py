@@ -122,7 +122,10 @@ def test_two_jobs_write_logs_and_resume(
     # a call with fewer methods writes tables of its own cells, and says which finished cells it leaves out
     capsys.readouterr()
     assert run_benchmark(replace(cfg, variants=["nerf-gt"])) == cells[:1]
-    assert "warning: the tables hold this call's 1 cells; 1 other finished cells" in capsys.readouterr().err
+    assert (
+        "spikenerf: warning: the tables hold this call's 1 cells; 1 other finished cells"
+        in capsys.readouterr().err
+    )
     assert other_finished_cells(cfg, cell_keys(replace(cfg, variants=["nerf-gt"]))) == [
         cfg.out / "runs" / "analytic-orbs" / "gray" / "nerf-blur"
     ]

@@ -171,5 +171,5 @@ def test_benchmark_scenes_all_without_blender_says_what_stands_in(capsys, monkey
     monkeypatch.setattr(suite, "benchmark_with_report", ran.append)
     main(["benchmark", "--scenes", "all", "--out", str(tmp_path / "b")])
     err = capsys.readouterr().err
-    assert "warning: --scenes all: Blender is not installed" in err and err.count("\n") == 1
+    assert "spikenerf: warning: --scenes all: Blender is not installed" in err and err.count("\n") == 1
     assert ran[0].scenes == [s.name for s in registry.list_scenes() if not s.needs_blender]

@@ -309,9 +309,9 @@ def _stopped_in_group(pgid: int) -> list[int]:
 
 
 def _numbers(out: Path) -> list[dict]:
-    """results.json's cells without their wall-clock training time."""
+    """results.json's cells without their wall-clock times (training and evaluation)."""
     cells = json.loads((out / "results.json").read_text())["cells"]
-    return [{k: v for k, v in c.items() if k != "seconds"} for c in cells]
+    return [{k: v for k, v in c.items() if not k.endswith("seconds")} for c in cells]
 
 
 def _kill_in_second_cell(out: Path, log: Path) -> None:

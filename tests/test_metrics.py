@@ -236,3 +236,20 @@ def test_masked_psnr_and_ssim_count_only_the_masked_pixels() -> None:
     assert math.isnan(float(psnr(a, b, mask=torch.zeros_like(mask))))
     with pytest.raises(ValueError, match="mask shape"):
         psnr(a, b, mask=mask[:, :10])
+
+
+def test_a_view_with_a_nan_pixel_scores_none_not_nan() -> None:
+    """metrics.json holds null, never NaN: a NaN pixel in a render made SSIM and LPIPS NaN, and the JSON
+    writer (``allow_nan=False``) then failed after every view had been rendered."""
+    import json
+
+    from spikenerf.eval.evaluate import score_view
+
+    gen = torch.Generator().manual_seed(0)
+    target = torch.rand(3, 40, 40, generator=gen, dtype=torch.float64)
+    pred = target.clone()
+    pred[:, 5, 7] = math.nan
+    scores = score_view(pred, target, "alex")
+    assert scores == {"psnr": None, "ssim": None, "lpips": None}
+    json.dumps(scores, allow_nan=False)
+    assert score_view(target, target, None)["ssim"] == pytest.approx(1.0)  # finite scores stay numbers

@@ -235,7 +235,18 @@ def test_report_command_rebuilds_a_moved_folder_with_other_calls_merged(
     assert capsys.readouterr().out.strip() == f"wrote {moved / 'report.html'}"
     page = (moved / "report.html").read_text(encoding="utf-8")
     assert "over 2 training seeds (0, 1)" in page and "seed 1): LPIPS" not in page
-    assert len(data_uri_pngs(page)) >= 3  # the figures of the moved folder's own runs
+    assert "± 0.35" in page  # nerf-gt's PSNR over the two seeds: std of x and x + 0.5
+    assert "as recorded in results.json" in page
+    figures = len(data_uri_pngs(page))
+    assert figures >= 3  # the figures of the moved folder's own runs
+    # the folder of the other call (--seeds 1: its runs are VARIANT-seed1) as OUT: its figures show its runs
+    seed1 = tmp_path / "seed1"
+    shutil.copytree(moved, seed1)
+    (seed1 / "runs" / SCENE / "gray" / "nerf-gt").rename(seed1 / "runs" / SCENE / "gray" / "nerf-gt-seed1")
+    (seed1 / "results.json").write_text(json.dumps({**other, "config": {**other["config"], "seeds": [1]}}))
+    _cli("report", seed1, moved / "results.json", "--no-progress")
+    page = (seed1 / "report.html").read_text(encoding="utf-8")
+    assert len(data_uri_pngs(page)) == figures and "nerf-gt-seed1" in page  # not the missing seed-0 runs
     for args, words in (([tmp_path], "no results.json: not a finished benchmark folder"),
                         ([moved, moved / "results.json"], "is also in an earlier file")):  # fmt: skip
         with pytest.raises(SystemExit) as exit_:

@@ -414,3 +414,31 @@ def test_simulate_of_a_sequence_with_an_unreadable_frame_leaves_nothing(tiny: Pa
         main(["simulate", "--sequence", str(tiny), "--out", str(out), "--no-progress"])
     assert exit_.value.code == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny"]
+
+
+def test_a_resumed_simulate_keeps_its_work_folder_when_a_later_frame_is_unreadable(
+    tiny: Path, tmp_path: Path
+) -> None:
+    """Only a fresh run is cleaned up on bad input: a run resumed after an interruption keeps the frames its
+    earlier part rendered (they stay valid once the bad frame is fixed)."""
+    import os
+    import subprocess
+    import sys
+
+    from spikenerf.cli import main
+    from spikenerf.core.faults import KILL_ENV
+
+    out = tmp_path / "out"
+    args = ["simulate", "--sequence", str(tiny), "--out", str(out), "--no-progress"]
+    killed = subprocess.run([sys.executable, "-m", "spikenerf", *args], capture_output=True,
+                            env={**os.environ, KILL_ENV: "simulate.render:2"})  # fmt: skip
+    assert killed.returncode != 0
+    cached = sorted(p.name for p in (tmp_path / "out.partial").rglob("*.npy"))
+    assert len(cached) == 2
+    png = tiny.parent / "train" / "r_3.png"
+    png.write_bytes(png.read_bytes()[:-30])
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2 and not out.exists()
+    kept = sorted(p.name for p in (tmp_path / "out.partial").rglob("*.npy"))
+    assert kept == [*cached, "00002.npy"]  # and the frame rendered before the bad one

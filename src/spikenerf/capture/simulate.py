@@ -438,8 +438,11 @@ def _simulate_locked(
     try:
         render_missing(source, cache, progress, jobs)
     except BaseException as err:
-        # nothing worth resuming, or bad input (a frame the source cannot read): leave nothing behind
-        if fresh and (isinstance(err, InputError) or not any(cache.glob("*.npy"))):
+        # a fresh run with nothing worth resuming, or stopped by an input file it cannot read (a sequence
+        # frame): leave nothing behind. A resumed run, or a scene's bad frame after hours of renders, keeps
+        # its cache.
+        bad_file = isinstance(err, InputError) and err.path is not None
+        if fresh and (bad_file or not any(cache.glob("*.npy"))):
             shutil.rmtree(work, ignore_errors=True)
         raise
 

@@ -159,8 +159,8 @@ def command(
 
         if not blender_available():
             click.echo(
-                "warning: --scenes all: Blender is not installed (pip install 'spikenerf[blender]'), so the "
-                "analytic scenes stand in for the paper's six Blender scenes",
+                "spikenerf: warning: --scenes all: Blender is not installed (pip install "
+                "'spikenerf[blender]'), so the analytic scenes stand in for the paper's six Blender scenes",
                 err=True,
             )
     cfg = BenchmarkConfig(

@@ -126,11 +126,12 @@ def _finite(x: float | None) -> float | None:
 def score_view(
     pred: torch.Tensor, target: torch.Tensor, lpips_backbone: str | None
 ) -> dict[str, float | None]:
-    """PSNR (dB), SSIM and LPIPS of one displayed pair (C, H, W); a metric that cannot run is None."""
+    """PSNR (dB), SSIM and LPIPS of one displayed pair (C, H, W); a metric that cannot run, or is not finite
+    (a NaN in the render; PSNR +∞ of a perfect view), is None."""
     side = min(pred.shape[-2:])
     out: dict[str, float | None] = {"psnr": _finite(float(psnr(pred, target)))}
-    out["ssim"] = float(ssim(pred, target)) if side >= SSIMConfig().window else None
-    out["lpips"] = float(lp.lpips(pred, target, lpips_backbone)) if lpips_backbone else None
+    out["ssim"] = _finite(float(ssim(pred, target))) if side >= SSIMConfig().window else None
+    out["lpips"] = _finite(float(lp.lpips(pred, target, lpips_backbone))) if lpips_backbone else None
     return out
 
 

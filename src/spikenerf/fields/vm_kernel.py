@@ -462,7 +462,7 @@ def _load() -> Any:
         ) as err:  # no compiler, no ninja, no headers, no OpenMP: try the next, then grid_sample
             last = i == len(variants) - 1
             fallback = "using grid_sample" if last else "building it without OpenMP"
-            hint = " (needs a C++ compiler and ninja: pip install ninja)" if last else ""
+            hint = " (the build needs a C++ compiler, g++ or clang++, and ninja)" if last else ""
             warnings.warn(f"VM CPU kernel: {fallback}{hint} ({type(err).__name__}: {err})", stacklevel=2)
     _FAILED = _MODULE is None
     return _MODULE

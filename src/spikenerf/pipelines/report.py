@@ -29,6 +29,7 @@ from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
 from spikenerf.pipelines import figures
 from spikenerf.pipelines.benchmark.cells import (
     BenchmarkConfig,
+    CellKey,
     cell_commands,
     cell_keys,
     dataset_command,
@@ -126,8 +127,10 @@ def _read_json(path: Path) -> dict:
         return {}
 
 
-def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
-    """One note per missing cell, per LPIPS null (with its reason) and per cell without renders."""
+def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell], local: set[CellKey] | None = None) -> list[str]:
+    """One note per missing cell, per LPIPS null (with its reason) and per cell without renders; the files
+    of a cell outside ``local`` (one merged from another call's results; None: every cell is local) are
+    not looked for."""
     have = {(c.scene, c.color, c.variant, c.seed) for c in cells}
     notes = []
     for key in cell_keys(cfg):
@@ -138,7 +141,7 @@ def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
         if key not in have:
             notes.append(f"{where}: no result (the cell has not finished).")
             continue
-        if not run.is_dir():  # a cell merged from another folder's results.json: its files are there
+        if local is not None and key not in local:  # merged from another call: its files are there
             continue
         metrics = _read_json(run / "metrics.json")
         if metrics.get("mean", {}).get("lpips") is None:
@@ -148,7 +151,7 @@ def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> list[str]:
     return notes
 
 
-def _tables_section(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> str:
+def _tables_section(cfg: BenchmarkConfig, cells: Sequence[Cell], local: set[CellKey] | None = None) -> str:
     from spikenerf.pipelines.benchmark.results import differences_note, seed_note, trained_on
 
     t1 = [v for v in cfg.variants if v in TABLE1_VARIANTS] or list(cfg.variants)
@@ -172,7 +175,7 @@ def _tables_section(cfg: BenchmarkConfig, cells: Sequence[Cell]) -> str:
     parts.append(
         table_html(differences_table(diffs)) if diffs else "<p class='note'>– no comparable pairs.</p>"
     )
-    notes = _cell_notes(cfg, cells)
+    notes = _cell_notes(cfg, cells, local)
     if notes:
         parts.append("<ul class='note'>" + "".join(f"<li>{_esc(n)}</li>" for n in notes) + "</ul>")
     return "".join(parts)
@@ -321,27 +324,47 @@ def _figure_html(fig: Fig) -> str:
     return "".join(parts)
 
 
-def _env_section(cfg: BenchmarkConfig) -> str:
+def _env_section(cfg: BenchmarkConfig, recorded: Sequence[dict] = ()) -> str:
+    """The environment: ``recorded`` (each call's ``results.json`` environment, a rebuilt report's) or,
+    without it, this process's."""
     import os
 
     import matplotlib
     import torch
 
-    env = {**environment(), "numpy": np.__version__, "matplotlib": matplotlib.__version__}
-    env |= {"cpu cores": os.cpu_count(), "torch threads": torch.get_num_threads()}
+    if recorded:
+        env, where = dict(recorded[0]), "as recorded in results.json"
+        others = [e for e in recorded[1:] if e != recorded[0]]
+        if others:
+            where += "; the merged calls ran on " + "; ".join(json.dumps(e) for e in others)
+    else:
+        env = {**environment(), "numpy": np.__version__, "matplotlib": matplotlib.__version__}
+        env |= {"cpu cores": os.cpu_count(), "torch threads": torch.get_num_threads()}
+        where = "this process's"
     rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_esc(v)}</td></tr>" for k, v in env.items())
     conf = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
     return (
-        f"<h2>Environment</h2><table>{rows}</table><p class='note'>benchmark config: "
+        f"<h2>Environment</h2><p class='note'>{_esc(where)}</p><table>{rows}</table><p class='note'>"
+        "benchmark config: "
         f"<code>{_esc(json.dumps(conf))}</code>; every run's exact commands are in results.json.</p>"
     )
 
 
-def build_report(cfg: BenchmarkConfig, cells: list[Cell], progress: bool = True) -> Path:
+def build_report(
+    cfg: BenchmarkConfig,
+    cells: list[Cell],
+    progress: bool = True,
+    own: BenchmarkConfig | None = None,
+    recorded: Sequence[dict] = (),
+) -> Path:
     """Write ``cfg.out/report.html`` (self-contained) from the benchmark's folders; returns its path.
 
-    Each figure is also written as ``cfg.out/figures/<section>-<scene>[-<colour>][-<n>].png``.
+    Each figure is also written as ``cfg.out/figures/<section>-<scene>[-<colour>][-<n>].png``. With cells of
+    other calls merged in (``spikenerf report``), ``cfg`` holds their union for the tables, ``own`` the
+    folder's own config (its figures and file notes; None: ``cfg``) and ``recorded`` each call's recorded
+    environment (empty: this process's).
     """
+    fig_cfg = cfg if own is None else own
     from tqdm import tqdm
 
     jobs: list[tuple[str, str, Callable[[], list[Fig]]]] = []
@@ -352,12 +375,12 @@ def build_report(cfg: BenchmarkConfig, cells: list[Cell], progress: bool = True)
             datasets[scene] = load_dataset(cfg.out / "datasets" / scene)
         return datasets[scene]
 
-    for s in cfg.scenes:
-        jobs.append(("spikes", s, lambda s=s: _spikes_figs(cfg, dataset(s), s)))
-        for c in cfg.colors:
-            jobs.append(("views", f"{s}-{c}", lambda s=s, c=c: [_views_fig(cfg, dataset(s), s, c)]))
-            jobs.append(("curves", f"{s}-{c}", lambda s=s, c=c: [_curves_fig(cfg, s, c)]))
-            jobs.append(("novel-spikes", f"{s}-{c}", lambda s=s, c=c: [_novel_fig(cfg, s, c)]))
+    for s in fig_cfg.scenes:
+        jobs.append(("spikes", s, lambda s=s: _spikes_figs(fig_cfg, dataset(s), s)))
+        for c in fig_cfg.colors:
+            jobs.append(("views", f"{s}-{c}", lambda s=s, c=c: [_views_fig(fig_cfg, dataset(s), s, c)]))
+            jobs.append(("curves", f"{s}-{c}", lambda s=s, c=c: [_curves_fig(fig_cfg, s, c)]))
+            jobs.append(("novel-spikes", f"{s}-{c}", lambda s=s, c=c: [_novel_fig(fig_cfg, s, c)]))
     made: dict[str, list[Fig]] = {k: [] for k in SECTIONS}
     for section, key, make in tqdm(jobs, desc="report figures", unit="fig", disable=not progress):
         try:
@@ -371,11 +394,12 @@ def build_report(cfg: BenchmarkConfig, cells: list[Cell], progress: bool = True)
                 fig.file = f"{FIGURES}/{section}-{key}{f'-{i + 1}' if len(figs) > 1 else ''}.png"
                 write_bytes_atomic(cfg.out / fig.file, fig.png)
         made[section] += figs
-    body = [f"<section id='tables'>{_tables_section(cfg, cells)}</section>"]
+    local = None if own is None else set(cell_keys(own))
+    body = [f"<section id='tables'>{_tables_section(cfg, cells, local)}</section>"]
     for sid, (head, text) in HEADS.items():
         figs = "".join(_figure_html(f) for f in made[sid]) or "<p class='note'>–</p>"
         body.append(f"<section id='{sid}'><h2>{head}</h2><p class='note'>{_esc(text)}</p>{figs}</section>")
-    body.append(f"<section id='environment'>{_env_section(cfg)}</section>")
+    body.append(f"<section id='environment'>{_env_section(cfg, recorded)}</section>")
     nav = "".join(f"<a href='#{s}'>{s}</a>" for s in SECTIONS)
     head = f"<head><meta charset='utf-8'><title>spikenerf report</title><style>{CSS}</style></head>"
     page = f"<!DOCTYPE html><html lang='en'>{head}<body><h1>spikenerf report</h1><nav>{nav}</nav>"

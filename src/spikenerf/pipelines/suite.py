@@ -10,13 +10,10 @@ from pathlib import Path
 
 from spikenerf.core.errors import InputError
 from spikenerf.pipelines.benchmark.cells import BenchmarkConfig
-from spikenerf.pipelines.benchmark.results import read_results
+from spikenerf.pipelines.benchmark.results import RESULTS, merge_calls, read_call
 from spikenerf.pipelines.benchmark.run import run_benchmark
 from spikenerf.pipelines.benchmark.tables import Cell
 from spikenerf.pipelines.report import build_report
-
-#: a finished benchmark's record of its config and cells
-RESULTS = "results.json"
 
 
 def benchmark_with_report(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] | None = None) -> list[Cell]:
@@ -29,8 +26,9 @@ def benchmark_with_report(cfg: BenchmarkConfig, on_cell: Callable[[Cell], None] 
 def report_from_folder(out: Path, others: Sequence[Path] = (), progress: bool = True) -> Path:
     """Rebuild ``out/report.html`` from the finished benchmark folder ``out`` (its ``results.json``; the
     folder may have moved), its tables holding also the cells of ``others``: the ``results.json`` of the
-    same benchmark's other calls (e.g. one per ``--seeds K``; :func:`read_results` refuses other settings
-    and cells held twice). The figures show ``out``'s own runs. Returns the report's path.
+    same benchmark's other calls (e.g. one per ``--seeds K``; :func:`merge_calls` refuses other settings
+    and cells held twice). The figures show ``out``'s own runs, the environment each call's recorded one.
+    Returns the report's path.
 
     Raises:
         InputError: ``out`` has no ``results.json``, or a file cannot be read or merged.
@@ -40,27 +38,25 @@ def report_from_folder(out: Path, others: Sequence[Path] = (), progress: bool = 
         raise InputError(
             f"no {RESULTS}: not a finished benchmark folder (run `spikenerf benchmark` to its end)", path=out
         )
-    _, cells, _ = read_results([out / RESULTS, *others])
-    cfg = config_from_results(out)
+    calls = [read_call(out / RESULTS), *(read_call(Path(p)) for p in others)]
+    _, cells, _ = merge_calls(calls)
+    own = config_of(calls[0].config, out)
     seeds = sorted({c.seed for c in cells})
-    cfg = dataclasses.replace(
-        cfg,
-        variants=list(dict.fromkeys([*cfg.variants, *(c.variant for c in cells)])),
-        colors=[c for c in ("gray", "rgb") if c in cfg.colors or any(cell.color == c for cell in cells)],
-        seeds=seeds if len(seeds) > 1 or seeds != [cfg.seed] else cfg.seeds,
+    merged = dataclasses.replace(
+        own,
+        variants=list(dict.fromkeys([*own.variants, *(c.variant for c in cells)])),
+        colors=[c for c in ("gray", "rgb") if c in own.colors or any(cell.color == c for cell in cells)],
+        seeds=seeds if seeds != [own.seed] else own.seeds,
     )
-    return build_report(cfg, cells, progress)
+    envs = [call.environment for call in calls if call.environment]
+    return build_report(merged, cells, progress, own=own, recorded=envs)
 
 
-def config_from_results(out: Path) -> BenchmarkConfig:
-    """The :class:`BenchmarkConfig` recorded in ``out/results.json``, with ``out`` as its folder (entries of
-    other versions that the config lacks are left out; missing ones take their defaults)."""
-    import json
-
-    path = out / RESULTS
+def config_of(recorded: dict, out: Path) -> BenchmarkConfig:
+    """The :class:`BenchmarkConfig` of a ``results.json``'s ``config``, with ``out`` as its folder (entries
+    of other versions that the config lacks are left out; missing ones take their defaults)."""
+    names = {f.name for f in dataclasses.fields(BenchmarkConfig)}
     try:
-        recorded = json.loads(path.read_text())["config"]
-        names = {f.name for f in dataclasses.fields(BenchmarkConfig)}
         return BenchmarkConfig(**{**{k: v for k, v in recorded.items() if k in names}, "out": out})
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
-        raise InputError(f"not a benchmark's {RESULTS} ({type(err).__name__}: {err})", path=path) from None
+    except TypeError as err:
+        raise InputError(f"not a benchmark's {RESULTS} ({err})", path=out / RESULTS) from None

@@ -167,10 +167,10 @@ def _cluster_problem(resources: dict[str, float], cfg: BenchmarkConfig) -> tuple
     """(parameter, message) when the cluster's ``resources`` cannot place a task of ``cfg`` now (Ray would
     wait until a node that can joins), else None."""
     if cfg.device.startswith("cuda") and resources.get("GPU", 0) < 1:
-        return "device", f"device {cfg.device}: the Ray cluster has no GPU"
+        return "device", f"the Ray cluster has no GPU for device {cfg.device}"
     if resources.get("CPU", 0) < cfg.ray_cpus:
         cpus = resources.get("CPU", 0)
-        return "ray_cpus", f"ray_cpus: a task asks for {cfg.ray_cpus:g} CPUs, the Ray cluster has {cpus:g}"
+        return "ray_cpus", f"a task asks for ray_cpus {cfg.ray_cpus:g} CPUs, the Ray cluster has {cpus:g}"
     return None
 
 
@@ -199,7 +199,8 @@ def run_jobs(
         if started:  # a cluster started here never grows: its tasks would wait forever
             ray.shutdown()
             raise InputError(problem[1], param=problem[0])
-        print(f"warning: {problem[1]}; the cells wait until such a node joins", file=sys.stderr, flush=True)
+        print(f"spikenerf: warning: {problem[1]} now; its cells wait until a node that has them joins",
+              file=sys.stderr, flush=True)  # fmt: skip
     out = str(cfg.out.resolve())
     gpus = cfg.device.startswith("cuda") or (
         cfg.device == "auto" and ray.cluster_resources().get("GPU", 0) > 0

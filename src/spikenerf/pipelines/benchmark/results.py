@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from spikenerf.core.atomic import write_text_atomic
@@ -34,6 +34,8 @@ from spikenerf.pipelines.benchmark.variants import (
     WINDOW_COMPARISONS,
 )
 
+#: a finished benchmark's record of its config, environment, cells and commands
+RESULTS = "results.json"
 #: config entries that must agree between merged benchmark folders (:func:`read_results`)
 MERGE_KEYS = (
     "scenes", "size", "frames", "iters", "field_kind", "seed", "test_views", "blur_views", "extra_train_args",
@@ -116,7 +118,7 @@ def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict])
             "this_run": log,
         },
     }
-    write_text_atomic(cfg.out / "results.json", json.dumps(results, indent=2) + "\n")
+    write_text_atomic(cfg.out / RESULTS, json.dumps(results, indent=2) + "\n")
 
 
 def seed_note(seeds: Sequence[int]) -> str:
@@ -132,12 +134,12 @@ def differences_note() -> str:
     return (
         "Each difference (ours − baseline) is paired over scene × seed: the same dataset and training seed. "
         "95% confidence interval = mean ± t(0.975, n−1)·std/√n (Student t). Pairs of one scene "
-        "share its effect, so the per-seed 95% CI repeats it over the per-seed means (scenes averaged, "
-        "seeds − 1 degrees "
-        "of freedom). A claim is 'shown' only when both intervals exclude 0 on the claimed side (higher "
-        "PSNR/SSIM, lower LPIPS); otherwise 'not shown' ('reversed' when the pair interval excludes 0 on the "
-        "other side). One pair gives no interval; with one "
-        "training seed the interval spans scenes only, not seed noise, so nothing is 'shown'."
+        "share its effect, so the per-seed 95% CI repeats it over the per-seed means (each over the "
+        "scenes every seed has, seeds − 1 degrees of freedom). A claim is 'shown' only when both intervals "
+        "exclude 0 on the claimed side (higher PSNR/SSIM, lower LPIPS); otherwise 'not shown' (a zero "
+        "difference is not excluded; 'reversed' when the pair interval excludes 0 on the other side). One "
+        "pair gives no interval; with one training seed the interval spans scenes only, not seed noise, so "
+        "nothing is 'shown'."
     )
 
 
@@ -147,42 +149,63 @@ def differences_markdown(diffs: Sequence[Difference]) -> str:
     return f"# Paired differences (ours − baseline)\n\n{differences_note()}\n\n{table}\n"
 
 
-def read_results(paths: Sequence[Path]) -> tuple[dict, list[Cell], dict[str, str]]:
-    """The shared config (:data:`MERGE_KEYS`), every cell and the 'trained on' texts of several benchmark
-    folders' ``results.json`` (``paths``); InputError when a file's config differs from the first's or a cell
-    (scene, colour, variant, seed) is in two files."""
-    config, cells, trained_on, seen = None, [], {}, set()
-    for path in paths:
-        data, mine = _read_results(path)
-        if config is not None and mine != config:
-            diff = [k for k in MERGE_KEYS if mine[k] != config[k]]
-            raise InputError(f"{path}: its benchmark differs from {paths[0]} in {', '.join(diff)}")
-        config = mine
-        for c in data["cells"]:
-            key = (c.scene, c.color, c.variant, c.seed)
-            if key in seen:
-                raise InputError(f"{path}: cell {'/'.join(map(str, key))} is also in an earlier file")
-            seen.add(key)
-            cells.append(c)
-        trained_on.update(data["trained_on"])
-    if config is None:
-        raise InputError("no results.json given", param="paths")
-    return config, cells, trained_on
+@dataclass(frozen=True)
+class RecordedCall:
+    """What one benchmark call recorded in its ``results.json`` (:func:`read_call`)."""
+
+    path: Path
+    config: dict  #: the benchmark's settings (``BenchmarkConfig`` as a dict)
+    cells: list[Cell]
+    trained_on: dict[str, str]
+    environment: dict
 
 
-def _read_results(path: Path) -> tuple[dict, dict]:
-    """A ``results.json``'s cells (as :class:`Cell`) and 'trained on' texts, and its :data:`MERGE_KEYS`;
-    InputError naming the file when it cannot be read or is not a benchmark's results."""
+def read_call(path: Path) -> RecordedCall:
+    """A ``results.json`` read back; InputError naming the file when it cannot be read or is not a
+    benchmark's results."""
     try:
         data = json.loads(path.read_text())
-        mine = {k: data["config"][k] for k in MERGE_KEYS}
+        config = dict(data["config"])
+        missing = [k for k in MERGE_KEYS if k not in config]
+        if missing:
+            raise KeyError(", ".join(missing))
         cells = [Cell.from_dict(c) for c in data["cells"]]
-        trained_on = dict(data.get("trained_on", {}))
+        return RecordedCall(
+            path, config, cells, dict(data.get("trained_on", {})), dict(data.get("environment", {}))
+        )
     except OSError as err:
         raise InputError(f"cannot read ({err.strerror or err})", path=path) from None
     except (ValueError, KeyError, TypeError, AttributeError) as err:
-        raise InputError(f"not a benchmark's results.json ({type(err).__name__}: {err})", path=path) from None
-    return {"cells": cells, "trained_on": trained_on}, mine
+        raise InputError(f"not a benchmark's {RESULTS} ({type(err).__name__}: {err})", path=path) from None
+
+
+def read_results(paths: Sequence[Path]) -> tuple[dict, list[Cell], dict[str, str]]:
+    """The shared config (:data:`MERGE_KEYS`), every cell and the 'trained on' texts of several benchmark
+    folders' ``results.json`` (``paths``; :func:`merge_calls`)."""
+    return merge_calls([read_call(Path(p)) for p in paths])
+
+
+def merge_calls(calls: Sequence[RecordedCall]) -> tuple[dict, list[Cell], dict[str, str]]:
+    """The shared config (:data:`MERGE_KEYS`), every cell and the 'trained on' texts of several calls;
+    InputError when a call's config differs from the first's or a cell (scene, colour, variant, seed) is in
+    two of them."""
+    if not calls:
+        raise InputError(f"no {RESULTS} given", param="paths")
+    config = {k: calls[0].config[k] for k in MERGE_KEYS}
+    cells: list[Cell] = []
+    trained_on: dict[str, str] = {}
+    seen: set[tuple] = set()
+    for call in calls:
+        if diff := [k for k in MERGE_KEYS if call.config[k] != config[k]]:
+            raise InputError(f"{call.path}: its benchmark differs from {calls[0].path} in {', '.join(diff)}")
+        for c in call.cells:
+            key = (c.scene, c.color, c.variant, c.seed)
+            if key in seen:
+                raise InputError(f"{call.path}: cell {'/'.join(map(str, key))} is also in an earlier file")
+            seen.add(key)
+            cells.append(c)
+        trained_on.update(call.trained_on)
+    return config, cells, trained_on
 
 
 def merged_markdown(paths: Sequence[Path]) -> str:
@@ -206,7 +229,7 @@ def extra_differences_markdown(path: Path, per_scene: bool = False) -> str:
     """The paired differences beyond the paper's claims (:data:`~.variants.LEARNED_COMPARISONS`,
     :data:`~.variants.WINDOW_COMPARISONS`) of a benchmark's ``results.json``, pairs it lacks left out; with
     ``per_scene``, each scene's PSNR differences too (the paper's headline pair and the window pairs)."""
-    cells = _read_results(path)[0]["cells"]
+    cells = read_call(path).cells
     colors = sorted({c.color for c in cells})
     parts = [
         to_markdown(differences_table(differences(cells, colors, LEARNED_COMPARISONS + WINDOW_COMPARISONS)))

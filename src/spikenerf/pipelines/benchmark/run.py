@@ -103,9 +103,9 @@ def _run_benchmark_locked(
     write_results(cfg, cells, log)  # type: ignore[arg-type]
     if others := other_finished_cells(cfg, keys):
         print(
-            f"warning: the tables hold this call's {len(keys)} cells; {len(others)} other finished cells in "
-            f"{cfg.out / 'runs'} (other methods, scenes, colours or seeds) are left out: give those too to "
-            "include them",
+            f"spikenerf: warning: the tables hold this call's {len(keys)} cells; {len(others)} other "
+            f"finished cells in {cfg.out / 'runs'} (other methods, scenes, colours or seeds) are left out: "
+            "give those too to include them",
             file=sys.stderr,
             flush=True,
         )

@@ -4,8 +4,8 @@ A benchmark cell is one (scene, colour, method variant, seed) run. Tables aggreg
 (scene, colour, variant) to mean ± sample standard deviation (ddof = 1). The ``differences`` table pairs two
 variants on the same (scene, seed) and gives the mean difference with a two-sided Student-t confidence
 interval over those pairs. Pairs from one scene share that scene's effect, so a second interval is computed
-over the per-seed means (scenes averaged, ``seeds − 1`` degrees of freedom); a claim is "shown" only when
-both intervals exclude 0 on the claimed side.
+over the per-seed means (each over the scenes every seed has, ``seeds − 1`` degrees of freedom); a claim is
+"shown" only when both intervals exclude 0 on the claimed side.
 """
 
 from __future__ import annotations
@@ -149,8 +149,8 @@ def paired_difference(
 
 def seed_means(by_seed: dict[int, dict[str, float]]) -> list[float]:
     """Each seed's mean difference over the scenes that every seed has (``by_seed``: seed → scene →
-    difference), so that no seed's mean has other scenes in it than another's (unfinished cells); [] where
-    the seeds share no scene, or there is one seed."""
+    difference), so that no seed's mean has other scenes in it than another's (unfinished cells); one seed:
+    its mean over its scenes; [] where two or more seeds share no scene."""
     shared = set.intersection(*(set(scenes) for scenes in by_seed.values())) if by_seed else set()
     if len(by_seed) < 2 or not shared:
         return [] if len(by_seed) != 1 else [sum(d.values()) / len(d) for d in by_seed.values()]

@@ -154,7 +154,7 @@ def _num(x: float | None, metric: str, sign: str = "+") -> str:
         return "–"
     digits = 2 if metric == "psnr" else 3
     if x != 0 and abs(x) < 0.5 * 10.0**-digits:
-        return f"{x:{sign}.2g}"
+        return f"{x:{sign}#.2g}"
     return f"{x:{sign}.{digits}f}"
 
 
