@@ -325,6 +325,8 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path: Path, capsys) -> None:
     assert "--frames" in _fails(
         capsys, ["simulate", "--scene", "analytic-orbs", "--frames", "0", "--out", "q"]
     )
+    no_blur = ["simulate", "--scene", "analytic-orbs", "--blur-fps", "0", "--blur-views", "3", "--out", "q"]
+    assert "--blur-views: there is no blur camera with --blur-fps 0" in _fails(capsys, no_blur)
     meta = out / "transforms.json"
     data = json.loads(meta.read_text())
     data["frames"][0]["file_path"] = "../../secret.png"

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+from click.core import ParameterSource
 
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.cli import command_line
@@ -144,6 +145,9 @@ def command(**kw: Any) -> None:
     for name in FLOAT_OPTIONS:  # nan/inf would write NaN poses or hang the camera
         if kw[name] is not None and not math.isfinite(kw[name]):
             raise InputError(f"--{name.replace('_', '-')}: expected a finite number, found {kw[name]}")
+    source_of = click.get_current_context().get_parameter_source
+    if kw["blur_fps"] == 0 and source_of("blur_views") != ParameterSource.DEFAULT:
+        raise InputError("--blur-views: there is no blur camera with --blur-fps 0")
     from spikenerf.core.marker import check_inputs_outside, check_output
 
     check_output(kw["out"], "dataset", overwrite=bool(kw["overwrite"]), replace=True)
