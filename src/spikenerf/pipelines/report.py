@@ -340,7 +340,7 @@ def _env_section(cfg: BenchmarkConfig, recorded: Sequence[dict] = ()) -> str:
     else:
         env = {**environment(), "numpy": np.__version__, "matplotlib": matplotlib.__version__}
         env |= {"cpu cores": os.cpu_count(), "torch threads": torch.get_num_threads()}
-        where = "this process's"
+        where = "the machine that ran the benchmark"
     rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_esc(v)}</td></tr>" for k, v in env.items())
     conf = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
     return (
