@@ -173,3 +173,31 @@ def test_benchmark_scenes_all_without_blender_says_what_stands_in(capsys, monkey
     err = capsys.readouterr().err
     assert "spikenerf: warning: --scenes all: Blender is not installed" in err and err.count("\n") == 1
     assert ran[0].scenes == [s.name for s in registry.list_scenes() if not s.needs_blender]
+
+
+def test_train_names_the_flag_of_a_bad_config_set_or_field_option(capsys, tmp_path: Path) -> None:
+    """Errors that named no flag (a missing --config, an empty one, an unknown --set key, a section given a
+    value, an unknown --field-option) name it; a run folder given as --config reads its config.yaml."""
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("")
+    cases = [
+        (["--config", str(tmp_path / "nope.yaml")], "nope.yaml: --config: file not found"),
+        (["--config", str(tmp_path)], "--config: is a folder without a config.yaml"),
+        (["--config", str(empty)], "empty.yaml: is empty: expected a YAML mapping of TrainConfig fields"),
+        (["--set", "spike=3"], "--set spike: expected a mapping for SpikeLossConfig, found int"),
+        (["--set", "spike.lamb=0.5"], "--set spike.lamb: unknown SpikeLossConfig keys ['lamb']"),
+        (["--set", "spike.lam=abc"], "--set spike.lam must be a number, found 'abc'"),
+        (["--field-option", "nonsense=3"], "--field-option: unknown grid field config keys ['nonsense']"),
+    ]
+    for args, words in cases:
+        with pytest.raises(SystemExit) as exit_:
+            main(["train", str(tmp_path / "ds"), "--out", str(tmp_path / "run"), *args])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and words in err and err.count("\n") == 1, (args, err)
+    assert not (tmp_path / "run").exists()
+    run = tmp_path / "done"
+    run.mkdir()
+    (run / "config.yaml").write_text("iters: 0\n")  # read from the folder: its value is refused
+    with pytest.raises(SystemExit):
+        main(["train", str(tmp_path / "ds"), "--out", str(tmp_path / "run"), "--config", str(run)])
+    assert "done/config.yaml" in capsys.readouterr().err

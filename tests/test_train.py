@@ -748,3 +748,20 @@ def test_set_coerces_number_strings_by_the_key_type() -> None:
     cfg = TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), sets)).validate()
     assert cfg.dataset == "1e3" and cfg.lr == 1e-3
     assert field_config("grid", cfg.field_config).lr == 2e-2
+
+
+def test_info_of_a_run_prints_the_psnr_that_train_printed(dataset_dir: Path, tmp_path: Path) -> None:
+    """curves.csv keeps 4 decimals, so a value such as 21.39503 rounded there to 21.3950 printed as 21.39 in
+    ``info`` while ``train`` printed 21.40: ``info`` reads the finished run's summary.json."""
+    from spikenerf.train.run import describe_run
+
+    out = tmp_path / "run"
+    train(_config(dataset_dir, method="nerf-gt"), out, progress=False)
+    summary = json.loads((out / "summary.json").read_text())
+    summary.update(train_psnr=21.395028, test_psnr=18.004999)
+    (out / "summary.json").write_text(json.dumps(summary))
+    line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
+    assert "train PSNR 21.40 dB, test PSNR 18.00 dB" in line
+    (out / "summary.json").unlink()  # an unfinished or older run: curves.csv's values
+    line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
+    assert "train PSNR 21.40" not in line

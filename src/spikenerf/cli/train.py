@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import click
@@ -258,7 +260,8 @@ PARAM_FLAGS = {
     "--config",
     "config_file",
     type=click.Path(path_type=Path),
-    help="Start from this TrainConfig YAML (e.g. RUN/config.yaml) instead of the defaults.",
+    help="Start from this TrainConfig YAML (e.g. RUN/config.yaml, or the RUN folder) instead of the "
+    "defaults.",
 )
 @click.option(
     "--set",
@@ -290,6 +293,11 @@ def command(
     SET_KEYS.clear()  # (several commands may run in one process: tests, the Python API)
     stored = out / CONFIG_FILE
     if config_file is not None:  # the file, then the options given on the command line, then --set
+        if config_file.is_dir() and (config_file / CONFIG_FILE).is_file():  # a run folder: its config
+            config_file = config_file / CONFIG_FILE
+        if not config_file.is_file():
+            found = "is a folder without a config.yaml" if config_file.is_dir() else "file not found"
+            raise InputError(f"--config: {found}", path=config_file)
         base = load_config(config_file)
     elif resume and stored.is_file():  # resuming: keep the stored config, apply only given options
         base = load_run_config(stored)
@@ -309,9 +317,15 @@ def command(
         base.spike.enabled = not options["no_spike_loss"]
     if "field_options" in given:
         base.field_config = {**base.field_config, **_field_options(options["field_options"])}  # type: ignore[arg-type]
+        with _naming("--field-option"):
+            from spikenerf.fields import field_config
+
+            field_config(base.field, base.field_config)  # a key or value the field does not take
     if overrides:
-        SET_KEYS.update(item.partition("=")[0].strip() for item in overrides)  # errors name --set KEY
-        base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
+        keys = [item.partition("=")[0].strip() for item in overrides]
+        SET_KEYS.update(keys)  # errors name --set KEY
+        with _naming("--set", keys):
+            base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
     if dataset is None and not base.dataset:
         raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
     dataset = Path(base.dataset) if dataset is None else dataset
@@ -362,6 +376,23 @@ def _lengths(text: str | None) -> list[int] | None:
     if not values or min(values) < 1:
         raise click.BadParameter(f"window lengths must be ≥ 1, found {text!r}")
     return values
+
+
+@contextlib.contextmanager
+def _naming(flag: str, keys: Sequence[str] = ()) -> Iterator[None]:
+    """An InputError that names no parameter (an unknown key, a section given a value) gets ``flag``: before
+    the key of ``keys`` that the message starts with (``--set spike.lam must be …``), else with the keys
+    before the message (``--set spike: expected a mapping …``)."""
+    try:
+        yield
+    except InputError as err:
+        if err.params:
+            raise
+        if any(err.message.startswith(f"{key} ") for key in keys):
+            message = f"{flag} {err.message}"
+        else:
+            message = " ".join([flag, ", ".join(keys)]).strip() + f": {err.message}"
+        raise InputError(message, path=err.path) from err
 
 
 def _field_options(items: tuple[str, ...]) -> dict[str, object]:

@@ -419,9 +419,12 @@ def _read_config(path: str | Path) -> tuple[Path, Any]:
     if "\0" in text:
         raise InputError("is a binary file, not a YAML config", path=path)
     try:
-        return path, yaml.safe_load(text)
+        data = yaml.safe_load(text)
     except yaml.YAMLError as err:
         raise InputError(f"malformed YAML ({err})", path=path) from err
+    if data is None:
+        raise InputError("is empty: expected a YAML mapping of TrainConfig fields", path=path)
+    return path, data
 
 
 def load_config(path: str | Path) -> TrainConfig:

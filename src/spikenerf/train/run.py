@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -14,6 +17,31 @@ from spikenerf.render import RadianceModel
 from spikenerf.train.checkpoint import CHECKPOINT, check_same_run, load_checkpoint, model_of
 from spikenerf.train.config import CONFIG_FILE, TrainConfig, load_run_config
 from spikenerf.train.methods import make_method
+
+#: what a run that reached its iterations reports (:class:`TrainSummary`)
+SUMMARY = "summary.json"
+
+
+@dataclass
+class TrainSummary:
+    """What a finished (or stopped) run reports; also written to ``RUN/summary.json``."""
+
+    iteration: int
+    seconds: float
+    rays_per_second: float
+    train_psnr: float
+    test_psnr: float
+    device: str
+
+
+def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
+    """``out``'s ``summary.json`` when it reads back whole and reports ``iteration`` (else None)."""
+    try:
+        data = json.loads((out / SUMMARY).read_text())
+        summary = TrainSummary(**{k: math.nan if v is None else v for k, v in data.items()})
+    except (OSError, ValueError, TypeError, AttributeError):
+        return None
+    return summary if summary.iteration == iteration else None
 
 
 def load_run(
@@ -166,9 +194,12 @@ def describe_run(run_dir: str | Path) -> str:
         )
     if (run_dir / CURVES).exists() and (curves := read_curves(run_dir / CURVES)):
         last = curves[-1]
+        train_psnr, test_psnr = last["train_psnr"], last["test_psnr"]  # curves.csv rounds to 4 decimals
+        if (summary := stored_summary(run_dir, int(last["iteration"]))) is not None:  # as train printed
+            train_psnr, test_psnr = summary.train_psnr, summary.test_psnr
         lines.append(
             f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
-            f"train PSNR {last['train_psnr']:.2f} dB, test PSNR {last['test_psnr']:.2f} dB"
+            f"train PSNR {train_psnr:.2f} dB, test PSNR {test_psnr:.2f} dB"
         )
     for name in ("metrics.json", "metrics_train.json"):  # eval's held-out scores, and --split train's
         if (path := run_dir / name).exists():

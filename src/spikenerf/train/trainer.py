@@ -15,7 +15,6 @@ import shutil
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -58,36 +57,13 @@ from spikenerf.train.logger import RunningMeans, open_log, step_scalars
 from spikenerf.train.losses import mse_to_psnr
 from spikenerf.train.methods import StepLosses, make_method, method_class, unused_keys
 from spikenerf.train.pose_refine import pose_refinement
-from spikenerf.train.run import check_resume_fits, dataset_fingerprint
+from spikenerf.train.run import SUMMARY, TrainSummary, check_resume_fits, dataset_fingerprint, stored_summary
 
-SUMMARY = "summary.json"
 #: options that may change when a run is resumed (everything else must match the stored config)
 RESUMABLE = (
     "iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every", "compile",
     "compile_optimizer",
 )  # fmt: skip
-
-
-@dataclass
-class TrainSummary:
-    """What a finished (or stopped) run reports; also written to ``RUN/summary.json``."""
-
-    iteration: int
-    seconds: float
-    rays_per_second: float
-    train_psnr: float
-    test_psnr: float
-    device: str
-
-
-def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
-    """``out``'s ``summary.json`` when it reads back whole and reports ``iteration`` (else None)."""
-    try:
-        data = json.loads((out / SUMMARY).read_text())
-        summary = TrainSummary(**{k: math.nan if v is None else v for k, v in data.items()})
-    except (OSError, ValueError, TypeError, AttributeError):
-        return None
-    return summary if summary.iteration == iteration else None
 
 
 def model_config(config: TrainConfig) -> Any:
