@@ -97,8 +97,8 @@ def command(
     from spikenerf.core.marker import folder_kind
 
     if path.is_dir():
-        options = (("--height", height), ("--width", width), ("--layout", layout), ("--raw-width", raw_width))
-        given = [flag for flag, value in (*options, ("--fps", fps)) if value is not None]
+        dat_options = {"--height": height, "--width": width, "--layout": layout, "--raw-width": raw_width}
+        given = [flag for flag, value in {**dat_options, "--fps": fps}.items() if value is not None]
         if given:
             raise InputError(
                 f"{', '.join(given)}: for a .dat file only (a folder's own files give its size and rate)",

@@ -151,10 +151,10 @@ def seed_means(by_seed: dict[int, dict[str, float]]) -> list[float]:
     """Each seed's mean difference over the scenes that every seed has (``by_seed``: seed → scene →
     difference), so that no seed's mean has other scenes in it than another's (unfinished cells); one seed:
     its mean over its scenes; [] where two or more seeds share no scene."""
+    if len(by_seed) == 1:
+        return [sum(d.values()) / len(d) for d in by_seed.values()]
     shared = set.intersection(*(set(scenes) for scenes in by_seed.values())) if by_seed else set()
-    if len(by_seed) < 2 or not shared:
-        return [] if len(by_seed) != 1 else [sum(d.values()) / len(d) for d in by_seed.values()]
-    return [sum(d[scene] for scene in shared) / len(shared) for d in by_seed.values()]
+    return [sum(d[scene] for scene in shared) / len(shared) for d in by_seed.values()] if shared else []
 
 
 def differences(
