@@ -25,6 +25,25 @@ def test_help_lists_every_design_subcommand() -> None:
         assert name in out.stdout
 
 
+def test_every_subcommands_help_is_quick_it_imports_no_torch() -> None:
+    """``spikenerf CMD --help`` reads its choices and defaults from torch-free modules (``*/choices.py``,
+    ``train/settings.py``, ``train/config.py``): importing torch costs 1.5 s, ten times the rest."""
+    code = (
+        "import sys\n"
+        "from click.testing import CliRunner\n"
+        "from spikenerf.cli import SUBCOMMANDS, cli\n"
+        "for name in SUBCOMMANDS:\n"
+        "    result = CliRunner().invoke(cli, [name, '--help'])\n"
+        "    assert result.exit_code == 0 and 'Usage:' in result.output, (name, result.output)\n"
+        "    if 'torch' in sys.modules:\n"
+        "        print(name)\n"
+        "        break\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"'spikenerf {out.stdout.strip()} --help' imports torch"
+
+
 def test_unknown_command_exits_2() -> None:
     assert _run("no-such-command").returncode == 2
 
@@ -90,8 +109,8 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
 
     from spikenerf.camera.modes import COLORS, NOISES, ColorMode
     from spikenerf.camera.reconstruct import METHODS, ReconMethod
-    from spikenerf.data.targets import COLORS as TRAIN_COLORS
-    from spikenerf.data.targets import METHODS as TRAIN_METHODS
+    from spikenerf.data.choices import COLORS as TRAIN_COLORS
+    from spikenerf.data.choices import METHODS as TRAIN_METHODS
     from spikenerf.data.targets import RECONS, TargetRecon
     from spikenerf.fields import FIELD_KINDS, FieldKind
     from spikenerf.importing.importer import ORIENT_CHOICES, Orient

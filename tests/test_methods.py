@@ -10,13 +10,14 @@ import torch
 
 from spikenerf.cli import main
 from spikenerf.core.errors import InputError
-from spikenerf.data.targets import METHODS, Method
+from spikenerf.data.choices import METHODS, Method
 from spikenerf.pipelines.benchmark.cells import BenchmarkConfig, cell_commands
 from spikenerf.pipelines.benchmark.stats import COMPARISONS
 from spikenerf.pipelines.benchmark.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, VARIANTS
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import spike_weight
 from spikenerf.train.methods import METHOD_CLASSES, StepLosses, make_method
+from spikenerf.train.settings import METHOD_SUMMARIES
 from spikenerf.train.trainer import TrainSummary
 
 
@@ -39,7 +40,8 @@ def test_every_literal_name_has_exactly_one_registry_entry() -> None:
 
     option = next(p for p in command.params if p.name == "method")
     assert tuple(option.type.choices) == tuple(METHOD_CLASSES)  # type: ignore[attr-defined]
-    assert all(f"{name} ({cls.summary})" in (command.help or "") for name, cls in METHOD_CLASSES.items())
+    assert tuple(METHOD_SUMMARIES) == names  # the help's one line per method (torch-free)
+    assert all(f"{name} ({text})" in (command.help or "") for name, text in METHOD_SUMMARIES.items())
 
 
 def test_a_new_method_is_one_registry_entry(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -148,7 +150,9 @@ def test_variant_command_trains_its_config(name: str, tmp_path: Path, monkeypatc
     """The benchmark cell's train command builds exactly the variant's config (its method + overrides)."""
     seen: list[TrainConfig] = []
     summary = TrainSummary(1, 1.0, 1.0, 1.0, 1.0, "cpu")
-    monkeypatch.setattr("spikenerf.cli.train.train", lambda config, *a, **k: seen.append(config) or summary)
+    monkeypatch.setattr(
+        "spikenerf.train.trainer.train", lambda config, *a, **k: seen.append(config) or summary
+    )
     cfg = BenchmarkConfig(["analytic-orbs"], [name], ["gray"], tmp_path, device="cpu")
     (tmp_path / "datasets" / "analytic-orbs").mkdir(parents=True)
     command = cell_commands(cfg, "analytic-orbs", "gray", name)[0]

@@ -13,12 +13,13 @@ import torch
 from helpers import run_cli
 from spikenerf.camera.io import write_dat
 from spikenerf.core.errors import InputError
+from spikenerf.recon.config import ReconTrainConfig
 from spikenerf.recon.generate import write_pairs
 from spikenerf.recon.infer import predict_plane, reconstruct_learned
 from spikenerf.recon.net import NetConfig, ReconNet, load_weights, save_weights
 from spikenerf.recon.pairs import PairConfig, analytic_pairs, simulate_samples
 from spikenerf.recon.store import load_split
-from spikenerf.recon.training import ReconTrainConfig, rate_psnr, train_memory, train_recon
+from spikenerf.recon.training import rate_psnr, train_memory, train_recon
 
 TINY = PairConfig(size=16, window=7, supersample=1)
 

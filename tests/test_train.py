@@ -504,11 +504,12 @@ def test_a_resume_ignores_what_the_method_does_not_read(dataset_dir: Path, datas
 def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
     dataset_dir: Path, dataset, tmp_path: Path, capsys, monkeypatch
 ) -> None:  # type: ignore[no-untyped-def]
-    import spikenerf.cli.train as cli_train
     from helpers import run_cli
 
     called: list[tuple[TrainConfig, list[str]]] = []
-    monkeypatch.setattr(cli_train, "train", lambda c, *a, **k: called.append((c, k["notes"])) or sys.exit(0))
+    monkeypatch.setattr(
+        "spikenerf.train.trainer.train", lambda c, *a, **k: called.append((c, k["notes"])) or sys.exit(0)
+    )
     flags = [
         "--lambda",
         "0.5",

@@ -9,7 +9,7 @@ from click.core import ParameterSource
 
 from spikenerf.cli.types import SEED, device_option
 from spikenerf.core.errors import InputError, comma_list
-from spikenerf.fields import FIELD_KINDS
+from spikenerf.fields.choices import FIELD_KINDS
 from spikenerf.pipelines.benchmark.executor import EXECUTORS
 from spikenerf.pipelines.benchmark.variants import VARIANTS
 
@@ -114,7 +114,7 @@ def command(
     views = str(check_blur_views(blur_views, frames))
     variants = resolve_variants(methods)
     if overrides:  # a bad key fails here, once, not in every cell
-        from spikenerf.fields import field_config
+        from spikenerf.fields.registry import field_config
         from spikenerf.pipelines.benchmark.variants import VARIANTS
         from spikenerf.train.config import TrainConfig, apply_overrides
 

@@ -8,7 +8,7 @@ import click
 
 from spikenerf.cli.types import BoundedInt
 from spikenerf.core.errors import InputError
-from spikenerf.render.inference import PRECISIONS
+from spikenerf.render.choices import PRECISIONS
 
 #: ``--chunk``: rays per render call (0: sized automatically)
 chunk_option = click.option(

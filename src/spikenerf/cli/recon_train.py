@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from spikenerf.cli.types import COUNT, SEED
-from spikenerf.recon.training import ReconTrainConfig
+from spikenerf.recon.config import ReconTrainConfig
 
 _D = ReconTrainConfig()
 

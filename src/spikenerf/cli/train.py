@@ -10,28 +10,27 @@ import click
 
 from spikenerf.cli.types import COUNT, SEED, device_option
 from spikenerf.core.errors import InputError
-from spikenerf.data.targets import COLORS, RECONS
-from spikenerf.fields import FIELD_KINDS
-from spikenerf.train.amp import AMP_MODES
+from spikenerf.data.choices import COLORS, METHODS
+from spikenerf.data.reconstruction import RECONS
+from spikenerf.fields.choices import FIELD_KINDS
 from spikenerf.train.config import (
     CONFIG_FILE,
-    SPIKE_LOSS_KINDS,
     WINDOW_POSES,
     TrainConfig,
     apply_overrides,
     load_config,
     load_run_config,
 )
-from spikenerf.train.logger import LOG_KINDS
-from spikenerf.train.methods import (
+from spikenerf.train.settings import (
+    AMP_MODES,
     INTEGRAL_SHORTEST,
     INTEGRAL_SPAN_PX,
     INTEGRAL_WINDOW,
-    METHOD_CLASSES,
+    LOG_KINDS,
+    METHOD_SUMMARIES,
+    SPIKE_LOSS_KINDS,
     TRACK_HALF,
-    unused_keys,
 )
-from spikenerf.train.trainer import train
 
 #: CLI option → (section of TrainConfig or None for the top level, field name)
 OPTION_FIELDS: dict[str, tuple[str | None, str]] = {
@@ -84,7 +83,7 @@ PARAM_FLAGS = {
 @click.command(
     help="Train a radiance field on a spike dataset folder (written by `spikenerf simulate`) into RUN.\n\n"
     "Methods: "
-    + ", ".join(f"{name} ({cls.summary})" for name, cls in METHOD_CLASSES.items())
+    + ", ".join(f"{name} ({summary})" for name, summary in METHOD_SUMMARIES.items())
     + ". Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
     "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones). A "
     "flag or --set key that the method does not use is ignored with a one-line warning (none with "
@@ -95,7 +94,7 @@ PARAM_FLAGS = {
 )
 @click.argument("dataset", required=False, type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
-@click.option("--method", type=click.Choice(tuple(METHOD_CLASSES)), default=_D.method, show_default=True)
+@click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True)
 @click.option(
     "--no-mask",
     is_flag=True,
@@ -318,7 +317,7 @@ def command(
     if "field_options" in given:
         base.field_config = {**base.field_config, **_field_options(options["field_options"])}  # type: ignore[arg-type]
         with _naming("--field-option"):
-            from spikenerf.fields import field_config
+            from spikenerf.fields.registry import field_config
 
             field_config(base.field, base.field_config)  # a key or value the field does not take
     if overrides:
@@ -334,6 +333,8 @@ def command(
         raise InputError(found, path=dataset)
     base.dataset = str(dataset.resolve())
     notes = [] if ignore_unused else _unused(base.method, given, overrides, base.targets.recon)
+    from spikenerf.train.trainer import train  # (torch: not for --help or a bad flag)
+
     summary = train(base.validate(), out, resume=resume, progress=not quiet, notes=notes)
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
     click.echo(
@@ -354,6 +355,8 @@ def _unused(method: str, given: set[str], overrides: tuple[str, ...], recon: str
     flags = {n: _FLAG_KEYS.get(n) or ".".join(filter(None, OPTION_FIELDS.get(n, ()))) for n in sorted(given)}
     keys = {key: PARAM_FLAGS.get(key, "--" + name.replace("_", "-")) for name, key in flags.items() if key}
     keys |= {item.partition("=")[0].strip(): f"--set {item.partition('=')[0].strip()}" for item in overrides}
+    from spikenerf.train.methods import unused_keys
+
     unused = unused_keys(method, keys)
     notes = [f"{keys[key]} is not used by --method {method}; ignored" for key in unused]
     if recon == "tfi" and "targets.window" in keys and "targets.window" not in unused:

@@ -41,6 +41,29 @@ PUBLIC_API: dict[str, dict[str, str]] = {
         "spikenerf.train.trainer": "Trainer train",
         "spikenerf.train.run": "load_run",
     },
+    "spikenerf.fields": {
+        "spikenerf.fields.choices": "FIELD_KINDS FieldKind",
+        "spikenerf.fields.registry": (
+            "FIELD_REGISTRY FieldEntry build_field field_config field_entry field_memory"
+        ),
+        "spikenerf.fields.base": "Field",
+        "spikenerf.fields.grid": "GridField GridFieldConfig",
+        "spikenerf.fields.mlp": "MLPField MLPFieldConfig",
+        "spikenerf.fields.occupancy": "OccupancyGrid",
+    },
+    "spikenerf.render": {
+        "spikenerf.render.base": "RadianceModel",
+        "spikenerf.render.grid_model": "GridModel",
+        "spikenerf.render.mlp_model": "MLPModel",
+        "spikenerf.render.model": (
+            "MODELS build_model model_from_hparams ray_bounds render_image render_mean render_rays_chunked"
+        ),
+        "spikenerf.render.spiking": (
+            "SpikeWindow fire_sequence iter_spike_states iter_spike_stream render_spike_stream "
+            "render_spike_window"
+        ),
+        "spikenerf.render.volume": "RenderOutput",
+    },
     "spikenerf.eval": {"spikenerf.eval.metrics": "psnr ssim", "spikenerf.eval.evaluate": "evaluate_run"},
 }
 

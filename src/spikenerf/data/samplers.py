@@ -6,15 +6,11 @@ and ints, so a checkpoint loaded with ``torch.load(..., weights_only=True)`` res
 
 from __future__ import annotations
 
-from typing import Literal, get_args
-
 import torch
 from torch import Tensor
 
 from spikenerf.core.errors import InputError, check_choice
-
-WindowOrder = Literal["sequential", "random"]
-WINDOW_ORDERS: tuple[str, ...] = get_args(WindowOrder)
+from spikenerf.data.choices import WINDOW_ORDERS
 
 
 def _generator(seed: int) -> torch.Generator:

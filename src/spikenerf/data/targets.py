@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Literal, get_args
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import torch
@@ -38,22 +38,13 @@ from spikenerf.camera.masks import spike_masks
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError, check_choice
+from spikenerf.data.choices import COLORS
 from spikenerf.data.reconstruction import RECONS as RECONS
 from spikenerf.data.reconstruction import TargetRecon as TargetRecon
 from spikenerf.data.reconstruction import reconstruct_stream
 
 if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
-
-#: the names of the training methods, and only their names: each is one class, with its facts and rules, in
-#: ``spikenerf.train.methods.METHOD_CLASSES`` (which builds its targets from here)
-Method = Literal[
-    "spike-integral", "spike-nerf", "nerf-recon", "nerf-blur", "nerf-blur-aware", "nerf-bad", "nerf-gt"
-]
-METHODS: tuple[str, ...] = get_args(Method)
-#: colours a radiance field is trained in
-TrainColor = Literal["gray", "rgb"]
-COLORS: tuple[str, ...] = get_args(TrainColor)
 
 
 @dataclass

@@ -31,8 +31,8 @@ from spikenerf.data.targets import image_channels, window_steps
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
-from spikenerf.render import render_mean
 from spikenerf.render.inference import inference_chunk, resolve_precision
+from spikenerf.render.model import render_mean
 from spikenerf.train.pose_fit import check_fit_args, fit_view_poses
 from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import open_run, run_iteration

@@ -40,7 +40,9 @@ from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import check_steps, is_imported
 from spikenerf.data.targets import reconstruct_stream, stream_mode, window_steps
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
-from spikenerf.render import RadianceModel, render_mean, render_spike_window
+from spikenerf.render.base import RadianceModel
+from spikenerf.render.model import render_mean
+from spikenerf.render.spiking import render_spike_window
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import spike_interval_violation
 

@@ -50,8 +50,9 @@ from spikenerf.core.marker import check_output, mark
 from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path, spike_files
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_array, render_key
-from spikenerf.render import iter_spike_states, render_image
 from spikenerf.render.inference import inference_chunk, resolve_precision
+from spikenerf.render.model import render_image
+from spikenerf.render.spiking import iter_spike_states
 from spikenerf.scenes.trajectory import Intrinsics, orbit
 from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import open_run

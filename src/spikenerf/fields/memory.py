@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from spikenerf.fields import field_config
+from spikenerf.fields.registry import field_config
 
 #: float32 bytes
 F32 = 4

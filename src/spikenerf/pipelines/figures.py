@@ -221,7 +221,7 @@ def novel_spikes(
     from spikenerf.camera.layout import to_camera_layout, to_channels_last
     from spikenerf.camera.model import CameraConfig, simulate
     from spikenerf.data.reconstruction import frame_at
-    from spikenerf.render import render_image
+    from spikenerf.render.model import render_image
     from spikenerf.render.spiking import fire_sequence, random_start
     from spikenerf.train.run import load_run
 

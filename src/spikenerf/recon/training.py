@@ -15,7 +15,7 @@ import hashlib
 import json
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -26,36 +26,13 @@ from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark, owned
 from spikenerf.core.psnr import mse_to_psnr
+from spikenerf.recon.config import ReconTrainConfig
 from spikenerf.recon.features import brightness_scale, feature_count
 from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights
 from spikenerf.recon.store import PairSet, load_split, read_manifest
 
 CHECKPOINT_FORMAT = "spikenerf-recon-checkpoint-1"
 CURVES_HEADER = ["iteration", "train_l1", "val_psnr_learned", "val_psnr_tfp", "seconds"]
-
-
-@dataclass(frozen=True)
-class ReconTrainConfig:
-    """Training settings: steps, batch of crops, crop side, Adam learning rate (cosine-decayed to 5 %),
-    network width, seed, validation/checkpoint periods and the number of val samples scored."""
-
-    iters: int = 4000
-    batch: int = 16
-    crop: int = 40
-    lr: float = 2e-3
-    width: int = 16
-    seed: int = 0
-    eval_every: int = 250
-    ckpt_every: int = 100
-    val_samples: int = 128
-
-    def check(self) -> ReconTrainConfig:
-        for name in ("iters", "batch", "crop", "width", "eval_every", "ckpt_every", "val_samples"):
-            if getattr(self, name) < 1:
-                raise InputError(f"{name} must be ≥ 1, found {getattr(self, name)}", param=name)
-        if not 0 < self.lr < math.inf:
-            raise InputError(f"lr must be finite and > 0, found {self.lr}", param="lr")
-        return self
 
 
 def train_memory(cfg: ReconTrainConfig, window: int, size: int) -> float:

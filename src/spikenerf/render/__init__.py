@@ -1,43 +1,8 @@
-"""Renderers: volume rendering of the fields and the spiking volume renderer."""
+"""Renderers: volume rendering of the fields and the spiking volume renderer.
 
-from spikenerf.render.base import RadianceModel
-from spikenerf.render.grid_model import GridModel
-from spikenerf.render.mlp_model import MLPModel
-from spikenerf.render.model import (
-    MODELS,
-    build_model,
-    model_from_hparams,
-    ray_bounds,
-    render_image,
-    render_mean,
-    render_rays_chunked,
-)
-from spikenerf.render.spiking import (
-    SpikeWindow,
-    fire_sequence,
-    iter_spike_states,
-    iter_spike_stream,
-    render_spike_stream,
-    render_spike_window,
-)
-from spikenerf.render.volume import RenderOutput
+Public names: ``spikenerf.core.exports.PUBLIC_API`` (imported on first use, so that the CLI reads the
+inference precisions of ``render.choices`` without importing torch)."""
 
-__all__ = [
-    "MODELS",
-    "GridModel",
-    "MLPModel",
-    "RadianceModel",
-    "RenderOutput",
-    "SpikeWindow",
-    "build_model",
-    "fire_sequence",
-    "iter_spike_states",
-    "iter_spike_stream",
-    "model_from_hparams",
-    "ray_bounds",
-    "render_image",
-    "render_mean",
-    "render_rays_chunked",
-    "render_spike_stream",
-    "render_spike_window",
-]
+from spikenerf.core.exports import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__)

@@ -12,16 +12,14 @@
 from __future__ import annotations
 
 import contextlib
-from typing import Literal, get_args
 
 import torch
 
 from spikenerf.core.errors import InputError
 from spikenerf.fields.memory import ray_bytes
 from spikenerf.render.base import RadianceModel
+from spikenerf.render.choices import PRECISIONS
 
-Precision = Literal["auto", "fp32", "fp16", "bf16"]
-PRECISIONS: tuple[str, ...] = get_args(Precision)
 _DTYPES = {"fp16": torch.float16, "bf16": torch.bfloat16}
 #: rays per render call off CUDA (the fixed chunk before the automatic one)
 CPU_CHUNK = 8192

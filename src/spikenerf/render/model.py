@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
-from spikenerf.fields import FIELD_REGISTRY, build_field
+from spikenerf.fields.registry import FIELD_REGISTRY, build_field
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
 from spikenerf.render.inference import render_autocast

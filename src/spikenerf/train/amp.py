@@ -8,12 +8,9 @@ gradient scaler in the trainer; ``bf16`` needs none and also runs on a CPU.
 from __future__ import annotations
 
 import contextlib
-from typing import Literal, get_args
 
 import torch
 
-AmpMode = Literal["none", "bf16", "fp16"]
-AMP_MODES: tuple[str, ...] = get_args(AmpMode)
 _DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 
 

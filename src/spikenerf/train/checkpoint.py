@@ -148,7 +148,7 @@ def check_schema(data: dict[str, Any], path: str | Path) -> None:
 def model_of(ckpt: dict[str, Any], path: str | Path) -> Any:
     """The model a checkpoint stores (rebuilt from its hparams, its tensors loaded); InputError naming
     ``path`` when they do not fit (a wrong shape, an unknown entry)."""
-    from spikenerf.render import model_from_hparams
+    from spikenerf.render.model import model_from_hparams
 
     try:
         return model_from_hparams(ckpt["hparams"], ckpt["model"])

@@ -47,7 +47,7 @@ import torch
 from spikenerf.core.errors import one_line
 from spikenerf.core.tracing import prepare_compile
 from spikenerf.fields.compiled import dynamic_parameters
-from spikenerf.render import RadianceModel
+from spikenerf.render.base import RadianceModel
 from spikenerf.train.methods import StepLosses, TrainMethod
 
 FAILED = "torch.compile of the training step failed, training eagerly: "

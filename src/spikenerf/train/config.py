@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import yaml
 
@@ -22,23 +22,25 @@ from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.config import Bound, check_config, choices, from_mapping
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import folder_kind
-from spikenerf.data.samplers import WindowOrder
-from spikenerf.data.targets import Method, TargetRecon, TrainColor
-from spikenerf.fields import FieldKind
-from spikenerf.train.amp import AmpMode
-from spikenerf.train.exposure_poses import ExposurePoseConfig
-from spikenerf.train.logger import LogKind
-from spikenerf.train.losses import SPIKE_LOSS_KINDS, PairMode, SpikeLossKind
-from spikenerf.train.methods import (
+from spikenerf.data.choices import Method, TrainColor, WindowOrder
+from spikenerf.data.reconstruction import TargetRecon
+from spikenerf.fields.choices import FieldKind
+from spikenerf.train.settings import (
     DEFAULT_BATCH,
     GPU_BATCH_SCALE,
     INTEGRAL_SAMPLES,
     INTEGRAL_WINDOW,
-    METHOD_CLASSES,
-    TrainMethod,
-    method_class,
+    SPIKE_LOSS_KINDS,
+    AmpMode,
+    ExposurePoseConfig,
+    LogKind,
+    PairMode,
+    PoseRefineConfig,
+    SpikeLossKind,
 )
-from spikenerf.train.pose_refine import PoseRefineConfig
+
+if TYPE_CHECKING:
+    from spikenerf.train.methods import TrainMethod
 
 #: spike-integral's optional image prior (``integral.prior``)
 IntegralPrior = Literal["none", "learned"]
@@ -53,6 +55,14 @@ __all__ = [
     "TargetConfig",
     "TrainConfig",
 ]
+
+
+def _method_names() -> list[str]:
+    """The registered methods (``spikenerf.train.methods.METHOD_CLASSES``; imported when a config is
+    checked, not when this module is: ``train --help`` imports no torch)."""
+    from spikenerf.train.methods import METHOD_CLASSES
+
+    return list(METHOD_CLASSES)
 
 
 #: the default poses per TFP target (window-aware targets; docs/method.md, Targets)
@@ -265,7 +275,7 @@ class TrainConfig:
 
     dataset: str = ""
     #: the ``Method`` Literal for typing; a value is checked against the registered methods
-    method: Method = dataclasses.field(default="spike-integral", metadata=choices(lambda: METHOD_CLASSES))
+    method: Method = dataclasses.field(default="spike-integral", metadata=choices(_method_names))
     color: TrainColor = "gray"
     field: FieldKind = "grid"
     iters: int = 5000
@@ -322,6 +332,8 @@ class TrainConfig:
         keyframes and no-reference checks): the resolved ``targets.window_poses`` for the stream methods
         (nerf-recon, spike-nerf) and for spike-integral, which renders sharp images as window-aware runs do;
         1 for the others."""
+        from spikenerf.train.methods import METHOD_CLASSES  # (torch: only where a method's facts are read)
+
         cls = METHOD_CLASSES.get(self.method)
         return self.targets.poses_per_target() if cls is not None and cls.uses_stream else 1
 
@@ -331,12 +343,16 @@ class TrainConfig:
         a ``cuda`` device."""
         if self.batch is not None:
             return self.batch
+        from spikenerf.train.methods import METHOD_CLASSES
+
         cls = METHOD_CLASSES.get(self.method)
         rays = DEFAULT_BATCH if cls is None else cls.default_batch
         return rays * GPU_BATCH_SCALE if device_type == "cuda" else rays
 
     def method_class(self) -> type[TrainMethod]:
         """The registered class of ``method`` (``spikenerf.train.methods.METHOD_CLASSES``)."""
+        from spikenerf.train.methods import method_class
+
         return method_class(self.method)
 
     def resolved(self, device_type: str = "cpu") -> TrainConfig:

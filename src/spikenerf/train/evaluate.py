@@ -16,7 +16,8 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.targets import ImageTargets
-from spikenerf.render import RadianceModel, render_image
+from spikenerf.render.base import RadianceModel
+from spikenerf.render.model import render_image
 
 CURVES = "curves.csv"
 COLUMNS = ("iteration", "seconds", "train_psnr", "test_psnr")

@@ -28,51 +28,20 @@ receive no gradient. That swap symmetry also means the learned start may be the 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from spikenerf.core.atomic import write_text_atomic
-from spikenerf.core.config import Bound, check_config
 from spikenerf.core.errors import InputError
 from spikenerf.data.targets import step_poses
 from spikenerf.train.pose_refine import PoseLearner, corrected, se3_exp
+from spikenerf.train.settings import ExposurePoseConfig
 
 EXPOSURE_POSES = "exposure_poses.json"
-
-
-@dataclass
-class ExposurePoseConfig:
-    """The learned exposure poses of ``nerf-bad`` (``--set exposure.X=...``).
-
-    Attributes:
-        lr: Adam rate of the corrections (radians and scene units per step); BAD-NeRF uses 1e-3.
-        lr_final_ratio: exponential decay to this fraction of ``lr`` at the end of the run (BAD-NeRF: 1e-5,
-            i.e. 0.01).
-        warmup_iters: linear warm-up of the rate from 0 (BAD-NeRF: none).
-        init_noise: standard deviation of the initial half-motion δ (> 0 breaks the start/end symmetry).
-        learn_centre: learn the centre correction μ too (BAD-NeRF learns both poses); false keeps every
-            exposure centred on its given pose (only δ is learned: no common drift of poses and scene).
-    """
-
-    BOUNDS: ClassVar[dict[str, Bound]] = {
-        "lr": Bound(above=0), "lr_final_ratio": Bound(above=0, most=1), "warmup_iters": Bound(least=0),
-        "init_noise": Bound(above=0),
-    }  # fmt: skip
-
-    lr: float = 1e-3
-    lr_final_ratio: float = 0.01
-    warmup_iters: int = 0
-    init_noise: float = 1e-3
-    learn_centre: bool = True
-
-    def check(self) -> None:
-        """InputError on a wrong type or an out-of-range value (names the config key, ``exposure.KEY``)."""
-        check_config(self, "exposure.")
 
 
 class ExposurePoses(torch.nn.Module):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any
 
 import numpy as np
 import torch
@@ -17,9 +17,8 @@ from torch import Tensor
 
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError, check_choice
+from spikenerf.train.settings import LOG_KINDS
 
-LogKind = Literal["none", "tensorboard"]
-LOG_KINDS: tuple[str, ...] = get_args(LogKind)
 #: sub-folder of the run folder that holds the event files
 TENSORBOARD_DIR = "tensorboard"
 

@@ -14,17 +14,11 @@ See docs/method.md for the derivation.
 
 from __future__ import annotations
 
-from typing import Literal, get_args
-
 import torch
 
 from spikenerf.camera.model import fire
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
-
-PairMode = Literal["all", "window"]
-#: the differentiable interval loss, or the paper's spike comparison (no gradient)
-SpikeLossKind = Literal["interval", "paper"]
-SPIKE_LOSS_KINDS: tuple[str, ...] = get_args(SpikeLossKind)
+from spikenerf.train.settings import PairMode
 
 
 def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

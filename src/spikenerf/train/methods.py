@@ -58,7 +58,9 @@ from spikenerf.data.targets import (
     load_stream,
     stream_targets,
 )
-from spikenerf.render import RadianceModel, RenderOutput, render_spike_window
+from spikenerf.render.base import RadianceModel
+from spikenerf.render.spiking import render_spike_window
+from spikenerf.render.volume import RenderOutput
 from spikenerf.scenes.trajectory import image_motion
 from spikenerf.train.exposure_poses import ExposureLearner
 from spikenerf.train.losses import (
@@ -69,15 +71,34 @@ from spikenerf.train.losses import (
     window_mean_loss,
 )
 from spikenerf.train.pose_refine import PoseLearner, PoseRefinement
+from spikenerf.train.settings import (
+    DEFAULT_BATCH as DEFAULT_BATCH,
+)
+from spikenerf.train.settings import (
+    GPU_BATCH_SCALE as GPU_BATCH_SCALE,
+)
+from spikenerf.train.settings import (
+    INTEGRAL_SAMPLES as INTEGRAL_SAMPLES,
+)
+from spikenerf.train.settings import (
+    INTEGRAL_SHORTEST as INTEGRAL_SHORTEST,
+)
+from spikenerf.train.settings import (
+    INTEGRAL_SPAN_PX as INTEGRAL_SPAN_PX,
+)
+from spikenerf.train.settings import (
+    INTEGRAL_WINDOW as INTEGRAL_WINDOW,
+)
+from spikenerf.train.settings import (
+    INTEGRAL_WINDOWS as INTEGRAL_WINDOWS,
+)
+from spikenerf.train.settings import (
+    TRACK_HALF as TRACK_HALF,
+)
 
 #: a :class:`spikenerf.train.config.TrainConfig` (not imported: config.py reads :data:`METHOD_CLASSES`)
 Config = Any
 
-#: rays per step when ``batch`` is not given: 1024 targets (spike-integral: :data:`INTEGRAL_WINDOWS`)
-DEFAULT_BATCH = 1024
-#: on CUDA the default batch is this many times the CPU one (where it fits): a GPU step costs about the same
-#: up to 16384 rays (H200: 21.8 ms at 4096, 21.9 ms at 16384 for spike-integral; docs/performance.md)
-GPU_BATCH_SCALE = 4
 #: config keys that only some methods read (a key ending in "." stands for its section): each method lists
 #: those it reads in :attr:`TrainMethod.reads`, and :func:`unused_keys` names the others (``train`` warns of
 #: a given one). ``spike.window`` and ``targets.mask_n`` are not among them: every method's hold-out guard
@@ -93,16 +114,6 @@ METHOD_KEYS = (
 )
 SHARED_KEYS = ("spike.window", "targets.recon")
 
-#: spike-integral's longest default window and steps rendered per window (docs/spike-integral.md, Choosing)
-INTEGRAL_WINDOW, INTEGRAL_SAMPLES = 5, 1
-#: the default window is shortened so that the image moves at most this many pixels in it, to no fewer steps
-#: than INTEGRAL_SHORTEST (:func:`default_window`)
-INTEGRAL_SPAN_PX, INTEGRAL_SHORTEST = 1.5, 2
-#: spike-integral's default windows a step (docs/spike-integral.md, Cost): 4096 rays at one render each
-INTEGRAL_WINDOWS = 4096
-#: ``integral.track``'s default where the image motion shortens the default window (:func:`default_track`):
-#: tracks of 2 · TRACK_HALF + 1 steps (docs/spike-integral.md, Track windows)
-TRACK_HALF = 5
 #: a spike-aligned window (``integral.align``) spans at most this many times the longest window length
 ALIGN_LONGEST = 8
 
@@ -206,7 +217,6 @@ class TrainMethod:
     """
 
     name: ClassVar[str]
-    summary: ClassVar[str] = ""
     views: ClassVar[str] = "steps"
     uses_stream: ClassVar[bool] = False
     has_spike_loss: ClassVar[bool] = False
@@ -372,7 +382,6 @@ class NerfGT(TrainMethod):
     """The oracle: NeRF on the sharp ground-truth renders."""
 
     name, views = "nerf-gt", "gt"
-    summary = "sharp ground truth, an oracle"
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         return gt_targets(dataset, self.config.color, self.name)
@@ -382,7 +391,6 @@ class NerfBlur(TrainMethod):
     """NeRF on the conventional camera's blur views, each at its mid-exposure pose."""
 
     name, views = "nerf-blur", "blur"
-    summary = "the dataset's 400 fps blur views"
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         return blur_targets(dataset, self.config.color, None, self.name)
@@ -393,7 +401,6 @@ class NerfBlurAware(NerfBlur):
     ``targets.blur_samples`` poses spread over its exposure."""
 
     name, reads = "nerf-blur-aware", ("targets.blur_samples",)
-    summary = "deblur NeRF given the true trajectory: blur views, exposure-averaged renders"
 
     def poses_per_view(self) -> int:
         return self.config.targets.blur_samples
@@ -409,10 +416,6 @@ class NerfBAD(NerfBlur):
 
     name, learns_poses = "nerf-bad", True
     reads = ("targets.blur_samples", "exposure.")
-    summary = (
-        "BAD-NeRF-like: learns each blur view's exposure start and end pose from the blurred frames "
-        "alone; --set exposure.lr=..."
-    )
 
     @classmethod
     def check(cls, config: Config) -> None:
@@ -453,7 +456,6 @@ class NerfRecon(TrainMethod):
 
     name, uses_stream = "nerf-recon", True
     reads = ("targets.recon", "targets.window_poses")
-    summary = "TFP/TFI targets"
 
     def poses_per_view(self) -> int:
         return self.config.window_poses()
@@ -469,10 +471,6 @@ class SpikeNeRF(NerfRecon):
 
     name, has_spike_loss = "spike-nerf", True
     reads = (*NerfRecon.reads, "targets.mask", "spike.")
-    summary = (
-        "the paper's method: masked TFP/TFI targets + differentiable spike loss; with --window-poses 1 "
-        "exactly the paper's targets"
-    )
 
     @property
     def uses_mask(self) -> bool:
@@ -572,11 +570,6 @@ class SpikeIntegral(TrainMethod):
     name, uses_stream = "spike-integral", True
     #: targets.recon: only "tfp" (checked); targets.window_poses: eval's TFP keyframes (its window_poses())
     reads = ("targets.recon", "targets.window_poses", "integral.")
-    summary = (
-        "the default; ours, not in the paper: spike-count means over short windows compared with renders "
-        "at steps drawn inside each window, at their own poses, and where the image moves fast the spikes "
-        "along each rendered point's image track; --integral-window, --integral-samples, --integral-track"
-    )
     default_batch = INTEGRAL_WINDOWS * INTEGRAL_SAMPLES
 
     @classmethod

@@ -21,7 +21,8 @@ from torch import Tensor
 
 from spikenerf.core.errors import InputError
 from spikenerf.data.rays import pixel_rays
-from spikenerf.render import RadianceModel, ray_bounds
+from spikenerf.render.base import RadianceModel
+from spikenerf.render.model import ray_bounds
 from spikenerf.scenes.trajectory import Intrinsics
 from spikenerf.train.pose_refine import se3_exp
 

@@ -13,52 +13,21 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from spikenerf.core.atomic import write_text_atomic
-from spikenerf.core.config import Bound, check_config
 from spikenerf.core.errors import InputError
 from spikenerf.data.holdout import is_imported
 from spikenerf.importing.alignment import key_brackets
 from spikenerf.importing.importer import keyframe_steps
+from spikenerf.train.settings import PoseRefineConfig
 
 REFINED_POSES = "refined_poses.json"
-
-
-@dataclass
-class PoseRefineConfig:
-    """Pose refinement (``--refine-poses``; ``--set poses.X=...``).
-
-    Attributes:
-        refine: learn the corrections (None, the default: on for datasets written by ``spikenerf import``,
-            off for simulated ones with their exact poses; docs/real-data.md measures the gain).
-        lr: Adam rate of the corrections (radians and scene units per step) after the warm-up.
-        lr_final_ratio: exponential decay to this fraction of ``lr`` at the end of the run.
-        warmup_iters: linear warm-up of the rate from 0 (None: the grid's first upsampling step, the end of
-            its coarsest stage; a tenth of the run for the MLP field).
-        keyframe_every: steps between keyframes on a dataset that was not imported.
-    """
-
-    BOUNDS: ClassVar[dict[str, Bound]] = {
-        "lr": Bound(above=0), "lr_final_ratio": Bound(above=0, most=1), "warmup_iters": Bound(least=0),
-        "keyframe_every": Bound(least=1),
-    }  # fmt: skip
-
-    refine: bool | None = None
-    lr: float = 1e-3
-    lr_final_ratio: float = 0.05
-    warmup_iters: int | None = None
-    keyframe_every: int = 20
-
-    def check(self) -> None:
-        """InputError on a wrong type or an out-of-range value (names the config key, ``poses.KEY``)."""
-        check_config(self, "poses.")
 
 
 def so3_exp(omega: Tensor) -> Tensor:

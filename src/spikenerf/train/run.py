@@ -13,7 +13,7 @@ from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
 from spikenerf.data.holdout import read_record
-from spikenerf.render import RadianceModel
+from spikenerf.render.base import RadianceModel
 from spikenerf.train.checkpoint import CHECKPOINT, check_same_run, load_checkpoint, model_of
 from spikenerf.train.config import CONFIG_FILE, TrainConfig, load_run_config
 from spikenerf.train.methods import make_method

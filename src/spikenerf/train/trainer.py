@@ -33,9 +33,11 @@ from spikenerf.data.holdout import write_record
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.recon_cache import learned_targets_in
 from spikenerf.data.targets import eval_view_targets
-from spikenerf.fields import field_config, field_memory
 from spikenerf.fields.compiled import compile_field
-from spikenerf.render import RadianceModel, RenderOutput, build_model, ray_bounds
+from spikenerf.fields.registry import field_config, field_memory
+from spikenerf.render.base import RadianceModel
+from spikenerf.render.model import build_model, ray_bounds
+from spikenerf.render.volume import RenderOutput
 from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import (
     CHECKPOINT,

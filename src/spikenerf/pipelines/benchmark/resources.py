@@ -7,7 +7,7 @@ from typing import Any
 from spikenerf.camera.modes import COLORS
 from spikenerf.capture.simulate import estimate_resources
 from spikenerf.core.limits import check_resources
-from spikenerf.fields import field_config, field_memory
+from spikenerf.fields.registry import field_config, field_memory
 from spikenerf.pipelines.benchmark.cells import training_seeds
 
 #: the streams ``simulate --color all`` writes (the benchmark's dataset command when it needs gray and rgb)

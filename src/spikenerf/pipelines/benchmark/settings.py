@@ -22,8 +22,8 @@ import torch
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
-from spikenerf.fields import field_config
 from spikenerf.fields.grid import native_bf16
+from spikenerf.fields.registry import field_config
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.methods import (
     INTEGRAL_SAMPLES,

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # a light module: the CLI builds its help from it
-    from spikenerf.data.targets import Method
+    from spikenerf.data.choices import Method
     from spikenerf.train.config import TrainConfig
 
 
