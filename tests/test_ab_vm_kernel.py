@@ -30,3 +30,17 @@ def test_the_builds_take_turns_going_first_and_the_ratio_is_before_over_after(
     assert [len(v) for v in times.values()] == [4, 4]
     TOOL.report("backward", {"before": [0.002] * 4, "after": [0.001] * 4})
     assert "| backward | 2.00 | 1.00 | 2.000× (2.000–2.000) |" in capsys.readouterr().out
+
+
+def test_before_cflags_replace_the_checkouts_flags_of_the_before_build(monkeypatch) -> None:
+    seen: list[tuple[str, list[str]]] = []
+    monkeypatch.setattr(
+        TOOL, "load_inline", lambda name, extra_cflags, **kw: seen.append((name, extra_cflags))
+    )
+    TOOL.build("int x;", "before", ["-O2"])
+    TOOL.build("int x;", "after")
+    (before_name, before), (after_name, after) = seen
+    assert (
+        before == ["-O2", *vm_kernel._OPENMP_CFLAGS] and after == vm_kernel._CFLAGS + vm_kernel._OPENMP_CFLAGS
+    )
+    assert before_name != after_name  # cached apart: the name hashes the flags

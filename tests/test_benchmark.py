@@ -215,6 +215,13 @@ def test_set_reaches_every_cell_and_a_bad_key_fails_first(
         err = capsys.readouterr().err.strip()
         assert exit_.value.code == 2 and words in err and "\n" not in err
         assert not out.exists()
+    with pytest.raises(SystemExit):  # a key that no chosen method reads is named (then --retries stops it)
+        main([*args, str(out), "--set", "spike.lam=2", "--set", "batch=64", "--retries", "2"])
+    warning, error = capsys.readouterr().err.strip().splitlines()
+    assert (
+        warning == "spikenerf: warning: --set spike.lam is not used by any chosen method (nerf-gt); ignored"
+    )
+    assert error.startswith("spikenerf: error: --retries") and not out.exists()
     main([*args, str(out), "--set", "batch=64", "--set", "field_config.hidden=16"])
     config = yaml.safe_load((out / "runs" / "analytic-orbs" / "gray" / "nerf-gt" / "config.yaml").read_text())
     assert config["batch"] == 64 and config["field_config"]["hidden"] == 16

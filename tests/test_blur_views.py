@@ -96,6 +96,9 @@ def test_simulate_all_views_writes_one_array_and_loads_it(tmp_path: Path) -> Non
         )
     counts = view_counts(out)
     assert counts == {"steps": STEPS, "gt": 4, "blur": STEPS, "blur_views": "all"}
+    from spikenerf.data.summary import describe
+
+    assert "overlapping exposures, not consecutive frames" in describe(out)  # one centred on each step
     targets = blur_targets(ds, "rgb")
     assert targets.images.shape == (STEPS, SIZE, SIZE, 3) and len(targets) == STEPS
     aware = blur_targets(ds, "gray", samples=4)

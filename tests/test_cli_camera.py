@@ -44,6 +44,8 @@ def test_info_dat_prints_counts_and_rates(capsys, stream) -> None:
     median = np.median(spikes.mean(axis=0))
     assert f"p50 {median:.4g}" in out
     assert f"silent pixels: {100 / W:.3g}%" in out  # the first column (intensity 0)
+    saturated = np.mean(spikes.sum(axis=0) == len(spikes)) * 100
+    assert f"saturated (a spike every step): {saturated:.3g}%" in out
 
 
 def test_info_needs_the_frame_size(capsys, stream) -> None:
@@ -56,6 +58,16 @@ def test_info_on_a_folder_that_is_not_a_dataset_exits_2(capsys, tmp_path: Path) 
     code, _, err = run_cli(capsys, "info", tmp_path)
     assert code == 2 and err.strip().count("\n") == 0
     assert "not a dataset folder" in err and tmp_path.name in err
+    from spikenerf.core.marker import mark
+
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    mark(bench, "benchmark")  # a folder of ours that info does not summarise: what to read instead
+    code, _, err = run_cli(capsys, "info", bench)
+    assert code == 2 and "a benchmark folder: its tables are table1.md, table2.md and report.html" in err
+    (tmp_path / "ds.partial").mkdir()  # an unfinished simulate: not "no such file"
+    code, _, err = run_cli(capsys, "info", tmp_path / "ds")
+    assert code == 2 and f"not written yet: {tmp_path / 'ds.partial'} is its unfinished work folder" in err
 
 
 def test_info_on_a_folder_refuses_the_options_of_a_dat_file(capsys, tmp_path: Path) -> None:
@@ -113,12 +125,14 @@ def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
     ("extra", "message"),
     [
         (["--window", "40"], "odd"),
+        (["--window", "121"], "--window 121 is longer than the 120-frame stream"),
         (["--frame", "120"], "outside the 120-frame stream"),
         (["--frames", "100:130"], "outside the 120-frame stream"),
         (["--frames", "1-3"], "A:B"),
         (["--frame", "1", "--frames", "1:3"], "not both"),
         (["--method", "tfi", "--window", "41"], "tfp only"),
         (["--method", "tfp", "--color", "bayer"], "--color applies to --method learned only"),
+        (["--method", "tfi", "--weights", "w.pt"], "--weights applies to --method learned only (tfi has no"),
         (["--threshold", "0"], "threshold"),
         (["--frames", "1:3", "--out-png"], "one frame"),
         (["--frame", "1", "--out-jpg"], ".png or .npy"),
@@ -207,7 +221,7 @@ def test_info_and_reconstruct_read_the_size_from_a_spikecv_config(capsys, stream
     path, spikes = stream
     (path.parent / "config.yaml").write_text(f"filename: s\nspike_h: {H}\nspike_w: {W}\nis_labeled: false\n")
     code, out, _ = run_cli(capsys, "info", path)
-    assert code == 0 and f"frame: {H}×{W} pixels" in out and "frames: 120" in out
+    assert code == 0 and f"frame: {W}×{H} pixels (width × height)" in out and "frames: 120" in out
     out_png = tmp_path / "lin.png"
     code, _, _ = run_cli(capsys, "reconstruct", path, "--method", "tfp", "--frame", 60,
                          "--encoding", "linear", "--out", out_png)  # fmt: skip
@@ -229,7 +243,7 @@ def test_a_frame_size_flag_that_differs_from_the_config_beside_the_file_is_named
     path, _ = stream
     (path.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\n")
     code, out, err = run_cli(capsys, "info", path, "--width", H, "--height", W)  # swapped (H ≠ W)
-    assert code == 0 and f"frame: {W}×{H} pixels" in out  # the flags win
+    assert code == 0 and f"frame: {H}×{W} pixels" in out  # the flags win (width {H}, height {W})
     config = path.parent / "config.yaml"
     assert err.splitlines() == [
         f"spikenerf: warning: {path}: --width {H} differs from spike_w {W} in {config}; using --width {H}",
@@ -299,3 +313,15 @@ def test_info_and_reconstruct_refuse_a_file_that_is_not_a_recording(capsys, tmp_
     for argv in (["info"], ["reconstruct", "--method", "tfp", "--out", tmp_path / "x.npy"]):
         code, _, err = run_cli(capsys, *argv[:1], tmp_path / "config.yaml", *argv[1:])
         assert code == 2 and "is a .yaml file, not a .dat spike recording" in err
+
+
+def test_a_frame_folder_reused_says_which_frames_it_replaced(capsys, stream, tmp_path: Path) -> None:
+    path, _ = stream
+    base = ["reconstruct", path, "--height", H, "--width", W, "--method", "tfp", "--out", tmp_path / "f"]
+    assert run_cli(capsys, *base, "--frames", "0:3")[0] == 0
+    code, out, _ = run_cli(capsys, *base, "--frames", "3:5")
+    assert code == 0 and sorted(p.name for p in (tmp_path / "f").glob("*.png")) == ["00003.png", "00004.png"]
+    folder = tmp_path / "f"
+    assert out.splitlines()[0] == (
+        f"removed 3 frames of an earlier reconstruct into {folder} (a frame folder holds one call's frames)"
+    )

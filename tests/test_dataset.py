@@ -271,6 +271,6 @@ def test_an_unfinished_simulate_work_folder_is_named_as_such(tmp_path: Path) -> 
     work = tmp_path / "ds.partial"
     (work / ".frames").mkdir(parents=True)
     for read in (load_dataset, describe):
-        with pytest.raises(InputError, match="unfinished `spikenerf simulate` work folder") as err:
+        with pytest.raises(InputError, match="unfinished `spikenerf simulate` or `import` work") as err:
             read(work)
         assert err.value.path == str(work)

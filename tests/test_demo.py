@@ -90,8 +90,10 @@ def test_presets_and_train_args() -> None:
     assert "--quiet" not in args  # training shows its progress bar
 
 
-def test_bad_size_is_one_line_exit_2(tmp_path: Path) -> None:
-    command = [sys.executable, "-m", "spikenerf", "demo", "--out", str(tmp_path / "d"), "--size", "4"]
+@pytest.mark.parametrize("size", ["4", "8", "10"])  # below SSIM's window (no cell could be tabulated); not ×4
+def test_bad_size_is_one_line_exit_2(tmp_path: Path, size: str) -> None:
+    command = [sys.executable, "-m", "spikenerf", "demo", "--out", str(tmp_path / "d"), "--size", size]
     done = subprocess.run(command, capture_output=True, text=True, timeout=120, check=False)
-    assert done.returncode == 2 and done.stderr.startswith("spikenerf: error: demo sizes")
+    assert done.returncode == 2 and done.stderr.startswith("spikenerf: error: --size must be a multiple of 4")
+    assert f"at least 12 (SSIM's 11-pixel window), found {size}" in done.stderr
     assert done.stderr.count("\n") == 1 and not (tmp_path / "d").exists()

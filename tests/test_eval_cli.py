@@ -64,8 +64,13 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_eval_writes_metrics_json(run_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    _cli("eval", run_dir, "--device", "cpu", "--quiet")
-    assert "PSNR" in capsys.readouterr().out
+    _cli("eval", run_dir, "--device", "cpu", "--quiet", "--noref-steps", 4)  # (auto: off on simulated data)
+    said = capsys.readouterr()
+    assert "PSNR" in said.out and "no-reference" not in said.out
+    assert said.err.strip().splitlines()[-1] == (
+        "spikenerf: warning: --noref-steps: the no-reference checks did not run (--noref auto runs them on "
+        "imported datasets; --noref on runs them here)"
+    )
     data = json.loads((run_dir / "metrics.json").read_text())
     keys = {"split", "method", "color", "field", "iterations", "views", "mean", "per_view", "lpips_backbone"}
     assert keys | {"lpips_reason", "space", "seconds"} <= set(data)
@@ -150,7 +155,9 @@ def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path, capsys: pytest.
          tmp_path / "tfp.npy")  # fmt: skip
     assert np.load(tmp_path / "tfp.npy").shape == (SIZE, SIZE)
     summary = _cli_output(capsys, "info", out)  # the render folder: what it holds, and its stream
-    assert "trajectory: orbit, 4 views" in summary and "novel spike stream: 9 steps" in summary
+    assert "trajectory: orbit, 4 views" in summary and "novel spike stream: 9 steps, φ" in summary
+    assert f"run: {run_dir.resolve()} at iteration 5\n" in summary  # (the run finished: no "of")
+    assert (manifest["iteration"], manifest["run_iterations"]) == (5, 5)
     assert "frames: 9" in summary
     (out / "render.json").unlink()
     assert "unfinished (no render.json)" in _cli_output(capsys, "info", out)
@@ -164,7 +171,17 @@ def test_bad_inputs_are_one_line_errors(
     assert "config.yaml" in _cli_error(capsys, "render", tmp_path / "empty", "--out", tmp_path / "o")
     err = _cli_error(capsys, "render", run_dir, "--trajectory", "spiral", "--out", tmp_path / "o")
     assert "--trajectory" in err
+    err = _cli_error(capsys, "render", run_dir, "--orbit-frames", 10, "--out", tmp_path / "o")  # (test views)
+    assert err == "spikenerf: error: --orbit-frames sets the views of --trajectory orbit, not of 'test'"
+    err = _cli_error(capsys, "render", run_dir, "--seed", 5, "--out", tmp_path / "o")
+    assert err == "spikenerf: error: --seed seeds the spike stream's accumulators and needs --spikes"
     assert not (tmp_path / "o").exists()
+    err = _cli_error(capsys, "eval", run_dir, "--noref", "off", "--spike-pixels", 8, "--noref-steps", 2)
+    assert err.endswith(
+        "--noref-steps, --spike-pixels: set the no-reference checks, which --noref off turns off"
+    )
+    err = _cli_error(capsys, "eval", run_dir, "--test-pose-lr", 0.01)
+    assert err == "spikenerf: error: --test-pose-lr sets the rate of --test-pose-opt N, which is off (0)"
 
 
 def test_render_without_imageio_ffmpeg_is_one_line_before_any_work(
@@ -272,3 +289,40 @@ def test_render_refuses_before_any_work_and_never_writes_through_a_link(
     err = _cli_error(capsys, "render", run_dir, "--device", "cpu", "--quiet", "--out", out)
     assert "images in it is a symbolic link" in err
     assert (mine / "00001.png").read_text() == "a photo of mine"
+
+
+def test_info_lines_of_a_metrics_file_say_what_was_scored(tmp_path: Path) -> None:
+    """``info RUN`` prints eval's own lines (eval/describe.py, one implementation): the scores with units, a
+    stale mark, the pose-fitted scores, and whether the no-reference steps were trained on."""
+    from spikenerf.core.errors import InputError
+    from spikenerf.eval.describe import metrics_lines
+
+    mean = {"psnr": 24.123, "ssim": 0.81234, "lpips": None}
+    result = {"split": "test", "views": 3, "view_poses": 4, "iterations": 50, "mean": mean}
+    fitted = {"psnr": 25.0, "ssim": 0.82, "lpips": None, "rotation_deg": 0.4412, "translation": 0.01}
+    result["test_pose_optimised"] = {"steps": 5, "mean": fitted, "fits_kept": 2, "per_view": [{}, {}, {}]}
+    checks = {"masked_psnr": 19.5, "masked_ssim": 0.5, "interval_violation_rate": 0.25,
+              "interval_violation_mean": 0.5, "recon_interval_violation_rate": 0.125}  # fmt: skip
+    result["no_reference"] = {"steps_trained_on": True, "per_step": [{}, {}], "mean": checks}
+    path = tmp_path / "metrics.json"
+    path.write_text(json.dumps(result))
+    lines = metrics_lines(path, 80)
+    assert lines[0] == (
+        "metrics.json (test, 3 views, each against the mean of 4 renders) [of iteration 50, not 80: run eval "
+        "again]: PSNR 24.12 dB, SSIM 0.8123, LPIPS n/a"
+    )
+    assert (
+        "test-pose-optimised (5 steps" in lines[1] and "0.441°" in lines[1] and "2 of 3 fits kept" in lines[1]
+    )
+    assert lines[2].startswith(
+        "no-reference at 2 check steps (trained on: they measure fit, not generalisation)"
+    )
+    assert "mean 0.5000 φ" in lines[2] and len(lines) == 3
+    train = tmp_path / "metrics_train.json"  # no views: the checks alone, named by their file
+    train.write_text(json.dumps({**result, "views": 0, "test_pose_optimised": None, "iterations": 80}))
+    assert [line.split(":")[0] for line in metrics_lines(train, 80)] == ["metrics_train.json"]
+    for text in ("[1, 2]", "{not json", json.dumps({"views": 3})):
+        path.write_text(text)
+        with pytest.raises(InputError, match="malformed metrics") as err:
+            metrics_lines(path, 80)
+        assert err.value.path == str(path)

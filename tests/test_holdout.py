@@ -127,7 +127,7 @@ def test_train_records_the_held_out_steps_and_eval_reads_them(
     (run / HOLDOUT_FILE).unlink()
     code, out, err = run_cli(capsys, "eval", run, "--lpips", "none", "--spike-pixels", 8, "--noref", "on",
                              "--noref-steps", 2, "--quiet")  # fmt: skip
-    assert code == 0 and "(trained on)" in out, err
+    assert code == 0 and "(trained on: they measure fit, not generalisation)" in out, err
     assert json.loads((run / "metrics.json").read_text())["no_reference"]["steps_trained_on"] is True
 
 

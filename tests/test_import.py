@@ -69,6 +69,14 @@ def test_spikecv_config_and_orbit_import(capsys, recording, tmp_path: Path) -> N
     scale = norm.scale
     assert np.abs(ds.trajectory.poses[:, :3, 3]).max() > 1  # cameras sit outside the unit box
     assert ds.near < 4 * scale < ds.far
+    code, out, _ = run_cli(capsys, "info", tmp_path / "ds")  # what import recorded, and the test views
+    assert code == 0 and f"imported: {rec} (steps 0..{T - 1})   poses: orbit 4,30" in out
+    tests = ", ".join(map(str, ds.config["imported"]["test_keyframes"]))
+    said = (
+        f"keyframes: 6 every 8 steps (tfp, window 5)   test views: the keyframes at recording steps {tests}"
+    )
+    assert said in out  # (the whole recording: its steps are the dataset's)
+    assert "preview.png: TFP (gray, window 5)" in out  # the keyframes' window
 
 
 def test_recorded_command_line(capsys, recording, tmp_path: Path) -> None:
@@ -352,6 +360,8 @@ def test_interpolation_and_focus_point() -> None:
         ("fps-nan", "--fps must be a finite number > 0"),
         ("fps-zero", "--fps must be a finite number > 0"),
         ("threshold-zero", "--threshold must be a finite number > 0"),
+        ("width", "--width 12 differs from spike_w 24 in"),  # the config beside it: a typo writes garbage
+        ("raw_width", "--raw-width 32 differs from raw_width 40 in"),
     ],
 )
 def test_bad_input_exits_2_and_leaves_nothing(
@@ -377,6 +387,11 @@ def test_bad_input_exits_2_and_leaves_nothing(
         args += ["--poses", pose_file, "--fov", 40]
     if setup == "nocolmap":
         monkeypatch.setitem(sys.modules, "pycolmap", None)
+    if setup == "width":
+        args += [*ORBIT, "--width", 12]
+    if setup == "raw_width":
+        (rec.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\nraw_width: 40\n")
+        args += [*ORBIT, "--raw-width", 32]
     if setup.startswith(("fps", "threshold")):
         name, value = setup.split("-")
         args += [*ORBIT, f"--{name}", {"neg": -5, "nan": "nan", "zero": 0}[value]]
@@ -541,7 +556,7 @@ def test_info_and_reconstruct_take_raw_width_from_the_config(capsys, recording, 
     assert code == 0, err
     (raw.parent / "config.yaml").write_text("spike_h: eight\n")  # malformed, but the flags say it all
     code, out, err = run_cli(capsys, "info", raw, "--height", H, "--width", W, "--raw-width", W + 16)
-    assert code == 0 and f"{H}×{W} pixels" in out, err
+    assert code == 0 and f"{W}×{H} pixels" in out, err
 
 
 def test_forward_facing_poses_need_a_box_or_llff_bounds(capsys, recording, tmp_path) -> None:

@@ -109,10 +109,20 @@ def test_learned_keyframes_use_the_networks_window(capsys, recording, tmp_path) 
         ("--sift-peak", -1, "--sift-peak must be a finite number ≥ 0"),
         ("--smooth", -5, "--smooth must be a finite number ≥ 0"),
         ("--max-features", 3, "--max-features must be ≥ 64"),
+        (
+            "--max-features",
+            100,
+            "--max-features: only used with --poses colmap (COLMAP's estimate); poses 'orbit' gives",
+        ),
+        ("--no-final-ba", None, "--final-ba: only used with --poses colmap"),
+        ("--window", 11, "--window sets the TFP keyframes"),  # (with --keyframe-images learned below)
     ],
 )
 def test_bad_option_values_are_one_line(capsys, recording, tmp_path, flag, value, message) -> None:
-    code, _, err = run_cli(capsys, "import", recording, "--out", tmp_path / "ds", *ORBIT, flag, value)
+    args = [flag] if value is None else [flag, value]
+    if flag == "--window":
+        args += ["--keyframe-images", "learned"]
+    code, _, err = run_cli(capsys, "import", recording, "--out", tmp_path / "ds", *ORBIT, *args)
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "ds").exists()
 

@@ -128,6 +128,9 @@ def test_public_api_resolves_and_import_spikenerf_stays_light() -> None:
         for name in (n for n in module.__all__ if n[0] != "_"):  # functions, classes, registries, choices
             value = getattr(module, name)
             assert callable(value) or (name.isupper() and isinstance(value, tuple | dict)), (package, name)
+    code = "import spikenerf.render as r, spikenerf.fields as f; print(r.model.__name__, f.grid.__name__)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["spikenerf.render.model", "spikenerf.fields.grid"]  # submodules, as before lazy
     code = "import sys, spikenerf, spikenerf.camera; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"

@@ -187,3 +187,29 @@ def test_trained_on_follows_each_variants_method(tmp_path: Path, monkeypatch) ->
         "spike-nerf-no-mask": "40 poses",
         "nerf-recon-learned": "40 poses",
     }
+
+
+def test_each_method_prints_its_key_settings() -> None:
+    """``info RUN`` and ``train`` name what sets a method apart: spike-integral's windows and track (which
+    ``for_dataset`` may pick from the dataset), the spike loss's kind and λ, the reconstruction targets."""
+
+    def settings(method: str, *sets: str) -> list[str]:
+        from spikenerf.train.config import apply_overrides
+
+        config = TrainConfig.from_dict(apply_overrides(TrainConfig(method=method).to_dict(), list(sets)))
+        return make_method(config).settings()
+
+    assert settings("nerf-gt") == [] and settings("nerf-blur") == []
+    assert settings("spike-integral") == ["windows from the dataset, 1 render each", "track from the dataset"]
+    integral = settings("spike-integral", "integral.lengths=[4]", "integral.track=5", "iters=1000")
+    assert integral == ["windows 4 steps, 1 render each", "track windows of 11 steps from iteration 400"]
+    short = settings("spike-integral", "integral.lengths=[2,4]", "integral.samples=2", "integral.track=0")
+    assert short == ["windows 2/4 steps, 2 renders each", "no track"]
+    assert "(after the run's end)" in settings("spike-integral", "integral.track=5", "iters=300")[1]
+    assert settings("nerf-recon", "targets.recon=tfi") == ["targets tfi"]  # TFI has no window
+    recon = settings("nerf-recon", "targets.window=21")
+    assert recon == ["targets tfp, window 21, each the mean of 4 renders across its window"]
+    paper = settings("spike-nerf", "spike.kind=paper", "spike.lam=0.5", "targets.window_poses=1")
+    assert paper[0] == "targets tfp, window 41" and "the paper's (no gradient), λ 0.5" in paper[-1]
+    assert not any("spike loss" in s for s in settings("spike-nerf", "spike.enabled=false"))
+    assert settings("nerf-bad", "targets.blur_samples=4")[0].startswith("4 renders between")

@@ -60,6 +60,19 @@ def test_the_target_is_the_middle_step_and_the_window_is_in_time_order() -> None
     assert [round(float(r.target.mean()), 3) for r in rgb] == [0.1, 0.2, 0.3]
 
 
+@pytest.mark.parametrize("max_speed", [0.0, 0.03, 1.5])  # below 0.06 a pan's range started above its end
+def test_motions_stay_under_any_max_speed(max_speed: float) -> None:
+    from spikenerf.recon.pairs import motion_poses
+
+    rng = np.random.default_rng(0)
+    speeds = [motion_poses(rng, 5, max_speed)[1]["speed"] for _ in range(60)]
+    assert all(0 <= v <= max_speed for v in speeds) and (max(speeds) > 0) == (max_speed > 0)
+    from spikenerf.recon.natural import motion_grids
+
+    speeds = [motion_grids(rng, (64, 64), 16, 5, max_speed, 1)[1]["speed"] for _ in range(60)]  # --natural
+    assert all(0 <= v <= max_speed for v in speeds) and (max(speeds) > 0) == (max_speed > 0)
+
+
 def test_network_shapes_and_tiled_inference_matches_untiled() -> None:
     torch.manual_seed(0)
     net = ReconNet(NetConfig(window=7, width=8)).eval()

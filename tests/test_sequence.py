@@ -98,9 +98,17 @@ def test_range_selects_frames(tiny: Path) -> None:
     assert tail.frame_indices.tolist() == [4, 5]
     np.testing.assert_array_equal(tail.trajectory.poses[1], SequenceSource(tiny).frame_poses[5])
     assert SequenceSource(tiny, frame_range=slice(2, 5)).frame_indices.tolist() == [2, 3, 4]
-    for empty in [(5, -3), (10, OPEN_END), slice(10, None)]:
+    for empty in [(5, -3), (6, OPEN_END), slice(6, None)]:
         with pytest.raises(InputError, match="selects no frames"):
             SequenceSource(tiny, frame_range=empty)
+    for past, value in [
+        ((0, 100), 100),
+        ((10, OPEN_END), 10),
+        (slice(-100, 2), -100),
+    ]:  # not clipped silently
+        with pytest.raises(InputError, match=f"{value} is outside the 6 listed frames") as err:
+            SequenceSource(tiny, frame_range=past)
+        assert err.value.params == ("sequence_range",)
 
 
 # ------------------------------------------------------------------------------------- hold/interpolate

@@ -481,3 +481,20 @@ def test_a_blur_exposure_longer_than_the_path_is_warned_of(tmp_path: Path, capsy
     assert code == 0 and err == ""
     code, out, _ = run_cli(capsys, "info", tmp_path / "whole")
     assert "blur frames: 1 at 400 fps (100 steps of exposure each)" in out and "(every 10 steps)" in out
+
+
+def test_a_camera_inside_the_scene_box_and_a_rounded_spp_are_named(tmp_path: Path, capsys) -> None:
+    from helpers import run_cli
+
+    base = ["simulate", "--scene", "analytic-orbs", "--width", 8, "--height", 8, "--frames", 4,
+            "--blur-fps", 0, "--no-progress"]  # fmt: skip
+    code, _, err = run_cli(capsys, *base, "--radius", 0.5, "--spp", 2, "--out", tmp_path / "in")
+    lines = err.strip().splitlines()
+    assert code == 0 and lines[0] == "spikenerf: warning: --spp 2 renders 1 sample per pixel (a k × k grid)"
+    inside = "passes inside the scene box [-1.0, -1.0, -1.0] to [1.0, 1.0, 1.0] (--radius 0.5)"
+    assert [line.split(" passes")[0] for line in lines[1:]] == [
+        "spikenerf: warning: the orbit",
+        "spikenerf: warning: a test view",
+    ] and all(inside in line for line in lines[1:])
+    code, _, err = run_cli(capsys, *base, "--spp", 4, "--out", tmp_path / "out")  # the default radius 4
+    assert code == 0 and err.strip() == ""

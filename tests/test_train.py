@@ -418,10 +418,14 @@ def test_resume_from_plain_layout_adam_state_matches(dataset_dir: Path, dataset,
         assert torch.equal(sa[key], sb[key]), key
 
 
-def test_resume_keeps_the_fp16_loss_scale(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_resume_keeps_the_fp16_loss_scale(dataset_dir: Path, dataset, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     """The GradScaler state is in the checkpoint: a resumed --amp fp16 run continues with the same scale."""
     cfg = _config(dataset_dir, amp="fp16")
     first = Trainer(cfg, tmp_path / "b", dataset, progress=False)
+    said = (
+        "spikenerf: warning: --amp fp16 is meant for CUDA (with its gradient scaler); on cpu use --amp bf16"
+    )
+    assert capsys.readouterr().err.splitlines() == [said]  # it runs on a CPU, but a user meant bf16 there
     first.train(stop_after=2)
     first.scaler.update(new_scale=1024.0)  # as after some overflow back-offs
     first.checkpoint()
@@ -522,21 +526,31 @@ def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
         "3",
     ]
     flags += ["--set", "spike.pixels=4", "--set", "spike.window=8"]
-    for method, unused in [
-        ("nerf-gt", ("--blur-samples", "--integral-window", "--lambda", "--no-mask", "--set spike.pixels")),
-        ("spike-nerf", ("--blur-samples", "--integral-window")),
-    ]:  # --window and spike.window set the hold-out guard band of every method
+    checks = "does not change how --method nerf-gt trains; it only sets eval's no-reference checks and the"
+    for method, unused, checks_only in [
+        ("nerf-gt", ("--blur-samples", "--integral-window", "--lambda", "--no-mask", "--set spike.pixels"),
+         ("--window", "--set spike.window")),
+        ("spike-nerf", ("--blur-samples", "--integral-window"), ()),
+    ]:  # fmt: skip  # --window and spike.window set eval's checks and the hold-out guard band of every method
         code, _, _ = run_cli(
             capsys, "train", dataset_dir, "--out", tmp_path / method, "--method", method, *flags
         )
         config, notes = called[-1]
         assert code == 0 and config.spike.lam == 0.5  # (kept in the config, unused)
-        assert notes == [f"{flag} is not used by --method {method}; ignored" for flag in unused]
+        said = [f"{flag} is not used by --method {method}; ignored" for flag in unused]
+        assert notes[: len(said)] == said
+        assert [n.partition(" does not")[0] for n in notes[len(said) :]] == list(checks_only)
+        assert all(checks in n for n in notes[len(said) :])
     for recon, said in (("tfi", True), ("tfp", False)):  # TFI's targets have no window
         code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / recon, "--method",
                              "nerf-recon", "--recon", recon, "--window", "21")  # fmt: skip
         tfi = "--window does not change --recon tfi's targets (TFI has no window); it only sets the hold-out"
         assert code == 0 and [n.startswith(tfi) for n in called[-1][1]] == ([True] if said else [])
+    for warmup, said in ((6, True), (5, False)):  # a warm-up as long as the run: the spike loss never starts
+        code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / f"w{warmup}", "--method",
+                             "spike-nerf", "--iters", 6, "--spike-warmup", warmup)  # fmt: skip
+        never = "--spike-warmup 6 is not below --iters 6: the spike loss never switches on"
+        assert code == 0 and called[-1][1] == ([never] if said else [])
     monkeypatch.undo()
     cfg = _config(dataset_dir, method="nerf-gt")
     cfg.iters, cfg.eval_every = 1, 0
@@ -762,7 +776,80 @@ def test_info_of_a_run_prints_the_psnr_that_train_printed(dataset_dir: Path, tmp
     summary.update(train_psnr=21.395028, test_psnr=18.004999)
     (out / "summary.json").write_text(json.dumps(summary))
     line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
-    assert "train PSNR 21.40 dB, test PSNR 18.00 dB" in line
+    assert "train PSNR 21.40 dB (against its training targets), test PSNR 18.00 dB" in line
     (out / "summary.json").unlink()  # an unfinished or older run: curves.csv's values
     line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
     assert "train PSNR 21.40" not in line
+
+
+def test_info_names_eval_keyframes_only_for_a_dataset_that_has_them(tmp_path: Path) -> None:
+    """A spike-integral run's "eval's TFP keyframes" line is about an imported dataset's test views; a
+    simulated dataset (sharp test renders) or a dataset that is gone gets no such line."""
+    from spikenerf.train.config import TrainConfig
+    from spikenerf.train.run import _tfp_keyframes
+
+    config = TrainConfig(dataset=str(tmp_path))
+    assert not _tfp_keyframes(config)  # no config.yaml
+    (tmp_path / "config.yaml").write_text("fps: 40000\n")  # simulated
+    assert not _tfp_keyframes(config)
+    (tmp_path / "config.yaml").write_text("imported: {test_keyframes: [3, 9], window: 21}\n")
+    assert _tfp_keyframes(config)
+    (tmp_path / "config.yaml").write_text("imported: {test_keyframes: [3], keyframe_images: learned}\n")
+    assert not _tfp_keyframes(config)
+    (tmp_path / "config.yaml").write_text("imported: [unclosed\n")  # unreadable: info still describes the run
+    assert not _tfp_keyframes(config)
+
+
+def test_the_fused_kernels_first_build_is_not_training_time(
+    dataset_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The trainer calls ``Field.prepare`` before its clock starts: a first build of the CPU kernel (about a
+    minute, stood in for by a 1.5 s wait on the first call) no longer counts as the first step's time."""
+    import time
+
+    import spikenerf.fields.grid as grid
+
+    real, calls = grid.available, []
+
+    def slow_first(*args: object) -> bool:
+        if not calls:
+            time.sleep(1.5)
+        calls.append(1)
+        return real()
+
+    monkeypatch.setattr(grid, "available", slow_first)
+    config = _config(dataset_dir, method="nerf-gt")
+    config.iters, config.eval_every = 2, 0
+    summary = train(config, tmp_path / "run", progress=False)
+    assert calls and summary.seconds < 1.5
+
+
+def test_more_eval_views_than_the_dataset_has_are_named(
+    dataset_dir: Path, dataset, tmp_path: Path, capsys
+) -> None:  # type: ignore[no-untyped-def]
+    held = len(dataset.test.images)
+    cfg = _config(dataset_dir, method="nerf-gt")
+    cfg.eval_views = held + 5
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    said = (
+        f"spikenerf: warning: --eval-views {held + 5}: the dataset has {held} test views; evaluating {held}"
+    )
+    assert capsys.readouterr().err.splitlines() == [said] and len(trainer.test_views.images) == held
+    cfg.eval_views = held
+    Trainer(cfg, tmp_path / "other", dataset, progress=False)
+    assert capsys.readouterr().err == ""
+
+
+def test_hold_out_settings_without_a_hold_out_are_named(
+    dataset_dir: Path, dataset, tmp_path: Path, capsys
+) -> None:  # type: ignore[no-untyped-def]
+    cfg = _config(dataset_dir, method="nerf-gt")
+    cfg.holdout_steps, cfg.holdout_radius = 3, 10  # a simulated dataset holds out nothing by default
+    Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    said = (
+        "spikenerf: warning: --holdout-steps, --holdout-radius: this run holds out no steps (--holdout turns"
+    )
+    assert capsys.readouterr().err.startswith(said)
+    cfg.holdout = True
+    Trainer(cfg, tmp_path / "held", dataset, progress=False)
+    assert "holds out no steps" not in capsys.readouterr().err

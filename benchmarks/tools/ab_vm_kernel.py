@@ -6,7 +6,8 @@ Usage (from the repository root)::
     .venv/bin/python -m benchmarks.tools.ab_vm_kernel /tmp/before/src/spikenerf/fields/vm_kernel.py \
         src/spikenerf/fields/vm_kernel.py [--points 100000] [--resolution 200] [--repeats 60] [--threads 1,2]
 
-Each file's C++ source (its ``_SOURCE``) is built with this checkout's flags under a name of its own (the
+Each file's C++ source (its ``_SOURCE``) is built with this checkout's flags (``--before-cflags`` gives the
+before build others: to measure a flag change, pass the same file twice) under a name of its own (the
 first build of a source takes about a minute, then it is cached), so both run in the same process on the
 same tensors: the density's form (16 channels, summed, a zero gradient at every third point, as early ray
 termination leaves them) and the appearance's (24 channels, (M, 3, C) out). Points lie along random rays,
@@ -42,9 +43,11 @@ def kernel_source(path: Path) -> str:
     raise SystemExit(f"{path}: no _SOURCE string")
 
 
-def build(source: str, tag: str) -> Any:
-    """The extension module of ``source``, built with this checkout's flags (cached by source and flags)."""
-    flags, ldflags = vm_kernel._CFLAGS + vm_kernel._OPENMP_CFLAGS, vm_kernel._OPENMP_LDFLAGS
+def build(source: str, tag: str, cflags: list[str] | None = None) -> Any:
+    """The extension module of ``source``, built with this checkout's flags, or ``cflags`` in their place
+    (cached by source and flags)."""
+    flags = (vm_kernel._CFLAGS if cflags is None else cflags) + vm_kernel._OPENMP_CFLAGS
+    ldflags = vm_kernel._OPENMP_LDFLAGS
     name = vm_kernel._name(flags, ldflags, source, prefix=f"ab_vm_{tag}_")
     return load_inline(name, cpp_sources=[source], extra_cflags=flags, extra_ldflags=ldflags, with_cuda=False)
 
@@ -82,10 +85,18 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=60)
     parser.add_argument("--threads", default="1,2", help="thread counts, comma-separated")
+    parser.add_argument(
+        "--before-cflags",
+        help="compiler flags of the before build instead of this checkout's (a flag change: give the same "
+        "file twice), e.g. '-O3 -march=native'",
+    )  # fmt: skip
     args = parser.parse_args()
+    before_flags = None if args.before_cflags is None else args.before_cflags.split()
     modules = {
-        tag: build(kernel_source(path), tag) for tag, path in (("before", args.before), ("after", args.after))
+        "before": build(kernel_source(args.before), "before", before_flags),
+        "after": build(kernel_source(args.after), "after"),
     }
+    print(f"flags: before {' '.join(before_flags or vm_kernel._CFLAGS)}; after {' '.join(vm_kernel._CFLAGS)}")
     r, gen = args.resolution, torch.Generator().manual_seed(0)
     xyz = ray_points(args.points, r, torch.device("cpu"))
     print(f"{args.points} points along rays, R {r}; ms per call, median of {args.repeats}")

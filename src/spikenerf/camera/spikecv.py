@@ -99,6 +99,24 @@ def write_spikecv_config(
     return path
 
 
+def size_conflicts(
+    path: str | Path | None, height: int | None, width: int | None, raw_width: int | None = None
+) -> list[tuple[str, int, str, int]]:
+    """``(param, given, key, value)`` for each given ``height``, ``width`` or ``raw_width`` that differs from
+    the ``key`` of the SpikeCV config at ``path`` (``("width", 16, "spike_w", 32)``); none where ``path`` is
+    None or cannot be read. A mismatch is more often a typo than a wrong file: ``info`` and ``reconstruct``
+    warn of it, ``import`` (which writes a dataset) refuses it."""
+    if path is None:
+        return []
+    try:
+        own = read_spikecv_config(path)
+    except InputError:
+        return []
+    pairs = (("width", width, "spike_w", own.width), ("height", height, "spike_h", own.height),
+             ("raw_width", raw_width, "raw_width", own.raw_width))  # fmt: skip
+    return [(p, g, k, v) for p, g, k, v in pairs if g is not None and v is not None and g != v]
+
+
 def recording_config(
     dat: str | Path,
     height: int | None = None,

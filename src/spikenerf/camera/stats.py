@@ -27,7 +27,8 @@ def spike_rate_summary(spikes: np.ndarray | torch.Tensor | Iterable[np.ndarray])
     Returns:
         ``frames`` (T), ``pixels`` (H·W, or 3·H·W), ``spikes`` (total count), ``mean_rate`` (spikes per pixel
         per step), ``rate_percentiles`` ({1, 5, 50, 95, 99} → per-pixel spikes per step) and
-        ``silent_fraction`` (pixels that never fire).
+        ``silent_fraction`` (pixels that never fire) and ``saturated_fraction`` (pixels that fire at every
+        step: light at or above the threshold φ a step, whose brightness the stream cannot tell apart).
     """
     chunks = [spikes] if isinstance(spikes, np.ndarray) or is_tensor(spikes) else spikes
     counts: np.ndarray | None = None
@@ -56,6 +57,7 @@ def spike_rate_summary(spikes: np.ndarray | torch.Tensor | Iterable[np.ndarray])
             q: float(v) for q, v in zip(PERCENTILES, np.percentile(rates, PERCENTILES), strict=True)
         },
         "silent_fraction": float(np.mean(counts == 0)),
+        "saturated_fraction": float(np.mean(counts == frames)),
     }
 
 

@@ -98,6 +98,7 @@ def command(
     from spikenerf.capture.blur import check_blur_views
     from spikenerf.pipelines.benchmark.cells import (
         BenchmarkConfig,
+        check_size,
         parse_seeds,
         resolve_scenes,
         resolve_variants,
@@ -107,8 +108,7 @@ def command(
     colors = comma_list(
         color, ("gray", "rgb"), lambda _: f"--color: expected gray, rgb or gray,rgb, got {color!r}", "color"
     )
-    if size < 8:
-        raise InputError(f"--size must be ≥ 8, found {size}")
+    check_size(size)
     if frames < 2:
         raise InputError(f"--frames must be ≥ 2, found {frames}")
     views = str(check_blur_views(blur_views, frames))
@@ -133,6 +133,16 @@ def command(
             field_config(field, trained.validate().field_config)  # a field option's typo, for this field
         except InputError as err:
             raise InputError(f"--set: {err}") from err
+        from spikenerf.train.methods import unused_keys
+
+        chosen = sorted({VARIANTS[v].method for v in variants})
+        keys = [item.partition("=")[0].strip() for item in overrides]
+        for key in (k for k in keys if all(unused_keys(m, [k]) for m in chosen)):
+            click.echo(
+                f"spikenerf: warning: --set {key} is not used by any chosen method ({', '.join(chosen)}); "
+                "ignored",
+                err=True,
+            )
     given = click.get_current_context().get_parameter_source
     ray_only = [
         name

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
 from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
 from spikenerf.cli.types import COUNT, BoundedInt, device_option
@@ -68,9 +69,18 @@ def command(
     precision: str, noref_steps: int, spike_window: int | None, spike_pixels: int, test_pose_opt: int,
     test_pose_lr: float, quiet: bool,
 ) -> None:  # fmt: skip
+    from spikenerf.core.errors import InputError
+    from spikenerf.eval.describe import noref_line, pose_fit_line, scores
     from spikenerf.eval.evaluate import evaluate_run, metrics_file
     from spikenerf.eval.noref import NoRefOptions
 
+    source = click.get_current_context().get_parameter_source
+    given = [f"--{n.replace('_', '-')}" for n in ("noref_steps", "spike_window", "spike_pixels")
+             if source(n) is ParameterSource.COMMANDLINE]  # fmt: skip
+    if noref == "off" and given:
+        raise InputError(f"{', '.join(given)}: set the no-reference checks, which --noref off turns off")
+    if test_pose_opt == 0 and source("test_pose_lr") is ParameterSource.COMMANDLINE:
+        raise InputError("--test-pose-lr sets the rate of --test-pose-opt N, which is off (0)")
     check_run_folder(run)
     result = evaluate_run(
         run,
@@ -86,32 +96,16 @@ def command(
         test_pose=(test_pose_opt, test_pose_lr),
         precision=precision,
     )
-    mean = result["mean"]
-
-    def fmt(v: float | None, digits: int) -> str:
-        return "n/a" if v is None else f"{v:.{digits}f}"
-
     click.echo(
         f"{result['method']} ({result['color']}, {result['field']}, {result['iterations']} it) on "
-        f"{result['views']} {split} views: PSNR {fmt(mean['psnr'], 2)} dB, SSIM {fmt(mean['ssim'], 4)}, "
-        f"LPIPS {fmt(mean['lpips'], 4)} → {run / metrics_file(split)}"
+        f"{result['views']} {split} views: {scores(result['mean'])} → {run / metrics_file(split)}"
     )
-    opt = result["test_pose_optimised"]
-    if opt is not None:
-        m = opt["mean"]
+    for line in (pose_fit_line(result), noref_line(result)):
+        if line:
+            click.echo(line)
+    if given and result["no_reference"] is None:  # --noref auto, on a dataset that was not imported
         click.echo(
-            f"test-pose-optimised ({opt['steps']} steps, each test pose fitted to its own image, field "
-            f"frozen): PSNR {fmt(m['psnr'], 2)} dB, SSIM {fmt(m['ssim'], 4)}, LPIPS {fmt(m['lpips'], 4)}; "
-            f"mean correction {fmt(m['rotation_deg'], 3)}°, {fmt(m['translation'], 4)} scene units; "
-            f"{opt['fits_kept']} of {len(opt['per_view'])} fits kept (a fit that scores lower is not)"
-        )
-    nr = result["no_reference"]
-    if nr is not None:
-        m, seen = nr["mean"], "trained on" if nr["steps_trained_on"] else "held out"
-        click.echo(
-            f"no-reference at {len(nr['per_step'])} check steps ({seen}): masked PSNR "
-            f"{fmt(m['masked_psnr'], 2)} dB, masked SSIM {fmt(m['masked_ssim'], 4)} vs the reconstructions; "
-            f"interval violations {fmt(m['interval_violation_rate'], 4)} of windows, mean "
-            f"{fmt(m['interval_violation_mean'], 4)} φ (reconstruction held: "
-            f"{fmt(m['recon_interval_violation_rate'], 4)})"
+            f"spikenerf: warning: {', '.join(given)}: the no-reference checks did not run (--noref auto runs "
+            "them on imported datasets; --noref on runs them here)",
+            err=True,
         )

@@ -48,7 +48,10 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     "--test-every", type=int, default=8, show_default=True, help="Hold out every n-th keyframe (0 = none)."
 )
 @click.option(
-    "--fov", type=float, help="Horizontal field of view in degrees (when the poses lack intrinsics)."
+    "--fov",
+    type=float,
+    help="Horizontal field of view in degrees [default: the pose source's intrinsics; needed where it has "
+    "none].",
 )
 @click.option(
     "--overlap", type=int, default=10, show_default=True, help="COLMAP sequential matching overlap."

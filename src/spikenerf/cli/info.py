@@ -22,7 +22,8 @@ def describe_dat(
     stored = "" if raw_width is None else f" (stored rows {raw_width} wide, {raw_width - width} stripped)"
     lines = [
         f"file: {path}",
-        f"frame: {height}×{width} pixels{stored}, {frame_bytes(height, width, raw_width)} bytes, "
+        f"frame: {width}×{height} pixels (width × height){stored}, {frame_bytes(height, width, raw_width)} "
+        "bytes, "
         f"layout {layout}",
         f"frames: {frames}",
         f"duration: {frames / fps * 1e3:.4g} ms at {fps:g} Hz",
@@ -36,8 +37,22 @@ def describe_dat(
     )
     pct = ", ".join(f"p{q} {v:.4g}" for q, v in summary["rate_percentiles"].items())
     lines.append(f"per-pixel firing rate (spikes/step): {pct}")
-    lines.append(f"silent pixels: {summary['silent_fraction'] * 100:.3g}%")
+    lines.append(
+        f"silent pixels: {summary['silent_fraction'] * 100:.3g}%   saturated (a spike every step): "
+        f"{summary['saturated_fraction'] * 100:.3g}%"
+    )
     return lines
+
+
+#: folders spikenerf writes that ``info`` does not summarise → what to read instead
+OTHER_KINDS = {
+    "benchmark": "a benchmark folder: its tables are table1.md, table2.md and report.html (`spikenerf "
+    "report` writes the report again); `spikenerf info` on a run folder (runs/SCENE/COLOR/VARIANT) for "
+    "one cell",
+    "frames": "a reconstruct frame folder (one PNG per frame)",
+    "pairs": "a recon-data pair folder (training pairs for recon-train)",
+    "recon": "a recon-train folder (its weights and curves.csv)",
+}
 
 
 def describe_render(folder: Path) -> list[str]:
@@ -54,15 +69,25 @@ def describe_render(folder: Path) -> list[str]:
         files = info.get("files") or {}
     except (OSError, ValueError, TypeError, KeyError) as err:
         raise InputError(f"cannot read it ({type(err).__name__}: {err})", path=manifest) from None
+    done, planned = info.get("iteration"), info.get("run_iterations")
+    of = (
+        ""
+        if done is None
+        else f" at iteration {done}" + (f" of {planned}" if planned not in (None, done) else "")
+    )
+    views = info.get("views")
     lines = [
         f"render folder: {folder}",
-        f"run: {info.get('run')}",
-        f"trajectory: {info.get('trajectory')}, {info.get('views')} views of {width}×{height}, "
+        f"run: {info.get('run')}{of}",
+        f"trajectory: {info.get('trajectory')}, {views} view{'' if views == 1 else 's'} of {width}×{height}, "
         f"video {files.get('video')}",
     ]
     streams = [name for name in files.get("spikes") or [] if str(name).endswith(".dat")]
     if streams:
-        lines.append(f"novel spike stream: {info.get('spike_steps')} steps, φ {info.get('threshold')}")
+        along = {"orbit": "", "test": " (one step per held-out view)"}.get(
+            str(info.get("trajectory")), " (one step per pose of the file)"
+        )
+        lines.append(f"novel spike stream: {info.get('spike_steps')} steps{along}, φ {info.get('threshold')}")
     for name in streams:
         config = dat_recording(folder / name, height, width, width)  # plain frames: no raw-layout guess
         lines += ["", *describe_dat(folder / name, height, width, "spikecv", None, config.fps or 40000.0)]
@@ -93,6 +118,13 @@ def command(
     fps: float | None,
 ) -> None:
     if not path.exists():
+        partial = path.with_name(path.name + ".partial")
+        if path.name and partial.is_dir():  # a simulate or import that has not finished
+            raise InputError(
+                f"not written yet: {partial} is its unfinished work folder (run the same simulate or import "
+                "command again to finish it)",
+                path=path,
+            )
         raise InputError("no such file or folder", path=path)
     from spikenerf.core.marker import folder_kind
 
@@ -107,13 +139,16 @@ def command(
     layout = layout or "spikecv"
 
     if path.is_dir() and folder_kind(path) == "run":  # a run's missing file is named as such
+        from spikenerf.eval.describe import metrics_lines
         from spikenerf.train.run import describe_run
 
-        click.echo(describe_run(path))
+        click.echo(describe_run(path, metrics_lines))
         return
     if path.is_dir() and folder_kind(path) == "render":
         click.echo("\n".join(describe_render(path)))
         return
+    if path.is_dir() and (kind := folder_kind(path)) in OTHER_KINDS:
+        raise InputError(OTHER_KINDS[kind], path=path)
     if path.is_dir():
         from spikenerf.data.summary import describe
 

@@ -104,7 +104,11 @@ def blocks(frames: range, method: str) -> Iterator[range]:
     help="Output values: linear (SpikeCV/spikezoo PNGs) or srgb [default: srgb for .png, linear for .npy].",
 )
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="FILE.png, FILE.npy or a folder.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing --out FILE.png or FILE.npy.")
+@click.option(
+    "--overwrite", is_flag=True,
+    help="Replace an existing --out FILE.png or FILE.npy (a frame folder that reconstruct wrote always holds "
+    "the last call's frames).",
+)  # fmt: skip
 def command(
     spikes: Path,
     height: int | None,
@@ -137,12 +141,16 @@ def command(
         raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
     if method != "learned" and color != "gray":
         raise InputError(f"--color applies to --method learned only ({method} treats every pixel alike)")
+    if method != "learned" and weights is not None:
+        raise InputError(f"--weights applies to --method learned only ({method} has no network)")
     recon = reconstructor(method, window, threshold, weights=weights, color=color)
     if frame is not None and frame_range is not None:
         raise InputError("give either --frame I or --frames A:B, not both")
     total = count_frames(spikes, height, width, raw_width)
     if total == 0:
         raise InputError("the spike file holds no frames", path=spikes)
+    if window is not None and window > total:  # (every window would be clipped to the whole stream)
+        raise InputError(f"--window {window} is longer than the {total}-frame stream", path=spikes)
     selection = parse_range(frame_range, "frame_range") if frame_range else frame
     frames = resolve_frames(selection, total, spikes)
     kind = output_kind(out)
@@ -203,9 +211,14 @@ def command(
                 for index, frame_image in zip(block, image, strict=True):
                     write_bytes_atomic(out / f"{index:05d}.png", to_png_bytes(frame_image, encoding))
                     bar.update(1)
-            for name in previous - set(names):  # frames this command wrote before: replaced, no others
+            gone = previous - set(names)
+            for name in gone:  # frames this command wrote before: replaced, no others
                 (out / name).unlink(missing_ok=True)
             mark(out, "frames", names)
+            if gone:
+                count = f"{len(gone)} frame{'s' if len(gone) != 1 else ''}"
+                click.echo(f"removed {count} of an earlier reconstruct into {out} (a frame folder holds one "
+                           "call's frames)")  # fmt: skip
     click.echo(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''}, {method})")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
 from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
 from spikenerf.cli.types import SEED, device_option
@@ -56,6 +57,11 @@ def command(
             "--spike-steps sets the spike stream's length along --trajectory orbit and needs --spikes "
             "(with test or FILE the stream has one step per pose)"
         )
+    given = click.get_current_context().get_parameter_source
+    if trajectory != "orbit" and given("orbit_frames") is ParameterSource.COMMANDLINE:
+        raise InputError(f"--orbit-frames sets the views of --trajectory orbit, not of {trajectory!r}")
+    if not spikes and given("seed") is ParameterSource.COMMANDLINE:
+        raise InputError("--seed seeds the spike stream's accumulators and needs --spikes")
     check_run_folder(run)
     render_run(
         run,

@@ -246,6 +246,20 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     settings = getattr(source, "settings", None)  # the Blender backend keeps spp in its render settings
     spp = getattr(settings, "spp", None) or getattr(source, "supersample", 0) ** 2 or kw["spp"]
     extra["spp"] = spp if spp is None else int(spp)
+    if kw["spp"] is not None and spp is not None and int(spp) != int(kw["spp"]):
+        got = f"{int(spp)} sample{'' if int(spp) == 1 else 's'}"
+        click.echo(f"spikenerf: warning: --spp {kw['spp']} renders {got} per pixel (a k × k grid)", err=True)
+    box = np.asarray(source.scene_box, dtype=np.float64)
+    views_from = "--eval-views" if kw["eval_views"] is not None else f"--radius {radius:g}"
+    for what, poses, flag in (("the orbit", trajectory.poses, f"--radius {radius:g}"),
+                              ("a test view", test_poses, views_from)):  # fmt: skip
+        centres = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)[:, :3, 3]
+        if np.all((centres > box[0]) & (centres < box[1]), axis=1).any():
+            click.echo(
+                f"spikenerf: warning: {what} lies inside the scene box {box[0].tolist()} to "
+                f"{box[1].tolist()} ({flag}): a camera inside the scene sees little of it",
+                err=True,
+            )
     return source, extra
 
 

@@ -333,14 +333,30 @@ def command(
         raise InputError(found, path=dataset)
     base.dataset = str(dataset.resolve())
     notes = [] if ignore_unused else _unused(base.method, given, overrides, base.targets.recon)
+    warmup = base.spike.warmup_iters
+    if (
+        base.method_class().has_spike_loss
+        and base.spike.enabled
+        and warmup is not None
+        and warmup >= base.iters
+    ):
+        notes.append(
+            f"--spike-warmup {warmup} is not below --iters {base.iters}: the spike loss never switches on"
+        )
     from spikenerf.train.trainer import train  # (torch: not for --help or a bad flag)
 
     summary = train(base.validate(), out, resume=resume, progress=not quiet, notes=notes)
+    from spikenerf.train.methods import make_method
+
+    stored = out / CONFIG_FILE  # as it trained, the dataset's defaults filled in
+    method = make_method(load_run_config(stored) if stored.is_file() else base)
+    if settings := method.settings():
+        click.echo(f"{method.describe()}: {'; '.join(settings)}")
     test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
     click.echo(
         f"trained {summary.iteration} iterations in {summary.seconds:.1f} s "
-        f"({summary.rays_per_second:.0f} rays/s); train PSNR {summary.train_psnr:.2f} dB, "
-        f"test PSNR {test} → {out}"
+        f"({summary.rays_per_second:.0f} rays/s); train PSNR {summary.train_psnr:.2f} dB (against its "
+        f"training targets), test PSNR {test} → {out}"
     )
 
 
@@ -355,15 +371,21 @@ def _unused(method: str, given: set[str], overrides: tuple[str, ...], recon: str
     flags = {n: _FLAG_KEYS.get(n) or ".".join(filter(None, OPTION_FIELDS.get(n, ()))) for n in sorted(given)}
     keys = {key: PARAM_FLAGS.get(key, "--" + name.replace("_", "-")) for name, key in flags.items() if key}
     keys |= {item.partition("=")[0].strip(): f"--set {item.partition('=')[0].strip()}" for item in overrides}
-    from spikenerf.train.methods import unused_keys
+    from spikenerf.train.methods import check_only_keys, unused_keys
 
     unused = unused_keys(method, keys)
     notes = [f"{keys[key]} is not used by --method {method}; ignored" for key in unused]
-    if recon == "tfi" and "targets.window" in keys and "targets.window" not in unused:
+    checks_only = check_only_keys(method, keys)
+    if recon == "tfi" and "targets.window" in keys and "targets.window" not in unused + checks_only:
         notes.append(
             f"{keys['targets.window']} does not change --recon tfi's targets (TFI has no window); it only "
             "sets the hold-out guard band"
         )
+    notes += [
+        f"{keys[key]} does not change how --method {method} trains; it only sets eval's no-reference checks "
+        "and the hold-out guard band"
+        for key in checks_only
+    ]
     return notes
 
 

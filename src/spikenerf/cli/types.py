@@ -4,7 +4,6 @@ stays quick)."""
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
@@ -77,24 +76,19 @@ NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", "
 
 def dat_recording(path: Path, height: int | None, width: int | None, raw_width: int | None) -> Any:
     """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given.
-    One warning line for each of ``width``/``height`` that differs from the ``config.yaml`` beside the file
-    (when the given size fits the file), and one when the file also reads as a raw sps10 recording
-    (``camera.io.raw_width_guess``)."""
+    One warning line for each of ``width``/``height``/``raw_width`` that differs from the ``config.yaml``
+    beside the file (when the given size fits the file; ``camera.spikecv.size_conflicts``), and one when the
+    file also reads as a raw sps10 recording (``camera.io.raw_width_guess``)."""
     from spikenerf.camera.io import count_frames, raw_width_guess
-    from spikenerf.camera.spikecv import read_spikecv_config, recording_config
+    from spikenerf.camera.spikecv import recording_config, size_conflicts
 
     if path.suffix.lower() in NOT_SPIKES:
         raise InputError(f"is a {path.suffix} file, not a .dat spike recording", path=path)
     config = recording_config(path, height, width)
     differs = []  # flags win over the file, but a mismatch is more often a typo
-    if config.path is not None:
-        with contextlib.suppress(InputError):  # (an unreadable config beside flags is ignored)
-            own = read_spikecv_config(config.path)
-            for flag, given, key, value in (("width", width, "spike_w", own.width),
-                                            ("height", height, "spike_h", own.height)):  # fmt: skip
-                if given is not None and value is not None and given != value:
-                    differs.append(f"--{flag} {given} differs from {key} {value} in {config.path}; "
-                                   f"using --{flag} {given}")  # fmt: skip
+    for param, given, key, value in size_conflicts(config.path, height, width, raw_width):
+        flag = "--" + param.replace("_", "-")
+        differs.append(f"{flag} {given} differs from {key} {value} in {config.path}; using {flag} {given}")
     config = config if raw_width is None else dataclasses.replace(config, raw_width=raw_width)
     if differs:
         try:  # said only where the size fits the file: a size that does not is the command's one error

@@ -47,7 +47,7 @@ MODES = COLORS  # the colour modes a dataset may hold (camera.model.ColorMode)
 BLUR_ARRAY = "blur/views.npy"
 _MISSING = "missing file (not a dataset folder written by `spikenerf simulate`?)"
 #: a ``simulate`` work folder (``OUT.partial``) given as a dataset
-UNFINISHED = "an unfinished `spikenerf simulate` work folder: run the same command to resume"
+UNFINISHED = "an unfinished `spikenerf simulate` or `import` work folder: run the same command to resume"
 
 
 def spike_files(mode: str) -> list[str]:

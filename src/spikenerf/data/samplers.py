@@ -11,6 +11,7 @@ from torch import Tensor
 
 from spikenerf.core.errors import InputError, check_choice
 from spikenerf.data.choices import WINDOW_ORDERS
+from spikenerf.data.choices import WindowOrder as WindowOrder  # (defined there, without torch)
 
 
 def _generator(seed: int) -> torch.Generator:

@@ -55,7 +55,9 @@ def preview_image(ds: SpikeDataset, mode: str | None = None) -> tuple[np.ndarray
         pos = int(np.searchsorted(steps, target))
     else:
         pos = n // 2
-    window = fitting_window(n, PREVIEW_WINDOW)
+    imported = (ds.config or {}).get("imported") or {}
+    keyframe_window = imported.get("window") if imported.get("keyframe_images", "tfp") == "tfp" else None
+    window = fitting_window(n, keyframe_window if isinstance(keyframe_window, int) else PREVIEW_WINDOW)
     read = lambda a, b: ds.spikes(mode, slice(a, b))  # noqa: E731
     recon = frame_at(read, pos, "tfp", window, ds.threshold, n)
     recon = np.repeat(to_channels_last(recon, frame=True), 3 if mode != "rgb" else 1, -1)  # (H, W, 3)
@@ -98,6 +100,28 @@ def view_counts(root: str | Path) -> dict:
     }
 
 
+def _imported_lines(imported: dict) -> list[str]:
+    """What ``import`` recorded (``config.yaml``'s ``imported``): the recording and its steps, the pose
+    source, the keyframes, and which of them are the test views."""
+    first, stop = (imported.get("range") or [None, None])[:2]
+    steps = f" (steps {first}..{stop - 1})" if isinstance(first, int) and isinstance(stop, int) else ""
+    source = imported.get("poses")
+    if source == "orbit" and imported.get("orbit"):
+        source = f"orbit {imported['orbit']}"
+    images = imported.get("keyframe_images", "tfp")
+    window = f", window {imported['window']}" if images == "tfp" and imported.get("window") else ""
+    lines = [
+        f"imported: {imported.get('recording')}{steps}   poses: {source}",
+        f"keyframes: {imported.get('keyframes')} every {imported.get('keyframe_every')} steps "
+        f"({images}{window})",
+    ]
+    if tests := imported.get("test_keyframes"):  # dataset steps; the recording's where its range is known
+        shift, whose = (first, "recording ") if isinstance(first, int) else (0, "")
+        at = ", ".join(str(shift + int(t)) for t in tests)
+        lines[-1] += f"   test views: the keyframes at {whose}steps {at} (no sharp ground truth)"
+    return lines
+
+
 def describe(path: str | Path) -> str:
     """Summarise a dataset folder (views, steps, size, spike rates per mode); writes ``DIR/preview.png``."""
     path = Path(path)
@@ -119,6 +143,8 @@ def describe(path: str | Path) -> str:
         + (f" (every {cfg['gt_every']} steps)" if len(ds.gt) and "gt_every" in cfg else "")
         + f"   test views: {len(ds.test)}",
     ]
+    if isinstance(imported := cfg.get("imported"), dict):
+        lines += _imported_lines(imported)
     if n >= 2:  # what --integral-window should span (docs/spike-integral.md, Choosing L and S)
         motion = image_motion(traj.poses, k, ds.scene_box)
         lines.append(f"image motion: {motion:.3g} px a step (median over points in the scene box)")
@@ -126,7 +152,12 @@ def describe(path: str | Path) -> str:
         span = ds.blur.step_ranges[:, 1] - ds.blur.step_ranges[:, 0]
         steps = f"{int(span.min())}" if span.min() == span.max() else f"{int(span.min())}–{int(span.max())}"
         rate = read_transforms(path / TRANSFORMS_BLUR).get("fps") or traj.fps / int(span.max())  # as realised
-        lines.append(f"blur frames: {len(ds.blur)} at {rate:.4g} fps ({steps} steps of exposure each)")
+        starts, ends = ds.blur.step_ranges[:, 0], ds.blur.step_ranges[:, 1]
+        overlap = bool(np.any(starts[1:] < ends[:-1]))  # blur_views all: one exposure centred on each step
+        lines.append(
+            f"blur frames: {len(ds.blur)} at {rate:.4g} fps ({steps} steps of exposure each"
+            + ("; overlapping exposures, not consecutive frames)" if overlap else ")")
+        )
     else:
         lines.append("blur frames: none")
     for mode in ds.modes:
@@ -135,7 +166,7 @@ def describe(path: str | Path) -> str:
             r = dat_rate_summary(path / name, k.height, k.width)
             parts.append(
                 f"{name} {r['mean_rate']:.4g} spikes/pixel/step ({r['mean_rate'] * traj.fps:.4g} Hz), "
-                f"silent {r['silent_fraction'] * 100:.3g}%"
+                f"silent {r['silent_fraction'] * 100:.3g}%, saturated {r['saturated_fraction'] * 100:.3g}%"
             )
         lines.append(f"spikes [{mode}]: " + "; ".join(parts))
     image, caption = preview_image(ds)

@@ -39,6 +39,9 @@ from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError, check_choice
 from spikenerf.data.choices import COLORS
+from spikenerf.data.choices import METHODS as METHODS  # (defined there, without torch)
+from spikenerf.data.choices import Method as Method
+from spikenerf.data.choices import TrainColor as TrainColor
 from spikenerf.data.reconstruction import RECONS as RECONS
 from spikenerf.data.reconstruction import TargetRecon as TargetRecon
 from spikenerf.data.reconstruction import reconstruct_stream

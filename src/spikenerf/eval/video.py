@@ -424,6 +424,8 @@ def _render_locked(
                 f"{k.width}×{k.height}")  # fmt: skip
     manifest = {
         "run": str(Path(run_dir).resolve()),
+        "iteration": int(ckpt["iteration"]),  # of the run's iterations: a render of an unfinished run says so
+        "run_iterations": config.iters,
         "trajectory": path.name,
         "trajectory_file": None if trajectory in TRAJECTORIES else str(Path(trajectory).resolve()),
         "views": len(poses),

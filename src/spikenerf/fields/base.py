@@ -47,6 +47,10 @@ class Field(nn.Module):
         """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""
         raise NotImplementedError
 
+    def prepare(self) -> None:
+        """Build what the field's first forward would otherwise build (a fused kernel), so that training
+        times only its steps; nothing unless the field needs it. Call after moving it to its device."""
+
     def regularization(self, step: int | None = None) -> Tensor:
         """A scalar () prior to add to the loss at optimiser step ``step`` (None: not in training; already
         weighted); zero unless the field defines one."""

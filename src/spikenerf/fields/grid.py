@@ -31,7 +31,7 @@ from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.occupancy import OccupancyGrid
 from spikenerf.fields.row_buckets import bucketing, pad_to_bucket
 from spikenerf.fields.vm_gather import MAT, VEC, gather_vm
-from spikenerf.fields.vm_kernel import cpu_has, usable, vm_lookup
+from spikenerf.fields.vm_kernel import available, cpu_has, usable, vm_lookup
 from spikenerf.fields.vm_lattice import vm_lattice_sum
 from spikenerf.fields.vm_triton import applies, triton_vm, why_not
 
@@ -449,6 +449,12 @@ class GridField(Field):
             self.update_occupancy()
             self.occupancy_step.fill_(step)
         return changed
+
+    def prepare(self) -> None:
+        """On a CPU, build (or load) the fused lookup kernel now: the first build takes about a minute,
+        which would otherwise count as the first training step's time."""
+        if self.scene_box.device.type == "cpu" and self.config.lookup == "auto":  # (gather never uses it)
+            available()
 
     def regularization(self, step: int | None = None) -> Tensor:
         """Scalar (): ``l1_weight`` × mean |density factor| (a sparsity prior against floaters) plus, at

@@ -273,8 +273,12 @@ _FAILED = False
 
 
 def _cflags() -> list[str]:
-    """``-O3``, plus ``-march=native`` on x86-64 (AVX2/AVX-512 for the scatter loops: backward 1.6× faster)."""
-    return ["-O3", "-march=native"] if platform.machine().lower() in ("x86_64", "amd64") else ["-O3"]
+    """``-O3 -ffp-contract=off``, plus ``-march=native`` on x86-64 (AVX2/AVX-512 for the scatter loops:
+    backward 1.6× faster). No fused multiply-adds: the compiler contracted ``a * b + c`` in one instance of
+    the scatter and not in another (a band's edge), so a plane gradient differed in its last bit between 1
+    and 2 threads on an AVX-512 CPU (tests/test_gradients.py)."""
+    native = ["-march=native"] if platform.machine().lower() in ("x86_64", "amd64") else []
+    return ["-O3", "-ffp-contract=off", *native]
 
 
 # ``at::parallel_for`` is a header template over ``#pragma omp parallel``: an extension built without
@@ -329,7 +333,7 @@ def cpu_has(*flags: str) -> bool:
 
 
 # without the CPU's flags a shared cache folder could not tell CPUs apart: no -march=native then
-_CFLAGS = _cflags() if _CPU else ["-O3"]
+_CFLAGS = _cflags() if _CPU else ["-O3", "-ffp-contract=off"]
 
 
 def _name(cflags: list[str], ldflags: list[str], source: str = _SOURCE, prefix: str = "spikenerf_vm_") -> str:

@@ -21,7 +21,7 @@ import yaml
 from spikenerf import __version__
 from spikenerf.camera.io import count_frames, iter_dat, raw_width_guess, read_dat, resolve_frames
 from spikenerf.camera.reconstruct import check_window
-from spikenerf.camera.spikecv import recording_config
+from spikenerf.camera.spikecv import recording_config, size_conflicts
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
@@ -63,15 +63,16 @@ class ImportOptions:
 
     Attributes:
         poses: ``colmap``, ``orbit`` (with ``orbit``) or a pose file/folder. height, width, config, raw_width,
-        fps, threshold, layout: the recording (flags win over the config.yaml). frame_range: a slice of steps.
+        fps, threshold, layout: the recording (``fps`` and ``threshold`` win over the config.yaml; a size that
+        differs from its own is refused). frame_range: a slice of steps.
         keyframe_every: steps between keyframes. window: TFP window (frames). test_every: every n-th
-        keyframe becomes a test view (0: none). fov_deg: horizontal field of view when the poses carry no
-        intrinsics. overlap: COLMAP sequential-matching overlap. loop_pairs: also match every pair of
-        keyframes (up to ``ColmapSettings.exhaustive_up_to`` keyframes), which closes an orbit's loop; off:
-        sequential matching only (symmetric scenes). min_registered: fraction of keyframes
-        COLMAP must register. verbose: show COLMAP's log. keyframe_images: ``tfp`` (window ``window``) or
-        ``learned`` (the shipped learned reconstructor, at its trained window). max_features, sift_peak,
-        affine_sift, final_ba, contrast: COLMAP settings
+        keyframe becomes a test view (0: none). fov_deg: horizontal field of view (wins over the pose
+        source's intrinsics; needed where it has none). overlap: COLMAP sequential-matching overlap.
+        loop_pairs: also match every pair of keyframes (up to ``ColmapSettings.exhaustive_up_to``
+        keyframes), which closes an orbit's loop; off: sequential matching only (symmetric scenes).
+        min_registered: fraction of keyframes COLMAP must register. verbose: show COLMAP's log.
+        keyframe_images: ``tfp`` (window ``window``) or ``learned`` (the shipped learned reconstructor, at its
+        trained window). max_features, sift_peak, affine_sift, final_ba, contrast: COLMAP settings
         (:class:`spikenerf.importing.colmap.ColmapSettings`). smooth: local quadratic smoothing of the
         keyframe poses over this many steps (0: off; :func:`spikenerf.importing.alignment.smooth_poses`).
         orient: ``up`` turns a frame without a stated scene box upright and its vertical planes onto the axes
@@ -110,6 +111,27 @@ class ImportOptions:
     command: str = ""
 
 
+#: the settings of the COLMAP estimate (``poses="colmap"``), meaningless with given poses
+COLMAP_ONLY = (
+    "overlap",
+    "loop_pairs",
+    "min_registered",
+    "max_features",
+    "sift_peak",
+    "affine_sift",
+    "final_ba",
+    "contrast",
+    "verbose",
+)
+
+
+def _same(value: object, default: object) -> bool:
+    """``value`` is the option's default (a float to 4 digits: the CLI passes 0.006667 for 0.02/3)."""
+    if isinstance(value, float) and isinstance(default, float):
+        return math.isclose(value, default, rel_tol=1e-4)
+    return value == default
+
+
 def _check(options: ImportOptions) -> None:
     for name in ("keyframe_every", "window", "overlap"):
         if getattr(options, name) < 1:
@@ -145,6 +167,19 @@ def _check(options: ImportOptions) -> None:
         raise InputError(
             "orbit R,ELEV[,TURNS[,AZIMUTH]] goes with poses orbit (and only with it)",
             param=("orbit", "poses"),
+        )
+    defaults = ImportOptions()
+    colmap_only = [n for n in COLMAP_ONLY if not _same(getattr(options, n), getattr(defaults, n))]
+    if options.poses != "colmap" and colmap_only:
+        raise InputError(
+            f"{', '.join(colmap_only)}: only used with poses colmap (COLMAP's estimate); poses "
+            f"{options.poses!r} gives the poses",
+            param=(*colmap_only, "poses"),
+        )
+    if options.keyframe_images == "learned" and options.window != defaults.window:
+        raise InputError(
+            "window sets the TFP keyframes; keyframe_images learned reads the network's own window",
+            param=("window", "keyframe_images"),
         )
 
 
@@ -305,6 +340,13 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     dat, out = Path(dat), Path(out)
     _check(opts)
     rc = recording_config(dat, opts.height, opts.width, opts.config)
+    if conflicts := size_conflicts(rc.path, opts.height, opts.width, opts.raw_width):  # a typo writes garbage
+        param, given, key, value = conflicts[0]
+        raise InputError(
+            f"{param} {given} differs from {key} {value} in {rc.path}, which describes this recording: "
+            "leave it out, or correct that file if it is wrong",
+            param=param,
+        )
     h, w = int(rc.height or 0), int(rc.width or 0)
     raw = opts.raw_width if opts.raw_width is not None else rc.raw_width
     fps = next(v for v in (opts.fps, rc.fps, DEFAULT_FPS) if v is not None)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from spikenerf.core.errors import InputError
-from spikenerf.pipelines.benchmark.cells import BenchmarkConfig
+from spikenerf.pipelines.benchmark.cells import BenchmarkConfig, check_size
 from spikenerf.pipelines.benchmark.tables import Cell, table1_markdown
 from spikenerf.pipelines.suite import benchmark_with_report
 
@@ -69,11 +69,12 @@ class DemoConfig:
         iters = p.iters if self.iters is None else self.iters
         frames = p.frames if self.frames is None else self.frames
         views = p.test_views if self.test_views is None else self.test_views
-        if size < 8 or iters < 1 or frames < 2 or views < 1:
+        check_size(size)
+        if iters < 1 or frames < 2 or views < 1:
             raise InputError(
-                f"demo sizes: expected size ≥ 8, iters ≥ 1, frames ≥ 2, test views ≥ 1; "
-                f"found {size}, {iters}, {frames}, {views}",
-                param=("size", "iters"),
+                f"demo sizes: expected iters ≥ 1, frames ≥ 2, test views ≥ 1; found {iters}, {frames}, "
+                f"{views}",
+                param=("iters", "frames"),
             )
         window = min(p.spike_window, frames)
         return Preset(size, frames, iters, views, p.batch, window, p.spike_pixels)

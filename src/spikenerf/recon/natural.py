@@ -82,7 +82,7 @@ def motion_grids(
     top = min(2.0, max(0.6, min(h, w) / (1.6 * size)))  # ≤ 2: sub-samples at most one source pixel apart
     scale = float(math.exp(rng.uniform(math.log(0.6), math.log(top))))
     px_per_degree = size / math.degrees(CAMERA_ANGLE_X)
-    speed = 0.0 if motion == "still" else float(rng.uniform(0.02, max_speed))
+    speed = 0.0 if motion == "still" else float(rng.uniform(min(0.02, max_speed), max_speed))
     heading, roll0 = rng.uniform(0, 2 * math.pi), rng.uniform(0, 2 * math.pi)
     velocity = np.zeros(2)
     spin, zoom = 0.0, 0.0

@@ -97,11 +97,8 @@ def random_scene(rng: np.random.Generator) -> tuple[analytic.Primitive, ...]:
 def motion_poses(rng: np.random.Generator, window: int, max_speed: float) -> tuple[np.ndarray, dict]:
     """Camera-to-world poses (K, 4, 4) of a random motion centred on the middle step, and its description."""
     motion = str(rng.choice(MOTIONS, p=[0.25, 0.45, 0.3]))
-    speed = (
-        0.0
-        if motion == "still"
-        else float(rng.uniform(0.02, max_speed if motion == "orbit" else max_speed / 3))
-    )
+    top = max_speed if motion == "orbit" else max_speed / 3
+    speed = 0.0 if motion == "still" else float(rng.uniform(min(0.02, top), top))  # (max_speed 0: all still)
     radius, elev = rng.uniform(1.7, 4.0), math.radians(rng.uniform(5, 60))
     az0, center = rng.uniform(0, 2 * math.pi), rng.uniform(-0.4, 0.4, 3)
     rel = np.arange(window) - window // 2

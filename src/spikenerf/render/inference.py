@@ -19,6 +19,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields.memory import ray_bytes
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.choices import PRECISIONS
+from spikenerf.render.choices import Precision as Precision  # (defined there, without torch)
 
 _DTYPES = {"fp16": torch.float16, "bf16": torch.bfloat16}
 #: rays per render call off CUDA (the fixed chunk before the automatic one)

@@ -34,7 +34,8 @@ SCHEDULE_BYTES = 1024
 
 # ----------------------------------------------------------------------------------------------- ranges
 def select_range(count: int, frame_range: FrameRange | None, path: Path | None = None) -> range:
-    """The listed-frame indices ``range(count)[A:B]``; an empty selection is an :class:`InputError`.
+    """The listed-frame indices ``range(count)[A:B]``; an empty selection, or an A or B past either end of the
+    ``count`` frames (which a Python slice would clip without a word), is an :class:`InputError`.
 
     ``frame_range`` is a slice (``core.errors.parse_range("A:B", "sequence_range")``) or ``(A, B)``."""
     if frame_range is None:
@@ -42,9 +43,17 @@ def select_range(count: int, frame_range: FrameRange | None, path: Path | None =
     start, stop = (
         (frame_range.start, frame_range.stop) if isinstance(frame_range, slice) else tuple(frame_range)
     )
+    shown = f"{'' if start is None else start}:{'' if stop in (None, OPEN_END) else stop}"
+    outside = [v for v in (start, stop) if v not in (None, OPEN_END) and not -count <= v <= count]
+    if outside:
+        raise InputError(
+            f"sequence_range {shown}: {outside[0]} is outside the {count} listed frames "
+            f"(-{count} to {count})",
+            path=path,
+            param="sequence_range",
+        )
     selected = range(count)[slice(start, stop)]
     if len(selected) == 0:
-        shown = f"{'' if start is None else start}:{'' if stop in (None, OPEN_END) else stop}"
         raise InputError(
             f"sequence_range {shown} selects no frames out of {count} listed",
             path=path,

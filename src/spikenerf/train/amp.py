@@ -11,6 +11,9 @@ import contextlib
 
 import torch
 
+from spikenerf.train.settings import AMP_MODES as AMP_MODES  # (defined there, without torch)
+from spikenerf.train.settings import AmpMode as AmpMode
+
 _DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 
 

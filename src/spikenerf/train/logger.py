@@ -18,6 +18,7 @@ from torch import Tensor
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError, check_choice
 from spikenerf.train.settings import LOG_KINDS
+from spikenerf.train.settings import LogKind as LogKind  # (defined there, without torch)
 
 #: sub-folder of the run folder that holds the event files
 TENSORBOARD_DIR = "tensorboard"

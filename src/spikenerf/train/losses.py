@@ -18,7 +18,9 @@ import torch
 
 from spikenerf.camera.model import fire
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
+from spikenerf.train.settings import SPIKE_LOSS_KINDS as SPIKE_LOSS_KINDS  # (defined there)
 from spikenerf.train.settings import PairMode
+from spikenerf.train.settings import SpikeLossKind as SpikeLossKind
 
 
 def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

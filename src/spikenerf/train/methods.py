@@ -113,6 +113,9 @@ METHOD_KEYS = (
     "exposure.",
 )
 SHARED_KEYS = ("spike.window", "targets.recon")
+#: the window lengths every run records for eval's no-reference checks and the hold-out guard band, and that
+#: only some methods also train with (:attr:`TrainMethod.trains_with`)
+WINDOW_KEYS = ("targets.window", "spike.window")
 
 #: a spike-aligned window (``integral.align``) spans at most this many times the longest window length
 ALIGN_LONGEST = 8
@@ -213,7 +216,8 @@ class TrainMethod:
         default_batch: rays per step when ``batch`` is not given (``TrainConfig.rays_per_step``).
         learns_poses: it learns its views' poses itself (pose refinement stays off by default).
         reads: the :data:`METHOD_KEYS` it reads (:func:`unused_keys`).
-        summary: what it trains on, for ``spikenerf train --help``.
+        trains_with: the :data:`WINDOW_KEYS` that shape its training (:func:`check_only_keys`); the others
+            set only eval's no-reference checks and the hold-out guard band.
     """
 
     name: ClassVar[str]
@@ -223,6 +227,7 @@ class TrainMethod:
     default_batch: ClassVar[int] = DEFAULT_BATCH
     learns_poses: ClassVar[bool] = False
     reads: ClassVar[tuple[str, ...]] = ()
+    trains_with: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def check(cls, config: Config) -> None:
@@ -265,6 +270,11 @@ class TrainMethod:
 
     def ablations(self) -> list[str]:
         """The parts of the method the config switched off (``no mask``, ``no spike loss``)."""
+        return []
+
+    def settings(self) -> list[str]:
+        """The method's key settings as ``info`` and ``train`` print them (``targets tfp, window 41``), from
+        a run's recorded config, whose dataset-dependent defaults :meth:`for_dataset` filled in."""
         return []
 
     # ---------------------------------------------------------------------------------------------- setup
@@ -405,6 +415,9 @@ class NerfBlurAware(NerfBlur):
     def poses_per_view(self) -> int:
         return self.config.targets.blur_samples
 
+    def settings(self) -> list[str]:
+        return [f"{self.poses_per_view()} renders across each exposure"]
+
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         return blur_targets(dataset, self.config.color, self.poses_per_view(), self.name)
 
@@ -438,6 +451,9 @@ class NerfBAD(NerfBlur):
     def poses_per_view(self) -> int:
         return self.config.targets.blur_samples
 
+    def settings(self) -> list[str]:
+        return [f"{self.poses_per_view()} renders between each exposure's learned start and end poses"]
+
     def learner(self, device: torch.device) -> PoseLearner | None:
         t, c = self.targets, self.config
         assert t is not None, "build_targets first"
@@ -456,9 +472,17 @@ class NerfRecon(TrainMethod):
 
     name, uses_stream = "nerf-recon", True
     reads = ("targets.recon", "targets.window_poses")
+    trains_with = ("targets.window",)
 
     def poses_per_view(self) -> int:
         return self.config.window_poses()
+
+    def settings(self) -> list[str]:
+        t = self.config.targets
+        window = "" if t.recon == "tfi" else f", window {t.window}"  # (TFI has none)
+        poses = self.poses_per_view()
+        aware = f", each the mean of {poses} renders across its window" if poses > 1 else ""
+        return [f"targets {t.recon}{window}{aware}"]
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
         t = self.config.targets
@@ -471,6 +495,7 @@ class SpikeNeRF(NerfRecon):
 
     name, has_spike_loss = "spike-nerf", True
     reads = (*NerfRecon.reads, "targets.mask", "spike.")
+    trains_with = ("targets.window", "spike.window")
 
     @property
     def uses_mask(self) -> bool:
@@ -479,6 +504,19 @@ class SpikeNeRF(NerfRecon):
     def ablations(self) -> list[str]:
         off = (("no mask", self.uses_mask), ("no spike loss", self.uses_spike_loss))
         return [name for name, on in off if not on]
+
+    def settings(self) -> list[str]:
+        c = self.config
+        out = super().settings()
+        if self.uses_mask:
+            out.append(f"masks: a spike in steps k-{c.targets.mask_n}..k+{c.targets.mask_n}")
+        if self.uses_spike_loss:
+            kind = "interval (differentiable)" if c.spike.kind == "interval" else "the paper's (no gradient)"
+            out.append(
+                f"spike loss {kind}, λ {c.spike.lam:g}, windows of {c.spike.window} steps × "
+                f"{c.spike.pixels} pixels"
+            )
+        return out
 
     def build_targets(self, dataset: SpikeDataset) -> None:
         stream = load_stream(dataset, self.config.color)
@@ -587,6 +625,21 @@ class SpikeIntegral(TrainMethod):
                 "reconstructed images (use nerf-recon or spike-nerf for reconstruction targets)",
                 param="targets.recon",
             )
+
+    def settings(self) -> list[str]:
+        c = self.config.integral
+        lengths = "from the dataset" if c.lengths is None else "/".join(map(str, c.lengths)) + " steps"
+        out = [f"windows {lengths}, {c.samples} render{'s' if c.samples > 1 else ''} each"]
+        if c.track is None:
+            out.append("track from the dataset")
+        elif c.track:
+            late = " (after the run's end)" if c.track_after >= self.config.iters else ""
+            out.append(f"track windows of {2 * c.track + 1} steps from iteration {c.track_after}{late}")
+        else:
+            out.append("no track")
+        if c.prior != "none":
+            out.append(f"prior {c.prior} (weight {c.prior_weight:g})")
+        return out
 
     @classmethod
     def for_dataset(cls, config: Config, dataset: SpikeDataset) -> Config:
@@ -769,6 +822,13 @@ def unused_keys(method: str, keys: Iterable[str]) -> list[str]:
 
     reads = method_class(method).reads
     return [k for k in keys if among(k, METHOD_KEYS) and not among(k, (*reads, *SHARED_KEYS))]
+
+
+def check_only_keys(method: str, keys: Iterable[str]) -> list[str]:
+    """The :data:`WINDOW_KEYS` among ``keys`` that do not change how ``method`` trains (they still set eval's
+    no-reference checks and the hold-out guard band), in the given order."""
+    trains_with = method_class(method).trains_with
+    return [k for k in keys if k in WINDOW_KEYS and k not in trains_with]
 
 
 def make_method(config: Config) -> TrainMethod:

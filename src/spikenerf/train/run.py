@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -11,13 +12,16 @@ import torch
 
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
-from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
+from spikenerf.data.dataset import CONFIG as DATASET_CONFIG
+from spikenerf.data.dataset import SpikeDataset, load_dataset, read_mapping, spike_files
 from spikenerf.data.holdout import read_record
 from spikenerf.render.base import RadianceModel
 from spikenerf.train.checkpoint import CHECKPOINT, check_same_run, load_checkpoint, model_of
 from spikenerf.train.config import CONFIG_FILE, TrainConfig, load_run_config
 from spikenerf.train.methods import make_method
 
+#: a metrics file and the run's iterations → the lines ``info`` prints of it (``eval.describe.metrics_lines``)
+MetricsLines = Callable[[Path, int], list[str]]
 #: what a run that reached its iterations reports (:class:`TrainSummary`)
 SUMMARY = "summary.json"
 
@@ -162,8 +166,10 @@ def run_iteration(run_dir: str | Path) -> int:
     return int(load_checkpoint(Path(run_dir) / CHECKPOINT, map_location=torch.device("cpu"))["iteration"])
 
 
-def describe_run(run_dir: str | Path) -> str:
-    """A few lines about a run folder: method, field, progress, last curve point and metrics if evaluated."""
+def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> str:
+    """A few lines about a run folder: method and its key settings, field, progress, the last curve point
+    and, with ``metrics`` (``spikenerf.eval.describe.metrics_lines``; eval sits above this layer), the
+    scores of each metrics file eval wrote."""
     from spikenerf.train.evaluate import CURVES, read_curves
 
     run_dir = Path(run_dir)
@@ -173,19 +179,20 @@ def describe_run(run_dir: str | Path) -> str:
         ckpt = load_checkpoint(run_dir / CHECKPOINT, map_location=torch.device("cpu"))
         check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)
         done = int(ckpt["iteration"])
+    method = make_method(config)
     lines = [
         f"run: {run_dir}",
-        f"method: {make_method(config).describe()}",
-        f"color: {config.color}   field: {config.field}   seed: {config.seed}   dataset: {config.dataset}",
+        f"method: {method.describe()}",
+        *([f"settings: {'; '.join(found)}"] if (found := method.settings()) else []),
+        f"color: {config.color}   field: {config.field}   seed: {config.seed}   batch: "
+        f"{config.rays_per_step()} rays   dataset: {config.dataset}",
         f"iterations: {done} of {config.iters}"
         + ("" if done >= config.iters else "  (resume with --resume)"),
     ]
-    if (poses := config.window_poses()) > 1:
-        lines.append(
-            f"eval's TFP keyframes (an imported dataset's test views): each against the mean of {poses} "
+    if config.method == "spike-integral" and (poses := config.window_poses()) > 1 and _tfp_keyframes(config):
+        lines.append(  # it trains on spike counts; only eval's keyframe scores read window_poses
+            f"eval's TFP keyframes (the imported dataset's test views): each against the mean of {poses} "
             "renders across its window"
-            if config.method == "spike-integral"  # it trains on spike counts, not on TFP targets
-            else f"targets: window-aware, each the mean of {poses} renders across its TFP window"
         )
     if (held := read_record(run_dir)) is not None:
         lines.append(
@@ -199,48 +206,26 @@ def describe_run(run_dir: str | Path) -> str:
             train_psnr, test_psnr = summary.train_psnr, summary.test_psnr
         lines.append(
             f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
-            f"train PSNR {train_psnr:.2f} dB, test PSNR {test_psnr:.2f} dB"
+            f"train PSNR {train_psnr:.2f} dB (against its training targets), test PSNR "
+            f"{test_psnr:.2f} dB"
         )
     for name in ("metrics.json", "metrics_train.json"):  # eval's held-out scores, and --split train's
-        if (path := run_dir / name).exists():
-            lines += _metrics_lines(path, done)
+        if metrics is not None and (path := run_dir / name).exists():
+            lines += metrics(path, done)
     return "\n".join(lines)
 
 
-def _metrics_lines(path: Path, done: int) -> list[str]:
-    """``info``'s lines of one metrics file (InputError naming it when it is unreadable or malformed)."""
-    import json
-
+def _tfp_keyframes(config: TrainConfig) -> bool:
+    """Whether the run's dataset has TFP keyframes as test views (an ``import``; its ``config.yaml``
+    records ``imported.test_keyframes``), which eval scores against a mean of renders across each window.
+    False where the dataset is gone or unreadable (``info`` still describes the run)."""
     try:
-        text = path.read_text()
-    except OSError as err:
-        raise InputError(f"cannot read it ({err.strerror or err})", path=path) from err
-    lines = []
-    try:
-        metrics = json.loads(text)
-        scored = f"{path.name} ({metrics['split']}, {metrics['views']} views{_per_view(metrics)})"
-        if isinstance(scored_at := metrics.get("iterations"), int) and scored_at < done:
-            scored += f" [of iteration {scored_at}, not {done}: run eval again]"
-        noref = "no-reference" + ("" if path.name == "metrics.json" else f" ({path.name})")
-        for label, mean in ((scored, metrics.get("mean")), (noref, _noref_mean(metrics))):
-            values = "   ".join(f"{k} {v:.4g}" for k, v in (mean or {}).items() if v is not None)
-            if values:
-                lines.append(f"{label}: {values}")
-    except KeyError as err:
-        raise InputError(f"malformed metrics: no {err}; run eval again to rewrite it", path=path) from err
-    except (ValueError, TypeError, AttributeError) as err:
-        raise InputError(f"malformed metrics ({err}); run eval again to rewrite it", path=path) from err
-    return lines
-
-
-def _per_view(metrics: dict) -> str:
-    """How each view was scored: ", each against the mean of S renders" where eval averaged S > 1 poses
-    (``view_poses``; absent in metrics written before it was recorded)."""
-    poses = metrics.get("view_poses") or 1
-    return f", each against the mean of {poses} renders" if poses > 1 else ""
-
-
-def _noref_mean(metrics: dict) -> dict | None:
-    """The means of metrics.json's no-reference checks (docs/metrics.md), if eval ran them."""
-    section = metrics.get("no_reference")
-    return section.get("mean") if isinstance(section, dict) else None
+        dataset_config = read_mapping(Path(config.dataset) / DATASET_CONFIG, "YAML")
+    except InputError:
+        return False
+    imported = dataset_config.get("imported")
+    return (
+        isinstance(imported, dict)
+        and bool(imported.get("test_keyframes"))
+        and imported.get("keyframe_images", "tfp") == "tfp"
+    )

@@ -1,6 +1,6 @@
 """What training takes, without importing torch: the typed choices, the default sizes and the small config
 sections that the torch modules read too. ``train/config.py`` (the typed :class:`TrainConfig`) and the CLI's
-options are built from here, so that ``spikenerf train --help`` and a config check never import torch; each
+options are built from here, so that ``spikenerf train --help`` never imports torch; each
 choice's meaning stays with the module that implements it (``amp``, ``logger``, ``losses``, ``methods``)."""
 
 from __future__ import annotations

@@ -282,6 +282,11 @@ class Trainer:
         if ckpt is not None:  # the same dataset, and not fewer iterations than already done
             check_resume_fits(ckpt, self.config, self.dataset)
         self.config = gpu_default_batch(config, self.config, self.device)
+        if self.config.amp == "fp16" and self.device.type != "cuda" and ckpt is None:  # it runs (CPU tests)
+            warn(
+                "--amp fp16 is meant for CUDA (with its gradient scaler); "
+                f"on {self.device.type} use --amp bf16"
+            )
         check_train_resources(self.config, self.dataset, self.out)
         self.method = make_method(self.config)
         check_step_memory(self.config, self.method, self.device)
@@ -295,9 +300,18 @@ class Trainer:
             self.method.build_targets(self.dataset)  # learned targets: on the training device, cached
         holdout = self.method.hold_out(self.dataset)
         self.holdout = None if holdout is None else holdout.record(self.dataset.trajectory.steps)
+        unheld = [f"--{k.replace('_', '-')}" for k in ("holdout_steps", "holdout_radius")
+                  if getattr(self.config, k) != getattr(TrainConfig, k)]  # fmt: skip
+        if holdout is None and unheld and ckpt is None:  # (on for imported datasets; --holdout elsewhere)
+            warn(f"{', '.join(unheld)}: this run holds out no steps (--holdout turns the hold-out on)")
         self.height, self.width = self.dataset.intrinsics.height, self.dataset.intrinsics.width
         self.channels = self.method.channels
         self.test_views = eval_view_targets(self.dataset, config.color, config.eval_views)
+        held = 0 if self.dataset.test is None else len(self.dataset.test.images)
+        if (
+            config.eval_views > held and config.eval_views != TrainConfig.eval_views and ckpt is None
+        ):  # (asked)
+            warn(f"--eval-views {config.eval_views}: the dataset has {held} test views; evaluating {held}")
         self.samplers: dict[str, Any] = self.method.make_samplers(self.height, self.width)
         torch.manual_seed(config.seed)
         if ckpt is None:
@@ -307,6 +321,7 @@ class Trainer:
         else:
             self.model = model_of(ckpt, ckpt_path)
         self.model.to(self.device)
+        self.model.field.prepare()  # the fused CPU kernel's first build is not training time
         if self.config.compile and not static_samples(self.model):  # eager again, with a warning, on failure
             compile_field(self.model.field, warn)
         self.optimizer = make_optimizer(self.model, config)

@@ -18,10 +18,25 @@ import torch
 
 from spikenerf import __version__
 from spikenerf.core.errors import InputError, comma_list, parse_int
+from spikenerf.eval.metrics import SSIMConfig
 from spikenerf.pipelines.benchmark.executor import get_executor
 from spikenerf.pipelines.benchmark.tables import Cell
 from spikenerf.pipelines.benchmark.variants import ABLATION_VARIANTS, TABLE1_VARIANTS, VARIANTS
 from spikenerf.scenes.registry import blender_available, list_scenes
+
+
+def check_size(size: int) -> None:
+    """InputError (naming ``size``) unless the benchmark's image side ``size`` is a multiple of 4 (width ×
+    height a multiple of 8, as a ``.dat`` file packs 8 pixels a byte) and fits SSIM's window (11 px,
+    ``eval.metrics.SSIMConfig``): smaller images get no SSIM, and no cell could be tabulated."""
+    window = SSIMConfig().window
+    smallest = window + (-window) % 4
+    if size < smallest or size % 4:
+        raise InputError(
+            f"size must be a multiple of 4 (width × height a multiple of 8, for the .dat file) and at least "
+            f"{smallest} (SSIM's {window}-pixel window), found {size}",
+            param="size",
+        )
 
 
 @dataclass
