@@ -249,6 +249,13 @@ def test_a_frame_size_flag_that_differs_from_the_config_beside_the_file_is_named
         f"spikenerf: warning: {path}: --width {H} differs from spike_w {W} in {config}; using --width {H}",
         f"spikenerf: warning: {path}: --height {W} differs from spike_h {H} in {config}; using --height {W}",
     ]
+    (path.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\nfps: 20000\n")
+    code, out, err = run_cli(capsys, "info", path, "--fps", 1000)
+    assert code == 0 and "duration: 120 ms at 1000 Hz" in out
+    assert (
+        err.strip()
+        == f"spikenerf: warning: {path}: --fps 1000 differs from fps 20000 in {config}; using --fps 1000"
+    )
     code, _, err = run_cli(capsys, "info", path, "--width", W, "--height", H)  # agreeing flags: no word
     assert code == 0 and err == ""
 

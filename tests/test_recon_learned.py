@@ -239,7 +239,8 @@ def test_recon_commands_reject_bad_folders_with_one_line(capsys, tmp_path: Path)
     assert code == 2 and err.count("\n") == 1 and "manifest.json" in err
     code, _, err = run_cli(capsys, "recon-data", "--out", tmp_path / "p", "--window", 8)
     assert code == 2 and err.count("\n") == 1 and "--window" in err
-    for flag, value in [("--brightness", "0.5:inf"), ("--max-speed", "inf"), ("--threshold", "inf")]:
+    for flag, value in [("--brightness", "0.5:inf"), ("--max-speed", "inf"), ("--threshold", "inf"),
+                        ("--extra-draws", 5)]:  # fmt: skip  # (the last: no --scene or --sequence)
         code, _, err = run_cli(capsys, "recon-data", "--out", tmp_path / "p", flag, value)
         assert code == 2 and err.count("\n") == 1 and flag in err, err
     (tmp_path / "bad").mkdir()

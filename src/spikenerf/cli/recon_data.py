@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
@@ -136,6 +137,9 @@ def command(
         )
     if set(scenes) & set(VAL_SCENES):
         raise InputError(f"--scene: {', '.join(VAL_SCENES)} are held out for validation")
+    given = click.get_current_context().get_parameter_source("extra_draws") is ParameterSource.COMMANDLINE
+    if given and not (scenes or sequences):
+        raise InputError("--extra-draws sets the draws of each --scene or --sequence source; none is given")
     extra = _sources(scenes, sequences, size, window, seed)
     command_line = "spikenerf " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     write_pairs(out, cfg, train_draws, val_draws, seed, extra, extra_draws, command_line,
