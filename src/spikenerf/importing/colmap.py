@@ -54,7 +54,7 @@ class ColmapSettings:
     overlap: int = 10
     exhaustive_up_to: int = 120
     max_features: int = 8192
-    peak_threshold: float = 0.02 / 3
+    peak_threshold: float = round(0.02 / 3, 6)  # as the CLI shows and passes it
     affine: bool = False
     upsample: bool = True
     contrast: float = 0.0

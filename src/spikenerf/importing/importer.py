@@ -102,7 +102,7 @@ class ImportOptions:
     verbose: bool = False
     keyframe_images: str = "tfp"
     max_features: int = 8192
-    sift_peak: float = 0.02 / 3
+    sift_peak: float = round(0.02 / 3, 6)  # the CLI default, exactly
     affine_sift: bool = False
     final_ba: bool = True
     contrast: float = 0.0
@@ -123,13 +123,6 @@ COLMAP_ONLY = (
     "contrast",
     "verbose",
 )
-
-
-def _same(value: object, default: object) -> bool:
-    """``value`` is the option's default (a float to 4 digits: the CLI passes 0.006667 for 0.02/3)."""
-    if isinstance(value, float) and isinstance(default, float):
-        return math.isclose(value, default, rel_tol=1e-4)
-    return value == default
 
 
 def _check(options: ImportOptions) -> None:
@@ -169,7 +162,7 @@ def _check(options: ImportOptions) -> None:
             param=("orbit", "poses"),
         )
     defaults = ImportOptions()
-    colmap_only = [n for n in COLMAP_ONLY if not _same(getattr(options, n), getattr(defaults, n))]
+    colmap_only = [n for n in COLMAP_ONLY if getattr(options, n) != getattr(defaults, n)]
     if options.poses != "colmap" and colmap_only:
         raise InputError(
             f"{', '.join(colmap_only)}: only used with poses colmap (COLMAP's estimate); poses "
