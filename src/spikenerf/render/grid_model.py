@@ -8,7 +8,13 @@ from torch import Tensor
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridField
 from spikenerf.render.base import RadianceModel
-from spikenerf.render.volume import RenderOutput, early_stop_mask, packed_composite, packed_weights
+from spikenerf.render.volume import (
+    RenderOutput,
+    early_stop_mask,
+    packed_composite,
+    packed_weights,
+    ray_offsets,
+)
 
 #: slots the static march lays out for each slot of the ``static_samples`` budget (most are empty space)
 MARCH_SLOTS = 4
@@ -155,15 +161,16 @@ class GridModel(RadianceModel):
         ray, k = self._march(o_n, d_n, near, far, step)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
         sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
+        offsets = ray_offsets(ray, n)
         if cfg.early_stop and len(ray) and torch.is_grad_enabled():  # on σ, so its gradient is exactly 0
-            sigma = torch.where(early_stop_mask(sigma, deltas, ray, n, cfg.early_stop), sigma, 0.0)
-        weights = packed_weights(sigma, deltas, ray, n)
+            sigma = torch.where(early_stop_mask(sigma, deltas, ray, n, cfg.early_stop, offsets), sigma, 0.0)
+        weights = packed_weights(sigma, deltas, ray, n, offsets)
         app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
         if len(app):
             rgb = field.color_norm(xn.index_select(0, app), dirs.index_select(0, ray.index_select(0, app)))
         else:
             rgb = t.new_zeros(0, field.channels)
-        color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app)
+        color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app, offsets=offsets)
         return RenderOutput(color, depth, opacity, num_samples=len(ray))
 
     def _render_static(
@@ -190,7 +197,9 @@ class GridModel(RadianceModel):
         if cfg.static_visible and cfg.early_stop:  # a no-grad pass finds where each ray stops
             with torch.no_grad():
                 sigma = torch.where(keep, field.density_norm(xn), 0.0)
-                keep = keep & early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop)
+                keep = keep & early_stop_mask(
+                    sigma, deltas, ray, 2 * n, cfg.early_stop, ray_offsets(ray, 2 * n)
+                )
             budget = n * cfg.static_visible
             source, filled, _ = slot_sources(keep, budget)
             ray, ray_at, k, keep, dropped = compact_slots(ray, ray_at, k, keep, dropped, n, budget)
@@ -200,11 +209,14 @@ class GridModel(RadianceModel):
             deltas = torch.where(filled, deltas.index_select(0, source), d_new)
             xn = torch.where(filled[:, None], xn.index_select(0, source), x_new)
             sigma = torch.where(keep, field.density_norm(xn), 0.0)
+            offsets = ray_offsets(ray, 2 * n)
         else:
             sigma = torch.where(keep, field.density_norm(xn), 0.0)
+            offsets = ray_offsets(ray, 2 * n)
             if cfg.early_stop:
-                sigma = torch.where(early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop), sigma, 0.0)
-        weights = packed_weights(sigma, deltas, ray, 2 * n)
+                stop = early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop, offsets)
+                sigma = torch.where(stop, sigma, 0.0)
+        weights = packed_weights(sigma, deltas, ray, 2 * n, offsets)
         shown = weights.detach() > cfg.weight_threshold
         lost = None
         if cfg.static_colors and n * cfg.static_colors < budget:
@@ -215,7 +227,7 @@ class GridModel(RadianceModel):
             rgb = picked.new_zeros(budget, picked.shape[1]).index_put((slots,), picked)
         else:
             rgb = torch.where(shown[:, None], field.color_norm(xn, dirs.index_select(0, ray_at)), 0.0)
-        color, depth, opacity = packed_composite(weights, ray, 2 * n, t, rgb, None)
+        color, depth, opacity = packed_composite(weights, ray, 2 * n, t, rgb, None, offsets=offsets)
         return RenderOutput(color[:n], depth[:n], opacity[:n], num_samples=budget, dropped_samples=dropped,
                             dropped_colors=lost)  # fmt: skip
 
