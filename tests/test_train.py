@@ -279,7 +279,9 @@ def test_windows_contiguous_and_inside(order: str) -> None:
         assert pixels.shape == (8, 2) and pixels[:, 0].max() < 6 and pixels[:, 1].max() < 4
         starts.append(start)
     if order == "sequential":
-        assert starts[:4] == [0, 16, 32, 0]  # consecutive windows, wrapping before running past the end
+        # consecutive windows; the last one ends at the stream's end (its last 2 steps are drawn too),
+        # then a new pass
+        assert starts[:5] == [0, 16, 32, 34, 0]
     state = sampler.state_dict()
     nxt = sampler.sample(8)
     sampler.load_state_dict(state)
@@ -287,6 +289,21 @@ def test_windows_contiguous_and_inside(order: str) -> None:
     assert nxt[0] == again[0] and torch.equal(nxt[1], again[1])
     with pytest.raises(InputError):
         WindowSampler(10, 4, 4, length=11)
+
+
+@pytest.mark.parametrize(("steps", "length", "stride"), [(50, 16, 16), (48, 16, 16), (30, 4, 3), (30, 8, 5)])
+def test_sequential_windows_visit_every_step_and_wrap(steps: int, length: int, stride: int) -> None:
+    """A pass of the sequential order covers every step of the stream (the T mod L last ones too), ends at
+    the last window position and starts again at 0; restricted to every start it draws the same."""
+    free = WindowSampler(steps, 2, 2, length, order="sequential", stride=stride)
+    listed = WindowSampler(steps, 2, 2, length, order="sequential", stride=stride,
+                           starts=torch.arange(steps - length + 1))  # fmt: skip
+    starts = [free.sample(1)[0] for _ in range(3 * steps)]
+    assert starts == [listed.sample(1)[0] for _ in range(3 * steps)]
+    one_pass = starts[: starts.index(0, 1)]
+    covered = {s + k for s in one_pass for k in range(length)}
+    assert covered == set(range(steps)) and one_pass[-1] == steps - length
+    assert starts[len(one_pass) : 2 * len(one_pass)] == one_pass  # the next pass is the same
 
 
 # ------------------------------------------------------------------------------------------------ training
@@ -541,6 +558,13 @@ def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
         assert notes[: len(said)] == said
         assert [n.partition(" does not")[0] for n in notes[len(said) :]] == list(checks_only)
         assert all(checks in n for n in notes[len(said) :])
+    for method, said in (("nerf-gt", True), ("nerf-recon", False)):  # nerf-gt reads no reconstruction
+        code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / f"r-{method}", "--method",
+                             method, "--recon", "tfi")  # fmt: skip
+        recon = (
+            f"--recon does not change how --method {method} trains; it only sets the reconstruction eval's"
+        )
+        assert code == 0 and [n.startswith(recon) for n in called[-1][1]] == ([True] if said else [])
     for recon, said in (("tfi", True), ("tfp", False)):  # TFI's targets have no window
         code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / recon, "--method",
                              "nerf-recon", "--recon", recon, "--window", "21")  # fmt: skip
@@ -777,6 +801,14 @@ def test_info_of_a_run_prints_the_psnr_that_train_printed(dataset_dir: Path, tmp
     (out / "summary.json").write_text(json.dumps(summary))
     line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
     assert "train PSNR 21.40 dB (against its training targets), test PSNR 18.00 dB" in line
+    kept = (out / "curves.csv").read_text()
+    (out / "curves.csv").write_text("iteration,seconds\n3,x\n")  # garbled: summary.json's line, and a note
+    lines = describe_run(out).splitlines()
+    assert "train PSNR 21.40 dB (against its training targets), test PSNR 18.00 dB (from summary.json)" in (
+        next(x for x in lines if x.startswith("last evaluation"))
+    )
+    assert any(x.startswith("curves.csv: not a training curve table") for x in lines)
+    (out / "curves.csv").write_text(kept)
     (out / "summary.json").unlink()  # an unfinished or older run: curves.csv's values
     line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
     assert "train PSNR 21.40" not in line

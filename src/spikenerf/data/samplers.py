@@ -56,8 +56,9 @@ class RaySampler:
 class WindowSampler:
     """Contiguous windows ``[start, start + L)`` of a T-step stream, each with P random pixels.
 
-    ``order="sequential"`` walks the stream deterministically (start advances by ``stride``, wrapping to 0
-    at the end), as the paper selects consecutive poses; ``order="random"`` draws the start uniformly.
+    ``order="sequential"`` walks the stream deterministically (start advances by ``stride``; a start past the
+    last window position, T − L, becomes T − L once, so that the stream's last steps are drawn too, and then
+    it wraps to 0), as the paper selects consecutive poses; ``order="random"`` draws the start uniformly.
     Windows always lie inside the stream. ``starts`` restricts the first steps drawn (the held-out bands,
     data/holdout.py): the random order draws among them, the sequential order takes the next one at or
     after its position. The checkpointed state is the same either way.
@@ -102,15 +103,22 @@ class WindowSampler:
             count = self.num_starts if starts is None else len(starts)
             start = int(torch.randint(0, count, (1,), generator=self.generator))
             start = start if starts is None else int(starts[start])
-        elif starts is None:
-            start = self.next_start if self.next_start < self.num_starts else 0
-            self.next_start = start + self.stride
         else:
-            i = int(torch.searchsorted(starts, self.next_start))
-            start = int(starts[i]) if i < len(starts) else int(starts[0])
+            start = self._next_sequential()
             self.next_start = start + self.stride
         flat = torch.randint(0, self.height * self.width, (pixels,), generator=self.generator)
         return start, torch.stack([flat % self.width, flat // self.width], dim=-1)
+
+    def _next_sequential(self) -> int:
+        """The sequential order's next first step: the first allowed one at or after ``next_start``; past the
+        last allowed one, that last one if the previous window started before it (so the stream's tail is
+        drawn), else the first (a new pass)."""
+        first, last = (0, self.num_starts - 1) if self.starts is None else map(int, self.starts[[0, -1]])
+        if self.next_start <= last:
+            if self.starts is None:
+                return self.next_start
+            return int(self.starts[int(torch.searchsorted(self.starts, self.next_start))])
+        return last if self.next_start - self.stride < last else first
 
     def state_dict(self) -> dict[str, Tensor | int]:
         return {"generator": self.generator.get_state(), "next_start": self.next_start}
