@@ -320,6 +320,13 @@ def test_info_and_reconstruct_refuse_a_file_that_is_not_a_recording(capsys, tmp_
     for argv in (["info"], ["reconstruct", "--method", "tfp", "--out", tmp_path / "x.npy"]):
         code, _, err = run_cli(capsys, *argv[:1], tmp_path / "config.yaml", *argv[1:])
         assert code == 2 and "is a .yaml file, not a .dat spike recording" in err
+    (tmp_path / "empty.dat").write_bytes(b"")  # a recording that was never written
+    for argv in (["info"], ["reconstruct", "--method", "tfp", "--out", tmp_path / "y.npy"]):
+        code, _, err = run_cli(
+            capsys, *argv[:1], tmp_path / "empty.dat", "--height", H, "--width", W, *argv[1:]
+        )
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "holds no frames" in err
+        assert not (tmp_path / "y.npy").exists()
 
 
 def test_a_frame_folder_reused_says_which_frames_it_replaced(capsys, stream, tmp_path: Path) -> None:

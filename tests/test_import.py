@@ -546,10 +546,16 @@ def test_a_pycolmap_failure_is_one_input_error(tmp_path, monkeypatch) -> None:
 def test_info_and_reconstruct_take_raw_width_from_the_config(capsys, recording, tmp_path) -> None:
     _, spikes = recording
     raw = tmp_path / "raw" / "stream.dat"
-    write_dat(raw, np.concatenate([spikes, np.ones((T, H, 16), np.uint8)], axis=2))
+    write_dat(raw, np.concatenate([spikes, np.zeros((T, H, 16), np.uint8)], axis=2))
     (raw.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\nraw_width: {W + 16}\n")
     code, out, err = run_cli(capsys, "info", raw)
-    assert code == 0 and f"stored rows {W + 16} wide" in out, err
+    assert code == 0 and f"stored rows {W + 16} wide" in out and not err, err
+    write_dat(raw, np.concatenate([spikes, np.ones((T, H, 16), np.uint8)], axis=2))  # padding that fires
+    code, out, err = run_cli(capsys, "info", raw)
+    said = f"the 16 columns that raw_width {W + 16} in {raw.parent / 'config.yaml'} strips from each row fire"
+    assert code == 0 and said in err and len(err.strip().splitlines()) == 1, err
+    code, out, err = run_cli(capsys, "info", raw, "--raw-width", W + 16)
+    assert code == 0 and f"the 16 columns that --raw-width {W + 16} strips from each row fire" in err, err
     code, _, err = run_cli(
         capsys, "reconstruct", raw, "--method", "tfp", "--frame", 20, "--out", tmp_path / "r.png"
     )

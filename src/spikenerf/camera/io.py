@@ -97,6 +97,23 @@ def raw_width_guess(path: str | Path, height: int, width: int, frames: int = 64)
     return raw if head[:, :, :width].any() and not head[:, :, width:].any() else None
 
 
+def stripped_columns_fire(
+    path: str | Path, height: int, width: int, raw_width: int, frames: int = 64
+) -> bool:
+    """Whether the ``raw_width − width`` columns that ``raw_width`` strips from each row fire in the file's
+    first ``frames`` frames. A raw sps10 recording's padding columns stay silent, so columns that fire say
+    that the file is not one (or ``raw_width`` is wrong). False where the file is not whole raw frames
+    (:func:`count_frames` names that)."""
+    try:
+        total = count_frames(path, height, width, raw_width)
+    except InputError:
+        return False
+    if not total:
+        return False
+    head = read_dat(path, height, raw_width, slice(0, min(frames, total)))
+    return bool(head[:, :, width:].any())
+
+
 def resolve_frames(frames: slice | int | None, total: int, path: str | Path | None = None) -> range:
     """A frame selection as a ``range`` of indices into a ``total``-frame stream, checked strictly.
 

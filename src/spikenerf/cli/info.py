@@ -29,7 +29,7 @@ def describe_dat(
         f"duration: {frames / fps * 1e3:.4g} ms at {fps:g} Hz",
     ]
     if frames == 0:
-        return [*lines, "spike rate: (no frames)"]
+        raise InputError("the spike file is empty (0 bytes): it holds no frames", path=path)
     summary = dat_rate_summary(path, height, width, layout, raw_width)
     rate = summary["mean_rate"]
     lines.append(

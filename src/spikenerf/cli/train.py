@@ -382,8 +382,12 @@ def _unused(method: str, given: set[str], overrides: tuple[str, ...], recon: str
             "sets the hold-out guard band"
         )
     notes += [
-        f"{keys[key]} does not change how --method {method} trains; it only sets eval's no-reference checks "
-        "and the hold-out guard band"
+        f"{keys[key]} does not change how --method {method} trains; it only sets "
+        + (
+            "the reconstruction eval's no-reference checks compare renders with"
+            if key == "targets.recon"
+            else "eval's no-reference checks and the hold-out guard band"
+        )
         for key in checks_only
     ]
     return notes

@@ -78,8 +78,9 @@ def dat_recording(path: Path, height: int | None, width: int | None, raw_width: 
     """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given.
     One warning line for each of ``width``/``height``/``raw_width`` that differs from the ``config.yaml``
     beside the file (when the given size fits the file; ``camera.spikecv.size_conflicts``), and one when the
-    file also reads as a raw sps10 recording (``camera.io.raw_width_guess``)."""
-    from spikenerf.camera.io import count_frames, raw_width_guess
+    file also reads as a raw sps10 recording (``camera.io.raw_width_guess``), or when the columns that
+    ``raw_width`` strips fire (``camera.io.stripped_columns_fire``)."""
+    from spikenerf.camera.io import count_frames, raw_width_guess, stripped_columns_fire
     from spikenerf.camera.spikecv import recording_config, size_conflicts
 
     if path.suffix.lower() in NOT_SPIKES:
@@ -97,6 +98,17 @@ def dat_recording(path: Path, height: int | None, width: int | None, raw_width: 
             differs = []
     for line in differs:
         click.echo(f"spikenerf: warning: {path}: {line}", err=True)
+    if config.raw_width is not None and stripped_columns_fire(
+        path, config.height, config.width, config.raw_width
+    ):
+        given = f"--raw-width {raw_width}" if raw_width is not None else f"raw_width {config.raw_width} in "
+        given += "" if raw_width is not None else str(config.path)
+        click.echo(
+            f"spikenerf: warning: {path}: the {config.raw_width - config.width} columns that {given} strips "
+            "from each row fire (a raw sps10 recording's padding stays silent): a plain recording has no "
+            "raw width",
+            err=True,
+        )
     if config.raw_width is None and (raw := raw_width_guess(path, config.height, config.width)) is not None:
         click.echo(
             f"spikenerf: warning: {path} also reads as raw sps10 rows of {raw} columns whose last "

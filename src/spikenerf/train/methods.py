@@ -825,10 +825,16 @@ def unused_keys(method: str, keys: Iterable[str]) -> list[str]:
 
 
 def check_only_keys(method: str, keys: Iterable[str]) -> list[str]:
-    """The :data:`WINDOW_KEYS` among ``keys`` that do not change how ``method`` trains (they still set eval's
-    no-reference checks and the hold-out guard band), in the given order."""
-    trains_with = method_class(method).trains_with
-    return [k for k in keys if k in WINDOW_KEYS and k not in trains_with]
+    """The keys among ``keys`` that do not change how ``method`` trains, in the given order: the
+    :data:`WINDOW_KEYS` it does not train with (they still set eval's no-reference checks and the hold-out
+    guard band), and ``targets.recon`` where it does not read it (it still sets the reconstruction that
+    eval's no-reference checks compare renders with)."""
+    cls = method_class(method)
+    return [
+        k
+        for k in keys
+        if (k in WINDOW_KEYS and k not in cls.trains_with) or (k == "targets.recon" and k not in cls.reads)
+    ]
 
 
 def make_method(config: Config) -> TrainMethod:
