@@ -3,14 +3,17 @@
 Usage (from the repository root; ``triton`` installed, ``TRITON_INTERPRET`` unset)::
 
     .venv/bin/python -m benchmarks.tools.triton_compile_report [--arch 90] [--warps 4] [--block 64]
-        [--channels 16,24]
+        [--channels 16,24] [--kernels vm,volume]
 
 Each kernel of ``fields/vm_triton_kernels.py`` (forward, backward) is compiled by Triton's own compiler and
 the bundled ``ptxas`` to a cubin for ``sm_<arch>`` (90: H100/H200), summed for 16 channels (the density)
 and per channel for the others (24: the appearance), with float32 pointers 16-byte aligned as torch
 allocates them. Printed per variant: registers a thread, stack and local bytes (spilled registers; 0 is
 wanted) and shared memory, from ``cuobjdump -res-usage``. A compile error fails the run (exit 1). What the
-GPU then does with them (speed) is ``bench_lookup``'s to measure.
+GPU then does with them (speed) is ``bench_lookup``'s to measure. ``--kernels volume`` (in the default
+list) compiles the compositing kernels of ``render/volume_triton_kernels.py`` too, as
+``volume_triton.LAUNCH`` launches them (its own block and warps; segment sums of 2 and 3 columns: the
+renderer's opacity and depth, and its colours).
 """
 
 from __future__ import annotations
@@ -74,20 +77,76 @@ def compile_variants(arch: int, warps: int, block: int, channels: list[int]) -> 
     return rows
 
 
+def compile_volume(arch: int) -> list[dict]:
+    """One row per compositing kernel (``segment_sum`` for 2 and 3 columns), as :func:`compile_variants`."""
+    import triton
+    from triton.backends.compiler import GPUTarget
+    from triton.compiler import ASTSource
+
+    from spikenerf.render import volume_triton
+    from spikenerf.render import volume_triton_kernels as kernels
+
+    block, warps = volume_triton.LAUNCH["BLOCK"], volume_triton.LAUNCH["num_warps"]
+    variants = [
+        ("depth_before", ["TAU", "OUT"], {}),
+        ("depth_before_backward", ["TAU", "G", "OUT"], {}),
+        ("segment_sum", ["VAL", "OUT"], {"K": 2, "KP": 2}),
+        ("segment_sum", ["VAL", "OUT"], {"K": 3, "KP": 4}),
+    ]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for j, (name, floats, extra) in enumerate(variants):
+            kernel = getattr(kernels, f"{name}_kernel")
+            consts = {"BLOCK": block, **extra}
+            signature = {
+                n: "constexpr"
+                if n in consts
+                else "*fp32"
+                if n in floats
+                else "*i64"
+                if n == "OFF"
+                else "fp32"
+                for n in kernel.arg_names
+            }
+            attrs = {(kernel.arg_names.index(p),): [["tt.divisibility", 16]] for p in (*floats, "OFF")}
+            source = ASTSource(fn=kernel, signature=signature, constexprs=consts, attrs=attrs)
+            done = triton.compile(source, target=GPUTarget("cuda", arch, 32), options={"num_warps": warps})
+            cubin = Path(tmp) / f"{name}{j}.cubin"
+            cubin.write_bytes(done.asm["cubin"])
+            tools = Path(triton.__file__).parent / "backends" / "nvidia" / "bin"
+            usage = subprocess.run([str(tools / "cuobjdump"), "-res-usage", str(cubin)], check=True,
+                                   capture_output=True, text=True).stdout  # fmt: skip
+            fields = dict(re.findall(r"\b(REG|STACK|SHARED|LOCAL):(\d+)", usage))
+            rows.append(
+                {"kernel": name, "columns": extra.get("K", ""), **{k: int(v) for k, v in fields.items()}}
+            )
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arch", type=int, default=90, help="compute capability × 10 (90: H100/H200)")
     parser.add_argument("--warps", type=int, default=4)
     parser.add_argument("--block", type=int, default=64, help="points per program (vm_triton.LAUNCH)")
     parser.add_argument("--channels", default="16,24")
+    parser.add_argument("--kernels", default="vm,volume", help="vm (the lookups), volume (compositing)")
     args = parser.parse_args()
-    rows = compile_variants(args.arch, args.warps, args.block, [int(c) for c in args.channels.split(",")])
-    print(f"sm_{args.arch}, {args.warps} warps, {args.block} points a program")
-    print("| kernel | channels | registers | stack B | local B (spills) | shared B |")
-    print("|---|---:|---:|---:|---:|---:|")
-    for r in rows:
-        label = f"{r['channels']}{' summed' if r['summed'] else ''}"
-        print(f"| {r['kernel']} | {label} | {r['REG']} | {r['STACK']} | {r['LOCAL']} | {r['SHARED']} |")
+    which = set(args.kernels.split(","))
+    if "vm" in which:
+        rows = compile_variants(args.arch, args.warps, args.block, [int(c) for c in args.channels.split(",")])
+        print(f"sm_{args.arch}, {args.warps} warps, {args.block} points a program")
+        print("| kernel | channels | registers | stack B | local B (spills) | shared B |")
+        print("|---|---:|---:|---:|---:|---:|")
+        for r in rows:
+            label = f"{r['channels']}{' summed' if r['summed'] else ''}"
+            print(f"| {r['kernel']} | {label} | {r['REG']} | {r['STACK']} | {r['LOCAL']} | {r['SHARED']} |")
+    if "volume" in which:
+        print(f"\ncompositing kernels, sm_{args.arch} (volume_triton.LAUNCH)")
+        print("| compositing kernel | columns | registers | stack B | local B (spills) | shared B |")
+        print("|---|---:|---:|---:|---:|---:|")
+        for r in compile_volume(args.arch):
+            usage = " | ".join(str(r[k]) for k in ("REG", "STACK", "LOCAL", "SHARED"))
+            print(f"| {r['kernel']} | {r['columns']} | {usage} |")
 
 
 if __name__ == "__main__":

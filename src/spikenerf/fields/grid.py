@@ -39,6 +39,8 @@ FACTORS = ("density_planes", "density_lines", "app_planes", "app_lines")
 
 #: how the grid field reads its factors (``GridFieldConfig.lookup``)
 Lookup = Literal["auto", "gather", "triton"]
+#: how the grid's renderer sums along its rays (``GridFieldConfig.composite``)
+Composite = Literal["torch", "triton"]
 
 
 @dataclass(frozen=True)
@@ -84,6 +86,10 @@ class GridFieldConfig:
             (training refuses a device they cannot run on; elsewhere, e.g. ``eval`` on a CPU, "auto").
             On an H200 a "triton" lookup ran 5–7× as fast as ``grid_sample`` and a "gather" one 3–6× as
             slow (docs/performance.md).
+        composite: how the renderer sums along its rays (:data:`Composite`). "torch" (the default): a float64
+            running sum for the transmittance and per-ray sums of torch ops. "triton": the Triton kernels of
+            ``render/volume_triton.py``, one program per ray, on CUDA (training refuses a device they
+            cannot run on; elsewhere "torch"). Not yet timed on a GPU.
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
@@ -138,6 +144,7 @@ class GridFieldConfig:
     static_colors: int = 0
     static_visible: int = 0
     lookup: Lookup = "auto"
+    composite: Composite = "torch"
     decoder_bf16: bool = True
     occupancy: bool = True
     occupancy_start: int = 250
@@ -182,10 +189,12 @@ class GridFieldConfig:
             )
 
     def check_device(self, device: torch.device) -> None:
-        """InputError (naming the option) for ``lookup`` "triton" on a device where its kernels cannot run."""
-        reason = why_not(device) if self.lookup == "triton" else ""
-        if reason:
-            raise InputError(f"field_config.lookup triton: {reason}", param="field_config.lookup")
+        """InputError (naming the option) for ``lookup`` or ``composite`` "triton" on a device where its
+        kernels cannot run."""
+        for name in ("lookup", "composite"):
+            reason = why_not(device) if getattr(self, name) == "triton" else ""
+            if reason:
+                raise InputError(f"field_config.{name} triton: {reason}", param=f"field_config.{name}")
 
     # the memory estimates of fields/memory.py and ``field_memory``, per field kind
     def training_size(self) -> tuple[float, float]:

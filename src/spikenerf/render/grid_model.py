@@ -7,6 +7,7 @@ from torch import Tensor
 
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridField
+from spikenerf.render import volume_triton
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.volume import (
     RenderOutput,
@@ -158,20 +159,27 @@ class GridModel(RadianceModel):
         d_n = dirs * (2.0 / (field.scene_box[1] - field.scene_box[0]))
         if cfg.static_samples and n and torch.is_grad_enabled():  # images, metrics: every sample
             return self._render_static(o_n, d_n, dirs, near, far, step, perturb)
+        fused = self.fused(o_n)
         ray, k = self._march(o_n, d_n, near, far, step)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
         sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
         offsets = ray_offsets(ray, n)
         if cfg.early_stop and len(ray) and torch.is_grad_enabled():  # on σ, so its gradient is exactly 0
-            sigma = torch.where(early_stop_mask(sigma, deltas, ray, n, cfg.early_stop, offsets), sigma, 0.0)
-        weights = packed_weights(sigma, deltas, ray, n, offsets)
+            stop = early_stop_mask(sigma, deltas, ray, n, cfg.early_stop, offsets, fused)
+            sigma = torch.where(stop, sigma, 0.0)
+        weights = packed_weights(sigma, deltas, ray, n, offsets, fused)
         app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
         if len(app):
             rgb = field.color_norm(xn.index_select(0, app), dirs.index_select(0, ray.index_select(0, app)))
         else:
             rgb = t.new_zeros(0, field.channels)
-        color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app, offsets=offsets)
+        color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app, offsets=offsets, fused=fused)
         return RenderOutput(color, depth, opacity, num_samples=len(ray))
+
+    def fused(self, points: Tensor) -> bool:
+        """Whether this render sums along its rays with the Triton kernels (``composite`` "triton" where
+        they run on ``points``' device; elsewhere, e.g. ``eval`` on a CPU, the torch sums)."""
+        return self.field.config.composite == "triton" and volume_triton.applies(points)
 
     def _render_static(
         self, o_n: Tensor, d_n: Tensor, dirs: Tensor, near: Tensor, far: Tensor, step: float, perturb: bool
@@ -190,6 +198,7 @@ class GridModel(RadianceModel):
         ``static_colors`` C > 0 in the C × N slots of largest weight only (:func:`colour_slots`).
         """
         field, cfg, n = self.field, self.field.config, o_n.shape[0]
+        fused = self.fused(o_n)
         budget = n * cfg.static_samples
         marched = self._march_static(o_n, d_n, near, far, step, MARCH_SLOTS * budget)
         ray, ray_at, k, keep, dropped = compact_slots(*marched, n, budget)
@@ -197,9 +206,8 @@ class GridModel(RadianceModel):
         if cfg.static_visible and cfg.early_stop:  # a no-grad pass finds where each ray stops
             with torch.no_grad():
                 sigma = torch.where(keep, field.density_norm(xn), 0.0)
-                keep = keep & early_stop_mask(
-                    sigma, deltas, ray, 2 * n, cfg.early_stop, ray_offsets(ray, 2 * n)
-                )
+                offsets = ray_offsets(ray, 2 * n)
+                keep = keep & early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop, offsets, fused)
             budget = n * cfg.static_visible
             source, filled, _ = slot_sources(keep, budget)
             ray, ray_at, k, keep, dropped = compact_slots(ray, ray_at, k, keep, dropped, n, budget)
@@ -214,9 +222,9 @@ class GridModel(RadianceModel):
             sigma = torch.where(keep, field.density_norm(xn), 0.0)
             offsets = ray_offsets(ray, 2 * n)
             if cfg.early_stop:
-                stop = early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop, offsets)
+                stop = early_stop_mask(sigma, deltas, ray, 2 * n, cfg.early_stop, offsets, fused)
                 sigma = torch.where(stop, sigma, 0.0)
-        weights = packed_weights(sigma, deltas, ray, 2 * n, offsets)
+        weights = packed_weights(sigma, deltas, ray, 2 * n, offsets, fused)
         shown = weights.detach() > cfg.weight_threshold
         lost = None
         if cfg.static_colors and n * cfg.static_colors < budget:
@@ -227,7 +235,9 @@ class GridModel(RadianceModel):
             rgb = picked.new_zeros(budget, picked.shape[1]).index_put((slots,), picked)
         else:
             rgb = torch.where(shown[:, None], field.color_norm(xn, dirs.index_select(0, ray_at)), 0.0)
-        color, depth, opacity = packed_composite(weights, ray, 2 * n, t, rgb, None, offsets=offsets)
+        color, depth, opacity = packed_composite(
+            weights, ray, 2 * n, t, rgb, None, offsets=offsets, fused=fused
+        )
         return RenderOutput(color[:n], depth[:n], opacity[:n], num_samples=budget, dropped_samples=dropped,
                             dropped_colors=lost)  # fmt: skip
 

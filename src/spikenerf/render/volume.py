@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.core.errors import InputError
+from spikenerf.render import volume_triton
 
 BACKGROUND = 1.0
 MAX_TAU = 1e3  # optical depth at which transmittance is 0 in float32 and float64
@@ -83,24 +84,32 @@ def ray_offsets(ray: Tensor, n_rays: int) -> Tensor:
     return torch.searchsorted(ray, torch.arange(n_rays + 1, device=ray.device, dtype=ray.dtype))
 
 
-def segment_sum(values: Tensor, ray: Tensor, offsets: Tensor) -> Tensor:
+def segment_sum(values: Tensor, ray: Tensor, offsets: Tensor, fused: bool = False) -> Tensor:
     """Per-ray sums (N, ...) of packed values (M, ...): rows ``offsets[r]:offsets[r + 1]`` summed for ray r.
 
     Args:
         values: (M, ...). ray: (M,) non-decreasing ray of each row.
-        offsets: (N + 1,) from :func:`ray_offsets`.
+        offsets: (N + 1,) from :func:`ray_offsets`. fused: (N, K) float32 values summed by the Triton
+            kernel of ``volume_triton.py`` (check ``volume_triton.applies``).
     Returns:
         (N, ...), 0 for a ray without rows; differentiable in ``values``. On a CPU ``torch.segment_reduce``
         (each ray's rows added in order by one thread: 3–4× faster than ``index_add``'s scatter with its
         gradient, the same sums); elsewhere ``index_add``.
     """
+    if fused and values.dim() <= 2:
+        return volume_triton.segment_sum(values, ray, offsets)
     if values.device.type == "cpu" and values.dtype in (torch.float32, torch.float64):
         return torch.segment_reduce(values, "sum", offsets=offsets, axis=0, unsafe=True)
     return values.new_zeros((len(offsets) - 1, *values.shape[1:])).index_add(0, ray, values)
 
 
 def packed_weights(
-    sigma: Tensor, deltas: Tensor, ray: Tensor, n_rays: int, offsets: Tensor | None = None
+    sigma: Tensor,
+    deltas: Tensor,
+    ray: Tensor,
+    n_rays: int,
+    offsets: Tensor | None = None,
+    fused: bool = False,
 ) -> Tensor:
     """Compositing weights (M,) of M samples packed ray after ray (no padding); :func:`weights_from_density`.
 
@@ -109,21 +118,26 @@ def packed_weights(
         ray: (M,) int64 ray of each sample, non-decreasing (samples of a ray are contiguous and in order).
         n_rays: N, the number of rays (rays without samples are allowed).
         offsets: (N + 1,) :func:`ray_offsets` of ``ray`` where the caller has them (made here otherwise).
+        fused: the depth before each sample from the Triton kernel (:func:`packed_depth_before`).
     Returns:
         (M,) weights ``Tᵢ (1 − exp(−σᵢ δᵢ))``; ``Tᵢ`` sums only the earlier samples of the same ray
         (:func:`packed_depth_before`).
     """
     tau = sigma * deltas
-    before = packed_depth_before(tau, ray, n_rays, offsets)
+    before = packed_depth_before(tau, ray, n_rays, offsets, fused)
     return torch.exp(-before).to(tau.dtype) * (1.0 - torch.exp(-tau))
 
 
-def packed_depth_before(tau: Tensor, ray: Tensor, n_rays: int, offsets: Tensor | None = None) -> Tensor:
+def packed_depth_before(
+    tau: Tensor, ray: Tensor, n_rays: int, offsets: Tensor | None = None, fused: bool = False
+) -> Tensor:
     """Optical depth (M,) of the same ray's earlier samples, ``Σ_{j<i} τⱼ``, for M packed samples.
 
     Args:
         tau: (M,) optical depth ``σ δ`` of each sample. ray: (M,) non-decreasing ray of each sample.
         n_rays: N, the number of rays. offsets: (N + 1,) :func:`ray_offsets` of ``ray``, or None.
+        fused: float32 ``tau`` scanned ray by ray by the Triton kernel of ``volume_triton.py`` (check
+            ``volume_triton.applies``); the result is then float32, with the same clamp.
     Returns:
         (M,) float64 (float32 on MPS, which has no float64). The running sum is taken in that precision over
         all samples, then the sum at the ray's first sample is removed, so a ray's depth does not depend on
@@ -131,11 +145,13 @@ def packed_depth_before(tau: Tensor, ray: Tensor, n_rays: int, offsets: Tensor |
         ``exp(−1e3)`` is already 0, so no weight changes, and one infinite or NaN sample cannot make
         ``inf − inf`` for every later ray.
     """
+    if offsets is None:
+        offsets = ray_offsets(ray, n_rays)
+    if fused:
+        return volume_triton.depth_before(tau, offsets, MAX_TAU)
     wide = torch.float32 if tau.device.type == "mps" else torch.float64
     tau64 = tau.to(wide)
     tau64 = torch.where(tau64.isnan(), MAX_TAU, tau64.clamp(max=MAX_TAU))
-    if offsets is None:
-        offsets = ray_offsets(ray, n_rays)
     running = torch.cat([tau64.new_zeros(1), torch.cumsum(tau64, dim=0)])  # (M + 1,): depth before sample i
     at_start = running.index_select(0, offsets[:-1])  # (N,): all earlier rays' depth
     return running[:-1] - at_start.index_select(0, ray)
@@ -149,6 +165,7 @@ def early_stop_mask(
     n_rays: int,
     min_transmittance: float,
     offsets: Tensor | None = None,
+    fused: bool = False,
 ) -> Tensor:
     """Early ray termination (instant-ngp, nerfacc's ``early_stop_eps``): (M,) bool, True for the packed
     samples before which the ray's transmittance is still ≥ ``min_transmittance`` (a prefix of each ray).
@@ -162,7 +179,8 @@ def early_stop_mask(
         )
     if min_transmittance == 0.0:
         return torch.ones_like(ray, dtype=torch.bool)
-    return packed_depth_before(sigma * deltas, ray, n_rays, offsets) <= -math.log(min_transmittance)
+    depth = packed_depth_before(sigma * deltas, ray, n_rays, offsets, fused)
+    return depth <= -math.log(min_transmittance)
 
 
 def packed_composite(
@@ -174,6 +192,7 @@ def packed_composite(
     color_index: Tensor | None,
     background: float = BACKGROUND,
     offsets: Tensor | None = None,
+    fused: bool = False,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`composite` of packed samples → colour (N, C), depth (N,), opacity (N,).
 
@@ -183,19 +202,20 @@ def packed_composite(
         colors: (K, C) colours of the samples ``color_index`` (K,, increasing); the other samples count as
             colour 0 (the renderers decode colour only where the weight matters). With ``color_index``
             None, colours (M, C) of every sample (a fixed shape: zero the colours that should not count).
-        offsets: (N + 1,) :func:`ray_offsets` of ``ray``, or None. Per-ray sums: :func:`segment_sum`.
+        offsets: (N + 1,) :func:`ray_offsets` of ``ray``, or None. Per-ray sums: :func:`segment_sum`
+            (``fused``: its Triton kernel).
     """
     if offsets is None:
         offsets = ray_offsets(ray, n_rays)
-    sums = segment_sum(torch.stack([weights, weights * t], dim=1), ray, offsets)
+    sums = segment_sum(torch.stack([weights, weights * t], dim=1), ray, offsets, fused)
     opacity = sums[:, 0]
     depth = sums[:, 1] / opacity.clamp_min(1e-10)
     if color_index is None:
-        color = segment_sum(weights[:, None] * colors, ray, offsets)
+        color = segment_sum(weights[:, None] * colors, ray, offsets, fused)
     else:
         target = ray.index_select(0, color_index)
         wc = weights.index_select(0, color_index)[:, None] * colors
-        color = segment_sum(wc, target, ray_offsets(target, n_rays))
+        color = segment_sum(wc, target, ray_offsets(target, n_rays), fused)
     return color + (1.0 - opacity)[:, None] * background, depth, opacity
 
 
