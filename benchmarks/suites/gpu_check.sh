@@ -7,8 +7,9 @@
 #
 # Parts, in order, each under its own time limit (seconds); a part that runs over is cut and marked so:
 #   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views; JOBS workers) into WORK
-#   kernels  (180) the Triton and gather lookups against grid_sample on the GPU (tests/test_vm_triton.py,
-#            tests/test_vm_gather.py): run before `profile` times them
+#   kernels  (180) the Triton and gather lookups against grid_sample, and the Triton compositing against
+#            torch's sums, on the GPU (tests/test_vm_triton.py, tests/test_vm_gather.py,
+#            tests/test_volume_triton.py): run before `profile` times them
 #   lookup   (120) bench_lookup: each lookup's forward, and forward + backward, against grid_sample's, 2²⁰
 #            points, R 300; the Triton kernels at each of LAUNCHES (points x warps a program)
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
@@ -30,7 +31,8 @@
 # Suggested calls, most needed first, each with part caps summing under a call's 600 s (a session has
 # about 15 minutes of device time, starts included; a part cut by the call's end is lost, the ones before
 # it are in OUT): METHOD=spike-integral with `data train fast`, then METHOD=spike-integral
-# VARIANTS="lookup=triton+compile-optimizer static_visible=24" with `profile`, then `kernels tests`
+# VARIANTS="lookup=triton+compile-optimizer lookup=triton+composite=triton static_visible=24" with
+# `profile`, then `kernels tests`
 # (docs/performance.md); `optim occupancy compile ttq` when time is left.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
@@ -84,7 +86,7 @@ for name in "$@"; do
         --height "$SIZE" --color gray --jobs "$JOBS" --out "$DATA" ;;
     kernels)
       part kernels 180 "passed|failed|error" "$PYTHON" -m pytest -p no:cacheprovider \
-        tests/test_vm_triton.py tests/test_vm_gather.py ;;
+        tests/test_vm_triton.py tests/test_vm_gather.py tests/test_volume_triton.py ;;
     lookup)
       part lookup 120 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" \
         --triton-launch "$LAUNCHES" ;;
