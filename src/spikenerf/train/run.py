@@ -199,12 +199,7 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
             f"held out: steps {', '.join(map(str, held.get('step_numbers', held['check_steps'])))} "
             f"± {held.get('radius')} ({held.get('excluded_steps')} steps not trained on)"
         )
-    try:
-        curves = read_curves(run_dir / CURVES)
-    except InputError as err:  # the rest of the run is still described
-        curves = []
-        lines.append(f"{CURVES}: {err.message} (a resume refuses it: remove it first)")
-    if curves:
+    if curves := read_curves(run_dir / CURVES):  # (a garbled one is an InputError naming it)
         last = curves[-1]
         train_psnr, test_psnr = last["train_psnr"], last["test_psnr"]  # curves.csv rounds to 4 decimals
         if (summary := stored_summary(run_dir, int(last["iteration"]))) is not None:  # as train printed
@@ -214,7 +209,7 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
             f"train PSNR {train_psnr:.2f} dB (against its training targets), test PSNR "
             f"{test_psnr:.2f} dB"
         )
-    elif done and (summary := stored_summary(run_dir, done)) is not None:
+    elif done and (summary := stored_summary(run_dir, done)) is not None:  # curves.csv removed
         lines.append(
             f"last evaluation: iteration {done}, {summary.seconds:.0f} s of training, train PSNR "
             f"{summary.train_psnr:.2f} dB (against its training targets), test PSNR "
