@@ -141,6 +141,15 @@ def test_bad_blur_views(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
 def test_corrupt_blur_array_is_one_input_error(tmp_path: Path) -> None:
     out = tmp_path / "ds"
     main(["simulate", "--scene", "analytic-orbs", "--out", str(out), *ARGS, "--blur-views", "5"])
+    good = np.load(out / "blur" / "views.npy")
     np.save(out / "blur" / "views.npy", np.zeros((4, SIZE, SIZE, 3), np.float16))
     with pytest.raises(InputError, match=r"shape \(5, 12, 12, 3\)"):
         load_dataset(out)
+    for view, value in ((3, np.nan), (0, np.inf), (4, -0.5)):  # values the simulator never writes
+        bad = good.copy()
+        bad[view, 2, 5, 1] = value
+        np.save(out / "blur" / "views.npy", bad)
+        with pytest.raises(InputError, match=f"view {view} holds a NaN, an infinity or a negative value"):
+            load_dataset(out)
+    np.save(out / "blur" / "views.npy", good)
+    load_dataset(out)

@@ -274,3 +274,20 @@ def test_an_unfinished_simulate_work_folder_is_named_as_such(tmp_path: Path) -> 
         with pytest.raises(InputError, match="unfinished `spikenerf simulate` or `import` work") as err:
             read(work)
         assert err.value.path == str(work)
+
+
+def test_info_of_a_dataset_it_cannot_write_to_still_summarises_it(
+    folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A dataset on read-only media (a share, another user's folder): ``describe`` gives its summary and says
+    that the preview was not written, instead of failing on the preview's temporary file."""
+    from spikenerf.data import summary
+
+    def refuse(path: Path, data: bytes) -> None:
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(summary, "write_bytes_atomic", refuse)
+    lines = summary.describe(folder).splitlines()
+    assert lines[-1] == f"preview: not written, {folder} is not writable (Permission denied)"
+    assert any(line.startswith("spikes [gray]") for line in lines)
+    assert not (folder / summary.PREVIEW).exists()

@@ -184,6 +184,23 @@ def test_bad_inputs_are_one_line_errors(
     assert err == "spikenerf: error: --test-pose-lr sets the rate of --test-pose-opt N, which is off (0)"
 
 
+def test_eval_of_a_run_it_cannot_write_to_is_refused_before_it_renders(
+    run_dir: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import os
+    from types import SimpleNamespace
+
+    from spikenerf.eval import evaluate
+
+    real = os.statvfs(run_dir)
+    monkeypatch.setattr(
+        os, "statvfs", lambda _: SimpleNamespace(f_flag=real.f_flag | os.ST_RDONLY, f_blocks=1)
+    )
+    monkeypatch.setattr(evaluate, "evaluate_run", lambda *a, **k: pytest.fail("rendered before the check"))
+    err = _cli_error(capsys, "eval", run_dir)
+    assert f"RUN: cannot write there: {run_dir.resolve()} is on a read-only file system" in err, err
+
+
 def test_render_without_imageio_ffmpeg_is_one_line_before_any_work(
     run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -326,3 +343,32 @@ def test_info_lines_of_a_metrics_file_say_what_was_scored(tmp_path: Path) -> Non
         with pytest.raises(InputError, match="malformed metrics") as err:
             metrics_lines(path, 80)
         assert err.value.path == str(path)
+
+
+def test_a_run_config_without_its_dataset_or_with_bad_field_options_names_the_file(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run whose config.yaml lost its ``dataset`` entry is refused naming that file (it read the current
+    folder as the dataset), unless ``--dataset`` gives it; a field option out of range there is named with
+    the file by every command (only a resume's model build found it)."""
+    import shutil
+
+    import yaml
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run)
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    dataset = config.pop("dataset")
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    for command in (["eval", run], ["render", run, "--out", tmp_path / "o"]):
+        err = _cli_error(capsys, *command)
+        said = (
+            "config.yaml: has no 'dataset' entry (or an empty one): give the run's data folder with --dataset"
+        )
+        assert err.endswith(said), err
+    assert "→" in _cli_output(capsys, "eval", run, "--dataset", dataset, "--quiet", "--lpips", "none")
+    config |= {"dataset": dataset, "field_config": {**config.get("field_config", {}), "n_voxels_final": -5}}
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    for command in (["info", run], ["eval", run]):
+        err = _cli_error(capsys, *command)
+        assert err.endswith("config.yaml: field_config.n_voxels_final must be ≥ 8, found -5"), err

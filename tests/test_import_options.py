@@ -115,6 +115,7 @@ def test_learned_keyframes_use_the_networks_window(capsys, recording, tmp_path) 
             "--max-features: only used with --poses colmap (COLMAP's estimate); poses 'orbit' gives",
         ),
         ("--no-final-ba", None, "--final-ba: only used with --poses colmap"),
+        ("--smooth", 100, "--smooth: only used with --poses colmap"),  # only COLMAP's poses are smoothed
         ("--window", 11, "--window sets the TFP keyframes"),  # (with --keyframe-images learned below)
     ],
 )
@@ -196,3 +197,65 @@ def test_the_import_benchmark_measures_ate_against_the_orbit_radius_about_its_ce
     assert bench.orbit_radius(truth) == pytest.approx(3.0)
     at_origin = SimpleNamespace(trajectory=orbit(3.0, 30.0, duration=0.001), config={})
     assert bench.orbit_radius(at_origin) == pytest.approx(3.0)
+
+
+def test_smooth_goes_with_colmap_poses_only() -> None:
+    from spikenerf.importing.importer import ImportOptions, _check
+
+    _check(ImportOptions(smooth=100))  # poses colmap: smoothed
+    with pytest.raises(InputError, match=r"^smooth: only used with poses colmap") as err:
+        _check(ImportOptions(poses="poses_bounds.npy", smooth=100))
+    assert "smooth" in err.value.params
+
+
+def _colmap_folder(folder: Path, camera: str, poses: list[str]) -> Path:
+    """A COLMAP text model of one ``camera`` line and ``poses`` lines (each with an empty points line)."""
+    folder.mkdir()
+    (folder / "cameras.txt").write_text(camera + "\n")
+    (folder / "images.txt").write_text("".join(f"{line}\n\n" for line in poses))
+    return folder
+
+
+@pytest.mark.parametrize(
+    "pose",
+    [
+        "1 abc 0 0 0 0 0 4 1 a.png",  # quaternion
+        "1 1 0 0 0 0 x 4 1 a.png",  # translation
+        "1 1 0 0 0 0 0 4 one a.png",  # camera id
+    ],
+)
+def test_a_non_numeric_colmap_pose_names_images_txt(capsys, recording, tmp_path, pose) -> None:
+    model = _colmap_folder(tmp_path / "model", "1 PINHOLE 24 8 30 30 12 4", [pose, "2 1 0 0 0 0 0 4 1 b.png"])
+    code, _, err = run_cli(capsys, "import", recording, "--out", tmp_path / "ds", "--poses", model)
+    expected = f"{model / 'images.txt'}: line 1: a pose line with a non-numeric quaternion, translation"
+    assert code == 2 and expected in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize("cxcy", ["nan 4", "12 inf", "-inf 4"])
+def test_a_non_finite_colmap_principal_point_names_cameras_txt(capsys, recording, tmp_path, cxcy) -> None:
+    poses = ["1 1 0 0 0 0 0 4 1 a.png", "2 1 0 0 0 0.5 0 4 1 b.png"]
+    model = _colmap_folder(tmp_path / "model", f"1 PINHOLE 24 8 30 30 {cxcy}", poses)
+    code, _, err = run_cli(capsys, "import", recording, "--out", tmp_path / "ds", "--poses", model)
+    expected = f"{model / 'cameras.txt'}: camera 1: principal point cx, cy must be finite"
+    assert code == 2 and expected in err and len(err.strip().splitlines()) == 1, err
+    assert ".partial" not in err and not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize(
+    ("array", "message"),
+    [
+        (np.zeros((0, 17)), "found 0 poses, need at least 2"),
+        (np.full((5, 17), "x"), "expected an array of real numbers, found dtype <U1"),
+        (np.ones((5, 17), bool), "found dtype bool"),
+        (np.ones((5, 17), complex), "found dtype complex128"),
+        (np.ones((5, 17), object), "cannot read a .npy array"),  # (refused before: pickled)
+        (np.zeros(17), "expected an (N, 17) array, found shape (17,)"),
+    ],
+)
+def test_a_bad_llff_array_names_the_file(capsys, recording, tmp_path, array, message) -> None:
+    path = tmp_path / "poses_bounds.npy"
+    np.save(path, array, allow_pickle=array.dtype == object)
+    code, _, err = run_cli(capsys, "import", recording, "--out", tmp_path / "ds", "--poses", path)
+    assert code == 2 and f"{path}: " in err and message in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "ds").exists()

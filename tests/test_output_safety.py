@@ -114,7 +114,7 @@ def test_a_diverged_run_stops_in_one_line_and_checkpoints_nothing(
     run = tmp_path / "run"
     code, _, err = run_cli(capsys, "train", dataset, *TRAIN, "--log-every", "2", "--lr", "1e30", "--out", run)
     assert code == 2 and err.count("\n") == 1 and "training diverged by iteration 2" in err, err
-    assert "lower --lr" in err and not (run / "checkpoint.pt").exists()
+    assert "no checkpoint was written: lower --lr" in err and not (run / "checkpoint.pt").exists()
 
 
 def test_a_refused_setup_leaves_no_folder(capsys, dataset: Path, tmp_path: Path) -> None:

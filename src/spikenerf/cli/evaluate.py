@@ -70,6 +70,7 @@ def command(
     test_pose_lr: float, quiet: bool,
 ) -> None:  # fmt: skip
     from spikenerf.core.errors import InputError
+    from spikenerf.core.marker import check_writable
     from spikenerf.eval.describe import noref_line, pose_fit_line, scores
     from spikenerf.eval.evaluate import evaluate_run, metrics_file
     from spikenerf.eval.noref import NoRefOptions
@@ -82,6 +83,7 @@ def command(
     if test_pose_opt == 0 and source("test_pose_lr") is ParameterSource.COMMANDLINE:
         raise InputError("--test-pose-lr sets the rate of --test-pose-opt N, which is off (0)")
     check_run_folder(run)
+    check_writable(run / metrics_file(split), param="RUN", file=True)  # before the renders, not after
     result = evaluate_run(
         run,
         split=split,

@@ -77,7 +77,7 @@ SET_KEYS: set[str] = set()
 PARAM_FLAGS = {
     f"{section}.{key}" if section else key: "--" + ("lambda" if name == "lam" else name.replace("_", "-"))
     for name, (section, key) in OPTION_FIELDS.items()
-} | {"field_config": "--field-option (grid size)"}
+} | {"field_config": "--field-option (grid size)", "holdout": "--holdout (--no-holdout turns it off)"}
 
 
 @click.command(
@@ -85,7 +85,8 @@ PARAM_FLAGS = {
     "Methods: "
     + ", ".join(f"{name} ({summary})" for name, summary in METHOD_SUMMARIES.items())
     + ". Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
-    "RUN/summary.json; --resume continues an interrupted run (given options override the stored ones). A "
+    "RUN/summary.json; --resume continues an interrupted run (--iters, --eval-every, --ckpt-every, "
+    "--eval-views, --device, --log and --log-every may change; other options must match the run's). A "
     "flag or --set key that the method does not use is ignored with a one-line warning (none with "
     "--ignore-unused), also on --resume.\n\n"
     "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "

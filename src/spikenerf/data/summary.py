@@ -172,9 +172,13 @@ def describe(path: str | Path) -> str:
     image, caption = preview_image(ds)
     buf = io.BytesIO()
     iio.imwrite(buf, image, extension=".png")
-    write_bytes_atomic(path / PREVIEW, buf.getvalue())
-    own = listed(path)
-    if own and PREVIEW not in own and folder_kind(path) == "dataset":  # ours: `--overwrite` may replace it
-        mark(path, "dataset", [*own, PREVIEW])
+    try:
+        write_bytes_atomic(path / PREVIEW, buf.getvalue())
+        own = listed(path)
+        if own and PREVIEW not in own and folder_kind(path) == "dataset":  # ours: `--overwrite` replaces it
+            mark(path, "dataset", [*own, PREVIEW])
+    except OSError as err:  # a read-only folder (a share, another user's): the summary without a preview
+        lines.append(f"preview: not written, {path} is not writable ({err.strerror or err})")
+        return "\n".join(lines)
     lines.append(caption)
     return "\n".join(lines)

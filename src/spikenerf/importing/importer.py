@@ -111,7 +111,8 @@ class ImportOptions:
     command: str = ""
 
 
-#: the settings of the COLMAP estimate (``poses="colmap"``), meaningless with given poses
+#: the settings of the COLMAP estimate (``poses="colmap"``), meaningless with given poses (``smooth`` too:
+#: only COLMAP's keyframe poses are smoothed, see :func:`keyframe_poses`)
 COLMAP_ONLY = (
     "overlap",
     "loop_pairs",
@@ -121,6 +122,7 @@ COLMAP_ONLY = (
     "affine_sift",
     "final_ba",
     "contrast",
+    "smooth",
     "verbose",
 )
 

@@ -131,7 +131,8 @@ def _lines(path: Path) -> list[list[str]]:
 def _pose_rows(path: Path, cameras: set[int]) -> list[list[str]]:
     """The pose lines of a COLMAP ``images.txt``: two lines an image (``IMAGE_ID QW QX QY QZ TX TY TZ
     CAMERA_ID NAME``, then its points, possibly empty); InputError naming the line of a pose that is cut
-    short or names an unknown camera (it would be dropped without a word)."""
+    short, holds a non-numeric quaternion, translation or camera id, or names an unknown camera (it would be
+    dropped without a word)."""
     if not path.is_file():
         raise InputError("missing file of a COLMAP text model", path=path)
     text = path.read_text(encoding="utf-8", errors="replace")
@@ -140,11 +141,20 @@ def _pose_rows(path: Path, cameras: set[int]) -> list[list[str]]:
         lines.pop()
     rows = []
     for number, row in lines[0::2]:
-        if len(row) != 10 or int(row[8]) not in cameras:
-            what = "an unknown camera" if len(row) == 10 else f"{len(row)} fields, not 10"
+        if what := f"{len(row)} fields, not 10" if len(row) != 10 else _pose_problem(row, cameras):
             raise InputError(f"line {number}: a pose line with {what} ({' '.join(row)[:60]})", path=path)
         rows.append(row)
     return rows
+
+
+def _pose_problem(row: list[str], cameras: set[int]) -> str:
+    """What is wrong with a 10-field pose line of ``images.txt`` ("" when nothing)."""
+    try:
+        list(map(float, row[1:8]))  # QW QX QY QZ TX TY TZ (NaN/inf: refused with the rest of the poses)
+        camera = int(row[8])
+    except ValueError:
+        return "a non-numeric quaternion, translation or camera id"
+    return "" if camera in cameras else "an unknown camera"
 
 
 def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
@@ -158,24 +168,31 @@ def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
         raise InputError(f"camera model {model} with {len(params)} parameters is not supported", path=path)
     if not (w > 0 and h > 0 and all(math.isfinite(p) and p > 0 for p in params[:2])):
         raise InputError(f"camera {fields[0]}: width, height and focal length must be > 0", path=path)
+    if not all(math.isfinite(p) for p in params[2:4]):
+        found = ", ".join(map(str, params[2:4]))
+        raise InputError(f"camera {fields[0]}: principal point cx, cy must be finite, found {found}", path)
     return Intrinsics(w, h, *params[:4])
 
 
 def read_colmap_text(folder: Path) -> PoseSet:
     """A COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``); the first camera is used."""
+    # each error names its own file (an InputError is a ValueError: a catch-all would rename it the folder)
+    cams_path, pts_path = folder / "cameras.txt", folder / "points3D.txt"
+    cams = {}
+    for row in _lines(cams_path):
+        try:
+            cams[int(row[0])] = row
+        except ValueError as err:
+            raise InputError(f"malformed camera line {' '.join(row)[:60]!r} ({err})", cams_path) from err
+    pose_rows = _pose_rows(folder / "images.txt", set(cams))
+    rows = _lines(pts_path) if pts_path.is_file() else []
+    if (short := next((i for i, r in enumerate(rows) if len(r) < 8), None)) is not None:
+        found = " ".join(rows[short])[:60]
+        raise InputError(f"point row {short + 1}: expected ID X Y Z R G B ERROR, found {found!r}", pts_path)
     try:
-        cams = {int(f[0]): f for f in _lines(folder / "cameras.txt")}
-        pose_rows = _pose_rows(folder / "images.txt", set(cams))
-        pts_path = folder / "points3D.txt"
-        rows = _lines(pts_path) if pts_path.is_file() else []
-        if (short := next((i for i, r in enumerate(rows) if len(r) < 8), None)) is not None:
-            found = " ".join(rows[short])[:60]
-            raise InputError(
-                f"point row {short + 1}: expected ID X Y Z R G B ERROR, found {found!r}", pts_path
-            )
         pts = [[float(v) for v in r[1:4]] for r in rows]
-    except (ValueError, IndexError) as err:
-        raise InputError(f"malformed COLMAP text model ({err})", path=folder) from err
+    except ValueError as err:
+        raise InputError(f"malformed point coordinates ({err})", path=pts_path) from err
     if not cams:
         raise InputError("no cameras in cameras.txt", path=folder)
     if pts and not (np.abs(np.asarray(pts)) < 1e12).all():  # NaN, inf or absurd: the box would be meaningless
@@ -188,7 +205,7 @@ def read_colmap_text(folder: Path) -> PoseSet:
         or not np.isfinite(trans).all()
         or (np.linalg.norm(quats, axis=1) == 0).any()
     ):
-        raise InputError("images.txt holds NaN, infinite or zero-quaternion poses", path=folder)
+        raise InputError("holds NaN, infinite or zero-quaternion poses", path=folder / "images.txt")
     w2c = np.tile(np.eye(4), (len(pose_rows), 1, 1))
     w2c[:, :3, :3], w2c[:, :3, 3] = quaternion_to_matrix(quats), trans
     poses = check_poses(np.linalg.inv(w2c) @ CV_TO_GL, folder / "images.txt")
@@ -236,8 +253,12 @@ def read_poses_bounds(path: Path) -> PoseSet:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as err:
         raise InputError(f"cannot read a .npy array ({err})", path=path) from err
+    if arr.dtype.kind not in "iuf":  # bool, complex, strings, structured: not LLFF numbers
+        raise InputError(f"expected an array of real numbers, found dtype {arr.dtype}", path=path)
     if arr.ndim != 2 or arr.shape[1] != 17:
         raise InputError(f"expected an (N, 17) array, found shape {arr.shape}", path=path)
+    if len(arr) < 2:
+        raise InputError(f"found {len(arr)} poses, need at least 2 to interpolate", path=path)
     if not np.isfinite(arr).all():
         raise InputError(f"{int((~np.isfinite(arr)).any(1).sum())} of {len(arr)} rows hold NaN or inf", path)
     m = arr[:, :15].reshape(-1, 3, 5).astype(np.float64)

@@ -475,6 +475,13 @@ def load_run_config(path: str | Path) -> TrainConfig:
         raise InputError(f"is a {kind} folder, not a run folder{hint}", path=folder)
     path, data = _read_config(path)
     config = _validated(TrainConfig.from_dict(data, path), path)
+    from spikenerf.fields.registry import field_config  # (imports torch: not at this module's import)
+
+    try:  # its field options too, named with the file (else only a resume's model build finds them)
+        typed = field_config(config.field, config.field_config)
+        getattr(typed, "check", lambda: None)()
+    except InputError as err:
+        raise InputError(err.message, path=path, param=err.params) from err
     if isinstance(data.get("targets"), dict) and "window_poses" not in data["targets"]:
         config.targets.window_poses = 1
     return config

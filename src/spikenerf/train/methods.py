@@ -696,8 +696,8 @@ class SpikeIntegral(TrainMethod):
                 checked(self.holdout, len(allowed), f"{n}-step window")
         if c.interpolate and self.holdout is not None:
             raise InputError(
-                "integral.interpolate: a phase reads the spikes around its step, held-out ones too; set "
-                "holdout false",
+                "integral.interpolate: a phase reads the spikes around its step, held-out ones too: it "
+                "cannot train with holdout",
                 param=("integral.interpolate", "holdout"),
             )
         if c.track and self.holdout is not None:  # tracks skip the held-out bands' spikes
@@ -707,7 +707,8 @@ class SpikeIntegral(TrainMethod):
         if c.align:
             if self.holdout is not None:
                 raise InputError(
-                    "integral.align: spike-aligned windows can reach into held-out steps; set holdout false",
+                    "integral.align: spike-aligned windows can reach into held-out steps: it cannot train "
+                    "with holdout",
                     param=("integral.align", "holdout"),
                 )
             aligner = functools.partial(self.counts.align, longest=ALIGN_LONGEST * max(c.lengths))

@@ -82,6 +82,12 @@ def open_run(
     check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)
     model = model_of(ckpt, run_dir / CHECKPOINT)
     model.to(resolve_device(device)).eval()
+    if dataset_root is None and not config.dataset:
+        raise InputError(
+            "has no 'dataset' entry (or an empty one): give the run's data folder with dataset",
+            path=run_dir / CONFIG_FILE,
+            param="dataset",
+        )
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset, train_images)
     check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
     return model, config, dataset, ckpt

@@ -414,9 +414,13 @@ class Trainer:
 
     def diverged(self, what: str) -> NoReturn:
         """InputError naming the rate: the run diverged (``what``); nothing of it is checkpointed."""
+        kept = (
+            "an earlier checkpoint is kept"
+            if (self.out / CHECKPOINT).exists()
+            else "no checkpoint was written"
+        )
         raise InputError(
-            f"training diverged by iteration {self.iteration} ({what}); an earlier checkpoint is kept: "
-            "lower lr",
+            f"training diverged by iteration {self.iteration} ({what}); {kept}: lower lr",
             path=self.out,
             param="lr",
         )

@@ -7,14 +7,18 @@ of several folders' results.json as one set of tables (:func:`merged_markdown`, 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+import math
+import re
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.benchmark import cells as plan
+from spikenerf.pipelines.benchmark.executor import EXECUTORS
 from spikenerf.pipelines.benchmark.stats import Difference, differences
 from spikenerf.pipelines.benchmark.tables import (
     Cell,
@@ -161,22 +165,110 @@ class RecordedCall:
 
 
 def read_call(path: Path) -> RecordedCall:
-    """A ``results.json`` read back; InputError naming the file when it cannot be read or is not a
-    benchmark's results."""
+    """A ``results.json`` read back; InputError naming the file when it cannot be read, is not a benchmark's
+    results, or holds a value its tables and report cannot take (:func:`recorded_problem`), before anything
+    is built from it."""
     try:
         data = json.loads(path.read_text())
         config = dict(data["config"])
         missing = [k for k in MERGE_KEYS if k not in config]
         if missing:
             raise KeyError(", ".join(missing))
+        if not isinstance(data["cells"], list):
+            raise TypeError(f"cells is {type(data['cells']).__name__}, not a list")
         cells = [Cell.from_dict(c) for c in data["cells"]]
-        return RecordedCall(
+        call = RecordedCall(
             path, config, cells, dict(data.get("trained_on", {})), dict(data.get("environment", {}))
         )
     except OSError as err:
         raise InputError(f"cannot read ({err.strerror or err})", path=path) from None
     except (ValueError, KeyError, TypeError, AttributeError) as err:
         raise InputError(f"not a benchmark's {RESULTS} ({type(err).__name__}: {err})", path=path) from None
+    if problem := recorded_problem(call):
+        raise InputError(problem, path=path)
+    return call
+
+
+#: a scene's name as the benchmark's folders use it (``datasets/SCENE``, ``runs/SCENE``, figure files): one
+#: plain path component, never ``..`` or a path
+SCENE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+COLORS = ("gray", "rgb")
+
+
+def _int(x: Any, low: int) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x >= low
+
+
+def _number(x: Any, low: float = -math.inf) -> bool:
+    """A finite JSON number (not a bool) ≥ ``low``."""
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and x >= low
+
+
+def _names(x: Any, ok: Callable[[Any], bool]) -> bool:
+    """A non-empty list of distinct items, each ``ok``."""
+    return isinstance(x, list) and bool(x) and all(ok(v) for v in x) and len(set(x)) == len(x)
+
+
+def _scene(x: Any) -> bool:
+    return isinstance(x, str) and SCENE_NAME.fullmatch(x) is not None
+
+
+#: config entry -> (what it must be, its test); a results.json without an entry reads its default
+CONFIG_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "scenes": ("a non-empty list of distinct scene names (letters, digits, _ . -; not a path)",
+               lambda x: _names(x, _scene)),
+    "variants": ("a non-empty list of distinct method variants", lambda x: _names(x, VARIANTS.__contains__)),
+    "colors": ("a non-empty list of distinct colours (gray, rgb)", lambda x: _names(x, COLORS.__contains__)),
+    "size": ("a positive integer", lambda x: _int(x, 1)),
+    "frames": ("a positive integer", lambda x: _int(x, 1)),
+    "iters": ("null or a positive integer", lambda x: x is None or _int(x, 1)),
+    "seed": ("a non-negative integer", lambda x: _int(x, 0)),
+    "seeds": ("null or a non-empty list of distinct non-negative integers",
+              lambda x: x is None or _names(x, lambda k: _int(k, 0))),
+    "test_views": ("a positive integer", lambda x: _int(x, 1)),
+    "jobs": ("a positive integer", lambda x: _int(x, 1)),
+    "retries": ("a non-negative integer", lambda x: _int(x, 0)),
+    "render": ("true or false", lambda x: isinstance(x, bool)),
+    "ship_results": ("true or false", lambda x: isinstance(x, bool)),
+    "field_kind": ("a string", lambda x: isinstance(x, str)),
+    "device": ("a string", lambda x: isinstance(x, str)),
+    "blur_views": ("a string", lambda x: isinstance(x, str)),
+    "executor": (f"one of {', '.join(EXECUTORS)}", lambda x: isinstance(x, str) and x in EXECUTORS),
+    "address": ("null or a string", lambda x: x is None or isinstance(x, str)),
+    "extra_train_args": ("a list of strings", lambda x: isinstance(x, list) and all(isinstance(a, str) for a in x)),
+    "ray_cpus": ("a positive number", lambda x: _number(x) and x > 0),
+}  # fmt: skip
+#: a cell's metrics, each a finite number or null (not available, as "–" in the tables), and its times
+CELL_METRICS, CELL_TIMES = ("psnr", "ssim", "lpips"), ("eval_seconds", "train_seconds")
+
+
+def recorded_problem(call: RecordedCall) -> str | None:
+    """What makes a read ``results.json`` unusable (None: nothing): a config entry of another type or range
+    (:data:`CONFIG_CHECKS`; a scene name that is not one plain path component), a cell whose scene,
+    colour or method variant is not one of the config's, whose seed is not a non-negative integer, whose
+    metric is not a finite number or null, or a 'trained on' text that is not a string."""
+    config = call.config
+    for key, (what, ok) in CONFIG_CHECKS.items():
+        if key in config and not ok(config[key]):
+            return f"config.{key} must be {what}, found {config[key]!r}"
+    allowed = {"scene": config["scenes"], "color": config.get("colors", list(COLORS)),
+               "variant": config.get("variants", list(VARIANTS))}  # fmt: skip
+    for i, cell in enumerate(call.cells):
+        for key, names in allowed.items():
+            value = getattr(cell, key)
+            if value not in names:
+                return f"cells[{i}].{key} {value!r} is not one of config.{key}s ({', '.join(names)})"
+        if not _int(cell.seed, 0):
+            return f"cells[{i}].seed must be a non-negative integer, found {cell.seed!r}"
+        for key in CELL_METRICS + CELL_TIMES:
+            value = getattr(cell, key)
+            if value is not None and not _number(value, 0.0 if key in CELL_TIMES else -math.inf):
+                kind = "number ≥ 0" if key in CELL_TIMES else "number"
+                return f"cells[{i}].{key} must be a finite {kind} or null, found {value!r}"
+    for variant, text in call.trained_on.items():
+        if not isinstance(text, str):
+            return f"trained_on.{variant} must be a string, found {text!r}"
+    return None
 
 
 def read_results(paths: Sequence[Path]) -> tuple[dict, list[Cell], dict[str, str]]:
