@@ -220,3 +220,18 @@ def test_train_names_the_flag_of_a_bad_config_set_or_field_option(capsys, tmp_pa
     with pytest.raises(SystemExit):
         main(["train", str(tmp_path / "ds"), "--out", str(tmp_path / "run"), "--config", str(run)])
     assert "done/config.yaml" in capsys.readouterr().err
+
+
+def test_python_warnings_print_as_one_line_and_the_callers_display_comes_back(capsys) -> None:  # type: ignore[no-untyped-def]
+    """A library's ``warnings.warn`` during a command prints one ``spikenerf: warning:`` line (Python's
+    default adds the file, line and source line); ``main`` puts the caller's ``showwarning`` back."""
+    import warnings
+
+    from spikenerf.cli import _warning_line, main
+
+    before = warnings.showwarning
+    _warning_line(UserWarning("the kernel\nfailed"), UserWarning, "x.py", 3)
+    assert capsys.readouterr().err == "spikenerf: warning: the kernel failed\n"
+    with pytest.raises(SystemExit):
+        main(["info", "/nonexistent/run"])
+    assert warnings.showwarning is before

@@ -360,6 +360,26 @@ def test_fused_vm_kernel_build_without_openmp_then_grid_sample(monkeypatch) -> N
                 assert vm_kernel._load() == want
 
 
+def test_without_a_compiler_the_kernel_is_not_built_and_says_so_once(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """No C++ compiler and nothing built: one warning naming the compiler, no build attempted (torch's build
+    printed about 20 lines, twice, in every command); a module already built loads without one."""
+    from spikenerf.fields import vm_kernel
+
+    monkeypatch.setattr(vm_kernel, "_build", lambda *a: pytest.fail("a build was attempted"))
+    monkeypatch.setattr(vm_kernel.shutil, "which", lambda name, **kw: None)
+    monkeypatch.setenv("CXX", "g++-none")
+    monkeypatch.delenv("SPIKENERF_VM_KERNEL", raising=False)
+    monkeypatch.setattr(vm_kernel, "_built_any", lambda: False)
+    monkeypatch.setattr(vm_kernel, "_MODULE", None)
+    monkeypatch.setattr(vm_kernel, "_FAILED", False)
+    with pytest.warns(
+        UserWarning, match=r"no C\+\+ compiler \(g\+\+-none\) to build it: using grid_sample"
+    ) as got:
+        assert vm_kernel._load() is None
+        assert vm_kernel._load() is None  # remembered: no second warning
+    assert len(got) == 1
+
+
 _LOAD_KERNEL = """
 import sys, time, warnings
 warnings.simplefilter("error")

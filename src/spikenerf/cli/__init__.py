@@ -12,12 +12,14 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Iterator
+from typing import Any
 
 import click
 
 from spikenerf import __version__
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, one_line
 
 #: subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -208,11 +210,20 @@ def resume_hint(command: str | None) -> str:
     return f" ({hint})" if hint else ""
 
 
+def _warning_line(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: Any = None, line: str | None = None) -> None:  # fmt: skip
+    """``warnings.showwarning`` of the command line: one ``spikenerf: warning: …`` line (Python's default
+    adds the file, the line number and the source line that warned)."""
+    print(f"spikenerf: warning: {one_line(str(message))}", file=sys.stderr if file is None else file)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the group; bad input (InputError, a usage error, a path the system refuses,
     an allocation that fails) → one line on stderr, exit code 2. Ctrl-C → "aborted", exit 130; SIGTERM →
-    "terminated", exit 143, after the same unwinding (locks released)."""
+    "terminated", exit 143, after the same unwinding (locks released). Python warnings print as one line."""
+    shown = warnings.showwarning
     try:
+        warnings.showwarning = _warning_line
         with _sigterm_unwinds():
             cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
     except Terminated:
@@ -249,3 +260,5 @@ def main(argv: list[str] | None = None) -> None:
         _fail(OUT_OF_MEMORY)
     except click.exceptions.Exit as err:
         sys.exit(err.exit_code)
+    finally:  # (in-process callers, such as the tests, keep their own)
+        warnings.showwarning = shown

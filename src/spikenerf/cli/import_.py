@@ -105,7 +105,7 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     type=int,
     default=0,
     show_default=True,
-    help="Smooth the keyframe poses over this many steps (local quadratic fit; 0 = off).",
+    help="COLMAP: smooth the keyframe poses over this many steps (local quadratic fit; 0 = off).",
 )
 @click.option(
     "--orient",

@@ -443,6 +443,18 @@ def _find_ninja() -> None:
             os.environ["PATH"] = os.pathsep.join([ninja.BIN_DIR, os.environ.get("PATH", "")])
 
 
+def _built_any() -> bool:
+    """Whether a compiled module of either build variant is in torch's extension cache already (then no
+    compiler is needed)."""
+    from torch.utils.cpp_extension import _get_build_directory
+
+    for cflags, ldflags in ((_OPENMP_CFLAGS, _OPENMP_LDFLAGS), ([], [])):
+        name = _name(_CFLAGS + cflags, ldflags)
+        if (Path(_get_build_directory(name, verbose=False)) / f"{name}.so").exists():
+            return True
+    return False
+
+
 def _load() -> Any:
     """The compiled module, or None (compiled once per process; a failure is reported once and remembered).
 
@@ -455,11 +467,22 @@ def _load() -> Any:
     if os.environ.get("SPIKENERF_VM_KERNEL", "1") == "0":
         _FAILED = True
         return None
+    compiler = os.environ.get("CXX", "c++")
+    if shutil.which(compiler) is None and not _built_any():
+        warnings.warn(
+            f"VM CPU kernel: no C++ compiler ({compiler}) to build it: using grid_sample, which is slower on "
+            "a CPU (install g++ or clang++, or set CXX)",
+            stacklevel=2,
+        )
+        _FAILED = True
+        return None
     variants = [(_OPENMP_CFLAGS, _OPENMP_LDFLAGS)] if _OPENMP_CFLAGS else []
     variants.append(([], []))
     for i, (cflags, ldflags) in enumerate(variants):
         try:
-            _MODULE = _build(cflags, ldflags)
+            with warnings.catch_warnings():  # torch's multi-line compiler banners: ours says it in one line
+                warnings.filterwarnings("ignore", module=r"torch\.utils\.cpp_extension")
+                _MODULE = _build(cflags, ldflags)
             break
         except (
             Exception
@@ -467,7 +490,8 @@ def _load() -> Any:
             last = i == len(variants) - 1
             fallback = "using grid_sample" if last else "building it without OpenMP"
             hint = " (the build needs a C++ compiler, g++ or clang++, and ninja)" if last else ""
-            warnings.warn(f"VM CPU kernel: {fallback}{hint} ({type(err).__name__}: {err})", stacklevel=2)
+            first = next((line.strip() for line in str(err).splitlines() if line.strip()), "")[:200]
+            warnings.warn(f"VM CPU kernel: {fallback}{hint} ({type(err).__name__}: {first})", stacklevel=2)
     _FAILED = _MODULE is None
     return _MODULE
 
