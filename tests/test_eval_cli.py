@@ -372,3 +372,27 @@ def test_a_run_config_without_its_dataset_or_with_bad_field_options_names_the_fi
     for command in (["info", run], ["eval", run]):
         err = _cli_error(capsys, *command)
         assert err.endswith("config.yaml: field_config.n_voxels_final must be ≥ 8, found -5"), err
+
+
+def test_a_dataset_without_test_views_says_what_to_do_instead(run_dir: Path) -> None:
+    """``simulate --test-views 0`` writes a transforms_test.json that lists no frames: eval says so (not that
+    the file is missing), and render names the trajectories that still work."""
+    import dataclasses
+
+    import numpy as np
+
+    from spikenerf.core.errors import InputError
+    from spikenerf.data.dataset import PosedImages
+    from spikenerf.eval.evaluate import split_views
+    from spikenerf.eval.video import resolve_trajectory
+    from spikenerf.train.run import load_run
+
+    _, _, dataset = load_run(run_dir)
+    size = dataset.test.images.shape[1:]
+    empty = PosedImages(np.zeros((0, 4, 4), np.float32), np.zeros((0, *size), np.float32), None, None)
+    dataset = dataclasses.replace(dataset, test=empty)
+    with pytest.raises(InputError, match=r"no test views \(transforms_test.json lists none\); add test"):
+        split_views(dataset, "test")
+    with pytest.raises(InputError, match="give trajectory orbit or a poses file") as err:
+        resolve_trajectory("test", dataset, 4)
+    assert err.value.params == ("trajectory",)

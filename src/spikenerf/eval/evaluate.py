@@ -72,8 +72,10 @@ def split_views(dataset: SpikeDataset, split: str) -> PosedImages:
     views = dataset.test if split == "test" else dataset.gt
     if not has_views(dataset, split):
         source = "transforms_test.json" if split == "test" else "gt/ frames in transforms.json"
+        listed = split == "test" and (dataset.root / source).is_file()
+        source = f"{source} lists none" if listed else f"expected {source}"
         fix = "; add test views when simulating it, or score the train split" if split == "test" else ""
-        raise InputError(f"the dataset has no {split} views (expected {source}){fix}", path=dataset.root)
+        raise InputError(f"the dataset has no {split} views ({source}){fix}", path=dataset.root)
     return views
 
 

@@ -176,7 +176,11 @@ def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPa
     k, near, far = dataset.intrinsics, dataset.near, dataset.far
     if spec == "test":
         if len(dataset.test) == 0:
-            raise InputError("the dataset has no test views (transforms_test.json)", path=dataset.root)
+            raise InputError(
+                "the dataset has no test views (transforms_test.json): give trajectory orbit or a poses file",
+                path=dataset.root,
+                param="trajectory",
+            )
         return RenderPath("test", np.asarray(dataset.test.poses, np.float64), k, near, far)
     if spec == "orbit":
         return RenderPath("orbit", orbit_poses(dataset, count), k, near, far)
