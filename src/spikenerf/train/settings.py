@@ -30,8 +30,8 @@ METHOD_SUMMARIES: dict[str, str] = {
         "along each rendered point's image track; --integral-window, --integral-samples, --integral-track"
     ),
     "spike-nerf": (
-        "the paper's method: masked TFP/TFI targets + differentiable spike loss; with --window-poses 1 "
-        "exactly the paper's targets"
+        "the paper's method with window-aware TFP/TFI targets (unmasked) + differentiable spike loss; "
+        "--window-poses 1: the paper's one-pose targets with spike masks"
     ),
     "nerf-recon": "TFP/TFI targets",
     "nerf-blur": "the dataset's 400 fps blur views",
