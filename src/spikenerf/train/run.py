@@ -146,7 +146,10 @@ def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
         else:
             fits = have.get(key) == value
         if key == "content" and not fits:
-            diff.append("its files changed since the run was trained (simulated or imported again?)")
+            diff.append(
+                "its files differ from those the run trained on (another dataset, or this one simulated or "
+                "imported again?)"
+            )
         elif not fits:
             diff.append(f"{key} {have.get(key)} (run: {value})")
     if diff:
