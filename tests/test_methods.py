@@ -206,6 +206,10 @@ def test_each_method_prints_its_key_settings() -> None:
     short = settings("spike-integral", "integral.lengths=[2,4]", "integral.samples=2", "integral.track=0")
     assert short == ["windows 2/4 steps, 2 renders each", "no track"]
     assert "(after the run's end)" in settings("spike-integral", "integral.track=5", "iters=300")[1]
+    options = ("integral.groups=2", "integral.band=true", "integral.interpolate=true", "integral.track=0")
+    assert settings("spike-integral", "integral.lengths=[4]", *options)[2:] == [
+        "2 estimates a window (product form)", "noise band", "interpolated counts (span any)"
+    ]  # fmt: skip
     assert settings("nerf-recon", "targets.recon=tfi") == ["targets tfi"]  # TFI has no window
     recon = settings("nerf-recon", "targets.window=21")
     assert recon == ["targets tfp, window 21, each the mean of 4 renders across its window"]

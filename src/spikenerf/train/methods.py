@@ -639,6 +639,11 @@ class SpikeIntegral(TrainMethod):
             out.append("no track")
         if c.prior != "none":
             out.append(f"prior {c.prior} (weight {c.prior_weight:g})")
+        out += [text for on, text in (
+            (c.groups > 1, f"{c.groups} estimates a window (product form)"), (c.band, "noise band"),
+            (c.align, "spike-aligned windows"),
+            (c.interpolate, f"interpolated counts (span {c.interpolate_span or 'any'})"),
+        ) if on]  # fmt: skip
         return out
 
     @classmethod
