@@ -558,6 +558,11 @@ def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
         assert notes[: len(said)] == said
         assert [n.partition(" does not")[0] for n in notes[len(said) :]] == list(checks_only)
         assert all(checks in n for n in notes[len(said) :])
+    code, _, _ = run_cli(
+        capsys, "train", dataset_dir, "--out", tmp_path / "mlp", "--field", "mlp", "--batch", 8
+    )
+    assert code == 0 and called[-1][1][-1].startswith("--field mlp on a CPU: the paper's MLP runs 64 + 192")
+    assert "a step of 8 rays can take minutes" in called[-1][1][-1]
     for method, said in (("nerf-gt", True), ("nerf-recon", False)):  # nerf-gt reads no reconstruction
         code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / f"r-{method}", "--method",
                              method, "--recon", "tfi")  # fmt: skip

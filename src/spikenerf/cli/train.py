@@ -344,8 +344,15 @@ def command(
         notes.append(
             f"--spike-warmup {warmup} is not below --iters {base.iters}: the spike loss never switches on"
         )
+    from spikenerf.core.device import resolve_device
     from spikenerf.train.trainer import train  # (torch: not for --help or a bad flag)
 
+    if base.field == "mlp" and not resume and resolve_device(base.device).type == "cpu":
+        notes.append(
+            f"--field mlp on a CPU: the paper's MLP runs 64 + 192 samples a ray through 8-layer networks, "
+            f"so a step of {base.rays_per_step()} rays can take minutes here; it is meant for a GPU (the "
+            "default grid trains on a CPU)"
+        )
     summary = train(base.validate(), out, resume=resume, progress=not quiet, notes=notes)
     from spikenerf.train.methods import make_method
 
