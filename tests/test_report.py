@@ -253,3 +253,216 @@ def test_report_command_rebuilds_a_moved_folder_with_other_calls_merged(
             _cli("report", *args, "--no-progress")
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and words in err and err.count("\n") == 1
+
+
+# ---------------------------------------------------------------------- a hand-edited results.json or metrics
+def _finished(tmp_path: Path) -> Path:
+    """A finished benchmark folder holding only its results.json (nothing trained): a nerf-gt cell whose
+    LPIPS is null, a spike-nerf cell whose PSNR is null (a metric eval could not compute)."""
+    import dataclasses
+    import json
+
+    out = tmp_path / "bench"
+    out.mkdir()
+    cfg = BenchmarkConfig([SCENE], ["nerf-gt", "spike-nerf"], ["gray"], out, size=SIZE, test_views=1)
+    config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
+    cells = [
+        {"scene": SCENE, "variant": "nerf-gt", "color": "gray", "psnr": 20.5, "ssim": 0.5, "lpips": None,
+         "eval_seconds": 1.5, "seed": 0, "train_seconds": 2.0},
+        {"scene": SCENE, "variant": "spike-nerf", "color": "gray", "psnr": None, "ssim": 0.4, "lpips": None,
+         "eval_seconds": None, "seed": 0, "train_seconds": None},
+    ]  # fmt: skip
+    results = {"config": config, "cells": cells, "trained_on": {"nerf-gt": "1 GT views"}, "environment": {}}
+    (out / "results.json").write_text(json.dumps(results))
+    return out
+
+
+def _edit(path: Path, change) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))  # NaN and Infinity as Python's json writes them
+
+
+def _files(folder: Path) -> dict[str, tuple[int, bytes]]:
+    return {str(p.relative_to(folder)): (p.stat().st_mtime_ns, p.read_bytes())
+            for p in sorted(folder.rglob("*")) if p.is_file()}  # fmt: skip
+
+
+def _cell(i: int, **change: object):  # type: ignore[no-untyped-def]
+    return lambda d: d["cells"][i].update(change)
+
+
+def _config(**change: object):  # type: ignore[no-untyped-def]
+    return lambda d: d["config"].update(change)
+
+
+#: results.json edits the report refuses, with the words of its one line
+BAD_RESULTS = {
+    "psnr-text": (_cell(0, psnr="high"), "cells[0].psnr must be a finite number or null, found 'high'"),
+    "ssim-nan": (_cell(0, ssim=float("nan")), "cells[0].ssim must be a finite number or null, found nan"),
+    "lpips-inf": (_cell(1, lpips=float("inf")), "cells[1].lpips must be a finite number or null, found inf"),
+    "psnr-bool": (_cell(0, psnr=True), "cells[0].psnr must be a finite number or null, found True"),
+    "seconds": (_cell(0, eval_seconds=-1), "cells[0].eval_seconds must be a finite number ≥ 0 or null"),
+    "train-seconds": (_cell(1, train_seconds="2"), "cells[1].train_seconds must be a finite number ≥ 0"),
+    "variant": (
+        _cell(0, variant="bogus"),
+        "cells[0].variant 'bogus' is not one of config.variants (nerf-gt, ",
+    ),
+    "variant-not-run": (_cell(1, variant="nerf-blur"), "cells[1].variant 'nerf-blur' is not one of config."),
+    "scene-path": (_cell(0, scene="../../etc"), "cells[0].scene '../../etc' is not one of config.scenes"),
+    "color": (_cell(0, color="rgb"), "cells[0].color 'rgb' is not one of config.colors (gray)"),
+    "seed": (_cell(0, seed=-1), "cells[0].seed must be a non-negative integer, found -1"),
+    "seed-text": (_cell(0, seed="0"), "cells[0].seed must be a non-negative integer, found '0'"),
+    "cell-list": (lambda d: d["cells"].__setitem__(1, [1]), "cells[1] is list, not an object"),
+    "cells-object": (lambda d: d.__setitem__("cells", {}), "cells is dict, not a list"),
+    "cell-twice": (lambda d: d["cells"].append(d["cells"][0]), "/nerf-gt/0 is held twice in this file"),
+    "config-scene-path": (
+        lambda d: (d["config"].update(scenes=["../../etc"]), d["cells"][0].update(scene="../../etc")),
+        "config.scenes must be a non-empty list of distinct scene names",
+    ),
+    "config-scene-absolute": (_config(scenes=["/etc"]), "config.scenes must be a non-empty list"),
+    "size-negative": (_config(size=-4), "config.size must be a positive integer, found -4"),
+    "size-text": (_config(size="20"), "config.size must be a positive integer, found '20'"),
+    "size-float": (_config(size=20.0), "config.size must be a positive integer, found 20.0"),
+    "config-variant": (_config(variants=["nerf-gt", "bogus"]), "config.variants must be a non-empty list"),
+    "config-seeds": (_config(seeds=[0, 0]), "config.seeds must be null or a non-empty list of distinct"),
+    "executor": (_config(executor="x"), "config.executor must be one of local, ray, found 'x'"),
+    "trained-on": (lambda d: d.update(trained_on={"nerf-gt": 3}), "trained_on.nerf-gt must be a string"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_RESULTS)
+def test_report_refuses_a_bad_results_value_in_one_line_writing_nothing(
+    case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A hand-edited value of results.json: exit 2, one line naming the file and the value, before the report
+    or any figure is written (a wrong metric's type was a TypeError, an unknown variant a KeyError after
+    figures/ was rewritten; a scene named like a path would have named files outside the folder)."""
+    out = _finished(tmp_path)
+    change, words = BAD_RESULTS[case]
+    _edit(out / "results.json", change)
+    before = _files(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        _cli("report", out, "--no-progress")
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"spikenerf: error: {out / 'results.json'}: ") and words in err, err
+    assert _files(tmp_path) == before
+
+
+def test_report_refuses_a_bad_cell_of_another_call(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = _finished(tmp_path)
+    other = tmp_path / "seed1.json"
+    other.write_text((out / "results.json").read_text())
+    _edit(other, lambda d: [c.update(seed=1) for c in d["cells"]] and d["cells"][1].update(psnr=float("nan")))
+    with pytest.raises(SystemExit) as exit_:
+        _cli("report", out, other, "--no-progress")
+    err = capsys.readouterr().err
+    assert (
+        exit_.value.code == 2
+        and err == f"spikenerf: error: {other}: cells[1].psnr must be a finite number or null, found nan\n"
+    )
+    assert not (out / "report.html").exists() and not (out / "figures").exists()
+
+
+def test_report_takes_null_metrics_as_dashes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A null metric (eval writes null for one it cannot compute) is "–" in the tables, not an error."""
+    from spikenerf.pipelines.benchmark.tables import per_scene_table
+
+    out = _finished(tmp_path)
+    _cli("report", out, "--no-progress")
+    assert capsys.readouterr().out.strip() == f"wrote {out / 'report.html'}"
+    page = (out / "report.html").read_text(encoding="utf-8")
+    rows = {r.split("</td>")[0]: r for r in page.split("<section id='tables'>")[1].split("<tr><td>")[1:]}
+    assert '<td class="n best">20.50</td>' in rows["NeRF on sharp GT (oracle)"]
+    assert '<td class="n ">–</td>' in rows["Spike-NeRF (paper)"]
+    cells = [Cell(SCENE, "spike-nerf", "gray", None, 0.4), Cell(SCENE, "nerf-recon", "gray", 20.0, 0.5)]  # type: ignore[arg-type]
+    assert per_scene_table(cells, [("spike-nerf", "nerf-recon")]).endswith(f"| {SCENE} | — |")  # no pair
+
+
+def test_report_rewrites_no_figure_before_refusing_an_unknown_variant(
+    bench: BenchmarkConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The reviewer's case on a real folder: its figures/ and report.html stay as they were."""
+    import dataclasses
+    import shutil
+
+    from spikenerf.pipelines.benchmark.results import write_all
+
+    done = tmp_path / "done"
+    shutil.copytree(bench.out, done)
+    cfg = dataclasses.replace(bench, out=done)
+    write_all(cfg, [read_cell(run_dir(cfg, SCENE, "gray", "nerf-gt"), SCENE, "gray", "nerf-gt")], [])  # type: ignore[list-item]
+    build_report(cfg, [], progress=False)
+    _edit(done / "results.json", _cell(0, variant="bogus"))
+    before = _files(done)
+    assert any(name.startswith("figures/") for name in before)
+    with pytest.raises(SystemExit) as exit_:
+        _cli("report", done, "--no-progress")
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "cells[0].variant 'bogus' is not one of config.variants" in err
+    assert _files(done) == before
+
+
+def test_a_table_that_cannot_be_made_leaves_nothing_written(
+    bench: BenchmarkConfig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """build_report writes the figures and the page only once the whole page is built."""
+    import dataclasses
+    import shutil
+
+    from spikenerf.pipelines import report as report_module
+
+    done = tmp_path / "done"
+    shutil.copytree(bench.out, done, ignore=shutil.ignore_patterns("figures", "report.html"))
+
+    def broken(*args: object, **kwargs: object) -> str:
+        raise RuntimeError("no tables today")
+
+    monkeypatch.setattr(report_module, "_tables_section", broken)
+    with pytest.raises(RuntimeError, match="no tables today"):
+        build_report(dataclasses.replace(bench, out=done), [], progress=False)
+    assert not (done / "figures").exists() and not (done / "report.html").exists()
+
+
+@pytest.mark.parametrize(
+    ("metrics", "words"),
+    [
+        (
+            '{"mean": {"psnr": NaN, "ssim": 0.5, "lpips": null}, "seconds": 1}',
+            "mean.psnr is NaN, not a finite",
+        ),
+        ('{"mean": {"psnr": 20, "ssim": Infinity}, "seconds": 1}', "mean.ssim is Infinity, not a finite"),
+        ('{"mean": {"psnr": 20, "ssim": 0.5, "lpips": -Infinity}}', "mean.lpips is -Infinity, not a finite"),
+        ('{"mean": {"psnr": "20", "ssim": 0.5}}', 'mean.psnr is "20", not a finite number'),
+        ('{"mean": {"psnr": true, "ssim": 0.5}}', "mean.psnr is true, not a finite number"),
+        ('{"mean": {"psnr": 20, "ssim": 0.5}, "seconds": NaN}', "seconds is NaN, not a finite number"),
+        ('{"mean": {"psnr": 20, "ssim": 0.5}, "seconds": "1"}', 'seconds is "1", not a finite number'),
+        ('{"mean": {"psnr": 20, "ssim": 0.5}, "seconds": -1}', "seconds is -1, not a number ≥ 0"),
+        ('{"mean": []}', "malformed metrics"),
+    ],
+)
+def test_a_cell_metrics_json_with_a_non_finite_value_is_malformed(
+    metrics: str, words: str, tmp_path: Path
+) -> None:
+    """A resumed benchmark read a cell's ``"psnr": NaN`` as a finished result (eval writes strict JSON: null,
+    never NaN): it is refused as a malformed metrics.json is, naming that file."""
+    from spikenerf.core.errors import InputError
+
+    (tmp_path / "metrics.json").write_text(metrics)
+    with pytest.raises(InputError) as err:
+        read_cell(tmp_path, SCENE, "gray", "nerf-gt")
+    assert err.value.path == str(tmp_path / "metrics.json")
+    assert "malformed metrics (" in str(err.value) and words in str(err.value)
+    assert "delete it to re-run the cell" in str(err.value)
+
+
+def test_a_cell_metrics_json_of_finite_values_is_read(tmp_path: Path) -> None:
+    (tmp_path / "metrics.json").write_text('{"mean": {"psnr": 20, "ssim": 0.5, "lpips": null}, "seconds": 2}')
+    (tmp_path / "summary.json").write_text('{"seconds": NaN}')  # not a time: left out, never NaN in results
+    cell = read_cell(tmp_path, SCENE, "gray", "nerf-gt", seed=3)
+    assert cell == Cell(SCENE, "nerf-gt", "gray", 20.0, 0.5, None, 2, 3, None)

@@ -121,10 +121,12 @@ def table2_html(cells: Sequence[Cell], color: str, trained_on: Mapping[str, str]
 
 
 def _read_json(path: Path) -> dict:
+    """A JSON object file; {} where it is missing, unreadable or not an object."""
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
+    return data if isinstance(data, dict) else {}
 
 
 def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell], local: set[CellKey] | None = None) -> list[str]:
@@ -144,7 +146,8 @@ def _cell_notes(cfg: BenchmarkConfig, cells: Sequence[Cell], local: set[CellKey]
         if local is not None and key not in local:  # merged from another call: its files are there
             continue
         metrics = _read_json(run / "metrics.json")
-        if metrics.get("mean", {}).get("lpips") is None:
+        mean = metrics.get("mean")
+        if not isinstance(mean, dict) or mean.get("lpips") is None:
             notes.append(f"{where}: LPIPS – ({metrics.get('lpips_reason') or 'not computed'}).")
         if cfg.render and not (run / "render" / "render.json").is_file():
             notes.append(f"{where}: no rendered test views (render did not run).")
@@ -362,7 +365,8 @@ def build_report(
     Each figure is also written as ``cfg.out/figures/<section>-<scene>[-<colour>][-<n>].png``. With cells of
     other calls merged in (``spikenerf report``), ``cfg`` holds their union for the tables, ``own`` the
     folder's own config (its figures and file notes; None: ``cfg``) and ``recorded`` each call's recorded
-    environment (empty: this process's).
+    environment (empty: this process's). Nothing is written until the whole page is built: a table that
+    cannot be made leaves ``figures/`` and the old report as they were.
     """
     fig_cfg = cfg if own is None else own
     from tqdm import tqdm
@@ -381,6 +385,9 @@ def build_report(
             jobs.append(("views", f"{s}-{c}", lambda s=s, c=c: [_views_fig(fig_cfg, dataset(s), s, c)]))
             jobs.append(("curves", f"{s}-{c}", lambda s=s, c=c: [_curves_fig(fig_cfg, s, c)]))
             jobs.append(("novel-spikes", f"{s}-{c}", lambda s=s, c=c: [_novel_fig(fig_cfg, s, c)]))
+    local = None if own is None else set(cell_keys(own))
+    # the tables first: nothing is written (figures/ included) unless the whole page can be built
+    body = [f"<section id='tables'>{_tables_section(cfg, cells, local)}</section>"]
     made: dict[str, list[Fig]] = {k: [] for k in SECTIONS}
     for section, key, make in tqdm(jobs, desc="report figures", unit="fig", disable=not progress):
         try:
@@ -392,10 +399,7 @@ def build_report(
         for i, fig in enumerate(figs):
             if fig.png is not None:  # each figure also as a PNG file, for READMEs and slides
                 fig.file = f"{FIGURES}/{section}-{key}{f'-{i + 1}' if len(figs) > 1 else ''}.png"
-                write_bytes_atomic(cfg.out / fig.file, fig.png)
         made[section] += figs
-    local = None if own is None else set(cell_keys(own))
-    body = [f"<section id='tables'>{_tables_section(cfg, cells, local)}</section>"]
     for sid, (head, text) in HEADS.items():
         figs = "".join(_figure_html(f) for f in made[sid]) or "<p class='note'>–</p>"
         body.append(f"<section id='{sid}'><h2>{head}</h2><p class='note'>{_esc(text)}</p>{figs}</section>")
@@ -404,6 +408,8 @@ def build_report(
     head = f"<head><meta charset='utf-8'><title>spikenerf report</title><style>{CSS}</style></head>"
     page = f"<!DOCTYPE html><html lang='en'>{head}<body><h1>spikenerf report</h1><nav>{nav}</nav>"
     page += "".join(body) + "</body></html>\n"
+    for fig in (f for figs in made.values() for f in figs if f.file):
+        write_bytes_atomic(cfg.out / fig.file, fig.png)  # type: ignore[arg-type]
     path = cfg.out / REPORT
     write_text_atomic(path, page)
     return path

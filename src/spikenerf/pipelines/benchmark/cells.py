@@ -7,6 +7,7 @@ How they run is ``run.py`` and its executors (``executor.py``: local processes o
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import sys
@@ -211,11 +212,22 @@ def read_cell(run: Path, scene: str, color: str, variant: str, seed: int = 0) ->
     try:
         metrics = json.loads(path.read_text())
         mean = metrics["mean"]
-        lpips = None if mean.get("lpips") is None else float(mean["lpips"])
-        psnr, ssim = float(mean["psnr"]), float(mean["ssim"])
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        lpips = None if mean.get("lpips") is None else _finite(mean["lpips"], "mean.lpips")
+        psnr, ssim = _finite(mean["psnr"], "mean.psnr"), _finite(mean["ssim"], "mean.ssim")
+        seconds = metrics.get("seconds")
+        if seconds is not None and _finite(seconds, "seconds") < 0:
+            raise ValueError(f"seconds is {json.dumps(seconds)}, not a number ≥ 0")
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as err:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
-    return Cell(scene, variant, color, psnr, ssim, lpips, metrics.get("seconds"), seed, _train_seconds(run))
+    return Cell(scene, variant, color, psnr, ssim, lpips, seconds, seed, _train_seconds(run))
+
+
+def _finite(value: object, name: str) -> float:
+    """``value`` as a float; ValueError naming ``name`` unless it is a finite JSON number (eval writes strict
+    JSON: a value it cannot compute is null, never NaN or Infinity, so one of those was edited in)."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{name} is {json.dumps(value)}, not a finite number")
+    return float(value)
 
 
 def _train_seconds(run: Path) -> float | None:
@@ -224,7 +236,8 @@ def _train_seconds(run: Path) -> float | None:
         seconds = json.loads((run / "summary.json").read_text()).get("seconds")
     except (OSError, ValueError, AttributeError):
         return None
-    return float(seconds) if isinstance(seconds, int | float) else None
+    finite = isinstance(seconds, int | float) and not isinstance(seconds, bool) and math.isfinite(seconds)
+    return float(seconds) if finite and seconds >= 0 else None
 
 
 def cpu_name() -> str:

@@ -176,6 +176,10 @@ def read_call(path: Path) -> RecordedCall:
             raise KeyError(", ".join(missing))
         if not isinstance(data["cells"], list):
             raise TypeError(f"cells is {type(data['cells']).__name__}, not a list")
+        if (
+            bad := next((i for i, c in enumerate(data["cells"]) if not isinstance(c, dict)), None)
+        ) is not None:
+            raise TypeError(f"cells[{bad}] is {type(data['cells'][bad]).__name__}, not an object")
         cells = [Cell.from_dict(c) for c in data["cells"]]
         call = RecordedCall(
             path, config, cells, dict(data.get("trained_on", {})), dict(data.get("environment", {}))
@@ -217,7 +221,8 @@ def _scene(x: Any) -> bool:
 CONFIG_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "scenes": ("a non-empty list of distinct scene names (letters, digits, _ . -; not a path)",
                lambda x: _names(x, _scene)),
-    "variants": ("a non-empty list of distinct method variants", lambda x: _names(x, VARIANTS.__contains__)),
+    "variants": ("a non-empty list of distinct method variants",
+                 lambda x: _names(x, lambda v: isinstance(v, str) and v in VARIANTS)),
     "colors": ("a non-empty list of distinct colours (gray, rgb)", lambda x: _names(x, COLORS.__contains__)),
     "size": ("a positive integer", lambda x: _int(x, 1)),
     "frames": ("a positive integer", lambda x: _int(x, 1)),
@@ -235,7 +240,8 @@ CONFIG_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "blur_views": ("a string", lambda x: isinstance(x, str)),
     "executor": (f"one of {', '.join(EXECUTORS)}", lambda x: isinstance(x, str) and x in EXECUTORS),
     "address": ("null or a string", lambda x: x is None or isinstance(x, str)),
-    "extra_train_args": ("a list of strings", lambda x: isinstance(x, list) and all(isinstance(a, str) for a in x)),
+    "extra_train_args": ("a list of strings",
+                         lambda x: isinstance(x, list) and all(isinstance(a, str) for a in x)),
     "ray_cpus": ("a positive number", lambda x: _number(x) and x > 0),
 }  # fmt: skip
 #: a cell's metrics, each a finite number or null (not available, as "–" in the tables), and its times
@@ -286,15 +292,16 @@ def merge_calls(calls: Sequence[RecordedCall]) -> tuple[dict, list[Cell], dict[s
     config = {k: calls[0].config[k] for k in MERGE_KEYS}
     cells: list[Cell] = []
     trained_on: dict[str, str] = {}
-    seen: set[tuple] = set()
-    for call in calls:
+    seen: dict[tuple, int] = {}  # cell -> the call holding it
+    for n, call in enumerate(calls):
         if diff := [k for k in MERGE_KEYS if call.config[k] != config[k]]:
             raise InputError(f"{call.path}: its benchmark differs from {calls[0].path} in {', '.join(diff)}")
         for c in call.cells:
             key = (c.scene, c.color, c.variant, c.seed)
             if key in seen:
-                raise InputError(f"{call.path}: cell {'/'.join(map(str, key))} is also in an earlier file")
-            seen.add(key)
+                where = "held twice in this file" if seen[key] == n else "also in an earlier file"
+                raise InputError(f"{call.path}: cell {'/'.join(map(str, key))} is {where}")
+            seen[key] = n
             cells.append(c)
         trained_on.update(call.trained_on)
     return config, cells, trained_on

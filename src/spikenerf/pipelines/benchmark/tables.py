@@ -203,8 +203,9 @@ def table2_markdown(cells: Sequence[Cell], color: str, trained_on: Mapping[str, 
 
 def per_scene_table(cells: Sequence[Cell], pairs: Sequence[tuple[str, str]]) -> str:
     """A Markdown table: one row per scene, one column per (ours, baseline) pair that the scene has for
-    every seed; each entry is the mean PSNR difference over the paired seeds, then each seed's."""
-    psnr = {(c.scene, c.variant, c.seed): c.psnr for c in cells}
+    every seed; each entry is the mean PSNR difference over the paired seeds, then each seed's (a cell
+    whose PSNR is null pairs with none)."""
+    psnr = {(c.scene, c.variant, c.seed): c.psnr for c in cells if c.psnr is not None}
     scenes = list(dict.fromkeys(c.scene for c in cells))
     seeds = sorted({c.seed for c in cells})
     lines = ["| scene | " + " | ".join(f"{a} − {b}" for a, b in pairs) + " |", "|---|" + "---:|" * len(pairs)]
