@@ -235,3 +235,34 @@ def test_python_warnings_print_as_one_line_and_the_callers_display_comes_back(ca
     with pytest.raises(SystemExit):
         main(["info", "/nonexistent/run"])
     assert warnings.showwarning is before
+
+
+def test_spikenerf_quiet_hides_every_bar_and_each_command_takes_both_spellings(
+    capsys, tmp_path, monkeypatch
+) -> None:  # type: ignore[no-untyped-def]
+    """``spikenerf --quiet COMMAND`` hides every progress bar, also in the processes it starts (the variable
+    is inherited) and is put back afterwards; ``--quiet`` and ``--no-progress`` are one option on every
+    command that has either; on a command without one, ``--quiet`` after it is named a global option."""
+    import os
+
+    from helpers import run_cli
+    from spikenerf.core import progress
+
+    monkeypatch.delenv(progress.QUIET_ENV, raising=False)
+    assert not progress.bar(range(3), show=True).disable and progress.bar(range(3), show=False).disable
+    seen: list[bool] = []
+    monkeypatch.setattr("spikenerf.cli.info.command.callback", lambda *a, **k: seen.append(progress.quiet()))
+    run_cli(capsys, "--quiet", "info", tmp_path)
+    assert seen == [True] and progress.QUIET_ENV not in os.environ  # set for the command, then put back
+    monkeypatch.setenv(progress.QUIET_ENV, "1")
+    assert progress.bar(range(3), show=True).disable
+    monkeypatch.delenv(progress.QUIET_ENV)
+    out = tmp_path / "ds"
+    code, _, err = run_cli(capsys, "simulate", "--scene", "analytic-orbs", "--width", 8, "--height", 8,
+                           "--frames", 20, "--test-views", 1, "--quiet", "--out", out)  # fmt: skip
+    assert code == 0 and "it/s" not in err and "step/s" not in err, err
+    for command in ("train", "eval", "render"):
+        code, _, err = run_cli(capsys, command, tmp_path / "nothing", "--no-progress")
+        assert "No such option" not in err, err
+    code, _, err = run_cli(capsys, "import", out / "spikes_gray.dat", "--quiet")
+    assert code == 2 and "--quiet is a global option: put it first, e.g. spikenerf --quiet COMMAND" in err

@@ -354,9 +354,9 @@ def simulate(
     camera = SpikeCamera(height, width, config, device, noise_params)
     total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
     if progress:
-        from tqdm import tqdm
+        from spikenerf.core.progress import bar
 
-        frames = tqdm(frames, total=total, desc="spike camera", unit="step")
+        frames = bar(frames, total=total, desc="spike camera", unit="step")
     if device is None and total is not None:
         out = np.empty((total, *camera.spike_shape), dtype=bool)
         for t, frame in enumerate(frames):

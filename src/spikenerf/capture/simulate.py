@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from spikenerf import __version__
 from spikenerf.camera.layout import to_camera_layout
@@ -38,6 +37,7 @@ from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_output, mark, replace_dir
+from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import MODES, near_far, spike_files
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
 from spikenerf.scenes.base import FrameSource
@@ -261,7 +261,7 @@ def render_missing(source: FrameSource, cache: Path, progress: bool = True, jobs
     k = source.intrinsics
     shape = (k.height, k.width, 3)
     missing = [int(s) for s in source.trajectory.steps if not _cached(cache / f"{int(s):05d}.npy", shape)]
-    bar = tqdm(total=len(missing), desc="render", unit="step", disable=not progress or not missing)
+    bar = progress_bar(total=len(missing), desc="render", unit="step", show=progress and bool(missing))
     for step, frame in zip(missing, _frames(source, missing, jobs), strict=True):
         frame = np.asarray(frame)
         if frame.shape != (k.height, k.width, 3) or not np.isfinite(frame).all():
@@ -345,7 +345,7 @@ def stream_steps(
     if windows and options.blur_views != "frames":
         writer.start_blur_array(len(windows))
     blur = RunningExposures(windows, frame_at)
-    for i in tqdm(range(len(traj)), desc="spikes", unit="step", disable=not progress):
+    for i in progress_bar(range(len(traj)), desc="spikes", unit="step", show=progress):
         step, frame = traj.steps[i], frame_at(i)
         chw = np.ascontiguousarray(to_camera_layout(frame, frame=True))
         for c, camera in cameras.items():

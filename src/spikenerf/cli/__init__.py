@@ -68,7 +68,7 @@ class LazyGroup(click.Group):
 
 
 #: options of the group itself: given after a command they get a hint to move them
-GLOBAL_OPTIONS = {"--threads": "--threads 1", "--no-limits": "--no-limits"}
+GLOBAL_OPTIONS = {"--threads": "--threads 1", "--no-limits": "--no-limits", "--quiet": "--quiet"}
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -85,7 +85,13 @@ GLOBAL_OPTIONS = {"--threads": "--threads 1", "--no-limits": "--no-limits"}
     help="Skip the memory and disk estimates that refuse oversized jobs before they start "
     "(inherited by the runs that benchmark and demo start).",
 )
-def cli(threads: int | None, no_limits: bool) -> None:
+@click.option(
+    "--quiet",
+    is_flag=True,
+    help="No progress bars, in this command and in the runs it starts (benchmark, demo); each command's "
+    "--quiet/--no-progress hides its own.",
+)
+def cli(threads: int | None, no_limits: bool, quiet: bool) -> None:
     """spikenerf: spike cameras, from simulation to Spike-NeRF novel views and novel spike streams."""
     if threads is not None:
         set_cpu_threads(threads)
@@ -93,6 +99,14 @@ def cli(threads: int | None, no_limits: bool) -> None:
         from spikenerf.core.limits import NO_LIMITS_ENV
 
         os.environ[NO_LIMITS_ENV] = "1"
+    if quiet:
+        from spikenerf.core.progress import QUIET_ENV
+
+        before = os.environ.get(QUIET_ENV)
+        os.environ[QUIET_ENV] = "1"  # (put back when the command ends: in-process callers keep theirs)
+        click.get_current_context().call_on_close(
+            lambda: os.environ.pop(QUIET_ENV) if before is None else os.environ.update({QUIET_ENV: before})
+        )
 
 
 def set_cpu_threads(threads: int) -> None:

@@ -63,7 +63,7 @@ PARAM_FLAGS = {
     "--test-pose-lr", type=float, default=2e-3, show_default=True,
     help="Adam rate of --test-pose-opt (radians and scene units per step).",
 )  # fmt: skip
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--quiet", "--no-progress", "quiet", is_flag=True, help="No progress bar.")
 def command(
     run: Path, split: str, device: str, lpips_backbone: str, dataset: Path | None, chunk: int, noref: str,
     precision: str, noref_steps: int, spike_window: int | None, spike_pixels: int, test_pose_opt: int,

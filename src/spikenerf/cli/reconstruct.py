@@ -126,10 +126,9 @@ def command(
     out: Path,
     overwrite: bool,
 ) -> None:
-    from tqdm import tqdm
-
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
     from spikenerf.cli.types import dat_recording
+    from spikenerf.core.progress import bar as progress_bar
     from spikenerf.data.reconstruction import reconstructor
 
     recording = dat_recording(spikes, height, width, raw_width)
@@ -182,8 +181,8 @@ def command(
                 raise InputError(err.message, path=spikes, param=err.params) from None
             yield block, image
 
-    bar = tqdm(
-        total=len(frames), unit="frame", desc=f"{method} {spikes.name}", disable=len(frames) < 32 or None
+    bar = progress_bar(
+        total=len(frames), unit="frame", desc=f"{method} {spikes.name}", show=len(frames) >= 32 and None
     )
     with output_lock(out), bar:
         _clean_temps(out, kind)

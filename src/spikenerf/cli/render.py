@@ -32,7 +32,7 @@ from spikenerf.cli.types import SEED, device_option
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
 @chunk_option
 @precision_option
-@click.option("--quiet", is_flag=True, help="No progress bars.")
+@click.option("--quiet", "--no-progress", "quiet", is_flag=True, help="No progress bars.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder.")
 def command(
     run: Path,

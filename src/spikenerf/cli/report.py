@@ -15,7 +15,7 @@ import click
 )
 @click.argument("out", type=click.Path(path_type=Path))
 @click.argument("results", nargs=-1, type=click.Path(path_type=Path))
-@click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
+@click.option("--no-progress", "--quiet", "no_progress", is_flag=True, help="Hide the progress bar.")
 def command(out: Path, results: tuple[Path, ...], no_progress: bool) -> None:
     from spikenerf.pipelines.suite import report_from_folder
 

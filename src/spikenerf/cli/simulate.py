@@ -123,7 +123,7 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
     help="Processes rendering frames at once (analytic scenes; Blender and sequences render in one).",
 )  # fmt: skip
-@click.option("--no-progress", is_flag=True, help="Hide the progress bars.")
+@click.option("--no-progress", "--quiet", "no_progress", is_flag=True, help="Hide the progress bars.")
 def command(**kw: Any) -> None:
     from spikenerf.scenes import registry
 

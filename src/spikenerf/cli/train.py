@@ -277,7 +277,7 @@ PARAM_FLAGS = {
     is_flag=True,
     help="No warning for flags the method does not use (for scripts that give every method one set).",
 )
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--quiet", "--no-progress", "quiet", is_flag=True, help="No progress bar.")
 @click.pass_context
 def command(
     ctx: click.Context,

@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from spikenerf.camera.reconstruct import check_window
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
@@ -25,6 +24,7 @@ from spikenerf.core.color import rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import owned
+from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import PosedImages, SpikeDataset
 from spikenerf.data.holdout import check_steps, read_record
 from spikenerf.data.targets import image_channels, window_steps
@@ -263,7 +263,7 @@ def _evaluate_locked(
     window = None  # each test keyframe's S poses on the run's (refined) path: (V, S, 4, 4)
     if windows is not None:
         window = np.asarray(refined_dataset(ckpt, config, dataset).trajectory.poses)[windows]
-    for i in tqdm(range(len(views)), desc=f"eval {split}", unit="view", disable=not progress):
+    for i in progress_bar(range(len(views)), desc=f"eval {split}", unit="view", show=progress):
         poses = [views.poses[i]] if window is None else window[i]  # one pose, or a keyframe's window
         color = render_mean(model, poses, k, dataset.near, dataset.far, chunk, precision)
         pred = display(color, model.channels)
@@ -294,7 +294,7 @@ def _evaluate_locked(
     if use_noref:
 
         def bar(steps: Any) -> Any:
-            return tqdm(steps, desc="no-reference", unit="step", disable=not progress)
+            return progress_bar(steps, desc="no-reference", unit="step", show=progress)
 
         path = refined_dataset(ckpt, config, dataset)  # the poses the model was fitted to
         result["no_reference"] = noref_metrics(model, config, path, noref[1], chunk, display, bar, held)

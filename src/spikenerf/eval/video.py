@@ -34,7 +34,6 @@ from typing import Any
 import imageio.v3 as iio
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from spikenerf.camera.io import write_dat, write_dat_rgb
 from spikenerf.camera.layout import to_channels_last
@@ -47,6 +46,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
+from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path, spike_files
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_array, render_key
@@ -212,7 +212,7 @@ def write_spikes(
         model, path.poses[len(done) :], k, dataset.threshold, torch.as_tensor(start) if done else seed,
         chunk, path.near, path.far,
     )  # fmt: skip
-    bar = tqdm(total=len(path.poses), initial=len(done), desc="spikes", unit="step", disable=not progress)
+    bar = progress_bar(total=len(path.poses), initial=len(done), desc="spikes", unit="step", show=progress)
     steps = list(done)
     for spikes, acc in states:
         steps.append(spikes.numpy())
@@ -351,7 +351,9 @@ def render_views(
     """Each view of ``path`` as (8-bit sRGB colour (H, W) or (H, W, 3), depth (H, W), opacity (H, W)),
     from ``cache`` where it holds the view, else rendered and kept there."""
     k, views = path.intrinsics, ([], [], [])
-    for i, pose in enumerate(tqdm(path.poses, desc=f"render {path.name}", unit="view", disable=not progress)):
+    for i, pose in enumerate(
+        progress_bar(path.poses, desc=f"render {path.name}", unit="view", show=progress)
+    ):
         found = cache.view(i, (k.height, k.width))
         if found is None:
             r = render_image(model, pose, k, path.near, path.far, chunk, precision)

@@ -369,7 +369,7 @@ def build_report(
     cannot be made leaves ``figures/`` and the old report as they were.
     """
     fig_cfg = cfg if own is None else own
-    from tqdm import tqdm
+    from spikenerf.core.progress import bar
 
     jobs: list[tuple[str, str, Callable[[], list[Fig]]]] = []
     datasets: dict[str, SpikeDataset] = {}
@@ -389,7 +389,7 @@ def build_report(
     # the tables first: nothing is written (figures/ included) unless the whole page can be built
     body = [f"<section id='tables'>{_tables_section(cfg, cells, local)}</section>"]
     made: dict[str, list[Fig]] = {k: [] for k in SECTIONS}
-    for section, key, make in tqdm(jobs, desc="report figures", unit="fig", disable=not progress):
+    for section, key, make in bar(jobs, desc="report figures", unit="fig", show=progress):
         try:
             figs = make()
         except Exception as err:  # never crash the report: show what is missing and why

@@ -139,7 +139,7 @@ def _write_locked(
     out: Path, cfg: PairConfig, train_draws: int, val_draws: int, seed: int,
     extra: dict[str, FrameSource] | None, extra_draws: int, command: str, progress: bool, natural_draws: int,
 ) -> dict:  # fmt: skip
-    from tqdm import tqdm
+    from spikenerf.core.progress import bar as progress_bar
 
     manifest = {
         "config": asdict(cfg),
@@ -170,7 +170,7 @@ def _write_locked(
     counters = dict.fromkeys(("train", "val"), 0)
     jobs = plan(cfg, train_draws, val_draws, seed, extra or {}, extra_draws, natural_draws)
     total = sum(-(-n // DRAWS_PER_SHARD) for _, _, n in jobs)
-    with tqdm(total=total, unit="shard", desc="recon pairs", disable=not progress) as bar:
+    with progress_bar(total=total, unit="shard", desc="recon pairs", show=progress) as bar:
         for split, draw, count in jobs:
             for start in range(0, count, DRAWS_PER_SHARD):
                 target = shard_path(out, split, counters[split])

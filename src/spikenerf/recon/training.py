@@ -117,7 +117,7 @@ def train_recon(
 def _train_locked(
     pairs_dir: str | Path, out: Path, cfg: ReconTrainConfig, command: str, progress: bool, stop_at: int | None
 ) -> dict:
-    from tqdm import tqdm
+    from spikenerf.core.progress import bar as progress_bar
 
     manifest = read_manifest(pairs_dir)
     if manifest.get("complete") is not True:
@@ -149,7 +149,7 @@ def _train_locked(
         start,
         cfg.iters if stop_at is None else min(stop_at, cfg.iters),
     )
-    bar = tqdm(total=cfg.iters, initial=start, unit="it", desc="recon-train", disable=not progress)
+    bar = progress_bar(total=cfg.iters, initial=start, unit="it", desc="recon-train", show=progress)
     while it < end:
         win, tgt, scale = sample_batch(train, cfg, gen)
         for group in opt.param_groups:

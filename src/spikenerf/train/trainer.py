@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 import torch
-from tqdm import tqdm
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.device import resolve_device
@@ -28,6 +27,7 @@ from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark, owned
+from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.holdout import write_record
 from spikenerf.data.rays import pixel_rays
@@ -458,8 +458,8 @@ class Trainer:
         write_record(self.out, self.holdout)
         mark(self.out, "run")
         end = cfg.iters if stop_after is None else min(cfg.iters, self.iteration + stop_after)
-        bar = tqdm(
-            total=cfg.iters, initial=self.iteration, desc="train", unit="it", disable=not self.progress
+        bar = progress_bar(
+            total=cfg.iters, initial=self.iteration, desc="train", unit="it", show=self.progress
         )
         recent, interval = RunningMeans(), self.interval
         train_psnr, started = math.nan, self.iteration

@@ -14,8 +14,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
 
-from tqdm import tqdm
-
+from spikenerf.core.progress import bar as progress_bar
 from spikenerf.pipelines.benchmark.steps import Job, run_step, stop_running
 
 T = TypeVar("T")
@@ -58,7 +57,10 @@ def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> 
     cancels the tasks not yet started, lets the running ones finish, and is raised; an interruption
     (Ctrl-C, SIGTERM) also stops the steps running now (:func:`stop_running`)."""
     results: dict[int, T] = {}
-    with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(tasks), desc=desc, unit=unit) as bar:
+    with (
+        ThreadPoolExecutor(max_workers=jobs) as pool,
+        progress_bar(total=len(tasks), desc=desc, unit=unit) as bar,
+    ):
         futures = {pool.submit(task): i for i, task in enumerate(tasks)}
         try:
             for future in as_completed(futures):

@@ -29,10 +29,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
-from tqdm import tqdm
-
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.errors import InputError
+from spikenerf.core.progress import bar as progress_bar
 from spikenerf.pipelines.benchmark.steps import Job, run_step
 
 
@@ -250,7 +249,7 @@ def _wait(
     / failed."""
     failed: list[tuple[str, str]] = []
     pending = set(refs)
-    with tqdm(total=len(cells), desc="benchmark cells (ray)", unit="cell") as bar:
+    with progress_bar(total=len(cells), desc="benchmark cells (ray)", unit="cell") as bar:
         bar.update(sum(1 for job in cells if job not in refs.values()))
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)

@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from spikenerf.core.errors import InputError
+from spikenerf.core.progress import bar as progress_bar
 from spikenerf.scenes.blender._bpy import import_bpy, quiet
 from spikenerf.scenes.blender.catalog import BUILTIN_SCENES, DEFAULT_CAMERA_ANGLE_X, DEFAULT_SPP
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
@@ -175,12 +175,8 @@ class BlenderSource:
                 f"steps {missing[:5]} are not on the trajectory (steps "
                 f"{int(self.trajectory.steps.min())}..{int(self.trajectory.steps.max())})"
             )
-        with tqdm(
-            total=len(steps),
-            desc=f"blender {self.name}",
-            unit="frame",
-            disable=not self.progress,
-            leave=False,
+        with progress_bar(
+            total=len(steps), desc=f"blender {self.name}", unit="frame", show=self.progress, leave=False
         ) as bar:
             for s in steps:
                 frame = self.render_pose(self.trajectory.poses[self._index[s]])

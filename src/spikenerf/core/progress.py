@@ -1,0 +1,29 @@
+"""Progress bars: ``tqdm``, hidden where the caller asks or where ``spikenerf --quiet`` runs.
+
+``spikenerf --quiet COMMAND`` sets :data:`QUIET_ENV`, which the runs that ``benchmark`` and ``demo`` start
+inherit, so every bar of the command and of its child processes stays hidden; each command's own
+``--quiet`` (``--no-progress``) hides its bars alone.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from typing import Any
+
+#: set to "1" by ``spikenerf --quiet``: no progress bar in this process or in the processes it starts
+QUIET_ENV = "SPIKENERF_QUIET"
+
+
+def quiet() -> bool:
+    """Whether ``spikenerf --quiet`` hid every progress bar (:data:`QUIET_ENV`)."""
+    return os.environ.get(QUIET_ENV, "0") == "1"
+
+
+def bar(iterable: Iterable[Any] | None = None, *, show: bool | None = True, **kwargs: Any) -> Any:
+    """A ``tqdm`` bar over ``iterable`` (or a manual one, with ``total=``), shown where ``show`` and not
+    :func:`quiet` (``show`` None: only on a terminal); other keyword arguments go to ``tqdm``."""
+    from tqdm import tqdm
+
+    hidden = show is False or quiet()
+    return tqdm(iterable, disable=True if hidden else None if show is None else False, **kwargs)
