@@ -466,3 +466,14 @@ def test_a_cell_metrics_json_of_finite_values_is_read(tmp_path: Path) -> None:
     (tmp_path / "summary.json").write_text('{"seconds": NaN}')  # not a time: left out, never NaN in results
     cell = read_cell(tmp_path, SCENE, "gray", "nerf-gt", seed=3)
     assert cell == Cell(SCENE, "nerf-gt", "gray", 20.0, 0.5, None, 2, 3, None)
+
+
+def test_a_cell_that_scored_no_psnr_says_to_train_it_again(tmp_path: Path) -> None:
+    """eval writes ``"psnr": null`` where the renders were not finite (a diverged run): evaluating again gives
+    the same null, so the message says to delete the cell's run, not its metrics.json."""
+    from spikenerf.core.errors import InputError
+
+    (tmp_path / "metrics.json").write_text('{"mean": {"psnr": null, "ssim": null, "lpips": null}}')
+    with pytest.raises(InputError, match=rf"scored no PSNR .*; delete {tmp_path} to train it again") as err:
+        read_cell(tmp_path, SCENE, "gray", "nerf-gt")
+    assert err.value.path == str(tmp_path / "metrics.json")

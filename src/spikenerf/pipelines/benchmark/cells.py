@@ -212,11 +212,19 @@ def read_cell(run: Path, scene: str, color: str, variant: str, seed: int = 0) ->
     try:
         metrics = json.loads(path.read_text())
         mean = metrics["mean"]
+        if isinstance(mean, dict) and "psnr" in mean and mean["psnr"] is None:  # eval's null: not finite
+            raise InputError(
+                f"the cell scored no PSNR (its renders were not finite: a diverged run?); delete {run} to "
+                "train it again",
+                path=path,
+            )
         lpips = None if mean.get("lpips") is None else _finite(mean["lpips"], "mean.lpips")
         psnr, ssim = _finite(mean["psnr"], "mean.psnr"), _finite(mean["ssim"], "mean.ssim")
         seconds = metrics.get("seconds")
         if seconds is not None and _finite(seconds, "seconds") < 0:
             raise ValueError(f"seconds is {json.dumps(seconds)}, not a number ≥ 0")
+    except InputError:
+        raise
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as err:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
     return Cell(scene, variant, color, psnr, ssim, lpips, seconds, seed, _train_seconds(run))
