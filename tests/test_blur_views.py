@@ -145,11 +145,15 @@ def test_corrupt_blur_array_is_one_input_error(tmp_path: Path) -> None:
     np.save(out / "blur" / "views.npy", np.zeros((4, SIZE, SIZE, 3), np.float16))
     with pytest.raises(InputError, match=r"shape \(5, 12, 12, 3\)"):
         load_dataset(out)
+    from spikenerf.data.targets import blur_targets
+
     for view, value in ((3, np.nan), (0, np.inf), (4, -0.5)):  # values the simulator never writes
         bad = good.copy()
         bad[view, 2, 5, 1] = value
         np.save(out / "blur" / "views.npy", bad)
-        with pytest.raises(InputError, match=f"view {view} holds a NaN, an infinity or a negative value"):
-            load_dataset(out)
+        ds = load_dataset(out)  # (not read whole at every load: the array can be gigabytes)
+        for samples in (None, 2):  # as nerf-blur and the exposure-aware methods read them
+            with pytest.raises(InputError, match=f"blur view {view} holds a NaN, an infinity or a negative"):
+                blur_targets(ds, "gray", samples)
     np.save(out / "blur" / "views.npy", good)
-    load_dataset(out)
+    assert len(blur_targets(load_dataset(out), "gray").images) == 5

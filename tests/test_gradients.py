@@ -378,6 +378,21 @@ def test_without_a_compiler_the_kernel_is_not_built_and_says_so_once(monkeypatch
         assert vm_kernel._load() is None
         assert vm_kernel._load() is None  # remembered: no second warning
     assert len(got) == 1
+    monkeypatch.setattr(vm_kernel, "_FAILED", False)
+    monkeypatch.setenv("CXX", "ccache g++ -O2")  # a wrapper: either of its first two words will do
+    monkeypatch.setattr(
+        vm_kernel.shutil, "which", lambda name, **kw: "/usr/bin/g++" if name == "g++" else None
+    )
+    monkeypatch.setattr(vm_kernel, "_build", lambda *a: "built")
+    assert vm_kernel._load() == "built"
+    monkeypatch.undo()
+    import torch.utils.cpp_extension as ext
+
+    def unwritable(name: str, verbose: bool) -> str:
+        raise NotADirectoryError(20, "Not a directory", "/tmp/file/ext")
+
+    monkeypatch.setattr(ext, "_get_build_directory", unwritable)
+    assert vm_kernel._built_any() is False  # an unwritable cache: nothing built, not an error
 
 
 _LOAD_KERNEL = """

@@ -88,8 +88,8 @@ GLOBAL_OPTIONS = {"--threads": "--threads 1", "--no-limits": "--no-limits", "--q
 @click.option(
     "--quiet",
     is_flag=True,
-    help="No progress bars, in this command and in the runs it starts (benchmark, demo); each command's "
-    "--quiet/--no-progress hides its own.",
+    help="No progress bars, in this command and in the runs it starts on this machine (benchmark, demo; "
+    "not those of a Ray cluster); each command's --quiet/--no-progress hides its own.",
 )
 def cli(threads: int | None, no_limits: bool, quiet: bool) -> None:
     """spikenerf: spike cameras, from simulation to Spike-NeRF novel views and novel spike streams."""

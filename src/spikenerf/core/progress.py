@@ -1,8 +1,9 @@
 """Progress bars: ``tqdm``, hidden where the caller asks or where ``spikenerf --quiet`` runs.
 
 ``spikenerf --quiet COMMAND`` sets :data:`QUIET_ENV`, which the runs that ``benchmark`` and ``demo`` start
-inherit, so every bar of the command and of its child processes stays hidden; each command's own
-``--quiet`` (``--no-progress``) hides its bars alone.
+on this machine inherit (a Ray worker's runs do not: they have the worker's environment), so every bar of
+the command and of its child processes stays hidden; each command's own ``--quiet`` (``--no-progress``)
+hides its bars alone.
 """
 
 from __future__ import annotations

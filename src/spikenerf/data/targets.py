@@ -280,10 +280,25 @@ def blur_targets(
             raise InputError(f"blur samples per exposure must be ≥ 1, found {samples}")
         sub = np.stack([exposure_steps(r, samples) for r in ranges])
         poses = torch.as_tensor(np.stack([step_poses(dataset, s) for s in sub]), dtype=torch.float32)
-        return ImageTargets(
-            poses, half_channels(blur.images, color), torch.as_tensor(steps), torch.as_tensor(sub)
+        images = _valid_blur(half_channels(blur.images, color), dataset)
+        return ImageTargets(poses, images, torch.as_tensor(steps), torch.as_tensor(sub))
+    return ImageTargets(
+        poses, _valid_blur(half_channels(blur.images, color), dataset), torch.as_tensor(steps)
+    )
+
+
+def _valid_blur(images: Tensor, dataset: SpikeDataset) -> Tensor:
+    """``images`` (K, H, W, C), or an InputError naming the view that holds a NaN, an infinity or a negative
+    value (only an edited ``blur/views.npy`` can: the simulator writes [0, 1]; PNGs cannot), which trained
+    to a non-finite loss blamed on the learning rate. Checked where training reads them, not at every load
+    of a dataset (the array can be gigabytes)."""
+    bad = ~(images.isfinite() & (images >= 0)).flatten(1).all(dim=1)
+    if bad.any():
+        raise InputError(
+            f"blur view {int(bad.nonzero()[0, 0])} holds a NaN, an infinity or a negative value",
+            path=getattr(dataset, "root", None),
         )
-    return ImageTargets(poses, half_channels(blur.images, color), torch.as_tensor(steps))
+    return images
 
 
 def build_spike_targets(

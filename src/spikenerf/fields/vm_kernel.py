@@ -28,6 +28,7 @@ import hashlib
 import importlib.util
 import os
 import platform
+import shlex
 import shutil
 import sys
 import time
@@ -450,7 +451,11 @@ def _built_any() -> bool:
 
     for cflags, ldflags in ((_OPENMP_CFLAGS, _OPENMP_LDFLAGS), ([], [])):
         name = _name(_CFLAGS + cflags, ldflags)
-        if (Path(_get_build_directory(name, verbose=False)) / f"{name}.so").exists():
+        try:  # (torch makes the folder: an unwritable cache is "nothing built", not an error)
+            folder = Path(_get_build_directory(name, verbose=False))
+        except OSError:
+            continue
+        if (folder / f"{name}.so").exists():
             return True
     return False
 
@@ -468,7 +473,11 @@ def _load() -> Any:
         _FAILED = True
         return None
     compiler = os.environ.get("CXX", "c++")
-    if shutil.which(compiler) is None and not _built_any():
+    try:  # CXX may hold a wrapper and flags ("ccache g++")
+        words = shlex.split(compiler) or ["c++"]
+    except ValueError:
+        words = compiler.split() or ["c++"]
+    if not any(shutil.which(word) for word in words[:2]) and not _built_any():
         warnings.warn(
             f"VM CPU kernel: no C++ compiler ({compiler}) to build it: using grid_sample, which is slower on "
             "a CPU (install g++ or clang++, or set CXX)",
