@@ -480,8 +480,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-decreasing-times", ["train", f"{R}/dec_time_ds", *TRAIN, "--out", f"{R}/o"], "time"),
     ("info-fps-nan", ["info", f"{R}/ds/spikes_gray.dat", "--fps", "nan"], "--fps"),
     ("info-fps-inf", ["info", f"{R}/ds/spikes_gray.dat", "--fps", "inf"], "--fps"),
-    ("train-resume-resimulated", [*T, "--resume", "--out", f"{R}/run_resim"], "files changed"),
-    ("eval-resimulated", ["eval", f"{R}/run_resim", "--device", "cpu"], "files changed"),
+    ("train-resume-resimulated", [*T, "--resume", "--out", f"{R}/run_resim"], "its files differ from"),
+    ("eval-resimulated", ["eval", f"{R}/run_resim", "--device", "cpu"], "its files differ from"),
     ("train-resume-iters-below", [*T, "--resume", "--iters", "1", "--out", f"{R}/run"], "--iters"),
     # the CLI sweep: refused up front in one line, nothing half-written, no traceback
     ("sim-frames-huge", [*SIM, "--frames", "100000000000", "--out", f"{R}/o"], "--frames"),

@@ -398,5 +398,9 @@ def test_resume_onto_a_dataset_simulated_again_is_refused(
         with pytest.raises(SystemExit) as exit_:
             _cli(*command)
         err = capsys.readouterr().err.strip()
-        assert exit_.value.code == 2 and err.count("\n") == 0 and "files changed" in err, err
+        assert (
+            exit_.value.code == 2
+            and err.count("\n") == 0
+            and "its files differ from those the run trained on" in err
+        ), err
     assert (run / "checkpoint.pt").read_bytes() == before and not (run / "metrics.json").exists()
