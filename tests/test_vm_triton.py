@@ -184,18 +184,19 @@ def test_a_field_trained_with_the_triton_lookup_evaluates_where_it_cannot_run(
         torch.testing.assert_close(field.cpu().density_norm(xyz.cpu()), kernels, atol=1e-4, rtol=1e-5)
 
 
-def test_train_with_the_triton_lookup_on_a_cpu_is_one_line_and_exit_2(
-    dataset_dir: Path, tmp_path: Path
+@pytest.mark.parametrize("option", ["lookup", "composite"])  # (composite: render/volume_triton.py)
+def test_train_with_a_triton_option_on_a_cpu_is_one_line_and_exit_2(
+    option: str, dataset_dir: Path, tmp_path: Path
 ) -> None:
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     out = tmp_path / "run"
     proc = subprocess.run(
         [sys.executable, "-m", "spikenerf", "train", str(dataset_dir), "--out", str(out), "--iters", "2",
-         "--field-option", "lookup=triton", "--device", "cpu"],
+         "--field-option", f"{option}=triton", "--device", "cpu"],
         capture_output=True, text=True, env=env,
     )  # fmt: skip
     assert proc.returncode == 2, proc.stderr
-    assert proc.stderr.count("\n") == 1 and "lookup" in proc.stderr and "CUDA" in proc.stderr, proc.stderr
+    assert proc.stderr.count("\n") == 1 and option in proc.stderr and "CUDA" in proc.stderr, proc.stderr
     assert not (out / "checkpoint.pt").exists()
 
 
