@@ -121,23 +121,24 @@ def depth_before(tau: Tensor, offsets: Tensor, max_tau: float) -> Tensor:
     """``volume.packed_depth_before`` with the kernels (check :func:`applies` first).
 
     Args:
-        tau: (M,) float32 optical depth of packed samples. offsets: (N + 1,) int64 ``volume.ray_offsets``.
+        tau: (M,) optical depth of packed samples (summed in float32). offsets: (N + 1,) int64
+            ``volume.ray_offsets``.
         max_tau: the clamp of each τ in the sum (NaN counts as it); above it no gradient flows.
     Returns:
         (M,) float32 ``Σ_{j<i} τⱼ`` over the same ray's earlier samples; differentiable in ``tau``.
     """
-    return _depth_before(tau.contiguous(), offsets.contiguous(), float(max_tau))
+    return _depth_before(tau.float().contiguous(), offsets.contiguous(), float(max_tau))
 
 
 def segment_sum(values: Tensor, ray: Tensor, offsets: Tensor) -> Tensor:
     """``volume.segment_sum`` with the kernels (check :func:`applies` first).
 
     Args:
-        values: (M,) or (M, K) float32. ray: (M,) non-decreasing ray of each row. offsets: (N + 1,).
+        values: (M,) or (M, K). ray: (M,) non-decreasing ray of each row. offsets: (N + 1,).
     Returns:
-        (N,) or (N, K) per-ray sums, 0 for a ray without rows; differentiable in ``values``.
+        (N,) or (N, K) float32 per-ray sums, 0 for a ray without rows; differentiable in ``values``.
     """
     flat = values.dim() == 1
     rows = values[:, None] if flat else values
-    out = _segment_sum(rows.contiguous(), ray.contiguous(), offsets.contiguous())
+    out = _segment_sum(rows.float().contiguous(), ray.contiguous(), offsets.contiguous())
     return out[:, 0] if flat else out
