@@ -12,6 +12,8 @@
 #            tests/test_volume_triton.py): run before `profile` times them
 #   lookup   (120) bench_lookup: each lookup's forward, and forward + backward, against grid_sample's, 2²⁰
 #            points, R 300; the Triton kernels at each of LAUNCHES (points x warps a program)
+#   composite (60) bench_composite: the compositing's forward + backward, torch's and composite=triton's,
+#            against the scatter reference, BATCH rays of about 64 samples
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
 #   optim    (120) bench_optimizer: one Adam update of the R GRID grid model, train's fused Adam against
 #            --compile-optimizer's compiled update (compiling timed apart)
@@ -32,7 +34,7 @@
 # about 15 minutes of device time, starts included; a part cut by the call's end is lost, the ones before
 # it are in OUT): METHOD=spike-integral with `data train fast`, then METHOD=spike-integral
 # VARIANTS="lookup=triton+compile-optimizer lookup=triton+composite=triton static_visible=24" with
-# `profile`, then `kernels tests`
+# `profile`, then `kernels composite tests`
 # (docs/performance.md); `optim occupancy compile ttq` when time is left.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
@@ -90,6 +92,9 @@ for name in "$@"; do
     lookup)
       part lookup 120 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" \
         --triton-launch "$LAUNCHES" ;;
+    composite)
+      part composite 60 "^device|^\| [a-z]|^triton" "$PYTHON" -m benchmarks.tools.bench_composite \
+        --device "$DEVICE" --rays "$BATCH" --samples 64 ;;
     tests)
       part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
@@ -133,7 +138,7 @@ for name in "$@"; do
       part compile 330 "compil|step" "$PYTHON" -m benchmarks.tools.bench_compile_cache --dataset "$DATA" \
         --device "$DEVICE" --batch "$SMALL" --static-samples 64 ;;
     *)
-      note "== $name: unknown part (data kernels lookup tests occupancy train fast profile ttq compile)"
+      note "== $name: unknown part (data kernels lookup composite tests optim occupancy train fast profile ttq compile)"
       exit 2 ;;
   esac
 done
