@@ -49,10 +49,11 @@ def test_the_parts_run_on_a_cpu_and_write_their_summary(tmp_path: Path) -> None:
         assert line in summary, summary
     assert summary.count("ms/step") >= 4  # two batches × two variants
     assert (work / "orbs16" / "transforms.json").is_file() and (work / "nerf-gt16" / "curves.csv").is_file()
-    again = _run(out, work, "data", "composite")  # the dataset is kept between calls
+    again = _run(out, work, "data", "composite", "march")  # the dataset is kept between calls
     summary = (out / "summary.txt").read_text()
     assert again.returncode == 0 and "is there" in summary
     assert "== composite: rc 0" in summary and "| torch |" in summary and "| scatter |" in summary, summary
+    assert "== march: rc 0" in summary and "| static |" in summary, summary
 
 
 def test_the_default_spike_method_trains_and_profiles_in_its_own_run(tmp_path: Path) -> None:

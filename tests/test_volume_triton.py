@@ -211,18 +211,22 @@ def test_a_short_training_run_with_the_triton_composite_matches_the_torch_one(
 
 
 def test_the_kernels_compile_for_an_h100_without_spilling(tmp_path: Path) -> None:
-    """Triton's real compiler and its bundled ptxas build each compositing kernel for sm_90 without a GPU
-    (``benchmarks/tools/triton_compile_report.py --kernels volume``); no registers spill."""
+    """Triton's real compiler and its bundled ptxas build each compositing kernel, and each march kernel of
+    ``render/march_triton.py``, for sm_90 without a GPU (``benchmarks/tools/triton_compile_report.py
+    --kernels volume,march``); no registers spill."""
     root = Path(__file__).resolve().parents[1]
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     env |= {"PYTHONPATH": os.pathsep.join([str(root / "src"), str(root)]), "TRITON_DEFAULT_FP_FUSION": "1"}
     env["TRITON_CACHE_DIR"] = str(tmp_path / "cache")
-    report = [sys.executable, "-m", "benchmarks.tools.triton_compile_report", "--kernels", "volume"]
+    report = [sys.executable, "-m", "benchmarks.tools.triton_compile_report", "--kernels", "volume,march"]
     proc = subprocess.run(report, cwd=root, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = re.findall(r"^\| (depth_before|depth_before_backward|segment_sum) \| (\d*) \| (\d+) \| (\d+) \| "
                       r"(\d+) \| (\d+) \|$", proc.stdout, flags=re.M)  # fmt: skip
-    assert len(rows) == 4, proc.stdout
+    march = re.findall(r"^\| (count|write) \| (yes|no) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \|$", proc.stdout,
+                       flags=re.M)  # fmt: skip
+    assert len(rows) == 4 and len(march) == 3, proc.stdout
+    rows += march
     for kernel, columns, registers, stack, local, _ in rows:
         assert int(stack) == int(local) == 0, f"{kernel} {columns}: registers spill\n{proc.stdout}"
         assert 0 < int(registers) <= 255

@@ -7,13 +7,15 @@
 #
 # Parts, in order, each under its own time limit (seconds); a part that runs over is cut and marked so:
 #   data     (150) simulate analytic-orbs at SIZE×SIZE (gray, 1000 steps, 8 test views; JOBS workers) into WORK
-#   kernels  (180) the Triton and gather lookups against grid_sample, and the Triton compositing against
-#            torch's sums, on the GPU (tests/test_vm_triton.py, tests/test_vm_gather.py,
-#            tests/test_volume_triton.py): run before `profile` times them
+#   kernels  (180) the Triton and gather lookups against grid_sample, and the Triton compositing and march
+#            against torch's, on the GPU (tests/test_vm_triton.py, tests/test_vm_gather.py,
+#            tests/test_volume_triton.py, tests/test_march_triton.py): run before `profile` times them
 #   lookup   (120) bench_lookup: each lookup's forward, and forward + backward, against grid_sample's, 2²⁰
 #            points, R 300; the Triton kernels at each of LAUNCHES (points x warps a program)
 #   composite (60) bench_composite: the compositing's forward + backward, torch's and composite=triton's,
 #            against the scatter reference, BATCH rays of about 64 samples
+#   march    (60) bench_march: the march, packed and in the static budget, torch's and march=triton's,
+#            against the packed torch march, BATCH rays, R 300
 #   tests    (300) the CUDA tests (pytest -m cuda; the CUDA-graph step with static_visible among them)
 #   optim    (120) bench_optimizer: one Adam update of the R GRID grid model, train's fused Adam against
 #            --compile-optimizer's compiled update (compiling timed apart)
@@ -33,8 +35,8 @@
 # Suggested calls, most needed first, each with part caps summing under a call's 600 s (a session has
 # about 15 minutes of device time, starts included; a part cut by the call's end is lost, the ones before
 # it are in OUT): METHOD=spike-integral with `data train fast`, then METHOD=spike-integral
-# VARIANTS="lookup=triton+compile-optimizer lookup=triton+composite=triton static_visible=24" with
-# `profile`, then `kernels composite tests`
+# VARIANTS="lookup=triton+compile-optimizer lookup=triton+composite=triton+march=triton static_visible=24"
+# with `profile`, then `kernels composite march tests`
 # (docs/performance.md); `optim occupancy compile ttq` when time is left.
 #
 # OUT/summary.txt gathers each part's exit code and key lines (the figures to copy into
@@ -88,13 +90,16 @@ for name in "$@"; do
         --height "$SIZE" --color gray --jobs "$JOBS" --out "$DATA" ;;
     kernels)
       part kernels 180 "passed|failed|error" "$PYTHON" -m pytest -p no:cacheprovider \
-        tests/test_vm_triton.py tests/test_vm_gather.py tests/test_volume_triton.py ;;
+        tests/test_vm_triton.py tests/test_vm_gather.py tests/test_volume_triton.py tests/test_march_triton.py ;;
     lookup)
       part lookup 120 "^device|^C =|^\| [a-z]" "$PYTHON" -m benchmarks.tools.bench_lookup --device "$DEVICE" \
         --triton-launch "$LAUNCHES" ;;
     composite)
       part composite 60 "^device|^\| [a-z]|^triton" "$PYTHON" -m benchmarks.tools.bench_composite \
         --device "$DEVICE" --rays "$BATCH" --samples 64 ;;
+    march)
+      part march 60 "^device|^\| [a-z]|^triton" "$PYTHON" -m benchmarks.tools.bench_march \
+        --device "$DEVICE" --rays "$BATCH" --resolution 300 ;;
     tests)
       part tests 300 "passed|failed|error" "$PYTHON" -m pytest -m cuda -p no:cacheprovider \
         tests/test_cuda.py tests/test_compile.py tests/test_compiled_step.py tests/test_inference.py \
@@ -138,7 +143,7 @@ for name in "$@"; do
       part compile 330 "compil|step" "$PYTHON" -m benchmarks.tools.bench_compile_cache --dataset "$DATA" \
         --device "$DEVICE" --batch "$SMALL" --static-samples 64 ;;
     *)
-      note "== $name: unknown part (data kernels lookup composite tests optim occupancy train fast profile ttq compile)"
+      note "== $name: unknown part (data kernels lookup composite march tests optim occupancy train fast profile ttq compile)"
       exit 2 ;;
   esac
 done

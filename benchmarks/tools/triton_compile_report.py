@@ -3,7 +3,7 @@
 Usage (from the repository root; ``triton`` installed, ``TRITON_INTERPRET`` unset)::
 
     .venv/bin/python -m benchmarks.tools.triton_compile_report [--arch 90] [--warps 4] [--block 64]
-        [--channels 16,24] [--kernels vm,volume]
+        [--channels 16,24] [--kernels vm,volume,march]
 
 Each kernel of ``fields/vm_triton_kernels.py`` (forward, backward) is compiled by Triton's own compiler and
 the bundled ``ptxas`` to a cubin for ``sm_<arch>`` (90: H100/H200), summed for 16 channels (the density)
@@ -13,7 +13,8 @@ wanted) and shared memory, from ``cuobjdump -res-usage``. A compile error fails 
 GPU then does with them (speed) is ``bench_lookup``'s to measure. ``--kernels volume`` (in the default
 list) compiles the compositing kernels of ``render/volume_triton_kernels.py`` too, as
 ``volume_triton.LAUNCH`` launches them (its own block and warps; segment sums of 2 and 3 columns: the
-renderer's opacity and depth, and its colours).
+renderer's opacity and depth, and its colours), and ``--kernels march`` (also in the default list) the march
+kernels of ``render/march_triton_kernels.py`` as ``march_triton.LAUNCH`` launches them.
 """
 
 from __future__ import annotations
@@ -79,10 +80,6 @@ def compile_variants(arch: int, warps: int, block: int, channels: list[int]) -> 
 
 def compile_volume(arch: int) -> list[dict]:
     """One row per compositing kernel (``segment_sum`` for 2 and 3 columns), as :func:`compile_variants`."""
-    import triton
-    from triton.backends.compiler import GPUTarget
-    from triton.compiler import ASTSource
-
     from spikenerf.render import volume_triton
     from spikenerf.render import volume_triton_kernels as kernels
 
@@ -94,33 +91,52 @@ def compile_volume(arch: int) -> list[dict]:
         ("segment_sum", ["VAL", "OUT"], {"K": 3, "KP": 4}),
     ]
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for j, (name, floats, extra) in enumerate(variants):
-            kernel = getattr(kernels, f"{name}_kernel")
-            consts = {"BLOCK": block, **extra}
-            signature = {
-                n: "constexpr"
-                if n in consts
-                else "*fp32"
-                if n in floats
-                else "*i64"
-                if n == "OFF"
-                else "fp32"
-                for n in kernel.arg_names
-            }
-            attrs = {(kernel.arg_names.index(p),): [["tt.divisibility", 16]] for p in (*floats, "OFF")}
-            source = ASTSource(fn=kernel, signature=signature, constexprs=consts, attrs=attrs)
-            done = triton.compile(source, target=GPUTarget("cuda", arch, 32), options={"num_warps": warps})
-            cubin = Path(tmp) / f"{name}{j}.cubin"
-            cubin.write_bytes(done.asm["cubin"])
-            tools = Path(triton.__file__).parent / "backends" / "nvidia" / "bin"
-            usage = subprocess.run([str(tools / "cuobjdump"), "-res-usage", str(cubin)], check=True,
-                                   capture_output=True, text=True).stdout  # fmt: skip
-            fields = dict(re.findall(r"\b(REG|STACK|SHARED|LOCAL):(\d+)", usage))
-            rows.append(
-                {"kernel": name, "columns": extra.get("K", ""), **{k: int(v) for k, v in fields.items()}}
-            )
+    for name, floats, extra in variants:
+        kernel = getattr(kernels, f"{name}_kernel")
+        types = {**dict.fromkeys(floats, "*fp32"), "OFF": "*i64"}
+        usage = _usage(kernel, types, {"BLOCK": block, **extra}, arch, warps, default="fp32")
+        rows.append({"kernel": name, "columns": extra.get("K", ""), **usage})
     return rows
+
+
+def compile_march(arch: int) -> list[dict]:
+    """One row per march kernel (the count with and without the occupancy test, the write), as
+    :func:`compile_variants`."""
+    from spikenerf.render import march_triton
+    from spikenerf.render import march_triton_kernels as kernels
+
+    block, warps = march_triton.LAUNCH["BLOCK"], march_triton.LAUNCH["num_warps"]
+    types = {**dict.fromkeys(("O", "D", "NEAR", "FAR"), "*fp32"), "GRID": "*u8", "step": "fp32"}
+    types |= dict.fromkeys(("COUNT", "KEPT", "FIRST", "RAY", "K"), "*i64")
+    rows = []
+    for name, occupancy in (("count", True), ("count", False), ("write", True)):
+        usage = _usage(getattr(kernels, f"{name}_kernel"), types, {"BLOCK": block, "OCC": occupancy}, arch,
+                       warps, default="i32")  # fmt: skip
+        rows.append({"kernel": name, "occupancy": occupancy, **usage})
+    return rows
+
+
+def _usage(kernel, types: dict[str, str], consts: dict, arch: int, warps: int, default: str) -> dict:  # type: ignore[no-untyped-def]
+    """Resource usage (``REG``, ``STACK``, ``LOCAL``, ``SHARED``: ints) of ``kernel`` compiled for
+    ``sm_<arch>`` with ``consts``, its other arguments typed by ``types`` (else ``default``), pointers
+    16-byte aligned."""
+    import triton
+    from triton.backends.compiler import GPUTarget
+    from triton.compiler import ASTSource
+
+    names = kernel.arg_names
+    signature = {n: "constexpr" if n in consts else types.get(n, default) for n in names}
+    attrs = {(names.index(n),): [["tt.divisibility", 16]] for n, t in types.items()
+             if t.startswith("*") and n in names}  # fmt: skip
+    source = ASTSource(fn=kernel, signature=signature, constexprs=consts, attrs=attrs)
+    done = triton.compile(source, target=GPUTarget("cuda", arch, 32), options={"num_warps": warps})
+    tools = Path(triton.__file__).parent / "backends" / "nvidia" / "bin"
+    with tempfile.TemporaryDirectory() as tmp:
+        cubin = Path(tmp) / "kernel.cubin"
+        cubin.write_bytes(done.asm["cubin"])
+        usage = subprocess.run([str(tools / "cuobjdump"), "-res-usage", str(cubin)], check=True,
+                               capture_output=True, text=True).stdout  # fmt: skip
+    return {k: int(v) for k, v in re.findall(r"\b(REG|STACK|SHARED|LOCAL):(\d+)", usage)}
 
 
 def main() -> None:
@@ -129,7 +145,9 @@ def main() -> None:
     parser.add_argument("--warps", type=int, default=4)
     parser.add_argument("--block", type=int, default=64, help="points per program (vm_triton.LAUNCH)")
     parser.add_argument("--channels", default="16,24")
-    parser.add_argument("--kernels", default="vm,volume", help="vm (the lookups), volume (compositing)")
+    parser.add_argument(
+        "--kernels", default="vm,volume,march", help="vm (the lookups), volume (compositing), march"
+    )
     args = parser.parse_args()
     which = set(args.kernels.split(","))
     if "vm" in which:
@@ -147,6 +165,13 @@ def main() -> None:
         for r in compile_volume(args.arch):
             usage = " | ".join(str(r[k]) for k in ("REG", "STACK", "LOCAL", "SHARED"))
             print(f"| {r['kernel']} | {r['columns']} | {usage} |")
+    if "march" in which:
+        print(f"\nmarch kernels, sm_{args.arch} (march_triton.LAUNCH)")
+        print("| march kernel | occupancy | registers | stack B | local B (spills) | shared B |")
+        print("|---|---|---:|---:|---:|---:|")
+        for r in compile_march(args.arch):
+            usage = " | ".join(str(r[k]) for k in ("REG", "STACK", "LOCAL", "SHARED"))
+            print(f"| {r['kernel']} | {'yes' if r['occupancy'] else 'no'} | {usage} |")
 
 
 if __name__ == "__main__":

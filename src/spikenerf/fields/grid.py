@@ -41,6 +41,8 @@ FACTORS = ("density_planes", "density_lines", "app_planes", "app_lines")
 Lookup = Literal["auto", "gather", "triton"]
 #: how the grid's renderer sums along its rays (``GridFieldConfig.composite``)
 Composite = Literal["torch", "triton"]
+#: how the grid's renderer places its samples (``GridFieldConfig.march``)
+March = Literal["torch", "triton"]
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,11 @@ class GridFieldConfig:
             running sum for the transmittance and per-ray sums of torch ops. "triton": the Triton kernels of
             ``render/volume_triton.py``, one program per ray, on CUDA (training refuses a device they
             cannot run on; elsewhere "torch"). Not yet timed on a GPU.
+        march: how the renderer places its samples (:data:`March`). "torch" (the default): every candidate
+            step laid out, tested against the ray's end and the occupancy grid, and compacted, in torch
+            ops. "triton": the Triton kernels of ``render/march_triton.py``, one program per ray, which
+            store the kept steps only, on CUDA (training refuses a device they cannot run on; elsewhere
+            "torch"). The same samples; not yet timed on a GPU.
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
@@ -145,6 +152,7 @@ class GridFieldConfig:
     static_visible: int = 0
     lookup: Lookup = "auto"
     composite: Composite = "torch"
+    march: March = "torch"
     decoder_bf16: bool = True
     occupancy: bool = True
     occupancy_start: int = 250
@@ -189,9 +197,9 @@ class GridFieldConfig:
             )
 
     def check_device(self, device: torch.device) -> None:
-        """InputError (naming the option) for ``lookup`` or ``composite`` "triton" on a device where its
-        kernels cannot run."""
-        for name in ("lookup", "composite"):
+        """InputError (naming the option) for ``lookup``, ``composite`` or ``march`` "triton" on a device
+        where its kernels cannot run."""
+        for name in ("lookup", "composite", "march"):
             reason = why_not(device) if getattr(self, name) == "triton" else ""
             if reason:
                 raise InputError(f"field_config.{name} triton: {reason}", param=f"field_config.{name}")

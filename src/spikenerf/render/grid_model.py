@@ -7,7 +7,7 @@ from torch import Tensor
 
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridField
-from spikenerf.render import volume_triton
+from spikenerf.render import march_triton, volume_triton
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.volume import (
     RenderOutput,
@@ -89,6 +89,11 @@ class GridModel(RadianceModel):
         slots, not rays × the longest ray. The occupancy test uses the slot's midpoint.
         """
         counts = self._counts(near, far, step)
+        if self.marched(o_n):  # the kept steps only, tested where they are made
+            grid = self._grid()
+            kept = march_triton.kept_counts(o_n, d_n, near, far, counts, grid, step)
+            ray, k, _ = march_triton.write(o_n, d_n, near, far, counts, grid, step, kept, int(kept.sum()))
+            return ray, k
         total = int(counts.sum())
         ray = torch.repeat_interleave(
             torch.arange(len(counts), device=near.device), counts, output_size=total
@@ -129,6 +134,21 @@ class GridModel(RadianceModel):
         k = torch.where(used, slot - (ends - counts).index_select(0, real), spare // n)
         keep = used & self._kept(o_n, d_n, near, far, step, ray_at, k)
         return ray, ray_at, k, keep, (ends[-1] - budget).clamp_min(0)
+
+    @torch.no_grad()
+    def _march_fused(
+        self, o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, step: float, budget: int
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """:func:`compact_slots` of :meth:`_march_static` in one pass of the Triton march kernels (``march``
+        "triton"): the same five outputs for ``budget`` slots, except that every step of every ray is
+        tested (not ``MARCH_SLOTS`` × budget of them), so ``dropped`` is exact."""
+        counts, grid = self._counts(near, far, step), self._grid()
+        kept = march_triton.kept_counts(o_n, d_n, near, far, counts, grid, step)
+        ray, k, total = march_triton.write(o_n, d_n, near, far, counts, grid, step, kept, budget)
+        return fill_spare(ray, ray, k, total, total.new_zeros(()), len(near), budget)
+
+    def _grid(self) -> Tensor | None:
+        return self.field.occupancy.grid if self.use_occupancy else None
 
     @staticmethod
     def _points(
@@ -181,6 +201,11 @@ class GridModel(RadianceModel):
         they run on ``points``' device; elsewhere, e.g. ``eval`` on a CPU, the torch sums)."""
         return self.field.config.composite == "triton" and volume_triton.applies(points)
 
+    def marched(self, points: Tensor) -> bool:
+        """Whether this render marches with the Triton kernels (``march`` "triton" where they run on
+        ``points``' device; elsewhere the torch march)."""
+        return self.field.config.march == "triton" and volume_triton.applies(points)
+
     def _render_static(
         self, o_n: Tensor, d_n: Tensor, dirs: Tensor, near: Tensor, far: Tensor, step: float, perturb: bool
     ) -> RenderOutput:
@@ -200,8 +225,11 @@ class GridModel(RadianceModel):
         field, cfg, n = self.field, self.field.config, o_n.shape[0]
         fused = self.fused(o_n)
         budget = n * cfg.static_samples
-        marched = self._march_static(o_n, d_n, near, far, step, MARCH_SLOTS * budget)
-        ray, ray_at, k, keep, dropped = compact_slots(*marched, n, budget)
+        if self.marched(o_n):
+            ray, ray_at, k, keep, dropped = self._march_fused(o_n, d_n, near, far, step, budget)
+        else:
+            marched = self._march_static(o_n, d_n, near, far, step, MARCH_SLOTS * budget)
+            ray, ray_at, k, keep, dropped = compact_slots(*marched, n, budget)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray_at, k, perturb)
         if cfg.static_visible and cfg.early_stop:  # a no-grad pass finds where each ray stops
             with torch.no_grad():
@@ -253,14 +281,25 @@ def compact_slots(
     slots beyond B are cut and added to ``dropped``. The slots left after the last kept one are spare, laid
     out as the march lays out its own (rays N … 2N − 1 evenly, distinct points, ``keep`` False).
     """
-    source, filled, total = slot_sources(keep, budget)
-    slot = torch.arange(budget, device=keep.device)
+    source, _, total = slot_sources(keep, budget)
+    take = lambda x: x.index_select(0, source)  # noqa: E731
+    return fill_spare(take(ray), take(ray_at), take(k), total, dropped, n, budget)
+
+
+def fill_spare(
+    ray: Tensor, ray_at: Tensor, k: Tensor, total: Tensor, dropped: Tensor, n: int, budget: int
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """:func:`compact_slots`' result from ray, ray_at, k (B,) of the kept slots, valid in the first
+    min(B, total) slots, and ``total`` () int64 kept slots in all: the later slots made spare (rays N … 2N − 1
+    evenly, distinct points, keep False) and the kept slots past B added to ``dropped``."""
+    slot = torch.arange(budget, device=ray.device)
+    filled = slot < total
     spare = (slot - total).clamp_min(0)
     spare_ray = n + spare * n // (budget - total).clamp_min(1)
     return (
-        torch.where(filled, ray.index_select(0, source), spare_ray),
-        torch.where(filled, ray_at.index_select(0, source), spare % n),
-        torch.where(filled, k.index_select(0, source), spare // n),
+        torch.where(filled, ray, spare_ray),
+        torch.where(filled, ray_at, spare % n),
+        torch.where(filled, k, spare // n),
         filled,
         dropped + (total - budget).clamp_min(0),
     )

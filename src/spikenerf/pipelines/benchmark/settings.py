@@ -38,7 +38,7 @@ NAME = "benchmark.json"
 #: existed: a record without one reads it so (the grid's total-variation prior, off; its packed dynamic march)
 ADDED_DEFAULTS: dict[str, Any] = {
     "tv_density": 0.0, "tv_app": 0.0, "tv_every": 4, "static_samples": 0, "static_colors": 0,
-    "lookup": "auto", "composite": "torch",
+    "lookup": "auto", "composite": "torch", "march": "torch",
 }  # fmt: skip
 #: field-config entries since removed, with the value that trained as the defaults do now: a record with
 #: that value reads as without it (``gather_lookup`` false is ``lookup`` "auto")

@@ -1,0 +1,176 @@
+"""``render/march_triton.py``: the Triton march kernels (``march="triton"``) keep exactly the torch march's
+steps, in its order, on the packed path and in a static budget (rays longer than a block, rays that miss,
+with and without the occupancy grid), count the steps past a budget exactly, give the grid renderer's
+colour, depth, opacity and gradients, stay one graph under ``torch.compile`` and are left aside where they
+cannot run (``train`` refusing them there in one line).
+
+Without a GPU the kernels run in Triton's CPU interpreter (``TRITON_INTERPRET=1``, set by ``conftest.py``):
+it checks the indexing, masks, scans and custom ops, not GPU speed. On a CUDA host the same tests run the
+compiled kernels (where float contraction may move a step that lies on a cell's edge: the tests compare
+exactly, so a rare failure there means that, not a wrong kernel)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+
+import test_static_render
+import test_train
+from spikenerf.core.errors import InputError
+from spikenerf.fields import field_config, vm_triton
+from spikenerf.render import march_triton
+from spikenerf.render.grid_model import MARCH_SLOTS, compact_slots
+
+pytest.importorskip("triton", reason="the triton package (pip install triton) runs these kernels")
+
+DEVICE = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+if DEVICE.type == "cpu" and not vm_triton.interpreted():
+    pytest.skip(
+        "TRITON_INTERPRET=1 is needed without CUDA (tests/conftest.py sets it)", allow_module_level=True
+    )
+dataset_dir = test_train.dataset_dir  # the module's fixture
+
+
+def _march_how(model, how: str, **options: int) -> None:  # type: ignore[no-untyped-def]
+    model.field.config = dataclasses.replace(model.field.config, march=how, **options)
+
+
+def _marching(occupancy: bool, size: tuple[int, int] = (12, 10)):  # type: ignore[no-untyped-def]
+    """A model of ``test_static_render`` on DEVICE and the march's inputs for its rays (normalised origins
+    and directions, near and far shortened as ``render_rays`` does, the step), every 7th ray empty."""
+    model = test_static_render._model(occupancy).to(DEVICE)
+    origins, dirs, near, far = (r.to(DEVICE) for r in test_static_render._rays(model, size))
+    field, step = model.field, model.field.step_size
+    if occupancy:
+        near, far = model._shorten(origins, dirs, near, far, step)
+    d_n = dirs * (2.0 / (field.scene_box[1] - field.scene_box[0]))
+    far = torch.where(torch.arange(len(far), device=DEVICE) % 7 == 3, near, far)  # rays with no step
+    return model, (field.normalize(origins), d_n, near, far, step)
+
+
+@pytest.mark.parametrize("block", [8, 128])
+@pytest.mark.parametrize("occupancy", [False, True])
+def test_the_packed_march_keeps_the_torch_marchs_steps_in_order(
+    occupancy: bool, block: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(march_triton.LAUNCH, "BLOCK", block)  # 8: rays of up to 35 steps over 5 blocks
+    model, inputs = _marching(occupancy)
+    ray, k = model._march(*inputs)
+    _march_how(model, "triton")
+    assert model.marched(inputs[0])
+    got_ray, got_k = model._march(*inputs)
+    assert len(ray) > 100 and torch.equal(got_ray, ray) and torch.equal(got_k, k)
+    counts = model._counts(*inputs[2:])
+    kept = march_triton.kept_counts(*inputs[:4], counts, model._grid(), inputs[4])
+    assert torch.equal(kept, torch.bincount(ray, minlength=len(counts)))
+    if occupancy:
+        assert (kept < counts).any()  # the occupancy test culled steps
+
+
+@pytest.mark.parametrize("occupancy", [False, True])
+def test_a_static_budget_gets_the_torch_layout_and_counts_the_steps_past_it_exactly(occupancy: bool) -> None:
+    model, inputs = _marching(occupancy)
+    total = len(model._march(*inputs)[0])
+    n = len(inputs[0])
+    _march_how(model, "triton")
+    for budget in (total + 37, total, total // 3):  # spare slots, none, a cut
+        expected = compact_slots(*model._march_static(*inputs, MARCH_SLOTS * budget), n, budget)
+        got = model._march_fused(*inputs, budget)
+        for name, a, b in zip(("ray", "ray_at", "k", "keep"), got[:4], expected[:4], strict=True):
+            assert torch.equal(a, b), (budget, name)
+        assert int(got[4]) == max(0, total - budget) <= int(expected[4])  # the torch count: an upper bound
+
+
+def test_a_sparse_grid_fills_the_budget_where_the_torch_layout_cannot() -> None:
+    """Where fewer than one candidate step in ``MARCH_SLOTS`` is kept, the torch layout (``MARCH_SLOTS`` × the
+    budget candidates) leaves slots empty and over-counts the dropped ones; the kernels test every step, so
+    they fill the budget with the packed march's first steps and count the rest exactly."""
+    model, inputs = _marching(occupancy=True)
+    grid = model.field.occupancy.grid
+    grid.zero_()
+    grid[::6] = True  # one slab of cells in six along x
+    packed_ray, packed_k = model._march(*inputs)
+    n, budget = len(inputs[0]), len(packed_ray) // 2
+    torch_layout = compact_slots(*model._march_static(*inputs, MARCH_SLOTS * budget), n, budget)
+    assert int(torch_layout[3].sum()) < budget and int(torch_layout[4]) > len(packed_ray) - budget
+    _march_how(model, "triton")
+    ray, _, k, keep, dropped = model._march_fused(*inputs, budget)
+    assert bool(keep.all()) and int(dropped) == len(packed_ray) - budget
+    assert torch.equal(ray, packed_ray[:budget]) and torch.equal(k, packed_k[:budget])
+
+
+@pytest.mark.parametrize(
+    ("samples", "occupancy"), [(0, True), (test_static_render.ALL_FIT, True), (16, False)]
+)
+def test_the_grid_renders_as_with_the_torch_march(samples: int, occupancy: bool) -> None:
+    model = test_static_render._model(occupancy).to(DEVICE)
+    model.field.config = dataclasses.replace(model.field.config, static_samples=samples)
+    rays = tuple(r.to(DEVICE) for r in test_static_render._rays(model))
+    expected, expected_grads = test_static_render._render(model, rays)
+    _march_how(model, "triton", composite="triton")  # both kernel sets at once, as on a GPU
+    got, grads = test_static_render._render(model, rays)
+    assert got.num_samples == expected.num_samples
+    for name in ("color", "depth", "opacity"):
+        torch.testing.assert_close(getattr(got, name), getattr(expected, name), atol=1e-5, rtol=1e-5)
+    for g, e in zip(grads, expected_grads, strict=True):
+        torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-4)
+
+
+def test_the_custom_ops_pass_opcheck_and_a_static_render_compiles_as_one_graph(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    model, (o_n, d_n, near, far, step) = _marching(occupancy=True, size=(6, 5))
+    counts, grid = model._counts(near, far, step), model.field.occupancy.grid
+    torch.library.opcheck(
+        torch.ops.spikenerf.march_count.default, (o_n, d_n, near, far, counts, grid, step, True)
+    )
+    kept = march_triton.kept_counts(o_n, d_n, near, far, counts, grid, step)
+    first = torch.cumsum(kept, 0) - kept
+    args = (o_n, d_n, near, far, counts, grid, first, 40, step, True)
+    torch.library.opcheck(torch.ops.spikenerf.march_write.default, args)
+    monkeypatch.setattr(
+        test_static_render.grid_module, "usable", lambda *_: False
+    )  # the CPU kernel: no trace
+    _march_how(model, "triton", static_samples=test_static_render.ALL_FIT)
+    rays = tuple(r.to(DEVICE) for r in test_static_render._rays(model, (6, 5)))
+    torch._dynamo.reset()
+    explained = torch._dynamo.explain(model.render_rays)(*rays, True)
+    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
+    torch._dynamo.reset()
+    compiled = torch.compile(model.render_rays, backend="aot_eager", fullgraph=True)
+    out, eager = compiled(*rays), model.render_rays(*rays)
+    torch.testing.assert_close(out.color, eager.color)
+
+
+def test_where_the_kernels_cannot_run_they_are_refused_or_left_aside(monkeypatch: pytest.MonkeyPatch) -> None:
+    model = test_static_render._model(occupancy=True)
+    _march_how(model, "triton")
+    rays = test_static_render._rays(model, (4, 3))
+    with torch.no_grad():
+        kernels = model.render_rays(*rays)
+    monkeypatch.setenv("TRITON_INTERPRET", "0")  # a CPU without the interpreter: the torch march
+    assert not model.marched(rays[0])
+    with torch.no_grad():
+        torch.testing.assert_close(model.render_rays(*rays).color, kernels.color)
+    with pytest.raises(InputError, match=r"field_config\.march triton: Triton kernels need a CUDA device"):
+        field_config("grid", {"march": "triton"}).check_device(torch.device("cpu"))
+    with pytest.raises(InputError, match="march"):
+        field_config("grid", {"march": "cuda"})
+
+
+def test_a_short_training_run_with_the_triton_march_is_the_torch_one(
+    dataset_dir: Path, tmp_path: Path
+) -> None:
+    """The same seed, 6 iterations with the static budget: the same samples, so the same run."""
+    from spikenerf.train.trainer import train
+
+    runs = {}
+    for how in ("torch", "triton"):
+        cfg = test_train._config(dataset_dir, method="nerf-gt")
+        cfg.iters, cfg.eval_every, cfg.device = 6, 0, DEVICE.type
+        cfg.field_config = {**cfg.field_config, "static_samples": 48, "march": how}
+        runs[how] = train(cfg, tmp_path / how, progress=False)
+    assert abs(runs["triton"].train_psnr - runs["torch"].train_psnr) < 1e-4
