@@ -1,6 +1,6 @@
 """The docs stay true for users.
 
-- docs/cli.md matches the commands' --help, and documents every subcommand;
+- docs/cli.md matches the commands' --help, and documents every subcommand and every field option;
 - every relative link in README.md, CHANGELOG.md and docs/ (lab notes included) resolves, to the file and to
   the heading its #anchor names;
 - no user page (README.md, docs/*.md; not docs/lab/ or CHANGELOG.md) is over 400 lines, speaks of the
@@ -24,7 +24,7 @@ import click
 import pytest
 
 from spikenerf.cli import cli
-from spikenerf.cli.reference import cli_reference
+from spikenerf.cli.reference import cli_reference, field_options
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -94,6 +94,24 @@ def test_every_subcommand_is_in_the_cli_reference() -> None:
     assert len(commands) > 5
     missing = [name for name in commands if f"\n## spikenerf {name}\n" not in page]
     assert not missing, f"docs/cli.md lacks {missing}: python -m spikenerf.cli.reference > docs/cli.md"
+
+
+def test_every_field_option_has_a_row_with_its_default_and_meaning() -> None:
+    """A config key added without an entry in its class's ``Attributes`` docstring shows up here."""
+    import dataclasses
+
+    from spikenerf.fields.registry import FIELD_REGISTRY
+
+    page = field_options()
+    for kind, entry in FIELD_REGISTRY.items():
+        table = page.split(f"### `--field {kind}`", 1)[1].split("###", 1)[0]
+        rows = {row.split(" | ")[0]: row.split(" | ") for row in table.splitlines() if row.startswith("| `")}
+        keys = [k for head in rows for k in re.findall(r"`(\w+)`", head)]
+        names = [f.name for f in dataclasses.fields(entry.config)]
+        assert sorted(keys) == sorted(names), (kind, set(keys) ^ set(names))
+        for head, cells in rows.items():
+            assert len(cells) == 4 and len(cells[3]) > 12, f"{kind} {head}: no meaning in the docstring"
+    assert "| `march` | `torch` | `torch`, `triton` | How the renderer places its samples" in page
 
 
 def test_relative_links_and_anchors_resolve() -> None:

@@ -255,7 +255,7 @@ PARAM_FLAGS = {
     multiple=True,
     metavar="KEY=VALUE",
     help="Override a field config entry (GridFieldConfig / MLPFieldConfig), e.g. n_voxels_final=2097152; "
-    "values are parsed as YAML. Repeatable.",
+    "values are parsed as YAML. Repeatable. Every key, its default and meaning: docs/cli.md, Field options.",
 )
 @click.option(
     "--config",

@@ -50,49 +50,58 @@ class GridFieldConfig:
     """Hyper-parameters of the grid field (defaults sized for minutes of CPU training).
 
     Attributes:
-        n_voxels_init / n_voxels_final: grid size as a voxel count (R = round(n^(1/3))), log-spaced over
-            the ``upsample_steps`` (a step = number of completed optimiser steps).
-        density_components / app_components: VM rank per axis pair. app_dim: decoder input features.
-        hidden: decoder width (two hidden layers). view_freqs: octaves of the view-direction encoding.
-        density_shift / distance_scale: ``σ = distance_scale · softplus(raw + shift)`` per world unit.
-        step_ratio: marching step in cells (0.5 before issue 9; TensoRF's 0.5). max_samples: cap on samples
-            per ray.
+        n_voxels_init / n_voxels_final: grid size at the start and at the end, as a voxel count (R =
+            round(n^(1/3)) cells a side).
+        upsample_steps: the steps (completed optimiser steps) at which the grid grows, log-spaced in voxels
+            from ``n_voxels_init`` to ``n_voxels_final``; rescaled to ``--iters`` by :meth:`for_iterations`.
+        density_components / app_components: VM rank per axis pair of the density and appearance factors.
+        app_dim: decoder input features.
+        hidden: decoder width (two hidden layers).
+        view_freqs: octaves of the view-direction encoding.
+        init_scale: standard deviation of the factors' random initial values.
+        density_shift / distance_scale: ``σ = distance_scale · softplus(raw + density_shift)`` per world unit.
+        step_ratio: marching step in cells (TensoRF's is 0.5).
+        max_samples: cap on samples per ray.
         weight_threshold: colour is decoded only where the compositing weight exceeds it.
         early_stop: early ray termination in training renders: the samples behind which a ray's
             transmittance has fallen below it count as empty (zero density and gradient; the gradients
             they would get scale with their transmittance), so the CPU kernel's backward skips them; 0 keeps
             every sample. Renders without gradients (``eval``, ``render``) keep every sample.
-        static_samples: 0 (the default): the renderer packs exactly the samples it keeps (shapes depend on
-            the data, so the host reads sample counts back). N > 0: a fixed budget of ``N × rays`` sample
-            slots per render call, N per ray on average, with no data-dependent shape and no host sync
-            (for CUDA graphs / ``torch.compile(fullgraph=True)``): the march lays out 4 × that many
-            candidate steps, and those inside occupied cells are moved, in order, into the budget, where
-            density and colour are evaluated (unfilled slots get zero density). When a call's rays keep
-            more samples than the budget the samples past it are dropped (the ray at the end of the
-            budget loses its tail, later rays get none; the render output counts them). See ``GridModel``.
-        static_colors: with ``static_samples``: 0 (the default): colour is decoded in every slot. C > 0:
-            colour is decoded in ``C × rays`` slots only, those with the largest weights above
-            ``weight_threshold`` in the call (``torch.topk``: still no data-dependent shape); a weight
-            beyond them keeps its place in the opacity but adds no colour (the render output counts them
-            in ``dropped_colors``).
-        static_visible: with ``static_samples`` and ``early_stop``: 0 (the default): density and its
-            gradient are evaluated in every slot of the budget. V > 0: the density is first evaluated there
-            without gradient, and the slots before each ray's early stop are moved, in order, into a second
-            budget of ``V × rays`` slots, where it is evaluated again with its gradient (and colour decoded):
-            the backward, which costs the most on a GPU, sees V slots a ray, not N. Samples past it are cut
+        static_samples: a fixed budget of N sample slots a ray in training renders, for CUDA graphs (0, the
+            default: none, the renderer packs exactly the samples it keeps; shapes depend on the data, so
+            the host reads sample counts back). N > 0: ``N × rays`` slots per render call, with no
+            data-dependent shape and no host sync (for CUDA graphs / ``torch.compile(fullgraph=True)``):
+            the march (4 × that many candidate steps in torch, every step with ``march`` "triton") moves
+            the steps inside occupied cells, in order, into the budget, where density and colour are
+            evaluated (unfilled slots get zero density). When a call's rays keep more samples than the
+            budget the samples past it are dropped (the ray at the end of the budget loses its tail, later
+            rays get none; the render output counts them). See ``GridModel``.
+        static_colors: with ``static_samples``, colour is decoded in C slots a ray only (0, the default: in
+            every slot). C > 0: the ``C × rays`` slots with the largest weights above ``weight_threshold``
+            in the call (``torch.topk``: still no data-dependent shape); a weight beyond them keeps its
+            place in the opacity but adds no colour (the render output counts them in ``dropped_colors``).
+        static_visible: with ``static_samples`` and ``early_stop``, a second budget of V slots a ray for the
+            samples before each ray's early stop (0, the default: none; density and its gradient are
+            evaluated in every slot of the budget). V > 0: the density is first evaluated there without
+            gradient, and the slots before each ray's early stop are moved, in order, into a second budget
+            of ``V × rays`` slots, where it is evaluated again with its gradient (and colour decoded): the
+            backward, which costs the most on a GPU, sees V slots a ray, not N. Samples past it are cut
             and counted like the first budget's.
-        lookup: how the factors are read (:data:`Lookup`). "auto" (the default): the fused CPU kernel
+        lookup: how the factors are read (:data:`Lookup`): the fused CPU kernel or ``grid_sample`` ("auto"),
+            index gathers, or Triton kernels on CUDA. "auto" (the default): the fused CPU kernel
             where it applies, else ``grid_sample``. "gather": index gathers of channel rows
             (``fields/vm_gather.py``): the same values, as ops that ``torch.compile`` can fuse with its
             backward (slower on a CPU). "triton": the Triton kernels of ``fields/vm_triton.py`` on CUDA
             (training refuses a device they cannot run on; elsewhere, e.g. ``eval`` on a CPU, "auto").
             On an H200 a "triton" lookup ran 5–7× as fast as ``grid_sample`` and a "gather" one 3–6× as
             slow (docs/performance.md).
-        composite: how the renderer sums along its rays (:data:`Composite`). "torch" (the default): a float64
+        composite: how the renderer sums along its rays (:data:`Composite`): torch ops, or Triton kernels on
+            CUDA (experimental). "torch" (the default): a float64
             running sum for the transmittance and per-ray sums of torch ops. "triton": the Triton kernels of
             ``render/volume_triton.py``, one program per ray, on CUDA (training refuses a device they
             cannot run on; elsewhere "torch"). Not yet timed on a GPU.
-        march: how the renderer places its samples (:data:`March`). "torch" (the default): every candidate
+        march: how the renderer places its samples (:data:`March`): torch ops, or Triton kernels on CUDA
+            (experimental). "torch" (the default): every candidate
             step laid out, tested against the ray's end and the occupancy grid, and compacted, in torch
             ops. "triton": the Triton kernels of ``render/march_triton.py``, one program per ray, which
             store the kept steps only, on CUDA (training refuses a device they cannot run on; elsewhere
@@ -100,20 +109,24 @@ class GridFieldConfig:
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA
-            GPU with bf16); float32 elsewhere, and everywhere with ``False`` (the default before issue 9).
+            GPU with bf16); float32 elsewhere, and everywhere with ``False``.
             On a CPU its rows are padded to a bucket (``fields/row_buckets.py``): oneDNN builds a bf16
             kernel for each new row count, which cost more than the products themselves.
-        occupancy / occupancy_*: the occupancy grid is rebuilt at ``occupancy_start`` and every
+        occupancy / occupancy_*: empty-space skipping: a grid of at most ``occupancy_max_resolution`` cells
+            a side, rebuilt at ``occupancy_start`` and every ``occupancy_every`` steps, marks the cells whose
+            one-step opacity is below ``occupancy_threshold`` empty. The occupancy grid is rebuilt at
+            ``occupancy_start`` and every
             ``occupancy_every`` steps after (and after each upsampling once started); cells whose one-step
             opacity is below ``occupancy_threshold`` are skipped; its resolution is
             ``min(R, occupancy_max_resolution)``.
-        lr_grid / lr: Adam learning rates of the grids and of the networks; both decay exponentially to
-            ``lr_final_ratio`` times their value over the run (trainer side).
+        lr_grid / lr / lr_final_ratio: Adam learning rates of the grids and of the networks; both decay
+            exponentially to ``lr_final_ratio`` times their value over the run (trainer side).
         l1_weight: weight of the L1 sparsity prior on the density factors (see ``regularization``).
         tv_density / tv_app: weights of the total-variation prior on the density and appearance factors
             (TensoRF's smoothness prior; against fitting the noise of spike-count targets; see
-            ``regularization``). tv_every: the prior is evaluated every this many steps, weighted by it
-            (the same weight per step on average at a fraction of the cost).
+            ``regularization``).
+        tv_every: the prior is evaluated every this many steps, weighted by it (the same weight per step on
+            average at a fraction of the cost).
         iterations: the run length the schedules are written for (see :meth:`for_iterations`).
     """
 

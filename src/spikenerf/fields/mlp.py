@@ -22,7 +22,8 @@ class MLPFieldConfig:
         depth / width / skip: trunk layers, their width, and the (0-based) layer whose output is concatenated
             with the encoding again (NeRF's ``skips=[4]``: the sixth layer reads ``width + encoding``).
         xyz_freqs / dir_freqs: positional-encoding octaves of positions (box-normalised to [−1, 1]) and
-            of view directions. dir_width: width of the view-dependent head.
+            of view directions.
+        dir_width: width of the view-dependent head.
         n_coarse / n_fine: stratified samples of the coarse network and inverse-CDF samples added for the
             fine one (which evaluates all ``n_coarse + n_fine``).
         raw_noise_std: std of Gaussian noise on raw density while training (0 for synthetic scenes).
