@@ -40,14 +40,17 @@ def _march_how(model, how: str, **options: int) -> None:  # type: ignore[no-unty
 
 def _marching(occupancy: bool, size: tuple[int, int] = (12, 10)):  # type: ignore[no-untyped-def]
     """A model of ``test_static_render`` on DEVICE and the march's inputs for its rays (normalised origins
-    and directions, near and far shortened as ``render_rays`` does, the step), every 7th ray empty."""
+    and directions, near and far shortened as ``render_rays`` does, the step), every 7th ray empty and
+    every 5th ending where a step starts."""
     model = test_static_render._model(occupancy).to(DEVICE)
     origins, dirs, near, far = (r.to(DEVICE) for r in test_static_render._rays(model, size))
     field, step = model.field, model.field.step_size
     if occupancy:
         near, far = model._shorten(origins, dirs, near, far, step)
     d_n = dirs * (2.0 / (field.scene_box[1] - field.scene_box[0]))
-    far = torch.where(torch.arange(len(far), device=DEVICE) % 7 == 3, near, far)  # rays with no step
+    i = torch.arange(len(far), device=DEVICE)
+    on_lattice = near + step * torch.floor((far - near) / step)  # the last step starts exactly at far
+    far = torch.where(i % 5 == 1, on_lattice, torch.where(i % 7 == 3, near, far))  # and rays with no step
     return model, (field.normalize(origins), d_n, near, far, step)
 
 
@@ -82,6 +85,22 @@ def test_a_static_budget_gets_the_torch_layout_and_counts_the_steps_past_it_exac
         for name, a, b in zip(("ray", "ray_at", "k", "keep"), got[:4], expected[:4], strict=True):
             assert torch.equal(a, b), (budget, name)
         assert int(got[4]) == max(0, total - budget) <= int(expected[4])  # the torch count: an upper bound
+
+
+def test_a_ray_of_nan_direction_is_counted_and_written_consistently() -> None:
+    """A ray of NaN direction (the torch march cannot index a cell for it): the kernels finish, count at
+    most the ray's steps and write what they counted (whether a stray cell is read, the interpreter does
+    not show: the kernel clamps the cell index for that)."""
+    model, (o_n, d_n, near, far, step) = _marching(occupancy=True)
+    d_n = d_n.clone()
+    d_n[0] = float("nan")
+    counts = model._counts(near, far, step)
+    kept = march_triton.kept_counts(o_n, d_n, near, far, counts, model._grid(), step)
+    assert bool(((kept >= 0) & (kept <= counts)).all())
+    ray, _, total = march_triton.write(
+        o_n, d_n, near, far, counts, model._grid(), step, kept, int(kept.sum())
+    )
+    assert int(total) == len(ray) and torch.equal(torch.bincount(ray, minlength=len(counts)), kept)
 
 
 def test_a_sparse_grid_fills_the_budget_where_the_torch_layout_cannot() -> None:

@@ -109,17 +109,25 @@ def compile_march(arch: int) -> list[dict]:
     types = {**dict.fromkeys(("O", "D", "NEAR", "FAR"), "*fp32"), "GRID": "*u8", "step": "fp32"}
     types |= dict.fromkeys(("COUNT", "KEPT", "FIRST", "RAY", "K"), "*i64")
     rows = []
-    for name, occupancy in (("count", True), ("count", False), ("write", True)):
-        usage = _usage(getattr(kernels, f"{name}_kernel"), types, {"BLOCK": block, "OCC": occupancy}, arch,
-                       warps, default="i32")  # fmt: skip
+    for name, occupancy in (("count", True), ("count", False), ("write", True), ("write", False)):
+        usage = _usage(
+            getattr(kernels, f"{name}_kernel"),
+            types,
+            {"BLOCK": block, "OCC": occupancy},
+            arch,
+            warps,
+            default="i32",
+            fusion=False,
+        )  # fmt: skip  (as march_triton launches them)
         rows.append({"kernel": name, "occupancy": occupancy, **usage})
     return rows
 
 
-def _usage(kernel, types: dict[str, str], consts: dict, arch: int, warps: int, default: str) -> dict:  # type: ignore[no-untyped-def]
+def _usage(kernel, types: dict[str, str], consts: dict, arch: int, warps: int, default: str,  # type: ignore[no-untyped-def]
+           fusion: bool = True) -> dict:  # fmt: skip
     """Resource usage (``REG``, ``STACK``, ``LOCAL``, ``SHARED``: ints) of ``kernel`` compiled for
     ``sm_<arch>`` with ``consts``, its other arguments typed by ``types`` (else ``default``), pointers
-    16-byte aligned."""
+    16-byte aligned, with floating-point contraction or (``fusion`` False) without."""
     import triton
     from triton.backends.compiler import GPUTarget
     from triton.compiler import ASTSource
@@ -129,7 +137,8 @@ def _usage(kernel, types: dict[str, str], consts: dict, arch: int, warps: int, d
     attrs = {(names.index(n),): [["tt.divisibility", 16]] for n, t in types.items()
              if t.startswith("*") and n in names}  # fmt: skip
     source = ASTSource(fn=kernel, signature=signature, constexprs=consts, attrs=attrs)
-    done = triton.compile(source, target=GPUTarget("cuda", arch, 32), options={"num_warps": warps})
+    options = {"num_warps": warps, "enable_fp_fusion": fusion}
+    done = triton.compile(source, target=GPUTarget("cuda", arch, 32), options=options)
     tools = Path(triton.__file__).parent / "backends" / "nvidia" / "bin"
     with tempfile.TemporaryDirectory() as tmp:
         cubin = Path(tmp) / "kernel.cubin"

@@ -105,7 +105,7 @@ class GridFieldConfig:
             step laid out, tested against the ray's end and the occupancy grid, and compacted, in torch
             ops. "triton": the Triton kernels of ``render/march_triton.py``, one program per ray, which
             store the kept steps only, on CUDA (training refuses a device they cannot run on; elsewhere
-            "torch"). The same samples; not yet timed on a GPU.
+            "torch"). The same samples in tests (Triton's CPU interpreter); not yet run on a GPU.
         decoder_bf16: run the appearance basis and the decoder in bfloat16 (autocast: float32 accumulation,
             the logit rounded to bf16; the sigmoid, the grids and the compositing stay float32) where the
             device multiplies bfloat16 natively (:func:`native_bf16`: a CPU with AVX512-BF16 or AMX, a CUDA

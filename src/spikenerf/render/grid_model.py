@@ -74,7 +74,9 @@ class GridModel(RadianceModel):
         inside = t_start < far_at
         if self.use_occupancy:
             t_mid = t_start + 0.5 * (far_at - t_start).clamp(max=step)
-            mid = torch.addcmul(o_n.index_select(0, ray), t_mid[:, None], d_n.index_select(0, ray))
+            # a product, then a sum (not addcmul, which may fuse them): the rounding of march_triton's
+            # kernels, which keep the same steps
+            mid = o_n.index_select(0, ray) + t_mid[:, None] * d_n.index_select(0, ray)
             inside &= self.field.occupancy.lookup(mid)
         return inside
 

@@ -37,8 +37,8 @@ def _launch(name: str, rays: int, *args: Any, **constexprs: Any) -> None:
 
     device = args[0].device
     on = torch.cuda.device(device) if device.type == "cuda" else contextlib.nullcontext()
-    with on:  # Triton launches on the current device, not the tensors'
-        getattr(kernels, name)[(rays,)](*args, **constexprs, **LAUNCH)
+    with on:  # Triton launches on the current device, not the tensors'; no contraction: torch's rounding
+        getattr(kernels, name)[(rays,)](*args, **constexprs, **LAUNCH, enable_fp_fusion=False)
 
 
 def _grid_args(grid: Tensor) -> tuple[Tensor, int]:
@@ -50,7 +50,7 @@ def _march_count(
     o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, counts: Tensor, grid: Tensor, step: float,
     occupancy: bool,
 ) -> Tensor:  # fmt: skip
-    kept = torch.zeros_like(counts)
+    kept = torch.empty_like(counts)  # every ray's count is written
     if len(counts):
         cells, res = _grid_args(grid)
         _launch("count_kernel", len(counts), o_n, d_n, near, far, counts, cells, kept, step, res,

@@ -2,7 +2,9 @@
 
 One program per ray walks the ray's ``COUNT[r]`` marching steps in blocks of ``BLOCK`` and tests each as
 ``GridModel._kept`` does, in the same float32 operations in the same order: the step starts before ``far``
-and (with ``OCC``) the occupancy cell of its midpoint is set. :func:`count_kernel` writes the number of
+and (with ``OCC``) the occupancy cell of its midpoint is set. ``march_triton`` launches them without
+floating-point contraction (no fused multiply-adds), so each operation rounds as torch's separate kernels
+do: the same steps are kept on a GPU as on a CPU. :func:`count_kernel` writes the number of
 kept steps of each ray; :func:`write_kernel`, given each ray's first slot (the exclusive running sum of
 those counts), writes the ray and step number of every kept step into its slot, slots at or past
 ``budget`` left out. No two programs write the same address (no atomics).
@@ -28,12 +30,14 @@ def kept_steps(O, D, NEAR, FAR, GRID, r, k, count, step, res, OCC: tl.constexpr)
         for axis in tl.static_range(3):
             x = tl.load(O + r * 3 + axis) + t_mid * tl.load(D + r * 3 + axis)
             i = tl.minimum(tl.maximum((x + 1.0) * half, 0.0), top).to(tl.int64)
-            cell = cell * res + tl.minimum(tl.maximum(i, 0), res - 1)  # (a NaN point: a cell still)
+            cell = cell * res + tl.minimum(
+                tl.maximum(i, 0), res - 1
+            )  # a NaN point: a cell still, no stray read
         kept &= tl.load(GRID + cell, mask=kept, other=0) != 0
     return kept
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["res"])  # (an int argument of 1 would become a constant without .to)
 def count_kernel(O, D, NEAR, FAR, COUNT, GRID, KEPT, step, res, OCC: tl.constexpr, BLOCK: tl.constexpr):
     # KEPT[r] = the kept steps of ray r's COUNT[r]
     r = tl.program_id(0).to(tl.int64)
@@ -46,14 +50,14 @@ def count_kernel(O, D, NEAR, FAR, COUNT, GRID, KEPT, step, res, OCC: tl.constexp
     tl.store(KEPT + r, total)
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["res"])
 def write_kernel(
     O, D, NEAR, FAR, COUNT, GRID, FIRST, RAY, K, budget, step, res, OCC: tl.constexpr, BLOCK: tl.constexpr
 ):
     # the j-th kept step k of ray r goes to slot FIRST[r] + j: RAY[slot] = r, K[slot] = k (slot < budget)
     r = tl.program_id(0).to(tl.int64)
-    count = tl.load(COUNT + r)
     slot = tl.load(FIRST + r)
+    count = tl.where(slot < budget, tl.load(COUNT + r), 0)  # a ray wholly past the budget: nothing to write
     lane = tl.arange(0, BLOCK).to(tl.int64)
     for s in range(0, count, BLOCK):
         k = s + lane
