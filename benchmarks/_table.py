@@ -53,3 +53,29 @@ def format_table(rows: list[Row]) -> str:
         reference = f"{r.reference:,.3g} ({r.reference_name})"
         lines.append(f"| {r.name} | {r.ours:,.3g} | {reference} | {r.unit} | {r.ratio:.2f}× |")
     return "\n".join(lines)
+
+
+def interleaved_ms(
+    impls: dict[str, Callable[[], object]], cuda: bool, rounds: int, repeats: int, warmup: int = 2
+) -> dict[str, float]:
+    """The median over ``rounds`` interleaved rounds of each function's milliseconds a call (the mean of
+    ``repeats`` calls, the GPU synchronised on both sides with ``cuda``), after ``warmup`` untimed calls."""
+    import torch
+
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
+
+    def timed(fn: Callable[[], object], calls: int) -> float:
+        sync()
+        start = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        sync()
+        return (time.perf_counter() - start) / calls * 1e3
+
+    for fn in impls.values():
+        timed(fn, warmup)
+    times: dict[str, list[float]] = {name: [] for name in impls}
+    for _ in range(rounds):
+        for name, fn in impls.items():
+            times[name].append(timed(fn, repeats))
+    return {name: statistics.median(runs) for name, runs in times.items()}

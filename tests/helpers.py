@@ -40,3 +40,19 @@ def load_benchmark(name: str) -> ModuleType:
     sys.modules[spec.name] = module  # a dataclass in it looks its module up there
     spec.loader.exec_module(module)
     return module
+
+
+def triton_device():  # type: ignore[no-untyped-def]
+    """Where a test module's Triton kernels run: CUDA, else Triton's CPU interpreter (``TRITON_INTERPRET=1``,
+    which ``conftest.py`` sets). Skips the calling module where ``triton`` is missing or neither applies."""
+    import torch
+
+    from spikenerf.fields import vm_triton
+
+    pytest.importorskip("triton", reason="the triton package (pip install triton) runs these kernels")
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device.type == "cpu" and not vm_triton.interpreted():
+        pytest.skip(
+            "TRITON_INTERPRET=1 is needed without CUDA (tests/conftest.py sets it)", allow_module_level=True
+        )
+    return device

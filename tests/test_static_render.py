@@ -59,6 +59,30 @@ def _render(model, rays) -> tuple[object, list[torch.Tensor]]:  # type: ignore[n
     return out, [p.grad.clone() for p in model.parameters()]
 
 
+def assert_renders_as(model, rays, expected, expected_grads) -> None:  # type: ignore[no-untyped-def]
+    """:func:`_render` of ``model`` gives ``expected``'s colour, depth and opacity (1e-5) and gradients."""
+    got, grads = _render(model, rays)
+    assert got.num_samples == expected.num_samples
+    for name in ("color", "depth", "opacity"):
+        torch.testing.assert_close(getattr(got, name), getattr(expected, name), atol=1e-5, rtol=1e-5)
+    for g, e in zip(grads, expected_grads, strict=True):
+        torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-4)
+
+
+def assert_one_graph(model, rays) -> None:  # type: ignore[no-untyped-def]
+    """A training render (perturbed) of ``model`` traces as one graph without a break, and compiled
+    (``aot_eager``, ``fullgraph``) gives the eager colour and a gradient."""
+    torch._dynamo.reset()
+    explained = torch._dynamo.explain(model.render_rays)(*rays, True)
+    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
+    torch._dynamo.reset()
+    compiled = torch.compile(model.render_rays, backend="aot_eager", fullgraph=True)
+    out, eager = compiled(*rays), model.render_rays(*rays)
+    torch.testing.assert_close(out.color, eager.color)
+    out.color.sum().backward()
+    assert model.field.density_planes.grad.abs().sum() > 0
+
+
 @pytest.mark.parametrize("occupancy", [False, True])
 def test_static_path_equals_the_packed_path_when_every_sample_fits(occupancy: bool) -> None:
     model = _model(occupancy)

@@ -20,23 +20,18 @@ import torch
 
 import test_train
 import test_vm_gather
+from helpers import triton_device
 from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config, vm_triton
 from spikenerf.fields.grid import GridField, GridFieldConfig, _factor, sample_vm
 from spikenerf.fields.vm_triton import applies, triton_vm
-
-pytest.importorskip("triton", reason="the triton package (pip install triton) runs these kernels")
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 ROOT = Path(__file__).resolve().parents[1]
 
 
 #: where the kernels run: the GPU, else the interpreter on the CPU
-DEVICE = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-if DEVICE.type == "cpu" and not vm_triton.interpreted():
-    pytest.skip(
-        "TRITON_INTERPRET=1 is needed without CUDA (tests/conftest.py sets it)", allow_module_level=True
-    )
+DEVICE = triton_device()
 dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
 
 

@@ -22,8 +22,9 @@ import torch
 
 import test_static_render
 import test_train
+from helpers import triton_device
 from spikenerf.core.errors import InputError
-from spikenerf.fields import field_config, vm_triton
+from spikenerf.fields import field_config
 from spikenerf.render import volume_triton
 from spikenerf.render.volume import (
     MAX_TAU,
@@ -34,13 +35,7 @@ from spikenerf.render.volume import (
     segment_sum,
 )
 
-pytest.importorskip("triton", reason="the triton package (pip install triton) runs these kernels")
-
-DEVICE = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-if DEVICE.type == "cpu" and not vm_triton.interpreted():
-    pytest.skip(
-        "TRITON_INTERPRET=1 is needed without CUDA (tests/conftest.py sets it)", allow_module_level=True
-    )
+DEVICE = triton_device()
 dataset_dir = test_train.dataset_dir  # the module's fixture
 
 
@@ -141,11 +136,7 @@ def test_the_grid_renders_as_with_torch_sums_on_its_packed_and_static_paths(
     expected, expected_grads = test_static_render._render(model, rays)
     _composite(model, "triton")
     assert model.fused(rays[0])
-    got, grads = test_static_render._render(model, rays)
-    for name in ("color", "depth", "opacity"):
-        torch.testing.assert_close(getattr(got, name), getattr(expected, name), atol=1e-5, rtol=1e-5)
-    for g, e in zip(grads, expected_grads, strict=True):
-        torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-4)
+    test_static_render.assert_renders_as(model, rays, expected, expected_grads)
 
 
 def test_the_custom_ops_pass_opcheck_and_a_static_render_compiles_as_one_graph(
@@ -164,15 +155,7 @@ def test_the_custom_ops_pass_opcheck_and_a_static_render_compiles_as_one_graph(
     model.field.config = dataclasses.replace(model.field.config, static_samples=test_static_render.ALL_FIT)
     _composite(model, "triton")
     rays = tuple(r.to(DEVICE) for r in test_static_render._rays(model, (6, 5)))
-    torch._dynamo.reset()
-    explained = torch._dynamo.explain(model.render_rays)(*rays, True)
-    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
-    torch._dynamo.reset()
-    compiled = torch.compile(model.render_rays, backend="aot_eager", fullgraph=True)
-    out, eager = compiled(*rays), model.render_rays(*rays)
-    torch.testing.assert_close(out.color, eager.color)
-    out.color.sum().backward()
-    assert model.field.density_planes.grad.abs().sum() > 0
+    test_static_render.assert_one_graph(model, rays)
 
 
 def test_where_the_kernels_cannot_run_they_are_refused_or_left_aside(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -20,13 +20,12 @@ faster) and the largest difference of colour, depth, opacity and gradients from 
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
+from benchmarks._table import interleaved_ms
 from spikenerf.core.device import resolve_device
 from spikenerf.fields.vm_triton import why_not
 from spikenerf.render import volume_triton
@@ -83,17 +82,6 @@ def step(composite: Composite, inputs: Inputs, grads: tuple[Tensor, ...]) -> tup
     return (*(o.detach() for o in outputs), *torch.autograd.grad(loss, (inputs[0], inputs[3])))
 
 
-def timed(composite: Composite, inputs: Inputs, grads: tuple[Tensor, ...], repeats: int) -> float:
-    """Milliseconds of one forward and backward, the mean of ``repeats`` (the device synchronised)."""
-    sync = torch.cuda.synchronize if inputs[0].is_cuda else (lambda: None)
-    sync()
-    start = time.perf_counter()
-    for _ in range(repeats):
-        step(composite, inputs, grads)
-    sync()
-    return (time.perf_counter() - start) / repeats * 1e3
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="auto")
@@ -117,20 +105,15 @@ def main() -> None:
         name: max(float((a - b).abs().max()) for a, b in zip(step(f, inputs, grads), reference, strict=True))
         for name, f in impls.items()
     }
-    for f in impls.values():  # warm-up
-        timed(f, inputs, grads, 2)
-    times: dict[str, list[float]] = {name: [] for name in impls}
-    for _ in range(args.rounds):
-        for name, f in impls.items():
-            times[name].append(timed(f, inputs, grads, args.repeats))
-    base = statistics.median(times["scatter"])
+    calls = {name: (lambda f=f: step(f, inputs, grads)) for name, f in impls.items()}
+    times = interleaved_ms(calls, device.type == "cuda", args.rounds, args.repeats)
+    base = times["scatter"]
     samples = f"{len(inputs[4])} samples (about {args.samples} a ray)"
     print(f"device {device}, {args.rays} rays, {samples}, threads {torch.get_num_threads()}; forward + "
           f"backward, median of {args.rounds} rounds")  # fmt: skip
     print("| compositing | ms | speed vs scatter | largest difference |")
     print("|---|---:|---:|---:|")
-    for name, runs in times.items():
-        ms = statistics.median(runs)
+    for name, ms in times.items():
         print(f"| {name} | {ms:.3f} | {base / ms:.2f}× | {diffs[name]:.2e} |")
     if "triton" not in impls:
         print(f"triton: not timed here ({why_not(device) or 'only in the CPU interpreter'})")

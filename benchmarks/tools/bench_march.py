@@ -28,13 +28,12 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
-import statistics
-import time
 from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
+from benchmarks._table import interleaved_ms
 from spikenerf.core.device import resolve_device
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridFieldConfig
@@ -105,17 +104,6 @@ def compiled(x: Tensor) -> bool:
     return x.device.type != "cpu" and volume_triton.applies(x)
 
 
-def timed(fn: Callable[[], tuple], device: torch.device, repeats: int) -> float:
-    """Milliseconds of one call, the mean of ``repeats`` (the device synchronised)."""
-    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    sync()
-    start = time.perf_counter()
-    for _ in range(repeats):
-        fn()
-    sync()
-    return (time.perf_counter() - start) / repeats * 1e3
-
-
 @torch.no_grad()
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -140,21 +128,15 @@ def main() -> None:
     reference = impls["packed"]()
     kept = len(reference[0])
     same = {name: agreement(f(), reference, args.rays * args.samples) for name, f in impls.items()}
-    for f in impls.values():  # warm-up
-        timed(f, device, 2)
-    times: dict[str, list[float]] = {name: [] for name in impls}
-    for _ in range(args.rounds):
-        for name, f in impls.items():
-            times[name].append(timed(f, device, args.repeats))
-    base = statistics.median(times["packed"])
+    times = interleaved_ms(impls, device.type == "cuda", args.rounds, args.repeats)
+    base = times["packed"]
     candidates = int(model._counts(*inputs[2:]).sum())
     print(f"device {device}, {args.rays} rays, R {args.resolution}, {kept / args.rays:.1f} kept samples a "
           f"ray of {candidates / args.rays:.1f} steps, budget {args.samples} a ray, threads "
           f"{torch.get_num_threads()}; median of {args.rounds} rounds")  # fmt: skip
     print("| march | ms | speed vs packed | same samples |")
     print("|---|---:|---:|---|")
-    for name, runs in times.items():
-        ms = statistics.median(runs)
+    for name, ms in times.items():
         print(f"| {name} | {ms:.3f} | {base / ms:.2f}× | {same[name]} |")
     if not with_kernels:
         print(f"triton: not timed here ({why_not(device) or 'only in the CPU interpreter'})")
