@@ -135,8 +135,19 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (json_ds / "transforms.json").write_text('{"frames": 3}')
     _round_two(root)
     _round_three(root)
+    _round_four(root)
     PWNED[0] = str(root / "PWNED")
     return root
+
+
+def _round_four(root: Path) -> None:
+    """Damaged records: a render folder whose ``render.json`` lists no file names, a one-line curves.csv."""
+    _cli("render", root / "run", "--device", "cpu", "--quiet", "--out", root / "bad_render")
+    record = json.loads((root / "bad_render" / "render.json").read_text())
+    record["files"]["spikes"] = 5
+    (root / "bad_render" / "render.json").write_text(json.dumps(record))
+    shutil.copytree(root / "run", root / "line_curves_run")
+    (root / "line_curves_run" / "curves.csv").write_text("garbage\n")
 
 
 def _round_three(root: Path) -> None:
@@ -549,6 +560,14 @@ CASES: list[tuple[str, list[str], str]] = [
     ("sim-seq-png-liar", ["simulate", "--sequence", f"{R}/seq_liar/transforms.json", "--no-progress",
                           "--out", f"{R}/o"],
      "more data"),
+    # damaged records: render.json (read by info and by a render into its folder), a one-line curves.csv
+    ("info-render-record-types", ["info", f"{R}/bad_render"],
+     "render.json: malformed render record (files.spikes: expected a list of file names, found 5)"),
+    ("render-into-bad-record", ["render", f"{R}/run", "--device", "cpu", "--quiet",
+                                "--out", f"{R}/bad_render"], "render.json: malformed render record"),
+    ("train-resume-curves-one-line", [*T, "--resume", "--out", f"{R}/line_curves_run"],
+     "curves.csv: not a training curve table: no column 'iteration'"),
+    ("info-curves-one-line", ["info", f"{R}/line_curves_run"], "curves.csv: not a training curve table"),
 ]
 #: cases run while this process holds the writer lock of the sandbox folder named here
 LOCKED = {"locked-eval-link": "run", "locked-render": "run",
@@ -709,3 +728,68 @@ def test_a_single_output_file_may_go_into_an_unmarked_look_alike(tmp_path: Path)
     mark(mine, "pairs")
     with pytest.raises(InputError, match="inside a pairs folder"):
         check_file_output(mine / "frame.png")
+
+
+# --------------------------------------------------------------- records, and runs that do not fit their data
+def test_info_says_when_the_runs_dataset_is_not_the_one_it_trained_on(
+    sandbox: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """What eval, render and train --resume refuse, info tells in a warning line and still describes the
+    run; a dataset that is gone is no warning (eval names it)."""
+
+    def info(run: Path) -> list[str]:
+        capsys.readouterr()
+        _cli("info", run)
+        out = capsys.readouterr().out
+        assert "iterations: 2 of 2" in out and "last evaluation: iteration 2" in out, out
+        return [line for line in out.splitlines() if line.startswith("warning: ")]
+
+    resimulated = info(sandbox / "run_resim")
+    assert len(resimulated) == 1 and "its files differ from those the run trained on" in resimulated[0]
+    assert info(sandbox / "run") == []
+    run = tmp_path / "run"
+    shutil.copytree(sandbox / "run", run)
+    config = (run / "config.yaml").read_text()
+    (run / "config.yaml").write_text(re.sub(r"(?m)^dataset: .*$", f"dataset: {sandbox / 'other_ds'}", config))
+    other = info(run)
+    assert len(other) == 1 and "size [12, 12] (run: [16, 16])" in other[0], other
+    (run / "config.yaml").write_text(re.sub(r"(?m)^dataset: .*$", f"dataset: {tmp_path / 'gone'}", config))
+    assert info(run) == []
+
+
+@pytest.mark.parametrize("content", ["", "iteration,seconds,train_psnr,test_psnr\n"], ids=["empty", "header"])
+def test_a_resume_writes_an_empty_curves_csv_again(sandbox: Path, tmp_path: Path, content: str) -> None:
+    """A zero-byte curves.csv (a write a crash cut short) or a header alone holds no rows to keep: resume
+    writes it again from its next evaluation (one line of anything else is refused, in CASES)."""
+    from spikenerf.train.evaluate import read_curves
+
+    run = tmp_path / "run"
+    shutil.copytree(sandbox / "run", run)
+    (run / "curves.csv").write_text(content)
+    _cli("train", sandbox / "ds", *TRAIN, "--iters", "3", "--resume", "--out", run)
+    assert [row["iteration"] for row in read_curves(run / "curves.csv")] == [3]
+
+
+def test_a_trajectory_files_views_are_weighed_with_their_files(
+    sandbox: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """4000 poses of a 16×16 camera write four files a view (a 4 KiB block each at least: 91 MB in all,
+    not the 26 MB of their pixels): with 60 MB free, render refuses them up front in one line (not with
+    ``spikenerf --no-limits``)."""
+    from spikenerf.core import limits
+    from spikenerf.eval.video import check_render_resources
+    from spikenerf.scenes.trajectory import Intrinsics
+
+    monkeypatch.setattr(limits, "available_memory", lambda: 64 * limits.GIB)
+    monkeypatch.setattr(limits, "free_disk", lambda path: 60 * 1024**2)
+    pose = [[1, 0, 0, 0], [0, 0, -1, -4], [0, 1, 0, 0], [0, 0, 0, 1]]
+    (tmp_path / "long.json").write_text(json.dumps({"frames": [{"transform_matrix": pose}] * 4000}))
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        _cli("render", sandbox / "run", "--trajectory", tmp_path / "long.json", "--device", "cpu", "--quiet",
+             "--out", tmp_path / "r")  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and err.count("\n") == 0 and "Traceback" not in err, err
+    assert "--trajectory" in err and "disk space" in err and not (tmp_path / "r").exists(), err
+    monkeypatch.setenv(limits.NO_LIMITS_ENV, "1")  # spikenerf --no-limits: not weighed
+    check_render_resources(Intrinsics(16, 16, 20.0, 20.0, 8.0, 8.0), 4000, 0, tmp_path / "r")

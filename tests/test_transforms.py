@@ -79,3 +79,24 @@ def test_each_rule_is_one_error_naming_the_file_and_the_key(tmp_path: Path) -> N
         transforms.scene_box({"aabb": [[1, 1, 1], [0, 0, 0]]}, path)
     with pytest.raises(InputError, match=r"t\.json: missing field 'scene_box'"):
         transforms.scene_box({}, path, required=True)
+
+
+def test_frame_poses_checks_all_frames_at_once_and_names_the_first_bad_one(tmp_path: Path) -> None:
+    """Well-formed poses are checked together (a 400 000-pose trajectory in seconds); one that fails any
+    rule of :func:`transforms.pose` is still named, found frame by frame."""
+    path = tmp_path / "t.json"
+    rot = np.array([[1.0, 0, 0, 0], [0, 0, -1, -4], [0, 1, 0, 0], [0, 0, 0, 1]])
+    frames = [{"transform_matrix": rot.tolist()}] * 20_000
+    poses = transforms.frame_poses({"frames": frames}, path)
+    assert poses.shape == (20_000, 4, 4) and poses.dtype == np.float64 and (poses == rot).all()
+    bad = {
+        "rotation part is not a rotation": (rot * [1, 1, -1, 1]).tolist(),  # a mirror
+        "last row must be": [*rot.tolist()[:3], [0, 0, 0, 2]],
+        "matrix holds NaN or infinite": [[math.nan] * 4, *rot.tolist()[1:]],
+        "expected a 4×4 list of numbers": [[1, 0, 0], {"a": 1}],
+        "expected a 4×4 matrix": rot[:3].tolist(),
+    }
+    for needle, matrix in bad.items():
+        frames = [{"transform_matrix": rot.tolist()}] * 3 + [{"transform_matrix": matrix}]
+        with pytest.raises(InputError, match=rf"t\.json: frames\[3\]\.transform_matrix: {needle}"):
+            transforms.frame_poses({"frames": frames}, path)

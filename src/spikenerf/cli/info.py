@@ -58,17 +58,12 @@ OTHER_KINDS = {
 def describe_render(folder: Path) -> list[str]:
     """The summary lines of a ``render`` output folder: its ``render.json`` (what was rendered, from which
     run) and each novel-view spike stream it holds (:func:`describe_dat`); an unfinished render says so."""
-    import json
+    from spikenerf.eval.render_record import read_render_record
 
-    manifest = folder / "render.json"
-    if not manifest.is_file():
+    info = read_render_record(folder)  # (a malformed one is an InputError naming it)
+    if info is None:
         return [f"render folder: {folder}", "unfinished (no render.json): run its command again to resume"]
-    try:
-        info = json.loads(manifest.read_text(encoding="utf-8"))
-        width, height = (int(v) for v in info["size"])
-        files = info.get("files") or {}
-    except (OSError, ValueError, TypeError, KeyError) as err:
-        raise InputError(f"cannot read it ({type(err).__name__}: {err})", path=manifest) from None
+    (width, height), files = info["size"], info.get("files") or {}
     done, planned = info.get("iteration"), info.get("run_iterations")
     of = (
         ""

@@ -50,6 +50,7 @@ from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path, spike_files
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_array, render_key
+from spikenerf.eval.render_record import read_render_record
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.render.model import render_image
 from spikenerf.render.spiking import iter_spike_states
@@ -294,23 +295,25 @@ def planned_files(name: str, channels: int, spikes: bool, config: bool = True) -
 
 
 def _listed_files(out: Path) -> list[object]:
-    """The video and spike files of earlier renders into ``out``: those its ``render.json`` lists, and
-    those an interrupted render planned (its cache's ``key.json``)."""
+    """The video and spike files of earlier renders into ``out``: those its ``render.json`` lists (a
+    malformed one is an InputError naming it: the files it listed would stay), and those an interrupted
+    render planned (its cache's ``key.json``; a cache, rebuilt where it is unreadable)."""
     listed: list[object] = []
-    with contextlib.suppress(OSError, ValueError, AttributeError, TypeError):
-        files = json.loads((out / "render.json").read_text()).get("files", {})
+    if (record := read_render_record(out)) is not None:
+        files = record.get("files") or {}
         listed += [files.get("video"), *(files.get("spikes") or [])]
     with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
         listed += list(json.loads((out / CACHE / "key.json").read_text())["plan"])
     return listed
 
 
-def clear_previous_render(out: Path) -> None:
+def clear_previous_render(out: Path, listed: list[object] | None = None) -> None:
     """Delete what earlier renders left in their folder ``out`` (marked ``render``): the frames and depth
     maps (named as :data:`FRAME_NAME`), ``render.json`` and the video and spike files it lists or an
-    interrupted render planned, and temporaries, so no view of another trajectory stays beside the new ones
-    and no manifest describes files that are gone. Other files stay."""
-    listed = _listed_files(out)
+    interrupted render planned (``listed``: :func:`_listed_files`, read before), and temporaries, so no view
+    of another trajectory stays beside the new ones and no manifest describes files that are gone. Other
+    files stay."""
+    listed = _listed_files(out) if listed is None else listed
     (out / "render.json").unlink(missing_ok=True)
     for folder in (out, out / "images", out / "depth"):
         clean_stale_temps(folder)
@@ -327,13 +330,26 @@ def clear_previous_render(out: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+#: memory a view holds until the video is written, (bytes a pixel, bytes a view): its colour, depth and
+#: opacity, their stacks and the video's RGB frame (19.9 a pixel measured at 128×128), and its arrays with
+#: the tensors under them (2.7 KiB a view measured at 16×16: a 400 000-pose trajectory file holds 3 GB)
+VIEW_MEMORY = (20, 4096)
+#: disk a view takes, (bytes a pixel, bytes a view): its PNGs, depth .npy and cache entry, and the least
+#: size of those four files on disk (a 4 KiB block each: at 16×16, 2.6 times the pixels' share)
+VIEW_DISK = (25, 4 * 4096)
+#: memory a spike step holds, (bytes a pixel, bytes a step): measured 4.5 a pixel at 128×128, 4.7 KiB a
+#: step at 16×16
+SPIKE_MEMORY = (5, 4096)
+
+
 def check_render_resources(k: Intrinsics, views: int, spike_steps: int, out: Path) -> None:
     """Refuse a render whose frames (kept for the video and the depth range), its cache or its files exceed
     the machine (``k``: the camera rendered; the space an interrupted render's cache holds counts as
     free)."""
     px = float(k.width) * k.height
-    memory = views * (px * 16 + 256) + spike_steps * (px * 3 + 256)
-    disk = views * px * 25 + spike_steps * (px * 3 / 4 + 256) - cache_bytes(out)
+    view, step = px * VIEW_MEMORY[0] + VIEW_MEMORY[1], px * SPIKE_MEMORY[0] + SPIKE_MEMORY[1]
+    memory = views * view + spike_steps * step
+    disk = views * (px * VIEW_DISK[0] + VIEW_DISK[1]) + spike_steps * (px * 3 / 4 + 256) - cache_bytes(out)
     check_resources(memory, disk, out, "orbit_frames/spike_steps/trajectory")
 
 
@@ -374,6 +390,7 @@ def _render_locked(
     progress: bool, log: Callable[[str], None] | None, precision: str = "auto",
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
+    previous = _listed_files(out)  # a malformed render.json is refused before any work
     model, config, dataset, ckpt = open_run(run_dir, dataset_root, device, train_images=False)  # new views
     dataset = refined_poses(ckpt, config, dataset)
     precision = resolve_precision(precision, model.device)
@@ -405,7 +422,7 @@ def _render_locked(
         if (out / sub).is_symlink() or ((out / sub).exists() and not (out / sub).is_dir()):
             raise InputError(f"out: {sub} in it is a symbolic link or a file; move it", path=out, param="out")
     mark(out, "render")
-    clear_previous_render(out)
+    clear_previous_render(out, previous)
     # a config.yaml still there after clear_previous_render is not one a render wrote: it stays untouched
     own_config = not (out / SPIKECV_CONFIG).exists()
     plan = planned_files(path.name, model.channels, spike_path is not None, own_config)

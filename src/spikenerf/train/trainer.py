@@ -262,6 +262,7 @@ class Trainer:
         self.progress = progress
         ckpt_path = self.out / CHECKPOINT
         ckpt = None
+        curves: list[dict[str, float]] = []  # curves.csv's rows, read (and checked) on a resume
         if ckpt_path.exists():
             if not resume:
                 raise InputError(
@@ -275,6 +276,7 @@ class Trainer:
             stored_given = _stored_and_given(self.out / CONFIG_FILE, config)
             config = _check_resume(*stored_given, self.out / CONFIG_FILE, movable)
             check_same_run(ckpt, config.to_dict(), ckpt_path)  # not another run's checkpoint copied in
+            curves = read_curves(self.out / CURVES)  # before any work: a garbled one refused, 0 bytes []
         self.device = resolve_device(config.device)
         self.config = config.validate().resolved()
         self.dataset = dataset if dataset is not None else load_dataset(config.dataset)
@@ -363,7 +365,7 @@ class Trainer:
             restore_rng(ckpt["rng"], self.samplers)
             self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
             self.rays = int(ckpt["rays"])
-            self.curves = [r for r in read_curves(self.out / CURVES) if r["iteration"] <= self.iteration]
+            self.curves = [r for r in curves if r["iteration"] <= self.iteration]
         self.final_ratio = _lr_final_ratio(self.config, self.model)
         self.scaler = torch.amp.GradScaler(self.device.type, enabled=self.config.amp == "fp16")
         if ckpt is not None and ckpt.get("scaler"):  # fp16 loss scale and growth tracker (absent: older)
