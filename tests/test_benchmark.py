@@ -43,6 +43,49 @@ def test_parallel_keeps_order_runs_at_once_and_stops_on_failure() -> None:
     assert len(started) < 39  # the tasks not yet started were cancelled
 
 
+def test_keep_going_runs_every_job_it_can_and_lists_the_failures_at_the_end(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Datasets ``a`` (fine) and ``b`` (fails); cells a1 (fails), a2 (fine), b1 (skipped: its dataset failed).
+    Without ``keep_going`` the first failure stops the datasets' phase: no cell runs."""
+    import sys
+    from types import SimpleNamespace
+
+    from spikenerf.pipelines.benchmark.local_executor import LocalExecutor
+    from spikenerf.pipelines.benchmark.steps import Job
+
+    def job(name: str, ok: bool, needs: str | None = None) -> Job:
+        code = f"open({str(tmp_path / name)!r}, 'w').close()" if ok else "raise SystemExit(3)"
+        return Job(name, lambda root: [[sys.executable, "-c", code, name]], name, f"{name}.done", needs)
+
+    jobs = [
+        job("a", True),
+        job("b", False),
+        job("a1", False, "a"),
+        job("a2", True, "a"),
+        job("b1", True, "b"),
+    ]
+    for keep_going in (False, True):
+        for name in ("a", "a2", "b1"):
+            (tmp_path / name).unlink(missing_ok=True)
+        done: list[str] = []
+        cfg = SimpleNamespace(out=tmp_path, jobs=1, keep_going=keep_going)
+        with pytest.raises(InputError) as err:
+            LocalExecutor().run(cfg, jobs, [], "nonce", lambda j, done=done: done.append(j.name))
+        if not keep_going:
+            assert "exit code 3" in str(err.value) and not (tmp_path / "a2").exists()
+            continue
+        assert sorted(done) == ["a", "a2"] and (tmp_path / "a2").exists() and not (tmp_path / "b1").exists()
+        assert str(err.value).startswith("3 of 5 jobs failed (b, b1, a1)")
+        assert "its dataset (b) failed" not in str(
+            err.value
+        ) and "the first: step failed with exit code 3" in str(err.value)
+        warnings = [
+            line for line in capsys.readouterr().err.splitlines() if "going on with the others" in line
+        ]
+        assert len(warnings) == 2  # b and a1 (b1 never ran)
+
+
 def test_an_interrupted_benchmark_stops_its_running_steps() -> None:
     import sys
 

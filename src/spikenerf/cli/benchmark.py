@@ -70,6 +70,9 @@ BENCHMARK_KEYS = {
     help="Steps run at once (outputs go to OUT/logs/; each gets cpu_count // jobs threads unless "
     "OMP_NUM_THREADS is set).",
 )
+@click.option("--keep-going", is_flag=True,
+              help="Run every cell even when one fails; the failures are listed at the end (exit 2) and "
+              "the next call retries them (--executor ray always goes on).")  # fmt: skip
 @click.option("--executor", type=click.Choice(list(EXECUTORS)), default="local", show_default=True,
               help="local: --jobs processes on this machine; ray: every dataset and cell a Ray task (needs "
               "'spikenerf[cluster]'; OUT on shared storage, see docs/cluster.md).")  # fmt: skip
@@ -92,8 +95,8 @@ BENCHMARK_KEYS = {
 def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
     field: str, device: str, seed: int, seeds: str | None, blur_views: str, test_views: int,
-    overrides: tuple[str, ...], no_render: bool, jobs: int, executor: str, address: str | None, retries: int,
-    ray_cpus: float, ray_ship_results: bool,
+    overrides: tuple[str, ...], no_render: bool, jobs: int, keep_going: bool, executor: str,
+    address: str | None, retries: int, ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
     from spikenerf.capture.blur import check_blur_views
     from spikenerf.pipelines.benchmark.cells import (
@@ -177,7 +180,7 @@ def command(
         scenes=resolve_scenes(scenes), variants=variants, colors=colors, out=out,
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
         test_views=test_views, render=not no_render, jobs=jobs, executor=executor, address=address,
-        retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus,
+        retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus, keep_going=keep_going,
         seeds=None if seeds is None else parse_seeds(seeds), blur_views=views,
         extra_train_args=[arg for item in overrides for arg in ("--set", item)],
     )  # fmt: skip

@@ -50,7 +50,8 @@ class BenchmarkConfig:
     ``simulate --blur-views`` (``all`` = the paper's blur baseline: one exposure centred on every step).
     ``executor`` names an entry of :data:`~spikenerf.pipelines.benchmark.executor.EXECUTORS`: ``"ray"`` runs
     the steps as Ray tasks instead (:mod:`spikenerf.pipelines.benchmark.ray_executor`, which uses the
-    ``address`` … ``ray_cpus`` fields).
+    ``address`` … ``ray_cpus`` fields). ``keep_going``: the local executor runs every job even when one
+    fails and lists the failures at the end (the Ray executor always does).
     """
 
     scenes: list[str]
@@ -74,6 +75,7 @@ class BenchmarkConfig:
     retries: int = 2
     ship_results: bool = False
     ray_cpus: float = 1.0
+    keep_going: bool = False
 
 
 class CellKey(NamedTuple):

@@ -2,18 +2,22 @@
 
 Every dataset first, then every cell, ``cfg.jobs`` at a time, each with a progress bar. With one job at a
 time a step's output goes to the terminal; with more, to ``OUT/logs/<job>.log``, each step with
-``cpu_count // jobs`` threads unless ``OMP_NUM_THREADS`` is set.
+``cpu_count // jobs`` threads unless ``OMP_NUM_THREADS`` is set. The first failure stops the benchmark, or,
+with ``cfg.keep_going``, is noted in one warning line while the other jobs run (the cells of a failed
+dataset are skipped), and all are listed in one error at the end.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
 
+from spikenerf.core.errors import InputError
 from spikenerf.core.progress import bar as progress_bar
 from spikenerf.pipelines.benchmark.steps import Job, run_step, stop_running
 
@@ -36,12 +40,27 @@ class LocalExecutor:
 
     def run(self, cfg: Any, jobs: list[Job], log: list[dict], nonce: str,
             finished: Callable[[Job], None]) -> None:  # fmt: skip
-        """The datasets, then the cells (the jobs that need one), ``cfg.jobs`` at a time."""
+        """The datasets, then the cells (the jobs that need one), ``cfg.jobs`` at a time; with
+        ``cfg.keep_going`` every job that can run, then one InputError listing the failed ones."""
         n = max(1, cfg.jobs)
-        datasets = [partial(_run_job, cfg, job, log, finished) for job in jobs if job.needs is None]
-        _parallel(datasets, n, "benchmark datasets", "scene")
-        cells = [partial(_run_job, cfg, job, log, finished) for job in jobs if job.needs is not None]
-        _parallel(cells, n, "benchmark cells", "cell")
+        failed: dict[str, str] | None = {} if getattr(cfg, "keep_going", False) else None
+        datasets = {job.name: partial(_run_job, cfg, job, log, finished) for job in jobs if job.needs is None}
+        _parallel(list(datasets.values()), n, "benchmark datasets", "scene", list(datasets), failed)
+        cells = {}
+        for job in (j for j in jobs if j.needs is not None):
+            if failed is not None and job.needs in failed:
+                failed[job.name] = f"its dataset ({job.needs}) failed"
+            else:
+                cells[job.name] = partial(_run_job, cfg, job, log, finished)
+        _parallel(list(cells.values()), n, "benchmark cells", "cell", list(cells), failed)
+        if failed:
+            names = ", ".join(list(failed)[:4]) + (f" and {len(failed) - 4} more" if len(failed) > 4 else "")
+            where = f"; logs in {cfg.out / 'logs'}" if cfg.jobs > 1 else ""
+            first = next(iter(failed.values()))
+            raise InputError(
+                f"{len(failed)} of {len(jobs)} jobs failed ({names}){where}; the others finished: fix the "
+                f"cause and run the benchmark again to retry only these (the first: {first})"
+            )
 
 
 def _run_job(cfg: Any, job: Job, log: list[dict], finished: Callable[[Job], None]) -> None:
@@ -52,11 +71,16 @@ def _run_job(cfg: Any, job: Job, log: list[dict], finished: Callable[[Job], None
     finished(job)
 
 
-def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> list[T]:
+def _parallel(
+    tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str, names: list[str] | None = None,
+    failed: dict[str, str] | None = None,
+) -> list[T | None]:  # fmt: skip
     """Run ``tasks`` ``jobs`` at a time with a progress bar; results in task order. The first failure
-    cancels the tasks not yet started, lets the running ones finish, and is raised; an interruption
-    (Ctrl-C, SIGTERM) also stops the steps running now (:func:`stop_running`)."""
-    results: dict[int, T] = {}
+    cancels the tasks not yet started, lets the running ones finish, and is raised; with ``failed`` (a
+    dict, and ``names`` of the tasks) a failing task's error is put there under its name, said in a warning
+    line, and the others go on (its result is None). An interruption (Ctrl-C, SIGTERM) also stops the steps
+    running now (:func:`stop_running`)."""
+    results: dict[int, T | None] = {}
     with (
         ThreadPoolExecutor(max_workers=jobs) as pool,
         progress_bar(total=len(tasks), desc=desc, unit=unit) as bar,
@@ -64,7 +88,16 @@ def _parallel(tasks: list[Callable[[], T]], jobs: int, desc: str, unit: str) -> 
         futures = {pool.submit(task): i for i, task in enumerate(tasks)}
         try:
             for future in as_completed(futures):
-                results[futures[future]] = future.result()
+                i = futures[future]
+                try:
+                    results[i] = future.result()
+                except Exception as err:
+                    if failed is None or names is None:
+                        raise
+                    failed[names[i]] = str(err)
+                    results[i] = None
+                    warning = f"spikenerf: warning: {names[i]} failed ({err}); going on with the others"
+                    bar.write(warning, file=sys.stderr)
                 bar.update()
         except BaseException as err:
             for future in futures:

@@ -235,6 +235,7 @@ CONFIG_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "retries": ("a non-negative integer", lambda x: _int(x, 0)),
     "render": ("true or false", lambda x: isinstance(x, bool)),
     "ship_results": ("true or false", lambda x: isinstance(x, bool)),
+    "keep_going": ("true or false", lambda x: isinstance(x, bool)),
     "field_kind": ("a string", lambda x: isinstance(x, str)),
     "device": ("a string", lambda x: isinstance(x, str)),
     "blur_views": ("a string", lambda x: isinstance(x, str)),
