@@ -17,6 +17,7 @@ from spikenerf.data.rays import image_rays
 from spikenerf.fields import GridFieldConfig
 from spikenerf.fields import grid as grid_module
 from spikenerf.render import build_model
+from spikenerf.render.grid_model import MARCH_SLOTS, compact_slots
 from spikenerf.render.model import ray_bounds
 from spikenerf.scenes.trajectory import Intrinsics, look_at
 
@@ -127,15 +128,17 @@ def test_the_spare_slots_spread_over_spare_rays_at_distinct_points() -> None:
         model.field.normalize(origins),
         dirs * (2.0 / (model.field.scene_box[1] - model.field.scene_box[0])),
     )
-    counts = model._counts(near, far, step)
     budget = ALL_FIT * n
-    ray, ray_at, k, keep, dropped = model._march_static(o_n, d_n, near, far, step, budget)
+    marched = model._march_static(o_n, d_n, near, far, step, MARCH_SLOTS * budget)
+    assert int(marched[4]) == 0  # the layout holds every step
+    kept = torch.bincount(marched[0][marched[3]], minlength=n)
+    ray, ray_at, k, keep, dropped = compact_slots(*marched, n, budget)
     spare = ray >= n
-    used = int(counts.sum())
+    used = int(kept.sum())
     assert int(dropped) == 0 and int(spare.sum()) == budget - used > n
     assert torch.all(ray[1:] >= ray[:-1]) and int(ray.max()) == 2 * n - 1 and not keep[spare].any()
     per_ray = torch.bincount(ray, minlength=2 * n)
-    assert torch.equal(per_ray[:n], counts) and int(per_ray[n:].max()) <= -(-(budget - used) // n)
+    assert torch.equal(per_ray[:n], kept) and int(per_ray[n:].max()) <= -(-(budget - used) // n)
     points = ray_at[spare] * (budget + 1) + k[spare]
     assert len(torch.unique(points)) == len(points) and int(ray_at.max()) < n
 
@@ -158,8 +161,6 @@ def test_the_budget_holds_the_kept_samples_only_not_the_empty_space_between_them
     torch.testing.assert_close(static.color, packed.color, atol=1e-5, rtol=1e-5)
     for g, e in zip(static_grads, packed_grads, strict=True):
         torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-4)
-    from spikenerf.render.grid_model import compact_slots
-
     o_n = model.field.normalize(rays[0])
     d_n = rays[1] * (2.0 / (model.field.scene_box[1] - model.field.scene_box[0]))
     marched = model._march_static(o_n, d_n, near, far, step, 4 * samples * n)

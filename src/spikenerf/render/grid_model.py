@@ -111,31 +111,28 @@ class GridModel(RadianceModel):
     ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """The slots of :meth:`_march` laid out in a fixed ``budget`` B of slots: no compaction, no host sync.
 
-        Slot i belongs to the ray whose cumulated slot count first exceeds i (a ``searchsorted``), so the
-        rays and steps are those of the packed march, in its order, unkept slots included. When the rays
-        need more than B slots, the march is cut at the end of the budget: the ray there loses its tail and
-        the later rays get no slot. The U slots left after every ray's last one are spread evenly over N
-        empty *spare* rays N … 2N − 1 (in order) and placed at distinct points (ray j mod N, step j div N
-        for the j-th of them): were they all one ray at one point, the backward's scatters (``before[ray]``
-        in :func:`packed_weights`, the grid lookups) would pile up on one address, serialised on a GPU.
-        Returns ray (B,) in [0, 2N) (non-decreasing; composite over 2N rays and keep the first N), ray_at
-        (B,) in [0, N) (the ray whose geometry the slot takes) and step number k (B,) int64, keep (B,) bool
-        (the slots the packed march keeps, spare ones False), and dropped () int64: the slots cut off.
+        The rays' steps lie ray after ray, unkept ones included (a ``repeat_interleave`` of each ray's
+        step count, cut to add up to B: no data-dependent shape), so the rays and steps are those of the
+        packed march, in its order. When the rays need more than B slots, the march is cut at the end of
+        the budget: the ray there loses its tail and the later rays get no slot. The slots left after every
+        ray's last one take ray N − 1 and are never kept (:func:`compact_slots` lays out its own spare slots).
+        Returns ray (B,) and ray_at (B,) in [0, N) (the same here; :func:`compact_slots` takes both), step
+        number k (B,) int64, keep (B,) bool (the slots the packed march keeps) and dropped () int64: the
+        slots cut off.
         """
         n = len(near)
         counts = self._counts(near, far, step)
         ends = torch.cumsum(counts, dim=0)
-        slot = torch.arange(budget, device=near.device)
-        ray = torch.searchsorted(ends, slot, right=True)
+        starts = ends - counts
+        laid = (ends.clamp(max=budget) - starts).clamp_min(0)  # each ray's steps in the budget
+        rest = (budget - ends[-1]).clamp_min(0)[None]  # and the slots after them: B in all
+        index = torch.arange(n + 1, device=near.device)
+        ray = torch.repeat_interleave(index, torch.cat([laid, rest]), output_size=budget)
         used = ray < n
-        real = ray.clamp(max=n - 1)
-        spare = (slot - ends[-1]).clamp_min(0)  # j for the spare slots
-        spare_ray = n + spare * n // (budget - ends[-1]).clamp_min(1)
-        ray = torch.where(used, ray, spare_ray)
-        ray_at = torch.where(used, real, spare % n)
-        k = torch.where(used, slot - (ends - counts).index_select(0, real), spare // n)
-        keep = used & self._kept(o_n, d_n, near, far, step, ray_at, k)
-        return ray, ray_at, k, keep, (ends[-1] - budget).clamp_min(0)
+        ray = ray.clamp_(max=n - 1)
+        k = torch.arange(budget, device=near.device) - starts.index_select(0, ray)
+        keep = used & self._kept(o_n, d_n, near, far, step, ray, k)
+        return ray, ray, k, keep, (ends[-1] - budget).clamp_min(0)
 
     @torch.no_grad()
     def _march_fused(
@@ -280,8 +277,11 @@ def compact_slots(
     Takes :meth:`GridModel._march_static`'s ray, ray_at, k, keep (M,) and dropped () for N rays; returns the
     same five for B slots. Slot i holds the (i+1)-th kept slot of the march (a ``searchsorted`` over the
     running count of kept slots), so each ray's kept samples stay in order and the rays in theirs. Kept
-    slots beyond B are cut and added to ``dropped``. The slots left after the last kept one are spare, laid
-    out as the march lays out its own (rays N … 2N − 1 evenly, distinct points, ``keep`` False).
+    slots beyond B are cut and added to ``dropped``. The U slots left after the last kept one are spare
+    (:func:`fill_spare`): spread evenly over N empty rays N … 2N − 1 (in order; composite over 2N rays and
+    keep the first N) at distinct points (ray j mod N, step j div N for the j-th of them), ``keep`` False.
+    Were they all one ray at one point, the backward's scatters (``before[ray]`` in :func:`packed_weights`,
+    the grid lookups) would pile up on one address, serialised on a GPU.
     """
     source, _, total = slot_sources(keep, budget)
     take = lambda x: x.index_select(0, source)  # noqa: E731
