@@ -71,8 +71,9 @@ BENCHMARK_KEYS = {
     "OMP_NUM_THREADS is set).",
 )
 @click.option("--keep-going", is_flag=True,
-              help="Run every cell even when one fails; the failures are listed at the end (exit 2) and "
-              "the next call retries them (--executor ray always goes on).")  # fmt: skip
+              help="Run every cell even when one fails; the failures are listed at the end (exit 2; the "
+              "tables are written once every cell has finished) and the next call retries them "
+              "(--executor ray always goes on).")  # fmt: skip
 @click.option("--executor", type=click.Choice(list(EXECUTORS)), default="local", show_default=True,
               help="local: --jobs processes on this machine; ray: every dataset and cell a Ray task (needs "
               "'spikenerf[cluster]'; OUT on shared storage, see docs/cluster.md).")  # fmt: skip

@@ -95,6 +95,10 @@ def read_curves(path: str | Path) -> list[dict[str, float]]:
                 for r in reader
             ]
     except KeyError as err:
-        raise InputError(f"not a training curve table: no column {err.args[0]!r}", path=path) from err
+        raise InputError(
+            f"not a training curve table: no column {err.args[0]!r} (move it aside to resume without the "
+            "earlier curve points)",
+            path=path,
+        ) from err
     except (ValueError, TypeError, UnicodeDecodeError, csv.Error) as err:
         raise InputError(f"not a training curve table ({type(err).__name__}: {err})", path=path) from err

@@ -240,12 +240,11 @@ def _dataset_unfit(ckpt: dict, config: TrainConfig) -> InputError | None:
         return None
     try:
         dataset = load_dataset(config.dataset, train_images=False)
-    except InputError:
-        return None
-    try:
         check_dataset_fits(ckpt, dataset, "the run's dataset")
     except InputError as err:
-        return err
+        return err if "does not fit the run" in err.message else None
+    except OSError:  # e.g. a file it cannot read: eval names it
+        return None
     return None
 
 

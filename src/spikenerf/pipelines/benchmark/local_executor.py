@@ -46,20 +46,21 @@ class LocalExecutor:
         failed: dict[str, str] | None = {} if getattr(cfg, "keep_going", False) else None
         datasets = {job.name: partial(_run_job, cfg, job, log, finished) for job in jobs if job.needs is None}
         _parallel(list(datasets.values()), n, "benchmark datasets", "scene", list(datasets), failed)
-        cells = {}
+        cells, skipped = {}, []
         for job in (j for j in jobs if j.needs is not None):
             if failed is not None and job.needs in failed:
-                failed[job.name] = f"its dataset ({job.needs}) failed"
+                skipped.append(job.name)
             else:
                 cells[job.name] = partial(_run_job, cfg, job, log, finished)
         _parallel(list(cells.values()), n, "benchmark cells", "cell", list(cells), failed)
         if failed:
             names = ", ".join(list(failed)[:4]) + (f" and {len(failed) - 4} more" if len(failed) > 4 else "")
-            where = f"; logs in {cfg.out / 'logs'}" if cfg.jobs > 1 else ""
-            first = next(iter(failed.values()))
+            but = f", {len(skipped)} skipped (their dataset failed)" if skipped else ""
+            where = f" (logs in {cfg.out / 'logs'})" if cfg.jobs > 1 else " (their errors are above)"
             raise InputError(
-                f"{len(failed)} of {len(jobs)} jobs failed ({names}){where}; the others finished: fix the "
-                f"cause and run the benchmark again to retry only these (the first: {first})"
+                f"{len(failed)} of {len(jobs)} jobs failed: {names}{where}{but}; the others finished. The "
+                "tables are written once every cell has: fix the cause and run the benchmark again to retry "
+                "only these"
             )
 
 
@@ -91,7 +92,7 @@ def _parallel(
                 i = futures[future]
                 try:
                     results[i] = future.result()
-                except Exception as err:
+                except (InputError, OSError) as err:  # a step that failed (a bug is no job's failure)
                     if failed is None or names is None:
                         raise
                     failed[names[i]] = str(err)
