@@ -755,6 +755,12 @@ def test_info_says_when_the_runs_dataset_is_not_the_one_it_trained_on(
     assert len(other) == 1 and "size [12, 12] (run: [16, 16])" in other[0], other
     (run / "config.yaml").write_text(re.sub(r"(?m)^dataset: .*$", f"dataset: {tmp_path / 'gone'}", config))
     assert info(run) == []
+    (run / "config.yaml").write_text(config)  # a dataset it cannot read (as root, a permission would not do)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(
+            "spikenerf.train.run.content_digest", lambda *_: (_ for _ in ()).throw(PermissionError())
+        )
+        assert info(run) == []
 
 
 @pytest.mark.parametrize("content", ["", "iteration,seconds,train_psnr,test_psnr\n"], ids=["empty", "header"])

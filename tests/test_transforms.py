@@ -100,3 +100,12 @@ def test_frame_poses_checks_all_frames_at_once_and_names_the_first_bad_one(tmp_p
         frames = [{"transform_matrix": rot.tolist()}] * 3 + [{"transform_matrix": matrix}]
         with pytest.raises(InputError, match=rf"t\.json: frames\[3\]\.transform_matrix: {needle}"):
             transforms.frame_poses({"frames": frames}, path)
+
+
+def test_a_pose_of_numbers_no_float_holds_is_one_error(tmp_path: Path) -> None:
+    from spikenerf.core.errors import InputError
+    from spikenerf.scenes.transforms import frame_poses
+
+    huge = [[10**400, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    with pytest.raises(InputError, match=r"frames\[0\]\.transform_matrix: expected a 4×4 list of numbers"):
+        frame_poses({"frames": [{"transform_matrix": huge}]}, tmp_path / "t.json")
