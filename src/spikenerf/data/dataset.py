@@ -30,6 +30,7 @@ from spikenerf.scenes.transforms import (
     intrinsics,
     number,
     pose,
+    poses_at_once,
     read_transforms,
     scene_box,
 )
@@ -292,9 +293,10 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
     if not frames:
         raise InputError("field 'frames' is empty: expected one frame per spike step", path=tpath)
     poses, times, steps, gt_poses, gt_images, gt_steps = [], [], [], [], [], []
+    at_once = poses_at_once([f.get("transform_matrix") for f in frames])  # else one by one, naming a bad one
     for i, f in enumerate(frames):
         where = f"frames[{i}]."
-        poses.append(_pose(f, tpath, where))
+        poses.append(_pose(f, tpath, where) if at_once is None else at_once[i])
         times.append(number(f, "time", tpath, where))
         if len(times) > 1 and not times[-1] > times[-2]:
             raise InputError(f"field {where}'time': expected increasing times, found {times[-1]}", tpath)
