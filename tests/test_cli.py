@@ -207,6 +207,7 @@ def test_train_names_the_flag_of_a_bad_config_set_or_field_option(capsys, tmp_pa
         (["--set", "spike.lamb=0.5"], "--set spike.lamb: unknown SpikeLossConfig keys ['lamb']"),
         (["--set", "spike.lam=abc"], "--set spike.lam must be a number, found 'abc'"),
         (["--field-option", "nonsense=3"], "--field-option: unknown grid field config keys ['nonsense']"),
+        (["--field-option", "static_sample=3"], "keys ['static_sample']; did you mean static_samples"),
     ]
     for args, words in cases:
         with pytest.raises(SystemExit) as exit_:

@@ -502,6 +502,22 @@ def test_keys_a_method_does_not_read_leave_its_training_unchanged(
         assert any(not torch.equal(base[k], changed[k]) for k in base)
 
 
+def test_a_resume_may_choose_other_kernels_but_not_another_model(tmp_path: Path) -> None:
+    """lookup, composite and march choose how the same model is computed: a run trained with Triton kernels
+    on a GPU resumes with the torch ones elsewhere (given again), keeps its choice when not given, and any
+    other field option still has to match."""
+    from spikenerf.train.trainer import _check_resume
+
+    stored = TrainConfig(field_config={"march": "triton", "composite": "triton", "static_samples": 48})
+    given = TrainConfig(field_config={"march": "torch", "static_samples": 48})
+    out = _check_resume(stored, given, tmp_path / "config.yaml")
+    assert out.field_config == {"march": "torch", "composite": "triton", "static_samples": 48}
+    kept = _check_resume(stored, TrainConfig(field_config={"static_samples": 48}), tmp_path / "config.yaml")
+    assert kept.field_config == stored.field_config
+    with pytest.raises(InputError, match="different options"):
+        _check_resume(stored, TrainConfig(field_config={"march": "torch", "static_samples": 64}), tmp_path)
+
+
 def test_a_resume_ignores_what_the_method_does_not_read(dataset_dir: Path, dataset, tmp_path: Path) -> None:
     """The same command with --resume works even where ``train`` said a flag was ignored (the run stores
     nerf-gt's window poses resolved to 1, and no spike settings matter to it)."""
@@ -891,3 +907,20 @@ def test_hold_out_settings_without_a_hold_out_are_named(
     cfg.holdout = True
     Trainer(cfg, tmp_path / "held", dataset, progress=False)
     assert "holds out no steps" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("10,1.0,20.0,21.0\n20,2.0,22\n", "line 3 is not a row of numbers"),  # cut short
+        ("10,1.0,abc,21.0\n", "line 2 is not a row of numbers"),
+        ("iteration;seconds\n", "no column 'iteration'"),
+    ],
+)
+def test_a_garbled_curve_table_names_its_line_and_what_to_do(tmp_path: Path, text: str, words: str) -> None:
+    path = tmp_path / "curves.csv"
+    header = "" if text.startswith("iteration") else "iteration,seconds,train_psnr,test_psnr\n"
+    path.write_text(header + text)
+    with pytest.raises(InputError, match="move it aside") as err:
+        read_curves(path)
+    assert words in str(err.value) and str(path) in str(err.value)

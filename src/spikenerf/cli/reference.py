@@ -42,7 +42,9 @@ def field_options() -> str:
     (the first sentence of the config class's ``Attributes`` entry; keys that share an entry share a row)."""
     parts = ["## Field options\n\n`train --field-option KEY=VALUE` (or `--set field_config.KEY=VALUE`) sets "
              "one entry of the field's config; a value of the wrong type or out of range is refused in one "
-             "line.\n"]  # fmt: skip
+             "line. The grid's step values (`upsample_steps`, `occupancy_start`, `occupancy_every`), yours "
+             "too, are written for its `iterations` and scaled to `train --iters` (5000 by default: the "
+             "defaults below become 833, 1667, …), unless `iterations` is given as well.\n"]  # fmt: skip
     for kind, entry in FIELD_REGISTRY.items():
         cls = entry.config
         hints, bounds = typing.get_type_hints(cls), getattr(cls, "BOUNDS", {})

@@ -86,8 +86,8 @@ PARAM_FLAGS = {
     + ", ".join(f"{name} ({summary})" for name, summary in METHOD_SUMMARIES.items())
     + ". Writes RUN/config.yaml, RUN/checkpoint.pt, RUN/curves.csv and "
     "RUN/summary.json; --resume continues an interrupted run (--iters, --eval-every, --ckpt-every, "
-    "--eval-views, --device, --log, --log-every, --compile and --compile-optimizer may change; other options "
-    "must match the run's). A "
+    "--eval-views, --device, --log, --log-every, --compile, --compile-optimizer and the field options "
+    "lookup, composite and march may change; other options must match the run's). A "
     "flag or --set key that the method does not use is ignored with a one-line warning (none with "
     "--ignore-unused), also on --resume.\n\n"
     "--config FILE starts from a TrainConfig YAML (a run folder's config.yaml works; DATASET may then be "

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import math
 import types
 from collections.abc import Callable, Mapping
@@ -141,8 +142,10 @@ def from_mapping(
         raise InputError(f"expected a mapping for {label}, found {type(data).__name__}", path=path)
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
-    if unknown:
-        raise InputError(f"unknown {label} keys {unknown}; expected some of {sorted(known)}", path=path)
+    if unknown:  # the closest known keys first: the whole list may be cut at the one line's end
+        close = [m for k in unknown for m in difflib.get_close_matches(str(k), known, n=2)]
+        hint = f"did you mean {', '.join(dict.fromkeys(close))}? " if close else ""
+        raise InputError(f"unknown {label} keys {unknown}; {hint}expected some of {sorted(known)}", path=path)
     sections = sections or {}
     hints = get_type_hints(cls)
     values = {

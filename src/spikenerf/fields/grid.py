@@ -53,7 +53,8 @@ class GridFieldConfig:
         n_voxels_init / n_voxels_final: grid size at the start and at the end, as a voxel count (R =
             round(n^(1/3)) cells a side).
         upsample_steps: the steps (completed optimiser steps) at which the grid grows, log-spaced in voxels
-            from ``n_voxels_init`` to ``n_voxels_final``; rescaled to ``--iters`` by :meth:`for_iterations`.
+            from ``n_voxels_init`` to ``n_voxels_final``, written for ``iterations`` steps and scaled to the
+            run's length (see ``iterations``).
         density_components / app_components: VM rank per axis pair of the density and appearance factors.
         app_dim: decoder input features.
         hidden: decoder width (two hidden layers).
@@ -96,12 +97,14 @@ class GridFieldConfig:
             On an H200 a "triton" lookup ran 5–7× as fast as ``grid_sample`` and a "gather" one 3–6× as
             slow (docs/performance.md).
         composite: how the renderer sums along its rays (:data:`Composite`): torch ops, or Triton kernels on
-            CUDA (experimental). "torch" (the default): a float64
+            CUDA (experimental; the ``triton`` extra; ``train`` refuses them off CUDA, ``eval`` and ``render``
+            fall back to torch). "torch" (the default): a float64
             running sum for the transmittance and per-ray sums of torch ops. "triton": the Triton kernels of
             ``render/volume_triton.py``, one program per ray, on CUDA (training refuses a device they
             cannot run on; elsewhere "torch"). Not yet timed on a GPU.
         march: how the renderer places its samples (:data:`March`): torch ops, or Triton kernels on CUDA
-            (experimental). "torch" (the default): every candidate
+            (experimental; the ``triton`` extra; ``train`` refuses them off CUDA, ``eval`` and ``render``
+            fall back to torch). "torch" (the default): every candidate
             step laid out, tested against the ray's end and the occupancy grid, and compacted, in torch
             ops. "triton": the Triton kernels of ``render/march_triton.py``, one program per ray, which
             store the kept steps only, on CUDA (training refuses a device they cannot run on; elsewhere
@@ -113,8 +116,9 @@ class GridFieldConfig:
             On a CPU its rows are padded to a bucket (``fields/row_buckets.py``): oneDNN builds a bf16
             kernel for each new row count, which cost more than the products themselves.
         occupancy / occupancy_*: empty-space skipping: a grid of at most ``occupancy_max_resolution`` cells
-            a side, rebuilt at ``occupancy_start`` and every ``occupancy_every`` steps, marks the cells whose
-            one-step opacity is below ``occupancy_threshold`` empty. The occupancy grid is rebuilt at
+            a side, rebuilt at ``occupancy_start`` and every ``occupancy_every`` steps (scaled as
+            ``upsample_steps`` are), marks the cells whose one-step opacity is below ``occupancy_threshold``
+            empty. The occupancy grid is rebuilt at
             ``occupancy_start`` and every
             ``occupancy_every`` steps after (and after each upsampling once started); cells whose one-step
             opacity is below ``occupancy_threshold`` are skipped; its resolution is
@@ -127,7 +131,10 @@ class GridFieldConfig:
             ``regularization``).
         tv_every: the prior is evaluated every this many steps, weighted by it (the same weight per step on
             average at a fraction of the cost).
-        iterations: the run length the schedules are written for (see :meth:`for_iterations`).
+        iterations: the run length the step values (``upsample_steps``, ``occupancy_start``,
+            ``occupancy_every``) are written for: ``train`` scales them, the defaults and yours, by its
+            iterations over this, unless this is set too (then they are taken as given). See
+            :meth:`for_iterations`.
     """
 
     _ABOVE0, _LEAST0 = Bound(above=0), Bound(least=0)

@@ -34,7 +34,7 @@ class MLPFieldConfig:
     _ABOVE0, _LEAST0 = Bound(above=0), Bound(least=0)
     BOUNDS: ClassVar[dict[str, Bound]] = {
         "depth": _ABOVE0, "width": _ABOVE0, "skip": _LEAST0, "xyz_freqs": _LEAST0, "dir_freqs": _LEAST0,
-        "dir_width": _LEAST0, "n_coarse": _LEAST0, "n_fine": _LEAST0, "raw_noise_std": _LEAST0,
+        "dir_width": _LEAST0, "n_coarse": _ABOVE0, "n_fine": _LEAST0, "raw_noise_std": _LEAST0,
         "lr": _ABOVE0, "lr_final": _ABOVE0, "iterations": _ABOVE0,
     }  # fmt: skip
 

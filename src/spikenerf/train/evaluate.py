@@ -81,24 +81,26 @@ def read_curves(path: str | Path) -> list[dict[str, float]]:
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
         return []
+    aside = "move it aside to resume without the earlier curve points"
+    rows, line = [], 1
     try:
         with open(path, newline="", encoding="utf-8") as fh:
             reader = csv.DictReader(fh)
             if missing := [k for k in COLUMNS if k not in (reader.fieldnames or ())]:
-                raise KeyError(missing[0])
-            return [
-                {
+                raise InputError(f"not a training curve table: no column {missing[0]!r} ({aside})", path=path)
+            for r in reader:
+                line = reader.line_num
+                rows.append({
                     "iteration": int(r["iteration"]),
                     **{k: float(r[k]) for k in COLUMNS[1:]},
                     **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
-                }
-                for r in reader
-            ]
-    except KeyError as err:
+                })  # fmt: skip
+    except (ValueError, TypeError) as err:  # a value that is no number, or a row cut short (None)
         raise InputError(
-            f"not a training curve table: no column {err.args[0]!r} (move it aside to resume without the "
-            "earlier curve points)",
-            path=path,
+            f"not a training curve table: line {line} is not a row of numbers ({err}; {aside})", path=path
         ) from err
-    except (ValueError, TypeError, UnicodeDecodeError, csv.Error) as err:
-        raise InputError(f"not a training curve table ({type(err).__name__}: {err})", path=path) from err
+    except (UnicodeDecodeError, csv.Error) as err:
+        raise InputError(
+            f"not a training curve table ({type(err).__name__}: {err}; {aside})", path=path
+        ) from err
+    return rows

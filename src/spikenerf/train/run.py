@@ -135,6 +135,15 @@ def content_digest(dataset: SpikeDataset, edge: int = 1 << 16) -> str:
 def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
     """InputError (naming ``param``) when ``dataset`` is not the one the checkpoint was trained on (its
     fingerprint; checkpoints without one are compared by scene box)."""
+    if diff := dataset_differences(ckpt, dataset):
+        raise InputError(
+            f"{param}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root, param=param
+        )
+
+
+def dataset_differences(ckpt: dict, dataset: SpikeDataset) -> list[str]:
+    """How ``dataset`` differs from the one the checkpoint was trained on (its fingerprint; checkpoints
+    without one are compared by scene box), one phrase each; empty where it fits."""
     want = ckpt.get("dataset")
     have = dataset_fingerprint(dataset)
     if want is None:
@@ -152,10 +161,7 @@ def check_dataset_fits(ckpt: dict, dataset: SpikeDataset, param: str) -> None:
             )
         elif not fits:
             diff.append(f"{key} {have.get(key)} (run: {value})")
-    if diff:
-        raise InputError(
-            f"{param}: this dataset does not fit the run: {'; '.join(diff)}", path=dataset.root, param=param
-        )
+    return diff
 
 
 def check_resume_fits(ckpt: dict, config: TrainConfig, dataset: SpikeDataset) -> None:
@@ -198,8 +204,12 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
         f"{config.rays_per_step()} rays   dataset: {config.dataset}",
         f"iterations: {done} of {config.iters}"
         + ("" if done >= config.iters else "  (resume with --resume)"),
-        *([f"warning: {unfit}; eval, render and a resume refuse it"] if unfit else []),
     ]
+    if unfit:
+        lines.append(
+            f"warning: the dataset is not the one this run trained on: {unfit}; eval, render and a resume "
+            "refuse it"
+        )
     if config.method == "spike-integral" and (poses := config.window_poses()) > 1 and _tfp_keyframes(config):
         lines.append(  # it trains on spike counts; only eval's keyframe scores read window_poses
             f"eval's TFP keyframes (the imported dataset's test views): each against the mean of {poses} "
@@ -232,20 +242,16 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
     return "\n".join(lines)
 
 
-def _dataset_unfit(ckpt: dict, config: TrainConfig) -> InputError | None:
+def _dataset_unfit(ckpt: dict, config: TrainConfig) -> str | None:
     """Why the dataset the run's ``config.yaml`` names is not the one ``ckpt`` was trained on (another
     dataset, or this one simulated again: :func:`check_dataset_fits`, as eval and a resume check it); None
     where it fits, or is gone or unreadable (``info`` still describes the run; eval names the problem)."""
     if not config.dataset:
         return None
     try:
-        dataset = load_dataset(config.dataset, train_images=False)
-        check_dataset_fits(ckpt, dataset, "the run's dataset")
-    except InputError as err:
-        return err if "does not fit the run" in err.message else None
-    except OSError:  # e.g. a file it cannot read: eval names it
+        return "; ".join(dataset_differences(ckpt, load_dataset(config.dataset, train_images=False))) or None
+    except (InputError, OSError):  # gone or unreadable: eval names it
         return None
-    return None
 
 
 def _tfp_keyframes(config: TrainConfig) -> bool:

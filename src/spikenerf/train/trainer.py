@@ -66,6 +66,9 @@ RESUMABLE = (
     "iters", "eval_every", "ckpt_every", "device", "eval_views", "log", "log_every", "compile",
     "compile_optimizer",
 )  # fmt: skip
+#: field options that choose how the same model is computed, not the model: a resume may change them (e.g.
+#: a run trained with Triton kernels on a GPU resumed on a CPU)
+RESUMABLE_FIELD = ("lookup", "composite", "march")
 
 
 def model_config(config: TrainConfig) -> Any:
@@ -145,10 +148,12 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
 def _check_resume(
     stored: TrainConfig, given: TrainConfig, path: Path, also: tuple[str, ...] = ()
 ) -> TrainConfig:
-    """The stored config with the resumable options (:data:`RESUMABLE` and ``also``) of ``given``; other
-    differences are an InputError."""
+    """The stored config with the resumable options (:data:`RESUMABLE` and ``also``, and the field options
+    of :data:`RESUMABLE_FIELD` that ``given`` sets) of ``given``; other differences are an InputError."""
     resumable = (*RESUMABLE, *also)
     a, b = stored.to_dict(), given.to_dict()
+    for d in (a, b):  # compared without the implementation choices
+        d["field_config"] = {k: v for k, v in d["field_config"].items() if k not in RESUMABLE_FIELD}
     diff = sorted(k for k in a if k not in resumable and a[k] != b[k])
     if diff:
         leaves = [(k, x, y) for k in diff for k, x, y in _leaf_changes(k, a[k], b[k])]
@@ -158,7 +163,9 @@ def _check_resume(
             path,
             param=(*(k for k, _, _ in leaves), "resume", "out"),
         )
-    return dataclasses.replace(stored, **{k: getattr(given, k) for k in resumable})
+    chosen = {k: v for k, v in given.field_config.items() if k in RESUMABLE_FIELD}
+    field = {**stored.field_config, **chosen}  # the stored choices stay unless given again
+    return dataclasses.replace(stored, **{k: getattr(given, k) for k in resumable}, field_config=field)
 
 
 def _leaf_changes(key: str, was: Any, now: Any) -> list[tuple[str, Any, Any]]:
