@@ -169,12 +169,4 @@ def test_a_short_training_run_with_the_triton_march_is_the_torch_one(
     dataset_dir: Path, tmp_path: Path
 ) -> None:
     """The same seed, 6 iterations with the static budget: the same samples, so the same run."""
-    from spikenerf.train.trainer import train
-
-    runs = {}
-    for how in ("torch", "triton"):
-        cfg = test_train._config(dataset_dir, method="nerf-gt")
-        cfg.iters, cfg.eval_every, cfg.device = 6, 0, DEVICE.type
-        cfg.field_config = {**cfg.field_config, "static_samples": 48, "march": how}
-        runs[how] = train(cfg, tmp_path / how, progress=False)
-    assert abs(runs["triton"].train_psnr - runs["torch"].train_psnr) < 1e-4
+    assert test_static_render.short_runs_differ(dataset_dir, tmp_path, "march", DEVICE.type) < 1e-4

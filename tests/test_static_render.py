@@ -70,6 +70,20 @@ def assert_renders_as(model, rays, expected, expected_grads) -> None:  # type: i
         torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-4)
 
 
+def short_runs_differ(dataset_dir: Path, tmp_path: Path, option: str, device: str) -> float:
+    """The train PSNR difference of two 6-iteration nerf-gt runs (same seed, static budget 48) with the
+    field option ``option`` "torch" and "triton"."""
+    from spikenerf.train.trainer import train
+
+    runs = {}
+    for how in ("torch", "triton"):
+        cfg = test_train._config(dataset_dir, method="nerf-gt")
+        cfg.iters, cfg.eval_every, cfg.device = 6, 0, device
+        cfg.field_config = {**cfg.field_config, "static_samples": 48, option: how}
+        runs[how] = train(cfg, tmp_path / how, progress=False)
+    return abs(runs["triton"].train_psnr - runs["torch"].train_psnr)
+
+
 def assert_one_graph(model, rays) -> None:  # type: ignore[no-untyped-def]
     """A training render (perturbed) of ``model`` traces as one graph without a break, and compiled
     (``aot_eager``, ``fullgraph``) gives the eager colour and a gradient."""

@@ -182,15 +182,7 @@ def test_a_short_training_run_with_the_triton_composite_matches_the_torch_one(
 ) -> None:
     """The same seed, 6 iterations with the static budget: the kernels' run ends where the torch one does
     (float32 per-ray sums against a float64 running sum: close, not bitwise)."""
-    from spikenerf.train.trainer import train
-
-    runs = {}
-    for how in ("torch", "triton"):
-        cfg = test_train._config(dataset_dir, method="nerf-gt")
-        cfg.iters, cfg.eval_every, cfg.device = 6, 0, DEVICE.type
-        cfg.field_config = {**cfg.field_config, "static_samples": 48, "composite": how}
-        runs[how] = train(cfg, tmp_path / how, progress=False)
-    assert abs(runs["triton"].train_psnr - runs["torch"].train_psnr) < 0.05
+    assert test_static_render.short_runs_differ(dataset_dir, tmp_path, "composite", DEVICE.type) < 0.05
 
 
 def test_the_kernels_compile_for_an_h100_without_spilling(tmp_path: Path) -> None:

@@ -168,19 +168,27 @@ def main() -> None:
             label = f"{r['channels']}{' summed' if r['summed'] else ''}"
             print(f"| {r['kernel']} | {label} | {r['REG']} | {r['STACK']} | {r['LOCAL']} | {r['SHARED']} |")
     if "volume" in which:
-        print(f"\ncompositing kernels, sm_{args.arch} (volume_triton.LAUNCH)")
-        print("| compositing kernel | columns | registers | stack B | local B (spills) | shared B |")
-        print("|---|---:|---:|---:|---:|---:|")
-        for r in compile_volume(args.arch):
-            usage = " | ".join(str(r[k]) for k in ("REG", "STACK", "LOCAL", "SHARED"))
-            print(f"| {r['kernel']} | {r['columns']} | {usage} |")
+        rows = [(r["kernel"], str(r["columns"]), r) for r in compile_volume(args.arch)]
+        _table(
+            f"compositing kernels, sm_{args.arch} (volume_triton.LAUNCH)",
+            "compositing kernel | columns",
+            rows,
+        )
     if "march" in which:
-        print(f"\nmarch kernels, sm_{args.arch} (march_triton.LAUNCH)")
-        print("| march kernel | occupancy | registers | stack B | local B (spills) | shared B |")
-        print("|---|---|---:|---:|---:|---:|")
-        for r in compile_march(args.arch):
-            usage = " | ".join(str(r[k]) for k in ("REG", "STACK", "LOCAL", "SHARED"))
-            print(f"| {r['kernel']} | {'yes' if r['occupancy'] else 'no'} | {usage} |")
+        rows = [(r["kernel"], "yes" if r["occupancy"] else "no", r) for r in compile_march(args.arch)]
+        _table(f"march kernels, sm_{args.arch} (march_triton.LAUNCH)", "march kernel | occupancy", rows)
+
+
+def _table(title: str, columns: str, rows: list[tuple[str, str, dict]]) -> None:
+    """Print ``title`` and a table of (kernel, second column, resource usage) rows."""
+    print(f"\n{title}\n| {columns} | registers | stack B | local B (spills) | shared B |")
+    print("|---|---|---:|---:|---:|---:|")
+    for kernel, second, usage in rows:
+        print(
+            f"| {kernel} | {second} | "
+            + " | ".join(str(usage[k]) for k in ("REG", "STACK", "LOCAL", "SHARED"))
+            + " |"
+        )
 
 
 if __name__ == "__main__":
