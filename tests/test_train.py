@@ -502,6 +502,25 @@ def test_keys_a_method_does_not_read_leave_its_training_unchanged(
         assert any(not torch.equal(base[k], changed[k]) for k in base)
 
 
+def test_a_resumed_run_computes_with_the_kernels_it_was_given(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:
+    """The model rebuilt from the checkpoint takes the resume's lookup (gather here, on a CPU), and the next
+    checkpoint and config.yaml record it, so eval builds the same."""
+    from spikenerf.train.checkpoint import load_checkpoint
+
+    cfg = _config(dataset_dir, method="nerf-gt")
+    cfg.iters, cfg.eval_every = 2, 0
+    train(cfg, tmp_path / "run", dataset, progress=False)
+    again = dataclasses.replace(cfg, iters=3, field_config={**cfg.field_config, "lookup": "gather"})
+    trainer = Trainer(again, tmp_path / "run", dataset, resume=True, progress=False)
+    assert trainer.model.field.config.lookup == "gather"
+    trainer.train()
+    ckpt = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
+    assert ckpt["hparams"]["config"]["lookup"] == "gather"
+    assert "lookup: gather" in (tmp_path / "run" / "config.yaml").read_text()
+
+
 def test_a_resume_may_choose_other_kernels_but_not_another_model(tmp_path: Path) -> None:
     """lookup, composite and march choose how the same model is computed: a run trained with Triton kernels
     on a GPU resumes with the torch ones elsewhere (given again), keeps its choice when not given, and any
@@ -915,12 +934,17 @@ def test_hold_out_settings_without_a_hold_out_are_named(
         ("10,1.0,20.0,21.0\n20,2.0,22\n", "line 3 is not a row of numbers"),  # cut short
         ("10,1.0,abc,21.0\n", "line 2 is not a row of numbers"),
         ("iteration;seconds\n", "no column 'iteration'"),
+        ("10,1.0,20.0,21.0\n\xff\xfe\n", "UnicodeDecodeError"),
     ],
 )
 def test_a_garbled_curve_table_names_its_line_and_what_to_do(tmp_path: Path, text: str, words: str) -> None:
     path = tmp_path / "curves.csv"
     header = "" if text.startswith("iteration") else "iteration,seconds,train_psnr,test_psnr\n"
-    path.write_text(header + text)
+    path.write_bytes(
+        (header + text).encode("utf-8", "surrogateescape").replace(b"\xc3\xbf\xc3\xbe", b"\xff\xfe")
+    )
     with pytest.raises(InputError, match="move it aside") as err:
         read_curves(path)
-    assert words in str(err.value) and str(path) in str(err.value)
+    assert (
+        words in str(err.value) and str(path) in str(err.value) and str(err.value).count("move it aside") == 1
+    )

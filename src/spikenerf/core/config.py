@@ -143,7 +143,8 @@ def from_mapping(
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:  # the closest known keys first: the whole list may be cut at the one line's end
-        close = [m for k in unknown for m in difflib.get_close_matches(str(k), known, n=2)]
+        free = known - set(data)  # (not a key already given)
+        close = [m for k in unknown for m in difflib.get_close_matches(str(k), free, n=2)]
         hint = f"did you mean {', '.join(dict.fromkeys(close))}? " if close else ""
         raise InputError(f"unknown {label} keys {unknown}; {hint}expected some of {sorted(known)}", path=path)
     sections = sections or {}

@@ -95,12 +95,14 @@ def read_curves(path: str | Path) -> list[dict[str, float]]:
                     **{k: float(r[k]) for k in COLUMNS[1:]},
                     **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
                 })  # fmt: skip
+    except InputError:  # (a ValueError too: raised as it is)
+        raise
+    except (UnicodeDecodeError, csv.Error) as err:  # (UnicodeDecodeError is a ValueError: before it)
+        raise InputError(
+            f"not a training curve table ({type(err).__name__}: {err}; {aside})", path=path
+        ) from err
     except (ValueError, TypeError) as err:  # a value that is no number, or a row cut short (None)
         raise InputError(
             f"not a training curve table: line {line} is not a row of numbers ({err}; {aside})", path=path
-        ) from err
-    except (UnicodeDecodeError, csv.Error) as err:
-        raise InputError(
-            f"not a training curve table ({type(err).__name__}: {err}; {aside})", path=path
         ) from err
     return rows

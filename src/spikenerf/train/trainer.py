@@ -71,6 +71,15 @@ RESUMABLE = (
 RESUMABLE_FIELD = ("lookup", "composite", "march")
 
 
+def with_kernels(hparams: dict, field_cfg: Any) -> dict:
+    """A checkpoint's model ``hparams`` with the kernel choices (:data:`RESUMABLE_FIELD`) of ``field_cfg``,
+    the resumed run's field config (the model itself is the stored one)."""
+    chosen = {k: getattr(field_cfg, k) for k in RESUMABLE_FIELD if hasattr(field_cfg, k)}
+    if not chosen or not isinstance(hparams.get("config"), dict):
+        return hparams
+    return {**hparams, "config": {**hparams["config"], **chosen}}
+
+
 def model_config(config: TrainConfig) -> Any:
     """The field config: defaults + ``config.field_config``; its schedules (the grid's) rescaled to
     ``config.iters`` unless ``field_config`` sets ``iterations``."""
@@ -327,8 +336,8 @@ class Trainer:
             self.model = build_model(
                 config.field, self.channels, self.dataset.scene_box, model_config(config)
             )
-        else:
-            self.model = model_of(ckpt, ckpt_path)
+        else:  # the stored model, computed with this run's kernels (RESUMABLE_FIELD)
+            self.model = model_of({**ckpt, "hparams": with_kernels(ckpt["hparams"], field_cfg)}, ckpt_path)
         self.model.to(self.device)
         self.model.field.prepare()  # the fused CPU kernel's first build is not training time
         if self.config.compile and not static_samples(self.model):  # eager again, with a warning, on failure
