@@ -30,9 +30,8 @@ def kept_steps(O, D, NEAR, FAR, GRID, r, k, count, step, res, OCC: tl.constexpr)
         for axis in tl.static_range(3):
             x = tl.load(O + r * 3 + axis) + t_mid * tl.load(D + r * 3 + axis)
             i = tl.minimum(tl.maximum((x + 1.0) * half, 0.0), top).to(tl.int64)
-            cell = cell * res + tl.minimum(
-                tl.maximum(i, 0), res - 1
-            )  # a NaN point: a cell still, no stray read
+            # clamped again as an integer: a NaN point still gets a cell of the grid (no stray read)
+            cell = cell * res + tl.minimum(tl.maximum(i, 0), res - 1)
         kept &= tl.load(GRID + cell, mask=kept, other=0) != 0
     return kept
 
