@@ -159,10 +159,30 @@ def test_where_the_kernels_cannot_run_they_are_refused_or_left_aside(monkeypatch
     assert not model.marched(rays[0])
     with torch.no_grad():
         torch.testing.assert_close(model.render_rays(*rays).color, kernels.color)
-    with pytest.raises(InputError, match=r"field_config\.march triton: Triton kernels need a CUDA device"):
+    with pytest.raises(InputError, match=r"field_config\.march=triton: Triton kernels need a CUDA device"):
         field_config("grid", {"march": "triton"}).check_device(torch.device("cpu"))
     with pytest.raises(InputError, match="march"):
         field_config("grid", {"march": "cuda"})
+
+
+def test_train_names_the_field_option_it_refuses(
+    dataset_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """In ``train``, an error about ``field_config.KEY`` names ``--field-option KEY``: one line, exit 2."""
+    from spikenerf.cli import main
+
+    monkeypatch.setenv("TRITON_INTERPRET", "0")  # a CPU without the interpreter
+    base = ["train", str(dataset_dir), "--device", "cpu", "--iters", "2", "--out", str(tmp_path / "run")]
+    cases = {
+        "march=triton": "--field-option march=triton: Triton kernels need a CUDA device",
+        "early_stop=0.7": "--field-option early_stop must be a finite number in [0, 0.5]",
+    }
+    for option, words in cases.items():
+        with pytest.raises(SystemExit) as exit_:
+            main([*base, "--field-option", option])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and words in err and err.count("\n") == 1, err
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_short_training_run_with_the_triton_march_is_the_torch_one(

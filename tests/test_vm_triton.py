@@ -159,7 +159,7 @@ def test_where_the_kernels_cannot_run_they_are_refused_naming_why(monkeypatch: p
     with pytest.raises(RuntimeError, match="need a CUDA device, not cpu"):
         triton_vm(planes, lines, _points(3).cpu())
     cfg = field_config("grid", {"lookup": "triton"})
-    with pytest.raises(InputError, match=r"field_config\.lookup triton: Triton kernels need a CUDA device"):
+    with pytest.raises(InputError, match=r"field_config\.lookup=triton: Triton kernels need a CUDA device"):
         cfg.check_device(torch.device("cpu"))
     field_config("grid", {}).check_device(torch.device("cpu"))  # the default lookup runs anywhere
     monkeypatch.setattr(vm_triton, "installed", lambda: False)

@@ -150,7 +150,8 @@ PARAM_FLAGS = {
 def flag_of(param: str, command: str | None = None) -> str | None:
     """The flag that sets the lower-layer parameter ``param`` in ``command`` (None: not a flag there):
     ``--set param`` where the command's ``--set`` gave it (the module's ``SET_KEYS``), else the module's
-    ``PARAM_FLAGS``, else the group's, else the option of that name."""
+    ``PARAM_FLAGS``, else the group's, else ``--field-option KEY`` for ``field_config.KEY`` where the
+    command has that option, else the option of that name."""
     module = importlib.import_module(SUBCOMMANDS[command][0]) if command in SUBCOMMANDS else None
     if param in getattr(module, "SET_KEYS", ()):  # given as --set KEY=VALUE
         return f"--set {param}"
@@ -158,6 +159,9 @@ def flag_of(param: str, command: str | None = None) -> str | None:
     if param in aliases:
         return aliases[param]
     params = [*cli.params, *(module.command.params if module is not None else [])]
+    names = {option.name for option in params if isinstance(option, click.Option)}
+    if param.startswith("field_config.") and "field_options" in names:  # one entry of --field-option
+        return f"--field-option {param.split('.', 1)[1]}"
     for option in params:
         if isinstance(option, click.Option) and option.name == param:
             return max(option.opts, key=len)

@@ -222,7 +222,7 @@ class GridFieldConfig:
         for name in ("lookup", "composite", "march"):
             reason = why_not(device) if getattr(self, name) == "triton" else ""
             if reason:
-                raise InputError(f"field_config.{name} triton: {reason}", param=f"field_config.{name}")
+                raise InputError(f"field_config.{name}=triton: {reason}", param=f"field_config.{name}")
 
     # the memory estimates of fields/memory.py and ``field_memory``, per field kind
     def training_size(self) -> tuple[float, float]:
