@@ -7,6 +7,7 @@ import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from spikenerf.pipelines.benchmark.stats import t_interval
 
@@ -79,3 +80,27 @@ def interleaved_ms(
         for name, fn in impls.items():
             times[name].append(timed(fn, repeats))
     return {name: statistics.median(runs) for name, runs in times.items()}
+
+
+def kernel_timing_args(doc: str, extra: Callable[[Any], None]) -> Any:
+    """The command line of a kernel timing (``bench_composite``, ``bench_march``): ``--device``, ``--rays``,
+    ``--repeats``, ``--rounds``, ``--threads`` (applied here), and what ``extra(parser)`` adds. Returns the
+    parsed arguments with ``device`` resolved to a ``torch.device``."""
+    import argparse
+
+    import torch
+
+    from spikenerf.core.device import resolve_device
+
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--rays", type=int, default=16384)
+    extra(parser)
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads on a CPU")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    args.device = resolve_device(args.device)
+    return args

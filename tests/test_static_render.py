@@ -209,14 +209,7 @@ def test_static_render_traces_as_one_graph_and_the_packed_one_does_not(
     explained = torch._dynamo.explain(model.render_rays)(*rays)
     assert explained.graph_break_count > 0  # int(counts.sum()), masks, nonzero: data-dependent shapes
     _static(model, ALL_FIT)
-    explained = torch._dynamo.explain(model.render_rays)(*rays, True)
-    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
-    torch._dynamo.reset()
-    compiled = torch.compile(model.render_rays, backend="eager", fullgraph=True)
-    out, eager = compiled(*rays), model.render_rays(*rays)
-    torch.testing.assert_close(out.color, eager.color)
-    out.color.sum().backward()
-    assert model.field.density_planes.grad.abs().sum() > 0
+    assert_one_graph(model, rays)
 
 
 def _colours(model, count: int) -> None:  # type: ignore[no-untyped-def]

@@ -19,14 +19,12 @@ faster) and the largest difference of colour, depth, opacity and gradients from 
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
-from benchmarks._table import interleaved_ms
-from spikenerf.core.device import resolve_device
+from benchmarks._table import interleaved_ms, kernel_timing_args
 from spikenerf.fields.vm_triton import why_not
 from spikenerf.render import volume_triton
 from spikenerf.render.volume import MAX_TAU, packed_composite, packed_weights, ray_offsets
@@ -83,17 +81,10 @@ def step(composite: Composite, inputs: Inputs, grads: tuple[Tensor, ...]) -> tup
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--rays", type=int, default=16384)
-    parser.add_argument("--samples", type=int, default=64, help="mean samples a ray")
-    parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads on a CPU")
-    args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    device = resolve_device(args.device)
+    args = kernel_timing_args(
+        __doc__, lambda p: p.add_argument("--samples", type=int, default=64, help="mean samples a ray")
+    )
+    device = args.device
     inputs = packed_inputs(args.rays, args.samples, device)
     grads = (torch.randn(args.rays, 3, device=device), torch.randn(args.rays, device=device),
              torch.randn(args.rays, device=device))  # fmt: skip

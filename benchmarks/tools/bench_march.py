@@ -33,8 +33,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from benchmarks._table import interleaved_ms
-from spikenerf.core.device import resolve_device
+from benchmarks._table import interleaved_ms, kernel_timing_args
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridFieldConfig
 from spikenerf.fields.vm_triton import why_not
@@ -106,18 +105,12 @@ def compiled(x: Tensor) -> bool:
 
 @torch.no_grad()
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--rays", type=int, default=16384)
-    parser.add_argument("--resolution", type=int, default=300, help="grid cells a side")
-    parser.add_argument("--samples", type=int, default=64, help="static budget: slots a ray")
-    parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads on a CPU")
-    args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    device = resolve_device(args.device)
+    def extra(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--resolution", type=int, default=300, help="grid cells a side")
+        parser.add_argument("--samples", type=int, default=64, help="static budget: slots a ray")
+
+    args = kernel_timing_args(__doc__, extra)
+    device = args.device
     model, inputs = scene(args.resolution, args.rays, device)
     impls = marches(model, inputs, args.samples, fused=False)
     with_kernels = compiled(inputs[0])
