@@ -88,6 +88,26 @@ def test_keep_going_runs_every_job_it_can_and_lists_the_failures_at_the_end(
         assert len(warnings) == 2  # b and a1 (b1 never ran)
 
 
+def test_a_step_writing_to_the_terminal_starts_on_a_line_of_its_own(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """With one job at a time a step writes to the terminal: the benchmark's bar is cleared first (its
+    error line did not start on the bar's line), and drawn again after the step."""
+    import sys
+    from types import SimpleNamespace
+
+    from spikenerf.pipelines.benchmark.local_executor import LocalExecutor
+    from spikenerf.pipelines.benchmark.steps import Job
+
+    code = "import sys; sys.stderr.write('step line\\n')"
+    steps = Job("a", lambda root: [[sys.executable, "-c", code]], "a", "a.done", None)
+    LocalExecutor().run(SimpleNamespace(out=tmp_path, jobs=1, keep_going=False), [steps], [], "n", print)
+    err = capfd.readouterr().err
+    assert "benchmark datasets" in err  # the bar was drawn
+    before, after = err.split("step line\n")
+    assert before.endswith("\r") and "benchmark datasets" in after
+
+
 def test_an_interrupted_benchmark_stops_its_running_steps() -> None:
     import sys
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
@@ -67,9 +68,24 @@ class LocalExecutor:
 def _run_job(cfg: Any, job: Job, log: list[dict], finished: Callable[[Job], None]) -> None:
     """Run the job's commands unless it has finished before; then ``finished(job)``."""
     if not (cfg.out / job.done).is_file():
+        output, threads = _step_output(cfg, job.name)
         for command in job.commands(cfg.out):
-            run_step(command, log, *_step_output(cfg, job.name))
+            with _bars_cleared(output is None):
+                run_step(command, log, output, threads)
     finished(job)
+
+
+@contextmanager
+def _bars_cleared(clear: bool) -> Iterator[None]:
+    """With ``clear``, this process's progress bars off the terminal while a step writes there (its own
+    bars, its error line); they are drawn again below the step's output when it ends."""
+    if not clear:
+        yield
+        return
+    from tqdm import tqdm
+
+    with tqdm.external_write_mode(file=sys.stderr, nolock=True):  # nolock: Ctrl-C can close the bars
+        yield
 
 
 def _parallel(
