@@ -80,12 +80,15 @@ def test_keep_going_runs_every_job_it_can_and_lists_the_failures_at_the_end(
             continue
         assert sorted(done) == ["a", "a2"] and (tmp_path / "a2").exists() and not (tmp_path / "b1").exists()
         assert str(err.value).startswith("2 of 5 jobs failed: b, a1 (their errors are above), 1 skipped")
-        assert "The tables are written once every cell has" in str(err.value)
+        assert "The tables are written once every cell has: fix" in str(err.value)
         warnings = [
             line for line in capsys.readouterr().err.splitlines() if "going on with the others" in line
         ]
         assert "step failed with exit code 3" in warnings[0]
         assert len(warnings) == 2  # b and a1 (b1 never ran)
+        (tmp_path / "results.json").write_text("{}")  # an earlier call's tables: said to be that
+        with pytest.raises(InputError, match=r"every cell has \(those in the folder now are an earlier"):
+            LocalExecutor().run(cfg, jobs, [], "nonce", print)
 
 
 def test_a_step_writing_to_the_terminal_starts_on_a_line_of_its_own(

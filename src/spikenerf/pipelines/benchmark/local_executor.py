@@ -58,11 +58,17 @@ class LocalExecutor:
             names = ", ".join(list(failed)[:4]) + (f" and {len(failed) - 4} more" if len(failed) > 4 else "")
             but = f", {len(skipped)} skipped (their dataset failed)" if skipped else ""
             where = f" (logs in {cfg.out / 'logs'})" if cfg.jobs > 1 else " (their errors are above)"
+            earlier = " (those in the folder now are an earlier call's)" if _tables_exist(cfg.out) else ""
             raise InputError(
                 f"{len(failed)} of {len(jobs)} jobs failed: {names}{where}{but}; the others finished. The "
-                "tables are written once every cell has: fix the cause and run the benchmark again to retry "
-                "only these"
+                f"tables are written once every cell has{earlier}: fix the cause and run the benchmark again "
+                "to retry only these"
             )
+
+
+def _tables_exist(out: Path) -> bool:
+    """Whether ``out`` holds tables that an earlier call of the benchmark wrote."""
+    return any((out / name).is_file() for name in ("results.json", "results.csv", "table1.md"))
 
 
 def _run_job(cfg: Any, job: Job, log: list[dict], finished: Callable[[Job], None]) -> None:
