@@ -141,9 +141,14 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _round_four(root: Path) -> None:
-    """Damaged records: a render folder whose ``render.json`` lists no file names, a one-line curves.csv."""
+    """Damaged records: render folders whose ``render.json`` lists no file names or a wrong size, a one-line
+    curves.csv."""
     _cli("render", root / "run", "--device", "cpu", "--quiet", "--out", root / "bad_render")
     record = json.loads((root / "bad_render" / "render.json").read_text())
+    _cli("render", root / "run", "--spikes", "--device", "cpu", "--quiet", "--out", root / "size_render")
+    spiked = json.loads((root / "size_render" / "render.json").read_text())
+    assert any(name.endswith(".dat") for name in spiked["files"]["spikes"])
+    (root / "size_render" / "render.json").write_text(json.dumps({**spiked, "size": [7, 5]}))
     record["files"]["spikes"] = 5
     (root / "bad_render" / "render.json").write_text(json.dumps(record))
     shutil.copytree(root / "run", root / "line_curves_run")
@@ -563,6 +568,7 @@ CASES: list[tuple[str, list[str], str]] = [
     # damaged records: render.json (read by info and by a render into its folder), a one-line curves.csv
     ("info-render-record-types", ["info", f"{R}/bad_render"],
      "render.json: malformed render record (files.spikes: expected a list of file names, found 5)"),
+    ("info-render-record-size", ["info", f"{R}/size_render"], "(size 7×5 from render.json)"),
     ("render-into-bad-record", ["render", f"{R}/run", "--device", "cpu", "--quiet",
                                 "--out", f"{R}/bad_render"], "render.json: malformed render record"),
     ("train-resume-curves-one-line", [*T, "--resume", "--out", f"{R}/line_curves_run"],

@@ -58,7 +58,7 @@ OTHER_KINDS = {
 def describe_render(folder: Path) -> list[str]:
     """The summary lines of a ``render`` output folder: its ``render.json`` (what was rendered, from which
     run) and each novel-view spike stream it holds (:func:`describe_dat`); an unfinished render says so."""
-    from spikenerf.eval.render_record import read_render_record
+    from spikenerf.eval.render_record import RECORD, read_render_record
 
     info = read_render_record(folder)  # (a malformed one is an InputError naming it)
     if info is None:
@@ -84,8 +84,12 @@ def describe_render(folder: Path) -> list[str]:
         )
         lines.append(f"novel spike stream: {info.get('spike_steps')} steps{along}, φ {info.get('threshold')}")
     for name in streams:
-        config = dat_recording(folder / name, height, width, width)  # plain frames: no raw-layout guess
-        lines += ["", *describe_dat(folder / name, height, width, "spikecv", None, config.fps or 40000.0)]
+        try:
+            config = dat_recording(folder / name, height, width, width)  # plain frames: no raw-layout guess
+            fps = config.fps or 40000.0
+            lines += ["", *describe_dat(folder / name, height, width, "spikecv", None, fps)]
+        except InputError as err:  # the size came from the record: say so
+            raise InputError(f"{err.message} (size {width}×{height} from {RECORD})", path=err.path) from None
     return lines
 
 
