@@ -144,6 +144,22 @@ def test_recon_train_names_a_missing_pair_folder_and_reconstruct_a_folder_given_
     assert code == 2 and f"{tmp_path}: is a folder, not a weights file" in err
 
 
+def test_weights_with_a_bad_hparams_value_name_the_file_and_the_value(capsys, tmp_path: Path) -> None:
+    """The architecture's own check of a weights file's ``hparams`` (an even window) names the file,
+    not a --window flag that was never given (it was one vague line before)."""
+    import torch
+
+    from spikenerf.recon.net import shipped_weights
+
+    data = torch.load(shipped_weights(), weights_only=True)
+    torch.save({**data, "hparams": {**data["hparams"], "window": 40}}, tmp_path / "even.pt")
+    (tmp_path / "s.dat").write_bytes(bytes(50 * 2))  # 50 frames of 4×4
+    args = ["--height", 4, "--width", 4, "--method", "learned", "--frame", 0, "--out", tmp_path / "o.npy"]
+    code, _, err = run_cli(capsys, "reconstruct", tmp_path / "s.dat", *args, "--weights", tmp_path / "even.pt")
+    assert code == 2 and f"{tmp_path / 'even.pt'}: weights file hparams: window must be an odd" in err
+    assert "found 40" in err and "--window" not in err and not (tmp_path / "o.npy").exists()
+
+
 @pytest.mark.parametrize("case", ["truncated", "nan-targets", "short-targets"])
 def test_a_recon_data_resume_writes_a_damaged_shard_again(capsys, tmp_path: Path, case: str) -> None:
     out = tmp_path / "p"

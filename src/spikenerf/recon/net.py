@@ -175,6 +175,8 @@ def load_weights(path: str | Path | None = None, mode: str | None = None) -> tup
     try:
         net = ReconNet(NetConfig(**data["hparams"]))
         net.load_state_dict({k: v.float() for k, v in data["state"].items()})
+    except InputError as err:  # a bad hparams value (NetConfig.check): the file's, not a parameter's
+        raise InputError(f"weights file hparams: {err.message}", path=path) from None
     except (KeyError, TypeError, RuntimeError, AttributeError, ValueError) as err:  # wrong inner types too
         raise InputError(
             f"weights do not fit architecture {ARCH!r} ({type(err).__name__})", path=path
