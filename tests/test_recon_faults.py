@@ -155,7 +155,8 @@ def test_weights_with_a_bad_hparams_value_name_the_file_and_the_value(capsys, tm
     torch.save({**data, "hparams": {**data["hparams"], "window": 40}}, tmp_path / "even.pt")
     (tmp_path / "s.dat").write_bytes(bytes(50 * 2))  # 50 frames of 4×4
     args = ["--height", 4, "--width", 4, "--method", "learned", "--frame", 0, "--out", tmp_path / "o.npy"]
-    code, _, err = run_cli(capsys, "reconstruct", tmp_path / "s.dat", *args, "--weights", tmp_path / "even.pt")
+    weights = ["--weights", tmp_path / "even.pt"]
+    code, _, err = run_cli(capsys, "reconstruct", tmp_path / "s.dat", *args, *weights)
     assert code == 2 and f"{tmp_path / 'even.pt'}: weights file hparams: window must be an odd" in err
     assert "found 40" in err and "--window" not in err and not (tmp_path / "o.npy").exists()
 
