@@ -488,3 +488,26 @@ def test_a_config_holding_the_removed_batch_rays_still_loads() -> None:
     assert field_config("grid", {"batch_rays": 4096, "tv_app": 0.5}) == field_config("grid", {"tv_app": 0.5})
     assert field_config("mlp", {"batch_rays": 1024}) == field_config("mlp")
     assert not hasattr(field_config("grid"), "batch_rays")
+
+
+@pytest.mark.parametrize(
+    ("box", "problem"),
+    [
+        (np.array([[-1, 1], [-1, 1], [-1, 1]]), r"\(2, 3\) \[min, max\] corners, found shape \(3, 2\)"),
+        (np.array([[1, 1, 1], [-1, -1, -1]]), "max > min on every axis"),  # inverted: rendered nothing
+        (np.zeros((2, 3)), "max > min on every axis"),
+        (np.array([[-1, -1, np.nan], [1, 1, 1]]), "finite"),
+    ],
+)
+def test_a_field_refuses_a_scene_box_that_is_not_min_max_corners(box: np.ndarray, problem: str) -> None:
+    """A (3, 2) box was reshaped into other corners, an inverted or flat one rendered nothing."""
+    from spikenerf.render import build_model
+
+    for kind in ("grid", "mlp"):
+        with pytest.raises(InputError, match=problem) as err:
+            build_model(kind, 1, box)
+        assert err.value.params == ("scene_box",)
+    assert build_model("grid", 1, np.array([[-1, -2, -3], [1, 2, 3]])).scene_box.tolist() == [
+        [-1, -2, -3],
+        [1, 2, 3],
+    ]

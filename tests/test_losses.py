@@ -172,3 +172,43 @@ def test_spike_weight_schedule() -> None:
     assert spike_weight(1000, 0.5, 10, 10) == pytest.approx(0.5)
     assert spike_weight(5, 0.5, 0, 0) == 0.5
     assert spike_weight(5, 0.0, 0, 0) == 0.0
+
+
+def test_losses_refuse_mismatched_shapes_and_a_bad_threshold_naming_the_parameter() -> None:
+    """A (N, 1) prediction against an (N,) target broadcast to (N, N) (4.0 for equal values) and spikes
+    without the channel axis broadcast against the intensity; φ ≤ 0 gave NaN or a meaningless number."""
+    from spikenerf.core.errors import InputError
+    from spikenerf.train.losses import window_mean_loss
+
+    with pytest.raises(
+        InputError, match=r"target must have the shape of pred, \(5, 1\), found \(5,\)"
+    ) as err:
+        recon_loss(torch.arange(5.0)[:, None], torch.arange(5.0))
+    assert err.value.params == ("target",)
+    intensity = torch.full((8, 8, 1), 0.5)
+    spikes = torch.zeros(8, 8, dtype=torch.bool)
+    spikes[1::2] = True
+    with pytest.raises(InputError, match="spikes must have the shape of intensity") as err:
+        spike_interval_loss(intensity, spikes, 1.0)
+    assert err.value.params == ("spikes",)
+    for threshold in (0.0, -1.0, float("nan"), "1"):
+        with pytest.raises(InputError, match="threshold φ must be a finite number > 0") as err:
+            spike_interval_loss(intensity, spikes[..., None], threshold)  # type: ignore[arg-type]
+        assert err.value.params == ("threshold",)
+    with pytest.raises(InputError, match="pairs must be 'all' or 'window'"):
+        spike_interval_loss(intensity, spikes[..., None], 1.0, pairs="some")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="band must be"):
+        window_mean_loss(torch.zeros(4, 2, 3), torch.zeros(4, 3), torch.zeros(4))
+    with pytest.raises(InputError, match="spikes must have the shape"):
+        paper_spike_loss(intensity, spikes, 1.0, torch.zeros(8, 1))
+
+
+def test_the_spike_losses_take_a_numpy_stream_as_read_dat_gives() -> None:
+    intensity = torch.full((8, 8, 1), 0.5)
+    spikes = np.zeros((8, 8, 1), np.uint8)
+    spikes[1::2] = 1
+    torch_spikes = torch.from_numpy(spikes)
+    assert spike_interval_loss(intensity, spikes, 1.0) == spike_interval_loss(intensity, torch_spikes, 1.0)
+    assert paper_spike_loss(intensity, spikes, 1.0, torch.zeros(8, 1)) == paper_spike_loss(
+        intensity, torch_spikes, 1.0, torch.zeros(8, 1)
+    )

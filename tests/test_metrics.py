@@ -253,3 +253,21 @@ def test_a_view_with_a_nan_pixel_scores_none_not_nan() -> None:
     assert scores == {"psnr": None, "ssim": None, "lpips": None}
     json.dumps(scores, allow_nan=False)
     assert score_view(target, target, None)["ssim"] == pytest.approx(1.0)  # finite scores stay numbers
+
+
+def test_ssim_of_channels_last_images_says_so_and_an_unknown_lpips_backbone_is_named() -> None:
+    """(H, W, 3) images failed with "at least 11 px a side, got (32, 3)"; ``lpips_backbone="squeeze"``
+    was a bare ValueError deep inside."""
+    from spikenerf.core.errors import InputError
+    from spikenerf.eval.evaluate import lpips_status
+    from spikenerf.eval.metrics import ssim
+
+    image = torch.rand(32, 32, 3)
+    with pytest.raises(InputError, match=r"found \(32, 3\); channels last\? images here are \(C, H, W\)"):
+        ssim(image, image)
+    with pytest.raises(InputError, match=r"found \(4, 4\)$"):  # small, not channels last: no hint
+        ssim(torch.rand(3, 4, 4), torch.rand(3, 4, 4))
+    assert float(ssim(image.permute(2, 0, 1), image.permute(2, 0, 1))) == pytest.approx(1.0)
+    with pytest.raises(InputError, match="lpips_backbone must be alex, vgg or None, found 'squeeze'") as err:
+        lpips_status("squeeze", 64, 64)
+    assert err.value.params == ("lpips_backbone",)

@@ -498,3 +498,16 @@ def test_a_camera_inside_the_scene_box_and_a_rounded_spp_are_named(tmp_path: Pat
     ] and all(inside in line for line in lines[1:])
     code, _, err = run_cli(capsys, *base, "--spp", 4, "--out", tmp_path / "out")  # the default radius 4
     assert code == 0 and err.strip() == ""
+
+
+def test_simulate_options_read_a_colour_string_as_a_list() -> None:
+    """``SimulateOptions(colors="gray")`` was the modes g, r, a, y (refused as such)."""
+    from spikenerf.capture.simulate import SimulateOptions, check_options
+    from spikenerf.core.errors import InputError
+
+    assert SimulateOptions(colors="gray").colors == ("gray",)
+    assert SimulateOptions(colors="gray, rgb").colors == ("gray", "rgb")
+    assert SimulateOptions(colors="all").colors == ("gray", "rgb", "bayer")
+    assert SimulateOptions(colors=["rgb"]).colors == ("rgb",)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="colors: expected gray, rgb, bayer or all, found grey"):
+        check_options(SimulateOptions(colors="grey"))

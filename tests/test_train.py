@@ -818,6 +818,16 @@ def test_config_errors_name_the_key_and_the_cli_the_flag(dataset_dir: Path, tmp_
     )
 
 
+def test_a_config_value_of_another_type_names_its_key_and_type() -> None:
+    """``TrainConfig(iters=np.int64(100))`` read "iters must be an integer, found 100", with no key."""
+    import numpy as np
+
+    for value, found in ((np.int64(100), r"found 100 \(int64\)$"), ("many", r"found 'many'$")):
+        with pytest.raises(InputError, match=f"^iters must be an integer, {found}") as err:
+            TrainConfig(iters=value).validate()  # type: ignore[arg-type]
+        assert err.value.params == ("iters",)
+
+
 def test_set_coerces_number_strings_by_the_key_type() -> None:
     """``1e-3`` (a string to YAML 1.1) becomes a float for a float key only; a string key keeps it."""
     from spikenerf.fields import field_config

@@ -53,7 +53,8 @@ class SimulateOptions:
     """What to simulate and write besides the scene itself.
 
     Attributes:
-        colors: colour modes, each a subset of ``gray``, ``rgb``, ``bayer`` (one spike camera each).
+        colors: colour modes, each of ``gray``, ``rgb``, ``bayer`` (one spike camera each); a string is
+            read as a comma-separated list (``"gray,rgb"``, ``"all"``: the three).
         threshold: φ. noise: ``ideal`` or ``realistic``. seed: camera seed. warmup: camera warm-up steps.
         gt_every: store the sharp render of every k-th step in ``gt/``.
         blur_fps: conventional camera rate (Hz); each frame averages ``round(fps / blur_fps)`` step renders
@@ -78,6 +79,12 @@ class SimulateOptions:
     command: str = ""
     extra: dict = field(default_factory=dict)
     raw_width: int | None = None
+
+    def __post_init__(self) -> None:
+        colors = self.colors
+        if isinstance(colors, str):  # ("gray" was read as the modes g, r, a, y)
+            colors = tuple(MODES) if colors == "all" else tuple(c.strip() for c in colors.split(","))
+        object.__setattr__(self, "colors", tuple(colors))
 
 
 def _fingerprint(source: FrameSource) -> dict:

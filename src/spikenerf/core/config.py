@@ -119,7 +119,11 @@ def check_config(config: Any, prefix: str = "", path: str | Path | None = None, 
                 listed = ", ".join(map(str, names))
                 raise InputError(f"{name} must be one of {listed}, found {value!r}", path=path, param=name)
         elif not matches(value, hints[f.name]):
-            raise InputError(f"{name} must be {describe(hints[f.name])}, found {value!r}", path=path)
+            kind = type(value)  # a numpy integer prints as one: say what it is
+            plain = kind in (int, float, str, bool, type(None), list, tuple)
+            found = repr(value) if plain else f"{value} ({kind.__name__})"
+            wanted = describe(hints[f.name])
+            raise InputError(f"{name} must be {wanted}, found {found}", path=path, param=name)
         numbers = value if isinstance(value, tuple) else (value,)
         if bounds and any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
             raise InputError(f"{name} must be a finite number, found {value!r}", param=name)

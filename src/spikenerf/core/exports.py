@@ -17,7 +17,7 @@ PUBLIC_API: dict[str, dict[str, str]] = {
     "spikenerf": {
         "spikenerf.camera": "simulate read_dat write_dat tfp tfi",
         "spikenerf.data": "load_dataset",
-        "spikenerf.capture": "simulate_dataset",
+        "spikenerf.capture": "SimulateOptions simulate_dataset",
         "spikenerf.train": "TrainConfig load_run",  # train(): spikenerf.train is the subpackage
         "spikenerf.eval": "evaluate_run",
     },
@@ -26,6 +26,7 @@ PUBLIC_API: dict[str, dict[str, str]] = {
         "spikenerf.camera.io": "read_dat write_dat read_dat_rgb write_dat_rgb",
         "spikenerf.camera.reconstruct": "tfp tfi",
         "spikenerf.camera.masks": "spike_masks",
+        "spikenerf.camera.layout": "to_camera_layout to_channels_last",
     },
     "spikenerf.scenes": {
         "spikenerf.scenes.trajectory": "Intrinsics Trajectory orbit novel_views",
@@ -41,6 +42,7 @@ PUBLIC_API: dict[str, dict[str, str]] = {
         "spikenerf.train.config": "TrainConfig load_config",
         "spikenerf.train.trainer": "Trainer train",
         "spikenerf.train.run": "load_run",
+        "spikenerf.train.losses": "recon_loss spike_interval_loss window_mean_loss paper_spike_loss",
     },
     "spikenerf.fields": {
         "spikenerf.fields.choices": "FIELD_KINDS FieldKind",
@@ -65,7 +67,11 @@ PUBLIC_API: dict[str, dict[str, str]] = {
         ),
         "spikenerf.render.volume": "RenderOutput",
     },
-    "spikenerf.eval": {"spikenerf.eval.metrics": "psnr ssim", "spikenerf.eval.evaluate": "evaluate_run"},
+    "spikenerf.eval": {
+        "spikenerf.eval.metrics": "psnr ssim",
+        "spikenerf.eval.evaluate": "evaluate_run",
+        "spikenerf.core.color": "srgb_encode srgb_decode",  # the metrics compare sRGB images
+    },
 }
 
 

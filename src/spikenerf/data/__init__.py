@@ -1,4 +1,4 @@
-"""Dataset folder I/O, the simulate pipeline, rays, training targets and samplers.
+"""Dataset folder I/O, rays, training targets and samplers (simulating a dataset: ``spikenerf.capture``).
 
 Public names: ``spikenerf.core.exports.PUBLIC_API`` (imported on first use)."""
 

@@ -141,6 +141,11 @@ def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | N
     """(backbone to use or None, reason it is not used or None)."""
     if backbone is None:
         return None, "disabled (--lpips none)"
+    if backbone not in lp.MIN_SIZE:
+        known = ", ".join(lp.MIN_SIZE)
+        raise InputError(
+            f"lpips_backbone must be {known} or None, found {backbone!r}", param="lpips_backbone"
+        )
     reason = lp.lpips_unavailable_reason(backbone)
     if reason is None and min(height, width) < lp.MIN_SIZE[backbone]:
         need = lp.MIN_SIZE[backbone]

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr
 
 
@@ -115,8 +116,11 @@ def ssim_map(a: torch.Tensor, b: torch.Tensor, config: SSIMConfig = SSIMConfig()
     """
     a, b, _ = _batched(a, b)
     if min(a.shape[-2:]) < config.window:
-        raise ValueError(
-            f"SSIM needs images of at least {config.window} px a side, got {tuple(a.shape[-2:])}"
+        last = a.shape[-1] in (1, 3) and a.shape[-3] not in (1, 3)
+        hint = "; channels last? images here are (C, H, W): permute (H, W, C) ones first" if last else ""
+        raise InputError(
+            f"SSIM needs images of at least {config.window} px a side, found {tuple(a.shape[-2:])}{hint}",
+            param=("a", "b"),
         )
     a, b = a.double(), b.double()
     w = gaussian_window(config.window, config.sigma).to(a.device)

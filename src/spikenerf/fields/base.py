@@ -11,6 +11,24 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from spikenerf.core.errors import InputError
+
+
+def checked_box(scene_box: Tensor | Any) -> Tensor:
+    """``scene_box`` as a (2, 3) float32 tensor of ``[min, max]`` corners; InputError naming it unless it
+    has that shape (a (3, 2) box of [min, max] per axis would reshape to other corners), is finite and has
+    max > min on every axis (an inverted box renders nothing)."""
+    box = torch.as_tensor(scene_box, dtype=torch.float32)
+    if tuple(box.shape) != (2, 3):
+        raise InputError(
+            f"scene_box must be (2, 3) [min, max] corners, found shape {tuple(box.shape)}", param="scene_box"
+        )
+    if not (bool(torch.isfinite(box).all()) and bool((box[1] > box[0]).all())):
+        raise InputError(
+            f"scene_box must be finite with max > min on every axis, found {box.tolist()}", param="scene_box"
+        )
+    return box.clone()
+
 
 class Field(nn.Module):
     """A radiance field over an axis-aligned scene box.
@@ -29,9 +47,7 @@ class Field(nn.Module):
         super().__init__()
         self.config = config
         self.channels = channels
-        self.register_buffer(
-            "scene_box", torch.as_tensor(scene_box, dtype=torch.float32).reshape(2, 3).clone()
-        )
+        self.register_buffer("scene_box", checked_box(scene_box))
 
     def normalize(self, xyz: Tensor) -> Tensor:
         """World points (..., 3) → box-normalised [−1, 1]³ (..., 3)."""

@@ -14,9 +14,13 @@ See docs/method.md for the derivation.
 
 from __future__ import annotations
 
+import math
+import numbers
+
 import torch
 
 from spikenerf.camera.model import fire
+from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 from spikenerf.train.settings import SPIKE_LOSS_KINDS as SPIKE_LOSS_KINDS  # (defined there)
 from spikenerf.train.settings import PairMode
@@ -31,8 +35,31 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         target: (N, C) linear target (``M ⊙ Î`` for spike-nerf: 0 where no spike fell in the mask window).
     Returns:
         Scalar mean over rays and channels.
+    Raises:
+        InputError: ``target`` not of ``pred``'s shape (an (N, 1) against (N,) would broadcast to (N, N)).
     """
+    same_shape(pred, target, "target", "pred")
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
+
+
+def same_shape(reference: torch.Tensor, other: torch.Tensor, name: str, reference_name: str) -> None:
+    """InputError naming ``name`` unless ``other`` has ``reference``'s shape (a check of sizes only: no
+    sync, and a guard under ``torch.compile``)."""
+    if tuple(other.shape) != tuple(reference.shape):
+        raise InputError(
+            f"{name} must have the shape of {reference_name}, {tuple(reference.shape)}, found "
+            f"{tuple(other.shape)}",
+            param=name,
+        )
+
+
+def check_threshold(threshold: float | torch.Tensor) -> None:
+    """InputError naming ``threshold`` unless it is a finite number > 0 (a tensor is not read: no sync)."""
+    if isinstance(threshold, torch.Tensor):
+        return
+    number = isinstance(threshold, numbers.Real) and not isinstance(threshold, bool)
+    if not (number and math.isfinite(threshold) and threshold > 0):
+        raise InputError(f"threshold φ must be a finite number > 0, found {threshold!r}", param="threshold")
 
 
 def window_mean_loss(
@@ -57,8 +84,12 @@ def window_mean_loss(
         Scalar loss (linear intensity squared; may be slightly negative for G ≥ 2, never in expectation).
     """
     if means.dim() != 3 or target.shape != (means.shape[0], means.shape[2]):
-        raise ValueError(f"means must be (B, G, C) and target (B, C), found {tuple(means.shape)}, "
-                         f"{tuple(target.shape)}")  # fmt: skip
+        raise InputError(f"means must be (B, G, C) and target (B, C), found {tuple(means.shape)}, "
+                         f"{tuple(target.shape)}", param=("means", "target"))  # fmt: skip
+    if band is not None and band.shape != (means.shape[0], 1):
+        raise InputError(
+            f"band must be (B, 1) = {(means.shape[0], 1)}, found {tuple(band.shape)}", param="band"
+        )
     d = means - target.to(means.dtype)[:, None]
     if band is not None:
         width = band.to(d.dtype)[:, None]
@@ -79,7 +110,12 @@ def spike_prefix(intensity: torch.Tensor, spikes: torch.Tensor, threshold: float
         threshold: φ.
     Returns:
         (L + 1, ...) residuals, in intensity units (the accumulator change since the window start).
+    Raises:
+        InputError: ``spikes`` not of ``intensity``'s shape, or ``threshold`` not a finite number > 0.
     """
+    spikes = torch.as_tensor(spikes, device=intensity.device)  # (a numpy stream, as read_dat gives)
+    same_shape(intensity, spikes, "spikes", "intensity")
+    check_threshold(threshold)
     resid = intensity - threshold * spikes.to(intensity.dtype)
     zero = torch.zeros_like(resid[:1])
     return torch.cat([zero, torch.cumsum(resid, dim=0)], dim=0)
@@ -108,6 +144,7 @@ def spike_interval_violation(
         valid: (P, ...) bool, whether the pair's bounds apply.
     """
     length = intensity.shape[0]
+    spikes = torch.as_tensor(spikes, device=intensity.device)
     d = spike_prefix(intensity, spikes, threshold)
     if pairs == "window":
         a_idx = torch.tensor([0], device=d.device)
@@ -115,7 +152,7 @@ def spike_interval_violation(
     elif pairs == "all":
         a_idx, b_idx = torch.triu_indices(length + 1, length + 1, offset=1, device=d.device)
     else:
-        raise ValueError(f"pairs must be 'all' or 'window', got {pairs!r}")
+        raise InputError(f"pairs must be 'all' or 'window', found {pairs!r}", param="pairs")
     diff = d[b_idx] - d[a_idx]
     upper = torch.relu(diff - threshold)
     lower = torch.relu(-threshold - diff)
@@ -179,6 +216,8 @@ def paper_spike_loss(
     Returns:
         Scalar tensor with ``requires_grad=False``.
     """
+    spikes = torch.as_tensor(spikes, device=intensity.device)
+    same_shape(intensity, spikes, "spikes", "intensity")
     with torch.no_grad():
         acc = start_accumulator.detach().to(intensity.dtype)
         fired = []
