@@ -297,3 +297,39 @@ def test_render_draws_the_test_views_and_orbit_at_the_poses_the_run_refined(
     assert len(seen) == len(refined) and np.allclose(np.stack(seen), refined, atol=1e-6)
     moved = video.refined_poses(ckpt, config, dataset)
     assert np.allclose(moved.trajectory.poses, video.refined_dataset(ckpt, config, dataset).trajectory.poses)
+
+
+def test_a_spike_window_past_the_guard_band_is_said(demo: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``--spike-window 20`` around steps held out ± 4 reaches trained steps: it printed "(held out)"."""
+    run = demo / "run"
+    base = ["eval", run, "--device", "cpu", "--lpips", "none", "--spike-pixels", 16, "--quiet"]
+    code, out, err = run_cli(capsys, *base)
+    assert code == 0 and json.loads((run / "metrics.json").read_text())["no_reference"]["windows_in_guard"]
+    code, out, err = run_cli(capsys, *base, "--spike-window", 20)
+    assert code == 0, err
+    assert "(held out, but their 20-step spike windows reach past ±4 into trained steps)" in out
+    assert json.loads((run / "metrics.json").read_text())["no_reference"]["windows_in_guard"] is False
+    run_cli(capsys, *base)  # the other tests read the default scores
+
+
+@pytest.mark.parametrize(
+    ("record", "problem"),
+    [
+        ({"check_steps": [1e999]}, "check_steps: expected a list of integers ≥ 0, found [inf]"),
+        ({"check_steps": [30.7]}, "check_steps: expected a list of integers ≥ 0"),
+        ({"check_steps": [-5]}, "check_steps: expected a list of integers ≥ 0"),
+        ({"check_steps": [20], "radius": "x"}, "radius: expected an integer ≥ 0, found 'x'"),
+        ({"radius": 4}, "no check_steps"),
+        ([20], "expected an object, found list"),
+    ],
+)
+def test_a_damaged_holdout_record_is_one_line(demo: Path, tmp_path: Path, capsys, record, problem) -> None:  # type: ignore[no-untyped-def]
+    """``{"check_steps": [1e999]}`` was a 32-line OverflowError in ``info`` and ``eval``; 30.7 was cut."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(demo / "run", run)
+    (run / "holdout.json").write_text(json.dumps(record))
+    for command in (["info", run], ["eval", run, "--device", "cpu", "--lpips", "none", "--quiet"]):
+        code, _, err = run_cli(capsys, *command)
+        assert code == 2 and f"holdout.json: malformed hold-out record ({problem}" in err, err

@@ -135,10 +135,30 @@ def read_record(run_dir: str | Path) -> dict[str, Any] | None:
         return None
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        steps = [int(s) for s in data["check_steps"]]
-    except (ValueError, KeyError, TypeError) as err:
-        raise InputError(f"malformed hold-out record ({err})", path=path) from err
-    return {**data, "check_steps": steps}
+    except (OSError, ValueError) as err:  # (UnicodeDecodeError and JSONDecodeError are ValueErrors)
+        raise InputError(f"malformed hold-out record ({type(err).__name__}: {err})", path=path) from None
+    if not isinstance(data, dict):
+        raise InputError(f"malformed hold-out record (expected an object, found {type(data).__name__})", path)
+    if "check_steps" not in data:
+        raise InputError("malformed hold-out record (no check_steps)", path=path)
+    for key in ("check_steps", "step_numbers"):
+        values = data.get(key, [])
+        if not (isinstance(values, list) and all(_count(v) for v in values)):
+            raise InputError(
+                f"malformed hold-out record ({key}: expected a list of integers ≥ 0, found {values!r:.60})",
+                path,
+            )
+    for key in ("radius", "excluded_steps", "total_steps"):
+        if key in data and not _count(data[key]):
+            raise InputError(
+                f"malformed hold-out record ({key}: expected an integer ≥ 0, found {data[key]!r:.60})", path
+            )
+    return data
+
+
+def _count(value: object) -> bool:
+    """Whether ``value`` is an integer ≥ 0 (a JSON true is none)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
 def make_holdout(dataset: SpikeDataset, on: bool | None, count: int, radius: int) -> Holdout | None:

@@ -19,8 +19,9 @@ def number(value: float | None, digits: int) -> str:
 
 def scores(mean: dict) -> str:
     """``PSNR 24.01 dB, SSIM 0.8123, LPIPS 0.1234`` of a ``mean`` (or per-view) section."""
+    psnr = mean.get("psnr")
     return (
-        f"PSNR {number(mean.get('psnr'), 2)} dB, SSIM {number(mean.get('ssim'), 4)}, "
+        f"PSNR {number(psnr, 2)}{'' if psnr is None else ' dB'}, SSIM {number(mean.get('ssim'), 4)}, "
         f"LPIPS {number(mean.get('lpips'), 4)}"
     )
 
@@ -52,6 +53,11 @@ def noref_line(result: dict) -> str | None:
     seen = (
         " (trained on: they measure fit, not generalisation)" if nr.get("steps_trained_on") else " (held out)"
     )
+    if not nr.get("steps_trained_on") and nr.get("windows_in_guard") is False:
+        seen = (
+            f" (held out, but their {nr.get('spike_window')}-step spike windows reach past ±"
+            f"{nr.get('guard_radius')} into trained steps)"
+        )
     return (
         f"no-reference{at}{seen}: masked PSNR {number(m.get('masked_psnr'), 2)} dB, masked SSIM "
         f"{number(m.get('masked_ssim'), 4)} vs the reconstructions; interval violations "

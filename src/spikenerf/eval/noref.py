@@ -18,8 +18,9 @@ steps) the model is scored against the recorded spike stream alone (docs/metrics
 A run trained with the hold-out (``train --holdout``, on by default for imported datasets) never saw the
 check steps: training drew no image target and no spike window within its guard band of them
 (:mod:`spikenerf.data.holdout`, recorded in ``RUN/holdout.json``). The checks then score those very steps and
-report ``steps_trained_on: false``; otherwise the run fitted them too (``true``) and the scores say how well
-the model explains the recording, not how well it generalises.
+report ``steps_trained_on: false`` (and ``windows_in_guard: false`` where a spike window longer than the band,
+``spike_window``, reaches steps that training saw); otherwise the run fitted them too (``true``) and the
+scores say how well the model explains the recording, not how well it generalises.
 """
 
 from __future__ import annotations
@@ -79,6 +80,18 @@ def wants_noref(mode: str, dataset: SpikeDataset, held: bool = False) -> bool:
     if mode not in NOREF_MODES:
         raise InputError(f"mode must be one of {', '.join(NOREF_MODES)}, found {mode!r}", param="mode")
     return mode == "on" or (mode == "auto" and (held or is_imported(dataset)))
+
+
+def windows_in_guard(steps: Any, length: int, total: int, radius: Any) -> bool:
+    """Whether the ``length``-step spike window of every check step lies in its guard band (``step ±
+    radius``, none of which training saw); a longer window (``spike_window``) reaches trained steps."""
+    if not isinstance(radius, int) or isinstance(radius, bool):
+        return False
+    for step in (int(s) for s in steps):
+        start = window_start(step, length, total)
+        if start < step - radius or start + length - 1 > step + radius:
+            return False
+    return True
 
 
 def window_start(step: int, length: int, total: int) -> int:
@@ -210,10 +223,12 @@ def noref_metrics(
             rows.append(score_step(model, config, dataset, int(step), length, pixels, chunk, display))
     mean = {key: mean_or_none([r[key] for r in rows]) for key in rows[0] if key != "step"}
     t = config.targets
+    radius = None if held is None else held.get("radius")
     return {
         "steps_from": source,
         "steps_trained_on": held is None,
-        "guard_radius": None if held is None else held.get("radius"),
+        "guard_radius": radius,
+        "windows_in_guard": None if held is None else windows_in_guard(steps, length, total, radius),
         "target": f"{t.recon} (window {t.window})",
         "mask": f"a spike in steps k-{t.mask_n}..k+{t.mask_n}",
         "spike_window": length,
