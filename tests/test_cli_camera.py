@@ -126,8 +126,8 @@ def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
     [
         (["--window", "40"], "odd"),
         (["--window", "121"], "--window 121 is longer than the 120-frame stream"),
-        (["--frame", "120"], "outside the 120-frame stream"),
-        (["--frames", "100:130"], "outside the 120-frame stream"),
+        (["--frame", "120"], "--frame: frame 120 is outside the 120-frame stream"),
+        (["--frames", "100:130"], "--frames: frame range 100:130 is empty or outside the 120-frame stream"),
         (["--frames", "1-3"], "A:B"),
         (["--frame", "1", "--frames", "1:3"], "not both"),
         (["--method", "tfi", "--window", "41"], "tfp only"),

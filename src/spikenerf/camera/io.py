@@ -114,12 +114,14 @@ def stripped_columns_fire(
     return bool(head[:, :, width:].any())
 
 
-def resolve_frames(frames: slice | int | None, total: int, path: str | Path | None = None) -> range:
+def resolve_frames(
+    frames: slice | int | None, total: int, path: str | Path | None = None, param: str = "frames"
+) -> range:
     """A frame selection as a ``range`` of indices into a ``total``-frame stream, checked strictly.
 
     ``None`` selects all frames; an int ``i`` selects ``i:i+1``; negative indices count from the end (as in
     Python); unlike Python slicing, a start/stop outside ``[0, total]``, a non-positive step or an empty
-    selection is an InputError.
+    selection is an InputError naming ``param`` (the caller's name for the selection).
     """
     if frames is None:
         return range(total)
@@ -127,22 +129,32 @@ def resolve_frames(frames: slice | int | None, total: int, path: str | Path | No
         i = int(frames) + total if frames < 0 else int(frames)
         if not 0 <= i < total:
             raise InputError(
-                f"frame {frames} is outside the {total}-frame stream (valid 0..{total - 1})", path
+                f"{param}: frame {frames} is outside the {total}-frame stream (valid 0..{total - 1})",
+                path,
+                param=param,
             )
         return range(i, i + 1)
     if not isinstance(frames, slice):
-        raise InputError(f"frames must be a slice, an int or None, found {type(frames).__name__}", path=path)
-    step = 1 if frames.step is None else int(frames.step)
+        raise InputError(
+            f"{param} must be a slice, an int or None, found {type(frames).__name__}", path=path, param=param
+        )
+    try:
+        step = 1 if frames.step is None else int(frames.step)
+        start = 0 if frames.start is None else int(frames.start)
+        stop = total if frames.stop is None else int(frames.stop)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"{param}: a slice of integers expected, found {frames!r}", path=path, param=param
+        ) from None
     if step <= 0:
-        raise InputError(f"frame step must be positive, found {step}", path=path)
-    start = 0 if frames.start is None else int(frames.start)
-    stop = total if frames.stop is None else int(frames.stop)
+        raise InputError(f"{param}: frame step must be positive, found {step}", path=path, param=param)
     start, stop = (start + total if start < 0 else start), (stop + total if stop < 0 else stop)
     if not 0 <= start < stop <= total:
         raise InputError(
-            f"frame range {frames.start}:{frames.stop} is empty or outside the {total}-frame stream "
+            f"{param}: frame range {frames.start}:{frames.stop} is empty or outside the {total}-frame stream "
             f"(need 0 <= start < stop <= {total})",
             path=path,
+            param=param,
         )
     return range(start, stop, step)
 
@@ -201,10 +213,16 @@ def iter_dat(
     """
     path = _existing_file(path)
     if chunk_frames <= 0:
-        raise InputError(f"chunk_frames must be positive, found {chunk_frames}", path=path)
+        raise InputError(
+            f"chunk_frames must be positive, found {chunk_frames}", path=path, param="chunk_frames"
+        )
     selected = resolve_frames(frames, count_frames(path, height, width, raw_width), path)
     if selected.step != 1:
-        raise InputError(f"iter_dat streams contiguous ranges only, found step {selected.step}", path=path)
+        raise InputError(
+            f"frames: iter_dat streams contiguous ranges only, found step {selected.step}",
+            path=path,
+            param="frames",
+        )
     for start in range(selected.start, selected.stop, chunk_frames):
         stop = min(start + chunk_frames, selected.stop)
         yield start, read_dat(path, height, width, slice(start, stop), layout, raw_width)
@@ -276,22 +294,41 @@ def write_dat(
 
 
 def rgb_paths(prefix: str | Path) -> list[Path]:
-    """The three per-channel files of an RGB stream: ``{prefix}_r.dat``, ``_g.dat``, ``_b.dat``."""
+    """The three per-channel files of an RGB stream: ``{prefix}_r.dat``, ``_g.dat``, ``_b.dat``. A trailing
+    ``.dat`` of ``prefix`` is dropped (``rgb.dat`` → ``rgb_r.dat``, not ``rgb.dat_r.dat``)."""
     prefix = Path(prefix)
-    return [prefix.with_name(f"{prefix.name}_{c}.dat") for c in RGB_SUFFIXES]
+    stem = prefix.name[: -len(".dat")] if prefix.name.lower().endswith(".dat") else prefix.name
+    if not stem:
+        raise InputError(
+            "prefix: expected a file name before '.dat', found none", path=prefix, param="prefix"
+        )
+    return [prefix.with_name(f"{stem}_{c}.dat") for c in RGB_SUFFIXES]
 
 
 def write_dat_rgb(
     prefix: str | Path, spikes: np.ndarray | torch.Tensor, layout: str = "spikecv"
 ) -> list[Path]:
-    """Write a per-channel RGB stream (T, 3, H, W) as three gray ``.dat`` files; returns their paths. The
+    """Write a per-channel RGB stream (T, 3, H, W) as three gray ``.dat`` files; returns their paths
+    (:func:`rgb_paths`: ``{prefix}_r.dat`` …; a trailing ``.dat`` of ``prefix`` is dropped). ``spikes`` is
+    bool or 0/1 (T, 3, H, W): an array, a tensor or an array-like such as a list of (3, H, W) steps. The
     stream is checked whole first and the three files are written before any replaces an old one, so an
     error in the data or while writing leaves the old files as they were (a kill between the three quick
     renames can still mix old and new channels; :func:`read_dat_rgb` refuses unequal frame counts)."""
-    if spikes.ndim != 4 or spikes.shape[1] != 3:
-        raise InputError(f"RGB spikes must be (T, 3, H, W), found shape {tuple(spikes.shape)}", path=prefix)
+    try:
+        arr = as_numpy(spikes)
+    except (TypeError, ValueError) as err:  # a ragged list, a list of unequal steps, ...
+        raise InputError(
+            f"spikes: expected a (T, 3, H, W) array, found {type(spikes).__name__} ({err})",
+            path=prefix,
+            param="spikes",
+        ) from None
+    if arr.ndim != 4 or arr.shape[1] != 3:
+        raise InputError(
+            f"spikes: RGB spikes must be (T, 3, H, W), found shape {tuple(arr.shape)}",
+            path=prefix,
+            param="spikes",
+        )
     _check_layout(layout, prefix)
-    arr = as_numpy(spikes)
     arr = _as_binary(arr.reshape(-1, *arr.shape[2:]), prefix).reshape(arr.shape)  # checked whole, first
     frame_bytes(*arr.shape[2:], path=prefix)
     paths = rgb_paths(prefix)
@@ -341,6 +378,12 @@ def _as_binary(chunk: np.ndarray | torch.Tensor, path: str | Path) -> np.ndarray
 def _stored_width(width: int, raw_width: int | None, path: str | Path | None = None) -> int:
     if raw_width is None:
         return width
+    if isinstance(raw_width, bool) or not isinstance(raw_width, (int, np.integer)):
+        raise InputError(
+            f"raw_width must be an integer (the stored row width) or None, found {raw_width!r}",
+            path=path,
+            param="raw_width",
+        )
     if raw_width < width:
         raise InputError(
             f"raw_width {raw_width} is smaller than the image width {width}", path=path, param="raw_width"
@@ -350,7 +393,9 @@ def _stored_width(width: int, raw_width: int | None, path: str | Path | None = N
 
 def _check_layout(layout: str, path: str | Path | None = None) -> None:
     if layout not in LAYOUTS:
-        raise InputError(f"layout must be one of {', '.join(LAYOUTS)}, found {layout!r}", path=path)
+        raise InputError(
+            f"layout must be one of {', '.join(LAYOUTS)}, found {layout!r}", path=path, param="layout"
+        )
 
 
 def _existing_file(path: str | Path) -> Path:

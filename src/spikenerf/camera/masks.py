@@ -6,8 +6,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from spikenerf.camera.io import as_numpy, resolve_frames
-from spikenerf.camera.reconstruct import iter_window_counts, like
+from spikenerf.camera.reconstruct import flat_stream, iter_window_counts, like
 from spikenerf.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -22,20 +21,17 @@ def spike_masks(spikes: Array, n: int = 5, frames: slice | int | None = None) ->
     The paper's code ORs a 10-frame window instead (not centred); see docs/reconstruction.md.
 
     Args:
-        spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch).
+        spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0); any
+            other shape is an InputError (see :func:`~spikenerf.camera.reconstruct.flat_stream`).
         n: the half window, ≥ 0 (n = 0 gives the single-frame masks).
         frames: the output frames (slice, index or None = all).
     Returns:
         bool (N, ...), the same array type as ``spikes``.
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-        raise InputError(f"mask half window n must be an integer ≥ 0, found {n!r}")
-    x = as_numpy(spikes)
-    if x.ndim < 2:
-        raise InputError(f"spikes must be (T, H, W) or (T, 3, H, W), found shape {x.shape}")
-    out_idx = np.asarray(resolve_frames(frames, x.shape[0]), dtype=np.int64)
-    flat = x.reshape(x.shape[0], int(np.prod(x.shape[1:])))
+        raise InputError(f"mask half window n must be an integer ≥ 0, found {n!r}", param="n")
+    flat, rest, out_idx = flat_stream(spikes, frames)
     masks = np.empty((out_idx.size, flat.shape[1]), np.bool_)
     for j, counts, _ in iter_window_counts(flat, int(n), out_idx):
         np.greater(counts, 0, out=masks[j])
-    return like(masks.reshape(out_idx.size, *x.shape[1:]), spikes)
+    return like(masks.reshape(out_idx.size, *rest), spikes)

@@ -26,6 +26,8 @@ Array = TypeVar("Array", np.ndarray, torch.Tensor)
 BAYER_PATTERN = "RGGB"
 #: Steps buffered on the device before a copy to host memory in :func:`simulate`.
 _CHUNK = 256
+#: steps between two checks of the accumulator for a NaN or a negative intensity (SpikeCamera.check)
+CHECK_EVERY = 64
 
 
 def fire(accumulator: Array, intensity: Array, threshold: float | Array = 1.0) -> tuple[Array, Array]:
@@ -39,7 +41,10 @@ def fire(accumulator: Array, intensity: Array, threshold: float | Array = 1.0) -
         intensity: (..., H, W) intensity integrated over the step (linear, 1.0 = white for one step).
         threshold: φ, a scalar or an array broadcastable to the accumulator.
     Returns:
-        spikes: bool, same shape; accumulator: the new accumulator.
+        spikes: bool, same shape; accumulator: the new accumulator, in the dtype that ``accumulator +
+        intensity`` promotes to (numpy's or torch's rules: a float32 accumulator with a float64 intensity
+        array gives float64; pass both as float32 to stay in float32, as :class:`SpikeCamera` does). No
+        input check: this is the rule itself, also run inside training (see :meth:`SpikeCamera.step`).
     """
     acc = accumulator + intensity
     spikes = acc >= threshold
@@ -243,23 +248,55 @@ class SpikeCamera:
             intensity: linear radiance of this step (1.0 = white): (H, W) gray or (3, H, W) RGB, or
                 sub-frames (S, H, W) / (S, 1, H, W) / (S, 3, H, W) that are averaged. A 3-D input whose first
                 axis is 3 is RGB. ``gray`` accepts gray or RGB (converted by ``rgb_to_gray``);
-                ``rgb`` and ``bayer`` need RGB.
+                ``rgb`` and ``bayer`` need RGB. Values must be finite and ≥ 0 (found by :meth:`check`;
+                above 1 is brighter than white and saturates: one spike a step); an integer
+                array must hold values ≤ 1 (an 8-bit image is refused: scale it to linear [0, 1] first,
+                e.g. ``srgb_decode(image / 255)``).
+                Any dtype is read as float32.
             out: optional bool buffer of the spike shape to write into (see :meth:`new_spikes`).
         Returns:
             bool spikes: (H, W) for gray and bayer, (3, H, W) for rgb; numpy or torch like the camera.
+        Raises:
+            InputError: naming ``intensity`` (a bad shape or value) or ``out``.
         """
         x = self._prepare(intensity)
         if out is None:
             out = self.new_spikes()
         elif tuple(out.shape) != self.spike_shape or out.dtype not in (np.bool_, torch.bool):
-            raise InputError(f"out must be a bool buffer of shape {self.spike_shape}, got {tuple(out.shape)}")
+            raise InputError(
+                f"out must be a bool buffer of shape {self.spike_shape}, got {tuple(out.shape)}", param="out"
+            )
         if not self._warm:
             for _ in range(self.config.warmup):
                 self._advance(x, out)
             self._warm = True
         self._advance(x, out)
         self._steps += 1
+        if self._steps % CHECK_EVERY == 0:
+            self.check()
         return out
+
+    def check(self) -> None:
+        """InputError naming ``intensity`` when a step since the last check held a NaN, an infinity or a
+        value below 0.
+
+        A NaN or an infinity stays in its pixel's accumulator for good (the pixel never fires again, or
+        fires every step), and the accumulator of a pixel fed only values ≥ 0 never drops below 0: two
+        reductions over the accumulator find them, without a pass over every step's input.
+        :meth:`step` calls this every :data:`CHECK_EVERY` steps (on a torch device: one sync then) and
+        :func:`simulate` at its end. A value below 0 too small to empty its accumulator, or one that the
+        next steps fill up again before a check, goes unseen.
+        """
+        low, high = float(self._acc.min()), float(self._acc.max())
+        if math.isnan(low) or low < 0 or math.isinf(high):
+            first = max(0, self._steps - CHECK_EVERY)
+            what = "a value below 0" if low < 0 else "an infinity" if math.isinf(high) else "a NaN"
+            raise InputError(
+                f"intensity held {what} at one of steps {first}..{self._steps - 1} (the accumulator of a "
+                f"pixel is {low if low < 0 or math.isnan(low) else high:g}): intensity must be finite "
+                "linear radiance ≥ 0 (1.0 = white)",
+                param="intensity",
+            )
 
     def _advance(self, x: np.ndarray | torch.Tensor, spikes: np.ndarray | torch.Tensor) -> None:
         if self._noise is None:
@@ -271,23 +308,34 @@ class SpikeCamera:
 
     def _prepare(self, intensity: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """Validate one step's input; convert it to a float32 backend array of the accumulator's shape."""
-        if self.device is None:
-            if isinstance(intensity, torch.Tensor):
+        if isinstance(intensity, torch.Tensor):
+            integer = not (intensity.is_floating_point() or intensity.is_complex()) and (
+                intensity.dtype != torch.bool
+            )
+            if self.device is None:
                 intensity = intensity.detach().cpu().numpy()
+        else:
+            intensity = np.asarray(intensity)
+            integer = intensity.dtype.kind in "iu"
+        if self.device is None:
             x = np.asarray(intensity, dtype=np.float32)
         elif isinstance(intensity, torch.Tensor):
             x = intensity.detach().to(device=self.device, dtype=torch.float32)
-        else:
-            a = np.asarray(intensity, dtype=np.float32)
+        else:  # (contiguous: torch takes no negative strides)
+            a = np.ascontiguousarray(intensity, dtype=np.float32)
             x = torch.from_numpy(a if a.flags.writeable else a.copy()).to(self.device)
         shape = tuple(x.shape)
         if x.ndim < 2 or x.ndim > 4 or shape[-2:] != (self.height, self.width):
             raise InputError(
                 f"intensity must be (H, W), (3, H, W), (S, H, W) or (S, C, H, W) with H×W = "
-                f"{self.height}×{self.width}, got shape {shape}"
+                f"{self.height}×{self.width}, got shape {shape}",
+                param="intensity",
             )
         if (x.ndim == 4 and shape[1] not in (1, 3)) or shape[0] == 0:
-            raise InputError(f"intensity sub-frames must be (S≥1, 1|3, H, W), got shape {shape}")
+            raise InputError(
+                f"intensity sub-frames must be (S≥1, 1|3, H, W), got shape {shape}", param="intensity"
+            )
+        _check_integer(x, integer)
         rgb = (x.ndim == 3 and shape[0] == 3) or (x.ndim == 4 and shape[1] == 3)
         if x.ndim == 4 or (x.ndim == 3 and not rgb):
             x = _mean_first(x)
@@ -297,9 +345,22 @@ class SpikeCamera:
             return rgb_to_gray(x, channel_axis=0) if rgb else x
         if not rgb:
             raise InputError(
-                f"color mode {self.config.color!r} needs RGB intensity (3, H, W) or (S, 3, H, W), got {shape}"
+                f"color mode {self.config.color!r} needs RGB intensity (3, H, W) or (S, 3, H, W), "
+                f"got {shape}",
+                param="intensity",
             )
         return x if self.config.color == "rgb" else bayer_mosaic(x)
+
+
+def _check_integer(x: np.ndarray | torch.Tensor, integer: bool) -> None:
+    """InputError naming ``intensity`` where ``x`` was read from an ``integer`` array with values above 1 (an
+    8-bit image would saturate every pixel that is not black); a float array costs nothing here."""
+    if integer and (high := float(x.max())) > 1:
+        raise InputError(
+            f"intensity is an integer array with values up to {high:g} (an 8-bit image?): scale it to "
+            "linear radiance in [0, 1] first, e.g. core.color.srgb_decode(image / 255)",
+            param="intensity",
+        )
 
 
 def _mean_first(x: Array) -> Array:
@@ -349,7 +410,8 @@ def simulate(
         progress: show a tqdm progress bar.
         noise_params: the realistic noise's parameters (default: the preset of ``camera/noise.py``).
     Raises:
-        InputError: a size, the config or a frame is malformed.
+        InputError: a size, the config or a frame is malformed (a NaN, an infinity or a value below 0 in a
+            frame: by the end, see :meth:`SpikeCamera.check`).
     """
     camera = SpikeCamera(height, width, config, device, noise_params)
     total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
@@ -363,6 +425,7 @@ def simulate(
             if t >= total:
                 raise InputError(f"frames yielded more than its length {total}")
             camera.step(frame, out=out[t])
+        camera.check()  # (the steps since the last periodic check)
         return out[: camera.steps]
     chunks: list[np.ndarray] = []
     buf = camera.new_spikes(_CHUNK)
@@ -373,6 +436,7 @@ def simulate(
         if n == _CHUNK:
             chunks.append(_host_copy(buf))
             n = 0
+    camera.check()
     if n or not chunks:
         chunks.append(_host_copy(buf[:n]))
     return np.concatenate(chunks) if len(chunks) > 1 else chunks[0]

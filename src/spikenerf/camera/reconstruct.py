@@ -1,10 +1,12 @@
 """Image reconstruction from spike streams: TFP (texture from playback) and TFI (texture from interval).
 
-Both work on gray streams (T, H, W) and per-channel streams (T, 3, H, W) — any (T, ...) — given as numpy
-arrays or torch tensors, and return linear intensity in simulator units (φ = threshold; 1.0 = white when
-φ = 1). Every frame is computed by scans over time that are vectorised over all pixels (a running window
-count for TFP and masks; previous/next-spike scans for TFI), reading only the frames needed and keeping
-memory at O(output). Formulas and edge rules: docs/reconstruction.md.
+Both work on gray or Bayer streams (T, H, W) and per-channel streams (T, 3, H, W) (the camera layout; any
+other shape, such as one frame (H, W) or channels last (T, H, W, 3), is an InputError), given as numpy
+arrays or torch tensors of 0/1 spikes (bool, integers: any non-zero is a spike; floats: only 0.0 and 1.0),
+and return linear intensity in simulator units (φ = threshold; 1.0 = white when φ = 1). Every frame is
+computed by scans over time that are vectorised over all pixels (a running window count for TFP and masks;
+previous/next-spike scans for TFI), reading only the frames needed and keeping memory at O(output).
+Formulas and edge rules: docs/reconstruction.md.
 """
 
 from __future__ import annotations
@@ -36,13 +38,13 @@ def window_sum(
     """Spike counts over the window ``[k-half, k+half]`` clipped to the stream, for each selected frame k.
 
     Args:
-        spikes: bool/uint8 (T, ...) 0/1 (any non-zero counts as a spike).
+        spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (see :func:`flat_stream`).
         half: the half window h ≥ 0 (window length 2h+1 before clipping).
         frames: which output frames (slice, index or None = all).
     Returns:
         counts: int32 (N, ...) spikes in each clipped window; used: int32 (N,) frames in each window.
     """
-    flat, rest, out_idx = _flatten(spikes, frames)
+    flat, rest, out_idx = flat_stream(spikes, frames)
     counts = np.empty((out_idx.size, flat.shape[1]), np.int32)
     used = np.empty(out_idx.size, np.int32)
     for j, acc, n in iter_window_counts(flat, half, out_idx):
@@ -99,16 +101,16 @@ def tfp(
     number of frames actually used, so edge frames are unbiased (just noisier).
 
     Args:
-        spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch).
+        spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0).
         window: K, the full window length in frames; odd and ≥ 1.
-        threshold: φ, the camera threshold (intensity units per spike).
+        threshold: φ, the camera threshold (intensity units per spike), a number > 0.
         frames: the output frames (slice, index or None = all).
     Returns:
         float32 (N, ...) linear intensity in [0, φ], the same array type as ``spikes``.
     """
     check_window(window)
     check_threshold(threshold)
-    flat, rest, out_idx = _flatten(spikes, frames)
+    flat, rest, out_idx = flat_stream(spikes, frames)
     out = np.empty((out_idx.size, flat.shape[1]), np.float32)
     for j, acc, used in iter_window_counts(flat, (window - 1) // 2, out_idx):
         np.multiply(acc, np.float32(threshold / used), out=out[j], casting="unsafe")
@@ -125,14 +127,14 @@ def tfi(spikes: Array, threshold: float = 1.0, frames: slice | int | None = None
     the nearest complete interval is the locally-constant estimate); a pixel with no spike at all gives 0.
 
     Args:
-        spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch).
-        threshold: φ.
+        spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0).
+        threshold: φ, a number > 0.
         frames: the output frames (slice, index or None = all).
     Returns:
         float32 (N, ...) linear intensity in [0, φ], the same array type as ``spikes``.
     """
     check_threshold(threshold)
-    flat, rest, out_idx = _flatten(spikes, frames)
+    flat, rest, out_idx = flat_stream(spikes, frames)
     total = flat.shape[0]
     # Edge rules as virtual spikes: a virtual previous spike first − start_gap and a virtual next spike
     # last + end_gap make every interval a plain n − p (no masking in the per-frame arithmetic).
@@ -157,7 +159,7 @@ def _first_two(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     second_r = first_r.copy()
     tmp = np.empty_like(first_r)
     for i in range(total - 1, -1, -1):
-        row = _row_uint8(flat[i])
+        row = _as_uint8(flat[i])  # (checks a float stream's values: the one scan that reads every row)
         np.maximum(second_r, np.multiply(row, first_r, out=tmp), out=second_r)
         np.maximum(first_r, np.multiply(row, np.int32(total - i), out=tmp), out=first_r)
     return total - first_r, total - second_r
@@ -238,7 +240,12 @@ def reconstruct_frames(
         float32 (stop-start, ...) linear intensity.
     """
     check_choice(method, METHODS, "method")
-    resolve_frames(slice(start, stop), total)
+    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (total, start, stop))
+    if not whole or not 0 <= start < stop <= total:
+        raise InputError(
+            f"start, stop: need integers 0 <= start < stop <= total = {total}, found {start}, {stop}",
+            param=("start", "stop"),
+        )
     if method == "tfp":
         check_window(window)
         half = (window - 1) // 2
@@ -255,20 +262,45 @@ def reconstruct_frames(
         margin *= 2
 
 
-def _flatten(
+def flat_stream(
     spikes: np.ndarray | torch.Tensor, frames: slice | int | None
 ) -> tuple[np.ndarray, tuple, np.ndarray]:
-    """(T, ...) spikes as a (T, P) numpy view, the trailing shape and the output frame indices (ascending)."""
+    """(T, H, W) or (T, 3, H, W) spikes as a (T, P) numpy view, the trailing shape and the output frame
+    indices (ascending): the one check of a stream's shape for TFP, TFI and the masks.
+
+    InputError naming ``spikes`` for any other shape (one frame (H, W), channels last (T, H, W, 3)), and
+    ``frames`` for a bad selection. Values are checked where they are read (:func:`_as_uint8`: a float
+    stream must hold only 0.0 and 1.0; bool and integers are not checked, any non-zero is a spike).
+    """
     x = as_numpy(spikes)
-    if x.ndim < 2:
-        raise InputError(f"spikes must be (T, H, W) or (T, 3, H, W), found shape {x.shape}")
+    if not (x.ndim == 3 or (x.ndim == 4 and x.shape[1] == 3)):
+        hint = ""
+        if x.ndim == 2:
+            hint = " (one frame? add a time axis: spikes[None])"
+        elif x.ndim == 4 and x.shape[-1] in (1, 3):
+            hint = " (channels last? camera.layout.to_camera_layout converts it)"
+        raise InputError(
+            f"spikes must be (T, H, W) or (T, 3, H, W), found shape {x.shape}{hint}", param="spikes"
+        )
     out_idx = np.asarray(resolve_frames(frames, x.shape[0]), dtype=np.int64)
     return x.reshape(x.shape[0], int(np.prod(x.shape[1:]))), x.shape[1:], out_idx
 
 
 def _as_uint8(x: np.ndarray) -> np.ndarray:
-    """0/1 uint8 for counting: bool is viewed, other dtypes become ``x != 0``."""
-    return (x if x.dtype == np.bool_ else x != 0).view(np.uint8)
+    """0/1 uint8 for counting: bool is viewed, other dtypes become ``x != 0``; InputError naming ``spikes``
+    when a float (or complex) array holds a value other than 0 and 1 (intensities are not spikes). The
+    check costs one comparison more, on float input only (bool and integers pass unchecked)."""
+    if x.dtype == np.bool_:
+        return x.view(np.uint8)
+    fired = x != 0
+    if x.dtype.kind in "fc" and not np.equal(fired, x).all():
+        bad = x[np.not_equal(fired, x)].flat[0].item()
+        raise InputError(
+            f"spikes must be 0/1 (bool, integers, or floats 0.0 and 1.0), found the float value {bad!r} "
+            "(intensities? simulate spikes with camera.model.simulate)",
+            param="spikes",
+        )
+    return fired.view(np.uint8)
 
 
 def _row_uint8(row: np.ndarray) -> np.ndarray:
@@ -298,11 +330,15 @@ def check_window(window: object, param: str = "window", least: int = 1, path: Pa
 
 def check_threshold(threshold: float) -> None:
     """InputError (naming ``threshold``) unless φ is a number > 0 that float32 holds (the images are float32:
-    a φ past its range would give inf, one below it 0)."""
-    with np.errstate(over="ignore", under="ignore"):
-        held = np.isfinite(threshold) and 0 < np.float32(threshold) < np.inf
+    a φ past its range would give inf, one below it 0); a string, None or an array is refused too."""
+    try:
+        with np.errstate(over="ignore", under="ignore"):
+            held = bool(np.isfinite(threshold) and 0 < np.float32(threshold) < np.inf)
+    except (TypeError, ValueError):  # "1", None, an array of several values
+        held = False
     if not held:
+        shown = threshold if isinstance(threshold, (int, float)) else repr(threshold)
         raise InputError(
-            f"threshold φ must be a positive number within float32's range, found {threshold}",
+            f"threshold φ must be a positive number within float32's range, found {shown}",
             param="threshold",
         )

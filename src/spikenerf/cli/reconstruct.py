@@ -151,7 +151,7 @@ def command(
     if window is not None and window > total:  # (every window would be clipped to the whole stream)
         raise InputError(f"--window {window} is longer than the {total}-frame stream", path=spikes)
     selection = parse_range(frame_range, "frame_range") if frame_range else frame
-    frames = resolve_frames(selection, total, spikes)
+    frames = resolve_frames(selection, total, spikes, param="frame" if frame is not None else "frame_range")
     kind = output_kind(out)
     if out.exists() and out.resolve() == spikes.resolve():
         raise InputError("is the spike recording being read: choose another --out", path=out)

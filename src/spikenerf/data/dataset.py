@@ -131,7 +131,9 @@ class SpikeDataset:
         mode = self.modes[0] if mode is None else mode
         if mode not in self.modes:
             raise InputError(
-                f"colour mode {mode!r} is not in this dataset (has {', '.join(self.modes)})", self.root
+                f"mode: colour mode {mode!r} is not in this dataset (has {', '.join(self.modes)})",
+                self.root,
+                param="mode",
             )
         h, w = self.intrinsics.height, self.intrinsics.width
         streams = [read_dat(self.root / name, h, w, frames) for name in spike_files(mode)]

@@ -15,7 +15,7 @@ from spikenerf.scenes.trajectory import Intrinsics
 
 
 def _as_tensor(x: Tensor | np.ndarray, dtype: torch.dtype | None = None) -> Tensor:
-    t = torch.as_tensor(x)
+    t = torch.as_tensor(np.ascontiguousarray(x) if isinstance(x, np.ndarray) else x)  # (no negative strides)
     if dtype is not None:
         return t.to(dtype)
     return t if t.is_floating_point() else t.float()
@@ -107,7 +107,8 @@ def ray_box_bounds(
 
 
 def as_poses(poses: Tensor | np.ndarray, device: torch.device | str) -> Tensor:
-    """Camera-to-world pose(s) (..., 4, 4) as a float32 tensor on ``device`` (numpy or torch input)."""
-    return torch.as_tensor(poses if isinstance(poses, Tensor) else np.asarray(poses)).to(
+    """Camera-to-world pose(s) (..., 4, 4) as a float32 tensor on ``device`` (numpy or torch input; a numpy
+    view with negative strides, such as ``poses[::-1]``, is copied: torch takes none)."""
+    return torch.as_tensor(poses if isinstance(poses, Tensor) else np.ascontiguousarray(poses)).to(
         device, torch.float32
     )

@@ -155,6 +155,25 @@ def load_stream(dataset: SpikeDataset, color: str) -> np.ndarray:
     return spikes
 
 
+def given_stream(dataset: SpikeDataset, color: str, spikes: np.ndarray | None) -> np.ndarray:
+    """The stream of ``color``: ``spikes`` when given (checked: (T, H, W) gray or (T, 3, H, W) rgb with the
+    dataset's T steps and H×W pixels, else InputError naming ``spikes``), else :func:`load_stream`."""
+    if spikes is None:
+        return load_stream(dataset, color)
+    k, steps = dataset.intrinsics, len(dataset.trajectory)
+    want = (steps, k.height, k.width) if stream_mode(color) == "gray" else (steps, 3, k.height, k.width)
+    found = tuple(getattr(spikes, "shape", np.shape(spikes)))
+    if found != want:
+        layout = "(T, H, W)" if len(want) == 3 else "(T, 3, H, W)"
+        raise InputError(
+            f"spikes must be the {color} stream {layout} = {want} of the dataset's {steps} steps at "
+            f"{k.height}×{k.width}, found shape {found}",
+            path=getattr(dataset, "root", None),
+            param="spikes",
+        )
+    return spikes
+
+
 def image_channels(images: np.ndarray | Tensor, color: str) -> Tensor:
     """Linear RGB images (N, H, W, 3) → (N, H, W, 1) gray (``rgb_to_gray``) or unchanged for rgb, float32."""
     x = torch.as_tensor(np.asarray(images, dtype=np.float32))
@@ -227,7 +246,8 @@ def stream_targets(
     Args:
         dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi | learned. window: TFP window
         (odd). mask: apply spike masks. mask_n: mask half window n (2n+1 frames). spikes: the stream if
-        already loaded ((T, H, W) gray or (T, 3, H, W) rgb). window_poses: poses per target (≥ 1).
+        already loaded ((T, H, W) gray or (T, 3, H, W) rgb, T the trajectory's steps, H×W the dataset's;
+        checked, InputError naming ``spikes``). window_poses: poses per target (≥ 1).
     """
     if window_poses < 1:
         raise InputError(f"window_poses must be ≥ 1, found {window_poses}", param="window_poses")
@@ -236,7 +256,7 @@ def stream_targets(
             f"window_poses > 1 models the TFP window; recon {recon!r} has none (use recon tfp)",
             param="window_poses",
         )
-    stream = load_stream(dataset, color) if spikes is None else spikes
+    stream = given_stream(dataset, color, spikes)
     images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n)
     images = torch.as_tensor(to_channels_last(images)).half()
     traj = dataset.trajectory
@@ -304,8 +324,9 @@ def _valid_blur(images: Tensor, dataset: SpikeDataset) -> Tensor:
 def build_spike_targets(
     dataset: SpikeDataset, color: str = "gray", spikes: np.ndarray | None = None
 ) -> SpikeTargets:
-    """The recorded stream of ``color`` as (T, H, W, C) uint8 with per-step poses and φ."""
-    stream = load_stream(dataset, color) if spikes is None else spikes
+    """The recorded stream of ``color`` as (T, H, W, C) uint8 with per-step poses and φ (``spikes``: the
+    stream if already loaded, checked as :func:`stream_targets` checks it)."""
+    stream = given_stream(dataset, color, spikes)
     return SpikeTargets(
         torch.as_tensor(to_channels_last(np.asarray(stream, dtype=np.uint8))).contiguous(),
         torch.as_tensor(dataset.trajectory.poses, dtype=torch.float32),

@@ -8,11 +8,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.core.errors import InputError
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
 from spikenerf.fields.registry import FIELD_REGISTRY, build_field
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.grid_model import GridModel
-from spikenerf.render.inference import render_autocast
+from spikenerf.render.inference import inference_chunk, render_autocast
 from spikenerf.render.mlp_model import MLPModel
 from spikenerf.render.volume import RenderOutput
 from spikenerf.scenes.trajectory import Intrinsics
@@ -84,6 +85,42 @@ def render_rays_chunked(
     )
 
 
+def check_poses(poses: Tensor | np.ndarray, param: str, one: bool = False) -> None:
+    """InputError naming ``param`` unless ``poses`` is finite camera-to-world (4, 4) (``one``) or (N, 4, 4)
+    (N ≥ 0). A tensor on a GPU is read back for the finite check (one host sync: render calls only, never a
+    training step)."""
+    shape = tuple(poses.shape) if hasattr(poses, "shape") else tuple(np.shape(poses))
+    want = (4, 4) if one else ("N", 4, 4)
+    if len(shape) != len(want) or shape[-2:] != (4, 4):
+        shown = "(4, 4)" if one else "(N, 4, 4)"
+        hint = " (one pose? pass poses[None])" if not one and shape == (4, 4) else ""
+        raise InputError(f"{param} must be {shown} camera-to-world, found shape {shape}{hint}", param=param)
+    if isinstance(poses, Tensor):
+        finite = bool(torch.isfinite(poses).all())
+    else:
+        finite = bool(np.isfinite(np.asarray(poses, dtype=np.float64)).all())
+    if not finite:
+        raise InputError(f"{param} holds a NaN or an infinity", param=param)
+
+
+def check_render_settings(near: float | None, far: float | None, chunk: int) -> None:
+    """InputError naming ``near``/``far`` unless each is None or a finite number and ``near < far`` when
+    both are given, and naming ``chunk`` unless it is an integer ≥ 0 (0 = automatic,
+    :func:`spikenerf.render.inference.inference_chunk`)."""
+    for name, value in (("near", near), ("far", far)):
+        if value is None:
+            continue
+        number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+        if not number or not np.isfinite(value):
+            raise InputError(f"{name} must be None or a finite number, found {value!r}", param=name)
+    if near is not None and far is not None and not near < far:
+        raise InputError(
+            f"near must be less than far, found near {near:g}, far {far:g}", param=("near", "far")
+        )
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 0:
+        raise InputError(f"chunk must be an integer ≥ 0 (0 = automatic), found {chunk!r}", param="chunk")
+
+
 @torch.no_grad()
 def render_image(
     model: RadianceModel,
@@ -97,12 +134,19 @@ def render_image(
     """Render one view (no perturbation, no gradients) on the model's device.
 
     Args:
-        c2w: (4, 4) camera-to-world (OpenGL axes). near/far: optional scalar limits inside the scene box.
-        chunk: rays per render call. precision: fp32 | fp16 | bf16 (see :func:`render_rays_chunked`).
+        c2w: (4, 4) finite camera-to-world (OpenGL axes); one pose, not a stack (see :func:`render_mean`).
+        near/far: optional scalar limits inside the scene box, ``near < far``.
+        chunk: rays per render call, 0 = automatic (:func:`spikenerf.render.inference.inference_chunk`).
+        precision: fp32 | fp16 | bf16 (see :func:`render_rays_chunked`).
     Returns:
         a :class:`RenderOutput` shaped as the image: ``color`` (H, W, C) linear in [0, 1] on white, ``depth``
         (H, W) world distance along the ray (0 where empty), ``opacity`` (H, W).
+    Raises:
+        InputError: naming ``c2w``, ``near``/``far`` or ``chunk``.
     """
+    check_poses(c2w, "c2w", one=True)
+    check_render_settings(near, far, chunk)
+    chunk = inference_chunk(model, int(chunk))
     pose = as_poses(c2w, model.device)
     origins, dirs = image_rays(pose, intrinsics)
     lo, hi = ray_bounds(model, origins, dirs, near, far)
@@ -122,7 +166,13 @@ def render_mean(
     chunk: int = 8192,
     precision: str = "fp32",
 ) -> Tensor:
-    """The mean color (H, W, C), linear, of the renders at ``poses`` (S, 4, 4): what a view shows whose light
-    was gathered over a camera motion (a TFP window, an exposure); S = 1 is :func:`render_image`'s color."""
+    """The mean color (H, W, C), linear, of the renders at ``poses`` (S, 4, 4) (S ≥ 1, finite): what a view
+    shows whose light was gathered over a camera motion (a TFP window, an exposure); S = 1 is
+    :func:`render_image`'s color. ``near``, ``far``, ``chunk``, ``precision``: as :func:`render_image`."""
+    check_poses(poses, "poses")
+    if len(poses) == 0:
+        raise InputError("poses: need at least one pose (S ≥ 1), found none", param="poses")
+    check_render_settings(near, far, chunk)
+    chunk = inference_chunk(model, int(chunk))
     colors = [render_image(model, pose, intrinsics, near, far, chunk, precision).color for pose in poses]
     return torch.stack(colors).mean(dim=0)

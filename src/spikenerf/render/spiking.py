@@ -19,9 +19,12 @@ from torch import Tensor
 
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.model import fire
+from spikenerf.camera.reconstruct import check_threshold
+from spikenerf.core.errors import InputError
 from spikenerf.data.rays import as_poses, pixel_rays
 from spikenerf.render.base import RadianceModel
-from spikenerf.render.model import ray_bounds, render_image
+from spikenerf.render.inference import inference_chunk
+from spikenerf.render.model import check_poses, check_render_settings, ray_bounds, render_image
 from spikenerf.scenes.trajectory import Intrinsics
 
 
@@ -107,13 +110,12 @@ def random_start(
     return (torch.rand(shape, generator=gen) * threshold).to(device)
 
 
-@torch.no_grad()
 def iter_spike_states(
     model: RadianceModel,
     poses: Tensor | np.ndarray,
     intrinsics: Intrinsics,
     threshold: float = 1.0,
-    start_accumulator: Tensor | int | None = None,
+    start_accumulator: Tensor | np.ndarray | int | None = None,
     chunk: int = 8192,
     near: float | None = None,
     far: float | None = None,
@@ -123,15 +125,48 @@ def iter_spike_states(
     layout (:mod:`spikenerf.camera.layout`), (H, W) gray or (3, H, W) rgb. Passing an accumulator back as
     ``start_accumulator`` with the remaining poses continues the stream exactly.
 
-    ``start_accumulator``: the same layout, or an int seed for a uniform [0, φ) start (None → seed 0).
+    ``poses``: (T, 4, 4), finite (a single pose is ``poses[None]``). ``threshold``: φ > 0.
+    ``start_accumulator``: the same layout (a tensor or a numpy array), or an int seed for a uniform [0, φ)
+    start (None → seed 0). ``chunk``: rays per render call, 0 = automatic. The arguments are checked when
+    this is called (InputError naming the parameter), not at the first step.
     """
+    check_poses(poses, "poses")
+    check_threshold(threshold)
+    check_render_settings(near, far, chunk)
     h, w, c = intrinsics.height, intrinsics.width, model.channels
-    if start_accumulator is None or isinstance(start_accumulator, int):
-        acc = random_start((h, w, c), threshold, start_accumulator or 0, model.device)
+    if start_accumulator is None or (
+        isinstance(start_accumulator, (int, np.integer)) and not isinstance(start_accumulator, bool)
+    ):
+        acc = random_start((h, w, c), threshold, int(start_accumulator or 0), model.device)
     else:
-        acc = to_channels_last(start_accumulator, frame=True, name="start_accumulator")
-        acc = acc.to(model.device, torch.float32).reshape(h, w, c)
-    for pose in as_poses(poses, model.device):
+        want = (h, w) if c == 1 else (3, h, w)
+        found = tuple(getattr(start_accumulator, "shape", ()))
+        if found != want:
+            raise InputError(
+                f"start_accumulator must be {want} (the camera layout of this {c}-channel model's "
+                f"accumulator) or an int seed, found {type(start_accumulator).__name__} of shape {found}",
+                param="start_accumulator",
+            )
+        acc = to_channels_last(torch.as_tensor(start_accumulator), frame=True, name="start_accumulator")
+        acc = acc.to(model.device, torch.float32)
+    chunk = inference_chunk(model, int(chunk))
+    return _spike_states(model, as_poses(poses, model.device), intrinsics, threshold, acc, chunk, near, far)
+
+
+@torch.no_grad()
+def _spike_states(
+    model: RadianceModel,
+    poses: Tensor,
+    intrinsics: Intrinsics,
+    threshold: float,
+    acc: Tensor,
+    chunk: int,
+    near: float | None,
+    far: float | None,
+) -> Iterator[tuple[Tensor, Tensor]]:
+    """:func:`iter_spike_states` after its checks: poses (T, 4, 4) and the start ``acc`` (H, W, C) on the
+    model's device."""
+    for pose in poses:
         color = render_image(model, pose, intrinsics, near, far, chunk).color
         spikes, acc = fire(acc, color, threshold)
         yield to_camera_layout(spikes.cpu(), frame=True), to_camera_layout(acc, frame=True)

@@ -115,7 +115,7 @@ def make_scene_source(
     width: int,
     height: int,
     trajectory: Trajectory,
-    test_poses: np.ndarray,
+    test_poses: np.ndarray | None,
     spp: int | None = None,
     seed: int = 0,
 ) -> FrameSource:
@@ -123,12 +123,23 @@ def make_scene_source(
 
     Args:
         scene: a name from :func:`list_scenes` or a path to a ``.blend`` file.
-        width, height: output size in pixels. trajectory: the training path. test_poses: (N, 4, 4) held-out.
+        width, height: output size in pixels. trajectory: the training path. test_poses: (N, 4, 4) held-out
+            (None: none).
         spp: samples per pixel (default: 4 for analytic scenes, the Blender backend's default otherwise).
         seed: render seed (Blender's sampler).
     Raises:
-        InputError: unknown scene, missing ``.blend`` file, or Blender needed but not installed.
+        InputError: unknown scene, missing ``.blend`` file, Blender needed but not installed, or
+            ``test_poses`` not finite (N, 4, 4) (checked here, before anything is rendered).
     """
+    test_poses = np.zeros((0, 4, 4)) if test_poses is None else np.asarray(test_poses, dtype=np.float64)
+    if test_poses.ndim != 3 or test_poses.shape[1:] != (4, 4):
+        raise InputError(
+            f"test_poses must be (N, 4, 4) camera-to-world (N may be 0; one pose is poses[None]), found "
+            f"shape {test_poses.shape}",
+            param="test_poses",
+        )
+    if not np.isfinite(test_poses).all():
+        raise InputError("test_poses holds a NaN or an infinity", param="test_poses")
     name = str(scene)
     if name in analytic.SCENES:
         ss = supersample_for(ANALYTIC_SPP if spp is None else spp)

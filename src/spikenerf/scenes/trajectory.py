@@ -134,11 +134,19 @@ def orbit(
     Returns:
         A :class:`Trajectory` whose step ``k`` is at azimuth ``start + 360° · turns · k / N``.
     """
-    if not all(math.isfinite(v) for v in (radius, duration, fps)):  # the angles: orbit_angle_problem
-        raise InputError(f"orbit: radius, duration and fps must be finite, got {radius}, {duration}, {fps}")
+    for name, value in (("radius", radius), ("duration", duration), ("fps", fps)):  # (angles: below)
+        if not math.isfinite(value):
+            raise InputError(f"orbit: {name} must be finite, got {value}", param=name)
+    if radius <= 0:
+        raise InputError(f"orbit: radius must be > 0, got {radius}", param="radius")
+    if fps <= 0:
+        raise InputError(f"orbit: fps must be > 0, got {fps}", param="fps")
     n = round(duration * fps)
-    if n < 1 or radius <= 0 or fps <= 0:
-        raise InputError(f"orbit: need radius > 0 and duration·fps ≥ 1, got radius={radius}, steps={n}")
+    if n < 1:
+        raise InputError(
+            f"orbit: duration × fps must give at least 1 step, got {duration:g} s × {fps:g} Hz = {n} steps",
+            param=("duration", "fps"),
+        )
     if problem := orbit_angle_problem(elevation_deg, turns):
         raise InputError(f"orbit: {problem}", param=("elevation", "turns"))
     steps = np.arange(n, dtype=np.int64)
