@@ -161,8 +161,14 @@ def test_size_not_a_multiple_of_the_frame(tmp_path: Path) -> None:
     assert (
         "12500 bytes" in msg and "25007 bytes" in msg and "remainder of 7 bytes" in msg and str(path) in msg
     )
+    assert "(400 pixels wide, 250 high, / 8)" in msg  # (it read 250×400, against width × height elsewhere)
+    assert msg.endswith("a capture cut short: truncate -s 25000 a copy") and "raw_width" not in msg
     with pytest.raises(InputError, match="remainder"):
         read_dat(path, 250, 400)
+    path.write_bytes(bytes(7))  # not one whole frame: nothing to truncate to
+    with pytest.raises(InputError) as err:
+        count_frames(path, 250, 400)
+    assert "truncate -s" not in str(err.value)
 
 
 def test_shape_and_argument_errors(tmp_path: Path) -> None:

@@ -123,6 +123,10 @@ def test_raw_416_layout_and_range(capsys, recording, tmp_path: Path) -> None:
     write_dat(raw, np.concatenate([spikes, np.ones((T, H, 16), np.uint8)], axis=2))  # 16 junk columns
     size = ("--height", H, "--width", W)
     code, _, err = run_cli(capsys, "import", raw, *size, "--out", tmp_path / "x", *ORBIT)
+    assert code == 2 and "raw-width" not in err  # columns that fire are no silent sps10 padding
+    silent = tmp_path / "silent" / "stream.dat"
+    write_dat(silent, np.concatenate([spikes, np.zeros((T, H, 16), np.uint8)], axis=2))
+    code, _, err = run_cli(capsys, "import", silent, *size, "--out", tmp_path / "x", *ORBIT)
     assert code == 2 and "pass --raw-width 40" in err and len(err.strip().splitlines()) == 1
     code, _, err = run_cli(
         capsys, "import", raw, *size, "--raw-width", 40, "--range", "5:37", "--out", tmp_path / "ds", *ORBIT

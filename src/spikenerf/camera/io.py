@@ -65,16 +65,31 @@ def count_frames(path: str | Path, height: int, width: int, raw_width: int | Non
     size = path.stat().st_size
     if size % fb:
         raw = width + RAW_PADDING
-        explained = raw_width is None and (height * raw) % 8 == 0 and size % (height * raw // 8) == 0
+        explained = raw_width is None and _silent_padding(path, height, width, raw)
         hint = f" — a raw sps10 file? pass raw_width {raw}" if explained else ""
+        if not hint and size // fb:  # a capture cut short keeps its whole frames
+            hint = f"; to read the whole frames of a capture cut short: truncate -s {size // fb * fb} a copy"
+        stored = _stored_width(width, raw_width, path)
         raise InputError(
-            f"file size {size} bytes is not a multiple of the frame size {fb} bytes "
-            f"({height}×{_stored_width(width, raw_width, path)} pixels / 8): {size // fb} whole frames "
-            f"and a remainder of {size % fb} bytes (wrong height/width, or a truncated file?){hint}",
+            f"file size {size} bytes is not a multiple of the frame size {fb} bytes ({stored} pixels "
+            f"wide, {height} high, / 8): {size // fb} whole frames and a remainder of {size % fb} bytes "
+            f"(wrong height/width, or a truncated file?){hint}",
             path=path,
-            param=("height", "width", "raw_width") if hint else ("height", "width"),
+            param=("height", "width", "raw_width") if explained else ("height", "width"),
         )
     return size // fb
+
+
+def _silent_padding(path: Path, height: int, width: int, raw: int, frames: int = 64) -> bool:
+    """Whether the file is whole frames of ``height × raw`` columns whose last ``raw − width`` stay silent
+    over its first ``frames`` frames while the others fire: what a raw sps10 recording looks like (a size
+    that merely divides is no evidence)."""
+    row_bytes = height * raw
+    size = path.stat().st_size
+    if row_bytes % 8 or size % (row_bytes // 8):
+        return False
+    head = read_dat(path, height, raw, slice(0, min(frames, size // (row_bytes // 8))))
+    return bool(head[:, :, :width].any() and not head[:, :, width:].any())
 
 
 def raw_width_guess(path: str | Path, height: int, width: int, frames: int = 64) -> int | None:
@@ -90,11 +105,11 @@ def raw_width_guess(path: str | Path, height: int, width: int, frames: int = 64)
     raw = width + RAW_PADDING if whole else 0
     if not whole or (height * raw) % 8 or (height * width) % 8:
         return None  # (bad sizes: count_frames names them)
-    size = _existing_file(path).stat().st_size
-    if not size or size % (height * raw // 8) or size % (height * width // 8):
+    path = _existing_file(path)
+    size = path.stat().st_size
+    if not size or size % (height * width // 8):
         return None
-    head = read_dat(path, height, raw, slice(0, min(frames, size // (height * raw // 8))))
-    return raw if head[:, :, :width].any() and not head[:, :, width:].any() else None
+    return raw if _silent_padding(path, height, width, raw, frames) else None
 
 
 def stripped_columns_fire(

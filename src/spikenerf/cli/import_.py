@@ -74,7 +74,8 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     type=click.Choice(["tfp", "learned"]),
     default="tfp",
     show_default=True,
-    help="Keyframe reconstruction for COLMAP: TFP (--window) or the shipped learned reconstructor.",
+    help="Keyframe reconstruction, for COLMAP's input and the test views (with any --poses): TFP (--window) "
+    "or the shipped learned reconstructor (at its trained window).",
 )
 @click.option(
     "--max-features", type=int, default=8192, show_default=True, help="COLMAP SIFT features per keyframe."
@@ -137,6 +138,8 @@ def command(**kw: Any) -> None:
         f"{len(ds.test)} test view{'' if len(ds.test) == 1 else 's'}"
         + (f"; {imported['pose_note']}" if imported.get("pose_note") else "")
     )
+    if problem := held_pose_warning(imported, len(ds.trajectory)):
+        click.echo(f"spikenerf: warning: {problem}", err=True)
     if (left := imported["keyframes"] - len(imported.get("test_keyframes") or [])) < 2:
         click.echo(
             f"spikenerf: warning: {left} keyframe{'' if left == 1 else 's'} left after the test views: "
@@ -144,3 +147,27 @@ def command(**kw: Any) -> None:
             "steps (or with --test-every 0)",
             err=True,
         )
+
+
+def held_pose_warning(imported: dict, n: int) -> str | None:
+    """What to warn when steps of an import (``imported``: its config.yaml's, ``n`` steps) lie beyond its
+    poses' steps by more than the one interval that is extrapolated, so that their pose is held still
+    (:func:`spikenerf.importing.alignment.held_steps`); None when no step does."""
+    from spikenerf.importing.alignment import held_steps
+
+    keys, first = imported.get("pose_steps") or [], int(imported["range"][0])
+    if len(keys) < 2:
+        return None
+    before, after = held_steps(keys, n)
+    if not before + after:
+        return None
+    spans = [f"{first}..{first + before - 1}"] if before else []
+    spans += [f"{first + n - after}..{first + n - 1}"] if after else []
+    tests = [str(t + first) for t in imported.get("test_keyframes") or [] if t < before or t >= n - after]
+    lo, hi = first + min(keys), first + max(keys)
+    among = f", test keyframe{'s' if len(tests) > 1 else ''} {', '.join(tests)} among them" if tests else ""
+    return (
+        f"steps {' and '.join(spans)} ({before + after} of the {n} imported) lie beyond the poses' steps "
+        f"{lo}..{hi} and the one interval extrapolated: they keep a held pose, as if the camera stood "
+        f"still{among}; --range {lo}:{hi + 1} imports only the posed steps"
+    )

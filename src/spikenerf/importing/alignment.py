@@ -26,6 +26,16 @@ def per_step_poses(key_poses: np.ndarray, key_steps: np.ndarray, steps: np.ndarr
     return interpolate_poses(kp[lo], kp[hi], np.clip(t, -1.0, 2.0))
 
 
+def held_steps(key_steps: np.ndarray, n: int) -> tuple[int, int]:
+    """How many of the steps ``0..n-1`` lie before (after) the keyframes at ``key_steps`` (N ≥ 2) by more
+    than the one interval that :func:`per_step_poses` extrapolates: the steps that get a held pose, as if
+    the camera stood still there. ``(first, last)``: steps ``0..first-1`` and ``n-last..n-1``."""
+    ks = np.sort(np.asarray(key_steps, np.int64))
+    before = int(ks[0] - (ks[1] - ks[0]))  # the first step still extrapolated
+    after = int(ks[-1] + (ks[-1] - ks[-2]))  # the last one
+    return min(max(before, 0), n), min(max(n - 1 - after, 0), n)
+
+
 def key_brackets(key_steps: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The keyframe pair around each of ``steps`` (T,) among sorted ``key_steps`` (N,), N ≥ 2: indices
     ``lo``, ``hi`` (T,) and the fraction ``t`` (T,) of the way from ``lo`` to ``hi`` (below 0 before the
@@ -222,12 +232,22 @@ def orientation(
     return Rotation.from_euler("z", angles[np.argmin((hi - lo).max(0))]).as_matrix() @ tilt, "box", score
 
 
+#: the smallest half-width of the frustum box, as a share of the cameras' spread, that sizes a scene from
+#: the cameras alone (:func:`frustum_focus`)
+MIN_FRUSTUM_SHARE = 0.05
+_NO_BOX = (
+    "give a 'scene_box' in a transforms.json, a COLMAP model with points, or LLFF poses_bounds.npy with "
+    "depth bounds"
+)
+
+
 def normalisation(
     poses: np.ndarray,
     points: np.ndarray | None = None,
     scene_box: np.ndarray | None = None,
     camera_angle_x: float = 0.69,
     orient: Orient = "up",
+    focus: np.ndarray | None = None,
 ) -> Normalisation:
     """The similarity mapping the scene into the unit box ``[-1, 1]^3`` (see :class:`Normalisation`).
 
@@ -236,7 +256,10 @@ def normalisation(
     the half-width of the view frustum at the nearest camera distance. Without a source box and with
     ``orient`` (one of :data:`ORIENTS`) ``up`` or ``up-box``, the frame is first turned upright and about
     +Z (:func:`upright`, turn ``planes`` or ``box``): a COLMAP model's axes are arbitrary, and an
-    axis-aligned box in them clips the scene.
+    axis-aligned box in them clips the scene. ``focus`` (3,): the point every camera looks at, where the
+    source knows it (an orbit's centre); the frustum box is then sized around it whatever the lens, while
+    for cameras alone a box under :data:`MIN_FRUSTUM_SHARE` of their spread is refused (axes that meet
+    near a camera, or a lens too narrow for the path: no sure focus).
     """
     check_orient(orient)
     rotation, turn, score = np.eye(3), "none", 0.0
@@ -248,23 +271,40 @@ def normalisation(
     elif scene_box is not None:
         lo, hi = np.asarray(scene_box, np.float64)
     else:
-        c = _axes_meet(poses)
-        eyes = poses[:, :3, 3]
-        spread = float(np.ptp(eyes, axis=0).max())
-        half = (
-            0.0 if c is None else float(np.linalg.norm(eyes - c, axis=1).min()) * math.tan(camera_angle_x / 2)
-        )
-        if c is None or half < 0.05 * spread:  # forward-facing or a straight dolly: no focus to size from
-            raise InputError(
-                "cannot size the scene from the cameras alone (their optical axes do not converge: a "
-                "forward-facing or straight path); give a 'scene_box' in a transforms.json, a COLMAP model "
-                "with points, or LLFF poses_bounds.npy with depth bounds"
-            )
+        c, half = frustum_focus(poses, camera_angle_x, focus)
         lo, hi = rotation @ c - half, rotation @ c + half
     half = float(np.max(hi - lo)) / 2
     if not half > 0:
         raise InputError("the scene has no extent (all sparse points or cameras coincide)")
     return Normalisation(rotation, rotation.T @ ((lo + hi) / 2), 1.0 / half, turn, score)
+
+
+def frustum_focus(
+    poses: np.ndarray, camera_angle_x: float, focus: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
+    """The centre (3,) and half-width of the scene seen from poses (N, 4, 4) alone (:func:`normalisation`):
+    the point their optical axes meet (``focus`` where the source knows it) and the half-width of the view
+    frustum there at the nearest camera distance. InputError when the axes are parallel, or, without
+    ``focus``, when that half-width is under :data:`MIN_FRUSTUM_SHARE` of the cameras' spread."""
+    c = _axes_meet(poses)
+    if c is None and focus is not None:  # (where both exist they agree up to rounding)
+        c = np.asarray(focus, np.float64)
+    if c is None:
+        raise InputError(
+            "cannot size the scene from the cameras alone: their optical axes are parallel and meet nowhere "
+            f"(a forward-facing or straight path); {_NO_BOX}"
+        )
+    eyes = poses[:, :3, 3]
+    spread = float(np.ptp(eyes, axis=0).max())
+    half = float(np.linalg.norm(eyes - c, axis=1).min()) * math.tan(camera_angle_x / 2)
+    if focus is None and half < MIN_FRUSTUM_SHARE * spread:
+        raise InputError(
+            "cannot size the scene from the cameras alone: where their optical axes meet, the view's "
+            f"half-width {half:.3g} is under {MIN_FRUSTUM_SHARE:.0%} of the {spread:.3g} the cameras spread "
+            f"over (a {math.degrees(camera_angle_x):.3g}° field of view too narrow for the path, or axes "
+            f"that meet near a camera); check the field of view, or {_NO_BOX}"
+        )
+    return c, half
 
 
 def near_far_from_points(

@@ -41,6 +41,7 @@ from spikenerf.importing.alignment import (
     Orient,
     check_orient,
     frustum_box,
+    held_steps,
     near_far_from_points,
     normalisation,
     per_step_poses,
@@ -201,6 +202,11 @@ def keyframe_steps(n: int, every: int, window: int) -> np.ndarray:
     return np.unique(np.append(np.arange(half, n - half, every), n - 1 - half)).astype(np.int64)
 
 
+def held_out_keyframes(key_steps: np.ndarray, test_every: int) -> np.ndarray:
+    """The keyframe steps held out as test views: every ``test_every``-th from the second (none for 0)."""
+    return key_steps[1::test_every] if test_every else key_steps[:0]
+
+
 def keyframe_window(opts: ImportOptions) -> int:
     """The window (steps) of one keyframe image: ``window`` for TFP, the network's for ``learned``."""
     if opts.keyframe_images != "learned":
@@ -251,7 +257,7 @@ def keyframe_poses(
         steps = np.round(np.linspace(0, n - 1, len(found.poses))).astype(np.int64)
     else:
         steps = found.steps + imported_offset(opts.poses) - first
-        _check_pose_steps(steps, n, first, opts.poses)
+        _check_pose_steps(steps, n, first, opts.poses, held_out_keyframes(key_steps, opts.test_every))
     return replace(found, steps=steps)
 
 
@@ -299,20 +305,34 @@ def colmap_poses(opts: ImportOptions, images: np.ndarray, key_steps: np.ndarray,
     )
 
 
-def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> None:
-    """InputError unless a pose file's steps (relative to the selection) lie in ``[0, n)`` and span at least
-    half of it (frame numbers that are not spike steps, such as frame_00001.png, would hold the rest)."""
+def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str, tests: np.ndarray) -> None:
+    """InputError unless a pose file's steps (relative to the selection) lie in ``[0, n)``, span more than
+    half of it (frame numbers that are not spike steps, such as frame_00001.png, would hold the rest), and
+    reach every test keyframe ``tests`` (relative) within the interval that is extrapolated
+    (:func:`spikenerf.importing.alignment.held_steps`): a test view at a held pose shows another view."""
     lo, hi = int(steps.min()), int(steps.max())
     where = f"steps {lo + first}..{hi + first} of the poses"
     if lo < 0 or hi >= n:
         raise InputError(f"{where} fall outside the selected steps {first}..{first + n - 1}", path=source)
-    if hi - lo + 1 < n / 2:
+    posed = f"frame_range {lo + first}:{hi + first + 1}"
+    if hi - lo + 1 <= n / 2:
         raise InputError(
-            f"{where} cover only {hi - lo + 1} of the {n} selected steps: are the frame numbers spike "
-            "steps? (give 'step' per frame, or select the steps with frame_range)",
+            f"{where} cover only {hi - lo + 1} of the {n} selected steps {first}..{first + n - 1}; the rest "
+            f"would keep a held pose: select the posed steps ({posed}), or, if the frame numbers are not "
+            "spike steps, give 'step' per frame",
             path=source,
             param="frame_range",
         )
+    if len(steps) >= 2:
+        before, after = held_steps(steps, n)
+        if len(held := [int(t) for t in tests if t < before or t >= n - after]):
+            raise InputError(
+                f"{where} do not reach test keyframe {held[0] + first}: it would get a held pose (a pose "
+                "is extrapolated for one interval beyond the posed steps, then held), unlike what it shows; "
+                f"select the posed steps ({posed}), or hold out no test views (test_every 0)",
+                path=source,
+                param=("frame_range", "test_every"),
+            )
 
 
 def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | None) -> Intrinsics:
@@ -347,7 +367,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     fps = next(v for v in (opts.fps, rc.fps, DEFAULT_FPS) if v is not None)
     threshold = next(v for v in (opts.threshold, rc.threshold, 1.0) if v is not None)
     total = count_steps(dat, h, w, raw)
-    sel = resolve_frames(opts.frame_range, total, dat)
+    sel = resolve_frames(opts.frame_range, total, dat, param="frame_range")
     n = len(sel)
     if n == 0:
         raise InputError(
@@ -414,7 +434,7 @@ def _write(
     scene_box = found.scene_box
     if scene_box is None and found.depth_bounds is not None:
         scene_box = frustum_box(found.poses, *found.depth_bounds)
-    norm = normalisation(found.poses, found.points, scene_box, k.camera_angle_x, opts.orient)
+    norm = normalisation(found.poses, found.points, scene_box, k.camera_angle_x, opts.orient, found.focus)
     poses = norm.poses(poses)
     box = np.array([[-1.0] * 3, [1.0] * 3])
     bounds = None if found.depth_bounds is None else tuple(d * norm.scale for d in found.depth_bounds)
@@ -432,7 +452,7 @@ def _write(
     ):
         writer.append_spikes("gray", chunk)
         failpoint("import.spikes")
-    held = rel_keys[1 :: opts.test_every] if opts.test_every else rel_keys[:0]
+    held = held_out_keyframes(rel_keys, opts.test_every)
     for i in np.searchsorted(rel_keys, held):
         writer.add_test(np.repeat(images[i][..., None], 3, -1), poses[rel_keys[i]])
     registered = len(found.poses)

@@ -33,7 +33,8 @@ class PoseSet:
     intrinsics if the source knows them (at its own image size); points (M, 3) sparse scene points or None;
     scene_box (2, 3) if the source states one; names (N,) of the frames (for messages); camera_angle_x
     (radians) when the source gives only a field of view; depth_bounds (near, far) along the optical axes
-    in the source's units (LLFF); note: how the poses were found when it matters (stored in config.yaml)."""
+    in the source's units (LLFF); note: how the poses were found when it matters (stored in config.yaml);
+    focus (3,): the point every camera looks at when the source knows it (an orbit's centre)."""
 
     poses: np.ndarray
     steps: np.ndarray | None = None
@@ -44,6 +45,7 @@ class PoseSet:
     camera_angle_x: float | None = None
     depth_bounds: tuple[float, float] | None = None
     note: str = ""
+    focus: np.ndarray | None = None
 
 
 def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) -> np.ndarray:
@@ -287,8 +289,18 @@ def read_pose_source(path: str | Path) -> PoseSet:
     raise InputError("expected a transforms .json, an LLFF poses_bounds.npy or a COLMAP model folder", path)
 
 
+#: the range of an orbit's radius (scene units; the import scales the scene to its unit box, so the units
+#: are free, but beyond these the camera positions lose their precision or overflow)
+ORBIT_RADIUS = (1e-6, 1e6)
+#: an orbit whose cameras spread over less than this share of its radius keeps them in one place
+MIN_ORBIT_SPREAD = 1e-6
+#: the largest start azimuth (degrees, either sign): beyond it the turns between steps are lost to rounding
+MAX_AZIMUTH = 1e6
+
+
 def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
-    """``--orbit RADIUS,ELEVATION_DEG[,TURNS[,START_AZIMUTH_DEG]]`` around the origin over ``steps`` steps."""
+    """``--orbit RADIUS,ELEVATION_DEG[,TURNS[,START_AZIMUTH_DEG]]`` around the origin over ``steps`` steps
+    (RADIUS within :data:`ORBIT_RADIUS`)."""
     try:
         values = [float(v) for v in spec.split(",")]
     except ValueError:
@@ -298,8 +310,20 @@ def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
             f"orbit: expected finite RADIUS,ELEVATION[,TURNS[,AZIMUTH]] with RADIUS > 0, found {spec!r}",
             param="orbit",
         )
+    if not ORBIT_RADIUS[0] <= values[0] <= ORBIT_RADIUS[1]:
+        raise InputError(
+            f"orbit: the radius must lie within [{ORBIT_RADIUS[0]:g}, {ORBIT_RADIUS[1]:g}] (the scene is "
+            f"scaled to its unit box, so any unit will do), found {values[0]:g} (in {spec!r})",
+            param="orbit",
+        )
     turns = values[2] if len(values) > 2 else 1.0
     start = values[3] if len(values) > 3 else 0.0
+    if not abs(start) <= MAX_AZIMUTH:
+        raise InputError(
+            f"orbit: the start azimuth must lie within ±{MAX_AZIMUTH:g} degrees, found {start:g} "
+            f"(in {spec!r})",
+            param="orbit",
+        )
     if problem := orbit_angle_problem(values[1], turns):
         raise InputError(f"orbit: {problem} (in {spec!r})", param="orbit")
     if turns == 0 or abs(values[1]) == 90:  # every view from one place: no parallax to place the scene
@@ -309,4 +333,10 @@ def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:
             param="orbit",
         )
     traj = orbit(values[0], values[1], turns, steps / fps, fps, start_azimuth_deg=start)
-    return PoseSet(traj.poses, traj.steps.copy())
+    if not np.ptp(traj.poses[:, :3, 3], axis=0).max() > MIN_ORBIT_SPREAD * values[0]:  # a sliver of a turn
+        raise InputError(
+            f"orbit: {spec!r} puts the camera in (nearly) one place at all {steps} steps (check the turns "
+            "and the elevation); a recording needs a path around the scene",
+            param="orbit",
+        )
+    return PoseSet(traj.poses, traj.steps.copy(), focus=np.zeros(3))

@@ -1,0 +1,133 @@
+"""``spikenerf import``: a narrow lens on a known orbit, pose files that leave steps (or a test keyframe)
+with a held pose, out-of-range orbit numbers, and what ``--keyframe-images`` is for (a review's findings)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from helpers import run_cli
+from spikenerf.camera.io import write_dat
+from spikenerf.core.errors import InputError
+from spikenerf.data.dataset import load_dataset
+from spikenerf.importing.alignment import held_steps, normalisation, per_step_poses
+from spikenerf.scenes.trajectory import orbit
+
+H, W, T = 8, 24, 200  # defaults: keyframes every 20 steps from step 10, test keyframes 30 and 189
+ORBIT = ("--poses", "orbit", "--orbit", "4,30")
+
+
+@pytest.fixture
+def rec(tmp_path: Path) -> Path:
+    path = tmp_path / "rec" / "recording.dat"
+    write_dat(path, (np.random.default_rng(0).random((T, H, W)) < 0.3).astype(np.uint8))
+    (path.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\n")
+    return path
+
+
+def _one_error(code: int, err: str, *words: str) -> None:
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert all(w in err for w in words), err
+
+
+# ------------------------------------------------------------------------ 1. a narrow lens on an orbit
+def test_a_narrow_lens_on_a_known_orbit_is_sized_around_its_centre(capsys, rec, tmp_path) -> None:
+    """A 9° lens on a radius-4 orbit: the frustum box is under 5% of the cameras' spread, which used to be
+    refused as axes that "do not converge"; the orbit's centre is known, so the box is the view there."""
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, "--fov", 9)
+    assert code == 0, err
+    norm = load_dataset(tmp_path / "ds").config["imported"]["normalisation"]
+    assert norm["scale"] == pytest.approx(1 / (4 * math.tan(math.radians(4.5))))
+    np.testing.assert_allclose(norm["center"], 0, atol=1e-9)
+
+
+def test_cameras_alone_are_refused_for_what_is_actually_wrong() -> None:
+    poses = orbit(4.0, 30.0, duration=200 / 40000).poses
+    with pytest.raises(InputError, match="too narrow for the path") as narrow:
+        normalisation(poses, camera_angle_x=math.radians(9))
+    assert "parallel" not in str(narrow.value) and "converge" not in str(narrow.value)
+    known = normalisation(poses, camera_angle_x=math.radians(9), focus=np.zeros(3))
+    wide = normalisation(poses, camera_angle_x=math.radians(40))  # unchanged where the test passes
+    assert wide.scale == pytest.approx(1 / (4 * math.tan(math.radians(20))))
+    assert known.scale == pytest.approx(1 / (4 * math.tan(math.radians(4.5))))
+    dolly = np.tile(np.eye(4), (5, 1, 1))
+    dolly[:, 2, 3] = np.linspace(0, 2, 5)
+    with pytest.raises(InputError, match="optical axes are parallel"):
+        normalisation(dolly, camera_angle_x=0.7)
+
+
+# ------------------------------------------------------------- 2. poses that leave steps with a held pose
+def _poses_of(capsys, rec: Path, tmp_path: Path, first: int) -> Path:
+    """The transforms.json of an orbit import of the recording's steps ``first:`` (one pose a step)."""
+    out = tmp_path / f"from{first}"
+    code, _, err = run_cli(capsys, "import", rec, "--out", out, *ORBIT, "--fov", 40, "--range", f"{first}:")
+    assert code == 0, err
+    return out / "transforms.json"
+
+
+def test_poses_over_exactly_half_the_steps_are_refused(capsys, rec, tmp_path) -> None:
+    poses = _poses_of(capsys, rec, tmp_path, 100)  # steps 100..199: 0..98 would keep step 99's pose
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", poses)
+    _one_error(code, err, "transforms.json", "cover only 100 of the 200", "--range 100:200")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_a_test_keyframe_at_a_held_pose_is_refused_and_held_steps_warned(capsys, rec, tmp_path) -> None:
+    poses = _poses_of(capsys, rec, tmp_path, 40)  # steps 40..199: test keyframe 30 lies in 0..38, held
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", poses)
+    _one_error(code, err, "do not reach test keyframe 30", "--range 40:200", "--test-every 0")
+    assert not (tmp_path / "ds").exists()
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds", "--poses", poses, "--test-every", 0
+    )
+    assert code == 0 and err.count("spikenerf: warning:") == 1, err
+    assert "steps 0..38 (39 of the 200 imported)" in err and "--range 40:200" in err, err
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "all", *ORBIT, "--fov", 40)
+    assert code == 0 and "warning" not in err, err  # poses at every step: nothing held
+
+
+def test_held_steps_are_those_per_step_poses_holds() -> None:
+    truth = orbit(4.0, 30.0, duration=100 / 40000).poses
+    for keys in (np.array([50, 60]), np.arange(20, 100), np.array([0, 30, 70, 99])):
+        before, after = held_steps(keys, 100)
+        poses = per_step_poses(truth[keys], keys, np.arange(100))
+        moves = ~np.isclose(poses[1:], poses[:-1]).all((1, 2))  # step i → i+1
+        assert not moves[:before].any() and (before == 0 or moves[before])
+        assert not moves[99 - after :].any() and (after == 0 or moves[98 - after])
+
+
+# --------------------------------------------------------------------------------- 3. orbit numbers
+@pytest.mark.parametrize(
+    ("spec", "words"),
+    [
+        ("1e300,30", ["radius must lie within"]),
+        ("1e-300,30", ["radius must lie within"]),
+        ("nan,30", ["expected finite"]),
+        ("4,inf", ["expected finite"]),
+        ("4,30,1,1e300", ["start azimuth must lie within"]),
+        ("4,91", ["elevation must lie within"]),
+        ("4,89.99999999", ["(nearly) one place"]),
+        ("4,30,1e-12", ["(nearly) one place"]),
+        ("4,30,1e6", ["(nearly) one place"]),  # 5000 whole turns a step: every view from one place
+    ],
+)
+def test_orbit_numbers_out_of_range_are_one_line(capsys, rec, tmp_path, spec, words) -> None:
+    args = ("--poses", "orbit", "--orbit", spec, "--fov", 40)
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *args)
+    _one_error(code, err, "--orbit", *words)
+    assert not (tmp_path / "ds").exists() and not (tmp_path / "ds.partial").exists()
+
+
+# ---------------------------------------------------------------------------- 4. --keyframe-images
+def test_keyframe_images_says_it_also_makes_the_test_views() -> None:
+    """``learned`` is accepted with any poses (tests/test_import_options.py imports an orbit with it): it
+    makes the test views and places the keyframes, so the help must not call it a COLMAP setting."""
+    from spikenerf.cli.import_ import command
+
+    option = next(p for p in command.params if p.name == "keyframe_images")
+    assert "test views" in option.help and "for COLMAP:" not in option.help
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "real-data.md").read_text(encoding="utf-8")
+    assert "`--keyframe-images\n   learned`, whatever `--poses`" in doc
