@@ -258,6 +258,11 @@ def test_a_frame_size_flag_that_differs_from_the_config_beside_the_file_is_named
     )
     code, _, err = run_cli(capsys, "info", path, "--width", W, "--height", H)  # agreeing flags: no word
     assert code == 0 and err == ""
+    out = path.parent / "r.png"  # reconstruct writes what it reads: refused, as import refuses it
+    code, _, err = run_cli(capsys, "reconstruct", path, "--width", H, "--height", W, "--method", "tfp",
+                           "--frame", 3, "--out", out)  # fmt: skip
+    assert code == 2 and f"--width {H} differs from spike_w {W} in {config}, which describes" in err
+    assert not out.exists()
 
 
 def test_reconstruct_takes_the_recordings_threshold_unless_given(capsys, stream, tmp_path: Path) -> None:

@@ -15,6 +15,7 @@ from pathlib import Path
 import yaml
 
 from spikenerf.core.errors import InputError
+from spikenerf.core.yamlio import load_yaml
 
 CONFIG_NAME = "config.yaml"
 
@@ -55,9 +56,13 @@ def read_spikecv_config(path: str | Path) -> RecordingConfig:
     """Parse a SpikeCV ``config.yaml``; InputError (naming the file and field) on malformed values."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("no such file", path=path) from None
     except (OSError, yaml.YAMLError, UnicodeDecodeError) as err:
         raise InputError(f"cannot read YAML ({err})", path=path) from err
+    if data is None:
+        raise InputError("is empty: expected spike_h and spike_w (a SpikeCV config.yaml)", path=path)
     if not isinstance(data, dict):
         raise InputError(f"expected a mapping at the top level, found {type(data).__name__}", path=path)
     config = RecordingConfig(
@@ -104,8 +109,8 @@ def size_conflicts(
 ) -> list[tuple[str, int, str, int]]:
     """``(param, given, key, value)`` for each given ``height``, ``width`` or ``raw_width`` that differs from
     the ``key`` of the SpikeCV config at ``path`` (``("width", 16, "spike_w", 32)``); none where ``path`` is
-    None or cannot be read. A mismatch is more often a typo than a wrong file: ``info`` and ``reconstruct``
-    warn of it, ``import`` (which writes a dataset) refuses it."""
+    None or cannot be read. A mismatch is more often a typo than a wrong file: ``info`` warns of it,
+    ``reconstruct`` and ``import``, which write what they read, refuse it (:func:`refuse_size_conflicts`)."""
     if path is None:
         return []
     try:
@@ -115,6 +120,20 @@ def size_conflicts(
     pairs = (("width", width, "spike_w", own.width), ("height", height, "spike_h", own.height),
              ("raw_width", raw_width, "raw_width", own.raw_width))  # fmt: skip
     return [(p, g, k, v) for p, g, k, v in pairs if g is not None and v is not None and g != v]
+
+
+def refuse_size_conflicts(
+    path: str | Path | None, height: int | None, width: int | None, raw_width: int | None = None
+) -> None:
+    """InputError naming the first of ``height``, ``width``, ``raw_width`` that differs from the SpikeCV
+    config at ``path`` (:func:`size_conflicts`): a command that writes what it reads would write garbage."""
+    if conflicts := size_conflicts(path, height, width, raw_width):
+        param, given, key, value = conflicts[0]
+        raise InputError(
+            f"{param} {given} differs from {key} {value} in {path}, which describes this recording: "
+            "leave it out, or correct that file if it is wrong",
+            param=param,
+        )
 
 
 def recording_config(

@@ -131,7 +131,7 @@ def command(
     from spikenerf.core.progress import bar as progress_bar
     from spikenerf.data.reconstruction import reconstructor
 
-    recording = dat_recording(spikes, height, width, raw_width)
+    recording = dat_recording(spikes, height, width, raw_width, refuse=True)  # (it writes what it reads)
     height, width, raw_width = recording.height, recording.width, recording.raw_width
     if threshold is None:  # the recording's φ (a SpikeCV config.yaml beside it), else 1
         threshold = recording.threshold or 1.0

@@ -10,6 +10,7 @@ import click
 
 from spikenerf.cli.types import COUNT, SEED, device_option
 from spikenerf.core.errors import InputError
+from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.choices import COLORS, METHODS
 from spikenerf.data.reconstruction import RECONS
 from spikenerf.fields.choices import FIELD_KINDS
@@ -443,7 +444,7 @@ def _field_options(items: tuple[str, ...]) -> dict[str, object]:
         if not sep or not key.strip():
             raise InputError(f"--field-option expects KEY=VALUE, found {item!r}")
         try:
-            out[key.strip()] = yaml.safe_load(value)
+            out[key.strip()] = load_yaml(value)
         except yaml.YAMLError as err:
             raise InputError(f"--field-option {key}: unreadable value {value!r} ({err})") from err
     return out

@@ -74,18 +74,24 @@ def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:
 NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", ".npz", ".csv", ".html")
 
 
-def dat_recording(path: Path, height: int | None, width: int | None, raw_width: int | None) -> Any:
+def dat_recording(
+    path: Path, height: int | None, width: int | None, raw_width: int | None, refuse: bool = False
+) -> Any:
     """The recording's config (``camera.spikecv.recording_config``) with ``raw_width`` where it is given.
-    One warning line for each of ``width``/``height``/``raw_width`` that differs from the ``config.yaml``
-    beside the file (when the given size fits the file; ``camera.spikecv.size_conflicts``), and one when the
+    With ``refuse`` (a command that writes what it reads) an InputError where ``width``/``height``/
+    ``raw_width`` differs from the ``config.yaml`` beside the file (``camera.spikecv.refuse_size_conflicts``);
+    else one warning line for each (when the given size fits the file), and one when the
     file also reads as a raw sps10 recording (``camera.io.raw_width_guess``), or when the columns that
     ``raw_width`` strips fire (``camera.io.stripped_columns_fire``)."""
-    from spikenerf.camera.io import count_frames, raw_width_guess, stripped_columns_fire
-    from spikenerf.camera.spikecv import recording_config, size_conflicts
+    from spikenerf.camera.io import count_frames, frame_bytes, raw_width_guess, stripped_columns_fire
+    from spikenerf.camera.spikecv import recording_config, refuse_size_conflicts, size_conflicts
 
     if path.suffix.lower() in NOT_SPIKES:
         raise InputError(f"is a {path.suffix} file, not a .dat spike recording", path=path)
     config = recording_config(path, height, width)
+    if refuse:  # (a size that is no size at all is named as such first)
+        frame_bytes(config.height, config.width, None, path)
+        refuse_size_conflicts(config.path, height, width, raw_width)
     differs = []  # flags win over the file, but a mismatch is more often a typo
     for param, given, key, value in size_conflicts(config.path, height, width, raw_width):
         flag = "--" + param.replace("_", "-")

@@ -21,6 +21,7 @@ from spikenerf.core.color import srgb_decode, srgb_encode
 from spikenerf.core.errors import InputError, check_choice
 from spikenerf.core.marker import folder_kind
 from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
+from spikenerf.core.yamlio import load_yaml
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 from spikenerf.scenes.transforms import (
     CAMERA_KEYS,
@@ -155,7 +156,7 @@ def read_mapping(path: Path, fmt: str = "JSON") -> dict:
     if not path.is_file():
         raise InputError(_MISSING, path=path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as err:
         raise InputError(f"malformed YAML ({err})", path=path) from err
     if not isinstance(data, dict):

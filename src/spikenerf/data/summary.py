@@ -18,6 +18,7 @@ from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import display_uint8, rgb_to_gray, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import folder_kind, listed, mark
+from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.dataset import (
     CONFIG,
     TRANSFORMS,
@@ -89,7 +90,7 @@ def view_counts(root: str | Path) -> dict:
     if isinstance(train, list):
         blur = [f for f in blur if isinstance(f, dict) and f.get("file_path") in train]
     try:
-        config = yaml.safe_load((root / CONFIG).read_text(encoding="utf-8")) or {}
+        config = load_yaml((root / CONFIG).read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError):
         config = {}
     return {

@@ -21,7 +21,7 @@ import yaml
 from spikenerf import __version__
 from spikenerf.camera.io import count_frames, iter_dat, raw_width_guess, read_dat, resolve_frames
 from spikenerf.camera.reconstruct import check_window
-from spikenerf.camera.spikecv import recording_config, size_conflicts
+from spikenerf.camera.spikecv import recording_config, refuse_size_conflicts
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
@@ -33,6 +33,7 @@ from spikenerf.core.marker import (
     mark,
     replace_dir,
 )
+from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.dataset import load_dataset, near_far
 from spikenerf.data.reconstruction import reconstructor
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced, work_dir
@@ -271,7 +272,7 @@ def imported_offset(source: str | Path) -> int:
         if folder_kind(dataset) != "dataset" or not (dataset / "config.yaml").is_file():
             continue
         try:
-            imported = yaml.safe_load((dataset / "config.yaml").read_text(encoding="utf-8")).get("imported")
+            imported = load_yaml((dataset / "config.yaml").read_text(encoding="utf-8")).get("imported")
             return int(imported["range"][0])
         except (OSError, yaml.YAMLError, AttributeError, KeyError, IndexError, TypeError, ValueError):
             return 0
@@ -355,13 +356,7 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     dat, out = Path(dat), Path(out)
     _check(opts)
     rc = recording_config(dat, opts.height, opts.width, opts.config)
-    if conflicts := size_conflicts(rc.path, opts.height, opts.width, opts.raw_width):  # a typo writes garbage
-        param, given, key, value = conflicts[0]
-        raise InputError(
-            f"{param} {given} differs from {key} {value} in {rc.path}, which describes this recording: "
-            "leave it out, or correct that file if it is wrong",
-            param=param,
-        )
+    refuse_size_conflicts(rc.path, opts.height, opts.width, opts.raw_width)  # a typo writes garbage
     h, w = int(rc.height or 0), int(rc.width or 0)
     raw = opts.raw_width if opts.raw_width is not None else rc.raw_width
     fps = next(v for v in (opts.fps, rc.fps, DEFAULT_FPS) if v is not None)

@@ -22,6 +22,7 @@ from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.config import Bound, check_config, choices, from_mapping
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import folder_kind
+from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.choices import Method, TrainColor, WindowOrder
 from spikenerf.data.reconstruction import TargetRecon
 from spikenerf.fields.choices import FieldKind
@@ -384,7 +385,7 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
         if not sep or not key or any(not part for part in key.split(".")):
             raise InputError(f"override expects KEY=VALUE (e.g. spike.lam=0.5), found {item!r}")
         try:
-            value = yaml.safe_load(text)
+            value = load_yaml(text)
         except yaml.YAMLError as err:
             raise InputError(f"override {key}: unreadable value {text!r} ({err})") from err
         *sections, leaf = key.split(".")
@@ -435,7 +436,7 @@ def _read_config(path: str | Path) -> tuple[Path, Any]:
     if "\0" in text:
         raise InputError("is a binary file, not a YAML config", path=path)
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text)
     except yaml.YAMLError as err:
         raise InputError(f"malformed YAML ({err})", path=path) from err
     if data is None:

@@ -21,6 +21,7 @@ from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, folder_kind, mark, owned
+from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.benchmark.cells import (
     BenchmarkConfig,
@@ -161,7 +162,7 @@ def dataset_settings(root: Path) -> dict:
     import yaml
 
     try:
-        config = yaml.safe_load((root / "config.yaml").read_text(encoding="utf-8")) or {}
+        config = load_yaml((root / "config.yaml").read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError):
         config = {}
     config = config if isinstance(config, dict) else {}

@@ -1,0 +1,51 @@
+"""Strict YAML: a key given twice in a file that a user wrote is refused, not read as its last value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from helpers import run_cli
+from spikenerf.camera.spikecv import read_spikecv_config
+from spikenerf.core.errors import InputError
+from spikenerf.core.yamlio import load_yaml
+
+
+def test_load_yaml_reads_what_safe_load_reads() -> None:
+    text = "a: 1\nb: {c: [1, 2], d: null}\ne: 1e-3\nf: '2'\n"
+    assert load_yaml(text) == yaml.safe_load(text)
+    assert load_yaml("") is None and load_yaml("- a\n- a\n") == ["a", "a"]  # equal list items are fine
+    assert load_yaml("a: {x: 1}\nb: {x: 2}\n") == {"a": {"x": 1}, "b": {"x": 2}}  # one key per mapping
+
+
+@pytest.mark.parametrize(
+    ("text", "key", "line"),
+    [("spike_h: 32\nspike_w: 4\nspike_h: 16\n", "spike_h", 3), ("a:\n  x: 1\n  x: 2\n", "x", 3)],
+)
+def test_load_yaml_refuses_a_repeated_key_naming_it_and_its_line(text: str, key: str, line: int) -> None:
+    with pytest.raises(yaml.YAMLError, match=rf"^duplicate key '{key}' at line {line} \(given twice"):
+        load_yaml(text)
+    assert yaml.safe_load(text)  # (what safe_load kept: the last value, silently)
+
+
+def test_a_spikecv_config_with_a_repeated_key_is_refused_and_an_empty_one_named(tmp_path: Path) -> None:
+    """A config with spike_h 32 then 16 imported a garbage 48×16 dataset."""
+    path = tmp_path / "config.yaml"
+    path.write_text("spike_h: 32\nspike_h: 16\nspike_w: 48\n")
+    with pytest.raises(InputError, match="duplicate key 'spike_h' at line 2"):
+        read_spikecv_config(path)
+    path.write_text("")
+    with pytest.raises(InputError, match="is empty: expected spike_h and spike_w"):
+        read_spikecv_config(path)
+    with pytest.raises(InputError, match=r"nope\.yaml: no such file$"):
+        read_spikecv_config(tmp_path / "nope.yaml")
+
+
+def test_train_config_and_field_option_with_a_repeated_key_are_one_line(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    config = tmp_path / "c.yaml"
+    config.write_text("iters: 10\nbatch: 64\niters: 20\n")
+    code, _, err = run_cli(capsys, "train", "--config", config, "--out", tmp_path / "run")
+    assert code == 2 and "duplicate key 'iters' at line 3" in err and err.count("\n") == 1
+    assert not (tmp_path / "run").exists()
