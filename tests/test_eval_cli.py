@@ -141,6 +141,9 @@ def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path, capsys: pytest.
     out = tmp_path / "orbit"
     _cli("render", run_dir, "--trajectory", "orbit", "--orbit-frames", 4, "--spikes", "--spike-steps", 9,
          "--fps-video", 10, "--device", "cpu", "--quiet", "--out", out)  # fmt: skip
+    assert capsys.readouterr().out.startswith(
+        f"wrote {out}: 4 views along the orbit, orbit.mp4, spike stream"
+    )
     manifest = json.loads((out / "render.json").read_text())
     assert manifest["views"] == 4 and manifest["spike_steps"] == 9
     assert _video_frames(out / "orbit.mp4") == (4, 10.0)
@@ -175,6 +178,23 @@ def test_bad_inputs_are_one_line_errors(
     assert err == "spikenerf: error: --orbit-frames sets the views of --trajectory orbit, not of 'test'"
     err = _cli_error(capsys, "render", run_dir, "--seed", 5, "--out", tmp_path / "o")
     assert err == "spikenerf: error: --seed seeds the spike stream's accumulators and needs --spikes"
+    err = _cli_error(
+        capsys, "render", run_dir, "--trajectory", "orbit", "--orbit-frames", 0, "--out", tmp_path / "o"
+    )
+    assert err == "spikenerf: error: --orbit-frames must be ≥ 1, found 0"  # (it named three options)
+    err = _cli_error(
+        capsys,
+        "render",
+        run_dir,
+        "--trajectory",
+        "orbit",
+        "--spikes",
+        "--spike-steps",
+        0,
+        "--out",
+        tmp_path / "o",
+    )
+    assert err == "spikenerf: error: --spike-steps must be ≥ 1, found 0"
     assert not (tmp_path / "o").exists()
     err = _cli_error(capsys, "eval", run_dir, "--noref", "off", "--spike-pixels", 8, "--noref-steps", 2)
     assert err.endswith(

@@ -215,3 +215,16 @@ def test_a_hand_edited_imported_section_is_one_input_error(dataset_dir: Path) ->
         check_steps(_imported(dataset, ["a", 3]), 4)
     with pytest.raises(InputError, match=r"imported section is incomplete or malformed \(KeyError"):
         keyframes_of(_imported(dataset, [20]), 20)  # no keyframe_every / window
+
+
+def test_info_numbers_held_steps_of_a_ranged_import_as_info_of_the_dataset_does() -> None:
+    """After ``import --range 100:``, ``info DATASET`` said "recording steps 130" and ``info RUN``
+    "held out: steps 30": the run now gives both numberings."""
+    from spikenerf.train.run import held_line
+
+    held = {"check_steps": [30], "step_numbers": [30], "radius": 40, "excluded_steps": 81}
+    assert held_line(held, {"range": [100, 200]}) == (
+        "held out: recording steps 130 (dataset steps 30) ± 40 (81 steps not trained on)"
+    )
+    for imported in ({}, {"range": [0, 200]}):  # a simulated dataset, or an import from step 0
+        assert held_line(held, imported) == "held out: steps 30 ± 40 (81 steps not trained on)"

@@ -263,12 +263,10 @@ def render_run(
             f"fps_video must lie in [{FPS_VIDEO[0]:g}, {FPS_VIDEO[1]:g}] frames a second, found {fps_video}",
             param="fps_video",
         )
-    if orbit_frames < 1 or bad_steps:
-        raise InputError(
-            f"fps_video, orbit_frames and spike_steps must be positive, found "
-            f"{fps_video}, {orbit_frames}, {spike_steps}",
-            param=("fps_video", "orbit_frames", "spike_steps"),
-        )
+    if orbit_frames < 1:
+        raise InputError(f"orbit_frames must be ≥ 1, found {orbit_frames}", param="orbit_frames")
+    if bad_steps:
+        raise InputError(f"spike_steps must be ≥ 1, found {spike_steps}", param="spike_steps")
     ffmpeg_module()  # before any work: the video is the last file written
     out = Path(out)
     check_output(out, "render", overwrite=True)
@@ -469,5 +467,9 @@ def _render_locked(
     write_text_atomic(out / "render.json", json.dumps(manifest, indent=2) + "\n")
     cache.close()
     if log:
-        log(f"wrote {out}: {len(poses)} {path.name} views, {video}" + (", spike stream" if spikes else ""))
+        along = {"orbit": "along the orbit", "test": "at the test poses"}.get(
+            path.name, f"along the trajectory file {path.name}"
+        )
+        views = f"{len(poses)} view{'' if len(poses) == 1 else 's'} {along}"
+        log(f"wrote {out}: {views}, {video}" + (", spike stream" if spikes else ""))
     return manifest

@@ -216,10 +216,7 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
             "renders across its window"
         )
     if (held := read_record(run_dir)) is not None:
-        lines.append(
-            f"held out: steps {', '.join(map(str, held.get('step_numbers', held['check_steps'])))} "
-            f"± {held.get('radius')} ({held.get('excluded_steps')} steps not trained on)"
-        )
+        lines.append(held_line(held, _imported(config)))
     if curves := read_curves(run_dir / CURVES):  # (a garbled one is an InputError naming it)
         last = curves[-1]
         train_psnr, test_psnr = last["train_psnr"], last["test_psnr"]  # curves.csv rounds to 4 decimals
@@ -254,17 +251,30 @@ def _dataset_unfit(ckpt: dict, config: TrainConfig) -> str | None:
         return None
 
 
-def _tfp_keyframes(config: TrainConfig) -> bool:
-    """Whether the run's dataset has TFP keyframes as test views (an ``import``; its ``config.yaml``
-    records ``imported.test_keyframes``), which eval scores against a mean of renders across each window.
-    False where the dataset is gone or unreadable (``info`` still describes the run)."""
+def _imported(config: TrainConfig) -> dict:
+    """The run's dataset's ``imported`` record (its ``config.yaml``, written by ``import``); empty for a
+    simulated dataset, or where the dataset is gone or unreadable (``info`` still describes the run)."""
     try:
-        dataset_config = read_mapping(Path(config.dataset) / DATASET_CONFIG, "YAML")
+        imported = read_mapping(Path(config.dataset) / DATASET_CONFIG, "YAML").get("imported")
     except InputError:
-        return False
-    imported = dataset_config.get("imported")
-    return (
-        isinstance(imported, dict)
-        and bool(imported.get("test_keyframes"))
-        and imported.get("keyframe_images", "tfp") == "tfp"
-    )
+        return {}
+    return imported if isinstance(imported, dict) else {}
+
+
+def _tfp_keyframes(config: TrainConfig) -> bool:
+    """Whether the run's dataset has TFP keyframes as test views (an ``import`` that recorded
+    ``imported.test_keyframes``), which eval scores against a mean of renders across each window."""
+    imported = _imported(config)
+    return bool(imported.get("test_keyframes")) and imported.get("keyframe_images", "tfp") == "tfp"
+
+
+def held_line(held: dict, imported: dict) -> str:
+    """``info``'s line of a run's hold-out record: its steps (the dataset's; also the recording's where an
+    ``import --range`` started past step 0, as ``info`` of the dataset numbers them), band and cost."""
+    steps = held.get("step_numbers", held["check_steps"])
+    first = (imported.get("range") or [0])[0]
+    shown = "steps " + ", ".join(map(str, steps))
+    if isinstance(first, int) and not isinstance(first, bool) and first > 0:
+        shown = f"recording steps {', '.join(str(first + s) for s in steps)} (dataset {shown})"
+    excluded = held.get("excluded_steps")
+    return f"held out: {shown} ± {held.get('radius')} ({excluded} steps not trained on)"
