@@ -12,7 +12,7 @@ import torch
 
 from spikenerf.camera.io import read_dat, read_dat_rgb, write_dat, write_dat_rgb
 from spikenerf.camera.masks import spike_masks
-from spikenerf.camera.model import CameraConfig, SpikeCamera, simulate
+from spikenerf.camera.model import CameraConfig, SpikeCamera, simulate, simulate_iter
 from spikenerf.camera.reconstruct import reconstruct_frames, tfi, tfp, window_sum
 from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
 from spikenerf.core.errors import InputError
@@ -107,6 +107,12 @@ def test_camera_refuses_non_finite_or_negative_intensity(bad: float, device: str
     for _ in range(CHECK_EVERY):
         camera.step(frame)
     camera.check()  # a clean stream passes
+    for _ in range(CHECK_EVERY + 35):  # the NaN at step 163: after the checks at 64 and 128
+        camera.step(frame)
+    camera.step(bad_frame)
+    _params(camera.check, "intensity", match=rf"steps {2 * CHECK_EVERY}\.\.{3 * CHECK_EVERY - 29}")
+    with pytest.raises(InputError, match=r"steps 0\.\.2"):  # simulate_iter checks at its end too
+        list(simulate_iter([frame, bad_frame, frame], 4, 4, device=device))
 
 
 def test_camera_refuses_an_8_bit_image_and_takes_0_1_integers() -> None:
@@ -191,6 +197,8 @@ def test_render_image_checks_its_pose_bounds_and_chunk(model) -> None:  # type: 
     _params(lambda: render_mean(model, POSES[:0], INTR), "poses")
     mean = render_mean(model, POSES[::-1], INTR, chunk=0)  # a reversed view: negative strides
     torch.testing.assert_close(mean, render_mean(model, POSES[::-1].copy(), INTR), rtol=0, atol=0)
+    listed = [torch.as_tensor(p) for p in POSES[::-1]]  # a list of tensors (on a GPU: no numpy view)
+    torch.testing.assert_close(mean, render_mean(model, listed, INTR), rtol=0, atol=0)
 
 
 def test_as_poses_takes_negative_strides() -> None:

@@ -18,6 +18,13 @@ def test_load_yaml_reads_what_safe_load_reads() -> None:
     assert load_yaml(text) == yaml.safe_load(text)
     assert load_yaml("") is None and load_yaml("- a\n- a\n") == ["a", "a"]  # equal list items are fine
     assert load_yaml("a: {x: 1}\nb: {x: 2}\n") == {"a": {"x": 1}, "b": {"x": 2}}  # one key per mapping
+    merges = [  # merge keys and anchors: a key of its own overrides a merged one (no duplicate)
+        "base: &b {lam: 0.25, window: 4}\nspike:\n  <<: *b\n  window: 8\n",
+        "a: &a {x: 1}\nb: &b {y: 2}\nc:\n  <<: [*a, *b]\n  x: 3\n",
+        "spike:\n  <<: {lam: 0.25}\n  window: 8\n",
+    ]
+    for text in merges:
+        assert load_yaml(text) == yaml.safe_load(text)
 
 
 @pytest.mark.parametrize(
@@ -49,3 +56,15 @@ def test_train_config_and_field_option_with_a_repeated_key_are_one_line(capsys, 
     code, _, err = run_cli(capsys, "train", "--config", config, "--out", tmp_path / "run")
     assert code == 2 and "duplicate key 'iters' at line 3" in err and err.count("\n") == 1
     assert not (tmp_path / "run").exists()
+
+
+def test_a_bad_value_in_a_config_file_is_named_as_its_key_not_as_a_flag(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``iters: many`` in a --config file read "c.yaml: --iters must be an integer" (no such flag given)."""
+    for text, message in (
+        ("iters: many\n", "c.yaml: iters must be an integer, found 'many'"),
+        ("method: foo\n", "c.yaml: method must be one of"),
+        ("spike: {lam: [1]}\n", "c.yaml: spike.lam must be a number"),
+    ):
+        (tmp_path / "c.yaml").write_text(text)
+        code, _, err = run_cli(capsys, "train", "--config", tmp_path / "c.yaml", "--out", tmp_path / "run")
+        assert code == 2 and message in err and "--" not in err.split("c.yaml:")[1], err

@@ -214,6 +214,7 @@ class SpikeCamera:
             patterns = params.draw_patterns(self.spike_shape, float(phi), pattern_seed)
             self._noise = NoiseProcess(params, patterns, temporal_seed, self.device, float(phi))
         self._steps = 0
+        self._checked = 0  # the steps before this one passed :meth:`check`
         self._warm = self.config.warmup == 0
 
     def _backend(self, x: np.ndarray) -> np.ndarray | torch.Tensor:
@@ -251,7 +252,8 @@ class SpikeCamera:
                 ``rgb`` and ``bayer`` need RGB. Values must be finite and ≥ 0 (found by :meth:`check`;
                 above 1 is brighter than white and saturates: one spike a step); an integer
                 array must hold values ≤ 1 (an 8-bit image is refused: scale it to linear [0, 1] first,
-                e.g. ``srgb_decode(image / 255)``).
+                e.g. ``srgb_decode(image / 255)``; on a torch device that check is one sync a step, for
+                integer input only).
                 Any dtype is read as float32.
             out: optional bool buffer of the spike shape to write into (see :meth:`new_spikes`).
         Returns:
@@ -284,19 +286,21 @@ class SpikeCamera:
         fires every step), and the accumulator of a pixel fed only values ≥ 0 never drops below 0: two
         reductions over the accumulator find them, without a pass over every step's input.
         :meth:`step` calls this every :data:`CHECK_EVERY` steps (on a torch device: one sync then) and
-        :func:`simulate` at its end. A value below 0 too small to empty its accumulator, or one that the
-        next steps fill up again before a check, goes unseen.
+        :func:`simulate` and :func:`simulate_iter` at their end. A value below 0 too small to empty its
+        accumulator, or one that the next steps fill up again before a check, goes unseen; the
+        ``realistic`` noise model clips the charge at 0 (as a pixel does), so there none is seen.
         """
         low, high = float(self._acc.min()), float(self._acc.max())
-        if math.isnan(low) or low < 0 or math.isinf(high):
-            first = max(0, self._steps - CHECK_EVERY)
-            what = "a value below 0" if low < 0 else "an infinity" if math.isinf(high) else "a NaN"
-            raise InputError(
-                f"intensity held {what} at one of steps {first}..{self._steps - 1} (the accumulator of a "
-                f"pixel is {low if low < 0 or math.isnan(low) else high:g}): intensity must be finite "
-                "linear radiance ≥ 0 (1.0 = white)",
-                param="intensity",
-            )
+        if not (math.isnan(low) or low < 0 or math.isinf(high)):
+            self._checked = self._steps
+            return
+        what = "a value below 0" if low < 0 else "an infinity" if math.isinf(high) else "a NaN"
+        raise InputError(
+            f"intensity held {what} at one of steps {self._checked}..{self._steps - 1} (the accumulator of a "
+            f"pixel is {low if low < 0 or math.isnan(low) else high:g}): intensity must be finite "
+            "linear radiance ≥ 0 (1.0 = white)",
+            param="intensity",
+        )
 
     def _advance(self, x: np.ndarray | torch.Tensor, spikes: np.ndarray | torch.Tensor) -> None:
         if self._noise is None:
@@ -383,11 +387,13 @@ def simulate_iter(
 ) -> Iterator:
     """Stream spikes: one bool (H, W) or (3, H, W) array per input frame; memory does not grow with T.
 
-    ``frames`` yields one step each, in any form :meth:`SpikeCamera.step` accepts.
+    ``frames`` yields one step each, in any form :meth:`SpikeCamera.step` accepts; a NaN, an infinity or a
+    value below 0 among them raises InputError by the end (:meth:`SpikeCamera.check`).
     """
     camera = SpikeCamera(height, width, config, device, noise_params)
     for frame in frames:
         yield camera.step(frame)
+    camera.check()  # (the steps since the last periodic check)
 
 
 def simulate(

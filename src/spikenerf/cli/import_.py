@@ -163,11 +163,9 @@ def held_pose_warning(imported: dict, n: int) -> str | None:
         return None
     spans = [f"{first}..{first + before - 1}"] if before else []
     spans += [f"{first + n - after}..{first + n - 1}"] if after else []
-    tests = [str(t + first) for t in imported.get("test_keyframes") or [] if t < before or t >= n - after]
     lo, hi = first + min(keys), first + max(keys)
-    among = f", test keyframe{'s' if len(tests) > 1 else ''} {', '.join(tests)} among them" if tests else ""
     return (
         f"steps {' and '.join(spans)} ({before + after} of the {n} imported) lie beyond the poses' steps "
         f"{lo}..{hi} and the one interval extrapolated: they keep a held pose, as if the camera stood "
-        f"still{among}; --range {lo}:{hi + 1} imports only the posed steps"
+        f"still, and hold no test view; --range {lo}:{hi + 1} imports only the posed steps"
     )

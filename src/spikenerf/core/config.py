@@ -110,6 +110,7 @@ def check_config(config: Any, prefix: str = "", path: str | Path | None = None, 
     ranges: Mapping[str, Bound] = getattr(type(config), "BOUNDS", {}) if bounds else {}
     for f in dataclasses.fields(config):
         value, name = getattr(config, f.name), f"{prefix}{f.name}"
+        param = name if path is None else None  # a file's value is named as its key, not as a flag
         if dataclasses.is_dataclass(value):
             check_config(value, f"{name}.", path, bounds)
             continue
@@ -117,13 +118,13 @@ def check_config(config: Any, prefix: str = "", path: str | Path | None = None, 
             names = tuple(f.metadata["choices"]())
             if value not in names:
                 listed = ", ".join(map(str, names))
-                raise InputError(f"{name} must be one of {listed}, found {value!r}", path=path, param=name)
+                raise InputError(f"{name} must be one of {listed}, found {value!r}", path=path, param=param)
         elif not matches(value, hints[f.name]):
             kind = type(value)  # a numpy integer prints as one: say what it is
             plain = kind in (int, float, str, bool, type(None), list, tuple)
             found = repr(value) if plain else f"{value} ({kind.__name__})"
             wanted = describe(hints[f.name])
-            raise InputError(f"{name} must be {wanted}, found {found}", path=path, param=name)
+            raise InputError(f"{name} must be {wanted}, found {found}", path=path, param=param)
         numbers = value if isinstance(value, tuple) else (value,)
         if bounds and any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
             raise InputError(f"{name} must be a finite number, found {value!r}", param=name)

@@ -203,9 +203,18 @@ def keyframe_steps(n: int, every: int, window: int) -> np.ndarray:
     return np.unique(np.append(np.arange(half, n - half, every), n - 1 - half)).astype(np.int64)
 
 
-def held_out_keyframes(key_steps: np.ndarray, test_every: int) -> np.ndarray:
-    """The keyframe steps held out as test views: every ``test_every``-th from the second (none for 0)."""
-    return key_steps[1::test_every] if test_every else key_steps[:0]
+def held_out_keyframes(
+    key_steps: np.ndarray, test_every: int, pose_steps: np.ndarray | None = None, n: int = 0
+) -> np.ndarray:
+    """The keyframe steps held out as test views: every ``test_every``-th from the second (none for 0),
+    less those that the poses at ``pose_steps`` (of ``n`` steps) leave at a held pose
+    (:func:`spikenerf.importing.alignment.held_steps`): a test view there would be scored at a pose that
+    is not the one its image shows."""
+    tests = key_steps[1::test_every] if test_every else key_steps[:0]
+    if pose_steps is None or len(pose_steps) < 2:
+        return tests
+    before, after = held_steps(pose_steps, n)
+    return tests[(tests >= before) & (tests < n - after)]
 
 
 def keyframe_window(opts: ImportOptions) -> int:
@@ -258,7 +267,7 @@ def keyframe_poses(
         steps = np.round(np.linspace(0, n - 1, len(found.poses))).astype(np.int64)
     else:
         steps = found.steps + imported_offset(opts.poses) - first
-        _check_pose_steps(steps, n, first, opts.poses, held_out_keyframes(key_steps, opts.test_every))
+        _check_pose_steps(steps, n, first, opts.poses)
     return replace(found, steps=steps)
 
 
@@ -306,11 +315,10 @@ def colmap_poses(opts: ImportOptions, images: np.ndarray, key_steps: np.ndarray,
     )
 
 
-def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str, tests: np.ndarray) -> None:
-    """InputError unless a pose file's steps (relative to the selection) lie in ``[0, n)``, span more than
-    half of it (frame numbers that are not spike steps, such as frame_00001.png, would hold the rest), and
-    reach every test keyframe ``tests`` (relative) within the interval that is extrapolated
-    (:func:`spikenerf.importing.alignment.held_steps`): a test view at a held pose shows another view."""
+def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> None:
+    """InputError unless a pose file's steps (relative to the selection) lie in ``[0, n)`` and span more
+    than half of it (frame numbers that are not spike steps, such as frame_00001.png, would hold the
+    rest)."""
     lo, hi = int(steps.min()), int(steps.max())
     where = f"steps {lo + first}..{hi + first} of the poses"
     if lo < 0 or hi >= n:
@@ -324,16 +332,6 @@ def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str, tests:
             path=source,
             param="frame_range",
         )
-    if len(steps) >= 2:
-        before, after = held_steps(steps, n)
-        if len(held := [int(t) for t in tests if t < before or t >= n - after]):
-            raise InputError(
-                f"{where} do not reach test keyframe {held[0] + first}: it would get a held pose (a pose "
-                "is extrapolated for one interval beyond the posed steps, then held), unlike what it shows; "
-                f"select the posed steps ({posed}), or hold out no test views (test_every 0)",
-                path=source,
-                param=("frame_range", "test_every"),
-            )
 
 
 def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | None) -> Intrinsics:
@@ -447,7 +445,7 @@ def _write(
     ):
         writer.append_spikes("gray", chunk)
         failpoint("import.spikes")
-    held = held_out_keyframes(rel_keys, opts.test_every)
+    held = held_out_keyframes(rel_keys, opts.test_every, found.steps, n)
     for i in np.searchsorted(rel_keys, held):
         writer.add_test(np.repeat(images[i][..., None], 3, -1), poses[rel_keys[i]])
     registered = len(found.poses)

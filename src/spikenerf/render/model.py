@@ -89,6 +89,8 @@ def check_poses(poses: Tensor | np.ndarray, param: str, one: bool = False) -> No
     """InputError naming ``param`` unless ``poses`` is finite camera-to-world (4, 4) (``one``) or (N, 4, 4)
     (N ≥ 0). A tensor on a GPU is read back for the finite check (one host sync: render calls only, never a
     training step)."""
+    if isinstance(poses, (list, tuple)) and poses and all(isinstance(p, Tensor) for p in poses):
+        poses = torch.stack(list(poses))  # (a list of tensors, maybe on a GPU: no numpy view of them)
     shape = tuple(poses.shape) if hasattr(poses, "shape") else tuple(np.shape(poses))
     want = (4, 4) if one else ("N", 4, 4)
     if len(shape) != len(want) or shape[-2:] != (4, 4):
