@@ -409,3 +409,14 @@ def test_a_folder_of_datasets_simulated_first_is_adopted(tmp_path: Path) -> None
     (out / "datasets" / "thesis").mkdir()
     assert not pre_simulated(out)
     assert not pre_simulated(tmp_path / "nowhere")
+
+
+def test_scene_lists_name_what_is_wrong() -> None:
+    """``--scenes ""`` read "unknown scene(s) []"."""
+    from spikenerf.pipelines.benchmark.cells import resolve_scenes
+
+    with pytest.raises(InputError, match=r"^scenes: none given; expected 'all' or names from: analytic-orbs"):
+        resolve_scenes(" , ")
+    with pytest.raises(InputError, match=r"^scenes: unknown scene\(s\) nope, other; expected"):
+        resolve_scenes("analytic-orbs,nope,other")
+    assert resolve_scenes("analytic-orbs, analytic-blocks") == ["analytic-orbs", "analytic-blocks"]

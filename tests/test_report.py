@@ -41,7 +41,16 @@ def data_uri_pngs(page: str) -> list[np.ndarray]:
 def bench(tmp_path_factory: pytest.TempPathFactory) -> BenchmarkConfig:
     """A benchmark folder: one dataset, a finished nerf-gt cell (trained 4 iterations), spike-nerf missing."""
     out = tmp_path_factory.mktemp("bench")
-    cfg = BenchmarkConfig([SCENE], ["spike-nerf", "nerf-gt"], ["gray"], out, size=SIZE, test_views=1)
+    cfg = BenchmarkConfig(
+        [SCENE],
+        ["spike-nerf", "nerf-gt"],
+        ["gray"],
+        out,
+        size=SIZE,
+        frames=60,
+        test_views=1,
+        blur_views="frames",
+    )
     ds, run = out / "datasets" / SCENE, run_dir(cfg, SCENE, "gray", "nerf-gt")
     _cli("simulate", "--scene", SCENE, "--width", SIZE, "--height", SIZE, "--frames", 60, "--test-views", 1,
          "--no-progress", "--out", ds)  # fmt: skip
@@ -248,6 +257,8 @@ def test_report_command_rebuilds_a_moved_folder_with_other_calls_merged(
     page = (seed1 / "report.html").read_text(encoding="utf-8")
     assert len(data_uri_pngs(page)) == figures and "nerf-gt-seed1" in page  # not the missing seed-0 runs
     for args, words in (([tmp_path], "no results.json: not a finished benchmark folder"),
+                        ([tmp_path / "nope"], "nope: no such folder"),
+                        ([moved, seed1], "seed1: is a folder: give its results.json"),
                         ([moved, moved / "results.json"], "is also in an earlier file")):  # fmt: skip
         with pytest.raises(SystemExit) as exit_:
             _cli("report", *args, "--no-progress")
@@ -477,3 +488,44 @@ def test_a_cell_that_scored_no_psnr_says_to_train_it_again(tmp_path: Path) -> No
     with pytest.raises(InputError, match=rf"scored no PSNR .*; delete {tmp_path} to train it again") as err:
         read_cell(tmp_path, SCENE, "gray", "nerf-gt")
     assert err.value.path == str(tmp_path / "metrics.json")
+
+
+def test_table2_has_rows_only_for_the_ablations_that_ran() -> None:
+    """A benchmark of spike-nerf and its no-mask ablation wrote a "W/O spike loss" row of dashes."""
+    cells = [Cell("s", v, "gray", 28.0, 0.9, 0.1) for v in ("spike-nerf", "spike-nerf-no-mask")]
+    page = table2_html(cells, "gray")
+    assert "W/O spike loss" not in page and "W/O spike masks" in page and page.count("<tr><td>") == 2
+
+
+def test_a_copied_or_changed_benchmark_draws_its_own_datasets_figures(
+    bench: BenchmarkConfig, tmp_path: Path
+) -> None:
+    """A copy whose runs name a dataset path that is gone drew the novel-spikes figure from it (or failed);
+    a dataset changed since the cells ran is named, and the figures drawn from it earlier are removed."""
+    import dataclasses
+    import shutil
+
+    import yaml
+
+    from spikenerf.pipelines.report import figure_device
+
+    copy = tmp_path / "copy"
+    shutil.copytree(bench.out, copy)
+    cfg = dataclasses.replace(bench, out=copy)
+    run = run_dir(cfg, SCENE, "gray", "nerf-gt")
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    (run / "config.yaml").write_text(yaml.safe_dump({**config, "dataset": str(tmp_path / "gone")}))
+    cells = [read_cell(run, SCENE, "gray", "nerf-gt")]
+    page = build_report(cfg, cells, progress=False).read_text(encoding="utf-8")  # type: ignore[arg-type]
+    assert "figure not available" not in page and len(data_uri_pngs(page)) == 5
+    dataset = copy / "datasets" / SCENE / "config.yaml"
+    dataset.write_text(dataset.read_text().replace(f"spike_w: {SIZE}", f"spike_w: {SIZE + 8}"))
+    page = build_report(cfg, cells, progress=False).read_text(encoding="utf-8")  # type: ignore[arg-type]
+    assert page.count("figure not available: InputError") == 3  # views, spikes, novel spikes
+    assert "the dataset was simulated with size" in page
+    assert sorted(p.name for p in (copy / "figures").glob("*.png")) == [f"curves-{SCENE}-gray.png"]
+    assert figure_device(dataclasses.replace(bench, device="cpu")) == "cpu"
+    import torch
+
+    if not torch.cuda.is_available():  # a CUDA benchmark's report rebuilt on a CPU machine
+        assert figure_device(dataclasses.replace(bench, device="cuda")) == "cpu"

@@ -22,8 +22,8 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
     help="Run the whole pipeline on the embedded default scene (analytic-orbs): simulate a spike camera, "
     "train spike-integral (the default), spike-nerf, nerf-recon, nerf-blur and nerf-gt, evaluate, render and "
     "write OUT/report.html. "
-    "Resumable: re-running reuses finished steps. Default size: about 2–3 minutes on 2 idle CPU cores; "
-    "--quick is smaller but only a little faster (113 against 133 s on such a machine)."
+    "Resumable: re-running reuses finished steps. Default size: about 3 minutes on 2 idle CPU cores (187 s, "
+    "docs/report.md); --quick is a smoke test, smaller but only a little faster."
 )
 @click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)
 @click.option("--quick", is_flag=True, help="32 px, 200 spike steps, 200 iterations (a smoke test).")

@@ -209,14 +209,20 @@ class NovelSpikes:
 
 
 def novel_spikes(
-    run: Path, view: int = 0, steps: int = NOVEL_STEPS, seed: int = 0, device: str = "cpu"
+    run: Path,
+    view: int = 0,
+    steps: int = NOVEL_STEPS,
+    seed: int = 0,
+    device: str = "cpu",
+    dataset_root: Path | None = None,
 ) -> NovelSpikes:
     """Spike streams of ``steps`` steps at the static pose of test view ``view``, and their TFP at the middle.
 
     Predicted: the run's model rendered at that pose (no perturbation, so one render stands for every step)
     fired by the spiking renderer's rule (:func:`spikenerf.render.spiking.fire_sequence`). Reference: the GT
     test image through the ideal camera simulator (:func:`spikenerf.camera.model.simulate`). Both start from
-    a seeded uniform [0, φ) accumulator and use the dataset's threshold φ.
+    a seeded uniform [0, φ) accumulator and use the dataset's threshold φ. ``dataset_root``: the run's
+    dataset where it is now (None: the path the run recorded).
     """
     from spikenerf.camera.layout import to_camera_layout, to_channels_last
     from spikenerf.camera.model import CameraConfig, simulate
@@ -225,7 +231,7 @@ def novel_spikes(
     from spikenerf.render.spiking import fire_sequence, random_start
     from spikenerf.train.run import load_run
 
-    model, config, ds = load_run(run, device=device)
+    model, config, ds = load_run(run, dataset_root, device=device)
     k, phi = ds.intrinsics, ds.threshold
     pred = render_image(model, ds.test.poses[view], k, ds.near, ds.far).color.float().cpu()  # (H, W, C)
     start = random_start(tuple(pred.shape), phi, seed)

@@ -25,6 +25,7 @@ import numpy as np
 from spikenerf.camera.reconstruct import fitting_window
 from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
+from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
 from spikenerf.pipelines import figures
 from spikenerf.pipelines.benchmark.cells import (
@@ -37,6 +38,7 @@ from spikenerf.pipelines.benchmark.cells import (
     run_dir,
     training_seeds,
 )
+from spikenerf.pipelines.benchmark.run import dataset_mismatch
 from spikenerf.pipelines.benchmark.stats import differences
 from spikenerf.pipelines.benchmark.tables import (
     Cell,
@@ -288,13 +290,27 @@ def _curves_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     )
 
 
+def figure_device(cfg: BenchmarkConfig) -> str:
+    """The device the report renders its figures on: the benchmark's where this machine has it (a report
+    rebuilt on a CPU machine from a CUDA benchmark renders on the CPU)."""
+    from spikenerf.core.device import resolve_device
+
+    try:
+        return str(resolve_device(cfg.device))
+    except InputError:
+        return "cpu"
+
+
 def _novel_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     seed = _shown_seed(cfg)
     runs = [run_dir(cfg, scene, color, v, seed) for v in ("spike-nerf", *cfg.variants) if v in cfg.variants]
     run = next((r for r in runs if (r / "checkpoint.pt").is_file()), None)
     if run is None:
         return Fig(f"{scene}, {color}: novel-view spikes", None, note="– no trained run to render from.")
-    r = figures.novel_spikes(run, VIEW, device=cfg.device)
+    dataset = cfg.out / "datasets" / scene  # (not the run's recorded path: the folder may have moved)
+    if (problem := dataset_mismatch(cfg, scene)) is not None:  # changed since: not the cells' dataset
+        raise problem
+    r = figures.novel_spikes(run, VIEW, device=figure_device(cfg), dataset_root=dataset)
     panels = [
         ("GT test image\n→ camera simulator", r.gt_tfp),
         (f"{label(r.method)}\n→ spiking renderer", r.pred_tfp),
@@ -376,6 +392,8 @@ def build_report(
 
     def dataset(scene: str) -> SpikeDataset:
         if scene not in datasets:
+            if (problem := dataset_mismatch(fig_cfg, scene)) is not None:  # changed since: not the cells'
+                raise problem
             datasets[scene] = load_dataset(cfg.out / "datasets" / scene)
         return datasets[scene]
 
@@ -408,8 +426,12 @@ def build_report(
     head = f"<head><meta charset='utf-8'><title>spikenerf report</title><style>{CSS}</style></head>"
     page = f"<!DOCTYPE html><html lang='en'>{head}<body><h1>spikenerf report</h1><nav>{nav}</nav>"
     page += "".join(body) + "</body></html>\n"
+    written = {f.file for figs in made.values() for f in figs if f.file}
     for fig in (f for figs in made.values() for f in figs if f.file):
         write_bytes_atomic(cfg.out / fig.file, fig.png)  # type: ignore[arg-type]
+    for old in (cfg.out / FIGURES).glob("*.png"):  # an earlier build's figure that failed or went now
+        if old.name.startswith(tuple(f"{s}-" for s in SECTIONS)) and f"{FIGURES}/{old.name}" not in written:
+            old.unlink()
     path = cfg.out / REPORT
     write_text_atomic(path, page)
     return path

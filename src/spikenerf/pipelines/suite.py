@@ -34,6 +34,11 @@ def report_from_folder(out: Path, others: Sequence[Path] = (), progress: bool = 
         InputError: ``out`` has no ``results.json``, or a file cannot be read or merged.
     """
     out = Path(out)
+    if not out.is_dir():
+        problem = (
+            "is a file, not a benchmark folder (the folder comes first)" if out.exists() else "no such folder"
+        )
+        raise InputError(problem, path=out)
     if not (out / RESULTS).is_file():
         raise InputError(
             f"no {RESULTS}: not a finished benchmark folder (run `spikenerf benchmark` to its end)", path=out

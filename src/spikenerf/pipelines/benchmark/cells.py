@@ -124,7 +124,10 @@ def resolve_scenes(spec: str) -> list[str]:
     return comma_list(
         spec,
         known,
-        lambda bad: f"scenes: unknown scene(s) {bad}; expected 'all' or names from: {', '.join(known)}",
+        lambda bad: (
+            (f"scenes: unknown scene(s) {', '.join(bad)}" if bad else "scenes: none given")
+            + f"; expected 'all' or names from: {', '.join(known)}"
+        ),
         param="scenes",
     )
 

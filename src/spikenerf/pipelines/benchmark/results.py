@@ -184,6 +184,8 @@ def read_call(path: Path) -> RecordedCall:
         call = RecordedCall(
             path, config, cells, dict(data.get("trained_on", {})), dict(data.get("environment", {}))
         )
+    except IsADirectoryError:
+        raise InputError(f"is a folder: give its {RESULTS} (another call's results)", path=path) from None
     except OSError as err:
         raise InputError(f"cannot read ({err.strerror or err})", path=path) from None
     except (ValueError, KeyError, TypeError, AttributeError) as err:

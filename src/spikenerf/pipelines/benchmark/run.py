@@ -124,26 +124,35 @@ def _check_datasets(cfg: BenchmarkConfig) -> None:
     """Refuse a dataset simulated before (by an interrupted benchmark, or by hand into OUT/datasets) with
     other settings than the benchmark asks for: its size, steps, seed, test views, colours, blur views."""
     for scene in cfg.scenes:
-        root = cfg.out / "datasets" / scene
-        if not (root / "transforms.json").is_file():
-            continue
-        have = dataset_settings(root)
-        want = {"size": [cfg.size, cfg.size], "frames": cfg.frames, "seed": cfg.seed,
-                "test_views": cfg.test_views, "blur_views": cfg.blur_views}  # fmt: skip
-        for param, value in want.items():
-            if have[param] is not None and have[param] != value:
-                raise InputError(
-                    f"{param}: the dataset was simulated with {param} {have[param]}, but the benchmark asks "
-                    f"for {value}; pass that or delete the dataset to re-simulate it",
-                    path=root,
-                    param=param,
-                )
-        if have["colors"] is not None and (lacking := [c for c in cfg.colors if c not in have["colors"]]):
-            raise InputError(
-                f"color: the dataset has no {', '.join(lacking)} stream; delete it to re-simulate it",
+        if (problem := dataset_mismatch(cfg, scene)) is not None:
+            raise problem
+
+
+def dataset_mismatch(cfg: BenchmarkConfig, scene: str) -> InputError | None:
+    """The refusal (an InputError to raise) where ``OUT/datasets/SCENE`` was simulated with other settings
+    than ``cfg`` asks for (its size, steps, seed, test views, blur views, or lacking a colour); None where it
+    fits or does not exist yet. ``benchmark`` refuses to resume on it, ``report`` to draw figures from it."""
+    root = cfg.out / "datasets" / scene
+    if not (root / "transforms.json").is_file():
+        return None
+    have = dataset_settings(root)
+    want = {"size": [cfg.size, cfg.size], "frames": cfg.frames, "seed": cfg.seed,
+            "test_views": cfg.test_views, "blur_views": cfg.blur_views}  # fmt: skip
+    for param, value in want.items():
+        if have[param] is not None and have[param] != value:
+            return InputError(
+                f"{param}: the dataset was simulated with {param} {have[param]}, but the benchmark asks "
+                f"for {value}; pass that or delete the dataset to re-simulate it",
                 path=root,
-                param="color",
+                param=param,
             )
+    if have["colors"] is not None and (lacking := [c for c in cfg.colors if c not in have["colors"]]):
+        return InputError(
+            f"color: the dataset has no {', '.join(lacking)} stream; delete it to re-simulate it",
+            path=root,
+            param="color",
+        )
+    return None
 
 
 def forget_unscored(cfg: BenchmarkConfig, keys: Sequence[CellKey]) -> None:
