@@ -174,8 +174,8 @@ def command(**kw: Any) -> None:
     out = simulate_dataset(source, Path(kw["out"]), options, progress=not kw["no_progress"], jobs=kw["jobs"])
     k, traj = source.intrinsics, source.trajectory
     click.echo(
-        f"wrote {out}: {len(traj)} steps at {traj.fps:g} Hz, {k.width}×{k.height}, "
-        + ", ".join(options.colors)
+        f"wrote {out}: {len(traj)} step{'' if len(traj) == 1 else 's'} at {traj.fps:g} Hz, "
+        f"{k.width}×{k.height}, " + ", ".join(options.colors)
     )
     if options.blur_fps > 0 and (size := exposure_length(traj.fps, options.blur_fps)) > len(traj):
         click.echo(
@@ -301,6 +301,7 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
         fps=float(kw["fps"]),
     )
     k = source.intrinsics
+    _warn_stretch(source.native_size, kw["width"], kw["height"])
     steps = len(source.trajectory)
     params = "width/height/sequence_range/steps_per_frame/eval_views"
     _check_resources(kw, params, k.width, k.height, steps, source.test_view_count)
@@ -314,3 +315,18 @@ def _sequence_source(kw: dict) -> tuple[Any, dict]:
         }
     }
     return source, extra
+
+
+def _warn_stretch(native: tuple[int, int], width: int | None, height: int | None) -> None:
+    """One warning line when --width and --height together change the images' aspect ratio by more than
+    1 % and more than rounding either one alone would (16×100 from 32×24 images stretches them)."""
+    if width is None or height is None:
+        return
+    w0, h0 = native
+    want_h, want_w = h0 * width / w0, w0 * height / h0  # what --width alone, --height alone would give
+    if abs(height - want_h) > max(0.5, 0.01 * want_h) and abs(width - want_w) > max(0.5, 0.01 * want_w):
+        click.echo(
+            f"spikenerf: warning: --width {width} --height {height} stretches the {w0}×{h0} images (aspect "
+            f"{w0 / h0:.3g} → {width / height:.3g}); give only one of them to keep the aspect ratio",
+            err=True,
+        )

@@ -97,12 +97,19 @@ def read_image(path: str | Path) -> np.ndarray:
     return to_linear_rgba(_read_array(path), path)
 
 
+def check_shape(shape: tuple[int, ...], path: str | Path | None = None) -> None:
+    """InputError unless ``shape`` is an image's: (H, W) or (H, W, C∈{1,2,3,4}), H and W ≥ 1."""
+    shape = tuple(int(n) for n in shape)
+    hwc = (*shape, 1) if len(shape) == 2 else shape
+    if len(hwc) != 3 or hwc[2] not in (1, 2, 3, 4) or hwc[0] == 0 or hwc[1] == 0:
+        raise InputError(f"expected an (H, W) or (H, W, 1-4) image, found shape {shape}", path=path)
+
+
 def to_linear_rgba(arr: np.ndarray, path: str | Path | None = None) -> np.ndarray:
     """(H, W) or (H, W, C∈{1,2,3,4}) array → (H, W, 4) float32 linear RGB + alpha (see module doc)."""
+    check_shape(arr.shape, path)
     if arr.ndim == 2:
         arr = arr[..., None]
-    if arr.ndim != 3 or arr.shape[2] not in (1, 2, 3, 4) or arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise InputError(f"expected an (H, W) or (H, W, 1-4) image, found shape {arr.shape}", path=path)
     colour_channels = 1 if arr.shape[2] <= 2 else 3
     if arr.dtype in (np.uint8, np.uint16):
         x = arr.astype(np.float32) / float(np.iinfo(arr.dtype).max)
@@ -120,7 +127,8 @@ def to_linear_rgba(arr: np.ndarray, path: str | Path | None = None) -> np.ndarra
 
 
 def image_size(path: str | Path) -> tuple[int, int]:
-    """(width, height) of an image file from its header (the whole file only for .npy/.exr)."""
+    """(width, height) of an image file from its header (the whole file only for .exr); a .npy/.exr array
+    that is no image (:func:`check_shape`) is an InputError."""
     path = Path(path)
     suffix = path.suffix.lower()
     with _reading(path):
@@ -131,8 +139,7 @@ def image_size(path: str | Path) -> tuple[int, int]:
         else:
             with Image.open(path) as im:
                 return im.size
-    if len(shape) < 2:
-        raise InputError(f"expected an (H, W[, C]) image, found shape {shape}", path=path)
+    check_shape(shape, path)
     return int(shape[1]), int(shape[0])
 
 
@@ -182,7 +189,8 @@ def find_image(root: Path, file_path: object, field: str, json_path: Path) -> Pa
     """The image named by a transforms.json ``file_path``: relative to ``root``, extension optional.
 
     Absolute paths and paths that resolve outside ``root`` (``..`` or a symlink leading out) are rejected;
-    without an image extension, ``IMAGE_EXTENSIONS`` are tried in order ("./train/r_0" → train/r_0.png).
+    without an image extension, ``IMAGE_EXTENSIONS`` are tried in order ("./train/r_0" → train/r_0.png),
+    the first that lies inside ``root`` is taken, and one found only outside it is named as such.
     """
     if not isinstance(file_path, str) or not file_path.strip():
         raise InputError(f"{field}: expected a relative path string, found {file_path!r}", path=json_path)
@@ -201,8 +209,16 @@ def find_image(root: Path, file_path: object, field: str, json_path: Path) -> Pa
     tried = [candidate]
     if candidate.suffix.lower() not in {e.lower() for e in IMAGE_EXTENSIONS}:
         tried += [candidate.with_name(candidate.name + ext) for ext in IMAGE_EXTENSIONS]
+    outside = None  # the first file found that resolves out of the folder (a symlink leading out)
     for option in tried:
-        if option.is_file() and option.resolve().is_relative_to(base):
-            return option
+        if option.is_file():
+            if option.resolve().is_relative_to(base):
+                return option
+            outside = outside or option
+    if outside is not None:
+        raise InputError(
+            f"{field}: {file_path!r} ({outside.name}) points outside the folder of the JSON file",
+            path=json_path,
+        )
     also = f" (also tried {', '.join(IMAGE_EXTENSIONS[:5])})" if len(tried) > 1 else ""
     raise InputError(f"{field}: image {file_path!r} not found{also}", path=json_path)

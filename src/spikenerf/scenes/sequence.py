@@ -8,8 +8,10 @@ steps ``i·s … i·s + s − 1`` (``s = steps_per_frame``): held by default, or
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +30,12 @@ OPEN_END = sys.maxsize
 FrameRange = slice | tuple[int, int]
 #: half-size of an estimated scene box, as a fraction of the nearest camera's distance to the box centre.
 SCENE_BOX_FACTOR = 0.5
+#: cameras whose positions all lie within this fraction of their distance to the estimated centre do not
+#: move (no parallax): the estimated scene box is then a guess, which is warned of
+STILL_FRACTION = 1e-3
+#: a camera this many times further from the cameras' median position than their median distance to it is
+#: named in a warning (a wrong translation, e.g. other units)
+FAR_FACTOR = 1000.0
 #: peak bytes per spike step while a source builds its step schedule and poses (measured about 740)
 SCHEDULE_BYTES = 1024
 
@@ -43,7 +51,7 @@ def select_range(count: int, frame_range: FrameRange | None, path: Path | None =
     start, stop = (
         (frame_range.start, frame_range.stop) if isinstance(frame_range, slice) else tuple(frame_range)
     )
-    shown = f"{'' if start is None else start}:{'' if stop in (None, OPEN_END) else stop}"
+    shown = repr(f"{'' if start is None else start}:{'' if stop in (None, OPEN_END) else stop}")
     outside = [v for v in (start, stop) if v not in (None, OPEN_END) and not -count <= v <= count]
     if outside:
         raise InputError(
@@ -84,7 +92,9 @@ def blend_frames(a: np.ndarray, b: np.ndarray, alpha: float) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------ scene box
-def estimate_scene_box(poses: np.ndarray, factor: float = SCENE_BOX_FACTOR) -> np.ndarray:
+def estimate_scene_box(
+    poses: np.ndarray, factor: float = SCENE_BOX_FACTOR, path: Path | None = None
+) -> np.ndarray:
     """Axis-aligned box around the region the cameras look at.
 
     The centre is the least-squares point closest to all optical axes (camera centre, −Z direction); the
@@ -92,26 +102,69 @@ def estimate_scene_box(poses: np.ndarray, factor: float = SCENE_BOX_FACTOR) -> n
     the point lies behind the cameras, the centre is put ahead of the mean camera by the cameras' spread
     (at least 1 unit) — a rough guess; give a ``scene_box`` key then.
 
+    A warning (naming ``path``) says when the cameras do not move (no parallax: the box is a guess) or one
+    lies orders of magnitude further than the others (``FAR_FACTOR``: a wrong pose, naming its frame); an
+    InputError when no finite box comes out.
+
     Args:
-        poses: (N, 4, 4) camera-to-world. Returns: (2, 3) float64 (min, max).
+        poses: (N, 4, 4) camera-to-world of ``frames[0…N−1]``. Returns: (2, 3) float64 (min, max).
     """
     origins = poses[:, :3, 3]
     dirs = -poses[:, :3, 2] / np.linalg.norm(poses[:, :3, 2], axis=-1, keepdims=True)
     proj = np.eye(3) - dirs[:, :, None] * dirs[:, None, :]  # (N, 3, 3) projections orthogonal to each axis
-    a, b = proj.sum(0), np.einsum("nij,nj->i", proj, origins)
-    centre = None
-    if np.linalg.eigvalsh(a / len(poses)).min() > 1e-3:
-        centre = np.linalg.solve(a, b)
-        if np.mean(np.sum((centre - origins) * dirs, axis=-1)) <= 0:
-            centre = None
-    if centre is None:
-        mean_dir = dirs.mean(0)
-        mean_dir /= max(np.linalg.norm(mean_dir), 1e-12)
+    with np.errstate(over="ignore", invalid="ignore"):  # (positions near the float limit: refused below)
+        a, b = proj.sum(0), np.einsum("nij,nj->i", proj, origins)
+        centre = None
+        if np.linalg.eigvalsh(a / len(poses)).min() > 1e-3:
+            centre = np.linalg.solve(a, b)
+            if np.mean(np.sum((centre - origins) * dirs, axis=-1)) <= 0:
+                centre = None
+        if centre is None:
+            mean_dir = dirs.mean(0)
+            mean_dir /= max(np.linalg.norm(mean_dir), 1e-12)
+            spread = float(np.linalg.norm(origins - origins.mean(0), axis=-1).max())
+            centre = origins.mean(0) + mean_dir * max(2.0 * spread, 1.0)
+        half = factor * float(np.linalg.norm(origins - centre, axis=-1).min())
+        half = half if half > 0 else 1.0
+        box = np.stack([centre - half, centre + half])
+    _check_cameras(origins, box, path)
+    return box
+
+
+def _check_cameras(origins: np.ndarray, box: np.ndarray, path: Path | None) -> None:
+    """Warn of cameras that stand still or of one far off the others; refuse a box that is not finite."""
+    if not np.isfinite(box).all():
+        frame = int(np.argmax(np.abs(origins).max(axis=1)))
+        raise InputError(
+            f"cannot estimate a scene box: the camera positions overflow (frames[{frame}] lies at "
+            f"{np.abs(origins[frame]).max():.3g}); fix its transform_matrix or give a 'scene_box' key",
+            path=path,
+        )
+    where = "" if path is None else f"{path}: "
+    shown = f"[{', '.join(f'{v:.3g}' for v in box[0])}] to [{', '.join(f'{v:.3g}' for v in box[1])}]"
+    with np.errstate(over="ignore", invalid="ignore"):
+        offset = np.linalg.norm(origins - np.median(origins, axis=0), axis=-1)
         spread = float(np.linalg.norm(origins - origins.mean(0), axis=-1).max())
-        centre = origins.mean(0) + mean_dir * max(2.0 * spread, 1.0)
-    half = factor * float(np.linalg.norm(origins - centre, axis=-1).min())
-    half = half if half > 0 else 1.0
-    return np.stack([centre - half, centre + half])
+        distance = float(np.linalg.norm(origins.mean(0) - box.mean(0)))
+    moved = offset[offset > 0]
+    typical = float(np.median(moved)) if len(moved) else 0.0
+    far = np.flatnonzero(~(offset <= FAR_FACTOR * typical)) if typical > 0 else np.zeros(0, dtype=np.int64)
+    if 0 < len(far) < len(origins) / 2:
+        first = int(far[np.argmax(offset[far])])
+        more = f" (and {len(far) - 1} more)" if len(far) > 1 else ""
+        warnings.warn(
+            f"{where}the camera of frames[{first}]{more} lies {offset[first]:.3g} from the cameras' median "
+            f"position, over {FAR_FACTOR:g}× their typical {typical:.3g}: a wrong transform_matrix? The "
+            f"estimated scene box is {shown}; fix the pose or give a 'scene_box' key",
+            stacklevel=3,
+        )
+    elif len(origins) > 1 and not spread > STILL_FRACTION * distance:  # (one frame: a still on purpose)
+        warnings.warn(
+            f"{where}the {len(origins)} cameras do not move (all within {spread:.3g} of their mean position, "
+            f"{distance:.3g} from what they face): no parallax, so the estimated scene box {shown} is a "
+            "guess; give a 'scene_box' key",
+            stacklevel=3,
+        )
 
 
 # --------------------------------------------------------------------------------- transforms.json
@@ -139,7 +192,10 @@ def load_sequence(transforms_json: str | Path, frame_range: FrameRange | None = 
     """Read and validate a transforms.json: every listed pose, and the images of the selected frames."""
     path = Path(transforms_json)
     meta = transforms.read_transforms(path)
-    frames = transforms.frames_of(meta, path, ("file_path", "transform_matrix"))
+    try:
+        frames = transforms.frames_of(meta, path, ("file_path", "transform_matrix"))
+    except InputError as err:
+        raise _dataset_hint(err, meta, path) from None
     all_poses = transforms.frame_poses(meta, path)
     indices = np.asarray(select_range(len(frames), frame_range, path), dtype=np.int64)
     root = path.parent
@@ -156,6 +212,28 @@ def load_sequence(transforms_json: str | Path, frame_range: FrameRange | None = 
     intrinsics = transforms.intrinsics(meta, path, size)
     return SequenceFrames(
         path, indices, images, all_poses[indices], all_poses, intrinsics, transforms.scene_box(meta, path)
+    )
+
+
+def _dataset_hint(err: InputError, meta: dict, path: Path) -> InputError:
+    """``err`` with a hint added where a frame without ``file_path`` is one of a spikenerf dataset (frames
+    with a ``step``, or a ``config.yaml`` of spikenerf beside the file): it has an image every gt_every
+    steps only (``simulate``'s option)."""
+    if not err.message.endswith("missing field 'file_path'"):
+        return err
+    frames = meta["frames"]
+    missing = next(f for f in frames if "file_path" not in f)
+    config = path.parent / "config.yaml"
+    ours = "step" in missing
+    with contextlib.suppress(OSError, UnicodeDecodeError):
+        ours = ours or (config.is_file() and "spikenerf_version:" in config.read_text(encoding="utf-8"))
+    if not ours:
+        return err
+    return InputError(
+        f"{err.message}: a spikenerf dataset stores an image only every few steps; to read its "
+        "transforms.json as a sequence, simulate it with gt_every 1",
+        path=path,
+        param="gt_every",
     )
 
 
@@ -223,7 +301,9 @@ class SequenceSource:
         poses = interpolate_poses(seq.poses[self._frame], seq.poses[self._next], self._alpha)
         steps = np.arange(len(self._frame), dtype=np.int64)
         self.trajectory = Trajectory(poses, steps / float(fps), steps, float(fps))
-        self.scene_box = seq.scene_box if seq.scene_box is not None else estimate_scene_box(seq.all_poses)
+        self.scene_box = (
+            seq.scene_box if seq.scene_box is not None else estimate_scene_box(seq.all_poses, path=path)
+        )
         self._eval = None if eval_views is None else self._check_eval(Path(eval_views))
         self._cache: dict[int, np.ndarray] = {}
         self._test: tuple[np.ndarray, np.ndarray] | None = None

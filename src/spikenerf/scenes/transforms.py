@@ -40,17 +40,43 @@ def rotation_error(rot: np.ndarray) -> np.ndarray:
     return np.where(np.linalg.det(rot) < 0, np.inf, off)
 
 
+class _DuplicateKey(Exception):
+    """A JSON object names ``key`` twice (raised by :func:`_unique_keys` out of ``json.loads``)."""
+
+    def __init__(self, key: str) -> None:
+        super().__init__(key)
+        self.key = key
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` of :func:`read_transforms`: the object, or _DuplicateKey for a key given twice
+    (``json.loads`` keeps the last silently). One ``dict`` and a length test per object: cheap."""
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise _DuplicateKey(key)
+            seen.add(key)
+    return obj
+
+
 def read_transforms(path: str | Path, missing: str = "transforms file not found") -> dict[str, Any]:
-    """The top-level JSON object of ``path``; InputError(``missing``) when there is no such file."""
+    """The top-level JSON object of ``path``; InputError(``missing``) when there is no such file, and for an
+    object that gives a key twice (which one is meant?), as strict YAML does (``core.yamlio``)."""
     path = Path(path)
     if path.is_dir() and (path / "transforms.json").is_file():
         raise InputError(f"is a folder: give the file {path / 'transforms.json'}", path=path)
     if not path.is_file():
         raise InputError(missing, path=path)
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
+        meta = json.loads(path.read_text(encoding="utf-8"), object_pairs_hook=_unique_keys)
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(f"malformed JSON ({err})", path=path) from err
+    except _DuplicateKey as err:
+        raise InputError(
+            f"malformed JSON: key {err.key!r} given twice in one object (which one is meant?)", path=path
+        ) from None
     if not isinstance(meta, dict):
         raise InputError(f"expected a JSON object at the top level, found {type(meta).__name__}", path=path)
     return meta
