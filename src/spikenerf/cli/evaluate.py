@@ -100,7 +100,8 @@ def command(
     )
     click.echo(
         f"{result['method']} ({result['color']}, {result['field']}, {result['iterations']} it) on "
-        f"{result['views']} {split} views: {scores(result['mean'])} → {run / metrics_file(split)}"
+        f"{result['views']} {split} view{'' if result['views'] == 1 else 's'}: {scores(result['mean'])} → "
+        f"{run / metrics_file(split)}"
     )
     for line in (pose_fit_line(result), noref_line(result)):
         if line:

@@ -86,7 +86,8 @@ def metrics_lines(path: Path, done: int) -> list[str]:
         result = json.loads(text)
         if not isinstance(result, dict):
             raise TypeError(f"expected a JSON object, found {type(result).__name__}")
-        scored = f"{path.name} ({result['split']}, {result['views']} views{per_view(result)})"
+        views = f"{result['views']} view{'' if result['views'] == 1 else 's'}"
+        scored = f"{path.name} ({result['split']}, {views}{per_view(result)})"
         if isinstance(scored_at := result.get("iterations"), int) and scored_at < done:
             scored += f" [of iteration {scored_at}, not {done}: run eval again]"
         lines = [f"{scored}: {scores(result['mean'])}"] if result["views"] else []  # (0: the checks alone)

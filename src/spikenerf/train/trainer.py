@@ -329,7 +329,8 @@ class Trainer:
         if (
             config.eval_views > held and config.eval_views != TrainConfig.eval_views and ckpt is None
         ):  # (asked)
-            warn(f"--eval-views {config.eval_views}: the dataset has {held} test views; evaluating {held}")
+            views = f"{held} test view{'' if held == 1 else 's'}"
+            warn(f"--eval-views {config.eval_views}: the dataset has {views}; evaluating {held}")
         self.samplers: dict[str, Any] = self.method.make_samplers(self.height, self.width)
         torch.manual_seed(config.seed)
         if ckpt is None:
