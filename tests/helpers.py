@@ -6,7 +6,9 @@ Import it as ``from helpers import ...`` (pytest puts ``tests/`` on ``sys.path``
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -28,6 +30,26 @@ def run_cli(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str
         code = int(exit_.code or 0)
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def edit_json(path: Path, change: Callable[[dict], object]) -> Path:
+    """``change(meta)`` applied in place to the JSON object of ``path``, written back; returns ``path``."""
+    meta = json.loads(path.read_text())
+    change(meta)
+    path.write_text(json.dumps(meta))
+    return path
+
+
+def write_recording(path: Path, steps: int, height: int, width: int) -> Path:
+    """A random 30 % spike recording (``steps``, ``height``, ``width``) at ``path`` with a SpikeCV
+    ``config.yaml`` beside it giving its size; returns ``path``."""
+    import numpy as np
+
+    from spikenerf.camera.io import write_dat
+
+    write_dat(path, (np.random.default_rng(0).random((steps, height, width)) < 0.3).astype(np.uint8))
+    (path.parent / "config.yaml").write_text(f"spike_h: {height}\nspike_w: {width}\n")
+    return path
 
 
 def load_benchmark(name: str) -> ModuleType:

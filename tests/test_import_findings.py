@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from helpers import run_cli
-from spikenerf.camera.io import write_dat
+from helpers import run_cli, write_recording
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.importing.alignment import held_steps, normalisation, per_step_poses
@@ -23,10 +22,7 @@ ORBIT = ("--poses", "orbit", "--orbit", "4,30")
 
 @pytest.fixture
 def rec(tmp_path: Path) -> Path:
-    path = tmp_path / "rec" / "recording.dat"
-    write_dat(path, (np.random.default_rng(0).random((T, H, W)) < 0.3).astype(np.uint8))
-    (path.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\n")
-    return path
+    return write_recording(tmp_path / "rec" / "recording.dat", T, H, W)
 
 
 def _one_error(code: int, err: str, *words: str) -> None:

@@ -9,8 +9,7 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from helpers import run_cli
-from spikenerf.camera.io import write_dat
+from helpers import run_cli, write_recording
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.importing.alignment import smooth_poses, trajectory_errors
@@ -86,10 +85,7 @@ def test_no_loop_pairs_matches_the_keyframes_sequentially(
 
 @pytest.fixture
 def recording(tmp_path: Path) -> Path:
-    rec = tmp_path / "rec" / "stream.dat"
-    write_dat(rec, (np.random.default_rng(0).random((T, H, W)) < 0.3).astype(np.uint8))
-    (rec.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\n")
-    return rec
+    return write_recording(tmp_path / "rec" / "stream.dat", T, H, W)
 
 
 def test_learned_keyframes_use_the_networks_window(capsys, recording, tmp_path) -> None:

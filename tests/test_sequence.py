@@ -12,6 +12,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from helpers import edit_json
 from spikenerf.core.color import srgb_decode
 from spikenerf.core.errors import InputError, parse_range
 from spikenerf.core.png16 import decode_png16
@@ -64,13 +65,6 @@ def _expected(i: int) -> np.ndarray:
     x = _pixels(i).astype(np.float64) / 255.0
     rgb = srgb_decode(x[..., :3])
     return (rgb * x[..., 3:] + 1 - x[..., 3:]).astype(np.float32)
-
-
-def _edit(path: Path, fn) -> Path:
-    meta = json.loads(path.read_text())
-    fn(meta)
-    path.write_text(json.dumps(meta))
-    return path
 
 
 @pytest.fixture
@@ -285,7 +279,7 @@ def test_eval_views(tiny: Path) -> None:
     poses, images = src.test_views()
     assert poses.shape == (2, 4, 4) and images.shape == (2, 4, 4, 3) and images.dtype == np.float32
     np.testing.assert_allclose(images[1], _expected(1).reshape(4, 2, 4, 2, 3).mean(axis=(1, 3)), atol=1e-6)
-    _edit(root / "transforms_test.json", lambda m: m.update(camera_angle_x=0.9))
+    edit_json(root / "transforms_test.json", lambda m: m.update(camera_angle_x=0.9))
     with pytest.raises(InputError, match="another camera"):
         SequenceSource(tiny, eval_views=root / "transforms_test.json")
 
@@ -301,9 +295,9 @@ def test_scene_box(tiny: Path) -> None:
     assert np.isfinite(box).all() and box.mean(0)[2] < 0
     np.testing.assert_allclose(SequenceSource(tiny).scene_box.mean(0), 0.0, atol=1e-6)
     given = [[-1, -1, -1], [1, 2, 3]]
-    _edit(tiny, lambda m: m.update(scene_box=given))
+    edit_json(tiny, lambda m: m.update(scene_box=given))
     np.testing.assert_array_equal(SequenceSource(tiny).scene_box, given)
-    _edit(tiny, lambda m: m.update(scene_box=[[1, 1, 1], [0, 0, 0]]))
+    edit_json(tiny, lambda m: m.update(scene_box=[[1, 1, 1], [0, 0, 0]]))
     with pytest.raises(InputError, match="'scene_box'"):
         SequenceSource(tiny)
 
@@ -313,7 +307,7 @@ def test_nerfstudio_intrinsics(tiny: Path) -> None:
         del m["camera_angle_x"]
         m.update(fl_x=10.0, fl_y=12.0, cx=4.5, cy=3.5, w=SIZE, h=SIZE)
 
-    cam = SequenceSource(_edit(tiny, ns), width=4).intrinsics
+    cam = SequenceSource(edit_json(tiny, ns), width=4).intrinsics
     assert (cam.fl_x, cam.fl_y, cam.cx, cam.cy) == (5.0, 6.0, 2.25, 1.75)
 
 
@@ -325,37 +319,43 @@ def _set_frame(i: int, **fields: object):
 ERRORS = {
     "malformed JSON": lambda p: p.write_text("{frames: ["),
     "expected a JSON object": lambda p: p.write_text("[1, 2]"),
-    "field 'frames'": lambda p: _edit(p, lambda m: m.pop("frames")),
-    "non-empty list": lambda p: _edit(p, lambda m: m.update(frames=[])),
-    r"frames\[2\]: missing field 'transform_matrix'": lambda p: _edit(
+    "field 'frames'": lambda p: edit_json(p, lambda m: m.pop("frames")),
+    "non-empty list": lambda p: edit_json(p, lambda m: m.update(frames=[])),
+    r"frames\[2\]: missing field 'transform_matrix'": lambda p: edit_json(
         p, lambda m: m["frames"][2].pop("transform_matrix")
     ),
-    r"frames\[1\]: missing field 'file_path'": lambda p: _edit(p, lambda m: m["frames"][1].pop("file_path")),
-    r"frames\[3\].transform_matrix: expected a 4×4 matrix": lambda p: _edit(
+    r"frames\[1\]: missing field 'file_path'": lambda p: edit_json(
+        p, lambda m: m["frames"][1].pop("file_path")
+    ),
+    r"frames\[3\].transform_matrix: expected a 4×4 matrix": lambda p: edit_json(
         p, _set_frame(3, transform_matrix=[[1, 0, 0], [0, 1, 0], [0, 0, 1]])
     ),
-    r"frames\[0\].transform_matrix: expected a 4×4 list": lambda p: _edit(
+    r"frames\[0\].transform_matrix: expected a 4×4 list": lambda p: edit_json(
         p, _set_frame(0, transform_matrix=[[1, 2], [3]])
     ),
-    "NaN": lambda p: _edit(p, lambda m: m["frames"][4]["transform_matrix"][0].__setitem__(3, float("nan"))),
-    "not a rotation": lambda p: _edit(p, _set_frame(1, transform_matrix=(np.eye(4) * [2, 2, 2, 1]).tolist())),
-    "absolute paths": lambda p: _edit(p, _set_frame(0, file_path=str(p.parent / "train" / "r_0.png"))),
+    "NaN": lambda p: edit_json(
+        p, lambda m: m["frames"][4]["transform_matrix"][0].__setitem__(3, float("nan"))
+    ),
+    "not a rotation": lambda p: edit_json(
+        p, _set_frame(1, transform_matrix=(np.eye(4) * [2, 2, 2, 1]).tolist())
+    ),
+    "absolute paths": lambda p: edit_json(p, _set_frame(0, file_path=str(p.parent / "train" / "r_0.png"))),
     "outside the folder": lambda p: (
         iio.imwrite(p.parent.parent / "secret.png", _pixels(0)),
-        _edit(p, _set_frame(0, file_path="train/../../secret.png")),
+        edit_json(p, _set_frame(0, file_path="train/../../secret.png")),
     ),
-    r"frames\[5\].file_path: image './train/nope' not found": lambda p: _edit(
+    r"frames\[5\].file_path: image './train/nope' not found": lambda p: edit_json(
         p, _set_frame(5, file_path="./train/nope")
     ),
     "must have the same size": lambda p: iio.imwrite(p.parent / "train" / "r_3.png", _pixels(0, 4)),
-    "missing camera": lambda p: _edit(p, lambda m: m.pop("camera_angle_x")),
-    "'camera_angle_x'": lambda p: _edit(p, lambda m: m.update(camera_angle_x="wide")),
-    "images are 8×8": lambda p: _edit(p, lambda m: m.update(w=16)),
-    "per-frame cameras": lambda p: _edit(p, _set_frame(2, camera_angle_x=0.7)),
-    "OPENCV lens distortion is not supported; undistort the images first": lambda p: _edit(
+    "missing camera": lambda p: edit_json(p, lambda m: m.pop("camera_angle_x")),
+    "'camera_angle_x'": lambda p: edit_json(p, lambda m: m.update(camera_angle_x="wide")),
+    "images are 8×8": lambda p: edit_json(p, lambda m: m.update(w=16)),
+    "per-frame cameras": lambda p: edit_json(p, _set_frame(2, camera_angle_x=0.7)),
+    "OPENCV lens distortion is not supported; undistort the images first": lambda p: edit_json(
         p, lambda m: m.update(camera_model="OPENCV", k1=0.1)
     ),
-    "'OPENCV_FISHEYE' is not a perspective camera": lambda p: _edit(
+    "'OPENCV_FISHEYE' is not a perspective camera": lambda p: edit_json(
         p, lambda m: m.update(camera_model="OPENCV_FISHEYE")
     ),
     "cannot read image": lambda p: (p.parent / "train" / "r_2.png").write_bytes(b"not a png at all"),

@@ -11,7 +11,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from helpers import run_cli
+from helpers import edit_json, run_cli
 from spikenerf.core.errors import InputError
 from spikenerf.scenes import transforms
 from spikenerf.scenes.sequence import SequenceSource, estimate_scene_box
@@ -30,13 +30,6 @@ def _sequence(root: Path, n: int = N, **extra: object) -> Path:
         frames.append({"file_path": f"./f/{i}", "transform_matrix": poses[i].tolist()})
     path = root / "transforms.json"
     path.write_text(json.dumps({"camera_angle_x": 0.6, "frames": frames, **extra}))
-    return path
-
-
-def _edit(path: Path, fn) -> Path:
-    meta = json.loads(path.read_text())
-    fn(meta)
-    path.write_text(json.dumps(meta))
     return path
 
 
@@ -82,10 +75,12 @@ def test_a_far_camera_or_cameras_that_do_not_move_are_warned_of(seq: Path) -> No
     huge[2, 1, 3] = -1e300  # no finite box comes out
     with pytest.raises(InputError, match=r"cannot estimate a scene box: .*frames\[2\]"):
         estimate_scene_box(huge)
-    _edit(seq, lambda m: m["frames"][3]["transform_matrix"][2].__setitem__(3, 1e30))
+    edit_json(seq, lambda m: m["frames"][3]["transform_matrix"][2].__setitem__(3, 1e30))
     with pytest.warns(UserWarning, match=r"transforms.json: the camera of frames\[3\]"):
         SequenceSource(seq)
-    _edit(seq, lambda m: m.update(scene_box=[[-1, -1, -1], [1, 1, 1]]))  # a given box: nothing to estimate
+    edit_json(
+        seq, lambda m: m.update(scene_box=[[-1, -1, -1], [1, 1, 1]])
+    )  # a given box: nothing to estimate
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         SequenceSource(seq)
@@ -96,10 +91,10 @@ def test_a_symlink_out_found_by_an_added_extension_is_named(seq: Path, tmp_path:
     outside = tmp_path / "elsewhere.png"
     iio.imwrite(outside, np.zeros((H, W), np.uint8))
     (seq.parent / "f" / "out.png").symlink_to(outside)
-    _edit(seq, lambda m: m["frames"][1].update(file_path="./f/out"))
+    edit_json(seq, lambda m: m["frames"][1].update(file_path="./f/out"))
     with pytest.raises(InputError, match=r"frames\[1\].file_path: './f/out' \(out.png\) points outside"):
         SequenceSource(seq)
-    _edit(seq, lambda m: m["frames"][1].update(file_path="./f/out.png"))
+    edit_json(seq, lambda m: m["frames"][1].update(file_path="./f/out.png"))
     with pytest.raises(InputError, match=r"'./f/out.png' points outside"):
         SequenceSource(seq)
 
@@ -114,14 +109,14 @@ def test_a_spikenerf_datasets_transforms_json_gets_the_gt_every_hint(
             if i % 2:
                 del frame["file_path"]
 
-    _edit(seq, dataset)
+    edit_json(seq, dataset)
     with pytest.raises(InputError, match=r"frames\[1\]: missing field 'file_path': a spikenerf data") as err:
         SequenceSource(seq)
     assert err.value.message.endswith("simulate it with gt_every 1") and err.value.params == ("gt_every",)
     code, _, out = run_cli(capsys, "simulate", "--sequence", seq, "--out", seq.parent.parent / "o")
     assert code == 2 and out.strip().endswith("simulate it with --gt-every 1"), out
     assert out.count("\n") == 1
-    _edit(seq, lambda m: [f.pop("step") for f in m["frames"]])  # not a dataset: the plain message
+    edit_json(seq, lambda m: [f.pop("step") for f in m["frames"]])  # not a dataset: the plain message
     with pytest.raises(InputError, match=r"frames\[1\]: missing field 'file_path'$"):
         SequenceSource(seq)
     (seq.parent / "config.yaml").write_text("spike_h: 24\nspikenerf_version: 0.1.0\n")  # ... or beside one
@@ -132,7 +127,7 @@ def test_a_spikenerf_datasets_transforms_json_gets_the_gt_every_hint(
 # --------------------------------------------------------------------------- 5: a .npy that is no image
 def test_a_misshapen_npy_is_named_before_sizes_are_compared(seq: Path) -> None:
     np.save(seq.parent / "f" / "bad.npy", np.zeros((2, H, W, 3), np.float32))
-    _edit(seq, lambda m: m["frames"][0].update(file_path="./f/bad.npy"))
+    edit_json(seq, lambda m: m["frames"][0].update(file_path="./f/bad.npy"))
     with pytest.raises(InputError, match=r"expected an \(H, W\) or \(H, W, 1-4\) image, found shape") as err:
         SequenceSource(seq)
     assert err.value.path.endswith("bad.npy")
