@@ -21,7 +21,7 @@ from spikenerf.data.rays import as_poses
 from spikenerf.data.targets import build_spike_targets, stream_targets
 from spikenerf.fields import GridFieldConfig
 from spikenerf.render import build_model, iter_spike_states, render_image, render_spike_stream
-from spikenerf.render.model import render_mean
+from spikenerf.render.model import check_poses, render_mean
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.registry import make_scene_source
 from spikenerf.scenes.trajectory import Intrinsics, novel_views, orbit
@@ -197,8 +197,15 @@ def test_render_image_checks_its_pose_bounds_and_chunk(model) -> None:  # type: 
     _params(lambda: render_mean(model, POSES[:0], INTR), "poses")
     mean = render_mean(model, POSES[::-1], INTR, chunk=0)  # a reversed view: negative strides
     torch.testing.assert_close(mean, render_mean(model, POSES[::-1].copy(), INTR), rtol=0, atol=0)
-    listed = [torch.as_tensor(p) for p in POSES[::-1]]  # a list of tensors (on a GPU: no numpy view)
+    listed = [torch.as_tensor(p) for p in POSES[::-1]]
     torch.testing.assert_close(mean, render_mean(model, listed, INTR), rtol=0, atol=0)
+
+    class OnDevice(torch.Tensor):  # as a CUDA tensor: no numpy view (np.shape of a list of them raised)
+        def __array__(self, *args: object, **kwargs: object) -> np.ndarray:
+            raise TypeError("can't convert cuda:0 device type tensor to numpy")
+
+    check_poses([p.as_subclass(OnDevice) for p in listed], "poses")
+    _params(lambda: check_poses([listed[0], listed[0][:3]], "poses"), "poses", match="different shapes")
 
 
 def test_as_poses_takes_negative_strides() -> None:

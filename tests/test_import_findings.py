@@ -101,6 +101,26 @@ def test_held_steps_are_those_per_step_poses_holds() -> None:
         assert not moves[99 - after :].any() and (after == 0 or moves[98 - after])
 
 
+def test_held_out_keyframes_drop_those_at_held_poses_and_need_the_step_count() -> None:
+    from spikenerf.importing.importer import held_out_keyframes
+
+    keys = np.arange(10, 200, 20)  # test keyframes 30 and 190 (every 8th from the second)
+    assert held_out_keyframes(keys, 8).tolist() == [30, 190]
+    assert held_out_keyframes(keys, 8, np.arange(200), 200).tolist() == [30, 190]
+    assert held_out_keyframes(keys, 8, np.arange(40, 200), 200).tolist() == [190]  # 0..38 held
+    with pytest.raises(TypeError, match="needs n"):  # (n = 0 dropped every test view silently)
+        held_out_keyframes(keys, 8, np.arange(200))
+
+
+def test_a_warning_says_when_held_poses_leave_no_test_view(capsys, rec, tmp_path) -> None:
+    from spikenerf.cli.import_ import held_pose_warning
+
+    imported = {"pose_steps": list(range(40, 160)), "range": [0, 200], "test_keyframes": []}
+    assert "hold no test view (none remains anywhere)" in held_pose_warning(imported, 200)
+    imported["test_keyframes"] = [70]
+    assert "(none remains" not in held_pose_warning(imported, 200)
+
+
 # --------------------------------------------------------------------------------- 3. orbit numbers
 @pytest.mark.parametrize(
     ("spec", "words"),

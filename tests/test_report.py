@@ -495,6 +495,8 @@ def test_table2_has_rows_only_for_the_ablations_that_ran() -> None:
     cells = [Cell("s", v, "gray", 28.0, 0.9, 0.1) for v in ("spike-nerf", "spike-nerf-no-mask")]
     page = table2_html(cells, "gray")
     assert "W/O spike loss" not in page and "W/O spike masks" in page and page.count("<tr><td>") == 2
+    rgb = table2_html([*cells, Cell("s", "spike-nerf", "rgb", 27.0, 0.8, 0.2)], "rgb")  # merged calls
+    assert "W/O spike masks" not in rgb and rgb.count("<tr><td>") == 1
 
 
 def test_a_copied_or_changed_benchmark_draws_its_own_datasets_figures(
@@ -520,10 +522,14 @@ def test_a_copied_or_changed_benchmark_draws_its_own_datasets_figures(
     assert "figure not available" not in page and len(data_uri_pngs(page)) == 5
     dataset = copy / "datasets" / SCENE / "config.yaml"
     dataset.write_text(dataset.read_text().replace(f"spike_w: {SIZE}", f"spike_w: {SIZE + 8}"))
+    theirs = ["logo.png", "views-overview.png", f"spikes-{SCENE}-x.png", f"views-{SCENE}-rgb.png"]
+    for name in theirs:  # a user's files, or another call's figures: never this build's to remove
+        (copy / "figures" / name).write_bytes(b"not ours")
     page = build_report(cfg, cells, progress=False).read_text(encoding="utf-8")  # type: ignore[arg-type]
     assert page.count("figure not available: InputError") == 3  # views, spikes, novel spikes
     assert "the dataset was simulated with size" in page
-    assert sorted(p.name for p in (copy / "figures").glob("*.png")) == [f"curves-{SCENE}-gray.png"]
+    left = sorted(p.name for p in (copy / "figures").glob("*.png"))
+    assert left == sorted([f"curves-{SCENE}-gray.png", *theirs])
     assert figure_device(dataclasses.replace(bench, device="cpu")) == "cpu"
     import torch
 

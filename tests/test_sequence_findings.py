@@ -86,6 +86,22 @@ def test_a_far_camera_or_cameras_that_do_not_move_are_warned_of(seq: Path) -> No
         SequenceSource(seq)
 
 
+def test_a_video_that_starts_at_rest_is_no_far_camera_and_parallel_axes_no_still_one() -> None:
+    """30 frames at rest (pose noise 1e-6) then 10 moving 0.05–1: the moving ones were "over 1000× their
+    typical" offset. A forward-facing dolly (parallel axes: the distance to what they face is a guess)
+    is no still camera either."""
+    rng = np.random.default_rng(0)
+    poses = np.repeat(orbit(4.0, 30.0, duration=1 / 40000.0).poses[:1], 40, axis=0)
+    poses[:30, :3, 3] += rng.normal(0, 1e-6, (30, 3))
+    poses[30:, 0, 3] += np.linspace(0.05, 1.0, 10)
+    dolly = np.repeat(poses[:1], 5, axis=0)
+    dolly[:, 0, 3] += np.linspace(0, 1e-3, 5)  # 1 mm steps of a camera facing one way
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        estimate_scene_box(poses)
+        estimate_scene_box(dolly)
+
+
 # ---------------------------------------------------------------------- 3: a symlink out, no extension
 def test_a_symlink_out_found_by_an_added_extension_is_named(seq: Path, tmp_path: Path) -> None:
     outside = tmp_path / "elsewhere.png"
@@ -122,6 +138,10 @@ def test_a_spikenerf_datasets_transforms_json_gets_the_gt_every_hint(
     (seq.parent / "config.yaml").write_text("spike_h: 24\nspikenerf_version: 0.1.0\n")  # ... or beside one
     with pytest.raises(InputError, match=r"gt_every 1$"):
         SequenceSource(seq)
+    (seq.parent / "config.yaml").write_text("spike_h: 24\nnoise: recorded\nimported:\n  range: [0, 8]\n")
+    with pytest.raises(InputError, match="an imported recording's dataset, spikes without images") as err:
+        SequenceSource(seq)  # (a recording cannot be simulated again with gt_every 1)
+    assert "gt_every" not in err.value.message
 
 
 # --------------------------------------------------------------------------- 5: a .npy that is no image

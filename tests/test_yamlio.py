@@ -22,6 +22,7 @@ def test_load_yaml_reads_what_safe_load_reads() -> None:
         "base: &b {lam: 0.25, window: 4}\nspike:\n  <<: *b\n  window: 8\n",
         "a: &a {x: 1}\nb: &b {y: 2}\nc:\n  <<: [*a, *b]\n  x: 3\n",
         "spike:\n  <<: {lam: 0.25}\n  window: 8\n",
+        "c: &c\n  <<: &b\n    <<: {x: 1}\n    x: 2\nd: *b\n",  # an anchor flattened in place, then aliased
     ]
     for text in merges:
         assert load_yaml(text) == yaml.safe_load(text)

@@ -164,8 +164,9 @@ def held_pose_warning(imported: dict, n: int) -> str | None:
     spans = [f"{first}..{first + before - 1}"] if before else []
     spans += [f"{first + n - after}..{first + n - 1}"] if after else []
     lo, hi = first + min(keys), first + max(keys)
+    none = "" if imported.get("test_keyframes") else " (none remains anywhere)"
     return (
         f"steps {' and '.join(spans)} ({before + after} of the {n} imported) lie beyond the poses' steps "
         f"{lo}..{hi} and the one interval extrapolated: they keep a held pose, as if the camera stood "
-        f"still, and hold no test view; --range {lo}:{hi + 1} imports only the posed steps"
+        f"still, and hold no test view{none}; --range {lo}:{hi + 1} imports only the posed steps"
     )

@@ -14,25 +14,38 @@ import yaml
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` refusing a mapping that repeats a key."""
+    """``yaml.SafeLoader`` refusing a mapping that repeats a key.
 
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+    Each mapping node is checked once, as written, before its merge keys (``<<: *base``) are flattened
+    into it: a key of its own may override a merged one, and a node flattened in place (an anchor inside a
+    merge) is not checked again with the merged keys."""
+
+    def __init__(self, stream: Any) -> None:
+        super().__init__(stream)
+        self._checked: set[int] = set()
+
+    def flatten_mapping(self, node: yaml.MappingNode) -> None:
+        if id(node) not in self._checked:
+            self._checked.add(id(node))
+            self._refuse_repeated(node)
+        super().flatten_mapping(node)
+
+    def _refuse_repeated(self, node: yaml.MappingNode) -> None:
         seen: set = set()
         for key_node, _ in node.value:
-            if key_node.tag == "tag:yaml.org,2002:merge":  # ``<<: *base``: its keys may be overridden here
+            if key_node.tag == "tag:yaml.org,2002:merge":
                 continue
-            key = self.construct_object(key_node, deep=deep)
+            key = self.construct_object(key_node)
             try:
                 repeated = key in seen
                 seen.add(key)
             except TypeError:  # an unhashable key: the base class says what is wrong with it
-                break
+                return
             if repeated:  # (the line in the words: the error's own mark adds four lines of context)
                 line = key_node.start_mark.line + 1
                 raise yaml.constructor.ConstructorError(
                     problem=f"duplicate key {key!r} at line {line} (given twice: which one is meant?)"
                 )
-        return super().construct_mapping(node, deep=deep)
 
 
 def load_yaml(text: str) -> Any:

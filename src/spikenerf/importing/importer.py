@@ -204,7 +204,7 @@ def keyframe_steps(n: int, every: int, window: int) -> np.ndarray:
 
 
 def held_out_keyframes(
-    key_steps: np.ndarray, test_every: int, pose_steps: np.ndarray | None = None, n: int = 0
+    key_steps: np.ndarray, test_every: int, pose_steps: np.ndarray | None = None, n: int | None = None
 ) -> np.ndarray:
     """The keyframe steps held out as test views: every ``test_every``-th from the second (none for 0),
     less those that the poses at ``pose_steps`` (of ``n`` steps) leave at a held pose
@@ -213,6 +213,8 @@ def held_out_keyframes(
     tests = key_steps[1::test_every] if test_every else key_steps[:0]
     if pose_steps is None or len(pose_steps) < 2:
         return tests
+    if n is None:
+        raise TypeError("held_out_keyframes: pose_steps needs n, the number of steps")
     before, after = held_steps(pose_steps, n)
     return tests[(tests >= before) & (tests < n - after)]
 

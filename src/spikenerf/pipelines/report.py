@@ -290,6 +290,13 @@ def _curves_fig(cfg: BenchmarkConfig, scene: str, color: str) -> Fig:
     )
 
 
+def _figure_name(name: str, section: str, key: str) -> bool:
+    """Whether ``name`` is one this report writes for job ``section``/``key``: ``SECTION-KEY.png`` or
+    ``SECTION-KEY-N.png`` (a user's file of another name in ``figures/`` is never touched)."""
+    stem, prefix = name.removesuffix(".png"), f"{section}-{key}"
+    return stem == prefix or (stem.startswith(f"{prefix}-") and stem[len(prefix) + 1 :].isdigit())
+
+
 def figure_device(cfg: BenchmarkConfig) -> str:
     """The device the report renders its figures on: the benchmark's where this machine has it (a report
     rebuilt on a CPU machine from a CUDA benchmark renders on the CPU)."""
@@ -429,9 +436,14 @@ def build_report(
     written = {f.file for figs in made.values() for f in figs if f.file}
     for fig in (f for figs in made.values() for f in figs if f.file):
         write_bytes_atomic(cfg.out / fig.file, fig.png)  # type: ignore[arg-type]
-    for old in (cfg.out / FIGURES).glob("*.png"):  # an earlier build's figure that failed or went now
-        if old.name.startswith(tuple(f"{s}-" for s in SECTIONS)) and f"{FIGURES}/{old.name}" not in written:
-            old.unlink()
+    for section, key, _ in jobs:  # an earlier build's figure of a job that failed now (or drew fewer)
+        names = [
+            f"{section}-{key}.png",
+            *(p.name for p in (cfg.out / FIGURES).glob(f"{section}-{key}-*.png")),
+        ]
+        for name in names:
+            if f"{FIGURES}/{name}" not in written and _figure_name(name, section, key):
+                (cfg.out / FIGURES / name).unlink(missing_ok=True)
     path = cfg.out / REPORT
     write_text_atomic(path, page)
     return path

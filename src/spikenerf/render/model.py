@@ -90,6 +90,9 @@ def check_poses(poses: Tensor | np.ndarray, param: str, one: bool = False) -> No
     (N ≥ 0). A tensor on a GPU is read back for the finite check (one host sync: render calls only, never a
     training step)."""
     if isinstance(poses, (list, tuple)) and poses and all(isinstance(p, Tensor) for p in poses):
+        shapes = {tuple(p.shape) for p in poses}
+        if len(shapes) > 1:
+            raise InputError(f"{param}: poses of different shapes {sorted(shapes)}", param=param)
         poses = torch.stack(list(poses))  # (a list of tensors, maybe on a GPU: no numpy view of them)
     shape = tuple(poses.shape) if hasattr(poses, "shape") else tuple(np.shape(poses))
     want = (4, 4) if one else ("N", 4, 4)

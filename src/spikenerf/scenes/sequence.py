@@ -109,16 +109,24 @@ def estimate_scene_box(
     Args:
         poses: (N, 4, 4) camera-to-world of ``frames[0…N−1]``. Returns: (2, 3) float64 (min, max).
     """
+    box, converged = _estimate(poses, factor)
+    _check_cameras(poses, box, path, converged)
+    return box
+
+
+def _estimate(poses: np.ndarray, factor: float) -> tuple[np.ndarray, bool]:
+    """:func:`estimate_scene_box`'s box (2, 3) of ``poses`` (N, 4, 4), and whether the optical axes meet
+    ahead of the cameras (else the centre is a guess)."""
     origins = poses[:, :3, 3]
     dirs = -poses[:, :3, 2] / np.linalg.norm(poses[:, :3, 2], axis=-1, keepdims=True)
     proj = np.eye(3) - dirs[:, :, None] * dirs[:, None, :]  # (N, 3, 3) projections orthogonal to each axis
-    with np.errstate(over="ignore", invalid="ignore"):  # (positions near the float limit: refused below)
+    with np.errstate(over="ignore", invalid="ignore"):  # (positions near the float limit: refused later)
         a, b = proj.sum(0), np.einsum("nij,nj->i", proj, origins)
-        centre = None
+        centre, converged = None, False
         if np.linalg.eigvalsh(a / len(poses)).min() > 1e-3:
             centre = np.linalg.solve(a, b)
-            if np.mean(np.sum((centre - origins) * dirs, axis=-1)) <= 0:
-                centre = None
+            converged = bool(np.mean(np.sum((centre - origins) * dirs, axis=-1)) > 0)
+            centre = centre if converged else None
         if centre is None:
             mean_dir = dirs.mean(0)
             mean_dir /= max(np.linalg.norm(mean_dir), 1e-12)
@@ -126,13 +134,16 @@ def estimate_scene_box(
             centre = origins.mean(0) + mean_dir * max(2.0 * spread, 1.0)
         half = factor * float(np.linalg.norm(origins - centre, axis=-1).min())
         half = half if half > 0 else 1.0
-        box = np.stack([centre - half, centre + half])
-    _check_cameras(origins, box, path)
-    return box
+        return np.stack([centre - half, centre + half]), converged
 
 
-def _check_cameras(origins: np.ndarray, box: np.ndarray, path: Path | None) -> None:
-    """Warn of cameras that stand still or of one far off the others; refuse a box that is not finite."""
+def _check_cameras(poses: np.ndarray, box: np.ndarray, path: Path | None, converged: bool) -> None:
+    """Warn of a few cameras far off the others (beyond :data:`FAR_FACTOR` × the others' typical offset
+    and their typical distance to the centre of the others' box: cameras at rest with a little pose noise
+    do not make a moving one "far") or of cameras that stand still: within :data:`STILL_FRACTION` of their
+    distance to what they face where the axes meet (``converged``), else (that distance is a guess) at one
+    point; refuse a box that is not finite."""
+    origins = poses[:, :3, 3]
     if not np.isfinite(box).all():
         frame = int(np.argmax(np.abs(origins).max(axis=1)))
         raise InputError(
@@ -149,6 +160,12 @@ def _check_cameras(origins: np.ndarray, box: np.ndarray, path: Path | None) -> N
     moved = offset[offset > 0]
     typical = float(np.median(moved)) if len(moved) else 0.0
     far = np.flatnonzero(~(offset <= FAR_FACTOR * typical)) if typical > 0 else np.zeros(0, dtype=np.int64)
+    if 0 < len(far) < len(origins) / 2:  # against the scene the others see, too
+        rest = np.setdiff1d(np.arange(len(origins)), far)
+        others, _ = _estimate(poses[rest], SCENE_BOX_FACTOR)
+        with np.errstate(over="ignore", invalid="ignore"):
+            typical = max(typical, float(np.median(np.linalg.norm(origins[rest] - others.mean(0), axis=-1))))
+        far = far[~(offset[far] <= FAR_FACTOR * typical)]
     if 0 < len(far) < len(origins) / 2:
         first = int(far[np.argmax(offset[far])])
         more = f" (and {len(far) - 1} more)" if len(far) > 1 else ""
@@ -158,7 +175,9 @@ def _check_cameras(origins: np.ndarray, box: np.ndarray, path: Path | None) -> N
             f"estimated scene box is {shown}; fix the pose or give a 'scene_box' key",
             stacklevel=3,
         )
-    elif len(origins) > 1 and not spread > STILL_FRACTION * distance:  # (one frame: a still on purpose)
+    elif len(origins) > 1 and not spread > (  # (one frame: a still on purpose)
+        STILL_FRACTION * distance if converged else 1e-9 * max(1.0, float(np.abs(origins).max()))
+    ):  # (axes that do not meet: the distance is a guess, so only cameras at one point are said)
         warnings.warn(
             f"{where}the {len(origins)} cameras do not move (all within {spread:.3g} of their mean position, "
             f"{distance:.3g} from what they face): no parallax, so the estimated scene box {shown} is a "
@@ -224,10 +243,16 @@ def _dataset_hint(err: InputError, meta: dict, path: Path) -> InputError:
     frames = meta["frames"]
     missing = next(f for f in frames if "file_path" not in f)
     config = path.parent / "config.yaml"
-    ours = "step" in missing
+    ours, text = "step" in missing, ""
     with contextlib.suppress(OSError, UnicodeDecodeError):
-        ours = ours or (config.is_file() and "spikenerf_version:" in config.read_text(encoding="utf-8"))
-    if not ours:
+        text = config.read_text(encoding="utf-8") if config.is_file() else ""
+    if "\nimported:" in f"\n{text}" or "noise: recorded" in text:  # an imported recording: spikes only
+        return InputError(
+            f"{err.message}: this is an imported recording's dataset, spikes without images; it cannot be "
+            "read as an image sequence (train on it instead)",
+            path=path,
+        )
+    if not (ours or "spikenerf_version:" in text):
         return err
     return InputError(
         f"{err.message}: a spikenerf dataset stores an image only every few steps; to read its "

@@ -135,9 +135,9 @@ def table1(
 
 def table2(cells: Sequence[Cell], color: str, trained_on: Mapping[str, str] | None = None) -> Table:
     """Table II (ablation) for one colour: SSIM, PSNR, LPIPS averaged over scenes, mean ± std over seeds;
-    a row for each ablation variant that has cells (one that was never run is left out, as in Table I)."""
+    a row for each ablation variant with cells of that colour (one never run is left out, as in Table I)."""
     metrics = ("ssim", "psnr", "lpips")
-    variants = [v for v in ABLATION_VARIANTS if any(c.variant == v for c in cells)]
+    variants = [v for v in ABLATION_VARIANTS if any(c.variant == v and c.color == color for c in cells)]
     scenes = sorted({c.scene for c in cells if c.color == color and c.variant in variants})
     stats = {
         (v, "average", m): scene_stats(cells, v, scenes, color, m)["average"] if scenes else None
