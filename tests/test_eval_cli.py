@@ -108,6 +108,10 @@ def test_render_test_views_and_file_trajectory(run_dir: Path, tmp_path: Path) ->
     path.write_text(json.dumps({"frames": [{"transform_matrix": f["transform_matrix"]} for f in poses]}))
     _cli("render", run_dir, "--trajectory", path, "--device", "cpu", "--quiet", "--out", out / "file")
     assert json.loads((out / "file" / "render.json").read_text())["views"] == 2
+    named = tmp_path / "test.json"  # a file named as the built-in trajectory is still a file
+    named.write_text(path.read_text())
+    _cli("render", run_dir, "--trajectory", named, "--device", "cpu", "--quiet", "--out", out / "named")
+    assert json.loads((out / "named" / "render.json").read_text())["trajectory"] == "test.json"
     assert (out / "file" / "path.mp4").stat().st_size > 0
     assert np.array_equal(
         iio.imread(out / "file" / "images" / "00001.png"), iio.imread(out / "images" / "00001.png")

@@ -851,6 +851,10 @@ def test_info_of_a_run_prints_the_psnr_that_train_printed(dataset_dir: Path, tmp
     (out / "summary.json").write_text(json.dumps(summary))
     line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
     assert "train PSNR 21.40 dB (against its training targets), test PSNR 18.00 dB" in line
+    (out / "summary.json").write_text(json.dumps({**summary, "test_psnr": None}))  # no test views scored
+    line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
+    assert line.endswith("test PSNR n/a")  # as train printed it (it read "nan dB")
+    (out / "summary.json").write_text(json.dumps(summary))
     kept = (out / "curves.csv").read_text()
     (out / "curves.csv").write_text("iteration,seconds\n3,x\n")  # garbled: refused, naming the file
     with pytest.raises(InputError, match="not a training curve table"):
@@ -958,3 +962,12 @@ def test_a_garbled_curve_table_names_its_line_and_what_to_do(tmp_path: Path, tex
     assert (
         words in str(err.value) and str(path) in str(err.value) and str(err.value).count("move it aside") == 1
     )
+
+
+def test_a_dataset_given_twice_is_refused(dataset_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``train DS --set dataset=OTHER`` trained on DS silently, although --set is applied last."""
+    from helpers import run_cli
+
+    code, _, err = run_cli(capsys, "train", dataset_dir, "--set", "dataset=nowhere", "--out", tmp_path / "r")
+    assert code == 2 and "give the dataset once: as DATASET or as --set dataset=PATH" in err
+    assert not (tmp_path / "r").exists()

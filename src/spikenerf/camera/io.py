@@ -69,11 +69,11 @@ def count_frames(path: str | Path, height: int, width: int, raw_width: int | Non
         hint = f" — a raw sps10 file? pass raw_width {raw}" if explained else ""
         if not hint and size // fb:  # a capture cut short keeps its whole frames
             hint = f"; to read the whole frames of a capture cut short: truncate -s {size // fb * fb} a copy"
-        stored = _stored_width(width, raw_width, path)
+        stored, whole = _stored_width(width, raw_width, path), size // fb
         raise InputError(
             f"file size {size} bytes is not a multiple of the frame size {fb} bytes ({stored} pixels "
-            f"wide, {height} high, / 8): {size // fb} whole frames and a remainder of {size % fb} bytes "
-            f"(wrong height/width, or a truncated file?){hint}",
+            f"wide, {height} high, / 8): {whole} whole frame{'' if whole == 1 else 's'} and a remainder of "
+            f"{size % fb} bytes (wrong height/width, or a truncated file?){hint}",
             path=path,
             param=("height", "width", "raw_width") if explained else ("height", "width"),
         )

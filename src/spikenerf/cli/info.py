@@ -82,7 +82,10 @@ def describe_render(folder: Path) -> list[str]:
         along = {"orbit": "", "test": " (one step per held-out view)"}.get(
             str(info.get("trajectory")), " (one step per pose of the file)"
         )
-        lines.append(f"novel spike stream: {info.get('spike_steps')} steps{along}, φ {info.get('threshold')}")
+        steps = info.get("spike_steps")
+        lines.append(
+            f"novel spike stream: {steps} step{'' if steps == 1 else 's'}{along}, φ {info.get('threshold')}"
+        )
     for name in streams:
         try:
             config = dat_recording(folder / name, height, width, width)  # plain frames: no raw-layout guess

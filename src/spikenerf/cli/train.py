@@ -330,6 +330,8 @@ def command(
             base = TrainConfig.from_dict(apply_overrides(base.to_dict(), overrides))
     if dataset is None and not base.dataset:
         raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
+    if dataset is not None and overrides and "dataset" in keys:  # both: which one is meant?
+        raise InputError("give the dataset once: as DATASET or as --set dataset=PATH, not both")
     dataset = Path(base.dataset) if dataset is None else dataset
     if not dataset.is_dir():
         found = "is a file, not a dataset folder" if dataset.exists() else "dataset folder not found"

@@ -161,13 +161,15 @@ def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
 @dataclass
 class RenderPath:
     """What a render follows: ``name`` (the video's stem), ``poses`` (N, 4, 4) c2w, the camera and the
-    ray bounds."""
+    ray bounds; ``file``: the trajectory file's name, None for the built-in ``test`` and ``orbit`` (a file
+    named ``test.json`` is no test trajectory)."""
 
     name: str
     poses: np.ndarray
     intrinsics: Intrinsics
     near: float
     far: float
+    file: str | None = None
 
 
 def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPath:
@@ -194,7 +196,7 @@ def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPa
         )
     found = read_camera_path(path, (k.width, k.height))
     near, far = found.bounds or near_far(found.poses, dataset.scene_box)
-    return RenderPath(path.stem, found.poses, found.intrinsics or k, near, far)
+    return RenderPath(path.stem, found.poses, found.intrinsics or k, near, far, path.name)
 
 
 def write_spikes(
@@ -409,7 +411,7 @@ def _render_locked(
     spike_path = None
     if spikes:
         spike_poses = orbit_poses(dataset, n_spikes) if on_orbit else poses
-        spike_path = RenderPath(path.name, spike_poses, k, path.near, path.far)
+        spike_path = RenderPath(path.name, spike_poses, k, path.near, path.far, path.file)
     key = render_key(
         model, config=model.hparams(), versions=[package_version(), torch.__version__], poses=poses,
         camera=[float(v) for v in dataclasses.astuple(k)], bounds=[path.near, path.far], precision=precision,
@@ -447,7 +449,7 @@ def _render_locked(
         "run": str(Path(run_dir).resolve()),
         "iteration": int(ckpt["iteration"]),  # of the run's iterations: a render of an unfinished run says so
         "run_iterations": config.iters,
-        "trajectory": path.name,
+        "trajectory": path.file or path.name,
         "trajectory_file": None if trajectory in TRAJECTORIES else str(Path(trajectory).resolve()),
         "views": len(poses),
         "channels": model.channels,
@@ -467,8 +469,10 @@ def _render_locked(
     write_text_atomic(out / "render.json", json.dumps(manifest, indent=2) + "\n")
     cache.close()
     if log:
-        along = {"orbit": "along the orbit", "test": "at the test poses"}.get(
-            path.name, f"along the trajectory file {path.name}"
+        along = (
+            f"along the trajectory file {path.file}"
+            if path.file
+            else {"orbit": "along the orbit", "test": "at the test poses"}[path.name]
         )
         views = f"{len(poses)} view{'' if len(poses) == 1 else 's'} {along}"
         log(f"wrote {out}: {views}, {video}" + (", spike stream" if spikes else ""))

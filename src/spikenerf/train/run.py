@@ -38,6 +38,12 @@ class TrainSummary:
     device: str
 
 
+def _db(value: float) -> str:
+    """A PSNR for ``info``: ``24.01 dB``, or ``n/a`` where none was scored (NaN: no test views, or a value
+    that summary.json could not hold), as ``train`` prints it."""
+    return "n/a" if value != value else f"{value:.2f} dB"
+
+
 def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
     """``out``'s ``summary.json`` when it reads back whole and reports ``iteration`` (else None)."""
     try:
@@ -224,14 +230,13 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
             train_psnr, test_psnr = summary.train_psnr, summary.test_psnr
         lines.append(
             f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
-            f"train PSNR {train_psnr:.2f} dB (against its training targets), test PSNR "
-            f"{test_psnr:.2f} dB"
+            f"train PSNR {_db(train_psnr)} (against its training targets), test PSNR {_db(test_psnr)}"
         )
     elif done and (summary := stored_summary(run_dir, done)) is not None:  # curves.csv removed
         lines.append(
             f"last evaluation: iteration {done}, {summary.seconds:.0f} s of training, train PSNR "
-            f"{summary.train_psnr:.2f} dB (against its training targets), test PSNR "
-            f"{summary.test_psnr:.2f} dB (from summary.json)"
+            f"{_db(summary.train_psnr)} (against its training targets), test PSNR "
+            f"{_db(summary.test_psnr)} (from summary.json)"
         )
     for name in ("metrics.json", "metrics_train.json"):  # eval's held-out scores, and --split train's
         if metrics is not None and (path := run_dir / name).exists():
