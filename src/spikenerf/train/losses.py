@@ -54,7 +54,9 @@ def same_shape(reference: torch.Tensor, other: torch.Tensor, name: str, referenc
 
 
 def check_threshold(threshold: float | torch.Tensor) -> None:
-    """InputError naming ``threshold`` unless it is a finite number > 0 (a tensor is not read: no sync)."""
+    """InputError naming ``threshold`` unless it is a finite number > 0 (a tensor is not read: no sync).
+    Pure Python, unlike :func:`spikenerf.camera.reconstruct.check_threshold` (numpy): it runs inside the
+    compiled training step, where a numpy call would break the one graph (``tests/test_step_graph.py``)."""
     if isinstance(threshold, torch.Tensor):
         return
     number = isinstance(threshold, numbers.Real) and not isinstance(threshold, bool)
