@@ -850,11 +850,15 @@ def test_info_of_a_run_prints_the_psnr_that_train_printed(dataset_dir: Path, tmp
     summary.update(train_psnr=21.395028, test_psnr=18.004999)
     (out / "summary.json").write_text(json.dumps(summary))
     line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
-    assert "train PSNR 21.40 dB (against its training targets), test PSNR 18.00 dB" in line
+    assert "train PSNR 21.40 dB (against its training targets), test PSNR 18.00 dB (on 1 of 2" in line
     (out / "summary.json").write_text(json.dumps({**summary, "test_psnr": None}))  # no test views scored
     line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
     assert line.endswith("test PSNR n/a")  # as train printed it (it read "nan dB")
-    (out / "summary.json").write_text(json.dumps(summary))
+    assert (summary["test_views"], summary["dataset_views"]) == (1, 2)  # eval_views 1 of the 2 test views
+    old = {k: v for k, v in summary.items() if k not in ("test_views", "dataset_views")}
+    (out / "summary.json").write_text(json.dumps(old))  # a summary.json written before the counts
+    line = next(x for x in describe_run(out).splitlines() if x.startswith("last evaluation"))
+    assert line.endswith("test PSNR 18.00 dB")
     kept = (out / "curves.csv").read_text()
     (out / "curves.csv").write_text("iteration,seconds\n3,x\n")  # garbled: refused, naming the file
     with pytest.raises(InputError, match="not a training curve table"):

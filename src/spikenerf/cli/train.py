@@ -364,7 +364,7 @@ def command(
     method = make_method(load_run_config(stored) if stored.is_file() else base)
     if settings := method.settings():
         click.echo(f"{method.describe()}: {'; '.join(settings)}")
-    test = "n/a" if summary.test_psnr != summary.test_psnr else f"{summary.test_psnr:.2f} dB"
+    test = summary.test_text()
     click.echo(
         f"trained {summary.iteration} iterations in {summary.seconds:.1f} s "
         f"({summary.rays_per_second:.0f} rays/s); train PSNR {summary.train_psnr:.2f} dB (against its "

@@ -36,6 +36,17 @@ class TrainSummary:
     train_psnr: float
     test_psnr: float
     device: str
+    #: test views the test PSNR was scored on (``eval_views`` of them), and the dataset's (0: not recorded)
+    test_views: int = 0
+    dataset_views: int = 0
+
+    def test_text(self) -> str:
+        """``18.10 dB``, ``18.10 dB (on 3 of 5 test views; eval scores all)``, or ``n/a``."""
+        if self.test_psnr != self.test_psnr:
+            return "n/a"
+        part = 0 < self.test_views < self.dataset_views
+        of = f" (on {self.test_views} of {self.dataset_views} test views; eval scores all)" if part else ""
+        return f"{self.test_psnr:.2f} dB{of}"
 
 
 def _db(value: float) -> str:
@@ -225,18 +236,18 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
         lines.append(held_line(held, _imported(config)))
     if curves := read_curves(run_dir / CURVES):  # (a garbled one is an InputError naming it)
         last = curves[-1]
-        train_psnr, test_psnr = last["train_psnr"], last["test_psnr"]  # curves.csv rounds to 4 decimals
+        train_psnr, test = last["train_psnr"], _db(last["test_psnr"])  # curves.csv rounds to 4 decimals
         if (summary := stored_summary(run_dir, int(last["iteration"]))) is not None:  # as train printed
-            train_psnr, test_psnr = summary.train_psnr, summary.test_psnr
+            train_psnr, test = summary.train_psnr, summary.test_text()
         lines.append(
             f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
-            f"train PSNR {_db(train_psnr)} (against its training targets), test PSNR {_db(test_psnr)}"
+            f"train PSNR {_db(train_psnr)} (against its training targets), test PSNR {test}"
         )
     elif done and (summary := stored_summary(run_dir, done)) is not None:  # curves.csv removed
         lines.append(
             f"last evaluation: iteration {done}, {summary.seconds:.0f} s of training, train PSNR "
             f"{_db(summary.train_psnr)} (against its training targets), test PSNR "
-            f"{_db(summary.test_psnr)} (from summary.json)"
+            f"{summary.test_text()} (from summary.json)"
         )
     for name in ("metrics.json", "metrics_train.json"):  # eval's held-out scores, and --split train's
         if metrics is not None and (path := run_dir / name).exists():

@@ -566,9 +566,12 @@ class Trainer:
             train_psnr = self.curves[-1]["train_psnr"]
         if self.iteration == started and (stored := stored_summary(self.out, self.iteration)) is not None:
             return stored  # a finished run resumed: its summary as written, not rounded from curves.csv
+        scored = 0 if self.test_views is None else len(self.test_views.images)
+        held = 0 if self.dataset.test is None else len(self.dataset.test.images)
         summary = TrainSummary(
-            self.iteration, self.elapsed, self.rays_per_second, train_psnr, test_psnr, str(self.device)
-        )
+            self.iteration, self.elapsed, self.rays_per_second, train_psnr, test_psnr, str(self.device),
+            scored, held,
+        )  # fmt: skip
         if self.iteration >= cfg.iters:
             data = {
                 k: None if isinstance(v, float) and not math.isfinite(v) else v
