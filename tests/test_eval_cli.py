@@ -174,6 +174,21 @@ def test_bad_inputs_are_one_line_errors(
     run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert "run folder not found" in _cli_error(capsys, "eval", tmp_path / "missing")
+    import shutil
+
+    import yaml
+
+    moved = tmp_path / "moved_run"  # a run whose dataset moved: say how to give it
+    shutil.copytree(run_dir, moved)
+    config = yaml.safe_load((moved / "config.yaml").read_text())
+    (moved / "config.yaml").write_text(yaml.safe_dump({**config, "dataset": str(tmp_path / "gone")}))
+    for command in ("eval", "render"):
+        err = (
+            _cli_error(capsys, command, moved, "--out", tmp_path / "r")
+            if command == "render"
+            else (_cli_error(capsys, command, moved))
+        )
+        assert "is not there any more: if it moved, give its new folder with --dataset" in err, err
     (tmp_path / "empty").mkdir()
     assert "config.yaml" in _cli_error(capsys, "render", tmp_path / "empty", "--out", tmp_path / "o")
     err = _cli_error(capsys, "render", run_dir, "--trajectory", "spiral", "--out", tmp_path / "o")

@@ -31,9 +31,10 @@ def pose_fit_line(result: dict) -> str | None:
     opt = result.get("test_pose_optimised")
     if not opt:
         return None
-    m = opt["mean"]
+    m, split = opt["mean"], result.get("split", "test")
     return (
-        f"test-pose-optimised ({opt['steps']} steps, each test pose fitted to its own image, field frozen): "
+        f"test-pose-optimised ({opt['steps']} steps, each {split} pose fitted to its own image, field "
+        "frozen): "
         f"{scores(m)}; mean correction {number(m.get('rotation_deg'), 3)}°, "
         f"{number(m.get('translation'), 4)} scene units; {opt['fits_kept']} of {len(opt['per_view'])} fits "
         "kept (a fit that scores lower is not)"

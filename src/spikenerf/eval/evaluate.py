@@ -261,8 +261,8 @@ def _evaluate_locked(
         views = refined_views(ckpt, config, dataset, split_views(dataset, split))
     k = dataset.intrinsics
     backbone, reason = lpips_status(lpips_backbone, k.height, k.width)
-    if reason and log:
-        log(f"LPIPS skipped: {reason}")
+    if reason and log and lpips_backbone is not None:  # (asked for and not possible: a warning)
+        log(f"spikenerf: warning: LPIPS skipped: {reason}")
     per_view = []
     windows = keyframe_windows(dataset, config.window_poses(), views) if split == "test" else None
     window = None  # each test keyframe's S poses on the run's (refined) path: (V, S, 4, 4)

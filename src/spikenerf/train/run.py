@@ -105,6 +105,13 @@ def open_run(
             path=run_dir / CONFIG_FILE,
             param="dataset",
         )
+    if dataset_root is None and not Path(config.dataset).exists():  # moved or deleted since training
+        raise InputError(
+            f"the run's data folder {config.dataset} is not there any more: if it moved, give its new "
+            "folder with dataset",
+            path=run_dir / CONFIG_FILE,
+            param="dataset",
+        )
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset, train_images)
     check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
     return model, config, dataset, ckpt
