@@ -85,7 +85,7 @@ def test_automatic_chunk_follows_the_free_memory() -> None:
     expected = int(MEMORY_SHARE * free / per_ray) // CPU_CHUNK * CPU_CHUNK
     assert inference_chunk(model, 0, free=free) == auto_chunk(model, free) == max(CPU_CHUNK, expected)
     assert auto_chunk(model, 2**50) == MAX_CHUNK and auto_chunk(model, 1) == CPU_CHUNK
-    with pytest.raises(InputError, match="chunk must be ≥ 0"):
+    with pytest.raises(InputError, match="chunk must be an integer ≥ 0"):
         inference_chunk(model, -1)
 
 

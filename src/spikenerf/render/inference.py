@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import contextlib
+import numbers
 
 import torch
 
@@ -75,9 +76,9 @@ def auto_chunk(model: RadianceModel, free: int | None) -> int:
 
 def inference_chunk(model: RadianceModel, chunk: int, free: int | None = None) -> int:
     """``chunk`` when > 0; 0 → :func:`auto_chunk` for the model's device (``free``: its free bytes, read
-    from the device when None). InputError (naming ``chunk``) when negative."""
-    if chunk < 0:
-        raise InputError(f"chunk must be ≥ 0 (0 = automatic), found {chunk}", param="chunk")
+    from the device when None). InputError (naming ``chunk``) when it is not an integer ≥ 0."""
+    if isinstance(chunk, bool) or not isinstance(chunk, numbers.Integral) or chunk < 0:
+        raise InputError(f"chunk must be an integer ≥ 0 (0 = automatic), found {chunk!r}", param="chunk")
     if chunk > 0:
-        return chunk
+        return int(chunk)
     return auto_chunk(model, free if free is not None else free_device_memory(model.device))

@@ -108,10 +108,9 @@ def check_poses(poses: Tensor | np.ndarray, param: str, one: bool = False) -> No
         raise InputError(f"{param} holds a NaN or an infinity", param=param)
 
 
-def check_render_settings(near: float | None, far: float | None, chunk: int) -> None:
+def check_bounds(near: float | None, far: float | None) -> None:
     """InputError naming ``near``/``far`` unless each is None or a finite number and ``near < far`` when
-    both are given, and naming ``chunk`` unless it is an integer ≥ 0 (0 = automatic,
-    :func:`spikenerf.render.inference.inference_chunk`)."""
+    both are given (``chunk`` is checked by :func:`spikenerf.render.inference.inference_chunk`)."""
     for name, value in (("near", near), ("far", far)):
         if value is None:
             continue
@@ -122,8 +121,6 @@ def check_render_settings(near: float | None, far: float | None, chunk: int) -> 
         raise InputError(
             f"near must be less than far, found near {near:g}, far {far:g}", param=("near", "far")
         )
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 0:
-        raise InputError(f"chunk must be an integer ≥ 0 (0 = automatic), found {chunk!r}", param="chunk")
 
 
 @torch.no_grad()
@@ -150,8 +147,8 @@ def render_image(
         InputError: naming ``c2w``, ``near``/``far`` or ``chunk``.
     """
     check_poses(c2w, "c2w", one=True)
-    check_render_settings(near, far, chunk)
-    chunk = inference_chunk(model, int(chunk))
+    check_bounds(near, far)
+    chunk = inference_chunk(model, chunk)
     pose = as_poses(c2w, model.device)
     origins, dirs = image_rays(pose, intrinsics)
     lo, hi = ray_bounds(model, origins, dirs, near, far)
@@ -177,7 +174,7 @@ def render_mean(
     check_poses(poses, "poses")
     if len(poses) == 0:
         raise InputError("poses: need at least one pose (S ≥ 1), found none", param="poses")
-    check_render_settings(near, far, chunk)
-    chunk = inference_chunk(model, int(chunk))
+    check_bounds(near, far)
+    chunk = inference_chunk(model, chunk)
     colors = [render_image(model, pose, intrinsics, near, far, chunk, precision).color for pose in poses]
     return torch.stack(colors).mean(dim=0)

@@ -24,7 +24,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.rays import as_poses, pixel_rays
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.inference import inference_chunk
-from spikenerf.render.model import check_poses, check_render_settings, ray_bounds, render_image
+from spikenerf.render.model import check_bounds, check_poses, ray_bounds, render_image
 from spikenerf.scenes.trajectory import Intrinsics
 
 
@@ -132,7 +132,7 @@ def iter_spike_states(
     """
     check_poses(poses, "poses")
     check_threshold(threshold)
-    check_render_settings(near, far, chunk)
+    check_bounds(near, far)
     h, w, c = intrinsics.height, intrinsics.width, model.channels
     if start_accumulator is None or (
         isinstance(start_accumulator, (int, np.integer)) and not isinstance(start_accumulator, bool)
@@ -149,7 +149,7 @@ def iter_spike_states(
             )
         acc = to_channels_last(torch.as_tensor(start_accumulator), frame=True, name="start_accumulator")
         acc = acc.to(model.device, torch.float32)
-    chunk = inference_chunk(model, int(chunk))
+    chunk = inference_chunk(model, chunk)
     return _spike_states(model, as_poses(poses, model.device), intrinsics, threshold, acc, chunk, near, far)
 
 
