@@ -272,5 +272,5 @@ def test_orbit_errors_name_their_parameter() -> None:
     _params(lambda: orbit(float("nan"), 30.0), "radius")
     _params(lambda: orbit(4.0, 30.0, fps=-5.0), "fps")
     _params(lambda: orbit(4.0, 30.0, duration=1e-9), "duration", "fps")
-    # (the angles keep the names the CLI's --elevation and --turns map from)
-    _params(lambda: orbit(4.0, 100.0), "elevation", "turns")
+    _params(lambda: orbit(4.0, 100.0), "elevation_deg")  # (was ("elevation", "turns"): not its names)
+    _params(lambda: orbit(4.0, 30.0, turns=1e9), "turns")

@@ -277,7 +277,7 @@ def test_set_reaches_every_cell_and_a_bad_key_fails_first(
     args = ["benchmark", "--scenes", "analytic-orbs", "--methods", "nerf-gt", "--color", "gray", "--size",
             "16", "--frames", "40", "--iters", "2", "--device", "cpu", "--test-views", "1", "--no-render",
             "--out"]  # fmt: skip
-    for bad, words in [("nope=1", "--set: unknown TrainConfig keys ['nope']"), ("batch", "--set: override")]:
+    for bad, words in [("nope=1", "--set: unknown train config keys ['nope']"), ("batch", "--set: override")]:
         with pytest.raises(SystemExit) as exit_:
             main([*args, str(out), "--set", bad])
         err = capsys.readouterr().err.strip()

@@ -67,9 +67,9 @@ def test_eval_writes_metrics_json(run_dir: Path, capsys: pytest.CaptureFixture[s
     _cli("eval", run_dir, "--device", "cpu", "--quiet", "--noref-steps", 4)  # (auto: off on simulated data)
     said = capsys.readouterr()
     assert "PSNR" in said.out and "no-reference" not in said.out
-    assert said.err.strip().splitlines()[-1] == (
-        "spikenerf: warning: --noref-steps: the no-reference checks did not run (--noref auto runs them on "
-        "imported datasets; --noref on runs them here)"
+    assert said.err.strip().splitlines()[0] == (  # before the renders (it came after them)
+        "spikenerf: warning: the no-reference checks do not run on this dataset, which was not imported "
+        "(noref auto), so their settings are unused (noref on runs them here)"
     )
     data = json.loads((run_dir / "metrics.json").read_text())
     keys = {"split", "method", "color", "field", "iterations", "views", "mean", "per_view", "lpips_backbone"}

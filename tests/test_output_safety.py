@@ -70,6 +70,24 @@ def test_only_our_temporaries_are_removed(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(theirs)
 
 
+def test_an_empty_folder_the_user_added_to_a_dataset_is_not_replaced(tmp_path: Path) -> None:
+    ours = tmp_path / "ds"
+    (ours / "cache").mkdir(parents=True)  # an empty folder our writer left: listed, replaced with the rest
+    (ours / "config.yaml").write_text("x")
+    mark(ours, "dataset", files=True)
+    check_output(ours, "dataset", overwrite=True, replace=True)
+    (ours / "notes").mkdir()  # the user's, empty: --overwrite would delete it
+    with pytest.raises(InputError, match=r"did not write \(notes/\)"):
+        check_output(ours, "dataset", overwrite=True, replace=True)
+    old = tmp_path / "old"  # a marker from before empty folders were listed: they are not counted
+    (old / "notes").mkdir(parents=True)
+    (old / "config.yaml").write_text("x")
+    (old / ".spikenerf").write_text(json.dumps({"kind": "dataset", "files": ["config.yaml"]}))
+    check_output(old, "dataset", overwrite=True, replace=True)
+    mark(old, "dataset", ["config.yaml", "preview.png"])  # extending an old list keeps its meaning
+    check_output(old, "dataset", overwrite=True, replace=True)
+
+
 def test_a_folder_that_only_looks_like_a_run_keeps_its_files(capsys, dataset: Path, tmp_path: Path) -> None:
     mine = tmp_path / "project"
     (mine / ".cache.k2m9q0zz.tmp").mkdir(parents=True)  # even one named as ours: no marker, not ours
@@ -93,6 +111,9 @@ def test_outputs_are_not_nested_in_a_dataset_but_renders_live_in_runs(tmp_path: 
     for kind in ("dataset", "run", "render"):
         check_output(tmp_path / "benchmark" / "x" / kind, kind)
     check_output(tmp_path / "render" / "file", "render")  # a render beside another's views
+    for kind in ("run", "dataset"):  # but no run or dataset among a render's views
+        with pytest.raises(InputError, match="lies inside the render folder"):
+            check_output(tmp_path / "render" / "sub", kind)
     check_output(tmp_path / "dataset" / ".." / "dataset", "dataset", overwrite=True)  # the folder itself
     (tmp_path / "link").symlink_to(tmp_path / "dataset")
     with pytest.raises(InputError, match="lies inside the dataset folder"):
@@ -136,6 +157,8 @@ def test_a_moved_dataset_resumes_and_a_stale_metrics_file_is_named(
         == 0
     )
     moved.rename(tmp_path / "elsewhere")
+    code, _, err = run_cli(capsys, "train", "--resume", "--out", run, "--quiet")  # read only "not found"
+    assert code == 2 and "if it moved: spikenerf train NEW_PATH --resume --out" in err, err
     code, _, err = run_cli(capsys, "train", tmp_path / "elsewhere", *TRAIN[:1], "6", *TRAIN[2:], "--resume",
                            "--out", run)  # fmt: skip
     assert code == 0, err

@@ -792,7 +792,7 @@ def test_cli_config_file_and_set_reach_every_field(dataset_dir: Path, tmp_path: 
     for bad, message in [
         ("spike.kind=nope", "spike.kind must be one of interval, paper, found 'nope'"),
         ("iters=many", "iters must be an integer, found 'many'"),
-        ("spike.lamda=1", "unknown SpikeLossConfig keys ['lamda']"),
+        ("spike.lamda=1", "unknown spike keys ['lamda']"),
         ("iters.x=1", "'iters' is not a section"),
         ("no-equals", "override expects KEY=VALUE"),
     ]:

@@ -65,7 +65,22 @@ def test_a_bad_value_in_a_config_file_is_named_as_its_key_not_as_a_flag(capsys, 
         ("iters: many\n", "c.yaml: iters must be an integer, found 'many'"),
         ("method: foo\n", "c.yaml: method must be one of"),
         ("spike: {lam: [1]}\n", "c.yaml: spike.lam must be a number"),
+        ("device: bogus\n", "c.yaml: device must be one of auto"),  # read "--device must be one of"
+        ("field_config: {foo: 1}\n", "c.yaml: unknown grid field config keys ['foo']"),  # no file named
+        ("iters: 99999999999999999999\n", "found 99999999999999999999 (too large: 64-bit integers"),
     ):
         (tmp_path / "c.yaml").write_text(text)
         code, _, err = run_cli(capsys, "train", "--config", tmp_path / "c.yaml", "--out", tmp_path / "run")
         assert code == 2 and message in err and "--" not in err.split("c.yaml:")[1], err
+
+
+def test_a_datasets_camera_config_given_as_a_train_config_is_named_as_such(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``train --config DATASET`` listed the camera config's keys as unknown train config keys."""
+    from spikenerf.core.marker import mark
+
+    dataset = tmp_path / "ds"
+    dataset.mkdir()
+    (dataset / "config.yaml").write_text("spike_h: 16\nspike_w: 16\n")
+    mark(dataset, "dataset")
+    code, _, err = run_cli(capsys, "train", "--config", dataset, "--out", tmp_path / "run")
+    assert code == 2 and "ds: is a dataset folder, not a run folder" in err and "unknown" not in err, err

@@ -106,9 +106,3 @@ def command(
     for line in (pose_fit_line(result), noref_line(result)):
         if line:
             click.echo(line)
-    if given and result["no_reference"] is None:  # --noref auto, on a dataset that was not imported
-        click.echo(
-            f"spikenerf: warning: {', '.join(given)}: the no-reference checks did not run (--noref auto runs "
-            "them on imported datasets; --noref on runs them here)",
-            err=True,
-        )

@@ -332,9 +332,12 @@ def command(
         raise InputError("give the DATASET folder (or a --config whose 'dataset' names one)")
     if dataset is not None and overrides and "dataset" in keys:  # both: which one is meant?
         raise InputError("give the dataset once: as DATASET or as --set dataset=PATH, not both")
+    from_run = dataset is None and resume and config_file is None and "dataset" not in SET_KEYS
     dataset = Path(base.dataset) if dataset is None else dataset
     if not dataset.is_dir():
         found = "is a file, not a dataset folder" if dataset.exists() else "dataset folder not found"
+        if from_run and not dataset.exists():  # the run's own record: the dataset moved since
+            found += f" (the run trained on it; if it moved: spikenerf train NEW_PATH --resume --out {out})"
         raise InputError(found, path=dataset)
     base.dataset = str(dataset.resolve())
     notes = [] if ignore_unused else _unused(base.method, given, overrides, base.targets.recon)
@@ -423,7 +426,7 @@ def _lengths(text: str | None) -> list[int] | None:
 def _naming(flag: str, keys: Sequence[str] = ()) -> Iterator[None]:
     """An InputError that names no parameter (an unknown key, a section given a value) gets ``flag``: before
     the key of ``keys`` that the message starts with (``--set spike.lam must be …``), else with the keys
-    before the message (``--set spike: expected a mapping …``)."""
+    before the message (``--set spike: unknown spike keys …``)."""
     try:
         yield
     except InputError as err:

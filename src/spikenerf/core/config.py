@@ -90,6 +90,14 @@ def coerce(value: Any, hint: Any) -> Any:
     return value
 
 
+def shown(value: Any, limit: int = 60) -> str:
+    """``value`` as a config file or ``--set`` writes it (YAML's ``null``, ``true``), cut at ``limit``."""
+    if value is None or isinstance(value, bool):
+        return "null" if value is None else str(value).lower()
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 def describe(hint: Any) -> str:
     """``one of gray, rgb``, ``an integer or null``."""
     origin = get_origin(hint)
@@ -99,7 +107,14 @@ def describe(hint: Any) -> str:
         return " or ".join(describe(h) for h in get_args(hint))
     if origin is tuple:
         return "a list of integers" if get_args(hint)[:1] == (int,) else "a list"
-    names = {type(None): "null", float: "a number", int: "an integer", bool: "true or false", str: "a string"}
+    names = {
+        type(None): "null",
+        float: "a number",
+        int: "an integer",
+        bool: "true or false",
+        str: "a string",
+        dict: "a mapping (KEY: VALUE)",
+    }
     return names.get(hint, f"a {getattr(origin or hint, '__name__', hint)}")
 
 
@@ -122,8 +137,10 @@ def check_config(config: Any, prefix: str = "", path: str | Path | None = None, 
         elif not matches(value, hints[f.name]):
             kind = type(value)  # a numpy integer prints as one: say what it is
             plain = kind in (int, float, str, bool, type(None), list, tuple)
-            found = repr(value) if plain else f"{value} ({kind.__name__})"
+            found = shown(value) if plain else f"{value} ({kind.__name__})"
             wanted = describe(hints[f.name])
+            if isinstance(value, int) and not isinstance(value, bool) and matches(0, hints[f.name]):
+                found += " (too large: 64-bit integers stop below 2**63)"  # one torch and numpy cannot hold
             raise InputError(f"{name} must be {wanted}, found {found}", path=path, param=param)
         numbers = value if isinstance(value, tuple) else (value,)
         if bounds and any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
@@ -144,18 +161,17 @@ def from_mapping(
     classes in turn. The values are :func:`coerce`-d, not checked: call :func:`check_config`."""
     label = label or cls.__name__
     if not isinstance(data, dict):
-        raise InputError(f"expected a mapping for {label}, found {type(data).__name__}", path=path)
+        raise InputError(f"{label} must be a mapping (KEY: VALUE), found {shown(data)}", path=path)
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:  # the closest known keys first: the whole list may be cut at the one line's end
-        free = known - set(data)  # (not a key already given)
-        close = [m for k in unknown for m in difflib.get_close_matches(str(k), free, n=2)]
+        close = [m for k in unknown for m in difflib.get_close_matches(str(k), known, n=2)]
         hint = f"did you mean {', '.join(dict.fromkeys(close))}? " if close else ""
         raise InputError(f"unknown {label} keys {unknown}; {hint}expected some of {sorted(known)}", path=path)
     sections = sections or {}
     hints = get_type_hints(cls)
     values = {
-        k: from_mapping(sections[k], v, None, path) if k in sections else coerce(v, hints[k])
+        k: from_mapping(sections[k], v, k, path) if k in sections else coerce(v, hints[k])
         for k, v in data.items()
     }
     return cls(**values)

@@ -35,11 +35,14 @@ _LEGACY = {
 
 
 def _inventory(folder: Path) -> list[str]:
-    """Every file (and link) under ``folder``, relative, except the marker."""
+    """Every file (and link) under ``folder``, relative, except the marker, and every empty folder, as
+    ``name/`` (a user's empty folder is theirs too: ``--overwrite`` must not delete it)."""
     found = []
     for base, dirs, files in os.walk(folder):
         rel = Path(base).relative_to(folder)
         found += [str(rel / n) for n in files + [d for d in dirs if (Path(base) / d).is_symlink()]]
+        if not dirs and not files and rel != Path("."):
+            found.append(f"{rel}/")
     return sorted(f for f in found if f != MARKER)
 
 
@@ -50,7 +53,10 @@ def mark(folder: str | Path, kind: str, files: bool | list[str] = False) -> None
         raise ValueError(f"unknown folder kind {kind!r}")
     entry: dict = {"kind": kind}
     if files is not False:
+        before = _marker(Path(folder))  # a list extended from an older marker keeps its meaning
         entry["files"] = _inventory(Path(folder)) if files is True else sorted(files)
+        # the list names empty folders too (older markers did not)
+        entry["empty_dirs"] = files is True or before.get("empty_dirs", "files" not in before) is True
     write_text_atomic(Path(folder) / MARKER, json.dumps(entry) + "\n")
 
 
@@ -84,8 +90,11 @@ def folder_kind(folder: str | Path) -> str | None:
 
 def strangers(folder: Path) -> list[str]:
     """What ``folder`` holds beyond the files its marker lists (all of it when the marker lists none)."""
-    listed = _marker(folder).get("files")
+    entry = _marker(folder)
+    listed = entry.get("files")
     have = _inventory(folder)
+    if entry.get("empty_dirs") is not True:  # a marker from before empty folders were listed
+        have = [f for f in have if not f.endswith("/")]
     if not isinstance(listed, list):
         return have
     return [f for f in have if f not in set(listed)]
@@ -186,9 +195,10 @@ def check_output(
     check_writable(path, param)
 
 
-#: the kinds of output that a marked dataset or run may hold in a subfolder (none in a dataset, whose
-#: ``--overwrite`` refuses files it did not list; renders in a run); other kinds may hold any
-HOLDS = {"dataset": set(), "run": {"render"}}
+#: the kinds of output that a marked dataset, run or render may hold in a subfolder (none in a dataset, whose
+#: ``--overwrite`` refuses files it did not list; renders in a run or a render, no run or dataset); other
+#: kinds may hold any
+HOLDS = {"dataset": set(), "run": {"render"}, "render": {"render"}}
 
 
 def owned(folder: str | Path) -> bool:

@@ -254,6 +254,11 @@ def _evaluate_locked(
     chunk = inference_chunk(model, chunk)
     held = read_record(run_dir)
     use_noref = wants_noref(noref[0], dataset, held is not None)
+    if not use_noref and noref[0] == "auto" and noref[1] != NoRefOptions() and log is not None:
+        log(  # before the renders, not after them
+            "spikenerf: warning: the no-reference checks do not run on this dataset, which was not imported "
+            "(noref auto), so their settings are unused (noref on runs them here)"
+        )
     if use_noref and not has_views(dataset, split):  # real data without test views: the checks alone
         k = dataset.intrinsics
         views = PosedImages(np.zeros((0, 4, 4), np.float32), np.zeros((0, k.height, k.width, 3), np.float32))

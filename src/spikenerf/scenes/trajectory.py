@@ -147,8 +147,9 @@ def orbit(
             f"orbit: duration × fps must give at least 1 step, got {duration:g} s × {fps:g} Hz = {n} steps",
             param=("duration", "fps"),
         )
-    if problem := orbit_angle_problem(elevation_deg, turns):
-        raise InputError(f"orbit: {problem}", param=("elevation", "turns"))
+    if problem := orbit_angle_problem(elevation_deg, turns):  # named as this function's parameters
+        param = "turns" if problem.startswith("turns") else "elevation_deg"
+        raise InputError(f"orbit: {param} {problem.partition(' ')[2]}", param=param)
     steps = np.arange(n, dtype=np.int64)
     frac = steps / n
     azimuth = np.deg2rad(start_azimuth_deg) + 2 * np.pi * turns * frac

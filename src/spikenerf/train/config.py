@@ -20,6 +20,7 @@ import yaml
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.config import Bound, check_config, choices, from_mapping
+from spikenerf.core.device import check_device_name
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import folder_kind
 from spikenerf.core.yamlio import load_yaml
@@ -306,6 +307,7 @@ class TrainConfig:
     def validate(self) -> TrainConfig:
         """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
         check_config(self)  # types, finite floats and every BOUNDS, naming the key
+        check_device_name(self.device)
         check_window(self.targets.window, "targets.window")
         if self.window_poses() > 1 and self.targets.recon != "tfp":  # (only the stream methods read both)
             raise InputError(
@@ -368,7 +370,7 @@ class TrainConfig:
     def from_dict(cls, data: dict[str, Any], path: str | Path | None = None) -> TrainConfig:
         """Rebuild from :meth:`to_dict` output (e.g. ``config.yaml``); unknown keys and wrong types are an
         InputError (the ranges are :meth:`validate`'s)."""
-        config = from_mapping(cls, data, path=path, sections=SECTIONS)
+        config = from_mapping(cls, data, "train config", path=path, sections=SECTIONS)
         check_config(config, path=path, bounds=False)
         return config
 
@@ -444,10 +446,34 @@ def _read_config(path: str | Path) -> tuple[Path, Any]:
     return path, data
 
 
+def _refuse_other_folder(path: str | Path) -> None:
+    """InputError when ``path`` is the ``config.yaml`` of a folder spikenerf wrote as other than a run (a
+    dataset's is its camera's, whose keys a train config does not know)."""
+    folder = Path(path).parent
+    if Path(path).name == CONFIG_FILE and (kind := folder_kind(folder)) not in (None, "run"):
+        hint = " (train a run on it first: spikenerf train DATASET --out RUN)" if kind == "dataset" else ""
+        raise InputError(f"is a {kind} folder, not a run folder{hint}", path=folder)
+
+
 def load_config(path: str | Path) -> TrainConfig:
-    """Read ``config.yaml`` written by :func:`save_config` (or a ``--config`` file)."""
+    """Read ``config.yaml`` written by :func:`save_config` (or a ``--config`` file); the camera config of a
+    dataset (or another output's) is refused as such."""
+    _refuse_other_folder(path)
     path, data = _read_config(path)
-    return _validated(TrainConfig.from_dict(data, path), path)
+    return _checked_fields(_validated(TrainConfig.from_dict(data, path), path), path)
+
+
+def _checked_fields(config: TrainConfig, path: Path) -> TrainConfig:
+    """``config`` after its ``field_config`` is checked against its field, a refusal naming the file ``path``
+    (else only the model build finds a bad key, named as a flag the user did not give)."""
+    from spikenerf.fields.registry import field_config  # (imports torch: not at this module's import)
+
+    try:
+        typed = field_config(config.field, config.field_config)
+        getattr(typed, "check", lambda: None)()
+    except InputError as err:
+        raise InputError(err.message, path=path, param=err.params) from err
+    return config
 
 
 def _validated(config: TrainConfig, path: Path) -> TrainConfig:
@@ -470,19 +496,9 @@ def load_run_config(path: str | Path) -> TrainConfig:
     ``targets.window_poses`` existed (its targets section lacks the key) trained with one pose per target,
     not today's default. (A run written since records the resolved count: :meth:`TrainConfig.resolved`.)
     A dataset folder's config (its camera's) is refused as such."""
-    folder = Path(path).parent
-    if (kind := folder_kind(folder)) not in (None, "run"):
-        hint = " (train a run on it first: spikenerf train DATASET --out RUN)" if kind == "dataset" else ""
-        raise InputError(f"is a {kind} folder, not a run folder{hint}", path=folder)
+    _refuse_other_folder(path)
     path, data = _read_config(path)
-    config = _validated(TrainConfig.from_dict(data, path), path)
-    from spikenerf.fields.registry import field_config  # (imports torch: not at this module's import)
-
-    try:  # its field options too, named with the file (else only a resume's model build finds them)
-        typed = field_config(config.field, config.field_config)
-        getattr(typed, "check", lambda: None)()
-    except InputError as err:
-        raise InputError(err.message, path=path, param=err.params) from err
+    config = _checked_fields(_validated(TrainConfig.from_dict(data, path), path), path)
     if isinstance(data.get("targets"), dict) and "window_poses" not in data["targets"]:
         config.targets.window_poses = 1
     return config
