@@ -397,7 +397,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("recon-missing-file", [*DAT[:1], f"{R}/nope.dat", *DAT[2:], "--frame", "1", "--out", f"{R}/o.png"],
      "nope.dat: file not found"),
     ("recon-data-threshold-huge", ["recon-data", "--train-draws", "1", "--val-draws", "2", "--size", "16",
-                                   "--threshold", "1e39", "--out", f"{R}/o"], "--threshold must be a finite"),
+                                   "--threshold", "1e39", "--out", f"{R}/o"], "--threshold φ must"),
     ("recon-data-color-twice", ["recon-data", "--color", "gray,gray", "--out", f"{R}/o"],
      "--color: gray is given twice"),
     ("info-missing", ["info", f"{R}/nope"], "nope"),

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 import test_train
+from spikenerf.core.errors import InputError
 from spikenerf.data import recon_cache
 from spikenerf.data.recon_cache import CACHE_DIR, learned_targets_in
 from spikenerf.data.targets import load_stream, stream_targets
@@ -92,6 +93,26 @@ def test_a_changed_key_rebuilds_and_replaces_the_cache(
     assert len(list((folder / CACHE_DIR).glob("learned-*.npy"))) == 1  # the old keys' files are gone
     outside = recon_cache.learned_stream(stream, dataset.threshold, None, 41)  # no context: no cache
     assert len(calls) == 3 and np.array_equal(outside.astype(np.float16).astype(np.float32), a)
+
+
+def test_a_damaged_cache_is_built_again_and_missing_weights_are_named(
+    dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """A cache filled with NaN was used (the run "diverged: lower --lr"); missing weights were an OSError."""
+    calls = _count_builds(monkeypatch)
+    stream, folder = load_stream(dataset, "gray"), tmp_path / "run"
+    with learned_targets_in(folder, "cpu", {"steps": len(stream)}):
+        good = recon_cache.learned_stream(stream, dataset.threshold, None, 41)
+        (cached,) = (folder / CACHE_DIR).glob("learned-*.npy")
+        np.save(cached, np.full(stream.shape, np.nan, np.float16))
+        again = recon_cache.learned_stream(stream, dataset.threshold, None, 41)
+    assert len(calls) == 2 and np.array_equal(again, good) and np.isfinite(np.load(cached)).all()
+    monkeypatch.setattr("spikenerf.recon.net.shipped_weights", lambda: tmp_path / "gone.pt")
+    with (
+        learned_targets_in(folder, "cpu", {"steps": len(stream)}),
+        pytest.raises(InputError, match=r"gone\.pt: weights file not found"),
+    ):
+        recon_cache.learned_stream(stream, dataset.threshold, None, 41)
 
 
 @pytest.mark.cuda

@@ -114,6 +114,11 @@ def test_outputs_are_not_nested_in_a_dataset_but_renders_live_in_runs(tmp_path: 
     for kind in ("run", "dataset"):  # but no run or dataset among a render's views
         with pytest.raises(InputError, match="lies inside the render folder"):
             check_output(tmp_path / "render" / "sub", kind)
+    for kind in ("pairs", "recon", "frames"):  # a recon-train run inside its own pair folder was written
+        (tmp_path / kind).mkdir()
+        mark(tmp_path / kind, kind)
+        with pytest.raises(InputError, match=f"lies inside the {kind} folder"):
+            check_output(tmp_path / kind / "sub", "recon" if kind == "pairs" else "pairs")
     check_output(tmp_path / "dataset" / ".." / "dataset", "dataset", overwrite=True)  # the folder itself
     (tmp_path / "link").symlink_to(tmp_path / "dataset")
     with pytest.raises(InputError, match="lies inside the dataset folder"):
@@ -144,6 +149,21 @@ def test_a_refused_setup_leaves_no_folder(capsys, dataset: Path, tmp_path: Path)
                            "--holdout", "--holdout-radius", "100000", "--out", out)  # fmt: skip
     assert code == 2 and "--holdout-radius" in err, err
     assert not (tmp_path / "new").exists()
+
+
+def test_a_failed_setup_leaves_no_folder(dataset: Path, tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """An OSError while setting up (the learned weights gone) left a folder holding only the marker."""
+    from spikenerf.train import trainer
+
+    def fails(config, out: Path, *args, **kw):  # type: ignore[no-untyped-def]
+        out.mkdir(parents=True)  # as a Trainer does before it builds its targets
+        mark(out, "run")
+        raise OSError("disk gone")
+
+    monkeypatch.setattr(trainer, "Trainer", fails)
+    with pytest.raises(SystemExit):  # (the CLI says "spikenerf: error: disk gone")
+        main(["train", str(dataset), *TRAIN, "--out", str(tmp_path / "run")])
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_moved_dataset_resumes_and_a_stale_metrics_file_is_named(

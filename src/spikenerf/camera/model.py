@@ -16,6 +16,7 @@ import torch
 
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.noise import NoiseProcess, RealisticNoise
+from spikenerf.camera.reconstruct import check_threshold
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError, check_choice
@@ -114,12 +115,9 @@ class CameraConfig:
     warmup: int = 0
 
     def __post_init__(self) -> None:
-        t = self.threshold
-        number = isinstance(t, (int, float, np.integer, np.floating)) and not isinstance(t, bool)
-        with np.errstate(over="ignore"):  # a φ past float32's range is refused here, not warned about
-            representable = number and math.isfinite(t) and 0 < np.float32(t) < np.inf
-        if not representable:
-            raise InputError(f"threshold must be a finite number > 0, got {t!r}", param="threshold")
+        if isinstance(self.threshold, bool):  # (a bool is a number to numpy)
+            raise InputError(f"threshold must be a number, got {self.threshold!r}", param="threshold")
+        check_threshold(self.threshold)  # > 0 and within float32's range, as the reconstructions check
         check_choice(self.color, COLORS, "color")
         check_choice(self.noise, NOISES, "noise")
         for name in ("seed", "warmup"):

@@ -24,7 +24,7 @@ from spikenerf.core.errors import InputError, one_line
 #: subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("spikenerf.cli.simulate", "Render a scene along a fast path and simulate a spike camera."),
-    "info": ("spikenerf.cli.info", "Summarise a dataset folder, a run folder or a .dat spike file."),
+    "info": ("spikenerf.cli.info", "Summarise a dataset, run or other output folder, or a .dat spike file."),
     "reconstruct": (
         "spikenerf.cli.reconstruct",
         "Reconstruct images from a .dat spike stream (TFP/TFI/learned).",

@@ -49,10 +49,25 @@ OTHER_KINDS = {
     "benchmark": "a benchmark folder: its tables are table1.md, table2.md and report.html (`spikenerf "
     "report` writes the report again); `spikenerf info` on a run folder (runs/SCENE/COLOR/VARIANT) for "
     "one cell",
-    "frames": "a reconstruct frame folder (one PNG per frame)",
-    "pairs": "a recon-data pair folder (training pairs for recon-train)",
-    "recon": "a recon-train folder (its weights and curves.csv)",
 }
+
+
+def describe_frames(folder: Path) -> str:
+    """The summary line of a ``reconstruct`` frame folder: how many frames, which, and their size."""
+    frames = sorted(folder.glob("[0-9]*.png"))
+    if not frames:
+        return f"reconstruct frame folder: no frames yet ({folder})"
+    import imageio.v3 as iio
+
+    try:
+        shape = iio.improps(frames[0]).shape
+    except (OSError, ValueError) as err:
+        raise InputError(f"unreadable PNG ({type(err).__name__})", path=frames[0]) from err
+    return (
+        f"reconstruct frame folder: {len(frames)} frame{'s' if len(frames) > 1 else ''} "
+        f"({frames[0].stem} to {frames[-1].stem}), {shape[1]}×{shape[0]}"
+        + (" RGB" if len(shape) == 3 else " gray")
+    )
 
 
 def describe_render(folder: Path) -> list[str]:
@@ -97,8 +112,9 @@ def describe_render(folder: Path) -> list[str]:
 
 
 @click.command(
-    help="Summarise a dataset, run or render folder, or a .dat spike file (needs --height/--width, or a "
-    "SpikeCV config.yaml beside it)."
+    help="Summarise a dataset, run or render folder, a recon-data pair folder, a recon-train folder, a "
+    "reconstruct frame folder, or a .dat spike file (needs --height/--width, or a SpikeCV config.yaml beside "
+    "it)."
 )
 @click.argument("path", type=click.Path(path_type=Path))
 @frame_size_options
@@ -148,6 +164,11 @@ def command(
         return
     if path.is_dir() and folder_kind(path) == "render":
         click.echo("\n".join(describe_render(path)))
+        return
+    if path.is_dir() and (kind := folder_kind(path)) in ("pairs", "recon", "frames"):
+        from spikenerf.recon.describe import describe_pairs, describe_recon
+
+        click.echo({"pairs": describe_pairs, "recon": describe_recon, "frames": describe_frames}[kind](path))
         return
     if path.is_dir() and (kind := folder_kind(path)) in OTHER_KINDS:
         raise InputError(OTHER_KINDS[kind], path=path)

@@ -195,10 +195,13 @@ def check_output(
     check_writable(path, param)
 
 
-#: the kinds of output that a marked dataset, run or render may hold in a subfolder (none in a dataset, whose
-#: ``--overwrite`` refuses files it did not list; renders in a run or a render, no run or dataset); other
-#: kinds may hold any
-HOLDS = {"dataset": set(), "run": {"render"}, "render": {"render"}}
+#: the kinds of output that a marked folder may hold in a subfolder: none in a dataset (whose ``--overwrite``
+#: refuses files it did not list), a pair folder, a recon-train run or a frame folder; renders in a run or a
+#: render; a benchmark (its cells' datasets, runs and renders) may hold any
+HOLDS = {
+    "dataset": set(), "run": {"render"}, "render": {"render"},
+    "pairs": set(), "recon": set(), "frames": set(),
+}  # fmt: skip
 
 
 def owned(folder: str | Path) -> bool:

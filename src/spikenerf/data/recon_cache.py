@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from spikenerf.core.atomic import atomic_path, clean_stale_temps
+from spikenerf.core.errors import InputError
 from spikenerf.recon.infer import reconstruct_learned
 
 #: the cache's sub-folder of the run folder
@@ -90,9 +91,18 @@ def cache_key(
         "mode": mode,
         "window": window,
         "threshold": float(threshold),
-        "weights": _digest([Path(weights).read_bytes()]),
+        "weights": _digest([_weights_bytes(Path(weights))]),
     }
     return hashlib.blake2b(json.dumps(parts, sort_keys=True).encode(), digest_size=8).hexdigest()
+
+
+def _weights_bytes(path: Path) -> bytes:
+    """The weights file's bytes; InputError naming it when it cannot be read (as loading it would)."""
+    try:
+        return path.read_bytes()
+    except OSError as err:
+        found = "weights file not found" if not path.exists() else f"weights file unreadable ({err.strerror})"
+        raise InputError(found, path=path) from err
 
 
 def build_learned(
@@ -103,12 +113,14 @@ def build_learned(
 
 
 def _read(path: Path, shape: tuple[int, ...]) -> np.ndarray | None:
-    """The cached float16 array, or None when it is missing, unreadable or of another shape."""
+    """The cached float16 array, or None when it is missing, unreadable, of another shape or not finite."""
     try:
         cached = np.load(path, allow_pickle=False)
     except (OSError, ValueError):
         return None
-    return cached if cached.shape == shape and cached.dtype == np.float16 else None
+    if cached.shape != shape or cached.dtype != np.float16:
+        return None
+    return cached if np.isfinite(cached).all() else None  # damaged (NaN or inf): built again
 
 
 def learned_stream(

@@ -629,7 +629,7 @@ def train(
         new = not out.exists()
         try:
             trainer = Trainer(config, out, dataset, resume, progress)
-        except InputError:  # refused while setting up (e.g. after caching learned targets): nothing stays
+        except Exception:  # refused or failed setting up (e.g. after caching learned targets): nothing stays
             if new:
                 shutil.rmtree(out, ignore_errors=True)
             raise
