@@ -130,7 +130,7 @@ def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
         (["--frames", "100:130"], "--frames: frame range 100:130 is empty or outside the 120-frame stream"),
         (["--frames", "1-3"], "A:B"),
         (["--frame", "1", "--frames", "1:3"], "not both"),
-        (["--method", "tfi", "--window", "41"], "tfp only"),
+        (["--method", "tfi", "--window", "41"], "--window applies to --method tfp and learned"),
         (["--method", "tfp", "--color", "bayer"], "--color applies to --method learned only"),
         (["--method", "tfi", "--weights", "w.pt"], "--weights applies to --method learned only (tfi has no"),
         (["--threshold", "0"], "threshold"),

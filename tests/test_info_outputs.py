@@ -1,5 +1,5 @@
-"""``spikenerf info`` on what recon-data, recon-train and reconstruct write: a summary, not an error line that
-only named the kind of folder (exit 2)."""
+"""What recon-data, recon-train and reconstruct write and read: ``info`` summarises their folders (it gave an
+error line naming only the kind of folder), and reconstruct says when its φ differs from the recording's."""
 
 from __future__ import annotations
 
@@ -35,3 +35,57 @@ def test_info_summarises_pair_recon_and_frame_folders(capsys, tmp_path: Path) ->
     assert run_cli(capsys, "reconstruct", dat, "--method", "tfp", "--frames", "3:6", "--out", frames)[0] == 0
     code, out, err = run_cli(capsys, "info", frames)
     assert code == 0 and out.strip() == "reconstruct frame folder: 3 frames (00003 to 00005), 12×8 gray", err
+
+
+def test_reconstruct_warns_when_its_threshold_differs_from_the_recordings(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``--threshold 2`` against a recorded φ of 1 was taken without a word (``info`` warns on ``--fps``)."""
+    dat = write_recording(tmp_path / "rec" / "r.dat", 20, 8, 12)
+    with (dat.parent / "config.yaml").open("a") as f:
+        f.write("threshold: 1.0\n")
+    code, _, err = run_cli(
+        capsys,
+        "reconstruct",
+        dat,
+        "--method",
+        "tfp",
+        "--threshold",
+        2,
+        "--frame",
+        0,
+        "--out",
+        tmp_path / "a.png",
+    )
+    assert code == 0 and "--threshold 2 differs from threshold 1 in" in err, err
+    code, _, err = run_cli(
+        capsys,
+        "reconstruct",
+        dat,
+        "--method",
+        "tfp",
+        "--threshold",
+        1,
+        "--frame",
+        0,
+        "--out",
+        tmp_path / "b.png",
+    )
+    assert code == 0 and "differs" not in err, err
+
+
+def test_reconstruct_messages_say_what_is_missing(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    dat = write_recording(tmp_path / "rec" / "r.dat", 20, 8, 12)
+    (dat.parent / "config.yaml").unlink()
+    tfp = ["--method", "tfp", "--frame", 0, "--out", tmp_path / "a.png"]
+    code, _, err = run_cli(
+        capsys, "reconstruct", dat, "--height", 8, *tfp
+    )  # read "pass --height and --width"
+    assert code == 2 and err.strip().endswith("pass --width too"), err
+    code, _, err = run_cli(capsys, "reconstruct", dat.parent, *tfp)  # a folder: which file in it
+    assert code == 2 and err.strip().endswith("give a recording file in it (r.dat)"), err
+    code, _, err = run_cli(capsys, "reconstruct", tmp_path / "rec" / "..", *tfp)
+    assert code == 2 and err.strip().endswith("it holds no .dat file"), err
+    code, _, err = run_cli(  # negative indices are taken: the message said "need 0 <= start"
+        capsys, "reconstruct", dat, "--height", 8, "--width", 12, "--method", "tfp", "--frames", "-40:-30",
+        "--out", tmp_path / "b.npy",
+    )  # fmt: skip
+    assert code == 2 and "a negative index counting from the end: -20 is 0" in err, err

@@ -124,3 +124,18 @@ def test_batched_learned_inference_on_cuda_equals_the_cpu() -> None:
     # cuDNN convolves in TF32 by default (10-bit mantissa): 5.8e-4 apart on an H200, about one float16 step
     # of the stored targets at 0.5 (4.9e-4); a wrong frame order or tile seam would be off by far more
     np.testing.assert_allclose(gpu, cpu, rtol=0, atol=2e-3)
+
+
+def test_a_target_refusal_names_the_dataset(dataset, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+    """``train --recon learned`` on a 30-step dataset gave "window of 41 steps is longer…" and no path."""
+    from spikenerf.data import targets
+
+    def refuses(*args, **kw):  # type: ignore[no-untyped-def]
+        raise InputError(
+            "the learned reconstructor's window of 41 steps is longer than the stream (30 steps)"
+        )
+
+    monkeypatch.setattr(targets, "masked_reconstruction", refuses)
+    with pytest.raises(InputError, match="longer than the stream") as err:
+        stream_targets(dataset, "gray", "learned", 41, mask=False)
+    assert err.value.path is not None and Path(err.value.path) == Path(dataset.root)

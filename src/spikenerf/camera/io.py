@@ -144,7 +144,8 @@ def resolve_frames(
         i = int(frames) + total if frames < 0 else int(frames)
         if not 0 <= i < total:
             raise InputError(
-                f"{param}: frame {frames} is outside the {total}-frame stream (valid 0..{total - 1})",
+                f"{param}: frame {frames} is outside the {total}-frame stream (valid 0..{total - 1}, or "
+                f"-{total}..-1 from the end)",
                 path,
                 param=param,
             )
@@ -167,7 +168,7 @@ def resolve_frames(
     if not 0 <= start < stop <= total:
         raise InputError(
             f"{param}: frame range {frames.start}:{frames.stop} is empty or outside the {total}-frame stream "
-            f"(need 0 <= start < stop <= {total})",
+            f"(need 0 <= start < stop <= {total}, a negative index counting from the end: -{total} is 0)",
             path=path,
             param=param,
         )

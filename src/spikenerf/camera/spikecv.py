@@ -153,7 +153,9 @@ def recording_config(
         InputError: the size is known from neither (naming both ways to give it), or ``config`` is malformed.
     """
     if Path(dat).is_dir():
-        raise InputError("is a folder, not a .dat recording: give the recording file in it", path=dat)
+        inside = sorted(p.name for p in Path(dat).glob("*.dat"))
+        hint = f"give a recording file in it ({', '.join(inside[:3])})" if inside else "it holds no .dat file"
+        raise InputError(f"is a folder, not a .dat recording: {hint}", path=dat)
     if not Path(dat).exists():
         raise InputError("file not found", path=dat)
     found = Path(config) if config is not None else find_spikecv_config(dat)
@@ -167,8 +169,8 @@ def recording_config(
     w = width if width is not None else base.width
     if h is None or w is None:
         where = f"{found} has no spike_h/spike_w" if found else f"no {CONFIG_NAME} beside the recording"
-        raise InputError(
-            f"frame size unknown ({where}): pass height and width", path=dat, param=("height", "width")
-        )
+        missing = [name for name, value in (("height", h), ("width", w)) if value is None]
+        wanted = " and ".join(missing) + (" too" if len(missing) == 1 else "")
+        raise InputError(f"frame size unknown ({where}): pass {wanted}", path=dat, param=tuple(missing))
     raw = base.raw_width if width is None or width == base.width else None  # the config's rows: its width's
     return RecordingConfig(h, w, base.fps, base.threshold, raw, found)

@@ -15,6 +15,9 @@ from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.cli.types import SEED
 from spikenerf.core.errors import InputError, comma_list
 
+#: parameters named otherwise than their flags (the CLI maps an error's parameter to its flag)
+PARAM_FLAGS = {"scene": "--scene", "gt_every": "--gt-every"}  # (the latter: simulate's, in a hint)
+
 
 @click.command(
     help="Write (spike window of K steps, sharp frame at its middle step) pairs for `spikenerf recon-train`: "
@@ -61,7 +64,7 @@ from spikenerf.core.errors import InputError, comma_list
     "--brightness",
     default="0.04:1.0",
     show_default=True,
-    help="LO:HI of the log-uniform brightness scale of the radiance.",
+    help="LO:HI of the log-uniform brightness scale of the radiance (0 < LO ≤ HI ≤ 1e6).",
 )
 @click.option(
     "--max-speed",
@@ -165,13 +168,15 @@ def _choices(flag: str, text: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def _range(text: str) -> tuple[float, float]:
+    from spikenerf.recon.generate import MAX_BRIGHTNESS, check_brightness
+
     try:
         lo, hi = (float(v) for v in text.split(":"))
     except ValueError:
-        lo = hi = -1.0
-    if not (0 < lo <= hi and math.isfinite(hi)):
-        raise InputError(f"--brightness must be LO:HI with 0 < LO ≤ HI < inf, found {text!r}")
-    return lo, hi
+        raise InputError(
+            f"--brightness must be LO:HI with 0 < LO ≤ HI ≤ {MAX_BRIGHTNESS:g}, found {text!r}"
+        ) from None
+    return check_brightness((lo, hi))  # (bounds, the flag named)
 
 
 def _sources(scenes, sequences, size: int, window: int, seed: int) -> dict:

@@ -90,11 +90,17 @@ def blocks(frames: range, method: str) -> Iterator[range]:
     show_default=True,
     help="learned: the stream is gray, one channel of a per-channel RGB recording, or a Bayer RGGB mosaic.",
 )
-@click.option("--window", type=int, help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}].")
+@click.option(
+    "--window", type=int,
+    help=f"TFP window length in frames, odd [default: {DEFAULT_WINDOW}]; learned: its trained window only.",
+)  # fmt: skip
 @click.option(
     "--frame", type=int, help="One frame index (negative: from the end, -1 = the last): .npy gets (H, W)."
 )
-@click.option("--frames", "frame_range", help="A frame range A:B (B exclusive): .npy gets (B-A, H, W).")
+@click.option(
+    "--frames", "frame_range",
+    help="A frame range A:B (B exclusive; negative: from the end, -5: = the last 5): .npy gets (B-A, H, W).",
+)  # fmt: skip
 @click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
 @click.option("--threshold", type=float, help="The camera threshold φ [default: config.yaml's, else 1].")
@@ -137,12 +143,18 @@ def command(
         threshold = recording.threshold or 1.0
 
     if method == "tfi" and window is not None:
-        raise InputError("--window applies to --method tfp only (TFI uses inter-spike intervals)")
+        raise InputError("--window applies to --method tfp and learned (TFI uses inter-spike intervals)")
     if method != "learned" and color != "gray":
         raise InputError(f"--color applies to --method learned only ({method} treats every pixel alike)")
     if method != "learned" and weights is not None:
         raise InputError(f"--weights applies to --method learned only ({method} has no network)")
-    recon = reconstructor(method, window, threshold, weights=weights, color=color)
+    recon = reconstructor(method, window, threshold, weights=weights, color=color)  # (φ checked)
+    if recording.threshold is not None and threshold != recording.threshold:  # as info's --fps
+        click.echo(
+            f"spikenerf: warning: {spikes}: --threshold {threshold:g} differs from threshold "
+            f"{recording.threshold:g} in {recording.path}; using --threshold {threshold:g}",
+            err=True,
+        )
     if frame is not None and frame_range is not None:
         raise InputError("give either --frame I or --frames A:B, not both")
     total = count_frames(spikes, height, width, raw_width)

@@ -257,7 +257,12 @@ def stream_targets(
             param="window_poses",
         )
     stream = given_stream(dataset, color, spikes)
-    images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n)
+    try:
+        images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n)
+    except InputError as err:  # (e.g. a window longer than the stream): named with the dataset
+        if err.path is not None or getattr(dataset, "root", None) is None:
+            raise
+        raise InputError(err.message, path=dataset.root, param=err.params) from err
     images = torch.as_tensor(to_channels_last(images)).half()
     traj = dataset.trajectory
     steps = torch.as_tensor(traj.steps)

@@ -9,9 +9,12 @@ the held-out ones.
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable, Iterator
 from dataclasses import asdict
 from pathlib import Path
+
+import numpy as np
 
 from spikenerf.camera.model import CameraConfig
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
@@ -36,6 +39,11 @@ VAL_SCENES = ["analytic-orbs", "analytic-blocks"]
 DRAWS_PER_SHARD = 24
 #: the seed stream of held-out random scenes is ``seed + VAL_SEED_OFFSET``
 VAL_SEED_OFFSET = 7919
+#: the largest brightness scale: the camera collects the scaled radiance as float32 charge over the window
+#: (and the targets are float32 rates), which must stay finite; far past it a pixel fires every step anyway
+MAX_BRIGHTNESS = 1e6
+#: manifest entries that follow from the others (not compared on a resume)
+DERIVED = ("val_scenes",)
 
 
 Job = tuple[str, Callable[[range], Iterator[Sample]], int]
@@ -61,13 +69,32 @@ def plan(
         train, held = load_images(NATURAL_TRAIN), load_images(NATURAL_HELDOUT)
         jobs.append(("train", lambda d: natural_pairs(train, d, cfg, seed * 1000 + 999), natural_draws))
         held_seed = seed + 3 * VAL_SEED_OFFSET
-        jobs.append(("val", lambda d: natural_pairs(held, d, cfg, held_seed), val_draws // 4))
+        jobs.append(("val", lambda d: natural_pairs(held, d, cfg, held_seed), natural_val_draws(val_draws)))
     half = val_draws // 2
     jobs.append(
         ("val", lambda d: analytic_pairs(VAL_SCENES, d, cfg, seed + VAL_SEED_OFFSET), val_draws - half)
     )
     jobs.append(("val", lambda d: analytic_pairs(None, d, cfg, seed + 2 * VAL_SEED_OFFSET), half))
     return jobs
+
+
+def natural_val_draws(val_draws: int) -> int:
+    """Draws of held-out photographs in the val split of a folder with photographs: a quarter of its val
+    draws (none below 4)."""
+    return val_draws // 4
+
+
+def check_brightness(brightness: tuple[float, float]) -> tuple[float, float]:
+    """``brightness`` (LO, HI) when 0 < LO ≤ HI ≤ :data:`MAX_BRIGHTNESS`; else InputError naming it."""
+    lo, hi = brightness
+    if not (0 < lo <= hi <= MAX_BRIGHTNESS):  # (NaN fails too)
+        raise InputError(
+            f"brightness must be LO:HI with 0 < LO ≤ HI ≤ {MAX_BRIGHTNESS:g}, found {lo:g}:{hi:g} (the "
+            "camera collects the scaled radiance as float32 charge, which must stay finite; a pixel fires "
+            "every step long before that scale)",
+            param="brightness",
+        )
+    return lo, hi
 
 
 def pairs_resources(cfg: PairConfig, draws: int) -> tuple[float, float]:
@@ -89,7 +116,7 @@ def write_pairs(
     extra: dict[str, FrameSource] | None = None,
     extra_draws: int = 0,
     command: str = "",
-    progress: bool = True,
+    progress: bool | None = None,
     natural_draws: int = 0,
 ) -> dict:
     """Generate (or finish) the pair folder ``out``; returns the manifest.
@@ -98,13 +125,16 @@ def write_pairs(
         cfg: pair settings. train_draws / val_draws: random draws per split (a draw gives 1, 3 or 4 samples).
         extra: named FrameSources (Blender scenes, sequences) added to the train split, ``extra_draws`` each.
         seed: seeds the draws (validation draws from their own offset seed). command: the command line,
-            recorded in the manifest. progress: a progress bar over the shards.
+            recorded in the manifest. progress: a progress bar over the shards (None: only on a terminal).
         natural_draws: photograph draws added to the train split (``recon/natural.py``; needs scikit-image).
     Raises:
-        InputError: ``out`` holds pairs made with other settings (named).
+        InputError: ``out`` holds pairs made with other settings (named); a brightness past
+            :data:`MAX_BRIGHTNESS`; a draw whose targets are not finite (no shard of it is written, and a
+            folder this call created is removed).
     """
     out = Path(out)
     CameraConfig(threshold=cfg.threshold)  # a φ the camera refuses (past float32): refused before writing
+    check_brightness(cfg.brightness)
     if natural_draws > 0:
         require_skimage()  # before anything is written
     draws = train_draws + val_draws + extra_draws * len(extra or {}) + natural_draws
@@ -116,9 +146,15 @@ def write_pairs(
         check_output(out, "pairs", overwrite=True)
         for folder in (out, out / "train", out / "val"):  # a killed writer's temporaries, shards' included
             clean_stale_temps(folder)
-        return _write_locked(
-            out, cfg, train_draws, val_draws, seed, extra, extra_draws, command, progress, natural_draws
-        )
+        new = not (out.exists() or out.is_symlink())
+        try:
+            return _write_locked(
+                out, cfg, train_draws, val_draws, seed, extra, extra_draws, command, progress, natural_draws
+            )
+        except InputError:  # refused while writing (a draw that is not finite): a folder it made goes
+            if new:
+                shutil.rmtree(out, ignore_errors=True)
+            raise
 
 
 def settings_changed(old: dict, new: dict) -> list[tuple[str, object, object]]:
@@ -152,11 +188,15 @@ def _write_locked(
     }
     if natural_draws > 0:  # only then, so that folders made before photographs existed still resume
         manifest.update(natural_draws=natural_draws, natural_train=list(NATURAL_TRAIN))
-        manifest["val_scenes"] += [f"natural:{name}" for name in NATURAL_HELDOUT]
+        if natural_val_draws(val_draws) > 0:  # the held-out photographs, where the val split draws them
+            manifest["val_scenes"] += [f"natural:{name}" for name in NATURAL_HELDOUT]
     path = out / MANIFEST
     if path.is_file():
-        old, new = read_manifest(out), json.loads(json.dumps(manifest))
-        if {k: old.get(k) for k in manifest} != new:
+        # val_scenes follows from the settings compared (and older folders of fewer than 4 val draws listed
+        # photographs that they never drew: such a folder still resumes, its manifest corrected)
+        old = {k: v for k, v in read_manifest(out).items() if k not in DERIVED}
+        new = {k: v for k, v in json.loads(json.dumps(manifest)).items() if k not in DERIVED}
+        if {k: old.get(k) for k in new} != new:
             changed = settings_changed(old, new)
             named = ", ".join(f"{name} {was!r} → {now!r}" for name, was, now in changed) or "its manifest"
             raise InputError(
@@ -176,7 +216,16 @@ def _write_locked(
                 target = shard_path(out, split, counters[split])
                 counters[split] += 1
                 if not shard_ok(target, cfg.window, cfg.size):  # missing, or damaged: written again
-                    samples = list(draw(range(start, min(start + DRAWS_PER_SHARD, count))))
+                    with np.errstate(over="ignore", invalid="ignore"):  # (refused below, not warned about)
+                        samples = list(draw(range(start, min(start + DRAWS_PER_SHARD, count))))
+                    if bad := next((s for s in samples if not np.isfinite(s.target).all()), None):
+                        raise InputError(
+                            f"a {split} draw ({bad.info.get('scene', '?')}) has targets that are not finite "
+                            "(its radiance scaled and divided by φ overflows float32): lower brightness or "
+                            "raise threshold",
+                            path=out,
+                            param=("brightness", "threshold"),
+                        )
                     if samples:
                         write_shard(target, samples)
                 bar.update(1)

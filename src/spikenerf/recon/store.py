@@ -33,9 +33,12 @@ def shard_path(root: Path, split: str, index: int) -> Path:
 
 
 def write_shard(path: Path, samples: list[Sample]) -> None:
-    """Pack ``samples`` (all P × P, same K) into one shard, atomically."""
+    """Pack ``samples`` (all P × P, same K) into one shard, atomically. ValueError when a target is not finite
+    (the caller refuses such a draw first: a shard that :func:`read_shard` refuses is never written)."""
     spikes = np.packbits(np.stack([s.window for s in samples]).astype(bool), axis=-1)
     targets = np.stack([s.target for s in samples]).astype(np.float32)
+    if not np.isfinite(targets).all():
+        raise ValueError(f"{path}: pair targets are not finite (NaN or inf); not writing the shard")
     info = np.array([json.dumps(s.info) for s in samples])
     buf = io.BytesIO()
     np.savez_compressed(buf, spikes=spikes, targets=targets, size=np.int64(targets.shape[-1]), info=info)

@@ -14,6 +14,7 @@ import csv
 import hashlib
 import json
 import math
+import shutil
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -97,12 +98,14 @@ def train_recon(
     out: str | Path,
     cfg: ReconTrainConfig,
     command: str = "",
-    progress: bool = True,
+    progress: bool | None = None,
     stop_at: int | None = None,
 ) -> dict:
     """Train (or resume) a reconstructor into ``out``; returns the summary (also in ``weights.json``).
 
-    ``stop_at`` ends the run after that many steps without the final export (an interruption, for tests).
+    ``progress``: a progress bar (None: only on a terminal). ``stop_at`` ends the run after that many steps
+    without the final export (an interruption, for tests). A folder this call created is removed again when
+    the run fails before it wrote a checkpoint (a refusal, a diverged run): nothing is left to resume.
     """
     cfg.check()
     out = Path(out)
@@ -111,11 +114,22 @@ def train_recon(
         check_output(out, "recon", overwrite=True)
         if owned(out):  # a folder of ours (one recognised by its files alone may be a user's)
             clean_stale_temps(out)
-        return _train_locked(pairs_dir, out, cfg, command, progress, stop_at)
+        new = not (out.exists() or out.is_symlink())
+        try:
+            return _train_locked(pairs_dir, out, cfg, command, progress, stop_at)
+        except Exception:
+            if new and not (out / "checkpoint.pt").exists():
+                shutil.rmtree(out, ignore_errors=True)
+            raise
 
 
 def _train_locked(
-    pairs_dir: str | Path, out: Path, cfg: ReconTrainConfig, command: str, progress: bool, stop_at: int | None
+    pairs_dir: str | Path,
+    out: Path,
+    cfg: ReconTrainConfig,
+    command: str,
+    progress: bool | None,
+    stop_at: int | None,
 ) -> dict:
     from spikenerf.core.progress import bar as progress_bar
 
@@ -138,17 +152,18 @@ def _train_locked(
     legacy = {k: v for k, v in manifest.items() if k != "complete"}  # what checkpoints before it hashed
     legacy_hash = hashlib.sha256(json.dumps(legacy, sort_keys=True).encode()).hexdigest()
     start, elapsed, running = _resume(out, cfg, net, opt, gen, (pairs_hash, legacy_hash))
+    rows = _curves(out, start)  # before anything is written: a garbled one is refused
     mark(out, "recon")
     write_text_atomic(
         out / "config.json",
         json.dumps({"config": asdict(cfg), "pairs": str(pairs_dir), "command": command}, indent=2),
     )
-    rows = _curves(out, start)
     t0, it, end = (
         time.perf_counter() - elapsed,
         start,
         cfg.iters if stop_at is None else min(stop_at, cfg.iters),
     )
+    saved = start or None  # the iteration of the folder's checkpoint (None: it has none)
     bar = progress_bar(total=cfg.iters, initial=start, unit="it", desc="recon-train", show=progress)
     while it < end:
         win, tgt, scale = sample_batch(train, cfg, gen)
@@ -162,11 +177,7 @@ def _train_locked(
         value = float(loss.detach())
         if not math.isfinite(value):  # diverged: nothing of it is saved (the last checkpoint stays)
             bar.close()  # its last line ends before the error's
-            raise InputError(
-                f"the training loss is {value} at iteration {it}: the run diverged; lower lr",
-                path=out,
-                param="lr",
-            )
+            raise _diverged(out, value, it, saved)
         running = value if math.isnan(running) else 0.95 * running + 0.05 * value
         bar.update(1)
         bar.set_postfix(l1=f"{running:.4f}")
@@ -193,6 +204,7 @@ def _train_locked(
                     "running_l1": running,  # the curve's running L1 continues as without the interruption
                 },
             )
+            saved = it
     bar.close()
     if it < cfg.iters:
         return {"iteration": it}
@@ -211,6 +223,28 @@ def _train_locked(
     save_weights(out / "weights.pt", net, list(manifest["config"]["modes"]), summary)
     write_text_atomic(out / "weights.json", json.dumps(summary, indent=2))
     return summary
+
+
+def _diverged(out: Path, value: float, it: int, saved: int | None) -> InputError:
+    """The error of a run whose loss became ``value`` (not finite) at step ``it``, saying how to go on.
+
+    ``saved``: the iteration of the folder's checkpoint. It resumes only with the same settings (and would
+    diverge again), so a lower rate needs a new folder. Without one the folder holds nothing to resume
+    (:func:`train_recon` removes a folder it created), so the same command with a lower rate serves.
+    """
+    head = f"the training loss is {value} at iteration {it}: the run diverged"
+    if saved is None:
+        return InputError(
+            f"{head}; lower lr and train again (it wrote no checkpoint: nothing is kept)",
+            path=out,
+            param="lr",
+        )
+    return InputError(
+        f"{head}; lower lr and train again into a new out folder, or delete this one (its checkpoint of "
+        f"iteration {saved} resumes only with the same settings)",
+        path=out,
+        param=("lr", "out"),
+    )
 
 
 def _pairs_hash(manifest: dict) -> str:
@@ -237,14 +271,23 @@ def _resume(
             f"out holds a run of {int(data['iteration'])} iterations, more than iters {cfg.iters}; pass "
             "at least that many, or use a new folder",
             path=out,
-            param="iters",
-        )
-    stored = {k: v for k, v in data.get("config", {}).items() if k != "iters"}
-    if stored != {k: v for k, v in asdict(cfg).items() if k != "iters"}:
-        raise InputError(
-            "out holds a run with other settings (only iters may change on resume)",
-            path=out,
             param=("out", "iters"),
+        )
+    stored = data.get("config", {})
+    stored = stored if isinstance(stored, dict) else {}
+    now = asdict(cfg)
+    changed = [
+        k
+        for k in (*now, *(k for k in stored if k not in now))
+        if k != "iters" and stored.get(k) != now.get(k)
+    ]
+    if changed:
+        named = ", ".join(f"{k} {stored.get(k)!r} → {now.get(k)!r}" for k in changed)
+        raise InputError(
+            f"out holds a run with other settings ({named}): give the same ones to resume it (only iters "
+            "may change), or use a new folder",
+            path=out,
+            param=("out", *changed, "iters"),
         )
     try:
         net.load_state_dict(data["model"])
@@ -258,12 +301,51 @@ def _resume(
 
 
 def _curves(out: Path, start: int) -> list[list]:
-    """Curve rows up to the resumed iteration (later rows came after the checkpoint and are redone)."""
+    """Curve rows up to the resumed iteration (later rows came after the checkpoint and are redone); none
+    for a run that starts afresh, or from a file of zero bytes (what a crash may leave). InputError naming
+    the file when it is not such a table (as ``train --resume`` treats its curves.csv): a header that is
+    not :data:`CURVES_HEADER`, a row that is not numbers, bytes that are not text."""
     path = out / "curves.csv"
-    if not path.is_file() or start == 0:
+    if not path.is_file() or start == 0 or path.stat().st_size == 0:
         return []
-    with open(path, newline="") as fh:
-        return [row for row in list(csv.reader(fh))[1:] if row and int(row[0]) <= start]
+    aside = "move it aside to resume without the earlier curve points"
+    rows, line = [], 1
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            if (header := next(reader, [])) != CURVES_HEADER:
+                raise InputError(
+                    f"not a curve table of recon-train: its header is {','.join(header)!r}, expected "
+                    f"{','.join(CURVES_HEADER)!r} ({aside})",
+                    path=path,
+                )
+            for row in reader:
+                line = reader.line_num
+                if not row:
+                    continue
+                rows.append(_numbers(row))
+    except InputError:  # (a ValueError too: raised as it is)
+        raise
+    except (UnicodeDecodeError, csv.Error) as err:  # (UnicodeDecodeError is a ValueError: before it)
+        raise InputError(
+            f"not a curve table of recon-train ({type(err).__name__}: {err}; {aside})", path=path
+        ) from err
+    except ValueError as err:
+        raise InputError(
+            f"not a curve table of recon-train: line {line} is not a row of numbers ({err}; {aside})",
+            path=path,
+        ) from err
+    return [row for row in rows if int(row[0]) <= start]
+
+
+def _numbers(row: list[str]) -> list[str]:
+    """``row`` (kept as written) when it is a curve row: an integer iteration and numbers; else ValueError."""
+    if len(row) != len(CURVES_HEADER):
+        raise ValueError(f"{len(row)} values, expected {len(CURVES_HEADER)}")
+    int(row[0])
+    for value in row[1:]:
+        float(value)
+    return row
 
 
 def _write_curves(out: Path, rows: list[list]) -> None:

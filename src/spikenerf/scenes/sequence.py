@@ -255,8 +255,8 @@ def _dataset_hint(err: InputError, meta: dict, path: Path) -> InputError:
     if not (ours or "spikenerf_version:" in text):
         return err
     return InputError(
-        f"{err.message}: a spikenerf dataset stores an image only every few steps; to read its "
-        "transforms.json as a sequence, simulate it with gt_every 1",
+        f"{err.message}: a spikenerf dataset stores an image only every few steps; read its "
+        "transforms_gt.json, which lists them as a sequence, or simulate it with gt_every 1",
         path=path,
         param="gt_every",
     )
