@@ -89,3 +89,30 @@ def test_reconstruct_messages_say_what_is_missing(capsys, tmp_path: Path) -> Non
         "--out", tmp_path / "b.npy",
     )  # fmt: skip
     assert code == 2 and "a negative index counting from the end: -20 is 0" in err, err
+
+
+def test_the_recorded_layout_is_read_and_a_differing_one_warned(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``--layout topdown`` against a dataset's ``layout: spikecv`` gave an upside-down image silently."""
+    import numpy as np
+
+    dat = write_recording(tmp_path / "rec" / "r.dat", 20, 8, 12)
+    config = dat.parent / "config.yaml"
+    base = config.read_text()
+    args = ["--method", "tfp", "--frame", 5]
+
+    def frame(name: str, *extra: object) -> tuple[np.ndarray, str]:
+        code, _, err = run_cli(capsys, "reconstruct", dat, *args, *extra, "--out", tmp_path / name)
+        assert code == 0, err
+        return np.load(tmp_path / name), err
+
+    plain, _ = frame("plain.npy")
+    config.write_text(base + "layout: topdown\n")
+    recorded, err = frame("recorded.npy")  # the config's layout, unasked
+    assert "warning" not in err and np.array_equal(recorded, plain[::-1])
+    given, err = frame("given.npy", "--layout", "spikecv")
+    assert np.array_equal(given, plain) and "--layout spikecv differs from layout topdown in" in err
+    code, out, err = run_cli(capsys, "info", dat)
+    assert code == 0 and "layout topdown" in out, err
+    config.write_text(base + "layout: sideways\n")
+    code, _, err = run_cli(capsys, "reconstruct", dat, *args, "--out", tmp_path / "x.npy")
+    assert code == 2 and "field 'layout': expected one of spikecv, topdown, found 'sideways'" in err, err

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import yaml
 
+from spikenerf.camera.io import LAYOUTS
 from spikenerf.core.errors import InputError
 from spikenerf.core.yamlio import load_yaml
 
@@ -30,6 +31,8 @@ class RecordingConfig:
     threshold: float | None = None
     raw_width: int | None = None
     path: Path | None = None
+    #: the row order, where the config says (spikenerf's datasets do; SpikeCV's configs do not)
+    layout: str | None = None
 
 
 def find_spikecv_config(dat: str | Path) -> Path | None:
@@ -72,12 +75,21 @@ def read_spikecv_config(path: str | Path) -> RecordingConfig:
         threshold=_value(data, "threshold", path, False),
         raw_width=_value(data, "raw_width", path, True),
         path=path,
+        layout=_layout(data, path),
     )
     if config.raw_width is not None and config.width is not None and config.raw_width < config.width:
         raise InputError(
             f"field 'raw_width': expected ≥ spike_w {config.width}, found {config.raw_width}", path=path
         )
     return config
+
+
+def _layout(data: dict, path: Path) -> str | None:
+    """The config's ``layout`` (None where it has none); InputError naming the field when it is no layout."""
+    layout = data.get("layout")
+    if layout is not None and layout not in LAYOUTS:
+        raise InputError(f"field 'layout': expected one of {', '.join(LAYOUTS)}, found {layout!r}", path=path)
+    return layout
 
 
 def write_spikecv_config(
@@ -173,4 +185,4 @@ def recording_config(
         wanted = " and ".join(missing) + (" too" if len(missing) == 1 else "")
         raise InputError(f"frame size unknown ({where}): pass {wanted}", path=dat, param=tuple(missing))
     raw = base.raw_width if width is None or width == base.width else None  # the config's rows: its width's
-    return RecordingConfig(h, w, base.fps, base.threshold, raw, found)
+    return RecordingConfig(h, w, base.fps, base.threshold, raw, found, base.layout)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.types import dat_recording, frame_size_options
+from spikenerf.cli.types import dat_recording, frame_size_options, given_layout
 from spikenerf.core.errors import InputError
 
 
@@ -119,7 +119,9 @@ def describe_render(folder: Path) -> list[str]:
 @click.argument("path", type=click.Path(path_type=Path))
 @frame_size_options
 @click.option(
-    "--layout", type=click.Choice(["spikecv", "topdown"]), help="Row order of a .dat file [default: spikecv]."
+    "--layout",
+    type=click.Choice(["spikecv", "topdown"]),
+    help="Row order of a .dat file [default: config.yaml's layout, else spikecv].",
 )
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
 @click.option(
@@ -154,7 +156,6 @@ def command(
                 f"{', '.join(given)}: for a .dat file only (a folder's own files give its size and rate)",
                 path=path,
             )
-    layout = layout or "spikecv"
 
     if path.is_dir() and folder_kind(path) == "run":  # a run's missing file is named as such
         from spikenerf.eval.describe import metrics_lines
@@ -179,6 +180,7 @@ def command(
         return
     config = dat_recording(path, height, width, raw_width)
     height, width, raw_width = config.height, config.width, config.raw_width
+    layout = given_layout(path, layout, config)
     given_fps, fps = fps, fps if fps is not None else config.fps or 40000.0
     if not 0 < fps < math.inf:
         raise InputError(f"--fps must be a finite number > 0, found {fps}")

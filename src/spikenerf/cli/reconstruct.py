@@ -101,7 +101,10 @@ def blocks(frames: range, method: str) -> Iterator[range]:
     "--frames", "frame_range",
     help="A frame range A:B (B exclusive; negative: from the end, -5: = the last 5): .npy gets (B-A, H, W).",
 )  # fmt: skip
-@click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
+@click.option(
+    "--layout", type=click.Choice(["spikecv", "topdown"]),
+    help="Row order of the .dat file [default: config.yaml's layout, else spikecv].",
+)  # fmt: skip
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")
 @click.option("--threshold", type=float, help="The camera threshold φ [default: config.yaml's, else 1].")
 @click.option(
@@ -125,7 +128,7 @@ def command(
     window: int | None,
     frame: int | None,
     frame_range: str | None,
-    layout: str,
+    layout: str | None,
     raw_width: int | None,
     threshold: float | None,
     encoding: str | None,
@@ -133,7 +136,7 @@ def command(
     overwrite: bool,
 ) -> None:
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
-    from spikenerf.cli.types import dat_recording
+    from spikenerf.cli.types import dat_recording, given_layout
     from spikenerf.core.progress import bar as progress_bar
     from spikenerf.data.reconstruction import reconstructor
 
@@ -149,6 +152,7 @@ def command(
     if method != "learned" and weights is not None:
         raise InputError(f"--weights applies to --method learned only ({method} has no network)")
     recon = reconstructor(method, window, threshold, weights=weights, color=color)  # (φ checked)
+    layout = given_layout(spikes, layout, recording)
     if recording.threshold is not None and threshold != recording.threshold:  # as info's --fps
         click.echo(
             f"spikenerf: warning: {spikes}: --threshold {threshold:g} differs from threshold "

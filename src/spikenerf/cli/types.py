@@ -74,6 +74,19 @@ def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:
 NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", ".npz", ".csv", ".html")
 
 
+def given_layout(path: Path, layout: str | None, recording: Any) -> str:
+    """The row order to read ``path`` in: ``--layout`` where given (one warning line where it differs from
+    the layout its ``config.yaml`` records), else the recorded one, else ``spikecv``."""
+    recorded = getattr(recording, "layout", None)
+    if layout is not None and recorded is not None and layout != recorded:
+        click.echo(
+            f"spikenerf: warning: {path}: --layout {layout} differs from layout {recorded} in "
+            f"{recording.path}; using --layout {layout}",
+            err=True,
+        )
+    return layout or recorded or "spikecv"
+
+
 def dat_recording(
     path: Path, height: int | None, width: int | None, raw_width: int | None, refuse: bool = False
 ) -> Any:
