@@ -274,3 +274,10 @@ def test_orbit_errors_name_their_parameter() -> None:
     _params(lambda: orbit(4.0, 30.0, duration=1e-9), "duration", "fps")
     _params(lambda: orbit(4.0, 100.0), "elevation_deg")  # (was ("elevation", "turns"): not its names)
     _params(lambda: orbit(4.0, 30.0, turns=1e9), "turns")
+
+
+def test_a_threshold_must_be_one_number() -> None:
+    """``CameraConfig(threshold=[2.0])`` was accepted (numpy's isfinite takes a list) and kept the list."""
+    for bad in ([2.0], np.array(2.0), np.array([2.0]), True, 1e-300):
+        _params(lambda bad=bad: CameraConfig(threshold=bad), "threshold")
+    assert CameraConfig(threshold=np.float32(2)).threshold == 2

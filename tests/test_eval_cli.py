@@ -68,8 +68,8 @@ def test_eval_writes_metrics_json(run_dir: Path, capsys: pytest.CaptureFixture[s
     said = capsys.readouterr()
     assert "PSNR" in said.out and "no-reference" not in said.out
     assert said.err.strip().splitlines()[0] == (  # before the renders (it came after them)
-        "spikenerf: warning: the no-reference checks do not run on this dataset, which was not imported "
-        "(noref auto), so their settings are unused (noref on runs them here)"
+        "spikenerf: warning: the no-reference settings (steps 4) are unused: the checks do not run on this "
+        "dataset, which was not imported (noref auto; noref on runs them here)"
     )
     data = json.loads((run_dir / "metrics.json").read_text())
     keys = {"split", "method", "color", "field", "iterations", "views", "mean", "per_view", "lpips_backbone"}

@@ -153,3 +153,17 @@ def test_keyframe_images_says_it_also_makes_the_test_views() -> None:
     assert "test views" in option.help and "for COLMAP:" not in option.help
     doc = (Path(__file__).resolve().parents[1] / "docs" / "real-data.md").read_text(encoding="utf-8")
     assert "`--keyframe-images\n   learned`, whatever `--poses`" in doc
+
+
+def test_import_reads_the_recorded_layout_and_refuses_another(capsys, rec, tmp_path) -> None:
+    """A ``layout: topdown`` config.yaml was ignored by import (info and reconstruct read it)."""
+    with (rec.parent / "config.yaml").open("a") as f:
+        f.write("layout: topdown\n")
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, "--fov", 40)
+    assert code == 0, err
+    assert load_dataset(tmp_path / "ds").config["imported"]["layout"] == "topdown"
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds2", *ORBIT, "--fov", 40, "--layout", "spikecv"
+    )
+    _one_error(code, err, "--layout spikecv differs from layout topdown in")
+    assert not (tmp_path / "ds2").exists()

@@ -35,6 +35,8 @@ def test_info_summarises_pair_recon_and_frame_folders(capsys, tmp_path: Path) ->
     assert run_cli(capsys, "reconstruct", dat, "--method", "tfp", "--frames", "3:6", "--out", frames)[0] == 0
     code, out, err = run_cli(capsys, "info", frames)
     assert code == 0 and out.strip() == "reconstruct frame folder: 3 frames (00003 to 00005), 12×8 gray", err
+    (frames / "00005.png").rename(frames / "100000.png")  # past 99999 the names grow: ordered as numbers
+    assert "(00003 to 100000)" in run_cli(capsys, "info", frames)[1]
 
 
 def test_reconstruct_warns_when_its_threshold_differs_from_the_recordings(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

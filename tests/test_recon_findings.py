@@ -124,6 +124,11 @@ def test_the_manifest_lists_only_the_photographs_drawn(tmp_path: Path) -> None:
     pytest.importorskip("skimage")
     manifest = write_pairs(tmp_path / "p", CFG, 1, 2, seed=0, natural_draws=1, progress=False)
     assert not [s for s in manifest["val_scenes"] if s.startswith("natural:")]
+    assert manifest["val_scenes"][0] == "analytic-orbs" and "analytic-blocks" not in manifest["val_scenes"]
+    drawn = {
+        json.loads(i)["scene"] for f in (tmp_path / "p" / "val").glob("*.npz") for i in np.load(f)["info"]
+    }
+    assert drawn == {"analytic-orbs", "random-15838-0"}  # one named draw: blocks is never drawn
     path = tmp_path / "p" / "manifest.json"
     old = json.loads(path.read_text())
     old["val_scenes"] += ["natural:camera"]

@@ -84,3 +84,12 @@ def test_a_datasets_camera_config_given_as_a_train_config_is_named_as_such(capsy
     mark(dataset, "dataset")
     code, _, err = run_cli(capsys, "train", "--config", dataset, "--out", tmp_path / "run")
     assert code == 2 and "ds: is a dataset folder, not a run folder" in err and "unknown" not in err, err
+
+
+def test_a_train_config_beside_another_tools_manifest_is_read(tmp_path: Path) -> None:
+    """A folder with a ``manifest.json`` was taken for a recon-data pair folder (no marker: not ours)."""
+    from spikenerf.train.config import load_config
+
+    (tmp_path / "manifest.json").write_text("{}")
+    (tmp_path / "config.yaml").write_text("iters: 7\n")
+    assert load_config(tmp_path / "config.yaml").iters == 7

@@ -115,8 +115,6 @@ class CameraConfig:
     warmup: int = 0
 
     def __post_init__(self) -> None:
-        if isinstance(self.threshold, bool):  # (a bool is a number to numpy)
-            raise InputError(f"threshold must be a number, got {self.threshold!r}", param="threshold")
         check_threshold(self.threshold)  # > 0 and within float32's range, as the reconstructions check
         check_choice(self.color, COLORS, "color")
         check_choice(self.noise, NOISES, "noise")

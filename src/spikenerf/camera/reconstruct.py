@@ -11,6 +11,7 @@ Formulas and edge rules: docs/reconstruction.md.
 
 from __future__ import annotations
 
+import numbers
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -331,10 +332,11 @@ def check_window(window: object, param: str = "window", least: int = 1, path: Pa
 def check_threshold(threshold: float) -> None:
     """InputError (naming ``threshold``) unless φ is a number > 0 that float32 holds (the images are float32:
     a φ past its range would give inf, one below it 0); a string, None or an array is refused too."""
-    try:
+    try:  # a number (numpy's scalars are numbers.Real; a list or an array is not)
         with np.errstate(over="ignore", under="ignore"):
-            held = bool(np.isfinite(threshold) and 0 < np.float32(threshold) < np.inf)
-    except (TypeError, ValueError):  # "1", None, an array of several values
+            held = isinstance(threshold, numbers.Real) and not isinstance(threshold, bool)
+            held = held and bool(np.isfinite(threshold) and 0 < np.float32(threshold) < np.inf)
+    except (TypeError, ValueError):  # "1", None
         held = False
     if not held:
         shown = threshold if isinstance(threshold, (int, float)) else repr(threshold)

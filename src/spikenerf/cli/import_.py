@@ -38,7 +38,10 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
 @click.option("--raw-width", type=int, help="Stored row width of raw files (416 for 250×400 sps10).")
 @click.option("--fps", type=float, help="Readout rate in Hz [default: config.yaml, else 40000].")
 @click.option("--threshold", type=float, help="Spike threshold φ [default: config.yaml, else 1].")
-@click.option("--layout", type=click.Choice(["spikecv", "topdown"]), default="spikecv", show_default=True)
+@click.option(
+    "--layout", type=click.Choice(["spikecv", "topdown"]),
+    help="Row order of the .dat file [default: config.yaml's layout, else spikecv].",
+)  # fmt: skip
 @click.option("--range", "frame_range", help="A:B, the steps of the recording to import.")
 @click.option("--keyframe-every", type=COUNT, default=20, show_default=True, help="Steps between keyframes.")
 @click.option(

@@ -54,7 +54,7 @@ OTHER_KINDS = {
 
 def describe_frames(folder: Path) -> str:
     """The summary line of a ``reconstruct`` frame folder: how many frames, which, and their size."""
-    frames = sorted(folder.glob("[0-9]*.png"))
+    frames = sorted((p for p in folder.glob("[0-9]*.png") if p.stem.isdigit()), key=lambda p: int(p.stem))
     if not frames:
         return f"reconstruct frame folder: no frames yet ({folder})"
     import imageio.v3 as iio

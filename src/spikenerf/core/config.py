@@ -107,6 +107,8 @@ def describe(hint: Any) -> str:
         return " or ".join(describe(h) for h in get_args(hint))
     if origin is tuple:
         return "a list of integers" if get_args(hint)[:1] == (int,) else "a list"
+    if origin is dict:
+        return "a mapping (KEY: VALUE)"
     names = {
         type(None): "null",
         float: "a number",
@@ -165,7 +167,8 @@ def from_mapping(
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:  # the closest known keys first: the whole list may be cut at the one line's end
-        close = [m for k in unknown for m in difflib.get_close_matches(str(k), known, n=2)]
+        free = known - set(data)  # a key not given yet first (--set gives them all: then any)
+        close = [m for k in unknown for m in difflib.get_close_matches(str(k), free or known, n=2)]
         hint = f"did you mean {', '.join(dict.fromkeys(close))}? " if close else ""
         raise InputError(f"unknown {label} keys {unknown}; {hint}expected some of {sorted(known)}", path=path)
     sections = sections or {}

@@ -137,6 +137,26 @@ def recover_retired(out: Path) -> None:
     old.rename(out)
 
 
+def fresh_state(out: Path) -> str | None:
+    """What ``out`` is before a command writes into it in place: ``"absent"``, ``"empty"`` (a folder with
+    nothing in it, e.g. the user's own) or None (it holds something: not the command's to remove)."""
+    if not (out.exists() or out.is_symlink()):
+        return "absent"
+    if out.is_dir() and not out.is_symlink() and not any(out.iterdir()):
+        return "empty"
+    return None
+
+
+def discard_fresh(out: Path, state: str | None) -> None:
+    """Undo a failed command's writes into ``out``, which was ``state`` (:func:`fresh_state`) before it: an
+    absent folder is removed, an empty one emptied again (the user's folder stays); else nothing."""
+    if state == "absent":
+        shutil.rmtree(out, ignore_errors=True)
+    elif state == "empty" and out.is_dir():
+        for child in out.iterdir():
+            shutil.rmtree(child, ignore_errors=True) if child.is_dir() else child.unlink(missing_ok=True)
+
+
 def replace_dir(work: Path, out: Path) -> None:
     """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is retired, then deleted); a
     replacement killed between its renames is finished by :func:`recover_retired`."""
@@ -195,13 +215,11 @@ def check_output(
     check_writable(path, param)
 
 
-#: the kinds of output that a marked folder may hold in a subfolder: none in a dataset (whose ``--overwrite``
-#: refuses files it did not list), a pair folder, a recon-train run or a frame folder; renders in a run or a
-#: render; a benchmark (its cells' datasets, runs and renders) may hold any
-HOLDS = {
-    "dataset": set(), "run": {"render"}, "render": {"render"},
-    "pairs": set(), "recon": set(), "frames": set(),
-}  # fmt: skip
+#: the kinds of output that a marked dataset or run may hold in a subfolder (none in a dataset, whose
+#: ``--overwrite`` refuses files it did not list; renders in a run); other kinds may hold any: none of their
+#: writers removes what it did not write (a render, a frame folder, a pair or recon-train folder each
+#: replace only their own files)
+HOLDS = {"dataset": set(), "run": {"render"}}
 
 
 def owned(folder: str | Path) -> bool:

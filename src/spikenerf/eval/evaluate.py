@@ -8,6 +8,7 @@ per-view values (the NeRF convention: mean PSNR, not the PSNR of the mean MSE).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -254,10 +255,12 @@ def _evaluate_locked(
     chunk = inference_chunk(model, chunk)
     held = read_record(run_dir)
     use_noref = wants_noref(noref[0], dataset, held is not None)
-    if not use_noref and noref[0] == "auto" and noref[1] != NoRefOptions() and log is not None:
+    default = dataclasses.asdict(NoRefOptions())
+    changed = [f"{k} {v}" for k, v in dataclasses.asdict(noref[1]).items() if v != default[k]]
+    if not use_noref and noref[0] == "auto" and changed and log is not None:
         log(  # before the renders, not after them
-            "spikenerf: warning: the no-reference checks do not run on this dataset, which was not imported "
-            "(noref auto), so their settings are unused (noref on runs them here)"
+            f"spikenerf: warning: the no-reference settings ({', '.join(changed)}) are unused: the checks do "
+            "not run on this dataset, which was not imported (noref auto; noref on runs them here)"
         )
     if use_noref and not has_views(dataset, split):  # real data without test views: the checks alone
         k = dataset.intrinsics

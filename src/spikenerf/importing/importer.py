@@ -65,8 +65,9 @@ class ImportOptions:
 
     Attributes:
         poses: ``colmap``, ``orbit`` (with ``orbit``) or a pose file/folder. height, width, config, raw_width,
-        fps, threshold, layout: the recording (``fps`` and ``threshold`` win over the config.yaml; a size that
-        differs from its own is refused). frame_range: a slice of steps.
+        fps, threshold, layout: the recording (``fps`` and ``threshold`` win over the config.yaml; a size or
+        layout that differs from its own is refused; layout None: the config's, else spikecv). frame_range:
+        a slice of steps.
         keyframe_every: steps between keyframes. window: TFP window (frames). test_every: every n-th
         keyframe becomes a test view (0: none). fov_deg: horizontal field of view (wins over the pose
         source's intrinsics; needed where it has none). overlap: COLMAP sequential-matching overlap.
@@ -91,7 +92,7 @@ class ImportOptions:
     raw_width: int | None = None
     fps: float | None = None
     threshold: float | None = None
-    layout: str = "spikecv"
+    layout: str | None = None
     frame_range: slice | None = None
     keyframe_every: int = 20
     window: int = 21
@@ -357,6 +358,13 @@ def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> P
     _check(opts)
     rc = recording_config(dat, opts.height, opts.width, opts.config)
     refuse_size_conflicts(rc.path, opts.height, opts.width, opts.raw_width)  # a typo writes garbage
+    if opts.layout is not None and rc.layout is not None and opts.layout != rc.layout:
+        raise InputError(
+            f"layout {opts.layout} differs from layout {rc.layout} in {rc.path}, which describes this "
+            "recording: leave it out, or correct that file if it is wrong",
+            param="layout",
+        )
+    opts = replace(opts, layout=opts.layout or rc.layout or "spikecv")
     h, w = int(rc.height or 0), int(rc.width or 0)
     raw = opts.raw_width if opts.raw_width is not None else rc.raw_width
     fps = next(v for v in (opts.fps, rc.fps, DEFAULT_FPS) if v is not None)

@@ -9,7 +9,6 @@ the held-out ones.
 from __future__ import annotations
 
 import json
-import shutil
 from collections.abc import Callable, Iterator
 from dataclasses import asdict
 from pathlib import Path
@@ -21,7 +20,7 @@ from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark
+from spikenerf.core.marker import check_output, discard_fresh, fresh_state, mark
 from spikenerf.recon.natural import (
     NATURAL_HELDOUT,
     NATURAL_TRAIN,
@@ -84,9 +83,21 @@ def natural_val_draws(val_draws: int) -> int:
     return val_draws // 4
 
 
+def val_scenes(val_draws: int, seed: int, natural: bool) -> list[str]:
+    """What the val split of :func:`plan` draws: the named analytic scenes its draws reach (round robin), the
+    random scenes of their seed where it draws any, and the held-out photographs its draws reach."""
+    named = val_draws - val_draws // 2
+    scenes = VAL_SCENES[: min(named, len(VAL_SCENES))]
+    scenes += [f"random scenes of seed {seed + 2 * VAL_SEED_OFFSET}"] if val_draws // 2 else []
+    photos = sorted(NATURAL_HELDOUT)[: natural_val_draws(val_draws)] if natural else []
+    return scenes + [f"natural:{name}" for name in photos]
+
+
 def check_brightness(brightness: tuple[float, float]) -> tuple[float, float]:
     """``brightness`` (LO, HI) when 0 < LO ≤ HI ≤ :data:`MAX_BRIGHTNESS`; else InputError naming it."""
     lo, hi = brightness
+    if 0 < hi < lo <= MAX_BRIGHTNESS:
+        raise InputError(f"brightness LO:HI must have LO ≤ HI, found {lo:g}:{hi:g}", param="brightness")
     if not (0 < lo <= hi <= MAX_BRIGHTNESS):  # (NaN fails too)
         raise InputError(
             f"brightness must be LO:HI with 0 < LO ≤ HI ≤ {MAX_BRIGHTNESS:g}, found {lo:g}:{hi:g} (the "
@@ -146,14 +157,13 @@ def write_pairs(
         check_output(out, "pairs", overwrite=True)
         for folder in (out, out / "train", out / "val"):  # a killed writer's temporaries, shards' included
             clean_stale_temps(folder)
-        new = not (out.exists() or out.is_symlink())
+        state = fresh_state(out)
         try:
             return _write_locked(
                 out, cfg, train_draws, val_draws, seed, extra, extra_draws, command, progress, natural_draws
             )
         except InputError:  # refused while writing (a draw that is not finite): a folder it made goes
-            if new:
-                shutil.rmtree(out, ignore_errors=True)
+            discard_fresh(out, state)
             raise
 
 
@@ -184,12 +194,10 @@ def _write_locked(
         "seed": seed,
         "extra_sources": sorted(extra or {}),
         "extra_draws": extra_draws,
-        "val_scenes": [*VAL_SCENES, f"random scenes of seed {seed + 2 * VAL_SEED_OFFSET}"],
+        "val_scenes": val_scenes(val_draws, seed, natural_draws > 0),
     }
     if natural_draws > 0:  # only then, so that folders made before photographs existed still resume
         manifest.update(natural_draws=natural_draws, natural_train=list(NATURAL_TRAIN))
-        if natural_val_draws(val_draws) > 0:  # the held-out photographs, where the val split draws them
-            manifest["val_scenes"] += [f"natural:{name}" for name in NATURAL_HELDOUT]
     path = out / MANIFEST
     if path.is_file():
         # val_scenes follows from the settings compared (and older folders of fewer than 4 val draws listed

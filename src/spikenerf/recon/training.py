@@ -14,7 +14,6 @@ import csv
 import hashlib
 import json
 import math
-import shutil
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -25,7 +24,7 @@ from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark, owned
+from spikenerf.core.marker import check_output, discard_fresh, fresh_state, mark, owned
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.recon.config import ReconTrainConfig
 from spikenerf.recon.features import brightness_scale, feature_count
@@ -114,12 +113,12 @@ def train_recon(
         check_output(out, "recon", overwrite=True)
         if owned(out):  # a folder of ours (one recognised by its files alone may be a user's)
             clean_stale_temps(out)
-        new = not (out.exists() or out.is_symlink())
+        state = fresh_state(out)
         try:
             return _train_locked(pairs_dir, out, cfg, command, progress, stop_at)
         except Exception:
-            if new and not (out / "checkpoint.pt").exists():
-                shutil.rmtree(out, ignore_errors=True)
+            if not (out / "checkpoint.pt").exists():
+                discard_fresh(out, state)
             raise
 
 

@@ -22,7 +22,7 @@ from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.config import Bound, check_config, choices, from_mapping
 from spikenerf.core.device import check_device_name
 from spikenerf.core.errors import InputError
-from spikenerf.core.marker import folder_kind
+from spikenerf.core.marker import folder_kind, owned
 from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.choices import Method, TrainColor, WindowOrder
 from spikenerf.data.reconstruction import TargetRecon
@@ -448,9 +448,12 @@ def _read_config(path: str | Path) -> tuple[Path, Any]:
 
 def _refuse_other_folder(path: str | Path) -> None:
     """InputError when ``path`` is the ``config.yaml`` of a folder spikenerf wrote as other than a run (a
-    dataset's is its camera's, whose keys a train config does not know)."""
+    dataset's is its camera's, whose keys a train config does not know): a folder marked so, or an older
+    dataset (its files); a user's folder that merely holds a ``manifest.json`` is not one."""
     folder = Path(path).parent
-    if Path(path).name == CONFIG_FILE and (kind := folder_kind(folder)) not in (None, "run"):
+    kind = folder_kind(folder)
+    kind = kind if owned(folder) or kind == "dataset" else None
+    if Path(path).name == CONFIG_FILE and kind not in (None, "run"):
         hint = " (train a run on it first: spikenerf train DATASET --out RUN)" if kind == "dataset" else ""
         raise InputError(f"is a {kind} folder, not a run folder{hint}", path=folder)
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -26,7 +25,7 @@ from spikenerf.core.errors import InputError, one_line
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, mark, owned
+from spikenerf.core.marker import check_output, discard_fresh, fresh_state, mark, owned
 from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.holdout import write_record
@@ -626,12 +625,11 @@ def train(
         check_output(out, "run", overwrite=True)
         if owned(out):  # a folder of ours (one recognised by its files alone may be a user's)
             clean_stale_temps(out)
-        new = not out.exists()
+        state = fresh_state(out)
         try:
             trainer = Trainer(config, out, dataset, resume, progress)
         except Exception:  # refused or failed setting up (e.g. after caching learned targets): nothing stays
-            if new:
-                shutil.rmtree(out, ignore_errors=True)
+            discard_fresh(out, state)
             raise
         for note in notes:
             warn(note)
