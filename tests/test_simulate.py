@@ -261,7 +261,7 @@ def test_render_processes_write_the_same_dataset(tmp_path: Path, monkeypatch: py
     assert pools == [2]
     for name in ["spikes_gray.dat", "spikes_rgb_g.dat", "transforms.json", "gt/00010.png", "test/00000.png"]:
         assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name
-    with pytest.raises(InputError, match="jobs must be ≥ 1"):
+    with pytest.raises(InputError, match="jobs must be an integer ≥ 1"):
         simulate_dataset(source, tmp_path / "zero", options, progress=False, jobs=0)
 
 

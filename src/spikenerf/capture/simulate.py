@@ -11,7 +11,9 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import multiprocessing
+import numbers
 import os
 import pickle
 import shutil
@@ -25,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from spikenerf import __version__
 from spikenerf.camera.layout import to_camera_layout
@@ -84,6 +87,8 @@ class SimulateOptions:
         colors = self.colors
         if isinstance(colors, str):  # ("gray" was read as the modes g, r, a, y)
             colors = tuple(MODES) if colors == "all" else tuple(c.strip() for c in colors.split(","))
+        if not isinstance(colors, (tuple, list)):
+            raise InputError(f"colors must be a list of colour modes, found {colors!r}", param="colors")
         object.__setattr__(self, "colors", tuple(colors))
 
 
@@ -303,18 +308,29 @@ def _test_cached(path: Path) -> bool:
 
 
 def check_options(options: SimulateOptions) -> None:
-    """InputError on unknown colour modes or out-of-range numbers (before any rendering starts)."""
-    if not options.colors or any(c not in MODES for c in options.colors):
+    """InputError on unknown colour modes, wrong types or out-of-range numbers, and on ``extra`` entries
+    that ``config.yaml`` cannot hold or that would replace its own keys (before any rendering starts)."""
+    colors = options.colors
+    if not colors or any(not isinstance(c, str) or c not in MODES for c in colors):
         raise InputError(
-            f"colors: expected gray, rgb, bayer or all, found {', '.join(options.colors) or 'none'}",
+            f"colors: expected gray, rgb, bayer or all, found {', '.join(map(str, colors)) or 'none'}",
             param="colors",
         )
-    if options.gt_every < 1:
-        raise InputError(f"gt_every must be ≥ 1, found {options.gt_every}", param="gt_every")
-    if options.blur_fps < 0:
+    if len(set(colors)) < len(colors):
+        twice = next(c for c in colors if colors.count(c) > 1)
+        raise InputError(f"colors: {twice} is given twice", param="colors")
+    if not _integer(options.gt_every) or options.gt_every < 1:
+        raise InputError(f"gt_every must be an integer ≥ 1, found {options.gt_every!r}", param="gt_every")
+    blur = options.blur_fps
+    if isinstance(blur, bool) or not isinstance(blur, numbers.Real) or not 0 <= blur < math.inf:
         raise InputError(
-            f"blur_fps must be ≥ 0 (0 = no blur frames), found {options.blur_fps}", param="blur_fps"
+            f"blur_fps must be a finite number ≥ 0 (0 = no blur frames), found {blur!r}", param="blur_fps"
         )
+    if options.raw_width is not None and not _integer(options.raw_width):
+        raise InputError(
+            f"raw_width must be an integer or None, found {options.raw_width!r}", param="raw_width"
+        )
+    _check_extra(options.extra)
     parse_blur_views(options.blur_views)
     if options.raw_width is not None and "gray" not in options.colors:
         raise InputError(
@@ -323,6 +339,45 @@ def check_options(options: SimulateOptions) -> None:
         )
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
+
+
+def _integer(value: object) -> bool:
+    """``value`` is an integer (Python's or numpy's), not a bool."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+#: the ``config.yaml`` keys :func:`dataset_config` writes itself (``extra`` may add others, not replace them)
+OWN_KEYS = ("spike_h", "spike_w", "fps", "threshold", "colors", "noise", "seed", "scene", "steps", "warmup",
+            "gt_every", "blur_fps", "blur_views", "test_views", "spikenerf_version", "command", "layout",
+            "bayer_pattern")  # fmt: skip
+
+
+def _check_extra(extra: object) -> None:
+    """InputError unless ``extra`` is a mapping of new keys that YAML can write."""
+    if not isinstance(extra, dict):
+        raise InputError(f"extra must be a dict, found {type(extra).__name__}", param="extra")
+    if shadowed := [key for key in extra if key in OWN_KEYS]:
+        raise InputError(f"extra: {shadowed} would replace config.yaml's own keys", param="extra")
+    try:
+        yaml.safe_dump(extra)
+    except yaml.YAMLError as err:
+        raise InputError(f"extra: config.yaml cannot hold it ({type(err).__name__})", param="extra") from None
+
+
+def check_bounds_of(poses: np.ndarray, box: np.ndarray) -> tuple[float, float]:
+    """The (near, far) ray bounds of cameras ``poses`` (N, 4, 4) around ``box``; InputError (naming
+    ``trajectory``) when the poses are not finite or the cameras lie so far away that the bounds collapse."""
+    poses = np.asarray(poses, dtype=np.float64)
+    if not np.isfinite(poses).all():
+        raise InputError("the trajectory or test poses hold a NaN or an infinity", param="trajectory")
+    with np.errstate(over="ignore", invalid="ignore"):
+        near, far = near_far(poses, box)
+    if not (math.isfinite(near) and math.isfinite(far) and near < far):
+        raise InputError(
+            f"the cameras lie too far from the scene box for ray bounds (near {near:g}, far {far:g})",
+            param="trajectory",
+        )
+    return near, far
 
 
 def stream_steps(
@@ -421,9 +476,11 @@ def simulate_dataset(
         ``out``. After an interruption, running again with the same source reuses the cached renders.
     """
     out = Path(out)
-    if jobs < 1:
-        raise InputError(f"jobs must be ≥ 1, found {jobs}", param="jobs")
+    if not _integer(jobs) or jobs < 1:
+        raise InputError(f"jobs must be an integer ≥ 1, found {jobs!r}", param="jobs")
     check_options(options)
+    test = np.asarray(getattr(source, "test_poses", np.zeros((0, 4, 4))), dtype=np.float64).reshape(-1, 4, 4)
+    check_bounds_of(np.concatenate([source.trajectory.poses, test]), np.asarray(source.scene_box, float))
     check_raw_width(options.raw_width, source.intrinsics.height, source.intrinsics.width)
     check_output(out, "dataset", overwrite=options.overwrite, replace=True)
     with output_lock(out):
@@ -456,7 +513,7 @@ def _simulate_locked(
     box = np.asarray(source.scene_box, dtype=np.float64)
     with np.load(cache / "test.npz") as z:
         test_poses, test_frames = z["poses"].reshape(-1, 4, 4), z["frames"]
-    near, far = near_far(np.concatenate([traj.poses, test_poses]), box)
+    near, far = check_bounds_of(np.concatenate([traj.poses, test_poses]), box)
     for stale in work.iterdir():  # outputs of an earlier, interrupted run: rewritten from the cache
         if stale.name not in (CACHE, MARKER):
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink()

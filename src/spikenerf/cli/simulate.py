@@ -35,11 +35,16 @@ def _colors(color: str) -> tuple[str, ...]:
 
 def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     """Number of spike steps from ``--frames`` / ``--duration`` (default 1000 steps)."""
-    if fps <= 0:
-        raise InputError(f"--fps must be positive, found {fps:g}")
+    if not 0 < fps < math.inf:
+        raise InputError(f"--fps must be a finite number > 0, found {fps:g}")
     if duration is not None:
         if not 0 < duration < math.inf:
             raise InputError(f"--duration must be a finite number of seconds > 0, found {duration:g}")
+        if not duration * fps < MAX_STEPS:
+            raise InputError(
+                f"--duration {duration:g} s at --fps {fps:g} Hz is {duration * fps:.3g} steps, more than "
+                f"{MAX_STEPS:.3g}"
+            )
         n = round(duration * fps)
         if frames is not None and frames != n:
             raise InputError(
@@ -49,7 +54,16 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     frames = DEFAULT_STEPS if frames is None else frames
     if frames < 1:
         raise InputError(f"--frames must be ≥ 1, found {frames}")
+    if not math.isfinite(frames / fps):  # (a tiny --fps: the path would last for ever)
+        raise InputError(f"--fps {fps:g} makes the path of {frames} steps last longer than any duration")
     return frames
+
+
+#: the most spike steps a path may have (the resource estimate refuses far fewer on any machine)
+MAX_STEPS = 2.0**40
+#: the orbit radius range (scene units), as ``import --orbit`` takes it: beyond it the poses overflow or
+#: the eye meets the centre
+RADIUS_RANGE = (1e-6, 1e6)
 
 
 @click.command(help="Render a scene along a fast path and simulate a spike camera into a dataset folder.")
@@ -179,8 +193,8 @@ def command(**kw: Any) -> None:
     )
     if options.blur_fps > 0 and (size := exposure_length(traj.fps, options.blur_fps)) > len(traj):
         click.echo(
-            f"spikenerf: warning: one --blur-fps {options.blur_fps:g} exposure spans {size} steps, more than "
-            f"the {len(traj)}-step path: every blur view is the mean of the whole path",
+            f"spikenerf: warning: one --blur-fps {options.blur_fps:g} exposure spans {size:.6g} steps, more "
+            f"than the {len(traj)}-step path: every blur view is the mean of the whole path",
             err=True,
         )
 
@@ -203,8 +217,9 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     elevation = registry.DEFAULT_ELEVATION if kw["elevation"] is None else float(kw["elevation"])
     turns = 1.0 if kw["turns"] is None else float(kw["turns"])
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
-    if radius <= 0:
-        raise InputError(f"--radius must be positive, found {radius:g}")
+    if not RADIUS_RANGE[0] <= radius <= RADIUS_RANGE[1]:
+        low, high = RADIUS_RANGE
+        raise InputError(f"--radius must lie within [{low:g}, {high:g}] scene units, found {radius:g}")
     if not abs(elevation) < 90:  # at ±90° every step of the orbit would be the same pose
         raise InputError(f"--elevation must lie strictly between −90 and 90 degrees, found {elevation:g}")
     if sweep and (sweep < 0 or abs(elevation) + sweep / 2 >= 90):
@@ -215,13 +230,14 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     width = DEFAULT_SIZE if kw["width"] is None else int(kw["width"])
     height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
     views = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
-    _check_resources(kw, "width/height/frames/spp/test_views", width, height, steps, views)
-    trajectory = orbit(radius, elevation, turns, steps / fps, fps, center=center, elevation_sweep_deg=sweep)
-    if kw["eval_views"] is not None:
+    if kw["eval_views"] is not None:  # read first: its poses are the test views the estimate counts
         from spikenerf.data.dataset import read_pose_file
 
         test_poses = read_pose_file(kw["eval_views"])
-    else:
+        views = len(test_poses)
+    _check_resources(kw, _size_params(kw), width, height, steps, views)
+    trajectory = orbit(radius, elevation, turns, steps / fps, fps, center=center, elevation_sweep_deg=sweep)
+    if kw["eval_views"] is None:
         test_poses = np.zeros((0, 4, 4))
         if views:
             try:
@@ -261,6 +277,24 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
                 err=True,
             )
     return source, extra
+
+
+#: the options that set a simulation's memory and disk, as ``kw`` names them
+SIZE_OPTIONS = ("width", "height", "frames", "duration", "spp", "test_views", "eval_views", "color",
+                "blur_views", "blur_fps", "gt_every")  # fmt: skip
+
+
+def _size_params(kw: dict, always: tuple[str, ...] = ("width", "height", "frames")) -> str:
+    """The size options the command line gave (a refusal names them, not options the user did not give),
+    else ``always``; joined with ``/`` for :func:`_check_resources`."""
+    given = [name for name in SIZE_OPTIONS if kw.get(name) is not None and _given(name)]
+    return "/".join(given or always)
+
+
+def _given(name: str) -> bool:
+    context = click.get_current_context(silent=True)
+    source = context.get_parameter_source(name) if context is not None else None
+    return source is ParameterSource.COMMANDLINE
 
 
 def _check_resources(kw: dict, params: str, width: int, height: int, steps: int, views: int) -> None:

@@ -12,9 +12,11 @@ deleted or moved into place.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -163,7 +165,25 @@ def replace_dir(work: Path, out: Path) -> None:
     old = retire(out) if out.exists() or out.is_symlink() else None
     work.rename(out)
     if old is not None:
+        _remove_retired(old, out)
+
+
+def _remove_retired(old: Path, out: Path) -> None:
+    """Delete the retired ``old`` copy of ``out``, which is already in place: where a file in it cannot be
+    deleted (a read-only or immutable file), one warning line, and ``old`` keeps its retired marker so that
+    the next replacement deletes it (it is not the user's)."""
+    entry = _marker(old)
+    try:
         shutil.rmtree(old)
+    except OSError as err:
+        if old.is_dir():
+            with contextlib.suppress(OSError):
+                write_text_atomic(old / MARKER, json.dumps(entry) + "\n")
+        print(
+            f"spikenerf: warning: {out} is in place, but the copy it replaced could not be deleted "
+            f"({err.strerror or err}: {getattr(err, 'filename', '') or old}); delete {old} yourself",
+            file=sys.stderr,
+        )
 
 
 def check_output(

@@ -355,7 +355,9 @@ def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
 def read_pose_file(path: str | Path) -> np.ndarray:
     """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``)."""
     path = Path(path)
-    return frame_poses(read_mapping(path), path)
+    if path.is_dir() and not (path / "transforms.json").is_file():
+        raise InputError("is a folder, not a transforms JSON of poses", path=path)
+    return frame_poses(read_transforms(path, missing="pose file not found"), path)
 
 
 @dataclass
