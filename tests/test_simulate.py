@@ -491,7 +491,7 @@ def test_a_camera_inside_the_scene_box_and_a_rounded_spp_are_named(tmp_path: Pat
     code, _, err = run_cli(capsys, *base, "--radius", 0.5, "--spp", 2, "--out", tmp_path / "in")
     lines = err.strip().splitlines()
     assert code == 0 and lines[0] == "spikenerf: warning: --spp 2 renders 1 sample per pixel (a k × k grid)"
-    inside = "lies inside the scene box [-1.0, -1.0, -1.0] to [1.0, 1.0, 1.0] (--radius 0.5)"
+    inside = "inside the scene box [-1.0, -1.0, -1.0] to [1.0, 1.0, 1.0] (--radius 0.5)"
     assert [line.split(" lies")[0] for line in lines[1:]] == [
         "spikenerf: warning: the orbit",
         "spikenerf: warning: a test view",

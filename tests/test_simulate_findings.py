@@ -117,3 +117,11 @@ def test_an_overwrite_that_cannot_delete_the_old_copy_warns_and_the_next_one_del
     monkeypatch.setattr(shutil, "rmtree", real)
     code, _, err = run_cli(capsys, *SIM, "--frames", 20, "--seed", 6, "--overwrite", "--out", out)
     assert code == 0 and not (tmp_path / ".o.old").exists(), err
+
+
+def test_an_orbit_partly_inside_the_scene_box_passes_inside_it(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """At radius 1.5 half the steps were inside the [-1, 1]³ box: the warning said the orbit "lies inside"."""
+    code, _, err = run_cli(
+        capsys, *SIM, "--frames", 8, "--radius", 1.5, "--test-views", 0, "--out", tmp_path / "o"
+    )
+    assert code == 0 and "warning: the orbit passes inside the scene box" in err, err

@@ -270,9 +270,11 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     for what, poses, flag in (("the orbit", trajectory.poses, f"--radius {radius:g}"),
                               ("a test view", test_poses, views_from)):  # fmt: skip
         centres = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)[:, :3, 3]
-        if np.all((centres > box[0]) & (centres < box[1]), axis=1).any():
+        inside = np.all((centres > box[0]) & (centres < box[1]), axis=1)
+        if inside.any():
+            where = "lies inside" if inside.all() or what == "a test view" else "passes inside"
             click.echo(
-                f"spikenerf: warning: {what} lies inside the scene box {box[0].tolist()} to "
+                f"spikenerf: warning: {what} {where} the scene box {box[0].tolist()} to "
                 f"{box[1].tolist()} ({flag}): a camera inside the scene sees little of it",
                 err=True,
             )
