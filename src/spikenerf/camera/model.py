@@ -20,6 +20,7 @@ from spikenerf.camera.reconstruct import check_threshold
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError, check_choice
+from spikenerf.core.limits import check_memory
 
 Array = TypeVar("Array", np.ndarray, torch.Tensor)
 
@@ -29,6 +30,13 @@ BAYER_PATTERN = "RGGB"
 _CHUNK = 256
 #: steps between two checks of the accumulator for a NaN or a negative intensity (SpikeCamera.check)
 CHECK_EVERY = 64
+#: memory a camera holds per pixel and channel (bytes, upper-ish): the float32 accumulator, its seed and
+#: scratch, with the temporaries that draw them; the ``realistic`` noise adds its float64 pattern draws, the
+#: float32 patterns and its buffers
+CAMERA_PIXEL_BYTES = 32
+NOISE_PIXEL_BYTES = 160
+#: the intensity dtypes a step reads (numpy kinds: bool, signed and unsigned integers, floats)
+INTENSITY_KINDS = "biuf"
 
 
 def fire(accumulator: Array, intensity: Array, threshold: float | Array = 1.0) -> tuple[Array, Array]:
@@ -191,7 +199,16 @@ class SpikeCamera:
                 f"config must be a CameraConfig (e.g. CameraConfig(color='rgb')), got {config!r}",
                 param="config",
             )
+        if noise_params is not None and not isinstance(noise_params, RealisticNoise):
+            raise InputError(
+                f"noise_params must be None or a RealisticNoise, got {noise_params!r:.60}",
+                param="noise_params",
+            )
         self.config = config if config is not None else CameraConfig()
+        realistic = self.config.noise == "realistic"
+        channels = 3 if self.config.color == "rgb" else 1
+        per_pixel = channels * (CAMERA_PIXEL_BYTES + (NOISE_PIXEL_BYTES if realistic else 0))
+        check_memory(float(height) * float(width) * per_pixel, "height/width")
         self.height, self.width = int(height), int(width)
         self.device = _resolve(device)
         self.spike_shape: tuple[int, ...] = (
@@ -260,10 +277,8 @@ class SpikeCamera:
         x = self._prepare(intensity)
         if out is None:
             out = self.new_spikes()
-        elif tuple(out.shape) != self.spike_shape or out.dtype not in (np.bool_, torch.bool):
-            raise InputError(
-                f"out must be a bool buffer of shape {self.spike_shape}, got {tuple(out.shape)}", param="out"
-            )
+        else:
+            self._check_out(out)
         if not self._warm:
             for _ in range(self.config.warmup):
                 self._advance(x, out)
@@ -273,6 +288,31 @@ class SpikeCamera:
         if self._steps % CHECK_EVERY == 0:
             self.check()
         return out
+
+    def _check_out(self, out: object) -> None:
+        """InputError naming ``out`` unless it is a writable bool buffer of the spike shape on this camera's
+        backend (a numpy array for ``device=None``, else a tensor on the camera's device, as
+        :meth:`new_spikes` gives): its type, dtype, shape and flags only, O(1)."""
+        device = self.device
+        if device is None:
+            ok = isinstance(out, np.ndarray) and out.dtype == np.bool_ and out.flags.writeable
+        else:
+            ok = isinstance(out, torch.Tensor) and out.dtype == torch.bool and out.device.type == device.type
+            ok = ok and (device.index is None or out.device.index == device.index)  # type: ignore[union-attr]
+        if ok and out.shape == self.spike_shape:  # type: ignore[union-attr]
+            return
+        if isinstance(out, np.ndarray):
+            state = "" if out.flags.writeable else "read-only "
+            found = f"a {state}{out.dtype} numpy array of shape {out.shape}"
+        elif isinstance(out, torch.Tensor):
+            found = f"a {out.dtype} tensor on {out.device} of shape {tuple(out.shape)}"
+        else:
+            found = type(out).__name__
+        kind = "numpy array" if device is None else f"tensor on {device}"
+        raise InputError(
+            f"out must be a writable bool {kind} of shape {self.spike_shape} (see new_spikes), got {found}",
+            param="out",
+        )
 
     def check(self) -> None:
         """InputError naming ``intensity`` when a step since the last check held a NaN, an infinity or a
@@ -309,13 +349,26 @@ class SpikeCamera:
     def _prepare(self, intensity: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """Validate one step's input; convert it to a float32 backend array of the accumulator's shape."""
         if isinstance(intensity, torch.Tensor):
-            integer = not (intensity.is_floating_point() or intensity.is_complex()) and (
-                intensity.dtype != torch.bool
-            )
+            if intensity.is_complex():
+                raise InputError(
+                    f"intensity must be real (bool, integer or float), got a {intensity.dtype} tensor",
+                    param="intensity",
+                )
+            integer = not intensity.is_floating_point() and intensity.dtype != torch.bool
             if self.device is None:
                 intensity = intensity.detach().cpu().numpy()
         else:
-            intensity = np.asarray(intensity)
+            try:
+                intensity = np.asarray(intensity)
+            except (TypeError, ValueError) as err:  # (a ragged list)
+                raise InputError(
+                    f"intensity must be an array of numbers ({err})", param="intensity"
+                ) from None
+            if intensity.dtype.kind not in INTENSITY_KINDS:  # (complex, strings, objects: O(1), the dtype)
+                raise InputError(
+                    f"intensity must be a real array (bool, integer or float), got dtype {intensity.dtype}",
+                    param="intensity",
+                )
             integer = intensity.dtype.kind in "iu"
         if self.device is None:
             x = np.asarray(intensity, dtype=np.float32)
@@ -373,6 +426,18 @@ def _mean_first(x: Array) -> Array:
     return total
 
 
+def _check_frames(frames: object) -> None:
+    """InputError naming ``frames`` unless it can be iterated (a list, an array of steps, a generator)."""
+    try:
+        iter(frames)  # type: ignore[call-overload]
+    except TypeError:
+        raise InputError(
+            f"frames must be an iterable of steps (e.g. a list of (H, W) arrays, or a (T, H, W) array), "
+            f"got {type(frames).__name__}",
+            param="frames",
+        ) from None
+
+
 def simulate_iter(
     frames: Iterable,
     height: int,
@@ -386,6 +451,7 @@ def simulate_iter(
     ``frames`` yields one step each, in any form :meth:`SpikeCamera.step` accepts; a NaN, an infinity or a
     value below 0 among them raises InputError by the end (:meth:`SpikeCamera.check`).
     """
+    _check_frames(frames)
     camera = SpikeCamera(height, width, config, device, noise_params)
     for frame in frames:
         yield camera.step(frame)
@@ -415,6 +481,7 @@ def simulate(
         InputError: a size, the config or a frame is malformed (a NaN, an infinity or a value below 0 in a
             frame: by the end, see :meth:`SpikeCamera.check`).
     """
+    _check_frames(frames)
     camera = SpikeCamera(height, width, config, device, noise_params)
     total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
     if progress:

@@ -40,6 +40,25 @@ SCSIM_NOMINAL_V = SCSIM_SWING_V + SCSIM_OFFSET_V[0]
 MIN_RELATIVE_THRESHOLD = 0.05
 
 
+#: Each noise parameter's range (low, high, unit): ample room around the defaults (docs/camera.md), kept where
+#: the float32 patterns and buffers stay finite (a relative std of 1e40 overflows them, a dead time of 1e300
+#: steps turns into NaN).
+NOISE_RANGES: dict[str, tuple[float, float, str]] = {
+    # intensity units per step: from 1 (white) on, every pixel fires every step
+    "dark_mean": (0.0, 100.0, " intensity units per step (1.0 = white)"),
+    "dark_std": (0.0, 100.0, " intensity units per step (1.0 = white)"),
+    # relative stds, the defaults below 0.06: 10 is a spread of 1000 %
+    "threshold_std": (0.0, 10.0, " (relative std)"),
+    "capacitance_std": (0.0, 10.0, " (relative std)"),
+    "prnu_std": (0.0, 10.0, " (relative std)"),
+    "jitter_std": (0.0, 10.0, " (relative std)"),
+    # electrons a white pixel collects in a step: below one the shot noise's Gaussian approximation fails
+    "photons_per_white": (1.0, math.inf, " electrons per white step"),
+    # steps of dead time after a spike (0.25 s at 40 kHz; float32 counts them down exactly)
+    "readout_delay": (0.0, 1e4, " steps"),
+}
+
+
 @dataclass(frozen=True)
 class RealisticNoise:
     """Parameters of the ``realistic`` noise preset, in camera units (φ = 1 threshold, 1.0 = white per step).
@@ -69,14 +88,14 @@ class RealisticNoise:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isnan(value)
-            if f.name == "photons_per_white":
-                ok = ok and value > 0
-            else:
-                ok = ok and math.isfinite(value) and value >= 0
-            if not ok:
-                want = "a number > 0 (inf disables shot noise)" if f.name == "photons_per_white" else "≥ 0"
-                raise InputError(f"noise parameter {f.name!r} must be {want}, got {value!r}")
+            low, high, unit = NOISE_RANGES[f.name]
+            number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+            if not number or not low <= value <= high:  # (NaN fails too)
+                extra = " (inf disables shot noise)" if f.name == "photons_per_white" else ""
+                bounds = f"[{low:g}, {high:g}]{unit}{extra}"
+                raise InputError(
+                    f"noise parameter {f.name} must lie within {bounds}, got {value!r}", param=f.name
+                )
 
     def draw_patterns(
         self, shape: tuple[int, ...], threshold: float, seed: int | np.random.SeedSequence

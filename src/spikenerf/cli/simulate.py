@@ -35,6 +35,8 @@ def _colors(color: str) -> tuple[str, ...]:
 
 def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     """Number of spike steps from ``--frames`` / ``--duration`` (default 1000 steps)."""
+    from spikenerf.scenes.trajectory import MAX_STEPS
+
     if not 0 < fps < math.inf:
         raise InputError(f"--fps must be a finite number > 0, found {fps:g}")
     if duration is not None:
@@ -57,13 +59,6 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     if not math.isfinite(frames / fps):  # (a tiny --fps: the path would last for ever)
         raise InputError(f"--fps {fps:g} makes the path of {frames} steps last longer than any duration")
     return frames
-
-
-#: the most spike steps a path may have (the resource estimate refuses far fewer on any machine)
-MAX_STEPS = 2.0**40
-#: the orbit radius range (scene units), as ``import --orbit`` takes it: beyond it the poses overflow or
-#: the eye meets the centre
-RADIUS_RANGE = (1e-6, 1e6)
 
 
 @click.command(help="Render a scene along a fast path and simulate a spike camera into a dataset folder.")
@@ -203,7 +198,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     """A named scene or .blend on an orbit (with its novel test views) and the config entries it adds."""
     import numpy as np
 
-    from spikenerf.scenes.trajectory import held_out_elevations, novel_views, orbit
+    from spikenerf.scenes.trajectory import ORBIT_RADIUS, held_out_elevations, novel_views, orbit
 
     if kw["sequence_range"] is not None or kw["steps_per_frame"] is not None or kw["interpolate"]:
         raise InputError("--sequence-range, --steps-per-frame and --interpolate apply to --sequence only")
@@ -217,8 +212,8 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     elevation = registry.DEFAULT_ELEVATION if kw["elevation"] is None else float(kw["elevation"])
     turns = 1.0 if kw["turns"] is None else float(kw["turns"])
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
-    if not RADIUS_RANGE[0] <= radius <= RADIUS_RANGE[1]:
-        low, high = RADIUS_RANGE
+    if not ORBIT_RADIUS[0] <= radius <= ORBIT_RADIUS[1]:
+        low, high = ORBIT_RADIUS
         raise InputError(f"--radius must lie within [{low:g}, {high:g}] scene units, found {radius:g}")
     if not abs(elevation) < 90:  # at ±90° every step of the orbit would be the same pose
         raise InputError(f"--elevation must lie strictly between −90 and 90 degrees, found {elevation:g}")

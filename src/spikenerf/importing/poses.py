@@ -18,7 +18,14 @@ import numpy as np
 
 from spikenerf.core.errors import InputError
 from spikenerf.scenes import transforms
-from spikenerf.scenes.trajectory import Intrinsics, orbit, orbit_angle_problem, quaternion_to_matrix
+from spikenerf.scenes.trajectory import (  # (the orbit's ranges: one definition, the library's)
+    MAX_AZIMUTH,
+    ORBIT_RADIUS,
+    Intrinsics,
+    orbit,
+    orbit_angle_problem,
+    quaternion_to_matrix,
+)
 
 #: OpenCV camera axes (COLMAP: +X right, +Y down, +Z forward) → OpenGL (+Y up, looking down −Z)
 CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -289,13 +296,8 @@ def read_pose_source(path: str | Path) -> PoseSet:
     raise InputError("expected a transforms .json, an LLFF poses_bounds.npy or a COLMAP model folder", path)
 
 
-#: the range of an orbit's radius (scene units; the import scales the scene to its unit box, so the units
-#: are free, but beyond these the camera positions lose their precision or overflow)
-ORBIT_RADIUS = (1e-6, 1e6)
 #: an orbit whose cameras spread over less than this share of its radius keeps them in one place
 MIN_ORBIT_SPREAD = 1e-6
-#: the largest start azimuth (degrees, either sign): beyond it the turns between steps are lost to rounding
-MAX_AZIMUTH = 1e6
 
 
 def orbit_poses(spec: str, steps: int, fps: float) -> PoseSet:

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from spikenerf.core.errors import InputError
+from spikenerf.core.limits import check_memory
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
+from spikenerf.scenes.transforms import rigid_poses
 
 #: horizontal field of view of the NeRF synthetic scenes (radians), used by the analytic scenes too
 CAMERA_ANGLE_X = 0.6911112070083618
@@ -214,6 +216,20 @@ def _render(
     return np.ascontiguousarray(img, dtype=np.float32)
 
 
+#: memory a supersampled ray needs while a frame is rendered, with its intermediates (bytes; upper-ish)
+RAY_BYTES = 256
+
+
+def check_size(width: int, height: int, supersample: int, params: str = "width/height/supersample") -> None:
+    """InputError naming ``width``, ``height`` or ``supersample`` unless each is a positive integer, and
+    naming ``params`` (``core.limits.check_memory``) when a frame's ``width·height·supersample²`` rays
+    (:data:`RAY_BYTES` each) need more memory than this machine has."""
+    for name, value in (("width", width), ("height", height), ("supersample", supersample)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise InputError(f"{name} must be an integer ≥ 1, got {value!r}", param=name)
+    check_memory(float(width) * float(height) * float(supersample) ** 2 * RAY_BYTES, params)
+
+
 class AnalyticSource:
     """A :class:`~spikenerf.scenes.base.FrameSource` for a named analytic scene.
 
@@ -239,13 +255,15 @@ class AnalyticSource:
     ) -> None:
         if name not in SCENES:
             raise InputError(f"unknown analytic scene {name!r}; expected one of {', '.join(SCENES)}")
-        if width <= 0 or height <= 0 or supersample < 1:
-            raise InputError(f"need width, height, supersample ≥ 1, got {width}, {height}, {supersample}")
+        check_size(width, height, supersample)
+        if not isinstance(trajectory, Trajectory):
+            raise InputError(f"trajectory must be a Trajectory, found {trajectory!r:.60}", param="trajectory")
+        rigid_poses(trajectory.poses, "trajectory")  # (once: :meth:`frames` renders them unchecked)
         self.name = name
         self.description, self.primitives = SCENES[name]
         self.intrinsics = Intrinsics.from_fov(width, height, CAMERA_ANGLE_X)
         self.trajectory = trajectory
-        self.test_poses = np.zeros((0, 4, 4)) if test_poses is None else np.asarray(test_poses, np.float64)
+        self.test_poses = rigid_poses(np.zeros((0, 4, 4)) if test_poses is None else test_poses, "test_poses")
         self.scene_box = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
         self.supersample = supersample
         dirs = camera_directions(self.intrinsics, supersample)
@@ -253,7 +271,12 @@ class AnalyticSource:
         self._dirs = np.ascontiguousarray(dirs.reshape(-1, 3).T, dtype=np.float32)  # (3, N) camera space
 
     def render(self, c2w: np.ndarray) -> np.ndarray:
-        """Linear radiance (H, W, 3) float32 seen from camera-to-world ``c2w`` (4, 4)."""
+        """Linear radiance (H, W, 3) float32 seen from camera-to-world ``c2w`` (4, 4): finite, a rotation,
+        last row 0 0 0 1 (else InputError naming ``c2w``)."""
+        return self._render_pose(rigid_poses(c2w, "c2w", one=True))
+
+    def _render_pose(self, c2w: np.ndarray) -> np.ndarray:
+        """:meth:`render` of a checked (4, 4) pose."""
         c2w = np.asarray(c2w, dtype=np.float64)
         dirs = c2w[:3, :3].astype(np.float32) @ self._dirs
         return _render(self.primitives, c2w[:3, 3], dirs, self._shape, self.supersample)
@@ -264,10 +287,10 @@ class AnalyticSource:
         for step in steps:
             if int(step) not in index:
                 raise InputError(f"step {step} is not on the trajectory of {self.name}")
-            yield self.render(self.trajectory.poses[index[int(step)]])
+            yield self._render_pose(self.trajectory.poses[index[int(step)]])
 
     def test_views(self) -> tuple[np.ndarray, np.ndarray]:
         """Held-out poses (N, 4, 4) and linear frames (N, H, W, 3) float32."""
         h, w = self.intrinsics.height, self.intrinsics.width
-        frames = [self.render(p) for p in self.test_poses]
+        frames = [self._render_pose(p) for p in self.test_poses]
         return self.test_poses.copy(), np.stack(frames) if frames else np.zeros((0, h, w, 3), np.float32)

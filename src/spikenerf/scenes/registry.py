@@ -17,6 +17,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.scenes import analytic
 from spikenerf.scenes.base import FrameSource
 from spikenerf.scenes.trajectory import Trajectory
+from spikenerf.scenes.transforms import rigid_poses
 
 BLENDER_MISSING = "Blender is not installed: pip install 'spikenerf[blender]'"
 #: default orbit of the built-in scenes (content inside [-1, 1]^3): radius (scene units), elevation (degrees)
@@ -70,9 +71,9 @@ def format_scene_list() -> str:
 
 def supersample_for(spp: int) -> int:
     """Analytic supersampling factor ``s`` (``s × s`` rays per pixel) closest to ``spp`` samples per pixel."""
-    if spp < 1:
-        raise InputError(f"spp must be ≥ 1, got {spp}", param="spp")
-    return max(1, round(spp**0.5))
+    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+        raise InputError(f"spp must be an integer ≥ 1, got {spp!r}", param="spp")
+    return max(1, round(int(spp) ** 0.5))
 
 
 def _is_blend(scene: str | Path) -> bool:
@@ -128,21 +129,21 @@ def make_scene_source(
         spp: samples per pixel (default: 4 for analytic scenes, the Blender backend's default otherwise).
         seed: render seed (Blender's sampler).
     Raises:
-        InputError: unknown scene, missing ``.blend`` file, Blender needed but not installed, or
-            ``test_poses`` not finite (N, 4, 4) (checked here, before anything is rendered).
+        InputError: unknown scene, missing ``.blend`` file, Blender needed but not installed, a size beyond
+            the memory at hand (analytic scenes), or ``trajectory`` poses or ``test_poses`` that are not
+            rigid camera-to-world (N, 4, 4) (finite, a rotation, last row 0 0 0 1, as the dataset loader
+            checks them; here, before anything is rendered).
     """
-    test_poses = np.zeros((0, 4, 4)) if test_poses is None else np.asarray(test_poses, dtype=np.float64)
-    if test_poses.ndim != 3 or test_poses.shape[1:] != (4, 4):
+    if not isinstance(trajectory, Trajectory):
         raise InputError(
-            f"test_poses must be (N, 4, 4) camera-to-world (N may be 0; one pose is poses[None]), found "
-            f"shape {test_poses.shape}",
-            param="test_poses",
+            f"trajectory must be a Trajectory (e.g. orbit(...)), found {trajectory!r:.60}", param="trajectory"
         )
-    if not np.isfinite(test_poses).all():
-        raise InputError("test_poses holds a NaN or an infinity", param="test_poses")
+    rigid_poses(trajectory.poses, "trajectory")  # as the dataset loader will check them (transforms.json)
+    test_poses = rigid_poses(np.zeros((0, 4, 4)) if test_poses is None else test_poses, "test_poses")
     name = str(scene)
     if name in analytic.SCENES:
         ss = supersample_for(ANALYTIC_SPP if spp is None else spp)
+        analytic.check_size(width, height, ss, "width/height/spp")
         return analytic.AnalyticSource(name, width, height, trajectory, test_poses, supersample=ss)
     _require_blender(name)
     try:

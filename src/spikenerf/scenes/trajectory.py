@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spikenerf.core.errors import InputError
+from spikenerf.core.limits import check_memory
 
 
 @dataclass(frozen=True)
@@ -75,13 +76,40 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -
 
     Args:
         eye: (3,) camera centre. target: (3,) point seen at the image centre. up: (3,) world up.
+    Raises:
+        InputError: naming ``eye``, ``target`` or ``up`` when one is not 3 finite numbers, or the pose
+            they give is not finite (coordinates beyond float64's reach).
     """
-    eye = np.asarray(eye, dtype=np.float64)
-    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
-    back = eye - np.asarray(target, dtype=np.float64)
+    points = [_point(eye, "eye"), _point(target, "target")]
+    with np.errstate(all="ignore"):  # (an overflow gives a pose that is not finite: named below)
+        c2w = _look_at(*points, None if up is None else _point(up, "up"))
+    if not np.isfinite(c2w).all():
+        raise InputError(
+            f"look_at: eye {points[0].tolist()} and target {points[1].tolist()} give a pose that is not "
+            "finite (coordinates too large)",
+            param=("eye", "target"),
+        )
+    return c2w
+
+
+def _point(value: object, param: str) -> np.ndarray:
+    """``value`` as a float64 (3,) of finite numbers; InputError naming ``param`` otherwise."""
+    try:
+        point = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        point = np.zeros(0)
+    if point.shape != (3,) or not np.isfinite(point).all():
+        raise InputError(f"{param} must be 3 finite numbers (x, y, z), found {value!r:.80}", param=param)
+    return point
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """:func:`look_at` of checked float64 (3,) points, unchecked (orbit and novel_views check once)."""
+    up = np.array([0.0, 0.0, 1.0]) if up is None else up
+    back = eye - target
     norm = np.linalg.norm(back)
     if norm == 0:
-        raise InputError("look_at: eye and target coincide")
+        raise InputError("look_at: eye and target coincide", param=("eye", "target"))
     back /= norm
     right = np.cross(up, back)
     if np.linalg.norm(right) < 1e-9:  # looking straight along the up axis
@@ -95,6 +123,20 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -
 
 #: the most turns an orbit may make (a bound far above any camera path, well inside float precision)
 MAX_TURNS = 1e6
+#: the range of an orbit's radius (scene units): beyond it the camera positions lose their precision or
+#: overflow (``import --orbit`` and ``simulate --radius`` take the same range)
+ORBIT_RADIUS = (1e-6, 1e6)
+#: the largest coordinate of a centre and the largest jitter or shake (scene units), as the radius
+MAX_LENGTH = ORBIT_RADIUS[1]
+#: the largest start or offset azimuth (degrees, either sign): beyond it the turns between steps are lost to
+#: rounding
+MAX_AZIMUTH = 1e6
+#: the largest elevation sweep (degrees peak to peak, either sign): a full circle
+MAX_SWEEP = 360.0
+#: the most steps a path may have (far above what any machine holds; :data:`ORBIT_STEP_BYTES` each)
+MAX_STEPS = 2**40
+#: memory an orbit needs per step while it is built (bytes; ~660 measured, with room)
+ORBIT_STEP_BYTES = 1024
 
 
 def orbit_angle_problem(elevation_deg: float, turns: float) -> str | None:
@@ -105,6 +147,53 @@ def orbit_angle_problem(elevation_deg: float, turns: float) -> str | None:
     if not abs(turns) <= MAX_TURNS:
         return f"turns must lie within ±{MAX_TURNS:g}, found {turns:g}"
     return None
+
+
+def _number(value: object, param: str, limit: float, what: str = "", low: float | None = None) -> float:
+    """``value`` as a float within [``low``, ``limit``] (``low`` None: within ±``limit``); InputError naming
+    ``param`` otherwise (``what`` names the unit in the message, e.g. ``" degrees"``)."""
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    lo = -limit if low is None else low
+    if not number or not lo <= value <= limit:  # (NaN fails too)
+        bounds = f"±{limit:g}" if low is None else f"[{low:g}, {limit:g}]"
+        raise InputError(f"{param} must be finite and within {bounds}{what}, found {value!r}", param=param)
+    return float(value)  # type: ignore[arg-type]
+
+
+def _center(center: object) -> np.ndarray:
+    """``center`` as a float64 (3,) with each coordinate within ±:data:`MAX_LENGTH`; else InputError."""
+    c = _point(center, "center")
+    if not (np.abs(c) <= MAX_LENGTH).all():
+        raise InputError(
+            f"center must lie within ±{MAX_LENGTH:g} scene units on each axis, found {c.tolist()}",
+            param="center",
+        )
+    return c
+
+
+def path_steps(duration: float, fps: float) -> int:
+    """``round(duration · fps)``, the steps of a path: InputError naming ``duration``/``fps`` when either is
+    not a finite number > 0, there is not one step, more than :data:`MAX_STEPS`, or more than the memory at
+    hand holds (:data:`ORBIT_STEP_BYTES` a step; ``core.limits``, skipped under ``no_limits``)."""
+    for name, value in (("duration", duration), ("fps", fps)):
+        number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+        if not number or not 0 < value < math.inf:
+            raise InputError(f"orbit: {name} must be finite and > 0, got {value!r}", param=name)
+    total = duration * fps
+    if not total < MAX_STEPS:
+        raise InputError(
+            f"orbit: duration × fps must give at most {MAX_STEPS:.3g} steps, got {duration:g} s × {fps:g} Hz "
+            f"= {total:.3g} steps",
+            param=("duration", "fps"),
+        )
+    n = round(total)
+    if n < 1:
+        raise InputError(
+            f"orbit: duration × fps must give at least 1 step, got {duration:g} s × {fps:g} Hz = {n} steps",
+            param=("duration", "fps"),
+        )
+    check_memory(n * ORBIT_STEP_BYTES, "duration/fps")
+    return n
 
 
 def orbit(
@@ -124,37 +213,45 @@ def orbit(
     """A circular orbit around ``center``, looking at it: ``round(duration · fps)`` steps.
 
     Args:
-        radius: distance from the centre (scene units). elevation_deg: elevation above the XY plane.
-        turns: full 360° turns over the duration. duration: seconds. fps: steps per second.
-        elevation_sweep_deg: peak-to-peak sinusoidal elevation change over the path (0 = flat orbit).
-        center: the point looked at. start_azimuth_deg: azimuth of step 0.
-        jitter: standard deviation of a smooth random position offset (scene units), seeded by ``seed``.
-        shake: amplitude (scene units) of a look-at point circling ``center`` ``shake_cycles`` times over the
-            path (and bobbing twice as fast): a fast hand-shake-like rotation of the camera (0 = none).
+        radius: distance from the centre (scene units, within :data:`ORBIT_RADIUS`).
+        elevation_deg: elevation above the XY plane, within [−90, 90] (±90: every step at the pole).
+        turns: full 360° turns over the duration (|turns| ≤ :data:`MAX_TURNS`). duration: seconds.
+        fps: steps per second (at most :data:`MAX_STEPS` steps, and as many as the memory holds).
+        elevation_sweep_deg: peak-to-peak sinusoidal elevation change over the path (0 = flat orbit;
+            |sweep| ≤ :data:`MAX_SWEEP`).
+        center: the point looked at (each coordinate within ±:data:`MAX_LENGTH`).
+        start_azimuth_deg: azimuth of step 0 (within ±:data:`MAX_AZIMUTH`).
+        jitter: standard deviation of a smooth random position offset (scene units, 0 to :data:`MAX_LENGTH`),
+            seeded by ``seed`` (an integer ≥ 0).
+        shake: amplitude (scene units, within ±:data:`MAX_LENGTH`) of a look-at point circling ``center``
+            ``shake_cycles`` times (|cycles| ≤ :data:`MAX_TURNS`) over the path (and bobbing twice as fast):
+            a fast hand-shake-like rotation of the camera (0 = none).
     Returns:
         A :class:`Trajectory` whose step ``k`` is at azimuth ``start + 360° · turns · k / N``.
+    Raises:
+        InputError: naming the parameter that is not a finite number in its range, or the pose that is not
+            finite.
     """
-    for name, value in (("radius", radius), ("duration", duration), ("fps", fps)):  # (angles: below)
-        if not math.isfinite(value):
-            raise InputError(f"orbit: {name} must be finite, got {value}", param=name)
-    if radius <= 0:
-        raise InputError(f"orbit: radius must be > 0, got {radius}", param="radius")
-    if fps <= 0:
-        raise InputError(f"orbit: fps must be > 0, got {fps}", param="fps")
-    n = round(duration * fps)
-    if n < 1:
-        raise InputError(
-            f"orbit: duration × fps must give at least 1 step, got {duration:g} s × {fps:g} Hz = {n} steps",
-            param=("duration", "fps"),
-        )
+    radius = _number(radius, "radius", ORBIT_RADIUS[1], " scene units", low=ORBIT_RADIUS[0])
+    for name, value in (("elevation_deg", elevation_deg), ("turns", turns)):  # (range: orbit_angle_problem)
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise InputError(f"orbit: {name} must be a number, found {value!r}", param=name)
+    start_azimuth_deg = _number(start_azimuth_deg, "start_azimuth_deg", MAX_AZIMUTH, " degrees")
+    elevation_sweep_deg = _number(elevation_sweep_deg, "elevation_sweep_deg", MAX_SWEEP, " degrees")
+    jitter = _number(jitter, "jitter", MAX_LENGTH, " scene units", low=0.0)
+    shake = _number(shake, "shake", MAX_LENGTH, " scene units")
+    shake_cycles = _number(shake_cycles, "shake_cycles", MAX_TURNS)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed must be an integer ≥ 0, got {seed!r}", param="seed")
+    c = _center(center)
     if problem := orbit_angle_problem(elevation_deg, turns):  # named as this function's parameters
         param = "turns" if problem.startswith("turns") else "elevation_deg"
         raise InputError(f"orbit: {param} {problem.partition(' ')[2]}", param=param)
+    n = path_steps(duration, fps)
     steps = np.arange(n, dtype=np.int64)
     frac = steps / n
     azimuth = np.deg2rad(start_azimuth_deg) + 2 * np.pi * turns * frac
     elevation = np.deg2rad(elevation_deg + 0.5 * elevation_sweep_deg * np.sin(2 * np.pi * frac))
-    c = np.asarray(center, dtype=np.float64)
     eyes = c + radius * np.stack(
         [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=-1
     )
@@ -165,7 +262,12 @@ def orbit(
         eyes = eyes + np.stack([np.interp(t, np.arange(len(knots)), knots[:, i]) for i in range(3)], -1)
     ph = 2 * np.pi * shake_cycles * frac
     targets = c + shake * np.stack([np.sin(ph), np.cos(ph), np.sin(2 * ph)], -1)
-    poses = np.stack([look_at(e, t) for e, t in zip(eyes, targets, strict=True)])
+    poses = np.stack([_look_at(e, t) for e, t in zip(eyes, targets, strict=True)])
+    if not np.isfinite(poses).all():  # (the ranges above keep them finite: a guard, one pass)
+        raise InputError(
+            "orbit: the poses are not finite; lower radius, center, jitter or shake",
+            param=("radius", "center", "jitter", "shake"),
+        )
     return Trajectory(poses, steps / fps, steps, float(fps))
 
 
@@ -210,16 +312,37 @@ def novel_views(
 ) -> np.ndarray:
     """Held-out poses off the training orbit: ``count`` views spread over azimuth, cycling elevations.
 
+    Args:
+        radius: distance from ``center`` (within :data:`ORBIT_RADIUS`). count: an integer ≥ 0.
+        elevations_deg: one or more elevations within [−90, 90] degrees.
+        center: the point looked at (each coordinate within ±:data:`MAX_LENGTH`).
+        azimuth_offset_deg: azimuth of the first view (within ±:data:`MAX_AZIMUTH`).
     Returns:
         (count, 4, 4) float64 camera-to-world poses looking at ``center``.
+    Raises:
+        InputError: naming the parameter that is not a finite number in its range.
     """
-    c = np.asarray(center, dtype=np.float64)
+    radius = _number(radius, "radius", ORBIT_RADIUS[1], " scene units", low=ORBIT_RADIUS[0])
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
+        raise InputError(f"count must be an integer ≥ 0, found {count!r}", param="count")
+    azimuth_offset_deg = _number(azimuth_offset_deg, "azimuth_offset_deg", MAX_AZIMUTH, " degrees")
+    try:
+        elevations = [float(e) for e in elevations_deg]
+    except (TypeError, ValueError):
+        elevations = []
+    if not elevations or not all(abs(e) <= 90 for e in elevations):  # (NaN fails too)
+        raise InputError(
+            f"elevations_deg must be one or more finite elevations within [-90, 90] degrees, found "
+            f"{elevations_deg!r:.80}",
+            param="elevations_deg",
+        )
+    c = _center(center)
     poses = []
     for i in range(count):
         az = np.deg2rad(azimuth_offset_deg + 360.0 * i / max(count, 1))
-        el = np.deg2rad(elevations_deg[i % len(elevations_deg)])
+        el = np.deg2rad(elevations[i % len(elevations)])
         eye = c + radius * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        poses.append(look_at(eye, c))
+        poses.append(_look_at(eye, c))
     return np.stack(poses) if poses else np.zeros((0, 4, 4))
 
 

@@ -71,8 +71,8 @@ def read_transforms(path: str | Path, missing: str = "transforms file not found"
         raise InputError(missing, path=path)
     try:
         meta = json.loads(path.read_text(encoding="utf-8"), object_pairs_hook=_unique_keys)
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"malformed JSON ({err})", path=path) from err
+    except (ValueError, RecursionError) as err:  # (undecodable, not JSON, a number beyond int's digit limit,
+        raise InputError(f"malformed JSON ({err})", path=path) from None  # nested beyond the stack)
     except _DuplicateKey as err:
         raise InputError(
             f"malformed JSON: key {err.key!r} given twice in one object (which one is meant?)", path=path
@@ -120,7 +120,7 @@ def number(
     return float(value)
 
 
-def pose(value: object, field: str, path: Path) -> np.ndarray:
+def pose(value: object, field: str, path: Path | None) -> np.ndarray:
     """A rigid 4×4 camera-to-world matrix, float64 (finite, a rotation, last row 0 0 0 1); ``field`` names
     it in messages (``frames[3].transform_matrix``)."""
     try:
@@ -151,7 +151,7 @@ def frame_poses(meta: dict[str, Any], path: Path) -> np.ndarray:
     return np.stack([pose(m, f"frames[{i}].transform_matrix", path) for i, m in enumerate(matrices)])
 
 
-def poses_at_once(matrices: list[object]) -> np.ndarray | None:
+def poses_at_once(matrices: list[object] | np.ndarray) -> np.ndarray | None:
     """(N, 4, 4) float64 of ``matrices`` when every one passes :func:`pose`'s checks, in one pass over the
     array; None when one does not (then check them one by one, which names it)."""
     with contextlib.suppress(TypeError, ValueError, OverflowError):  # (ragged, not numbers: one by one)
@@ -165,6 +165,29 @@ def poses_at_once(matrices: list[object]) -> np.ndarray | None:
         ):
             return m
     return None
+
+
+def rigid_poses(poses: object, param: str, one: bool = False) -> np.ndarray:
+    """``poses`` as float64 (N, 4, 4) (N ≥ 0; ``one``: a single (4, 4)) when each is what :func:`pose` accepts
+    (finite, a rotation, last row 0 0 0 1): the check of poses given in code (a trajectory, held-out views,
+    a pose to render), as a ``transforms.json`` gets; InputError naming ``param`` (and the pose) otherwise.
+    One pass over the array (:func:`poses_at_once`), pose by pose only to name the one that fails."""
+    try:
+        m = np.asarray(poses, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{param} must be numbers, found {poses!r:.60}", param=param) from None
+    if m.ndim != (2 if one else 3) or m.shape[-2:] != (4, 4):
+        shown = "(4, 4)" if one else "(N, 4, 4)"
+        hint = " (one pose? pass poses[None])" if not one and m.shape == (4, 4) else ""
+        raise InputError(f"{param} must be {shown} camera-to-world, found shape {m.shape}{hint}", param=param)
+    stack = m[None] if one else m
+    if poses_at_once(stack) is None:
+        for i, matrix in enumerate(stack):
+            try:
+                pose(matrix, param if one else f"{param}[{i}]", None)
+            except InputError as err:
+                raise InputError(err.message, param=param) from None
+    return m
 
 
 def camera(meta: dict[str, Any], path: Path) -> dict[str, Any]:
