@@ -10,7 +10,6 @@ is bit-identical to an uninterrupted one (same thread count).
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
 import math
@@ -21,6 +20,7 @@ from pathlib import Path
 import torch
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
+from spikenerf.core.csvtable import read_table
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
@@ -307,33 +307,14 @@ def _curves(out: Path, start: int) -> list[list]:
     path = out / "curves.csv"
     if not path.is_file() or start == 0 or path.stat().st_size == 0:
         return []
+
+    def header_problem(header: list[str]) -> str | None:
+        if header == CURVES_HEADER:
+            return None
+        return f"its header is {','.join(header)!r}, expected {','.join(CURVES_HEADER)!r}"
+
     aside = "move it aside to resume without the earlier curve points"
-    rows, line = [], 1
-    try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            reader = csv.reader(fh)
-            if (header := next(reader, [])) != CURVES_HEADER:
-                raise InputError(
-                    f"not a curve table of recon-train: its header is {','.join(header)!r}, expected "
-                    f"{','.join(CURVES_HEADER)!r} ({aside})",
-                    path=path,
-                )
-            for row in reader:
-                line = reader.line_num
-                if not row:
-                    continue
-                rows.append(_numbers(row))
-    except InputError:  # (a ValueError too: raised as it is)
-        raise
-    except (UnicodeDecodeError, csv.Error) as err:  # (UnicodeDecodeError is a ValueError: before it)
-        raise InputError(
-            f"not a curve table of recon-train ({type(err).__name__}: {err}; {aside})", path=path
-        ) from err
-    except ValueError as err:
-        raise InputError(
-            f"not a curve table of recon-train: line {line} is not a row of numbers ({err}; {aside})",
-            path=path,
-        ) from err
+    rows = read_table(path, "curve table of recon-train", header_problem, lambda _, row: _numbers(row), aside)
     return [row for row in rows if int(row[0]) <= start]
 
 

@@ -12,7 +12,7 @@ import torch
 
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.color import srgb_mse
-from spikenerf.core.errors import InputError
+from spikenerf.core.csvtable import read_table
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.targets import ImageTargets
@@ -81,28 +81,18 @@ def read_curves(path: str | Path) -> list[dict[str, float]]:
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
         return []
+
+    def header_problem(header: list[str]) -> str | None:
+        missing = [k for k in COLUMNS if k not in header]
+        return f"no column {missing[0]!r}" if missing else None
+
+    def parse(header: list[str], row: list[str]) -> dict:
+        r = dict(zip(header, row, strict=False))  # a row cut short lacks its last columns: None
+        return {
+            "iteration": int(r["iteration"]),
+            **{k: float(r.get(k)) for k in COLUMNS[1:]},  # type: ignore[arg-type]
+            **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
+        }
+
     aside = "move it aside to resume without the earlier curve points"
-    rows, line = [], 1
-    try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            if missing := [k for k in COLUMNS if k not in (reader.fieldnames or ())]:
-                raise InputError(f"not a training curve table: no column {missing[0]!r} ({aside})", path=path)
-            for r in reader:
-                line = reader.line_num
-                rows.append({
-                    "iteration": int(r["iteration"]),
-                    **{k: float(r[k]) for k in COLUMNS[1:]},
-                    **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
-                })  # fmt: skip
-    except InputError:  # (a ValueError too: raised as it is)
-        raise
-    except (UnicodeDecodeError, csv.Error) as err:  # (UnicodeDecodeError is a ValueError: before it)
-        raise InputError(
-            f"not a training curve table ({type(err).__name__}: {err}; {aside})", path=path
-        ) from err
-    except (ValueError, TypeError) as err:  # a value that is no number, or a row cut short (None)
-        raise InputError(
-            f"not a training curve table: line {line} is not a row of numbers ({err}; {aside})", path=path
-        ) from err
-    return rows
+    return read_table(path, "training curve table", header_problem, parse, aside)
