@@ -125,3 +125,15 @@ def test_an_orbit_partly_inside_the_scene_box_passes_inside_it(capsys, tmp_path:
         capsys, *SIM, "--frames", 8, "--radius", 1.5, "--test-views", 0, "--out", tmp_path / "o"
     )
     assert code == 0 and "warning: the orbit passes inside the scene box" in err, err
+
+
+def test_a_path_without_spikes_or_without_motion_is_warned_before_rendering(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``--threshold 3e38`` wrote a silent stream and ``--turns 0`` one still camera, both without a word."""
+    code, _, err = run_cli(capsys, *SIM, "--frames", 8, "--threshold", 100, "--out", tmp_path / "a")
+    assert code == 0 and "a white pixel fires once every 100 steps, more than the 8-step path" in err, err
+    code, _, err = run_cli(
+        capsys, *SIM, "--frames", 8, "--turns", 0, "--test-views", 0, "--out", tmp_path / "b"
+    )
+    assert code == 0 and "--turns 0 without --elevation-sweep: every step has the same pose" in err, err
+    code, _, err = run_cli(capsys, *SIM, "--frames", 8, "--test-views", 0, "--out", tmp_path / "c")
+    assert code == 0 and "warning" not in err, err

@@ -163,6 +163,13 @@ def command(**kw: Any) -> None:
     inputs = [kw["sequence"], kw["eval_views"], kw["blend"]]
     check_inputs_outside(kw["out"], inputs)  # replacing --out whole would delete them
     source, extra = _sequence_source(kw) if kw["sequence"] is not None else _scene_source(kw, registry)
+    steps, threshold = len(source.trajectory), float(kw["threshold"])
+    if threshold > steps:  # (said before the renders, not after)
+        click.echo(
+            f"spikenerf: warning: --threshold {threshold:g}: a white pixel fires once every {threshold:g} "
+            f"steps, more than the {steps}-step path: the stream holds few spikes, if any",
+            err=True,
+        )
     from spikenerf.capture.blur import exposure_length, parse_blur_views
     from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
 
@@ -232,6 +239,12 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
         views = len(test_poses)
     _check_resources(kw, _size_params(kw), width, height, steps, views)
     trajectory = orbit(radius, elevation, turns, steps / fps, fps, center=center, elevation_sweep_deg=sweep)
+    if turns == 0 and not sweep and steps > 1:
+        click.echo(
+            "spikenerf: warning: --turns 0 without --elevation-sweep: every step has the same pose (a "
+            "radiance field cannot be trained from one viewpoint)",
+            err=True,
+        )
     if kw["eval_views"] is None:
         test_poses = np.zeros((0, 4, 4))
         if views:
