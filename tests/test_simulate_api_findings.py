@@ -191,3 +191,4 @@ def test_render_takes_one_finite_rigid_pose(traj: Trajectory) -> None:
     for bad in (np.full((4, 4), INF), np.full((4, 4), NAN), np.zeros((3, 4)), np.stack([np.eye(4)] * 2)):
         _params(lambda b=bad: source.render(b), "c2w")
     assert source.render(traj.poses[0]).shape == (8, 8, 3)
+    assert np.array_equal(source.render(traj.poses[0][:3]), source.render(traj.poses[0]))  # (3, 4) as before

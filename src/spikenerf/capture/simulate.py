@@ -347,8 +347,9 @@ def _integer(value: object) -> bool:
 
 
 #: the ``config.yaml`` keys :func:`dataset_config` writes itself (``extra`` may add others, not replace them)
-OWN_KEYS = ("spike_h", "spike_w", "fps", "threshold", "colors", "noise", "seed", "scene", "steps", "warmup",
-            "gt_every", "blur_fps", "blur_views", "test_views", "spikenerf_version", "command", "layout",
+OWN_KEYS = ("filename", "is_labeled", "labeled_data_type", "labeled_data_suffix", "spike_h", "spike_w",
+            "fps", "threshold", "colors", "noise", "seed", "scene", "steps", "warmup", "gt_every", "blur_fps",
+            "blur_views", "test_views", "spikenerf_version", "command", "layout",
             "bayer_pattern")  # fmt: skip
 
 
@@ -360,8 +361,8 @@ def _check_extra(extra: object) -> None:
         raise InputError(f"extra: {shadowed} would replace config.yaml's own keys", param="extra")
     try:
         yaml.safe_dump(extra)
-    except yaml.YAMLError as err:
-        raise InputError(f"extra: config.yaml cannot hold it ({type(err).__name__})", param="extra") from None
+    except yaml.YAMLError as err:  # (its message names the value)
+        raise InputError(f"extra: config.yaml cannot hold it ({err})", param="extra") from None
 
 
 def check_bounds_of(poses: np.ndarray, box: np.ndarray) -> tuple[float, float]:
@@ -374,7 +375,8 @@ def check_bounds_of(poses: np.ndarray, box: np.ndarray) -> tuple[float, float]:
         near, far = near_far(poses, box)
     if not (math.isfinite(near) and math.isfinite(far) and near < far):
         raise InputError(
-            f"the cameras lie too far from the scene box for ray bounds (near {near:g}, far {far:g})",
+            f"the ray bounds of these cameras collapse (near {near:g}, far {far:g}): they lie too far from "
+            "the scene box, or a box smaller than the 0.05 near plane is too close to them",
             param="trajectory",
         )
     return near, far

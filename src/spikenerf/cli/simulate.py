@@ -54,8 +54,8 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
             )
         frames = n
     frames = DEFAULT_STEPS if frames is None else frames
-    if frames < 1:
-        raise InputError(f"--frames must be ≥ 1, found {frames}")
+    if not 1 <= frames < MAX_STEPS:
+        raise InputError(f"--frames must lie within [1, {MAX_STEPS:.3g}), found {frames}")
     if not math.isfinite(frames / fps):  # (a tiny --fps: the path would last for ever)
         raise InputError(f"--fps {fps:g} makes the path of {frames} steps last longer than any duration")
     return frames
@@ -219,7 +219,8 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     elevation = registry.DEFAULT_ELEVATION if kw["elevation"] is None else float(kw["elevation"])
     turns = 1.0 if kw["turns"] is None else float(kw["turns"])
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
-    if not ORBIT_RADIUS[0] <= radius <= ORBIT_RADIUS[1]:
+    given_radius = kw["radius"] is not None  # (a scene's own radius is orbit()'s to check)
+    if given_radius and not ORBIT_RADIUS[0] <= radius <= ORBIT_RADIUS[1]:
         low, high = ORBIT_RADIUS
         raise InputError(f"--radius must lie within [{low:g}, {high:g}] scene units, found {radius:g}")
     if not abs(elevation) < 90:  # at ±90° every step of the orbit would be the same pose
@@ -290,14 +291,14 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
 
 
 #: the options that set a simulation's memory and disk, as ``kw`` names them
-SIZE_OPTIONS = ("width", "height", "frames", "duration", "spp", "test_views", "eval_views", "color",
+SIZE_OPTIONS = ("width", "height", "frames", "duration", "fps", "spp", "test_views", "eval_views", "color",
                 "blur_views", "blur_fps", "gt_every")  # fmt: skip
 
 
 def _size_params(kw: dict, always: tuple[str, ...] = ("width", "height", "frames")) -> str:
     """The size options the command line gave (a refusal names them, not options the user did not give),
     else ``always``; joined with ``/`` for :func:`_check_resources`."""
-    given = [name for name in SIZE_OPTIONS if kw.get(name) is not None and _given(name)]
+    given = [name for name in SIZE_OPTIONS if kw.get(name) not in (None, 0) and _given(name)]
     return "/".join(given or always)
 
 

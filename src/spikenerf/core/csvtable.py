@@ -41,7 +41,7 @@ def read_table(
         raise
     except (UnicodeDecodeError, csv.Error) as err:  # (UnicodeDecodeError is a ValueError: before it)
         raise InputError(f"not a {what} ({type(err).__name__}: {err}; {aside})", path=path) from err
-    except (ValueError, TypeError) as err:
+    except (ValueError, TypeError, KeyError) as err:
         raise InputError(
             f"not a {what}: line {line} is not a row of numbers ({err}; {aside})", path=path
         ) from err

@@ -119,7 +119,7 @@ def retire(out: Path) -> Path:
     if old.exists() or old.is_symlink():
         if not is_retired(old):
             raise InputError("is in the way of a replacement and spikenerf did not write it; move it", old)
-        shutil.rmtree(old)
+        _delete_retired(old)
     write_text_atomic(out / MARKER, json.dumps({**_marker(out), "retired": True}) + "\n")
     out.rename(old)
     return old
@@ -132,7 +132,7 @@ def recover_retired(out: Path) -> None:
     if not is_retired(old):
         return
     if out.exists() or out.is_symlink():
-        shutil.rmtree(old)
+        _delete_retired(old)
         return
     entry = {k: v for k, v in _marker(old).items() if k != "retired"}
     write_text_atomic(old / MARKER, json.dumps(entry) + "\n")
@@ -157,6 +157,19 @@ def discard_fresh(out: Path, state: str | None) -> None:
     elif state == "empty" and out.is_dir():
         for child in out.iterdir():
             shutil.rmtree(child, ignore_errors=True) if child.is_dir() else child.unlink(missing_ok=True)
+
+
+def _delete_retired(old: Path) -> None:
+    """Delete a retired copy left by an earlier replacement; InputError naming it where a file in it cannot be
+    deleted (an immutable or read-only file: the user's to remove)."""
+    try:
+        shutil.rmtree(old)
+    except OSError as err:
+        raise InputError(
+            f"a copy an earlier replacement left cannot be deleted ({err.strerror or err}: "
+            f"{getattr(err, 'filename', '') or old}); delete it yourself",
+            path=old,
+        ) from err
 
 
 def replace_dir(work: Path, out: Path) -> None:

@@ -271,8 +271,10 @@ class AnalyticSource:
         self._dirs = np.ascontiguousarray(dirs.reshape(-1, 3).T, dtype=np.float32)  # (3, N) camera space
 
     def render(self, c2w: np.ndarray) -> np.ndarray:
-        """Linear radiance (H, W, 3) float32 seen from camera-to-world ``c2w`` (4, 4): finite, a rotation,
-        last row 0 0 0 1 (else InputError naming ``c2w``)."""
+        """Linear radiance (H, W, 3) float32 seen from camera-to-world ``c2w`` (4, 4), or its top (3, 4):
+        finite, a rotation, last row 0 0 0 1 (else InputError naming ``c2w``)."""
+        if np.shape(c2w) == (3, 4):  # the top rows only, as a NeRF pose often is
+            c2w = np.vstack([np.asarray(c2w, dtype=np.float64), [0.0, 0.0, 0.0, 1.0]])
         return self._render_pose(rigid_poses(c2w, "c2w", one=True))
 
     def _render_pose(self, c2w: np.ndarray) -> np.ndarray:

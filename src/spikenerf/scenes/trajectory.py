@@ -124,8 +124,9 @@ def _look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) 
 #: the most turns an orbit may make (a bound far above any camera path, well inside float precision)
 MAX_TURNS = 1e6
 #: the range of an orbit's radius (scene units): beyond it the camera positions lose their precision or
-#: overflow (``import --orbit`` and ``simulate --radius`` take the same range)
-ORBIT_RADIUS = (1e-6, 1e6)
+#: overflow (``import --orbit`` and ``simulate --radius`` take the same range; a Blender scene in
+#: millimetres or georeferenced coordinates reaches 1e6 and more)
+ORBIT_RADIUS = (1e-6, 1e9)
 #: the largest coordinate of a centre and the largest jitter or shake (scene units), as the radius
 MAX_LENGTH = ORBIT_RADIUS[1]
 #: the largest start or offset azimuth (degrees, either sign): beyond it the turns between steps are lost to
@@ -179,6 +180,12 @@ def path_steps(duration: float, fps: float) -> int:
         number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
         if not number or not 0 < value < math.inf:
             raise InputError(f"orbit: {name} must be finite and > 0, got {value!r}", param=name)
+    try:  # as floats: numpy integers wrap around, a huge Python int does not fit a float
+        duration, fps = float(duration), float(fps)
+    except OverflowError:
+        raise InputError(
+            "orbit: duration and fps must be finite numbers", param=("duration", "fps")
+        ) from None
     total = duration * fps
     if not total < MAX_STEPS:
         raise InputError(

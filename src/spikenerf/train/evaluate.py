@@ -89,7 +89,7 @@ def read_curves(path: str | Path) -> list[dict[str, float]]:
     def parse(header: list[str], row: list[str]) -> dict:
         r = dict(zip(header, row, strict=False))  # a row cut short lacks its last columns: None
         return {
-            "iteration": int(r["iteration"]),
+            "iteration": int(r.get("iteration")),  # type: ignore[arg-type]
             **{k: float(r.get(k)) for k in COLUMNS[1:]},  # type: ignore[arg-type]
             **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
         }
