@@ -157,3 +157,23 @@ def test_a_retired_copy_that_still_cannot_be_deleted_is_named(capsys, tmp_path: 
     code, _, err = run_cli(capsys, *SIM, "--frames", 20, "--seed", 6, "--overwrite", "--out", out)
     assert code == 2 and ".o.old: a copy an earlier replacement left cannot be deleted" in err, err
     assert "delete it yourself" in err and "seed: 5" in (out / "config.yaml").read_text()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["simulate", "--scene", "analytic-orbs"],
+        ["train", "ds"],
+        ["recon-data"],
+        ["recon-train", "pairs"],
+        ["reconstruct", "r.dat", "--method", "tfp"],
+        ["import", "r.dat", "--poses", "orbit", "--orbit", "4,30"],
+        ["render", "run"],
+        ["benchmark"],
+        ["demo"],
+    ],
+)
+def test_an_empty_out_is_refused_by_every_command(capsys, argv: list[str]) -> None:  # type: ignore[no-untyped-def]
+    """``--out ""`` was read as ``.``, the current folder, and reported as such."""
+    code, _, err = run_cli(capsys, *argv, "--out", "")
+    assert code == 2 and "'--out': the path is empty" in err and len(err.strip().splitlines()) == 1, err

@@ -87,7 +87,9 @@ class SimulateOptions:
         colors = self.colors
         if isinstance(colors, str):  # ("gray" was read as the modes g, r, a, y)
             colors = tuple(MODES) if colors == "all" else tuple(c.strip() for c in colors.split(","))
-        if not isinstance(colors, (tuple, list)):
+        if isinstance(colors, np.ndarray):  # (an array of names, as a list)
+            colors = colors.tolist()
+        if not isinstance(colors, (tuple, list)):  # (a set has no order: the files' order would be chance)
             raise InputError(f"colors must be a list of colour modes, found {colors!r}", param="colors")
         object.__setattr__(self, "colors", tuple(colors))
 

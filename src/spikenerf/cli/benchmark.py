@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from spikenerf.cli.types import SEED, device_option
+from spikenerf.cli.types import SEED, OutPath, device_option
 from spikenerf.core.errors import InputError, comma_list
 from spikenerf.fields.choices import FIELD_KINDS
 from spikenerf.pipelines.benchmark.executor import EXECUTORS
@@ -34,7 +34,7 @@ BENCHMARK_KEYS = {
     help=f"'all', 'table1', 'table2' or comma-separated variants ({', '.join(VARIANTS)}).",
 )  # fmt: skip
 @click.option("--color", default="gray,rgb", show_default=True, help="gray, rgb or gray,rgb.")
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="Benchmark folder (resumable).")
+@click.option("--out", type=OutPath(), required=True, help="Benchmark folder (resumable).")
 @click.option("--size", type=int, default=100, show_default=True, help="Image width = height in pixels.")
 @click.option("--frames", type=int, default=1000, show_default=True, help="Spike steps on the orbit.")
 @click.option("--iters", type=click.IntRange(min=1), help="Training iterations per run [default: trainer's].")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.types import COUNT, device_option
+from spikenerf.cli.types import COUNT, OutPath, device_option
 
 
 def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
@@ -25,7 +25,7 @@ def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
     "Resumable: re-running reuses finished steps. Default size: about 3 minutes on 2 idle CPU cores (187 s, "
     "docs/report.md); --quick is a smoke test, smaller but only a little faster."
 )
-@click.option("--out", type=click.Path(path_type=Path), default=Path("demo_out"), show_default=True)
+@click.option("--out", type=OutPath(), default=Path("demo_out"), show_default=True)
 @click.option("--quick", is_flag=True, help="32 px, 200 spike steps, 200 iterations (a smoke test).")
 @device_option()
 @click.option("--size", type=int, help="Image width = height in pixels [default 64, quick 32].")

@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from spikenerf.cli import command_line
-from spikenerf.cli.types import COUNT
+from spikenerf.cli.types import COUNT, OutPath
 from spikenerf.core.errors import parse_range
 from spikenerf.importing.alignment import ORIENTS
 
@@ -21,7 +21,7 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
     help="Import a raw .dat spike recording (SpikeCV config.yaml beside it) into a dataset folder."
 )
 @click.argument("recording", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="The dataset folder to write.")
+@click.option("--out", type=OutPath(), required=True, help="The dataset folder to write.")
 @click.option(
     "--poses",
     default="colmap",

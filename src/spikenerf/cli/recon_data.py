@@ -12,7 +12,7 @@ from click.core import ParameterSource
 
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
-from spikenerf.cli.types import SEED
+from spikenerf.cli.types import SEED, OutPath
 from spikenerf.core.errors import InputError, comma_list
 
 #: parameters named otherwise than their flags (the CLI maps an error's parameter to its flag)
@@ -27,7 +27,7 @@ PARAM_FLAGS = {"scene": "--scene", "gt_every": "--gt-every"}  # (the latter: sim
     "realistic noise; still, orbiting and panning cameras; a log-uniform brightness range. Resumable: "
     "re-running the same command finishes an interrupted folder."
 )
-@click.option("--out", required=True, type=click.Path(path_type=Path), help="Pair folder to write.")
+@click.option("--out", required=True, type=OutPath(), help="Pair folder to write.")
 @click.option(
     "--train-draws",
     type=click.IntRange(min=1),

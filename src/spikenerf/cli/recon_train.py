@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.types import COUNT, SEED
+from spikenerf.cli.types import COUNT, SEED, OutPath
 from spikenerf.recon.config import ReconTrainConfig
 
 _D = ReconTrainConfig()
@@ -22,7 +22,7 @@ _D = ReconTrainConfig()
     "`spikenerf reconstruct --method learned --weights RUN/weights.pt`."
 )
 @click.argument("pairs", type=click.Path(path_type=Path))
-@click.option("--out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
+@click.option("--out", required=True, type=OutPath(), help="Run folder to write.")
 @click.option("--iters", type=COUNT, default=_D.iters, show_default=True, help="Optimiser steps.")
 @click.option("--batch", type=int, default=_D.batch, show_default=True, help="Crops per step.")
 @click.option(

@@ -18,7 +18,7 @@ import numpy as np
 
 from spikenerf.camera.modes import COLORS
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
-from spikenerf.cli.types import frame_size_options
+from spikenerf.cli.types import OutPath, frame_size_options
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic
 from spikenerf.core.errors import InputError, parse_range
 from spikenerf.core.lock import output_lock
@@ -112,7 +112,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
     type=click.Choice(ENCODINGS),
     help="Output values: linear (SpikeCV/spikezoo PNGs) or srgb [default: srgb for .png, linear for .npy].",
 )
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="FILE.png, FILE.npy or a folder.")
+@click.option("--out", type=OutPath(), required=True, help="FILE.png, FILE.npy or a folder.")
 @click.option(
     "--overwrite", is_flag=True,
     help="Replace an existing --out FILE.png or FILE.npy (a frame folder that reconstruct wrote always holds "

@@ -8,7 +8,7 @@ import click
 from click.core import ParameterSource
 
 from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
-from spikenerf.cli.types import SEED, device_option
+from spikenerf.cli.types import SEED, OutPath, device_option
 
 
 @click.command(help="Render images, depth, a video and novel-view spike streams from a trained run.")
@@ -33,7 +33,7 @@ from spikenerf.cli.types import SEED, device_option
 @chunk_option
 @precision_option
 @click.option("--quiet", "--no-progress", "quiet", is_flag=True, help="No progress bars.")
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder.")
+@click.option("--out", type=OutPath(), required=True, help="Output folder.")
 def command(
     run: Path,
     trajectory: str,

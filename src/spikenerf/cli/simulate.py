@@ -11,7 +11,7 @@ from click.core import ParameterSource
 
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.cli import command_line
-from spikenerf.cli.types import COUNT, SEED, BoundedInt
+from spikenerf.cli.types import COUNT, SEED, BoundedInt, OutPath
 from spikenerf.core.errors import InputError
 
 DEFAULT_SIZE = 200
@@ -68,7 +68,7 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     "--sequence", type=click.Path(path_type=Path), help="transforms.json of an image sequence + poses."
 )
 @click.option("--sequence-range", help="A:B, a slice of the sequence's listed frames.")
-@click.option("--out", type=click.Path(path_type=Path), help="The dataset folder to write.")
+@click.option("--out", type=OutPath(), help="The dataset folder to write.")
 @click.option(
     "--width", type=int, help=f"Frame width in pixels [default: {DEFAULT_SIZE}; sequences: native]."
 )

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from spikenerf.cli.types import COUNT, SEED, device_option
+from spikenerf.cli.types import COUNT, SEED, OutPath, device_option
 from spikenerf.core.errors import InputError
 from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.choices import COLORS, METHODS
@@ -96,7 +96,7 @@ PARAM_FLAGS = {
     "last (e.g. --set spike.lam=0.5 --set targets.mask_n=3 --set field_config.n_voxels_final=2097152)."
 )
 @click.argument("dataset", required=False, type=click.Path(path_type=Path))
-@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run folder to write.")
+@click.option("--out", "out", required=True, type=OutPath(), help="Run folder to write.")
 @click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True)
 @click.option(
     "--no-mask",

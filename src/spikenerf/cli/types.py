@@ -59,6 +59,19 @@ def device_option(default: str = "auto", help: str = "") -> Callable[..., Any]:
     return click.option("--device", type=DeviceName(), default=default, show_default=True, help=text)
 
 
+class OutPath(click.Path):
+    """``--out``: a path (``Path``), refused when empty (an empty string read as ``.``, the current folder,
+    and was reported as such)."""
+
+    def __init__(self) -> None:
+        super().__init__(path_type=Path)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and not value.strip():
+            self.fail("the path is empty: give a folder or file name", param, ctx)
+        return super().convert(value, param, ctx)
+
+
 def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:
     """``--height``/``--width`` of a ``.dat`` recording (default: the SpikeCV config.yaml beside it)."""
     for name, key in (("width", "spike_w"), ("height", "spike_h")):
