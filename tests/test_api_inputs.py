@@ -281,3 +281,28 @@ def test_a_threshold_must_be_one_number() -> None:
     for bad in ([2.0], np.array(2.0), np.array([2.0]), True, 1e-300):
         _params(lambda bad=bad: CameraConfig(threshold=bad), "threshold")
     assert CameraConfig(threshold=np.float32(2)).threshold == 2
+
+
+def test_train_eval_and_loaders_name_a_wrong_argument(tmp_path: Path) -> None:
+    """A dict config, a None folder, a path for the loaded dataset, ``stop_after=0`` (which left a run folder
+    without a checkpoint) were AttributeErrors, TypeErrors or accepted; a Trainer made alone wrote into a
+    dataset folder and destroyed it."""
+    from spikenerf.core.marker import mark
+    from spikenerf.data.dataset import load_dataset
+    from spikenerf.eval.evaluate import evaluate_run
+    from spikenerf.train.config import TrainConfig
+    from spikenerf.train.run import load_run
+    from spikenerf.train.trainer import Trainer, train
+
+    config = TrainConfig(dataset=str(tmp_path / "ds"), iters=2, device="cpu")
+    _params(lambda: train({"iters": 2}, tmp_path / "r"), "config")  # type: ignore[arg-type]
+    _params(lambda: train(config, None), "out")  # type: ignore[arg-type]
+    _params(lambda: train(config, tmp_path / "r", dataset=str(tmp_path)), "dataset")  # type: ignore[arg-type]
+    _params(lambda: train(config, tmp_path / "r", stop_after=0), "stop_after")
+    _params(lambda: load_run(None), "run_dir")  # type: ignore[arg-type]
+    _params(lambda: load_dataset(""), "root")
+    _params(lambda: evaluate_run(5), "run_dir")  # type: ignore[arg-type]
+    (tmp_path / "ds").mkdir()
+    mark(tmp_path / "ds", "dataset")
+    _params(lambda: Trainer(config, tmp_path / "ds"), "out", match="this is a dataset folder")
+    assert not (tmp_path / "r").exists() and [p.name for p in (tmp_path / "ds").iterdir()] == [".spikenerf"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Callable, Collection, Iterable, Sequence
 from pathlib import Path
@@ -75,6 +76,14 @@ def comma_list(
     if twice := next((n for i, n in enumerate(names) if n in names[:i]), None):
         raise InputError(f"{param or 'list'}: {twice} is given twice", param=param)
     return names
+
+
+def as_path(value: object, param: str) -> Path:
+    """``value`` (a str or path-like, not empty) as a ``Path``; else InputError naming ``param``
+    (``Path(None)`` is a TypeError deep in pathlib, and ``Path("")`` the current folder)."""
+    if not isinstance(value, (str, os.PathLike)) or not str(value).strip():
+        raise InputError(f"{param} must be a folder or file path, found {value!r:.60}", param=param)
+    return Path(value)
 
 
 def parse_int(text: str, param: str, expected: str) -> int:

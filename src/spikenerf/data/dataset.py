@@ -18,7 +18,7 @@ from spikenerf.camera.io import count_frames, read_dat, rgb_paths
 from spikenerf.camera.modes import COLORS
 from spikenerf.core.atomic import write_bytes_atomic
 from spikenerf.core.color import srgb_decode, srgb_encode
-from spikenerf.core.errors import InputError, check_choice
+from spikenerf.core.errors import InputError, as_path, check_choice
 from spikenerf.core.marker import folder_kind
 from spikenerf.core.png16 import decode_png16, encode_png16, is_png16
 from spikenerf.core.yamlio import load_yaml
@@ -275,7 +275,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
         A :class:`SpikeDataset`: per-step trajectory, intrinsics, threshold, scene box, near/far, the config,
         the colour modes present, GT renders (with their steps), blur frames (or None) and test views.
     """
-    root = Path(root)
+    root = as_path(root, "root")
     if not root.is_dir():
         raise InputError(
             "is a file, not a dataset folder" if root.exists() else "dataset folder not found", path=root

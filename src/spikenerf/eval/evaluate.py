@@ -22,7 +22,7 @@ import torch
 from spikenerf.camera.reconstruct import check_window
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.color import rgb_to_gray, srgb_encode
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, as_path
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import owned
 from spikenerf.core.progress import bar as progress_bar
@@ -232,6 +232,7 @@ def evaluate_run(
         mean {psnr, ssim, lpips}, per_view, lpips_backbone, lpips_reason, space, no_reference,
         test_pose_optimised (None when off), precision, seconds.
     """
+    run_dir = as_path(run_dir, "run_dir")
     noref_options = NoRefOptions() if noref_options is None else noref_options
     noref_options.check()
     check_fit_args(test_pose[0], test_pose[1], POSE_BATCH)

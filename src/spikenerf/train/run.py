@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, as_path
 from spikenerf.data.dataset import CONFIG as DATASET_CONFIG
 from spikenerf.data.dataset import SpikeDataset, load_dataset, read_mapping, spike_files
 from spikenerf.data.holdout import read_record
@@ -93,7 +93,7 @@ def open_run(
 ) -> tuple[RadianceModel, TrainConfig, SpikeDataset, dict]:
     """:func:`load_run` and the checkpoint it read (its ``poses`` hold the run's pose refinement), for
     callers that need both without reading the checkpoint twice."""
-    run_dir = Path(run_dir)
+    run_dir = as_path(run_dir, "run_dir")
     config = load_run_config(run_dir / CONFIG_FILE)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)
     check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)

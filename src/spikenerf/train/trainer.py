@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import sys
 import time
 from collections.abc import Sequence
@@ -21,7 +22,7 @@ import torch
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError, one_line
+from spikenerf.core.errors import InputError, as_path, one_line
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
@@ -193,6 +194,34 @@ def _leaf_changes(key: str, was: Any, now: Any) -> list[tuple[str, Any, Any]]:
 DROPPED = "dropped_per_ray"
 
 
+def check_api_args(config: object, out: object, dataset: object) -> None:
+    """InputError naming ``config``, ``out`` or ``dataset`` when it is not what :func:`train` and
+    :class:`Trainer` take (a dict for the config, None or a number for the folder, a path for the loaded
+    dataset: each failed deep inside as an AttributeError or a TypeError)."""
+    if not isinstance(config, TrainConfig):
+        raise InputError(
+            f"config must be a TrainConfig (TrainConfig.from_dict for a mapping), found "
+            f"{type(config).__name__}",
+            param="config",
+        )
+    as_path(out, "out")
+    if dataset is not None and not isinstance(dataset, SpikeDataset):
+        raise InputError(
+            f"dataset must be a loaded SpikeDataset or None (config.dataset gives the folder), found "
+            f"{type(dataset).__name__}",
+            param="dataset",
+        )
+
+
+def check_stop_after(stop_after: object) -> None:
+    """InputError naming ``stop_after`` unless it is None or an integer ≥ 1."""
+    integer = isinstance(stop_after, numbers.Integral) and not isinstance(stop_after, bool)
+    if stop_after is not None and not (integer and stop_after >= 1):  # type: ignore[operator]
+        raise InputError(
+            f"stop_after must be None or an integer ≥ 1, found {stop_after!r}", param="stop_after"
+        )
+
+
 def warn(message: str) -> None:
     """One warning line on stderr (``spikenerf: warning: ...``)."""
     print(f"spikenerf: warning: {message}", file=sys.stderr)
@@ -273,7 +302,9 @@ class Trainer:
         resume: bool = False,
         progress: bool = True,
     ) -> None:
+        check_api_args(config, out, dataset)
         self.out = Path(out)
+        check_output(self.out, "run", overwrite=True)  # (train() checks it too: a Trainer made alone)
         self.progress = progress
         ckpt_path = self.out / CHECKPOINT
         ckpt = None
@@ -468,6 +499,7 @@ class Trainer:
 
     def train(self, stop_after: int | None = None) -> TrainSummary:
         """Run until ``config.iters`` (or ``stop_after`` more iterations, to simulate an interruption)."""
+        check_stop_after(stop_after)
         cfg = self.config
         # first: a missing package leaves no run folder behind
         log = open_log(cfg.log, self.out, self.iteration)
@@ -617,6 +649,8 @@ def train(
     refused. ``notes``: warning lines shown once the setup succeeded (a refused setup shows its one error
     line alone).
     """
+    check_api_args(config, out, dataset)
+    check_stop_after(stop_after)
     out = Path(out)
     if resume and not out.is_dir():
         raise InputError("resume: no run folder here to resume (start one without it)", out, param="resume")
