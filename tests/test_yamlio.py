@@ -93,3 +93,18 @@ def test_a_train_config_beside_another_tools_manifest_is_read(tmp_path: Path) ->
     (tmp_path / "manifest.json").write_text("{}")
     (tmp_path / "config.yaml").write_text("iters: 7\n")
     assert load_config(tmp_path / "config.yaml").iters == 7
+
+
+def test_load_config_reads_a_run_folder_and_refuses_a_dataset_folder(tmp_path: Path) -> None:
+    """``load_config(RUN)`` said "missing run config (not a run folder…)" of a real run folder."""
+    from spikenerf.core.marker import mark
+    from spikenerf.train.config import load_config
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.yaml").write_text("iters: 5\n")
+    assert load_config(tmp_path / "run").iters == 5
+    (tmp_path / "ds").mkdir()
+    (tmp_path / "ds" / "config.yaml").write_text("spike_h: 4\n")
+    mark(tmp_path / "ds", "dataset")
+    with pytest.raises(InputError, match="is a dataset folder, not a run folder"):
+        load_config(tmp_path / "ds")

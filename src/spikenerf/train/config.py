@@ -460,7 +460,9 @@ def _refuse_other_folder(path: str | Path) -> None:
 
 def load_config(path: str | Path) -> TrainConfig:
     """Read ``config.yaml`` written by :func:`save_config` (or a ``--config`` file); the camera config of a
-    dataset (or another output's) is refused as such."""
+    dataset (or another output's) is refused as such. A folder is read as its ``config.yaml``."""
+    if Path(path).is_dir():
+        path = Path(path) / CONFIG_FILE
     _refuse_other_folder(path)
     path, data = _read_config(path)
     return _checked_fields(_validated(TrainConfig.from_dict(data, path), path), path)
