@@ -18,7 +18,7 @@ import numpy as np
 
 from spikenerf.core.atomic import atomic_path
 from spikenerf.core.color import is_tensor
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 
 if TYPE_CHECKING:
     import torch
@@ -394,7 +394,7 @@ def _as_binary(chunk: np.ndarray | torch.Tensor, path: str | Path) -> np.ndarray
 def _stored_width(width: int, raw_width: int | None, path: str | Path | None = None) -> int:
     if raw_width is None:
         return width
-    if isinstance(raw_width, bool) or not isinstance(raw_width, (int, np.integer)):
+    if not is_integer(raw_width):
         raise InputError(
             f"raw_width must be an integer (the stored row width) or None, found {raw_width!r}",
             path=path,

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 
 from spikenerf.camera.reconstruct import flat_stream, iter_window_counts, like
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 
 if TYPE_CHECKING:
     import torch
@@ -28,7 +28,7 @@ def spike_masks(spikes: Array, n: int = 5, frames: slice | int | None = None) ->
     Returns:
         bool (N, ...), the same array type as ``spikes``.
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+    if not is_integer(n) or n < 0:
         raise InputError(f"mask half window n must be an integer ≥ 0, found {n!r}", param="n")
     flat, rest, out_idx = flat_stream(spikes, frames)
     masks = np.empty((out_idx.size, flat.shape[1]), np.bool_)

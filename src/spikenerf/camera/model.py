@@ -19,7 +19,7 @@ from spikenerf.camera.noise import NoiseProcess, RealisticNoise
 from spikenerf.camera.reconstruct import check_threshold
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError, check_choice
+from spikenerf.core.errors import InputError, check_choice, is_integer
 from spikenerf.core.limits import check_memory
 
 Array = TypeVar("Array", np.ndarray, torch.Tensor)
@@ -128,7 +128,7 @@ class CameraConfig:
         check_choice(self.noise, NOISES, "noise")
         for name in ("seed", "warmup"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            if not is_integer(v) or v < 0:
                 raise InputError(f"{name} must be an integer ≥ 0, got {v!r}", param=name)
         if self.warmup > MAX_WARMUP:
             raise InputError(
@@ -192,7 +192,7 @@ class SpikeCamera:
         noise_params: RealisticNoise | None = None,
     ) -> None:
         for name, v in (("height", height), ("width", width)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+            if not is_integer(v) or v <= 0:
                 raise InputError(f"spike camera {name} must be a positive integer, got {v!r}", param=name)
         if config is not None and not isinstance(config, CameraConfig):  # e.g. "rgb"
             raise InputError(

@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_number
 
 Array = np.ndarray | torch.Tensor
 
@@ -89,7 +89,7 @@ class RealisticNoise:
         for f in fields(self):
             value = getattr(self, f.name)
             low, high, unit = NOISE_RANGES[f.name]
-            number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+            number = is_number(value)
             if not number or not low <= value <= high:  # (NaN fails too)
                 extra = " (inf disables shot noise)" if f.name == "photons_per_white" else ""
                 bounds = f"[{low:g}, {high:g}]{unit}{extra}"

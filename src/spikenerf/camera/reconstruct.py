@@ -11,7 +11,6 @@ Formulas and edge rules: docs/reconstruction.md.
 
 from __future__ import annotations
 
-import numbers
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -21,7 +20,7 @@ import numpy as np
 
 from spikenerf.camera.io import as_numpy, resolve_frames
 from spikenerf.core.color import is_tensor
-from spikenerf.core.errors import InputError, check_choice
+from spikenerf.core.errors import InputError, check_choice, is_integer, is_number
 
 if TYPE_CHECKING:
     import torch
@@ -319,7 +318,7 @@ def like(result: np.ndarray, spikes: np.ndarray | torch.Tensor) -> np.ndarray | 
 def check_window(window: object, param: str = "window", least: int = 1, path: Path | None = None) -> int:
     """``window`` as an int if it is an odd integer ≥ ``least`` (K = 2h + 1 steps centred on its step),
     else InputError naming ``param`` (and ``path``): the one check of every window of the toolkit."""
-    bad = isinstance(window, bool) or not isinstance(window, (int, np.integer))
+    bad = not is_integer(window)
     if bad or window < least or window % 2 == 0:  # type: ignore[operator]
         raise InputError(
             f"{param} must be an odd number of steps ≥ {least} (K = 2h+1, centred), found {window!r}",
@@ -334,7 +333,7 @@ def check_threshold(threshold: float) -> None:
     a φ past its range would give inf, one below it 0); a string, None or an array is refused too."""
     try:  # a number (numpy's scalars are numbers.Real; a list or an array is not)
         with np.errstate(over="ignore", under="ignore"):
-            held = isinstance(threshold, numbers.Real) and not isinstance(threshold, bool)
+            held = is_number(threshold)
             held = held and bool(np.isfinite(threshold) and 0 < np.float32(threshold) < np.inf)
     except (TypeError, ValueError):  # "1", None
         held = False

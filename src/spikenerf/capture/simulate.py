@@ -13,7 +13,6 @@ import hashlib
 import json
 import math
 import multiprocessing
-import numbers
 import os
 import pickle
 import shutil
@@ -35,7 +34,7 @@ from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.capture.blur import RunningExposures, blur_windows, exposure_length, parse_blur_views
 from spikenerf.capture.recording import RAW_DIR, check_raw_width, write_raw_recording
 from spikenerf.core.atomic import atomic_path, clean_stale_temps
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer, is_number
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
@@ -321,14 +320,14 @@ def check_options(options: SimulateOptions) -> None:
     if len(set(colors)) < len(colors):
         twice = next(c for c in colors if colors.count(c) > 1)
         raise InputError(f"colors: {twice} is given twice", param="colors")
-    if not _integer(options.gt_every) or options.gt_every < 1:
+    if not is_integer(options.gt_every) or options.gt_every < 1:
         raise InputError(f"gt_every must be an integer ≥ 1, found {options.gt_every!r}", param="gt_every")
     blur = options.blur_fps
-    if isinstance(blur, bool) or not isinstance(blur, numbers.Real) or not 0 <= blur < math.inf:
+    if not is_number(blur) or not 0 <= blur < math.inf:
         raise InputError(
             f"blur_fps must be a finite number ≥ 0 (0 = no blur frames), found {blur!r}", param="blur_fps"
         )
-    if options.raw_width is not None and not _integer(options.raw_width):
+    if options.raw_width is not None and not is_integer(options.raw_width):
         raise InputError(
             f"raw_width must be an integer or None, found {options.raw_width!r}", param="raw_width"
         )
@@ -341,11 +340,6 @@ def check_options(options: SimulateOptions) -> None:
         )
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
-
-
-def _integer(value: object) -> bool:
-    """``value`` is an integer (Python's or numpy's), not a bool."""
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
 #: the ``config.yaml`` keys :func:`dataset_config` writes itself (``extra`` may add others, not replace them)
@@ -480,7 +474,7 @@ def simulate_dataset(
         ``out``. After an interruption, running again with the same source reuses the cached renders.
     """
     out = Path(out)
-    if not _integer(jobs) or jobs < 1:
+    if not is_integer(jobs) or jobs < 1:
         raise InputError(f"jobs must be an integer ≥ 1, found {jobs!r}", param="jobs")
     check_options(options)
     test = np.asarray(getattr(source, "test_poses", np.zeros((0, 4, 4))), dtype=np.float64).reshape(-1, 4, 4)

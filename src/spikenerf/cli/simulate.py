@@ -35,19 +35,12 @@ def _colors(color: str) -> tuple[str, ...]:
 
 def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
     """Number of spike steps from ``--frames`` / ``--duration`` (default 1000 steps)."""
-    from spikenerf.scenes.trajectory import MAX_STEPS
+    from spikenerf.scenes.trajectory import MAX_STEPS, path_steps
 
     if not 0 < fps < math.inf:
         raise InputError(f"--fps must be a finite number > 0, found {fps:g}")
     if duration is not None:
-        if not 0 < duration < math.inf:
-            raise InputError(f"--duration must be a finite number of seconds > 0, found {duration:g}")
-        if not duration * fps < MAX_STEPS:
-            raise InputError(
-                f"--duration {duration:g} s at --fps {fps:g} Hz is {duration * fps:.3g} steps, more than "
-                f"{MAX_STEPS:.3g}"
-            )
-        n = round(duration * fps)
+        n = path_steps(duration, fps)  # (a finite duration giving 1 to MAX_STEPS steps that memory holds)
         if frames is not None and frames != n:
             raise InputError(
                 f"--frames {frames} and --duration {duration:g} s at {fps:g} Hz ({n} steps) disagree"
@@ -205,7 +198,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     """A named scene or .blend on an orbit (with its novel test views) and the config entries it adds."""
     import numpy as np
 
-    from spikenerf.scenes.trajectory import ORBIT_RADIUS, held_out_elevations, novel_views, orbit
+    from spikenerf.scenes.trajectory import held_out_elevations, novel_views, orbit
 
     if kw["sequence_range"] is not None or kw["steps_per_frame"] is not None or kw["interpolate"]:
         raise InputError("--sequence-range, --steps-per-frame and --interpolate apply to --sequence only")
@@ -219,10 +212,6 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     elevation = registry.DEFAULT_ELEVATION if kw["elevation"] is None else float(kw["elevation"])
     turns = 1.0 if kw["turns"] is None else float(kw["turns"])
     sweep = 0.0 if kw["elevation_sweep"] is None else float(kw["elevation_sweep"])
-    given_radius = kw["radius"] is not None  # (a scene's own radius is orbit()'s to check)
-    if given_radius and not ORBIT_RADIUS[0] <= radius <= ORBIT_RADIUS[1]:
-        low, high = ORBIT_RADIUS
-        raise InputError(f"--radius must lie within [{low:g}, {high:g}] scene units, found {radius:g}")
     if not abs(elevation) < 90:  # at ±90° every step of the orbit would be the same pose
         raise InputError(f"--elevation must lie strictly between −90 and 90 degrees, found {elevation:g}")
     if sweep and (sweep < 0 or abs(elevation) + sweep / 2 >= 90):

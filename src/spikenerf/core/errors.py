@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numbers
 import os
 import re
 from collections.abc import Callable, Collection, Iterable, Sequence
@@ -76,6 +77,16 @@ def comma_list(
     if twice := next((n for i, n in enumerate(names) if n in names[:i]), None):
         raise InputError(f"{param or 'list'}: {twice} is given twice", param=param)
     return names
+
+
+def is_integer(value: object) -> bool:
+    """``value`` is an integer, Python's or numpy's (a bool is not, though Python counts it as one)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def is_number(value: object) -> bool:
+    """``value`` is a real number, Python's or numpy's, not a bool (NaN and inf are numbers: check them)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
 def as_path(value: object, param: str) -> Path:

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_number
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
 from spikenerf.fields.registry import FIELD_REGISTRY, build_field
 from spikenerf.render.base import RadianceModel
@@ -114,7 +114,7 @@ def check_bounds(near: float | None, far: float | None) -> None:
     for name, value in (("near", near), ("far", far)):
         if value is None:
             continue
-        number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+        number = is_number(value)
         if not number or not np.isfinite(value):
             raise InputError(f"{name} must be None or a finite number, found {value!r}", param=name)
     if near is not None and far is not None and not near < far:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 from spikenerf.core.limits import check_memory
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 from spikenerf.scenes.transforms import rigid_poses
@@ -225,7 +225,7 @@ def check_size(width: int, height: int, supersample: int, params: str = "width/h
     naming ``params`` (``core.limits.check_memory``) when a frame's ``width·height·supersample²`` rays
     (:data:`RAY_BYTES` each) need more memory than this machine has."""
     for name, value in (("width", width), ("height", height), ("supersample", supersample)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        if not is_integer(value) or value < 1:
             raise InputError(f"{name} must be an integer ≥ 1, got {value!r}", param=name)
     check_memory(float(width) * float(height) * float(supersample) ** 2 * RAY_BYTES, params)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 from spikenerf.scenes import analytic
 from spikenerf.scenes.base import FrameSource
 from spikenerf.scenes.trajectory import Trajectory
@@ -71,7 +71,7 @@ def format_scene_list() -> str:
 
 def supersample_for(spp: int) -> int:
     """Analytic supersampling factor ``s`` (``s × s`` rays per pixel) closest to ``spp`` samples per pixel."""
-    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+    if not is_integer(spp) or spp < 1:
         raise InputError(f"spp must be an integer ≥ 1, got {spp!r}", param="spp")
     return max(1, round(int(spp) ** 0.5))
 
@@ -138,13 +138,13 @@ def make_scene_source(
         raise InputError(
             f"trajectory must be a Trajectory (e.g. orbit(...)), found {trajectory!r:.60}", param="trajectory"
         )
-    rigid_poses(trajectory.poses, "trajectory")  # as the dataset loader will check them (transforms.json)
-    test_poses = rigid_poses(np.zeros((0, 4, 4)) if test_poses is None else test_poses, "test_poses")
     name = str(scene)
-    if name in analytic.SCENES:
+    if name in analytic.SCENES:  # (its source checks the poses, as below)
         ss = supersample_for(ANALYTIC_SPP if spp is None else spp)
         analytic.check_size(width, height, ss, "width/height/spp")
         return analytic.AnalyticSource(name, width, height, trajectory, test_poses, supersample=ss)
+    rigid_poses(trajectory.poses, "trajectory")  # as the dataset loader will check them (transforms.json)
+    test_poses = rigid_poses(np.zeros((0, 4, 4)) if test_poses is None else test_poses, "test_poses")
     _require_blender(name)
     try:
         from spikenerf.scenes.blender import BlenderSource

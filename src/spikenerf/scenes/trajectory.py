@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer, is_number
 from spikenerf.core.limits import check_memory
 
 
@@ -153,7 +153,7 @@ def orbit_angle_problem(elevation_deg: float, turns: float) -> str | None:
 def _number(value: object, param: str, limit: float, what: str = "", low: float | None = None) -> float:
     """``value`` as a float within [``low``, ``limit``] (``low`` None: within ±``limit``); InputError naming
     ``param`` otherwise (``what`` names the unit in the message, e.g. ``" degrees"``)."""
-    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    number = is_number(value)
     lo = -limit if low is None else low
     if not number or not lo <= value <= limit:  # (NaN fails too)
         bounds = f"±{limit:g}" if low is None else f"[{low:g}, {limit:g}]"
@@ -177,7 +177,7 @@ def path_steps(duration: float, fps: float) -> int:
     not a finite number > 0, there is not one step, more than :data:`MAX_STEPS`, or more than the memory at
     hand holds (:data:`ORBIT_STEP_BYTES` a step; ``core.limits``, skipped under ``no_limits``)."""
     for name, value in (("duration", duration), ("fps", fps)):
-        number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+        number = is_number(value)
         if not number or not 0 < value < math.inf:
             raise InputError(f"orbit: {name} must be finite and > 0, got {value!r}", param=name)
     try:  # as floats: numpy integers wrap around, a huge Python int does not fit a float
@@ -241,14 +241,14 @@ def orbit(
     """
     radius = _number(radius, "radius", ORBIT_RADIUS[1], " scene units", low=ORBIT_RADIUS[0])
     for name, value in (("elevation_deg", elevation_deg), ("turns", turns)):  # (range: orbit_angle_problem)
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        if not is_number(value):
             raise InputError(f"orbit: {name} must be a number, found {value!r}", param=name)
     start_azimuth_deg = _number(start_azimuth_deg, "start_azimuth_deg", MAX_AZIMUTH, " degrees")
     elevation_sweep_deg = _number(elevation_sweep_deg, "elevation_sweep_deg", MAX_SWEEP, " degrees")
     jitter = _number(jitter, "jitter", MAX_LENGTH, " scene units", low=0.0)
     shake = _number(shake, "shake", MAX_LENGTH, " scene units")
     shake_cycles = _number(shake_cycles, "shake_cycles", MAX_TURNS)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+    if not is_integer(seed) or seed < 0:
         raise InputError(f"seed must be an integer ≥ 0, got {seed!r}", param="seed")
     c = _center(center)
     if problem := orbit_angle_problem(elevation_deg, turns):  # named as this function's parameters
@@ -330,7 +330,7 @@ def novel_views(
         InputError: naming the parameter that is not a finite number in its range.
     """
     radius = _number(radius, "radius", ORBIT_RADIUS[1], " scene units", low=ORBIT_RADIUS[0])
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
+    if not is_integer(count) or count < 0:
         raise InputError(f"count must be an integer ≥ 0, found {count!r}", param="count")
     azimuth_offset_deg = _number(azimuth_offset_deg, "azimuth_offset_deg", MAX_AZIMUTH, " degrees")
     try:

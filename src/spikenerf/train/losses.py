@@ -15,12 +15,11 @@ See docs/method.md for the derivation.
 from __future__ import annotations
 
 import math
-import numbers
 
 import torch
 
 from spikenerf.camera.model import fire
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_number
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 from spikenerf.train.settings import SPIKE_LOSS_KINDS as SPIKE_LOSS_KINDS  # (defined there)
 from spikenerf.train.settings import PairMode
@@ -59,7 +58,7 @@ def check_threshold(threshold: float | torch.Tensor) -> None:
     compiled training step, where a numpy call would break the one graph (``tests/test_step_graph.py``)."""
     if isinstance(threshold, torch.Tensor):
         return
-    number = isinstance(threshold, numbers.Real) and not isinstance(threshold, bool)
+    number = is_number(threshold)
     if not (number and math.isfinite(threshold) and threshold > 0):
         raise InputError(f"threshold φ must be a finite number > 0, found {threshold!r}", param="threshold")
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import numbers
 import sys
 import time
 from collections.abc import Sequence
@@ -22,7 +21,7 @@ import torch
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError, as_path, one_line
+from spikenerf.core.errors import InputError, as_path, is_integer, one_line
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
@@ -215,7 +214,7 @@ def check_api_args(config: object, out: object, dataset: object) -> None:
 
 def check_stop_after(stop_after: object) -> None:
     """InputError naming ``stop_after`` unless it is None or an integer ≥ 1."""
-    integer = isinstance(stop_after, numbers.Integral) and not isinstance(stop_after, bool)
+    integer = is_integer(stop_after)
     if stop_after is not None and not (integer and stop_after >= 1):  # type: ignore[operator]
         raise InputError(
             f"stop_after must be None or an integer ≥ 1, found {stop_after!r}", param="stop_after"
