@@ -302,6 +302,13 @@ def test_train_eval_and_loaders_name_a_wrong_argument(tmp_path: Path) -> None:
     _params(lambda: load_run(None), "run_dir")  # type: ignore[arg-type]
     _params(lambda: load_dataset(""), "root")
     _params(lambda: evaluate_run(5), "run_dir")  # type: ignore[arg-type]
+    # its own parameter names (were the CLI's: mode, test_pose_lr), checked before the run is opened
+    missing = tmp_path / "no-run"
+    _params(lambda: evaluate_run(missing, noref="yes"), "noref", match="noref must be one of auto, on, off")
+    _params(lambda: evaluate_run(missing, test_pose=5), "test_pose")  # type: ignore[arg-type]
+    _params(lambda: evaluate_run(missing, test_pose=(-1, 1e-3)), "test_pose", match="iterations must be")
+    _params(lambda: evaluate_run(missing, test_pose=(2, 0.0)), "test_pose", match="learning rate must be")
+    assert not missing.exists()
     (tmp_path / "ds").mkdir()
     mark(tmp_path / "ds", "dataset")
     _params(lambda: Trainer(config, tmp_path / "ds"), "out", match="this is a dataset folder")

@@ -272,8 +272,9 @@ def test_test_pose_optimisation_is_reported_beside_the_plain_score(
     assert (
         abs(opt["mean"]["psnr"] - plain["mean"]["psnr"]) < 1.0
     )  # 3 small steps: scored at nearly the same poses
-    for flag, value in (("--test-pose-opt", "-1"), ("--test-pose-lr", "0")):
-        assert flag in _cli_error(capsys, "eval", run_dir, "--device", "cpu", flag, value)
+    for flag, value in (("--test-pose-opt", "-1"), ("--test-pose-lr", "0"), ("--test-pose-lr", "nan")):
+        err = _cli_error(capsys, "eval", run_dir, "--device", "cpu", "--test-pose-opt", "1", flag, value)
+        assert flag in err and "test_pose" not in err
     assert json.loads((run_dir / "metrics.json").read_text()) == data  # nothing rewritten on bad input
 
 

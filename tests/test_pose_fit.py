@@ -137,11 +137,13 @@ def test_same_seed_same_poses_and_another_seed_differs() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "param"),
     [
-        ({"steps": -1}, "test_pose_steps"),
-        ({"steps": 2.5}, "test_pose_steps"),
-        ({"lr": 0.0}, "test_pose_lr"),
-        ({"lr": float("nan")}, "test_pose_lr"),
-        ({"batch": 0}, "test_pose_batch"),
+        ({"steps": -1}, "steps"),
+        ({"steps": 2.5}, "steps"),
+        ({"steps": True}, "steps"),
+        ({"lr": 0.0}, "lr"),
+        ({"lr": float("nan")}, "lr"),
+        ({"lr": "0.1"}, "lr"),
+        ({"batch": 0}, "batch"),
     ],
 )
 def test_bad_settings_name_their_parameter(kwargs: dict, param: str) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -11,12 +12,7 @@ from spikenerf.cli.options import check_run_folder, chunk_option, precision_opti
 from spikenerf.cli.types import COUNT, BoundedInt, device_option
 
 #: lower-layer parameters (eval/noref.py) → the flags that set them
-PARAM_FLAGS = {
-    "steps": "--noref-steps",
-    "mode": "--noref",
-    "test_pose_steps": "--test-pose-opt",
-    "test_pose_lr": "--test-pose-lr",
-}
+PARAM_FLAGS = {"steps": "--noref-steps"}
 
 
 @click.command(
@@ -82,6 +78,8 @@ def command(
         raise InputError(f"{', '.join(given)}: set the no-reference checks, which --noref off turns off")
     if test_pose_opt == 0 and source("test_pose_lr") is ParameterSource.COMMANDLINE:
         raise InputError("--test-pose-lr sets the rate of --test-pose-opt N, which is off (0)")
+    if not (math.isfinite(test_pose_lr) and test_pose_lr > 0):  # evaluate_run names it test_pose
+        raise InputError(f"--test-pose-lr must be a finite number > 0, found {test_pose_lr!r}")
     check_run_folder(run)
     check_writable(run / metrics_file(split), param="RUN", file=True)  # before the renders, not after
     result = evaluate_run(

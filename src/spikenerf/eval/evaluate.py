@@ -31,7 +31,7 @@ from spikenerf.data.holdout import check_steps, read_record
 from spikenerf.data.targets import image_channels, window_steps
 from spikenerf.eval import lpips as lp
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
-from spikenerf.eval.noref import NoRefOptions, noref_metrics, wants_noref
+from spikenerf.eval.noref import NoRefOptions, check_noref, noref_metrics, wants_noref
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.render.model import render_mean
 from spikenerf.train.pose_fit import check_fit_args, fit_view_poses
@@ -235,7 +235,13 @@ def evaluate_run(
     run_dir = as_path(run_dir, "run_dir")
     noref_options = NoRefOptions() if noref_options is None else noref_options
     noref_options.check()
-    check_fit_args(test_pose[0], test_pose[1], POSE_BATCH)
+    check_noref(noref)
+    if not isinstance(test_pose, tuple | list) or len(test_pose) != 2:
+        raise InputError(
+            f"test_pose must be (iterations, learning rate), found {test_pose!r:.60}", param="test_pose"
+        )
+    names = ("test_pose iterations", "test_pose learning rate", "POSE_BATCH")
+    check_fit_args(test_pose[0], test_pose[1], POSE_BATCH, names)
     with output_lock(run_dir, "RUN"):
         if owned(run_dir):
             clean_stale_temps(run_dir)  # what a killed writer left (a train's checkpoint, an eval's metrics)

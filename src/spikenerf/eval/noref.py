@@ -74,12 +74,18 @@ class NoRefOptions:
         check_config(self)
 
 
-def wants_noref(mode: str, dataset: SpikeDataset, held: bool = False) -> bool:
-    """``auto``: on for an imported dataset (its config has an ``imported`` section) or a run that ``held``
-    steps out; ``on``/``off``."""
-    if mode not in NOREF_MODES:
-        raise InputError(f"mode must be one of {', '.join(NOREF_MODES)}, found {mode!r}", param="mode")
-    return mode == "on" or (mode == "auto" and (held or is_imported(dataset)))
+def check_noref(noref: object) -> str:
+    """``noref`` itself when it is one of :data:`NOREF_MODES`; else InputError naming ``noref``."""
+    if not isinstance(noref, str) or noref not in NOREF_MODES:
+        raise InputError(f"noref must be one of {', '.join(NOREF_MODES)}, found {noref!r}", param="noref")
+    return noref
+
+
+def wants_noref(noref: str, dataset: SpikeDataset, held: bool = False) -> bool:
+    """Whether the no-reference checks run: ``noref`` ``auto`` turns them on for an imported dataset (its
+    config has an ``imported`` section) or a run that ``held`` steps out; ``on``/``off`` decide alone."""
+    noref = check_noref(noref)
+    return noref == "on" or (noref == "auto" and (held or is_imported(dataset)))
 
 
 def windows_in_guard(steps: Any, length: int, total: int, radius: Any) -> bool:

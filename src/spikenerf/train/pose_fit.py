@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer, is_number
 from spikenerf.data.rays import pixel_rays
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.model import ray_bounds
@@ -52,14 +52,19 @@ class PoseFit:
     loss_last: float
 
 
-def check_fit_args(steps: int, lr: float, batch: int) -> None:
-    """InputError naming the parameter when ``steps`` < 0, ``lr`` is not finite > 0 or ``batch`` < 1."""
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
-        raise InputError(f"test_pose_steps must be an integer ≥ 0, found {steps!r}", param="test_pose_steps")
-    if not (isinstance(lr, int | float) and math.isfinite(lr) and lr > 0):
-        raise InputError(f"test_pose_lr must be a finite number > 0, found {lr!r}", param="test_pose_lr")
-    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-        raise InputError(f"test_pose_batch must be an integer ≥ 1, found {batch!r}", param="test_pose_batch")
+def check_fit_args(
+    steps: int, lr: float, batch: int, names: tuple[str, str, str] = ("steps", "lr", "batch")
+) -> None:
+    """InputError when ``steps`` < 0, ``lr`` is not finite > 0 or ``batch`` < 1, naming the value as in
+    ``names`` (the caller's own parameters; the error's ``param`` is the name's first word)."""
+    problems = (
+        (not is_integer(steps) or steps < 0, "an integer ≥ 0", steps),
+        (not (is_number(lr) and math.isfinite(lr) and lr > 0), "a finite number > 0", lr),
+        (not is_integer(batch) or batch < 1, "an integer ≥ 1", batch),
+    )
+    for name, (bad, wanted, value) in zip(names, problems, strict=True):
+        if bad:
+            raise InputError(f"{name} must be {wanted}, found {value!r}", param=name.split()[0])
 
 
 def fit_view_poses(
