@@ -250,6 +250,27 @@ def test_readme_python_example_runs(tmp_path: Path, monkeypatch, capsys) -> None
     ).is_file()
 
 
+def test_the_python_api_page_runs_as_one_script(tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+    """Every ```python block of docs/python-api.md, in order, in one namespace (the page says so)."""
+    text = (DOCS / "python-api.md").read_text()
+    blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.MULTILINE | re.DOTALL)
+    assert len(blocks) >= 7
+    monkeypatch.chdir(tmp_path)
+    namespace: dict[str, object] = {"__name__": "python_api_page"}
+    for i, block in enumerate(blocks):
+        exec(compile(block, f"docs/python-api.md block {i + 1}", "exec"), namespace)
+    out = capsys.readouterr().out.splitlines()
+    errors = {name: float(out_line.split()[2]) for out_line in out for name in ("TFP", "TFI")
+              if out_line.startswith(f"{name} error")}  # fmt: skip
+    assert errors["TFP"] < 0.06 and errors["TFI"] < 0.2, out  # the reconstructions see the ramp
+    assert "20 iterations so far" in out and any(line.startswith("40 iterations, test PSNR") for line in out)
+    assert "(32, 32, 1) (100, 32, 32)" in out  # a view and a 100-step novel stream of the 32×32 scene
+    rendered = namespace["rendered"]
+    assert rendered.grad is not None and rendered.grad.abs().sum() > 0  # type: ignore[attr-defined]
+    assert out[-1].startswith("ramp.dat: file size") and "23 high" in out[-1], out[-1]  # the Errors block
+    assert (tmp_path / "run" / "metrics.json").is_file() and (tmp_path / "novel.dat").is_file()
+
+
 @pytest.mark.parametrize("page", ["getting-started.md", "index.md", "results.md", "real-data.md"])
 def test_the_readme_reaches_the_user_pages(page: str) -> None:
     assert f"](docs/{page}" in (ROOT / "README.md").read_text()
