@@ -467,7 +467,8 @@ def test_interpolated_counts_stay_within_two_thresholds_and_beat_the_plain_count
 def test_the_default_window_spans_at_most_its_pixels_of_motion(
     motion: float, samples: int, length: int
 ) -> None:
-    from spikenerf.train.methods import INTEGRAL_SPAN_PX, default_window
+    from spikenerf.train.methods import default_window
+    from spikenerf.train.settings import INTEGRAL_SPAN_PX
 
     assert default_window(motion, samples) == length
     if samples == 1 and 2 * motion <= INTEGRAL_SPAN_PX < 5 * motion:  # the longest window that fits the span
@@ -503,7 +504,8 @@ def test_a_run_records_the_window_its_dataset_chose_and_resumes_with_it(
 def test_tracks_are_the_default_where_the_motion_shortens_the_window(
     motion: float, options: dict, half: int
 ) -> None:
-    from spikenerf.train.methods import TRACK_HALF, default_track
+    from spikenerf.train.methods import default_track
+    from spikenerf.train.settings import TRACK_HALF
 
     assert TRACK_HALF == 5 and default_track(motion, **options) == half
 
@@ -514,7 +516,7 @@ def test_a_run_records_its_default_track_and_a_run_from_before_tracks_resumes_wi
     """An image that moves 0.48 px a step (3-step windows; the fixture's, 16 px wide, moves less): tracks on
     by default (held-out steps too), recorded; off where it moves less; a run whose config.yaml has no
     ``track`` (written before it existed) resumes with none."""
-    import spikenerf.train.methods as methods
+    import spikenerf.train.methods.integral as methods
 
     cfg = test_train._config(dataset_dir, method="spike-integral")
     assert cfg.integral.track is None

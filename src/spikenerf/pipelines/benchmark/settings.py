@@ -25,13 +25,8 @@ from spikenerf.core.errors import InputError
 from spikenerf.fields.grid import native_bf16
 from spikenerf.fields.registry import field_config
 from spikenerf.train.config import TrainConfig
-from spikenerf.train.methods import (
-    INTEGRAL_SAMPLES,
-    INTEGRAL_SPAN_PX,
-    INTEGRAL_WINDOW,
-    TRACK_HALF,
-    SpikeIntegral,
-)
+from spikenerf.train.methods import SpikeIntegral
+from spikenerf.train.settings import INTEGRAL_SAMPLES, INTEGRAL_SPAN_PX, INTEGRAL_WINDOW, TRACK_HALF
 
 NAME = "benchmark.json"
 #: field-config entries added after folders were started, with the value that trains as before they
