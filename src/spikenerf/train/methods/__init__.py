@@ -26,7 +26,8 @@ TFP target at S poses spread over its window and average them (window-aware targ
 ``default_batch``, ``learns_poses``) and its own config rules (:meth:`TrainMethod.check`, which
 ``TrainConfig.validate`` calls), listed once in :data:`METHOD_CLASSES`; ``TrainConfig``, the CLI's
 ``--method`` choices, :func:`make_method` and the benchmark read that table. Adding a method is a class
-(a module of this package), its entry in :data:`METHOD_CLASSES` and its name in the ``Method`` Literal (docs/architecture.md).
+(a module of this package), its entry in :data:`METHOD_CLASSES` and its name in the ``Method`` Literal
+(docs/architecture.md).
 """
 
 from __future__ import annotations
