@@ -11,6 +11,7 @@ something else.
 from __future__ import annotations
 
 import sys
+import warnings
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -34,8 +35,10 @@ def constant_result(fn: F) -> F:
 
 def prepare_compile() -> None:
     """Pass the functions :func:`constant_result` marked to ``torch.compiler.assume_constant_result``
-    (imports Dynamo). Call it before ``torch.compile``."""
+    (imports Dynamo), and mute torch's two-line advice on Python 3.13.0 (slower guards, fixed in 3.13.1):
+    a compiled run warns in one line of ours. Call it before ``torch.compile``."""
     import torch
 
+    warnings.filterwarnings("ignore", message="Guards may run slower on Python 3.13", category=RuntimeWarning)
     while _PENDING:
         torch.compiler.assume_constant_result(_PENDING.pop())
