@@ -8,14 +8,13 @@ sps10 files, 416) when present. Every other key is ignored. This is the one read
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
 from spikenerf.camera.io import LAYOUTS
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite
 from spikenerf.core.yamlio import load_yaml
 
 CONFIG_NAME = "config.yaml"
@@ -48,7 +47,7 @@ def _value(data: dict, key: str, path: Path, integer: bool) -> float | int | Non
     if data.get(key) is None:
         return None
     v = data[key]
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+    ok = isinstance(v, (int, float)) and is_finite(v) and v > 0
     if not ok or (integer and v != int(v)):
         kind = "a positive integer" if integer else "a positive number"
         raise InputError(f"field {key!r}: expected {kind}, found {v!r}", path=path)

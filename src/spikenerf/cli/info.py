@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 
 import click
@@ -61,7 +62,7 @@ def describe_frames(folder: Path) -> str:
 
     try:
         shape = iio.improps(frames[0]).shape
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, SyntaxError, struct.error) as err:  # (Pillow: SyntaxError, struct.error)
         raise InputError(f"unreadable PNG ({type(err).__name__})", path=frames[0]) from err
     return (
         f"reconstruct frame folder: {len(frames)} frame{'s' if len(frames) > 1 else ''} "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import numbers
 import os
 import re
@@ -87,6 +88,15 @@ def is_integer(value: object) -> bool:
 def is_number(value: object) -> bool:
     """``value`` is a real number, Python's or numpy's, not a bool (NaN and inf are numbers: check them)."""
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def is_finite(value: object) -> bool:
+    """``value`` is a finite real number (:func:`is_number`); an int too large for a float (``10**400`` in a
+    JSON file) is not one (``math.isfinite`` raises OverflowError on it)."""
+    try:
+        return is_number(value) and math.isfinite(value)  # type: ignore[arg-type]
+    except OverflowError:
+        return False
 
 
 def as_path(value: object, param: str) -> Path:

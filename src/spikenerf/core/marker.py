@@ -71,7 +71,7 @@ def listed(folder: str | Path) -> list[str]:
 def _marker(folder: Path) -> dict:
     try:
         data = json.loads((folder / MARKER).read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return {}
     return data if isinstance(data, dict) else {}
 

@@ -50,5 +50,12 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 def load_yaml(text: str) -> Any:
     """``yaml.safe_load(text)``, but a mapping that repeats a key raises ``yaml.YAMLError`` (the key and the
-    line of its second use in the message)."""
-    return yaml.load(text, Loader=_UniqueKeyLoader)
+    line of its second use in the message), and so do what PyYAML raises as other types: a structure nested
+    beyond Python's stack (RecursionError), an integer beyond Python's digit limit or an impossible date
+    (ValueError)."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
+    except RecursionError:
+        raise yaml.YAMLError("nested too deeply to read") from None
+    except ValueError as err:  # (``int()`` of 5000 digits, ``2020-13-01`` read as a date)
+        raise yaml.YAMLError(f"unreadable value: {err}") from None

@@ -7,12 +7,15 @@ sRGB-encoded linear radiance clipped to [0, 1]; every array handed out is linear
 
 from __future__ import annotations
 
+import struct
+import tokenize
 from dataclasses import dataclass
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
 import yaml
+from PIL import Image
 
 from spikenerf.camera.io import count_frames, read_dat, rgb_paths
 from spikenerf.camera.modes import COLORS
@@ -68,7 +71,8 @@ def read_display(path: Path) -> np.ndarray:
     try:
         data = path.read_bytes()
         arr = decode_png16(data, path) if is_png16(data) else np.asarray(iio.imread(data))
-    except (OSError, ValueError, SyntaxError) as err:  # Pillow raises SyntaxError for a broken PNG
+    except (OSError, ValueError, SyntaxError, struct.error, Image.DecompressionBombError) as err:
+        # (Pillow raises SyntaxError, struct.error or DecompressionBombError for a broken or huge PNG)
         if isinstance(err, InputError):
             raise
         raise InputError(f"cannot read image ({err})", path=path) from err
@@ -223,9 +227,9 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
             raise InputError(f"field {where}'index': expected {i}, found {f.get('index')!r}", path=path)
         if blur:
             s0, s1 = (number(f, key, path, where) for key in ("step_start", "step_end"))
-            if not (s0 == int(s0) and s1 == int(s1) and 0 <= s0 < s1):
+            if not (s0 == int(s0) and s1 == int(s1) and 0 <= s0 < s1 < 2**63):  # (int64 steps)
                 raise InputError(
-                    f"fields {where}step_start/step_end: expected integers 0 ≤ a < b, found {s0}, {s1}",
+                    f"fields {where}step_start/step_end: expected integers 0 ≤ a < b < 2⁶³, found {s0}, {s1}",
                     path=path,
                 )
             ranges.append((int(s0), int(s1)))
@@ -241,7 +245,7 @@ def _image_array(root: Path, data: dict, path: Path, shape: tuple[int, ...]) -> 
     target = _file(root, {"file_path": data["images_npy"]}, path, "")
     try:
         array = np.load(target, mmap_mode="r", allow_pickle=False)
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, EOFError, tokenize.TokenError) as err:  # (EOF, TokenError: a cut header)
         raise InputError(f"cannot read the image array ({err})", path=target) from err
     if array.shape != shape or array.dtype not in (np.float16, np.float32):
         raise InputError(
@@ -304,7 +308,7 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
         if len(times) > 1 and not times[-1] > times[-2]:
             raise InputError(f"field {where}'time': expected increasing times, found {times[-1]}", tpath)
         step = number(f, "step", tpath, where)
-        if step != int(step) or (steps and step <= steps[-1]):
+        if step != int(step) or not abs(step) < 2**63 or (steps and step <= steps[-1]):  # (int64 steps)
             raise InputError(f"field {where}'step': expected increasing integers, found {step}", path=tpath)
         steps.append(int(step))
         if "file_path" in f:

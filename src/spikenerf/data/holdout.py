@@ -135,7 +135,7 @@ def read_record(run_dir: str | Path) -> dict[str, Any] | None:
         return None
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as err:  # (UnicodeDecodeError and JSONDecodeError are ValueErrors)
+    except (OSError, ValueError, RecursionError) as err:  # (UnicodeDecodeError, JSONDecodeError: ValueErrors)
         raise InputError(f"malformed hold-out record ({type(err).__name__}: {err})", path=path) from None
     if not isinstance(data, dict):
         raise InputError(f"malformed hold-out record (expected an object, found {type(data).__name__})", path)
@@ -157,8 +157,9 @@ def read_record(run_dir: str | Path) -> dict[str, Any] | None:
 
 
 def _count(value: object) -> bool:
-    """Whether ``value`` is an integer ≥ 0 (a JSON true is none)."""
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+    """Whether ``value`` is an integer ≥ 0 (a JSON true is none) that an int64 holds (the steps index numpy
+    arrays: 10**400 was an OverflowError there)."""
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value < 2**63
 
 
 def make_holdout(dataset: SpikeDataset, on: bool | None, count: int, radius: int) -> Holdout | None:

@@ -31,7 +31,7 @@ from spikenerf.data.dataset import (
 )
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.scenes.trajectory import image_motion
-from spikenerf.scenes.transforms import read_transforms
+from spikenerf.scenes.transforms import number, read_transforms
 
 PREVIEW = "preview.png"
 #: TFP window of the preview (frames), shortened for streams with fewer steps
@@ -91,7 +91,7 @@ def view_counts(root: str | Path) -> dict:
         blur = [f for f in blur if isinstance(f, dict) and f.get("file_path") in train]
     try:
         config = load_yaml((root / CONFIG).read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError):
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
         config = {}
     return {
         "steps": len(frames),
@@ -152,7 +152,10 @@ def describe(path: str | Path) -> str:
     if ds.blur is not None and len(ds.blur):
         span = ds.blur.step_ranges[:, 1] - ds.blur.step_ranges[:, 0]
         steps = f"{int(span.min())}" if span.min() == span.max() else f"{int(span.min())}–{int(span.max())}"
-        rate = read_transforms(path / TRANSFORMS_BLUR).get("fps") or traj.fps / int(span.max())  # as realised
+        blur_meta = read_transforms(path / TRANSFORMS_BLUR)
+        rate = traj.fps / int(span.max())  # as realised, where the file gives no rate
+        if blur_meta.get("fps") is not None:
+            rate = number(blur_meta, "fps", path / TRANSFORMS_BLUR, positive=True)
         starts, ends = ds.blur.step_ranges[:, 0], ds.blur.step_ranges[:, 1]
         overlap = bool(np.any(starts[1:] < ends[:-1]))  # blur_views all: one exposure centred on each step
         lines.append(

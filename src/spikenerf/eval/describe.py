@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 
 
 def number(value: float | None, digits: int) -> str:
@@ -83,10 +83,16 @@ def metrics_lines(path: Path, done: int) -> list[str]:
         text = path.read_text()
     except OSError as err:
         raise InputError(f"cannot read it ({err.strerror or err})", path=path) from err
+    except UnicodeDecodeError as err:
+        raise InputError(
+            f"malformed metrics (not text: {err}); run eval again to rewrite it", path=path
+        ) from err
     try:
         result = json.loads(text)
         if not isinstance(result, dict):
             raise TypeError(f"expected a JSON object, found {type(result).__name__}")
+        if not (is_integer(result["views"]) and result["views"] >= 0):
+            raise TypeError(f"views is {json.dumps(result['views']):.40}, not a count")
         views = f"{result['views']} view{'' if result['views'] == 1 else 's'}"
         scored = f"{path.name} ({result['split']}, {views}{per_view(result)})"
         if isinstance(scored_at := result.get("iterations"), int) and scored_at < done:
@@ -96,6 +102,6 @@ def metrics_lines(path: Path, done: int) -> list[str]:
         lines += [own + line for line in (pose_fit_line(result), noref_line(result)) if line]
     except KeyError as err:
         raise InputError(f"malformed metrics: no {err}; run eval again to rewrite it", path=path) from err
-    except (ValueError, TypeError, AttributeError) as err:
+    except (ValueError, TypeError, AttributeError, OverflowError, RecursionError) as err:
         raise InputError(f"malformed metrics ({err}); run eval again to rewrite it", path=path) from err
     return lines

@@ -22,7 +22,9 @@ import hashlib
 import io
 import json
 import shutil
+import tokenize
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +38,10 @@ from spikenerf.data.recon_cache import stream_digest
 CACHE = ".render-cache"
 #: steps between two saved spike states: the state (float32 accumulators) costs 32 steps' packed spikes
 SPIKE_STATE_EVERY = 32
-#: what reading a damaged ``.npz`` raises (a cut zip, a missing member, a bad header)
-UNREADABLE = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile)
+#: what reading a damaged cache file raises (a cut zip, a missing member, a bad header; a changed deflate
+#: stream: zlib.error; a cut .npy header: TokenError; JSON nested beyond the stack; a step count of inf)
+UNREADABLE = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, zlib.error,
+              tokenize.TokenError, RecursionError, OverflowError)  # fmt: skip
 
 
 def digest_array(array: np.ndarray | torch.Tensor) -> str:
@@ -89,7 +93,7 @@ class RenderCache:
             stored = json.loads((root / "key.json").read_text())
             kept = stored["key"] == wanted and set(stored["pinned"]) == set(given)
             kept = kept and all(type(stored["pinned"][k]) is type(v) for k, v in given.items())
-        except (OSError, UnicodeDecodeError, ValueError, TypeError, KeyError):
+        except UNREADABLE:
             kept = False
         if not kept:
             _remove(root)
@@ -106,14 +110,23 @@ class RenderCache:
     def _view_path(self, index: int) -> Path:
         return self.root / "views" / f"{index:05d}.npz"
 
-    def view(self, index: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """(colour uint8, depth, opacity) of view ``index`` if cached whole at ``size`` (H, W); else None."""
+    def view(
+        self, index: int, size: tuple[int, int], channels: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(colour uint8, depth, opacity) of view ``index`` if cached whole at ``size`` (H, W); else None.
+        ``channels`` (1 or 3, where given): the colour's, (H, W) or (H, W, 3); depth and opacity are (H, W)
+        float32 then."""
         try:
             with np.load(self._view_path(index)) as data:
                 found = data["color"], data["depth"], data["opacity"]
         except UNREADABLE:
             return None
         if any(a.shape[:2] != size for a in found) or found[0].dtype != np.uint8:
+            return None
+        if channels is not None and (
+            found[0].shape != (size if channels == 1 else (*size, 3))
+            or any(a.shape != size or a.dtype != np.float32 for a in found[1:])
+        ):
             return None
         return found
 

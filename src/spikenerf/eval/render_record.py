@@ -39,7 +39,7 @@ def read_render_record(folder: Path) -> dict[str, Any] | None:
         return None
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as err:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # (nested beyond the stack)
         raise _malformed(path, f"{type(err).__name__}: {err}") from None
     if not isinstance(record, dict):
         raise _malformed(path, f"expected a JSON object, found {type(record).__name__}")

@@ -49,7 +49,7 @@ from spikenerf.core.marker import check_output, mark
 from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path, spike_files
 from spikenerf.data.reconstruction import frame_at
-from spikenerf.eval.render_cache import CACHE, RenderCache, cache_bytes, digest_array, render_key
+from spikenerf.eval.render_cache import CACHE, UNREADABLE, RenderCache, cache_bytes, digest_array, render_key
 from spikenerf.eval.render_record import read_render_record
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.render.model import render_image
@@ -302,7 +302,7 @@ def _listed_files(out: Path) -> list[object]:
     if (record := read_render_record(out)) is not None:
         files = record.get("files") or {}
         listed += [files.get("video"), *(files.get("spikes") or [])]
-    with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+    with contextlib.suppress(*UNREADABLE):
         listed += list(json.loads((out / CACHE / "key.json").read_text())["plan"])
     return listed
 
@@ -370,7 +370,7 @@ def render_views(
     for i, pose in enumerate(
         progress_bar(path.poses, desc=f"render {path.name}", unit="view", show=progress)
     ):
-        found = cache.view(i, (k.height, k.width))
+        found = cache.view(i, (k.height, k.width), model.channels)
         if found is None:
             r = render_image(model, pose, k, path.near, path.far, chunk, precision)
             found = (

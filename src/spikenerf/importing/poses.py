@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 import tempfile
+import tokenize
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,6 +56,29 @@ class PoseSet:
     focus: np.ndarray | None = None
 
 
+#: coordinates at or beyond this are absurd (NaN-free, but the unit-box fit of 1e308 overflows to inf)
+FAR_LIMIT = 1e12
+
+
+#: focal lengths beyond these multiples of the image's larger side are absurd (a field of view under 1e-4°,
+#: or within 1e-4° of 180°): a camera of 1e308 in a pose file would be kept, seeing nothing
+FOCAL_RANGE = (1e-6, 1e6)
+
+
+def check_camera(w: float, h: float, focals: list[float], what: str, path: Path) -> None:
+    """InputError naming ``path`` unless the positive size ``w``×``h`` is below 2**31 pixels a side and each
+    focal length lies within :data:`FOCAL_RANGE` times its larger side."""
+    side = max(w, h)
+    if not (side < 2**31 and all(FOCAL_RANGE[0] <= f / side <= FOCAL_RANGE[1] for f in focals)):
+        lo, hi = FOCAL_RANGE
+        focal = ", ".join(f"{f:g}" for f in focals)
+        raise InputError(
+            f"{what}: an absurd camera ({w:g}×{h:g} pixels, focal length {focal}): expected sides below "
+            f"2**31 and a focal length {lo:g} to {hi:g} times the larger side",
+            path=path,
+        )
+
+
 def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) -> np.ndarray:
     """Poses as float64 (N, 4, 4); InputError on NaN/inf, a singular rotation or fewer than ``minimum``."""
     poses = np.asarray(poses, dtype=np.float64)
@@ -65,6 +89,8 @@ def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) ->
         raise InputError(f"{bad} of {len(poses)} poses hold NaN or infinite values", path=path)
     if len(poses) < minimum:
         raise InputError(f"found {len(poses)} poses, need at least {minimum} to interpolate", path=path)
+    if not (np.abs(poses[:, :3, 3]) < FAR_LIMIT).all():  # 1e308 overflowed the unit-box fit to inf
+        raise InputError(f"poses hold absurdly distant camera positions (≥ {FAR_LIMIT:g})", path=path)
     off = transforms.rotation_error(poses[:, :3, :3])  # the dataset loader's own test
     if (off > transforms.ROTATION_TOL).any():
         i = int(np.argmax(off))
@@ -180,6 +206,7 @@ def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
     if not all(math.isfinite(p) for p in params[2:4]):
         found = ", ".join(map(str, params[2:4]))
         raise InputError(f"camera {fields[0]}: principal point cx, cy must be finite, found {found}", path)
+    check_camera(w, h, params[:2], f"camera {fields[0]}", path)
     return Intrinsics(w, h, *params[:4])
 
 
@@ -204,7 +231,7 @@ def read_colmap_text(folder: Path) -> PoseSet:
         raise InputError(f"malformed point coordinates ({err})", path=pts_path) from err
     if not cams:
         raise InputError("no cameras in cameras.txt", path=folder)
-    if pts and not (np.abs(np.asarray(pts)) < 1e12).all():  # NaN, inf or absurd: the box would be meaningless
+    if pts and not (np.abs(np.asarray(pts)) < FAR_LIMIT).all():  # NaN, inf or absurd: a meaningless box
         raise InputError("points3D.txt holds NaN, infinite or absurdly distant points", path=pts_path)
     pose_rows.sort(key=lambda r: r[9])
     quats = np.array([[float(v) for v in r[1:5]] for r in pose_rows]).reshape(-1, 4)
@@ -258,10 +285,10 @@ def read_colmap_model(folder: Path) -> PoseSet:
 # ------------------------------------------------------------------------------------------------- LLFF
 def read_poses_bounds(path: Path) -> PoseSet:
     """LLFF ``poses_bounds.npy``: (N, 17) rows: 3×5 [R | t | (h, w, f)] (axes down, right, back), bounds."""
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise InputError(f"cannot read a .npy array ({err})", path=path) from err
+    try:  # mapped: a header asking for more than the file holds is refused, not allocated (MemoryError)
+        arr = np.array(np.load(path, mmap_mode="r", allow_pickle=False))
+    except (OSError, ValueError, EOFError, tokenize.TokenError) as err:  # (EOF, TokenError: a cut header)
+        raise InputError(f"cannot read a .npy array ({type(err).__name__}: {err})", path=path) from err
     if arr.dtype.kind not in "iuf":  # bool, complex, strings, structured: not LLFF numbers
         raise InputError(f"expected an array of real numbers, found dtype {arr.dtype}", path=path)
     if arr.ndim != 2 or arr.shape[1] != 17:
@@ -275,9 +302,11 @@ def read_poses_bounds(path: Path) -> PoseSet:
     poses[:, :3, 0], poses[:, :3, 1], poses[:, :3, 2] = m[:, :, 1], -m[:, :, 0], m[:, :, 2]
     poses[:, :3, 3] = m[:, :, 3]
     h, w, f = (float(v) for v in m[0, :, 4])
+    if min(h, w, f) > 0:
+        check_camera(w, h, [f], "column 4 (h, w, focal)", path)
     k = Intrinsics(round(w), round(h), f, f, w / 2, h / 2) if min(h, w, f) > 0 else None
     near, far = float(arr[:, 15].min()), float(arr[:, 16].max())
-    bounds = (near, far) if 0 < near < far else None  # columns 15-16: the scene's depth range per view
+    bounds = (near, far) if 0 < near < far < FAR_LIMIT else None  # columns 15-16: the depth range per view
     return PoseSet(check_poses(poses, path), None, k, depth_bounds=bounds)
 
 

@@ -126,7 +126,7 @@ def _read_json(path: Path) -> dict:
     """A JSON object file; {} where it is missing, unreadable or not an object."""
     try:
         data = json.loads(path.read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return {}
     return data if isinstance(data, dict) else {}
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from spikenerf.core.errors import InputError
-from spikenerf.recon.store import read_manifest
+from spikenerf.recon.store import MANIFEST, read_manifest
 
 
 def describe_pairs(root: str | Path) -> str:
@@ -21,6 +21,10 @@ def describe_pairs(root: str | Path) -> str:
     config = manifest["config"]
     shards = {split: len(list((root / split).glob("shard-*.npz"))) for split in ("train", "val")}
     modes, noises = config.get("modes", []), config.get("noises", [])
+    for key, value in (("config.noises", noises), ("val_scenes", manifest.get("val_scenes", []))):
+        if not isinstance(value, list):  # (a list in what recon-data writes: shown joined)
+            problem = f"{key} must be a list, found {json.dumps(value):.40}"
+            raise InputError(f"malformed {MANIFEST}: {problem}", path=root / MANIFEST)
     lines = [
         f"recon-data pair folder: {config['size']}×{config['size']} pairs of a {config['window']}-step "
         f"window; colour {', '.join(map(str, modes))}; noise {', '.join(map(str, noises))}",
@@ -82,7 +86,7 @@ def _json(path: Path) -> dict[str, Any]:
         return {}
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as err:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # (nested beyond the stack)
         raise InputError(f"malformed JSON ({type(err).__name__})", path=path) from err
     if not isinstance(data, dict):
         raise InputError("malformed JSON (not an object)", path=path)

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import io
 import json
+import tokenize
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,8 +26,19 @@ from spikenerf.recon.pairs import Sample
 
 MANIFEST = "manifest.json"
 SPLITS = ("train", "val")
-#: what reading a damaged ``.npz`` raises (a cut zip, a missing member, a bad header, a foreign ``info``)
-UNREADABLE = (OSError, KeyError, ValueError, TypeError, EOFError, zipfile.BadZipFile)
+#: what reading a damaged ``.npz`` raises (a cut zip, a missing member, a bad header, a foreign ``info``; a
+#: changed deflate stream: zlib.error; a cut .npy header: TokenError; an ``info`` nested too deeply)
+UNREADABLE = (
+    OSError,
+    KeyError,
+    ValueError,
+    TypeError,
+    EOFError,
+    zipfile.BadZipFile,
+    zlib.error,
+    tokenize.TokenError,
+    RecursionError,
+)
 
 
 def shard_path(root: Path, split: str, index: int) -> Path:
@@ -138,7 +151,7 @@ def read_manifest(root: str | Path) -> dict:
         raise InputError("not a pair folder written by `spikenerf recon-data` (no manifest.json)", path=root)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (ValueError, UnicodeDecodeError) as err:  # JSONDecodeError is a ValueError
+    except (ValueError, RecursionError) as err:  # (JSONDecodeError, UnicodeDecodeError: ValueErrors)
         raise InputError(f"corrupt manifest.json ({type(err).__name__})", path=path) from err
     if not isinstance(data, dict):
         raise InputError("corrupt manifest.json (not a JSON object)", path=path)

@@ -21,7 +21,7 @@ import torch
 
 from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.csvtable import read_table
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite, is_integer, is_number
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, discard_fresh, fresh_state, mark, owned
@@ -261,13 +261,24 @@ def _resume(
     if not (out / "checkpoint.pt").is_file():
         return 0, 0.0, float("nan")
     data = read_torch(out / "checkpoint.pt", "checkpoint", CHECKPOINT_FORMAT)
-    if data.get("pairs", pairs[0]) not in pairs:  # absent from older checkpoints
+    it, elapsed, running = (
+        data.get("iteration", 0),
+        data.get("elapsed", 0.0),
+        data.get("running_l1", math.nan),
+    )
+    if not (
+        is_integer(it) and it >= 0 and is_finite(elapsed) and elapsed >= 0
+        and (is_finite(running) or (is_number(running) and running != running))  # (NaN: no step yet)
+    ):  # fmt: skip
+        found = f"iteration {it!r:.40}, elapsed {elapsed!r:.40}, running_l1 {running!r:.40}"
+        raise InputError(f"malformed checkpoint ({found})", path=out / "checkpoint.pt")
+    if not isinstance(data.get("pairs", pairs[0]), str) or data.get("pairs", pairs[0]) not in pairs:
         raise InputError(
             "out holds a run trained on another pair folder (its manifest differs)", path=out, param="out"
         )
-    if int(data.get("iteration", 0)) > cfg.iters:
+    if it > cfg.iters:
         raise InputError(
-            f"out holds a run of {int(data['iteration'])} iterations, more than iters {cfg.iters}; pass "
+            f"out holds a run of {it} iterations, more than iters {cfg.iters}; pass "
             "at least that many, or use a new folder",
             path=out,
             param=("out", "iters"),
@@ -292,11 +303,11 @@ def _resume(
         net.load_state_dict(data["model"])
         opt.load_state_dict(data["optimizer"])
         gen.set_state(data["rng"])
-    except (KeyError, RuntimeError, ValueError, TypeError) as err:
+    except (KeyError, RuntimeError, ValueError, TypeError, AttributeError, OverflowError) as err:  # (None)
         raise InputError(
             f"checkpoint does not fit this reconstructor ({type(err).__name__})", path=out
         ) from err
-    return int(data["iteration"]), float(data.get("elapsed", 0.0)), float(data.get("running_l1", "nan"))
+    return int(it), float(elapsed), float(running)
 
 
 def _curves(out: Path, start: int) -> list[list]:

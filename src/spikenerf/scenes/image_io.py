@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import struct
+import tokenize
 from collections.abc import Iterator
 from pathlib import Path, PureWindowsPath
 
@@ -56,7 +58,15 @@ def _reading(path: Path) -> Iterator[None]:
         raise
     except FileNotFoundError as err:
         raise InputError("image file not found", path=path) from err
-    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as err:
+    except (
+        OSError,
+        ValueError,
+        SyntaxError,
+        EOFError,
+        struct.error,
+        tokenize.TokenError,
+        Image.DecompressionBombError,
+    ) as err:  # (a cut .npy header: EOF, TokenError; Pillow: struct)
         raise InputError(f"cannot read image ({err})", path=path) from err
 
 
@@ -65,7 +75,7 @@ def _read_array(path: Path) -> np.ndarray:
     suffix = path.suffix.lower()
     with _reading(path):
         if suffix == ".npy":
-            arr = np.load(path, allow_pickle=False)
+            arr = np.array(np.load(path, mmap_mode="r", allow_pickle=False))  # (a header's size: checked)
             if not np.issubdtype(arr.dtype, np.floating):
                 raise InputError(f".npy images must hold linear floats, found dtype {arr.dtype}", path=path)
             return arr

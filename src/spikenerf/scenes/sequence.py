@@ -9,7 +9,6 @@ steps ``i·s … i·s + s − 1`` (``s = steps_per_frame``): held by default, or
 from __future__ import annotations
 
 import contextlib
-import math
 import sys
 import warnings
 from collections.abc import Iterator, Sequence
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite, is_integer
 from spikenerf.core.limits import check_memory
 from spikenerf.scenes import transforms
 from spikenerf.scenes.image_io import find_image, image_size, load_frame
@@ -265,8 +264,10 @@ def _dataset_hint(err: InputError, meta: dict, path: Path) -> InputError:
 # --------------------------------------------------------------------------------------- the source
 def _output_size(native: tuple[int, int], width: int | None, height: int | None) -> tuple[int, int]:
     for name, value in (("width", width), ("height", height)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise InputError(f"{name}: expected a positive integer, found {value!r}", param=name)
+        if value is not None and not (is_integer(value) and 0 < value < 2**31):  # (10**400: OverflowError)
+            raise InputError(
+                f"{name}: expected a positive integer below 2**31, found {value!r:.60}", param=name
+            )
     w0, h0 = native
     if width is None and height is None:
         return native
@@ -310,7 +311,7 @@ class SequenceSource:
     ) -> None:
         if isinstance(steps_per_frame, bool) or not isinstance(steps_per_frame, int) or steps_per_frame < 1:
             raise InputError(f"steps per frame: expected an integer ≥ 1, found {steps_per_frame!r}")
-        if not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
+        if not is_finite(fps) or fps <= 0:  # (10**400 is no float: math.isfinite raises on it)
             raise InputError(f"fps: expected a positive number, found {fps!r}", param="fps")
         path = Path(transforms_json)
         seq = load_sequence(path, frame_range)

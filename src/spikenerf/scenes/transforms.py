@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite
 from spikenerf.scenes.trajectory import Intrinsics
 
 #: the shared camera's keys (nerfstudio names)
@@ -113,7 +113,7 @@ def number(
     if key not in obj and default is _REQUIRED:
         raise InputError(f"missing field {where}'{key}'", path=path)
     value = obj.get(key, default)
-    finite = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    finite = isinstance(value, (int, float)) and is_finite(value)
     if not finite or (positive and value <= 0):
         kind = "a positive number" if positive else "a finite number"
         raise InputError(f"field {where}'{key}': expected {kind}, found {value!r}", path=path)
@@ -259,7 +259,7 @@ def scene_box(meta: dict[str, Any], path: Path, required: bool = False) -> np.nd
         if key in meta:
             try:
                 box = np.asarray(meta[key], dtype=np.float64)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):  # (an int beyond a float: 10**400)
                 box = np.zeros(0)
             if box.shape != (2, 3) or not np.isfinite(box).all() or not (box[0] < box[1]).all():
                 raise InputError(

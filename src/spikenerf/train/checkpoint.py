@@ -10,12 +10,14 @@ a zip whose every record carries a CRC-32; ``torch.load`` does not check them, :
 from __future__ import annotations
 
 import errno
+import json
 import pickle
 import warnings
 import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from spikenerf.core.atomic import atomic_path
@@ -143,6 +145,19 @@ def check_schema(data: dict[str, Any], path: str | Path) -> None:
         raise bad("entry 'optimizer' lacks its 'state' and 'param_groups'")
     if not (torch.is_tensor(data["rng"].get("torch")) and data["rng"]["torch"].dtype == torch.uint8):
         raise bad("entry 'rng' lacks the torch random state")
+    if data.get("dataset") is not None and not _is_fingerprint(data["dataset"]):  # (older ones: none)
+        raise bad("entry 'dataset' is not a dataset fingerprint (plain values, a 2×3 finite box)")
+
+
+def _is_fingerprint(found: object) -> bool:
+    """``found`` is what ``train.run.dataset_fingerprint`` stores: a dict of plain (JSON) values whose
+    ``box``, if any, is 2×3 finite numbers (a tensor or a ragged box would fail the comparison with it)."""
+    try:
+        json.dumps(found)  # (TypeError for a tensor or another object)
+        box = np.asarray(found.get("box", np.zeros((2, 3))), dtype=np.float64)  # type: ignore[union-attr]
+    except (TypeError, ValueError, OverflowError, AttributeError, RecursionError):
+        return False
+    return isinstance(found, dict) and box.shape == (2, 3) and bool(np.isfinite(box).all())
 
 
 def model_of(ckpt: dict[str, Any], path: str | Path) -> Any:
@@ -152,8 +167,10 @@ def model_of(ckpt: dict[str, Any], path: str | Path) -> Any:
 
     try:
         return model_from_hparams(ckpt["hparams"], ckpt["model"])
-    except InputError:
-        raise
+    except InputError as err:  # (a bad field_config entry of its hparams: named as the key, not the file)
+        if err.path is not None:
+            raise
+        raise InputError(f"damaged checkpoint: {err.message}", path=path) from err
     except Exception as err:  # load_state_dict: RuntimeError; a bad hparams entry: KeyError/TypeError
         first = str(err).strip().split("\n")[0]
         raise InputError(f"damaged checkpoint: its model does not load ({first})", path=path) from err

@@ -389,7 +389,7 @@ def apply_overrides(data: dict[str, Any], items: tuple[str, ...] | list[str]) ->
         try:
             value = load_yaml(text)
         except yaml.YAMLError as err:
-            raise InputError(f"override {key}: unreadable value {text!r} ({err})") from err
+            raise InputError(f"override {key}: unreadable value {text!r:.60} ({err})") from err
         *sections, leaf = key.split(".")
         node = data
         for i, section in enumerate(sections):

@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import torch
 
 from spikenerf.core.device import resolve_device
-from spikenerf.core.errors import InputError, as_path
+from spikenerf.core.errors import InputError, as_path, is_finite, is_integer
 from spikenerf.data.dataset import CONFIG as DATASET_CONFIG
 from spikenerf.data.dataset import SpikeDataset, load_dataset, read_mapping, spike_files
 from spikenerf.data.holdout import read_record
@@ -60,9 +60,19 @@ def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
     try:
         data = json.loads((out / SUMMARY).read_text())
         summary = TrainSummary(**{k: math.nan if v is None else v for k, v in data.items()})
-    except (OSError, ValueError, TypeError, AttributeError):
+    except (OSError, ValueError, TypeError, AttributeError, RecursionError):
         return None
+    if not all(_SUMMARY_TYPES[f.type](getattr(summary, f.name)) for f in fields(summary)):
+        return None  # a value of another type, or an int beyond a float, edited in: `info` could not show it
     return summary if summary.iteration == iteration else None
+
+
+#: the check of each annotated type of :class:`TrainSummary` read back (NaN and inf are floats it shows)
+_SUMMARY_TYPES: dict[str, Callable[[object], bool]] = {
+    "int": is_integer,
+    "float": lambda v: isinstance(v, float) or is_finite(v),
+    "str": lambda v: isinstance(v, str),
+}
 
 
 def load_run(

@@ -7,7 +7,6 @@ How they run is ``run.py`` and its executors (``executor.py``: local processes o
 from __future__ import annotations
 
 import json
-import math
 import os
 import platform
 import sys
@@ -18,7 +17,7 @@ from typing import NamedTuple
 import torch
 
 from spikenerf import __version__
-from spikenerf.core.errors import InputError, comma_list, parse_int
+from spikenerf.core.errors import InputError, comma_list, is_finite, parse_int
 from spikenerf.eval.metrics import SSIMConfig
 from spikenerf.pipelines.benchmark.executor import get_executor
 from spikenerf.pipelines.benchmark.tables import Cell
@@ -230,7 +229,7 @@ def read_cell(run: Path, scene: str, color: str, variant: str, seed: int = 0) ->
             raise ValueError(f"seconds is {json.dumps(seconds)}, not a number ≥ 0")
     except InputError:
         raise
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as err:
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError, RecursionError) as err:
         raise InputError(f"malformed metrics ({err}); delete it to re-run the cell", path=path) from err
     return Cell(scene, variant, color, psnr, ssim, lpips, seconds, seed, _train_seconds(run))
 
@@ -238,7 +237,7 @@ def read_cell(run: Path, scene: str, color: str, variant: str, seed: int = 0) ->
 def _finite(value: object, name: str) -> float:
     """``value`` as a float; ValueError naming ``name`` unless it is a finite JSON number (eval writes strict
     JSON: a value it cannot compute is null, never NaN or Infinity, so one of those was edited in)."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    if not isinstance(value, int | float) or not is_finite(value):  # (10**400: no float)
         raise ValueError(f"{name} is {json.dumps(value)}, not a finite number")
     return float(value)
 
@@ -247,9 +246,9 @@ def _train_seconds(run: Path) -> float | None:
     """The run's training time from its ``summary.json`` (None where it is missing or unreadable)."""
     try:
         seconds = json.loads((run / "summary.json").read_text()).get("seconds")
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, RecursionError):
         return None
-    finite = isinstance(seconds, int | float) and not isinstance(seconds, bool) and math.isfinite(seconds)
+    finite = isinstance(seconds, int | float) and is_finite(seconds)
     return float(seconds) if finite and seconds >= 0 else None
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from spikenerf.core.atomic import write_text_atomic
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.benchmark import cells as plan
 from spikenerf.pipelines.benchmark.executor import EXECUTORS
@@ -188,7 +188,7 @@ def read_call(path: Path) -> RecordedCall:
         raise InputError(f"is a folder: give its {RESULTS} (another call's results)", path=path) from None
     except OSError as err:
         raise InputError(f"cannot read ({err.strerror or err})", path=path) from None
-    except (ValueError, KeyError, TypeError, AttributeError) as err:
+    except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as err:
         raise InputError(f"not a benchmark's {RESULTS} ({type(err).__name__}: {err})", path=path) from None
     if problem := recorded_problem(call):
         raise InputError(problem, path=path)
@@ -207,7 +207,7 @@ def _int(x: Any, low: int) -> bool:
 
 def _number(x: Any, low: float = -math.inf) -> bool:
     """A finite JSON number (not a bool) ≥ ``low``."""
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and x >= low
+    return isinstance(x, int | float) and is_finite(x) and x >= low
 
 
 def _names(x: Any, ok: Callable[[Any], bool]) -> bool:

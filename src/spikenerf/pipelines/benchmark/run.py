@@ -172,7 +172,7 @@ def dataset_settings(root: Path) -> dict:
 
     try:
         config = load_yaml((root / "config.yaml").read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError):
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
         config = {}
     config = config if isinstance(config, dict) else {}
     size = [config.get("spike_w"), config.get("spike_h")]
@@ -181,7 +181,7 @@ def dataset_settings(root: Path) -> dict:
         "frames": config.get("steps"),
         "seed": config.get("seed"),
         "test_views": config.get("test_views"),
-        "colors": config.get("colors"),
+        "colors": colors if isinstance(colors := config.get("colors"), list) else None,  # (a list or unsaid)
         "blur_views": str(view_counts(root)["blur_views"]),
     }
 

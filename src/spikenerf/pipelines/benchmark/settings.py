@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import uuid
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -103,12 +104,8 @@ def check_settings(cfg: Any) -> str | None:
     path = cfg.out / NAME
     if not path.is_file():
         return None
-    try:
-        stored = json.loads(path.read_text())
-        old, nonce = stored["settings"], str(stored["nonce"])
-    except (OSError, ValueError, KeyError, TypeError) as err:
-        raise InputError(f"malformed benchmark settings ({err}); delete the file to adopt the current flags",
-                         path=path) from err  # fmt: skip
+    stored = read_stored(path)
+    old, nonce = stored["settings"], stored["nonce"]
     new = settings(cfg)
     if "iters" in old and old["iters"] is None:  # started without --iters when that was not recorded
         if cfg.iters is None:
@@ -158,6 +155,26 @@ def check_settings(cfg: Any) -> str | None:
     return nonce
 
 
+def read_stored(path: Path) -> dict:
+    """``benchmark.json`` read back: an object with a non-empty string ``nonce`` and an object ``settings``
+    (its ``field_defaults``, where not null, and ``integral_defaults``, where present, objects); InputError
+    naming the file otherwise."""
+    try:
+        stored = json.loads(path.read_text(encoding="utf-8"))
+        old, nonce = stored["settings"], stored["nonce"]
+        if not (isinstance(old, dict) and isinstance(nonce, str) and nonce):
+            raise TypeError("expected an object settings and a string nonce")
+        if not (
+            isinstance(old.get("field_defaults"), dict | None)
+            and isinstance(old.get("integral_defaults", {}), dict)
+        ):
+            raise TypeError("expected objects field_defaults and integral_defaults")
+    except (OSError, ValueError, KeyError, TypeError, RecursionError) as err:  # (nested beyond the stack)
+        raise InputError(f"malformed benchmark settings ({type(err).__name__}: {err}); delete the file to "
+                         "adopt the current flags", path=path) from None  # fmt: skip
+    return stored
+
+
 def integral_trained(cfg: Any) -> bool:
     """Whether the folder holds a spike-integral cell that has begun training (a checkpoint)."""
     return any(cfg.out.glob("runs/*/*/spike-integral*/checkpoint.pt"))
@@ -170,7 +187,7 @@ def adopt_integral_defaults(cfg: Any) -> None:
     path = cfg.out / NAME
     if "spike-integral" not in cfg.variants or integral_trained(cfg) or not path.is_file():
         return
-    stored = json.loads(path.read_text())
+    stored = read_stored(path)
     current = settings(cfg)["integral_defaults"]
     if stored["settings"].get("integral_defaults") != current:
         stored["settings"]["integral_defaults"] = current
