@@ -109,3 +109,20 @@ def test_a_pose_of_numbers_no_float_holds_is_one_error(tmp_path: Path) -> None:
     huge = [[10**400, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
     with pytest.raises(InputError, match=r"frames\[0\]\.transform_matrix: expected a 4×4 list of numbers"):
         frame_poses({"frames": [{"transform_matrix": huge}]}, tmp_path / "t.json")
+
+
+@pytest.mark.parametrize(
+    "camera",
+    [
+        {"w": 16, "h": 16, "fl_x": 1e308},  # a field of view of 1e-307 rad: the dataset would see nothing
+        {"w": 16, "h": 16, "fl_x": 20.0, "fl_y": 1e-300},
+        {"w": 16, "h": 16, "camera_angle_x": 1e-300},
+        {"w": 2**40, "h": 16, "fl_x": 20.0},
+    ],
+)
+def test_an_absurd_camera_is_refused_naming_its_fields(tmp_path: Path, camera: dict) -> None:
+    path = tmp_path / "transforms.json"
+    with pytest.raises(InputError, match=r"an absurd camera") as err:
+        transforms.intrinsics(camera, path)
+    assert str(err.value).startswith(f"{path}: fields") and "\n" not in str(err.value)
+    assert transforms.intrinsics({"w": 16, "h": 16, "camera_angle_x": 1e-3}, path).fl_x > 16  # narrow: fine

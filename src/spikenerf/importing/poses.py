@@ -60,25 +60,6 @@ class PoseSet:
 FAR_LIMIT = 1e12
 
 
-#: focal lengths beyond these multiples of the image's larger side are absurd (a field of view under 1e-4°,
-#: or within 1e-4° of 180°): a camera of 1e308 in a pose file would be kept, seeing nothing
-FOCAL_RANGE = (1e-6, 1e6)
-
-
-def check_camera(w: float, h: float, focals: list[float], what: str, path: Path) -> None:
-    """InputError naming ``path`` unless the positive size ``w``×``h`` is below 2**31 pixels a side and each
-    focal length lies within :data:`FOCAL_RANGE` times its larger side."""
-    side = max(w, h)
-    if not (side < 2**31 and all(FOCAL_RANGE[0] <= f / side <= FOCAL_RANGE[1] for f in focals)):
-        lo, hi = FOCAL_RANGE
-        focal = ", ".join(f"{f:g}" for f in focals)
-        raise InputError(
-            f"{what}: an absurd camera ({w:g}×{h:g} pixels, focal length {focal}): expected sides below "
-            f"2**31 and a focal length {lo:g} to {hi:g} times the larger side",
-            path=path,
-        )
-
-
 def check_poses(poses: np.ndarray, path: str | Path | None, minimum: int = 2) -> np.ndarray:
     """Poses as float64 (N, 4, 4); InputError on NaN/inf, a singular rotation or fewer than ``minimum``."""
     poses = np.asarray(poses, dtype=np.float64)
@@ -206,7 +187,7 @@ def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
     if not all(math.isfinite(p) for p in params[2:4]):
         found = ", ".join(map(str, params[2:4]))
         raise InputError(f"camera {fields[0]}: principal point cx, cy must be finite, found {found}", path)
-    check_camera(w, h, params[:2], f"camera {fields[0]}", path)
+    transforms.check_camera(w, h, params[:2], f"camera {fields[0]}", path)
     return Intrinsics(w, h, *params[:4])
 
 
@@ -303,7 +284,7 @@ def read_poses_bounds(path: Path) -> PoseSet:
     poses[:, :3, 3] = m[:, :, 3]
     h, w, f = (float(v) for v in m[0, :, 4])
     if min(h, w, f) > 0:
-        check_camera(w, h, [f], "column 4 (h, w, focal)", path)
+        transforms.check_camera(w, h, [f], "column 4 (h, w, focal)", path)
     k = Intrinsics(round(w), round(h), f, f, w / 2, h / 2) if min(h, w, f) > 0 else None
     near, far = float(arr[:, 15].min()), float(arr[:, 16].max())
     bounds = (near, far) if 0 < near < far < FAR_LIMIT else None  # columns 15-16: the depth range per view

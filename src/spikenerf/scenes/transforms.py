@@ -217,6 +217,25 @@ def camera(meta: dict[str, Any], path: Path) -> dict[str, Any]:
     return cam
 
 
+#: focal lengths beyond these multiples of the image's larger side are absurd (a field of view under 1e-4°,
+#: or within 1e-4° of 180°): a camera of 1e308 in a pose file would be kept, seeing nothing
+FOCAL_RANGE = (1e-6, 1e6)
+
+
+def check_camera(w: float, h: float, focals: list[float], what: str, path: Path) -> None:
+    """InputError naming ``path`` unless the positive size ``w``×``h`` is below 2**31 pixels a side and each
+    focal length lies within :data:`FOCAL_RANGE` times its larger side."""
+    side = max(w, h)
+    if not (side < 2**31 and all(FOCAL_RANGE[0] <= f / side <= FOCAL_RANGE[1] for f in focals)):
+        lo, hi = FOCAL_RANGE
+        focal = ", ".join(f"{f:g}" for f in focals)
+        raise InputError(
+            f"{what}: an absurd camera ({w:g}×{h:g} pixels, focal length {focal}): expected sides below "
+            f"2**31 and a focal length {lo:g} to {hi:g} times the larger side",
+            path=path,
+        )
+
+
 def field_of_view(cam: dict[str, Any], path: Path) -> float:
     """``camera_angle_x`` of :func:`camera`'s keys: radians in (0, π)."""
     angle = number(cam, "camera_angle_x", path, positive=True)
@@ -247,9 +266,12 @@ def intrinsics(meta: dict[str, Any], path: Path, size: tuple[int, int] | None = 
         fl_y = number(cam, "fl_y", path, positive=True, default=fl_x)
         cx = number(cam, "cx", path, default=width / 2.0)
         cy = number(cam, "cy", path, default=height / 2.0)
+        check_camera(width, height, [fl_x, fl_y], "fields 'w', 'h', 'fl_x', 'fl_y'", path)
         return Intrinsics(width, height, fl_x, fl_y, cx, cy)
     if "camera_angle_x" in cam:
-        return Intrinsics.from_fov(width, height, field_of_view(cam, path))
+        k = Intrinsics.from_fov(width, height, field_of_view(cam, path))
+        check_camera(width, height, [k.fl_x], "fields 'w', 'h', 'camera_angle_x'", path)
+        return k
     raise InputError("missing camera: expected 'camera_angle_x' or 'fl_x' (with optional fl_y, cx, cy)", path)
 
 
