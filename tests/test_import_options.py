@@ -204,6 +204,16 @@ def test_smooth_goes_with_colmap_poses_only() -> None:
     assert "smooth" in err.value.params
 
 
+def test_a_field_of_view_the_dataset_loader_refuses_is_refused_up_front() -> None:
+    """``fov_deg`` 1e-5 (or 179.99999) wrote a dataset whose camera its own loader refuses as absurd."""
+    from spikenerf.importing.importer import ImportOptions, _check
+
+    for fov in (1e-5, 179.99999):
+        with pytest.raises(InputError, match=r"^fov_deg must be within \[5.73e-05, 179.99977\d*\] degrees"):
+            _check(ImportOptions(poses="orbit", orbit=(4.0, 30.0), fov_deg=fov))
+    _check(ImportOptions(poses="orbit", orbit=(4.0, 30.0), fov_deg=1e-3))  # narrow, still a camera
+
+
 def _colmap_folder(folder: Path, camera: str, poses: list[str]) -> Path:
     """A COLMAP text model of one ``camera`` line and ``poses`` lines (each with an empty points line)."""
     folder.mkdir()

@@ -1,4 +1,4 @@
-"""The training methods (train/methods.py) and the benchmark variants (pipelines/variants.py)."""
+"""The training methods (train/methods/) and the benchmark variants (pipelines/variants.py)."""
 
 from __future__ import annotations
 

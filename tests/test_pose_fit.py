@@ -143,6 +143,8 @@ def test_same_seed_same_poses_and_another_seed_differs() -> None:
         ({"lr": 0.0}, "lr"),
         ({"lr": float("nan")}, "lr"),
         ({"lr": "0.1"}, "lr"),
+        ({"lr": 10**400}, "lr"),  # (an int beyond a float: OverflowError before)
+        ({"steps": 2**63}, "steps"),
         ({"batch": 0}, "batch"),
     ],
 )

@@ -49,6 +49,7 @@ from spikenerf.importing.alignment import (
     smooth_poses,
 )
 from spikenerf.importing.poses import PoseSet, orbit_poses, read_pose_source
+from spikenerf.scenes import transforms
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 DEFAULT_FPS = 40000.0
@@ -157,6 +158,11 @@ def _check(options: ImportOptions) -> None:
         )
     if options.fov_deg is not None and not 0 < options.fov_deg < 180:
         raise InputError(f"fov_deg must be in (0, 180) degrees, found {options.fov_deg}", param="fov_deg")
+    if options.fov_deg is not None:  # a camera the dataset loader takes (a focal length of sane proportions)
+        lo, hi = (math.degrees(2 * math.atan(0.5 / ratio)) for ratio in reversed(transforms.FOCAL_RANGE))
+        if not lo <= options.fov_deg <= hi:
+            raise InputError(f"fov_deg must be within [{lo:.3g}, {hi:.8g}] degrees, found {options.fov_deg}",
+                             param="fov_deg")  # fmt: skip
     for name in ("fps", "threshold"):
         value = getattr(options, name)
         if value is not None and not (math.isfinite(value) and value > 0):

@@ -299,11 +299,13 @@ def _resume(
             path=out,
             param=("out", *changed, "iters"),
         )
+    if not all(isinstance(data.get(key), dict) for key in ("model", "optimizer")):
+        raise InputError("checkpoint does not fit this reconstructor (no model or optimizer state)", path=out)
     try:
         net.load_state_dict(data["model"])
         opt.load_state_dict(data["optimizer"])
         gen.set_state(data["rng"])
-    except (KeyError, RuntimeError, ValueError, TypeError, AttributeError, OverflowError) as err:  # (None)
+    except (KeyError, RuntimeError, ValueError, TypeError, OverflowError) as err:  # (an Adam step of 10**400)
         raise InputError(
             f"checkpoint does not fit this reconstructor ({type(err).__name__})", path=out
         ) from err

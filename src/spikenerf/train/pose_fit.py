@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError, is_integer, is_number
+from spikenerf.core.errors import InputError, is_finite, is_integer
 from spikenerf.data.rays import pixel_rays
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.model import ray_bounds
@@ -58,8 +58,8 @@ def check_fit_args(
     """InputError when ``steps`` < 0, ``lr`` is not finite > 0 or ``batch`` < 1, naming the value as in
     ``names`` (the caller's own parameters; the error's ``param`` is the name's first word)."""
     problems = (
-        (not is_integer(steps) or steps < 0, "an integer ≥ 0", steps),
-        (not (is_number(lr) and math.isfinite(lr) and lr > 0), "a finite number > 0", lr),
+        (not is_integer(steps) or not 0 <= steps < 2**63, "an integer ≥ 0 (below 2**63)", steps),
+        (not (is_finite(lr) and lr > 0), "a finite number > 0", lr),
         (not is_integer(batch) or batch < 1, "an integer ≥ 1", batch),
     )
     for name, (bad, wanted, value) in zip(names, problems, strict=True):

@@ -62,12 +62,17 @@ def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
         summary = TrainSummary(**{k: math.nan if v is None else v for k, v in data.items()})
     except (OSError, ValueError, TypeError, AttributeError, RecursionError):
         return None
-    if not all(_SUMMARY_TYPES[f.type](getattr(summary, f.name)) for f in fields(summary)):
+    if not all(_SUMMARY_TYPES.get(str(f.type), _any)(getattr(summary, f.name)) for f in fields(summary)):
         return None  # a value of another type, or an int beyond a float, edited in: `info` could not show it
     return summary if summary.iteration == iteration else None
 
 
-#: the check of each annotated type of :class:`TrainSummary` read back (NaN and inf are floats it shows)
+def _any(value: object) -> bool:
+    return True
+
+
+#: the check of each annotated type of :class:`TrainSummary` read back (NaN and inf are floats it shows; a
+#: type not listed here is not checked)
 _SUMMARY_TYPES: dict[str, Callable[[object], bool]] = {
     "int": is_integer,
     "float": lambda v: isinstance(v, float) or is_finite(v),
