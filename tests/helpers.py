@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -78,3 +79,17 @@ def triton_device():  # type: ignore[no-untyped-def]
             "TRITON_INTERPRET=1 is needed without CUDA (tests/conftest.py sets it)", allow_module_level=True
         )
     return device
+
+
+def _torch_below(major: int, minor: int) -> bool:
+    import torch
+
+    found = tuple(int(part) for part in re.findall(r"\d+", torch.__version__)[:2])
+    return found < (major, minor)
+
+
+#: a test that counts ``torch.compile``'s graphs or graph breaks: Dynamo before torch 2.6 splits the same
+#: functions into more graphs (they still compile and train; docs/getting-started.md)
+counts_graphs = pytest.mark.skipif(
+    _torch_below(2, 6), reason="counts torch.compile graphs: Dynamo before torch 2.6 makes more"
+)

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 import test_train
+from helpers import counts_graphs
 from spikenerf.data.rays import image_rays
 from spikenerf.fields import GridFieldConfig, MLPFieldConfig
 from spikenerf.fields import compiled as compiled_mod
@@ -100,6 +101,7 @@ def test_compiled_grid_function_compiles_once_for_many_sample_counts() -> None:
     assert len(graphs) == 1
 
 
+@counts_graphs
 def test_compiled_field_functions_do_not_recompile_for_each_grid_resolution(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -20,6 +20,7 @@ import torch
 from torch._dynamo.utils import counters
 
 import test_train
+from helpers import counts_graphs
 from spikenerf.fields import grid as grid_module
 from spikenerf.fields import vm_kernel, vm_triton
 from spikenerf.train import compiled_step
@@ -66,6 +67,7 @@ def _graphs() -> int:
     return int(counters["stats"]["unique_graphs"])
 
 
+@counts_graphs
 @pytest.mark.parametrize(
     ("method", "field", "graphs"),
     [("nerf-gt", {}, 1), ("spike-integral", {"tv_density": 0.1}, 2), ("spike-nerf", {}, 2)],
@@ -119,6 +121,7 @@ def test_the_compiled_step_trains_and_resumes_like_the_eager_static_step(
     assert all(torch.isfinite(p).all() for p in resumed.model.parameters())
 
 
+@counts_graphs
 @pytest.mark.parametrize("symbolic", [True, False])
 def test_one_graph_serves_every_grid_resolution(
     dataset_dir: Path,
@@ -138,6 +141,7 @@ def test_one_graph_serves_every_grid_resolution(
     assert _graphs() == (1 if symbolic else 2), counters["stats"]
 
 
+@counts_graphs
 def test_the_gather_lookup_compiles_and_trains_like_grid_sample(
     dataset_dir: Path, dataset, tmp_path: Path, aot_eager: None
 ) -> None:  # type: ignore[no-untyped-def]
@@ -148,6 +152,7 @@ def test_the_gather_lookup_compiles_and_trains_like_grid_sample(
     assert gathered == pytest.approx(reference, rel=1e-3)
 
 
+@counts_graphs
 @pytest.mark.skipif(
     not (vm_triton.installed() and vm_triton.interpreted()), reason="needs triton and TRITON_INTERPRET=1"
 )

@@ -19,7 +19,7 @@ import torch
 
 import test_static_render
 import test_train
-from helpers import triton_device
+from helpers import counts_graphs, triton_device
 from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config
 from spikenerf.render import march_triton
@@ -129,6 +129,7 @@ def test_the_grid_renders_as_with_the_torch_march(samples: int, occupancy: bool)
     test_static_render.assert_renders_as(model, rays, expected, expected_grads)
 
 
+@counts_graphs
 def test_the_custom_ops_pass_opcheck_and_a_static_render_compiles_as_one_graph(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

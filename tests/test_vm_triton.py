@@ -20,7 +20,7 @@ import torch
 
 import test_train
 import test_vm_gather
-from helpers import triton_device
+from helpers import counts_graphs, triton_device
 from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config, vm_triton
 from spikenerf.fields.grid import GridField, GridFieldConfig, _factor, sample_vm
@@ -126,6 +126,7 @@ def test_the_grid_field_with_lookup_triton_gives_its_default_lookups_values_and_
         torch.testing.assert_close(got, expected, atol=1e-4, rtol=1e-4)
 
 
+@counts_graphs
 def test_the_custom_ops_pass_opcheck_and_compile_as_one_graph() -> None:
     planes, lines = _factors(c=4, r=5)
     xyz = _points(40, 1.0)
@@ -216,6 +217,7 @@ def test_triton_equals_grid_sample_on_cuda(monkeypatch: pytest.MonkeyPatch) -> N
 def test_the_kernels_compile_for_an_h100_without_spilling(tmp_path: Path) -> None:
     """Triton's real compiler (not the interpreter) and its bundled ptxas build every variant for sm_90
     without a GPU; no registers spill (a runtime channel count of 24 spilled about 24 kB a thread)."""
+    pytest.importorskip("triton", minversion="3.3")  # the report builds ASTSource as Triton 3.3 does
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(ROOT)])
     env["TRITON_CACHE_DIR"] = str(tmp_path / "cache")

@@ -11,9 +11,8 @@ something else.
 from __future__ import annotations
 
 import sys
-import warnings
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Any, TypeVar, get_type_hints
 
 F = TypeVar("F", bound=Callable)
 
@@ -24,6 +23,9 @@ _PENDING: list[Callable] = []
 def constant_result(fn: F) -> F:
     """``torch.compiler.assume_constant_result`` without importing Dynamo: ``fn``'s result is a constant to
     a trace (a host query fixed per process or device). Returns ``fn`` itself."""
+    # Dynamo stores the result as a global of the traced module named after ``fn``'s code; before torch 2.6
+    # it overwrote a global of that name: ``fn`` itself, where that module defines or imports it
+    fn.__code__ = fn.__code__.replace(co_name=f"{fn.__code__.co_name}_constant")
     if "torch._dynamo" in sys.modules:  # already paid for: the official decorator at once
         import torch
 
@@ -35,10 +37,24 @@ def constant_result(fn: F) -> F:
 
 def prepare_compile() -> None:
     """Pass the functions :func:`constant_result` marked to ``torch.compiler.assume_constant_result``
-    (imports Dynamo), and mute torch's two-line advice on Python 3.13.0 (slower guards, fixed in 3.13.1):
-    a compiled run warns in one line of ours. Call it before ``torch.compile``."""
+    (imports Dynamo), and turn off Dynamo's two-line advice on Python 3.13.0 (slower guards, fixed in
+    3.13.1), a warning about the user's Python, not about the run. Call it before ``torch.compile``."""
     import torch
+    import torch._dynamo.config
 
-    warnings.filterwarnings("ignore", message="Guards may run slower on Python 3.13", category=RuntimeWarning)
+    if hasattr(torch._dynamo.config, "issue_3_13_0_warning"):  # (its own switch, where torch has one)
+        torch._dynamo.config.issue_3_13_0_warning = False
     while _PENDING:
         torch.compiler.assume_constant_result(_PENDING.pop())
+
+
+def custom_op(name: str) -> Callable[[Callable], Any]:
+    """``torch.library.custom_op(name, mutates_args=())`` for a function of a module with postponed
+    annotations: torch 2.4 infers the op's schema from annotations that are types, not strings."""
+    import torch
+
+    def register(fn: Callable) -> Any:
+        fn.__annotations__ = get_type_hints(fn)
+        return torch.library.custom_op(name, mutates_args=())(fn)
+
+    return register

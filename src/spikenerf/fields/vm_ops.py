@@ -14,6 +14,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.core.tracing import custom_op
+
 #: forward(planes (3, R, R, C), lines (3, R, C), xyz (M, 3), summed) → (M, 3, C), or (M,) when summed
 Forward = Callable[[Tensor, Tensor, Tensor, bool], Tensor]
 #: backward(planes, lines, xyz, grad (M, 3, C) or (M,)) → (∂/∂planes (3, R, R, C), ∂/∂lines (3, R, C))
@@ -33,7 +35,7 @@ def register_pair(name: str, forward: Forward, backward: Backward) -> Any:
     gradient needs it, and ``forward`` itself otherwise (renders without gradient: no dispatch, and no
     import of Dynamo, which a custom op's first call costs, 2–3 s)."""
 
-    @torch.library.custom_op(f"spikenerf::{name}_forward", mutates_args=())
+    @custom_op(f"spikenerf::{name}_forward")
     def forward_op(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
         return forward(planes, lines, xyz, summed)
 
@@ -42,7 +44,7 @@ def register_pair(name: str, forward: Forward, backward: Backward) -> Any:
         m, c = xyz.shape[0], planes.shape[-1]
         return xyz.new_empty((m,) if summed else (m, 3, c))
 
-    @torch.library.custom_op(f"spikenerf::{name}_backward", mutates_args=())
+    @custom_op(f"spikenerf::{name}_backward")
     def backward_op(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
         return backward(planes, lines, xyz, grad)
 

@@ -284,8 +284,9 @@ def compact_slots(
     the grid lookups) would pile up on one address, serialised on a GPU.
     """
     source, _, total = slot_sources(keep, budget)
-    take = lambda x: x.index_select(0, source)  # noqa: E731
-    return fill_spare(take(ray), take(ray_at), take(k), total, dropped, n, budget)
+    # no lambda over ``source``: torch 2.4's Dynamo fails to inline that closure (an AssertionError)
+    ray, ray_at, k = ray.index_select(0, source), ray_at.index_select(0, source), k.index_select(0, source)
+    return fill_spare(ray, ray_at, k, total, dropped, n, budget)
 
 
 def fill_spare(

@@ -27,6 +27,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.core.tracing import custom_op
+
 #: steps a program tests at a time, and warps a program: a guess, not tuned on a GPU yet
 LAUNCH: dict[str, int] = {"BLOCK": 128, "num_warps": 4}
 
@@ -45,7 +47,7 @@ def _grid_args(grid: Tensor) -> tuple[Tensor, int]:
     return grid.reshape(-1).view(torch.uint8), grid.shape[0]
 
 
-@torch.library.custom_op("spikenerf::march_count", mutates_args=())
+@custom_op("spikenerf::march_count")
 def _march_count(
     o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, counts: Tensor, grid: Tensor, step: float,
     occupancy: bool,
@@ -66,7 +68,7 @@ def _(
     return torch.empty_like(counts)
 
 
-@torch.library.custom_op("spikenerf::march_write", mutates_args=())
+@custom_op("spikenerf::march_write")
 def _march_write(
     o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor, counts: Tensor, grid: Tensor, first: Tensor,
     budget: int, step: float, occupancy: bool,

@@ -24,6 +24,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.core.tracing import custom_op
 from spikenerf.fields.vm_triton import installed, interpreted
 
 #: samples a program reads at a time, and warps a program: a guess, not tuned on a GPU yet
@@ -47,7 +48,7 @@ def _launch(name: str, rays: int, *args: Any, **constexprs: int) -> None:
         getattr(kernels, name)[(rays,)](*args, **constexprs, **LAUNCH)
 
 
-@torch.library.custom_op("spikenerf::depth_before", mutates_args=())
+@custom_op("spikenerf::depth_before")
 def _depth_before(tau: Tensor, offsets: Tensor, max_tau: float) -> Tensor:
     out = torch.zeros_like(tau)
     if len(offsets) > 1 and len(tau):
@@ -60,7 +61,7 @@ def _(tau: Tensor, offsets: Tensor, max_tau: float) -> Tensor:
     return torch.empty_like(tau)
 
 
-@torch.library.custom_op("spikenerf::depth_before_backward", mutates_args=())
+@custom_op("spikenerf::depth_before_backward")
 def _depth_before_backward(tau: Tensor, offsets: Tensor, grad: Tensor, max_tau: float) -> Tensor:
     out = torch.zeros_like(tau)
     if len(offsets) > 1 and len(tau):
@@ -87,7 +88,7 @@ def _depth_before_grad(ctx: Any, grad: Tensor) -> tuple[Tensor, None, None]:
 _depth_before.register_autograd(_depth_before_grad, setup_context=_depth_before_context)
 
 
-@torch.library.custom_op("spikenerf::segment_sum", mutates_args=())
+@custom_op("spikenerf::segment_sum")
 def _segment_sum(values: Tensor, ray: Tensor, offsets: Tensor) -> Tensor:
     rays, k = len(offsets) - 1, values.shape[1]
     out = values.new_zeros(rays, k)
