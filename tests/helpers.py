@@ -89,7 +89,7 @@ def _torch_below(major: int, minor: int) -> bool:
 
 
 #: a test that counts ``torch.compile``'s graphs or graph breaks: Dynamo before torch 2.6 splits the same
-#: functions into more graphs (they still compile and train; docs/getting-started.md)
+#: functions into more graphs (they still train; docs/getting-started.md)
 counts_graphs = pytest.mark.skipif(
     _torch_below(2, 6), reason="counts torch.compile graphs: Dynamo before torch 2.6 makes more"
 )
