@@ -313,3 +313,23 @@ def test_train_eval_and_loaders_name_a_wrong_argument(tmp_path: Path) -> None:
     mark(tmp_path / "ds", "dataset")
     _params(lambda: Trainer(config, tmp_path / "ds"), "out", match="this is a dataset folder")
     assert not (tmp_path / "r").exists() and [p.name for p in (tmp_path / "ds").iterdir()] == [".spikenerf"]
+
+
+def test_numpy_scalars_in_a_train_config_are_numbers() -> None:
+    """A sweep's values (``np.linspace``, ``np.arange``) in a TrainConfig were refused ("lr must be a
+    number, found 0.001 (float32)"); they are the Python numbers they hold, also in what the run records."""
+    import yaml
+
+    from spikenerf.train.config import TrainConfig
+
+    for lr in np.linspace(1e-3, 1e-2, 2, dtype=np.float32):
+        config = TrainConfig(
+            dataset="ds", lr=lr, iters=np.int64(100), field_config={"n_voxels_final": np.int64(8)}
+        )
+        config.integral.lengths = [np.int64(3)]
+        config.validate()
+        assert type(config.lr) is float and config.lr == float(lr) and type(config.iters) is int
+        assert type(config.integral.lengths[0]) is int and type(config.field_config["n_voxels_final"]) is int
+        yaml.safe_dump(config.to_dict())  # (a numpy scalar is no YAML the run could record)
+    _params(lambda: TrainConfig(dataset="ds", lr=np.array([1e-3])).validate(), "lr")  # an array stays refused
+    _params(lambda: TrainConfig(dataset="ds", iters=np.int64(-1)).validate(), "iters")  # and is still checked

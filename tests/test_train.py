@@ -819,10 +819,15 @@ def test_config_errors_name_the_key_and_the_cli_the_flag(dataset_dir: Path, tmp_
 
 
 def test_a_config_value_of_another_type_names_its_key_and_type() -> None:
-    """``TrainConfig(iters=np.int64(100))`` read "iters must be an integer, found 100", with no key."""
+    """``TrainConfig(iters=np.float64(2.5))`` (a numpy scalar: a Python number to the check) and a string are
+    named with the key; a numpy integer is an integer (test_api_inputs)."""
     import numpy as np
 
-    for value, found in ((np.int64(100), r"found 100 \(int64\)$"), ("many", r"found 'many'$")):
+    for value, found in (
+        (np.float64(2.5), r"found 2.5$"),
+        ("many", r"found 'many'$"),
+        ({1}, r"found \{1\} \(set\)$"),
+    ):
         with pytest.raises(InputError, match=f"^iters must be an integer, {found}") as err:
             TrainConfig(iters=value).validate()  # type: ignore[arg-type]
         assert err.value.params == ("iters",)

@@ -120,6 +120,30 @@ def describe(hint: Any) -> str:
     return names.get(hint, f"a {getattr(origin or hint, '__name__', hint)}")
 
 
+def plain_scalars(config: Any) -> None:
+    """Replace the numpy scalars among ``config``'s fields (and its sections', its lists', tuples' and
+    dicts' items) by the Python numbers they hold: a sweep's ``np.linspace`` value is a number to
+    :func:`check_config` and to the YAML a run records. Duck-typed: this module imports no numpy."""
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value):
+            plain_scalars(value)
+        elif (plain := _plain(value)) is not value:
+            setattr(config, f.name, plain)
+
+
+def _plain(value: Any) -> Any:
+    if type(value).__module__ == "numpy" and getattr(value, "ndim", None) == 0:
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        items = [_plain(v) for v in value]
+        return type(value)(items) if any(a is not b for a, b in zip(items, value, strict=True)) else value
+    if isinstance(value, dict):
+        plain = {k: _plain(v) for k, v in value.items()}
+        return plain if any(plain[k] is not v for k, v in value.items()) else value
+    return value
+
+
 def check_config(config: Any, prefix: str = "", path: str | Path | None = None, bounds: bool = True) -> None:
     """Check every field of a config dataclass (and of its sections, ``prefix.KEY``): its type, and with
     ``bounds`` a float's finiteness and a number's ``BOUNDS``; InputError naming the first key that fails."""

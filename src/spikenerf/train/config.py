@@ -19,7 +19,7 @@ import yaml
 
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
 from spikenerf.core.atomic import write_text_atomic
-from spikenerf.core.config import Bound, check_config, choices, from_mapping
+from spikenerf.core.config import Bound, check_config, choices, from_mapping, plain_scalars
 from spikenerf.core.device import check_device_name
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import folder_kind, owned
@@ -305,7 +305,9 @@ class TrainConfig:
     field_config: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def validate(self) -> TrainConfig:
-        """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self."""
+        """Raise :class:`InputError` on an unknown choice or an out-of-range number; returns self (its numpy
+        scalars made Python numbers first)."""
+        plain_scalars(self)
         check_config(self)  # types, finite floats and every BOUNDS, naming the key
         check_device_name(self.device)
         check_window(self.targets.window, "targets.window")
