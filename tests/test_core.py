@@ -201,3 +201,24 @@ def test_an_output_where_no_file_can_be_made_is_named_as_such(tmp_path, monkeypa
     monkeypatch.setattr(os, "access", lambda *args, **kwargs: False)
     with pytest.raises(InputError, match="no permission"):
         marker.check_output(out, "dataset")
+
+
+def test_an_unknown_key_suggests_the_closest_known_one() -> None:
+    """``seeds`` beside a given ``seed`` suggested ``poses`` (keys already given were left out); the closest
+    comes first, and of two as close the one not given yet."""
+    from dataclasses import dataclass
+
+    from spikenerf.core.config import close_keys, from_mapping
+
+    @dataclass
+    class Settings:
+        seed: int = 0
+        poses: str = "orbit"
+        steps: int = 1
+        step: int = 1
+
+    with pytest.raises(InputError, match=r"unknown settings keys \['seeds'\]; did you mean seed, "):
+        from_mapping(Settings, {"seed": 1, "seeds": 2}, "settings")
+    assert close_keys("stepss", {"steps", "step"}, {"steps"}) == ["steps", "step"]  # the closest, given or not
+    assert close_keys("stepx", {"steps", "step"}, {"steps"}) == ["step", "steps"]  # as close: the free one
+    assert close_keys("zzz", {"steps", "step"}, set()) == []

@@ -178,6 +178,14 @@ def check_config(config: Any, prefix: str = "", path: str | Path | None = None, 
             raise InputError(f"{name} must be {kind}{bound.describe()}, found {value!r}", param=name)
 
 
+def close_keys(word: str, known: set[str], given: set[str], n: int = 2) -> list[str]:
+    """Up to ``n`` of the ``known`` keys close to ``word`` (difflib's 0.6), the closest first; of two as
+    close, the one not ``given`` yet first (``seeds`` beside a given ``seed`` still suggests ``seed``)."""
+    scored = [(difflib.SequenceMatcher(None, word, key).ratio(), key) for key in known]
+    ranked = sorted((t for t in scored if t[0] >= 0.6), key=lambda t: (-t[0], t[1] in given, t[1]))
+    return [key for _, key in ranked[:n]]
+
+
 def from_mapping(
     cls: type, data: Any, label: str | None = None, path: str | Path | None = None,
     sections: Mapping[str, type] | None = None,
@@ -191,8 +199,7 @@ def from_mapping(
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:  # the closest known keys first: the whole list may be cut at the one line's end
-        free = known - set(data)  # a key not given yet first (--set gives them all: then any)
-        close = [m for k in unknown for m in difflib.get_close_matches(str(k), free or known, n=2)]
+        close = [m for k in unknown for m in close_keys(str(k), known, set(data))]
         hint = f"did you mean {', '.join(dict.fromkeys(close))}? " if close else ""
         raise InputError(f"unknown {label} keys {unknown}; {hint}expected some of {sorted(known)}", path=path)
     sections = sections or {}
