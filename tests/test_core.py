@@ -219,6 +219,6 @@ def test_an_unknown_key_suggests_the_closest_known_one() -> None:
 
     with pytest.raises(InputError, match=r"unknown settings keys \['seeds'\]; did you mean seed, "):
         from_mapping(Settings, {"seed": 1, "seeds": 2}, "settings")
-    assert close_keys("stepss", {"steps", "step"}, {"steps"}) == ["steps", "step"]  # the closest, given or not
+    assert close_keys("stepss", {"steps", "step"}, {"steps"}) == ["steps", "step"]  # the closest, given too
     assert close_keys("stepx", {"steps", "step"}, {"steps"}) == ["step", "steps"]  # as close: the free one
     assert close_keys("zzz", {"steps", "step"}, set()) == []
