@@ -30,6 +30,12 @@ from spikenerf.eval.render_record import RECORD, read_render_record
 from spikenerf.importing.poses import read_pose_source
 from spikenerf.pipelines.benchmark.cells import read_cell
 from spikenerf.pipelines.benchmark.results import read_call
+from spikenerf.pipelines.benchmark.settings import (
+    NAME,
+    adopt_integral_defaults,
+    check_settings,
+    write_settings,
+)
 from spikenerf.recon.net import load_weights, shipped_weights
 from spikenerf.recon.store import read_manifest
 from spikenerf.scenes.image_io import read_image
@@ -750,13 +756,6 @@ def _bench_cfg(out: Path):  # type: ignore[no-untyped-def]
 def test_benchmark_settings(tmp_path: Path) -> None:
     """``OUT/benchmark.json`` mutated: a resume reads it (check_settings, adopt_integral_defaults) or
     refuses it in one line naming the file or the folder."""
-    from spikenerf.pipelines.benchmark.settings import (
-        NAME,
-        adopt_integral_defaults,
-        check_settings,
-        write_settings,
-    )
-
     cfg = _bench_cfg(tmp_path)
     write_settings(cfg, None)
 
@@ -778,13 +777,6 @@ def test_benchmark_settings_malformed(tmp_path: Path, change: Callable, words: s
     """benchmark.json nested beyond the stack was a RecursionError; settings that are no object, or field or
     spike-integral defaults that are none, an AttributeError or TypeError (adopt_integral_defaults had no
     except at all)."""
-    from spikenerf.pipelines.benchmark.settings import (
-        NAME,
-        adopt_integral_defaults,
-        check_settings,
-        write_settings,
-    )
-
     cfg = _bench_cfg(tmp_path)
     write_settings(cfg, None)
     changed = change(json.loads((tmp_path / NAME).read_text()))
