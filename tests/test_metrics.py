@@ -272,3 +272,13 @@ def test_ssim_of_channels_last_images_says_so_and_an_unknown_lpips_backbone_is_n
     with pytest.raises(InputError, match="lpips_backbone must be alex, vgg or None, found 'squeeze'") as err:
         lpips_status("squeeze", 64, 64)
     assert err.value.params == ("lpips_backbone",)
+
+
+def test_lpips_left_out_by_the_caller_says_so_without_a_flag() -> None:
+    """``evaluate_run(lpips_backbone=None)`` recorded "disabled (--lpips none)", a flag a Python caller never
+    gave."""
+    from spikenerf.eval.evaluate import lpips_status
+
+    backbone, reason = lpips_status(None, 64, 64)
+    assert backbone is None and reason == "no LPIPS backbone was chosen"
+    assert "--" not in reason

@@ -141,7 +141,7 @@ def score_view(
 def lpips_status(backbone: str | None, height: int, width: int) -> tuple[str | None, str | None]:
     """(backbone to use or None, reason it is not used or None)."""
     if backbone is None:
-        return None, "disabled (--lpips none)"
+        return None, "no LPIPS backbone was chosen"
     if backbone not in lp.MIN_SIZE:
         known = ", ".join(lp.MIN_SIZE)
         raise InputError(
