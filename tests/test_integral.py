@@ -254,6 +254,64 @@ def test_a_ray_that_hits_nothing_is_compared_with_its_pixels_own_window(
     assert float(term.loss) < float(window_mean_loss(torch.ones(len(step), 1, 1), behind, None))
 
 
+def test_a_ray_through_faint_haze_is_background_not_a_surface_to_track(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """A ray of opacity 0.002 (a faint haze, 99.8 % white background) has a depth inside the box, since
+    depth is Σ wᵢ tᵢ / Σ wᵢ: it shows the background, so its target is its pixel's own window, not the spikes
+    along the track of a point in the haze (which ``depth > 0`` alone picked)."""
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    cfg.integral.samples, cfg.integral.groups, cfg.integral.track = 1, 1, 3
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    method, counts = trainer.method, trainer.method.counts
+    _, _, pixels, steps = method.draw(trainer)
+    step = steps[:, 0]
+    origins, dirs = pixel_rays(counts.poses[step], dataset.intrinsics, pixels)
+    depth = (origins.norm(dim=1) * 0.5).detach()  # half way to the scene's centre: inside the haze
+
+    def haze(poses, pixels, perturb=True):  # type: ignore[no-untyped-def]
+        n = len(pixels)
+        return RenderOutput(torch.full((n, 1), 0.998, requires_grad=True), depth, torch.full((n,), 0.002))
+
+    trainer.render_rays = haze  # type: ignore[method-assign]
+    term = method.track_term(trainer, pixels, step)
+    own = counts.window_mean((step - 3).clamp_min(0), (step + 4).clamp_max(counts.steps), pixels)
+    tracked = counts.track_mean(origins + depth[:, None] * dirs, step, 3, dataset.intrinsics)
+    assert not torch.allclose(own, tracked)  # (they differ: the check below means something)
+    torch.testing.assert_close(term.loss, window_mean_loss(torch.full((len(step), 1, 1), 0.998), own, None))
+
+
+def test_a_refined_run_tracks_along_the_poses_it_renders_from(
+    dataset_dir: Path, dataset, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """With pose refinement the render at step k uses the refined pose; the track projected its point into
+    the recorded poses, so even its own step read another pixel. A one-step track of a point on pixel p's
+    (refined) ray is step k's spike at p."""
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    cfg.integral.samples, cfg.integral.groups, cfg.integral.track = 1, 1, 3
+    cfg.poses.refine = True
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    assert trainer.pose_refine is not None
+    trainer.pose_refine.refiner.xi.data[:, 0] = 0.1  # a rotation of 0.1 rad: pixels move by several px
+    method, counts = trainer.method, trainer.method.counts
+    method.config.integral.track = 0  # one-step tracks
+    _, _, pixels, steps = method.draw(trainer)
+    step = steps[:, 0]
+
+    def surface(poses, pixels, perturb=True):  # type: ignore[no-untyped-def]
+        n = len(pixels)
+        return RenderOutput(torch.full((n, 1), 0.3, requires_grad=True), torch.full((n,), 3.0), torch.ones(n))
+
+    trainer.render_rays = surface  # type: ignore[method-assign]
+    term = method.track_term(trainer, pixels, step)
+    own = counts.window_mean(step, step + 1, pixels)
+    torch.testing.assert_close(term.loss, window_mean_loss(torch.full((len(step), 1, 1), 0.3), own, None))
+    origins, dirs = pixel_rays(trainer.pose_refine(counts.poses[step], method.step_numbers[step]),
+                               dataset.intrinsics, pixels)  # fmt: skip
+    recorded = counts.track_mean(origins + 3.0 * dirs, step, 0, dataset.intrinsics)  # the recorded poses'
+    assert not torch.allclose(recorded, own)  # (the old target: other pixels, so the check above can fail)
+
+
 def test_learned_prior_adds_its_weighted_term_and_its_gradient(
     dataset_dir: Path, dataset, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]

@@ -102,7 +102,7 @@ def test_range_selects_frames(tiny: Path) -> None:
     ]:  # not clipped silently
         with pytest.raises(InputError, match=f"{value} is outside the 6 listed frames") as err:
             SequenceSource(tiny, frame_range=past)
-        assert err.value.params == ("sequence_range",)
+        assert err.value.params == ("frame_range",)
 
 
 # ------------------------------------------------------------------------------------- hold/interpolate
@@ -374,7 +374,7 @@ def test_bad_input_raises_input_error_naming_file(tiny: Path, expected: str) -> 
 def test_other_bad_arguments(tmp_path: Path, tiny: Path) -> None:
     with pytest.raises(InputError, match="transforms file not found"):
         SequenceSource(tmp_path / "missing.json")
-    with pytest.raises(InputError, match="steps per frame"):
+    with pytest.raises(InputError, match="steps_per_frame: expected an integer"):
         SequenceSource(tiny, steps_per_frame=0)
     with pytest.raises(InputError, match=r"^steps_per_frame: this needs about .* of memory") as err:
         SequenceSource(tiny, steps_per_frame=10**15)  # refused before its schedule is allocated

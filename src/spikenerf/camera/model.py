@@ -330,7 +330,8 @@ class SpikeCamera:
         if not (math.isnan(low) or low < 0 or math.isinf(high)):
             self._checked = self._steps
             return
-        what = "a value below 0" if low < 0 else "an infinity" if math.isinf(high) else "a NaN"
+        infinity = "an infinity (or a value beyond float32's 3.4e38)"
+        what = "a value below 0" if low < 0 else infinity if math.isinf(high) else "a NaN"
         raise InputError(
             f"intensity held {what} at one of steps {self._checked}..{self._steps - 1} (the accumulator of a "
             f"pixel is {low if low < 0 or math.isnan(low) else high:g}): intensity must be finite "
@@ -371,11 +372,13 @@ class SpikeCamera:
                 )
             integer = intensity.dtype.kind in "iu"
         if self.device is None:
-            x = np.asarray(intensity, dtype=np.float32)
+            with np.errstate(over="ignore"):  # (beyond float32: inf, which check() names)
+                x = np.asarray(intensity, dtype=np.float32)
         elif isinstance(intensity, torch.Tensor):
             x = intensity.detach().to(device=self.device, dtype=torch.float32)
         else:  # (contiguous: torch takes no negative strides)
-            a = np.ascontiguousarray(intensity, dtype=np.float32)
+            with np.errstate(over="ignore"):
+                a = np.ascontiguousarray(intensity, dtype=np.float32)
             x = torch.from_numpy(a if a.flags.writeable else a.copy()).to(self.device)
         shape = tuple(x.shape)
         if x.ndim < 2 or x.ndim > 4 or shape[-2:] != (self.height, self.width):

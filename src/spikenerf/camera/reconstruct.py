@@ -67,7 +67,7 @@ def iter_window_counts(
         return
     lo_all, hi_all = np.maximum(out_idx - half, 0), np.minimum(out_idx + half + 1, total)
     base = int(lo_all[0])
-    src = _as_uint8(flat[base : int(hi_all[-1])])
+    src = spike_bytes(flat[base : int(hi_all[-1])])
     # the narrowest counter that holds 2h+1 (less memory traffic per frame)
     acc = np.zeros(flat.shape[1], np.min_scalar_type(2 * half + 1) if half < 32767 else np.int32)
     cur_lo = cur_hi = base
@@ -159,7 +159,7 @@ def _first_two(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     second_r = first_r.copy()
     tmp = np.empty_like(first_r)
     for i in range(total - 1, -1, -1):
-        row = _as_uint8(flat[i])  # (checks a float stream's values: the one scan that reads every row)
+        row = spike_bytes(flat[i])  # (checks a float stream's values: the one scan that reads every row)
         np.maximum(second_r, np.multiply(row, first_r, out=tmp), out=second_r)
         np.maximum(first_r, np.multiply(row, np.int32(total - i), out=tmp), out=first_r)
     return total - first_r, total - second_r
@@ -269,7 +269,7 @@ def flat_stream(
     indices (ascending): the one check of a stream's shape for TFP, TFI and the masks.
 
     InputError naming ``spikes`` for any other shape (one frame (H, W), channels last (T, H, W, 3)), and
-    ``frames`` for a bad selection. Values are checked where they are read (:func:`_as_uint8`: a float
+    ``frames`` for a bad selection. Values are checked where they are read (:func:`spike_bytes`: a float
     stream must hold only 0.0 and 1.0; bool and integers are not checked, any non-zero is a spike).
     """
     x = as_numpy(spikes)
@@ -286,10 +286,12 @@ def flat_stream(
     return x.reshape(x.shape[0], int(np.prod(x.shape[1:]))), x.shape[1:], out_idx
 
 
-def _as_uint8(x: np.ndarray) -> np.ndarray:
-    """0/1 uint8 for counting: bool is viewed, other dtypes become ``x != 0``; InputError naming ``spikes``
-    when a float (or complex) array holds a value other than 0 and 1 (intensities are not spikes). The
-    check costs one comparison more, on float input only (bool and integers pass unchecked)."""
+def spike_bytes(x: np.ndarray) -> np.ndarray:
+    """Spikes (...) of any shape as 0/1 uint8 (...) for counting (the one reading of a spike array's values,
+    for TFP, TFI, the masks and the learned reconstructor): bool is viewed, other dtypes become
+    ``x != 0``; InputError naming ``spikes`` when a float (or complex) array holds a value other than 0
+    and 1 (intensities are not spikes). The check costs one comparison more, on float input only (bool
+    and integers pass unchecked)."""
     if x.dtype == np.bool_:
         return x.view(np.uint8)
     fired = x != 0

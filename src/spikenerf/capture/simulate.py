@@ -43,7 +43,7 @@ from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import MODES, near_far, spike_files
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
 from spikenerf.scenes.base import FrameSource
-from spikenerf.scenes.trajectory import Trajectory, pose_at
+from spikenerf.scenes.trajectory import Trajectory, check_trajectory, pose_at
 
 #: spike steps buffered per colour mode before they are appended to the .dat files
 SPIKE_CHUNK = 64
@@ -477,6 +477,7 @@ def simulate_dataset(
     if not is_integer(jobs) or jobs < 1:
         raise InputError(f"jobs must be an integer ≥ 1, found {jobs!r}", param="jobs")
     check_options(options)
+    check_trajectory(source.trajectory, "source.trajectory")  # before any frame is rendered
     test = np.asarray(getattr(source, "test_poses", np.zeros((0, 4, 4))), dtype=np.float64).reshape(-1, 4, 4)
     check_bounds_of(np.concatenate([source.trajectory.poses, test]), np.asarray(source.scene_box, float))
     check_raw_width(options.raw_width, source.intrinsics.height, source.intrinsics.width)

@@ -142,6 +142,7 @@ def command_line() -> str:
 #: parameters of lower layers whose flag is not ``--`` + the name with dashes, for every subcommand
 #: (a subcommand module adds its own as ``PARAM_FLAGS``)
 PARAM_FLAGS = {
+    "dataset_root": "--dataset",  # eval's and render's (train.run.open_run)
     "no_limits": "`spikenerf --no-limits ...`",
     "list_scenes": "`spikenerf simulate --list-scenes`",
 }

@@ -26,7 +26,7 @@ FLOAT_OPTIONS = (
 #: the camera's colour modes (``camera/modes.py``: no torch import, so `simulate --help` stays quick)
 CAMERA_COLORS = COLORS
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
-PARAM_FLAGS = {"colors": "--color", "elevation_deg": "--elevation"}
+PARAM_FLAGS = {"colors": "--color", "elevation_deg": "--elevation", "frame_range": "--sequence-range"}
 
 
 def _colors(color: str) -> tuple[str, ...]:

@@ -18,6 +18,7 @@ import contextlib
 import dataclasses
 import difflib
 import math
+import os
 import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -123,7 +124,8 @@ def describe(hint: Any) -> str:
 def plain_scalars(config: Any) -> None:
     """Replace the numpy scalars among ``config``'s fields (and its sections', its lists', tuples' and
     dicts' items) by the Python numbers they hold: a sweep's ``np.linspace`` value is a number to
-    :func:`check_config` and to the YAML a run records. Duck-typed: this module imports no numpy."""
+    :func:`check_config` and to the YAML a run records; a ``pathlib.Path`` (what ``simulate_dataset``
+    returns) is its string. Duck-typed: this module imports no numpy."""
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if dataclasses.is_dataclass(value):
@@ -135,6 +137,8 @@ def plain_scalars(config: Any) -> None:
 def _plain(value: Any) -> Any:
     if type(value).__module__ == "numpy" and getattr(value, "ndim", None) == 0:
         return value.item()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
     if isinstance(value, (list, tuple)):
         items = [_plain(v) for v in value]
         return type(value)(items) if any(a is not b for a, b in zip(items, value, strict=True)) else value

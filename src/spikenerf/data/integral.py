@@ -82,7 +82,7 @@ class CountTargets:
             n = n + (self.phase[end, y, x].float() - self.phase[start, y, x].float()) / PHASE_SCALE
         return self.threshold * n / (end - start).float()[:, None]
 
-    def _track_steps(self, steps: Tensor, half: int) -> tuple[Tensor, Tensor]:
+    def track_steps(self, steps: Tensor, half: int) -> tuple[Tensor, Tensor]:
         """The steps ``steps − half … steps + half`` (B, L) int64, clamped into the stream, and (B, L) bool:
         inside the stream and :attr:`usable`."""
         device, total = self.counts.device, self.steps
@@ -98,17 +98,28 @@ class CountTargets:
         spikes = (self.counts[j + 1, y, x].int() - self.counts[j, y, x].int()).float() * valid[..., None]
         return self.threshold * spikes.sum(dim=1) / valid.sum(dim=1).clamp_min(1)[:, None].float()
 
-    def track_mean(self, points: Tensor, steps: Tensor, half: int, intrinsics: Intrinsics) -> Tensor:
+    def track_mean(
+        self, points: Tensor, steps: Tensor, half: int, intrinsics: Intrinsics, poses: Tensor | None = None
+    ) -> Tensor:
         """Mean spike intensity (B, C) float32 along the image tracks of world ``points`` (B, 3): over the
         steps ``steps − half … steps + half`` of ``steps`` (B,) int64, the spike of each step read at the
         pixel the point projects to in that step's pose (OpenGL axes), ``φ/L' Σ_j s_j(pixel_j)`` over the
         L' steps inside the stream (and :attr:`usable`) whose pixel is inside the image. On the counts'
         device; no host sync. A one-step track (``half`` 0) of a point on pixel p's ray at step k is
-        ``window_mean(k, k + 1, p)``.
+        ``window_mean(k, k + 1, p)``. ``poses``: (B, 2·half + 1, 4, 4) the poses of the steps
+        :meth:`track_steps` gives (a refined trajectory's, so that the track follows the poses the point
+        was rendered from); None: :attr:`poses`.
         """
-        j, valid = self._track_steps(steps, half)
+        j, valid = self.track_steps(steps, half)
+        if poses is None:
+            poses = self.poses.to(j.device)[j]
+        elif tuple(poses.shape) != (*j.shape, 4, 4):
+            raise InputError(
+                f"poses must be (B, 2·half + 1, 4, 4) = {(*j.shape, 4, 4)}, found {tuple(poses.shape)}",
+                param="poses",
+            )
         u, v, depth = project_points(
-            self.poses.to(j.device)[j], points.to(j.device, torch.float32)[:, None], intrinsics
+            poses.to(j.device, torch.float32), points.to(j.device, torch.float32)[:, None], intrinsics
         )
         x, y = torch.floor(u).long(), torch.floor(v).long()
         valid &= (depth > 1e-6) & (x >= 0) & (x < intrinsics.width) & (y >= 0) & (y < intrinsics.height)
@@ -119,7 +130,7 @@ class CountTargets:
         """:meth:`track_mean` of a track that stays at ``pixels`` (B, 2) int64 ``(x, y)``: the pixel's own
         mean spike intensity (B, C) over the same steps; without :attr:`usable`, ``window_mean`` of the
         window ``[steps − half, steps + half + 1)`` clipped to the stream."""
-        j, valid = self._track_steps(steps, half)
+        j, valid = self.track_steps(steps, half)
         pixels = pixels.to(j.device)
         x, y = pixels[:, :1].expand_as(j), pixels[:, 1:].expand_as(j)
         return self._mean_along(j, x, y, valid)

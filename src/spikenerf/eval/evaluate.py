@@ -224,7 +224,8 @@ def evaluate_run(
             autocast precision (the no-reference checks render in fp32); metrics.json records the one used.
         noref: ``auto`` (on for imported datasets), ``on`` or ``off``: the no-reference checks against the
             recording itself (:mod:`spikenerf.eval.noref`). noref_options: their settings.
-        progress: progress bars. log: called with the one summary line (None: silent).
+        progress: progress bars. log: called with each warning line (None: silent; the result holds
+            the scores, ``eval.describe`` words them).
         test_pose: (iterations, learning rate) of the test-view pose fit (iterations 0: off;
             ``eval --test-pose-opt``, ``--test-pose-lr``).
     Returns:
@@ -236,6 +237,9 @@ def evaluate_run(
     noref_options = NoRefOptions() if noref_options is None else noref_options
     noref_options.check()
     check_noref(noref)
+    if log is not None and not callable(log):
+        found = type(log).__name__
+        raise InputError(f"log must be a function of one line or None, found {found}", param="log")
     if not isinstance(test_pose, tuple | list) or len(test_pose) != 2:
         raise InputError(
             f"test_pose must be (iterations, learning rate), found {test_pose!r:.60}", param="test_pose"

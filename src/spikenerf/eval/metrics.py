@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite
 from spikenerf.core.psnr import mse_to_psnr
 
 
@@ -28,15 +28,34 @@ class SSIMConfig:
     data_range: float = 1.0
 
 
-def _batched(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, bool]:
-    """Check shapes and lift (C,H,W) to (1,C,H,W); returns (a, b, was_single)."""
+def _batched(
+    a: torch.Tensor, b: torch.Tensor, data_range: float | None = None
+) -> tuple[torch.Tensor, torch.Tensor, bool]:
+    """Check and lift (C,H,W) to (1,C,H,W); returns (a, b, was_single). Arrays are read as tensors.
+
+    Raises:
+        InputError: naming ``a``/``b`` for shapes that differ or are not (N,C,H,W)/(C,H,W), or (given a
+            ``data_range``) an integer image scored on the range 1 (8-bit values 0..255 as 0..1 gave a
+            PSNR of −21.8 dB); naming ``data_range`` unless it is None or a finite number > 0.
+    """
+    if data_range is not None and not (is_finite(data_range) and data_range > 0):
+        raise InputError(f"data_range must be a finite number > 0, found {data_range!r}", param="data_range")
+    a, b = torch.as_tensor(a), torch.as_tensor(b)
     if a.shape != b.shape:
-        raise ValueError(f"image shapes differ: {tuple(a.shape)} vs {tuple(b.shape)}")
-    if a.ndim == 3:
-        return a[None], b[None], True
-    if a.ndim != 4:
-        raise ValueError(f"expected (N,C,H,W) or (C,H,W) images, got shape {tuple(a.shape)}")
-    return a, b, False
+        shapes = f"{tuple(a.shape)} vs {tuple(b.shape)}"
+        raise InputError(f"a and b: image shapes differ: {shapes}", param=("a", "b"))
+    if a.ndim not in (3, 4):
+        raise InputError(
+            f"a and b must be (N,C,H,W) or (C,H,W) images, found shape {tuple(a.shape)}", param=("a", "b")
+        )
+    for name, x in (("a", a), ("b", b)):
+        if data_range == 1 and not x.dtype.is_floating_point and x.dtype != torch.bool:
+            raise InputError(
+                f"{name} holds {x.dtype} values, scored here on the range [0, 1]: convert 8-bit images to "
+                "floats (x / 255), or give data_range=255",
+                param=name,
+            )
+    return (a[None], b[None], True) if a.ndim == 3 else (a, b, False)
 
 
 def mean_or_none(values: list[float | None]) -> float | None:
@@ -60,7 +79,9 @@ def _mask_batched(mask: torch.Tensor | None, shape: torch.Size) -> torch.Tensor 
         return None
     mask = mask[None] if mask.ndim == 3 else mask
     if mask.shape != shape:
-        raise ValueError(f"mask shape {tuple(mask.shape)} differs from the images' {tuple(shape)}")
+        raise InputError(
+            f"mask shape {tuple(mask.shape)} differs from the images' {tuple(shape)}", param="mask"
+        )
     return mask.bool()
 
 
@@ -85,6 +106,7 @@ def psnr(
     Returns:
         (N,) or () float64, dB.
     """
+    _batched(a, b, data_range)  # (its range: an integer image is refused on the range 1)
     return mse_to_psnr(mse(a, b, mask), data_range)
 
 
@@ -114,7 +136,7 @@ def ssim_map(a: torch.Tensor, b: torch.Tensor, config: SSIMConfig = SSIMConfig()
     Returns:
         (N, C, H − window + 1, W − window + 1) float64.
     """
-    a, b, _ = _batched(a, b)
+    a, b, _ = _batched(a, b, config.data_range)
     if min(a.shape[-2:]) < config.window:
         last = a.shape[-1] in (1, 3) and a.shape[-3] not in (1, 3)
         hint = "; channels last? images here are (C, H, W): permute (H, W, C) ones first" if last else ""
@@ -148,8 +170,8 @@ def ssim(
     Returns:
         (N,) or () float64 in [-1, 1]; 1 for identical images (NaN where the mask leaves nothing).
     """
-    single = a.ndim == 3
-    m = _mask_batched(mask, a.shape if a.ndim == 4 else a[None].shape)
+    a, b, single = _batched(a, b, config.data_range)
+    m = _mask_batched(mask, a.shape)
     if m is not None:
         r = config.window // 2
         m = m[..., r : m.shape[-2] - r, r : m.shape[-1] - r]

@@ -14,8 +14,9 @@ import numpy as np
 import torch
 
 from spikenerf.camera.io import resolve_frames
-from spikenerf.camera.reconstruct import check_threshold
-from spikenerf.core.errors import InputError
+from spikenerf.camera.modes import COLORS
+from spikenerf.camera.reconstruct import check_threshold, flat_stream, spike_bytes
+from spikenerf.core.errors import InputError, check_choice
 from spikenerf.recon.features import RunningFeatures
 from spikenerf.recon.net import ReconNet
 
@@ -128,9 +129,10 @@ def fast_layout(net: ReconNet) -> ReconNet:
 
 
 def spike_tensor(frames: np.ndarray) -> torch.Tensor:
-    """(T, ...) 0/1 spikes as a uint8 tensor, sharing memory where the array is writable uint8 or bool."""
-    a = np.asarray(frames)
-    a = a.view(np.uint8) if a.dtype == np.bool_ else a.astype(np.uint8, copy=False)
+    """(T, ...) spikes as a 0/1 uint8 tensor (:func:`~spikenerf.camera.reconstruct.spike_bytes`: any
+    non-zero integer is a spike, a float other than 0.0/1.0 an InputError), sharing memory where the array
+    is writable bool."""
+    a = spike_bytes(np.asarray(frames))
     return torch.from_numpy(a if a.flags.writeable else a.copy())
 
 
@@ -225,9 +227,16 @@ def reconstruct_learned(
     from spikenerf.recon.net import load_weights
 
     check_threshold(threshold)
+    check_choice(mode, COLORS, "mode")  # before the weights: a wrong mode is the caller's, not the file's
+    x = np.asarray(spikes)
+    flat_stream(x, None)  # (T, H, W) or (T, 3, H, W), as for tfp and tfi
+    if (x.ndim == 4) != (mode == "rgb"):
+        want = "(T, 3, H, W)" if mode == "rgb" else "(T, H, W)"
+        raise InputError(
+            f"spikes of mode {mode!r} must be {want}, found shape {x.shape}", param=("spikes", "mode")
+        )
     net, _ = load_weights(weights, mode)
     check_window(net, window)
-    x = np.asarray(spikes)
     if isinstance(frames, (int, np.integer)) and not isinstance(frames, bool):
         sel = resolve_frames(frames, x.shape[0])  # one frame, as tfp and tfi take it
     else:

@@ -94,6 +94,9 @@ def check_poses(poses: Tensor | np.ndarray, param: str, one: bool = False) -> No
         if len(shapes) > 1:
             raise InputError(f"{param}: poses of different shapes {sorted(shapes)}", param=param)
         poses = torch.stack(list(poses))  # (a list of tensors, maybe on a GPU: no numpy view of them)
+    if hasattr(poses, "poses") and hasattr(poses, "steps"):  # a Trajectory (orbit(...)) read as (N,) objects
+        message = f"{param}: pass the trajectory's poses (trajectory.poses), not the Trajectory"
+        raise InputError(message, param=param)
     shape = tuple(poses.shape) if hasattr(poses, "shape") else tuple(np.shape(poses))
     want = (4, 4) if one else ("N", 4, 4)
     if len(shape) != len(want) or shape[-2:] != (4, 4):

@@ -20,6 +20,7 @@ from torch import Tensor
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.model import fire
 from spikenerf.camera.reconstruct import check_threshold
+from spikenerf.core import tensor_checks
 from spikenerf.core.errors import InputError
 from spikenerf.data.rays import as_poses, pixel_rays
 from spikenerf.render.base import RadianceModel
@@ -92,6 +93,8 @@ def render_spike_window(
     device = model.device
     pose = as_poses(poses, device)
     pixels = torch.as_tensor(pixels, device=device)
+    check_window_args(pixels, start_accumulator, intrinsics, model.channels)
+    tensor_checks.check_threshold(threshold)
     n_steps, n_pix = pose.shape[0], pixels.shape[0]
     per_ray = pose[:, None].expand(n_steps, n_pix, 4, 4).reshape(-1, 4, 4)
     origins, dirs = pixel_rays(per_ray, intrinsics, pixels.repeat(n_steps, 1))
@@ -100,6 +103,38 @@ def render_spike_window(
     intensity = out.color.view(n_steps, n_pix, -1)
     spikes, accs = fire_sequence(intensity, start_accumulator.to(device, intensity.dtype), threshold)
     return SpikeWindow(intensity, spikes, accs)
+
+
+def check_window_args(pixels: Tensor, start: Tensor, intrinsics: Intrinsics, channels: int) -> None:
+    """InputError naming ``pixels`` unless they are (N, 2) integers inside the image (the range only where
+    :func:`~spikenerf.core.tensor_checks.readable`), or ``start_accumulator`` unless it is a tensor (N, C)
+    (an (N,) or (N, 1) broadcast against C channels without a word)."""
+    if (
+        pixels.dim() != 2
+        or pixels.shape[1] != 2
+        or pixels.dtype.is_floating_point
+        or pixels.dtype == torch.bool
+    ):
+        raise InputError(
+            f"pixels must be (N, 2) integer (x, y), found {pixels.dtype} of shape {tuple(pixels.shape)}",
+            param="pixels",
+        )
+    if tensor_checks.readable(pixels) and pixels.numel():
+        x, y = pixels[:, 0], pixels[:, 1]
+        if bool(
+            (x < 0).any() | (x >= intrinsics.width).any() | (y < 0).any() | (y >= intrinsics.height).any()
+        ):
+            raise InputError(
+                f"pixels must lie in the {intrinsics.width}×{intrinsics.height} image (0 ≤ x < width, "
+                "0 ≤ y < height)",
+                param="pixels",
+            )
+    want = (pixels.shape[0], channels)
+    if not isinstance(start, Tensor) or tuple(start.shape) != want:
+        found = tuple(start.shape) if isinstance(start, Tensor) else type(start).__name__
+        raise InputError(
+            f"start_accumulator must be a tensor {want} (N, C), found {found}", param="start_accumulator"
+        )
 
 
 def random_start(
@@ -149,6 +184,8 @@ def iter_spike_states(
             )
         acc = to_channels_last(torch.as_tensor(start_accumulator), frame=True, name="start_accumulator")
         acc = acc.to(model.device, torch.float32)
+        if not bool(torch.isfinite(acc).all()):  # (a NaN start fired no spike at all)
+            raise InputError("start_accumulator holds a NaN or an infinity", param="start_accumulator")
     chunk = inference_chunk(model, chunk)
     return _spike_states(model, as_poses(poses, model.device), intrinsics, threshold, acc, chunk, near, far)
 

@@ -4,7 +4,8 @@ Colour handling:
 
 * 8-bit and 16-bit integer images (PNG, JPEG, anything Pillow reads) are sRGB-encoded: they are scaled to
   [0, 1] and linearised with :func:`~spikenerf.core.color.srgb_decode`. Alpha is linear coverage.
-* float images (``.npy``; ``.exr`` when an imageio plugin can read it) are linear radiance, used as they are.
+* float images (``.npy``; ``.exr`` when an imageio plugin can read it) are linear radiance, used as they are
+  (values above 1 kept), but negative values are 0 (no negative light), before any resampling.
 * RGBA is composited on white *after* linearising: ``rgb·a + (1 − a)``. Gray images are repeated to RGB.
 
 Pillow reduces 16-bit colour PNGs to 8 bits, so 16-bit PNGs are decoded here: the filtered scanlines are
@@ -125,10 +126,13 @@ def to_linear_rgba(arr: np.ndarray, path: str | Path | None = None) -> np.ndarra
         x = arr.astype(np.float32) / float(np.iinfo(arr.dtype).max)
         colour = srgb_decode(x[..., :colour_channels])
     elif np.issubdtype(arr.dtype, np.floating):
-        x = arr.astype(np.float32)
-        if not np.isfinite(x).all():
+        if not np.isfinite(arr).all():
             raise InputError("image holds NaN or infinite values", path=path)
-        colour = x[..., :colour_channels]
+        with np.errstate(over="ignore"):
+            x = arr.astype(np.float32)
+        if not np.isfinite(x).all():
+            raise InputError("image holds values beyond float32's range (3.4e38)", path=path)
+        colour = np.maximum(x[..., :colour_channels], 0.0)  # no negative light, before any resampling
     else:
         raise InputError(f"unsupported pixel type {arr.dtype} (expected uint8, uint16 or float)", path=path)
     alpha = x[..., -1:] if arr.shape[2] in (2, 4) else np.ones_like(x[..., :1])

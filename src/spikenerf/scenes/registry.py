@@ -16,7 +16,7 @@ import numpy as np
 from spikenerf.core.errors import InputError, is_integer
 from spikenerf.scenes import analytic
 from spikenerf.scenes.base import FrameSource
-from spikenerf.scenes.trajectory import Trajectory
+from spikenerf.scenes.trajectory import Trajectory, check_trajectory
 from spikenerf.scenes.transforms import rigid_poses
 
 BLENDER_MISSING = "Blender is not installed: pip install 'spikenerf[blender]'"
@@ -134,10 +134,7 @@ def make_scene_source(
             rigid camera-to-world (N, 4, 4) (finite, a rotation, last row 0 0 0 1, as the dataset loader
             checks them; here, before anything is rendered).
     """
-    if not isinstance(trajectory, Trajectory):
-        raise InputError(
-            f"trajectory must be a Trajectory (e.g. orbit(...)), found {trajectory!r:.60}", param="trajectory"
-        )
+    check_trajectory(trajectory)
     name = str(scene)
     if name in analytic.SCENES:  # (its source checks the poses, as below)
         ss = supersample_for(ANALYTIC_SPP if spp is None else spp)

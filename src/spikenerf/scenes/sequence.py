@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spikenerf.core.errors import InputError, is_finite, is_integer
+from spikenerf.core.errors import InputError, is_finite, is_integer, parse_range
 from spikenerf.core.limits import check_memory
 from spikenerf.scenes import transforms
 from spikenerf.scenes.image_io import find_image, image_size, load_frame
@@ -26,7 +26,7 @@ from spikenerf.scenes.trajectory import Intrinsics, Trajectory, interpolate_pose
 #: the stop of an open range ``(A, OPEN_END)`` (Python slices clamp it to the number of frames).
 OPEN_END = sys.maxsize
 #: a selection of the listed frames: a slice, or ``(start, stop)`` as a Python slice's bounds
-FrameRange = slice | tuple[int, int]
+FrameRange = slice | tuple[int, int] | str
 #: half-size of an estimated scene box, as a fraction of the nearest camera's distance to the box centre.
 SCENE_BOX_FACTOR = 0.5
 #: cameras whose positions all lie within this fraction of their distance to the estimated centre do not
@@ -44,29 +44,49 @@ def select_range(count: int, frame_range: FrameRange | None, path: Path | None =
     """The listed-frame indices ``range(count)[A:B]``; an empty selection, or an A or B past either end of the
     ``count`` frames (which a Python slice would clip without a word), is an :class:`InputError`.
 
-    ``frame_range`` is a slice (``core.errors.parse_range("A:B", "sequence_range")``) or ``(A, B)``."""
+    ``frame_range`` is a slice, ``(A, B)`` or the text ``"A:B"`` (``core.errors.parse_range``); InputErrors
+    name ``frame_range``."""
     if frame_range is None:
         return range(count)
-    start, stop = (
-        (frame_range.start, frame_range.stop) if isinstance(frame_range, slice) else tuple(frame_range)
-    )
+    if isinstance(frame_range, str):
+        frame_range = parse_range(frame_range, "frame_range")
+    pair = isinstance(frame_range, (tuple, list)) and len(frame_range) == 2
+    if not (isinstance(frame_range, slice) or pair) or not all(
+        v is None or is_integer(v) for v in _bounds(frame_range)
+    ):
+        raise InputError(
+            f"frame_range must be a slice, (start, stop) integers or 'A:B', found {frame_range!r}",
+            path=path,
+            param="frame_range",
+        )
+    if isinstance(frame_range, slice) and frame_range.step not in (None, 1):
+        raise InputError(
+            f"frame_range: a step is not supported, found {frame_range!r}", path=path, param="frame_range"
+        )
+    start, stop = _bounds(frame_range)
     shown = repr(f"{'' if start is None else start}:{'' if stop in (None, OPEN_END) else stop}")
     outside = [v for v in (start, stop) if v not in (None, OPEN_END) and not -count <= v <= count]
     if outside:
         raise InputError(
-            f"sequence_range {shown}: {outside[0]} is outside the {count} listed frames "
-            f"(-{count} to {count})",
+            f"frame_range {shown}: {outside[0]} is outside the {count} listed frames (-{count} to {count})",
             path=path,
-            param="sequence_range",
+            param="frame_range",
         )
     selected = range(count)[slice(start, stop)]
     if len(selected) == 0:
         raise InputError(
-            f"sequence_range {shown} selects no frames out of {count} listed",
+            f"frame_range {shown} selects no frames out of {count} listed",
             path=path,
-            param="sequence_range",
+            param="frame_range",
         )
     return selected
+
+
+def _bounds(frame_range: slice | tuple | list) -> tuple:
+    """(start, stop) of a slice, or of a pair as it is (its length checked by the caller)."""
+    if isinstance(frame_range, slice):
+        return frame_range.start, frame_range.stop
+    return tuple(frame_range) if len(frame_range) == 2 else (None, None)
 
 
 def step_schedule(
@@ -284,7 +304,7 @@ class SequenceSource:
     Args:
         transforms_json: NeRF-Blender JSON; images are resolved relative to its folder.
         width, height: output size (one alone keeps the aspect ratio); None = the images' size.
-        frame_range: a slice (or (start, stop)) of the listed frames (``core.errors.parse_range``).
+        frame_range: a slice, (start, stop) or "A:B" of the listed frames (``core.errors.parse_range``).
         steps_per_frame: spike steps per source frame, T = frames × steps_per_frame.
         interpolate: blend intensity and interpolate poses between neighbouring frames instead of holding.
         eval_views: a second transforms.json of held-out views with ground truth (the test split).
@@ -310,7 +330,8 @@ class SequenceSource:
         name: str | None = None,
     ) -> None:
         if isinstance(steps_per_frame, bool) or not isinstance(steps_per_frame, int) or steps_per_frame < 1:
-            raise InputError(f"steps per frame: expected an integer ≥ 1, found {steps_per_frame!r}")
+            found = f"found {steps_per_frame!r}"
+            raise InputError(f"steps_per_frame: expected an integer ≥ 1, {found}", param="steps_per_frame")
         if not is_finite(fps) or fps <= 0:  # (10**400 is no float: math.isfinite raises on it)
             raise InputError(f"fps: expected a positive number, found {fps!r}", param="fps")
         path = Path(transforms_json)

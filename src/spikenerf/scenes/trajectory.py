@@ -12,13 +12,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spikenerf.core.errors import InputError, is_integer, is_number
+from spikenerf.core.errors import InputError, is_finite, is_integer, is_number
 from spikenerf.core.limits import check_memory
 
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics in pixels; rays go through pixel centres ``(u + 0.5, v + 0.5)``."""
+    """Pinhole intrinsics in pixels; rays go through pixel centres ``(u + 0.5, v + 0.5)``.
+
+    Raises:
+        InputError: naming the field when ``width``/``height`` is not an integer ≥ 1, a focal length not a
+            finite number > 0, or ``cx``/``cy`` not finite (a NaN focal length rendered a white image).
+    """
 
     width: int
     height: int
@@ -26,6 +31,18 @@ class Intrinsics:
     fl_y: float
     cx: float
     cy: float
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if not is_integer(value) or value < 1:
+                raise InputError(f"{name} must be an integer ≥ 1 (pixels), found {value!r}", param=name)
+        for name in ("fl_x", "fl_y", "cx", "cy"):
+            value = getattr(self, name)
+            focal = name.startswith("fl")
+            if not is_finite(value) or (focal and value <= 0):
+                what = "a finite number > 0 (pixels)" if focal else "a finite number (pixels)"
+                raise InputError(f"{name} must be {what}, found {value!r}", param=name)
 
     @classmethod
     def from_fov(cls, width: int, height: int, camera_angle_x: float) -> Intrinsics:
@@ -69,6 +86,32 @@ class Trajectory:
 
     def __getitem__(self, index: slice | np.ndarray) -> Trajectory:
         return Trajectory(self.poses[index], self.times[index], self.steps[index], self.fps)
+
+
+def check_trajectory(trajectory: Trajectory, param: str = "trajectory") -> None:
+    """InputError naming ``param`` unless ``trajectory`` is a :class:`Trajectory` whose poses (N, 4, 4),
+    times (N,) and steps (N,) agree in N ≥ 1, whose steps are increasing integers and whose ``fps`` is a
+    finite number > 0: what a dataset's ``transforms.json`` must hold (a hand-made one simulated, then the
+    loader refused the dataset, or the writer failed after every frame was rendered). The poses' rigidity
+    is :func:`spikenerf.scenes.transforms.rigid_poses`'s."""
+    if not isinstance(trajectory, Trajectory):
+        found = f"{trajectory!r:.60}"
+        raise InputError(f"{param} must be a Trajectory (e.g. orbit(...)), found {found}", param=param)
+    poses, times, steps = (np.asarray(getattr(trajectory, k)) for k in ("poses", "times", "steps"))
+    n = len(steps) if steps.ndim == 1 else -1
+    if n < 1 or poses.shape != (n, 4, 4) or times.shape != (n,):
+        raise InputError(
+            f"{param}: poses {poses.shape}, times {times.shape} and steps {steps.shape} must be (N, 4, 4), "
+            "(N,) and (N,) with N ≥ 1",
+            param=param,
+        )
+    if steps.dtype.kind not in "iu" or (n > 1 and not (np.diff(steps) > 0).all()):
+        raise InputError(f"{param}: steps must be increasing integers, found {steps[:4]!r:.80}", param=param)
+    if not is_finite(trajectory.fps) or trajectory.fps <= 0 or not np.isfinite(times).all():
+        raise InputError(
+            f"{param}: fps must be a finite number > 0 and times finite, found fps {trajectory.fps!r}",
+            param=param,
+        )
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:

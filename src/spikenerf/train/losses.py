@@ -14,13 +14,12 @@ See docs/method.md for the derivation.
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from spikenerf.camera.model import fire
 from spikenerf.core.errors import InputError, is_number
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
+from spikenerf.core.tensor_checks import check_threshold, readable
 from spikenerf.train.settings import SPIKE_LOSS_KINDS as SPIKE_LOSS_KINDS  # (defined there)
 from spikenerf.train.settings import PairMode
 from spikenerf.train.settings import SpikeLossKind as SpikeLossKind
@@ -52,15 +51,29 @@ def same_shape(reference: torch.Tensor, other: torch.Tensor, name: str, referenc
         )
 
 
-def check_threshold(threshold: float | torch.Tensor) -> None:
-    """InputError naming ``threshold`` unless it is a finite number > 0 (a tensor is not read: no sync).
-    Pure Python, unlike :func:`spikenerf.camera.reconstruct.check_threshold` (numpy): it runs inside the
-    compiled training step, where a numpy call would break the one graph (``tests/test_step_graph.py``)."""
-    if isinstance(threshold, torch.Tensor):
-        return
-    number = is_number(threshold)
-    if not (number and math.isfinite(threshold) and threshold > 0):
-        raise InputError(f"threshold φ must be a finite number > 0, found {threshold!r}", param="threshold")
+def check_tensor(x: object, name: str) -> None:
+    """InputError naming ``name`` unless ``x`` is a torch tensor (a render, which the loss differentiates)."""
+    if not isinstance(x, torch.Tensor):
+        raise InputError(f"{name} must be a torch tensor, found {type(x).__name__}", param=name)
+
+
+def recorded_spikes(spikes: object, like: torch.Tensor) -> torch.Tensor:
+    """``spikes`` (a tensor or array, as ``read_dat`` gives) on ``like``'s device, as spikes: bool as they
+    are, integers as ``!= 0`` (0/255 frames are spikes, as for TFP), floats as they are, which must be 0.0
+    or 1.0 (an InputError naming ``spikes`` where they can be read: :func:`readable`)."""
+    s = torch.as_tensor(spikes)
+    if s.dtype.is_floating_point or s.dtype.is_complex:
+        if readable(s):
+            odd = (s != 0) & (s != 1)
+            if bool(odd.any()):
+                raise InputError(
+                    "spikes must be 0/1 (bool, integers, or floats 0.0 and 1.0), found the float value "
+                    f"{s[odd].flatten()[0].item()!r} (intensities?)",
+                    param="spikes",
+                )
+    elif s.dtype != torch.bool:
+        s = s != 0
+    return s.to(like.device)
 
 
 def window_mean_loss(
@@ -84,13 +97,19 @@ def window_mean_loss(
     Returns:
         Scalar loss (linear intensity squared; may be slightly negative for G ≥ 2, never in expectation).
     """
+    check_tensor(means, "means")
+    target = torch.as_tensor(target, device=means.device)
     if means.dim() != 3 or target.shape != (means.shape[0], means.shape[2]):
         raise InputError(f"means must be (B, G, C) and target (B, C), found {tuple(means.shape)}, "
                          f"{tuple(target.shape)}", param=("means", "target"))  # fmt: skip
-    if band is not None and band.shape != (means.shape[0], 1):
-        raise InputError(
-            f"band must be (B, 1) = {(means.shape[0], 1)}, found {tuple(band.shape)}", param="band"
-        )
+    if band is not None:
+        band = torch.as_tensor(band, device=means.device)
+        if band.shape != (means.shape[0], 1):
+            raise InputError(
+                f"band must be (B, 1) = {(means.shape[0], 1)}, found {tuple(band.shape)}", param="band"
+            )
+        if readable(band) and bool((band < 0).any()):  # (NaN passes: it makes the loss NaN, visibly)
+            raise InputError("band must be ≥ 0 (a half-width), found a negative value", param="band")
     d = means - target.to(means.dtype)[:, None]
     if band is not None:
         width = band.to(d.dtype)[:, None]
@@ -114,7 +133,8 @@ def spike_prefix(intensity: torch.Tensor, spikes: torch.Tensor, threshold: float
     Raises:
         InputError: ``spikes`` not of ``intensity``'s shape, or ``threshold`` not a finite number > 0.
     """
-    spikes = torch.as_tensor(spikes, device=intensity.device)  # (a numpy stream, as read_dat gives)
+    check_tensor(intensity, "intensity")
+    spikes = recorded_spikes(spikes, intensity)  # (a numpy stream, as read_dat gives)
     same_shape(intensity, spikes, "spikes", "intensity")
     check_threshold(threshold)
     resid = intensity - threshold * spikes.to(intensity.dtype)
@@ -144,8 +164,13 @@ def spike_interval_violation(
         violation: (P, ...) ≥ 0, in intensity units; length: (P,) steps ``b − a`` of each pair;
         valid: (P, ...) bool, whether the pair's bounds apply.
     """
+    check_tensor(intensity, "intensity")
+    if max_intensity is not None and not (is_number(max_intensity) and max_intensity > 0):
+        raise InputError(
+            f"max_intensity must be None or a number > 0, found {max_intensity!r}", param="max_intensity"
+        )
     length = intensity.shape[0]
-    spikes = torch.as_tensor(spikes, device=intensity.device)
+    spikes = recorded_spikes(spikes, intensity)
     d = spike_prefix(intensity, spikes, threshold)
     if pairs == "window":
         a_idx = torch.tensor([0], device=d.device)
@@ -217,10 +242,18 @@ def paper_spike_loss(
     Returns:
         Scalar tensor with ``requires_grad=False``.
     """
-    spikes = torch.as_tensor(spikes, device=intensity.device)
+    check_tensor(intensity, "intensity")
+    spikes = recorded_spikes(spikes, intensity)
     same_shape(intensity, spikes, "spikes", "intensity")
+    check_threshold(threshold)
+    acc = torch.as_tensor(start_accumulator, device=intensity.device)
+    if tuple(acc.shape) != tuple(intensity.shape[1:]):  # (N,) against (N, C) broadcast silently
+        raise InputError(
+            f"start_accumulator must be (N, C) = {tuple(intensity.shape[1:])}, found {tuple(acc.shape)}",
+            param="start_accumulator",
+        )
     with torch.no_grad():
-        acc = start_accumulator.detach().to(intensity.dtype)
+        acc = acc.detach().to(intensity.dtype)
         fired = []
         for step in intensity.detach():
             out, acc = fire(acc, step, threshold)

@@ -116,19 +116,19 @@ def open_run(
     model.to(resolve_device(device)).eval()
     if dataset_root is None and not config.dataset:
         raise InputError(
-            "has no 'dataset' entry (or an empty one): give the run's data folder with dataset",
+            "has no 'dataset' entry (or an empty one): give the run's data folder with dataset_root",
             path=run_dir / CONFIG_FILE,
-            param="dataset",
+            param="dataset_root",
         )
     if dataset_root is None and not Path(config.dataset).exists():  # moved or deleted since training
         raise InputError(
             f"the run's data folder {config.dataset} is not there any more: if it moved, give its new "
-            "folder with dataset",
+            "folder with dataset_root",
             path=run_dir / CONFIG_FILE,
-            param="dataset",
+            param="dataset_root",
         )
     dataset = load_dataset(dataset_root if dataset_root is not None else config.dataset, train_images)
-    check_dataset_fits(ckpt, dataset, "dataset" if dataset_root is not None else "the run's dataset")
+    check_dataset_fits(ckpt, dataset, "dataset_root" if dataset_root is not None else "the run's dataset")
     return model, config, dataset, ckpt
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -123,6 +124,8 @@ def _stored_and_given(path: Path, given: TrainConfig) -> tuple[TrainConfig, Trai
     own; a run from before track windows has none. Keys the method does not read (``unused_keys``) are the
     run's own too: a flag ``train`` called ignored does not block the resume."""
     stored = load_run_config(path)
+    if stored.dataset:  # a run from before absolute dataset paths: as seen from here, as ``given``'s is
+        stored.dataset = str(Path(stored.dataset).resolve())
     if stored.integral.track is None:  # a run from before track windows: none
         stored.integral.track = 0
     if not any(line.startswith("holdout:") for line in path.read_text(encoding="utf-8").splitlines()):
@@ -210,6 +213,26 @@ def check_api_args(config: object, out: object, dataset: object) -> None:
             f"{type(dataset).__name__}",
             param="dataset",
         )
+
+
+def _dataset_recorded(config: TrainConfig, dataset: SpikeDataset | None) -> TrainConfig:
+    """``config`` with ``dataset`` the absolute path of the folder the run trains on: ``dataset``'s, when a
+    loaded one is given (``config.dataset`` empty or the same folder; another one is an InputError), else
+    ``config.dataset`` resolved. ``config.yaml`` records it, so that ``load_run`` and ``evaluate_run`` find
+    the data from any working directory (a relative path held only from the folder training ran in)."""
+    named = str(config.dataset) if isinstance(config.dataset, (str, os.PathLike)) else config.dataset
+    if dataset is None:
+        if not isinstance(named, str) or not named:
+            return config  # validate() names the problem
+        return dataclasses.replace(config, dataset=str(Path(named).resolve()))
+    root = Path(dataset.root).resolve()
+    if isinstance(named, str) and named and Path(named).resolve() != root:
+        raise InputError(
+            f"config.dataset names {named} but the dataset given was loaded from {dataset.root}: give one "
+            "(or the same folder in both)",
+            param=("dataset", "config.dataset"),
+        )
+    return dataclasses.replace(config, dataset=str(root))
 
 
 def check_stop_after(stop_after: object) -> None:
@@ -302,6 +325,7 @@ class Trainer:
         progress: bool = True,
     ) -> None:
         check_api_args(config, out, dataset)
+        config = _dataset_recorded(config, dataset)
         self.out = Path(out)
         check_output(self.out, "run", overwrite=True)  # (train() checks it too: a Trainer made alone)
         self.progress = progress
@@ -645,8 +669,21 @@ def train(
 
     ``out`` must be new, empty or a run folder; ``resume`` needs it to exist. Temporaries that a killed
     writer left in it are removed first. A folder this call created is removed again when the setup is
-    refused. ``notes``: warning lines shown once the setup succeeded (a refused setup shows its one error
-    line alone).
+    refused.
+
+    Args:
+        config: the settings; ``config.dataset`` names the data folder (``config.yaml`` records its
+            absolute path, so that ``load_run`` finds it from any working directory).
+        out: the run folder. dataset: an already-loaded dataset to train on instead of loading
+            ``config.dataset`` (which must then be empty or the same folder).
+        resume: continue from ``out``'s checkpoint. progress: a progress bar.
+        stop_after: run at most this many iterations in this call, counted from where it starts (a resume
+            at 25 with ``stop_after=20`` stops at 45), then write the checkpoint and return; None: up to
+            ``config.iters``.
+        notes: warning lines shown once the setup succeeded (a refused setup shows its one error line
+            alone).
+    Returns:
+        The run's :class:`TrainSummary` (also in ``out/summary.json``).
     """
     check_api_args(config, out, dataset)
     check_stop_after(stop_after)

@@ -33,6 +33,9 @@ from spikenerf.train.settings import (
 
 #: a spike-aligned window (``integral.align``) spans at most this many times the longest window length
 ALIGN_LONGEST = 8
+#: a track target follows the rendered point only where the ray's opacity reaches this (else the ray shows
+#: mostly the white background, and its pixel's own spikes are the target)
+SURFACE_OPACITY = 0.5
 
 
 def default_window(motion: float, samples: int = 1) -> int:
@@ -254,11 +257,22 @@ class SpikeIntegral(TrainMethod):
         with torch.no_grad():
             origins, dirs = pixel_rays(poses, state.dataset.intrinsics, pixels)
             points = origins + out.depth.detach()[:, None] * dirs
-            target = counts.track_mean(points, steps, c.track, state.dataset.intrinsics).to(state.device)
-            # a ray that hits nothing (depth 0: the white background) has no point to track: its pixel's
-            # own spikes over the same steps (it read the camera's centre, mostly 0, before)
+            track = None  # the recorded poses; refined ones where the run refines them, as rendered
+            if state.pose_refine is not None:
+                j = counts.track_steps(steps, c.track)[0]
+                flat = j.reshape(-1)
+                numbers = self.step_numbers.to(flat.device)[flat]
+                refined = state.pose_refine(counts.poses.to(flat.device)[flat].to(state.device), numbers)
+                track = refined.view(*j.shape, 4, 4)
+            k = state.dataset.intrinsics
+            target = counts.track_mean(points, steps, c.track, k, track).to(state.device)
+            # a ray that hits nothing (the white background) has no point to track: its pixel's own spikes
+            # over the same steps (it read the camera's centre, mostly 0, before). "Nothing" is opacity
+            # below one half, not depth 0: depth is Σ wᵢ tᵢ / Σ wᵢ, so a ray through a faint haze
+            # (opacity 0.002) has a depth inside the box and would be tracked as a surface point there
             own = counts.still_mean(pixels, steps, c.track).to(state.device)
-            target = torch.where(out.depth.detach()[:, None] > 0, target, own)
+            hit = (out.depth.detach() > 0) & (out.opacity.detach() >= SURFACE_OPACITY)
+            target = torch.where(hit[:, None], target, own)
         loss = window_mean_loss(out.color[:, None], target, None)
         if out.coarse_color is not None:
             loss = loss + window_mean_loss(out.coarse_color[:, None], target, None)
