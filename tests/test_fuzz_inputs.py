@@ -1006,3 +1006,184 @@ def test_every_summary_field_type_is_checked_when_read_back() -> None:
     from spikenerf.train.run import _SUMMARY_TYPES, TrainSummary
 
     assert {str(f.type) for f in fields(TrainSummary)} <= set(_SUMMARY_TYPES)
+
+
+# --------------------------------------------------------------------------- checkpoint tensors (review 45)
+def _damage(ckpt: dict, change: str) -> None:
+    """Apply one named damage to a loaded checkpoint (in place): a tensor of another shape, dtype or with
+    NaN/inf values, a missing or extra tensor, an optimizer or random state that does not fit."""
+    import torch
+
+    model, state = ckpt["model"], ckpt["optimizer"]["state"]
+    planes, grid, rng = model["field.density_planes"], model["field.occupancy.grid"], ckpt["rng"]
+    edits = {
+        "plane of another size": lambda: model.update({"field.density_planes": planes[:, :, :5].clone()}),
+        "int planes": lambda: model.update({"field.density_planes": planes.int()}),
+        "float64 planes": lambda: model.update({"field.density_planes": planes.double()}),
+        "complex planes": lambda: model.update({"field.density_planes": planes.to(torch.complex64)}),
+        "NaN planes": lambda: model.update({"field.density_planes": torch.full_like(planes, float("nan"))}),
+        "inf decoder": lambda: model["field.decoder.4.bias"].fill_(float("inf")),
+        "NaN occupancy bounds": lambda: model["field.occupancy.bounds"].fill_(float("nan")),
+        "occupancy grid not cubic": lambda: model.update({"field.occupancy.grid": grid[:2]}),
+        "missing tensor": lambda: model.pop("field.app_lines"),
+        "extra tensor": lambda: model.update({"field.bogus": torch.zeros(3)}),
+        "NaN Adam moment": lambda: state[0]["exp_avg"].fill_(float("nan")),
+        "Adam moment of another shape": lambda: state[0].update({"exp_avg": torch.zeros(3)}),
+        "float64 Adam moment": lambda: state[0].update({"exp_avg": state[0]["exp_avg"].double()}),
+        "Adam step a list": lambda: state[0].update({"step": [1]}),
+        "Adam state a string": lambda: state.update({0: "x"}),
+        "no Adam groups": lambda: ckpt["optimizer"].update({"param_groups": []}),
+        "Adam rate a string": lambda: ckpt["optimizer"]["param_groups"][0].update({"lr": "x"}),
+        "short random state": lambda: ckpt["rng"].update({"torch": torch.zeros(10, dtype=torch.uint8)}),
+        "sampler state missing": lambda: [rng.pop(k) for k in list(rng) if k != "torch"],
+        "running means a string": lambda: ckpt.update({"interval_means": "x"}),
+        "rays missing": lambda: ckpt.pop("rays"),
+        "elapsed NaN": lambda: ckpt.update({"elapsed": float("nan")}),
+        "poses a string": lambda: ckpt.update({"poses": "x"}),
+    }  # fmt: skip
+    edits[change]()
+
+
+LOAD_DAMAGE = [
+    ("plane of another size", "grid factor field.density_planes has shape"),
+    ("int planes", "'field.density_planes' is torch.int32, expected torch.float32"),
+    ("float64 planes", "'field.density_planes' is torch.float64"),
+    ("complex planes", "complex values"),
+    ("NaN planes", "'field.density_planes' holds NaN or inf"),
+    ("inf decoder", "'field.decoder.4.bias' holds NaN or inf"),
+    ("NaN occupancy bounds", "'field.occupancy.bounds' holds NaN or inf"),
+    ("occupancy grid not cubic", "expected (G, G, G)"),
+    ("missing tensor", 'Missing key(s) in state_dict: "field.app_lines"'),
+    ("extra tensor", 'Unexpected key(s) in state_dict: "field.bogus"'),
+    ("NaN Adam moment", "exp_avg of parameter 0 holds NaN or inf"),
+    ("Adam step a list", "the step of parameter 0 is list"),
+    ("Adam state a string", "the state of parameter 0 is a str"),
+    ("Adam rate a string", "rate is 'x'"),
+    ("elapsed NaN", "elapsed time nan"),
+    ("poses a string", "entry 'poses'"),
+]
+
+
+@pytest.mark.parametrize("change, words", LOAD_DAMAGE)
+def test_checkpoint_tensors_damaged(made: Path, tmp_path: Path, change: str, words: str) -> None:
+    """``load_run`` (eval, render) of a checkpoint whose tensors were damaged. Before: a factor of another
+    size, a tensor of another dtype (an int grid cast silently) and NaN/inf tensors loaded and rendered
+    garbage; a missing or extra tensor said only "Error(s) in loading state_dict for GridModel:"; a
+    malformed ``poses`` entry was a TypeError in eval and render."""
+    import torch
+
+    from spikenerf.train.run import load_run
+
+    run = shutil.copytree(made / "run", tmp_path / "run")
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=True)
+    _damage(ckpt, change)
+    torch.save(ckpt, run / "checkpoint.pt")
+    _refused(lambda: load_run(run, train_images=False), run / "checkpoint.pt", words)
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [("Adam moment of another shape", "exp_avg of parameter 0 is (3,) torch.float32, its parameter (3, 16"),
+     ("float64 Adam moment", "exp_avg of parameter 0 is"),
+     ("no Adam groups", "0 parameter groups where the model has 2"),
+     ("short random state", "its training state does not load (RuntimeError"),
+     ("sampler state missing", "its training state does not load (KeyError"),
+     ("running means a string", "its training state does not load (TypeError"),
+     ("rays missing", "its training state does not load (KeyError: 'rays')")],
+)  # fmt: skip
+def test_checkpoint_resume_state_damaged(
+    made: Path, tmp_path: Path, capsys: pytest.CaptureFixture, change: str, words: str
+) -> None:
+    """``train --resume`` of a checkpoint whose training state was damaged. Before: an Adam moment of
+    another shape crashed the process (a segmentation fault in the fused step), the others were tracebacks
+    (ValueError, RuntimeError, KeyError, TypeError) from ``load_state_dict`` and ``restore_rng``."""
+    import torch
+
+    from spikenerf.cli import main
+
+    run = shutil.copytree(made / "run", tmp_path / "run")
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=True)
+    _damage(ckpt, change)
+    torch.save(ckpt, run / "checkpoint.pt")
+    before = (run / "checkpoint.pt").read_bytes()
+    argv = ["--threads", "1", "train", str(made / "ds"), "--out", str(run), "--resume", "--iters", "7"]
+    with pytest.raises(SystemExit) as done:
+        main([*argv, "--device", "cpu", "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert done.value.code == 2 and len(err.splitlines()) == 1, err
+    assert str(run / "checkpoint.pt") in err and words in err, err
+    assert (run / "checkpoint.pt").read_bytes() == before
+
+
+def _binary_model(work: Path, tmp_path: Path) -> Path:
+    """The fixture's COLMAP text model written as a binary one by pycolmap (skipped without it)."""
+    pycolmap = pytest.importorskip("pycolmap")
+    text, folder = tmp_path / "text", tmp_path / "sparse"
+    text.mkdir()
+    folder.mkdir()
+    shutil.copy(work / "colmap" / "cameras.txt", text)
+    poses = (work / "colmap" / "images.txt").read_text().splitlines()[1::2]  # without their 2-D points
+    (text / "images.txt").write_text("".join(f"{line}\n\n" for line in poses))
+    (text / "points3D.txt").write_text("1 0.1 0.2 0.3 255 0 0 0.5\n2 -0.1 0.0 0.3 0 255 0 0.5\n")
+    pycolmap.Reconstruction(str(text)).write_binary(str(folder))
+    assert len(read_pose_source(folder).poses) == 5
+    return folder
+
+
+def _read_in_child(folder: Path) -> str:
+    """``read_pose_source(folder)`` in a child process limited to 30 s and 2 GiB: what it printed (a
+    pycolmap that reads on past the end of a cut file allocates without end)."""
+    import resource
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\nfrom spikenerf.importing.poses import read_pose_source\n"
+        "from spikenerf.core.errors import InputError\n"
+        f"try:\n    print('read', len(read_pose_source({str(folder)!r}).poses))\n"
+        "except InputError as err:\n    print('refused', err)\n"
+    )
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, timeout=30, preexec_fn=limit
+        )
+    except subprocess.TimeoutExpired:
+        return "timed out"
+    return done.stdout.strip() or done.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    "name, cut, words",
+    [("points3D.bin", 0, "the record count ends past its 0 bytes"),
+     ("points3D.bin", 36, "point record 1 ends past its 36 bytes"),
+     ("frames.bin", -10, "truncated COLMAP binary file: frame record"),
+     ("images.bin", -5, "truncated COLMAP binary file: image record"),
+     ("cameras.bin", "COUNT", "it declares 4294967296 records, holds 1")],
+)  # fmt: skip
+def test_colmap_binary_model_cut(work: Path, tmp_path: Path, name: str, cut: object, words: str) -> None:
+    """A binary COLMAP model with a file cut short or an absurd record count. Before: pycolmap read a
+    zero-byte or cut ``points3D.bin`` (or a cut ``frames.bin``) on without end, allocating gigabytes in
+    seconds (the import hung until the machine ran out of memory)."""
+    import struct
+
+    folder = _binary_model(work, tmp_path)
+    data = (folder / name).read_bytes()
+    (folder / name).write_bytes(struct.pack("<Q", 2**32) + data[8:] if cut == "COUNT" else data[:cut])
+    found = _read_in_child(folder)
+    assert found.startswith("refused") and str(folder / name) in found and words in found, found
+
+
+def test_colmap_binary_model_values(work: Path, tmp_path: Path) -> None:
+    """A binary model whose camera has a NaN focal length was refused naming the deleted text file that
+    pycolmap converted it to (``/tmp/tmpXXXX/cameras.txt``), not the user's ``cameras.bin``."""
+    import struct
+
+    folder = _binary_model(work, tmp_path)
+    data = (folder / "cameras.bin").read_bytes()  # count, id, model, width, height, then the focal length
+    (folder / "cameras.bin").write_bytes(data[:32] + struct.pack("<d", float("nan")) + data[40:])
+    _refused(lambda: read_pose_source(folder), folder / "cameras.bin", "focal length must be > 0")
+    check_refusal(lambda: read_pose_source(folder), folder / "cameras.bin")

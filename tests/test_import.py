@@ -415,7 +415,7 @@ def test_bad_input_exits_2_and_leaves_nothing(
         ("colmap", "1 PINHOLE", "malformed camera line"),
         ("colmap", "1 PINHOLE 0 16 30 31 24 8", "must be > 0"),
         ("colmap", "1 PINHOLE 48 16 -30 31 24 8", "must be > 0"),
-        ("colmapbin", b"junk", "pycolmap cannot read"),
+        ("colmapbin", b"junk", "truncated COLMAP binary file: the record count"),
     ],
 )
 def test_malformed_pose_sources_exit_2(capsys, recording, tmp_path, kind, content, message) -> None:

@@ -525,8 +525,32 @@ class GridField(Field):
         ]
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        self._check_saved_factors(state_dict, prefix)
         for name in FACTORS:  # a checkpoint of an upsampled grid: take its shapes first
             saved, param = state_dict.get(prefix + name), getattr(self, name)
             if saved is not None and saved.shape != param.shape:
                 setattr(self, name, _factor(param.new_empty(saved.shape)))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def _check_saved_factors(self, state_dict: dict[str, Tensor], prefix: str) -> None:
+        """InputError unless the saved factors form one grid: planes (3, C, R, R) and lines (3, C, R, 1) of
+        the config's component counts C and one resolution R >= 2 (an upsampled grid has another R than this
+        one, which ``_load_from_state_dict`` adopts; factors of different sizes would render from mismatched
+        lookups, and the fused kernel's gradient of them fails)."""
+        cfg, sizes = self.config, set()
+        for name in FACTORS:
+            saved = state_dict.get(prefix + name)
+            if saved is None or not torch.is_tensor(saved):
+                continue  # (load_state_dict names a missing key)
+            comps = cfg.density_components if name.startswith("density") else cfg.app_components
+            shape = tuple(saved.shape)
+            fits = len(shape) == 4 and shape[:2] == (3, comps) and shape[2] >= 2
+            fits = fits and shape[3] == (shape[2] if name.endswith("planes") else 1)
+            if not fits:
+                kind = "(3, C, R, R)" if name.endswith("planes") else "(3, C, R, 1)"
+                raise InputError(
+                    f"grid factor {prefix + name} has shape {shape}, expected {kind} with C {comps}"
+                )
+            sizes.add(shape[2])
+        if len(sizes) > 1:
+            raise InputError(f"the grid factors have different resolutions {sorted(sizes)}")

@@ -7,6 +7,8 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
+from spikenerf.core.errors import InputError
+
 
 def dilate(occupied: Tensor, radius: int) -> Tensor:
     """Boolean (X, Y, Z) ``occupied`` grown by ``radius`` cells: a cell is set where any cell of the
@@ -138,6 +140,10 @@ class OccupancyGrid(nn.Module):
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
         saved = state_dict.get(prefix + "grid")
+        if torch.is_tensor(saved) and (saved.dim() != 3 or len(set(saved.shape)) != 1 or saved.shape[0] < 1):
+            raise InputError(
+                f"occupancy grid {prefix}grid has shape {tuple(saved.shape)}, expected (G, G, G)"
+            )
         if saved is not None and saved.shape != self.grid.shape:
             self.grid = torch.ones(saved.shape, dtype=torch.bool, device=self.grid.device)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import re
+import struct
 import tempfile
 import tokenize
 from dataclasses import dataclass
@@ -239,6 +240,65 @@ def read_colmap_text(folder: Path) -> PoseSet:
     )
 
 
+#: parameters of each COLMAP camera model, by its id in ``cameras.bin`` (colmap/sensor/models.h)
+CAMERA_PARAMS = {0: 3, 1: 4, 2: 4, 3: 5, 4: 8, 5: 8, 6: 12, 7: 5, 8: 4, 9: 5, 10: 12, 11: 16}
+
+
+def check_binary_layout(path: Path) -> None:
+    """InputError naming ``path`` (a COLMAP ``cameras.bin``, ``images.bin``, ``points3D.bin``, ``rigs.bin``
+    or ``frames.bin``) unless its records, as its counts declare them, fit in the file. pycolmap reads on
+    past the end of a cut file (a zero-byte or truncated ``points3D.bin`` or a cut ``frames.bin`` makes it
+    allocate without end, gigabytes in seconds) and takes an absurd count or camera model at its word."""
+    if not path.is_file():
+        raise InputError("missing file of a COLMAP binary model", path=path)
+    data = path.read_bytes()
+    at = 0
+
+    def skip(size: int, what: str) -> int:
+        nonlocal at
+        if at + size > len(data):
+            raise InputError(
+                f"truncated COLMAP binary file: {what} ends past its {len(data)} bytes", path=path
+            )
+        at += size
+        return at - size
+
+    def take(fmt: str, what: str) -> tuple:
+        return struct.unpack_from(fmt, data, skip(struct.calcsize(fmt), what))
+
+    (count,) = take("<Q", "the record count")
+    for i in range(count):
+        if at >= len(data):
+            raise InputError(
+                f"truncated COLMAP binary file: it declares {count} records, holds {i}", path=path
+            )
+        if path.name == "cameras.bin":
+            model = take("<Ii", f"camera record {i + 1}")[1]
+            if model not in CAMERA_PARAMS:
+                raise InputError(f"camera record {i + 1}: unknown camera model id {model}", path=path)
+            take(f"<QQ{CAMERA_PARAMS[model]}d", f"camera record {i + 1}")
+        elif path.name == "images.bin":
+            take("<I7dI", f"image record {i + 1}")
+            end = data.find(b"\0", at)
+            if end < 0:
+                raise InputError(f"truncated COLMAP binary file: image record {i + 1} has no name end", path)
+            at = end + 1
+            (points,) = take("<Q", f"image record {i + 1}")
+            skip(24 * points, f"image record {i + 1}'s {points} points")
+        elif path.name == "frames.bin":  # (COLMAP 3.12+) id, rig id, pose, then its sensors' data ids
+            (ids,) = take("<II7dI", f"frame record {i + 1}")[-1:]
+            skip(16 * ids, f"frame record {i + 1}'s {ids} data ids")
+        elif path.name == "rigs.bin":  # (COLMAP 3.12+) id, sensor count, reference sensor, other sensors
+            (sensors,) = take("<II", f"rig record {i + 1}")[-1:]
+            skip(8 if sensors else 0, f"rig record {i + 1}")
+            for _ in range(max(sensors - 1, 0)):
+                if take("<iIB", f"rig record {i + 1}'s sensors")[-1]:
+                    skip(56, f"rig record {i + 1}'s sensor poses")
+        else:  # points3D.bin
+            (track,) = take("<Q3d3BdQ", f"point record {i + 1}")[-1:]
+            skip(8 * track, f"point record {i + 1}'s track of {track}")
+
+
 def read_colmap_model(folder: Path) -> PoseSet:
     """A COLMAP model folder: text files directly, binary ones converted to text through pycolmap."""
     if (folder / "images.txt").is_file():
@@ -254,13 +314,22 @@ def read_colmap_model(folder: Path) -> PoseSet:
         import pycolmap
     except ImportError as err:
         raise InputError(f"reading a binary model: {COLMAP_MISSING}", path=folder) from err
+    for name in ("cameras.bin", "images.bin", "points3D.bin", "rigs.bin", "frames.bin"):
+        if (folder / name).is_file() or name in ("cameras.bin", "images.bin"):
+            check_binary_layout(folder / name)  # (pycolmap reads a cut file on, without end)
     with tempfile.TemporaryDirectory() as tmp:
         try:
             pycolmap.Reconstruction(str(folder)).write_text(tmp)
         except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on a bad model
             why = (str(err).strip().splitlines() or [type(err).__name__])[0]
             raise InputError(f"pycolmap cannot read the binary model ({why})", path=folder) from err
-        return read_colmap_text(Path(tmp))
+        try:
+            return read_colmap_text(Path(tmp))
+        except InputError as err:  # it names the converted text file, deleted here: name the user's file
+            if err.path is None or not err.path.startswith(tmp):
+                raise
+            name = Path(err.path).name.replace(".txt", ".bin")
+            raise InputError(f"{err.message} (in its text conversion)", path=folder / name) from err
 
 
 # ------------------------------------------------------------------------------------------------- LLFF

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from spikenerf.core.atomic import atomic_path
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite
 
 CHECKPOINT = "checkpoint.pt"
 FORMAT = "spikenerf-checkpoint-1"
@@ -138,15 +138,96 @@ def check_schema(data: dict[str, Any], path: str | Path) -> None:
             raise bad(f"entry {key!r} is a {type(data[key]).__name__}")
     if data["iteration"] < 0:
         raise bad(f"iteration {data['iteration']} is negative")
+    if not (is_finite(data["elapsed"]) and data["elapsed"] >= 0):
+        raise bad(f"elapsed time {data['elapsed']} is not a finite number of seconds >= 0")
     if not all(isinstance(k, str) and torch.is_tensor(v) for k, v in data["model"].items()):
         raise bad("entry 'model' must map names to tensors")
+    for name, tensor in data["model"].items():
+        if problem := _tensor_problem(tensor):
+            raise bad(f"model tensor {name!r} {problem}")
     optimizer = data["optimizer"]
     if not isinstance(optimizer.get("state"), dict) or not isinstance(optimizer.get("param_groups"), list):
         raise bad("entry 'optimizer' lacks its 'state' and 'param_groups'")
+    if problem := _optimizer_problem(optimizer):
+        raise bad(f"entry 'optimizer': {problem}")
     if not (torch.is_tensor(data["rng"].get("torch")) and data["rng"]["torch"].dtype == torch.uint8):
         raise bad("entry 'rng' lacks the torch random state")
+    if "rays" in data and (
+        not isinstance(data["rays"], int) or isinstance(data["rays"], bool) or data["rays"] < 0
+    ):
+        raise bad(f"entry 'rays' is {data['rays']!r}, not a count of rays")
+    if (poses := data.get("poses")) is not None:  # the pose refinement's state (--refine-poses)
+        ok = isinstance(poses, dict) and isinstance(poses.get("refiner"), dict)
+        ok = ok and all(isinstance(k, str) and torch.is_tensor(v) for k, v in poses["refiner"].items())
+        if not ok or (problem := _tensor_problem(*poses["refiner"].values())):
+            raise bad(f"entry 'poses' is not a pose refinement's state ({problem if ok else 'its layout'})")
     if data.get("dataset") is not None and not _is_fingerprint(data["dataset"]):  # (older ones: none)
         raise bad("entry 'dataset' is not a dataset fingerprint (plain values, a 2×3 finite box)")
+
+
+def _tensor_problem(*tensors: torch.Tensor) -> str | None:
+    """What is wrong with stored tensors (a phrase), or None: complex values (no spikenerf tensor holds
+    them), or NaN/inf in a floating one (a run that diverged keeps its last finite checkpoint instead)."""
+    for tensor in tensors:
+        if tensor.is_complex():
+            return f"holds complex values ({tensor.dtype})"
+        if tensor.is_floating_point() and tensor.numel() and not bool(torch.isfinite(tensor).all()):
+            return "holds NaN or inf values"
+    return None
+
+
+def _optimizer_problem(optimizer: dict[str, Any]) -> str | None:
+    """What is wrong with a stored Adam state dict's layout or values (a phrase), or None. The shapes are
+    checked against the model's parameters where they are known (:func:`check_optimizer_fits`)."""
+    for index, state in optimizer["state"].items():
+        if not isinstance(state, dict):
+            return f"the state of parameter {index!r} is a {type(state).__name__}"
+        for key, value in state.items():
+            if key == "step":
+                if not (is_finite(value) or (torch.is_tensor(value) and value.numel() == 1)):
+                    return f"the step of parameter {index!r} is {type(value).__name__}, not a number"
+            elif not torch.is_tensor(value):
+                return f"{key} of parameter {index!r} is a {type(value).__name__}, not a tensor"
+            if torch.is_tensor(value) and (problem := _tensor_problem(value)):
+                return f"{key} of parameter {index!r} {problem}"
+    for group in optimizer["param_groups"]:
+        if not isinstance(group, dict) or not isinstance(group.get("params"), list):
+            return "a parameter group without its list of parameters"
+        if not all(isinstance(i, int) and not isinstance(i, bool) for i in group["params"]):
+            return "a parameter group lists parameters other than by index"
+        if not (
+            is_finite(group.get("lr")) or (torch.is_tensor(group.get("lr")) and group["lr"].numel() == 1)
+        ):
+            return f"a parameter group's rate is {group.get('lr')!r}, not a number"
+    return None
+
+
+def check_optimizer_fits(optimizer: torch.optim.Optimizer, stored: dict[str, Any], path: str | Path) -> None:
+    """InputError naming ``path`` unless the stored Adam state fits ``optimizer`` (built for the model the
+    checkpoint holds): as many groups with as many parameters, and each moment tensor of its parameter's
+    shape and dtype. (``load_state_dict`` checks the counts with a traceback and not the shapes:
+    a fused step on a moment of another shape reads past its memory and crashes the process.)"""
+
+    def bad(what: str) -> InputError:
+        return InputError(f"damaged checkpoint: entry 'optimizer': {what}", path=path)
+
+    groups = stored["param_groups"]
+    if len(groups) != len(optimizer.param_groups):
+        raise bad(f"{len(groups)} parameter groups where the model has {len(optimizer.param_groups)}")
+    for group, saved in zip(optimizer.param_groups, groups, strict=True):
+        if len(saved["params"]) != len(group["params"]):
+            raise bad(
+                f"a group of {len(saved['params'])} parameters where the model's has {len(group['params'])}"
+            )
+        for param, index in zip(group["params"], saved["params"], strict=True):
+            for key, value in stored["state"].get(index, {}).items():
+                if key == "step":
+                    continue
+                if tuple(value.shape) != tuple(param.shape) or value.dtype != param.dtype:
+                    raise bad(
+                        f"{key} of parameter {index} is {tuple(value.shape)} {value.dtype}, its parameter "
+                        f"{tuple(param.shape)} {param.dtype}"
+                    )
 
 
 def _is_fingerprint(found: object) -> bool:
@@ -166,13 +247,23 @@ def model_of(ckpt: dict[str, Any], path: str | Path) -> Any:
     from spikenerf.render.model import model_from_hparams
 
     try:
-        return model_from_hparams(ckpt["hparams"], ckpt["model"])
+        model = model_from_hparams(ckpt["hparams"])
+        own = model.state_dict()
+        for name, tensor in ckpt["model"].items():
+            if name in own and tensor.dtype != own[name].dtype:  # load_state_dict would cast it silently
+                raise InputError(f"model tensor {name!r} is {tensor.dtype}, expected {own[name].dtype}")
+        model.load_state_dict(ckpt["model"])
+        return model
     except InputError as err:  # (a bad field_config entry of its hparams: named as the key, not the file)
         if err.path is not None:
             raise
         raise InputError(f"damaged checkpoint: {err.message}", path=path) from err
     except Exception as err:  # load_state_dict: RuntimeError; a bad hparams entry: KeyError/TypeError
-        first = str(err).strip().split("\n")[0]
+        lines = [line.strip() for line in str(err).strip().split("\n") if line.strip()]
+        if len(lines) > 1 and lines[0].startswith("Error(s) in loading state_dict"):
+            lines = lines[1:]  # torch's header; the next line names the missing, unexpected or misshapen key
+        first = lines[0] if lines else type(err).__name__
+        first = first if len(first) <= 300 else first[:297] + "..."
         raise InputError(f"damaged checkpoint: its model does not load ({first})", path=path) from err
 
 

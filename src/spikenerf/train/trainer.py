@@ -41,6 +41,7 @@ from spikenerf.render.volume import RenderOutput
 from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import (
     CHECKPOINT,
+    check_optimizer_fits,
     check_same_run,
     load_checkpoint,
     match_state_layout,
@@ -424,21 +425,33 @@ class Trainer:
         self.told_dropped = False  # tell_dropped's one warning
         self.interval = RunningMeans()  # the train PSNR's running sums since the last evaluation
         self.curves: list[dict[str, float]] = []
-        if ckpt is not None:
-            means = ckpt.get("interval_means", {"sums": {}, "counts": {}})  # absent from older checkpoints
-            self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
-            self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
-            load_state(self.optimizer, ckpt["optimizer"])  # this run's implementation flags kept
-            match_state_layout(self.optimizer)
-            for name, learner in self.learners.items():
-                learner.load_state_dict(ckpt[name])
-            restore_rng(ckpt["rng"], self.samplers)
-            self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
-            self.rays = int(ckpt["rays"])
-            self.curves = [r for r in curves if r["iteration"] <= self.iteration]
         self.final_ratio = _lr_final_ratio(self.config, self.model)
         self.scaler = torch.amp.GradScaler(self.device.type, enabled=self.config.amp == "fp16")
-        if ckpt is not None and ckpt.get("scaler"):  # fp16 loss scale and growth tracker (absent: older)
+        if ckpt is not None:
+            check_optimizer_fits(self.optimizer, ckpt["optimizer"], ckpt_path)  # (a misfit one crashes)
+            try:
+                self._restore(ckpt, curves)
+            except (KeyError, TypeError, ValueError, AttributeError, IndexError, RuntimeError) as err:
+                first = str(err).strip().split("\n")[0][:200]
+                raise InputError(
+                    f"damaged checkpoint: its training state does not load ({type(err).__name__}: {first})",
+                    path=ckpt_path,
+                ) from err
+
+    def _restore(self, ckpt: dict[str, Any], curves: list[dict[str, float]]) -> None:
+        """Continue from ``ckpt``: the optimisers' and samplers' states, the counters and running means."""
+        means = ckpt.get("interval_means", {"sums": {}, "counts": {}})  # absent from older checkpoints
+        self.interval.sums = {k: v.to(self.device) for k, v in means["sums"].items()}
+        self.interval.counts = {k: int(v) for k, v in means["counts"].items()}
+        load_state(self.optimizer, ckpt["optimizer"])  # this run's implementation flags kept
+        match_state_layout(self.optimizer)
+        for name, learner in self.learners.items():
+            learner.load_state_dict(ckpt[name])
+        restore_rng(ckpt["rng"], self.samplers)
+        self.iteration, self.elapsed = int(ckpt["iteration"]), float(ckpt["elapsed"])
+        self.rays = int(ckpt["rays"])
+        self.curves = [r for r in curves if r["iteration"] <= self.iteration]
+        if ckpt.get("scaler"):  # fp16 loss scale and growth tracker (absent: older)
             self.scaler.load_state_dict(ckpt["scaler"])
 
     # ------------------------------------------------------------------------------------------------- steps
