@@ -167,3 +167,72 @@ def test_import_reads_the_recorded_layout_and_refuses_another(capsys, rec, tmp_p
     )
     _one_error(code, err, "--layout spikecv differs from layout topdown in")
     assert not (tmp_path / "ds2").exists()
+
+
+# ------------------------------------------------------------------------- 6. a new user's own pose files
+def test_a_colmap_images_txt_without_its_points_lines_is_refused(capsys, rec, tmp_path) -> None:
+    """A hand-written images.txt with one line an image (no POINTS2D line after each pose): every second
+    pose was taken for a points line and dropped without a word (5 poses of 10)."""
+    from test_import import _write_colmap_text
+
+    keys = np.arange(0, T, 20)
+    model = tmp_path / "model"
+    _write_colmap_text(model, orbit(4.0, 30.0, duration=T / 40000).poses[keys], keys, np.zeros((3, 3)))
+    lines = (model / "images.txt").read_text().splitlines()
+    (model / "images.txt").write_text("\n".join([lines[0], *lines[1::2]]) + "\n")  # the pose lines alone
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", model)
+    _one_error(code, err, "images.txt: line 3: expected an image's POINTS2D line", "found 10 fields")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_orbit_flags_say_which_one_is_missing_or_extra(capsys, rec, tmp_path) -> None:
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "a", "--poses", "orbit", "--fov", 40)
+    _one_error(code, err, "--orbit R,ELEV[,TURNS[,AZIMUTH]] (the known path) is needed with --poses orbit")
+    poses = _poses_of(capsys, rec, tmp_path, 0)
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "b", "--poses", poses, "--orbit", "4,30"
+    )
+    _one_error(code, err, "--orbit R,ELEV[,TURNS[,AZIMUTH]] is only used with --poses orbit, not")
+
+
+def test_poses_partly_outside_the_range_say_which_range_holds_them(capsys, rec, tmp_path) -> None:
+    """Poses at steps 0..199 with ``--range 100:200``: "fall outside the selected steps" with no way out."""
+    poses = _poses_of(capsys, rec, tmp_path, 0)
+    code, _, err = run_cli(
+        capsys, "import", rec, "--out", tmp_path / "ds", "--poses", poses, "--range", "100:200"
+    )
+    _one_error(
+        code, err, "fall outside the selected steps 100..199: import a range that holds them (--range 0:200)"
+    )
+
+
+def test_a_recording_given_where_a_dataset_goes_says_to_import_it(capsys, rec, tmp_path) -> None:
+    """``train rec`` said "missing file (not a dataset folder written by `spikenerf simulate`?)" and ``info
+    rec`` "not a dataset folder" for the folder a camera gives (a .dat and its config.yaml)."""
+    (rec.parent / "config.yaml").write_text(f"spike_h: {H}\nspike_w: {W}\n")
+    for args in (
+        ["train", rec.parent, "--out", tmp_path / "run"],
+        ["info", rec.parent],
+        ["train", rec, "--out", tmp_path / "r2"],
+    ):
+        code, _, err = run_cli(capsys, *args)
+        _one_error(code, err, "spike recording", f"make one with `spikenerf import {rec}`")
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_relative_dataset_in_a_config_file_names_the_file(capsys, tmp_path, monkeypatch) -> None:
+    (tmp_path / "cfg").mkdir()
+    (tmp_path / "cfg" / "my.yaml").write_text("dataset: d3\niters: 5\n")
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(capsys, "train", "--config", "cfg/my.yaml", "--out", "r")
+    _one_error(code, err, "d3: dataset folder not found (the 'dataset' of cfg/my.yaml, from the folder")
+
+
+def test_a_field_of_view_that_looks_like_radians_is_warned(capsys, rec, tmp_path) -> None:
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", *ORBIT, "--fov", 0.69)
+    assert (
+        code == 0
+        and "--fov is in degrees: 0.69° is a very narrow lens (in radians 0.69 would be 39.5°)" in err
+    )
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds40", *ORBIT, "--fov", 40)
+    assert code == 0 and "narrow lens" not in err

@@ -162,6 +162,19 @@ def test_image_motion_of_a_sideways_camera_is_focal_times_shift_over_depth() -> 
         image_motion(poses[:1], k, box)
 
 
+def test_image_motion_of_held_poses_is_spread_over_the_steps_they_are_held() -> None:
+    """An image sequence held for 4 steps a frame (``--steps-per-frame 4``) moves a frame's worth every 4th
+    step: 0 px a step by consecutive pairs (a median of zeros), which sized spike-integral's windows as if
+    the camera stood still. A camera that stands still is still 0."""
+    k = Intrinsics.from_fov(200, 100, 0.8)
+    frames = np.tile(np.eye(4), (10, 1, 1))
+    frames[:, 0, 3] = 0.04 * np.arange(10)  # 0.04 a frame
+    held = np.repeat(frames, 4, axis=0)
+    box = np.array([[-0.5, -0.3, -4.001], [0.5, 0.3, -3.999]])
+    assert image_motion(held, k, box) == pytest.approx(k.fl_x * 0.01 / 4.0, rel=1e-3)
+    assert image_motion(np.tile(np.eye(4), (6, 1, 1)), k, box) == 0.0
+
+
 def test_image_motion_doubles_with_the_image_size_on_an_orbit() -> None:
     traj = orbit(4.0, 30.0)
     box = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -130,6 +131,12 @@ def command(**kw: Any) -> None:
     flag = {"fov_deg": "fov"}  # ImportOptions field → click parameter, where the names differ
     given = {f.name: kw[flag.get(f.name, f.name)] for f in fields(ImportOptions) if f.name != "command"}
     opts = ImportOptions(**given | {"frame_range": frame_range, "command": command_line()})
+    if kw["fov"] is not None and kw["fov"] < NARROW_FOV:  # (transforms.json keeps its angle in radians)
+        click.echo(
+            f"spikenerf: warning: --fov is in degrees: {kw['fov']:g}° is a very narrow lens (in radians "
+            f"{kw['fov']:g} would be {math.degrees(kw['fov']):.3g}°)",
+            err=True,
+        )
     out = import_recording(kw["recording"], kw["out"], opts)
     from spikenerf.data.dataset import load_dataset
 
@@ -146,10 +153,14 @@ def command(**kw: Any) -> None:
     if (left := imported["keyframes"] - len(imported.get("test_keyframes") or [])) < 2:
         click.echo(
             f"spikenerf: warning: {left} keyframe{'' if left == 1 else 's'} left after the test views: "
-            "`train` refines poses between 2 or more, so train with --no-refine-poses, or import more "
-            "steps (or with --test-every 0)",
+            "`train` refines poses between 2 or more, so train with --no-refine-poses (and --no-holdout "
+            "where its guard bands leave too few steps), or import more steps (or with --test-every 0)",
             err=True,
         )
+
+
+#: a --fov below this many degrees is warned about: a value in radians, as transforms.json holds it?
+NARROW_FOV = 3.0
 
 
 def held_pose_warning(imported: dict, n: int) -> str | None:

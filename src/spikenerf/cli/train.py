@@ -333,11 +333,17 @@ def command(
     if dataset is not None and overrides and "dataset" in keys:  # both: which one is meant?
         raise InputError("give the dataset once: as DATASET or as --set dataset=PATH, not both")
     from_run = dataset is None and resume and config_file is None and "dataset" not in SET_KEYS
+    from_file = dataset is None and config_file is not None and "dataset" not in SET_KEYS
     dataset = Path(base.dataset) if dataset is None else dataset
     if not dataset.is_dir():
         found = "is a file, not a dataset folder" if dataset.exists() else "dataset folder not found"
+        from spikenerf.data.dataset import recording_in  # (not at import: `train --help` stays light)
+
+        found = recording_in(dataset) or found
         if from_run and not dataset.exists():  # the run's own record: the dataset moved since
             found += f" (the run trained on it; if it moved: spikenerf train NEW_PATH --resume --out {out})"
+        elif from_file and not dataset.exists():  # (a relative path: from the working directory)
+            found += f" (the 'dataset' of {config_file}, from the folder the command runs in)"
         raise InputError(found, path=dataset)
     base.dataset = str(dataset.resolve())
     notes = [] if ignore_unused else _unused(base.method, given, overrides, base.targets.recon)

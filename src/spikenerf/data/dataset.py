@@ -152,6 +152,21 @@ def near_far(poses: np.ndarray, scene_box: np.ndarray) -> tuple[float, float]:
     return max(float(dist.min()) - radius, 0.05), float(dist.max()) + radius
 
 
+def recording_in(path: Path) -> str | None:
+    """What to say where a camera's recording was given for a dataset: ``path`` is a ``.dat`` file, or a
+    folder without ``transforms.json`` that holds one (not a dataset's own ``spikes_*.dat``); else None."""
+    if path.is_file():
+        found = [path] if path.suffix.lower() == ".dat" else []
+    elif path.is_dir():
+        found = sorted(p for p in path.glob("*.dat") if not p.name.startswith("spikes_"))
+    else:
+        found = []
+    if not found:
+        return None
+    what = "is a spike recording" if path.is_file() else f"holds a spike recording ({found[0].name})"
+    return f"{what}, not a dataset folder: make one with `spikenerf import {found[0]}`"
+
+
 def read_mapping(path: Path, fmt: str = "JSON") -> dict:
     """The top-level mapping of a dataset folder's JSON (read by ``scenes.transforms.read_transforms``) or
     YAML (``fmt``) file; InputError when the file is missing, malformed or not a mapping."""
@@ -281,12 +296,16 @@ def load_dataset(root: str | Path, train_images: bool = True) -> SpikeDataset:
     """
     root = as_path(root, "root")
     if not root.is_dir():
+        if recording := recording_in(root):
+            raise InputError(recording, path=root)
         raise InputError(
             "is a file, not a dataset folder" if root.exists() else "dataset folder not found", path=root
         )
     tpath = root / TRANSFORMS
     if not tpath.exists() and root.name.endswith(".partial"):
         raise InputError(UNFINISHED, path=root)
+    if not tpath.exists() and (recording := recording_in(root)):
+        raise InputError(recording, path=root)
     if not tpath.exists() and (kind := folder_kind(root)) not in (None, "dataset"):  # another of ours
         raise InputError(f"is a {kind} folder, not a dataset folder", path=root)
     data = read_mapping(tpath)

@@ -27,6 +27,7 @@ from spikenerf.data.dataset import (
     SpikeDataset,
     load_dataset,
     read_mapping,
+    recording_in,
     spike_files,
 )
 from spikenerf.data.reconstruction import frame_at
@@ -129,6 +130,8 @@ def describe(path: str | Path) -> str:
     if not (path / TRANSFORMS).is_file():
         if path.name.endswith(".partial"):
             raise InputError(UNFINISHED, path)
+        if recording := recording_in(path):
+            raise InputError(recording, path=path)
         raise InputError(f"not a dataset folder (no {TRANSFORMS})", path=path)
     ds = load_dataset(path)
     cfg, k, traj = ds.config, ds.intrinsics, ds.trajectory

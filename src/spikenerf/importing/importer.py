@@ -167,9 +167,14 @@ def _check(options: ImportOptions) -> None:
         value = getattr(options, name)
         if value is not None and not (math.isfinite(value) and value > 0):
             raise InputError(f"{name} must be a finite number > 0, found {value}", param=name)
-    if (options.poses == "orbit") != (options.orbit is not None):
+    if options.poses == "orbit" and options.orbit is None:
         raise InputError(
-            "orbit R,ELEV[,TURNS[,AZIMUTH]] goes with poses orbit (and only with it)",
+            "orbit R,ELEV[,TURNS[,AZIMUTH]] (the known path) is needed with poses orbit",
+            param=("orbit", "poses"),
+        )
+    if options.poses != "orbit" and options.orbit is not None:
+        raise InputError(
+            f"orbit R,ELEV[,TURNS[,AZIMUTH]] is only used with poses orbit, not {options.poses!r}",
             param=("orbit", "poses"),
         )
     defaults = ImportOptions()
@@ -331,7 +336,12 @@ def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> Non
     lo, hi = int(steps.min()), int(steps.max())
     where = f"steps {lo + first}..{hi + first} of the poses"
     if lo < 0 or hi >= n:
-        raise InputError(f"{where} fall outside the selected steps {first}..{first + n - 1}", path=source)
+        raise InputError(
+            f"{where} fall outside the selected steps {first}..{first + n - 1}: import a range that holds "
+            f"them (frame_range {lo + first}:{hi + first + 1}), or drop the poses outside it",
+            path=source,
+            param="frame_range",
+        )
     posed = f"frame_range {lo + first}:{hi + first + 1}"
     if hi - lo + 1 <= n / 2:
         raise InputError(

@@ -161,6 +161,14 @@ def _pose_rows(path: Path, cameras: set[int]) -> list[list[str]]:
         if what := f"{len(row)} fields, not 10" if len(row) != 10 else _pose_problem(row, cameras):
             raise InputError(f"line {number}: a pose line with {what} ({' '.join(row)[:60]})", path=path)
         rows.append(row)
+    for number, row in lines[1::2]:  # each image's POINTS2D line: (X, Y, POINT3D_ID) triples, may be empty
+        if len(row) % 3:
+            raise InputError(
+                f"line {number}: expected an image's POINTS2D line (X Y POINT3D_ID triples, or an empty "
+                f"line) after its pose line, found {len(row)} fields ({' '.join(row)[:60]}); images.txt "
+                "holds two lines an image",
+                path=path,
+            )
     return rows
 
 

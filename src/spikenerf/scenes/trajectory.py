@@ -498,7 +498,10 @@ def _project(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-untyped-de
 def image_motion(poses: np.ndarray, intrinsics: Intrinsics, box: np.ndarray, pairs: int = 64) -> float:
     """How far the image moves in one step: the median, in pixels, of the displacement between consecutive
     poses of a 6³ lattice of points inside ``box``, over ``pairs`` step pairs spread along the trajectory
-    (points behind either camera or outside the first image are left out). NaN when none is seen.
+    (points behind either camera or outside the first image are left out). NaN when none is seen. Where a
+    pose is held for several steps (an image sequence's ``steps_per_frame``), a pair reaches from the
+    held pose to the next one and its displacement is divided by the steps the pose was held (consecutive
+    repeated poses gave 0 px a step for a camera that moves a frame's worth every few steps).
 
     Args:
         poses: (T, 4, 4) camera-to-world, OpenGL axes (the camera looks down −z), T ≥ 2.
@@ -515,11 +518,15 @@ def image_motion(poses: np.ndarray, intrinsics: Intrinsics, box: np.ndarray, pai
         u, v, depth = project_points(c2w, points, intrinsics)
         return np.stack([u, v], axis=-1), depth
 
+    changes = np.flatnonzero((poses[1:] != poses[:-1]).any(axis=(1, 2)))  # step m → m + 1 moves
     moves = []
     for k in np.unique(np.linspace(0, len(poses) - 2, pairs).astype(int)):
-        (a, za), (b, zb) = project(poses[k]), project(poses[k + 1])
+        at = np.searchsorted(changes, k)  # the first move at or after step k
+        start = int(changes[at - 1]) + 1 if at > 0 else 0  # where the pose of step k began to be held
+        j = int(changes[at]) + 1 if at < len(changes) else k + 1  # (none left: held to the end, 0 px)
+        (a, za), (b, zb) = project(poses[k]), project(poses[j])
         seen = (za > 1e-9) & (zb > 1e-9) & (a[:, 0] >= 0) & (a[:, 0] < intrinsics.width)
         seen &= (a[:, 1] >= 0) & (a[:, 1] < intrinsics.height)
-        moves.append(np.linalg.norm(b - a, axis=-1)[seen])
+        moves.append(np.linalg.norm(b - a, axis=-1)[seen] / (j - min(start, k)))
     moved = np.concatenate(moves)
     return float(np.median(moved)) if len(moved) else math.nan
