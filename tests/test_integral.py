@@ -228,18 +228,28 @@ def test_track_targets_start_at_track_after_and_reach_the_field(
     )
 
 
+def _track_draw(dataset_dir: Path, dataset, tmp_path: Path, refine: bool = False):  # type: ignore[no-untyped-def]
+    """A spike-integral trainer with 7-step tracks (pose refinement on with ``refine``), its method, counts
+    and one drawn batch: (trainer, method, counts, pixels (B, 2), steps (B,))."""
+    cfg = test_train._config(dataset_dir, method="spike-integral")
+    cfg.integral.samples, cfg.integral.groups, cfg.integral.track = 1, 1, 3
+    cfg.poses.refine = refine or None
+    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
+    if refine:
+        assert trainer.pose_refine is not None
+        trainer.pose_refine.refiner.xi.data[:, 0] = 0.1  # a rotation of 0.1 rad: pixels move by several px
+    method = trainer.method
+    _, _, pixels, steps = method.draw(trainer)
+    return trainer, method, method.counts, pixels, steps[:, 0]
+
+
 def test_a_ray_that_hits_nothing_is_compared_with_its_pixels_own_window(
     dataset_dir: Path, dataset, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]
     """Depth 0 (nothing hit, the white background) has no point to track: the target of such a ray is its
     pixel's window over the track's steps, so the background's loss stays at its count noise (it read the
     camera's centre before, 0 almost everywhere: a loss of 1 a ray and a train PSNR near 0 dB)."""
-    cfg = test_train._config(dataset_dir, method="spike-integral")
-    cfg.integral.samples, cfg.integral.groups, cfg.integral.track = 1, 1, 3
-    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
-    method, counts = trainer.method, trainer.method.counts
-    _, _, pixels, steps = method.draw(trainer)
-    step = steps[:, 0]
+    trainer, method, counts, pixels, step = _track_draw(dataset_dir, dataset, tmp_path)
 
     def background(poses, pixels, perturb=True):  # type: ignore[no-untyped-def]
         n = len(pixels)
@@ -260,12 +270,7 @@ def test_a_ray_through_faint_haze_is_background_not_a_surface_to_track(
     """A ray of opacity 0.002 (a faint haze, 99.8 % white background) has a depth inside the box, since
     depth is Σ wᵢ tᵢ / Σ wᵢ: it shows the background, so its target is its pixel's own window, not the spikes
     along the track of a point in the haze (which ``depth > 0`` alone picked)."""
-    cfg = test_train._config(dataset_dir, method="spike-integral")
-    cfg.integral.samples, cfg.integral.groups, cfg.integral.track = 1, 1, 3
-    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
-    method, counts = trainer.method, trainer.method.counts
-    _, _, pixels, steps = method.draw(trainer)
-    step = steps[:, 0]
+    trainer, method, counts, pixels, step = _track_draw(dataset_dir, dataset, tmp_path)
     origins, dirs = pixel_rays(counts.poses[step], dataset.intrinsics, pixels)
     depth = (origins.norm(dim=1) * 0.5).detach()  # half way to the scene's centre: inside the haze
 
@@ -287,16 +292,8 @@ def test_a_refined_run_tracks_along_the_poses_it_renders_from(
     """With pose refinement the render at step k uses the refined pose; the track projected its point into
     the recorded poses, so even its own step read another pixel. A one-step track of a point on pixel p's
     (refined) ray is step k's spike at p."""
-    cfg = test_train._config(dataset_dir, method="spike-integral")
-    cfg.integral.samples, cfg.integral.groups, cfg.integral.track = 1, 1, 3
-    cfg.poses.refine = True
-    trainer = Trainer(cfg, tmp_path / "run", dataset, progress=False)
-    assert trainer.pose_refine is not None
-    trainer.pose_refine.refiner.xi.data[:, 0] = 0.1  # a rotation of 0.1 rad: pixels move by several px
-    method, counts = trainer.method, trainer.method.counts
+    trainer, method, counts, pixels, step = _track_draw(dataset_dir, dataset, tmp_path, refine=True)
     method.config.integral.track = 0  # one-step tracks
-    _, _, pixels, steps = method.draw(trainer)
-    step = steps[:, 0]
 
     def surface(poses, pixels, perturb=True):  # type: ignore[no-untyped-def]
         n = len(pixels)
