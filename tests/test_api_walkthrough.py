@@ -194,6 +194,7 @@ def test_a_hand_made_trajectory_is_checked_before_anything_is_rendered(tmp_path:
         (Trajectory(o.poses, o.times, o.steps[::-1].copy(), o.fps), "increasing integers"),
         (Trajectory(o.poses, o.times, o.steps.astype(float), o.fps), "increasing integers"),
         (Trajectory(o.poses, o.times, o.steps, -5.0), "fps must be"),
+        (Trajectory(o.poses, np.zeros(len(o)), o.steps, o.fps), "times must increase"),
     ]:
         _error(
             lambda bad=bad: make_scene_source("analytic-orbs", 8, 8, bad, None, spp=1),

@@ -1187,3 +1187,44 @@ def test_colmap_binary_model_values(work: Path, tmp_path: Path) -> None:
     (folder / "cameras.bin").write_bytes(data[:32] + struct.pack("<d", float("nan")) + data[40:])
     _refused(lambda: read_pose_source(folder), folder / "cameras.bin", "focal length must be > 0")
     check_refusal(lambda: read_pose_source(folder), folder / "cameras.bin")
+
+
+def test_colmap_cameras_of_every_model_pass_the_layout_check(tmp_path: Path) -> None:
+    """The layout check knew camera models 0-11 and refused a valid model holding a FISHEYE (15) or
+    SIMPLE_DIVISION (12) camera that pycolmap 4.2 writes; a model id newer than its table ends the check of
+    cameras.bin (pycolmap reads it) instead of refusing it. A camera cut short is still refused."""
+    import struct
+
+    from spikenerf.importing.poses import check_binary_layout
+
+    def camera(cid: int, model: int, params: int) -> bytes:
+        return struct.pack(f"<IiQQ{params}d", cid, model, 64, 48, *([1.0] * params))
+
+    path = tmp_path / "cameras.bin"
+    for model, params in [(1, 4), (12, 4), (15, 4), (16, 6), (17, 2), (99, 0)]:
+        path.write_bytes(struct.pack("<Q", 2) + camera(1, 1, 4) + camera(2, model, params))
+        check_binary_layout(path)
+    path.write_bytes(struct.pack("<Q", 2) + camera(1, 1, 4) + camera(2, 15, 4)[:-8])
+    with pytest.raises(InputError, match="camera record 2 ends past"):
+        check_binary_layout(path)
+
+
+def test_running_out_of_memory_while_resuming_is_not_called_damage(
+    made: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``torch.cuda.OutOfMemoryError`` is a RuntimeError: restoring the training state on a full GPU was
+    reported as "damaged checkpoint: its training state does not load"."""
+    import torch
+
+    from spikenerf.train.config import load_run_config
+    from spikenerf.train.trainer import Trainer
+
+    def full(*args: object) -> None:
+        raise torch.cuda.OutOfMemoryError("CUDA out of memory")
+
+    run = shutil.copytree(made / "run", tmp_path / "run")
+    monkeypatch.setattr(Trainer, "_restore", full)
+    config = load_run_config(run / "config.yaml")
+    config.dataset, config.iters = str(made / "ds"), 7
+    with pytest.raises(torch.cuda.OutOfMemoryError):
+        Trainer(config, run, resume=True, progress=False)

@@ -236,3 +236,5 @@ def test_a_field_of_view_that_looks_like_radians_is_warned(capsys, rec, tmp_path
     )
     code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds40", *ORBIT, "--fov", 40)
     assert code == 0 and "narrow lens" not in err
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "no", *ORBIT, "--fov", -1)
+    _one_error(code, err, "--fov must be in (0, 180) degrees")  # (the error alone, no warning)

@@ -264,28 +264,6 @@ def test_a_ray_that_hits_nothing_is_compared_with_its_pixels_own_window(
     assert float(term.loss) < float(window_mean_loss(torch.ones(len(step), 1, 1), behind, None))
 
 
-def test_a_ray_through_faint_haze_is_background_not_a_surface_to_track(
-    dataset_dir: Path, dataset, tmp_path: Path
-) -> None:  # type: ignore[no-untyped-def]
-    """A ray of opacity 0.002 (a faint haze, 99.8 % white background) has a depth inside the box, since
-    depth is Σ wᵢ tᵢ / Σ wᵢ: it shows the background, so its target is its pixel's own window, not the spikes
-    along the track of a point in the haze (which ``depth > 0`` alone picked)."""
-    trainer, method, counts, pixels, step = _track_draw(dataset_dir, dataset, tmp_path)
-    origins, dirs = pixel_rays(counts.poses[step], dataset.intrinsics, pixels)
-    depth = (origins.norm(dim=1) * 0.5).detach()  # half way to the scene's centre: inside the haze
-
-    def haze(poses, pixels, perturb=True):  # type: ignore[no-untyped-def]
-        n = len(pixels)
-        return RenderOutput(torch.full((n, 1), 0.998, requires_grad=True), depth, torch.full((n,), 0.002))
-
-    trainer.render_rays = haze  # type: ignore[method-assign]
-    term = method.track_term(trainer, pixels, step)
-    own = counts.window_mean((step - 3).clamp_min(0), (step + 4).clamp_max(counts.steps), pixels)
-    tracked = counts.track_mean(origins + depth[:, None] * dirs, step, 3, dataset.intrinsics)
-    assert not torch.allclose(own, tracked)  # (they differ: the check below means something)
-    torch.testing.assert_close(term.loss, window_mean_loss(torch.full((len(step), 1, 1), 0.998), own, None))
-
-
 def test_a_refined_run_tracks_along_the_poses_it_renders_from(
     dataset_dir: Path, dataset, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]

@@ -131,7 +131,7 @@ def command(**kw: Any) -> None:
     flag = {"fov_deg": "fov"}  # ImportOptions field → click parameter, where the names differ
     given = {f.name: kw[flag.get(f.name, f.name)] for f in fields(ImportOptions) if f.name != "command"}
     opts = ImportOptions(**given | {"frame_range": frame_range, "command": command_line()})
-    if kw["fov"] is not None and kw["fov"] < NARROW_FOV:  # (transforms.json keeps its angle in radians)
+    if kw["fov"] is not None and 0 < kw["fov"] < NARROW_FOV:  # (transforms.json keeps its angle in radians)
         click.echo(
             f"spikenerf: warning: --fov is in degrees: {kw['fov']:g}° is a very narrow lens (in radians "
             f"{kw['fov']:g} would be {math.degrees(kw['fov']):.3g}°)",

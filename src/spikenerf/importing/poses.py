@@ -248,15 +248,18 @@ def read_colmap_text(folder: Path) -> PoseSet:
     )
 
 
-#: parameters of each COLMAP camera model, by its id in ``cameras.bin`` (colmap/sensor/models.h)
-CAMERA_PARAMS = {0: 3, 1: 4, 2: 4, 3: 5, 4: 8, 5: 8, 6: 12, 7: 5, 8: 4, 9: 5, 10: 12, 11: 16}
+#: parameters of each COLMAP camera model, by its id in ``cameras.bin`` (colmap/sensor/models.h; 12-17:
+#: the division, fisheye, EUCM and equirectangular models pycolmap 4.2 writes)
+CAMERA_PARAMS = {0: 3, 1: 4, 2: 4, 3: 5, 4: 8, 5: 8, 6: 12, 7: 5, 8: 4, 9: 5, 10: 12, 11: 16,
+                 12: 4, 13: 5, 14: 3, 15: 4, 16: 6, 17: 2}  # fmt: skip
 
 
 def check_binary_layout(path: Path) -> None:
     """InputError naming ``path`` (a COLMAP ``cameras.bin``, ``images.bin``, ``points3D.bin``, ``rigs.bin``
     or ``frames.bin``) unless its records, as its counts declare them, fit in the file. pycolmap reads on
     past the end of a cut file (a zero-byte or truncated ``points3D.bin`` or a cut ``frames.bin`` makes it
-    allocate without end, gigabytes in seconds) and takes an absurd count or camera model at its word."""
+    allocate without end, gigabytes in seconds) and takes an absurd count at its word. A camera model
+    newer than :data:`CAMERA_PARAMS` ends the check of ``cameras.bin`` there (pycolmap knows it)."""
     if not path.is_file():
         raise InputError("missing file of a COLMAP binary model", path=path)
     data = path.read_bytes()
@@ -282,8 +285,8 @@ def check_binary_layout(path: Path) -> None:
             )
         if path.name == "cameras.bin":
             model = take("<Ii", f"camera record {i + 1}")[1]
-            if model not in CAMERA_PARAMS:
-                raise InputError(f"camera record {i + 1}: unknown camera model id {model}", path=path)
+            if model not in CAMERA_PARAMS:  # a model newer than this table: pycolmap reads the rest
+                return
             take(f"<QQ{CAMERA_PARAMS[model]}d", f"camera record {i + 1}")
         elif path.name == "images.bin":
             take("<I7dI", f"image record {i + 1}")

@@ -112,6 +112,8 @@ def check_trajectory(trajectory: Trajectory, param: str = "trajectory") -> None:
             f"{param}: fps must be a finite number > 0 and times finite, found fps {trajectory.fps!r}",
             param=param,
         )
+    if n > 1 and not (np.diff(times) > 0).all():  # (the loader refuses a dataset whose times do not increase)
+        raise InputError(f"{param}: times must increase, found {times[:4]!r:.80}", param=param)
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:

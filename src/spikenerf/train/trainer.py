@@ -431,6 +431,8 @@ class Trainer:
             check_optimizer_fits(self.optimizer, ckpt["optimizer"], ckpt_path)  # (a misfit one crashes)
             try:
                 self._restore(ckpt, curves)
+            except torch.cuda.OutOfMemoryError:  # (a RuntimeError, but no damage: the device is full)
+                raise
             except (KeyError, TypeError, ValueError, AttributeError, IndexError, RuntimeError) as err:
                 first = str(err).strip().split("\n")[0][:200]
                 raise InputError(
