@@ -717,7 +717,8 @@ def test_an_import_leaving_one_training_keyframe_says_how_to_train_it(
     assert code == 0 and "2 keyframes), 1 test view" in out
     assert err.strip() == (
         "spikenerf: warning: 1 keyframe left after the test views: `train` refines poses between 2 or more, "
-        "so train with --no-refine-poses, or import more steps (or with --test-every 0)"
+        "so train with --no-refine-poses (and --no-holdout where its guard bands leave too few steps), or "
+        "import more steps (or with --test-every 0)"
     )
     code, _, err = run_cli(capsys, "import", rec, *ORBIT, "--test-every", 0, *args, tmp_path / "none")
     assert code == 0 and err == ""
