@@ -15,7 +15,8 @@ from spikenerf.core.errors import InputError, is_number
 
 def readable(x: torch.Tensor) -> bool:
     """Whether a check may read ``x``'s values: on the CPU (no device sync) and not while ``torch.compile``
-    traces (a data-dependent branch would break the graph). Elsewhere the values are trusted."""
+    traces (a data-dependent branch would break the graph). Elsewhere the values are trusted. Callers look
+    it up on this module (``tensor_checks.readable``), so that a test can play a GPU, where it is False."""
     return x.device.type == "cpu" and not torch.compiler.is_compiling()
 
 

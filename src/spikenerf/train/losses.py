@@ -17,9 +17,10 @@ from __future__ import annotations
 import torch
 
 from spikenerf.camera.model import fire
+from spikenerf.core import tensor_checks
 from spikenerf.core.errors import InputError, is_number
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
-from spikenerf.core.tensor_checks import check_threshold, readable
+from spikenerf.core.tensor_checks import check_threshold
 from spikenerf.train.settings import SPIKE_LOSS_KINDS as SPIKE_LOSS_KINDS  # (defined there)
 from spikenerf.train.settings import PairMode
 from spikenerf.train.settings import SpikeLossKind as SpikeLossKind
@@ -60,10 +61,10 @@ def check_tensor(x: object, name: str) -> None:
 def recorded_spikes(spikes: object, like: torch.Tensor) -> torch.Tensor:
     """``spikes`` (a tensor or array, as ``read_dat`` gives) on ``like``'s device, as spikes: bool as they
     are, integers as ``!= 0`` (0/255 frames are spikes, as for TFP), floats as they are, which must be 0.0
-    or 1.0 (an InputError naming ``spikes`` where they can be read: :func:`readable`)."""
+    or 1.0 (an InputError naming ``spikes`` where they can be read: ``tensor_checks.readable``)."""
     s = torch.as_tensor(spikes)
     if s.dtype.is_floating_point or s.dtype.is_complex:
-        if readable(s):
+        if tensor_checks.readable(s):
             odd = (s != 0) & (s != 1)
             if bool(odd.any()):
                 raise InputError(
@@ -108,7 +109,7 @@ def window_mean_loss(
             raise InputError(
                 f"band must be (B, 1) = {(means.shape[0], 1)}, found {tuple(band.shape)}", param="band"
             )
-        if readable(band) and bool((band < 0).any()):  # (NaN passes: it makes the loss NaN, visibly)
+        if tensor_checks.readable(band) and bool((band < 0).any()):  # (NaN passes: a NaN loss shows)
             raise InputError("band must be ≥ 0 (a half-width), found a negative value", param="band")
     d = means - target.to(means.dtype)[:, None]
     if band is not None:
