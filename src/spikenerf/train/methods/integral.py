@@ -255,15 +255,11 @@ class SpikeIntegral(TrainMethod):
             origins, dirs = pixel_rays(poses, state.dataset.intrinsics, pixels)
             points = origins + out.depth.detach()[:, None] * dirs
             track = None  # the recorded poses; refined ones where the run refines them, as rendered
-            if state.pose_refine is not None:
-                j = counts.track_steps(steps, c.track)[0]
-                flat = j.reshape(-1)
-                # the refiner reads its step numbers on the host: index them there (j may be on the GPU)
-                near = torch.arange(-c.track, c.track + 1)[None]
-                host = (steps.cpu()[:, None] + near).clamp(0, counts.steps - 1).reshape(-1)
-                refined = state.pose_refine(counts.poses.to(flat.device)[flat].to(state.device),
-                                            self.step_numbers[host])  # fmt: skip
-                track = refined.view(*j.shape, 4, 4)
+            if state.pose_refine is not None:  # (the track's steps on the host: the refiner reads them there)
+                j = steps.cpu()[:, None] + torch.arange(-c.track, c.track + 1)[None]
+                flat = j.clamp(0, counts.steps - 1).reshape(-1)
+                poses_j = counts.poses[flat.to(counts.poses.device)].to(state.device)
+                track = state.pose_refine(poses_j, self.step_numbers[flat]).view(*j.shape, 4, 4)
             k = state.dataset.intrinsics
             target = counts.track_mean(points, steps, c.track, k, track).to(state.device)
             # a ray that hits nothing (depth 0: no density at all) has no point to track: its pixel's own
