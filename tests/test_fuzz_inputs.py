@@ -1081,6 +1081,22 @@ def test_checkpoint_tensors_damaged(made: Path, tmp_path: Path, change: str, wor
     _refused(lambda: load_run(run, train_images=False), run / "checkpoint.pt", words)
 
 
+@pytest.mark.parametrize("change, words", LOAD_DAMAGE)
+def test_info_refuses_a_damaged_checkpoint(made: Path, tmp_path: Path, change: str, words: str) -> None:
+    """``info`` of a run whose checkpoint eval would refuse names the same problem. Before: a tensor of
+    another dtype or shape, a missing or an extra one passed ``info`` (it loaded the checkpoint but never
+    built the model), which then reported the run as trained."""
+    import torch
+
+    from spikenerf.train.run import describe_run
+
+    run = shutil.copytree(made / "run", tmp_path / "run")
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=True)
+    _damage(ckpt, change)
+    torch.save(ckpt, run / "checkpoint.pt")
+    _refused(lambda: describe_run(run), run / "checkpoint.pt", words)
+
+
 @pytest.mark.parametrize(
     "change, words",
     [("Adam moment of another shape", "exp_avg of parameter 0 is (3,) torch.float32, its parameter (3, 16"),

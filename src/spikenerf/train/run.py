@@ -233,6 +233,7 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
     if (run_dir / CHECKPOINT).exists():  # another run's checkpoint copied in is refused, as eval does
         ckpt = load_checkpoint(run_dir / CHECKPOINT, map_location=torch.device("cpu"))
         check_same_run(ckpt, config.to_dict(), run_dir / CHECKPOINT)
+        model_of(ckpt, run_dir / CHECKPOINT)  # a tensor eval refuses (another shape, dtype) is named here
         done, unfit = int(ckpt["iteration"]), _dataset_unfit(ckpt, config)
     method = make_method(config)
     lines = [
