@@ -161,6 +161,7 @@ def test_two_jobs_write_logs_and_resume(
         ({"size": 24, "seed": 1}, "size 16 → 24; seed 0 → 1"),
         ({"colors": ["gray", "rgb"]}, "color 'gray' → 'all'"),
         ({"field_kind": "mlp"}, "field_kind"),
+        ({"noise": "realistic"}, "noise 'ideal' → 'realistic'"),
         # the demo's derived train arguments: only the options that differ
         (
             {"extra_train_args": [("5" if a == "2" else a) for a in cfg.extra_train_args]},
@@ -197,6 +198,52 @@ def test_two_jobs_write_logs_and_resume(
     assert other_finished_cells(cfg, cell_keys(replace(cfg, variants=["nerf-gt"]))) == [
         cfg.out / "runs" / "analytic-orbs" / "gray" / "nerf-blur"
     ]
+
+
+def test_benchmark_noise(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``benchmark --noise realistic`` simulates its datasets with the realistic camera and says so above
+    its tables; a folder recorded before the setting existed reads as ``ideal``, and a dataset simulated
+    with the other noise is refused."""
+    from helpers import run_cli
+    from spikenerf.pipelines.benchmark.cells import dataset_command
+    from spikenerf.pipelines.benchmark.results import read_call
+    from spikenerf.pipelines.benchmark.run import dataset_mismatch
+    from spikenerf.pipelines.benchmark.settings import NAME, check_settings, settings
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path / "b", size=16, frames=60,
+                          iters=2, device="cpu", test_views=1, render=False, noise="realistic",
+                          extra_train_args=BENCHMARK_TRAIN)  # fmt: skip
+    command = dataset_command(cfg, "analytic-orbs")
+    assert command[command.index("--noise") + 1] == "realistic"
+    args = ["--quiet", "--threads", "1", "benchmark", "--scenes", "analytic-orbs", "--methods", "nerf-gt",
+            "--color", "gray", "--size", "16", "--frames", "60", "--iters", "2", "--test-views", "1",
+            "--no-render", "--device", "cpu", "--out", cfg.out, "--set", "batch=64"]  # fmt: skip
+    code, _, err = run_cli(capsys, *args, "--noise", "loud")
+    assert code == 2 and "--noise" in err and not cfg.out.exists()
+    assert run_cli(capsys, *args, "--noise", "realistic")[0] == 0
+    dataset = cfg.out / "datasets" / "analytic-orbs"
+    assert "noise: realistic" in (dataset / "config.yaml").read_text()
+    assert "realistic noise" in (cfg.out / "table1.md").read_text()
+    assert read_call(cfg.out / "results.json").config["noise"] == "realistic"
+    code, _, err = run_cli(capsys, *args)  # resumed without it: refused, naming the flag
+    assert code == 2 and "noise 'realistic' → 'ideal'" in err and "--noise" in err
+    # the dataset alone (benchmark.json gone) is refused too
+    (cfg.out / NAME).unlink()
+    problem = dataset_mismatch(replace(cfg, noise="ideal"), "analytic-orbs")
+    assert problem is not None and "noise realistic" in problem.message
+    assert dataset_mismatch(cfg, "analytic-orbs") is None
+    # records written before the setting existed: an ideal camera
+    ideal = replace(cfg, out=tmp_path / "old", noise="ideal")
+    ideal.out.mkdir()
+    old = {k: v for k, v in settings(ideal).items() if k != "noise"}
+    (ideal.out / NAME).write_text(json.dumps({"settings": old, "nonce": "n"}))
+    assert check_settings(ideal) == "n"
+    with pytest.raises(InputError, match="noise 'ideal' → 'realistic'"):
+        check_settings(replace(ideal, noise="realistic"))
+    results = json.loads((cfg.out / "results.json").read_text())
+    del results["config"]["noise"]
+    (ideal.out / "results.json").write_text(json.dumps(results))
+    assert read_call(ideal.out / "results.json").config["noise"] == "ideal"
 
 
 def test_settings_resolve_the_trainers_default_iters(tmp_path: Path) -> None:

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
+from spikenerf.camera.modes import NOISES
 from spikenerf.cli.types import SEED, OutPath, device_option
 from spikenerf.core.errors import InputError, comma_list
 from spikenerf.fields.choices import FIELD_KINDS
@@ -53,6 +54,11 @@ BENCHMARK_KEYS = {
 )  # fmt: skip
 @click.option("--test-views", type=click.IntRange(min=1), default=8, show_default=True)
 @click.option(
+    "--noise", type=click.Choice(NOISES), default="ideal", show_default=True,
+    help="The simulated spike camera's noise (simulate --noise): 'realistic' adds shot noise, dark current "
+    "and per-pixel gain and threshold mismatch (docs/camera.md).",
+)  # fmt: skip
+@click.option(
     "--set", "overrides", multiple=True, metavar="KEY=VALUE",
     help="Override a TrainConfig field in every cell's training, as `train --set` (e.g. --set batch=4096 "
     "--set field_config.n_voxels_final=27000000 for a GPU). Repeatable; kept in OUT/benchmark.json.",
@@ -95,7 +101,7 @@ BENCHMARK_KEYS = {
 )
 def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
-    field: str, device: str, seed: int, seeds: str | None, blur_views: str, test_views: int,
+    field: str, device: str, seed: int, seeds: str | None, blur_views: str, test_views: int, noise: str,
     overrides: tuple[str, ...], no_render: bool, jobs: int, keep_going: bool, executor: str,
     address: str | None, retries: int, ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
@@ -182,7 +188,7 @@ def command(
         size=size, frames=frames, iters=iters, field_kind=field, device=device, seed=seed,
         test_views=test_views, render=not no_render, jobs=jobs, executor=executor, address=address,
         retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus, keep_going=keep_going,
-        seeds=None if seeds is None else parse_seeds(seeds), blur_views=views,
+        seeds=None if seeds is None else parse_seeds(seeds), blur_views=views, noise=noise,
         extra_train_args=[arg for item in overrides for arg in ("--set", item)],
     )  # fmt: skip
     benchmark_with_report(cfg)

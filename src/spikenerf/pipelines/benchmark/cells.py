@@ -46,7 +46,8 @@ class BenchmarkConfig:
     ``jobs`` > 1 runs that many steps at once, each with its output in ``out/logs/`` and, unless
     ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads. ``seed`` seeds the simulated datasets;
     ``seeds`` are the training seeds, each cell trained once per seed (None = ``[seed]``). ``blur_views`` is
-    ``simulate --blur-views`` (``all`` = the paper's blur baseline: one exposure centred on every step).
+    ``simulate --blur-views`` (``all`` = the paper's blur baseline: one exposure centred on every step);
+    ``noise`` its ``--noise`` (``ideal`` or ``realistic``: the spike camera's noise model, camera.md).
     ``executor`` names an entry of :data:`~spikenerf.pipelines.benchmark.executor.EXECUTORS`: ``"ray"`` runs
     the steps as Ray tasks instead (:mod:`spikenerf.pipelines.benchmark.ray_executor`, which uses the
     ``address`` … ``ray_cpus`` fields). ``keep_going``: the local executor runs every job even when one
@@ -69,6 +70,7 @@ class BenchmarkConfig:
     jobs: int = 1
     seeds: list[int] | None = None
     blur_views: str = "all"
+    noise: str = "ideal"
     executor: str = "local"
     address: str | None = None
     retries: int = 2
@@ -162,7 +164,8 @@ def dataset_command(cfg: BenchmarkConfig, scene: str) -> list[str]:
     return _spikenerf(
         "simulate", "--scene", scene, "--width", str(cfg.size), "--height", str(cfg.size),
         "--frames", str(cfg.frames), "--color", color, "--seed", str(cfg.seed),
-        "--test-views", str(cfg.test_views), "--blur-views", cfg.blur_views, "--jobs", str(jobs),
+        "--test-views", str(cfg.test_views), "--blur-views", cfg.blur_views, "--noise", cfg.noise,
+        "--jobs", str(jobs),
         "--out", str(cfg.out / "datasets" / scene),
     )  # fmt: skip
 

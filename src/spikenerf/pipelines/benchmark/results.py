@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from spikenerf.camera.modes import NOISES
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError, is_finite
 from spikenerf.data.summary import view_counts
@@ -42,7 +43,8 @@ from spikenerf.pipelines.benchmark.variants import (
 RESULTS = "results.json"
 #: config entries that must agree between merged benchmark folders (:func:`read_results`)
 MERGE_KEYS = (
-    "scenes", "size", "frames", "iters", "field_kind", "seed", "test_views", "blur_views", "extra_train_args",
+    "scenes", "size", "frames", "iters", "field_kind", "seed", "test_views", "blur_views", "noise",
+    "extra_train_args",
 )  # fmt: skip
 #: a method's ``views`` (what its targets are posed on) -> how "trained on" counts them
 VIEW_TEXT = {"steps": "{} poses", "gt": "{} GT views", "blur": "{} blur views"}
@@ -91,7 +93,8 @@ def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict])
     t1_variants = [v for v in cfg.variants if v in TABLE1_VARIANTS] or cfg.variants
     t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
     note = (
-        f"{seed_note(seeds)} Test views: {cfg.test_views} per scene; 'trained on' counted from the datasets."
+        f"{seed_note(seeds)} Test views: {cfg.test_views} per scene; 'trained on' counted from the datasets. "
+        f"{noise_note(cfg.noise)}"
     )
     write_text_atomic(cfg.out / "table1.md", f"# Table I: comparison (test views)\n\n{note}\n\n{t1}\n")
     if any(v in ABLATION_VARIANTS for v in cfg.variants):
@@ -123,6 +126,16 @@ def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict])
         },
     }
     write_text_atomic(cfg.out / RESULTS, json.dumps(results, indent=2) + "\n")
+
+
+def noise_note(noise: str) -> str:
+    """What spike camera the datasets were simulated with (``simulate --noise``)."""
+    if noise == "ideal":
+        return "Spike streams: noise-free simulated camera (ideal)."
+    return (
+        f"Spike streams: simulated camera with {noise} noise (shot noise, dark current, per-pixel gain and "
+        "threshold mismatch; docs/camera.md)."
+    )
 
 
 def seed_note(seeds: Sequence[int]) -> str:
@@ -170,7 +183,7 @@ def read_call(path: Path) -> RecordedCall:
     is built from it."""
     try:
         data = json.loads(path.read_text())
-        config = dict(data["config"])
+        config = {"noise": "ideal", **dict(data["config"])}  # (recorded since noise could be chosen)
         missing = [k for k in MERGE_KEYS if k not in config]
         if missing:
             raise KeyError(", ".join(missing))
@@ -241,6 +254,7 @@ CONFIG_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "field_kind": ("a string", lambda x: isinstance(x, str)),
     "device": ("a string", lambda x: isinstance(x, str)),
     "blur_views": ("a string", lambda x: isinstance(x, str)),
+    "noise": (f"one of {', '.join(NOISES)}", lambda x: isinstance(x, str) and x in NOISES),
     "executor": (f"one of {', '.join(EXECUTORS)}", lambda x: isinstance(x, str) and x in EXECUTORS),
     "address": ("null or a string", lambda x: x is None or isinstance(x, str)),
     "extra_train_args": ("a list of strings",

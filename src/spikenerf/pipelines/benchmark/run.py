@@ -130,14 +130,15 @@ def _check_datasets(cfg: BenchmarkConfig) -> None:
 
 def dataset_mismatch(cfg: BenchmarkConfig, scene: str) -> InputError | None:
     """The refusal (an InputError to raise) where ``OUT/datasets/SCENE`` was simulated with other settings
-    than ``cfg`` asks for (its size, steps, seed, test views, blur views, or lacking a colour); None where it
-    fits or does not exist yet. ``benchmark`` refuses to resume on it, ``report`` to draw figures from it."""
+    than ``cfg`` asks for (its size, steps, seed, test views, blur views, noise, or lacking a colour); None
+    where it fits or does not exist yet. ``benchmark`` refuses to resume on it, ``report`` to draw figures
+    from it."""
     root = cfg.out / "datasets" / scene
     if not (root / "transforms.json").is_file():
         return None
     have = dataset_settings(root)
     want = {"size": [cfg.size, cfg.size], "frames": cfg.frames, "seed": cfg.seed,
-            "test_views": cfg.test_views, "blur_views": cfg.blur_views}  # fmt: skip
+            "test_views": cfg.test_views, "blur_views": cfg.blur_views, "noise": cfg.noise}  # fmt: skip
     for param, value in want.items():
         if have[param] is not None and have[param] != value:
             return InputError(
@@ -167,7 +168,7 @@ def forget_unscored(cfg: BenchmarkConfig, keys: Sequence[CellKey]) -> None:
 
 def dataset_settings(root: Path) -> dict:
     """What a dataset folder was simulated with, from its ``config.yaml`` (None where it does not say):
-    ``size`` [W, H], ``frames``, ``seed``, ``test_views``, ``colors`` and ``blur_views``."""
+    ``size`` [W, H], ``frames``, ``seed``, ``test_views``, ``noise``, ``colors`` and ``blur_views``."""
     import yaml
 
     try:
@@ -181,6 +182,7 @@ def dataset_settings(root: Path) -> dict:
         "frames": config.get("steps"),
         "seed": config.get("seed"),
         "test_views": config.get("test_views"),
+        "noise": config.get("noise"),
         "colors": colors if isinstance(colors := config.get("colors"), list) else None,  # (a list or unsaid)
         "blur_views": str(view_counts(root)["blur_views"]),
     }

@@ -1,10 +1,10 @@
 """``OUT/benchmark.json``: the dataset and training settings a benchmark folder was started with.
 
 A resumed benchmark reuses its datasets and finished cells, so it must ask for what they were made with:
-a changed ``size``, ``frames``, ``seed``, ``test_views``, ``blur_views``, ``color`` (one the datasets
-lack), ``iters``, ``field_kind`` or extra train arguments is refused with one line naming the setting(s)
-(the CLI shows their flags). The file also holds the folder's ``nonce``, which keys the Ray workers'
-scratch copies (``ray_executor.scratch_root``).
+a changed ``size``, ``frames``, ``seed``, ``test_views``, ``blur_views``, ``noise``, ``color`` (one the
+datasets lack), ``iters``, ``field_kind`` or extra train arguments is refused with one line naming the
+setting(s) (the CLI shows their flags). The file also holds the folder's ``nonce``, which keys the Ray
+workers' scratch copies (``ray_executor.scratch_root``).
 A folder written before this file existed is resumed as it is, and gets the file then. The file also
 records the field's default config (``field_defaults``); a folder started by a version with other
 defaults (before ``step_ratio`` 0.75 and the bf16 decoder, or on a CPU that differs in native bf16) is
@@ -45,8 +45,11 @@ UNREAD_DEFAULTS = ("batch_rays",)
 PREVIOUS_INTEGRAL: dict[str, int] = {"window": 11, "samples": 2, "batch": 2048}
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
 KEYS = (
-    "size", "frames", "seed", "test_views", "blur_views", "color", "iters", "field_kind", "extra_train_args",
+    "size", "frames", "seed", "test_views", "blur_views", "noise", "color", "iters", "field_kind",
+    "extra_train_args",
 )  # fmt: skip
+#: settings added after folders were started, with the value those folders were made with
+ADDED_SETTINGS: dict[str, Any] = {"noise": "ideal"}
 #: how a message names a setting that is not a parameter
 LABELS = {"extra_train_args": "extra train arguments"}
 
@@ -105,7 +108,7 @@ def check_settings(cfg: Any) -> str | None:
     if not path.is_file():
         return None
     stored = read_stored(path)
-    old, nonce = stored["settings"], stored["nonce"]
+    old, nonce = {**ADDED_SETTINGS, **stored["settings"]}, stored["nonce"]
     new = settings(cfg)
     if "iters" in old and old["iters"] is None:  # started without --iters when that was not recorded
         if cfg.iters is None:
