@@ -170,6 +170,70 @@ def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path, capsys: pytest.
     assert "unfinished (no render.json)" in _cli_output(capsys, "info", out)
 
 
+@pytest.mark.parametrize("kind", ["spiral", "interpolate"])
+def test_render_generated_paths(
+    kind: str, run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from spikenerf.eval.video import GENERATORS
+    from spikenerf.train.run import load_run
+
+    out = tmp_path / kind
+    spikes = ["--spikes", "--spike-steps", 5] if kind == "interpolate" else []
+    said = _cli_output(capsys, "render", run_dir, "--trajectory", kind, "--orbit-frames", 3, *spikes,
+                       "--device", "cpu", "--quiet", "--out", out)  # fmt: skip
+    assert said.startswith(f"wrote {out}: 3 views along ")
+    manifest = json.loads((out / "render.json").read_text())
+    assert (manifest["trajectory"], manifest["trajectory_kind"], manifest["views"]) == (kind, kind, 3)
+    assert manifest["trajectory_file"] is None
+    assert sorted(p.name for p in (out / "images").iterdir()) == ["00000.png", "00001.png", "00002.png"]
+    assert _video_frames(out / f"{kind}.mp4") == (3, 30.0)
+    _, _, dataset = load_run(run_dir)
+    poses = GENERATORS[kind](dataset, 3)
+    if kind == "interpolate":  # the path starts and ends on the training path's first and last poses
+        assert np.array_equal(poses[[0, -1]], dataset.trajectory.poses[[0, -1]])
+        assert read_dat(out / "spikes_gray.dat", SIZE, SIZE).shape == (5, SIZE, SIZE)
+        assert "novel spike stream: 5 steps, φ" in _cli_output(capsys, "info", out)
+    else:
+        assert np.allclose(poses[:, :3, 3].mean(0), dataset.trajectory.poses[:, :3, 3].mean(0))
+    assert f"trajectory: {kind}, 3 views" in _cli_output(capsys, "info", out)
+
+
+def test_render_a_nerfstudio_camera_path(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A camera_path.json at the test poses with the dataset's camera renders the test views; a malformed
+    one is one line, exit 2, nothing written."""
+    ds = json.loads((run_dir.parent / "ds" / "transforms_test.json").read_text())
+    meta = json.loads((run_dir.parent / "ds" / "transforms.json").read_text())
+    fov = math.degrees(meta.get("camera_angle_x", 0) or 2 * math.atan(SIZE / 2 / meta["fl_y"]))
+    cameras = [{"camera_to_world": np.ravel(f["transform_matrix"]).tolist(), "fov": fov, "aspect": 1.0}
+               for f in ds["frames"][:2]]  # fmt: skip
+    path = tmp_path / "camera_path.json"
+    data = {"camera_type": "perspective", "render_width": SIZE, "render_height": SIZE, "camera_path": cameras}
+    path.write_text(json.dumps(data))
+    out = tmp_path / "ns"
+    _cli("render", run_dir, "--trajectory", path, "--device", "cpu", "--quiet", "--out", out)
+    manifest = json.loads((out / "render.json").read_text())
+    assert manifest["trajectory_kind"] == "camera_path" and manifest["views"] == 2
+    assert manifest["size"] == [SIZE, SIZE] and math.isclose(manifest["camera"]["cx"], SIZE / 2)
+    test = tmp_path / "test"
+    _cli("render", run_dir, "--device", "cpu", "--quiet", "--out", test)
+    for i in range(2):
+        mine, theirs = (iio.imread(d / "images" / f"{i:05d}.png").astype(int) for d in (out, test))
+        assert np.abs(mine - theirs).max() <= 1
+    summary = _cli_output(capsys, "info", out)
+    assert "trajectory: camera_path.json (a nerfstudio camera path), 2 views" in summary
+    data["camera_path"][1]["fov"] = fov + 5
+    path.write_text(json.dumps(data))
+    bad = tmp_path / "bad"
+    err = _cli_error(capsys, "render", run_dir, "--trajectory", path, "--device", "cpu", "--out", bad)
+    assert "camera_path.json" in err and "camera_path[1].'fov'" in err and "differs" in err
+    assert not bad.exists()
+    path.write_text(json.dumps({**data, "render_width": 0}))
+    err = _cli_error(capsys, "render", run_dir, "--trajectory", path, "--device", "cpu", "--out", bad)
+    assert "'render_width': expected a positive number, found 0" in err and not bad.exists()
+
+
 def test_bad_inputs_are_one_line_errors(
     run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -191,10 +255,13 @@ def test_bad_inputs_are_one_line_errors(
         assert "is not there any more: if it moved, give its new folder with --dataset" in err, err
     (tmp_path / "empty").mkdir()
     assert "config.yaml" in _cli_error(capsys, "render", tmp_path / "empty", "--out", tmp_path / "o")
-    err = _cli_error(capsys, "render", run_dir, "--trajectory", "spiral", "--out", tmp_path / "o")
-    assert "--trajectory" in err
+    err = _cli_error(capsys, "render", run_dir, "--trajectory", "spirals", "--out", tmp_path / "o")
+    assert "--trajectory" in err and "test, orbit, spiral, interpolate" in err
     err = _cli_error(capsys, "render", run_dir, "--orbit-frames", 10, "--out", tmp_path / "o")  # (test views)
-    assert err == "spikenerf: error: --orbit-frames sets the views of --trajectory orbit, not of 'test'"
+    assert err == (
+        "spikenerf: error: --orbit-frames sets the views of --trajectory orbit/spiral/interpolate, "
+        "not of 'test'"
+    )
     err = _cli_error(capsys, "render", run_dir, "--seed", 5, "--out", tmp_path / "o")
     assert err == "spikenerf: error: --seed seeds the spike stream's accumulators and needs --spikes"
     err = _cli_error(

@@ -370,6 +370,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("render-out-under-file", ["render", f"{R}/run", "--device", "cpu", "--out", f"{R}/afile/r"], "afile"),
     ("render-orbit-bomb", ["render", f"{R}/run", "--trajectory", "orbit", "--orbit-frames", "1000000000",
                            "--device", "cpu", "--out", f"{R}/o"], "--orbit-frames"),
+    ("render-spiral-bomb", ["render", f"{R}/run", "--trajectory", "spiral", "--orbit-frames", "1000000000",
+                            "--device", "cpu", "--out", f"{R}/o"], "--orbit-frames"),
     ("render-traj-garbage", ["render", f"{R}/run", "--trajectory", f"{R}/garbage.json", "--device", "cpu",
                              "--out", f"{R}/o"], "garbage.json"),
     ("render-traj-missing", ["render", f"{R}/run", "--trajectory", f"{R}/nope.json", "--out", f"{R}/o"],

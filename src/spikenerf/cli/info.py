@@ -87,15 +87,16 @@ def describe_render(folder: Path) -> list[str]:
         else f" at iteration {done}" + (f" of {planned}" if planned not in (None, done) else "")
     )
     views = info.get("views")
+    fmt = {"camera_path": " (a nerfstudio camera path)"}.get(str(info.get("trajectory_kind")), "")
     lines = [
         f"render folder: {folder}",
         f"run: {info.get('run')}{of}",
-        f"trajectory: {info.get('trajectory')}, {views} view{'' if views == 1 else 's'} of {width}×{height}, "
-        f"video {files.get('video')}",
+        f"trajectory: {info.get('trajectory')}{fmt}, {views} view{'' if views == 1 else 's'} of "
+        f"{width}×{height}, video {files.get('video')}",
     ]
     streams = [name for name in files.get("spikes") or [] if str(name).endswith(".dat")]
     if streams:
-        along = {"orbit": "", "test": " (one step per held-out view)"}.get(
+        along = {"orbit": "", "spiral": "", "interpolate": "", "test": " (one step per held-out view)"}.get(
             str(info.get("trajectory")), " (one step per pose of the file)"
         )
         steps = info.get("spike_steps")

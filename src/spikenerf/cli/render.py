@@ -15,15 +15,20 @@ from spikenerf.cli.types import SEED, OutPath, device_option
 @click.argument("run", type=click.Path(path_type=Path))
 @click.option(
     "--trajectory", default="test", show_default=True,
-    help="test (held-out views), orbit (a closed orbit like the training path) or a transforms.json FILE "
-    "with frames[].transform_matrix (and its own camera and near/far, where it gives them).",
+    help="test (held-out views), orbit (a closed orbit like the training path), spiral (around the mean "
+    "training camera, for forward-facing captures), interpolate (a smooth path through the training poses), "
+    "or a FILE: a transforms.json with frames[].transform_matrix (and its own camera and near/far, where it "
+    "gives them) or a nerfstudio camera_path.json.",
 )  # fmt: skip
 @click.option("--spikes", is_flag=True, help="Also fire a novel-view spike stream (.dat + TFP preview).")
 @click.option("--fps-video", type=float, default=30.0, show_default=True, help="Frame rate of the mp4.")
-@click.option("--orbit-frames", type=int, default=120, show_default=True, help="Views on the orbit video.")
+@click.option(
+    "--orbit-frames", type=int, default=120, show_default=True,
+    help="Views of a generated path: orbit, spiral or interpolate.",
+)  # fmt: skip
 @click.option(
     "--spike-steps", type=int,
-    help="Spike steps along the orbit [default: the dataset's]; test/FILE: one step per pose.",
+    help="Spike steps along orbit/spiral/interpolate [default: the dataset's]; test/FILE: one step per pose.",
 )  # fmt: skip
 @click.option(
     "--seed", type=SEED, default=0, show_default=True, help="Seed of the spike accumulators' start."
@@ -51,15 +56,17 @@ def command(
 ) -> None:
     from spikenerf.core.errors import InputError
     from spikenerf.eval.video import render_run
+    from spikenerf.scenes.trajectory import GENERATED_PATHS
 
-    if spike_steps is not None and not (spikes and trajectory == "orbit"):
+    generated = "/".join(GENERATED_PATHS)
+    if spike_steps is not None and not (spikes and trajectory in GENERATED_PATHS):
         raise InputError(
-            "--spike-steps sets the spike stream's length along --trajectory orbit and needs --spikes "
+            f"--spike-steps sets the spike stream's length along --trajectory {generated} and needs --spikes "
             "(with test or FILE the stream has one step per pose)"
         )
     given = click.get_current_context().get_parameter_source
-    if trajectory != "orbit" and given("orbit_frames") is ParameterSource.COMMANDLINE:
-        raise InputError(f"--orbit-frames sets the views of --trajectory orbit, not of {trajectory!r}")
+    if trajectory not in GENERATED_PATHS and given("orbit_frames") is ParameterSource.COMMANDLINE:
+        raise InputError(f"--orbit-frames sets the views of --trajectory {generated}, not of {trajectory!r}")
     if not spikes and given("seed") is ParameterSource.COMMANDLINE:
         raise InputError("--seed seeds the spike stream's accumulators and needs --spikes")
     check_run_folder(run)

@@ -19,6 +19,7 @@ RECORD = "render.json"
 TYPED = {
     "run": (str,),
     "trajectory": (str,),
+    "trajectory_kind": (str,),
     "views": (int,),
     "iteration": (int, type(None)),
     "run_iterations": (int, type(None)),

@@ -1,19 +1,22 @@
 """What ``spikenerf render`` writes: views as PNG, depth (colour-mapped PNG + .npy), a video, spike streams.
 
 ``render_run(run, out, trajectory)`` renders every pose of a trajectory — ``test`` (the held-out views),
-``orbit`` (a closed orbit at the training path's mean radius and elevation) or a transforms.json with
-``frames[].transform_matrix`` — and writes, each file atomically:
+``orbit`` (a closed orbit at the training path's mean radius and elevation), ``spiral`` (an LLFF-style
+spiral around the mean training camera, for forward-facing captures), ``interpolate`` (a smooth path through
+the training poses in time order), a transforms.json with ``frames[].transform_matrix`` or a nerfstudio
+camera_path.json — and writes, each file atomically:
 
 - ``images/NNNNN.png``: 8-bit sRGB-encoded colour (gray runs: 8-bit gray);
 - ``depth/NNNNN.npy``: float32 (H, W) expected ray distance in world units (0 where empty);
 - ``depth/NNNNN.png``: depth through the ``turbo`` colour map over the 1st–99th percentile of the depths
   of opaque pixels (opacity > 0.5) of the whole trajectory, composited on white by opacity;
-- ``<name>.mp4`` (``orbit.mp4``, ``test.mp4``, ``<file stem>.mp4``): the colour frames (H.264, yuv420p;
-  frames edge-padded to even sizes);
-- with ``spikes=True``: a novel-view spike stream along the trajectory, one step per pose (the orbit is
-  re-sampled to ``spike_steps`` steps, by default the dataset's), fired from a seeded uniform start in
-  [0, φ) with the dataset's threshold φ: ``spikes_gray.dat`` or ``spikes_rgb_{r,g,b}.dat`` (SpikeCV layout)
-  and ``spikes_tfp.png``, the TFP reconstruction of its middle step;
+- ``<name>.mp4`` (``orbit.mp4``, ``spiral.mp4``, ``interpolate.mp4``, ``test.mp4``, ``<file stem>.mp4``):
+  the colour frames (H.264, yuv420p; frames edge-padded to even sizes);
+- with ``spikes=True``: a novel-view spike stream along the trajectory, one step per pose (a generated
+  path, orbit, spiral or interpolate, is re-sampled to ``spike_steps`` steps, by default the dataset's),
+  fired from a seeded uniform start in [0, φ) with the dataset's threshold φ: ``spikes_gray.dat`` or
+  ``spikes_rgb_{r,g,b}.dat`` (SpikeCV layout) and ``spikes_tfp.png``, the TFP reconstruction of its middle
+  step;
 - ``render.json``: what was written.
 """
 
@@ -54,11 +57,20 @@ from spikenerf.eval.render_record import read_render_record
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.render.model import render_image
 from spikenerf.render.spiking import iter_spike_states
-from spikenerf.scenes.trajectory import Intrinsics, orbit
+from spikenerf.scenes.trajectory import (
+    GENERATED_PATHS,
+    INTERPOLATE_KEYS,
+    RENDER_PATHS,
+    Intrinsics,
+    key_path,
+    orbit,
+    path_keys,
+    spiral_path,
+)
 from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import open_run
 
-TRAJECTORIES = ("test", "orbit")
+TRAJECTORIES = RENDER_PATHS
 DEFAULT_ORBIT_FRAMES = 120
 TFP_WINDOW = DEFAULT_WINDOW
 #: the video rates an mp4 holds faithfully (below, ffmpeg drops frames; above about 10⁶ it clamps the rate)
@@ -158,11 +170,40 @@ def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
     return traj.poses
 
 
+def spiral_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
+    """(count, 4, 4) poses of a spiral around the mean training camera, looking at a focus depth from the
+    dataset's near/far (:func:`spikenerf.scenes.trajectory.spiral_path`)."""
+    return spiral_path(dataset.trajectory.poses, dataset.near, dataset.far, count)
+
+
+def interpolated_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
+    """(count, 4, 4) poses of a smooth path through :data:`INTERPOLATE_KEYS` training poses spread over the
+    training path in time order (slerped rotations, Catmull-Rom positions:
+    :func:`spikenerf.scenes.trajectory.key_path`)."""
+    return key_path(path_keys(dataset.trajectory.poses, INTERPOLATE_KEYS), count)
+
+
+#: the generated paths' poses, (dataset, count) → (count, 4, 4)
+GENERATORS: dict[str, Callable[[SpikeDataset, int], np.ndarray]] = {
+    "orbit": orbit_poses,
+    "spiral": spiral_poses,
+    "interpolate": interpolated_poses,
+}
+#: what the log says of a built-in path
+ALONG = {
+    "test": "at the test poses",
+    "orbit": "along the orbit",
+    "spiral": "along a spiral around the mean training camera",
+    "interpolate": "along the training path",
+}
+
+
 @dataclass
 class RenderPath:
     """What a render follows: ``name`` (the video's stem), ``poses`` (N, 4, 4) c2w, the camera and the
-    ray bounds; ``file``: the trajectory file's name, None for the built-in ``test`` and ``orbit`` (a file
-    named ``test.json`` is no test trajectory)."""
+    ray bounds; ``file``: the trajectory file's name, None for the built-in paths (a file named
+    ``test.json`` is no test trajectory); ``kind``: the built-in path's name, or the file's format
+    (``transforms`` or ``camera_path``, nerfstudio's)."""
 
     name: str
     poses: np.ndarray
@@ -170,11 +211,13 @@ class RenderPath:
     near: float
     far: float
     file: str | None = None
+    kind: str = ""
 
 
 def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPath:
-    """The :class:`RenderPath` of ``test``, ``orbit`` (``count`` poses) or a transforms.json path; the first
-    two use the dataset's camera and bounds, a file its own camera where it gives one (``w``/``h`` default
+    """The :class:`RenderPath` of ``test``, a generated path (``orbit``, ``spiral``, ``interpolate``:
+    ``count`` poses) or a trajectory file (a transforms.json or a nerfstudio camera_path.json); the built-in
+    paths use the dataset's camera and bounds, a file its own camera where it gives one (``w``/``h`` default
     to the dataset's size) and its ``near``/``far``, else bounds around the scene box from its poses."""
     k, near, far = dataset.intrinsics, dataset.near, dataset.far
     if spec == "test":
@@ -184,19 +227,20 @@ def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPa
                 path=dataset.root,
                 param="trajectory",
             )
-        return RenderPath("test", np.asarray(dataset.test.poses, np.float64), k, near, far)
-    if spec == "orbit":
-        return RenderPath("orbit", orbit_poses(dataset, count), k, near, far)
+        return RenderPath("test", np.asarray(dataset.test.poses, np.float64), k, near, far, kind="test")
+    if spec in GENERATORS:
+        return RenderPath(spec, GENERATORS[spec](dataset, count), k, near, far, kind=spec)
     path = Path(spec)
     if not path.is_file():
         what = "no such file" if not path.exists() else "not a file"
         raise InputError(
-            f"trajectory: expected test, orbit or a transforms.json file, found {spec!r} ({what})",
+            f"trajectory: expected {', '.join(TRAJECTORIES)}, a transforms.json or a nerfstudio "
+            f"camera_path.json file, found {spec!r} ({what})",
             param="trajectory",
         )
     found = read_camera_path(path, (k.width, k.height))
     near, far = found.bounds or near_far(found.poses, dataset.scene_box)
-    return RenderPath(path.stem, found.poses, found.intrinsics or k, near, far, path.name)
+    return RenderPath(path.stem, found.poses, found.intrinsics or k, near, far, path.name, found.kind)
 
 
 def write_spikes(
@@ -395,12 +439,12 @@ def _render_locked(
     dataset = refined_poses(ckpt, config, dataset)
     precision = resolve_precision(precision, model.device)
     requested, chunk = chunk, inference_chunk(model, chunk)
-    on_orbit = trajectory == "orbit"  # (a file called orbit.json is not: it fires one step a pose)
-    views = orbit_frames if on_orbit else len(dataset.test) if trajectory == "test" else 0
-    n_spikes = (spike_steps or len(dataset.trajectory)) if on_orbit else views
+    generated = trajectory in GENERATED_PATHS  # (a file called orbit.json is not: it fires one step a pose)
+    views = orbit_frames if generated else len(dataset.test) if trajectory == "test" else 0
+    n_spikes = (spike_steps or len(dataset.trajectory)) if generated else views
     check_render_resources(dataset.intrinsics, views, n_spikes if spikes else 0, out)
     path = resolve_trajectory(trajectory, dataset, orbit_frames)  # a file: its camera, one step a pose
-    k, poses, n_spikes = path.intrinsics, path.poses, n_spikes if on_orbit else len(path.poses)
+    k, poses, n_spikes = path.intrinsics, path.poses, n_spikes if generated else len(path.poses)
     if spikes and (k.width * k.height) % 8:  # a .dat stores 8 pixels a byte: refused before any work
         raise InputError(
             f"spikes: a spike stream needs W·H a multiple of 8, but the trajectory's camera is "
@@ -410,7 +454,7 @@ def _render_locked(
     check_render_resources(k, len(poses), n_spikes if spikes else 0, out)
     spike_path = None
     if spikes:
-        spike_poses = orbit_poses(dataset, n_spikes) if on_orbit else poses
+        spike_poses = GENERATORS[trajectory](dataset, n_spikes) if generated else poses
         spike_path = RenderPath(path.name, spike_poses, k, path.near, path.far, path.file)
     key = render_key(
         model, config=model.hparams(), versions=[package_version(), torch.__version__], poses=poses,
@@ -451,6 +495,7 @@ def _render_locked(
         "run_iterations": config.iters,
         "trajectory": path.file or path.name,
         "trajectory_file": None if trajectory in TRAJECTORIES else str(Path(trajectory).resolve()),
+        "trajectory_kind": path.kind,
         "views": len(poses),
         "channels": model.channels,
         "size": [k.width, k.height],
@@ -469,11 +514,7 @@ def _render_locked(
     write_text_atomic(out / "render.json", json.dumps(manifest, indent=2) + "\n")
     cache.close()
     if log:
-        along = (
-            f"along the trajectory file {path.file}"
-            if path.file
-            else {"orbit": "along the orbit", "test": "at the test poses"}[path.name]
-        )
+        along = f"along the trajectory file {path.file}" if path.file else ALONG[path.name]
         views = f"{len(poses)} view{'' if len(poses) == 1 else 's'} {along}"
         log(f"wrote {out}: {views}, {video}" + (", spike stream" if spikes else ""))
     return manifest

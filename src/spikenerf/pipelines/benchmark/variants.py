@@ -55,7 +55,9 @@ VARIANTS: dict[str, Variant] = {
     "nerf-recon": Variant("nerf-recon", "NeRF + TFP reconstruction", PAPER_TARGETS),
     "spike-nerf": Variant("spike-nerf", "Spike-NeRF (paper)", PAPER_TARGETS),
     "nerf-recon-learned": Variant(
-        "nerf-recon", "NeRF + learned reconstruction (Spk2ImgNet+NeRF stand-in)", (("targets.recon", "learned"),)
+        "nerf-recon",
+        "NeRF + learned reconstruction (Spk2ImgNet+NeRF stand-in)",
+        (("targets.recon", "learned"),),
     ),
     "spike-nerf-learned": Variant(
         "spike-nerf", "Spike-NeRF on learned targets", (("targets.recon", "learned"),)
