@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from spikenerf.camera.modes import LAYOUTS
 from spikenerf.core.atomic import atomic_path
 from spikenerf.core.color import is_tensor
 from spikenerf.core.errors import InputError, is_integer
@@ -23,7 +24,6 @@ from spikenerf.core.errors import InputError, is_integer
 if TYPE_CHECKING:
     import torch
 
-LAYOUTS = ("spikecv", "topdown")
 #: the suffixes of the three per-channel files of an RGB stream: ``{prefix}_r.dat`` etc.
 RGB_SUFFIXES = ("r", "g", "b")
 #: frames decoded or encoded per block when streaming (bounds memory, keeps numpy calls large)

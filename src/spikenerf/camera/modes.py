@@ -10,3 +10,6 @@ COLORS: tuple[str, ...] = get_args(ColorMode)
 #: noise models of the spike camera (``camera/noise.py``)
 NoiseKind = Literal["ideal", "realistic"]
 NOISES: tuple[str, ...] = get_args(NoiseKind)
+#: row orders of a ``.dat`` file (``camera/io.py``): SpikeCV's bottom-up rows, or top-down rows
+DatLayout = Literal["spikecv", "topdown"]
+LAYOUTS: tuple[str, ...] = get_args(DatLayout)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import yaml
 
-from spikenerf.camera.io import LAYOUTS
+from spikenerf.camera.modes import LAYOUTS
 from spikenerf.core.errors import InputError, is_finite
 from spikenerf.core.yamlio import load_yaml
 

@@ -10,6 +10,7 @@ from click.core import ParameterSource
 from spikenerf.camera.modes import NOISES
 from spikenerf.cli.types import SEED, OutPath, device_option
 from spikenerf.core.errors import InputError, comma_list
+from spikenerf.data.choices import COLORS
 from spikenerf.fields.choices import FIELD_KINDS
 from spikenerf.pipelines.benchmark.executor import EXECUTORS
 from spikenerf.pipelines.benchmark.variants import VARIANTS
@@ -116,7 +117,7 @@ def command(
     from spikenerf.pipelines.suite import benchmark_with_report
 
     colors = comma_list(
-        color, ("gray", "rgb"), lambda _: f"--color: expected gray, rgb or gray,rgb, got {color!r}", "color"
+        color, COLORS, lambda _: f"--color: expected gray, rgb or gray,rgb, got {color!r}", "color"
     )
     check_size(size)
     if frames < 2:

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from spikenerf.cli.types import COUNT, OutPath, device_option
+from spikenerf.data.choices import COLORS
 
 
 def _list(value: str, allowed: tuple[str, ...], option: str) -> list[str]:
@@ -52,7 +53,7 @@ def command(
     cfg = DemoConfig(
         out=out, quick=quick, device=device, size=size, iters=iters, frames=frames, test_views=test_views,
         scene=scene or DEFAULT_SCENE,
-        colors=_list(color, ("gray", "rgb"), "--color"),
+        colors=_list(color, COLORS, "--color"),
         methods=_list(methods, tuple(VARIANTS), "--methods") if methods else list(DEMO_METHODS),
     )  # fmt: skip
     run_demo(cfg, echo=click.echo)

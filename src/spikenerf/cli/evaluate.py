@@ -10,6 +10,7 @@ from click.core import ParameterSource
 
 from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
 from spikenerf.cli.types import COUNT, BoundedInt, device_option
+from spikenerf.eval.choices import NOREF_MODES, SPLITS
 
 #: lower-layer parameters (eval/noref.py) → the flags that set them
 PARAM_FLAGS = {"steps": "--noref-steps"}
@@ -21,7 +22,7 @@ PARAM_FLAGS = {"steps": "--noref-steps"}
 )
 @click.argument("run", type=click.Path(path_type=Path))
 @click.option(
-    "--split", type=click.Choice(["test", "train"]), default="test", show_default=True,
+    "--split", type=click.Choice(SPLITS), default="test", show_default=True,
     help="test: held-out novel views; train: sharp GT along the training path.",
 )  # fmt: skip
 @device_option()
@@ -34,7 +35,7 @@ PARAM_FLAGS = {"steps": "--noref-steps"}
 @chunk_option
 @precision_option
 @click.option(
-    "--noref", type=click.Choice(["auto", "on", "off"]), default="auto", show_default=True,
+    "--noref", type=click.Choice(NOREF_MODES), default="auto", show_default=True,
     help="No-reference checks against the recording itself (masked PSNR/SSIM against the run's "
     "reconstructions, spike interval-violation rate); auto = on for imported datasets.",
 )  # fmt: skip

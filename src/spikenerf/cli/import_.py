@@ -9,6 +9,7 @@ from typing import Any
 
 import click
 
+from spikenerf.camera.modes import LAYOUTS
 from spikenerf.cli import command_line
 from spikenerf.cli.types import COUNT, OutPath
 from spikenerf.core.errors import parse_range
@@ -40,7 +41,7 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
 @click.option("--fps", type=float, help="Readout rate in Hz [default: config.yaml, else 40000].")
 @click.option("--threshold", type=float, help="Spike threshold φ [default: config.yaml, else 1].")
 @click.option(
-    "--layout", type=click.Choice(["spikecv", "topdown"]),
+    "--layout", type=click.Choice(LAYOUTS),
     help="Row order of the .dat file [default: config.yaml's layout, else spikecv].",
 )  # fmt: skip
 @click.option("--range", "frame_range", help="A:B, the steps of the recording to import.")

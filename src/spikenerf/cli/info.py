@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.camera.modes import LAYOUTS
 from spikenerf.cli.types import dat_recording, frame_size_options, given_layout
 from spikenerf.core.errors import InputError
 
@@ -122,7 +123,7 @@ def describe_render(folder: Path) -> list[str]:
 @frame_size_options
 @click.option(
     "--layout",
-    type=click.Choice(["spikecv", "topdown"]),
+    type=click.Choice(LAYOUTS),
     help="Row order of a .dat file [default: config.yaml's layout, else spikecv].",
 )
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")

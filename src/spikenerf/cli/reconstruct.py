@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from spikenerf.camera.modes import COLORS
+from spikenerf.camera.modes import COLORS, LAYOUTS
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.cli.types import OutPath, frame_size_options
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic
@@ -102,7 +102,7 @@ def blocks(frames: range, method: str) -> Iterator[range]:
     help="A frame range A:B (B exclusive; negative: from the end, -5: = the last 5): .npy gets (B-A, H, W).",
 )  # fmt: skip
 @click.option(
-    "--layout", type=click.Choice(["spikecv", "topdown"]),
+    "--layout", type=click.Choice(LAYOUTS),
     help="Row order of the .dat file [default: config.yaml's layout, else spikecv].",
 )  # fmt: skip
 @click.option("--raw-width", type=int, help="Stored row width, e.g. 416 for raw 250×400 camera files.")

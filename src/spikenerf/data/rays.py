@@ -25,7 +25,7 @@ def camera_directions(intrinsics: Intrinsics, pixels: Tensor, dtype: torch.dtype
     """Unnormalised directions in camera space for integer pixels.
 
     Args:
-        intrinsics: pinhole camera. pixels: (N, 2) int, ``(x=column, y=row)``.
+        intrinsics: pinhole camera. pixels: (N, 2) int, ``(x=column, y=row)``. dtype: of the result.
     Returns:
         (N, 3) ``((x + .5 − cx)/fx, −(y + .5 − cy)/fy, −1)``.
     """

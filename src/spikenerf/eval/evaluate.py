@@ -30,6 +30,7 @@ from spikenerf.data.dataset import PosedImages, SpikeDataset
 from spikenerf.data.holdout import check_steps, read_record
 from spikenerf.data.targets import image_channels, window_steps
 from spikenerf.eval import lpips as lp
+from spikenerf.eval.choices import SPLITS
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.eval.noref import NoRefOptions, check_noref, noref_metrics, wants_noref
 from spikenerf.render.inference import inference_chunk, resolve_precision
@@ -48,7 +49,6 @@ def metrics_file(split: str) -> str:
     return METRICS_FILE if split == "test" else f"metrics_{split}.json"
 
 
-SPLITS = ("test", "train")
 SPACE = "sRGB-encoded [0,1]"
 #: random pixels per view and step of the test-time pose optimisation
 POSE_BATCH = 1024

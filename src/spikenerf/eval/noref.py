@@ -40,6 +40,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import check_steps, is_imported
 from spikenerf.data.targets import reconstruct_stream, stream_mode, window_steps
+from spikenerf.eval.choices import NOREF_MODES
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.model import render_mean
@@ -47,7 +48,6 @@ from spikenerf.render.spiking import render_spike_window
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import spike_interval_violation
 
-NOREF_MODES = ("auto", "on", "off")
 #: why no no-reference image score (BRISQUE, NIQE…) is reported; see docs/metrics.md
 IMAGE_SCORE_REASON = (
     "no field-standard no-reference image score installs from PyPI without downloading weights at run time "

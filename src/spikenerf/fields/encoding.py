@@ -15,7 +15,7 @@ def positional_encoding(x: Tensor, n_freqs: int, include_input: bool = True) -> 
     """``[x, sin(2^0 x), cos(2^0 x), …, sin(2^(L−1) x), cos(2^(L−1) x)]`` (NeRF, without the π factor).
 
     Args:
-        x: (..., D). n_freqs: L, the number of octaves.
+        x: (..., D). n_freqs: L, the number of octaves. include_input: ``x`` itself first.
     Returns:
         (..., D · (2L + include_input)).
     """

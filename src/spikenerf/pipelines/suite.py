@@ -9,6 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from spikenerf.core.errors import InputError
+from spikenerf.data.choices import COLORS
 from spikenerf.pipelines.benchmark.cells import BenchmarkConfig
 from spikenerf.pipelines.benchmark.results import RESULTS, merge_calls, read_call
 from spikenerf.pipelines.benchmark.run import run_benchmark
@@ -50,7 +51,7 @@ def report_from_folder(out: Path, others: Sequence[Path] = (), progress: bool = 
     merged = dataclasses.replace(
         own,
         variants=list(dict.fromkeys([*own.variants, *(c.variant for c in cells)])),
-        colors=[c for c in ("gray", "rgb") if c in own.colors or any(cell.color == c for cell in cells)],
+        colors=[c for c in COLORS if c in own.colors or any(cell.color == c for cell in cells)],
         seeds=seeds if seeds != [own.seed] else own.seeds,
     )
     envs = [call.environment for call in calls if call.environment]

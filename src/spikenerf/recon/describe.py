@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from spikenerf.core.errors import InputError
-from spikenerf.recon.store import MANIFEST, read_manifest
+from spikenerf.recon.store import MANIFEST, SPLITS, read_manifest
 
 
 def describe_pairs(root: str | Path) -> str:
@@ -19,7 +19,7 @@ def describe_pairs(root: str | Path) -> str:
     root = Path(root)
     manifest = read_manifest(root)
     config = manifest["config"]
-    shards = {split: len(list((root / split).glob("shard-*.npz"))) for split in ("train", "val")}
+    shards = {split: len(list((root / split).glob("shard-*.npz"))) for split in SPLITS}
     modes, noises = config.get("modes", []), config.get("noises", [])
     for key, value in (("config.noises", noises), ("val_scenes", manifest.get("val_scenes", []))):
         if not isinstance(value, list):  # (a list in what recon-data writes: shown joined)

@@ -29,7 +29,7 @@ from spikenerf.recon.natural import (
     require_skimage,
 )
 from spikenerf.recon.pairs import PairConfig, Sample, analytic_pairs, source_pairs
-from spikenerf.recon.store import MANIFEST, read_manifest, shard_ok, shard_path, write_shard
+from spikenerf.recon.store import MANIFEST, SPLITS, read_manifest, shard_ok, shard_path, write_shard
 from spikenerf.scenes.base import FrameSource
 
 #: named analytic scenes held out for validation (never in the train split)
@@ -155,7 +155,7 @@ def write_pairs(
     check_resources(*pairs_resources(cfg, draws), out, "/".join(sized))
     with output_lock(out):
         check_output(out, "pairs", overwrite=True)
-        for folder in (out, out / "train", out / "val"):  # a killed writer's temporaries, shards' included
+        for folder in (out, *(out / s for s in SPLITS)):  # a killed writer's temporaries, shards' included
             clean_stale_temps(folder)
         state = fresh_state(out)
         try:
@@ -215,7 +215,7 @@ def _write_locked(
             )
     mark(out, "pairs")
     write_text_atomic(path, json.dumps({**manifest, "command": command}, indent=2))
-    counters = dict.fromkeys(("train", "val"), 0)
+    counters = dict.fromkeys(SPLITS, 0)
     jobs = plan(cfg, train_draws, val_draws, seed, extra or {}, extra_draws, natural_draws)
     total = sum(-(-n // DRAWS_PER_SHARD) for _, _, n in jobs)
     with progress_bar(total=total, unit="shard", desc="recon pairs", show=progress) as bar:

@@ -25,6 +25,7 @@ from spikenerf.recon.net import MODES
 from spikenerf.recon.pairs import Sample
 
 MANIFEST = "manifest.json"
+#: the two pair folders of a pair folder: training pairs and held-out validation pairs
 SPLITS = ("train", "val")
 #: what reading a damaged ``.npz`` raises (a cut zip, a missing member, a bad header, a foreign ``info``; a
 #: changed deflate stream: zlib.error; a cut .npy header: TokenError; an ``info`` nested too deeply)

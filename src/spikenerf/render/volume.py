@@ -198,12 +198,15 @@ def packed_composite(
 
     Args:
         weights: (M,) from :func:`packed_weights`. ray: (M,) non-decreasing ray of each sample.
-        t: (M,) sample distances.
+        n_rays: N, the number of rays (rays without samples are allowed). t: (M,) sample distances.
         colors: (K, C) colours of the samples ``color_index`` (K,, increasing); the other samples count as
             colour 0 (the renderers decode colour only where the weight matters). With ``color_index``
             None, colours (M, C) of every sample (a fixed shape: zero the colours that should not count).
+        background: the grey level behind the samples (white, 1.0, by default).
         offsets: (N + 1,) :func:`ray_offsets` of ``ray``, or None. Per-ray sums: :func:`segment_sum`
             (``fused``: its Triton kernel).
+    Returns:
+        colour (N, C) composited over ``background``, depth (N,) (0 where empty), opacity (N,).
     """
     if offsets is None:
         offsets = ray_offsets(ray, n_rays)

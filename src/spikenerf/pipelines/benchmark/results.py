@@ -17,6 +17,7 @@ from typing import Any
 from spikenerf.camera.modes import NOISES
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError, is_finite
+from spikenerf.data.choices import COLORS
 from spikenerf.data.summary import view_counts
 from spikenerf.pipelines.benchmark import cells as plan
 from spikenerf.pipelines.benchmark.executor import EXECUTORS
@@ -211,7 +212,6 @@ def read_call(path: Path) -> RecordedCall:
 #: a scene's name as the benchmark's folders use it (``datasets/SCENE``, ``runs/SCENE``, figure files): one
 #: plain path component, never ``..`` or a path
 SCENE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
-COLORS = ("gray", "rgb")
 
 
 def _int(x: Any, low: int) -> bool:
@@ -328,7 +328,7 @@ def merged_markdown(paths: Sequence[Path]) -> str:
     """Tables I/II and the paired differences of the cells of several ``results.json`` taken together (e.g.
     one ``benchmark --seeds K`` call each), as a single ``--seeds 0,1,...`` run would have written them."""
     config, cells, views = read_results(paths)
-    colors = sorted({c.color for c in cells}, key=["gray", "rgb"].index)
+    colors = sorted({c.color for c in cells}, key=COLORS.index)
     variants = list(dict.fromkeys(c.variant for c in cells))
     seeds = sorted({c.seed for c in cells})
     parts = [f"{len(cells)} cells from {len(paths)} folders; {seed_note(seeds)}\n"]

@@ -30,8 +30,6 @@ from spikenerf.scenes.blender.materials import (
 from spikenerf.scenes.blender.render import add_default_light, geometry_box
 from spikenerf.scenes.blender.shapes import Parts, add_modifier, stud_grid
 
-Mat = bpy.types.Material
-
 
 # ------------------------------------------------------------------------------------------------ scenes
 def build_bricks(rng: np.random.Generator) -> None:
