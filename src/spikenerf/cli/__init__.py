@@ -29,6 +29,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "spikenerf.cli.reconstruct",
         "Reconstruct images from a .dat spike stream (TFP/TFI/learned).",
     ),
+    "recon-eval": (
+        "spikenerf.cli.recon_eval",
+        "Score TFP/TFI/learned reconstructions against a dataset's sharp GT frames.",
+    ),
     "recon-data": ("spikenerf.cli.recon_data", "Write training pairs for the learned reconstructor."),
     "recon-train": ("spikenerf.cli.recon_train", "Train the learned spike-to-image reconstructor."),
     "import": ("spikenerf.cli.import_", "Import a raw .dat recording (poses: COLMAP, a file or an orbit)."),

@@ -51,6 +51,7 @@ OTHER_KINDS = {
     "benchmark": "a benchmark folder: its tables are table1.md, table2.md and report.html (`spikenerf "
     "report` writes the report again); `spikenerf info` on a run folder (runs/SCENE/COLOR/VARIANT) for "
     "one cell",
+    "scores": "a recon-eval folder: its scores are scores.json (per method and per step) and scores.csv",
 }
 
 

@@ -1,13 +1,13 @@
 """Which folders spikenerf wrote: a ``.spikenerf`` marker file, so that nothing else is ever replaced.
 
-Every output folder (dataset, run, render, benchmark, recon pairs and runs, reconstructed frames) gets
-the marker with its kind; a finished dataset's marker also lists its files. Outputs are never written
-into a folder of another kind (e.g. ``render --out`` into a dataset) or into a non-empty folder without
-the marker. Folders written before the marker existed are recognised by their files, but only a marked
-folder whose files are exactly the ones its marker lists is ever replaced (``--overwrite``): a
-look-alike, a link, or a dataset holding the user's notes or a trained run is refused. The swapped-out
-``.<name>.old`` of a replacement carries a ``retired`` marker, so a user's own ``.<name>.old`` is never
-deleted or moved into place.
+Every output folder (dataset, run, render, benchmark, recon pairs and runs, reconstructed frames, the
+scores of ``recon-eval``) gets the marker with its kind; a finished dataset's marker also lists its files.
+Outputs are never written into a folder of another kind (e.g. ``render --out`` into a dataset) or into a
+non-empty folder without the marker. Folders written before the marker existed are recognised by their
+files, but only a marked folder whose files are exactly the ones its marker lists is ever replaced
+(``--overwrite``): a look-alike, a link, or a dataset holding the user's notes or a trained run is
+refused. The swapped-out ``.<name>.old`` of a replacement carries a ``retired`` marker, so a user's own
+``.<name>.old`` is never deleted or moved into place.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 
 MARKER = ".spikenerf"
-KINDS = ("dataset", "run", "render", "benchmark", "pairs", "recon", "frames")
+KINDS = ("dataset", "run", "render", "benchmark", "pairs", "recon", "frames", "scores")
 #: files that identify a folder of each kind written before the marker existed
 _LEGACY = {
     "dataset": ("transforms.json", "config.yaml"),
