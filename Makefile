@@ -2,7 +2,7 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-EXTRAS ?= dev,blender,lpips,tensorboard,cluster,colmap,natural,triton
+EXTRAS ?= dev,blender,lpips,tensorboard,cluster,colmap,natural,mesh,triton
 
 .PHONY: venv demo test lint format clean
 

@@ -38,6 +38,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "import": ("spikenerf.cli.import_", "Import a raw .dat recording (poses: COLMAP, a file or an orbit)."),
     "train": ("spikenerf.cli.train", "Train a radiance field on a spike dataset."),
     "render": ("spikenerf.cli.render", "Render images, depth, video and novel spike streams from a run."),
+    "export": ("spikenerf.cli.export", "Export a run's geometry as a point cloud or mesh (PLY)."),
     "eval": ("spikenerf.cli.evaluate", "Evaluate a run on held-out views (PSNR, SSIM, LPIPS)."),
     "benchmark": ("spikenerf.cli.benchmark", "Reproduce the paper's Table I and Table II."),
     "report": ("spikenerf.cli.report", "Rebuild a finished benchmark's HTML report (other calls merged in)."),

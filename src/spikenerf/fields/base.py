@@ -13,6 +13,9 @@ from torch import Tensor, nn
 
 from spikenerf.core.errors import InputError
 
+#: points a call of :meth:`Field.density_lattice`'s default evaluates at once
+LATTICE_CHUNK = 1 << 16
+
 
 def checked_box(scene_box: Tensor | Any) -> Tensor:
     """``scene_box`` as a (2, 3) float32 tensor of ``[min, max]`` corners; InputError naming it unless it
@@ -62,6 +65,23 @@ class Field(nn.Module):
     def forward(self, xyz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
         """World points (M, 3), unit dirs (M, 3) → density (M,) per world unit, colour (M, C)."""
         raise NotImplementedError
+
+    @torch.no_grad()
+    def density_lattice(self, coords: Tensor) -> Tensor:
+        """Density per world unit (G, G, G) at every point of the lattice ``coords``³ ((G,) normalised
+        coordinates in [−1, 1], index order x, y, z), without gradients. Here :meth:`forward` on
+        :data:`LATTICE_CHUNK` points at a time (the density does not depend on the view direction, so any
+        direction serves); a field may compute it faster (the grid field: by separable interpolation)."""
+        g = coords.shape[0]
+        axes = torch.meshgrid(coords, coords, coords, indexing="ij")
+        points = self.denormalize(torch.stack(axes, dim=-1).reshape(-1, 3))
+        dirs = torch.zeros_like(points[:LATTICE_CHUNK])
+        dirs[:, 2] = -1.0
+        parts = [
+            self(points[i : i + LATTICE_CHUNK], dirs[: len(points[i : i + LATTICE_CHUNK])])[0]
+            for i in range(0, len(points), LATTICE_CHUNK)
+        ]
+        return torch.cat(parts).reshape(g, g, g)
 
     def prepare(self) -> None:
         """Build what the field's first forward would otherwise build (a fused kernel), so that training
