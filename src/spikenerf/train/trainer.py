@@ -34,6 +34,7 @@ from spikenerf.data.rays import pixel_rays
 from spikenerf.data.recon_cache import learned_targets_in
 from spikenerf.data.targets import eval_view_targets
 from spikenerf.fields.compiled import compile_field
+from spikenerf.fields.grid import KERNEL_OPTIONS
 from spikenerf.fields.registry import field_config, field_memory
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.model import build_model, ray_bounds
@@ -69,7 +70,7 @@ RESUMABLE = (
 )  # fmt: skip
 #: field options that choose how the same model is computed, not the model: a resume may change them (e.g.
 #: a run trained with Triton kernels on a GPU resumed on a CPU)
-RESUMABLE_FIELD = ("lookup", "composite", "march")
+RESUMABLE_FIELD = KERNEL_OPTIONS
 
 
 def with_kernels(hparams: dict, field_cfg: Any) -> dict:
