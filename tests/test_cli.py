@@ -267,3 +267,25 @@ def test_spikenerf_quiet_hides_every_bar_and_each_command_takes_both_spellings(
         assert "No such option" not in err, err
     code, _, err = run_cli(capsys, "import", out / "spikes_gray.dat", "--quiet")
     assert code == 2 and "--quiet is a global option: put it first, e.g. spikenerf --quiet COMMAND" in err
+
+
+def test_the_command_asks_for_huge_pages_before_torch_loads_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``main`` sets torch's THP_MEM_ALLOC_ENABLE for its process and children unless it is set already;
+    an in-process caller (torch imported) keeps its environment."""
+    import os
+
+    from spikenerf.cli import HUGE_PAGES_ENV, use_huge_pages
+
+    monkeypatch.delenv(HUGE_PAGES_ENV, raising=False)
+    use_huge_pages()  # torch is loaded in this process: nothing changes
+    assert HUGE_PAGES_ENV not in os.environ
+    code = (
+        "import os, sys, spikenerf.cli as c; c.use_huge_pages()\n"
+        "print(os.environ.get(c.HUGE_PAGES_ENV), 'torch' in sys.modules)"
+    )
+    for given, seen in ((None, "1 False"), ("0", "0 False")):
+        env = {k: v for k, v in os.environ.items() if k != HUGE_PAGES_ENV}
+        if given is not None:
+            env[HUGE_PAGES_ENV] = given
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+        assert out.stdout.strip() == seen
