@@ -229,7 +229,7 @@ def test_bad_input_exits_2_in_one_line_and_writes_nothing(
     assert "--max-points applies to --kind pointcloud" in _refused(
         capsys, run_dir, "--kind", "mesh", "--max-points", 3, "--out", out
     )
-    assert "--orbit-frames sets the views of --trajectory orbit" in _refused(
+    assert "--orbit-frames sets the views of --trajectory orbit/spiral/interpolate" in _refused(
         capsys, run_dir, "--orbit-frames", 3, "--out", out
     )
     assert "expected a .ply file" in _refused(capsys, run_dir, "--out", tmp_path / "x.obj")
@@ -256,3 +256,39 @@ def test_bad_input_exits_2_in_one_line_and_writes_nothing(
         capsys, run_dir, "--device", "cpu", "--out", out
     )
     assert out.read_bytes() == b"mine"
+
+
+def test_mesh_faces_are_wound_counter_clockwise_seen_from_outside(sphere_model) -> None:  # type: ignore[no-untyped-def]
+    """PLY viewers take a face's front as counter-clockwise: the right-hand normal of every triangle of the
+    sphere must point out of it (marching cubes winds them the other way; a viewer showed the mesh inside
+    out: dark, or culled away)."""
+    pytest.importorskip("skimage")
+    verts, faces, _ = mesh(sphere_model, resolution=32)
+    tri = verts[faces].astype(np.float64)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    outward = tri.mean(axis=1) - np.asarray(SPHERE.center)
+    assert ((normal * outward).sum(axis=1) > 0).all()
+
+
+def test_export_generated_paths_take_orbit_frames_and_check_memory_first(
+    run_dir: Path, tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """--orbit-frames sets the views of every generated path (spiral and interpolate as orbit, as render
+    takes it), and a count beyond the memory is refused naming --orbit-frames before any pose is made (10⁷
+    orbit poses took minutes to build, then were refused naming duration/fps)."""
+    out = tmp_path / "interpolate.ply"
+    code, said, err = run_cli(capsys, "export", run_dir, "--device", "cpu", "--trajectory", "interpolate",
+                              "--orbit-frames", 2, "--quiet", "--out", out)  # fmt: skip
+    assert code == 0, err
+    assert "in 2 views" in said and read_ply(out).points.shape[1] == 3
+    import spikenerf.eval.export as export
+
+    def made(*args: object) -> None:
+        raise AssertionError("the poses were made before the memory check")
+
+    monkeypatch.setattr(export, "resolve_trajectory", made)
+    for path in ("orbit", "interpolate"):
+        err = _refused(capsys, run_dir, "--device", "cpu", "--trajectory", path, "--orbit-frames", 10**12,
+                       "--quiet", "--out", tmp_path / "big.ply")  # fmt: skip
+        assert "--trajectory/--orbit-frames: this needs about" in err, err
+    assert not (tmp_path / "big.ply").exists()

@@ -97,7 +97,8 @@ def test_bad_input_exits_2_in_one_line_and_writes_nothing(
     assert "--steps" in _refused(capsys, out, static, "--steps", "1:30")  # holds no gt frame
     assert "--steps" in _refused(capsys, out, static, "--steps", "0:9999")
     assert "--window" in _refused(capsys, out, static, "--methods", "tfi", "--window", "21")
-    assert "--window" in _refused(capsys, out, static, "--methods", "tfp", "--window", "20")  # even
+    even = _refused(capsys, out, static, "--methods", "tfp", "--window", "20")
+    assert "--window" in even and "spikes_gray.dat" not in even  # the flag's fault, not the stream's
     assert "--color" in _refused(capsys, out, static, "--color", "bayer")  # not recorded
     assert "--out" in _refused(capsys, static / "inside", static)  # inside the dataset
     # an imported recording has no sharp gt/ frames: scoring needs them

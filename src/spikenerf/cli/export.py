@@ -32,11 +32,11 @@ KIND_OPTIONS = {
 )  # fmt: skip
 @click.option(
     "--trajectory", default="test", show_default=True,
-    help="pointcloud: the views rendered: test (held-out views), orbit or a transforms.json FILE "
-    "(as render).",
+    help="pointcloud: the views rendered: test (held-out views), orbit, spiral, interpolate or a FILE, a "
+    "transforms.json or a nerfstudio camera_path.json (as render).",
 )  # fmt: skip
 @click.option("--orbit-frames", type=BoundedInt(1), default=120, show_default=True,
-              help="pointcloud: views on --trajectory orbit.")  # fmt: skip
+              help="pointcloud: views of a generated path: orbit, spiral or interpolate.")  # fmt: skip
 @click.option(
     "--min-opacity", type=click.FloatRange(0, 1, max_open=True), default=DEFAULT_MIN_OPACITY,
     show_default=True, help="pointcloud: keep pixels whose accumulated opacity exceeds this.",
@@ -79,6 +79,7 @@ def command(
 ) -> None:
     from spikenerf.core.errors import InputError
     from spikenerf.eval.export import export_run
+    from spikenerf.scenes.trajectory import GENERATED_PATHS
 
     given = click.get_current_context().get_parameter_source
     for other, names in KIND_OPTIONS.items():
@@ -86,8 +87,9 @@ def command(
             if given(name) is ParameterSource.COMMANDLINE:
                 flag = "--" + name.replace("_", "-")
                 raise InputError(f"{flag} applies to --kind {other}, not to --kind {kind}")
-    if trajectory != "orbit" and given("orbit_frames") is ParameterSource.COMMANDLINE:
-        raise InputError(f"--orbit-frames sets the views of --trajectory orbit, not of {trajectory!r}")
+    if trajectory not in GENERATED_PATHS and given("orbit_frames") is ParameterSource.COMMANDLINE:
+        generated = "/".join(GENERATED_PATHS)
+        raise InputError(f"--orbit-frames sets the views of --trajectory {generated}, not of {trajectory!r}")
     if out.suffix.lower() != ".ply":
         raise InputError("expected a .ply file name (export writes one PLY file)", path=out)
     check_run_folder(run)

@@ -3,11 +3,12 @@
 ``export_run(run, out, kind)`` writes one binary little-endian PLY file (:mod:`spikenerf.core.ply`),
 atomically, refusing an existing file unless ``overwrite``:
 
-- ``kind="pointcloud"``: every view of ``trajectory`` (``test``, ``orbit`` or a transforms.json, resolved
-  as ``render`` resolves it, :func:`~spikenerf.eval.video.resolve_trajectory`) is rendered as ``render``
-  renders it; each pixel whose accumulated opacity exceeds ``min_opacity`` becomes the point at its expected
-  termination depth along its ray, coloured with the pixel's rendered colour. ``max_points`` keeps that
-  many of them, drawn without replacement with a fixed seed (the same file every time).
+- ``kind="pointcloud"``: every view of ``trajectory`` (``test``, ``orbit``, ``spiral``, ``interpolate``, a
+  transforms.json or a nerfstudio camera_path.json, resolved as ``render`` resolves it,
+  :func:`~spikenerf.eval.video.resolve_trajectory`) is rendered as ``render`` renders it; each pixel whose
+  accumulated opacity exceeds ``min_opacity`` becomes the point at its expected termination depth along its
+  ray, coloured with the pixel's rendered colour. ``max_points`` keeps that many of them, drawn without
+  replacement with a fixed seed (the same file every time).
 - ``kind="mesh"``: the field's density is sampled on a ``resolution``³ lattice over the scene box (the box's
   faces included) and ``skimage.measure.marching_cubes`` (the ``mesh`` extra: scikit-image) extracts the
   surface where it equals ``density_level``. Each vertex is coloured by the field's colour there, seen along
@@ -49,6 +50,7 @@ from spikenerf.eval.video import DEFAULT_ORBIT_FRAMES, RenderPath, refined_poses
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.geometry import density_grid, lattice_axes, surface_colors, view_points
 from spikenerf.render.inference import inference_chunk, resolve_precision
+from spikenerf.scenes.trajectory import GENERATED_PATHS, ORBIT_STEP_BYTES
 from spikenerf.train.run import open_run
 
 INSTALL_HINT = "kind mesh needs scikit-image (marching cubes): pip install 'spikenerf[mesh]'"
@@ -127,6 +129,10 @@ def mesh(
     _, spacing = lattice_axes(model, resolution)
     verts, faces, normals, _ = marching_cubes(volume, density_level, spacing=tuple(spacing.tolist()))
     verts = verts + model.scene_box[0].float().cpu().numpy()
+    # marching cubes winds a density that is higher inside clockwise seen from outside (its normals point
+    # out, its right-hand face normals in): reversed, so that viewers (Blender, MeshLab, Open3D) see the
+    # outside as the front faces, as the PLY convention (counter-clockwise from the front) has it
+    faces = faces[:, ::-1]
     linear = surface_colors(
         model,
         torch.as_tensor(verts, dtype=torch.float32),
@@ -197,6 +203,12 @@ def export_run(
         }
         if kind == "pointcloud":
             dataset = refined_poses(ckpt, config, dataset)
+            if trajectory in GENERATED_PATHS:  # checked before its poses are made (1e7 frames: minutes)
+                k = dataset.intrinsics
+                pixels = float(orbit_frames) * k.width * k.height
+                memory = pixels * PIXEL_BYTES + float(orbit_frames) * ORBIT_STEP_BYTES
+                disk = min(pixels, max_points or pixels) * POINT_BYTES
+                check_resources(memory, disk, out.parent, "trajectory/orbit_frames")
             path = resolve_trajectory(trajectory, dataset, orbit_frames)
             k = path.intrinsics
             pixels = float(len(path.poses)) * k.width * k.height

@@ -25,7 +25,7 @@ import torch
 from spikenerf.camera.io import read_dat, resolve_frames
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.model import bayer_mosaic
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError, as_path, check_choice, comma_list
 from spikenerf.core.progress import bar as progress_bar
@@ -135,6 +135,8 @@ def score_reconstructions(
     names = parse_methods(methods)
     if window is not None and "tfp" not in names:
         raise InputError("window: sets TFP's window, and tfp is not among the methods", param="window")
+    if window is not None:  # a bad value is the parameter's, not the stream's (checked before any reading)
+        check_window(window)
     if weights is not None and "learned" not in names:
         raise InputError(
             "weights: apply to the learned method, which is not among the methods", param="weights"
