@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import shutil
@@ -179,16 +180,22 @@ def test_render_generated_paths(
 
     out = tmp_path / kind
     spikes = ["--spikes", "--spike-steps", 5] if kind == "interpolate" else []
-    said = _cli_output(capsys, "render", run_dir, "--trajectory", kind, "--orbit-frames", 3, *spikes,
-                       "--device", "cpu", "--quiet", "--out", out)  # fmt: skip
+    capsys.readouterr()
+    _cli("render", str(run_dir), "--trajectory", kind, "--orbit-frames", "3", *map(str, spikes),
+         "--device", "cpu", "--quiet", "--out", str(out))  # fmt: skip
+    said, err = capsys.readouterr()
     assert said.startswith(f"wrote {out}: 3 views along ")
+    # the run's cameras orbit the scene: a spiral is rendered, with one warning line that says so
+    warned = "spikenerf: warning: trajectory spiral: the training cameras look around the scene"
+    assert (warned in err and len(err.strip().splitlines()) == 1) if kind == "spiral" else warned not in err
     manifest = json.loads((out / "render.json").read_text())
     assert (manifest["trajectory"], manifest["trajectory_kind"], manifest["views"]) == (kind, kind, 3)
     assert manifest["trajectory_file"] is None
     assert sorted(p.name for p in (out / "images").iterdir()) == ["00000.png", "00001.png", "00002.png"]
     assert _video_frames(out / f"{kind}.mp4") == (3, 30.0)
     _, _, dataset = load_run(run_dir)
-    poses = GENERATORS[kind](dataset, 3)
+    with pytest.warns(UserWarning, match="look around") if kind == "spiral" else contextlib.nullcontext():
+        poses = GENERATORS[kind](dataset, 3)
     if kind == "interpolate":  # the path starts and ends on the training path's first and last poses
         assert np.array_equal(poses[[0, -1]], dataset.trajectory.poses[[0, -1]])
         assert read_dat(out / "spikes_gray.dat", SIZE, SIZE).shape == (5, SIZE, SIZE)

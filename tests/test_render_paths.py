@@ -65,6 +65,14 @@ def test_mean_pose_is_the_average_position_and_the_middle_rotation() -> None:
     assert np.allclose(mean[:3, :3], turn(0.4)) and np.allclose(mean[:3, 3], [1, 2, 3])
 
 
+def test_view_agreement_tells_forward_facing_cameras_from_an_orbit() -> None:
+    from spikenerf.scenes.trajectory import FORWARD_FACING, orbit, view_agreement
+
+    assert view_agreement(_forward_facing()) > 0.95
+    around = orbit(4.0, 30.0, turns=1.0, duration=0.025).poses
+    assert view_agreement(around) < FORWARD_FACING  # looking in from every side: the mean view is short
+
+
 def test_the_spiral_is_centred_on_the_mean_camera_and_looks_at_the_focus_point() -> None:
     poses, near, far = _forward_facing(), 1.5, 9.0
     spiral = spiral_path(poses, near, far, 30)

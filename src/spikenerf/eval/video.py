@@ -28,6 +28,7 @@ import io
 import json
 import re
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
@@ -58,6 +59,7 @@ from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.render.model import render_image
 from spikenerf.render.spiking import iter_spike_states
 from spikenerf.scenes.trajectory import (
+    FORWARD_FACING,
     GENERATED_PATHS,
     INTERPOLATE_KEYS,
     RENDER_PATHS,
@@ -66,6 +68,7 @@ from spikenerf.scenes.trajectory import (
     orbit,
     path_keys,
     spiral_path,
+    view_agreement,
 )
 from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import open_run
@@ -172,7 +175,16 @@ def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
 
 def spiral_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
     """(count, 4, 4) poses of a spiral around the mean training camera, looking at a focus depth from the
-    dataset's near/far (:func:`spikenerf.scenes.trajectory.spiral_path`)."""
+    dataset's near/far (:func:`spikenerf.scenes.trajectory.spiral_path`). A warning where the training
+    cameras look around an object (:func:`~spikenerf.scenes.trajectory.view_agreement` below
+    ``FORWARD_FACING``): the spiral is for forward-facing captures."""
+    if (agree := view_agreement(dataset.trajectory.poses)) < FORWARD_FACING:
+        warnings.warn(
+            f"trajectory spiral: the training cameras look around the scene (their mean view direction has "
+            f"length {agree:.2f}, under {FORWARD_FACING:.2f} for a forward-facing capture), so the spiral "
+            "circles among what they film; orbit or interpolate follows such a path",
+            stacklevel=2,
+        )
     return spiral_path(dataset.trajectory.poses, dataset.near, dataset.far, count)
 
 

@@ -508,6 +508,19 @@ def spiral_focus(near: float, far: float) -> float:
     return 1.0 / ((1.0 - SPIRAL_FOCUS_DISPARITY) / near + SPIRAL_FOCUS_DISPARITY / far)
 
 
+#: the least length of the training cameras' mean view direction for a spiral (cos 45°: beyond it they look
+#: around an object rather than ahead, and the spiral's centre falls among what they film)
+FORWARD_FACING = math.cos(math.pi / 4)
+
+
+def view_agreement(poses: np.ndarray) -> float:
+    """The length of the mean unit view direction (−z axis) of the cameras ``poses`` (N, 4, 4) c2w: 1 when
+    all look the same way (a forward-facing capture), near 0 around an object."""
+    views = -np.asarray(poses, dtype=np.float64)[:, :3, 2]
+    views /= np.maximum(np.linalg.norm(views, axis=-1, keepdims=True), 1e-12)
+    return float(np.linalg.norm(views.mean(0))) if len(views) else 1.0
+
+
 def spiral_path(
     poses: np.ndarray, near: float, far: float, count: int, turns: float = SPIRAL_TURNS
 ) -> np.ndarray:
