@@ -8,6 +8,7 @@ import inspect
 import pkgutil
 import re
 
+import spikenerf.data
 import spikenerf.fields
 import spikenerf.render
 
@@ -17,12 +18,15 @@ TENSORS = re.compile(r"\b(Tensor|ndarray|Array)\b")
 MODULES = [
     *(
         f"{pkg.__name__}.{m.name}"
-        for pkg in (spikenerf.render, spikenerf.fields)
+        for pkg in (spikenerf.render, spikenerf.fields, spikenerf.data)
         for m in pkgutil.iter_modules(pkg.__path__)
     ),
     "spikenerf.camera.reconstruct",
     "spikenerf.camera.masks",
     "spikenerf.camera.layout",
+    "spikenerf.core.ply",
+    "spikenerf.eval.export",
+    "spikenerf.eval.recon_scores",
 ]
 
 

@@ -68,7 +68,8 @@ def ply_bytes(points: np.ndarray, colors: np.ndarray, faces: np.ndarray | None =
 def write_ply(
     path: str | Path, points: np.ndarray, colors: np.ndarray, faces: np.ndarray | None = None
 ) -> None:
-    """:func:`ply_bytes` written to ``path`` atomically."""
+    """:func:`ply_bytes` of ``points`` (N, 3), ``colors`` (N, 3) uint8 and ``faces`` (F, 3) (or None)
+    written to ``path`` atomically."""
     write_bytes_atomic(path, ply_bytes(points, colors, faces))
 
 

@@ -96,7 +96,8 @@ class Holdout:
         return torch.as_tensor(starts[hit[starts + length] == hit[starts]], dtype=torch.int64)
 
     def record(self, stream_steps: np.ndarray) -> dict[str, Any]:
-        """What ``RUN/holdout.json`` holds: check steps (indices and step numbers), radius, source, band."""
+        """What ``RUN/holdout.json`` holds: check steps (indices and step numbers, from ``stream_steps`` (T,)
+        int64, the stream's step numbers), radius, source, band."""
         return {
             "check_steps": [int(s) for s in self.steps],
             "step_numbers": [int(stream_steps[s]) for s in self.steps],

@@ -25,6 +25,7 @@ from torch import Tensor
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.core.errors import InputError
+from spikenerf.data.samplers import SeededSampler
 from spikenerf.scenes.trajectory import Intrinsics, project_points
 
 #: :attr:`CountTargets.phase` counts a spike's light in 1/256
@@ -249,7 +250,7 @@ def stratified_steps(start: Tensor, end: Tensor, samples: int, generator: torch.
     return start[:, None] + offset
 
 
-class WindowTargetSampler:
+class WindowTargetSampler(SeededSampler):
     """Seeded, resumable draws of (window, pixel, steps) for the spike-integral targets.
 
     Each target draws a length from ``lengths`` uniformly, then its first step uniformly among the allowed
@@ -294,8 +295,7 @@ class WindowTargetSampler:
         self.table = torch.zeros((len(tables), max(len(t) for t in tables)), dtype=torch.int64)
         for i, t in enumerate(tables):
             self.table[i, : len(t)] = t
-        self.generator = torch.Generator()
-        self.generator.manual_seed(int(seed))
+        super().__init__(seed)
         self.aligner = aligner
 
     def sample(self, windows: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -313,9 +313,3 @@ class WindowTargetSampler:
             start, end = (x.cpu() for x in self.aligner(start, end, pixels, g))
         parts = [stratified_steps(start, end, self.samples, g) for _ in range(self.groups)]
         return start, end, pixels, torch.cat(parts, dim=1)
-
-    def state_dict(self) -> dict[str, Tensor]:
-        return {"generator": self.generator.get_state()}
-
-    def load_state_dict(self, state: dict[str, Tensor]) -> None:
-        self.generator.set_state(state["generator"])

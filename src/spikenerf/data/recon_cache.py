@@ -83,7 +83,8 @@ def cache_key(
     spikes: np.ndarray, mode: str, window: int | None, threshold: float, weights: Path,
     fingerprint: dict[str, Any],
 ) -> str:  # fmt: skip
-    """The cache key: 16 hex digits of the dataset fingerprint, the stream, mode, window, φ and weights."""
+    """The cache key: 16 hex digits of the dataset fingerprint, the stream ``spikes`` (T, H, W) or
+    (T, 3, H, W), mode, window, φ and weights."""
     parts = {
         "fingerprint": fingerprint,
         "stream": stream_digest(spikes),

@@ -20,7 +20,23 @@ def _generator(seed: int) -> torch.Generator:
     return gen
 
 
-class RaySampler:
+class SeededSampler:
+    """A sampler whose draws come from its own ``generator`` (seeded by ``seed``): its state is the
+    generator's, saved and restored with :meth:`state_dict` / :meth:`load_state_dict`."""
+
+    def __init__(self, seed: int) -> None:
+        self.generator = _generator(seed)
+
+    def state_dict(self) -> dict[str, Tensor]:
+        """``{"generator": state}``, the generator's state, a (K,) uint8 tensor."""
+        return {"generator": self.generator.get_state()}
+
+    def load_state_dict(self, state: dict[str, Tensor]) -> None:
+        """Restore what :meth:`state_dict` returned (the generator's (K,) uint8 state)."""
+        self.generator.set_state(state["generator"])
+
+
+class RaySampler(SeededSampler):
     """Uniform random rays over all (image, pixel) pairs of K images of H × W pixels.
 
     Args:
@@ -33,9 +49,9 @@ class RaySampler:
     ) -> None:
         if num_images < 1 or height < 1 or width < 1 or (images is not None and len(images) < 1):
             raise InputError(f"no training rays: {num_images} images of {width}×{height} pixels")
+        super().__init__(seed)
         self.num_images, self.height, self.width = num_images, height, width
         self.images = images
-        self.generator = _generator(seed)
 
     def sample(self, batch: int) -> tuple[Tensor, Tensor]:
         """``batch`` rays: image index (B,) int64 and pixels (B, 2) int64 ``(x, y)``."""
@@ -46,14 +62,8 @@ class RaySampler:
         index = index if self.images is None else self.images[index]
         return index, torch.stack([pix % self.width, pix // self.width], dim=-1)
 
-    def state_dict(self) -> dict[str, Tensor]:
-        return {"generator": self.generator.get_state()}
 
-    def load_state_dict(self, state: dict[str, Tensor]) -> None:
-        self.generator.set_state(state["generator"])
-
-
-class WindowSampler:
+class WindowSampler(SeededSampler):
     """Contiguous windows ``[start, start + L)`` of a T-step stream, each with P random pixels.
 
     ``order="sequential"`` walks the stream deterministically (start advances by ``stride``; a start past the
@@ -83,12 +93,12 @@ class WindowSampler:
         if not 1 <= length <= num_steps:
             raise InputError(f"spike window length must be between 1 and the {num_steps} steps, got {length}")
         check_choice(order, WINDOW_ORDERS, "order", "window order")
+        super().__init__(seed)
         self.num_steps, self.height, self.width, self.length = num_steps, height, width, length
         self.order, self.stride = order, max(1, stride or length)
         if starts is not None and len(starts) < 1:
             raise InputError(f"no {length}-step window to train on among the {num_steps} steps")
         self.starts = starts
-        self.generator = _generator(seed)
         self.next_start = 0
 
     @property
@@ -121,8 +131,10 @@ class WindowSampler:
         return last if self.next_start - self.stride < last else first
 
     def state_dict(self) -> dict[str, Tensor | int]:
+        """The generator's (K,) uint8 state and ``next_start``, the sequential order's next window."""
         return {"generator": self.generator.get_state(), "next_start": self.next_start}
 
     def load_state_dict(self, state: dict[str, Tensor | int]) -> None:
+        """Restore what :meth:`state_dict` returned (the generator's (K,) uint8 state, ``next_start``)."""
         self.generator.set_state(state["generator"])  # type: ignore[arg-type]
         self.next_start = int(state["next_start"])

@@ -200,7 +200,8 @@ def step_poses(dataset: SpikeDataset, steps: np.ndarray) -> np.ndarray:
 
 
 def exposure_steps(step_range: np.ndarray, samples: int) -> np.ndarray:
-    """``samples`` steps spread evenly over an exposure ``[start, end)``: centres of equal sub-intervals."""
+    """``samples`` steps (samples,) int64 spread evenly over an exposure ``step_range`` (2,) = ``[start,
+    end)``: centres of equal sub-intervals."""
     start, end = int(step_range[0]), int(step_range[1])
     frac = (np.arange(samples) + 0.5) / samples
     return np.minimum(start + np.floor(frac * (end - start)).astype(np.int64), end - 1)
