@@ -132,8 +132,20 @@ def test_catmull_rom_hits_its_points_and_follows_a_straight_even_line_between_in
     s = np.linspace(0, 4, 33)
     curve = catmull_rom(points, s)
     assert np.array_equal(curve[::8], points)
-    inner = (s >= 1) & (s <= 2)  # points 0..3 are evenly spaced on a line: the spline is that line there
+    # points 0..3 are evenly spaced on a line: the spline is that line, at an even pace, up to the first
+    # point too (its outer control point is reflected, not repeated: no easing into the end)
+    inner = s <= 2
     assert np.allclose(curve[inner], np.outer(s[inner], [1, 2, 0]))
+
+
+def test_the_interpolated_path_keeps_its_pace_at_the_ends() -> None:
+    """Keys evenly spaced on a circle: the frames' steps at the path's ends are within 10 % of those in its
+    middle (with repeated end points the spline slowed to 0.6× there)."""
+    angles = np.linspace(0, np.pi, 9)
+    points = np.c_[np.cos(angles), np.sin(angles), np.zeros(9)]
+    curve = catmull_rom(points, np.linspace(0, 8, 161))
+    steps = np.linalg.norm(np.diff(curve, axis=0), axis=-1)
+    assert steps[[0, -1]].min() > 0.9 * np.median(steps) and steps.max() < 1.1 * np.median(steps)
 
 
 def test_path_keys_spreads_over_the_path_and_counts_a_held_pose_once() -> None:

@@ -547,10 +547,11 @@ def spiral_path(
 
 def catmull_rom(points: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Points (M, 3) on the uniform Catmull-Rom spline through ``points`` (K, 3), K ≥ 2, at parameters ``s``
-    (M,) in [0, K − 1] (``s = j`` is ``points[j]`` exactly; the end points are repeated as the outer control
-    points, so the curve starts and stops on them)."""
+    (M,) in [0, K − 1] (``s = j`` is ``points[j]`` exactly). The outer control points are the end points
+    reflected through their neighbours (``2·p₀ − p₁``), so the curve keeps its pace into the ends instead of
+    slowing to them, as it would with the end points repeated."""
     p = np.asarray(points, dtype=np.float64)
-    padded = np.concatenate([p[:1], p, p[-1:]])
+    padded = np.concatenate([2 * p[:1] - p[1:2], p, 2 * p[-1:] - p[-2:-1]])
     s = np.asarray(s, dtype=np.float64)
     lo = np.clip(np.floor(s).astype(np.int64), 0, len(p) - 2)
     t = (s - lo)[:, None]
