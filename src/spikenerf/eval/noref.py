@@ -50,8 +50,8 @@ from spikenerf.train.losses import spike_interval_violation
 
 #: why no no-reference image score (BRISQUE, NIQE…) is reported; see docs/metrics.md
 IMAGE_SCORE_REASON = (
-    "no field-standard no-reference image score installs from PyPI without downloading weights at run time "
-    "(piq's BRISQUE fetches its SVR weights from GitHub; pyiqa's NIQE/BRISQUE fetch theirs)"
+    "not computed: the learned no-reference scores download weights at run time (piq's BRISQUE its SVR "
+    "weights; pyiqa's NIQE/BRISQUE theirs), and PIQE, which needs none, is not implemented here yet"
 )
 
 
