@@ -8,7 +8,13 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from spikenerf.cli.options import check_run_folder, chunk_option, lpips_option, precision_option
+from spikenerf.cli.options import (
+    check_run_folder,
+    chunk_option,
+    dataset_option,
+    lpips_option,
+    precision_option,
+)
 from spikenerf.cli.types import COUNT, BoundedInt, device_option
 from spikenerf.eval.choices import NOREF_MODES, SPLITS
 
@@ -27,7 +33,7 @@ PARAM_FLAGS = {"steps": "--noref-steps"}
 )  # fmt: skip
 @device_option()
 @lpips_option
-@click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
+@dataset_option
 @chunk_option
 @precision_option
 @click.option(

