@@ -135,7 +135,7 @@ def test_reconstruct_dir_and_topdown(capsys, stream, tmp_path: Path) -> None:
         (["--method", "tfi", "--weights", "w.pt"], "--weights applies to --method learned only (tfi has no"),
         (["--threshold", "0"], "threshold"),
         (["--frames", "1:3", "--out-png"], "one frame"),
-        (["--frame", "1", "--out-jpg"], ".png or .npy"),
+        (["--frame", "1", "--out-jpg"], ".png, .npy or .mp4"),
     ],
 )
 def test_reconstruct_bad_input_exits_2_and_writes_nothing(capsys, stream, tmp_path, extra, message) -> None:

@@ -44,13 +44,14 @@ from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.camera.spikecv import CONFIG_NAME as SPIKECV_CONFIG
 from spikenerf.camera.spikecv import write_spikecv_config
-from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic, write_text_atomic
-from spikenerf.core.color import display_uint8, srgb_encode
+from spikenerf.core.atomic import clean_stale_temps, write_bytes_atomic, write_text_atomic
+from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.core.progress import bar as progress_bar
+from spikenerf.core.video import check_fps, ffmpeg_module, to_uint8, write_video
 from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path, spike_files
 from spikenerf.data.reconstruction import frame_at
 from spikenerf.eval.render_cache import CACHE, UNREADABLE, RenderCache, cache_bytes, digest_array, render_key
@@ -76,14 +77,6 @@ from spikenerf.train.run import open_run
 TRAJECTORIES = RENDER_PATHS
 DEFAULT_ORBIT_FRAMES = 120
 TFP_WINDOW = DEFAULT_WINDOW
-#: the video rates an mp4 holds faithfully (below, ffmpeg drops frames; above about 10⁶ it clamps the rate)
-FPS_VIDEO = (1e-2, 1e5)
-
-
-def to_uint8(display: np.ndarray) -> np.ndarray:
-    """Display values [0, 1] (H, W, C) → uint8 (H, W) for C = 1, (H, W, 3) for C = 3."""
-    q = display_uint8(display)
-    return q[..., 0] if q.shape[-1] == 1 else q
 
 
 def png_bytes(image: np.ndarray) -> bytes:
@@ -108,37 +101,6 @@ def colorize_depth(depth: np.ndarray, opacity: np.ndarray, lo: float, hi: float)
     rgb = colormaps["turbo"](t)[..., :3]
     a = np.clip(opacity, 0.0, 1.0)[..., None]
     return to_uint8(rgb * a + (1.0 - a))
-
-
-def ffmpeg_module() -> Any:
-    """``imageio_ffmpeg``; an InputError with the install line where it is missing (it is a dependency, but
-    a source checkout run with another Python, e.g. on a GPU host, may lack it)."""
-    try:
-        import imageio_ffmpeg
-    except ImportError as err:
-        raise InputError("render writes an mp4 and needs imageio-ffmpeg: pip install imageio-ffmpeg") from err
-    return imageio_ffmpeg
-
-
-def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
-    """H.264 mp4 (yuv420p) of uint8 frames (H, W) or (H, W, 3), written atomically with imageio-ffmpeg's
-    bundled ffmpeg; odd sizes are edge-padded to even (yuv420p needs even sizes)."""
-    imageio_ffmpeg = ffmpeg_module()
-
-    rgb = [np.repeat(f[..., None], 3, -1) if f.ndim == 2 else f for f in frames]
-    h, w = rgb[0].shape[:2]
-    pad = ((0, h % 2), (0, w % 2), (0, 0))
-    with atomic_path(path) as tmp:
-        writer = imageio_ffmpeg.write_frames(
-            str(tmp), (w + w % 2, h + h % 2), fps=fps, codec="libx264", pix_fmt_out="yuv420p",
-            macro_block_size=1, output_params=["-f", "mp4"], ffmpeg_log_level="error",
-        )  # fmt: skip
-        writer.send(None)
-        try:
-            for f in rgb:
-                writer.send(np.ascontiguousarray(np.pad(f, pad, mode="edge")))
-        finally:
-            writer.close()
 
 
 def _write_npy(path: Path, array: np.ndarray) -> None:
@@ -316,11 +278,7 @@ def render_run(
     ``chunk``: rays per render call (0 = automatic); ``precision``: auto | fp32 | fp16 | bf16 of the views
     (:mod:`spikenerf.render.inference`; the spike stream renders in fp32)."""
     bad_steps = spike_steps is not None and spike_steps < 1
-    if not FPS_VIDEO[0] <= fps_video <= FPS_VIDEO[1]:  # ffmpeg writes too few frames or clamps outside it
-        raise InputError(
-            f"fps_video must lie in [{FPS_VIDEO[0]:g}, {FPS_VIDEO[1]:g}] frames a second, found {fps_video}",
-            param="fps_video",
-        )
+    check_fps(fps_video, "fps_video")  # ffmpeg writes too few frames or clamps outside FPS_VIDEO
     if orbit_frames < 1:
         raise InputError(f"orbit_frames must be ≥ 1, found {orbit_frames}", param="orbit_frames")
     if bad_steps:
