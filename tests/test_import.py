@@ -29,6 +29,7 @@ from spikenerf.importing.alignment import (
     upright,
 )
 from spikenerf.importing.poses import read_colmap_text
+from spikenerf.scenes.distortion import Distortion
 from spikenerf.scenes.trajectory import matrix_to_quaternion, orbit
 
 H, W, T = 8, 24, 40  # 40 frames of 8×24 are not a whole number of 8×40 raw frames, and vice versa
@@ -722,3 +723,123 @@ def test_an_import_leaving_one_training_keyframe_says_how_to_train_it(
     )
     code, _, err = run_cli(capsys, "import", rec, *ORBIT, "--test-every", 0, *args, tmp_path / "none")
     assert code == 0 and err == ""
+
+
+@pytest.mark.parametrize(
+    ("line", "pinhole", "lens"),
+    [
+        ("SIMPLE_RADIAL 48 16 30 24 8 -0.1", (30, 30, 24, 8), Distortion(k1=-0.1)),
+        ("RADIAL 48 16 30 24 8 -0.1 0.02", (30, 30, 24, 8), Distortion(k1=-0.1, k2=0.02)),
+        (
+            "OPENCV 48 16 30 31 24 8 -0.1 0.02 0.001 -0.002",
+            (30, 31, 24, 8),
+            Distortion(k1=-0.1, k2=0.02, p1=0.001, p2=-0.002),
+        ),
+        (  # fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6: the rational k4-k6 zero
+            "FULL_OPENCV 48 16 30 31 24 8 -0.1 0.02 0.001 -0.002 0.003 0 0 0",
+            (30, 31, 24, 8),
+            Distortion(k1=-0.1, k2=0.02, k3=0.003, p1=0.001, p2=-0.002),
+        ),
+        (
+            "OPENCV_FISHEYE 48 16 30 31 24 8 0.05 -0.01 0.002 -0.0001",
+            (30, 31, 24, 8),
+            Distortion("OPENCV_FISHEYE", k1=0.05, k2=-0.01, k3=0.002, k4=-0.0001),
+        ),
+        (
+            "RADIAL_FISHEYE 48 16 30 24 8 0.05 -0.01",
+            (30, 30, 24, 8),
+            Distortion("OPENCV_FISHEYE", 0.05, -0.01),
+        ),
+        ("SIMPLE_FISHEYE 48 16 30 24 8", (30, 30, 24, 8), Distortion("OPENCV_FISHEYE")),
+        ("OPENCV 48 16 30 31 24 8 0 0 0 0", (30, 31, 24, 8), None),  # zero terms: a pinhole
+    ],
+)
+def test_colmap_camera_models_keep_their_lens(tmp_path: Path, line: str, pinhole: tuple, lens) -> None:
+    model = tmp_path / "model"
+    keys = np.arange(0, T, 13)
+    _write_colmap_text(model, _truth()[keys], keys, np.zeros((1, 3)))
+    (model / "cameras.txt").write_text(f"# camera\n1 {line}\n")
+    k = read_colmap_text(model).intrinsics
+    assert (k.width, k.height, k.fl_x, k.fl_y, k.cx, k.cy) == (48, 16, *pinhole)
+    assert k.distortion == lens
+
+
+def test_an_imported_lens_is_written_read_and_carried_through(capsys, recording, tmp_path: Path) -> None:
+    """COLMAP OPENCV → the dataset's transforms.json (nerfstudio's keys) → every reader; a transforms.json
+    pose file carries its keys through, with or without w/h (a field of view), and under ``--fov``."""
+    rec, _ = recording
+    keys = np.arange(0, T, 5)
+    model = tmp_path / "model"
+    _write_colmap_text(model, _truth()[keys], keys, np.random.default_rng(1).uniform(-1, 1, (50, 3)))
+    (model / "cameras.txt").write_text("1 OPENCV 48 16 30 31 24 8 -0.1 0.02 0.001 -0.002\n")
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", model)
+    assert code == 0, err
+    lens = Distortion(k1=-0.1, k2=0.02, p1=0.001, p2=-0.002)
+    meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())
+    assert {k: meta[k] for k in ("camera_model", "k1", "k2", "p1", "p2")} == lens.as_json()
+    ds = load_dataset(tmp_path / "ds")
+    assert ds.intrinsics.distortion == lens and ds.intrinsics.fl_x == pytest.approx(30 * W / 48)
+    code, text, _ = run_cli(capsys, "info", tmp_path / "ds")
+    assert code == 0 and "lens: OPENCV k1=-0.1 k2=0.02 p1=0.001 p2=-0.002" in text
+    frames = [{"step": int(s), "transform_matrix": _truth()[s].tolist()} for s in keys]
+    box = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+    fisheye = {"camera_model": "OPENCV_FISHEYE", "k1": 0.03, "k2": -0.004}
+    for i, (camera, extra) in enumerate(
+        [
+            ({"w": W, "h": H, "fl_x": 20.0, "cx": 12.0, "cy": 4.0}, []),
+            ({"camera_angle_x": 1.2}, []),
+            ({}, ["--fov", 60]),
+        ]
+    ):
+        pose_file = tmp_path / f"p{i}.json"
+        pose_file.write_text(json.dumps({**camera, **fisheye, "scene_box": box, "frames": frames}))
+        out = tmp_path / f"ns{i}"
+        code, _, err = run_cli(capsys, "import", rec, "--out", out, "--poses", pose_file, *extra)
+        assert code == 0, err
+        assert load_dataset(out).intrinsics.distortion == Distortion("OPENCV_FISHEYE", k1=0.03, k2=-0.004)
+
+
+@pytest.mark.parametrize(
+    ("camera", "message"),
+    [
+        ("1 FULL_OPENCV 48 16 30 31 24 8 -0.1 0.02 0 0 0 0.01 0 0", "its rational terms"),
+        (
+            "1 THIN_PRISM_FISHEYE 48 16 30 31 24 8 0 0 0 0 0 0 0 0",
+            "camera_model THIN_PRISM_FISHEYE is not supported",
+        ),
+        ("1 FOV 48 16 30 31 24 8 0.5", "camera_model FOV is not supported"),
+        ("1 OPENCV 48 16 30 31 24 8 -0.1", "camera_model OPENCV has 8 parameters"),
+        ("1 SIMPLE_RADIAL 48 16 30 24 8 nan", "k1 must be a finite number"),
+        (
+            "1 SIMPLE_RADIAL 48 16 12 24 8 -0.9",
+            "the OPENCV k1=-0.9 lens is not invertible over the 48×16 image",
+        ),
+    ],
+)
+def test_a_lens_that_cannot_be_applied_is_refused(capsys, recording, tmp_path, camera, message) -> None:
+    rec, _ = recording
+    keys = np.arange(0, T, 13)
+    model = tmp_path / "model"
+    _write_colmap_text(model, _truth()[keys], keys, np.zeros((1, 3)))
+    (model / "cameras.txt").write_text(camera + "\n")
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", model)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert f"{model / 'cameras.txt'}: camera 1: " in err and not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize(
+    ("lens", "message"),
+    [
+        ({"camera_model": "EQUIRECTANGULAR"}, "field 'camera_model': 'EQUIRECTANGULAR' is not supported"),
+        ({"camera_model": "OPENCV", "k1": "strong"}, "field 'k1': expected a finite number, found 'strong'"),
+        ({"camera_model": "OPENCV", "k1": -5}, "fields 'camera_model', 'k1': the OPENCV k1=-5 lens is not"),
+    ],
+)
+def test_a_bad_lens_in_a_pose_file_exits_2_naming_file_and_key(capsys, recording, tmp_path, lens, message):
+    rec, _ = recording
+    frames = [{"step": int(s), "transform_matrix": _truth()[s].tolist()} for s in (0, 13, 26, 39)]
+    pose_file = tmp_path / "p.json"
+    pose_file.write_text(json.dumps({"w": W, "h": H, "fl_x": 20.0, **lens, "frames": frames}))
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", pose_file)
+    assert code == 2 and f"{pose_file}: {message}" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "ds").exists()

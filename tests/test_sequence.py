@@ -16,6 +16,7 @@ from helpers import edit_json
 from spikenerf.core.color import srgb_decode
 from spikenerf.core.errors import InputError, parse_range
 from spikenerf.core.png16 import decode_png16
+from spikenerf.scenes.distortion import Distortion
 from spikenerf.scenes.image_io import read_image, resample
 from spikenerf.scenes.sequence import (
     OPEN_END,
@@ -284,6 +285,17 @@ def test_eval_views(tiny: Path) -> None:
         SequenceSource(tiny, eval_views=root / "transforms_test.json")
 
 
+def test_a_distorted_sequence_keeps_its_lens_and_its_eval_views_must_share_it(tiny: Path) -> None:
+    root, lens = tiny.parent, {"camera_model": "OPENCV", "k1": -0.05}
+    edit_json(tiny, lambda m: m.update(lens))
+    assert SequenceSource(tiny, width=4).intrinsics.distortion == Distortion(k1=-0.05)
+    _write_sequence(root, n=2, name="transforms_test.json")
+    with pytest.raises(InputError, match=r"another lens: none, the sequence's is OPENCV k1=-0\.05"):
+        SequenceSource(tiny, eval_views=root / "transforms_test.json")
+    edit_json(root / "transforms_test.json", lambda m: m.update(lens))
+    assert SequenceSource(tiny, eval_views=root / "transforms_test.json").test_views()[0].shape == (2, 4, 4)
+
+
 def test_scene_box(tiny: Path) -> None:
     for centre in [(0.0, 0.0, 0.0), (1.0, -2.0, 0.5)]:
         box = estimate_scene_box(orbit(4.0, 20.0, duration=8 / 40000, center=centre).poses)
@@ -352,11 +364,14 @@ ERRORS = {
     "'camera_angle_x'": lambda p: edit_json(p, lambda m: m.update(camera_angle_x="wide")),
     "images are 8×8": lambda p: edit_json(p, lambda m: m.update(w=16)),
     "per-frame cameras": lambda p: edit_json(p, _set_frame(2, camera_angle_x=0.7)),
-    "OPENCV lens distortion is not supported; undistort the images first": lambda p: edit_json(
-        p, lambda m: m.update(camera_model="OPENCV", k1=0.1)
+    "fields 'camera_model', 'k1': the OPENCV k1=-2 lens is not invertible": lambda p: edit_json(
+        p, lambda m: m.update(camera_model="OPENCV", k1=-2)
     ),
-    "'OPENCV_FISHEYE' is not a perspective camera": lambda p: edit_json(
-        p, lambda m: m.update(camera_model="OPENCV_FISHEYE")
+    "field 'p1': p1 must be 0 for OPENCV_FISHEYE": lambda p: edit_json(
+        p, lambda m: m.update(camera_model="OPENCV_FISHEYE", p1=0.01)
+    ),
+    "'EQUIRECTANGULAR' is not supported": lambda p: edit_json(
+        p, lambda m: m.update(camera_model="EQUIRECTANGULAR")
     ),
     "cannot read image": lambda p: (p.parent / "train" / "r_2.png").write_bytes(b"not a png at all"),
 }

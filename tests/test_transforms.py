@@ -69,8 +69,12 @@ def test_each_rule_is_one_error_naming_the_file_and_the_key(tmp_path: Path) -> N
         transforms.frame_poses(
             {"frames": [{"transform_matrix": _pose()}] * 2 + [{"transform_matrix": [1]}]}, path
         )
-    with pytest.raises(InputError, match=r"t\.json: field 'k1': OPENCV lens distortion is not supported"):
-        transforms.camera({"camera_model": "OPENCV", "k1": 0.1, "fl_x": 1.0}, path)
+    with pytest.raises(InputError, match=r"t\.json: field 'k1': expected a finite number, found 'abc'"):
+        transforms.lens({"camera_model": "OPENCV", "k1": "abc", "fl_x": 1.0}, path)
+    with pytest.raises(
+        InputError, match=r"t\.json: field 'camera_model': 'EQUIRECTANGULAR' is not supported"
+    ):
+        transforms.camera({"camera_model": "EQUIRECTANGULAR", "fl_x": 1.0}, path)
     with pytest.raises(InputError, match=r"t\.json: field 'w' = 8 but the images are 4×6 pixels"):
         transforms.intrinsics(json.loads(path.read_text()), path, size=(4, 6))
     with pytest.raises(InputError, match=r"t\.json: field 'camera_angle_x': expected radians in \(0, π\)"):

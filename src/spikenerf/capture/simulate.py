@@ -104,7 +104,8 @@ def _fingerprint(source: FrameSource) -> dict:
     k = source.intrinsics
     return {
         "scene": source.name,
-        "camera": [k.width, k.height, k.fl_x, k.fl_y, k.cx, k.cy],
+        "camera": [k.width, k.height, k.fl_x, k.fl_y, k.cx, k.cy]
+        + ([k.distortion.as_json()] if k.distortion else []),
         "steps": [int(s) for s in source.trajectory.steps[[0, -1]]] + [len(source.trajectory)],
         "poses_sha256": digest.hexdigest(),
         **{key: v if isinstance(v, (int, float, str)) else str(v) for key, v in extra.items()},

@@ -30,6 +30,7 @@ PUBLIC_API: dict[str, dict[str, str]] = {
     },
     "spikenerf.scenes": {
         "spikenerf.scenes.trajectory": "Intrinsics Trajectory orbit novel_views",
+        "spikenerf.scenes.distortion": "Distortion",
         "spikenerf.scenes.registry": "list_scenes make_scene_source",
     },
     "spikenerf.data": {

@@ -29,6 +29,7 @@ from spikenerf.core.yamlio import load_yaml
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 from spikenerf.scenes.transforms import (
     CAMERA_KEYS,
+    DISTORTION_KEYS,
     camera,
     check_camera,
     frame_poses,
@@ -218,6 +219,9 @@ def _check_camera(data: dict, path: Path, k: Intrinsics | None) -> Intrinsics:
             f"{k.width}×{k.height} (W×H)",
             path=path,
         )
+    if k is not None and found.distortion != k.distortion:  # (one camera: its lens too)
+        lenses = [lens.describe() if lens else "none" for lens in (found.distortion, k.distortion)]
+        raise InputError("lens distortion {} differs from transforms.json's {}".format(*lenses), path=path)
     return found
 
 
@@ -424,7 +428,7 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
         )
     poses = frame_poses(meta, path)
     cam = camera(meta, path)
-    k, given = None, [key for key in CAMERA_KEYS if key in meta or key in cam]
+    k, given = None, [key for key in (*CAMERA_KEYS, *DISTORTION_KEYS) if key in meta or key in cam]
     if given and not ("fl_x" in cam or "camera_angle_x" in cam):
         raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'", path=path)
     sized = [d for d in (meta, cam) if "w" in d or "h" in d]

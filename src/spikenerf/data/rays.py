@@ -22,14 +22,22 @@ def _as_tensor(x: Tensor | np.ndarray, dtype: torch.dtype | None = None) -> Tens
 
 
 def camera_directions(intrinsics: Intrinsics, pixels: Tensor, dtype: torch.dtype = torch.float32) -> Tensor:
-    """Unnormalised directions in camera space for integer pixels.
+    """Unnormalised directions in camera space for integer pixels: every ray of the toolkit starts here.
 
     Args:
-        intrinsics: pinhole camera. pixels: (N, 2) int, ``(x=column, y=row)``. dtype: of the result.
+        intrinsics: the camera. pixels: (N, 2) int, ``(x=column, y=row)``. dtype: of the result.
     Returns:
-        (N, 3) ``((x + .5 − cx)/fx, −(y + .5 − cy)/fy, −1)``.
+        (N, 3) ``((x + .5 − cx)/fx, −(y + .5 − cy)/fy, −1)`` for a pinhole camera. With a lens
+        (``intrinsics.distortion``) the pixel centre's normalised coordinates are the distorted ones: they
+        are undistorted (:meth:`~spikenerf.scenes.distortion.Distortion.undistort`, OpenCV's y down) first,
+        so the ray is the one the lens bent onto that pixel.
     """
     px = pixels.to(dtype)
+    lens = intrinsics.distortion
+    if lens is not None:
+        xd = (px[:, 0] + 0.5 - intrinsics.cx) / intrinsics.fl_x
+        x, y = lens.undistort(xd, (px[:, 1] + 0.5 - intrinsics.cy) / intrinsics.fl_y)
+        return torch.stack([x, -y, -torch.ones_like(x)], dim=-1)
     u = (px[:, 0] + 0.5 - intrinsics.cx) / intrinsics.fl_x
     v = -(px[:, 1] + 0.5 - intrinsics.cy) / intrinsics.fl_y
     return torch.stack([u, v, -torch.ones_like(u)], dim=-1)

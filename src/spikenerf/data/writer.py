@@ -81,7 +81,8 @@ class DatasetWriter:
         self.test_frames: list[dict] = []
 
     def header(self, **extra: Any) -> dict:
-        """Camera and scene fields shared by the three transforms files."""
+        """Camera and scene fields shared by the three transforms files; a lens adds nerfstudio's
+        ``camera_model`` (over the views' ``PINHOLE``) and its non-zero terms (``k1``, …)."""
         k = self.intrinsics
         camera = {
             "camera_angle_x": k.camera_angle_x,
@@ -91,7 +92,8 @@ class DatasetWriter:
             "fl_y": k.fl_y,
         }
         scene = {"fps": self.fps, "scene_box": self.scene_box.tolist(), "near": self.near, "far": self.far}
-        return {**camera, "cx": k.cx, "cy": k.cy, **scene, **extra}
+        lens = {} if k.distortion is None else k.distortion.as_json()
+        return {**camera, "cx": k.cx, "cy": k.cy, **scene, **extra, **lens}
 
     def start_spikes(self, modes: list[str]) -> None:
         """Create (truncate) the spike files of ``modes``."""

@@ -426,9 +426,11 @@ def _render_locked(
     if spikes:
         spike_poses = GENERATORS[trajectory](dataset, n_spikes) if generated else poses
         spike_path = RenderPath(path.name, spike_poses, k, path.near, path.far, path.file)
+    lens = [k.distortion.as_json()] if k.distortion else []  # (a pinhole keeps the key it had)
     key = render_key(
         model, config=model.hparams(), versions=[package_version(), torch.__version__], poses=poses,
-        camera=[float(v) for v in dataclasses.astuple(k)], bounds=[path.near, path.far], precision=precision,
+        camera=[*(float(v) for v in dataclasses.astuple(k)[:6]), *lens],
+        bounds=[path.near, path.far], precision=precision,
         device=model.device.type,
         spikes=None if spike_path is None else [digest_array(spike_path.poses), seed, dataset.threshold],
     )  # fmt: skip
@@ -469,7 +471,8 @@ def _render_locked(
         "views": len(poses),
         "channels": model.channels,
         "size": [k.width, k.height],
-        "camera": {"fl_x": float(k.fl_x), "fl_y": float(k.fl_y), "cx": float(k.cx), "cy": float(k.cy)},
+        "camera": {"fl_x": float(k.fl_x), "fl_y": float(k.fl_y), "cx": float(k.cx), "cy": float(k.cy)}
+        | (k.distortion.as_json() if k.distortion else {}),
         "near_far": [float(path.near), float(path.far)],
         "depth_range": [lo, hi],
         "fps_video": fps_video,

@@ -354,18 +354,24 @@ def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> Non
 
 
 def intrinsics_for(found: PoseSet, width: int, height: int, fov_deg: float | None) -> Intrinsics:
-    """The camera at the recording's size: ``--fov`` wins, then the pose source's intrinsics or its fov."""
-    if fov_deg is not None:
-        return Intrinsics.from_fov(width, height, math.radians(fov_deg))
-    if found.intrinsics is not None:
-        k = found.intrinsics
+    """The camera at the recording's size: ``--fov`` wins, then the pose source's intrinsics or its fov. The
+    source's lens distortion stays under ``--fov`` too (its terms are in units of the focal length)."""
+    k = found.intrinsics
+    lens = found.lens if k is None else k.distortion
+    if fov_deg is None and k is not None:
         return k if (k.width, k.height) == (width, height) else k.scaled(width, height)
-    if found.camera_angle_x is not None:
-        return Intrinsics.from_fov(width, height, found.camera_angle_x)
-    raise InputError(
-        "the pose source carries no camera intrinsics: pass fov_deg (horizontal field of view, degrees)",
-        param="fov_deg",
-    )
+    if fov_deg is None and found.camera_angle_x is None:
+        raise InputError(
+            "the pose source carries no camera intrinsics: pass fov_deg (horizontal field of view, degrees)",
+            param="fov_deg",
+        )
+    fov = math.radians(fov_deg) if fov_deg is not None else found.camera_angle_x
+    k = Intrinsics.from_fov(width, height, fov)
+    try:
+        return k if lens is None else replace(k, distortion=lens)
+    except InputError as err:  # (the lens at this field of view)
+        given = f" at fov_deg {fov_deg:g}" if fov_deg is not None else " at the pose source's field of view"
+        raise InputError(err.message + given, param="fov_deg" if fov_deg is not None else ()) from None
 
 
 def import_recording(dat: str | Path, out: str | Path, opts: ImportOptions) -> Path:

@@ -20,6 +20,7 @@ import numpy as np
 
 from spikenerf.core.errors import InputError
 from spikenerf.scenes import transforms
+from spikenerf.scenes.distortion import Distortion, colmap_camera
 from spikenerf.scenes.trajectory import (  # (the orbit's ranges: one definition, the library's)
     MAX_AZIMUTH,
     ORBIT_RADIUS,
@@ -32,8 +33,6 @@ from spikenerf.scenes.trajectory import (  # (the orbit's ranges: one definition
 #: OpenCV camera axes (COLMAP: +X right, +Y down, +Z forward) → OpenGL (+Y up, looking down −Z)
 CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 COLMAP_MISSING = "COLMAP poses need pycolmap: pip install 'spikenerf[colmap]'"
-#: COLMAP camera models whose first parameters are (f, cx, cy) or (fx, fy, cx, cy); distortion is ignored
-ONE_FOCAL = ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
 
 
 @dataclass(frozen=True)
@@ -43,7 +42,8 @@ class PoseSet:
     scene_box (2, 3) if the source states one; names (N,) of the frames (for messages); camera_angle_x
     (radians) when the source gives only a field of view; depth_bounds (near, far) along the optical axes
     in the source's units (LLFF); note: how the poses were found when it matters (stored in config.yaml);
-    focus (3,): the point every camera looks at when the source knows it (an orbit's centre)."""
+    focus (3,): the point every camera looks at when the source knows it (an orbit's centre); lens: the
+    lens distortion of a source without full intrinsics (a field of view and ``k1``…)."""
 
     poses: np.ndarray
     steps: np.ndarray | None = None
@@ -55,6 +55,7 @@ class PoseSet:
     depth_bounds: tuple[float, float] | None = None
     note: str = ""
     focus: np.ndarray | None = None
+    lens: Distortion | None = None
 
 
 #: coordinates at or beyond this are absurd (NaN-free, but the unit-box fit of 1e308 overflows to inf)
@@ -134,7 +135,8 @@ def read_transforms_poses(path: Path) -> PoseSet:
         fov = transforms.field_of_view(cam, path)
     box = transforms.scene_box(data, path)
     names = tuple(str(f.get("file_path", i)) for i, f in enumerate(frames))
-    return PoseSet(poses, steps, k, None, box, names, fov)
+    lens = transforms.lens(data, path) if k is None else None  # (else k holds it)
+    return PoseSet(poses, steps, k, None, box, names, fov, lens=lens)
 
 
 # ------------------------------------------------------------------------------------------- COLMAP model
@@ -183,21 +185,26 @@ def _pose_problem(row: list[str], cameras: set[int]) -> str:
 
 
 def _colmap_camera(fields: list[str], path: Path) -> Intrinsics:
+    """A ``cameras.txt`` line ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``, its lens terms kept
+    (:func:`~spikenerf.scenes.distortion.colmap_camera`: a model whose terms cannot be applied is refused)."""
     try:
         model, w, h, params = fields[1], int(fields[2]), int(fields[3]), [float(p) for p in fields[4:]]
     except (ValueError, IndexError) as err:
         raise InputError(f"malformed camera line {' '.join(fields)!r} ({err})", path=path) from err
-    if model in ONE_FOCAL and len(params) >= 3:
-        params = [params[0], *params[:3]]
-    elif len(params) < 4:
-        raise InputError(f"camera model {model} with {len(params)} parameters is not supported", path=path)
-    if not (w > 0 and h > 0 and all(math.isfinite(p) and p > 0 for p in params[:2])):
+    try:
+        pinhole, lens = colmap_camera(model, params)
+    except InputError as err:
+        raise InputError(f"camera {fields[0]}: {err.message}", path=path) from None
+    if not (w > 0 and h > 0 and all(math.isfinite(p) and p > 0 for p in pinhole[:2])):
         raise InputError(f"camera {fields[0]}: width, height and focal length must be > 0", path=path)
-    if not all(math.isfinite(p) for p in params[2:4]):
-        found = ", ".join(map(str, params[2:4]))
+    if not all(math.isfinite(p) for p in pinhole[2:4]):
+        found = ", ".join(map(str, pinhole[2:4]))
         raise InputError(f"camera {fields[0]}: principal point cx, cy must be finite, found {found}", path)
-    transforms.check_camera(w, h, params[:2], f"camera {fields[0]}", path)
-    return Intrinsics(w, h, *params[:4])
+    transforms.check_camera(w, h, list(pinhole[:2]), f"camera {fields[0]}", path)
+    try:
+        return Intrinsics(w, h, *pinhole, lens)
+    except InputError as err:
+        raise InputError(f"camera {fields[0]}: {err.message.removeprefix('distortion: ')}", path) from None
 
 
 def read_colmap_text(folder: Path) -> PoseSet:

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from spikenerf.core.errors import InputError, is_integer
 from spikenerf.core.limits import check_memory
+from spikenerf.scenes.distortion import Distortion
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 from spikenerf.scenes.transforms import rigid_poses
 
@@ -85,15 +86,16 @@ def camera_directions(intrinsics: Intrinsics, supersample: int = 1) -> np.ndarra
     """Camera-space unit directions (H·s, W·s, 3) through ``s × s`` stratified points per pixel.
 
     OpenGL camera axes (+X right, +Y up, looking down −Z); with ``s = 1`` rays go through pixel centres.
+    A lens (``intrinsics.distortion``) bends each ray as :func:`spikenerf.data.rays.camera_directions` does.
     """
     s = supersample
     uu, vv = np.meshgrid(
         (np.arange(intrinsics.width * s) + 0.5) / s, (np.arange(intrinsics.height * s) + 0.5) / s
     )
-    dirs = np.stack(
-        [(uu - intrinsics.cx) / intrinsics.fl_x, -(vv - intrinsics.cy) / intrinsics.fl_y, -np.ones_like(uu)],
-        -1,
-    )
+    x, y = (uu - intrinsics.cx) / intrinsics.fl_x, (vv - intrinsics.cy) / intrinsics.fl_y
+    if intrinsics.distortion is not None:
+        x, y = intrinsics.distortion.undistort(x, y)
+    dirs = np.stack([x, -y, -np.ones_like(uu)], -1)
     return dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
 
 
@@ -239,6 +241,7 @@ class AnalyticSource:
         trajectory: the per-step training path.
         test_poses: (N, 4, 4) held-out camera-to-world poses (N may be 0).
         supersample: ``s`` renders ``s × s`` stratified rays per pixel and averages them (antialiasing).
+        distortion: the camera's lens (:class:`~spikenerf.scenes.distortion.Distortion`); None: a pinhole.
     """
 
     #: frames depend on the step alone and the source pickles: ``simulate --jobs`` renders in processes
@@ -252,6 +255,7 @@ class AnalyticSource:
         trajectory: Trajectory,
         test_poses: np.ndarray | None = None,
         supersample: int = 2,
+        distortion: Distortion | None = None,
     ) -> None:
         if name not in SCENES:
             raise InputError(f"unknown analytic scene {name!r}; expected one of {', '.join(SCENES)}")
@@ -261,7 +265,7 @@ class AnalyticSource:
         rigid_poses(trajectory.poses, "trajectory")  # (once: :meth:`frames` renders them unchecked)
         self.name = name
         self.description, self.primitives = SCENES[name]
-        self.intrinsics = Intrinsics.from_fov(width, height, CAMERA_ANGLE_X)
+        self.intrinsics = replace(Intrinsics.from_fov(width, height, CAMERA_ANGLE_X), distortion=distortion)
         self.trajectory = trajectory
         self.test_poses = rigid_poses(np.zeros((0, 4, 4)) if test_poses is None else test_poses, "test_poses")
         self.scene_box = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

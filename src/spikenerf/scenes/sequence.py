@@ -360,6 +360,9 @@ class SequenceSource:
         seq = load_sequence(path)
         cam, ours = seq.intrinsics.scaled(self.intrinsics.width, self.intrinsics.height), self.intrinsics
         found, want = (cam.fl_x, cam.fl_y, cam.cx, cam.cy), (ours.fl_x, ours.fl_y, ours.cx, ours.cy)
+        if cam.distortion != ours.distortion:
+            lenses = [k.distortion.describe() if k.distortion else "none" for k in (cam, ours)]
+            raise InputError("eval views use another lens: {}, the sequence's is {}".format(*lenses), path)
         if not np.allclose(found, want, rtol=1e-3, atol=1e-3):
             raise InputError(
                 f"eval views use another camera: at {ours.width}×{ours.height} their (fl_x, fl_y, cx, cy) is "

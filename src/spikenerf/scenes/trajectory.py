@@ -15,15 +15,18 @@ import numpy as np
 
 from spikenerf.core.errors import InputError, is_finite, is_integer, is_number
 from spikenerf.core.limits import check_memory
+from spikenerf.scenes.distortion import Distortion, checked
 
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics in pixels; rays go through pixel centres ``(u + 0.5, v + 0.5)``.
+    """Pinhole intrinsics in pixels; rays go through pixel centres ``(u + 0.5, v + 0.5)``; ``distortion``:
+    the lens (:mod:`spikenerf.scenes.distortion`), None for a pinhole (as is a lens whose terms are zero).
 
     Raises:
         InputError: naming the field when ``width``/``height`` is not an integer ≥ 1, a focal length not a
-            finite number > 0, or ``cx``/``cy`` not finite (a NaN focal length rendered a white image).
+            finite number > 0, or ``cx``/``cy`` not finite (a NaN focal length rendered a white image), and
+            ``distortion`` when the lens is not invertible over the image (``distortion.checked``).
     """
 
     width: int
@@ -32,6 +35,7 @@ class Intrinsics:
     fl_y: float
     cx: float
     cy: float
+    distortion: Distortion | None = None
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -44,6 +48,7 @@ class Intrinsics:
             if not is_finite(value) or (focal and value <= 0):
                 what = "a finite number > 0 (pixels)" if focal else "a finite number (pixels)"
                 raise InputError(f"{name} must be {what}, found {value!r}", param=name)
+        object.__setattr__(self, "distortion", checked(self.distortion, self))
 
     @classmethod
     def from_fov(cls, width: int, height: int, camera_angle_x: float) -> Intrinsics:
@@ -59,7 +64,8 @@ class Intrinsics:
     def scaled(self, width: int, height: int) -> Intrinsics:
         """The same camera resampled to ``width × height`` pixels."""
         sx, sy = width / self.width, height / self.height
-        return Intrinsics(width, height, self.fl_x * sx, self.fl_y * sy, self.cx * sx, self.cy * sy)
+        k = (self.fl_x * sx, self.fl_y * sy, self.cx * sx, self.cy * sy)
+        return Intrinsics(width, height, *k, self.distortion)  # (the lens: in normalised units, size-free)
 
     def matrix(self) -> np.ndarray:
         """(3, 3) K matrix."""
@@ -593,8 +599,9 @@ def project_points(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-unty
     """Image coordinates of world ``points`` (..., 3) in cameras ``c2w`` (..., 4, 4) (OpenGL axes; both numpy
     arrays or both torch tensors, broadcast): (u, v, depth), each (...). Pixel ``(x, y)`` covers
     ``[x, x + 1) × [y, y + 1)`` (its centre is ``x + 0.5``, as :func:`spikenerf.data.rays.camera_directions`
-    casts it); depth > 0 in front of the camera, where u and v are meaningful. Torch tensors are projected
-    with autocast off (under ``--amp bf16`` a third of the points would land in another pixel)."""
+    casts it), through the lens of a distorted camera; depth > 0 in front of the camera, where u and v are
+    meaningful. Torch tensors are projected with autocast off (under ``--amp bf16`` a third of the points
+    would land in another pixel)."""
     torch = sys.modules.get("torch")  # a tensor needs torch imported already; numpy ≥ 2 arrays have a
     if torch is not None and isinstance(points, torch.Tensor):  # ``device`` too (the string "cpu")
         with torch.autocast(points.device.type, enabled=False):
@@ -607,6 +614,9 @@ def _project(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-untyped-de
     cam = (rel @ c2w[..., :3, :3])[..., 0, :]  # world → camera axes
     depth = -cam[..., 2]
     safe = depth * (depth > 1e-9) + 1.0 * (depth <= 1e-9)  # any value where the point is behind
+    if intrinsics.distortion is not None:  # (the lens acts on OpenCV's normalised plane: y down)
+        x, y = intrinsics.distortion.distort(cam[..., 0] / safe, -cam[..., 1] / safe)
+        return intrinsics.fl_x * x + intrinsics.cx, intrinsics.fl_y * y + intrinsics.cy, depth
     u = intrinsics.fl_x * cam[..., 0] / safe + intrinsics.cx
     v = -intrinsics.fl_y * cam[..., 1] / safe + intrinsics.cy
     return u, v, depth

@@ -10,6 +10,7 @@ problem is one :class:`~spikenerf.core.errors.InputError` line naming the file a
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -18,14 +19,18 @@ from typing import Any
 import numpy as np
 
 from spikenerf.core.errors import InputError, is_finite
+from spikenerf.scenes.distortion import TERMS, Distortion
 from spikenerf.scenes.trajectory import Intrinsics
 
 #: the shared camera's keys (nerfstudio names)
 CAMERA_KEYS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")
-#: lens distortion terms; only zero (or absent) is supported
-DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-#: nerfstudio ``camera_model`` values that are a pinhole camera once the distortion terms are zero
+#: lens distortion terms (nerfstudio's names, :mod:`spikenerf.scenes.distortion`)
+DISTORTION_KEYS = TERMS
+#: nerfstudio ``camera_model`` values of a perspective camera: read as ``OPENCV`` (radial-tangential; zero
+#: terms, or none, are a pinhole); ``OPENCV_FISHEYE`` is the equidistant fisheye
 PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+#: every key of the shared camera that :func:`camera` reads
+LENS_KEYS = ("camera_model", *DISTORTION_KEYS)
 #: the scene box's keys, the first present is read: ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
 BOX_KEYS = ("scene_box", "aabb")
 _REQUIRED = object()
@@ -191,30 +196,51 @@ def rigid_poses(poses: object, param: str, one: bool = False) -> np.ndarray:
 
 
 def camera(meta: dict[str, Any], path: Path) -> dict[str, Any]:
-    """The shared camera's keys, read at the top level, else from the first frame; every frame that repeats a
-    key must agree (per-frame cameras are not supported), the model must be a pinhole and the lens distortion
-    zero."""
+    """The shared camera's keys (:data:`CAMERA_KEYS`, ``camera_model`` and the lens terms), read at the top
+    level, else from the first frame; every frame that repeats a key must agree (per-frame cameras are not
+    supported); the model must be a perspective one or ``OPENCV_FISHEYE`` (:func:`lens` reads the terms)."""
     listed = meta.get("frames")
     frames = [f for f in listed if isinstance(f, dict)] if isinstance(listed, list) else []
     source = meta if ("fl_x" in meta or "camera_angle_x" in meta or not frames) else frames[0]
-    cam = {k: source[k] for k in CAMERA_KEYS if k in source}
+    keys = (*CAMERA_KEYS, *LENS_KEYS)
+    cam = {k: source[k] for k in keys if k in source}
+    if source is not meta:  # (a lens given at the top level beside a per-frame focal length)
+        cam.update({k: meta[k] for k in LENS_KEYS if k in meta and k not in cam})
+    shared = {**dict.fromkeys(DISTORTION_KEYS, 0), "camera_model": "PINHOLE", **cam}  # (unset: a pinhole)
     for i, frame in enumerate(frames):
-        for key in [k for k in CAMERA_KEYS if k in frame and k in cam and frame[k] != cam[k]]:
+        for key in [k for k in keys if k in frame and k in shared and not _same(k, frame[k], shared[k])]:
             raise InputError(
-                f"frames[{i}].{key} differs from {cam[key]!r}: per-frame cameras unsupported", path
+                f"frames[{i}].{key} differs from {shared[key]!r}: per-frame cameras unsupported", path
             )
-    model = meta.get("camera_model", "PINHOLE")
-    if model not in PERSPECTIVE_MODELS:
+    model = cam.get("camera_model", "PINHOLE")
+    if model not in (*PERSPECTIVE_MODELS, "OPENCV_FISHEYE"):
         raise InputError(
-            f"field 'camera_model': {model!r} is not a perspective camera (need a pinhole)", path
-        )
-    for key in [k for d in (meta, *frames) for k in DISTORTION_KEYS if d.get(k, 0) not in (0, 0.0)]:
-        raise InputError(
-            f"field '{key}': {model} lens distortion is not supported; undistort the images first (e.g. "
-            "COLMAP image_undistorter, which writes a PINHOLE camera) and drop k1…p2",
+            f"field 'camera_model': {model!r} is not supported (expected a perspective camera, "
+            f"{', '.join(PERSPECTIVE_MODELS)}, or OPENCV_FISHEYE)",
             path,
         )
     return cam
+
+
+def _same(key: str, a: object, b: object) -> bool:
+    """Whether two values of a camera key agree; any two perspective ``camera_model`` values (or none) do."""
+    if key == "camera_model":
+        return (a if a not in PERSPECTIVE_MODELS else None) == (b if b not in PERSPECTIVE_MODELS else None)
+    return a == b
+
+
+def lens(meta: dict[str, Any], path: Path) -> Distortion | None:
+    """The lens of the shared camera (:func:`camera`): ``camera_model`` (a perspective model reads as
+    ``OPENCV``) and its terms ``k1``…``k4``, ``p1``, ``p2`` (finite numbers, absent: 0); None for a pinhole
+    (a perspective model whose terms are all zero). InputError naming the file and the key otherwise."""
+    cam = camera(meta, path)
+    model = "OPENCV_FISHEYE" if cam.get("camera_model") == "OPENCV_FISHEYE" else "OPENCV"
+    terms = {key: number(cam, key, path, default=0.0) for key in DISTORTION_KEYS}
+    try:
+        found = Distortion(model, **terms)
+    except InputError as err:  # (p1/p2 given to a fisheye)
+        raise InputError(f"field '{err.params[0]}': {err.message}", path=path) from None
+    return None if found.is_pinhole else found
 
 
 #: focal lengths beyond these multiples of the image's larger side are absurd (a field of view under 1e-4°,
@@ -267,12 +293,24 @@ def intrinsics(meta: dict[str, Any], path: Path, size: tuple[int, int] | None = 
         cx = number(cam, "cx", path, default=width / 2.0)
         cy = number(cam, "cy", path, default=height / 2.0)
         check_camera(width, height, [fl_x, fl_y], "fields 'w', 'h', 'fl_x', 'fl_y'", path)
-        return Intrinsics(width, height, fl_x, fl_y, cx, cy)
+        return with_lens(Intrinsics(width, height, fl_x, fl_y, cx, cy), lens(meta, path), path)
     if "camera_angle_x" in cam:
         k = Intrinsics.from_fov(width, height, field_of_view(cam, path))
         check_camera(width, height, [k.fl_x], "fields 'w', 'h', 'camera_angle_x'", path)
-        return k
+        return with_lens(k, lens(meta, path), path)
     raise InputError("missing camera: expected 'camera_angle_x' or 'fl_x' (with optional fl_y, cx, cy)", path)
+
+
+def with_lens(k: Intrinsics, found: Distortion | None, path: Path | None) -> Intrinsics:
+    """``k`` with the lens ``found`` (None: ``k``); a lens that cannot be undone over the image is one
+    InputError naming ``path`` and the keys of the lens (its model and terms)."""
+    if found is None:
+        return k
+    try:
+        return dataclasses.replace(k, distortion=found)
+    except InputError as err:
+        keys = ", ".join(f"'{key}'" for key in found.as_json())
+        raise InputError(f"fields {keys}: {err.message.removeprefix('distortion: ')}", path=path) from None
 
 
 def scene_box(meta: dict[str, Any], path: Path, required: bool = False) -> np.ndarray | None:
