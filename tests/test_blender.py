@@ -21,7 +21,8 @@ from spikenerf.scenes.blender import (
     resolve_scene,
     scene_extent,
 )
-from spikenerf.scenes.trajectory import Intrinsics, Trajectory, look_at, orbit
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics, Trajectory, orbit
 
 SIZE, SPP = 32, 4
 

@@ -15,7 +15,8 @@ from spikenerf.data.dataset import load_dataset
 from spikenerf.data.summary import view_counts
 from spikenerf.data.targets import blur_targets
 from spikenerf.scenes.analytic import AnalyticSource
-from spikenerf.scenes.trajectory import novel_views, orbit, pose_at
+from spikenerf.scenes.poses import pose_at
+from spikenerf.scenes.trajectory import novel_views, orbit
 
 STEPS, SIZE = 40, 12
 #: 40 steps at 40 kHz, a 4000 fps blur camera: 10 steps per exposure

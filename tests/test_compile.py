@@ -17,7 +17,8 @@ from spikenerf.fields import compiled as compiled_mod
 from spikenerf.fields.compiled import Fallback, compile_field, compiled_parts
 from spikenerf.render import build_model
 from spikenerf.render.model import ray_bounds
-from spikenerf.scenes.trajectory import Intrinsics, look_at
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics
 from spikenerf.train.trainer import Trainer
 
 dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures

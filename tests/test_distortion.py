@@ -20,7 +20,9 @@ from spikenerf.data.rays import camera_directions, image_pixels, image_rays
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes import analytic, transforms
 from spikenerf.scenes.distortion import NEWTON_STEPS, Distortion
-from spikenerf.scenes.trajectory import Intrinsics, look_at, orbit, project_points
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.projection import project_points
+from spikenerf.scenes.trajectory import Intrinsics, orbit
 
 W, H = 40, 30
 #: realistic lenses: a barrel lens with tangential terms, a pincushion one, one with every radial term,

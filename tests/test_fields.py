@@ -18,7 +18,8 @@ from spikenerf.fields import Field, GridFieldConfig, MLPFieldConfig, build_field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.grid import FACTORS, sample_vm
 from spikenerf.render import build_model, render_image
-from spikenerf.scenes.trajectory import Intrinsics, look_at
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 

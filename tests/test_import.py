@@ -30,7 +30,8 @@ from spikenerf.importing.alignment import (
 )
 from spikenerf.importing.poses import read_colmap_text
 from spikenerf.scenes.distortion import Distortion
-from spikenerf.scenes.trajectory import matrix_to_quaternion, orbit
+from spikenerf.scenes.poses import matrix_to_quaternion
+from spikenerf.scenes.trajectory import orbit
 
 H, W, T = 8, 24, 40  # 40 frames of 8×24 are not a whole number of 8×40 raw frames, and vice versa
 ORBIT = ("--poses", "orbit", "--orbit", "4,30", "--fov", 40)  # the orbit that _truth() and the tests use

@@ -15,7 +15,7 @@ from spikenerf.data.dataset import load_dataset
 from spikenerf.importing import colmap
 from spikenerf.importing.alignment import trajectory_jump
 from spikenerf.importing.poses import PoseSet
-from spikenerf.scenes.trajectory import look_at
+from spikenerf.scenes.poses import look_at
 
 
 def _orbit(n: int = 50, flip_from: int | None = None, noise: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

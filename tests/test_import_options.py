@@ -127,7 +127,7 @@ def test_bad_option_values_are_one_line(capsys, recording, tmp_path, flag, value
 def _synthetic_model(folder: Path, truth: np.ndarray, focal: float, seed: int = 0) -> None:
     """A COLMAP text model of cameras ``truth`` (N, 4, 4) seeing 300 points, 0.3 px noise, and 10% of the
     observations pushed 4 px down (wrong matches that pass a 4 px filter, all biased one way)."""
-    from spikenerf.scenes.trajectory import matrix_to_quaternion
+    from spikenerf.scenes.poses import matrix_to_quaternion
 
     rng = np.random.default_rng(seed)
     points = rng.uniform(-1, 1, (300, 3))

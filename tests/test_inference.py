@@ -24,7 +24,8 @@ from spikenerf.render.inference import (
     inference_chunk,
     resolve_precision,
 )
-from spikenerf.scenes.trajectory import Intrinsics, look_at
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics
 from spikenerf.train.trainer import Trainer
 
 dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures

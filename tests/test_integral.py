@@ -511,7 +511,7 @@ def test_the_default_window_spans_at_most_its_pixels_of_motion(
 def test_a_run_records_the_window_its_dataset_chose_and_resumes_with_it(
     dataset_dir: Path, dataset, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]
-    from spikenerf.scenes.trajectory import image_motion
+    from spikenerf.scenes.projection import image_motion
     from spikenerf.train.methods import default_window
 
     motion = image_motion(dataset.trajectory.poses, dataset.intrinsics, dataset.scene_box)
@@ -614,7 +614,9 @@ def test_a_track_follows_its_point_while_the_camera_moves() -> None:
     """A camera sliding sideways sees the world origin at a different pixel each step; one spike fires exactly
     there each step. The origin's track reads every one of them; the still window at its middle pixel
     reads only the steps where the origin stood on that pixel."""
-    from spikenerf.scenes.trajectory import Intrinsics, look_at, project_points
+    from spikenerf.scenes.poses import look_at
+    from spikenerf.scenes.projection import project_points
+    from spikenerf.scenes.trajectory import Intrinsics
 
     intrinsics, steps = Intrinsics.from_fov(16, 16, 0.8), 11
     eyes = [np.array([0.1 * k - 0.5, 0.0, 3.0]) for k in range(steps)]

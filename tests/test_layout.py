@@ -22,7 +22,7 @@ OTHER_LAYOUTS = {
     "fields/grid.py": "VM products (3, C, M) → (M, 3, C)",
     "fields/vm_ops.py": "grid factors (3, C, R, R) channels-last for the fused CPU and Triton kernels",
     "fields/vm_gather.py": "grid factors (3, C, R, R) as rows of channels (3·R·R, C) for index gathers",
-    "scenes/trajectory.py": "quaternion components to the front",
+    "scenes/poses.py": "quaternion components to the front",
 }
 
 

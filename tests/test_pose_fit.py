@@ -15,7 +15,8 @@ from spikenerf.data.rays import image_rays
 from spikenerf.importing.alignment import rotation_angles_deg
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.volume import RenderOutput
-from spikenerf.scenes.trajectory import Intrinsics, look_at
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics
 from spikenerf.train import pose_fit
 from spikenerf.train.pose_fit import fit_view_poses
 from spikenerf.train.pose_refine import se3_exp

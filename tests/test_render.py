@@ -15,7 +15,8 @@ from spikenerf.data.rays import image_rays, pixel_rays, ray_box_bounds
 from spikenerf.fields import GridFieldConfig, MLPFieldConfig
 from spikenerf.render import build_model, model_from_hparams, render_image, render_mean
 from spikenerf.render.volume import composite, sample_pdf, weights_from_density
-from spikenerf.scenes.trajectory import Intrinsics, look_at
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 SMALL_GRID = GridFieldConfig(n_voxels_init=24**3, n_voxels_final=32**3, upsample_steps=(5,), occupancy=False)
@@ -200,7 +201,7 @@ def test_build_model_rejects_bad_input() -> None:
 
 
 def test_rays_and_projections_stay_float32_under_bf16_autocast() -> None:
-    from spikenerf.scenes.trajectory import project_points
+    from spikenerf.scenes.projection import project_points
 
     k = Intrinsics.from_fov(400, 400, 0.87)
     gen = torch.Generator().manual_seed(0)
@@ -224,7 +225,7 @@ class _Numpy2Array(np.ndarray):
 def test_projection_of_numpy_arrays_with_a_device_attribute_stays_numpy() -> None:
     """numpy ≥ 2 arrays have ``.device``: projecting them must not take the torch branch (it did, and
     spike-integral's set-up failed under numpy 2 with "'str' object has no attribute 'type'")."""
-    from spikenerf.scenes.trajectory import project_points
+    from spikenerf.scenes.projection import project_points
 
     k = Intrinsics.from_fov(32, 32, 0.87)
     poses = np.stack([look_at([4.0, 0.1 * i, 1.5], [0.0, 0.0, 0.0]) for i in range(8)])

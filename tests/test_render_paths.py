@@ -12,14 +12,13 @@ import pytest
 
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import read_camera_path
-from spikenerf.scenes.trajectory import (
+from spikenerf.scenes.poses import interpolate_poses, look_at
+from spikenerf.scenes.render_paths import (
     GENERATED_PATHS,
     RENDER_PATHS,
     SPIRAL_PERCENTILE,
     catmull_rom,
-    interpolate_poses,
     key_path,
-    look_at,
     mean_pose,
     path_keys,
     spiral_focus,
@@ -66,7 +65,8 @@ def test_mean_pose_is_the_average_position_and_the_middle_rotation() -> None:
 
 
 def test_view_agreement_tells_forward_facing_cameras_from_an_orbit() -> None:
-    from spikenerf.scenes.trajectory import FORWARD_FACING, orbit, view_agreement
+    from spikenerf.scenes.render_paths import FORWARD_FACING, view_agreement
+    from spikenerf.scenes.trajectory import orbit
 
     assert view_agreement(_forward_facing()) > 0.95
     around = orbit(4.0, 30.0, turns=1.0, duration=0.025).poses

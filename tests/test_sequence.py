@@ -18,19 +18,14 @@ from spikenerf.core.errors import InputError, parse_range
 from spikenerf.core.png16 import decode_png16
 from spikenerf.scenes.distortion import Distortion
 from spikenerf.scenes.image_io import read_image, resample
+from spikenerf.scenes.poses import interpolate_poses, matrix_to_quaternion, quaternion_to_matrix, slerp
 from spikenerf.scenes.sequence import (
     OPEN_END,
     SequenceSource,
     estimate_scene_box,
     step_schedule,
 )
-from spikenerf.scenes.trajectory import (
-    interpolate_poses,
-    matrix_to_quaternion,
-    orbit,
-    quaternion_to_matrix,
-    slerp,
-)
+from spikenerf.scenes.trajectory import orbit
 
 N, SIZE, ANGLE = 6, 8, 0.6
 

@@ -26,7 +26,11 @@ MODULES = [
     "spikenerf.camera.layout",
     "spikenerf.core.ply",
     "spikenerf.eval.export",
+    "spikenerf.eval.piqe",
     "spikenerf.eval.recon_scores",
+    # the modules split out of scenes/trajectory.py and train/trainer.py (and what is left of those two)
+    *(f"spikenerf.scenes.{m}" for m in ("trajectory", "poses", "render_paths", "projection")),
+    *(f"spikenerf.train.{m}" for m in ("trainer", "loop", "preflight", "resume", "optimizer")),
 ]
 
 

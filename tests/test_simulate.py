@@ -32,8 +32,9 @@ from spikenerf.scenes.analytic import (
     camera_directions,
     render_primitives,
 )
+from spikenerf.scenes.poses import look_at, pose_at
 from spikenerf.scenes.registry import list_scenes, make_scene_source
-from spikenerf.scenes.trajectory import Intrinsics, look_at, novel_views, orbit, pose_at
+from spikenerf.scenes.trajectory import Intrinsics, novel_views, orbit
 
 WHITE = Texture("solid", (1.0, 1.0, 1.0))
 

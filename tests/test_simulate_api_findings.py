@@ -16,8 +16,9 @@ from spikenerf.camera.noise import RealisticNoise
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import NO_LIMITS_ENV
 from spikenerf.scenes.analytic import AnalyticSource
+from spikenerf.scenes.poses import look_at
 from spikenerf.scenes.registry import make_scene_source
-from spikenerf.scenes.trajectory import MAX_LENGTH, ORBIT_RADIUS, Trajectory, look_at, novel_views, orbit
+from spikenerf.scenes.trajectory import MAX_LENGTH, ORBIT_RADIUS, Trajectory, novel_views, orbit
 from spikenerf.scenes.transforms import read_transforms
 
 NAN, INF = math.nan, math.inf

@@ -19,7 +19,8 @@ from spikenerf.fields import grid as grid_module
 from spikenerf.render import build_model
 from spikenerf.render.grid_model import MARCH_SLOTS, compact_slots
 from spikenerf.render.model import ray_bounds
-from spikenerf.scenes.trajectory import Intrinsics, look_at
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics
 
 dataset_dir = test_train.dataset_dir  # the module's fixture: a 16×16 simulated dataset
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

@@ -30,7 +30,8 @@ def test_a_render_without_gradient_does_not_import_dynamo() -> None:
         from spikenerf.fields import GridFieldConfig
         from spikenerf.fields.vm_kernel import usable
         from spikenerf.render import build_model, render_image
-        from spikenerf.scenes.trajectory import Intrinsics, look_at
+        from spikenerf.scenes.poses import look_at
+        from spikenerf.scenes.trajectory import Intrinsics
         box = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
         cfg = GridFieldConfig(n_voxels_init=16**3, n_voxels_final=16**3, occupancy=False)
         model = build_model("grid", 1, box, cfg)

@@ -525,16 +525,16 @@ def test_a_resume_may_choose_other_kernels_but_not_another_model(tmp_path: Path)
     """lookup, composite and march choose how the same model is computed: a run trained with Triton kernels
     on a GPU resumes with the torch ones elsewhere (given again), keeps its choice when not given, and any
     other field option still has to match."""
-    from spikenerf.train.trainer import _check_resume
+    from spikenerf.train.resume import check_resume
 
     stored = TrainConfig(field_config={"march": "triton", "composite": "triton", "static_samples": 48})
     given = TrainConfig(field_config={"march": "torch", "static_samples": 48})
-    out = _check_resume(stored, given, tmp_path / "config.yaml")
+    out = check_resume(stored, given, tmp_path / "config.yaml")
     assert out.field_config == {"march": "torch", "composite": "triton", "static_samples": 48}
-    kept = _check_resume(stored, TrainConfig(field_config={"static_samples": 48}), tmp_path / "config.yaml")
+    kept = check_resume(stored, TrainConfig(field_config={"static_samples": 48}), tmp_path / "config.yaml")
     assert kept.field_config == stored.field_config
     with pytest.raises(InputError, match="different options"):
-        _check_resume(stored, TrainConfig(field_config={"march": "torch", "static_samples": 64}), tmp_path)
+        check_resume(stored, TrainConfig(field_config={"march": "torch", "static_samples": 64}), tmp_path)
 
 
 def test_a_resume_ignores_what_the_method_does_not_read(dataset_dir: Path, dataset, tmp_path: Path) -> None:

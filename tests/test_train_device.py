@@ -17,7 +17,7 @@ from spikenerf.core.limits import NO_LIMITS_ENV
 from spikenerf.data.targets import ImageTargets, SpikeTargets
 from spikenerf.train.device import batch_bytes, check_batch_fits, keep_targets_on_device, resident_names
 from spikenerf.train.methods import make_method
-from spikenerf.train.trainer import check_step_memory, gpu_default_batch, model_config
+from spikenerf.train.preflight import check_step_memory, gpu_default_batch, model_config
 
 dataset_dir, dataset = test_train.dataset_dir, test_train.dataset  # the module's fixtures
 CUDA = torch.device("cuda")  # only its name is used with a fake free-memory value: no CUDA call is made

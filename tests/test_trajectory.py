@@ -10,7 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spikenerf.core.errors import InputError
-from spikenerf.scenes.trajectory import Intrinsics, image_motion, look_at, novel_views, orbit
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.projection import image_motion
+from spikenerf.scenes.trajectory import Intrinsics, novel_views, orbit
 
 
 def _project(c2w: np.ndarray, k: Intrinsics, point: np.ndarray) -> tuple[float, float]:

@@ -26,7 +26,8 @@ from spikenerf.core.device import resolve_device
 from spikenerf.render import build_model
 from spikenerf.train.compiled_optim import CompiledAdamStep, set_lr
 from spikenerf.train.config import TrainConfig
-from spikenerf.train.trainer import make_optimizer, model_config
+from spikenerf.train.optimizer import make_optimizer
+from spikenerf.train.preflight import model_config
 
 
 def _sync(device: torch.device) -> None:

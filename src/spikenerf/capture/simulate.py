@@ -43,7 +43,8 @@ from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import MODES, near_far, spike_files
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
 from spikenerf.scenes.base import FrameSource
-from spikenerf.scenes.trajectory import Trajectory, check_trajectory, pose_at
+from spikenerf.scenes.poses import pose_at
+from spikenerf.scenes.trajectory import Trajectory, check_trajectory
 
 #: spike steps buffered per colour mode before they are appended to the .dat files
 SPIKE_CHUNK = 64

@@ -40,7 +40,7 @@ def check_orbit_frames(trajectory: str) -> None:
     (``render``, ``export``: test views and files bring their own poses)."""
     from click.core import ParameterSource
 
-    from spikenerf.scenes.trajectory import GENERATED_PATHS
+    from spikenerf.scenes.render_paths import GENERATED_PATHS
 
     given = click.get_current_context().get_parameter_source
     if trajectory not in GENERATED_PATHS and given("orbit_frames") is ParameterSource.COMMANDLINE:

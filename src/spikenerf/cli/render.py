@@ -62,7 +62,7 @@ def command(
 ) -> None:
     from spikenerf.core.errors import InputError
     from spikenerf.eval.video import render_run
-    from spikenerf.scenes.trajectory import GENERATED_PATHS
+    from spikenerf.scenes.render_paths import GENERATED_PATHS
 
     generated = "/".join(GENERATED_PATHS)
     if spike_steps is not None and not (spikes and trajectory in GENERATED_PATHS):

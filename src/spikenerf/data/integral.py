@@ -26,7 +26,8 @@ from torch import Tensor
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.core.errors import InputError
 from spikenerf.data.samplers import SeededSampler
-from spikenerf.scenes.trajectory import Intrinsics, project_points
+from spikenerf.scenes.projection import project_points
+from spikenerf.scenes.trajectory import Intrinsics
 
 #: :attr:`CountTargets.phase` counts a spike's light in 1/256
 PHASE_SCALE = 256

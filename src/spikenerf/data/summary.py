@@ -31,7 +31,7 @@ from spikenerf.data.dataset import (
     spike_files,
 )
 from spikenerf.data.reconstruction import frame_at
-from spikenerf.scenes.trajectory import image_motion
+from spikenerf.scenes.projection import image_motion
 from spikenerf.scenes.transforms import number, read_transforms
 
 PREVIEW = "preview.png"

@@ -50,7 +50,8 @@ from spikenerf.eval.video import DEFAULT_ORBIT_FRAMES, RenderPath, refined_poses
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.geometry import density_grid, lattice_axes, surface_colors, view_points
 from spikenerf.render.inference import inference_chunk, resolve_precision
-from spikenerf.scenes.trajectory import GENERATED_PATHS, ORBIT_STEP_BYTES
+from spikenerf.scenes.render_paths import GENERATED_PATHS
+from spikenerf.scenes.trajectory import ORBIT_STEP_BYTES
 from spikenerf.train.run import open_run
 
 INSTALL_HINT = "kind mesh needs scikit-image (marching cubes): pip install 'spikenerf[mesh]'"

@@ -59,18 +59,17 @@ from spikenerf.eval.render_record import read_render_record
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.render.model import render_image
 from spikenerf.render.spiking import iter_spike_states
-from spikenerf.scenes.trajectory import (
+from spikenerf.scenes.render_paths import (
     FORWARD_FACING,
     GENERATED_PATHS,
     INTERPOLATE_KEYS,
     RENDER_PATHS,
-    Intrinsics,
     key_path,
-    orbit,
     path_keys,
     spiral_path,
     view_agreement,
 )
+from spikenerf.scenes.trajectory import Intrinsics, orbit
 from spikenerf.train.pose_refine import refined_dataset, refined_views
 from spikenerf.train.run import open_run
 
@@ -137,8 +136,8 @@ def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
 
 def spiral_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
     """(count, 4, 4) poses of a spiral around the mean training camera, looking at a focus depth from the
-    dataset's near/far (:func:`spikenerf.scenes.trajectory.spiral_path`). A warning where the training
-    cameras look around an object (:func:`~spikenerf.scenes.trajectory.view_agreement` below
+    dataset's near/far (:func:`spikenerf.scenes.render_paths.spiral_path`). A warning where the training
+    cameras look around an object (:func:`~spikenerf.scenes.render_paths.view_agreement` below
     ``FORWARD_FACING``): the spiral is for forward-facing captures."""
     if (agree := view_agreement(dataset.trajectory.poses)) < FORWARD_FACING:
         warnings.warn(
@@ -153,7 +152,7 @@ def spiral_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
 def interpolated_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
     """(count, 4, 4) poses of a smooth path through :data:`INTERPOLATE_KEYS` training poses spread over the
     training path in time order (slerped rotations, Catmull-Rom positions:
-    :func:`spikenerf.scenes.trajectory.key_path`)."""
+    :func:`spikenerf.scenes.render_paths.key_path`)."""
     return key_path(path_keys(dataset.trajectory.poses, INTERPOLATE_KEYS), count)
 
 

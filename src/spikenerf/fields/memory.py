@@ -1,7 +1,7 @@
 """Device-memory estimates of a field's rays: the bytes one ray's samples take through the network.
 
 Used to size render chunks from the free GPU memory (``render.inference``) and to refuse, before training,
-a batch that cannot fit in it (``train.trainer``). An estimate, not a measurement: a grid ray is taken to
+a batch that cannot fit in it (``train.preflight``). An estimate, not a measurement: a grid ray is taken to
 cross the scene box side to side (a cube's mean chord is 2/3 of its side; occupancy skipping and colour
 culling usually keep fewer samples), and training keeps each layer's activations for the backward pass.
 """

@@ -10,7 +10,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from spikenerf.core.errors import InputError
-from spikenerf.scenes.trajectory import interpolate_poses
+from spikenerf.scenes.poses import interpolate_poses
 
 
 def per_step_poses(key_poses: np.ndarray, key_steps: np.ndarray, steps: np.ndarray) -> np.ndarray:

@@ -21,13 +21,13 @@ import numpy as np
 from spikenerf.core.errors import InputError
 from spikenerf.scenes import transforms
 from spikenerf.scenes.distortion import Distortion, colmap_camera
+from spikenerf.scenes.poses import quaternion_to_matrix
 from spikenerf.scenes.trajectory import (  # (the orbit's ranges: one definition, the library's)
     MAX_AZIMUTH,
     ORBIT_RADIUS,
     Intrinsics,
     orbit,
     orbit_angle_problem,
-    quaternion_to_matrix,
 )
 
 #: OpenCV camera axes (COLMAP: +X right, +Y down, +Z forward) → OpenGL (+Y up, looking down −Z)

@@ -24,7 +24,8 @@ from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.scenes import analytic
 from spikenerf.scenes.base import FrameSource
-from spikenerf.scenes.trajectory import Intrinsics, look_at
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import Intrinsics
 
 MOTIONS = ("still", "orbit", "pan")
 KINDS = ("solid", "checker", "stripes", "rings")

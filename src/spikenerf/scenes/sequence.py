@@ -21,7 +21,8 @@ from spikenerf.core.errors import InputError, is_finite, is_integer, parse_range
 from spikenerf.core.limits import check_memory
 from spikenerf.scenes import transforms
 from spikenerf.scenes.image_io import find_image, image_size, load_frame
-from spikenerf.scenes.trajectory import Intrinsics, Trajectory, interpolate_poses
+from spikenerf.scenes.poses import interpolate_poses
+from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 #: the stop of an open range ``(A, OPEN_END)`` (Python slices clamp it to the number of frames).
 OPEN_END = sys.maxsize

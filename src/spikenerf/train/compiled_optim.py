@@ -6,7 +6,7 @@ microseconds of Python around it every step. :class:`CompiledAdamStep` runs ``op
 every parameter into a few kernels and the Python runs once, at tracing.
 
 - The learning rates are 0-dim CPU tensors (:func:`use_tensor_lr`), changed in place by the schedule
-  (``trainer.set_learning_rate``), so the decay does not recompile: a float rate is a constant of the graph.
+  (``optimizer.set_learning_rate``), so the decay does not recompile: a float rate is a constant of the graph.
 - A new optimiser (after the grid's upsampling replaces the parameters) gets a new wrapper; its graph is a
   recompile of the same code, the changed sizes traced as symbols from the second one on (Dynamo's automatic
   dynamic shapes), so a run compiles two or three times.

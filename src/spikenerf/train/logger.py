@@ -1,5 +1,6 @@
 """Training logs: loss terms, λ, learning rates, rays/s and PSNR, to ``curves.csv`` and, with
-``log="tensorboard"``, to TensorBoard event files in ``RUN/tensorboard/`` (``tensorboard --logdir RUN``).
+``log="tensorboard"``, to TensorBoard event files in ``RUN/tensorboard/`` (``tensorboard --logdir RUN``);
+the run's warning lines on stderr (:func:`warn`).
 
 Per-step values stay on the training device as running sums (:class:`RunningMeans`); they are read, with
 one device synchronisation, only every ``log_every`` steps and at each evaluation.
@@ -8,6 +9,7 @@ one device synchronisation, only every ``log_every`` steps and at each evaluatio
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -99,3 +101,8 @@ def step_scalars(
         out[f"lr/{group.get('name', i)}"] = float(group["lr"])
     out["rays_per_s"] = rays_per_second
     return out
+
+
+def warn(message: str) -> None:
+    """One warning line on stderr (``spikenerf: warning: ...``)."""
+    print(f"spikenerf: warning: {message}", file=sys.stderr)

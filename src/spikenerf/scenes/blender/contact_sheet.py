@@ -16,7 +16,8 @@ from spikenerf.core.atomic import atomic_path
 from spikenerf.core.color import display_uint8, srgb_encode
 from spikenerf.scenes.blender.catalog import BUILTIN_SCENES, DEFAULT_CAMERA_ANGLE_X, default_orbit_radius
 from spikenerf.scenes.blender.source import BlenderSource, scene_extent
-from spikenerf.scenes.trajectory import look_at, orbit
+from spikenerf.scenes.poses import look_at
+from spikenerf.scenes.trajectory import orbit
 
 
 def scene_frame(

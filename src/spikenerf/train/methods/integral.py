@@ -19,7 +19,7 @@ from spikenerf.data.holdout import checked
 from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.targets import load_stream, stream_targets
-from spikenerf.scenes.trajectory import image_motion
+from spikenerf.scenes.projection import image_motion
 from spikenerf.train.losses import window_mean_loss
 from spikenerf.train.methods.base import Config, StepLosses, Term, TrainMethod, TrainState
 from spikenerf.train.settings import (
@@ -41,7 +41,7 @@ def default_window(motion: float, samples: int = 1) -> int:
     :data:`INTEGRAL_SHORTEST` steps nor fewer than ``samples`` (the renders a window needs).
 
     Args:
-        motion: pixels the image moves a step (``scenes.trajectory.image_motion``); NaN or ≤ 0: unknown,
+        motion: pixels the image moves a step (``scenes.projection.image_motion``); NaN or ≤ 0: unknown,
             the longest window.
         samples: ``integral.samples``, the renders drawn in each window (the window is never shorter).
     """
