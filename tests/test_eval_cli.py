@@ -449,6 +449,10 @@ def test_info_lines_of_a_metrics_file_say_what_was_scored(tmp_path: Path) -> Non
         "no-reference at 2 check steps (trained on: they measure fit, not generalisation)"
     )
     assert "mean 0.5000 φ" in lines[2] and len(lines) == 3
+    assert "PIQE" not in lines[2]  # a file written before the checks had PIQE: shown as before
+    result["no_reference"]["mean"] = {**checks, "piqe_render": 71.3, "piqe_recon": None}
+    path.write_text(json.dumps(result))
+    assert metrics_lines(path, 80)[2].endswith("; PIQE 71.3 (reconstruction: n/a; 0-100, higher is worse)")
     train = tmp_path / "metrics_train.json"  # no views: the checks alone, named by their file
     train.write_text(json.dumps({**result, "views": 0, "test_pose_optimised": None, "iterations": 80}))
     assert [line.split(":")[0] for line in metrics_lines(train, 80)] == ["metrics_train.json"]

@@ -20,6 +20,7 @@ from spikenerf.data.targets import window_steps
 from spikenerf.eval import noref
 from spikenerf.eval.evaluate import display
 from spikenerf.eval.noref import NoRefOptions, check_steps, noref_metrics, wants_noref
+from spikenerf.eval.piqe import piqe
 from spikenerf.render import model_from_hparams
 from spikenerf.train.config import WINDOW_POSES
 from spikenerf.train.run import load_run
@@ -77,20 +78,38 @@ def test_eval_reports_no_reference_checks_on_imported_data_by_default(demo: Path
     assert json.loads((run / "holdout.json").read_text())["check_steps"] == [20, 40, 60]
     assert [r["step"] for r in nr["per_step"]] == [20, 40, 60]
     assert (nr["spike_window"], nr["spike_pixels"]) == (8, 64)
-    assert nr["image_score"] is None and "piq" in nr["image_score_reason"]
+    score = nr["image_score"]
+    assert score["name"] == "PIQE" and score["higher_is_worse"] is True and nr["image_score_reason"] is None
     m = nr["mean"]
     assert 0 < m["mask_fraction"] <= 1 and 10 < m["masked_psnr"] < 60 and 0 < m["masked_ssim"] <= 1
     for key in ("interval_violation_rate", "recon_interval_violation_rate"):
         assert 0 <= m[key] <= 1
+    for key in (score["render"], score["reconstruction"]):  # piqe_render, piqe_recon: per step and mean
+        per_step = [r[key] for r in nr["per_step"]]
+        assert all(isinstance(v, float) and 0 <= v <= 100 for v in per_step), (key, per_step)
+        assert m[key] == pytest.approx(np.mean(per_step))
+    assert f"PIQE {m['piqe_render']:.1f} (reconstruction: {m['piqe_recon']:.1f}; 0-100" in out
     code, out, _ = run_cli(capsys, "info", run)
     assert (
         code == 0
         and f"no-reference at 3 check steps (held out): masked PSNR {m['masked_psnr']:.2f} dB" in out
+        and f"PIQE {m['piqe_render']:.1f} (reconstruction" in out
     )
     code, out, err = run_cli(capsys, "eval", run, "--device", "cpu", "--lpips", "none", "--noref", "off",
                              "--quiet")  # fmt: skip
     assert code == 0 and "no-reference" not in out
     assert json.loads((run / "metrics.json").read_text())["no_reference"] is None
+
+
+def test_the_image_score_of_a_displayed_image() -> None:
+    """``piqe_score`` takes eval's displayed (C, H, W) images: grey (1, H, W) as (H, W), RGB as (H, W, 3);
+    None where PIQE has no whole block or the render is not finite (as the other scores)."""
+    rgb = torch.rand(3, 24, 40, generator=torch.Generator().manual_seed(0))
+    assert noref.piqe_score(rgb) == piqe(rgb.numpy().transpose(1, 2, 0)).score
+    assert noref.piqe_score(rgb[:1]) == piqe(rgb[0].numpy()).score != noref.piqe_score(rgb)
+    assert noref.piqe_score(rgb[:, :15]) is None and "16 px" in noref.SMALL_IMAGE_REASON
+    rgb[1, 3, 3] = float("nan")
+    assert noref.piqe_score(rgb) is None
 
 
 def _spy_renders(monkeypatch) -> list[np.ndarray]:  # type: ignore[no-untyped-def]
@@ -204,6 +223,7 @@ def test_a_good_model_scores_better_than_broken_ones(demo: Path) -> None:
         assert good["interval_violation_mean"] < bad["interval_violation_mean"], (name, good, bad)
         # the reference (the reconstruction held over the window) does not depend on the model
         assert good["recon_interval_violation_rate"] == bad["recon_interval_violation_rate"]
+        assert good["piqe_recon"] == bad["piqe_recon"]
 
 
 def test_masked_scores_render_what_the_run_was_trained_to_match(demo: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]

@@ -39,7 +39,7 @@ PARAM_FLAGS = {"steps": "--noref-steps"}
 @click.option(
     "--noref", type=click.Choice(NOREF_MODES), default="auto", show_default=True,
     help="No-reference checks against the recording itself (masked PSNR/SSIM against the run's "
-    "reconstructions, spike interval-violation rate); auto = on for imported datasets.",
+    "reconstructions, spike interval-violation rate, PIQE image score); auto = on for imported datasets.",
 )  # fmt: skip
 @click.option(
     "--noref-steps", type=COUNT, default=8, show_default=True,

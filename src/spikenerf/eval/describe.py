@@ -43,8 +43,8 @@ def pose_fit_line(result: dict) -> str | None:
 
 def noref_line(result: dict) -> str | None:
     """The no-reference checks (``eval --noref``): where they were scored (held out or trained on), the
-    masked scores against the reconstructions and the interval violations in units of the threshold φ; None
-    where eval did not run them."""
+    masked scores against the reconstructions, the interval violations in units of the threshold φ and the
+    PIQE image score (where metrics.json has it); None where eval did not run them."""
     nr = result.get("no_reference")
     if not isinstance(nr, dict) or not isinstance(nr.get("mean"), dict):
         return None
@@ -59,13 +59,19 @@ def noref_line(result: dict) -> str | None:
             f" (held out, but their {nr.get('spike_window')}-step spike windows reach past ±"
             f"{nr.get('guard_radius')} into trained steps)"
         )
-    return (
+    line = (
         f"no-reference{at}{seen}: masked PSNR {number(m.get('masked_psnr'), 2)} dB, masked SSIM "
         f"{number(m.get('masked_ssim'), 4)} vs the reconstructions; interval violations "
         f"{number(m.get('interval_violation_rate'), 4)} of windows, mean "
         f"{number(m.get('interval_violation_mean'), 4)} φ (reconstruction held: "
         f"{number(m.get('recon_interval_violation_rate'), 4)})"
     )
+    if "piqe_render" in m:  # (metrics.json written before PIQE has no such key)
+        line += (
+            f"; PIQE {number(m.get('piqe_render'), 1)} (reconstruction: {number(m.get('piqe_recon'), 1)}; "
+            "0-100, higher is worse)"
+        )
+    return line
 
 
 def per_view(result: dict) -> str:

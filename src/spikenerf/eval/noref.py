@@ -14,6 +14,9 @@ steps) the model is scored against the recorded spike stream alone (docs/metrics
   constraint (:func:`spikenerf.train.losses.spike_interval_violation`, whole windows) — and the **mean
   violation** in units of φ. The same numbers for ``Î_k`` held constant over the window are given as a
   reference point.
+* **PIQE** (:mod:`spikenerf.eval.piqe`), a no-reference image score that needs no trained weights, of the
+  same displayed render (``piqe_render``) and, as a reference point again, of ``Î_k`` (``piqe_recon``):
+  0…100, higher = worse; it judges how natural one image looks, not whether it matches the recording.
 
 A run trained with the hold-out (``train --holdout``, on by default for imported datasets) never saw the
 check steps: training drew no image target and no spike window within its guard band of them
@@ -42,17 +45,29 @@ from spikenerf.data.holdout import check_steps, is_imported
 from spikenerf.data.targets import reconstruct_stream, stream_mode, window_steps
 from spikenerf.eval.choices import NOREF_MODES
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
+from spikenerf.eval.piqe import BLOCK, piqe
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.model import render_mean
 from spikenerf.render.spiking import render_spike_window
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.losses import spike_interval_violation
 
-#: why no no-reference image score (BRISQUE, NIQE…) is reported; see docs/metrics.md
-IMAGE_SCORE_REASON = (
-    "not computed: the learned no-reference scores download weights at run time (piq's BRISQUE its SVR "
-    "weights; pyiqa's NIQE/BRISQUE theirs), and PIQE, which needs none, is not implemented here yet"
+#: why the image score is null, where it is (PIQE scores whole 16 × 16 blocks)
+SMALL_IMAGE_REASON = (
+    f"not computed: the images are under {BLOCK} px a side (PIQE scores {BLOCK}x{BLOCK} blocks)"
 )
+
+
+def image_score_info() -> dict[str, Any]:
+    """The ``image_score`` entry of the checks: the score's name, the per-step (and ``mean``) keys that
+    hold it for the render and the reconstruction, its range and its direction (docs/metrics.md)."""
+    return {
+        "name": "PIQE",
+        "render": "piqe_render",
+        "reconstruction": "piqe_recon",
+        "range": [0, 100],
+        "higher_is_worse": True,
+    }
 
 
 @dataclass(frozen=True)
@@ -146,6 +161,14 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def piqe_score(image: torch.Tensor) -> float | None:
+    """The PIQE score of a displayed image (C, H, W), C = 1 or 3; None under 16 px a side or where the image
+    is not finite (a NaN in the render, which PSNR also reports as None)."""
+    if min(image.shape[-2:]) < BLOCK or not bool(torch.isfinite(image).all()):
+        return None
+    return _finite(piqe(image[0] if image.shape[0] == 1 else to_channels_last(image, frame=True)).score)
+
+
 def score_step(
     model: RadianceModel,
     config: TrainConfig,
@@ -187,6 +210,7 @@ def score_step(
     }
     row["masked_psnr"] = _finite(float(psnr(pred, target, mask=m)))
     row["masked_ssim"] = _finite(float(ssim(pred, target, mask=m))) if side else None
+    row["piqe_render"], row["piqe_recon"] = piqe_score(pred), piqe_score(target)
     recorded = _channels_last(raw[start - lo : start - lo + length])[:, pixels[:, 1], pixels[:, 0]].float()
     rendered = _render_window(model, dataset, start, length, pixels, chunk)
     held = recon[pixels[:, 1], pixels[:, 0]].float().expand(length, -1, -1)
@@ -222,6 +246,7 @@ def noref_metrics(
         if len(steps) == 0 or steps.min() < 0 or steps.max() >= total:
             raise InputError(f"the run's held-out steps lie outside the {total}-step stream", dataset.root)
     k = dataset.intrinsics
+    small = min(k.height, k.width) < BLOCK
     rows, pixels = [], torch.zeros(0, 2)
     with torch.no_grad():
         for i, step in enumerate(progress(steps)):
@@ -241,6 +266,6 @@ def noref_metrics(
         "spike_pixels": len(pixels),
         "mean": mean,
         "per_step": rows,
-        "image_score": None,
-        "image_score_reason": IMAGE_SCORE_REASON,
+        "image_score": image_score_info(),
+        "image_score_reason": SMALL_IMAGE_REASON if small else None,
     }
