@@ -249,3 +249,36 @@ def test_a_distorted_simulation_is_stored_read_and_cast_through_its_lens(capsys,
     np.testing.assert_allclose(dirs.numpy().reshape(12, 16, 3), want, atol=1e-9)
     code, text, err = run_cli(capsys, "info", out)
     assert code == 0 and "lens: OPENCV k1=-0.2 k2=0.03 p1=0.001" in text, err
+
+
+def test_the_field_of_view_is_the_lens_one() -> None:
+    """``view_angle_x``: what the image sees through its lens (an equidistant fisheye: width / focal); the
+    pinhole's ``camera_angle_x`` under a fisheye undercounts it (100° of 137.5° here)."""
+    pinhole = Intrinsics(24, 8, 10.0, 10.0, 12.0, 4.0)
+    assert pinhole.view_angle_x == pinhole.camera_angle_x
+    fisheye = replace(pinhole, distortion=Distortion("OPENCV_FISHEYE"))
+    assert fisheye.view_angle_x == pytest.approx(24 / 10.0, abs=1e-12)
+    assert math.degrees(fisheye.camera_angle_x) == pytest.approx(100.39, abs=0.01)
+    barrel = replace(pinhole, distortion=Distortion(k1=-0.05))
+    assert pinhole.camera_angle_x < barrel.view_angle_x < fisheye.view_angle_x
+
+
+def test_an_import_without_a_box_sizes_the_scene_with_the_lens_field_of_view(capsys, tmp_path: Path) -> None:
+    """Cameras alone size the scene from their view frustum at the focus: through the lens (a fisheye's
+    137.5°), not the pinhole's 100° (a box 2.1 times too small: the scene beyond it never rendered)."""
+    from spikenerf.camera.io import write_dat
+
+    rec = tmp_path / "rec" / "s.dat"
+    write_dat(rec, (np.random.default_rng(0).random((40, 8, 24)) < 0.3).astype(np.uint8))
+    (rec.parent / "config.yaml").write_text("spike_h: 8\nspike_w: 24\nfps: 40000\n")
+    truth = orbit(4.0, 30.0, duration=40 / 40000, fps=40000).poses  # radius 4 about the origin
+    frames = [{"step": s, "transform_matrix": truth[s].tolist()} for s in range(0, 40, 8)]
+    camera = {"w": 24, "h": 8, "fl_x": 10.0, "cx": 12.0, "cy": 4.0, "camera_model": "OPENCV_FISHEYE"}
+    (tmp_path / "p.json").write_text(json.dumps({**camera, "frames": frames}))  # no scene box, no points
+    code, _, err = run_cli(capsys, "import", rec, "--poses", tmp_path / "p.json", "--out", tmp_path / "ds")
+    assert code == 0, err
+    ds = load_dataset(tmp_path / "ds")
+    distance = np.linalg.norm(ds.trajectory.poses[::8, :3, 3], axis=-1)  # the given poses, from the focus
+    np.testing.assert_allclose(distance, 1 / math.tan(24 / 10.0 / 2), rtol=1e-5)  # half of w / f
+    code, text, _ = run_cli(capsys, "info", tmp_path / "ds")
+    assert code == 0 and "fov: 137.5° (through the lens)   lens: OPENCV_FISHEYE" in text, text

@@ -263,3 +263,49 @@ def test_write_video_streams_rgb_and_refuses_bad_frames_writing_nothing(tmp_path
     with pytest.raises(InputError, match="fps must lie in"):
         write_video(tmp_path / "bad.mp4", frames(), 0.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.mp4"]
+
+
+def test_tfi_at_a_stride_computes_only_the_kept_frames(
+    capsys, recording: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """TFI's one block held every frame of its range as float32 whatever --stride (5 bytes a pixel a frame:
+    3000 frames of 250 × 400 at --stride 30 peaked at 1.5 GB); it now computes only the frames it keeps."""
+    import spikenerf.camera.reconstruct as rec
+
+    real, made = rec.tfi, []
+
+    def counted(*args, **kwargs):  # type: ignore[no-untyped-def]
+        out = real(*args, **kwargs)
+        made.append(len(out))
+        return out
+
+    monkeypatch.setattr(rec, "tfi", counted)
+    base = ["reconstruct", recording, "--method", "tfi", "--frames", "10:290"]
+    code, _, err = run_cli(capsys, *base, "--stride", 40, "--out", tmp_path / "v.mp4")
+    assert code == 0, err
+    assert made == [len(range(10, 290, 40))]
+    assert run_cli(capsys, *base, "--stride", 40, "--out", tmp_path / "k.npy")[0] == 0
+    np.testing.assert_allclose(
+        np.load(tmp_path / "k.npy"), real(_moving_stream(H, W, T))[10:290:40], atol=1e-6
+    )
+    with pytest.raises(InputError, match="step must be an integer") as err_info:
+        rec.reconstruct_frames(lambda a, b: np.zeros((b - a, 2, 2)), 9, 0, 9, "tfi", step=0)
+    assert err_info.value.params == ("step",)
+
+
+def test_tfi_refuses_a_range_that_does_not_fit_in_memory_in_one_line(
+    capsys, recording: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """TFI reads its whole range at once: a range beyond the memory was killed by the system mid-work."""
+    import spikenerf.core.limits as limits
+
+    monkeypatch.delenv(limits.NO_LIMITS_ENV, raising=False)
+    # every frame: H·W·(300 read + 300 kept · 4) = 1.5 MB; one in 50: H·W·(300 + 6 · 4) = 0.33 MB
+    monkeypatch.setattr(limits, "available_memory", lambda: 800_000)
+    out = tmp_path / "out" / "v.mp4"
+    code, _, err = run_cli(capsys, "reconstruct", recording, "--method", "tfi", "--out", out)
+    assert code == 2 and err.strip().count("\n") == 0, err
+    assert "--frames/--stride: this needs about 1.46 MiB of memory" in err and "--no-limits" in err, err
+    assert not out.parent.exists()
+    code, _, err = run_cli(capsys, "reconstruct", recording, "--method", "tfi", "--stride", 50, "--out", out)
+    assert code == 0 and len(_decode(out)[0]) == 6, err

@@ -223,21 +223,24 @@ def reconstruct_frames(
     method: str = "tfp",
     window: int = DEFAULT_WINDOW,
     threshold: float = 1.0,
+    step: int = 1,
 ) -> np.ndarray:
-    """Reconstruct frames ``start:stop`` of a long stream, reading only the frames the result depends on.
+    """Reconstruct frames ``start:stop:step`` of a long stream, reading only the frames the result depends on.
 
-    The result equals ``tfp/tfi(whole_stream)[start:stop]`` exactly. TFP reads the window margin
+    The result equals ``tfp/tfi(whole_stream)[start:stop:step]`` exactly; only those frames are computed
+    and held (TFI still reads every frame of the range, a byte a pixel each). TFP reads the window margin
     ``(window-1)/2`` on each side. TFI doubles a margin until every pixel has two spikes on each side of the
     range or the margin reaches the stream edge (a pixel that never fires makes TFI read the whole stream).
 
     Args:
         read: ``read(a, b)`` returns frames ``a:b`` of the stream, (b-a, ...) 0/1.
         total: T, the frames in the stream.
-        start, stop: the output frames, ``0 <= start < stop <= total``.
+        start, stop: the output frames, ``0 <= start < stop <= total``; step: keep every ``step``-th of
+            them (an integer ≥ 1).
         method: ``tfp`` or ``tfi``. window: TFP window, odd (TFI has none). threshold: φ (intensity =
             rate · φ).
     Returns:
-        float32 (stop-start, ...) linear intensity.
+        float32 (len(range(start, stop, step)), ...) linear intensity.
     """
     check_choice(method, METHODS, "method")
     whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (total, start, stop))
@@ -246,11 +249,13 @@ def reconstruct_frames(
             f"start, stop: need integers 0 <= start < stop <= total = {total}, found {start}, {stop}",
             param=("start", "stop"),
         )
+    if not (isinstance(step, (int, np.integer)) and not isinstance(step, bool) and step >= 1):
+        raise InputError(f"step must be an integer ≥ 1, found {step!r}", param="step")
     if method == "tfp":
         check_window(window)
         half = (window - 1) // 2
         lo, hi = max(0, start - half), min(total, stop + half)
-        return tfp(read(lo, hi), window, threshold, slice(start - lo, stop - lo))
+        return tfp(read(lo, hi), window, threshold, slice(start - lo, stop - lo, step))
     margin = 64
     while True:
         lo, hi = max(0, start - margin), min(total, stop - 1 + margin)
@@ -258,7 +263,7 @@ def reconstruct_frames(
         before = np.count_nonzero(sub[: start - lo], axis=0)
         after = np.count_nonzero(sub[stop - 1 - lo :], axis=0)
         if (lo == 0 or before.min() >= 2) and (hi == total or after.min() >= 2):
-            return tfi(sub, threshold, slice(start - lo, stop - lo))
+            return tfi(sub, threshold, slice(start - lo, stop - lo, step))
         margin *= 2
 
 

@@ -30,6 +30,9 @@ from spikenerf.data.reconstruction import RECONS
 BLOCK_FRAMES = 128
 #: the mp4's frame rate where --fps-video is not given (render's default too)
 DEFAULT_FPS_VIDEO = 30.0
+#: TFI's memory, which holds its whole range at once: bytes a pixel of each frame read (the unpacked spikes)
+#: and of each frame kept (its float32 result and the int32 scan state it overwrites)
+TFI_READ_BYTES, TFI_FRAME_BYTES = 1.0, 4.0
 
 
 #: value encodings of the outputs; the default is per file kind (.png → srgb, .npy → linear)
@@ -177,6 +180,7 @@ def command(
     overwrite: bool,
 ) -> None:
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
+    from spikenerf.camera.reconstruct import reconstruct_frames
     from spikenerf.cli.types import dat_recording, given_layout
     from spikenerf.core.progress import bar as progress_bar
     from spikenerf.data.reconstruction import reconstructor
@@ -235,6 +239,12 @@ def command(
             f"a .png holds one frame but {len(frames)} are selected; use --frame I, or --out a folder",
             path=out,
         )
+    if method == "tfi":  # one block: the whole range is read (a byte a pixel) and the kept frames held
+        from spikenerf.core.limits import check_memory
+
+        pixels = float(height) * float(width)
+        need = pixels * (len(span) * TFI_READ_BYTES + len(frames) * TFI_FRAME_BYTES)
+        check_memory(need, "frame_range/stride")
     if kind == "dir":
         check_out_dir(out)
     else:
@@ -245,15 +255,22 @@ def command(
     def read(a: int, b: int) -> np.ndarray:
         return read_dat(spikes, height, width, slice(a, b), layout, raw_width)
 
+    def reconstruct(block: range) -> np.ndarray:
+        """The frames of ``block`` (N, H, W): TFI computes only those (its one block spans the range)."""
+        if method == "tfi":
+            return reconstruct_frames(read, total, block.start, block[-1] + 1, "tfi", threshold=threshold,
+                                      step=block.step)  # fmt: skip
+        return recon(read, total, block.start, block[-1] + 1)[:: block.step]
+
     def images() -> Iterator[tuple[range, np.ndarray]]:
         for block in blocks(frames, method, window or DEFAULT_WINDOW):
             try:
-                image = recon(read, total, block.start, block[-1] + 1)
+                image = reconstruct(block)
             except InputError as err:  # about the stream (e.g. shorter than the network's window): name it
                 if err.path is not None:
                     raise
                 raise InputError(err.message, path=spikes, param=err.params) from None
-            yield block, image[:: block.step]
+            yield block, image
 
     bar = progress_bar(
         total=len(frames), unit="frame", desc=f"{method} {spikes.name}", show=len(frames) >= 32 and None

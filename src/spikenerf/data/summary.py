@@ -139,8 +139,8 @@ def describe(path: str | Path) -> str:
     lines = [
         f"dataset: {path}",
         f"scene: {cfg.get('scene', '?')}   resolution: {k.width}×{k.height}   "
-        f"fov: {math.degrees(k.camera_angle_x):.1f}°"
-        + (f"   lens: {k.distortion.describe()}" if k.distortion else ""),  # (the fov: the pinhole's)
+        f"fov: {math.degrees(k.view_angle_x):.1f}°"
+        + (f" (through the lens)   lens: {k.distortion.describe()}" if k.distortion else ""),
         f"steps: {n} at {traj.fps:g} Hz ({n / traj.fps * 1e3:.4g} ms)   threshold φ = {ds.threshold:g}"
         + "".join(f"   {key}: {cfg[key]}" for key in ("noise", "seed") if key in cfg),  # (simulated only)
         f"scene box: {ds.scene_box.tolist()}   near/far: {ds.near:.3g}/{ds.far:.3g}",

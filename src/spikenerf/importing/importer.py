@@ -459,7 +459,7 @@ def _write(
     scene_box = found.scene_box
     if scene_box is None and found.depth_bounds is not None:
         scene_box = frustum_box(found.poses, *found.depth_bounds)
-    norm = normalisation(found.poses, found.points, scene_box, k.camera_angle_x, opts.orient, found.focus)
+    norm = normalisation(found.poses, found.points, scene_box, k.view_angle_x, opts.orient, found.focus)
     poses = norm.poses(poses)
     box = np.array([[-1.0] * 3, [1.0] * 3])
     bounds = None if found.depth_bounds is None else tuple(d * norm.scale for d in found.depth_bounds)

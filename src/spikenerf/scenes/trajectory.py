@@ -61,8 +61,21 @@ class Intrinsics:
 
     @property
     def camera_angle_x(self) -> float:
-        """Horizontal field of view in radians."""
+        """Horizontal field of view in radians of the pinhole (the lens left out: the ``transforms.json`` key
+        that, with the width, gives ``fl_x``)."""
         return 2.0 * math.atan(0.5 * self.width / self.fl_x)
+
+    @property
+    def view_angle_x(self) -> float:
+        """Horizontal field of view in radians that the image sees through its lens: the angle between the
+        rays through the middles of its left and right edges (:attr:`camera_angle_x` for a pinhole; wider
+        for a barrel or fisheye lens)."""
+        if self.distortion is None:
+            return self.camera_angle_x
+        x, y = self.distortion.undistort(np.array([-self.cx, self.width - self.cx]) / self.fl_x, np.zeros(2))
+        rays = np.stack([x, y, np.ones(2)], axis=-1)  # (2, 3) left, right
+        cos = float(rays[0] @ rays[1]) / float(np.prod(np.linalg.norm(rays, axis=-1)))
+        return math.acos(min(1.0, max(-1.0, cos)))
 
     def scaled(self, width: int, height: int) -> Intrinsics:
         """The same camera resampled to ``width × height`` pixels."""
