@@ -22,9 +22,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.pipelines.benchmark.stats import t_interval
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.distortion import TERMS, Distortion
 from spikenerf.scenes.registry import DEFAULT_ELEVATION, DEFAULT_RADIUS
@@ -68,8 +68,8 @@ def test_psnr(run: Path) -> float:
 
 def interval(diff: np.ndarray) -> str:
     """Mean of ``diff`` (N,) with its 95% t interval (N ≥ 2)."""
-    half = stats.t.ppf(0.975, diff.size - 1) * diff.std(ddof=1) / np.sqrt(diff.size)
-    return f"{diff.mean():+.2f} [{diff.mean() - half:+.2f}, {diff.mean() + half:+.2f}]"
+    low, high = t_interval(diff.tolist())
+    return f"{diff.mean():+.2f} [{low:+.2f}, {high:+.2f}]"
 
 
 def main() -> None:
