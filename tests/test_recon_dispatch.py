@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from spikenerf.camera.reconstruct import tfi, tfp
+from spikenerf.camera.tfstp import tfstp
 from spikenerf.core.errors import InputError
 from spikenerf.data.reconstruction import RECONS, frame_at, reconstruct_stream, reconstructor
 
@@ -26,6 +27,9 @@ def test_every_form_equals_the_whole_stream_reconstruction(stream: np.ndarray) -
         np.testing.assert_array_equal(
             reconstructor("tfi", None, 2.0)(read, 90, start, stop), tfi(stream, 2.0)[start:stop]
         )
+        np.testing.assert_array_equal(
+            reconstructor("tfstp", None, 2.0)(read, 90, start, stop), tfstp(stream, 2.0)[start:stop]
+        )
     for k in (0, 7, 45, 89):
         np.testing.assert_array_equal(frame_at(stream, k, "tfp", 21, 0.5), tfp(stream, 21, 0.5, frames=k)[0])
         np.testing.assert_array_equal(frame_at(read, k, "tfi", total=90), tfi(stream)[k])
@@ -34,7 +38,8 @@ def test_every_form_equals_the_whole_stream_reconstruction(stream: np.ndarray) -
     np.testing.assert_array_equal(
         reconstruct_stream(stream, "tfi", frames=slice(3, 60, 4)), tfi(stream)[3:60:4]
     )
-    assert RECONS == ("tfp", "tfi", "learned")
+    np.testing.assert_array_equal(frame_at(read, 45, "tfstp", total=90), tfstp(stream)[45])
+    assert RECONS == ("tfp", "tfi", "tfstp", "learned")
 
 
 def test_the_learned_path_goes_through_the_same_dispatch(stream: np.ndarray) -> None:
@@ -47,7 +52,7 @@ def test_the_learned_path_goes_through_the_same_dispatch(stream: np.ndarray) -> 
 
 
 def test_bad_requests_are_input_errors(stream: np.ndarray) -> None:
-    with pytest.raises(InputError, match="recon must be one of tfp, tfi, learned, found 'tfx'"):
+    with pytest.raises(InputError, match="recon must be one of tfp, tfi, tfstp, learned, found 'tfx'"):
         reconstructor("tfx")
     with pytest.raises(InputError, match="recon must be one of"):
         reconstruct_stream(stream, "nope")

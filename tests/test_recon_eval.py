@@ -38,19 +38,20 @@ def test_scores_every_method_and_step(
     result = json.loads((out / "scores.json").read_text())
     steps = list(range(0, STEPS, GT_EVERY))
     assert result["steps"] == steps and result["color"] == "gray" and list(result["methods"]) == [
-        "tfp", "tfi", "learned"
+        "tfp", "tfi", "tfstp", "learned"
     ]  # fmt: skip
     assert [(r["method"], r["step"]) for r in result["rows"]] == [
-        (m, s) for m in ("tfp", "tfi", "learned") for s in steps
+        (m, s) for m in ("tfp", "tfi", "tfstp", "learned") for s in steps
     ]
     assert result["methods"]["tfp"]["window"] == WINDOW and result["methods"]["tfi"]["window"] is None
+    assert result["methods"]["tfstp"]["window"] is None
     for name, summary in result["methods"].items():  # the means are the plain means of the rows
         own = [r for r in result["rows"] if r["method"] == name]
         assert summary["mean"]["psnr"] == pytest.approx(np.mean([r["psnr"] for r in own]))
         assert summary["mean"]["lpips"] is None and all(r["lpips"] is None for r in own)
     with open(out / "scores.csv", newline="") as fh:
         table = list(csv.DictReader(fh))
-    assert len(table) == 3 * len(steps) and table[0]["lpips"] == ""
+    assert len(table) == 4 * len(steps) and table[0]["lpips"] == ""
     assert float(table[0]["psnr"]) == pytest.approx(result["rows"][0]["psnr"], rel=1e-5)
     assert json.loads((out / ".spikenerf").read_text())["kind"] == "scores"
     assert "tfp" in stdout and "learned" in stdout and "PSNR (dB)" in stdout

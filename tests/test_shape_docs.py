@@ -22,6 +22,8 @@ MODULES = [
         for m in pkgutil.iter_modules(pkg.__path__)
     ),
     "spikenerf.camera.reconstruct",
+    "spikenerf.camera.streams",
+    "spikenerf.camera.tfstp",
     "spikenerf.camera.masks",
     "spikenerf.camera.layout",
     "spikenerf.core.ply",

@@ -6,7 +6,8 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from spikenerf.camera.reconstruct import flat_stream, iter_window_counts, like
+from spikenerf.camera.reconstruct import iter_window_counts
+from spikenerf.camera.streams import flat_stream, like
 from spikenerf.core.errors import InputError, is_integer
 
 if TYPE_CHECKING:
@@ -22,7 +23,7 @@ def spike_masks(spikes: Array, n: int = 5, frames: slice | int | None = None) ->
 
     Args:
         spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0); any
-            other shape is an InputError (see :func:`~spikenerf.camera.reconstruct.flat_stream`).
+            other shape is an InputError (see :func:`~spikenerf.camera.streams.flat_stream`).
         n: the half window, ≥ 0 (n = 0 gives the single-frame masks).
         frames: the output frames (slice, index or None = all).
     Returns:

@@ -16,7 +16,7 @@ import torch
 
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.noise import NoiseProcess, RealisticNoise
-from spikenerf.camera.reconstruct import check_threshold
+from spikenerf.camera.streams import check_threshold
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError, check_choice, is_integer

@@ -1,4 +1,5 @@
-"""Image reconstruction from spike streams: TFP (texture from playback) and TFI (texture from interval).
+"""Image reconstruction from spike streams: TFP (texture from playback) and TFI (texture from interval); TFSTP
+(short-term plasticity) is in :mod:`spikenerf.camera.tfstp` and dispatched here.
 
 Both work on gray or Bayer streams (T, H, W) and per-channel streams (T, 3, H, W) (the camera layout; any
 other shape, such as one frame (H, W) or channels last (T, H, W, 3), is an InputError), given as numpy
@@ -11,25 +12,30 @@ Formulas and edge rules: docs/reconstruction.md.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, TypeVar, get_args
+from typing import Literal, get_args
 
 import numpy as np
 
-from spikenerf.camera.io import as_numpy, resolve_frames
-from spikenerf.core.color import is_tensor
-from spikenerf.core.errors import InputError, check_choice, is_integer, is_number
-
-if TYPE_CHECKING:
-    import torch
-
-Array = TypeVar("Array", np.ndarray, "torch.Tensor")
+from spikenerf.camera.streams import (
+    Array,
+    check_threshold,
+    first_two,
+    flat_stream,
+    like,
+    row_uint8,
+    spike_bytes,
+)
+from spikenerf.camera.tfstp import tfstp
+from spikenerf.core.errors import InputError, check_choice, is_integer
 
 #: image reconstructions from spikes
-ReconMethod = Literal["tfp", "tfi"]
+ReconMethod = Literal["tfp", "tfi", "tfstp"]
 METHODS: tuple[str, ...] = get_args(ReconMethod)
+#: the reconstructions without a window, which read out to the neighbouring spikes (TFSTP: from frame 0)
+#: and compute a range of frames in one call
+WINDOWLESS: tuple[str, ...] = ("tfi", "tfstp")
 
 
 def window_sum(
@@ -138,7 +144,7 @@ def tfi(spikes: Array, threshold: float = 1.0, frames: slice | int | None = None
     total = flat.shape[0]
     # Edge rules as virtual spikes: a virtual previous spike first − start_gap and a virtual next spike
     # last + end_gap make every interval a plain n − p (no masking in the per-frame arithmetic).
-    first, second = _first_two(flat)
+    first, second = first_two(flat)
     start_extra = np.where(second < total, np.maximum(second - 2 * first - 1, 0), 0).astype(np.int32)
     prev1, last, penult = _scan_prev(flat, out_idx, -start_extra)
     end_extra = np.where(penult >= 0, np.maximum(2 * last - penult - total, 0), 0).astype(np.int32)
@@ -146,23 +152,6 @@ def tfi(spikes: Array, threshold: float = 1.0, frames: slice | int | None = None
     numerator = np.where(first < total, np.float32(threshold), np.float32(0)).astype(np.float32)
     out = _scan_next_divide(flat, out_idx, -end_extra, prev1, numerator)
     return like(out.reshape(out_idx.size, *rest), spikes)
-
-
-def _first_two(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel, the first and second spike index (int32 (P,), T = none), by a backward scan.
-
-    Scans keep ``T − index`` (0 = none) and update with ``max(state, row · value)``: two cheap ufuncs per
-    frame, an order of magnitude faster than ``np.copyto(where=)``.
-    """
-    total = flat.shape[0]
-    first_r = np.zeros(flat.shape[1], np.int32)
-    second_r = first_r.copy()
-    tmp = np.empty_like(first_r)
-    for i in range(total - 1, -1, -1):
-        row = spike_bytes(flat[i])  # (checks a float stream's values: the one scan that reads every row)
-        np.maximum(second_r, np.multiply(row, first_r, out=tmp), out=second_r)
-        np.maximum(first_r, np.multiply(row, np.int32(total - i), out=tmp), out=first_r)
-    return total - first_r, total - second_r
 
 
 def _scan_prev(
@@ -184,7 +173,7 @@ def _scan_prev(
     for i in range(flat.shape[0]):
         if i in wanted:
             np.subtract(last1, offset, out=prev1[wanted[i]])
-        row = _row_uint8(flat[i])
+        row = row_uint8(flat[i])
         np.maximum(penult1, np.multiply(row, last1, out=tmp), out=penult1)
         np.maximum(last1, np.multiply(row, np.int32(i + 1) + offset, out=tmp), out=last1)
     last, penult = last1 - offset - 1, penult1 - offset - 1
@@ -204,7 +193,7 @@ def _scan_next_divide(
     tmp, delta = np.empty_like(first_r), np.empty_like(first_r)
     wanted = dict(zip(out_idx.tolist(), range(out_idx.size), strict=True))
     for i in range(total - 1, -1, -1):
-        row = _row_uint8(flat[i])
+        row = row_uint8(flat[i])
         np.maximum(first_r, np.multiply(row, np.int32(total - i) + offset, out=tmp), out=first_r)
         if i in wanted:
             j = wanted[i]
@@ -227,18 +216,19 @@ def reconstruct_frames(
 ) -> np.ndarray:
     """Reconstruct frames ``start:stop:step`` of a long stream, reading only the frames the result depends on.
 
-    The result equals ``tfp/tfi(whole_stream)[start:stop:step]`` exactly; only those frames are computed
-    and held (TFI still reads every frame of the range, a byte a pixel each). TFP reads the window margin
-    ``(window-1)/2`` on each side. TFI doubles a margin until every pixel has two spikes on each side of the
-    range or the margin reaches the stream edge (a pixel that never fires makes TFI read the whole stream).
+    The result equals ``tfp/tfi/tfstp(whole_stream)[start:stop:step]`` exactly; only those frames are
+    computed and held (TFI still reads every frame of the range, a byte a pixel each). TFP reads the window
+    margin ``(window-1)/2`` on each side. TFI doubles a margin until every pixel has two spikes on each side
+    of the range or the margin reaches the stream edge (a pixel that never fires makes TFI read the whole
+    stream). TFSTP reads from frame 0 (its state is the whole history) to the end margin TFI would read.
 
     Args:
         read: ``read(a, b)`` returns frames ``a:b`` of the stream, (b-a, ...) 0/1.
         total: T, the frames in the stream.
         start, stop: the output frames, ``0 <= start < stop <= total``; step: keep every ``step``-th of
             them (an integer ≥ 1).
-        method: ``tfp`` or ``tfi``. window: TFP window, odd (TFI has none). threshold: φ (intensity =
-            rate · φ).
+        method: ``tfp``, ``tfi`` or ``tfstp``. window: TFP window, odd (TFI, TFSTP have none).
+            threshold: φ (intensity = rate · φ).
     Returns:
         float32 (len(range(start, stop, step)), ...) linear intensity.
     """
@@ -257,69 +247,16 @@ def reconstruct_frames(
         lo, hi = max(0, start - half), min(total, stop + half)
         return tfp(read(lo, hi), window, threshold, slice(start - lo, stop - lo, step))
     margin = 64
-    while True:
-        lo, hi = max(0, start - margin), min(total, stop - 1 + margin)
+    while True:  # TFSTP's state carries the whole history: it always reads from frame 0
+        lo, hi = (0 if method == "tfstp" else max(0, start - margin)), min(total, stop - 1 + margin)
         sub = read(lo, hi)
         before = np.count_nonzero(sub[: start - lo], axis=0)
         after = np.count_nonzero(sub[stop - 1 - lo :], axis=0)
         if (lo == 0 or before.min() >= 2) and (hi == total or after.min() >= 2):
+            if method == "tfstp":
+                return tfstp(sub, threshold, slice(start, stop, step))
             return tfi(sub, threshold, slice(start - lo, stop - lo, step))
         margin *= 2
-
-
-def flat_stream(
-    spikes: np.ndarray | torch.Tensor, frames: slice | int | None
-) -> tuple[np.ndarray, tuple, np.ndarray]:
-    """(T, H, W) or (T, 3, H, W) spikes as a (T, P) numpy view, the trailing shape and the output frame
-    indices (ascending): the one check of a stream's shape for TFP, TFI and the masks.
-
-    InputError naming ``spikes`` for any other shape (one frame (H, W), channels last (T, H, W, 3)), and
-    ``frames`` for a bad selection. Values are checked where they are read (:func:`spike_bytes`: a float
-    stream must hold only 0.0 and 1.0; bool and integers are not checked, any non-zero is a spike).
-    """
-    x = as_numpy(spikes)
-    if not (x.ndim == 3 or (x.ndim == 4 and x.shape[1] == 3)):
-        hint = ""
-        if x.ndim == 2:
-            hint = " (one frame? add a time axis: spikes[None])"
-        elif x.ndim == 4 and x.shape[-1] in (1, 3):
-            hint = " (channels last? camera.layout.to_camera_layout converts it)"
-        raise InputError(
-            f"spikes must be (T, H, W) or (T, 3, H, W), found shape {x.shape}{hint}", param="spikes"
-        )
-    out_idx = np.asarray(resolve_frames(frames, x.shape[0]), dtype=np.int64)
-    return x.reshape(x.shape[0], int(np.prod(x.shape[1:]))), x.shape[1:], out_idx
-
-
-def spike_bytes(x: np.ndarray) -> np.ndarray:
-    """Spikes (...) of any shape as 0/1 uint8 (...) for counting (the one reading of a spike array's values,
-    for TFP, TFI, the masks and the learned reconstructor): bool is viewed, other dtypes become
-    ``x != 0``; InputError naming ``spikes`` when a float (or complex) array holds a value other than 0
-    and 1 (intensities are not spikes). The check costs one comparison more, on float input only (bool
-    and integers pass unchecked)."""
-    if x.dtype == np.bool_:
-        return x.view(np.uint8)
-    fired = x != 0
-    if x.dtype.kind in "fc" and not np.equal(fired, x).all():
-        bad = x[np.not_equal(fired, x)].flat[0].item()
-        raise InputError(
-            f"spikes must be 0/1 (bool, integers, or floats 0.0 and 1.0), found the float value {bad!r} "
-            "(intensities? simulate spikes with camera.model.simulate)",
-            param="spikes",
-        )
-    return fired.view(np.uint8)
-
-
-def _row_uint8(row: np.ndarray) -> np.ndarray:
-    return (row if row.dtype == np.bool_ else row != 0).view(np.uint8)
-
-
-def like(result: np.ndarray, spikes: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-    """``result`` (any shape (...)) as the array type of ``spikes``: a torch tensor on its device, or numpy
-    unchanged."""
-    if is_tensor(spikes):
-        return sys.modules["torch"].from_numpy(result).to(spikes.device)
-    return result
 
 
 def check_window(window: object, param: str = "window", least: int = 1, path: Path | None = None) -> int:
@@ -333,20 +270,3 @@ def check_window(window: object, param: str = "window", least: int = 1, path: Pa
             param=param,
         )
     return int(window)  # type: ignore[arg-type]
-
-
-def check_threshold(threshold: float) -> None:
-    """InputError (naming ``threshold``) unless φ is a number > 0 that float32 holds (the images are float32:
-    a φ past its range would give inf, one below it 0); a string, None or an array is refused too."""
-    try:  # a number (numpy's scalars are numbers.Real; a list or an array is not)
-        with np.errstate(over="ignore", under="ignore"):
-            held = is_number(threshold)
-            held = held and bool(np.isfinite(threshold) and 0 < np.float32(threshold) < np.inf)
-    except (TypeError, ValueError):  # "1", None
-        held = False
-    if not held:
-        shown = threshold if isinstance(threshold, (int, float)) else repr(threshold)
-        raise InputError(
-            f"threshold φ must be a positive number within float32's range, found {shown}",
-            param="threshold",
-        )

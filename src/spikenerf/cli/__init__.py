@@ -27,11 +27,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "info": ("spikenerf.cli.info", "Summarise a dataset, run or other output folder, or a .dat spike file."),
     "reconstruct": (
         "spikenerf.cli.reconstruct",
-        "Reconstruct images from a .dat spike stream (TFP/TFI/learned).",
+        "Reconstruct images from a .dat spike stream (TFP/TFI/TFSTP/learned).",
     ),
     "recon-eval": (
         "spikenerf.cli.recon_eval",
-        "Score TFP/TFI/learned reconstructions against a dataset's sharp GT frames.",
+        "Score TFP/TFI/TFSTP/learned reconstructions against a dataset's sharp GT frames.",
     ),
     "recon-data": ("spikenerf.cli.recon_data", "Write training pairs for the learned reconstructor."),
     "recon-train": ("spikenerf.cli.recon_train", "Train the learned spike-to-image reconstructor."),

@@ -1,5 +1,6 @@
-"""``spikenerf recon-eval``: score TFP, TFI and the learned reconstruction against a simulated dataset's sharp
-GT frames (PSNR, SSIM, LPIPS, linear errors); a table, and ``OUT/scores.json`` + ``OUT/scores.csv``.
+"""``spikenerf recon-eval``: score TFP, TFI, TFSTP and the learned reconstruction against a simulated
+dataset's sharp GT frames (PSNR, SSIM, LPIPS, linear errors); a table, and ``OUT/scores.json`` +
+``OUT/scores.csv``.
 
 A command of its own rather than ``reconstruct --score``: ``reconstruct`` reads a bare ``.dat`` recording
 (its size, layout and row width given or beside it) and writes images, while scoring needs a dataset folder
@@ -24,8 +25,8 @@ PARAM_FLAGS = {"dataset_root": "DATASET", "steps": "--steps"}
 
 
 @click.command(
-    help="Score TFP, TFI and the learned reconstruction against a simulated dataset's sharp gt/ frames "
-    "(PSNR, SSIM, LPIPS; linear errors); writes OUT/scores.json and OUT/scores.csv."
+    help="Score TFP, TFI, TFSTP and the learned reconstruction against a simulated dataset's sharp gt/ "
+    "frames (PSNR, SSIM, LPIPS; linear errors); writes OUT/scores.json and OUT/scores.csv."
 )
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option(

@@ -1,11 +1,12 @@
-"""``spikenerf reconstruct``: TFP/TFI/learned images from a ``.dat`` stream: PNG (sRGB), NPY (linear), a
+"""``spikenerf reconstruct``: TFP/TFI/TFSTP/learned images from a ``.dat`` stream: PNG (sRGB), NPY (linear), a
 folder of PNGs, or an mp4 preview (H.264, sRGB, streamed block by block into ffmpeg).
 
 ``--encoding`` overrides the value encoding: ``linear`` PNGs hold ``round(255 · Î)`` with no gamma, as SpikeCV
 and spikezoo write their reconstructions; ``srgb`` NPYs hold the display values in [0, 1].
 
 Only the frames a result depends on are read (memory-mapped): the requested range plus the TFP window margin;
-TFI widens its margin until every pixel's surrounding intervals are known (see ``reconstruct_frames``).
+TFI widens its margin until every pixel's surrounding intervals are known, TFSTP reads from frame 0 (see
+``reconstruct_frames``).
 ``--stride K`` keeps every K-th frame of the range and reconstructs only those (see :func:`blocks`).
 """
 
@@ -19,7 +20,7 @@ import click
 import numpy as np
 
 from spikenerf.camera.modes import COLORS, LAYOUTS
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, WINDOWLESS
 from spikenerf.cli.types import COUNT, OutPath, frame_size_options
 from spikenerf.core.atomic import atomic_path, clean_stale_temps, write_bytes_atomic
 from spikenerf.core.errors import InputError, parse_range
@@ -33,6 +34,8 @@ DEFAULT_FPS_VIDEO = 30.0
 #: TFI's memory, which holds its whole range at once: bytes a pixel of each frame read (the unpacked spikes)
 #: and of each frame kept (its float32 result and the int32 scan state it overwrites)
 TFI_READ_BYTES, TFI_FRAME_BYTES = 1.0, 4.0
+#: TFSTP's bytes a pixel of each frame kept: its two float32 states (one becomes the result) and int32 prev
+TFSTP_FRAME_BYTES = 12.0
 
 
 #: value encodings of the outputs; the default is per file kind (.png → srgb, .npy → linear)
@@ -90,12 +93,12 @@ def check_out_dir(out: Path) -> None:
 
 def blocks(frames: range, method: str, window: int = DEFAULT_WINDOW) -> Iterator[range]:
     """The output frames ``frames`` (any step: ``--stride``) in blocks, each reconstructed by one call over
-    the frames ``block.start`` to ``block[-1]`` of which every ``step``-th is kept: TFI in one block (its
-    margin is shared); TFP and learned in blocks spanning at most BLOCK_FRAMES frames, or one frame a block
-    where a call per frame costs less than the frames skipped (learned: a step > 1; TFP: a step ≥ its
-    ``window``, about the frames one call reads)."""
+    the frames ``block.start`` to ``block[-1]`` of which every ``step``-th is kept: TFI and TFSTP in one
+    block (their margin is shared; TFSTP's scan runs from frame 0); TFP and learned in blocks spanning at
+    most BLOCK_FRAMES frames, or one frame a block where a call per frame costs less than the frames
+    skipped (learned: a step > 1; TFP: a step ≥ its ``window``, about the frames one call reads)."""
     step = frames.step
-    if method == "tfi":
+    if method in WINDOWLESS:
         size = max(1, len(frames))
     elif step == 1 or (method == "tfp" and step < window):
         size = max(1, BLOCK_FRAMES // step)
@@ -106,8 +109,8 @@ def blocks(frames: range, method: str, window: int = DEFAULT_WINDOW) -> Iterator
 
 
 @click.command(
-    help="Reconstruct images from a .dat spike stream (TFP/TFI, or the learned reconstructor): PNG, NPY, a "
-    "folder of PNGs, or an mp4 to preview the recording."
+    help="Reconstruct images from a .dat spike stream (TFP/TFI/TFSTP, or the learned reconstructor): PNG, "
+    "NPY, a folder of PNGs, or an mp4 to preview the recording."
 )
 @click.argument("spikes", type=click.Path(path_type=Path))
 @frame_size_options
@@ -190,8 +193,10 @@ def command(
     if threshold is None:  # the recording's φ (a SpikeCV config.yaml beside it), else 1
         threshold = recording.threshold or 1.0
 
-    if method == "tfi" and window is not None:
-        raise InputError("--window applies to --method tfp and learned (TFI uses inter-spike intervals)")
+    if method in WINDOWLESS and window is not None:
+        raise InputError(
+            f"--window applies to --method tfp and learned ({method} uses inter-spike intervals)"
+        )
     if method != "learned" and color != "gray":
         raise InputError(f"--color applies to --method learned only ({method} treats every pixel alike)")
     if method != "learned" and weights is not None:
@@ -239,11 +244,14 @@ def command(
             f"a .png holds one frame but {len(frames)} are selected; use --frame I, or --out a folder",
             path=out,
         )
-    if method == "tfi":  # one block: the whole range is read (a byte a pixel) and the kept frames held
+    if method in WINDOWLESS:  # one block: the whole range is read (a byte a pixel) and the kept frames held
         from spikenerf.core.limits import check_memory
 
         pixels = float(height) * float(width)
-        need = pixels * (len(span) * TFI_READ_BYTES + len(frames) * TFI_FRAME_BYTES)
+        read_frames, kept = (
+            (len(span), TFI_FRAME_BYTES) if method == "tfi" else (span.stop, TFSTP_FRAME_BYTES)
+        )
+        need = pixels * (read_frames * TFI_READ_BYTES + len(frames) * kept)  # (TFSTP reads from frame 0)
         check_memory(need, "frame_range/stride")
     if kind == "dir":
         check_out_dir(out)
@@ -256,9 +264,9 @@ def command(
         return read_dat(spikes, height, width, slice(a, b), layout, raw_width)
 
     def reconstruct(block: range) -> np.ndarray:
-        """The frames of ``block`` (N, H, W): TFI computes only those (its one block spans the range)."""
-        if method == "tfi":
-            return reconstruct_frames(read, total, block.start, block[-1] + 1, "tfi", threshold=threshold,
+        """The frames of ``block`` (N, H, W): TFI and TFSTP compute only those (one block spans the range)."""
+        if method in WINDOWLESS:
+            return reconstruct_frames(read, total, block.start, block[-1] + 1, method, threshold=threshold,
                                       step=block.step)  # fmt: skip
         return recon(read, total, block.start, block[-1] + 1)[:: block.step]
 

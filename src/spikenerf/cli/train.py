@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from spikenerf.camera.reconstruct import WINDOWLESS
 from spikenerf.cli.types import COUNT, SEED, OutPath, device_option
 from spikenerf.core.errors import InputError
 from spikenerf.core.yamlio import load_yaml
@@ -397,10 +398,10 @@ def _unused(method: str, given: set[str], overrides: tuple[str, ...], recon: str
     unused = unused_keys(method, keys)
     notes = [f"{keys[key]} is not used by --method {method}; ignored" for key in unused]
     checks_only = check_only_keys(method, keys)
-    if recon == "tfi" and "targets.window" in keys and "targets.window" not in unused + checks_only:
+    if recon in WINDOWLESS and "targets.window" in keys and "targets.window" not in unused + checks_only:
         notes.append(
-            f"{keys['targets.window']} does not change --recon tfi's targets (TFI has no window); it only "
-            "sets the hold-out guard band"
+            f"{keys['targets.window']} does not change --recon {recon}'s targets ({recon.upper()} has no "
+            "window); it only sets the hold-out guard band"
         )
     notes += [
         f"{keys[key]} does not change how --method {method} trains; it only sets "

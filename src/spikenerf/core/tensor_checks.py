@@ -22,7 +22,7 @@ def readable(x: torch.Tensor) -> bool:
 
 def check_threshold(threshold: float | torch.Tensor) -> None:
     """InputError naming ``threshold`` unless it is a finite number > 0 (a tensor only where it is
-    :func:`readable`: no sync). Pure Python, unlike :func:`spikenerf.camera.reconstruct.check_threshold`
+    :func:`readable`: no sync). Pure Python, unlike :func:`spikenerf.camera.streams.check_threshold`
     (numpy): it runs inside the compiled training step, where a numpy call would break the one graph
     (``tests/test_step_graph.py``)."""
     if isinstance(threshold, torch.Tensor):

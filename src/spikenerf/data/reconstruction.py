@@ -1,7 +1,7 @@
-"""Images from spikes, in one place: TFP or TFI (:mod:`spikenerf.camera.reconstruct`) or the shipped learned
-reconstructor (:mod:`spikenerf.recon`, imported only when asked for).
+"""Images from spikes, in one place: TFP, TFI or TFSTP (:mod:`spikenerf.camera.reconstruct`) or the shipped
+learned reconstructor (:mod:`spikenerf.recon`, imported only when asked for).
 
-One dispatch, :func:`reconstructor` (``tfp``, ``tfi``, ``learned``), in three forms:
+One dispatch, :func:`reconstructor` (``tfp``, ``tfi``, ``tfstp``, ``learned``), in three forms:
 
 * :func:`reconstructor` → ``recon(read, total, start, stop)``: frames ``start:stop`` of a long stream that
   ``read(a, b)`` reads on demand, only the frames the result depends on (``reconstruct``, ``import``);
@@ -23,7 +23,7 @@ from spikenerf.camera.io import resolve_frames
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, reconstruct_frames
 from spikenerf.core.errors import InputError, check_choice
 
-#: image reconstructions: the camera's (TFP, TFI) and the learned one (spikenerf.recon)
+#: image reconstructions: the camera's (TFP, TFI, TFSTP) and the learned one (spikenerf.recon)
 TargetRecon = Literal[ReconMethod, "learned"]
 RECONS: tuple[str, ...] = get_args(TargetRecon)
 #: ``read(a, b)`` → frames ``a:b`` (b − a, ...) of a stream, 0/1
@@ -43,9 +43,9 @@ def reconstructor(
     """The reconstruction ``recon`` as ``recon(read, total, start, stop)`` (see :data:`Reconstructor`).
 
     Args:
-        recon: ``tfp``, ``tfi`` or ``learned``.
+        recon: ``tfp``, ``tfi``, ``tfstp`` or ``learned``.
         window: TFP's window in frames, odd (None = ``DEFAULT_WINDOW``); for ``learned``, the window the
-            network must have been trained on (None = not checked); TFI has none (ignored).
+            network must have been trained on (None = not checked); TFI and TFSTP have none (ignored).
         threshold: φ of the camera.
         weights, color: ``learned`` only: the weights file (None = shipped) and the stream's colour
             (gray, one channel of an rgb recording, or a Bayer mosaic). The weights are checked now.
@@ -93,7 +93,7 @@ def reconstruct_stream(
     threshold: float = 1.0,
     frames: slice | None = None,
 ) -> np.ndarray:
-    """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI or the shipped learned
+    """Î of every step (or of ``frames``): TFP (``window`` frames, odd), TFI, TFSTP or the shipped learned
     reconstructor (its trained window, which ``window`` must equal) of a (T, H, W) gray or (T, 3, H, W) rgb
     stream → float32 linear (N, ...)."""
     if recon == "learned":  # on the training device and cached in the run folder inside a trainer

@@ -245,8 +245,8 @@ def stream_targets(
     window (:func:`window_steps`) and ``pose_steps`` (T, S).
 
     Args:
-        dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi | learned. window: TFP window
-        (odd). mask: apply spike masks. mask_n: mask half window n (2n+1 frames). spikes: the stream if
+        dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi | tfstp | learned. window: TFP
+        window (odd). mask: apply spike masks. mask_n: mask half window n (2n+1 frames). spikes: the stream if
         already loaded ((T, H, W) gray or (T, 3, H, W) rgb, T the trajectory's steps, H×W the dataset's;
         checked, InputError naming ``spikes``). window_poses: poses per target (≥ 1).
     """

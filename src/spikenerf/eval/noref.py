@@ -38,6 +38,7 @@ import torch
 
 from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.masks import spike_masks
+from spikenerf.camera.reconstruct import WINDOWLESS
 from spikenerf.core.config import Bound, check_config
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
@@ -187,9 +188,8 @@ def score_step(
     reach = max(half, t.mask_n)  # the reconstruction window and the mask's steps
     lo, hi = max(0, min(step - reach, start)), min(total, max(step + reach + 1, start + length))
     lo, hi = max(0, min(lo, hi - t.window)), min(total, max(hi, lo + t.window))  # a whole window (learned)
-    if (
-        t.recon == "tfi"
-    ):  # TFI reads out to the neighbouring spikes, however far: the whole stream, as training
+    if t.recon in WINDOWLESS:  # TFI/TFSTP read out to the neighbouring spikes (and TFSTP from frame 0),
+        # however far: the whole stream, as training
         lo, hi = 0, total
     raw = dataset.spikes(stream_mode(config.color), frames=slice(lo, hi))
     i = step - lo

@@ -1,4 +1,5 @@
-"""Score spike-to-image reconstructions (TFP, TFI, learned) against a simulated dataset's sharp GT frames.
+"""Score spike-to-image reconstructions (TFP, TFI, TFSTP, learned) against a simulated dataset's sharp GT
+frames.
 
 ``spikenerf recon-eval DATASET``: each selected ``gt/`` step is reconstructed from the dataset's own stream by
 each method (:func:`spikenerf.data.reconstruction.reconstructor`, the one dispatch) and compared with the GT
@@ -119,9 +120,10 @@ def score_reconstructions(
 
     Args:
         dataset_root: a dataset folder with ``gt/`` frames (simulated).
-        methods: names of ``RECONS`` (tfp, tfi, learned), a list or a comma-separated string.
+        methods: names of ``RECONS`` (tfp, tfi, tfstp, learned), a list or a comma-separated string.
         color: the stream to reconstruct (gray, rgb or bayer; one of the dataset's; None = its first).
-        window: TFP's window (odd; None = 41). TFI has none; learned uses the window it was trained on.
+        window: TFP's window (odd; None = 41). TFI and TFSTP have none; learned uses the window it was
+            trained on.
         steps, count: which GT steps (see :func:`select_steps`); None = all.
         weights: learned: a weights file (None = the shipped one).
         lpips_backbone: ``alex``, ``vgg`` or None (skip LPIPS).

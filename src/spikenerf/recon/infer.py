@@ -15,7 +15,7 @@ import torch
 
 from spikenerf.camera.io import resolve_frames
 from spikenerf.camera.modes import COLORS
-from spikenerf.camera.reconstruct import check_threshold, flat_stream, spike_bytes
+from spikenerf.camera.streams import check_threshold, flat_stream, spike_bytes
 from spikenerf.core.errors import InputError, check_choice
 from spikenerf.recon.features import RunningFeatures
 from spikenerf.recon.net import ReconNet
@@ -129,7 +129,7 @@ def fast_layout(net: ReconNet) -> ReconNet:
 
 
 def spike_tensor(frames: np.ndarray) -> torch.Tensor:
-    """(T, ...) spikes as a 0/1 uint8 tensor (:func:`~spikenerf.camera.reconstruct.spike_bytes`: any
+    """(T, ...) spikes as a 0/1 uint8 tensor (:func:`~spikenerf.camera.streams.spike_bytes`: any
     non-zero integer is a spike, a float other than 0.0/1.0 an InputError), sharing memory where the array
     is writable bool."""
     a = spike_bytes(np.asarray(frames))

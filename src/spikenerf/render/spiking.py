@@ -19,7 +19,7 @@ from torch import Tensor
 
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.model import fire
-from spikenerf.camera.reconstruct import check_threshold
+from spikenerf.camera.streams import check_threshold
 from spikenerf.core import tensor_checks
 from spikenerf.core.errors import InputError
 from spikenerf.data.rays import as_poses, pixel_rays

@@ -76,7 +76,8 @@ class TargetConfig:
     """Reconstruction targets.
 
     Attributes:
-        recon: tfp | tfi (image reconstruction of the stream). window: TFP window, frames (odd).
+        recon: tfp | tfi | tfstp | learned (image reconstruction of the stream). window: TFP window, frames
+            (odd).
         mask: multiply by the spike masks (spike-nerf); None: on with the paper's targets (one pose per
             target), off with window-aware ones, where they gained nothing (docs/spike-integral.md, masks).
             :meth:`masked` resolves it. mask_n: mask half window n (2n+1 frames, paper: 5).

@@ -9,6 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.camera.reconstruct import WINDOWLESS
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import checked
@@ -31,7 +32,7 @@ class NerfRecon(TrainMethod):
 
     def settings(self) -> list[str]:
         t = self.config.targets
-        window = "" if t.recon == "tfi" else f", window {t.window}"  # (TFI has none)
+        window = "" if t.recon in WINDOWLESS else f", window {t.window}"  # (TFI, TFSTP have none)
         poses = self.poses_per_view()
         aware = f", each the mean of {poses} renders across its window" if poses > 1 else ""
         return [f"targets {t.recon}{window}{aware}"]
