@@ -8,16 +8,19 @@ from pathlib import Path
 import pytest
 
 from helpers import load_benchmark
-from spikenerf.fields import vm_kernel
+from spikenerf.fields import vm_build, vm_cpu_source
 
 TOOL = load_benchmark("tools/ab_vm_kernel")
 
 
 def test_the_kernel_source_is_read_from_the_file(tmp_path: Path) -> None:
-    assert TOOL.kernel_source(Path(vm_kernel.__file__)) == vm_kernel._SOURCE
-    other = tmp_path / "vm_kernel.py"
-    other.write_text("SOURCE = 'not the name'\n")
-    with pytest.raises(SystemExit, match="no _SOURCE"):
+    assert TOOL.kernel_source(Path(vm_cpu_source.__file__)) == vm_cpu_source.SOURCE
+    older = tmp_path / "vm_kernel.py"  # a checkout from before the source had a module of its own
+    older.write_text("_SOURCE = 'int x;'\n")
+    assert TOOL.kernel_source(older) == "int x;"
+    other = tmp_path / "other.py"
+    other.write_text("KERNEL = 'not the name'\n")
+    with pytest.raises(SystemExit, match="no SOURCE"):
         TOOL.kernel_source(other)
 
 
@@ -40,7 +43,5 @@ def test_before_cflags_replace_the_checkouts_flags_of_the_before_build(monkeypat
     TOOL.build("int x;", "before", ["-O2"])
     TOOL.build("int x;", "after")
     (before_name, before), (after_name, after) = seen
-    assert (
-        before == ["-O2", *vm_kernel._OPENMP_CFLAGS] and after == vm_kernel._CFLAGS + vm_kernel._OPENMP_CFLAGS
-    )
+    assert before == ["-O2", *vm_build._OPENMP_CFLAGS] and after == vm_build._CFLAGS + vm_build._OPENMP_CFLAGS
     assert before_name != after_name  # cached apart: the name hashes the flags

@@ -14,7 +14,8 @@ from spikenerf.camera.io import read_dat, read_dat_rgb, write_dat, write_dat_rgb
 from spikenerf.camera.masks import spike_masks
 from spikenerf.camera.model import CameraConfig, SpikeCamera, simulate, simulate_iter
 from spikenerf.camera.reconstruct import reconstruct_frames, tfi, tfp, window_sum
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.rays import as_poses

@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from helpers import run_cli
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.scenes.analytic import AnalyticSource

@@ -22,7 +22,7 @@ from torch._dynamo.utils import counters
 import test_train
 from helpers import counts_graphs
 from spikenerf.fields import grid as grid_module
-from spikenerf.fields import vm_kernel, vm_triton
+from spikenerf.fields import vm_build, vm_kernel, vm_triton
 from spikenerf.train import compiled_step
 from spikenerf.train import trainer as trainer_module
 from spikenerf.train.compiled_step import CompiledStep, compile_step
@@ -99,7 +99,7 @@ def test_the_compiled_step_trains_and_resumes_like_the_eager_static_step(
     cfg = _config(dataset_dir, method, False, **field)
     with pytest.MonkeyPatch.context() as mp:
         if vm_kernel.available():
-            mp.setattr(vm_kernel, "_MODULE", Counted(vm_kernel._MODULE))
+            mp.setattr(vm_build, "_MODULE", Counted(vm_build._MODULE))
         _, eager = _run(cfg, tmp_path / "eager", dataset)
         cfg = _config(dataset_dir, method, True, **field)
         trainer, first = _run(cfg, tmp_path / "compiled", dataset, stop_after=3)

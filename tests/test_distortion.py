@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from helpers import run_cli
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.rays import camera_directions, image_pixels, image_rays

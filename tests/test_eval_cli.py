@@ -175,7 +175,7 @@ def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path, capsys: pytest.
 def test_render_generated_paths(
     kind: str, run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from spikenerf.eval.video import GENERATORS
+    from spikenerf.eval.trajectories import GENERATORS
     from spikenerf.train.run import load_run
 
     out = tmp_path / kind
@@ -502,7 +502,7 @@ def test_a_dataset_without_test_views_says_what_to_do_instead(run_dir: Path) -> 
     from spikenerf.core.errors import InputError
     from spikenerf.data.dataset import PosedImages
     from spikenerf.eval.evaluate import split_views
-    from spikenerf.eval.video import resolve_trajectory
+    from spikenerf.eval.trajectories import resolve_trajectory
     from spikenerf.train.run import load_run
 
     _, _, dataset = load_run(run_dir)

@@ -25,7 +25,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.core.ply import ply_bytes, read_ply, write_ply
 from spikenerf.eval.choices import DEFAULT_DENSITY_LEVEL
 from spikenerf.eval.export import INSTALL_HINT, mesh, point_cloud, subsample
-from spikenerf.eval.video import RenderPath
+from spikenerf.eval.trajectories import RenderPath
 from spikenerf.render.geometry import backproject, density_grid, lattice_axes
 from spikenerf.render.model import build_model
 from spikenerf.scenes.analytic import CAMERA_ANGLE_X, SCENES, Sphere

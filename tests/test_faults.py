@@ -714,7 +714,7 @@ def test_a_full_disk_while_checkpointing_is_one_line(
 
 
 def test_simulate_jobs_are_capped_by_cores_and_work() -> None:
-    from spikenerf.capture.simulate import usable_jobs
+    from spikenerf.capture.render_workers import usable_jobs
 
     assert usable_jobs(100000, 10**6) <= (os.cpu_count() or 1)
     assert usable_jobs(100000, 1) == 1 and usable_jobs(1, 50) == 1

@@ -16,7 +16,8 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.rays import pixel_rays, ray_box_bounds
 from spikenerf.fields import Field, GridFieldConfig, MLPFieldConfig, build_field, field_config
 from spikenerf.fields.encoding import encoded_size, positional_encoding
-from spikenerf.fields.grid import FACTORS, sample_vm
+from spikenerf.fields.grid import FACTORS
+from spikenerf.fields.vm_sample import sample_vm
 from spikenerf.render import build_model, render_image
 from spikenerf.scenes.poses import look_at
 from spikenerf.scenes.trajectory import Intrinsics

@@ -650,9 +650,9 @@ def _fresh_cache(out: Path) -> None:
 def _read_cache(out: Path) -> None:
     """What a resumed render reads of its cache: each part is kept whole or dropped, never an exception."""
     from spikenerf.eval.render_cache import RenderCache
-    from spikenerf.eval.video import _listed_files
+    from spikenerf.eval.render_output import listed_files
 
-    _listed_files(out)
+    listed_files(out)
     cache = RenderCache.open(out, {"model": "m", "seed": 0}, pinned={"chunk": 64}, plan=["v.mp4"])
     assert isinstance(cache.pinned["chunk"], int)
     found = cache.view(0, (4, 5), 1)
@@ -714,16 +714,16 @@ def test_render_cache_files(tmp_path: Path, name: str, edit: Callable) -> None:
 )
 def test_render_cache_damaged(tmp_path: Path, name: str, data: bytes | str) -> None:
     """key.json nested beyond the stack was a RecursionError out of RenderCache.open and of the next render's
-    clearing (video._listed_files); a saved step count of inf an OverflowError; a cached view whose depth
-    was not (H, W) was returned, then a ValueError when the depths were stacked. Each is dropped now."""
+    clearing (render_output.listed_files); a saved step count of inf an OverflowError; a cached view whose
+    depth was not (H, W) was returned, then a ValueError when the depths were stacked. Each is dropped now."""
     from spikenerf.eval.render_cache import CACHE, RenderCache
-    from spikenerf.eval.video import _listed_files
+    from spikenerf.eval.render_output import listed_files
 
     _fresh_cache(tmp_path)
     root = tmp_path / CACHE
     if name == "key.json":
         (root / name).write_bytes(data)  # type: ignore[arg-type]
-        assert _listed_files(tmp_path) == []
+        assert listed_files(tmp_path) == []
     elif name == "spikes.npz":
         np.savez(root / name, steps=np.float64(np.inf), accumulator=np.zeros((3, 5), np.float32))
     else:

@@ -124,7 +124,7 @@ def test_amp_bf16_trains_on_a_cpu(dataset_dir: Path, dataset, tmp_path: Path) ->
 
 def test_fused_vm_kernel_matches_grid_sample_forward_and_backward() -> None:
     from spikenerf.fields import vm_kernel
-    from spikenerf.fields.grid import sample_vm
+    from spikenerf.fields.vm_sample import sample_vm
 
     if not vm_kernel.available():
         pytest.skip("no C++ compiler for the fused VM kernel")
@@ -152,7 +152,7 @@ def test_the_summed_fused_lookup_is_the_sum_of_the_products_forward_and_backward
     """``summed=True`` (the density): the kernel sums over axis pairs and channels itself; values and
     gradients are those of the (M, 3, C) products summed, on 1 and 2 threads (> 4096 points) and outside
     the grid."""
-    from spikenerf.fields.grid import sample_vm
+    from spikenerf.fields.vm_sample import sample_vm
 
     vm_kernel = _kernel_or_skip()
     gen = torch.Generator().manual_seed(11)
@@ -244,7 +244,7 @@ def test_the_fused_kernels_custom_ops_pass_opcheck_and_compile_as_one_graph() ->
 
 def test_fused_vm_kernel_nan_point_gives_nan_not_a_crash() -> None:
     """A NaN coordinate used to become a wild index (segfault); now NaN exactly where grid_sample has NaN."""
-    from spikenerf.fields.grid import sample_vm
+    from spikenerf.fields.vm_sample import sample_vm
 
     vm_kernel = _kernel_or_skip()
     planes, lines = torch.randn(3, 4, 6, 6, requires_grad=True), torch.randn(3, 4, 6, 1, requires_grad=True)
@@ -259,7 +259,7 @@ def test_fused_vm_kernel_nan_point_gives_nan_not_a_crash() -> None:
 
 def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:
     """> 4096 points on 2 threads: each thread's band of plane rows and the sum of the line buffers."""
-    from spikenerf.fields.grid import sample_vm
+    from spikenerf.fields.vm_sample import sample_vm
 
     vm_kernel = _kernel_or_skip()
     gen = torch.Generator().manual_seed(5)
@@ -286,7 +286,7 @@ def test_fused_vm_kernel_backward_has_the_same_plane_gradient_on_any_number_of_t
     threads' buffers, agree to rounding), and ``grid_sample``'s gradients, with points crowded into a few
     rows, points on texel rows (band edges) and outside the grid, and, for the density, a zero gradient at
     every third point."""
-    from spikenerf.fields.grid import sample_vm
+    from spikenerf.fields.vm_sample import sample_vm
 
     vm_kernel = _kernel_or_skip()
     gen = torch.Generator().manual_seed(8)
@@ -335,7 +335,7 @@ def test_fused_vm_kernel_runs_on_every_torch_thread() -> None:
 def test_fused_vm_kernel_build_without_openmp_then_grid_sample(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """A compiler that cannot build with OpenMP: one warning, a single-threaded build; if that fails too,
     grid_sample with the error in the warning."""
-    from spikenerf.fields import vm_kernel
+    from spikenerf.fields import vm_build
 
     fail_plain = [False]
 
@@ -344,47 +344,47 @@ def test_fused_vm_kernel_build_without_openmp_then_grid_sample(monkeypatch) -> N
             raise RuntimeError("omp.h: No such file" if cflags else "no compiler")
         return "single-threaded module"
 
-    monkeypatch.setattr(vm_kernel, "_build", build)
-    monkeypatch.setattr(vm_kernel, "_OPENMP_CFLAGS", ["-fopenmp"])
+    monkeypatch.setattr(vm_build, "_build", build)
+    monkeypatch.setattr(vm_build, "_OPENMP_CFLAGS", ["-fopenmp"])
     monkeypatch.delenv("SPIKENERF_VM_KERNEL", raising=False)
     for fail, want, words in [
         (False, "single-threaded module", "without OpenMP.*omp.h"),
         (True, None, "grid_sample.*no compiler"),
     ]:
         fail_plain[0] = fail
-        monkeypatch.setattr(vm_kernel, "_MODULE", None)
-        monkeypatch.setattr(vm_kernel, "_FAILED", False)
+        monkeypatch.setattr(vm_build, "_MODULE", None)
+        monkeypatch.setattr(vm_build, "_FAILED", False)
         with warnings.catch_warnings():  # pytest.warns re-emits the other (expected) one
             warnings.simplefilter("ignore")
             with pytest.warns(UserWarning, match=words):
-                assert vm_kernel._load() == want
+                assert vm_build.load() == want
 
 
 def test_without_a_compiler_the_kernel_is_not_built_and_says_so_once(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """No C++ compiler and nothing built: one warning naming the compiler, no build attempted (torch's build
     printed about 20 lines, twice, in every command); a module already built loads without one."""
-    from spikenerf.fields import vm_kernel
+    from spikenerf.fields import vm_build
 
-    monkeypatch.setattr(vm_kernel, "_build", lambda *a: pytest.fail("a build was attempted"))
-    monkeypatch.setattr(vm_kernel.shutil, "which", lambda name, **kw: None)
+    monkeypatch.setattr(vm_build, "_build", lambda *a: pytest.fail("a build was attempted"))
+    monkeypatch.setattr(vm_build.shutil, "which", lambda name, **kw: None)
     monkeypatch.setenv("CXX", "g++-none")
     monkeypatch.delenv("SPIKENERF_VM_KERNEL", raising=False)
-    monkeypatch.setattr(vm_kernel, "_built_any", lambda: False)
-    monkeypatch.setattr(vm_kernel, "_MODULE", None)
-    monkeypatch.setattr(vm_kernel, "_FAILED", False)
+    monkeypatch.setattr(vm_build, "_built_any", lambda: False)
+    monkeypatch.setattr(vm_build, "_MODULE", None)
+    monkeypatch.setattr(vm_build, "_FAILED", False)
     with pytest.warns(
         UserWarning, match=r"no C\+\+ compiler \(g\+\+-none\) to build it: using grid_sample"
     ) as got:
-        assert vm_kernel._load() is None
-        assert vm_kernel._load() is None  # remembered: no second warning
+        assert vm_build.load() is None
+        assert vm_build.load() is None  # remembered: no second warning
     assert len(got) == 1
-    monkeypatch.setattr(vm_kernel, "_FAILED", False)
+    monkeypatch.setattr(vm_build, "_FAILED", False)
     monkeypatch.setenv("CXX", "ccache g++ -O2")  # a wrapper: either of its first two words will do
     monkeypatch.setattr(
-        vm_kernel.shutil, "which", lambda name, **kw: "/usr/bin/g++" if name == "g++" else None
+        vm_build.shutil, "which", lambda name, **kw: "/usr/bin/g++" if name == "g++" else None
     )
-    monkeypatch.setattr(vm_kernel, "_build", lambda *a: "built")
-    assert vm_kernel._load() == "built"
+    monkeypatch.setattr(vm_build, "_build", lambda *a: "built")
+    assert vm_build.load() == "built"
     monkeypatch.undo()
     import torch.utils.cpp_extension as ext
 
@@ -392,7 +392,7 @@ def test_without_a_compiler_the_kernel_is_not_built_and_says_so_once(monkeypatch
         raise NotADirectoryError(20, "Not a directory", "/tmp/file/ext")
 
     monkeypatch.setattr(ext, "_get_build_directory", unwritable)
-    assert vm_kernel._built_any() is False  # an unwritable cache: nothing built, not an error
+    assert vm_build._built_any() is False  # an unwritable cache: nothing built, not an error
 
 
 _LOAD_KERNEL = """
@@ -408,10 +408,10 @@ print(round(time.monotonic() - t, 3))
 def _kernel_build_dir() -> Path:
     from torch.utils.cpp_extension import _get_build_directory
 
-    from spikenerf.fields import vm_kernel
+    from spikenerf.fields import vm_build
 
-    for cflags, ldflags in ((vm_kernel._OPENMP_CFLAGS, vm_kernel._OPENMP_LDFLAGS), ([], [])):
-        name = vm_kernel._name(vm_kernel._CFLAGS + cflags, ldflags)
+    for cflags, ldflags in ((vm_build._OPENMP_CFLAGS, vm_build._OPENMP_LDFLAGS), ([], [])):
+        name = vm_build._name(vm_build._CFLAGS + cflags, ldflags)
         folder = Path(_get_build_directory(name, verbose=False))
         if (folder / f"{name}.so").exists():
             return folder
@@ -447,7 +447,7 @@ def test_fused_vm_kernel_waits_for_a_live_builder_only(tmp_path: Path, monkeypat
 
     import torch.utils.cpp_extension as ext
 
-    from spikenerf.fields import vm_kernel
+    from spikenerf.fields import vm_build, vm_kernel
 
     holder = subprocess.Popen(
         [sys.executable, "-c", "import fcntl, sys, time; f = open(sys.argv[1], 'w');"
@@ -458,9 +458,9 @@ def test_fused_vm_kernel_waits_for_a_live_builder_only(tmp_path: Path, monkeypat
     try:
         assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
         monkeypatch.setattr(ext, "_get_build_directory", lambda name, verbose: str(tmp_path))
-        monkeypatch.setattr(vm_kernel, "BUILD_WAIT_S", 0.5)
-        monkeypatch.setattr(vm_kernel, "_MODULE", None)
-        monkeypatch.setattr(vm_kernel, "_FAILED", False)
+        monkeypatch.setattr(vm_build, "BUILD_WAIT_S", 0.5)
+        monkeypatch.setattr(vm_build, "_MODULE", None)
+        monkeypatch.setattr(vm_build, "_FAILED", False)
         monkeypatch.delenv("SPIKENERF_VM_KERNEL", raising=False)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -472,7 +472,7 @@ def test_fused_vm_kernel_waits_for_a_live_builder_only(tmp_path: Path, monkeypat
         holder.kill()
         holder.wait()
     start = time.monotonic()
-    with vm_kernel._build_lock(tmp_path, wait_s=5.0) as locked:  # the dead holder's flock is gone
+    with vm_build._build_lock(tmp_path, wait_s=5.0) as locked:  # the dead holder's flock is gone
         assert locked
     assert time.monotonic() - start < 1.0
 
@@ -483,16 +483,16 @@ def test_fused_vm_kernel_build_finds_the_ninja_of_the_pip_package(monkeypatch) -
     import shutil
 
     ninja = pytest.importorskip("ninja")
-    from spikenerf.fields import vm_kernel
+    from spikenerf.fields import vm_build
 
     if shutil.which("ninja", path=ninja.BIN_DIR) is None:
         pytest.skip(f"the ninja package of another environment: no executable in {ninja.BIN_DIR}")
 
     monkeypatch.setenv("PATH", "/nonexistent")
     assert shutil.which("ninja") is None
-    vm_kernel._find_ninja()
+    vm_build._find_ninja()
     found = shutil.which("ninja")
     assert found is not None and Path(found).parent == Path(ninja.BIN_DIR)
     monkeypatch.setenv("PATH", os.pathsep.join(["/usr/bin", ninja.BIN_DIR]))
-    vm_kernel._find_ninja()
+    vm_build._find_ninja()
     assert os.environ["PATH"].startswith("/usr/bin")

@@ -102,7 +102,7 @@ def test_held_steps_are_those_per_step_poses_holds() -> None:
 
 
 def test_held_out_keyframes_drop_those_at_held_poses_and_need_the_step_count() -> None:
-    from spikenerf.importing.importer import held_out_keyframes
+    from spikenerf.importing.keyframes import held_out_keyframes
 
     keys = np.arange(10, 200, 20)  # test keyframes 30 and 190 (every 8th from the second)
     assert held_out_keyframes(keys, 8).tolist() == [30, 190]

@@ -196,22 +196,22 @@ def test_the_import_benchmark_measures_ate_against_the_orbit_radius_about_its_ce
 
 
 def test_smooth_goes_with_colmap_poses_only() -> None:
-    from spikenerf.importing.importer import ImportOptions, _check
+    from spikenerf.importing.options import ImportOptions, check_options
 
-    _check(ImportOptions(smooth=100))  # poses colmap: smoothed
+    check_options(ImportOptions(smooth=100))  # poses colmap: smoothed
     with pytest.raises(InputError, match=r"^smooth: only used with poses colmap") as err:
-        _check(ImportOptions(poses="poses_bounds.npy", smooth=100))
+        check_options(ImportOptions(poses="poses_bounds.npy", smooth=100))
     assert "smooth" in err.value.params
 
 
 def test_a_field_of_view_the_dataset_loader_refuses_is_refused_up_front() -> None:
     """``fov_deg`` 1e-5 (or 179.99999) wrote a dataset whose camera its own loader refuses as absurd."""
-    from spikenerf.importing.importer import ImportOptions, _check
+    from spikenerf.importing.options import ImportOptions, check_options
 
     for fov in (1e-5, 179.99999):
         with pytest.raises(InputError, match=r"^fov_deg must be within \[5.73e-05, 179.99977\d*\] degrees"):
-            _check(ImportOptions(poses="orbit", orbit=(4.0, 30.0), fov_deg=fov))
-    _check(ImportOptions(poses="orbit", orbit=(4.0, 30.0), fov_deg=1e-3))  # narrow, still a camera
+            check_options(ImportOptions(poses="orbit", orbit=(4.0, 30.0), fov_deg=fov))
+    check_options(ImportOptions(poses="orbit", orbit=(4.0, 30.0), fov_deg=1e-3))  # narrow, still a camera
 
 
 def _colmap_folder(folder: Path, camera: str, poses: list[str]) -> Path:

@@ -302,11 +302,13 @@ def test_render_draws_the_test_views_and_orbit_at_the_poses_the_run_refined(
     demo: Path, monkeypatch, tmp_path: Path
 ) -> None:  # type: ignore[no-untyped-def]
     import spikenerf.eval.video as video
+    from spikenerf.eval.trajectories import refined_poses
+    from spikenerf.train.pose_refine import refined_dataset, refined_views
 
     _, config, dataset = load_run(demo / "run")
     ckpt = torch.load(demo / "run" / "checkpoint.pt", weights_only=True)
     assert ckpt["poses"], "the fixture's run refines its poses"
-    refined = video.refined_views(ckpt, config, dataset, dataset.test).poses
+    refined = refined_views(ckpt, config, dataset, dataset.test).poses
     assert not np.allclose(refined, dataset.test.poses, atol=1e-6)
     seen: list[np.ndarray] = []
     real = video.render_image
@@ -315,8 +317,8 @@ def test_render_draws_the_test_views_and_orbit_at_the_poses_the_run_refined(
     )
     video.render_run(demo / "run", tmp_path / "r", progress=False)
     assert len(seen) == len(refined) and np.allclose(np.stack(seen), refined, atol=1e-6)
-    moved = video.refined_poses(ckpt, config, dataset)
-    assert np.allclose(moved.trajectory.poses, video.refined_dataset(ckpt, config, dataset).trajectory.poses)
+    moved = refined_poses(ckpt, config, dataset)
+    assert np.allclose(moved.trajectory.poses, refined_dataset(ckpt, config, dataset).trajectory.poses)
 
 
 def test_a_spike_window_past_the_guard_band_is_said(demo: Path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from helpers import edit_json, run_cli
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.eval.recon_scores import score_reconstructions
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit

@@ -30,6 +30,11 @@ MODULES = [
     "spikenerf.eval.export",
     "spikenerf.eval.piqe",
     "spikenerf.eval.recon_scores",
+    # the modules split out of eval/video.py, capture/simulate.py and importing/importer.py (and those three);
+    # fields/ (grid.py and vm_kernel.py split too) is listed whole above
+    *(f"spikenerf.eval.{m}" for m in ("video", "trajectories", "render_output")),
+    *(f"spikenerf.capture.{m}" for m in ("simulate", "options", "frame_cache", "render_workers")),
+    *(f"spikenerf.importing.{m}" for m in ("importer", "options", "keyframes")),
     # the modules split out of scenes/trajectory.py and train/trainer.py (and what is left of those two)
     *(f"spikenerf.scenes.{m}" for m in ("trajectory", "poses", "render_paths", "projection")),
     *(f"spikenerf.train.{m}" for m in ("trainer", "loop", "preflight", "resume", "optimizer")),

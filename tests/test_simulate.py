@@ -12,12 +12,10 @@ import numpy as np
 import pytest
 import yaml
 
-from spikenerf.capture.simulate import (
-    SimulateOptions,
-    blur_windows,
-    render_missing,
-    simulate_dataset,
-)
+from spikenerf.capture.blur import blur_windows
+from spikenerf.capture.frame_cache import render_missing
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.cli import main
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
@@ -243,16 +241,16 @@ def test_resume_reuses_cached_frames(tmp_path: Path) -> None:
 
 def test_render_processes_write_the_same_dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``jobs`` > 1 renders an analytic scene in worker processes; the dataset is byte-identical."""
-    from spikenerf.capture import simulate as sim
+    from spikenerf.capture import render_workers as workers
 
     pools = []
 
-    class Recording(sim.ProcessPoolExecutor):
+    class Recording(workers.ProcessPoolExecutor):
         def __init__(self, *args, **kw) -> None:  # type: ignore[no-untyped-def]
             pools.append(args[0])
             super().__init__(*args, **kw)
 
-    monkeypatch.setattr(sim, "ProcessPoolExecutor", Recording)
+    monkeypatch.setattr(workers, "ProcessPoolExecutor", Recording)
     traj = orbit(4.0, 30.0, duration=24 / 40000.0)
     source = AnalyticSource("analytic-orbs", 16, 16, traj, novel_views(4.0, 1))
     options = SimulateOptions(colors=("gray", "rgb"), blur_fps=4000.0)
@@ -279,13 +277,13 @@ class _ThreadProbe:
 
 def test_render_workers_get_their_share_of_the_cores(monkeypatch: pytest.MonkeyPatch) -> None:
     # without it, each of 14 workers on a 16-core host may start a BLAS pool of 16 threads
-    from spikenerf.capture import simulate as sim
+    from spikenerf.capture import render_workers as workers
 
-    monkeypatch.setattr(sim, "_cores", lambda: 8)
-    for name in sim.THREAD_VARS:
+    monkeypatch.setattr(workers, "_cores", lambda: 8)
+    for name in workers.THREAD_VARS:
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "3")  # a setting of the user's is kept
-    frames = list(sim._frames(_ThreadProbe(), list(range(6)), 2))  # type: ignore[arg-type]
+    frames = list(workers.render_frames(_ThreadProbe(), list(range(6)), 2))  # type: ignore[arg-type]
     assert [f.tolist() for f in frames] == [[4.0, 3.0]] * 6
     assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["OMP_NUM_THREADS"] == "3"
 
@@ -461,10 +459,10 @@ def test_simulate_refuses_a_raw_width_no_camera_has_before_rendering(tmp_path: P
 def test_render_workers_start_with_ctrl_c_ignored_and_the_parent_keeps_its_handler() -> None:
     import signal
 
-    from spikenerf.capture import simulate
+    from spikenerf.capture import render_workers
 
     before = signal.getsignal(signal.SIGINT)
-    with simulate._sigint_ignored():
+    with render_workers._sigint_ignored():
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN  # what the spawned workers inherit
     assert signal.getsignal(signal.SIGINT) is before
 
@@ -503,7 +501,7 @@ def test_a_camera_inside_the_scene_box_and_a_rounded_spp_are_named(tmp_path: Pat
 
 def test_simulate_options_read_a_colour_string_as_a_list() -> None:
     """``SimulateOptions(colors="gray")`` was the modes g, r, a, y (refused as such)."""
-    from spikenerf.capture.simulate import SimulateOptions, check_options
+    from spikenerf.capture.options import SimulateOptions, check_options
     from spikenerf.core.errors import InputError
 
     assert SimulateOptions(colors="gray").colors == ("gray",)

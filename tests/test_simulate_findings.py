@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from helpers import run_cli
-from spikenerf.capture.simulate import SimulateOptions, check_bounds_of, check_options, simulate_dataset
+from spikenerf.capture.options import SimulateOptions, check_options
+from spikenerf.capture.simulate import check_bounds_of, simulate_dataset
 from spikenerf.core.errors import InputError
 from spikenerf.scenes.registry import make_scene_source
 from spikenerf.scenes.trajectory import orbit

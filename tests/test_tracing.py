@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from spikenerf.core import tracing
-from spikenerf.fields.grid import vm_splits
 from spikenerf.fields.vm_kernel import usable, vm_lookup
+from spikenerf.fields.vm_sample import vm_splits
 
 
 def _run(code: str) -> str:

@@ -15,7 +15,8 @@ import pytest
 import torch
 import yaml
 
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset

@@ -11,8 +11,10 @@ import torch
 
 from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config
-from spikenerf.fields.grid import GridField, GridFieldConfig, _factor, sample_vm
+from spikenerf.fields.grid import GridField, _factor
+from spikenerf.fields.grid_config import GridFieldConfig
 from spikenerf.fields.vm_gather import corners, gather_vm
+from spikenerf.fields.vm_sample import sample_vm
 from spikenerf.render.model import model_from_hparams
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

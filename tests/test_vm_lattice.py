@@ -9,7 +9,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from spikenerf.fields.grid import GridField, GridFieldConfig
+from spikenerf.fields.grid import GridField
+from spikenerf.fields.grid_config import GridFieldConfig
 from spikenerf.fields.occupancy import OccupancyGrid, dilate
 from spikenerf.fields.vm_gather import gather_vm
 from spikenerf.fields.vm_kernel import suspended

@@ -23,7 +23,9 @@ import test_vm_gather
 from helpers import counts_graphs, triton_device
 from spikenerf.core.errors import InputError
 from spikenerf.fields import field_config, vm_triton
-from spikenerf.fields.grid import GridField, GridFieldConfig, _factor, sample_vm
+from spikenerf.fields.grid import GridField, _factor
+from spikenerf.fields.grid_config import GridFieldConfig
+from spikenerf.fields.vm_sample import sample_vm
 from spikenerf.fields.vm_triton import applies, triton_vm
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

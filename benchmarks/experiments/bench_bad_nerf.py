@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.data.dataset import load_dataset
 from spikenerf.pipelines.benchmark.stats import summarize, t_interval
 from spikenerf.scenes.analytic import AnalyticSource

@@ -39,7 +39,7 @@ import numpy as np
 from spikenerf.capture.recording import RAW_FILE, write_raw_recording
 from spikenerf.data.dataset import TRANSFORMS_TEST, SpikeDataset, load_dataset
 from spikenerf.importing.alignment import per_step_poses, trajectory_errors, umeyama
-from spikenerf.importing.importer import keyframe_steps
+from spikenerf.importing.keyframes import keyframe_steps
 
 RAW_EXTRA = 16
 
@@ -224,7 +224,7 @@ def truth_reprojection(sim: Path, imp: Path) -> dict:
     the camera fixed in both cases (pycolmap)."""
     import pycolmap
 
-    from spikenerf.importing.importer import COLMAP_WORK
+    from spikenerf.importing.keyframes import COLMAP_WORK
 
     model = imp / COLMAP_WORK / "model"
     if not (model / "images.txt").is_file():
@@ -239,7 +239,7 @@ def truth_import(sim: Path, imp: Path, rec: Path, a: argparse.Namespace, fov: fl
     with its poses replaced by the true ones (its points re-solved for them) is given as the pose source, so
     the keyframes, the upright box from the points and near/far are made the same way; only the poses
     differ (``IMPORT-truth``). None without a COLMAP model."""
-    from spikenerf.importing.importer import COLMAP_WORK
+    from spikenerf.importing.keyframes import COLMAP_WORK
 
     model = imp / COLMAP_WORK / "model"
     dst = imp.parent / f"{imp.name}-truth"

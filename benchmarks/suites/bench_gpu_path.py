@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.targets import load_stream
 from spikenerf.eval.evaluate import evaluate_run

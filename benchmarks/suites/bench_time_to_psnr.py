@@ -16,7 +16,8 @@ import tempfile
 from pathlib import Path
 
 from benchmarks._table import Row, format_table
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.scenes.registry import make_scene_source
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.config import TrainConfig

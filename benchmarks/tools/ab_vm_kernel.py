@@ -3,10 +3,12 @@
 Usage (from the repository root)::
 
     git worktree add /tmp/before HEAD~1
-    .venv/bin/python -m benchmarks.tools.ab_vm_kernel /tmp/before/src/spikenerf/fields/vm_kernel.py \
-        src/spikenerf/fields/vm_kernel.py [--points 100000] [--resolution 200] [--repeats 60] [--threads 1,2]
+    .venv/bin/python -m benchmarks.tools.ab_vm_kernel /tmp/before/src/spikenerf/fields/vm_cpu_source.py \
+        src/spikenerf/fields/vm_cpu_source.py [--points 100000] [--resolution 200] [--repeats 60] \
+        [--threads 1,2]
 
-Each file's C++ source (its ``_SOURCE``) is built with this checkout's flags (``--before-cflags`` gives the
+Each file's C++ source (its ``SOURCE``; in an older checkout, whose source is in ``vm_kernel.py``, its
+``_SOURCE``) is built with this checkout's flags (``--before-cflags`` gives the
 before build others: to measure a flag change, pass the same file twice) under a name of its own (the
 first build of a source takes about a minute, then it is cached), so both run in the same process on the
 same tensors: the density's form (16 channels, summed, a zero gradient at every third point, as early ray
@@ -32,23 +34,25 @@ import torch
 from torch.utils.cpp_extension import load_inline
 
 from benchmarks.tools.bench_lookup import ray_points
-from spikenerf.fields import vm_kernel
+from spikenerf.fields import vm_build
 
 
 def kernel_source(path: Path) -> str:
-    """The ``_SOURCE`` string of a ``vm_kernel.py`` (read, not imported: both would register one op)."""
+    """The ``SOURCE`` string of a ``vm_cpu_source.py``, or the ``_SOURCE`` string of an older checkout's
+    ``vm_kernel.py`` (read, not imported: both would register one op)."""
     for node in ast.parse(path.read_text()).body:
-        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "_SOURCE" for t in node.targets):
+        names = {getattr(t, "id", "") for t in node.targets} if isinstance(node, ast.Assign) else set()
+        if names & {"SOURCE", "_SOURCE"}:
             return ast.literal_eval(node.value)
-    raise SystemExit(f"{path}: no _SOURCE string")
+    raise SystemExit(f"{path}: no SOURCE (or _SOURCE) string")
 
 
 def build(source: str, tag: str, cflags: list[str] | None = None) -> Any:
     """The extension module of ``source``, built with this checkout's flags, or ``cflags`` in their place
     (cached by source and flags)."""
-    flags = (vm_kernel._CFLAGS if cflags is None else cflags) + vm_kernel._OPENMP_CFLAGS
-    ldflags = vm_kernel._OPENMP_LDFLAGS
-    name = vm_kernel._name(flags, ldflags, source, prefix=f"ab_vm_{tag}_")
+    flags = (vm_build._CFLAGS if cflags is None else cflags) + vm_build._OPENMP_CFLAGS
+    ldflags = vm_build._OPENMP_LDFLAGS
+    name = vm_build._name(flags, ldflags, source, prefix=f"ab_vm_{tag}_")
     return load_inline(name, cpp_sources=[source], extra_cflags=flags, extra_ldflags=ldflags, with_cuda=False)
 
 
@@ -79,7 +83,11 @@ def report(what: str, times: dict[str, list[float]]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("before", type=Path, help="a checkout's src/spikenerf/fields/vm_kernel.py")
+    parser.add_argument(
+        "before",
+        type=Path,
+        help="a checkout's src/spikenerf/fields/vm_cpu_source.py (vm_kernel.py before it)",
+    )
     parser.add_argument("after", type=Path, help="another (this checkout's, say)")
     parser.add_argument("--points", type=int, default=100_000)
     parser.add_argument("--resolution", type=int, default=200)
@@ -96,7 +104,7 @@ def main() -> None:
         "before": build(kernel_source(args.before), "before", before_flags),
         "after": build(kernel_source(args.after), "after"),
     }
-    print(f"flags: before {' '.join(before_flags or vm_kernel._CFLAGS)}; after {' '.join(vm_kernel._CFLAGS)}")
+    print(f"flags: before {' '.join(before_flags or vm_build._CFLAGS)}; after {' '.join(vm_build._CFLAGS)}")
     r, gen = args.resolution, torch.Generator().manual_seed(0)
     xyz = ray_points(args.points, r, torch.device("cpu"))
     print(f"{args.points} points along rays, R {r}; ms per call, median of {args.repeats}")

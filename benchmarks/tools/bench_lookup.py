@@ -30,8 +30,9 @@ from torch import Tensor
 
 from spikenerf.core.device import resolve_device
 from spikenerf.fields import vm_kernel, vm_triton
-from spikenerf.fields.grid import _factor, sample_vm, vm_splits
+from spikenerf.fields.grid import _factor
 from spikenerf.fields.vm_gather import gather_vm
+from spikenerf.fields.vm_sample import sample_vm, vm_splits
 
 Lookup = Callable[[Tensor, Tensor, Tensor], Tensor]
 

@@ -35,7 +35,7 @@ from torch import Tensor
 
 from benchmarks._table import interleaved_ms, kernel_timing_args
 from spikenerf.data.rays import ray_box_bounds
-from spikenerf.fields.grid import GridFieldConfig
+from spikenerf.fields.grid_config import GridFieldConfig
 from spikenerf.fields.vm_triton import why_not
 from spikenerf.render import build_model, volume_triton
 from spikenerf.render.grid_model import MARCH_SLOTS, GridModel, compact_slots

@@ -30,7 +30,8 @@ from collections.abc import Callable
 import torch
 import torch.nn.functional as F
 
-from spikenerf.fields.grid import GridField, GridFieldConfig
+from spikenerf.fields.grid import GridField
+from spikenerf.fields.grid_config import GridFieldConfig
 from spikenerf.fields.occupancy import dilate
 
 

@@ -26,7 +26,8 @@ import torch
 from torch import Tensor, nn
 
 from spikenerf.fields.encoding import encoded_size
-from spikenerf.fields.grid import GridField, GridFieldConfig
+from spikenerf.fields.grid import GridField
+from spikenerf.fields.grid_config import GridFieldConfig
 from spikenerf.fields.row_buckets import pad_to_bucket
 
 WAYS = ("changing", "bucketed", "fixed")

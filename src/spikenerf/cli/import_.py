@@ -126,7 +126,8 @@ PARAM_FLAGS = {"fov_deg": "--fov"}
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
 @click.option("--verbose", is_flag=True, help="Show COLMAP's log.")
 def command(**kw: Any) -> None:
-    from spikenerf.importing.importer import ImportOptions, import_recording
+    from spikenerf.importing.importer import import_recording
+    from spikenerf.importing.options import ImportOptions
 
     frame_range = None if kw["frame_range"] is None else parse_range(kw["frame_range"], "frame_range")
     flag = {"fov_deg": "fov"}  # ImportOptions field → click parameter, where the names differ

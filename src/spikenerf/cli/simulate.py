@@ -164,7 +164,8 @@ def command(**kw: Any) -> None:
             err=True,
         )
     from spikenerf.capture.blur import exposure_length, parse_blur_views
-    from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+    from spikenerf.capture.options import SimulateOptions
+    from spikenerf.capture.simulate import simulate_dataset
 
     options = SimulateOptions(
         colors=_colors(str(kw["color"])),

@@ -37,7 +37,8 @@ PUBLIC_API: dict[str, dict[str, str]] = {
         "spikenerf.data.dataset": "SpikeDataset load_dataset",
     },
     "spikenerf.capture": {
-        "spikenerf.capture.simulate": "SimulateOptions simulate_dataset",
+        "spikenerf.capture.options": "SimulateOptions",
+        "spikenerf.capture.simulate": "simulate_dataset",
     },
     "spikenerf.train": {
         "spikenerf.train.config": "TrainConfig load_config",
@@ -51,7 +52,8 @@ PUBLIC_API: dict[str, dict[str, str]] = {
             "FIELD_REGISTRY FieldEntry build_field field_config field_entry field_memory"
         ),
         "spikenerf.fields.base": "Field",
-        "spikenerf.fields.grid": "GridField GridFieldConfig",
+        "spikenerf.fields.grid": "GridField",
+        "spikenerf.fields.grid_config": "GridFieldConfig",
         "spikenerf.fields.mlp": "MLPField MLPFieldConfig",
         "spikenerf.fields.occupancy": "OccupancyGrid",
     },

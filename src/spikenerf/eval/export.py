@@ -5,9 +5,9 @@ atomically, refusing an existing file unless ``overwrite``:
 
 - ``kind="pointcloud"``: every view of ``trajectory`` (``test``, ``orbit``, ``spiral``, ``interpolate``, a
   transforms.json or a nerfstudio camera_path.json, resolved as ``render`` resolves it,
-  :func:`~spikenerf.eval.video.resolve_trajectory`) is rendered as ``render`` renders it; each pixel whose
-  accumulated opacity exceeds ``min_opacity`` becomes the point at its expected termination depth along its
-  ray, coloured with the pixel's rendered colour. ``max_points`` keeps that many of them, drawn without
+  :func:`~spikenerf.eval.trajectories.resolve_trajectory`) is rendered as ``render`` renders it; each pixel
+  whose accumulated opacity exceeds ``min_opacity`` becomes the point at its expected termination depth along
+  its ray, coloured with the pixel's rendered colour. ``max_points`` keeps that many of them, drawn without
   replacement with a fixed seed (the same file every time).
 - ``kind="mesh"``: the field's density is sampled on a ``resolution``³ lattice over the scene box (the box's
   faces included) and ``skimage.measure.marching_cubes`` (the ``mesh`` extra: scikit-image) extracts the
@@ -46,7 +46,7 @@ from spikenerf.eval.choices import (
     DEFAULT_RESOLUTION,
     EXPORT_KINDS,
 )
-from spikenerf.eval.video import DEFAULT_ORBIT_FRAMES, RenderPath, refined_poses, resolve_trajectory
+from spikenerf.eval.trajectories import DEFAULT_ORBIT_FRAMES, RenderPath, refined_poses, resolve_trajectory
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.geometry import density_grid, lattice_axes, surface_colors, view_points
 from spikenerf.render.inference import inference_chunk, resolve_precision

@@ -22,20 +22,14 @@ camera_path.json — and writes, each file atomically:
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import io
 import json
-import re
 import time
-import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import imageio.v3 as iio
 import numpy as np
 import torch
 
@@ -44,7 +38,7 @@ from spikenerf.camera.layout import to_channels_last
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, fitting_window
 from spikenerf.camera.spikecv import CONFIG_NAME as SPIKECV_CONFIG
 from spikenerf.camera.spikecv import write_spikecv_config
-from spikenerf.core.atomic import clean_stale_temps, write_bytes_atomic, write_text_atomic
+from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
@@ -52,168 +46,35 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark
 from spikenerf.core.progress import bar as progress_bar
 from spikenerf.core.video import check_fps, ffmpeg_module, to_uint8, write_video
-from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path, spike_files
+from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.reconstruction import frame_at
-from spikenerf.eval.render_cache import CACHE, UNREADABLE, RenderCache, cache_bytes, digest_array, render_key
-from spikenerf.eval.render_record import read_render_record
+from spikenerf.eval.render_cache import RenderCache, cache_bytes, digest_array, render_key
+from spikenerf.eval.render_output import (
+    clear_previous_render,
+    colorize_depth,
+    depth_range,
+    listed_files,
+    planned_files,
+    png_bytes,
+    write_npy,
+)
+from spikenerf.eval.trajectories import (
+    ALONG,
+    DEFAULT_ORBIT_FRAMES,
+    GENERATORS,
+    TRAJECTORIES,
+    RenderPath,
+    refined_poses,
+    resolve_trajectory,
+)
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.render.model import render_image
 from spikenerf.render.spiking import iter_spike_states
-from spikenerf.scenes.render_paths import (
-    FORWARD_FACING,
-    GENERATED_PATHS,
-    INTERPOLATE_KEYS,
-    RENDER_PATHS,
-    key_path,
-    path_keys,
-    spiral_path,
-    view_agreement,
-)
-from spikenerf.scenes.trajectory import Intrinsics, orbit
-from spikenerf.train.pose_refine import refined_dataset, refined_views
+from spikenerf.scenes.render_paths import GENERATED_PATHS
+from spikenerf.scenes.trajectory import Intrinsics
 from spikenerf.train.run import open_run
 
-TRAJECTORIES = RENDER_PATHS
-DEFAULT_ORBIT_FRAMES = 120
 TFP_WINDOW = DEFAULT_WINDOW
-
-
-def png_bytes(image: np.ndarray) -> bytes:
-    """8-bit PNG of a uint8 (H, W) or (H, W, 3) image."""
-    return bytes(iio.imwrite("<bytes>", image, extension=".png"))
-
-
-def depth_range(depths: np.ndarray, opacities: np.ndarray) -> tuple[float, float]:
-    """(lo, hi): 1st/99th percentile of depths (N, H, W) where opacity > 0.5 (0, 1 if none)."""
-    valid = depths[opacities > 0.5]
-    if valid.size == 0:
-        return 0.0, 1.0
-    lo, hi = np.percentile(valid, [1.0, 99.0])
-    return float(lo), float(max(hi, lo + 1e-6))
-
-
-def colorize_depth(depth: np.ndarray, opacity: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Depth (H, W) → uint8 (H, W, 3): turbo colour map of (depth − lo)/(hi − lo), over white by opacity."""
-    from matplotlib import colormaps
-
-    t = np.clip((depth - lo) / (hi - lo), 0.0, 1.0)
-    rgb = colormaps["turbo"](t)[..., :3]
-    a = np.clip(opacity, 0.0, 1.0)[..., None]
-    return to_uint8(rgb * a + (1.0 - a))
-
-
-def _write_npy(path: Path, array: np.ndarray) -> None:
-    buf = io.BytesIO()
-    np.save(buf, array)
-    write_bytes_atomic(path, buf.getvalue())
-
-
-def refined_poses(ckpt: dict, config: Any, dataset: SpikeDataset) -> SpikeDataset:
-    """``dataset`` with the test views and the path at the poses the run (its checkpoint ``ckpt``) refined
-    (``--refine-poses``), where ``eval`` scores them and the orbit is centred; unchanged for a run that did
-    not refine poses."""
-    if not ckpt.get("poses"):
-        return dataset
-    test = refined_views(ckpt, config, dataset, dataset.test)
-    return dataclasses.replace(refined_dataset(ckpt, config, dataset), test=test)
-
-
-def orbit_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
-    """(count, 4, 4) poses of one closed orbit around the scene box centre at the training path's mean
-    distance and elevation (no repeated end pose)."""
-    center = dataset.scene_box.mean(0)
-    offsets = dataset.trajectory.poses[:, :3, 3] - center
-    radius = float(np.linalg.norm(offsets, axis=-1).mean())
-    elevation = float(
-        np.degrees(np.arcsin(np.clip(offsets[:, 2] / np.linalg.norm(offsets, axis=-1), -1, 1))).mean()
-    )
-    start = float(np.degrees(np.arctan2(offsets[0, 1], offsets[0, 0])))
-    traj = orbit(
-        radius, elevation, duration=float(count), fps=1.0, center=tuple(center), start_azimuth_deg=start
-    )
-    return traj.poses
-
-
-def spiral_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
-    """(count, 4, 4) poses of a spiral around the mean training camera, looking at a focus depth from the
-    dataset's near/far (:func:`spikenerf.scenes.render_paths.spiral_path`). A warning where the training
-    cameras look around an object (:func:`~spikenerf.scenes.render_paths.view_agreement` below
-    ``FORWARD_FACING``): the spiral is for forward-facing captures."""
-    if (agree := view_agreement(dataset.trajectory.poses)) < FORWARD_FACING:
-        warnings.warn(
-            f"trajectory spiral: the training cameras look around the scene (their mean view direction has "
-            f"length {agree:.2f}, under {FORWARD_FACING:.2f} for a forward-facing capture), so the spiral "
-            "circles among what they film; orbit or interpolate follows such a path",
-            stacklevel=2,
-        )
-    return spiral_path(dataset.trajectory.poses, dataset.near, dataset.far, count)
-
-
-def interpolated_poses(dataset: SpikeDataset, count: int) -> np.ndarray:
-    """(count, 4, 4) poses of a smooth path through :data:`INTERPOLATE_KEYS` training poses spread over the
-    training path in time order (slerped rotations, Catmull-Rom positions:
-    :func:`spikenerf.scenes.render_paths.key_path`)."""
-    return key_path(path_keys(dataset.trajectory.poses, INTERPOLATE_KEYS), count)
-
-
-#: the generated paths' poses, (dataset, count) → (count, 4, 4)
-GENERATORS: dict[str, Callable[[SpikeDataset, int], np.ndarray]] = {
-    "orbit": orbit_poses,
-    "spiral": spiral_poses,
-    "interpolate": interpolated_poses,
-}
-#: what the log says of a built-in path
-ALONG = {
-    "test": "at the test poses",
-    "orbit": "along the orbit",
-    "spiral": "along a spiral around the mean training camera",
-    "interpolate": "along the training path",
-}
-
-
-@dataclass
-class RenderPath:
-    """What a render follows: ``name`` (the video's stem), ``poses`` (N, 4, 4) c2w, the camera and the
-    ray bounds; ``file``: the trajectory file's name, None for the built-in paths (a file named
-    ``test.json`` is no test trajectory); ``kind``: the built-in path's name, or the file's format
-    (``transforms`` or ``camera_path``, nerfstudio's)."""
-
-    name: str
-    poses: np.ndarray
-    intrinsics: Intrinsics
-    near: float
-    far: float
-    file: str | None = None
-    kind: str = ""
-
-
-def resolve_trajectory(spec: str, dataset: SpikeDataset, count: int) -> RenderPath:
-    """The :class:`RenderPath` of ``test``, a generated path (``orbit``, ``spiral``, ``interpolate``:
-    ``count`` poses) or a trajectory file (a transforms.json or a nerfstudio camera_path.json); the built-in
-    paths use the dataset's camera and bounds, a file its own camera where it gives one (``w``/``h`` default
-    to the dataset's size) and its ``near``/``far``, else bounds around the scene box from its poses."""
-    k, near, far = dataset.intrinsics, dataset.near, dataset.far
-    if spec == "test":
-        if len(dataset.test) == 0:
-            raise InputError(
-                "the dataset has no test views (transforms_test.json): give trajectory orbit or a poses file",
-                path=dataset.root,
-                param="trajectory",
-            )
-        return RenderPath("test", np.asarray(dataset.test.poses, np.float64), k, near, far, kind="test")
-    if spec in GENERATORS:
-        return RenderPath(spec, GENERATORS[spec](dataset, count), k, near, far, kind=spec)
-    path = Path(spec)
-    if not path.is_file():
-        what = "no such file" if not path.exists() else "not a file"
-        raise InputError(
-            f"trajectory: expected {', '.join(TRAJECTORIES)}, a transforms.json or a nerfstudio "
-            f"camera_path.json file, found {spec!r} ({what})",
-            param="trajectory",
-        )
-    found = read_camera_path(path, (k.width, k.height))
-    near, far = found.bounds or near_far(found.poses, dataset.scene_box)
-    return RenderPath(path.stem, found.poses, found.intrinsics or k, near, far, path.name, found.kind)
 
 
 def write_spikes(
@@ -292,57 +153,6 @@ def render_run(
         )  # fmt: skip
 
 
-#: the names a render gives its frames and depth maps (``00000.png``, ``00000.npy``; more digits past 99999)
-FRAME_NAME = re.compile(r"\d{5,}\.(png|npy)")
-#: the names of a novel-view spike stream, its preview and its SpikeCV config (:func:`write_spikes`)
-SPIKE_NAME = re.compile(r"spikes_(gray\.dat|rgb_[rgb]\.dat|tfp\.png)|config\.yaml")
-
-
-def planned_files(name: str, channels: int, spikes: bool, config: bool = True) -> list[str]:
-    """The video and spike files a render of trajectory ``name`` writes (see :func:`write_spikes`; with
-    ``config`` its SpikeCV ``config.yaml`` too)."""
-    if not spikes:
-        return [f"{name}.mp4"]
-    streams = spike_files("gray" if channels == 1 else "rgb")
-    return [f"{name}.mp4", *streams, "spikes_tfp.png", *([SPIKECV_CONFIG] if config else [])]
-
-
-def _listed_files(out: Path) -> list[object]:
-    """The video and spike files of earlier renders into ``out``: those its ``render.json`` lists (a
-    malformed one is an InputError naming it: the files it listed would stay), and those an interrupted
-    render planned (its cache's ``key.json``; a cache, rebuilt where it is unreadable)."""
-    listed: list[object] = []
-    if (record := read_render_record(out)) is not None:
-        files = record.get("files") or {}
-        listed += [files.get("video"), *(files.get("spikes") or [])]
-    with contextlib.suppress(*UNREADABLE):
-        listed += list(json.loads((out / CACHE / "key.json").read_text())["plan"])
-    return listed
-
-
-def clear_previous_render(out: Path, listed: list[object] | None = None) -> None:
-    """Delete what earlier renders left in their folder ``out`` (marked ``render``): the frames and depth
-    maps (named as :data:`FRAME_NAME`), ``render.json`` and the video and spike files it lists or an
-    interrupted render planned (``listed``: :func:`_listed_files`, read before), and temporaries, so no view
-    of another trajectory stays beside the new ones and no manifest describes files that are gone. Other
-    files stay."""
-    listed = _listed_files(out) if listed is None else listed
-    (out / "render.json").unlink(missing_ok=True)
-    for folder in (out, out / "images", out / "depth"):
-        clean_stale_temps(folder)
-    stale = [p for p in (out / "images").glob("*.png") if FRAME_NAME.fullmatch(p.name)]
-    stale += [p for p in (out / "depth").glob("*.*") if FRAME_NAME.fullmatch(p.name)]
-    for name in listed:
-        if (
-            isinstance(name, str)
-            and (name == Path(name).name)
-            and (SPIKE_NAME.fullmatch(name) or name.endswith(".mp4"))
-        ):
-            stale.append(out / name)
-    for path in stale:
-        path.unlink(missing_ok=True)
-
-
 #: memory a view holds until the video is written, (bytes a pixel, bytes a view): its colour, depth and
 #: opacity, their stacks and the video's RGB frame (19.9 a pixel measured at 128×128), and its arrays with
 #: the tensors under them (2.7 KiB a view measured at 16×16: a 400 000-pose trajectory file holds 3 GB)
@@ -403,7 +213,7 @@ def _render_locked(
     progress: bool, log: Callable[[str], None] | None, precision: str = "auto",
 ) -> dict[str, Any]:  # fmt: skip
     t0 = time.perf_counter()
-    previous = _listed_files(out)  # a malformed render.json is refused before any work
+    previous = listed_files(out)  # a malformed render.json is refused before any work
     model, config, dataset, ckpt = open_run(run_dir, dataset_root, device, train_images=False)  # new views
     dataset = refined_poses(ckpt, config, dataset)
     precision = resolve_precision(precision, model.device)
@@ -449,7 +259,7 @@ def _render_locked(
     lo, hi = depth_range(depth_all, op_all)
     for i, (color, depth, opacity) in enumerate(zip(colors, depths, opacities, strict=True)):
         write_bytes_atomic(out / "images" / f"{i:05d}.png", png_bytes(color))
-        _write_npy(out / "depth" / f"{i:05d}.npy", depth.astype(np.float32))
+        write_npy(out / "depth" / f"{i:05d}.npy", depth.astype(np.float32))
         write_bytes_atomic(out / "depth" / f"{i:05d}.png", png_bytes(colorize_depth(depth, opacity, lo, hi)))
     video = f"{path.name}.mp4"
     write_video(out / video, colors, fps_video)

@@ -16,7 +16,8 @@ from torch import Tensor
 from spikenerf.core.config import check_config, from_mapping
 from spikenerf.core.errors import InputError
 from spikenerf.fields.base import Field
-from spikenerf.fields.grid import GridField, GridFieldConfig
+from spikenerf.fields.grid import GridField
+from spikenerf.fields.grid_config import GridFieldConfig
 from spikenerf.fields.mlp import MLPField, MLPFieldConfig
 
 

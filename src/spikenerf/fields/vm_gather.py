@@ -7,8 +7,8 @@ channel rows of the channels-last factors (memory order 3, R, R, C) times biline
 its backward (an indexed accumulation of rows) are ordinary ops that the compiler can fuse with their
 neighbours. Opt-in (``GridFieldConfig.lookup = "gather"``): its GPU speed is not measured yet.
 
-Conventions are :func:`~spikenerf.fields.grid.sample_vm`'s: ``align_corners=True`` (−1 and 1 are the first
-and last texel centres), zeros outside the grid, planes indexed by ``(coord[MAT[m][0]] ↔ w,
+Conventions are :func:`~spikenerf.fields.vm_sample.sample_vm`'s: ``align_corners=True`` (−1 and 1 are the
+first and last texel centres), zeros outside the grid, planes indexed by ``(coord[MAT[m][0]] ↔ w,
 coord[MAT[m][1]] ↔ h)`` and lines by ``coord[VEC[m]] ↔ h``.
 """
 

@@ -112,7 +112,8 @@ def triton_vm(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
         xyz: (M, 3), normally in [−1, 1]; outside, zeros padding as ``grid_sample`` (NaN gives NaN).
         summed: return the sum over axis pairs and channels instead (the density), computed in the kernel.
     Returns:
-        (M, 3, C), the values of :func:`spikenerf.fields.grid.sample_vm` transposed; (M,) when ``summed``.
+        (M, 3, C), the values of :func:`spikenerf.fields.vm_sample.sample_vm` transposed; (M,) when
+        ``summed``.
         Gradients flow to ``planes`` and ``lines``, not to ``xyz``.
     Raises:
         RuntimeError: Triton cannot run here (:func:`applies` is False), naming why.

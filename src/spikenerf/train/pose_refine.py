@@ -24,7 +24,7 @@ from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.holdout import is_imported
 from spikenerf.importing.alignment import key_brackets
-from spikenerf.importing.importer import keyframe_steps
+from spikenerf.importing.keyframes import keyframe_steps
 from spikenerf.train.settings import PoseRefineConfig
 
 REFINED_POSES = "refined_poses.json"

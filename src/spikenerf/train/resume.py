@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from spikenerf.core.errors import InputError
-from spikenerf.fields.grid import KERNEL_OPTIONS
+from spikenerf.fields.grid_config import KERNEL_OPTIONS
 from spikenerf.train.config import TrainConfig, load_run_config
 from spikenerf.train.methods import unused_keys
 

@@ -1,0 +1,230 @@
+"""The C++ source of the fused CPU kernel for the VM lookup (``vm_kernel.py``), compiled on first use by
+``vm_build.py``.
+
+Forward ``P_m(x)·L_m(x)`` for the three axis pairs, per channel or (``summed``, the density) added up in the
+kernel; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into channels-last gradients, each thread owning a band
+of plane rows (no races, the same plane-gradient bits on any number of threads) and its own line-gradient
+buffer. Each loop prefetches the texels of the point 8 ahead. The build folder's name hashes this text
+(``vm_build._name``): any change to it builds anew.
+"""
+
+SOURCE = r"""
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+// planes (3, R, R, C), lines (3, R, C) channels last; xyz (M, 3) in [-1, 1]; align_corners=True.
+// plane m: col = coord[MAT[m][0]], row = coord[MAT[m][1]]; line m: coord[VEC[m]].
+static const int MAT0[3] = {0, 0, 1}, MAT1[3] = {1, 2, 2}, VEC[3] = {2, 1, 0};
+
+// zeros padding as grid_sample: texel i gets weight a, texel i + 1 weight b (0 for a texel outside [0, r-1]);
+// a NaN/inf coordinate gives NaN weights (grid_sample's NaN) on an in-range index, never a wild read.
+static inline void cell(float x, int r, int &i, float &a, float &b) {
+  const float u = (x + 1.f) * 0.5f * (r - 1);
+  i = 0;
+  if (!std::isfinite(u)) { a = b = std::numeric_limits<float>::quiet_NaN(); return; }
+  const float fl = std::floor(u), f = u - fl;
+  if (fl < -1.f || fl > (float)(r - 1)) { a = b = 0.f; return; }  // both texels outside
+  if (fl == -1.f) { a = f; b = 0.f; return; }                       // only texel 0, at index 0
+  if (fl == (float)(r - 1)) { i = r - 2; a = 0.f; b = 1.f - f; return; }  // only texel r-1, at index r-2
+  i = (int)fl; a = 1.f - f; b = f;
+}
+
+// software prefetch of the texels point x will read (the lookups are random; the OoO window is too short)
+static const int64_t PF = 8;  // points ahead
+static inline void prefetch_point(const float *P, const float *L, const float *x, int64_t r, int64_t c,
+                                  int64_t lo, int64_t hi) {
+  for (int k = 0; k < 3; ++k) {
+    int ic, ir, il; float a, b;
+    cell(x[MAT1[k]], r, ir, a, b);
+    if (ir + 1 < lo || ir >= hi) continue;  // rows [lo, hi) only (the backward's band of a thread)
+    cell(x[MAT0[k]], r, ic, a, b); cell(x[VEC[k]], r, il, a, b);
+    const char *p0 = (const char *)(P + ((k * r + ir) * r + ic) * c), *p1 = p0 + r * c * sizeof(float);
+    for (int64_t o = 0; o < 2 * c * (int64_t)sizeof(float); o += 64) { __builtin_prefetch(p0 + o); __builtin_prefetch(p1 + o); }
+    __builtin_prefetch(L + (k * r + il) * c);
+  }
+}
+
+// the bilinear plane value and linear line value of channel j at point weights w.. / a., b. (the four texels
+// p00 … p11, the two l0, l1)
+#define PLANE_J(j) (w00 * p00[j] + w01 * p01[j] + w10 * p10[j] + w11 * p11[j])
+#define LINE_J(j) (al * l0[j] + bl * l1[j])
+
+// summed = false: out (M, 3, C), the product per axis pair and channel; summed = true: out (M,), the sum of
+// those 3·C products (the density: no (M, 3, C) intermediate is written, read back or kept for backward)
+torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, bool summed) {
+  const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
+  auto out = summed ? torch::empty({m}, xyz.options()) : torch::empty({m, 3, c}, xyz.options());
+  const float *P = planes.data_ptr<float>(), *L = lines.data_ptr<float>(), *X = xyz.data_ptr<float>();
+  float *O = out.data_ptr<float>();
+  at::parallel_for(0, m, 256, [&](int64_t b, int64_t e) {
+    for (int64_t n = b; n < e; ++n) {
+      if (n + PF < e) prefetch_point(P, L, X + (n + PF) * 3, r, c, 0, r);
+      float total = 0.f;
+      for (int k = 0; k < 3; ++k) {
+        int ic, ir, il; float ac, bc, ar, br, al, bl;
+        cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
+        cell(X[n * 3 + VEC[k]], r, il, al, bl);
+        const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
+        const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
+        const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
+        if (summed) {
+          float acc = 0.f;
+#pragma omp simd reduction(+ : acc)
+          for (int64_t j = 0; j < c; ++j) acc += PLANE_J(j) * LINE_J(j);
+          total += acc;
+        } else {
+          float *o = O + (n * 3 + k) * c;
+          for (int64_t j = 0; j < c; ++j) o[j] = PLANE_J(j) * LINE_J(j);
+        }
+      }
+      if (summed) O[n] = total;
+    }
+  });
+  return out;
+}
+
+// one point and axis pair of the backward: the scatter of the gradient g (channel j: g[j], or g[0] for every
+// channel when SUMMED) into the plane gradient's rows ir (row0) and ir + 1 (row1) and into the line gradient
+// (line); ALL: all three (the common case, a point inside a thread's rows)
+template <bool SUMMED, bool ALL>
+static inline void scatter_pair(int64_t c, const float *__restrict__ P, const float *__restrict__ L,
+                                float *__restrict__ GP, float *__restrict__ GL, int64_t o00, int64_t o01,
+                                int64_t o10, int64_t o11, int64_t q0, int64_t q1, float w00, float w01,
+                                float w10, float w11, float al, float bl, const float *__restrict__ g,
+                                bool row0, bool row1, bool line) {
+#pragma GCC ivdep
+  for (int64_t j = 0; j < c; ++j) {
+    const float gj = SUMMED ? g[0] : g[j];
+    const float pv = w00 * P[o00 + j] + w01 * P[o01 + j] + w10 * P[o10 + j] + w11 * P[o11 + j];
+    const float lv = al * L[q0 + j] + bl * L[q1 + j];
+    const float gpl = gj * lv, glp = gj * pv;
+    if (ALL || row0) { GP[o00 + j] += w00 * gpl; GP[o01 + j] += w01 * gpl; }
+    if (ALL || row1) { GP[o10 + j] += w10 * gpl; GP[o11 + j] += w11 * gpl; }
+    if (ALL || line) { GL[q0 + j] += al * glp; GL[q1 + j] += bl * glp; }
+  }
+}
+
+// the rare case out of line (so that the common one stays as compact as before): a point whose rows ir and
+// ir + 1 lie in two threads' bands; the line gradient goes with row ir
+__attribute__((noinline)) static void edge_pair(bool summed, int64_t c, const float *P, const float *L, float *GP,
+                                                float *GL, int64_t o00, int64_t o01, int64_t o10, int64_t o11,
+                                                int64_t q0, int64_t q1, float w00, float w01, float w10,
+                                                float w11, float al, float bl, const float *g, bool row0,
+                                                bool row1) {
+  if (summed)
+    scatter_pair<true, false>(c, P, L, GP, GL, o00, o01, o10, o11, q0, q1, w00, w01, w10, w11, al, bl, g, row0,
+                              row1, row0);
+  else
+    scatter_pair<false, false>(c, P, L, GP, GL, o00, o01, o10, o11, q0, q1, w00, w01, w10, w11, al, bl, g,
+                               row0, row1, row0);
+}
+
+// the plane rows of each of nt threads: thread t owns rows [bound[t], bound[t + 1]) of all three planes, split
+// where a subsample of the points' rows (those with a gradient) reaches t / nt of its count, so that the
+// threads scatter about as many points each
+static std::vector<int64_t> row_bounds(const float *X, const float *G, bool summed, int64_t m, int64_t r,
+                                       int64_t nt) {
+  std::vector<int64_t> count(r, 0), bound(nt + 1, r);
+  bound[0] = 0;
+  if (nt == 1) return bound;
+  const int64_t stride = std::max<int64_t>(1, m / 8192) | 1;  // odd: not in step with a periodic gradient
+  int64_t total = 0;
+  for (int64_t n = 0; n < m; n += stride) {
+    if (summed && G[n] == 0.0f) continue;
+    for (int k = 0; k < 3; ++k) {
+      int ir; float a, b;
+      cell(X[n * 3 + MAT1[k]], r, ir, a, b);
+      ++count[ir]; ++total;
+    }
+  }
+  if (total == 0) {  // no sampled point has a gradient: equal bands
+    for (int64_t t = 1; t < nt; ++t) bound[t] = t * r / nt;
+    return bound;
+  }
+  int64_t acc = 0, t = 1;
+  for (int64_t i = 0; i < r && t < nt; ++i) {
+    acc += count[i];
+    while (t < nt && acc * nt >= total * t) bound[t++] = i + 1;
+  }
+  return bound;
+}
+
+// one thread's share of the backward: every point's scatter into the plane rows [lo, hi) (all: 0, r)
+template <bool SUMMED>
+static void scatter_band(const float *__restrict__ P, const float *__restrict__ L, const float *__restrict__ X,
+                         const float *__restrict__ G, float *__restrict__ GP, float *__restrict__ GL, int64_t m,
+                         int64_t r, int64_t c, int64_t lo, int64_t hi) {
+  const bool all = lo == 0 && hi == r;
+  for (int64_t n = 0; n < m; ++n) {
+    if (SUMMED && G[n] == 0.0f) continue;  // e.g. behind a ray's early stop: nothing to scatter
+    if (n + PF < m) prefetch_point(P, L, X + (n + PF) * 3, r, c, lo, hi);
+    for (int k = 0; k < 3; ++k) {
+      int ic, ir, il; float ac, bc, ar, br, al, bl;
+      cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
+      const bool row0 = all || (ir >= lo && ir < hi), row1 = all || (ir + 1 >= lo && ir + 1 < hi);
+      if (!row0 && !row1) continue;  // another thread's rows
+      cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + VEC[k]], r, il, al, bl);
+      const int64_t o00 = ((k * r + ir) * r + ic) * c, o01 = o00 + c, o10 = o00 + r * c, o11 = o10 + c;
+      const int64_t q0 = (k * r + il) * c, q1 = q0 + c;
+      const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
+      const float *g = SUMMED ? G + n : G + (n * 3 + k) * c;
+      if (row0 && row1)
+        scatter_pair<SUMMED, true>(c, P, L, GP, GL, o00, o01, o10, o11, q0, q1, w00, w01, w10, w11, al, bl, g,
+                                   true, true, true);
+      else  // a point on the edge of the band: one of its rows, and its line where ir is ours
+        edge_pair(SUMMED, c, P, L, GP, GL, o00, o01, o10, o11, q0, q1, w00, w01, w10, w11, al, bl, g, row0, row1);
+    }
+  }
+}
+
+std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz,
+                                       torch::Tensor grad) {
+  // no races and no per-thread copy of the plane gradient: each thread owns a band of rows of all three
+  // planes (row_bounds), zeroes it, walks all points and scatters only into its rows; a point's line
+  // gradient goes to the thread that owns its row ir, into that thread's own (small) line buffer, summed at
+  // the end. Each plane gradient element is summed in point order by one thread: the same bits on any
+  // number of threads; the line gradients' sum order depends on the thread count.
+  // grad: (M, 3, C), or (M,) for a summed forward (one value for all 3·C products of a point).
+  const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
+  const bool summed = grad.dim() == 1;
+  const int64_t threads = std::min<int64_t>(64, at::get_num_threads());
+  const int64_t nt = std::max<int64_t>(1, std::min<int64_t>({threads, (m + 4095) / 4096, r - 1}));
+  auto gp = torch::empty({3, r, r, c}, planes.options()), gl = torch::zeros({nt, 3, r, c}, lines.options());
+  const float *__restrict__ P = planes.data_ptr<float>(), *__restrict__ L = lines.data_ptr<float>();
+  const float *__restrict__ X = xyz.data_ptr<float>(), *__restrict__ G = grad.data_ptr<float>();
+  float *__restrict__ GP = gp.data_ptr<float>();
+  float *GL0 = gl.data_ptr<float>();
+  const int64_t sl = 3 * r * c;
+  const std::vector<int64_t> bound = row_bounds(X, G, summed, m, r, nt);
+  at::parallel_for(0, nt, 1, [&](int64_t tb, int64_t te) {
+    for (int64_t t = tb; t < te; ++t) {
+      const int64_t lo = bound[t], hi = bound[t + 1];
+      for (int k = 0; k < 3; ++k) std::fill(GP + (k * r + lo) * r * c, GP + (k * r + hi) * r * c, 0.0f);
+      if (summed)
+        scatter_band<true>(P, L, X, G, GP, GL0 + t * sl, m, r, c, lo, hi);
+      else
+        scatter_band<false>(P, L, X, G, GP, GL0 + t * sl, m, r, c, lo, hi);
+    }
+  });
+  return {gp, nt == 1 ? gl[0] : gl.sum(0)};
+}
+
+// how many threads an at::parallel_for of this build spreads over (1 where it was built without OpenMP)
+int64_t parallel_threads(int64_t n) {
+  std::vector<int> used(std::max<int64_t>(256, at::get_num_threads()), 0);
+  at::parallel_for(0, std::max<int64_t>(1, n), 1, [&](int64_t, int64_t) {
+    const int t = at::get_thread_num();
+    if (t >= 0 && t < (int)used.size()) used[t] = 1;
+  });
+  return std::count(used.begin(), used.end(), 1);
+}
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("parallel_threads", &parallel_threads);
+  m.def("forward", &vm_forward);
+  m.def("backward", &vm_backward);
+}
+"""
