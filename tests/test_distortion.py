@@ -20,7 +20,7 @@ from spikenerf.data.dataset import load_dataset
 from spikenerf.data.rays import camera_directions, image_pixels, image_rays
 from spikenerf.data.writer import DatasetWriter
 from spikenerf.scenes import analytic, transforms
-from spikenerf.scenes.distortion import NEWTON_STEPS, Distortion
+from spikenerf.scenes.distortion import NEWTON_STEPS, Distortion, checked, colmap_camera
 from spikenerf.scenes.poses import look_at
 from spikenerf.scenes.projection import project_points
 from spikenerf.scenes.trajectory import Intrinsics, orbit
@@ -179,6 +179,72 @@ def test_newton_steps_suffice_for_a_strong_barrel_lens() -> None:
     xd, yd = _distorted_grid(k)
     x, y = lens.undistort(xd, yd, NEWTON_STEPS)
     assert np.hypot(*(a - b for a, b in zip(lens.distort(x, y), (xd, yd), strict=True))).max() < 1e-9
+
+
+@pytest.mark.parametrize(
+    ("model", "params"),
+    [
+        ("OPENCV", [24.0, 25.2, 20.7, 14.6, 0.0, 0.0, 0.0, 0.0]),
+        ("FULL_OPENCV", [24.0, 25.2, 20.7, 14.6, *[0.0] * 8]),
+        ("RADIAL", [24.0, 20.7, 14.6, 0.0, 0.0]),
+        ("SIMPLE_RADIAL", [24.0, 20.7, 14.6, 0.0]),
+    ],
+)
+def test_a_colmap_lens_with_zero_terms_is_the_pinhole_bit_for_bit(model: str, params: list[float]) -> None:
+    """An OPENCV-family calibration whose terms are all zero is no lens at all: colmap_camera gives None,
+    and the camera's rays are bit for bit the pinhole's."""
+    focal, lens = colmap_camera(model, params)
+    assert lens is None
+    pinhole = Intrinsics(W, H, *focal)
+    same = Intrinsics(
+        W, H, *focal, Distortion("OPENCV", **dict.fromkeys(("k1", "k2", "k3", "k4", "p1", "p2"), 0))
+    )
+    assert same == pinhole and same.distortion is None
+    pixels = image_pixels(pinhole)
+    for dtype in (torch.float32, torch.float64):
+        assert torch.equal(camera_directions(same, pixels, dtype), camera_directions(pinhole, pixels, dtype))
+
+
+@pytest.mark.parametrize(
+    ("model", "params"),
+    [
+        ("OPENCV_FISHEYE", [24.0, 25.2, 20.7, 14.6, 0.0, 0.0, 0.0, 0.0]),
+        ("RADIAL_FISHEYE", [24.0, 20.7, 14.6, 0.0, 0.0]),
+        ("SIMPLE_RADIAL_FISHEYE", [24.0, 20.7, 14.6, 0.0]),
+        ("FISHEYE", [24.0, 25.2, 20.7, 14.6]),
+        ("SIMPLE_FISHEYE", [24.0, 20.7, 14.6]),
+    ],
+)
+def test_a_fisheye_with_zero_terms_is_equidistant_never_a_pinhole(
+    model: str, params: list[float], tmp_path: Path
+) -> None:
+    """Zero fisheye terms still bend the rays (r_d = θ = atan r): COLMAP, checked(), the rays, the
+    transforms.json round trip and the projection all keep the lens."""
+    focal, lens = colmap_camera(model, params)
+    assert lens == Distortion("OPENCV_FISHEYE") and not lens.is_pinhole
+    k = Intrinsics(W, H, *focal, lens)
+    assert checked(lens, k) is lens and k.distortion is lens
+    r = np.array([0.0, 0.3, 1.0, 2.5])
+    xd, yd = lens.distort(r, np.zeros_like(r))
+    np.testing.assert_allclose(xd, np.arctan(r), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(yd, 0)
+    x, _ = lens.undistort(xd, yd)  # the round trip, at and off the axis
+    np.testing.assert_allclose(x, r, rtol=1e-12, atol=1e-15)
+    pixels = image_pixels(k)
+    bent = camera_directions(k, pixels, torch.float64)
+    flat = camera_directions(Intrinsics(W, H, *focal), pixels, torch.float64)
+    radius = torch.hypot(flat[:, 0], flat[:, 1])  # the recorded (distorted) radius is the ray's angle
+    assert torch.allclose(torch.atan(torch.hypot(bent[:, 0], bent[:, 1])), radius, rtol=0, atol=1e-12)
+    assert float((bent[:, :2] - flat[:, :2]).abs().max()) > 0.1  # (not the pinhole's rays)
+    header = DatasetWriter(tmp_path, k, 40000.0, np.array([[-1.0] * 3, [1.0] * 3]), 0.1, 5.0).header()
+    assert header["camera_model"] == "OPENCV_FISHEYE" and "k1" not in header
+    path = tmp_path / "t.json"
+    path.write_text(json.dumps({**header, "frames": []}))
+    assert transforms.intrinsics(transforms.read_transforms(path), path) == k
+    c2w = look_at(np.array([0.3, -2.5, 1.1]), np.zeros(3))
+    origins, dirs = image_rays(torch.tensor(c2w), k)
+    u, v, _ = project_points(c2w, (origins + 2 * dirs).numpy(), k)
+    np.testing.assert_allclose(np.stack([u, v], -1), (pixels + 0.5).numpy(), atol=1e-6)
 
 
 def test_transforms_json_keys_round_trip_through_the_dataset_writer(tmp_path: Path) -> None:

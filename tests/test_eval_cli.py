@@ -241,6 +241,19 @@ def test_render_a_nerfstudio_camera_path(
     assert "'render_width': expected a positive number, found 0" in err and not bad.exists()
 
 
+def test_render_refuses_a_trajectory_lens_without_its_focal_length(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--trajectory FILE with lens keys but no fl_x: one line naming the file and the key, exit 2, nothing
+    written (neither the dataset's camera used silently nor the lens dropped)."""
+    frames = json.loads((run_dir.parent / "ds" / "transforms_test.json").read_text())["frames"][:1]
+    path = tmp_path / "lens_path.json"
+    path.write_text(json.dumps({"camera_model": "OPENCV_FISHEYE", "frames": frames}))
+    out = tmp_path / "lens"
+    err = _cli_error(capsys, "render", run_dir, "--trajectory", path, "--device", "cpu", "--out", out)
+    assert str(path) in err and "'camera_model'" in err and "'fl_x'" in err and not out.exists()
+
+
 def test_bad_inputs_are_one_line_errors(
     run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -26,7 +26,7 @@ from spikenerf.core.ply import ply_bytes, read_ply, write_ply
 from spikenerf.eval.choices import DEFAULT_DENSITY_LEVEL
 from spikenerf.eval.export import INSTALL_HINT, mesh, point_cloud, subsample
 from spikenerf.eval.trajectories import RenderPath
-from spikenerf.render.geometry import backproject, density_grid, lattice_axes
+from spikenerf.render.geometry import backproject, density_grid, lattice_axes, lattice_normals, occupancy_of
 from spikenerf.render.model import build_model
 from spikenerf.scenes.analytic import CAMERA_ANGLE_X, SCENES, Sphere
 from spikenerf.scenes.trajectory import Intrinsics, orbit
@@ -106,13 +106,13 @@ def test_backproject_puts_depth_on_the_ray() -> None:
 
 def test_mesh_vertices_lie_on_the_level_set_and_the_sphere(sphere_model) -> None:  # type: ignore[no-untyped-def]
     pytest.importorskip("skimage")
-    verts, faces, colors = mesh(sphere_model, resolution=48)
+    verts, faces, colors, _ = mesh(sphere_model, resolution=48)
     assert len(faces) > 500 and faces.max() < len(verts) and colors.shape == (len(verts), 3)
     dist = surface_distance(verts)
     cell = float(lattice_axes(sphere_model, 48)[1].max())
     # marching cubes interpolates the density linearly between lattice points: within a cell of the surface
     assert np.median(dist) < 0.35 * cell and dist.max() < cell, (np.median(dist), dist.max(), cell)
-    finer, _, _ = mesh(sphere_model, resolution=96)
+    finer, _, _, _ = mesh(sphere_model, resolution=96)
     assert np.median(surface_distance(finer)) < 0.6 * np.median(dist)  # and closer on a finer lattice
     assert (np.abs(colors.astype(int) - expected_rgb()).max(axis=1) <= 2).all()
     # a closed sphere: every edge is shared by exactly two triangles
@@ -120,7 +120,7 @@ def test_mesh_vertices_lie_on_the_level_set_and_the_sphere(sphere_model) -> None
     _, counts = np.unique(edges, axis=0, return_counts=True)
     assert (counts == 2).all()
     # a higher level is a smaller sphere
-    inner, _, _ = mesh(sphere_model, resolution=48, density_level=10 * DEFAULT_DENSITY_LEVEL)
+    inner, _, _, _ = mesh(sphere_model, resolution=48, density_level=10 * DEFAULT_DENSITY_LEVEL)
     r = np.linalg.norm(inner - np.asarray(SPHERE.center), axis=-1)
     assert np.median(r) < SPHERE.radius - 0.005
     with pytest.raises(InputError, match=r"density_level 1e\+06 lies outside the density's range"):
@@ -142,6 +142,61 @@ def test_density_grid_matches_the_field_at_the_lattice_points(sphere_model) -> N
     assert torch.allclose(Field.density_lattice(sphere_model.field, coords), grid, rtol=1e-4, atol=1e-3)
 
 
+def test_mesh_normals_point_out_of_the_sphere_from_the_density_gradient(sphere_model) -> None:  # type: ignore[no-untyped-def]
+    """Every vertex normal is a unit vector pointing away from the sphere's centre, within a few degrees of
+    the true radial direction (minus the gradient of a density that is higher inside), and lattice_normals
+    gives minus the exact gradient of a linear density."""
+    pytest.importorskip("skimage")
+    verts, _, _, normals = mesh(sphere_model, resolution=64)
+    radial = verts - np.asarray(SPHERE.center)
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    assert normals.dtype == np.float32 and np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    cos = (normals * radial).sum(axis=1)
+    assert cos.min() > 0.9 and np.median(cos) > 0.99, (cos.min(), np.median(cos))
+    axes = [np.arange(5) * h for h in (0.5, 0.25, 1.0)]  # (anisotropic spacing)
+    x, y, z = np.meshgrid(*axes, indexing="ij")
+    ramp = 3.0 * x - 2.0 * y + 0.5 * z
+    points = np.array([[0.3, 0.6, 2.2], [1.9, 0.1, 3.9], [0.0, 0.0, 0.0]])
+    want = -np.array([3.0, -2.0, 0.5]) / np.linalg.norm([3.0, -2.0, 0.5])
+    np.testing.assert_allclose(
+        lattice_normals(ramp, points, np.array([0.5, 0.25, 1.0])), [want] * 3, atol=1e-6
+    )
+    assert not lattice_normals(np.ones((3, 3, 3)), points[:1], np.ones(3)).any()  # no gradient: no normal
+
+
+def test_the_mesh_skips_the_empty_space_of_the_occupancy_grid(sphere_model) -> None:  # type: ignore[no-untyped-def]
+    """Where the run has an occupancy grid the field is asked on a smaller lattice around its occupied
+    cells, with the same surface while the grid is conservative (here: it holds the whole sphere); density
+    in cells the grid calls empty (which the renderer skips) makes no surface."""
+    pytest.importorskip("skimage")
+    field, grid = sphere_model.field, occupancy_of(sphere_model)
+    assert grid is not None and grid.occupied_fraction() < 0.2
+    asked: list[int] = []
+    lattice = field.density_lattice
+
+    def counted(coords: torch.Tensor) -> torch.Tensor:
+        asked.append(len(coords))
+        return lattice(coords)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(field, "density_lattice", counted)
+        skipped = mesh(sphere_model, resolution=64)
+        whole = mesh(sphere_model, resolution=64, occupancy=False)
+    assert asked[1] == 64 and asked[0] < 0.7 * 64, asked  # (the sphere spans half the box)
+    assert np.array_equal(skipped[1], whole[1]) and np.array_equal(skipped[2], whole[2])
+    np.testing.assert_allclose(skipped[0], whole[0], atol=1e-6)  # (the separable sums' float rounding)
+    np.testing.assert_allclose(skipped[3], whole[3], atol=1e-4)
+    saved = grid.grid.clone()
+    try:  # the grid calls the sphere's +x half empty: the mesh keeps only the other half
+        grid.grid[grid.resolution // 2 + 4 :] = False
+        half = mesh(sphere_model, resolution=64)[0]
+        assert half[:, 0].max() < 0.2 < whole[0][:, 0].max()
+        coords = lattice_axes(sphere_model, 9)[0]  # (occupancy=False: the whole lattice, as before)
+        assert torch.equal(density_grid(sphere_model, 9, occupancy=False), field.density_lattice(coords))
+    finally:
+        grid.grid.copy_(saved)
+
+
 def test_ply_round_trip_point_cloud_and_mesh(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
     points = rng.normal(size=(7, 3)).astype(np.float32)
@@ -155,7 +210,15 @@ def test_ply_round_trip_point_cloud_and_mesh(tmp_path: Path) -> None:
     assert data.startswith(b"ply\nformat binary_little_endian 1.0\n") and b"element face" not in data
     assert len(data) - data.index(b"end_header\n") - len(b"end_header\n") == 7 * 15  # 3 float32 + 3 uint8
     (tmp_path / "p.ply").write_bytes(data)
-    assert read_ply(tmp_path / "p.ply").faces is None
+    assert read_ply(tmp_path / "p.ply").faces is None and read_ply(tmp_path / "p.ply").normals is None
+    normals = rng.normal(size=(7, 3)).astype(np.float32)
+    write_ply(tmp_path / "n.ply", points, colors, faces, normals)
+    shaded = read_ply(tmp_path / "n.ply")
+    assert shaded.normals is not None and np.array_equal(shaded.normals, normals)
+    assert np.array_equal(shaded.points, points) and np.array_equal(shaded.colors, colors)
+    assert b"property float nx\nproperty float ny\nproperty float nz\nproperty uchar red" in ply_bytes(
+        points, colors, None, normals
+    )
     (tmp_path / "t.ply").write_bytes(data[:-5])
     with pytest.raises(InputError, match="truncated"):
         read_ply(tmp_path / "t.ply")
@@ -208,6 +271,10 @@ def test_export_point_cloud_and_mesh_from_a_run(run_dir: Path, tmp_path: Path, c
         got = read_ply(mesh_out)
         assert got.faces is not None and len(got.faces) > 100
         assert np.median(surface_distance(got.points)) < 0.025  # a third of a cell (the run's box: 2.6 wide)
+        assert got.normals is not None and got.normals.shape == got.points.shape  # shaded by viewers
+        outward = got.points - np.asarray(SPHERE.center)
+        assert np.median((got.normals * outward).sum(axis=1)) > 0
+        assert cloud.normals is None
 
 
 def _refused(capsys, *args: object) -> str:  # type: ignore[no-untyped-def]
@@ -263,7 +330,7 @@ def test_mesh_faces_are_wound_counter_clockwise_seen_from_outside(sphere_model) 
     sphere must point out of it (marching cubes winds them the other way; a viewer showed the mesh inside
     out: dark, or culled away)."""
     pytest.importorskip("skimage")
-    verts, faces, _ = mesh(sphere_model, resolution=32)
+    verts, faces, _, _ = mesh(sphere_model, resolution=32)
     tri = verts[faces].astype(np.float64)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     outward = tri.mean(axis=1) - np.asarray(SPHERE.center)

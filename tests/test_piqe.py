@@ -212,6 +212,32 @@ def test_only_whole_blocks_are_scored() -> None:
     assert piqe(np.full((16, 16), 0.5)).active.shape == (1, 1)  # the smallest image: one block
 
 
+@pytest.mark.parametrize("height, width", [(50, 70), (33, 47), (16, 31)])
+def test_a_side_not_a_multiple_of_16_scores_its_whole_blocks_with_3_px_of_context(
+    height: int, width: int
+) -> None:
+    """The rule of the module doc, at sizes that are not multiples of 16: (H // 16, W // 16) blocks, the
+    score exactly that of the top-left crop reaching 3 px (the MSCN window) past them; pixels beyond it
+    change nothing, pixels within it do (so cropping to whole blocks first is not the same)."""
+    image = np.clip(texture((height, width), 1.0, 8) + 0.05 * np.random.default_rng(9).standard_normal(
+        (height, width)), 0, 1)  # fmt: skip
+    result = piqe(image)
+    rows, cols = height // 16 * 16, width // 16 * 16
+    assert result.active.shape == (height // 16, width // 16)
+    reach = piqe(image[: min(rows + 3, height), : min(cols + 3, width)])
+    assert reach.score == result.score and np.array_equal(reach.variance, result.variance)
+    if rows + 3 < height or cols + 3 < width:  # beyond the reach: anything at all
+        changed = image.copy()
+        changed[rows + 3 :, :] = 1.0
+        changed[:, cols + 3 :] = 0.0
+        assert piqe(changed).score == result.score
+    if rows < height:  # within it: the bottom blocks' MSCN moves
+        near = image.copy()
+        near[rows:, :] = 1.0 - near[rows:, :]
+        assert not np.array_equal(piqe(near).variance[-1], result.variance[-1])
+        assert not np.array_equal(piqe(image[:rows, :cols]).variance[-1], result.variance[-1, : cols // 16])
+
+
 @pytest.mark.parametrize(
     ("image", "says"),
     [

@@ -14,6 +14,7 @@ import pytest
 from helpers import edit_json, run_cli
 from spikenerf.capture.options import SimulateOptions
 from spikenerf.capture.simulate import simulate_dataset
+from spikenerf.core.errors import InputError
 from spikenerf.eval.recon_scores import score_reconstructions
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
@@ -79,6 +80,70 @@ def test_tfp_on_a_static_scene_is_within_its_error_bound(static: Path, color: st
     middle = [r["max_error"] for r in result["rows"] if half <= r["step"] < STEPS - half]
     assert max(middle) > 0.25 / WINDOW  # the bound is tight, not vacuous
     assert result["methods"]["tfp"]["mean"]["psnr"] > 35  # and the comparison is in one colour space
+
+
+def test_the_learned_weights_are_read_once(static: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """recon-eval's learned method loads its weights file once: the same network reconstructs every step
+    and gives the trained window (it was read twice, once for each)."""
+    from spikenerf.recon import net
+
+    loads: list[object] = []
+    real = net.load_weights
+
+    def counted(*args: object, **kwargs: object) -> object:
+        loads.append(args[0] if args else kwargs.get("path"))
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(net, "load_weights", counted)
+    result = score_reconstructions(static, "learned", count=2, lpips_backbone=None, progress=False)
+    assert loads == [None] and len(result["rows"]) == 2
+    assert result["methods"]["learned"]["window"] == real()[0].config.window
+
+
+def test_an_interrupted_write_never_leaves_a_mismatched_pair(
+    static: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """scores.csv and scores.json are one commit: cut between the CSV's rename and the JSON's, the old JSON
+    is already gone (no stale pair), the reader and info refuse the lone CSV, and recon-eval writes the pair
+    again without --overwrite; a CSV that is not the JSON's rows is caught."""
+    from spikenerf.core import atomic
+    from spikenerf.eval.recon_scores import pair_problem, read_scores, write_scores
+
+    first = score_reconstructions(static, "tfp", count=2, lpips_backbone=None, progress=False)
+    second = score_reconstructions(static, "tfi", count=3, lpips_backbone=None, progress=False)
+    out = tmp_path / "pair"
+    write_scores(out, first)
+    assert read_scores(out) == first and pair_problem(out) == ""
+
+    def cut(name: str) -> None:
+        if name == "write:scores.json":
+            raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(atomic, "failpoint", cut)
+        with pytest.raises(KeyboardInterrupt):
+            write_scores(out, second)
+    assert not (out / "scores.json").exists()  # (it was the first pair's: never beside the second CSV)
+    assert "interrupted" in pair_problem(out) and sorted(p.name for p in out.iterdir()) == ["scores.csv"]
+    with pytest.raises(InputError, match="run recon-eval into it again"):
+        read_scores(out)
+    write_scores(out, second)
+    (out / "scores.csv").write_text((out / "scores.csv").read_text().replace("tfi", "tfp"))
+    assert "mismatched" in pair_problem(out)
+    # the command: a first write cut short is still recon-eval's folder, refused by info, rewritten by a rerun
+    cli_out = tmp_path / "cli"
+    with monkeypatch.context() as patch:
+        patch.setattr(atomic, "failpoint", cut)
+        code, _, _ = run_cli(capsys, "recon-eval", static, "--methods", "tfp", "--count", "2", "--lpips",
+                             "none", "--quiet", "--out", cli_out)  # fmt: skip
+        assert code != 0 and not (cli_out / "scores.json").exists()
+    assert json.loads((cli_out / ".spikenerf").read_text())["kind"] == "scores"
+    code, _, err = run_cli(capsys, "info", cli_out)
+    assert code == 2 and "unfinished scores" in err and "interrupted" in err
+    code, _, err = run_cli(capsys, "recon-eval", static, "--methods", "tfp", "--count", "2", "--lpips",
+                           "none", "--quiet", "--out", cli_out)  # fmt: skip
+    assert code == 0 and "replacing the unfinished scores" in err, err
+    assert read_scores(cli_out)["rows"] == first["rows"]
 
 
 def _refused(capsys: pytest.CaptureFixture[str], out: Path, *args: object) -> str:

@@ -218,6 +218,11 @@ def test_a_nerfstudio_camera_path_round_trips_its_poses_fov_and_size(tmp_path: P
         ),
         (lambda d: d.update(camera_path=[{"fov": 50, "camera_to_world": [2.0] * 16}]), "last row"),
         (lambda d: d.pop("camera_path"), "missing field 'camera_path'"),
+        (lambda d: d.update(k1=-0.2), "field 'k1': a nerfstudio camera path has no lens"),  # (was dropped)
+        (
+            lambda d: d["camera_path"][1].update(camera_model="OPENCV_FISHEYE"),
+            "camera_path[1].'camera_model'",
+        ),
     ],
 )
 def test_a_malformed_camera_path_is_one_line_naming_the_file(tmp_path: Path, change, message: str) -> None:  # type: ignore[no-untyped-def]
@@ -229,3 +234,45 @@ def test_a_malformed_camera_path_is_one_line_naming_the_file(tmp_path: Path, cha
         read_camera_path(path, (64, 64))
     assert message in err.value.message and "\n" not in str(err.value)
     assert err.value.path == str(path)
+
+
+# -- a transforms JSON's lens --------------------------------------------------------------------------------
+def _transforms(tmp_path: Path, **fields: object) -> Path:
+    path = tmp_path / "transforms_path.json"
+    path.write_text(json.dumps({**fields, "frames": [{"transform_matrix": _forward_facing(1)[0].tolist()}]}))
+    return path
+
+
+@pytest.mark.parametrize(
+    "lens",
+    [
+        {"k1": -0.2},
+        {"camera_model": "OPENCV", "k1": -0.2, "p2": 0.01},
+        {"camera_model": "OPENCV_FISHEYE"},  # (all terms zero: still a lens, r_d = θ)
+        {"camera_model": "OPENCV_FISHEYE", "k2": 0.01},
+    ],
+)
+def test_a_trajectory_lens_without_its_focal_length_is_refused_naming_the_file_and_key(
+    tmp_path: Path, lens: dict
+) -> None:
+    """A file's lens is never silently dropped nor paired with the dataset's focal length: without the
+    file's own fl_x (or camera_angle_x) it is one error naming the file and the missing key."""
+    path = _transforms(tmp_path, **lens)
+    with pytest.raises(InputError) as err:
+        read_camera_path(path, (40, 24))
+    assert "'fl_x'" in err.value.message and "lens" in err.value.message
+    assert err.value.path == str(path) and "\n" not in str(err.value)
+    found = read_camera_path(_transforms(tmp_path, fl_x=30.0, w=40, h=24, **lens), (64, 64)).intrinsics
+    model = lens.get("camera_model", "OPENCV")
+    assert found.distortion is not None and found.distortion.model == model  # with its focal: the lens
+    assert all(
+        getattr(found.distortion, key) == value for key, value in lens.items() if key != "camera_model"
+    )
+
+
+def test_a_trajectory_camera_without_lens_keys_is_a_pinhole(tmp_path: Path) -> None:
+    """The file's camera is used whole: fl_x without lens keys is a pinhole (the dataset's lens is not
+    borrowed), and a file with no camera at all gives none (the dataset's camera, lens included)."""
+    found = read_camera_path(_transforms(tmp_path, fl_x=30.0), (40, 24))
+    assert found.intrinsics is not None and found.intrinsics.distortion is None
+    assert read_camera_path(_transforms(tmp_path), (40, 24)).intrinsics is None

@@ -176,6 +176,11 @@ def command(
         click.echo({"pairs": describe_pairs, "recon": describe_recon, "frames": describe_frames}[kind](path))
         return
     if path.is_dir() and (kind := folder_kind(path)) in OTHER_KINDS:
+        if kind == "scores":  # (an interrupted or mismatched pair: say so, not where the scores are)
+            from spikenerf.eval.recon_scores import pair_problem
+
+            if (problem := pair_problem(path)) not in ("", "absent"):
+                raise InputError(f"a recon-eval folder with unfinished scores: {problem}; run it again", path)
         raise InputError(OTHER_KINDS[kind], path=path)
     if path.is_dir():
         from spikenerf.data.summary import describe

@@ -55,8 +55,9 @@ def command(
     from spikenerf.cli import command_line
     from spikenerf.core.errors import parse_range
     from spikenerf.core.lock import output_lock
-    from spikenerf.core.marker import check_inputs_outside, check_output, mark
+    from spikenerf.core.marker import check_inputs_outside, check_output, folder_kind, mark
     from spikenerf.eval.recon_scores import (
+        pair_problem,
         parse_methods,
         score_reconstructions,
         scores_table,
@@ -65,7 +66,8 @@ def command(
 
     parse_methods(methods)  # (before anything is read)
     steps = parse_range(steps_range, "steps") if steps_range is not None else None
-    check_output(out, "scores", overwrite=overwrite)
+    unfinished = folder_kind(out) == "scores" and pair_problem(out) not in ("", "absent")
+    check_output(out, "scores", overwrite=overwrite or unfinished)  # (an interrupted pair: written again)
     check_inputs_outside(out, [dataset, weights])
     result = score_reconstructions(
         dataset, methods, color=color, window=window, steps=steps, count=count, weights=weights,
@@ -73,7 +75,11 @@ def command(
         log=lambda msg: click.echo(msg, err=True),
     )  # fmt: skip
     result["command"] = command_line()
+    if unfinished:
+        click.echo(f"replacing the unfinished scores in {out} ({pair_problem(out)})", err=True)
     with output_lock(out):
+        if folder_kind(out) != "scores":  # (first: a write cut short leaves a folder known as recon-eval's)
+            mark(out, "scores")
         mark(out, "scores", write_scores(out, result))
     n = len(result["steps"])
     click.echo(

@@ -29,7 +29,7 @@ from spikenerf.core.yamlio import load_yaml
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 from spikenerf.scenes.transforms import (
     CAMERA_KEYS,
-    DISTORTION_KEYS,
+    LENS_KEYS,
     camera,
     check_camera,
     frame_poses,
@@ -411,7 +411,10 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
 
     A transforms JSON of poses (``frames[].transform_matrix``) with its optional shared camera
     (``camera_angle_x`` or ``fl_x`` [``fl_y``, ``cx``, ``cy``]; ``w`` and ``h`` together, else ``size`` =
-    (width, height)) and ``near``/``far`` (both, near < far)."""
+    (width, height); its lens, ``camera_model`` and the terms) and ``near``/``far`` (both, near < far).
+    A file's camera is used whole: without lens keys it is a pinhole whatever the dataset's lens, and a lens
+    (``camera_model`` or a term) without the file's own ``fl_x`` or ``camera_angle_x`` is refused, never
+    combined with the dataset's focal length nor dropped."""
     path = Path(path)
     meta = read_mapping(path)
     if "camera_path" in meta:
@@ -428,9 +431,11 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
         )
     poses = frame_poses(meta, path)
     cam = camera(meta, path)
-    k, given = None, [key for key in (*CAMERA_KEYS, *DISTORTION_KEYS) if key in meta or key in cam]
+    k, given = None, [key for key in (*CAMERA_KEYS, *LENS_KEYS) if key in meta or key in cam]
     if given and not ("fl_x" in cam or "camera_angle_x" in cam):
-        raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'", path=path)
+        lensed = " (a file's lens is never paired with the dataset's focal length)"
+        lensed = lensed if any(key in LENS_KEYS for key in given) else ""
+        raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'{lensed}", path=path)
     sized = [d for d in (meta, cam) if "w" in d or "h" in d]
     if sized and sized[0] is meta and cam and not any(key in meta for key in ("fl_x", "camera_angle_x")):
         raise InputError("fields 'w', 'h' belong beside the camera's 'fl_x' or 'camera_angle_x'", path=path)
@@ -452,7 +457,8 @@ def nerfstudio_path(meta: dict, path: Path) -> CameraPath:
     of view in degrees, the same for every camera (one shared camera here; focal length ``(H/2)/tan(fov/2)``
     for both axes, principal point at the image centre). ``camera_type``, where given, must be
     ``perspective``; ``aspect``, ``keyframes``, ``fps``, ``seconds`` and the rest are not read. No bounds:
-    the caller derives them from the scene box."""
+    the caller derives them from the scene box. No lens: ``camera_model`` or a lens term, at the top or in
+    a camera, is refused (a pinhole render would silently drop it)."""
     sizes = []
     for key in ("render_width", "render_height"):
         value = number(meta, key, path, positive=True)
@@ -469,10 +475,18 @@ def nerfstudio_path(meta: dict, path: Path) -> CameraPath:
             f"field 'camera_path': expected a non-empty list of objects, found {cameras!r:.40}", path
         )
     matrices, fovs = [], []
-    for i, cam in enumerate(cameras):
-        where = f"camera_path[{i}]."
-        if not isinstance(cam, dict):
-            raise InputError(f"camera_path[{i}]: expected an object, found {type(cam).__name__}", path=path)
+    for i, cam in enumerate([meta, *cameras]):  # (the top level first: its lens keys only)
+        where = f"camera_path[{i - 1}]." if i else ""
+        if i and not isinstance(cam, dict):
+            raise InputError(f"camera_path[{i - 1}]: expected an object, found {type(cam).__name__}", path)
+        if lensed := [key for key in LENS_KEYS if key in cam]:
+            raise InputError(
+                f"field {where}'{lensed[0]}': a nerfstudio camera path has no lens (its cameras are "
+                "pinholes); give the poses as a transforms JSON with 'fl_x' and the lens instead",
+                path=path,
+            )
+        if not i:
+            continue
         if "camera_to_world" not in cam:
             raise InputError(f"missing field {where}'camera_to_world'", path=path)
         flat = cam["camera_to_world"]

@@ -47,8 +47,9 @@ def reconstructor(
         window: TFP's window in frames, odd (None = ``DEFAULT_WINDOW``); for ``learned``, the window the
             network must have been trained on (None = not checked); TFI and TFSTP have none (ignored).
         threshold: φ of the camera.
-        weights, color: ``learned`` only: the weights file (None = shipped) and the stream's colour
-            (gray, one channel of an rgb recording, or a Bayer mosaic). The weights are checked now.
+        weights, color: ``learned`` only: the weights file (None = shipped) or a network loaded already
+            (``recon.net.load_weights``, reused as it is) and the stream's colour (gray, one channel of an
+            rgb recording, or a Bayer mosaic). The weights are checked now.
     Returns:
         A function whose result equals the whole stream's reconstruction at ``start:stop`` exactly.
     """

@@ -10,9 +10,12 @@ atomically, refusing an existing file unless ``overwrite``:
   its ray, coloured with the pixel's rendered colour. ``max_points`` keeps that many of them, drawn without
   replacement with a fixed seed (the same file every time).
 - ``kind="mesh"``: the field's density is sampled on a ``resolution``³ lattice over the scene box (the box's
-  faces included) and ``skimage.measure.marching_cubes`` (the ``mesh`` extra: scikit-image) extracts the
-  surface where it equals ``density_level``. Each vertex is coloured by the field's colour there, seen along
-  ``−normal``: a camera looking square on at the surface from outside.
+  faces included; where the run has an occupancy grid, only around its occupied cells,
+  :func:`~spikenerf.render.geometry.density_grid`) and ``skimage.measure.marching_cubes`` (the ``mesh``
+  extra: scikit-image) extracts the surface where it equals ``density_level``. Each vertex carries its
+  outward unit normal, minus the density's gradient (:func:`~spikenerf.render.geometry.lattice_normals`,
+  written as the PLY's ``nx, ny, nz`` so that viewers shade the mesh smoothly), and the field's colour
+  there, seen along ``−normal``: a camera looking square on at the surface from outside.
 
 **Choosing ``density_level``.** Density σ is per world unit: a layer of thickness d is half opaque where
 σ·d = ln 2. The default, 25, makes the surface where 3 % of the box's edge (for the analytic scenes' box of
@@ -48,7 +51,13 @@ from spikenerf.eval.choices import (
 )
 from spikenerf.eval.trajectories import DEFAULT_ORBIT_FRAMES, RenderPath, refined_poses, resolve_trajectory
 from spikenerf.render.base import RadianceModel
-from spikenerf.render.geometry import density_grid, lattice_axes, surface_colors, view_points
+from spikenerf.render.geometry import (
+    density_grid,
+    lattice_axes,
+    lattice_normals,
+    surface_colors,
+    view_points,
+)
 from spikenerf.render.inference import inference_chunk, resolve_precision
 from spikenerf.scenes.render_paths import GENERATED_PATHS
 from spikenerf.scenes.trajectory import ORBIT_STEP_BYTES
@@ -60,8 +69,9 @@ SEED = 0
 #: the largest ``resolution`` (1024³ float32 densities are 4 GiB)
 MAX_RESOLUTION = 1024
 #: memory a pixel of a point cloud's views holds (its point, linear and 8-bit colour, the render's
-#: depth, opacity and rays), and a lattice point of a mesh (its density, marching cubes' work arrays)
-PIXEL_BYTES, LATTICE_BYTES = 64, 24
+#: depth, opacity and rays), and a lattice point of a mesh (its density, marching cubes' work arrays, one
+#: component of the density's gradient and the occupancy mask)
+PIXEL_BYTES, LATTICE_BYTES = 64, 32
 #: bytes a point takes in the PLY (3 float32 + 3 uint8)
 POINT_BYTES = 15
 
@@ -114,12 +124,13 @@ def point_cloud(
 
 def mesh(
     model: RadianceModel, resolution: int = DEFAULT_RESOLUTION, density_level: float = DEFAULT_DENSITY_LEVEL,
-    chunk: int = 0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    chunk: int = 0, occupancy: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The surface where the field's density equals ``density_level``: (vertices float32 (V, 3) in world
-    units, triangles int64 (F, 3), 8-bit sRGB vertex colours (V, 3))."""
+    units, triangles int64 (F, 3), 8-bit sRGB vertex colours (V, 3), outward unit vertex normals float32
+    (V, 3)). ``occupancy``: skip the empty space of the run's occupancy grid (:func:`density_grid`)."""
     marching_cubes = require_marching_cubes()
-    volume = density_grid(model, resolution).numpy()
+    volume = density_grid(model, resolution, occupancy).numpy()
     lo, hi = float(volume.min()), float(volume.max())
     if not lo < density_level < hi:
         raise InputError(
@@ -128,7 +139,10 @@ def mesh(
             param="density_level",
         )
     _, spacing = lattice_axes(model, resolution)
-    verts, faces, normals, _ = marching_cubes(volume, density_level, spacing=tuple(spacing.tolist()))
+    verts, faces, rough, _ = marching_cubes(volume, density_level, spacing=tuple(spacing.tolist()))
+    normals = lattice_normals(volume, verts, spacing.numpy())
+    flat = ~normals.any(axis=1)  # (a vanishing gradient: marching cubes' own estimate)
+    normals[flat] = rough[flat]
     verts = verts + model.scene_box[0].float().cpu().numpy()
     # marching cubes winds a density that is higher inside clockwise seen from outside (its normals point
     # out, its right-hand face normals in): reversed, so that viewers (Blender, MeshLab, Open3D) see the
@@ -140,7 +154,7 @@ def mesh(
         torch.as_tensor(np.ascontiguousarray(normals)),
         chunk,
     )
-    return verts.astype(np.float32), faces.astype(np.int64), ply_colors(linear.numpy())
+    return verts.astype(np.float32), faces.astype(np.int64), ply_colors(linear.numpy()), normals
 
 
 def check_export_args(
@@ -224,8 +238,8 @@ def export_run(
                            trajectory=path.file or path.name, min_opacity=min_opacity)  # fmt: skip
             what = f"{len(points)} points (of {found} opaque pixels in {len(path.poses)} views)"
         else:
-            verts, faces, colors = mesh(model, resolution, density_level, chunk)
-            write_ply(out, verts, colors, faces)
+            verts, faces, colors, normals = mesh(model, resolution, density_level, chunk)
+            write_ply(out, verts, colors, faces, normals)
             summary.update(vertices=len(verts), faces=len(faces), resolution=resolution,
                            density_level=density_level)  # fmt: skip
             what = f"a mesh of {len(verts)} vertices, {len(faces)} faces (density level {density_level:g})"

@@ -29,9 +29,11 @@ Two details follow the MathWorks code, so that the numbers agree with it: the su
 leaves out columns 7 and 9 (0-based; MATLAB deletes column 8 and then column 9 of the narrowed block), not
 the two centre columns, and grey levels of exactly k + 0.5 round up (MATLAB's ``round``). Unlike MATLAB,
 which pads an image whose side is not a multiple of 16 by replicating its last row/column (the padded strip
-then shows flat edge runs and is scored as distorted), only whole blocks from the top-left corner are
-scored: the last ``H mod 16`` rows and ``W mod 16`` columns enter the MSCN of their neighbours but no
-block. pyiqa and pypiqe also rescale the image so that its maximum is 255 (MATLAB and this module do not).
+then shows flat edge runs and is scored as distorted), and pypiqe, which pads it by mirroring, only whole
+blocks from the top-left corner are scored: the last ``H mod 16`` rows and ``W mod 16`` columns enter the
+MSCN of their neighbours (up to 3 px, the window's reach) but no block, so an image scores exactly as its
+top-left crop of ``16·(H // 16) + 3`` rows and ``16·(W // 16) + 3`` columns (at most H × W) does. pyiqa
+and pypiqe also rescale the image so that its maximum is 255 (MATLAB and this module do not).
 """
 
 from __future__ import annotations

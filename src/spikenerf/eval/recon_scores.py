@@ -27,7 +27,7 @@ from spikenerf.camera.io import read_dat, resolve_frames
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.model import bayer_mosaic
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
-from spikenerf.core.atomic import write_text_atomic
+from spikenerf.core.atomic import atomic_path
 from spikenerf.core.errors import InputError, as_path, check_choice, comma_list
 from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
@@ -160,8 +160,14 @@ def score_reconstructions(
     recons = {}
     for name in names:  # every method checked (weights, window, φ) before any work
         tfp_window = (DEFAULT_WINDOW if window is None else window) if name == "tfp" else None
-        recons[name] = (reconstructor(name, tfp_window, dataset.threshold, weights=weights, color=color),
-                        tfp_window if name != "learned" else _trained_window(weights, color))  # fmt: skip
+        if name != "learned":
+            recons[name] = (reconstructor(name, tfp_window, dataset.threshold), tfp_window)
+            continue
+        from spikenerf.recon.net import load_weights
+
+        net = load_weights(weights, color)[0]  # read once: it reconstructs and says its trained window
+        learned = reconstructor(name, None, dataset.threshold, weights=net, color=color)
+        recons[name] = (learned, int(net.config.window))
     truths = {int(i): display(_truth(dataset.gt.images[i], color), 1 if color != "rgb" else 3) for i in keep}
     linear = {int(i): torch.as_tensor(_truth(dataset.gt.images[i], color), dtype=torch.float32) for i in keep}
     if color == "gray":
@@ -210,13 +216,6 @@ def score_reconstructions(
     }
 
 
-def _trained_window(weights: str | Path | None, color: str) -> int:
-    """The window the learned reconstructor's weights were trained on (``reconstructor`` checked them)."""
-    from spikenerf.recon.net import load_weights
-
-    return int(load_weights(weights, color)[0].config.window)
-
-
 def scores_csv(result: dict[str, Any]) -> str:
     """The per-step rows as CSV: method, step, then :data:`METRICS` (empty where not computed)."""
     out = io.StringIO()
@@ -230,13 +229,52 @@ def scores_csv(result: dict[str, Any]) -> str:
 
 
 def write_scores(out: str | Path, result: dict[str, Any]) -> list[str]:
-    """Write ``scores.csv`` then ``scores.json`` into the folder ``out``, each atomically; returns their
-    names."""
+    """Write the pair ``scores.csv`` + ``scores.json`` into the folder ``out``; returns their names.
+
+    Both are written to temporaries first; then the old ``scores.json`` is removed, the CSV renamed into
+    place and the JSON last, as the commit: at every moment a ``scores.json`` in ``out`` belongs with the
+    ``scores.csv`` beside it, and an interruption leaves at worst a CSV without its JSON
+    (:func:`read_scores` refuses it; ``recon-eval`` writes it again)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / SCORES_CSV, scores_csv(result))
-    write_text_atomic(out / SCORES_JSON, json.dumps(result, indent=1, allow_nan=False) + "\n")
+    with atomic_path(out / SCORES_JSON) as json_tmp:
+        json_tmp.write_text(json.dumps(result, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        with atomic_path(out / SCORES_CSV) as csv_tmp:
+            csv_tmp.write_text(scores_csv(result), encoding="utf-8")
+            (out / SCORES_JSON).unlink(missing_ok=True)  # (the old pair is no longer committed)
     return [SCORES_CSV, SCORES_JSON]
+
+
+def pair_problem(out: str | Path) -> str:
+    """Why the ``scores.json`` + ``scores.csv`` pair in the folder ``out`` is not a finished, matching pair
+    ("" when it is; "absent" when neither file is there): a CSV without its JSON (an interrupted write), a
+    JSON without its CSV, an unreadable JSON, or a CSV that is not the JSON's rows."""
+    out = Path(out)
+    has_json, has_csv = (out / SCORES_JSON).is_file(), (out / SCORES_CSV).is_file()
+    if not (has_json or has_csv):
+        return "absent"
+    if not has_json:
+        return f"{SCORES_CSV} has no {SCORES_JSON} beside it (an interrupted recon-eval)"
+    if not has_csv:
+        return f"{SCORES_JSON} has no {SCORES_CSV} beside it"
+    try:
+        result = json.loads((out / SCORES_JSON).read_text(encoding="utf-8"))
+        expected = scores_csv(result)
+    except (OSError, ValueError, TypeError, KeyError, RecursionError) as err:
+        return f"{SCORES_JSON} is unreadable ({type(err).__name__})"
+    if (out / SCORES_CSV).read_bytes() != expected.encode("utf-8"):
+        return f"{SCORES_CSV} does not hold the rows of {SCORES_JSON} beside it (a mismatched pair)"
+    return ""
+
+
+def read_scores(out: str | Path) -> dict[str, Any]:
+    """The result :func:`write_scores` wrote into the folder ``out`` (``scores.json``'s content), checked
+    against ``scores.csv``. InputError naming ``out`` for a missing, unfinished or mismatched pair."""
+    problem = pair_problem(out)
+    if problem:
+        what = f"no {SCORES_JSON}" if problem == "absent" else problem
+        raise InputError(f"recon-eval scores: {what}; run recon-eval into it again", path=out)
+    return json.loads((Path(out) / SCORES_JSON).read_text(encoding="utf-8"))
 
 
 def _cell(value: float | None, digits: int) -> str:

@@ -254,10 +254,12 @@ def reconstruct_learned(
 def learned_reconstructor(
     weights=None, mode: str = "gray", window: int | None = None, threshold: float = 1.0
 ) -> Callable[[Callable[[int, int], np.ndarray], int, int, int], np.ndarray]:
-    """Check the weights now; return ``recon(read, total, start, stop)``, see :func:`learned_frames`."""
+    """Check the weights now; return ``recon(read, total, start, stop)``, see :func:`learned_frames`.
+    ``weights``: a weights file (None = shipped), or a :class:`~spikenerf.recon.net.ReconNet` the caller
+    loaded already (``load_weights(path, mode)``, which checked its colour modes) and reuses."""
     from spikenerf.recon.net import load_weights
 
     check_threshold(threshold)
-    net, _ = load_weights(weights, mode)
+    net = weights if isinstance(weights, ReconNet) else load_weights(weights, mode)[0]
     check_window(net, window)
     return lambda read, total, start, stop: learned_frames(net, read, total, start, stop, mode, threshold)

@@ -302,7 +302,9 @@ _RATIONAL = ("rational k4", "k5", "k6")
 
 def colmap_camera(model: str, params: list[float]) -> tuple[tuple[float, ...], Distortion | None]:
     """``(fl_x, fl_y, cx, cy)`` and the lens (None: none) of a COLMAP camera ``model`` and its ``params``
-    (:data:`COLMAP_PARAMS`); the focal lengths and principal point are not checked here.
+    (:data:`COLMAP_PARAMS`); the focal lengths and principal point are not checked here. A radial-tangential
+    model whose terms are all zero is None (:attr:`Distortion.is_pinhole`); a fisheye model never is, its
+    terms zero or not (equidistant: ``r_d = θ``).
 
     Raises:
         InputError: naming ``camera_model`` for a model not in :data:`COLMAP_PARAMS` (its terms would be
@@ -335,6 +337,5 @@ def colmap_camera(model: str, params: list[float]) -> tuple[tuple[float, ...], D
     pinhole = (float(fx), float(fy), float(given["cx"]), float(given["cy"]))  # type: ignore[arg-type]
     terms = {n: given[n] for n in TERMS if n in given}
     fisheye = "FISHEYE" in model
-    if not terms and not fisheye:
-        return pinhole, None
-    return pinhole, Distortion("OPENCV_FISHEYE" if fisheye else "OPENCV", **terms)
+    lens = Distortion("OPENCV_FISHEYE" if fisheye else "OPENCV", **terms)
+    return pinhole, None if lens.is_pinhole else lens
