@@ -17,12 +17,12 @@ from spikenerf.camera.io import read_dat
 from spikenerf.core.color import srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.core.png16 import decode_png16, encode_png16
+from spikenerf.data.camera_path import read_pose_file
 from spikenerf.data.dataset import (
     load_dataset,
     load_image,
     near_far,
     read_display,
-    read_pose_file,
     write_image,
 )
 from spikenerf.data.writer import DatasetWriter

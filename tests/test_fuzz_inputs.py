@@ -24,7 +24,8 @@ from spikenerf.camera.io import read_dat
 from spikenerf.camera.spikecv import read_spikecv_config, recording_config
 from spikenerf.core.errors import InputError, is_finite
 from spikenerf.core.yamlio import load_yaml
-from spikenerf.data.dataset import load_dataset, read_camera_path, read_display, read_pose_file
+from spikenerf.data.camera_path import read_camera_path, read_pose_file
+from spikenerf.data.dataset import load_dataset, read_display
 from spikenerf.data.holdout import read_record
 from spikenerf.eval.render_record import RECORD, read_render_record
 from spikenerf.importing.poses import read_pose_source

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from spikenerf.core.errors import InputError
-from spikenerf.data.dataset import read_camera_path
+from spikenerf.data.camera_path import read_camera_path
 from spikenerf.eval.render_cache import CACHE, SPIKE_STATE_EVERY, RenderCache, digest_array, render_key
 
 POSE = np.eye(4).tolist()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from spikenerf.core.errors import InputError
-from spikenerf.data.dataset import read_camera_path
+from spikenerf.data.camera_path import read_camera_path
 from spikenerf.scenes.poses import interpolate_poses, look_at
 from spikenerf.scenes.render_paths import (
     GENERATED_PATHS,

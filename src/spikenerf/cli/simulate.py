@@ -224,7 +224,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     height = DEFAULT_SIZE if kw["height"] is None else int(kw["height"])
     views = DEFAULT_TEST_VIEWS if kw["test_views"] is None else int(kw["test_views"])
     if kw["eval_views"] is not None:  # read first: its poses are the test views the estimate counts
-        from spikenerf.data.dataset import read_pose_file
+        from spikenerf.data.camera_path import read_pose_file
 
         test_poses = read_pose_file(kw["eval_views"])
         views = len(test_poses)

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from spikenerf.core.errors import InputError
-from spikenerf.data.dataset import SpikeDataset, near_far, read_camera_path
+from spikenerf.data.camera_path import read_camera_path
+from spikenerf.data.dataset import SpikeDataset, near_far
 from spikenerf.scenes.render_paths import (
     FORWARD_FACING,
     INTERPOLATE_KEYS,
