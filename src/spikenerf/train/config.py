@@ -139,12 +139,16 @@ class IntegralConfig:
             (``targets.window``), at each step's pose, weighted ``prior_weight``, over ``prior_rays`` rays a
             step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
             from ``prior_weight`` at the first iteration to 0 at the last (the counts alone finish the run).
+        pixel_gain: learn a response factor per sensor pixel (its gain over its threshold; fixed-pattern
+            noise) that multiplies the rendered window means, not the track terms nor eval's renders
+            (``train.sensor_response``; docs/camera.md); off by default. pixel_gain_weight: weight of its L2
+            term ``mean(m²)`` on the centred log-responses m. pixel_gain_lr: its Adam rate.
     """
 
     BOUNDS: ClassVar[dict[str, Bound]] = {
         "samples": Bound(least=1), "groups": Bound(least=1), "prior_weight": Bound(least=0),
         "prior_rays": Bound(least=1), "interpolate_span": Bound(least=0), "track": Bound(least=0),
-        "track_after": Bound(least=0),
+        "track_after": Bound(least=0), "pixel_gain_weight": Bound(least=0), "pixel_gain_lr": Bound(above=0),
     }  # fmt: skip
 
     lengths: list[int] | None = None
@@ -160,6 +164,9 @@ class IntegralConfig:
     prior_weight: float = 1.0
     prior_rays: int = 256
     prior_decay: bool = False
+    pixel_gain: bool = False
+    pixel_gain_weight: float = 0.001
+    pixel_gain_lr: float = 0.005
 
     def check(self) -> None:
         """InputError (naming ``integral.KEY``) on an empty or non-positive ``lengths``, ``samples`` < 1,

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from spikenerf.core.device import resolve_device
@@ -19,6 +20,7 @@ from spikenerf.render.base import RadianceModel
 from spikenerf.train.checkpoint import CHECKPOINT, check_same_run, load_checkpoint, model_of
 from spikenerf.train.config import CONFIG_FILE, TrainConfig, load_run_config
 from spikenerf.train.methods import make_method
+from spikenerf.train.sensor_response import SENSOR_MAP, read_sensor_map
 
 #: a metrics file and the run's iterations → the lines ``info`` prints of it (``eval.describe.metrics_lines``)
 MetricsLines = Callable[[Path, int], list[str]]
@@ -255,6 +257,8 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
             f"eval's TFP keyframes (the imported dataset's test views): each against the mean of {poses} "
             "renders across its window"
         )
+    if (run_dir / SENSOR_MAP).is_file():  # integral.pixel_gain's learned map
+        lines.append(_sensor_line(run_dir / SENSOR_MAP))
     if (held := read_record(run_dir)) is not None:
         lines.append(held_line(held, _imported(config)))
     if curves := read_curves(run_dir / CURVES):  # (a garbled one is an InputError naming it)
@@ -276,6 +280,20 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
         if metrics is not None and (path := run_dir / name).exists():
             lines += metrics(path, done)
     return "\n".join(lines)
+
+
+def _sensor_line(path: Path) -> str:
+    """``sensor map: RUN/sensor_map.npy, 64×64 …``: the learned per-pixel response factors' spread."""
+    try:
+        factors = read_sensor_map(path)
+    except (OSError, ValueError) as err:
+        return f"sensor map: {path} is unreadable ({err})"
+    shape = "×".join(map(str, factors.shape))
+    logs = np.log(np.clip(factors, 1e-12, None))
+    return (
+        f"sensor map: {path} ({shape} learned per-pixel response factors, std {logs.std():.1%} in log, "
+        f"{factors.min():.3f} to {factors.max():.3f}; eval's renders do not use it)"
+    )
 
 
 def _dataset_unfit(ckpt: dict, config: TrainConfig) -> str | None:

@@ -166,12 +166,12 @@ class Trainer:
         self.pose_refine = pose_refinement(
             self.config, self.dataset, self.model, self.device, self.method.targets
         )
-        #: pose parameters with their own optimisers, by checkpoint key
+        #: parameters with their own optimisers (poses, the method's own), by checkpoint key
         self.learners = {
             name: learner
             for name, learner in (
                 ("poses", self.pose_refine),
-                ("exposure_poses", self.method.learner(self.device)),
+                (self.method.learner_key, self.method.learner(self.device)),
             )
             if learner is not None
         }

@@ -115,6 +115,7 @@ class TrainMethod:
         reads: the :data:`METHOD_KEYS` it reads (:func:`unused_keys`).
         trains_with: the :data:`WINDOW_KEYS` that shape its training (:func:`check_only_keys`); the others
             set only eval's no-reference checks and the hold-out guard band.
+        learner_key: the checkpoint key of its :meth:`learner`'s state.
     """
 
     name: ClassVar[str]
@@ -125,6 +126,7 @@ class TrainMethod:
     learns_poses: ClassVar[bool] = False
     reads: ClassVar[tuple[str, ...]] = ()
     trains_with: ClassVar[tuple[str, ...]] = ()
+    learner_key: ClassVar[str] = "exposure_poses"
 
     @classmethod
     def check(cls, config: Config) -> None:
@@ -214,8 +216,9 @@ class TrainMethod:
         return RaySampler(len(self.targets), height, width, seed, images)
 
     def learner(self, device: torch.device) -> PoseLearner | None:
-        """Pose parameters the method learns with its own optimiser (None: none); call after
-        :meth:`build_targets`. The trainer steps and checkpoints it under ``exposure_poses``."""
+        """Parameters the method learns with their own optimiser (None: none; nerf-bad's exposure poses,
+        spike-integral's sensor response); call after :meth:`build_targets`. The trainer steps it, and
+        checkpoints it under :attr:`learner_key`."""
         return None
 
     # ---------------------------------------------------------------------------------------------- steps

@@ -22,6 +22,8 @@ from spikenerf.data.targets import load_stream, stream_targets
 from spikenerf.scenes.projection import image_motion
 from spikenerf.train.losses import window_mean_loss
 from spikenerf.train.methods.base import Config, StepLosses, Term, TrainMethod, TrainState
+from spikenerf.train.pose_refine import PoseLearner
+from spikenerf.train.sensor_response import SensorLearner
 from spikenerf.train.settings import (
     INTEGRAL_SAMPLES,
     INTEGRAL_SHORTEST,
@@ -70,6 +72,7 @@ class SpikeIntegral(TrainMethod):
     #: targets.recon: only "tfp" (checked); targets.window_poses: eval's TFP keyframes (its window_poses())
     reads = ("targets.recon", "targets.window_poses", "integral.")
     default_batch = INTEGRAL_WINDOWS * INTEGRAL_SAMPLES
+    learner_key = "sensor_response"  # integral.pixel_gain's map
 
     @classmethod
     def check(cls, config: Config) -> None:
@@ -100,6 +103,9 @@ class SpikeIntegral(TrainMethod):
             out.append("no track")
         if c.prior != "none":
             out.append(f"prior {c.prior} (weight {c.prior_weight:g})")
+        if c.pixel_gain:
+            rate = f"L2 weight {c.pixel_gain_weight:g}, rate {c.pixel_gain_lr:g}"
+            out.append(f"learned per-pixel response ({rate})")
         out += [text for on, text in (
             (c.groups > 1, f"{c.groups} estimates a window (product form)"), (c.band, "noise band"),
             (c.align, "spike-aligned windows"),
@@ -126,6 +132,8 @@ class SpikeIntegral(TrainMethod):
         super().__init__(config)
         self.counts: CountTargets | None = None
         self.step_numbers = torch.zeros(0, dtype=torch.int64)
+        self.sensor: SensorLearner | None = None  # integral.pixel_gain's map (:meth:`learner`)
+        self.sensor_shape = (0, 0)  # the sensor's (H, W), set by build_targets
 
     def poses_per_view(self) -> int:
         return self.config.integral.samples * self.config.integral.groups
@@ -145,6 +153,7 @@ class SpikeIntegral(TrainMethod):
             stream, dataset.trajectory.poses, dataset.threshold, c.interpolate, c.interpolate_span
         )
         self.step_numbers = torch.as_tensor(np.asarray(dataset.trajectory.steps))  # what the refiner takes
+        self.sensor_shape = (dataset.intrinsics.height, dataset.intrinsics.width)
         longest = max(self.config.integral.lengths)
         if longest > self.counts.steps:
             raise InputError(
@@ -185,6 +194,17 @@ class SpikeIntegral(TrainMethod):
             samplers["rays"] = self.ray_sampler(height, width, self.config.seed + 2)
         return samplers
 
+    def learner(self, device: torch.device) -> PoseLearner | None:
+        """With ``integral.pixel_gain``: the per-pixel response map (C, H, W) and its own optimiser
+        (:class:`SensorLearner`); None without it."""
+        c = self.config.integral
+        if not c.pixel_gain:
+            return None
+        assert self.sensor_shape[0] > 0, "build_targets first"
+        height, width = self.sensor_shape
+        self.sensor = SensorLearner(self.channels, height, width, c.pixel_gain_lr, self.config.iters, device)
+        return self.sensor
+
     def draw(self, state: TrainState) -> tuple[Tensor, ...]:
         """The step's windows: start, end (B,), pixels (B, 2) and steps (B, G·S), drawn on the host
         (:class:`WindowTargetSampler`; ``integral.align`` reads the counts, a sync where a GPU keeps them)."""
@@ -194,7 +214,11 @@ class SpikeIntegral(TrainMethod):
     def step_losses(self, state: TrainState, iteration: int, drawn: tuple[Tensor, ...]) -> StepLosses:
         integral = self.integral_term(state, drawn, iteration)
         terms = {"recon": integral.loss, "reg": state.model.regularization(iteration)}
-        return StepLosses(terms, integral.srgb_mse, integral.rays, dropped=integral.dropped)
+        step = StepLosses(terms, integral.srgb_mse, integral.rays, dropped=integral.dropped)
+        if self.sensor is not None:  # the map's L2 prior (its mean is held at 0 by construction)
+            terms["sensor"] = self.sensor.response.penalty()
+            step.weights["sensor"] = self.config.integral.pixel_gain_weight
+        return step
 
     def losses(self, state: TrainState, iteration: int) -> StepLosses:
         step = super().losses(state, iteration)
@@ -232,10 +256,12 @@ class SpikeIntegral(TrainMethod):
             poses = state.pose_refine(poses, self.step_numbers[steps.reshape(-1)])
         out = state.render_rays(poses, pixels.repeat_interleave(per, dim=0))
         shape = (-1, c.groups, c.samples, self.channels)
-        means = out.color.view(shape).mean(dim=2)
+        # the counting pixel's learned response (B, 1, C) (integral.pixel_gain), else 1
+        gain = 1.0 if self.sensor is None else self.sensor.response.factor(pixels.to(state.device))[:, None]
+        means = out.color.view(shape).mean(dim=2) * gain
         loss = window_mean_loss(means, target, band)
         if out.coarse_color is not None:
-            loss = loss + window_mean_loss(out.coarse_color.view(shape).mean(dim=2), target, band)
+            loss = loss + window_mean_loss(out.coarse_color.view(shape).mean(dim=2) * gain, target, band)
         with torch.no_grad():
             mse = srgb_mse(means.mean(dim=1), target)
         return Term(loss, mse, poses.shape[0], out.dropped_samples)
