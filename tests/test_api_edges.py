@@ -11,8 +11,8 @@ import torch
 
 import spikenerf
 from spikenerf.camera.io import frame_bytes
-from spikenerf.camera.model import simulate
 from spikenerf.camera.reconstruct import tfp
+from spikenerf.camera.simulation import simulate
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr

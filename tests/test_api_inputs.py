@@ -12,8 +12,9 @@ import torch
 
 from spikenerf.camera.io import read_dat, read_dat_rgb, write_dat, write_dat_rgb
 from spikenerf.camera.masks import spike_masks
-from spikenerf.camera.model import CameraConfig, SpikeCamera, simulate, simulate_iter
+from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.camera.reconstruct import reconstruct_frames, tfi, tfp, window_sum
+from spikenerf.camera.simulation import simulate, simulate_iter
 from spikenerf.capture.options import SimulateOptions
 from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.core.errors import InputError

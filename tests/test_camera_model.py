@@ -12,17 +12,11 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spikenerf.camera.model import (
-    CameraConfig,
-    SpikeCamera,
-    bayer_channel_index,
-    bayer_mosaic,
-    fire,
-    fire_,
-    simulate,
-    simulate_iter,
-)
+from spikenerf.camera.bayer import bayer_channel_index, bayer_mosaic
+from spikenerf.camera.firing import fire, fire_
+from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.camera.noise import RealisticNoise
+from spikenerf.camera.simulation import simulate, simulate_iter
 from spikenerf.core.color import rgb_to_gray
 from spikenerf.core.errors import InputError
 

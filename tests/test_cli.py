@@ -113,8 +113,8 @@ def test_cli_choices_come_from_the_owning_literals() -> None:
     from spikenerf.data.choices import METHODS as TRAIN_METHODS
     from spikenerf.data.targets import RECONS, TargetRecon
     from spikenerf.fields import FIELD_KINDS, FieldKind
-    from spikenerf.importing.alignment import Orient
     from spikenerf.importing.options import ORIENT_CHOICES
+    from spikenerf.importing.orientation import Orient
 
     def choices(command: str, option: str) -> list[str]:
         params = importlib.import_module(SUBCOMMANDS[command][0]).command.params

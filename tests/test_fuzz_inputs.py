@@ -382,14 +382,14 @@ def test_optional_json_nested_too_deeply(tmp_path: Path) -> None:
     """Files read where present (a folder's marker, a run's summary.json): treated as unreadable, not a
     RecursionError."""
     from spikenerf.core.marker import MARKER, folder_kind
-    from spikenerf.pipelines.report import _read_json
+    from spikenerf.pipelines.report_tables import read_json
     from spikenerf.train.run import stored_summary
 
     for name in (MARKER, "summary.json"):
         (tmp_path / name).write_text(DEEP_JSON)
     assert folder_kind(tmp_path) is None
     assert stored_summary(tmp_path, 1) is None
-    assert _read_json(tmp_path / "summary.json") == {}
+    assert read_json(tmp_path / "summary.json") == {}
 
 
 def test_metrics_number_beyond_a_float(tmp_path: Path) -> None:
@@ -1212,7 +1212,7 @@ def test_colmap_cameras_of_every_model_pass_the_layout_check(tmp_path: Path) -> 
     cameras.bin (pycolmap reads it) instead of refusing it. A camera cut short is still refused."""
     import struct
 
-    from spikenerf.importing.poses import check_binary_layout
+    from spikenerf.importing.colmap_model import check_binary_layout
 
     def camera(cid: int, model: int, params: int) -> bytes:
         return struct.pack(f"<IiQQ{params}d", cid, model, 64, 48, *([1.0] * params))

@@ -16,19 +16,11 @@ from spikenerf.camera.spikecv import read_spikecv_config
 from spikenerf.core.errors import InputError
 from spikenerf.core.marker import mark
 from spikenerf.data.dataset import load_dataset
-from spikenerf.importing.alignment import (
-    BOX_MARGIN,
-    PLANE_MIN_SCORE,
-    focus_point,
-    normalisation,
-    orientation,
-    per_step_poses,
-    plane_turn,
-    trajectory_errors,
-    up_direction,
-    upright,
-)
-from spikenerf.importing.poses import read_colmap_text
+from spikenerf.importing.alignment import trajectory_errors
+from spikenerf.importing.colmap_model import read_colmap_text
+from spikenerf.importing.interpolation import per_step_poses
+from spikenerf.importing.normalisation import BOX_MARGIN, focus_point, normalisation
+from spikenerf.importing.orientation import PLANE_MIN_SCORE, orientation, plane_turn, up_direction, upright
 from spikenerf.scenes.distortion import Distortion
 from spikenerf.scenes.poses import matrix_to_quaternion
 from spikenerf.scenes.trajectory import orbit
@@ -501,7 +493,7 @@ def test_a_foreign_partial_folder_is_refused_untouched(capsys, recording, tmp_pa
 def test_near_far_from_points_memory_is_bounded() -> None:
     import tracemalloc
 
-    from spikenerf.importing.alignment import near_far_from_points
+    from spikenerf.importing.normalisation import near_far_from_points
 
     poses = _truth(400)  # 400 cameras on a radius-4 orbit, 30k points in the unit ball
     points = np.random.default_rng(0).normal(size=(30000, 3)) * 0.3
@@ -655,7 +647,7 @@ def test_a_cut_pose_line_or_a_bad_point_in_a_colmap_model_is_named(tmp_path: Pat
 
 
 def test_a_scaled_or_sheared_rotation_is_refused_naming_the_pose_file(tmp_path: Path) -> None:
-    from spikenerf.importing.poses import check_poses
+    from spikenerf.importing.pose_set import check_poses
 
     poses = np.tile(np.eye(4), (3, 1, 1))
     poses[1, :3, :3] = np.diag([2.0, 0.5, 1.0])  # determinant 1, not a rotation
@@ -693,7 +685,7 @@ def test_too_few_registered_keeps_only_the_model_for_a_rerun(tmp_path: Path) -> 
 
 
 def test_two_frame_names_with_one_step_number_are_named(tmp_path: Path) -> None:
-    from spikenerf.importing.poses import steps_from_names
+    from spikenerf.importing.pose_set import steps_from_names
 
     assert steps_from_names(["a/000120.png", "a/000130.png"]).tolist() == [120, 130]
     assert steps_from_names(["left.png", "right.png"]) is None  # unnumbered: spread evenly

@@ -13,7 +13,8 @@ import yaml
 from helpers import run_cli, write_recording
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
-from spikenerf.importing.alignment import held_steps, normalisation, per_step_poses
+from spikenerf.importing.interpolation import held_steps, per_step_poses
+from spikenerf.importing.normalisation import normalisation
 from spikenerf.scenes.trajectory import orbit
 
 H, W, T = 8, 24, 200  # defaults: keyframes every 20 steps from step 10, test keyframes 30 and 189

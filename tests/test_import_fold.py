@@ -14,7 +14,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.importing import colmap
 from spikenerf.importing.alignment import trajectory_jump
-from spikenerf.importing.poses import PoseSet
+from spikenerf.importing.pose_set import PoseSet
 from spikenerf.scenes.poses import look_at
 
 

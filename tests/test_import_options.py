@@ -12,8 +12,9 @@ import pytest
 from helpers import run_cli, write_recording
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
-from spikenerf.importing.alignment import smooth_poses, trajectory_errors
+from spikenerf.importing.alignment import trajectory_errors
 from spikenerf.importing.colmap import ColmapSettings, colmap_fingerprint, local_contrast, run_colmap
+from spikenerf.importing.interpolation import smooth_poses
 from spikenerf.scenes.trajectory import orbit
 
 H, W, T = 8, 24, 60
@@ -157,7 +158,7 @@ def _synthetic_model(folder: Path, truth: np.ndarray, focal: float, seed: int = 
 def test_the_robust_final_bundle_adjustment_resists_biased_wrong_matches(tmp_path) -> None:
     pycolmap = pytest.importorskip("pycolmap")
     from spikenerf.importing.colmap import _global_ba
-    from spikenerf.importing.poses import read_colmap_text
+    from spikenerf.importing.colmap_model import read_colmap_text
 
     truth = orbit(4.0, 30.0, turns=0.25, duration=12 / 40000, fps=40000).poses
     _synthetic_model(tmp_path / "in", truth, 555.0)

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 import test_train
-from spikenerf.camera.model import fire
+from spikenerf.camera.firing import fire
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.core.errors import InputError
 from spikenerf.data.integral import (

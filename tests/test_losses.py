@@ -8,7 +8,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spikenerf.camera.model import fire
+from spikenerf.camera.firing import fire
 from spikenerf.train.losses import (
     mse_to_psnr,
     paper_spike_loss,

@@ -218,7 +218,7 @@ def test_a_cell_whose_metrics_were_deleted_is_scored_again(tmp_path: Path) -> No
     from spikenerf.pipelines.benchmark import BenchmarkConfig, cell_keys, run_dir
     from spikenerf.pipelines.benchmark.run import forget_unscored
     from spikenerf.pipelines.benchmark.settings import _options
-    from spikenerf.pipelines.report import _shown_seed
+    from spikenerf.pipelines.report_figures import shown_seed
 
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt", "spike-nerf"], ["gray"], tmp_path)
     keys = cell_keys(cfg)
@@ -230,4 +230,4 @@ def test_a_cell_whose_metrics_were_deleted_is_scored_again(tmp_path: Path) -> No
     assert (run_dir(cfg, *keys[0]) / "render" / "render.json").is_file()
     assert not (run_dir(cfg, *keys[1]) / "render" / "render.json").exists()
     assert _options(["--set", "lr=0.01", "--set", "batch=64"]) == {"--set lr": "0.01", "--set batch": "64"}
-    assert _shown_seed(cfg) == 0 and _shown_seed(dataclasses.replace(cfg, seeds=[3, 4])) == 3
+    assert shown_seed(cfg) == 0 and shown_seed(dataclasses.replace(cfg, seeds=[3, 4])) == 3

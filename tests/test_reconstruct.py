@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from spikenerf.camera.firing import fire
 from spikenerf.camera.masks import spike_masks
-from spikenerf.camera.model import fire
 from spikenerf.camera.reconstruct import check_window, reconstruct_frames, tfi, tfp, window_sum
 from spikenerf.core.errors import InputError
 

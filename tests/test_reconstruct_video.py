@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from helpers import run_cli
+from spikenerf.camera.firing import fire
 from spikenerf.camera.io import write_dat
-from spikenerf.camera.model import fire
 from spikenerf.camera.reconstruct import tfi, tfp
 from spikenerf.cli.reconstruct import BLOCK_FRAMES, blocks
 from spikenerf.core.color import srgb_encode

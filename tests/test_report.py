@@ -16,7 +16,8 @@ from spikenerf.eval.lpips import lpips_unavailable_reason
 from spikenerf.pipelines import figures
 from spikenerf.pipelines.benchmark import BenchmarkConfig, read_cell, run_dir
 from spikenerf.pipelines.benchmark.tables import Cell
-from spikenerf.pipelines.report import SECTIONS, build_report, table1_html, table2_html
+from spikenerf.pipelines.report import SECTIONS, build_report
+from spikenerf.pipelines.report_tables import table1_html, table2_html
 
 SCENE, SIZE = "analytic-orbs", 20
 CHROMIUM = Path("/usr/bin/chromium")
@@ -130,13 +131,13 @@ def test_the_spike_figures_reconstruct_commands_name_files_the_dataset_holds(tmp
     """An RGB dataset holds ``spikes_rgb_{r,g,b}.dat``: one command per channel file (it named a
     ``spikes_rgb.dat`` that nothing writes)."""
     from spikenerf.data.dataset import load_dataset
-    from spikenerf.pipelines.report import _spikes_figs
+    from spikenerf.pipelines.report_figures import spikes_figs
 
     ds = tmp_path / "rgb"
     _cli("simulate", "--scene", SCENE, "--width", 12, "--height", 12, "--frames", 40, "--test-views", 1,
          "--color", "rgb", "--no-progress", "--out", ds)  # fmt: skip
     cfg = BenchmarkConfig([SCENE], ["nerf-gt"], ["rgb"], tmp_path, size=12, test_views=1)
-    commands = [c for fig in _spikes_figs(cfg, load_dataset(ds), SCENE) for c in fig.commands]
+    commands = [c for fig in spikes_figs(cfg, load_dataset(ds), SCENE) for c in fig.commands]
     named = [Path(c.split()[2]) for c in commands if c.startswith("spikenerf reconstruct ")]
     assert [p.name for p in named] == ["spikes_rgb_r.dat", "spikes_rgb_g.dat", "spikes_rgb_b.dat"]
     assert all(p.is_file() for p in named)
@@ -439,7 +440,7 @@ def test_a_table_that_cannot_be_made_leaves_nothing_written(
     def broken(*args: object, **kwargs: object) -> str:
         raise RuntimeError("no tables today")
 
-    monkeypatch.setattr(report_module, "_tables_section", broken)
+    monkeypatch.setattr(report_module, "tables_section", broken)
     with pytest.raises(RuntimeError, match="no tables today"):
         build_report(dataclasses.replace(bench, out=done), [], progress=False)
     assert not (done / "figures").exists() and not (done / "report.html").exists()
@@ -514,7 +515,7 @@ def test_a_copied_or_changed_benchmark_draws_its_own_datasets_figures(
 
     import yaml
 
-    from spikenerf.pipelines.report import figure_device
+    from spikenerf.pipelines.report_figures import figure_device
 
     copy = tmp_path / "copy"
     shutil.copytree(bench.out, copy)

@@ -26,6 +26,8 @@ MODULES = [
     "spikenerf.camera.tfstp",
     "spikenerf.camera.masks",
     "spikenerf.camera.layout",
+    # camera/model.py and the modules split out of it
+    *(f"spikenerf.camera.{m}" for m in ("model", "firing", "bayer", "simulation")),
     "spikenerf.core.ply",
     "spikenerf.eval.export",
     "spikenerf.eval.piqe",
@@ -35,6 +37,21 @@ MODULES = [
     *(f"spikenerf.eval.{m}" for m in ("video", "trajectories", "render_output")),
     *(f"spikenerf.capture.{m}" for m in ("simulate", "options", "frame_cache", "render_workers")),
     *(f"spikenerf.importing.{m}" for m in ("importer", "options", "keyframes")),
+    # the modules split out of importing/alignment.py and importing/poses.py (and those two), and out of
+    # pipelines/report.py
+    *(
+        f"spikenerf.importing.{m}"
+        for m in (
+            "alignment",
+            "interpolation",
+            "orientation",
+            "normalisation",
+            "poses",
+            "pose_set",
+            "colmap_model",
+        )
+    ),
+    *(f"spikenerf.pipelines.{m}" for m in ("report", "report_tables", "report_figures")),
     # the modules split out of scenes/trajectory.py and train/trainer.py (and what is left of those two)
     *(f"spikenerf.scenes.{m}" for m in ("trajectory", "poses", "render_paths", "projection")),
     *(f"spikenerf.train.{m}" for m in ("trainer", "loop", "preflight", "resume", "optimizer")),

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from spikenerf.camera.model import CameraConfig, SpikeCamera, simulate, simulate_iter
+from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.camera.noise import RealisticNoise
+from spikenerf.camera.simulation import simulate, simulate_iter
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import NO_LIMITS_ENV
 from spikenerf.scenes.analytic import AnalyticSource

@@ -11,8 +11,9 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from spikenerf.camera.firing import fire
 from spikenerf.camera.layout import to_camera_layout
-from spikenerf.camera.model import CameraConfig, SpikeCamera, fire
+from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.fields import GridFieldConfig, MLPFieldConfig
 from spikenerf.render import (
     build_model,

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from helpers import run_cli
+from spikenerf.camera.firing import fire
 from spikenerf.camera.io import write_dat
-from spikenerf.camera.model import fire
 from spikenerf.camera.reconstruct import reconstruct_frames, tfi
 from spikenerf.camera.tfstp import tfstp
 from spikenerf.core.errors import InputError

@@ -23,7 +23,7 @@ from scipy import stats
 from spikenerf.data.dataset import load_dataset
 from spikenerf.importing.alignment import trajectory_errors
 from spikenerf.importing.colmap import _global_ba, _no_stderr, require_pycolmap
-from spikenerf.importing.poses import read_colmap_text
+from spikenerf.importing.colmap_model import read_colmap_text
 
 
 def score(model: Path, truth: np.ndarray) -> dict[str, float]:

@@ -38,7 +38,8 @@ import numpy as np
 
 from spikenerf.capture.recording import RAW_FILE, write_raw_recording
 from spikenerf.data.dataset import TRANSFORMS_TEST, SpikeDataset, load_dataset
-from spikenerf.importing.alignment import per_step_poses, trajectory_errors, umeyama
+from spikenerf.importing.alignment import trajectory_errors, umeyama
+from spikenerf.importing.interpolation import per_step_poses
 from spikenerf.importing.keyframes import keyframe_steps
 
 RAW_EXTRA = 16
@@ -202,7 +203,7 @@ def _with_true_poses(sim: Path, model: Path) -> object:
     model's frame by the similarity of the camera centres (the points re-solved for those poses)."""
     import pycolmap
 
-    from spikenerf.importing.poses import CV_TO_GL, read_colmap_text
+    from spikenerf.importing.colmap_model import CV_TO_GL, read_colmap_text
 
     truth = load_dataset(sim).trajectory.poses
     found = read_colmap_text(model)

@@ -42,8 +42,9 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from spikenerf.camera.model import CameraConfig, simulate
+from spikenerf.camera.model import CameraConfig
 from spikenerf.camera.reconstruct import tfp
+from spikenerf.camera.simulation import simulate
 from spikenerf.core.color import GRAY_WEIGHTS, rgb_to_gray, srgb_encode
 from spikenerf.eval.piqe import piqe
 from spikenerf.scenes.analytic import AnalyticSource

@@ -20,7 +20,8 @@ import numpy as np
 import torch
 
 from benchmarks._table import Row, best_seconds, format_table
-from spikenerf.camera.model import CameraConfig, simulate, simulate_iter
+from spikenerf.camera.model import CameraConfig
+from spikenerf.camera.simulation import simulate, simulate_iter
 
 HEIGHT, WIDTH, STEPS, DISTINCT = 250, 400, 1000, 64
 SIM_BYTES, ADD_BYTES = 13, 12

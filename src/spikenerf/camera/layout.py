@@ -2,7 +2,7 @@
 
 Across package boundaries a spike stream, and everything indexed like one (TFP/TFI reconstructions, spike
 masks, the radiance frames fed to the camera), has the **camera layout**: ``(T, H, W)`` gray or Bayer
-(RGGB pattern, see :mod:`spikenerf.camera.model`), ``(T, 3, H, W)`` per-channel RGB; one step drops ``T``:
+(RGGB pattern, see :mod:`spikenerf.camera.bayer`), ``(T, 3, H, W)`` per-channel RGB; one step drops ``T``:
 ``(H, W)`` or ``(3, H, W)``. The ``.dat`` files hold one ``(T, H, W)`` stream per channel.
 
 Code that works per ray (render/, the training targets in ``data/targets.py``) and images (PNG, the scene

@@ -1,4 +1,6 @@
-"""Integrate-and-fire spike camera model (numpy or torch): colour modes, noise presets, streaming simulation.
+"""Integrate-and-fire spike camera model (numpy or torch): its settings (:class:`CameraConfig`: colour mode,
+threshold, noise preset, seed, warm-up) and the camera fed one step at a time (:class:`SpikeCamera`). The
+firing rule is ``firing.py``, the Bayer filter ``bayer.py``, whole streams ``simulation.py``.
 
 Units: intensity is linear radiance integrated over one readout step (25 µs at 40 kHz); 1.0 = white, i.e.
 a white pixel gathers exactly one threshold φ = 1.0 per step. See docs/camera.md.
@@ -7,13 +9,13 @@ a white pixel gathers exactly one threshold φ = 1.0 per step. See docs/camera.m
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import TypeVar
 
 import numpy as np
 import torch
 
+from spikenerf.camera.bayer import bayer_mosaic
+from spikenerf.camera.firing import Array, fire_
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.noise import NoiseProcess, RealisticNoise
 from spikenerf.camera.streams import check_threshold
@@ -22,12 +24,6 @@ from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError, check_choice, is_integer
 from spikenerf.core.limits import check_memory
 
-Array = TypeVar("Array", np.ndarray, torch.Tensor)
-
-#: The colour filter array of the ``bayer`` mode: (0,0)=R, (0,1)=G, (1,0)=G, (1,1)=B.
-BAYER_PATTERN = "RGGB"
-#: Steps buffered on the device before a copy to host memory in :func:`simulate`.
-_CHUNK = 256
 #: steps between two checks of the accumulator for a NaN or a negative intensity (SpikeCamera.check)
 CHECK_EVERY = 64
 #: memory a camera holds per pixel and channel (bytes, upper-ish): the float32 accumulator, its seed and
@@ -37,69 +33,6 @@ CAMERA_PIXEL_BYTES = 32
 NOISE_PIXEL_BYTES = 160
 #: the intensity dtypes a step reads (numpy kinds: bool, signed and unsigned integers, floats)
 INTENSITY_KINDS = "biuf"
-
-
-def fire(accumulator: Array, intensity: Array, threshold: float | Array = 1.0) -> tuple[Array, Array]:
-    """One readout step of the ideal integrate-and-fire pixel.
-
-    ``A ← A + I``; a spike fires where ``A ≥ φ`` and then ``φ`` is subtracted (the remainder is kept).
-    At most one spike per pixel per step.
-
-    Args:
-        accumulator: (..., H, W) accumulated intensity before the step.
-        intensity: (..., H, W) intensity integrated over the step (linear, 1.0 = white for one step).
-        threshold: φ, a scalar or an array broadcastable to the accumulator.
-    Returns:
-        spikes: bool, same shape; accumulator: the new accumulator, in the dtype that ``accumulator +
-        intensity`` promotes to (numpy's or torch's rules: a float32 accumulator with a float64 intensity
-        array gives float64; pass both as float32 to stay in float32, as :class:`SpikeCamera` does). No
-        input check: this is the rule itself, also run inside training (see :meth:`SpikeCamera.step`).
-    """
-    acc = accumulator + intensity
-    spikes = acc >= threshold
-    if isinstance(acc, torch.Tensor):
-        acc = acc - spikes.to(acc.dtype) * threshold
-    else:
-        acc = acc - spikes.astype(acc.dtype) * threshold
-    return spikes, acc
-
-
-def fire_(
-    accumulator: Array, intensity: Array, threshold: float | Array, spikes: Array, scratch: Array
-) -> Array:
-    """In-place :func:`fire` on float32 buffers: the same rule and bit-identical results, no allocation.
-
-    No autograd: tensors must not require grad (the camera detaches its input).
-
-    Args:
-        accumulator: (..., H, W) float32, updated in place.
-        intensity: broadcastable to the accumulator.
-        threshold: φ as a float32-representable float, or a float32 array of the accumulator's shape.
-        spikes: bool buffer of the accumulator's shape, overwritten with this step's spikes.
-        scratch: float32 buffer of the accumulator's shape, overwritten.
-    Returns:
-        ``spikes``.
-    """
-    if isinstance(accumulator, torch.Tensor) and accumulator.device.type != "cpu":
-        accumulator.add_(intensity)
-        torch.ge(accumulator, threshold, out=spikes)
-        accumulator.sub_(torch.mul(spikes, threshold, out=scratch))
-    else:  # numpy, or CPU tensors through zero-copy numpy views (torch's CPU bool kernels are slower)
-        accumulator, intensity, threshold, scratch, out = (
-            x.numpy() if isinstance(x, torch.Tensor) else x
-            for x in (accumulator, intensity, threshold, scratch, spikes)
-        )
-        if not isinstance(threshold, np.ndarray):
-            threshold = np.float32(threshold)  # keeps the loops in float32
-        np.add(accumulator, intensity, out=accumulator)
-        np.greater_equal(accumulator, threshold, out=out)
-        np.copyto(scratch, out)  # 1.0 / 0.0; much faster than a masked subtract (where=spikes)
-        if isinstance(threshold, np.ndarray) or threshold != 1:
-            np.multiply(scratch, threshold, out=scratch)
-        np.subtract(accumulator, scratch, out=accumulator)
-    return spikes
-
-
 #: the longest warm-up :class:`CameraConfig` accepts, in steps (it runs before the first recorded step)
 MAX_WARMUP = 100_000
 
@@ -136,30 +69,6 @@ class CameraConfig:
                 f"1/intensity steps), got {self.warmup}",
                 param="warmup",
             )
-
-
-def bayer_channel_index(height: int, width: int) -> np.ndarray:
-    """The RGGB colour filter array: int64 (H, W), 0 = R, 1 = G, 2 = B; (0,0)=R, (0,1)=G, (1,0)=G, (1,1)=B."""
-    index = np.ones((height, width), dtype=np.int64)
-    index[0::2, 0::2] = 0
-    index[1::2, 1::2] = 2
-    return index
-
-
-def bayer_mosaic(rgb: Array) -> Array:
-    """Sample (..., 3, H, W) RGB through the RGGB filter array: (..., H, W), same type and dtype."""
-    if rgb.ndim < 3 or rgb.shape[-3] != 3:
-        raise InputError(f"bayer_mosaic needs an RGB array of shape (..., 3, H, W), got {tuple(rgb.shape)}")
-    out = (
-        torch.empty_like(rgb[..., 0, :, :])
-        if isinstance(rgb, torch.Tensor)
-        else np.empty_like(rgb[..., 0, :, :])
-    )
-    out[..., 0::2, 0::2] = rgb[..., 0, 0::2, 0::2]
-    out[..., 0::2, 1::2] = rgb[..., 1, 0::2, 1::2]
-    out[..., 1::2, 0::2] = rgb[..., 1, 1::2, 0::2]
-    out[..., 1::2, 1::2] = rgb[..., 2, 1::2, 1::2]
-    return out
 
 
 def _resolve(device: str | torch.device | None) -> torch.device | None:
@@ -240,7 +149,8 @@ class SpikeCamera:
 
     @property
     def initial_accumulator(self) -> np.ndarray | torch.Tensor:
-        """The seeded accumulator before any step (warm-up included): uniform in [0, φ), float32."""
+        """The seeded accumulator before any step (warm-up included): uniform in [0, φ), float32 (H, W) or
+        (3, H, W)."""
         return self._backend(self._initial)
 
     @property
@@ -249,7 +159,8 @@ class SpikeCamera:
         return self._steps
 
     def new_spikes(self, steps: int | None = None) -> np.ndarray | torch.Tensor:
-        """An uninitialised bool buffer of the spike shape, with a leading ``steps`` axis when given."""
+        """An uninitialised bool buffer of the spike shape, (H, W) or (3, H, W), with a leading ``steps`` axis
+        when given."""
         shape = self.spike_shape if steps is None else (steps, *self.spike_shape)
         if self.device is None:
             return np.empty(shape, dtype=bool)
@@ -322,9 +233,9 @@ class SpikeCamera:
         fires every step), and the accumulator of a pixel fed only values ≥ 0 never drops below 0: two
         reductions over the accumulator find them, without a pass over every step's input.
         :meth:`step` calls this every :data:`CHECK_EVERY` steps (on a torch device: one sync then) and
-        :func:`simulate` and :func:`simulate_iter` at their end. A value below 0 too small to empty its
-        accumulator, or one that the next steps fill up again before a check, goes unseen; the
-        ``realistic`` noise model clips the charge at 0 (as a pixel does), so there none is seen.
+        ``simulate`` and ``simulate_iter`` (:mod:`spikenerf.camera.simulation`) at their end. A value below 0
+        too small to empty its accumulator, or one that the next steps fill up again before a check, goes
+        unseen; the ``realistic`` noise model clips the charge at 0 (as a pixel does), so there none is seen.
         """
         low, high = float(self._acc.min()), float(self._acc.max())
         if not (math.isnan(low) or low < 0 or math.isinf(high)):
@@ -427,92 +338,3 @@ def _mean_first(x: Array) -> Array:
     if x.shape[0] > 1:
         total /= x.shape[0]
     return total
-
-
-def _check_frames(frames: object) -> None:
-    """InputError naming ``frames`` unless it can be iterated (a list, an array of steps, a generator)."""
-    try:
-        iter(frames)  # type: ignore[call-overload]
-    except TypeError:
-        raise InputError(
-            f"frames must be an iterable of steps (e.g. a list of (H, W) arrays, or a (T, H, W) array), "
-            f"got {type(frames).__name__}",
-            param="frames",
-        ) from None
-
-
-def simulate_iter(
-    frames: Iterable,
-    height: int,
-    width: int,
-    config: CameraConfig | None = None,
-    device: str | torch.device | None = None,
-    noise_params: RealisticNoise | None = None,
-) -> Iterator:
-    """Stream spikes: one bool (H, W) or (3, H, W) array per input frame; memory does not grow with T.
-
-    ``frames`` yields one step each, in any form :meth:`SpikeCamera.step` accepts; a NaN, an infinity or a
-    value below 0 among them raises InputError by the end (:meth:`SpikeCamera.check`).
-    """
-    _check_frames(frames)
-    camera = SpikeCamera(height, width, config, device, noise_params)
-    for frame in frames:
-        yield camera.step(frame)
-    camera.check()  # (the steps since the last periodic check)
-
-
-def simulate(
-    frames: Iterable,
-    height: int,
-    width: int,
-    config: CameraConfig | None = None,
-    device: str | torch.device | None = None,
-    progress: bool = False,
-    noise_params: RealisticNoise | None = None,
-) -> np.ndarray:
-    """Simulate a whole stream: bool (T, H, W) for gray/bayer or (T, 3, H, W) for rgb, as numpy.
-
-    Args:
-        frames: T steps of intensity (see :meth:`SpikeCamera.step`), any iterable.
-        height, width: the sensor's size in pixels (positive integers).
-        config: the camera (:class:`CameraConfig`: colour mode, threshold φ, noise, seed, warm-up); None: the
-            defaults (gray, φ = 1, ideal).
-        device: None (numpy), or a torch device to integrate on.
-        progress: show a tqdm progress bar.
-        noise_params: the realistic noise's parameters (default: the preset of ``camera/noise.py``).
-    Raises:
-        InputError: a size, the config or a frame is malformed (a NaN, an infinity or a value below 0 in a
-            frame: by the end, see :meth:`SpikeCamera.check`).
-    """
-    _check_frames(frames)
-    camera = SpikeCamera(height, width, config, device, noise_params)
-    total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
-    if progress:
-        from spikenerf.core.progress import bar
-
-        frames = bar(frames, total=total, desc="spike camera", unit="step")
-    if device is None and total is not None:
-        out = np.empty((total, *camera.spike_shape), dtype=bool)
-        for t, frame in enumerate(frames):
-            if t >= total:
-                raise InputError(f"frames yielded more than its length {total}")
-            camera.step(frame, out=out[t])
-        camera.check()  # (the steps since the last periodic check)
-        return out[: camera.steps]
-    chunks: list[np.ndarray] = []
-    buf = camera.new_spikes(_CHUNK)
-    n = 0
-    for frame in frames:
-        camera.step(frame, out=buf[n])
-        n += 1
-        if n == _CHUNK:
-            chunks.append(_host_copy(buf))
-            n = 0
-    camera.check()
-    if n or not chunks:
-        chunks.append(_host_copy(buf[:n]))
-    return np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
-
-
-def _host_copy(x: np.ndarray | torch.Tensor) -> np.ndarray:
-    return x.cpu().numpy().copy() if isinstance(x, torch.Tensor) else x.copy()

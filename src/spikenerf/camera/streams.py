@@ -57,7 +57,7 @@ def spike_bytes(x: np.ndarray) -> np.ndarray:
         bad = x[np.not_equal(fired, x)].flat[0].item()
         raise InputError(
             f"spikes must be 0/1 (bool, integers, or floats 0.0 and 1.0), found the float value {bad!r} "
-            "(intensities? simulate spikes with camera.model.simulate)",
+            "(intensities? simulate spikes with camera.simulation.simulate)",
             param="spikes",
         )
     return fired.view(np.uint8)

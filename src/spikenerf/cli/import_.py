@@ -13,7 +13,7 @@ from spikenerf.camera.modes import LAYOUTS
 from spikenerf.cli import command_line
 from spikenerf.cli.types import COUNT, OutPath
 from spikenerf.core.errors import parse_range
-from spikenerf.importing.alignment import ORIENTS
+from spikenerf.importing.orientation import ORIENTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
 PARAM_FLAGS = {"fov_deg": "--fov"}
@@ -168,8 +168,8 @@ NARROW_FOV = 3.0
 def held_pose_warning(imported: dict, n: int) -> str | None:
     """What to warn when steps of an import (``imported``: its config.yaml's, ``n`` steps) lie beyond its
     poses' steps by more than the one interval that is extrapolated, so that their pose is held still
-    (:func:`spikenerf.importing.alignment.held_steps`); None when no step does."""
-    from spikenerf.importing.alignment import held_steps
+    (:func:`spikenerf.importing.interpolation.held_steps`); None when no step does."""
+    from spikenerf.importing.interpolation import held_steps
 
     keys, first = imported.get("pose_steps") or [], int(imported["range"][0])
     if len(keys) < 2:

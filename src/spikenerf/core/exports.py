@@ -22,7 +22,9 @@ PUBLIC_API: dict[str, dict[str, str]] = {
         "spikenerf.eval": "evaluate_run",
     },
     "spikenerf.camera": {
-        "spikenerf.camera.model": "CameraConfig SpikeCamera fire simulate",
+        "spikenerf.camera.model": "CameraConfig SpikeCamera",
+        "spikenerf.camera.firing": "fire",
+        "spikenerf.camera.simulation": "simulate",
         "spikenerf.camera.io": "read_dat write_dat read_dat_rgb write_dat_rgb",
         "spikenerf.camera.reconstruct": "tfp tfi",
         "spikenerf.camera.masks": "spike_masks",

@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from spikenerf.camera.bayer import bayer_mosaic
 from spikenerf.camera.io import read_dat, resolve_frames
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
-from spikenerf.camera.model import bayer_mosaic
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
 from spikenerf.core.atomic import atomic_path
 from spikenerf.core.errors import InputError, as_path, check_choice, comma_list

@@ -2,8 +2,9 @@
 
 Keyframes are TFP reconstructions written as 8-bit sRGB PNGs named by their spike step; COLMAP extracts SIFT
 features (one shared camera), matches them sequentially (a video) and runs incremental mapping. The largest
-model is written as text and read back by :func:`spikenerf.importing.poses.read_colmap_text`, so estimated and
-imported COLMAP models share one reader. The work folder is kept between attempts: a finished model is reused.
+model is written as text and read back by :func:`spikenerf.importing.colmap_model.read_colmap_text`, so
+estimated and imported COLMAP models share one reader. The work folder is kept between attempts: a finished
+model is reused.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ import numpy as np
 from spikenerf.core.color import display_uint8, srgb_encode
 from spikenerf.core.errors import InputError
 from spikenerf.importing.alignment import trajectory_jump
-from spikenerf.importing.poses import COLMAP_MISSING, PoseSet, read_colmap_text
+from spikenerf.importing.colmap_model import COLMAP_MISSING, read_colmap_text
+from spikenerf.importing.pose_set import PoseSet
 
 MODEL_DIR = "model"
 #: reprojection error (pixels) where the final bundle adjustment's Cauchy loss starts to flatten

@@ -25,7 +25,7 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import MARKER, check_inputs_outside, check_output, mark, replace_dir
 from spikenerf.data.dataset import load_dataset, near_far
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced, work_dir
-from spikenerf.importing.alignment import frustum_box, near_far_from_points, normalisation, per_step_poses
+from spikenerf.importing.interpolation import per_step_poses
 from spikenerf.importing.keyframes import (
     COLMAP_FOLDERS,
     COLMAP_SEQUENTIAL,
@@ -37,8 +37,9 @@ from spikenerf.importing.keyframes import (
     keyframe_steps,
     keyframe_window,
 )
+from spikenerf.importing.normalisation import frustum_box, near_far_from_points, normalisation
 from spikenerf.importing.options import ImportOptions, check_options
-from spikenerf.importing.poses import PoseSet
+from spikenerf.importing.pose_set import PoseSet
 from spikenerf.scenes.trajectory import Intrinsics, Trajectory
 
 DEFAULT_FPS = 40000.0

@@ -17,9 +17,10 @@ from spikenerf.core.faults import failpoint
 from spikenerf.core.marker import folder_kind
 from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.reconstruction import reconstructor
-from spikenerf.importing.alignment import held_steps, smooth_poses
+from spikenerf.importing.interpolation import held_steps, smooth_poses
 from spikenerf.importing.options import ImportOptions
-from spikenerf.importing.poses import PoseSet, orbit_poses, read_pose_source
+from spikenerf.importing.pose_set import PoseSet
+from spikenerf.importing.poses import orbit_poses, read_pose_source
 from spikenerf.scenes.trajectory import Intrinsics
 
 COLMAP_WORK = "colmap"
@@ -39,8 +40,8 @@ def held_out_keyframes(
 ) -> np.ndarray:
     """The keyframe steps held out as test views (K,) of ``key_steps`` (N,): every ``test_every``-th from the
     second (none for 0), less those that the poses at ``pose_steps`` (P,) (of ``n`` steps) leave at a held
-    pose (:func:`spikenerf.importing.alignment.held_steps`): a test view there would be scored at a pose that
-    is not the one its image shows."""
+    pose (:func:`spikenerf.importing.interpolation.held_steps`): a test view there would be scored at a pose
+    that is not the one its image shows."""
     tests = key_steps[1::test_every] if test_every else key_steps[:0]
     if pose_steps is None or len(pose_steps) < 2:
         return tests

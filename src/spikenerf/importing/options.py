@@ -10,10 +10,10 @@ from pathlib import Path
 
 from spikenerf.camera.reconstruct import check_window
 from spikenerf.core.errors import InputError
-from spikenerf.importing.alignment import ORIENTS, Orient, check_orient
+from spikenerf.importing.orientation import ORIENTS, Orient, check_orient
 from spikenerf.scenes import transforms
 
-#: ``import --orient`` (defined with the geometry: :data:`spikenerf.importing.alignment.ORIENTS`)
+#: ``import --orient`` (defined with the geometry: :data:`spikenerf.importing.orientation.ORIENTS`)
 ORIENT_CHOICES: tuple[str, ...] = ORIENTS
 
 
@@ -36,10 +36,10 @@ class ImportOptions:
         keyframe_images: ``tfp`` (window ``window``) or ``learned`` (the shipped learned reconstructor, at its
         trained window). max_features, sift_peak, affine_sift, final_ba, contrast: COLMAP settings
         (:class:`spikenerf.importing.colmap.ColmapSettings`). smooth: local quadratic smoothing of the
-        keyframe poses over this many steps (0: off; :func:`spikenerf.importing.alignment.smooth_poses`).
+        keyframe poses over this many steps (0: off; :func:`spikenerf.importing.interpolation.smooth_poses`).
         orient: ``up`` turns a frame without a stated scene box upright and its vertical planes onto the axes
         (the smallest box where the points show none), ``up-box`` upright and for the smallest box, before
-        the unit box is fitted (:func:`spikenerf.importing.alignment.upright`); ``none`` keeps the source's
+        the unit box is fitted (:func:`spikenerf.importing.orientation.upright`); ``none`` keeps the source's
         axes.
     """
 

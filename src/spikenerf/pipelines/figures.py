@@ -220,12 +220,13 @@ def novel_spikes(
 
     Predicted: the run's model rendered at that pose (no perturbation, so one render stands for every step)
     fired by the spiking renderer's rule (:func:`spikenerf.render.spiking.fire_sequence`). Reference: the GT
-    test image through the ideal camera simulator (:func:`spikenerf.camera.model.simulate`). Both start from
-    a seeded uniform [0, φ) accumulator and use the dataset's threshold φ. ``dataset_root``: the run's
+    test image through the ideal camera simulator (:func:`spikenerf.camera.simulation.simulate`). Both start
+    from a seeded uniform [0, φ) accumulator and use the dataset's threshold φ. ``dataset_root``: the run's
     dataset where it is now (None: the path the run recorded).
     """
     from spikenerf.camera.layout import to_camera_layout, to_channels_last
-    from spikenerf.camera.model import CameraConfig, simulate
+    from spikenerf.camera.model import CameraConfig
+    from spikenerf.camera.simulation import simulate
     from spikenerf.data.reconstruction import frame_at
     from spikenerf.render.model import render_image
     from spikenerf.render.spiking import fire_sequence, random_start

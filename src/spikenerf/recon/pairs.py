@@ -16,8 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spikenerf.camera.bayer import bayer_mosaic
 from spikenerf.camera.layout import to_camera_layout
-from spikenerf.camera.model import CameraConfig, SpikeCamera, bayer_mosaic
+from spikenerf.camera.model import CameraConfig, SpikeCamera
 from spikenerf.camera.modes import COLORS, NOISES
 from spikenerf.camera.noise import RealisticNoise
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW

@@ -1,5 +1,5 @@
 """The spiking volume renderer: intensity rendered at consecutive steps along the camera path is accumulated
-from a start state and fires spikes with the camera's own rule (:func:`spikenerf.camera.model.fire`).
+from a start state and fires spikes with the camera's own rule (:func:`spikenerf.camera.firing.fire`).
 
 Each step k renders the pixel with the pose of step k, so a window of L steps is L different rays through the
 same pixel. The rendered radiance (linear, 1.0 = white) is the intensity integrated over one step, as in the
@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.camera.firing import fire
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
-from spikenerf.camera.model import fire
 from spikenerf.camera.streams import check_threshold
 from spikenerf.core import tensor_checks
 from spikenerf.core.errors import InputError

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import torch
 
-from spikenerf.camera.model import fire
+from spikenerf.camera.firing import fire
 from spikenerf.core import tensor_checks
 from spikenerf.core.errors import InputError, is_number
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer

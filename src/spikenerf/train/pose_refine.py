@@ -2,8 +2,8 @@
 
 Each keyframe ``k`` carries a correction ``ξ_k = (ω_k, ρ_k)`` in so(3) × R³ log coordinates, zero at the
 start. The correction of any spike step is the linear blend of the two neighbouring keyframes' ``ξ`` (held
-beyond the first and last keyframe; the brackets are :func:`spikenerf.importing.alignment.key_brackets`, the
-ones the importer slerps the poses with) and it acts in the camera frame:
+beyond the first and last keyframe; the brackets are the ones the importer slerps the poses with,
+:func:`spikenerf.importing.interpolation.key_brackets`) and it acts in the camera frame:
 ``c2w' = c2w · [exp(ω) | ρ]`` (a rotation about the camera centre, a shift along the camera's own axes).
 A zero correction is the identity exactly. The corrections get their own Adam with a small learning rate and
 a coarse-to-fine schedule fitted to the grid field (see :func:`pose_lr`).
@@ -23,7 +23,7 @@ from torch import Tensor
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.data.holdout import is_imported
-from spikenerf.importing.alignment import key_brackets
+from spikenerf.importing.interpolation import key_brackets
 from spikenerf.importing.keyframes import keyframe_steps
 from spikenerf.train.settings import PoseRefineConfig
 
