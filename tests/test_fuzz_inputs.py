@@ -42,7 +42,7 @@ from spikenerf.recon.store import read_manifest
 from spikenerf.scenes.image_io import read_image
 from spikenerf.scenes.sequence import load_sequence
 from spikenerf.train.checkpoint import load_checkpoint
-from spikenerf.train.config import apply_overrides, load_config
+from spikenerf.train.config_file import apply_overrides, load_config
 from spikenerf.train.evaluate import read_curves
 
 FUZZ = settings(
@@ -1233,7 +1233,7 @@ def test_running_out_of_memory_while_resuming_is_not_called_damage(
     reported as "damaged checkpoint: its training state does not load"."""
     import torch
 
-    from spikenerf.train.config import load_run_config
+    from spikenerf.train.config_file import load_run_config
     from spikenerf.train.trainer import Trainer
 
     def full(*args: object) -> None:

@@ -170,7 +170,7 @@ def test_variant_command_trains_its_config(name: str, tmp_path: Path, monkeypatc
 def test_trained_on_follows_each_variants_method(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     from spikenerf.pipelines.benchmark import results
     from spikenerf.pipelines.benchmark.cells import run_dir
-    from spikenerf.train.config import save_config
+    from spikenerf.train.config_file import save_config
 
     monkeypatch.setattr(results, "view_counts", lambda root: {"steps": 40, "gt": 4, "blur": 10})
     (tmp_path / "datasets" / "s").mkdir(parents=True)
@@ -194,7 +194,7 @@ def test_each_method_prints_its_key_settings() -> None:
     ``for_dataset`` may pick from the dataset), the spike loss's kind and λ, the reconstruction targets."""
 
     def settings(method: str, *sets: str) -> list[str]:
-        from spikenerf.train.config import apply_overrides
+        from spikenerf.train.config_file import apply_overrides
 
         config = TrainConfig.from_dict(apply_overrides(TrainConfig(method=method).to_dict(), list(sets)))
         return make_method(config).settings()

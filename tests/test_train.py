@@ -34,7 +34,8 @@ from spikenerf.render import build_model, render_spike_window
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.checkpoint import CHECKPOINT
-from spikenerf.train.config import WINDOW_POSES, TrainConfig, load_config, load_run_config, save_config
+from spikenerf.train.config import WINDOW_POSES, TrainConfig
+from spikenerf.train.config_file import load_config, load_run_config, save_config
 from spikenerf.train.evaluate import read_curves
 from spikenerf.train.logger import RunningMeans
 from spikenerf.train.losses import spike_interval_loss
@@ -837,7 +838,8 @@ def test_a_config_value_of_another_type_names_its_key_and_type() -> None:
 def test_set_coerces_number_strings_by_the_key_type() -> None:
     """``1e-3`` (a string to YAML 1.1) becomes a float for a float key only; a string key keeps it."""
     from spikenerf.fields import field_config
-    from spikenerf.train.config import TrainConfig, apply_overrides
+    from spikenerf.train.config import TrainConfig
+    from spikenerf.train.config_file import apply_overrides
 
     sets = ["dataset=1e3", "lr=1e-3", "field_config.lr=2e-2"]
     cfg = TrainConfig.from_dict(apply_overrides(TrainConfig().to_dict(), sets)).validate()

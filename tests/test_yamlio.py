@@ -88,7 +88,7 @@ def test_a_datasets_camera_config_given_as_a_train_config_is_named_as_such(capsy
 
 def test_a_train_config_beside_another_tools_manifest_is_read(tmp_path: Path) -> None:
     """A folder with a ``manifest.json`` was taken for a recon-data pair folder (no marker: not ours)."""
-    from spikenerf.train.config import load_config
+    from spikenerf.train.config_file import load_config
 
     (tmp_path / "manifest.json").write_text("{}")
     (tmp_path / "config.yaml").write_text("iters: 7\n")
@@ -98,7 +98,7 @@ def test_a_train_config_beside_another_tools_manifest_is_read(tmp_path: Path) ->
 def test_load_config_reads_a_run_folder_and_refuses_a_dataset_folder(tmp_path: Path) -> None:
     """``load_config(RUN)`` said "missing run config (not a run folder…)" of a real run folder."""
     from spikenerf.core.marker import mark
-    from spikenerf.train.config import load_config
+    from spikenerf.train.config_file import load_config
 
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "config.yaml").write_text("iters: 5\n")

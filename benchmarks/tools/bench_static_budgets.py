@@ -27,7 +27,7 @@ from pathlib import Path
 
 import torch
 
-from spikenerf.train.config import load_config
+from spikenerf.train.config_file import load_config
 from spikenerf.train.trainer import Trainer
 
 

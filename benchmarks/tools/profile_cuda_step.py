@@ -33,7 +33,8 @@ from torch.profiler import ProfilerActivity, profile
 
 from spikenerf.train.checkpoint import load_checkpoint, save_checkpoint
 from spikenerf.train.compiled_step import CompiledStep, static_samples
-from spikenerf.train.config import TrainConfig, load_config, save_config
+from spikenerf.train.config import TrainConfig
+from spikenerf.train.config_file import load_config, save_config
 from spikenerf.train.trainer import Trainer
 
 #: runtime calls counted per step (host side of the CUDA API)

@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 from torch.profiler import profile
 
-from spikenerf.train.config import load_config
+from spikenerf.train.config_file import load_config
 from spikenerf.train.trainer import Trainer
 
 #: op-name fragments → category (first match wins; everything else is "other tensor ops")

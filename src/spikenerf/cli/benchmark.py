@@ -127,7 +127,8 @@ def command(
     if overrides:  # a bad key fails here, once, not in every cell
         from spikenerf.fields.registry import field_config
         from spikenerf.pipelines.benchmark.variants import VARIANTS
-        from spikenerf.train.config import TrainConfig, apply_overrides
+        from spikenerf.train.config import TrainConfig
+        from spikenerf.train.config_file import apply_overrides
 
         for item in overrides:  # a cell's identity: set by the benchmark, labelled in its tables
             key = item.partition("=")[0].strip()

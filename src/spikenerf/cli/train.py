@@ -15,14 +15,8 @@ from spikenerf.core.yamlio import load_yaml
 from spikenerf.data.choices import COLORS, METHODS
 from spikenerf.data.reconstruction import RECONS
 from spikenerf.fields.choices import FIELD_KINDS
-from spikenerf.train.config import (
-    CONFIG_FILE,
-    WINDOW_POSES,
-    TrainConfig,
-    apply_overrides,
-    load_config,
-    load_run_config,
-)
+from spikenerf.train.config import WINDOW_POSES, TrainConfig
+from spikenerf.train.config_file import CONFIG_FILE, apply_overrides, load_config, load_run_config
 from spikenerf.train.settings import (
     AMP_MODES,
     INTEGRAL_SHORTEST,

@@ -43,7 +43,8 @@ PUBLIC_API: dict[str, dict[str, str]] = {
         "spikenerf.capture.simulate": "simulate_dataset",
     },
     "spikenerf.train": {
-        "spikenerf.train.config": "TrainConfig load_config",
+        "spikenerf.train.config": "TrainConfig",
+        "spikenerf.train.config_file": "load_config",
         "spikenerf.train.trainer": "Trainer train",
         "spikenerf.train.run": "load_run",
         "spikenerf.train.losses": "recon_loss spike_interval_loss window_mean_loss paper_spike_loss",

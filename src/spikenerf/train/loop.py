@@ -26,7 +26,7 @@ from spikenerf.data.holdout import write_record
 from spikenerf.train.amp import autocast
 from spikenerf.train.checkpoint import CHECKPOINT
 from spikenerf.train.compiled_step import CompiledStep, static_samples
-from spikenerf.train.config import CONFIG_FILE, save_config
+from spikenerf.train.config_file import CONFIG_FILE, save_config
 from spikenerf.train.evaluate import CURVES, LOSS_COLUMNS, write_curves
 from spikenerf.train.logger import RunningMeans, open_log, step_scalars, warn
 from spikenerf.train.losses import mse_to_psnr

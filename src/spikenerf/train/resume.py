@@ -11,7 +11,8 @@ from typing import Any
 
 from spikenerf.core.errors import InputError
 from spikenerf.fields.grid_config import KERNEL_OPTIONS
-from spikenerf.train.config import TrainConfig, load_run_config
+from spikenerf.train.config import TrainConfig
+from spikenerf.train.config_file import load_run_config
 from spikenerf.train.methods import unused_keys
 
 #: options that may change when a run is resumed (everything else must match the stored config)

@@ -18,7 +18,8 @@ from spikenerf.data.dataset import SpikeDataset, load_dataset, read_mapping, spi
 from spikenerf.data.holdout import read_record
 from spikenerf.render.base import RadianceModel
 from spikenerf.train.checkpoint import CHECKPOINT, check_same_run, load_checkpoint, model_of
-from spikenerf.train.config import CONFIG_FILE, TrainConfig, load_run_config
+from spikenerf.train.config import TrainConfig
+from spikenerf.train.config_file import CONFIG_FILE, load_run_config
 from spikenerf.train.methods import make_method
 from spikenerf.train.sensor_response import SENSOR_MAP, read_sensor_map
 

@@ -44,7 +44,8 @@ from spikenerf.train.checkpoint import (
 )
 from spikenerf.train.compiled_optim import CompiledAdamStep, load_state
 from spikenerf.train.compiled_step import compile_step, compiles_needed, static_samples
-from spikenerf.train.config import CONFIG_FILE, TrainConfig
+from spikenerf.train.config import TrainConfig
+from spikenerf.train.config_file import CONFIG_FILE
 from spikenerf.train.device import batch_bytes, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, evaluate_views, read_curves
 from spikenerf.train.logger import RunningMeans, warn

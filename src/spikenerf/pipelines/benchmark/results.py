@@ -54,7 +54,7 @@ VIEW_TEXT = {"steps": "{} poses", "gt": "{} GT views", "blur": "{} blur views"}
 def poses_per_view(run: Path, variant: str) -> int:
     """Poses a cell's run renders per target view (its ``config.yaml``; else the variant's defaults), e.g.
     ``blur_samples`` for ``nerf-blur-aware`` and ``nerf-bad``."""
-    from spikenerf.train.config import load_run_config
+    from spikenerf.train.config_file import load_run_config
     from spikenerf.train.methods import make_method
 
     try:

@@ -33,7 +33,8 @@ class Variant:
 
     def config(self, **fields: Any) -> TrainConfig:
         """The ``TrainConfig`` it trains with (``fields``: other options, e.g. ``dataset``), validated."""
-        from spikenerf.train.config import TrainConfig, apply_overrides
+        from spikenerf.train.config import TrainConfig
+        from spikenerf.train.config_file import apply_overrides
 
         data = TrainConfig(method=self.method, **fields).to_dict()
         return TrainConfig.from_dict(apply_overrides(data, self.assignments())).validate()
