@@ -111,6 +111,25 @@ def test_a_step_writing_to_the_terminal_starts_on_a_line_of_its_own(
     assert before.endswith("\r") and "benchmark datasets" in after
 
 
+def test_a_stopped_step_leaves_the_resume_hint_to_its_benchmark(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An interrupted benchmark's steps say "terminated" alone, not "train --resume": the benchmark's own line
+    says to run it again, and a lone `train` keeps its hint."""
+    import sys
+
+    from spikenerf.cli import RESUME_HINTS, resume_hint
+    from spikenerf.pipelines.benchmark.steps import STEP_ENV, run_step
+
+    monkeypatch.delenv(STEP_ENV, raising=False)
+    assert resume_hint("train") == f" ({RESUME_HINTS['train']})"
+    log: list[dict] = []
+    check = f"import os, sys; sys.exit(0 if os.environ.get({STEP_ENV!r}) == '1' else 3)"
+    run_step([sys.executable, "-c", check], log)  # a step's environment marks it
+    run_step([sys.executable, "-c", check], log, threads=1)
+    assert [entry["rc"] for entry in log] == [0, 0]
+    monkeypatch.setenv(STEP_ENV, "1")
+    assert resume_hint("train") == resume_hint("benchmark") == ""
+
+
 def test_an_interrupted_benchmark_stops_its_running_steps() -> None:
     import sys
 

@@ -325,6 +325,11 @@ def test_info_and_reconstruct_refuse_a_file_that_is_not_a_recording(capsys, tmp_
     for argv in (["info"], ["reconstruct", "--method", "tfp", "--out", tmp_path / "x.npy"]):
         code, _, err = run_cli(capsys, *argv[:1], tmp_path / "config.yaml", *argv[1:])
         assert code == 2 and "is a .yaml file, not a .dat spike recording" in err
+    for name in ("cloud.ply", "orbit.mp4"):  # what export and render write, beside a config.yaml
+        (tmp_path / name).write_bytes(bytes(H * W))  # (whole frames' worth of bytes: it would read)
+        code, _, err = run_cli(capsys, "info", tmp_path / name)
+        suffix = name.split(".")[1]
+        assert code == 2 and f"{name}: is a .{suffix} file, not a .dat spike recording" in err, err
     (tmp_path / "empty.dat").write_bytes(b"")  # a recording that was never written
     for argv in (["info"], ["reconstruct", "--method", "tfp", "--out", tmp_path / "y.npy"]):
         code, _, err = run_cli(

@@ -42,6 +42,12 @@ DIARY = re.compile(
     ).replace(" ", r"\s+"),  # also across a line break
     re.IGNORECASE,
 )
+#: a user page states what the toolkit does now: the history of builds and of the project's issues is
+#: CHANGELOG.md's and the lab notes'
+HISTORY = re.compile(
+    r"\bearlier builds?\b|\bprevious release\b|\bgit archive\b|\bissue \d+\b".replace(" ", r"\s+"),
+    re.IGNORECASE,
+)
 #: the getting-started commands run at this size in the test (the page shows the full command)
 TINY = {"--iters 300": "--iters 20"}
 RUN_MARK = "<!-- test_docs: run -->"
@@ -172,6 +178,23 @@ def test_the_diary_check_sees_diary_wording() -> None:
         assert DIARY.search(text), text
     for text in ["a scene box", "the spike loss stops", "loads the weights", "non-stop"]:
         assert not DIARY.search(text), text
+
+
+def test_user_pages_keep_no_build_history() -> None:
+    hits = [
+        f"{page.relative_to(ROOT)}:{text.count(chr(10), 0, m.start()) + 1}: {m.group(0)!r}"
+        for page in USER_PAGES
+        if page.name not in LENGTH_EXEMPT  # cli.md is --help
+        for text in [page.read_text()]
+        for m in HISTORY.finditer(text)
+    ]
+    assert not hits, "history in a user page (say what the toolkit does now; history: CHANGELOG.md):\n" + (
+        "\n".join(hits)
+    )
+    for text in ["In earlier builds, runs failed", "the previous\nrelease measured", "issue 27's targets"]:
+        assert HISTORY.search(text), text
+    for text in ["an issue with the lens", "the release notes", "a build folder"]:
+        assert not HISTORY.search(text), text
 
 
 def test_user_pages_do_not_open_with_the_lab_notes() -> None:

@@ -239,3 +239,14 @@ def test_a_field_of_view_that_looks_like_radians_is_warned(capsys, rec, tmp_path
     assert code == 0 and "narrow lens" not in err
     code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "no", *ORBIT, "--fov", -1)
     _one_error(code, err, "--fov must be in (0, 180) degrees")  # (the error alone, no warning)
+
+
+def test_too_few_colmap_keyframes_point_to_a_known_orbit_too() -> None:
+    """A simulated recording (docs/real-data.md) registers no keyframe: the error names --poses orbit too."""
+    from spikenerf.cli import flag_of
+    from spikenerf.importing.colmap import _too_few
+
+    shown = _too_few(0, 10, 20).shown(lambda param: flag_of(param, "import"))
+    assert "COLMAP registered 0 of 10 keyframes" in shown and "--keyframe-every (now 20)" in shown
+    assert "--poses FILE ('orbit' with the orbit's radius and elevation" in shown, shown
+    assert "\n" not in shown

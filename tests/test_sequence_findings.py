@@ -173,3 +173,24 @@ def test_cli_warns_of_a_stretch_and_says_one_step(
     )
     assert code == 2 and "::" not in err, err
     assert err.strip().endswith("--sequence-range '-9:': -9 is outside the 4 listed frames (-4 to 4)"), err
+
+
+# ------------------------------------------------------------- 6: a nerfstudio view's held-out frames
+def test_a_nerfstudio_views_held_out_frames_stay_off_the_path(seq: Path) -> None:
+    """A dataset's transforms_gt.json (what the gt_every hint points to) lists its test views among the
+    frames, far from the path: only the frames of ``train_filenames`` make the path; as eval views, all."""
+    far = np.eye(4)
+    far[:3, 3] = [0.0, -4.0, 0.0]  # a test camera on the other side of the scene
+    iio.imwrite(seq.parent / "f" / "t.png", np.full((H, W), 200, np.uint8))
+
+    def nerfstudio_view(meta: dict) -> None:
+        meta["train_filenames"] = [f["file_path"] for f in meta["frames"]]
+        meta["frames"].append({"file_path": "./f/t", "transform_matrix": far.tolist()})
+
+    edit_json(seq, nerfstudio_view)
+    source = SequenceSource(seq, eval_views=seq)
+    assert len(source.trajectory) == N and not np.allclose(source.trajectory.poses, far)
+    assert len(source.test_views()[0]) == N + 1  # the eval views keep every listed frame
+    edit_json(seq, lambda m: m.update(train_filenames=["./f/none"]))
+    with pytest.raises(InputError, match="'train_filenames' lists none of the 5 frames' file_path"):
+        SequenceSource(seq)

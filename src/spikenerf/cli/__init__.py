@@ -245,8 +245,11 @@ RESUME_HINTS = {
 
 
 def resume_hint(command: str | None) -> str:
-    """`` (HINT)`` after "aborted" for a command that resumes (:data:`RESUME_HINTS`), else ""."""
-    hint = RESUME_HINTS.get(command or "")
+    """`` (HINT)`` after "aborted" for a command that resumes (:data:`RESUME_HINTS`), else "" (also in a
+    step of a benchmark or demo, whose own line says to run it again)."""
+    from spikenerf.pipelines.benchmark.steps import STEP_ENV
+
+    hint = None if os.environ.get(STEP_ENV) == "1" else RESUME_HINTS.get(command or "")
     return f" ({hint})" if hint else ""
 
 

@@ -83,8 +83,9 @@ def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:
     return function
 
 
-#: file types that are never a spike recording (a dataset's or run's other files)
-NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".exr", ".npy", ".npz", ".csv", ".html")
+#: file types that are never a spike recording (a dataset's or run's other files, export's .ply, an .mp4)
+NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".jpeg", ".exr", ".npy", ".npz", ".csv",
+              ".html", ".ply", ".mp4", ".md")  # fmt: skip
 
 
 def given_layout(path: Path, layout: str | None, recording: Any) -> str:

@@ -287,7 +287,8 @@ def _too_few(registered: int, total: int, keyframe_every: int | None, kept: Path
     where = f" (its model stays in {kept}: a rerun with a lower min_registered takes it)" if kept else ""
     return InputError(
         f"COLMAP registered {registered} of {total} keyframes, too few for a trajectory{where}; try a "
-        f"smaller keyframe_every{hint} so that neighbouring keyframes overlap more, or give poses FILE",
+        f"smaller keyframe_every{hint} so that neighbouring keyframes overlap more, or give poses FILE "
+        "('orbit' with the orbit's radius and elevation for a camera that circled the scene)",
         param=("keyframe_every", "poses", "min_registered"),
     )
 

@@ -227,10 +227,14 @@ class SequenceFrames:
     scene_box: np.ndarray | None
 
 
-def load_sequence(transforms_json: str | Path, frame_range: FrameRange | None = None) -> SequenceFrames:
-    """Read and validate a transforms.json: every listed pose, and the images of the selected frames."""
+def load_sequence(
+    transforms_json: str | Path, frame_range: FrameRange | None = None, path_only: bool = True
+) -> SequenceFrames:
+    """Read and validate a transforms.json: every listed pose, and the images of the selected frames. With
+    ``path_only`` a file with ``train_filenames`` gives only the frames that list names (its path)."""
     path = Path(transforms_json)
     meta = transforms.read_transforms(path)
+    meta = _training_frames(meta, path) if path_only else meta
     try:
         frames = transforms.frames_of(meta, path, ("file_path", "transform_matrix"))
     except InputError as err:
@@ -252,6 +256,24 @@ def load_sequence(transforms_json: str | Path, frame_range: FrameRange | None = 
     return SequenceFrames(
         path, indices, images, all_poses[indices], all_poses, intrinsics, transforms.scene_box(meta, path)
     )
+
+
+def _training_frames(meta: dict, path: Path) -> dict:
+    """``meta`` with only the frames its ``train_filenames`` lists, where it has that list (a nerfstudio
+    view, such as a spikenerf dataset's ``transforms_gt.json``, lists its held-out test views among the
+    frames too: as part of the path they would make the camera jump); else ``meta`` as it is."""
+    train, frames = meta.get("train_filenames"), meta.get("frames")
+    if not isinstance(train, list) or not isinstance(frames, list):
+        return meta
+    listed = set(map(str, train))
+    kept = [f for f in frames if not isinstance(f, dict) or str(f.get("file_path")) in listed]
+    if not kept:
+        raise InputError(
+            f"field 'train_filenames' lists none of the {len(frames)} frames' file_path: no frame is left "
+            "for the path (remove the list to use every frame)",
+            path=path,
+        )
+    return {**meta, "frames": kept}
 
 
 def _dataset_hint(err: InputError, meta: dict, path: Path) -> InputError:
@@ -358,7 +380,7 @@ class SequenceSource:
 
     def _check_eval(self, path: Path) -> SequenceFrames:
         """Validate the held-out views now (before any simulation runs): same camera as the sequence."""
-        seq = load_sequence(path)
+        seq = load_sequence(path, path_only=False)  # held-out views: every frame the file lists
         cam, ours = seq.intrinsics.scaled(self.intrinsics.width, self.intrinsics.height), self.intrinsics
         found, want = (cam.fl_x, cam.fl_y, cam.cx, cam.cy), (ours.fl_x, ours.fl_y, ours.cx, ours.cy)
         if cam.distortion != ours.distortion:

@@ -47,6 +47,10 @@ def _die_with_parent() -> None:
         _PRCTL(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
 
 
+#: "1" in every step's environment: the step's own "aborted"/"terminated" line then gives no hint of how to
+#: continue it alone (``train --resume``): the benchmark's line says how to continue the whole (run it again)
+STEP_ENV = "SPIKENERF_BENCHMARK_STEP"
+
 #: the steps running now (a benchmark interrupted by SIGTERM or Ctrl-C stops them: :func:`stop_running`)
 _RUNNING: set[subprocess.Popen] = set()
 _RUNNING_LOCK = threading.Lock()
@@ -77,7 +81,7 @@ def run_step(
     command: list[str], log: list[dict], output: Path | None = None, threads: int | None = None
 ) -> None:
     """Run one ``spikenerf`` step; its output goes to the terminal, or appended to ``output``."""
-    env = None if threads is None else {**os.environ, "OMP_NUM_THREADS": str(threads)}
+    env = {**os.environ, STEP_ENV: "1", **({} if threads is None else {"OMP_NUM_THREADS": str(threads)})}
     start = time.perf_counter()
     if output is None:
         rc = _run(command, env)
