@@ -1,4 +1,5 @@
-"""``render``'s resume cache (eval/render_cache.py) and the camera of a trajectory file (data/dataset.py)."""
+"""``render``'s resume cache (eval/render_cache.py) and the camera of a trajectory file
+(data/camera_path.py)."""
 
 from __future__ import annotations
 

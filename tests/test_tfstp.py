@@ -111,3 +111,20 @@ def test_cli_reconstruct_method_tfstp(capsys: pytest.CaptureFixture[str], tmp_pa
     code, _, err = run_cli(capsys, *base, "--window", 21, "--out", tmp_path / "w.npy")
     assert code == 2 and "--window applies to --method tfp and learned (tfstp" in err
     assert not (tmp_path / "w.npy").exists()
+
+
+def test_the_state_reaches_past_a_holdout_band_and_the_docs_say_so() -> None:
+    """Spikes inside a held-out band change TFSTP targets beyond the default guard radius after it (the
+    state carries the history), a limit that docs/metrics.md states beside TFI's."""
+    from spikenerf.data.holdout import guard_radius
+
+    rng = np.random.default_rng(4)
+    spikes = rng.random((400, 8, 8)) < 0.1
+    changed = spikes.copy()
+    changed[150:170] = rng.random((20, 8, 8)) < 0.5  # a band's spikes (centre 160, radius 10)
+    after = 170 + guard_radius(41, 5, 1)  # a training target past the default band of a TFP window 41
+    assert np.abs(tfstp(spikes)[after] - tfstp(changed)[after]).max() > 1e-3
+    assert np.array_equal(tfi(spikes)[after + 40 :], tfi(changed)[after + 40 :])  # TFI forgets at a spike
+    page = (Path(__file__).resolve().parents[1] / "docs" / "metrics.md").read_text(encoding="utf-8")
+    limits = " ".join(page.split("Limits:", 1)[1].split()[:120])
+    assert "`--recon tfstp`" in limits and "band" in limits

@@ -25,7 +25,8 @@ import numpy as np
 from spikenerf.camera.io import read_dat
 from spikenerf.camera.reconstruct import tfi, tfp
 from spikenerf.camera.tfstp import tfstp
-from spikenerf.capture.simulate import SimulateOptions, simulate_dataset
+from spikenerf.capture.options import SimulateOptions
+from spikenerf.capture.simulate import simulate_dataset
 from spikenerf.eval.recon_scores import score_reconstructions
 from spikenerf.pipelines.benchmark.stats import t_interval
 from spikenerf.scenes.analytic import AnalyticSource

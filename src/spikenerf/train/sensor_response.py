@@ -31,7 +31,8 @@ from spikenerf.train.pose_refine import PoseLearner
 #: the side of the square whose local mean is taken off the map (odd; pixels near the border average the
 #: part of it inside the image)
 HIGHPASS = 5
-#: the learned response factors ``exp(m − mean(m))`` in the run folder: float32 (H, W) gray, (3, H, W) rgb
+#: the learned response factors ``exp(centred m)`` (:meth:`SensorResponse.centred`) in the run folder: float32
+#: (H, W) gray, (3, H, W) rgb
 SENSOR_MAP = "sensor_map.npy"
 #: the map's rate rises linearly from 0 over this fraction of the run (the scene takes shape first) …
 WARMUP_FRACTION = 0.1
@@ -57,14 +58,16 @@ class SensorResponse(torch.nn.Module):
         return high - high.mean(dim=(1, 2), keepdim=True)
 
     def factor(self, pixels: Tensor) -> Tensor:
-        """Response factors ``exp(m_p − mean(m))`` (B, C) at ``pixels`` (B, 2) int ``(x, y)``."""
+        """Response factors ``exp(c_p)`` (B, C) at ``pixels`` (B, 2) int ``(x, y)``, ``c`` the high-passed,
+        centred map (:meth:`centred`)."""
         m = self.centred()
         channels, _, width = m.shape
         flat = pixels[:, 1].long() * width + pixels[:, 0].long()  # row-major index (B,)
         return torch.exp(m.reshape(channels, -1)[:, flat.to(m.device)]).transpose(0, 1)
 
     def penalty(self) -> Tensor:
-        """0-d ``mean((m − mean(m))²)``: the L2 prior towards the nominal response."""
+        """0-d ``mean(c²)`` of the high-passed, centred map ``c`` (:meth:`centred`): the L2 prior towards the
+        nominal response."""
         return self.centred().square().mean()
 
     @torch.no_grad()
