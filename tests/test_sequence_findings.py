@@ -194,3 +194,23 @@ def test_a_nerfstudio_views_held_out_frames_stay_off_the_path(seq: Path) -> None
     edit_json(seq, lambda m: m.update(train_filenames=["./f/none"]))
     with pytest.raises(InputError, match="'train_filenames' lists none of the 5 frames' file_path"):
         SequenceSource(seq)
+
+
+def test_a_nerfstudio_views_frames_keep_their_places_in_the_file(seq: Path) -> None:
+    """With a held-out frame listed before the path's frames, the path's frames (``frame_indices``) and an
+    error about one of them are named by their place in the file's ``frames``, not among the path's."""
+    far = np.eye(4)
+    far[:3, 3] = [0.0, -4.0, 0.0]
+    iio.imwrite(seq.parent / "f" / "t.png", np.full((H, W), 200, np.uint8))
+
+    def held_out_first(meta: dict) -> None:
+        meta["train_filenames"] = [f["file_path"] for f in meta["frames"]]
+        meta["frames"].insert(0, {"file_path": "./f/t", "transform_matrix": far.tolist()})
+
+    edit_json(seq, held_out_first)
+    source = SequenceSource(seq, frame_range="1:3")
+    assert source.frame_indices.tolist() == [2, 3]  # the path's 2nd and 3rd frames, after the held-out one
+    second = json.loads(seq.read_text())["frames"][2]["file_path"]
+    iio.imwrite(seq.parent / f"{second}.png", np.full((H + 2, W), 50, np.uint8))  # another size
+    with pytest.raises(InputError, match=r"frames\[2\]\.file_path: image is .* but frames\[1\] is"):
+        SequenceSource(seq)

@@ -212,9 +212,10 @@ class SequenceFrames:
     """Listed frames of a transforms.json, validated.
 
     Attributes:
-        path: the JSON file. indices: (N,) positions of the selected frames in ``frames``.
+        path: the JSON file. indices: (N,) positions of the selected frames in the file's ``frames``.
         images: N image paths. poses: (N, 4, 4) float64 c2w of the selected frames.
-        all_poses: (M, 4, 4) poses of every listed frame. intrinsics: the camera at the images' size.
+        all_poses: (M, 4, 4) poses of every frame of the path (``train_filenames``'s where the file has one
+        and the path is asked for). intrinsics: the camera at the images' size.
         scene_box: (2, 3) from a ``scene_box``/``aabb`` key, or None.
     """
 
@@ -231,16 +232,18 @@ def load_sequence(
     transforms_json: str | Path, frame_range: FrameRange | None = None, path_only: bool = True
 ) -> SequenceFrames:
     """Read and validate a transforms.json: every listed pose, and the images of the selected frames. With
-    ``path_only`` a file with ``train_filenames`` gives only the frames that list names (its path)."""
+    ``path_only`` a file with ``train_filenames`` gives only the frames that list names (its path):
+    ``frame_range`` counts those, while ``indices`` and every error name a frame by its place in the
+    file's ``frames``."""
     path = Path(transforms_json)
     meta = transforms.read_transforms(path)
-    meta = _training_frames(meta, path) if path_only else meta
     try:
         frames = transforms.frames_of(meta, path, ("file_path", "transform_matrix"))
     except InputError as err:
         raise _dataset_hint(err, meta, path) from None
-    all_poses = transforms.frame_poses(meta, path)
-    indices = np.asarray(select_range(len(frames), frame_range, path), dtype=np.int64)
+    every_pose = transforms.frame_poses(meta, path)
+    path_frames = _training_frames(meta, path) if path_only else np.arange(len(frames))
+    indices = path_frames[np.asarray(select_range(len(path_frames), frame_range, path), dtype=np.int64)]
     root = path.parent
     images = [find_image(root, frames[i]["file_path"], f"frames[{i}].file_path", path) for i in indices]
     size = image_size(images[0])
@@ -254,26 +257,33 @@ def load_sequence(
             )
     intrinsics = transforms.intrinsics(meta, path, size)
     return SequenceFrames(
-        path, indices, images, all_poses[indices], all_poses, intrinsics, transforms.scene_box(meta, path)
+        path,
+        indices,
+        images,
+        every_pose[indices],
+        every_pose[path_frames],
+        intrinsics,
+        transforms.scene_box(meta, path),
     )
 
 
-def _training_frames(meta: dict, path: Path) -> dict:
-    """``meta`` with only the frames its ``train_filenames`` lists, where it has that list (a nerfstudio
-    view, such as a spikenerf dataset's ``transforms_gt.json``, lists its held-out test views among the
-    frames too: as part of the path they would make the camera jump); else ``meta`` as it is."""
-    train, frames = meta.get("train_filenames"), meta.get("frames")
-    if not isinstance(train, list) or not isinstance(frames, list):
-        return meta
+def _training_frames(meta: dict, path: Path) -> np.ndarray:
+    """(N,) int64 places in ``meta["frames"]`` (checked already: a list of objects) of the frames its
+    ``train_filenames`` lists, where it has that list (a nerfstudio view, such as a spikenerf dataset's
+    ``transforms_gt.json``, lists its held-out test views among the frames too: as part of the path they
+    would make the camera jump); else of every frame."""
+    train, frames = meta.get("train_filenames"), meta["frames"]
+    if not isinstance(train, list):
+        return np.arange(len(frames), dtype=np.int64)
     listed = set(map(str, train))
-    kept = [f for f in frames if not isinstance(f, dict) or str(f.get("file_path")) in listed]
+    kept = [i for i, f in enumerate(frames) if str(f.get("file_path")) in listed]
     if not kept:
         raise InputError(
             f"field 'train_filenames' lists none of the {len(frames)} frames' file_path: no frame is left "
             "for the path (remove the list to use every frame)",
             path=path,
         )
-    return {**meta, "frames": kept}
+    return np.asarray(kept, dtype=np.int64)
 
 
 def _dataset_hint(err: InputError, meta: dict, path: Path) -> InputError:
