@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -158,3 +159,22 @@ def test_corrupt_blur_array_is_one_input_error(tmp_path: Path) -> None:
                 blur_targets(ds, "gray", samples)
     np.save(out / "blur" / "views.npy", good)
     assert len(blur_targets(load_dataset(out), "gray").images) == 5
+
+
+def test_blur_array_with_train_filenames_keeps_the_images_of_the_kept_frames(tmp_path: Path) -> None:
+    """A blur view file with both ``images_npy`` and a nerfstudio ``train_filenames`` list: the images
+    loaded are those of the frames the list keeps, as the poses are (they were the first N of the array)."""
+    out = tmp_path / "ds"
+    main(["simulate", "--scene", "analytic-orbs", "--out", str(out), *ARGS, "--blur-views", "5"])
+    whole = load_dataset(out).blur
+    meta_path = out / "transforms_blur.json"
+    meta = json.loads(meta_path.read_text())
+    for i, frame in enumerate(meta["frames"]):
+        frame["file_path"] = f"blur/{i}"
+    meta["train_filenames"] = ["blur/1", "blur/3"]
+    meta_path.write_text(json.dumps(meta))
+    kept = load_dataset(out).blur
+    assert kept is not None and whole is not None and len(kept.poses) == 2
+    np.testing.assert_array_equal(kept.poses, whole.poses[[1, 3]])
+    np.testing.assert_array_equal(np.asarray(kept.images), np.asarray(whole.images)[[1, 3]])
+    np.testing.assert_array_equal(kept.step_ranges, whole.step_ranges[[1, 3]])

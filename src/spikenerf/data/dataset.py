@@ -229,11 +229,12 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
     array = (
         _image_array(root, data, path, (len(frames), k.height, k.width, 3)) if "images_npy" in data else None
     )
-    poses, images, ranges = [], [], []
+    poses, images, ranges, kept = [], [], [], []
     train = data.get("train_filenames")  # a nerfstudio view lists its held-out frames too: skip them
     for i, f in enumerate(frames):
         if isinstance(train, list) and f.get("file_path") not in train:
             continue
+        kept.append(i)
         where = f"frames[{i}]."
         poses.append(_pose(f, path, where))
         if array is None:
@@ -252,6 +253,7 @@ def _posed(root: Path, name: str, k: Intrinsics, blur: bool) -> PosedImages | No
         return _stack(k, poses, images, None, ranges if blur else None)
     n = len(poses)
     step_ranges = np.asarray(ranges, np.int64).reshape(n, 2) if blur else None
+    array = array if n == len(frames) else array[kept]  # the images of the frames kept, as their poses
     return PosedImages(np.asarray(poses, np.float32).reshape(n, 4, 4), array, None, step_ranges)
 
 
