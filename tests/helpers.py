@@ -5,6 +5,7 @@ Import it as ``from helpers import ...`` (pytest puts ``tests/`` on ``sys.path``
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 import json
 import re
@@ -93,3 +94,17 @@ def _torch_below(major: int, minor: int) -> bool:
 counts_graphs = pytest.mark.skipif(
     _torch_below(2, 6), reason="counts torch.compile graphs: Dynamo before torch 2.6 makes more"
 )
+
+
+def defined_names(source: str, top_level: bool = False) -> set[str]:
+    """The names a module's source defines (functions, classes, assigned names), not those it imports: at
+    its top level only, or at any depth."""
+    tree = ast.parse(source)
+    names: set[str] = set()
+    for node in tree.body if top_level else ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+    return names

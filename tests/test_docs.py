@@ -23,6 +23,7 @@ from pathlib import Path
 import click
 import pytest
 
+from helpers import defined_names
 from spikenerf.cli import cli
 from spikenerf.cli.reference import cli_reference, field_options
 
@@ -324,20 +325,6 @@ def test_the_python_examples_import_what_exists() -> None:
     assert _python_imports("```python\nfrom spikenerf.x import a, b\n```\n") == [("spikenerf.x", ["a", "b"])]
 
 
-def _defined_names(source: str) -> set[str]:
-    """The names a module's source defines at any depth: functions, classes and assigned names."""
-    import ast
-
-    names: set[str] = set()
-    for node in ast.walk(ast.parse(source)):
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
-            names.add(node.name)
-        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
-            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
-            names.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
-    return names
-
-
 def _misplaced(table: str) -> list[str]:
     """The ``name`` of each row of a "| what | how | where |" table that none of the row's ``*.py`` files
     (under src/spikenerf/) defines: a stale "where" after a module split."""
@@ -353,7 +340,7 @@ def _misplaced(table: str) -> list[str]:
         if not files or not names:
             continue
         sources = [ROOT / "src" / "spikenerf" / f for f in files]
-        defined = set().union(*(_defined_names(p.read_text()) for p in sources if p.is_file()))
+        defined = set().union(*(defined_names(p.read_text()) for p in sources if p.is_file()))
         wrong += [f"{n} (not in {', '.join(files)})" for n in names if n not in defined]
     return wrong
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from helpers import defined_names
+
 SRC = Path(__file__).resolve().parents[1] / "src" / "spikenerf"
 ORDER = [
     "core",
@@ -144,18 +146,6 @@ SPLIT = (
 )  # fmt: skip
 
 
-def _top_level_names(path: Path) -> set[str]:
-    """The names a module defines at its top level (functions, classes, assignments), not those it imports."""
-    names: set[str] = set()
-    for node in ast.parse(path.read_text()).body:
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
-            names.add(node.name)
-        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
-            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
-            names.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
-    return names
-
-
 def _borrowed(path: Path, defined: dict[str, set[str]]) -> list[str]:
     """``from spikenerf.<split module> import NAME`` lines of ``path`` whose NAME that module only imports."""
     found = []
@@ -169,7 +159,10 @@ def test_moved_names_are_imported_from_their_new_modules(tmp_path: Path) -> None
     """No source, test or benchmark imports a name from a split module that only imports it itself (it
     works by accident, and breaks when that module stops using the name)."""
     root = SRC.parents[1]
-    defined = {f"spikenerf.{m.replace('/', '.')}": _top_level_names(SRC / f"{m}.py") for m in SPLIT}
+    defined = {
+        f"spikenerf.{m.replace('/', '.')}": defined_names((SRC / f"{m}.py").read_text(), top_level=True)
+        for m in SPLIT
+    }
     stale = {
         str(p.relative_to(root)): names
         for folder in ("src", "tests", "benchmarks")
