@@ -355,3 +355,25 @@ def test_a_damaged_holdout_record_is_one_line(demo: Path, tmp_path: Path, capsys
     for command in (["info", run], ["eval", run, "--device", "cpu", "--lpips", "none", "--quiet"]):
         code, _, err = run_cli(capsys, *command)
         assert code == 2 and f"holdout.json: malformed hold-out record ({problem}" in err, err
+
+
+def test_tfstp_and_tfi_check_steps_are_one_scan_equal_to_one_per_step(demo: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A run on TFI or TFSTP targets: its check steps' reconstructions come from one call (TFSTP: one scan
+    from frame 0, not one per step) and score exactly as the reconstruction made at each step."""
+    from spikenerf.camera import reconstruct
+
+    model, config, dataset = load_run(demo / "run")
+    opts = NoRefOptions(spike_pixels=16)
+    calls: list[int] = []
+    for recon in ("tfstp", "tfi"):
+        calls.clear()
+        real = getattr(reconstruct, recon)
+        monkeypatch.setattr(reconstruct, recon, lambda *a, _real=real, **k: calls.append(1) or _real(*a, **k))
+        cfg = dataclasses.replace(config, targets=dataclasses.replace(config.targets, recon=recon))
+        once = noref_metrics(model, cfg, dataset, opts, 8192, display)
+        assert len(calls) == 1 and len(once["per_step"]) > 1, (recon, calls)
+        with monkeypatch.context() as patch:
+            patch.setattr(noref, "step_reconstructions", lambda *a: None)  # one reconstruction a step
+            calls.clear()
+            each = noref_metrics(model, cfg, dataset, opts, 8192, display)
+        assert len(calls) == len(each["per_step"]) and once["per_step"] == each["per_step"], recon

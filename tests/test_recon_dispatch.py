@@ -60,3 +60,51 @@ def test_bad_requests_are_input_errors(stream: np.ndarray) -> None:
         frame_at(lambda a, b: stream[a:b], 3)
     with pytest.raises(InputError, match="odd"):
         frame_at(stream, 3, "tfp", 10)
+
+
+def test_scattered_frames_equal_per_frame_calls_in_fewer_scans(monkeypatch: pytest.MonkeyPatch) -> None:
+    """frames_reconstructor (recon-eval, the no-reference checks) equals one reconstructor call per frame
+    bit for bit, in one TFSTP scan, and one TFP/TFI call per run of nearby frames (far ones read apart)."""
+    from spikenerf.camera import reconstruct
+    from spikenerf.data.reconstruction import frames_reconstructor
+
+    rng = np.random.default_rng(5)
+    stream = (rng.random((400, 4, 5)) < rng.uniform(0.01, 0.5, (4, 5))).astype(np.uint8)
+    stream[:, 0, 0] = 0  # a silent pixel: TFI and TFSTP read to the stream's ends
+    read = lambda a, b: stream[a:b]  # noqa: E731
+    frames = np.array([0, 3, 4, 50, 51, 200, 399])  # runs: TFP (reach 41) 4, TFI (reach 128) 3
+    calls = {name: 0 for name in ("tfp", "tfi", "tfstp")}
+    for name in calls:
+        real = getattr(reconstruct, name)
+
+        def counted(*args: object, _real=real, _name=name, **kwargs: object) -> np.ndarray:
+            calls[_name] += 1
+            return _real(*args, **kwargs)
+
+        monkeypatch.setattr(reconstruct, name, counted)
+    for name, window, want_calls in (("tfp", 41, 4), ("tfi", None, 3), ("tfstp", None, 1)):
+        calls[name] = 0
+        got = frames_reconstructor(name, window, 1.5)(read, 400, frames)
+        assert calls[name] == want_calls, (name, calls)
+        one = reconstructor(name, window, 1.5)
+        want = np.stack([one(read, 400, int(k), int(k) + 1)[0] for k in frames])
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, want)
+    for bad in ([], [3, 3], [5, 2], [0, 400], [-1, 2], [[1, 2]], [1.0, 2.0]):
+        with pytest.raises(InputError) as err:
+            frames_reconstructor("tfstp")(read, 400, np.asarray(bad))
+        assert err.value.params == ("frames",), bad
+
+
+def test_training_targets_are_one_tfstp_scan(stream: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``train --recon tfstp`` targets (reconstruct_stream, every step) and a strided slice: one scan each,
+    equal to the whole run there."""
+    from spikenerf.camera import reconstruct
+
+    calls: list[int] = []
+    monkeypatch.setattr(reconstruct, "tfstp", lambda *a, **k: calls.append(1) or tfstp(*a, **k))
+    np.testing.assert_array_equal(reconstruct_stream(stream, "tfstp", threshold=2.0), tfstp(stream, 2.0))
+    np.testing.assert_array_equal(
+        reconstruct_stream(stream, "tfstp", frames=slice(3, 60, 4)), tfstp(stream)[3:60:4]
+    )
+    assert len(calls) == 2

@@ -175,7 +175,16 @@ def test_bad_input_exits_2_in_one_line_and_writes_nothing(
     assert "needs ground truth" in _refused(capsys, out, bare)
 
 
-def test_each_step_is_reconstructed_at_its_own_frame(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """analytic-orbs at 24×24 on one orbit turn, gray + rgb."""
+    traj = orbit(4.0, 30.0, turns=1.0, duration=STEPS / 40000)
+    source = AnalyticSource("analytic-orbs", 24, 24, traj, novel_views(4.0, 1), supersample=1)
+    options = SimulateOptions(colors=("gray", "rgb"), gt_every=GT_EVERY, blur_fps=0.0)
+    return simulate_dataset(source, tmp_path_factory.mktemp("recon-eval") / "moving", options, progress=False)
+
+
+def test_each_step_is_reconstructed_at_its_own_frame(moving: Path) -> None:
     """On a moving camera the scores are those of TFP and TFI taken at each GT step's own stream frame
     (computed here directly from the stream), not at a neighbour's: an off-by-one would change the error."""
     from spikenerf.camera.io import read_dat
@@ -183,10 +192,7 @@ def test_each_step_is_reconstructed_at_its_own_frame(tmp_path: Path) -> None:
     from spikenerf.core.color import rgb_to_gray
     from spikenerf.data.dataset import load_dataset
 
-    traj = orbit(4.0, 30.0, turns=1.0, duration=STEPS / 40000)
-    source = AnalyticSource("analytic-orbs", 24, 24, traj, novel_views(4.0, 1), supersample=1)
-    options = SimulateOptions(colors=("gray",), gt_every=GT_EVERY, blur_fps=0.0)
-    root = simulate_dataset(source, tmp_path / "moving", options, progress=False)
+    root = moving
     result = score_reconstructions(root, "tfp,tfi", lpips_backbone=None, progress=False)
     dataset = load_dataset(root)
     spikes = read_dat(root / "spikes_gray.dat", 24, 24)
@@ -200,3 +206,36 @@ def test_each_step_is_reconstructed_at_its_own_frame(tmp_path: Path) -> None:
         ]
         assert row["mae"] == pytest.approx(errors[0], rel=1e-4, abs=1e-6)
         assert abs(row["mae"] - errors[1]) > 1e-4  # the neighbour frame differs: the check can fail
+
+
+@pytest.mark.parametrize(("color", "count"), [("gray", None), ("gray", 4), ("rgb", 3)])
+def test_all_frames_at_once_equal_the_per_frame_path(
+    moving: Path, monkeypatch: pytest.MonkeyPatch, color: str, count: int | None
+) -> None:
+    """Each method reconstructs its GT frames in one call (TFSTP: one scan of each stream from frame 0, not
+    one per frame), and every score equals the one-call-per-frame path's, bit for bit (evenly spaced GT
+    frames and, with --count 4 of 6, uneven ones)."""
+    from spikenerf.camera import reconstruct
+    from spikenerf.data.reconstruction import reconstructor
+    from spikenerf.eval import recon_scores
+
+    scans: list[int] = []
+    real = reconstruct.tfstp
+    monkeypatch.setattr(reconstruct, "tfstp", lambda *a, **k: scans.append(1) or real(*a, **k))
+    kwargs = {"color": color, "count": count, "lpips_backbone": None, "progress": False}
+    batched = score_reconstructions(moving, "tfp,tfi,tfstp", **kwargs)
+    assert len(scans) == (3 if color == "rgb" else 1)  # one per stream file
+    frames = len(batched["steps"])
+    assert frames == (count or STEPS // GT_EVERY)
+
+    def per_frame(name: str, window: int | None = None, threshold: float = 1.0, **kw: object) -> object:
+        one = reconstructor(name, window, threshold, **kw)
+        return lambda read, total, idx: np.stack([one(read, total, int(k), int(k) + 1)[0] for k in idx])
+
+    monkeypatch.setattr(recon_scores, "frames_reconstructor", per_frame)
+    scans.clear()
+    single = score_reconstructions(moving, "tfp,tfi,tfstp", **kwargs)
+    assert len(scans) == frames * (3 if color == "rgb" else 1)  # (the path compared against)
+    assert batched["rows"] == single["rows"] and batched["steps"] == single["steps"]
+    for name in ("tfp", "tfi", "tfstp"):
+        assert batched["methods"][name]["mean"] == single["methods"][name]["mean"]

@@ -11,7 +11,7 @@ import torch
 from helpers import run_cli
 from spikenerf.camera.firing import fire
 from spikenerf.camera.io import write_dat
-from spikenerf.camera.reconstruct import reconstruct_frames, tfi
+from spikenerf.camera.reconstruct import reconstruct_frames, tfi, tfp
 from spikenerf.camera.tfstp import tfstp
 from spikenerf.core.errors import InputError
 
@@ -128,3 +128,18 @@ def test_the_state_reaches_past_a_holdout_band_and_the_docs_say_so() -> None:
     page = (Path(__file__).resolve().parents[1] / "docs" / "metrics.md").read_text(encoding="utf-8")
     limits = " ".join(page.split("Limits:", 1)[1].split()[:120])
     assert "`--recon tfstp`" in limits and "band" in limits
+
+
+def test_an_index_list_is_one_scan_equal_to_the_whole_run() -> None:
+    """Scattered frames (recon-eval's GT steps) in one call: the same values as the whole run there (and
+    likewise TFP, TFI and the masks, which share the frame selection)."""
+    from spikenerf.camera.masks import spike_masks
+
+    spikes = np.random.default_rng(4).random((200, 3, 5)) < 0.1
+    full = tfstp(spikes, 0.5)
+    idx = np.array([0, 7, 8, 120, 199])
+    np.testing.assert_array_equal(tfstp(spikes, 0.5, idx), full[idx])
+    np.testing.assert_array_equal(tfstp(spikes, 0.5, [7, 120]), full[[7, 120]])
+    np.testing.assert_array_equal(spike_masks(spikes, 2, idx), spike_masks(spikes, 2)[idx])
+    np.testing.assert_array_equal(tfp(spikes, 9, 0.5, idx), tfp(spikes, 9, 0.5)[idx])
+    np.testing.assert_array_equal(tfi(spikes, 0.5, idx), tfi(spikes, 0.5)[idx])

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 
 from spikenerf.camera.reconstruct import iter_window_counts
-from spikenerf.camera.streams import flat_stream, like
+from spikenerf.camera.streams import Frames, flat_stream, like
 from spikenerf.core.errors import InputError, is_integer
 
 if TYPE_CHECKING:
@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 Array = TypeVar("Array", np.ndarray, "torch.Tensor")
 
 
-def spike_masks(spikes: Array, n: int = 5, frames: slice | int | None = None) -> Array:
+def spike_masks(spikes: Array, n: int = 5, frames: Frames = None) -> Array:
     """``M_k = s_{k-n} ∨ … ∨ s_{k+n}``: exactly 2n+1 frames, clipped to the stream at its edges.
 
     The paper's code ORs a 10-frame window instead (not centred); see docs/reconstruction.md.
@@ -25,7 +25,7 @@ def spike_masks(spikes: Array, n: int = 5, frames: slice | int | None = None) ->
         spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0); any
             other shape is an InputError (see :func:`~spikenerf.camera.streams.flat_stream`).
         n: the half window, ≥ 0 (n = 0 gives the single-frame masks).
-        frames: the output frames (slice, index or None = all).
+        frames: the output frames (slice, index, None = all, or ascending indices (N,)).
     Returns:
         bool (N, ...), the same array type as ``spikes``.
     """

@@ -20,9 +20,11 @@ import numpy as np
 
 from spikenerf.camera.streams import (
     Array,
+    Frames,
     check_threshold,
     first_two,
     flat_stream,
+    frame_indices,
     like,
     row_uint8,
     spike_bytes,
@@ -38,9 +40,7 @@ METHODS: tuple[str, ...] = get_args(ReconMethod)
 WINDOWLESS: tuple[str, ...] = ("tfi", "tfstp")
 
 
-def window_sum(
-    spikes: np.ndarray, half: int, frames: slice | int | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+def window_sum(spikes: np.ndarray, half: int, frames: Frames = None) -> tuple[np.ndarray, np.ndarray]:
     """Spike counts over the window ``[k-half, k+half]`` clipped to the stream, for each selected frame k.
 
     Args:
@@ -98,9 +98,7 @@ def fitting_window(steps: int, window: int = DEFAULT_WINDOW) -> int:
     return min(window, steps if steps % 2 else steps - 1)
 
 
-def tfp(
-    spikes: Array, window: int = DEFAULT_WINDOW, threshold: float = 1.0, frames: slice | int | None = None
-) -> Array:
+def tfp(spikes: Array, window: int = DEFAULT_WINDOW, threshold: float = 1.0, frames: Frames = None) -> Array:
     """Texture from playback: ``Î_k = φ · (spikes in the window around k) / (frames in the window)``.
 
     The window is ``K = 2h+1`` frames centred on k, clipped to the stream; the count is divided by the
@@ -110,7 +108,7 @@ def tfp(
         spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0).
         window: K, the full window length in frames; odd and ≥ 1.
         threshold: φ, the camera threshold (intensity units per spike), a number > 0.
-        frames: the output frames (slice, index or None = all).
+        frames: the output frames (slice, index, None = all, or ascending indices (N,)).
     Returns:
         float32 (N, ...) linear intensity in [0, φ], the same array type as ``spikes``.
     """
@@ -123,7 +121,7 @@ def tfp(
     return like(out.reshape(out_idx.size, *rest), spikes)
 
 
-def tfi(spikes: Array, threshold: float = 1.0, frames: slice | int | None = None) -> Array:
+def tfi(spikes: Array, threshold: float = 1.0, frames: Frames = None) -> Array:
     """Texture from interval: ``Î_k = φ / Δ_k``, Δ_k the inter-spike interval that contains step k.
 
     With ``p`` the last spike strictly before k and ``n`` the first spike at or after k, ``Δ_k = n − p``:
@@ -135,7 +133,7 @@ def tfi(spikes: Array, threshold: float = 1.0, frames: slice | int | None = None
     Args:
         spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0).
         threshold: φ, a number > 0.
-        frames: the output frames (slice, index or None = all).
+        frames: the output frames (slice, index, None = all, or ascending indices (N,)).
     Returns:
         float32 (N, ...) linear intensity in [0, φ], the same array type as ``spikes``.
     """
@@ -243,19 +241,74 @@ def reconstruct_frames(
         raise InputError(f"step must be an integer ≥ 1, found {step!r}", param="step")
     if method == "tfp":
         check_window(window)
+    return _span(read, total, np.arange(start, stop, step, dtype=np.int64), method, window, threshold)
+
+
+#: TFI's first reading margin on each side of a range (doubled until the edge rules cannot reach it)
+TFI_MARGIN = 64
+
+
+def reconstruct_at(
+    read: Callable[[int, int], np.ndarray],
+    total: int,
+    frames: Frames,
+    method: str = "tfp",
+    window: int = DEFAULT_WINDOW,
+    threshold: float = 1.0,
+) -> np.ndarray:
+    """Reconstruct the frames ``frames`` (N,) of a long stream (distinct ascending indices, or a slice or
+    an index) in as few reads and scans as the method allows, holding only those N output frames.
+
+    The result equals ``reconstruct_frames(read, total, k, k + 1)`` stacked over each k exactly (and so the
+    whole stream's reconstruction at ``frames``). TFSTP makes one call (its forward scan starts at frame 0
+    whatever frames are asked for, so N frames cost what the last of them alone costs). TFP and TFI make
+    one call per run of frames at most their reach apart (TFP: its window; TFI: twice its first margin,
+    128 frames), each reading that run's span as :func:`reconstruct_frames` reads it, so the frames between
+    two far-apart ones are not read.
+
+    Args:
+        read, total, method, window, threshold: as :func:`reconstruct_frames`.
+        frames: the output frames of the ``total``-frame stream (InputError naming ``frames`` for an empty,
+            unsorted, repeated or out-of-range list).
+    Returns:
+        float32 (N, ...) linear intensity.
+    """
+    check_choice(method, METHODS, "method")
+    if not is_integer(total) or total < 1:
+        raise InputError(f"total must be an integer ≥ 1, found {total!r}", param="total")
+    if method == "tfp":
+        check_window(window)
+    idx = frame_indices(frames, int(total))
+    reach = {"tfp": window, "tfi": 2 * TFI_MARGIN}.get(method)
+    runs = [idx] if reach is None else np.split(idx, np.flatnonzero(np.diff(idx) > reach) + 1)
+    parts = [_span(read, int(total), run, method, window, threshold) for run in runs]
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _span(
+    read: Callable[[int, int], np.ndarray],
+    total: int,
+    idx: np.ndarray,
+    method: str,
+    window: int,
+    threshold: float,
+) -> np.ndarray:
+    """Frames ``idx`` (N,) (ascending, checked) in one read of the span they and their reach need: TFP's
+    window margins; TFI's margins doubled until the edge rules cannot reach them; TFSTP from frame 0 to
+    TFI's end margin. float32 (N, ...)."""
+    start, stop = int(idx[0]), int(idx[-1]) + 1
+    if method == "tfp":
         half = (window - 1) // 2
         lo, hi = max(0, start - half), min(total, stop + half)
-        return tfp(read(lo, hi), window, threshold, slice(start - lo, stop - lo, step))
-    margin = 64
+        return tfp(read(lo, hi), window, threshold, idx - lo)
+    margin = TFI_MARGIN
     while True:  # TFSTP's state carries the whole history: it always reads from frame 0
         lo, hi = (0 if method == "tfstp" else max(0, start - margin)), min(total, stop - 1 + margin)
         sub = read(lo, hi)
         before = np.count_nonzero(sub[: start - lo], axis=0)
         after = np.count_nonzero(sub[stop - 1 - lo :], axis=0)
         if (lo == 0 or before.min() >= 2) and (hi == total or after.min() >= 2):
-            if method == "tfstp":
-                return tfstp(sub, threshold, slice(start, stop, step))
-            return tfi(sub, threshold, slice(start - lo, stop - lo, step))
+            return (tfstp if method == "tfstp" else tfi)(sub, threshold, idx - lo)
         margin *= 2
 
 

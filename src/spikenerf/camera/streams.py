@@ -18,13 +18,40 @@ if TYPE_CHECKING:
     import torch
 
 Array = TypeVar("Array", np.ndarray, "torch.Tensor")
+#: a selection of output frames: a slice, one index, None (all), or distinct ascending indices (N,)
+Frames = slice | int | np.ndarray | list | tuple | None
 
 
-def flat_stream(
-    spikes: np.ndarray | torch.Tensor, frames: slice | int | None
-) -> tuple[np.ndarray, tuple, np.ndarray]:
+def frame_indices(frames: Frames, total: int, param: str = "frames") -> np.ndarray:
+    """The frames a selection picks from a ``total``-frame stream, int64 (N,) ascending: a slice, an index
+    or None as :func:`~spikenerf.camera.io.resolve_frames` takes them, or a sequence / 1-D integer array of
+    distinct indices in ``[0, total)``, ascending. InputError naming ``param`` for anything else (an
+    empty, unsorted, repeated or out-of-range index list included)."""
+    if frames is None or isinstance(frames, (slice, int, np.integer)):
+        return np.asarray(resolve_frames(frames, total, param=param), dtype=np.int64)
+    if not isinstance(frames, (np.ndarray, list, tuple)):
+        raise InputError(
+            f"{param} must be a slice, an int, None or a list of frame indices, found "
+            f"{type(frames).__name__}",
+            param=param,
+        )
+    idx = np.asarray(frames)
+    if idx.ndim != 1 or idx.size == 0 or idx.dtype.kind not in "iu":
+        raise InputError(f"{param}: expected a non-empty 1-D list of integer frame indices", param=param)
+    idx = idx.astype(np.int64)
+    if idx[0] < 0 or idx[-1] >= total or (idx.size > 1 and not bool(np.all(np.diff(idx) > 0))):
+        raise InputError(
+            f"{param}: frame indices must be distinct, ascending and within 0..{total - 1}, found "
+            f"{idx[:8].tolist()}{' ...' if idx.size > 8 else ''}",
+            param=param,
+        )
+    return idx
+
+
+def flat_stream(spikes: np.ndarray | torch.Tensor, frames: Frames) -> tuple[np.ndarray, tuple, np.ndarray]:
     """(T, H, W) or (T, 3, H, W) spikes as a (T, P) numpy view, the trailing shape and the output frame
-    indices (ascending): the one check of a stream's shape for TFP, TFI and the masks.
+    indices (N,) ascending (:func:`frame_indices`): the one check of a stream's shape for TFP, TFI, TFSTP
+    and the masks.
 
     InputError naming ``spikes`` for any other shape (one frame (H, W), channels last (T, H, W, 3)), and
     ``frames`` for a bad selection. Values are checked where they are read (:func:`spike_bytes`: a float
@@ -40,7 +67,7 @@ def flat_stream(
         raise InputError(
             f"spikes must be (T, H, W) or (T, 3, H, W), found shape {x.shape}{hint}", param="spikes"
         )
-    out_idx = np.asarray(resolve_frames(frames, x.shape[0]), dtype=np.int64)
+    out_idx = frame_indices(frames, x.shape[0])
     return x.reshape(x.shape[0], int(np.prod(x.shape[1:]))), x.shape[1:], out_idx
 
 

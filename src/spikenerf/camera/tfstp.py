@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spikenerf.camera.streams import Array, check_threshold, first_two, flat_stream, like, row_uint8
+from spikenerf.camera.streams import Array, Frames, check_threshold, first_two, flat_stream, like, row_uint8
 from spikenerf.core.errors import InputError, is_number
 
 #: SpikeCV's TFSTP parameters (its ``spkProc/reconstruction/tfstp.py``): D and F in steps (time_unit 1)
@@ -49,7 +49,7 @@ def check_stp(u0: float, f: float, D: float, F: float) -> None:
 def tfstp(
     spikes: Array,
     threshold: float = 1.0,
-    frames: slice | int | None = None,
+    frames: Frames = None,
     *,
     u0: float = DEFAULTS["u0"],
     f: float = DEFAULTS["f"],
@@ -61,8 +61,9 @@ def tfstp(
     Args:
         spikes: (T, H, W) or (T, 3, H, W) 0/1 spikes (numpy or torch; bool, integer, or float 0.0/1.0).
         threshold: φ, a number > 0.
-        frames: the output frames (slice, index or None = all); only those are kept, but the forward scan
-            runs from frame 0 and the backward scans from the stream's end.
+        frames: the output frames (slice, index, None = all, or ascending indices (N,)); only those are
+            kept (12 bytes a pixel each while the scans run), but the forward scan runs from frame 0 and the
+            backward scans from the stream's end: N frames cost one scan, what the last of them alone costs.
         u0, f: resting utilisation and its increment per spike, in (0, 1). D, F: recovery times of the
             resources and of the utilisation, in steps (> 0).
     Returns:

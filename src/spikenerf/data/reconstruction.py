@@ -1,10 +1,13 @@
 """Images from spikes, in one place: TFP, TFI or TFSTP (:mod:`spikenerf.camera.reconstruct`) or the shipped
 learned reconstructor (:mod:`spikenerf.recon`, imported only when asked for).
 
-One dispatch, :func:`reconstructor` (``tfp``, ``tfi``, ``tfstp``, ``learned``), in three forms:
+One dispatch, :func:`reconstructor` (``tfp``, ``tfi``, ``tfstp``, ``learned``), in four forms:
 
 * :func:`reconstructor` → ``recon(read, total, start, stop)``: frames ``start:stop`` of a long stream that
   ``read(a, b)`` reads on demand, only the frames the result depends on (``reconstruct``, ``import``);
+* :func:`frames_reconstructor` → ``recon(read, total, frames)``: scattered frames (N,) of such a stream in as
+  few scans as the method allows (TFSTP one, from frame 0) and only those held (``recon-eval``, the
+  no-reference checks);
 * :func:`frame_at`: frame ``k`` of a stream, an array or a reader (dataset previews and TFP keyframes, the
   novel-view spike preview, the report's figures);
 * :func:`reconstruct_stream`: every step (or a slice) of an in-memory stream, the training targets; there the
@@ -20,7 +23,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from spikenerf.camera.io import resolve_frames
-from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, reconstruct_frames
+from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, reconstruct_at, reconstruct_frames
 from spikenerf.core.errors import InputError, check_choice
 
 #: image reconstructions: the camera's (TFP, TFI, TFSTP) and the learned one (spikenerf.recon)
@@ -30,6 +33,8 @@ RECONS: tuple[str, ...] = get_args(TargetRecon)
 Reader = Callable[[int, int], np.ndarray]
 #: ``recon(read, total, start, stop)`` → float32 (stop − start, ...) linear frames of a ``total``-frame stream
 Reconstructor = Callable[[Reader, int, int, int], np.ndarray]
+#: ``recon(read, total, frames)`` → float32 (N, ...) linear frames ``frames`` (N,) (ascending, distinct)
+FramesReconstructor = Callable[[Reader, int, np.ndarray], np.ndarray]
 
 
 def reconstructor(
@@ -62,6 +67,28 @@ def reconstructor(
     return lambda read, total, start, stop: reconstruct_frames(
         read, total, start, stop, recon, tfp_window, threshold
     )
+
+
+def frames_reconstructor(
+    recon: str = "tfp",
+    window: int | None = None,
+    threshold: float = 1.0,
+    *,
+    weights: object = None,
+    color: str = "gray",
+) -> FramesReconstructor:
+    """The reconstruction ``recon`` (arguments as :func:`reconstructor`) as ``recon(read, total, frames)``
+    (see :data:`FramesReconstructor`): equal to stacking ``reconstructor(...)(read, total, k, k + 1)`` over
+    the frames k, bit for bit. TFP, TFI and TFSTP go through
+    :func:`~spikenerf.camera.reconstruct.reconstruct_at` (TFSTP: one scan from frame 0 for all frames, not
+    one each); learned reconstructs each frame from its own window (a call each, as its cost does not grow
+    with the frame's index)."""
+    if recon == "learned":
+        one = reconstructor(recon, window, threshold, weights=weights, color=color)
+        return lambda read, total, frames: np.stack([one(read, total, int(k), int(k) + 1)[0] for k in frames])
+    check_choice(recon, RECONS, "recon")
+    tfp_window = DEFAULT_WINDOW if window is None else window
+    return lambda read, total, frames: reconstruct_at(read, total, frames, recon, tfp_window, threshold)
 
 
 def frame_at(
@@ -101,7 +128,9 @@ def reconstruct_stream(
         from spikenerf.data.recon_cache import learned_stream
 
         return learned_stream(spikes, threshold, frames, window)
-    recon_frames = reconstructor(recon, window, threshold)
+    check_choice(recon, RECONS, "recon")
     selected = resolve_frames(frames, len(spikes))
-    images = recon_frames(lambda a, b: spikes[a:b], len(spikes), selected.start, selected.stop)
-    return images if selected.step == 1 else images[:: selected.step]
+    read = lambda a, b: spikes[a:b]  # noqa: E731  (only the kept frames are computed and held)
+    tfp_window = DEFAULT_WINDOW if window is None else window
+    return reconstruct_frames(read, len(spikes), selected.start, selected.stop, recon, tfp_window, threshold,
+                              selected.step)  # fmt: skip

@@ -43,6 +43,7 @@ from spikenerf.core.config import Bound, check_config
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.holdout import check_steps, is_imported
+from spikenerf.data.reconstruction import frames_reconstructor
 from spikenerf.data.targets import reconstruct_stream, stream_mode, window_steps
 from spikenerf.eval.choices import NOREF_MODES
 from spikenerf.eval.metrics import SSIMConfig, mean_or_none, psnr, ssim
@@ -179,21 +180,25 @@ def score_step(
     pixels: torch.Tensor,
     chunk: int,
     display: Callable[[Any, int], torch.Tensor],
+    image: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The no-reference scores of one check step (see the module doc); ``display`` maps linear (H, W, C)
-    to the displayed (C, H, W) (eval's convention)."""
+    to the displayed (C, H, W) (eval's convention). ``image``: the run's reconstruction of the step, (H, W)
+    or (3, H, W) linear, when the caller made it already (:func:`step_reconstructions`); None: made here."""
     total, t = len(dataset.trajectory), config.targets
     half = t.window // 2
     start = window_start(step, length, total)
     reach = max(half, t.mask_n)  # the reconstruction window and the mask's steps
     lo, hi = max(0, min(step - reach, start)), min(total, max(step + reach + 1, start + length))
     lo, hi = max(0, min(lo, hi - t.window)), min(total, max(hi, lo + t.window))  # a whole window (learned)
-    if t.recon in WINDOWLESS:  # TFI/TFSTP read out to the neighbouring spikes (and TFSTP from frame 0),
-        # however far: the whole stream, as training
+    if image is None and t.recon in WINDOWLESS:  # TFI/TFSTP read out to the neighbouring spikes (and
+        # TFSTP from frame 0), however far: the whole stream, as training
         lo, hi = 0, total
     raw = dataset.spikes(stream_mode(config.color), frames=slice(lo, hi))
     i = step - lo
-    recon = _channels_last(reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1)))[0]
+    if image is None:
+        image = reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(i, i + 1))[0]
+    recon = _channels_last(np.asarray(image)[None])[0]
     mask = torch.as_tensor(spike_masks(raw, n=t.mask_n, frames=slice(i, i + 1))[0])  # (H, W) or (3, H, W)
     # what the run was trained to match: one render at the step, or the mean over its TFP window's poses
     count = config.window_poses()
@@ -223,6 +228,23 @@ def score_step(
     return row
 
 
+def step_reconstructions(
+    config: TrainConfig, dataset: SpikeDataset, steps: np.ndarray
+) -> list[np.ndarray] | None:
+    """The run's TFI or TFSTP reconstruction of each check step (``steps`` (N,)), each (H, W) or (3, H, W),
+    made in one call (TFSTP: one scan from frame 0 for all the steps, not one each); None for TFP and
+    learned, whose reconstruction of a step reads only its window (:func:`score_step` makes it)."""
+    t = config.targets
+    if t.recon not in WINDOWLESS:
+        return None
+    mode, total = stream_mode(config.color), len(dataset.trajectory)
+    frames = np.unique(steps)
+    images = frames_reconstructor(t.recon, t.window, dataset.threshold)(
+        lambda a, b: np.asarray(dataset.spikes(mode, frames=slice(a, b))), total, frames
+    )
+    return [images[j] for j in np.searchsorted(frames, steps)]
+
+
 def noref_metrics(
     model: RadianceModel,
     config: TrainConfig,
@@ -248,10 +270,12 @@ def noref_metrics(
     k = dataset.intrinsics
     small = min(k.height, k.width) < BLOCK
     rows, pixels = [], torch.zeros(0, 2)
+    images = step_reconstructions(config, dataset, steps) or [None] * len(steps)
     with torch.no_grad():
         for i, step in enumerate(progress(steps)):
             pixels = _sample_pixels(k.height, k.width, options.spike_pixels, options.seed + i)
-            rows.append(score_step(model, config, dataset, int(step), length, pixels, chunk, display))
+            row = score_step(model, config, dataset, int(step), length, pixels, chunk, display, images[i])
+            rows.append(row)
     mean = {key: mean_or_none([r[key] for r in rows]) for key in rows[0] if key != "step"}
     t = config.targets
     radius = None if held is None else held.get("radius")

@@ -8,6 +8,11 @@ sRGB-encoded [0, 1]; a gray stream against the gray of the linear GT; PSNR, SSIM
 weights are installed. Beside them the mean and largest absolute error in linear units (the reconstruction
 clipped to [0, 1], as the GT is stored). A Bayer stream is scored as its one-channel RGGB mosaic against the
 GT sampled through the same filter array. Means are plain averages over the steps.
+
+Each method reconstructs all the selected GT frames in one call
+(:func:`spikenerf.data.reconstruction.frames_reconstructor`: TFSTP scans the stream from frame 0 once, not
+once per frame; TFP and TFI read each run of nearby frames once; learned a window per frame), holding those
+frames only; a method's ``seconds`` are that call plus its scoring.
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ from spikenerf.core.atomic import atomic_path
 from spikenerf.core.errors import InputError, as_path, check_choice, comma_list
 from spikenerf.core.progress import bar as progress_bar
 from spikenerf.data.dataset import SpikeDataset, load_dataset, spike_files
-from spikenerf.data.reconstruction import RECONS, reconstructor
+from spikenerf.data.reconstruction import RECONS, frames_reconstructor
 from spikenerf.eval.evaluate import SPACE, display, lpips_status, score_view
 from spikenerf.eval.metrics import mean_or_none
 
@@ -127,6 +132,8 @@ def score_reconstructions(
         steps, count: which GT steps (see :func:`select_steps`); None = all.
         weights: learned: a weights file (None = the shipped one).
         lpips_backbone: ``alex``, ``vgg`` or None (skip LPIPS).
+        progress: show a bar of frames scored; it advances per frame as each is scored, after the
+            method's one reconstruction call (which it does not divide).
     Returns:
         ``{"dataset", "color", "threshold", "space", "steps", "lpips_backbone", "lpips_reason",
         "methods": {name: {"window", "seconds", "mean": {metric: value}}}, "rows": [{"method", "step",
@@ -161,12 +168,12 @@ def score_reconstructions(
     for name in names:  # every method checked (weights, window, φ) before any work
         tfp_window = (DEFAULT_WINDOW if window is None else window) if name == "tfp" else None
         if name != "learned":
-            recons[name] = (reconstructor(name, tfp_window, dataset.threshold), tfp_window)
+            recons[name] = (frames_reconstructor(name, tfp_window, dataset.threshold), tfp_window)
             continue
         from spikenerf.recon.net import load_weights
 
         net = load_weights(weights, color)[0]  # read once: it reconstructs and says its trained window
-        learned = reconstructor(name, None, dataset.threshold, weights=net, color=color)
+        learned = frames_reconstructor(name, None, dataset.threshold, weights=net, color=color)
         recons[name] = (learned, int(net.config.window))
     truths = {int(i): display(_truth(dataset.gt.images[i], color), 1 if color != "rgb" else 3) for i in keep}
     linear = {int(i): torch.as_tensor(_truth(dataset.gt.images[i], color), dtype=torch.float32) for i in keep}
@@ -174,6 +181,8 @@ def score_reconstructions(
         from spikenerf.core.color import rgb_to_gray
 
         linear = {i: rgb_to_gray(x, channel_axis=-1)[..., None] for i, x in linear.items()}
+    frames = np.unique(indices[keep])  # the stream frames to reconstruct, each once, ascending
+    at = np.searchsorted(frames, indices[keep])  # GT position → row of the reconstruction
     rows: list[dict[str, Any]] = []
     summary: dict[str, Any] = {}
     bar = progress_bar(total=len(names) * len(keep), unit="frame", desc="recon-eval", show=progress and None)
@@ -181,21 +190,21 @@ def score_reconstructions(
         for name in names:
             recon, used_window = recons[name]
             start, own = time.perf_counter(), []
-            for i in keep:
-                frame = int(indices[i])
-                try:
-                    parts = [recon(read, total, frame, frame + 1)[0] for read in planes]
-                except InputError as err:  # about the stream (e.g. shorter than the network's window)
-                    if err.path is not None:
-                        raise
-                    raise InputError(err.message, path=files[0], param=err.params) from None
-                image = np.stack(parts) if color == "rgb" else parts[0]
+            try:  # all the method's frames at once (TFSTP: one scan from frame 0, not one per frame)
+                parts = [recon(read, total, frames) for read in planes]
+            except InputError as err:  # about the stream (e.g. shorter than the network's window)
+                if err.path is not None:
+                    raise
+                raise InputError(err.message, path=files[0], param=err.params) from None
+            for i, row_at in zip(keep, at, strict=True):
+                image = np.stack([p[row_at] for p in parts]) if color == "rgb" else parts[0][row_at]
                 pred = torch.as_tensor(to_channels_last(image, frame=True), dtype=torch.float32)
                 scores = score_view(display(pred, pred.shape[-1]), truths[int(i)], backbone)
                 row = {"method": name, "step": int(dataset.gt.steps[i]), **scores,
                        **_errors(pred, linear[int(i)])}  # fmt: skip
                 own.append(row)
                 bar.update(1)
+            del parts
             rows += own
             summary[name] = {
                 "window": used_window,
