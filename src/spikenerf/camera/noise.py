@@ -116,6 +116,30 @@ class RealisticNoise:
         )
 
 
+def noise_with(overrides: dict | None, param: str = "noise_params") -> RealisticNoise:
+    """The ``realistic`` preset with some parameters replaced, e.g. ``{"dark_mean": 0.0}``.
+
+    Args:
+        overrides: ``{name: value}`` over :class:`RealisticNoise`'s fields; None or empty: the preset.
+        param: the name errors give (a CLI passes its flag).
+    Returns:
+        The parameters; InputError naming ``param`` on an unknown name, and naming the field on a value out
+        of its range (:data:`NOISE_RANGES`).
+    """
+    if overrides is None:
+        return RealisticNoise()
+    if not isinstance(overrides, dict):
+        found = f"{overrides!r:.60}"
+        raise InputError(f"{param} must be a mapping of noise parameters, found {found}", param=param)
+    names = [f.name for f in fields(RealisticNoise)]
+    if unknown := [str(k) for k in overrides if k not in names]:
+        raise InputError(
+            f"{param}: unknown noise parameter {', '.join(unknown)} (known: {', '.join(names)})", param=param
+        )
+    values = {k: float(v) if is_number(v) else v for k, v in overrides.items()}
+    return RealisticNoise(**values)
+
+
 @dataclass(frozen=True)
 class FixedPatterns:
     """Per-pixel fixed patterns, each float32 of the accumulator's shape: (H, W) or (3, H, W).

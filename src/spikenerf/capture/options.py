@@ -11,6 +11,7 @@ import numpy as np
 import yaml
 
 from spikenerf.camera.model import CameraConfig
+from spikenerf.camera.noise import noise_with
 from spikenerf.capture.blur import parse_blur_views
 from spikenerf.core.errors import InputError, is_integer, is_number
 from spikenerf.data.dataset import MODES
@@ -24,6 +25,8 @@ class SimulateOptions:
         colors: colour modes, each of ``gray``, ``rgb``, ``bayer`` (one spike camera each); a string is
             read as a comma-separated list (``"gray,rgb"``, ``"all"``: the three).
         threshold: φ. noise: ``ideal`` or ``realistic``. seed: camera seed. warmup: camera warm-up steps.
+        noise_params: ``realistic`` only: parameters that replace the preset's (``{"dark_mean": 0.0}``;
+            camera/noise.py :class:`RealisticNoise`), recorded in ``config.yaml``; empty: the preset.
         gt_every: store the sharp render of every k-th step in ``gt/``.
         blur_fps: conventional camera rate (Hz); each frame averages ``round(fps / blur_fps)`` step renders
             (a window cut by the end of the path keeps its real exposure). 0 writes no blur frames.
@@ -38,6 +41,7 @@ class SimulateOptions:
     colors: tuple[str, ...] = ("gray",)
     threshold: float = 1.0
     noise: str = "ideal"
+    noise_params: dict = field(default_factory=dict)
     seed: int = 0
     warmup: int = 0
     gt_every: int = 10
@@ -91,13 +95,19 @@ def check_options(options: SimulateOptions) -> None:
         )
     for color in options.colors:  # CameraConfig validates threshold, noise, seed, warmup
         CameraConfig(options.threshold, color, options.noise, options.seed, options.warmup)
+    if options.noise_params and options.noise != "realistic":
+        raise InputError(
+            f"noise_params: set the realistic noise's parameters, and noise is {options.noise!r}",
+            param=("noise_params", "noise"),
+        )
+    noise_with(options.noise_params)
 
 
 #: the ``config.yaml`` keys ``simulate.dataset_config`` writes itself (``extra`` may add others, not replace
 #: them)
 OWN_KEYS = ("filename", "is_labeled", "labeled_data_type", "labeled_data_suffix", "spike_h", "spike_w",
-            "fps", "threshold", "colors", "noise", "seed", "scene", "steps", "warmup", "gt_every", "blur_fps",
-            "blur_views", "test_views", "spikenerf_version", "command", "layout",
+            "fps", "threshold", "colors", "noise", "noise_params", "seed", "scene", "steps", "warmup",
+            "gt_every", "blur_fps", "blur_views", "test_views", "spikenerf_version", "command", "layout",
             "bayer_pattern")  # fmt: skip
 
 

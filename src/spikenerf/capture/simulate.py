@@ -18,6 +18,7 @@ import numpy as np
 from spikenerf import __version__
 from spikenerf.camera.layout import to_camera_layout
 from spikenerf.camera.model import CameraConfig, SpikeCamera
+from spikenerf.camera.noise import noise_with
 from spikenerf.capture.blur import RunningExposures, blur_windows, exposure_length
 from spikenerf.capture.frame_cache import CACHE, open_cache, render_missing
 from spikenerf.capture.options import SimulateOptions, check_options
@@ -94,10 +95,12 @@ def stream_steps(
     cache), so overlapping exposures cost no more memory than one image.
     """
     h, w = writer.intrinsics.height, writer.intrinsics.width
-    cameras = {
-        c: SpikeCamera(h, w, CameraConfig(options.threshold, c, options.noise, options.seed, options.warmup))
+    params = noise_with(options.noise_params) if options.noise == "realistic" else None
+    configs = {
+        c: CameraConfig(options.threshold, c, options.noise, options.seed, options.warmup)
         for c in options.colors
     }
+    cameras = {c: SpikeCamera(h, w, config, None, params) for c, config in configs.items()}
     writer.start_spikes(list(options.colors))
     buffers: dict[str, list[np.ndarray]] = {c: [] for c in options.colors}
 
@@ -146,6 +149,7 @@ def dataset_config(source: FrameSource, options: SimulateOptions, test_views: in
         "threshold": float(options.threshold),
         "colors": list(options.colors),
         "noise": options.noise,
+        **({"noise_params": dict(options.noise_params)} if options.noise_params else {}),
         "seed": int(options.seed),
         "scene": source.name,
         "steps": len(traj),

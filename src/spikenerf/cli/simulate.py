@@ -10,6 +10,7 @@ import click
 from click.core import ParameterSource
 
 from spikenerf.camera.modes import COLORS, NOISES
+from spikenerf.camera.noise import NOISE_RANGES
 from spikenerf.cli import command_line
 from spikenerf.cli.types import COUNT, SEED, BoundedInt, OutPath
 from spikenerf.core.errors import InputError
@@ -26,7 +27,12 @@ FLOAT_OPTIONS = (
 #: the camera's colour modes (``camera/modes.py``: no torch import, so `simulate --help` stays quick)
 CAMERA_COLORS = COLORS
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
-PARAM_FLAGS = {"colors": "--color", "elevation_deg": "--elevation", "frame_range": "--sequence-range"}
+PARAM_FLAGS = {
+    "colors": "--color",
+    "elevation_deg": "--elevation",
+    "frame_range": "--sequence-range",
+    **{name: f"--noise-param {name}" for name in NOISE_RANGES},
+}
 
 
 def _colors(color: str) -> tuple[str, ...]:
@@ -73,6 +79,11 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 @click.option("--color", type=click.Choice([*CAMERA_COLORS, "all"]), default="gray", show_default=True)
 @click.option("--threshold", type=float, default=1.0, show_default=True, help="Spike threshold φ.")
 @click.option("--noise", type=click.Choice(NOISES), default="ideal", show_default=True)
+@click.option(
+    "--noise-param", "noise_params", multiple=True, metavar="NAME=VALUE",
+    help="With --noise realistic: replace one of the preset's parameters (repeatable), e.g. "
+    "dark_mean=0 or photons_per_white=inf; names and ranges in docs/camera.md.",
+)  # fmt: skip
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Camera (and render) seed.")
 @click.option(
     "--warmup",
@@ -171,6 +182,7 @@ def command(**kw: Any) -> None:
         colors=_colors(str(kw["color"])),
         threshold=float(kw["threshold"]),
         noise=str(kw["noise"]),
+        noise_params=_noise_params(kw["noise_params"]),
         seed=int(kw["seed"]),
         warmup=int(kw["warmup"]),
         gt_every=int(kw["gt_every"]),
@@ -365,3 +377,21 @@ def _warn_stretch(native: tuple[int, int], width: int | None, height: int | None
             f"{w0 / h0:.3g} → {width / height:.3g}); give only one of them to keep the aspect ratio",
             err=True,
         )
+
+
+def _noise_params(items: tuple[str, ...]) -> dict[str, float]:
+    """``("NAME=VALUE", ...)`` → ``{NAME: float(VALUE)}`` (``inf`` allowed); a malformed item is an
+    InputError naming ``--noise-param`` (names and ranges are checked with the options)."""
+    out: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise InputError(f"--noise-param expects NAME=VALUE, found {item!r}")
+        if name in out:
+            raise InputError(f"--noise-param {name} is given twice")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise InputError(f"--noise-param {name}: expected a number, found {value!r}") from None
+    return out

@@ -142,7 +142,8 @@ def describe(path: str | Path) -> str:
         f"fov: {math.degrees(k.view_angle_x):.1f}°"
         + (f" (through the lens)   lens: {k.distortion.describe()}" if k.distortion else ""),
         f"steps: {n} at {traj.fps:g} Hz ({n / traj.fps * 1e3:.4g} ms)   threshold φ = {ds.threshold:g}"
-        + "".join(f"   {key}: {cfg[key]}" for key in ("noise", "seed") if key in cfg),  # (simulated only)
+        + "".join(f"   {key}: {cfg[key]}" for key in ("noise", "seed") if key in cfg)  # (simulated only)
+        + _noise_params(cfg.get("noise_params")),
         f"scene box: {ds.scene_box.tolist()}   near/far: {ds.near:.3g}/{ds.far:.3g}",
         f"GT renders: {len(ds.gt) or 'none'}"
         + (f" (every {cfg['gt_every']} steps)" if len(ds.gt) and "gt_every" in cfg else "")
@@ -190,3 +191,11 @@ def describe(path: str | Path) -> str:
         return "\n".join(lines)
     lines.append(caption)
     return "\n".join(lines)
+
+
+def _noise_params(params: object) -> str:
+    """`` (dark_mean=0, ...)``: the realistic preset's parameters that ``simulate --noise-param`` replaced."""
+    if not isinstance(params, dict) or not params:
+        return ""
+    return " (" + ", ".join(f"{key}={value:g}" if isinstance(value, float) else f"{key}={value}"
+                            for key, value in params.items()) + ")"  # fmt: skip
