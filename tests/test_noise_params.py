@@ -5,6 +5,7 @@ replaced (camera/noise.py ``noise_with``), used by the camera, recorded in ``con
 from __future__ import annotations
 
 import math
+import shutil
 from pathlib import Path
 
 import pytest
@@ -98,3 +99,76 @@ def test_the_ablation_variants_are_valid_noise_parameters() -> None:
     params = {name: noise_with(v) for name, v in variants.items() if v is not None}
     assert params["no-dark"].dark_mean == 0 and params["no-fixed"].prnu_std == 0
     assert math.isinf(params["dark-only"].photons_per_white) and params["dark-only"].dark_mean > 0
+
+
+def test_numpy_values_through_the_python_api_are_recorded_as_numbers(tmp_path: Path) -> None:
+    """``noise_params`` of numpy numbers (a sweep over ``np.linspace``) were written raw into config.yaml:
+    a RepresenterError after the whole simulation, the dataset left as a ``.partial`` folder."""
+    import numpy as np
+
+    from spikenerf.capture.simulate import simulate_dataset
+    from spikenerf.scenes.analytic import AnalyticSource
+    from spikenerf.scenes.trajectory import novel_views, orbit
+
+    source = AnalyticSource("analytic-orbs", 8, 8, orbit(4.0, 30.0, duration=20 / 40000), novel_views(4.0, 1))
+    params = {"dark_mean": np.float64(0.1), "readout_delay": np.int64(2)}
+    options = SimulateOptions(noise="realistic", noise_params=params, blur_fps=0.0)
+    root = simulate_dataset(source, tmp_path / "ds", options, progress=False)
+    config = yaml.safe_load((root / "config.yaml").read_text())
+    assert config["noise_params"] == {"dark_mean": 0.1, "readout_delay": 2.0}
+
+
+def test_the_pixel_gain_benchmark_draws_the_datasets_own_patterns(tmp_path: Path) -> None:
+    """``bench_pixel_gain`` compares a learned map with the true per-pixel response drawn again from the
+    dataset's seed: with the recorded ``noise_params`` (it drew the preset's, a pattern the camera never
+    had, for a dataset simulated with ``--noise-param``)."""
+    import numpy as np
+
+    bench = load_benchmark("experiments/bench_pixel_gain")
+    flat = {"threshold_std": 0.0, "capacitance_std": 0.0, "prnu_std": 0.0}
+    config = {"seed": 3, "threshold": 1.0, "noise": "realistic", "noise_params": flat}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    assert np.abs(bench.true_log_response(tmp_path, (6, 5))).max() == 0.0  # no pattern to learn
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({**config, "noise_params": {}}))
+    assert bench.true_log_response(tmp_path, (6, 5)).std() > 0.01  # the preset's
+
+
+def test_benchmark_refuses_a_dataset_with_replaced_noise_parameters(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``benchmark --noise realistic`` simulates the preset and has no --noise-param: a dataset simulated
+    by hand into OUT/datasets with replaced parameters was taken (and its scores reported) as the preset's;
+    it is refused in one line naming --noise, before any training."""
+    from spikenerf.pipelines.benchmark import BenchmarkConfig
+    from spikenerf.pipelines.benchmark.cells import dataset_command
+    from spikenerf.pipelines.benchmark.run import dataset_mismatch
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path / "b", size=12, frames=30,
+                          iters=2, device="cpu", test_views=1, render=False, noise="realistic")  # fmt: skip
+    simulate = dataset_command(cfg, "analytic-orbs")[3:]  # (after `python -m spikenerf`)
+    assert run_cli(capsys, *simulate, "--no-progress")[0] == 0
+    assert dataset_mismatch(cfg, "analytic-orbs") is None  # the preset: the benchmark's own
+    shutil.rmtree(cfg.out / "datasets")
+    assert run_cli(capsys, *simulate, "--no-progress", "--noise-param", "dark_mean=0.2")[0] == 0
+    problem = dataset_mismatch(cfg, "analytic-orbs")
+    assert problem is not None and "replaced noise parameters (dark_mean=0.2)" in problem.message
+    args = ["benchmark", "--scenes", "analytic-orbs", "--methods", "nerf-gt", "--color", "gray", "--size", 12,
+            "--frames", 30, "--iters", 2, "--test-views", 1, "--no-render", "--device", "cpu", "--noise",
+            "realistic", "--out", cfg.out]  # fmt: skip
+    code, _, err = run_cli(capsys, *args)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--noise:" in err and "replaces none" in err
+    assert not (cfg.out / "runs").exists()
+
+
+def test_the_ablation_resumes_a_training_stopped_before_its_result(tmp_path: Path) -> None:
+    """A training of bench_noise_ablation stopped after a checkpoint but before its result.json (written
+    atomically) continues on the next call, where it was refused ("already holds a training run") and the
+    whole benchmark stopped."""
+    import argparse
+
+    bench = load_benchmark("experiments/bench_noise_ablation")
+    args = argparse.Namespace(out=tmp_path, scene="analytic-orbs", size=12, frames=30, test_views=1,
+                              method="spike-integral", iters=2, set=[], tag="")  # fmt: skip
+    dataset = bench.simulate(args, "no-dark")
+    assert yaml.safe_load((dataset / "config.yaml").read_text())["noise_params"]["dark_mean"] == 0.0
+    first = bench.train(("no-dark", dataset, 0, args))
+    (tmp_path / "run-no-dark-0" / "result.json").unlink()  # stopped before the result
+    assert bench.train(("no-dark", dataset, 0, args)) == first

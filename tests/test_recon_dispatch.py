@@ -72,7 +72,9 @@ def test_scattered_frames_equal_per_frame_calls_in_fewer_scans(monkeypatch: pyte
     stream = (rng.random((400, 4, 5)) < rng.uniform(0.01, 0.5, (4, 5))).astype(np.uint8)
     stream[:, 0, 0] = 0  # a silent pixel: TFI and TFSTP read to the stream's ends
     read = lambda a, b: stream[a:b]  # noqa: E731
-    frames = np.array([0, 3, 4, 50, 51, 200, 399])  # runs: TFP (reach 41) 4, TFI (reach 128) 3
+    # runs: TFP (reach 41) 4, TFI (reach 128) 3, but the silent pixel makes TFI's first read the whole
+    # stream, which then makes every frame
+    frames = np.array([0, 3, 4, 50, 51, 200, 399])
     calls = {name: 0 for name in ("tfp", "tfi", "tfstp")}
     for name in calls:
         real = getattr(reconstruct, name)
@@ -82,7 +84,7 @@ def test_scattered_frames_equal_per_frame_calls_in_fewer_scans(monkeypatch: pyte
             return _real(*args, **kwargs)
 
         monkeypatch.setattr(reconstruct, name, counted)
-    for name, window, want_calls in (("tfp", 41, 4), ("tfi", None, 3), ("tfstp", None, 1)):
+    for name, window, want_calls in (("tfp", 41, 4), ("tfi", None, 1), ("tfstp", None, 1)):
         calls[name] = 0
         got = frames_reconstructor(name, window, 1.5)(read, 400, frames)
         assert calls[name] == want_calls, (name, calls)
@@ -90,10 +92,12 @@ def test_scattered_frames_equal_per_frame_calls_in_fewer_scans(monkeypatch: pyte
         want = np.stack([one(read, 400, int(k), int(k) + 1)[0] for k in frames])
         assert got.dtype == np.float32
         np.testing.assert_array_equal(got, want)
+    learned = frames_reconstructor("learned")  # (its frames were not checked: [] a ValueError of np.stack)
     for bad in ([], [3, 3], [5, 2], [0, 400], [-1, 2], [[1, 2]], [1.0, 2.0]):
-        with pytest.raises(InputError) as err:
-            frames_reconstructor("tfstp")(read, 400, np.asarray(bad))
-        assert err.value.params == ("frames",), bad
+        for recon in (frames_reconstructor("tfstp"), learned):
+            with pytest.raises(InputError) as err:
+                recon(read, 400, np.asarray(bad))
+            assert err.value.params == ("frames",), bad
 
 
 def test_training_targets_are_one_tfstp_scan(stream: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -108,3 +112,35 @@ def test_training_targets_are_one_tfstp_scan(stream: np.ndarray, monkeypatch: py
         reconstruct_stream(stream, "tfstp", frames=slice(3, 60, 4)), tfstp(stream)[3:60:4]
     )
     assert len(calls) == 2
+
+
+def test_frames_all_along_a_long_stream_are_read_a_piece_at_a_time() -> None:
+    """GT frames every 10 steps of a long stream were one TFP or TFI read of the whole stream (each frame
+    within the other's reach): a read now holds at most RUN_SPAN frames and the margins, and the result is
+    still the whole stream's."""
+    from spikenerf.camera.reconstruct import RUN_SPAN, TFI_MARGIN, reconstruct_at
+
+    total = 3 * RUN_SPAN + 100
+    rng = np.random.default_rng(8)
+    stream = (rng.random((total, 2, 3)) < rng.uniform(0.2, 0.6, (2, 3))).astype(np.uint8)
+    spans: list[int] = []
+
+    def read(a: int, b: int) -> np.ndarray:
+        spans.append(b - a)
+        return stream[a:b]
+
+    frames = np.arange(5, total, 10)
+    for name, whole, margins in (
+        ("tfp", tfp(stream, 41, 0.5), 40),
+        ("tfi", tfi(stream, 0.5), 2 * TFI_MARGIN),
+    ):
+        spans.clear()
+        got = reconstruct_at(read, total, frames, name, 41, 0.5)
+        np.testing.assert_array_equal(got, whole[frames])
+        assert len(spans) >= 3 and max(spans) <= RUN_SPAN + margins, (name, max(spans))
+    stream[:, 1, 2] = 0  # a pixel that never fires: TFI reads the whole stream, once, for every frame
+    spans.clear()
+    np.testing.assert_array_equal(
+        reconstruct_at(read, total, frames, "tfi", threshold=0.5), tfi(stream, 0.5)[frames]
+    )
+    assert spans[-1] == total and spans.count(total) == 1, spans  # (after the margins' doublings)

@@ -6,7 +6,8 @@ preset, and the preset with one group of its parameters switched off (``simulate
 - ``no-dark``: ``dark_mean=0 dark_std=0`` (no dark current);
 - ``no-fixed``: ``threshold_std=0 capacitance_std=0 prnu_std=0`` (no per-pixel threshold or gain pattern);
 - ``no-temporal``: ``jitter_std=0 photons_per_white=inf readout_delay=0`` (no per-step noise);
-- ``dark-only``: everything off but the dark current.
+- ``dark-only``: everything off but the dark current;
+- ``fixed-only``: everything off but the per-pixel threshold and gain patterns.
 
 Then trains the method on each dataset once per training seed (with ``--set KEY=VALUE`` overrides of the
 training config, as ``train --set``; ``--tag`` keeps such runs apart from the others) and prints each
@@ -42,6 +43,13 @@ VARIANTS: dict[str, dict | None] = {
     "no-fixed": {"threshold_std": 0, "capacitance_std": 0, "prnu_std": 0},
     "no-temporal": {"jitter_std": 0, "photons_per_white": math.inf, "readout_delay": 0},
     "dark-only": ALL_OFF,
+    "fixed-only": {
+        "dark_mean": 0,
+        "dark_std": 0,
+        "jitter_std": 0,
+        "photons_per_white": math.inf,
+        "readout_delay": 0,
+    },
 }
 
 
@@ -72,6 +80,7 @@ def train(job: tuple[str, Path, int, argparse.Namespace]) -> tuple[str, int, flo
     import torch
 
     torch.set_num_threads(1)
+    from spikenerf.core.atomic import write_text_atomic
     from spikenerf.train.config import TrainConfig
     from spikenerf.train.config_file import apply_overrides
     from spikenerf.train.trainer import Trainer
@@ -79,8 +88,9 @@ def train(job: tuple[str, Path, int, argparse.Namespace]) -> tuple[str, int, flo
     cfg = TrainConfig(dataset=str(dataset), method=args.method, iters=args.iters, eval_every=0,
                       eval_views=args.test_views, seed=seed, device="cpu")  # fmt: skip
     cfg = TrainConfig.from_dict(apply_overrides(cfg.to_dict(), args.set)).validate()
-    psnr = float(Trainer(cfg, run, progress=False).train().test_psnr)
-    done.write_text(json.dumps({"psnr": psnr}))
+    # a training stopped before its result.json was written continues from its checkpoint
+    psnr = float(Trainer(cfg, run, resume=True, progress=False).train().test_psnr)
+    write_text_atomic(done, json.dumps({"psnr": psnr}))
     return name, seed, psnr
 
 

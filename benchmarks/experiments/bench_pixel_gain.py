@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from spikenerf.camera.noise import RealisticNoise
+from spikenerf.camera.noise import noise_with
 from spikenerf.pipelines.benchmark.stats import t_interval
 from spikenerf.train.sensor_response import SENSOR_MAP, read_sensor_map
 
@@ -37,10 +37,11 @@ def runs(folder: Path) -> dict[str, Path]:
 
 def true_log_response(dataset: Path, shape: tuple[int, ...]) -> np.ndarray:
     """The centred ``log(g_p / φ_p)`` (``shape``) of the dataset's realistic camera, drawn from its seed as
-    ``SpikeCamera`` draws it (default noise parameters)."""
+    ``SpikeCamera`` draws it (the preset's parameters, with those ``simulate --noise-param`` replaced)."""
     config = yaml.safe_load((dataset / "config.yaml").read_text())
     _, pattern_seed, _ = np.random.SeedSequence(config["seed"]).spawn(3)
-    pattern = RealisticNoise().draw_patterns(shape, float(config["threshold"]), pattern_seed)
+    params = noise_with(config.get("noise_params"))
+    pattern = params.draw_patterns(shape, float(config["threshold"]), pattern_seed)
     truth = np.log(pattern.gain / pattern.threshold * float(config["threshold"]))
     return truth - truth.mean()
 

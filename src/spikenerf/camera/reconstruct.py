@@ -241,11 +241,14 @@ def reconstruct_frames(
         raise InputError(f"step must be an integer ≥ 1, found {step!r}", param="step")
     if method == "tfp":
         check_window(window)
-    return _span(read, total, np.arange(start, stop, step, dtype=np.int64), method, window, threshold)
+    return _span(read, total, [np.arange(start, stop, step, dtype=np.int64)], method, window, threshold)[1]
 
 
 #: TFI's first reading margin on each side of a range (doubled until the edge rules cannot reach it)
 TFI_MARGIN = 64
+#: the most frames one TFP or TFI call of :func:`reconstruct_at` spans (its read adds the margins): frames
+#: asked for all along a long stream are read a piece at a time, not the whole stream at once
+RUN_SPAN = 1024
 
 
 def reconstruct_at(
@@ -263,8 +266,11 @@ def reconstruct_at(
     whole stream's reconstruction at ``frames``). TFSTP makes one call (its forward scan starts at frame 0
     whatever frames are asked for, so N frames cost what the last of them alone costs). TFP and TFI make
     one call per run of frames at most their reach apart (TFP: its window; TFI: twice its first margin,
-    128 frames), each reading that run's span as :func:`reconstruct_frames` reads it, so the frames between
-    two far-apart ones are not read.
+    128 frames) and spanning fewer than :data:`RUN_SPAN` frames, each reading that run's span as
+    :func:`reconstruct_frames` reads it: the frames between two far-apart ones are not read, and however
+    many frames are asked for, one read holds at most ``RUN_SPAN`` frames and the margins (where TFI's
+    margins reach both ends of the stream, a pixel that never fires, that one read of the whole stream makes
+    every frame).
 
     Args:
         read, total, method, window, threshold: as :func:`reconstruct_frames`.
@@ -280,27 +286,42 @@ def reconstruct_at(
         check_window(window)
     idx = frame_indices(frames, int(total))
     reach = {"tfp": window, "tfi": 2 * TFI_MARGIN}.get(method)
-    runs = [idx] if reach is None else np.split(idx, np.flatnonzero(np.diff(idx) > reach) + 1)
-    parts = [_span(read, int(total), run, method, window, threshold) for run in runs]
+    runs = [idx] if reach is None else _runs(idx, reach)
+    parts: list[np.ndarray] = []
+    while runs:
+        done, part = _span(read, int(total), runs, method, window, threshold)
+        parts.append(part)
+        runs = runs[done:]
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _runs(idx: np.ndarray, reach: int) -> list[np.ndarray]:
+    """``idx`` (N,) (ascending) cut where two neighbours lie more than ``reach`` apart, and each piece cut
+    again into runs that span fewer than :data:`RUN_SPAN` frames."""
+    runs = []
+    for near in np.split(idx, np.flatnonzero(np.diff(idx) > reach) + 1):
+        runs += np.split(near, np.flatnonzero(np.diff((near - near[0]) // RUN_SPAN)) + 1)
+    return runs
 
 
 def _span(
     read: Callable[[int, int], np.ndarray],
     total: int,
-    idx: np.ndarray,
+    runs: list[np.ndarray],
     method: str,
     window: int,
     threshold: float,
-) -> np.ndarray:
-    """Frames ``idx`` (N,) (ascending, checked) in one read of the span they and their reach need: TFP's
-    window margins; TFI's margins doubled until the edge rules cannot reach them; TFSTP from frame 0 to
-    TFI's end margin. float32 (N, ...)."""
+) -> tuple[int, np.ndarray]:
+    """The frames of ``runs[0]`` (N,) (ascending, checked) in one read of the span they and their reach
+    need: TFP's window margins; TFI's margins doubled until the edge rules cannot reach them; TFSTP from
+    frame 0 to TFI's end margin. Where that read is the whole stream (TFI with a pixel that never fires),
+    the frames of every run, from the one read. Returns how many runs it made and float32 (N, ...)."""
+    idx = runs[0]
     start, stop = int(idx[0]), int(idx[-1]) + 1
     if method == "tfp":
         half = (window - 1) // 2
         lo, hi = max(0, start - half), min(total, stop + half)
-        return tfp(read(lo, hi), window, threshold, idx - lo)
+        return 1, tfp(read(lo, hi), window, threshold, idx - lo)
     margin = TFI_MARGIN
     while True:  # TFSTP's state carries the whole history: it always reads from frame 0
         lo, hi = (0 if method == "tfstp" else max(0, start - margin)), min(total, stop - 1 + margin)
@@ -308,7 +329,9 @@ def _span(
         before = np.count_nonzero(sub[: start - lo], axis=0)
         after = np.count_nonzero(sub[stop - 1 - lo :], axis=0)
         if (lo == 0 or before.min() >= 2) and (hi == total or after.min() >= 2):
-            return (tfstp if method == "tfstp" else tfi)(sub, threshold, idx - lo)
+            done = len(runs) if (lo, hi) == (0, total) else 1  # (read whole: not again for the next run)
+            idx = idx if done == 1 else np.concatenate(runs)
+            return done, (tfstp if method == "tfstp" else tfi)(sub, threshold, idx - lo)
         margin *= 2
 
 

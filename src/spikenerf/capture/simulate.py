@@ -149,7 +149,7 @@ def dataset_config(source: FrameSource, options: SimulateOptions, test_views: in
         "threshold": float(options.threshold),
         "colors": list(options.colors),
         "noise": options.noise,
-        **({"noise_params": dict(options.noise_params)} if options.noise_params else {}),
+        **({"noise_params": _replaced(options.noise_params)} if options.noise_params else {}),
         "seed": int(options.seed),
         "scene": source.name,
         "steps": len(traj),
@@ -164,6 +164,13 @@ def dataset_config(source: FrameSource, options: SimulateOptions, test_views: in
         **({"bayer_pattern": "RGGB"} if "bayer" in options.colors else {}),
         **options.extra,
     }
+
+
+def _replaced(noise_params: dict) -> dict[str, float]:
+    """The replaced noise parameters as the camera took them (plain floats: a numpy number given through
+    the Python API was a RepresenterError of the YAML writer, at the end of the run)."""
+    params = noise_with(noise_params)
+    return {str(name): float(getattr(params, name)) for name in noise_params}
 
 
 def simulate_dataset(

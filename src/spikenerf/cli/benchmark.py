@@ -57,7 +57,8 @@ BENCHMARK_KEYS = {
 @click.option(
     "--noise", type=click.Choice(NOISES), default="ideal", show_default=True,
     help="The simulated spike camera's noise (simulate --noise): 'realistic' adds shot noise, dark current "
-    "and per-pixel gain and threshold mismatch (docs/camera.md).",
+    "and per-pixel gain and threshold mismatch, the preset's parameters (no --noise-param here; "
+    "docs/camera.md).",
 )  # fmt: skip
 @click.option(
     "--set", "overrides", multiple=True, metavar="KEY=VALUE",

@@ -24,6 +24,7 @@ import numpy as np
 
 from spikenerf.camera.io import resolve_frames
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, reconstruct_at, reconstruct_frames
+from spikenerf.camera.streams import frame_indices
 from spikenerf.core.errors import InputError, check_choice
 
 #: image reconstructions: the camera's (TFP, TFI, TFSTP) and the learned one (spikenerf.recon)
@@ -85,7 +86,9 @@ def frames_reconstructor(
     with the frame's index)."""
     if recon == "learned":
         one = reconstructor(recon, window, threshold, weights=weights, color=color)
-        return lambda read, total, frames: np.stack([one(read, total, int(k), int(k) + 1)[0] for k in frames])
+        return lambda read, total, frames: np.stack(
+            [one(read, total, int(k), int(k) + 1)[0] for k in frame_indices(frames, total)]
+        )  # (the frames checked as reconstruct_at checks them)
     check_choice(recon, RECONS, "recon")
     tfp_window = DEFAULT_WINDOW if window is None else window
     return lambda read, total, frames: reconstruct_at(read, total, frames, recon, tfp_window, threshold)

@@ -130,7 +130,8 @@ def _check_datasets(cfg: BenchmarkConfig) -> None:
 
 def dataset_mismatch(cfg: BenchmarkConfig, scene: str) -> InputError | None:
     """The refusal (an InputError to raise) where ``OUT/datasets/SCENE`` was simulated with other settings
-    than ``cfg`` asks for (its size, steps, seed, test views, blur views, noise, or lacking a colour); None
+    than ``cfg`` asks for (its size, steps, seed, test views, blur views, noise, replaced noise parameters,
+    or lacking a colour); None
     where it fits or does not exist yet. ``benchmark`` refuses to resume on it, ``report`` to draw figures
     from it."""
     root = cfg.out / "datasets" / scene
@@ -147,6 +148,15 @@ def dataset_mismatch(cfg: BenchmarkConfig, scene: str) -> InputError | None:
                 path=root,
                 param=param,
             )
+    if have["noise_params"]:  # (simulate --noise-param: benchmark has no such option)
+        replaced = ", ".join(f"{key}={value}" for key, value in have["noise_params"].items())
+        return InputError(
+            f"noise: the dataset was simulated with replaced noise parameters ({replaced}), but the "
+            "benchmark simulates the realistic preset as it is and replaces none; delete the dataset to "
+            "re-simulate it",
+            path=root,
+            param="noise",
+        )
     if have["colors"] is not None and (lacking := [c for c in cfg.colors if c not in have["colors"]]):
         return InputError(
             f"color: the dataset has no {', '.join(lacking)} stream; delete it to re-simulate it",
@@ -168,7 +178,8 @@ def forget_unscored(cfg: BenchmarkConfig, keys: Sequence[CellKey]) -> None:
 
 def dataset_settings(root: Path) -> dict:
     """What a dataset folder was simulated with, from its ``config.yaml`` (None where it does not say):
-    ``size`` [W, H], ``frames``, ``seed``, ``test_views``, ``noise``, ``colors`` and ``blur_views``."""
+    ``size`` [W, H], ``frames``, ``seed``, ``test_views``, ``noise``, ``noise_params`` (those ``simulate
+    --noise-param`` replaced), ``colors`` and ``blur_views``."""
     import yaml
 
     try:
@@ -183,6 +194,7 @@ def dataset_settings(root: Path) -> dict:
         "seed": config.get("seed"),
         "test_views": config.get("test_views"),
         "noise": config.get("noise"),
+        "noise_params": params if isinstance(params := config.get("noise_params"), dict) else None,
         "colors": colors if isinstance(colors := config.get("colors"), list) else None,  # (a list or unsaid)
         "blur_views": str(view_counts(root)["blur_views"]),
     }
