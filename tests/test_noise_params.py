@@ -8,6 +8,7 @@ import math
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -166,9 +167,22 @@ def test_the_ablation_resumes_a_training_stopped_before_its_result(tmp_path: Pat
 
     bench = load_benchmark("experiments/bench_noise_ablation")
     args = argparse.Namespace(out=tmp_path, scene="analytic-orbs", size=12, frames=30, test_views=1,
-                              method="spike-integral", iters=2, set=[], tag="")  # fmt: skip
+                              method="spike-integral", iters=2, set=[], tag="", threshold=1.0,
+                              true_pattern=False)  # fmt: skip
     dataset = bench.simulate(args, "no-dark")
     assert yaml.safe_load((dataset / "config.yaml").read_text())["noise_params"]["dark_mean"] == 0.0
     first = bench.train(("no-dark", dataset, 0, args))
     (tmp_path / "run-no-dark-0" / "result.json").unlink()  # stopped before the result
     assert bench.train(("no-dark", dataset, 0, args)) == first
+
+
+def test_the_ablations_true_response_follows_the_datasets_noise_params(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    ablation = load_benchmark("experiments/bench_noise_ablation")
+    flat = [arg for name in ("threshold_std", "capacitance_std", "prnu_std")
+            for arg in ("--noise-param", f"{name}=0")]  # fmt: skip
+    assert run_cli(capsys, *SIM, "--noise", "realistic", *flat, "--out", tmp_path / "flat")[0] == 0
+    preset = ["--noise", "realistic", "--threshold", 1.25]
+    assert run_cli(capsys, *SIM, *preset, "--out", tmp_path / "preset")[0] == 0
+    assert np.array_equal(ablation.true_response(tmp_path / "flat"), np.ones((10, 12), np.float32))
+    response = ablation.true_response(tmp_path / "preset")
+    assert response.shape == (10, 12) and 0.03 < float(np.log(response).std()) < 0.15  # the preset's 7.4 %

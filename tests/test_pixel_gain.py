@@ -173,3 +173,22 @@ def test_bad_values_name_their_key(key: str, value: object) -> None:
     with pytest.raises(InputError) as err:
         cfg.validate()
     assert err.value.params == (f"integral.{key}",) and "--" not in str(err.value)
+
+
+def test_the_response_scales_each_render_and_clips_it_at_one_spike_a_step(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """A pixel fires at most once a step, so it reports at most φ a step: each render is scaled by the
+    pixel's response and cut at φ before the window mean (a pixel of response 1.5 that sees white reports
+    φ, not 1.5 φ); without the option the mean is the renders' own."""
+    on = Trainer(_config(dataset_dir, pixel_gain=True), tmp_path / "on", dataset, progress=False)
+    factors = torch.tensor([[1.5], [0.5]])  # (B, C): two pixels
+    monkeypatch.setattr(_sensor(on).response, "factor", lambda pixels: factors)
+    colors = torch.tensor([[0.9, 0.2], [0.9, 0.2]])[:, None, :, None]  # (B, G=1, S=2, C=1)
+    pixels = torch.zeros(2, 2, dtype=torch.long)
+    sensed = on.method.sensed(colors, pixels, 1.0)  # type: ignore[attr-defined]
+    assert sensed.shape == (2, 1, 1)
+    assert torch.allclose(sensed[:, 0, 0], torch.tensor([(1.0 + 0.3) / 2, (0.45 + 0.1) / 2]))
+    assert torch.allclose(on.method.sensed(colors, pixels, 2.0)[0, 0, 0], torch.tensor((1.35 + 0.3) / 2))
+    off = Trainer(_config(dataset_dir), tmp_path / "off", dataset, progress=False)
+    assert torch.equal(off.method.sensed(colors, pixels, 1.0), colors.mean(dim=2))  # type: ignore[attr-defined]

@@ -12,7 +12,9 @@ preset, and the preset with one group of its parameters switched off (``simulate
 Then trains the method on each dataset once per training seed (with ``--set KEY=VALUE`` overrides of the
 training config, as ``train --set``; ``--tag`` keeps such runs apart from the others) and prints each
 variant's test PSNR (the trainer's own evaluation on the held-out views) and its difference from
-``realistic``, paired over the seeds (mean and 95 % t interval).
+``realistic``, paired over the seeds (mean and 95 % t interval); with ``--tag``, also each variant's
+difference from its runs without the tag (trained before, in the same folder). ``--true-pattern`` holds
+``integral.pixel_gain``'s map at the simulator's own per-pixel response instead of learning it.
 
 Run (one thread per training; about a minute per training at 64×64 on the development CPU)::
 
@@ -32,7 +34,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
+
+from spikenerf.pipelines.benchmark.stats import t_interval
 
 ALL_OFF = {"threshold_std": 0, "capacitance_std": 0, "prnu_std": 0, "jitter_std": 0,
            "photons_per_white": math.inf, "readout_delay": 0}  # fmt: skip
@@ -53,9 +56,14 @@ VARIANTS: dict[str, dict | None] = {
 }
 
 
+def suffix(args: argparse.Namespace) -> str:
+    """What the folder names add for a threshold other than 1 (``-phi1.25``)."""
+    return "" if args.threshold == 1.0 else f"-phi{args.threshold:g}"
+
+
 def simulate(args: argparse.Namespace, name: str) -> Path:
     """The variant's dataset (simulated unless already there)."""
-    out = args.out / f"data-{name}"
+    out = args.out / f"data-{name}{suffix(args)}"
     if (out / "config.yaml").exists():
         return out
     params = VARIANTS[name]
@@ -65,6 +73,7 @@ def simulate(args: argparse.Namespace, name: str) -> Path:
     command = [sys.executable, "-m", "spikenerf", "--threads", "1", "simulate", "--scene", args.scene,
                "--width", str(args.size), "--height", str(args.size), "--frames", str(args.frames),
                "--test-views", str(args.test_views), "--blur-fps", "0", "--color", "gray", "--seed", "0",
+               "--threshold", str(args.threshold),
                *noise, "--out", str(out), "--quiet"]  # fmt: skip
     subprocess.run(command, check=True)
     return out
@@ -73,7 +82,7 @@ def simulate(args: argparse.Namespace, name: str) -> Path:
 def train(job: tuple[str, Path, int, argparse.Namespace]) -> tuple[str, int, float]:
     """(variant, seed, test PSNR) of one training (kept in ``run-<variant>-<seed>/result.json``)."""
     name, dataset, seed, args = job
-    run = args.out / f"run-{name}{args.tag}-{seed}"
+    run = args.out / f"run-{name}{suffix(args)}{args.tag}-{seed}"
     done = run / "result.json"
     if done.exists():
         return name, seed, float(json.loads(done.read_text())["psnr"])
@@ -88,10 +97,49 @@ def train(job: tuple[str, Path, int, argparse.Namespace]) -> tuple[str, int, flo
     cfg = TrainConfig(dataset=str(dataset), method=args.method, iters=args.iters, eval_every=0,
                       eval_views=args.test_views, seed=seed, device="cpu")  # fmt: skip
     cfg = TrainConfig.from_dict(apply_overrides(cfg.to_dict(), args.set)).validate()
+    if args.true_pattern:  # the simulator's own response in place of the learned map
+        if not cfg.integral.pixel_gain:
+            raise SystemExit(
+                "--true-pattern replaces integral.pixel_gain's map: add --set integral.pixel_gain=true"
+            )
+        hold_true_pattern(dataset)
     # a training stopped before its result.json was written continues from its checkpoint
     psnr = float(Trainer(cfg, run, resume=True, progress=False).train().test_psnr)
     write_text_atomic(done, json.dumps({"psnr": psnr}))
     return name, seed, psnr
+
+
+def true_response(dataset: Path) -> np.ndarray:
+    """The dataset's per-pixel response ``g_p φ / φ_p``, float32 (H, W): its realistic camera's fixed
+    patterns drawn again from its seed and ``noise_params``, as ``SpikeCamera`` draws them (gray)."""
+    import yaml
+
+    from spikenerf.camera.noise import noise_with
+
+    config = yaml.safe_load((dataset / "config.yaml").read_text())
+    if config.get("noise") != "realistic":
+        raise SystemExit(f"--true-pattern: {dataset} is not a realistic stream")
+    _, pattern_seed, _ = np.random.SeedSequence(config["seed"]).spawn(3)
+    phi = float(config["threshold"])
+    shape = (int(config["spike_h"]), int(config["spike_w"]))
+    patterns = noise_with(config.get("noise_params")).draw_patterns(shape, phi, pattern_seed)
+    return (patterns.gain * phi / patterns.threshold).astype(np.float32)
+
+
+def hold_true_pattern(dataset: Path) -> None:
+    """Make every ``SensorResponse`` of this process answer the dataset's true response (a fixed map)."""
+    import torch
+
+    from spikenerf.train.sensor_response import SensorResponse
+
+    truth = torch.from_numpy(true_response(dataset)).reshape(1, -1)
+
+    def factor(self: SensorResponse, pixels: torch.Tensor) -> torch.Tensor:
+        width = int(self.log_response.shape[-1])
+        flat = pixels[:, 1].long() * width + pixels[:, 0].long()
+        return truth[:, flat.cpu()].transpose(0, 1).to(pixels.device)
+
+    SensorResponse.factor = factor  # type: ignore[method-assign]
 
 
 def main() -> None:
@@ -104,9 +152,17 @@ def main() -> None:
     parser.add_argument("--test-views", type=int, default=4)
     parser.add_argument("--iters", type=int, default=300)
     parser.add_argument("--seeds", default="0,1,2")
+    parser.add_argument(
+        "--threshold", type=float, default=1.0,
+        help="the camera's φ (simulate --threshold): above 1 a white pixel fires less than once a step",
+    )  # fmt: skip
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument(
+        "--true-pattern", action="store_true",
+        help="with --set integral.pixel_gain=true: hold the map at the simulator's own pattern",
+    )  # fmt: skip
     parser.add_argument("--tag", default="", help="appended to the run folders' names (runs with --set)")
     args = parser.parse_args()
     names = args.variants.split(",")
@@ -119,7 +175,7 @@ def main() -> None:
     jobs = [(name, path, seed, args) for name, path in datasets.items() for seed in seeds]
     with ProcessPoolExecutor(args.jobs) as pool:
         scores = {(n, s): p for n, s, p in pool.map(train, jobs)}
-    base = np.array([scores["realistic", s] for s in seeds])
+    base = [scores["realistic", s] for s in seeds]
     print(
         f"{args.method} on {args.scene} {args.size}×{args.size}, {args.frames} steps, "
         f"{args.iters} iterations, seeds {args.seeds}: test PSNR (dB), and the difference from realistic "
@@ -128,18 +184,34 @@ def main() -> None:
     print("| noise | PSNR (mean ± std) | − realistic | 95 % CI |")
     print("|---|---:|---:|---:|")
     for name in datasets:
-        values = np.array([scores[name, s] for s in seeds])
-        diff = values - base
-        half = (
-            stats.t.ppf(0.975, len(seeds) - 1) * diff.std(ddof=1) / np.sqrt(len(seeds))
-            if len(seeds) > 1
-            else 0
-        )
-        spread = values.std(ddof=1) if len(seeds) > 1 else 0.0
-        print(
-            f"| {name} | {values.mean():.2f} ± {spread:.2f} | {diff.mean():+.2f} | "
-            f"[{diff.mean() - half:+.2f}, {diff.mean() + half:+.2f}] |"
-        )
+        print(row(name, [scores[name, s] for s in seeds], base))
+    if not args.tag:
+        return
+    # the same variants trained without --set, where they are there: the option's paired effect
+    before = {name: untagged(args, name, seeds) for name in datasets}
+    print(f"\nwith {' '.join(args.set) or 'the tag'} − without, paired over seeds (95 % CI)")
+    print("| noise | PSNR (mean ± std) | − without | 95 % CI |")
+    print("|---|---:|---:|---:|")
+    for name, off in before.items():
+        if off is not None:
+            print(row(name, [scores[name, s] for s in seeds], off))
+
+
+def untagged(args: argparse.Namespace, name: str, seeds: list[int]) -> list[float] | None:
+    """The test PSNRs of the variant's runs without ``--tag`` (None unless every seed's is there)."""
+    files = [args.out / f"run-{name}{suffix(args)}-{seed}" / "result.json" for seed in seeds]
+    if not all(f.exists() for f in files):
+        return None
+    return [float(json.loads(f.read_text())["psnr"]) for f in files]
+
+
+def row(name: str, values: list[float], base: list[float]) -> str:
+    """A table row: the mean ± std of ``values`` and their difference from ``base``, paired (95 % CI)."""
+    diff = [v - b for v, b in zip(values, base, strict=True)]
+    interval = t_interval(diff)
+    ci = "" if interval is None else f"[{interval[0]:+.2f}, {interval[1]:+.2f}]"
+    spread = f"{np.std(values, ddof=1):.2f}" if len(values) > 1 else "–"
+    return f"| {name} | {np.mean(values):.2f} ± {spread} | {np.mean(diff):+.2f} | {ci} |"
 
 
 if __name__ == "__main__":

@@ -135,8 +135,9 @@ class IntegralConfig:
             step; ``none`` (the default): the window means alone. prior_decay: the weight falls linearly
             from ``prior_weight`` at the first iteration to 0 at the last (the counts alone finish the run).
         pixel_gain: learn a response factor per sensor pixel (its gain over its threshold; fixed-pattern
-            noise) that multiplies the rendered window means, not the track terms nor eval's renders
-            (``train.sensor_response``; docs/camera.md); off by default. pixel_gain_weight: weight of its L2
+            noise) that scales each render of a window, cut at φ (one spike a step), before the window
+            mean; not the track terms nor eval's renders (``train.sensor_response``; docs/camera.md); off by
+            default. pixel_gain_weight: weight of its L2
             term ``mean(m²)`` on the centred log-responses m. pixel_gain_lr: its Adam rate.
     """
 

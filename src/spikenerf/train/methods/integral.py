@@ -256,15 +256,28 @@ class SpikeIntegral(TrainMethod):
             poses = state.pose_refine(poses, self.step_numbers[steps.reshape(-1)])
         out = state.render_rays(poses, pixels.repeat_interleave(per, dim=0))
         shape = (-1, c.groups, c.samples, self.channels)
-        # the counting pixel's learned response (B, 1, C) (integral.pixel_gain), else 1
-        gain = 1.0 if self.sensor is None else self.sensor.response.factor(pixels.to(state.device))[:, None]
-        means = out.color.view(shape).mean(dim=2) * gain
+        means = self.sensed(out.color.view(shape), pixels.to(state.device), counts.threshold)
         loss = window_mean_loss(means, target, band)
         if out.coarse_color is not None:
-            loss = loss + window_mean_loss(out.coarse_color.view(shape).mean(dim=2) * gain, target, band)
+            loss = loss + window_mean_loss(
+                self.sensed(out.coarse_color.view(shape), pixels.to(state.device), counts.threshold),
+                target,
+                band,
+            )
         with torch.no_grad():
             mse = srgb_mse(means.mean(dim=1), target)
         return Term(loss, mse, poses.shape[0], out.dropped_samples)
+
+    def sensed(self, colors: Tensor, pixels: Tensor, threshold: float) -> Tensor:
+        """Window means (B, G, C) the counting pixels would report for the renders ``colors`` (B, G, S, C)
+        at ``pixels`` (B, 2): their mean over the S samples, unchanged without ``integral.pixel_gain``. With
+        it, each render is scaled by its pixel's learned response and clipped at φ (``threshold``), the
+        most a pixel reports in a step (one spike), before the mean: a pixel of response above 1 that sees
+        white fires every step, and its count says only that its light reached φ."""
+        if self.sensor is None:
+            return colors.mean(dim=2)
+        gain = self.sensor.response.factor(pixels)[:, None, None]  # (B, 1, 1, C)
+        return (colors * gain).clamp(max=threshold).mean(dim=2)
 
     def track_term(self, state: TrainState, pixels: Tensor, steps: Tensor) -> Term:
         """The loss of one render per target, at pixels (B, 2) of steps (B,), against the spike counts along
