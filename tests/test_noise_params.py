@@ -186,3 +186,64 @@ def test_the_ablations_true_response_follows_the_datasets_noise_params(capsys, t
     assert np.array_equal(ablation.true_response(tmp_path / "flat"), np.ones((10, 12), np.float32))
     response = ablation.true_response(tmp_path / "preset")
     assert response.shape == (10, 12) and 0.03 < float(np.log(response).std()) < 0.15  # the preset's 7.4 %
+
+
+def test_the_ablation_keeps_true_pattern_and_set_runs_apart(  # type: ignore[no-untyped-def]
+    capsys, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--set`` without ``--tag`` is refused before anything is simulated (its runs would reuse the untagged
+    runs' results); ``--true-pattern`` trains in folders of its own, not the learned map's under the same
+    tag; an ideal stream's true response is 1; the learned map's match with the truth is measured."""
+    import argparse
+    import sys
+
+    from spikenerf.train.sensor_response import SENSOR_MAP, SensorResponse
+
+    bench = load_benchmark("experiments/bench_noise_ablation")
+    simulate = bench.simulate
+    monkeypatch.setattr(sys, "argv", ["ablation", "--out", str(tmp_path / "x"), "--set", "iters=3"])
+    monkeypatch.setattr(bench, "simulate", lambda *a: pytest.fail("simulated"))
+    with pytest.raises(SystemExit) as exit_:
+        bench.main()
+    assert exit_.value.code == 2 and "--set needs --tag" in capsys.readouterr().err
+    monkeypatch.setattr(SensorResponse, "factor", SensorResponse.factor)  # (--true-pattern replaces it)
+    args = argparse.Namespace(out=tmp_path, scene="analytic-orbs", size=12, frames=30, test_views=1,
+                              method="spike-integral", iters=2, set=["integral.pixel_gain=true"], tag="-x",
+                              threshold=1.0, true_pattern=True)  # fmt: skip
+    realistic = simulate(args, "realistic")
+    learned = tmp_path / "run-realistic-x-0"  # a run that learned the map under the same tag
+    learned.mkdir()
+    (learned / "result.json").write_text('{"psnr": 99.0}')
+    assert bench.train(("realistic", realistic, 0, args))[2] != 99.0
+    assert (tmp_path / "run-realistic-x-true-0" / "result.json").exists()
+    ideal = simulate(args, "ideal")
+    assert np.array_equal(bench.true_response(ideal), np.ones((12, 12), np.float32))
+    np.save(learned / SENSOR_MAP, bench.true_response(realistic))
+    assert bench.map_match(learned, realistic) == pytest.approx((1.0, 1.0))
+    assert bench.map_match(learned, ideal) is None and bench.map_match(tmp_path, realistic) is None
+
+
+@pytest.mark.parametrize("device", ["numpy", "torch"])
+def test_excess_carry_zero_drops_what_a_saturated_pixel_holds_beyond_one_spike_a_step(device: str) -> None:
+    """Light 1.5 φ a step for 10 steps, then 0.2 φ for 20: keeping the excess (1, the default) fires every
+    step long after the light dimmed (5 thresholds stored); dropping it (0) fires at the dim rate at once.
+    With no other noise, carry 1 is the ideal camera bit for bit."""
+    import torch
+
+    from spikenerf.camera.model import CameraConfig, SpikeCamera
+
+    quiet = {"dark_mean": 0, "dark_std": 0, "threshold_std": 0, "capacitance_std": 0, "prnu_std": 0,
+             "jitter_std": 0, "photons_per_white": math.inf, "readout_delay": 0}  # fmt: skip
+    light = [1.5] * 10 + [0.2] * 20
+
+    def stream(noise: str, **params: float) -> np.ndarray:
+        camera = SpikeCamera(2, 3, CameraConfig(1.0, "gray", noise, 0), None if device == "numpy" else "cpu",
+                             noise_with({**quiet, **params}) if noise == "realistic" else None)  # fmt: skip
+        frames = [camera.step(np.full((2, 3), v, np.float32)) for v in light]
+        return np.stack([f.cpu().numpy() if isinstance(f, torch.Tensor) else f for f in frames])
+
+    kept, dropped = stream("realistic"), stream("realistic", excess_carry=0.0)
+    assert np.array_equal(kept, stream("ideal"))
+    assert kept[:10].all() and dropped[:10].all()  # saturated: once a step either way
+    assert kept[10:15].all()  # the stored excess fires on
+    assert dropped[10:].sum(axis=0).max() <= 5 and dropped[10:].sum(axis=0).min() >= 3  # 0.2 × 20 = 4 ± 1

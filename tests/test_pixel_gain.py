@@ -1,6 +1,7 @@
 """spike-integral's learned per-pixel sensor response (``integral.pixel_gain``): a smoke run, the gradient
 reaching the map, the mean-zero prior, the checkpoint round trip and resume, the sensor map file, eval
-without it, the option off changing nothing, and bad values named by their key."""
+without it, the option off changing nothing, bad values named by their key, each render scaled and cut at φ
+(gray and rgb, several estimates a window) and the compiled step learning the map as the eager one."""
 
 from __future__ import annotations
 
@@ -9,10 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from torch._dynamo.utils import counters
 
 import test_train
 from spikenerf.core.errors import InputError
+from spikenerf.train import compiled_step
 from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+from spikenerf.train.compiled_step import CompiledStep
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.run import describe_run
 from spikenerf.train.sensor_response import SENSOR_MAP, SensorLearner, SensorResponse, read_sensor_map
@@ -192,3 +196,52 @@ def test_the_response_scales_each_render_and_clips_it_at_one_spike_a_step(
     assert torch.allclose(on.method.sensed(colors, pixels, 2.0)[0, 0, 0], torch.tensor((1.35 + 0.3) / 2))
     off = Trainer(_config(dataset_dir), tmp_path / "off", dataset, progress=False)
     assert torch.equal(off.method.sensed(colors, pixels, 1.0), colors.mean(dim=2))  # type: ignore[attr-defined]
+
+
+def test_each_channel_and_estimate_is_cut_by_its_own_response_and_the_coarse_renders_too(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """rgb with two estimates a window: each channel scaled by its own factor and cut at φ, every estimate
+    alike; the MLP field's coarse renders go through the same sensing as its fine ones."""
+    cfg = _config(dataset_dir, pixel_gain=True, color="rgb")
+    on = Trainer(cfg, tmp_path / "rgb", dataset, progress=False)
+    factors = torch.tensor([[2.0, 1.0, 0.5], [1.0, 1.0, 1.0]])  # (B, C): two pixels
+    monkeypatch.setattr(_sensor(on).response, "factor", lambda pixels: factors)
+    colors = torch.full((2, 2, 2, 3), 0.6)  # (B, G=2, S=2, C=3)
+    sensed = on.method.sensed(colors, torch.zeros(2, 2, dtype=torch.long), 1.0)  # type: ignore[attr-defined]
+    assert sensed.shape == (2, 2, 3)
+    expect = torch.tensor([[1.0, 0.6, 0.3], [0.6, 0.6, 0.6]])[:, None].expand(2, 2, 3)
+    assert torch.allclose(sensed, expect)
+    cfg = test_train._config(dataset_dir, method="spike-integral", field="mlp")
+    cfg.integral.lengths, cfg.integral.pixel_gain = [5], True
+    mlp = Trainer(cfg, tmp_path / "mlp", dataset, progress=False)
+    calls: list[tuple[int, ...]] = []
+    sense = mlp.method.sensed  # type: ignore[attr-defined]
+    monkeypatch.setattr(mlp.method, "sensed", lambda c, p, t: calls.append(tuple(c.shape)) or sense(c, p, t))
+    mlp.method.integral_term(mlp)  # type: ignore[attr-defined]
+    assert len(calls) == 2 and calls[0] == calls[1]  # the fine and the coarse renders (B, G, S, C)
+
+
+@pytest.mark.usefixtures("fresh_dynamo")
+def test_the_compiled_step_learns_the_map_as_the_eager_step(
+    dataset_dir: Path, dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """``train --compile`` (grid ``static_samples``: ``method.step_losses`` as one graph, traced here by
+    ``aot_eager``) reads the map's parameter inside the graph: the same losses as the eager step, and the map
+    gets its gradient and moves as there."""
+    monkeypatch.setattr(compiled_step, "BACKEND", "aot_eager")
+    runs = {}
+    for compiled in (False, True):
+        cfg = _config(dataset_dir, pixel_gain=True, pixel_gain_lr=0.05)
+        cfg.field_config = {**cfg.field_config, "static_samples": 24}
+        cfg.compile = compiled
+        trainer = Trainer(cfg, tmp_path / str(compiled), dataset, progress=False)
+        runs[compiled] = (trainer, _losses(trainer, 4))
+    trainer, losses = runs[True]
+    step = vars(trainer.method)["step_losses"]
+    assert isinstance(step, CompiledStep) and step.failed is None and counters["stats"]["unique_graphs"] >= 1
+    assert losses == pytest.approx(runs[False][1], rel=1e-4)
+    m, eager = _sensor(trainer).response.log_response, _sensor(runs[False][0]).response.log_response
+    assert m.grad is not None and float(m.grad.abs().sum()) > 0
+    assert float(m.detach().abs().max()) > 0
+    assert torch.allclose(m.detach(), eager.detach(), atol=1e-5)

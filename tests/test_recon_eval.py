@@ -22,13 +22,18 @@ from spikenerf.scenes.trajectory import novel_views, orbit
 STEPS, GT_EVERY, WINDOW = 240, 40, 41
 
 
-@pytest.fixture(scope="module")
-def static(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """analytic-orbs at 24×24 seen by a camera that stands still (an orbit of 0 turns), gray + rgb."""
-    traj = orbit(4.0, 30.0, turns=0.0, duration=STEPS / 40000)
+def _orbs(tmp_path_factory: pytest.TempPathFactory, name: str, turns: float) -> Path:
+    """analytic-orbs at 24×24 on an orbit of ``turns`` turns over STEPS steps, gray + rgb."""
+    traj = orbit(4.0, 30.0, turns=turns, duration=STEPS / 40000)
     source = AnalyticSource("analytic-orbs", 24, 24, traj, novel_views(4.0, 1), supersample=1)
     options = SimulateOptions(colors=("gray", "rgb"), gt_every=GT_EVERY, blur_fps=0.0)
-    return simulate_dataset(source, tmp_path_factory.mktemp("recon-eval") / "static", options, progress=False)
+    return simulate_dataset(source, tmp_path_factory.mktemp("recon-eval") / name, options, progress=False)
+
+
+@pytest.fixture(scope="module")
+def static(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A camera that stands still (an orbit of 0 turns)."""
+    return _orbs(tmp_path_factory, "static", 0.0)
 
 
 def test_scores_every_method_and_step(
@@ -177,11 +182,8 @@ def test_bad_input_exits_2_in_one_line_and_writes_nothing(
 
 @pytest.fixture(scope="module")
 def moving(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """analytic-orbs at 24×24 on one orbit turn, gray + rgb."""
-    traj = orbit(4.0, 30.0, turns=1.0, duration=STEPS / 40000)
-    source = AnalyticSource("analytic-orbs", 24, 24, traj, novel_views(4.0, 1), supersample=1)
-    options = SimulateOptions(colors=("gray", "rgb"), gt_every=GT_EVERY, blur_fps=0.0)
-    return simulate_dataset(source, tmp_path_factory.mktemp("recon-eval") / "moving", options, progress=False)
+    """One orbit turn."""
+    return _orbs(tmp_path_factory, "moving", 1.0)
 
 
 def test_each_step_is_reconstructed_at_its_own_frame(moving: Path) -> None:

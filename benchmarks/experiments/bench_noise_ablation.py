@@ -7,14 +7,20 @@ preset, and the preset with one group of its parameters switched off (``simulate
 - ``no-fixed``: ``threshold_std=0 capacitance_std=0 prnu_std=0`` (no per-pixel threshold or gain pattern);
 - ``no-temporal``: ``jitter_std=0 photons_per_white=inf readout_delay=0`` (no per-step noise);
 - ``dark-only``: everything off but the dark current;
-- ``fixed-only``: everything off but the per-pixel threshold and gain patterns.
+- ``fixed-only``: everything off but the per-pixel threshold and gain patterns;
+- ``drop-excess``: the preset with ``excess_carry=0`` (a saturated pixel drops what it holds beyond one
+  spike a step instead of firing it later).
 
 Then trains the method on each dataset once per training seed (with ``--set KEY=VALUE`` overrides of the
 training config, as ``train --set``; ``--tag`` keeps such runs apart from the others) and prints each
 variant's test PSNR (the trainer's own evaluation on the held-out views) and its difference from
 ``realistic``, paired over the seeds (mean and 95 % t interval); with ``--tag``, also each variant's
-difference from its runs without the tag (trained before, in the same folder). ``--true-pattern`` holds
-``integral.pixel_gain``'s map at the simulator's own per-pixel response instead of learning it.
+difference from its runs without the tag (trained before, in the same folder); ``--set`` needs a
+``--tag`` (its runs would otherwise share those runs' folders and results). ``--true-pattern`` holds
+``integral.pixel_gain``'s map at the simulator's own per-pixel response instead of learning it (1 on an
+ideal stream), in folders of their own (``-true`` after the tag). Runs that learned the map print its match
+with the simulator's pattern: the correlation of the centred log-maps and the regression slope (1: the full
+amplitude).
 
 Run (one thread per training; about a minute per training at 64×64 on the development CPU)::
 
@@ -53,6 +59,7 @@ VARIANTS: dict[str, dict | None] = {
         "photons_per_white": math.inf,
         "readout_delay": 0,
     },
+    "drop-excess": {"excess_carry": 0},
 }
 
 
@@ -79,10 +86,17 @@ def simulate(args: argparse.Namespace, name: str) -> Path:
     return out
 
 
+def run_folder(args: argparse.Namespace, name: str, seed: int) -> Path:
+    """The folder of one training: ``run-<variant>[-phi<φ>]<tag>[-true]-<seed>`` (``-true``: with
+    ``--true-pattern``, apart from the runs that learn the map under the same tag)."""
+    true = "-true" if args.true_pattern else ""
+    return args.out / f"run-{name}{suffix(args)}{args.tag}{true}-{seed}"
+
+
 def train(job: tuple[str, Path, int, argparse.Namespace]) -> tuple[str, int, float]:
-    """(variant, seed, test PSNR) of one training (kept in ``run-<variant>-<seed>/result.json``)."""
+    """(variant, seed, test PSNR) of one training (kept in its :func:`run_folder`'s ``result.json``)."""
     name, dataset, seed, args = job
-    run = args.out / f"run-{name}{suffix(args)}{args.tag}-{seed}"
+    run = run_folder(args, name, seed)
     done = run / "result.json"
     if done.exists():
         return name, seed, float(json.loads(done.read_text())["psnr"])
@@ -111,17 +125,18 @@ def train(job: tuple[str, Path, int, argparse.Namespace]) -> tuple[str, int, flo
 
 def true_response(dataset: Path) -> np.ndarray:
     """The dataset's per-pixel response ``g_p φ / φ_p``, float32 (H, W): its realistic camera's fixed
-    patterns drawn again from its seed and ``noise_params``, as ``SpikeCamera`` draws them (gray)."""
+    patterns drawn again from its seed and ``noise_params``, as ``SpikeCamera`` draws them (gray); 1 on an
+    ideal stream (every pixel nominal)."""
     import yaml
 
     from spikenerf.camera.noise import noise_with
 
     config = yaml.safe_load((dataset / "config.yaml").read_text())
+    shape = (int(config["spike_h"]), int(config["spike_w"]))
     if config.get("noise") != "realistic":
-        raise SystemExit(f"--true-pattern: {dataset} is not a realistic stream")
+        return np.ones(shape, np.float32)
     _, pattern_seed, _ = np.random.SeedSequence(config["seed"]).spawn(3)
     phi = float(config["threshold"])
-    shape = (int(config["spike_h"]), int(config["spike_w"]))
     patterns = noise_with(config.get("noise_params")).draw_patterns(shape, phi, pattern_seed)
     return (patterns.gain * phi / patterns.threshold).astype(np.float32)
 
@@ -140,6 +155,23 @@ def hold_true_pattern(dataset: Path) -> None:
         return truth[:, flat.cpu()].transpose(0, 1).to(pixels.device)
 
     SensorResponse.factor = factor  # type: ignore[method-assign]
+
+
+def map_match(run: Path, dataset: Path) -> tuple[float, float] | None:
+    """(correlation, slope) of a run's learned map (``sensor_map.npy``) against the dataset's true response
+    (:func:`true_response`), both as centred logs (H, W); slope 1: the full amplitude. None where the run
+    has no map or the stream no pattern (an ideal stream, or one without the threshold and gain patterns)."""
+    from spikenerf.train.sensor_response import SENSOR_MAP, read_sensor_map
+
+    if not (run / SENSOR_MAP).exists():
+        return None
+    truth = np.log(true_response(dataset).astype(np.float64))
+    if float(truth.std()) == 0.0:
+        return None
+    learned = np.log(read_sensor_map(run / SENSOR_MAP).astype(np.float64))
+    learned, truth = learned - learned.mean(), truth - truth.mean()
+    r = float(np.corrcoef(learned.ravel(), truth.ravel())[0, 1])
+    return r, float((learned * truth).sum() / (truth * truth).sum())
 
 
 def main() -> None:
@@ -168,6 +200,8 @@ def main() -> None:
     names = args.variants.split(",")
     if unknown := [n for n in names if n not in VARIANTS]:
         parser.error(f"--variants: unknown {unknown}; known: {list(VARIANTS)}")
+    if args.set and not args.tag:
+        parser.error("--set needs --tag: its runs would share the folders and results of the runs without it")
     seeds = [int(s) for s in args.seeds.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -185,6 +219,14 @@ def main() -> None:
     print("|---|---:|---:|---:|")
     for name in datasets:
         print(row(name, [scores[name, s] for s in seeds], base))
+    # (a held true pattern leaves the learned map at 1: nothing to match)
+    runs = [] if args.true_pattern else [(n, s, path) for n, path in datasets.items() for s in seeds]
+    matches = {(n, s): map_match(run_folder(args, n, s), path) for n, s, path in runs}
+    if any(m is not None for m in matches.values()):
+        print("\nthe learned map against the true pattern (centred log-maps): correlation r, slope")
+        for (name, seed), match in matches.items():
+            if match is not None:
+                print(f"{name} seed {seed}: r = {match[0]:.2f}, slope {match[1]:.2f}")
     if not args.tag:
         return
     # the same variants trained without --set, where they are there: the option's paired effect
@@ -199,7 +241,8 @@ def main() -> None:
 
 def untagged(args: argparse.Namespace, name: str, seeds: list[int]) -> list[float] | None:
     """The test PSNRs of the variant's runs without ``--tag`` (None unless every seed's is there)."""
-    files = [args.out / f"run-{name}{suffix(args)}-{seed}" / "result.json" for seed in seeds]
+    plain = argparse.Namespace(**{**vars(args), "tag": "", "true_pattern": False})
+    files = [run_folder(plain, name, seed) / "result.json" for seed in seeds]
     if not all(f.exists() for f in files):
         return None
     return [float(json.loads(f.read_text())["psnr"]) for f in files]

@@ -255,8 +255,10 @@ class SpikeCamera:
             fire_(self._acc, x, self._threshold, spikes, self._scratch)
             return
         charge = self._noise.charge(x)
-        fire_(self._acc, charge, self._noise.thresholds(), spikes, self._scratch)
+        threshold = self._noise.thresholds()
+        fire_(self._acc, charge, threshold, spikes, self._scratch)
         self._noise.after_spikes(spikes)
+        self._noise.drop_excess(self._acc, threshold)
 
     def _prepare(self, intensity: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """Validate one step's input; convert it to a float32 backend array of the accumulator's shape."""

@@ -56,6 +56,8 @@ NOISE_RANGES: dict[str, tuple[float, float, str]] = {
     "photons_per_white": (1.0, math.inf, " electrons per white step"),
     # steps of dead time after a spike (0.25 s at 40 kHz; float32 counts them down exactly)
     "readout_delay": (0.0, 1e4, " steps"),
+    # the fraction of a saturated pixel's whole thresholds left in its accumulator after it fired
+    "excess_carry": (0.0, 1.0, " (fraction kept)"),
 }
 
 
@@ -74,6 +76,10 @@ class RealisticNoise:
             (our choice, following the SCSim code's 5·10⁴); ``math.inf`` disables shot noise.
         readout_delay: integration time lost after each spike, in steps (our choice: SCSim's 100 ns reset
             at 25 µs per step = 0.004); values ≥ 1 give whole refractory steps.
+        excess_carry: what a pixel that still holds a whole threshold or more after firing (it saw more
+            than φ in a step) keeps of those whole thresholds: 1 (the default, as the ideal model) keeps
+            them, to fire in later steps; 0 drops them, as a pixel that resets at each crossing and reports
+            one spike a step does (the paper's "mod φ"); the remainder below φ is always kept.
     """
 
     dark_mean: float = SCSIM_DARK_CURRENT[0] / SCSIM_WHITE_CURRENT
@@ -84,6 +90,7 @@ class RealisticNoise:
     jitter_std: float = SCSIM_JITTER_V / SCSIM_NOMINAL_V
     photons_per_white: float = 5.0e4
     readout_delay: float = 100e-9 * 40_000
+    excess_carry: float = 1.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -269,6 +276,22 @@ class NoiseProcess:
             thr = self._thr
             thr += self._block
         return thr
+
+    def drop_excess(self, accumulator: Array, threshold: Array | float) -> None:
+        """After firing with ``threshold`` (this step's φ_k, as :meth:`thresholds` gave it): keep only
+        ``excess_carry`` of the whole thresholds still in ``accumulator`` (float32, updated in place;
+        ``A ← A − (1 − c)·φ_k·⌊A / φ_k⌋``). Nothing to do at the default ``excess_carry`` 1."""
+        drop = 1.0 - self.params.excess_carry
+        if drop <= 0.0:
+            return
+        tmp = self._tmp
+        if isinstance(tmp, torch.Tensor):
+            torch.div(accumulator, threshold, out=tmp).floor_()
+        else:
+            np.floor(np.divide(accumulator, threshold, out=tmp), out=tmp)
+        tmp *= threshold
+        tmp *= drop
+        accumulator -= tmp
 
     def after_spikes(self, spikes: Array) -> None:
         """Start the readout delay of the pixels that fired (bool, the accumulator's shape)."""

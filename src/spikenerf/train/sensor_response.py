@@ -1,18 +1,18 @@
 """spike-integral's learned per-pixel sensor response (``integral.pixel_gain``, docs/camera.md).
 
-A real spike camera's pixel ``p`` has its own gain ``g_p`` (PRNU) and threshold ``φ_p``: its window count
-mean ``φ N / L`` reads ``(g_p φ / φ_p)`` times the light. :class:`SensorResponse` learns ``m_p =
-log(g_p φ / φ_p)`` for every sensor pixel (one per channel in colour) jointly with the scene: the rendered
-intensity is multiplied by ``exp(m_p)`` at the pixel the target was counted in. The camera moves, so each
-scene point is seen through many pixels and the pixel-to-pixel pattern is identifiable. Its mean is not (it
-trades with the scene's brightness), nor, on an orbit that keeps the object in the middle of the image, its
-smooth part (a pixel sees much the same part of the scene from every view, and a smooth map took up the
-scene's own shading: measured in docs/camera.md). So the map is used high-passed and centred: ``m`` minus
-its local mean over :data:`HIGHPASS` × :data:`HIGHPASS` pixels, then minus its mean (the prior that keeps
-its mean at 0); a fixed pattern drawn independently per pixel is nearly all in that part. A small L2 term
-``integral.pixel_gain_weight · mean(m²)`` keeps pixels seldom drawn near 1. The map has its own Adam
-(:class:`SensorLearner`), is checkpointed and written to ``RUN/sensor_map.npy``. Evaluation renders never
-use it: the test views are the scene's radiance.
+A real spike camera's pixel ``p`` has its own gain ``g_p`` (PRNU) and threshold ``φ_p``: its window count mean
+``φ N / L`` reads ``(g_p φ / φ_p)`` times the light. :class:`SensorResponse` learns ``m_p = log(g_p φ / φ_p)``
+for every sensor pixel (one per channel in colour) jointly with the scene: each rendered intensity is
+multiplied by ``exp(m_p)`` at the pixel the target was counted in and cut at φ (one spike a step;
+``SpikeIntegral.sensed``). The camera moves, so each scene point is seen through many pixels and the
+pixel-to-pixel pattern is identifiable. Its mean is not (it trades with the scene's brightness), nor, on an
+orbit that keeps the object in the middle of the image, its smooth part (a pixel sees much the same part of
+the scene from every view, and a smooth map took up the scene's own shading: measured in docs/camera.md). So
+the map is used high-passed and centred: ``m`` minus its local mean over :data:`HIGHPASS` × :data:`HIGHPASS`
+pixels, then minus its mean (the prior that keeps its mean at 0); a fixed pattern drawn independently per
+pixel is nearly all in that part. A small L2 term ``integral.pixel_gain_weight · mean(m²)`` keeps pixels
+seldom drawn near 1. The map has its own Adam (:class:`SensorLearner`), is checkpointed and written to
+``RUN/sensor_map.npy``. Evaluation renders never use it: the test views are the scene's radiance.
 """
 
 from __future__ import annotations

@@ -273,7 +273,9 @@ class SpikeIntegral(TrainMethod):
         at ``pixels`` (B, 2): their mean over the S samples, unchanged without ``integral.pixel_gain``. With
         it, each render is scaled by its pixel's learned response and clipped at φ (``threshold``), the
         most a pixel reports in a step (one spike), before the mean: a pixel of response above 1 that sees
-        white fires every step, and its count says only that its light reached φ."""
+        white fires every step, and its count says only that its light reached φ. The camera keeps the
+        charge over φ in the pixel's accumulator, which fires it once the light drops (brighter counts
+        after a saturated stretch); the cut does not model that, nor does it apply to the track terms."""
         if self.sensor is None:
             return colors.mean(dim=2)
         gain = self.sensor.response.factor(pixels)[:, None, None]  # (B, 1, 1, C)
