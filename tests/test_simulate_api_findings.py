@@ -149,7 +149,7 @@ def test_noise_parameters_beyond_their_range_are_refused(name: str, value: float
 
 
 def test_noise_at_the_ends_of_its_ranges_keeps_the_camera_finite() -> None:
-    from spikenerf.camera.noise import NOISE_RANGES
+    from spikenerf.camera.modes import NOISE_RANGES
 
     ends = {name: high if math.isfinite(high) else low for name, (low, high, _) in NOISE_RANGES.items()}
     frames = np.full((80, 4, 4), 0.5, np.float32)

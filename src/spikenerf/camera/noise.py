@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from spikenerf.camera.modes import NOISE_RANGES
 from spikenerf.core.errors import InputError, is_number
 
 Array = np.ndarray | torch.Tensor
@@ -38,27 +39,6 @@ SCSIM_NOMINAL_V = SCSIM_SWING_V + SCSIM_OFFSET_V[0]
 
 #: Thresholds are clipped to at least this fraction of φ (guards against extreme parameters).
 MIN_RELATIVE_THRESHOLD = 0.05
-
-
-#: Each noise parameter's range (low, high, unit): ample room around the defaults (docs/camera.md), kept where
-#: the float32 patterns and buffers stay finite (a relative std of 1e40 overflows them, a dead time of 1e300
-#: steps turns into NaN).
-NOISE_RANGES: dict[str, tuple[float, float, str]] = {
-    # intensity units per step: from 1 (white) on, every pixel fires every step
-    "dark_mean": (0.0, 100.0, " intensity units per step (1.0 = white)"),
-    "dark_std": (0.0, 100.0, " intensity units per step (1.0 = white)"),
-    # relative stds, the defaults below 0.06: 10 is a spread of 1000 %
-    "threshold_std": (0.0, 10.0, " (relative std)"),
-    "capacitance_std": (0.0, 10.0, " (relative std)"),
-    "prnu_std": (0.0, 10.0, " (relative std)"),
-    "jitter_std": (0.0, 10.0, " (relative std)"),
-    # electrons a white pixel collects in a step: below one the shot noise's Gaussian approximation fails
-    "photons_per_white": (1.0, math.inf, " electrons per white step"),
-    # steps of dead time after a spike (0.25 s at 40 kHz; float32 counts them down exactly)
-    "readout_delay": (0.0, 1e4, " steps"),
-    # the fraction of a saturated pixel's whole thresholds left in its accumulator after it fired
-    "excess_carry": (0.0, 1.0, " (fraction kept)"),
-}
 
 
 @dataclass(frozen=True)

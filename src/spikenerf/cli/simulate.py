@@ -9,8 +9,7 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
-from spikenerf.camera.modes import COLORS, NOISES
-from spikenerf.camera.noise import NOISE_RANGES
+from spikenerf.camera.modes import COLORS, NOISE_RANGES, NOISES
 from spikenerf.cli import command_line
 from spikenerf.cli.types import COUNT, SEED, BoundedInt, OutPath
 from spikenerf.core.errors import InputError
