@@ -128,7 +128,9 @@ def test_zero_terms_are_the_pinhole_bit_for_bit() -> None:
         look_at(np.array([0.0, -3.0, 1.0]), np.zeros(3)),
         np.random.default_rng(0).uniform(-1, 1, (50, 3)),
     )
-    rel = (pts - c2w[:3, 3]) @ c2w[:3, :3]
+    # camera coordinates by the same batched product as project_points: a plain (N, 3) @ (3, 3) may take
+    # another BLAS kernel, whose fused multiply-adds round differently on some CPUs
+    rel = ((pts - c2w[:3, 3])[:, None, :] @ c2w[:3, :3])[:, 0, :]
     u, v, _ = project_points(c2w, pts, pinhole)
     assert np.array_equal(u, pinhole.fl_x * rel[:, 0] / -rel[:, 2] + pinhole.cx)
     assert np.array_equal(v, -pinhole.fl_y * rel[:, 1] / -rel[:, 2] + pinhole.cy)
