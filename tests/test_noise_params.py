@@ -5,7 +5,6 @@ replaced (camera/noise.py ``noise_with``), used by the camera, recorded in ``con
 from __future__ import annotations
 
 import math
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -134,29 +133,53 @@ def test_the_pixel_gain_benchmark_draws_the_datasets_own_patterns(tmp_path: Path
     assert bench.true_log_response(tmp_path, (6, 5)).std() > 0.01  # the preset's
 
 
-def test_benchmark_refuses_a_dataset_with_replaced_noise_parameters(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """``benchmark --noise realistic`` simulates the preset and has no --noise-param: a dataset simulated
-    by hand into OUT/datasets with replaced parameters was taken (and its scores reported) as the preset's;
-    it is refused in one line naming --noise, before any training."""
+def test_benchmark_simulates_its_noise_params_and_refuses_a_dataset_with_others(
+    capsys, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
+    """``benchmark --noise-param`` passes the replaced parameters to its datasets' ``simulate``; a dataset in
+    OUT/datasets simulated with other ones (or with some where the benchmark asks for none) is refused in
+    one line naming --noise-param, before any training; its tables name them."""
     from spikenerf.pipelines.benchmark import BenchmarkConfig
     from spikenerf.pipelines.benchmark.cells import dataset_command
+    from spikenerf.pipelines.benchmark.results import noise_note
     from spikenerf.pipelines.benchmark.run import dataset_mismatch
 
     cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path / "b", size=12, frames=30,
-                          iters=2, device="cpu", test_views=1, render=False, noise="realistic")  # fmt: skip
+                          iters=2, device="cpu", test_views=1, render=False, noise="realistic",
+                          noise_params={"excess_carry": 0.0})  # fmt: skip
     simulate = dataset_command(cfg, "analytic-orbs")[3:]  # (after `python -m spikenerf`)
+    assert simulate[simulate.index("--noise-param") :][:2] == ["--noise-param", "excess_carry=0.0"]
     assert run_cli(capsys, *simulate, "--no-progress")[0] == 0
-    assert dataset_mismatch(cfg, "analytic-orbs") is None  # the preset: the benchmark's own
-    shutil.rmtree(cfg.out / "datasets")
-    assert run_cli(capsys, *simulate, "--no-progress", "--noise-param", "dark_mean=0.2")[0] == 0
-    problem = dataset_mismatch(cfg, "analytic-orbs")
-    assert problem is not None and "replaced noise parameters (dark_mean=0.2)" in problem.message
+    assert dataset_mismatch(cfg, "analytic-orbs") is None  # simulated as the benchmark asks
+    config = yaml.safe_load((cfg.out / "datasets" / "analytic-orbs" / "config.yaml").read_text())
+    assert config["noise_params"] == {"excess_carry": 0.0}
+    preset = BenchmarkConfig(**{**vars(cfg), "noise_params": {}})
+    problem = dataset_mismatch(preset, "analytic-orbs")
+    assert problem is not None and "excess_carry=0.0, but the benchmark asks for none" in problem.message
     args = ["benchmark", "--scenes", "analytic-orbs", "--methods", "nerf-gt", "--color", "gray", "--size", 12,
             "--frames", 30, "--iters", 2, "--test-views", 1, "--no-render", "--device", "cpu", "--noise",
             "realistic", "--out", cfg.out]  # fmt: skip
-    code, _, err = run_cli(capsys, *args)
-    assert code == 2 and len(err.strip().splitlines()) == 1 and "--noise:" in err and "replaces none" in err
-    assert not (cfg.out / "runs").exists()
+    code, _, err = run_cli(capsys, *args, "--noise-param", "dark_mean=0.2")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--noise-param:" in err, err
+    assert "dark_mean=0.2" in err and not (cfg.out / "runs").exists()
+    assert "the preset's excess_carry=0" in noise_note("realistic", {"excess_carry": 0.0})
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--noise-param", "dark_mean=0"], "--noise is 'ideal'"),
+        (["--noise", "realistic", "--noise-param", "dark_mea=0"], "--noise-param: unknown noise parameter"),
+        (["--noise", "realistic", "--noise-param", "excess_carry=2"], "--noise-param excess_carry must lie"),
+    ],
+)
+def test_benchmark_refuses_bad_noise_params_before_anything(
+    capsys, tmp_path: Path, args: list, words: str
+) -> None:  # type: ignore[no-untyped-def]
+    code, _, err = run_cli(capsys, "benchmark", "--scenes", "analytic-orbs", "--methods", "nerf-gt", "--size",
+                           12, "--frames", 30, "--no-render", *args, "--out", tmp_path / "b")  # fmt: skip
+    assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+    assert not (tmp_path / "b").exists()
 
 
 def test_the_ablation_resumes_a_training_stopped_before_its_result(tmp_path: Path) -> None:
@@ -247,3 +270,26 @@ def test_excess_carry_zero_drops_what_a_saturated_pixel_holds_beyond_one_spike_a
     assert kept[:10].all() and dropped[:10].all()  # saturated: once a step either way
     assert kept[10:15].all()  # the stored excess fires on
     assert dropped[10:].sum(axis=0).max() <= 5 and dropped[10:].sum(axis=0).min() >= 3  # 0.2 × 20 = 4 ± 1
+
+
+def test_a_benchmark_folder_resumes_only_with_its_noise_params(tmp_path: Path) -> None:
+    """``benchmark.json`` records ``noise_params``: a resume that asks for other ones is refused naming the
+    setting; a folder recorded before the setting existed reads as none replaced."""
+    import json
+
+    from spikenerf.pipelines.benchmark import BenchmarkConfig
+    from spikenerf.pipelines.benchmark.settings import NAME, check_settings, write_settings
+
+    cfg = BenchmarkConfig(["analytic-orbs"], ["nerf-gt"], ["gray"], tmp_path, size=12, frames=30, iters=2,
+                          noise="realistic", noise_params={"excess_carry": 0.0})  # fmt: skip
+    write_settings(cfg, None)
+    check_settings(cfg)
+    other = BenchmarkConfig(**{**vars(cfg), "noise_params": {}})
+    with pytest.raises(InputError, match="noise_params"):
+        check_settings(other)
+    stored = json.loads((tmp_path / NAME).read_text())
+    del stored["settings"]["noise_params"]  # as written before the setting
+    (tmp_path / NAME).write_text(json.dumps(stored))
+    check_settings(other)
+    with pytest.raises(InputError, match="noise_params"):
+        check_settings(cfg)

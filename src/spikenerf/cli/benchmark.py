@@ -7,7 +7,8 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from spikenerf.camera.modes import NOISES
+from spikenerf.camera.modes import NOISE_RANGES, NOISES
+from spikenerf.cli.options import noise_param_option, parse_noise_params
 from spikenerf.cli.types import SEED, OutPath, device_option
 from spikenerf.core.errors import InputError, comma_list
 from spikenerf.data.choices import COLORS
@@ -16,7 +17,7 @@ from spikenerf.pipelines.benchmark.executor import EXECUTORS
 from spikenerf.pipelines.benchmark.variants import VARIANTS
 
 #: lower-layer parameters named unlike their flag (see ``spikenerf.cli.flag_of``)
-PARAM_FLAGS = {"field_kind": "--field"}
+PARAM_FLAGS = {"field_kind": "--field", **{name: f"--noise-param {name}" for name in NOISE_RANGES}}
 #: TrainConfig keys that each cell gets from the benchmark's own flags (a --set of one would train another
 #: cell than its tables label), with those flags
 BENCHMARK_KEYS = {
@@ -57,9 +58,9 @@ BENCHMARK_KEYS = {
 @click.option(
     "--noise", type=click.Choice(NOISES), default="ideal", show_default=True,
     help="The simulated spike camera's noise (simulate --noise): 'realistic' adds shot noise, dark current "
-    "and per-pixel gain and threshold mismatch, the preset's parameters (no --noise-param here; "
-    "docs/camera.md).",
+    "and per-pixel gain and threshold mismatch (docs/camera.md).",
 )  # fmt: skip
+@noise_param_option
 @click.option(
     "--set", "overrides", multiple=True, metavar="KEY=VALUE",
     help="Override a TrainConfig field in every cell's training, as `train --set` (e.g. --set batch=4096 "
@@ -104,8 +105,8 @@ BENCHMARK_KEYS = {
 def command(
     scenes: str, methods: str, color: str, out: Path, size: int, frames: int, iters: int | None,
     field: str, device: str, seed: int, seeds: str | None, blur_views: str, test_views: int, noise: str,
-    overrides: tuple[str, ...], no_render: bool, jobs: int, keep_going: bool, executor: str,
-    address: str | None, retries: int, ray_cpus: float, ray_ship_results: bool,
+    noise_params: tuple[str, ...], overrides: tuple[str, ...], no_render: bool, jobs: int, keep_going: bool,
+    executor: str, address: str | None, retries: int, ray_cpus: float, ray_ship_results: bool,
 ) -> None:  # fmt: skip
     from spikenerf.capture.blur import check_blur_views
     from spikenerf.pipelines.benchmark.cells import (
@@ -121,6 +122,15 @@ def command(
         color, COLORS, lambda _: f"--color: expected gray, rgb or gray,rgb, got {color!r}", "color"
     )
     check_size(size)
+    replaced = parse_noise_params(noise_params)
+    if replaced and noise != "realistic":
+        raise InputError(
+            f"--noise-param: replaces the realistic noise's parameters, and --noise is {noise!r}"
+        )
+    if replaced:
+        from spikenerf.camera.noise import noise_with
+
+        noise_with(replaced, "noise_params")  # names and ranges, before any simulation
     if frames < 2:
         raise InputError(f"--frames must be ≥ 2, found {frames}")
     views = str(check_blur_views(blur_views, frames))
@@ -192,7 +202,7 @@ def command(
         test_views=test_views, render=not no_render, jobs=jobs, executor=executor, address=address,
         retries=retries, ship_results=ray_ship_results, ray_cpus=ray_cpus, keep_going=keep_going,
         seeds=None if seeds is None else parse_seeds(seeds), blur_views=views, noise=noise,
-        extra_train_args=[arg for item in overrides for arg in ("--set", item)],
+        noise_params=replaced, extra_train_args=[arg for item in overrides for arg in ("--set", item)],
     )  # fmt: skip
     benchmark_with_report(cfg)
     names = ("table1.md", "table2.md", "differences.md", "results.csv", "results.json", "report.html")

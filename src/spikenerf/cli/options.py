@@ -52,3 +52,29 @@ def check_run_folder(run: Path) -> None:
     """InputError unless ``run`` is a folder (what is in it is checked as the run loads)."""
     if not run.is_dir():
         raise InputError("run folder not found (expected a folder written by `spikenerf train`)", path=run)
+
+
+#: ``--noise-param NAME=VALUE`` (simulate, benchmark): realistic noise parameters that replace the preset's
+noise_param_option = click.option(
+    "--noise-param", "noise_params", multiple=True, metavar="NAME=VALUE",
+    help="With --noise realistic: replace one of the preset's parameters (repeatable), e.g. "
+    "dark_mean=0 or excess_carry=0; names and ranges in docs/camera.md.",
+)  # fmt: skip
+
+
+def parse_noise_params(items: tuple[str, ...]) -> dict[str, float]:
+    """``("NAME=VALUE", ...)`` → ``{NAME: float(VALUE)}`` (``inf`` allowed); a malformed item is an
+    InputError naming ``--noise-param`` (names and ranges are checked with the options)."""
+    out: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise InputError(f"--noise-param expects NAME=VALUE, found {item!r}")
+        if name in out:
+            raise InputError(f"--noise-param {name} is given twice")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise InputError(f"--noise-param {name}: expected a number, found {value!r}") from None
+    return out

@@ -11,6 +11,7 @@ from click.core import ParameterSource
 
 from spikenerf.camera.modes import COLORS, NOISE_RANGES, NOISES
 from spikenerf.cli import command_line
+from spikenerf.cli.options import noise_param_option, parse_noise_params
 from spikenerf.cli.types import COUNT, SEED, BoundedInt, OutPath
 from spikenerf.core.errors import InputError
 
@@ -78,11 +79,7 @@ def _orbit_steps(frames: int | None, duration: float | None, fps: float) -> int:
 @click.option("--color", type=click.Choice([*CAMERA_COLORS, "all"]), default="gray", show_default=True)
 @click.option("--threshold", type=float, default=1.0, show_default=True, help="Spike threshold φ.")
 @click.option("--noise", type=click.Choice(NOISES), default="ideal", show_default=True)
-@click.option(
-    "--noise-param", "noise_params", multiple=True, metavar="NAME=VALUE",
-    help="With --noise realistic: replace one of the preset's parameters (repeatable), e.g. "
-    "dark_mean=0 or photons_per_white=inf; names and ranges in docs/camera.md.",
-)  # fmt: skip
+@noise_param_option
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Camera (and render) seed.")
 @click.option(
     "--warmup",
@@ -181,7 +178,7 @@ def command(**kw: Any) -> None:
         colors=_colors(str(kw["color"])),
         threshold=float(kw["threshold"]),
         noise=str(kw["noise"]),
-        noise_params=_noise_params(kw["noise_params"]),
+        noise_params=parse_noise_params(kw["noise_params"]),
         seed=int(kw["seed"]),
         warmup=int(kw["warmup"]),
         gt_every=int(kw["gt_every"]),
@@ -376,21 +373,3 @@ def _warn_stretch(native: tuple[int, int], width: int | None, height: int | None
             f"{w0 / h0:.3g} → {width / height:.3g}); give only one of them to keep the aspect ratio",
             err=True,
         )
-
-
-def _noise_params(items: tuple[str, ...]) -> dict[str, float]:
-    """``("NAME=VALUE", ...)`` → ``{NAME: float(VALUE)}`` (``inf`` allowed); a malformed item is an
-    InputError naming ``--noise-param`` (names and ranges are checked with the options)."""
-    out: dict[str, float] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        name = name.strip()
-        if not sep or not name:
-            raise InputError(f"--noise-param expects NAME=VALUE, found {item!r}")
-        if name in out:
-            raise InputError(f"--noise-param {name} is given twice")
-        try:
-            out[name] = float(value)
-        except ValueError:
-            raise InputError(f"--noise-param {name}: expected a number, found {value!r}") from None
-    return out

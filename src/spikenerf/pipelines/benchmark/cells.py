@@ -47,7 +47,8 @@ class BenchmarkConfig:
     ``OMP_NUM_THREADS`` is set, ``cpu_count // jobs`` CPU threads. ``seed`` seeds the simulated datasets;
     ``seeds`` are the training seeds, each cell trained once per seed (None = ``[seed]``). ``blur_views`` is
     ``simulate --blur-views`` (``all`` = the paper's blur baseline: one exposure centred on every step);
-    ``noise`` its ``--noise`` (``ideal`` or ``realistic``: the spike camera's noise model, camera.md).
+    ``noise`` its ``--noise`` (``ideal`` or ``realistic``: the spike camera's noise model, camera.md) and
+    ``noise_params`` its ``--noise-param``s (realistic parameters that replace the preset's; empty: none).
     ``executor`` names an entry of :data:`~spikenerf.pipelines.benchmark.executor.EXECUTORS`: ``"ray"`` runs
     the steps as Ray tasks instead (:mod:`spikenerf.pipelines.benchmark.ray_executor`, which uses the
     ``address`` … ``ray_cpus`` fields). ``keep_going``: the local executor runs every job even when one
@@ -71,6 +72,7 @@ class BenchmarkConfig:
     seeds: list[int] | None = None
     blur_views: str = "all"
     noise: str = "ideal"
+    noise_params: dict = field(default_factory=dict)
     executor: str = "local"
     address: str | None = None
     retries: int = 2
@@ -165,6 +167,7 @@ def dataset_command(cfg: BenchmarkConfig, scene: str) -> list[str]:
         "simulate", "--scene", scene, "--width", str(cfg.size), "--height", str(cfg.size),
         "--frames", str(cfg.frames), "--color", color, "--seed", str(cfg.seed),
         "--test-views", str(cfg.test_views), "--blur-views", cfg.blur_views, "--noise", cfg.noise,
+        *[arg for key, value in cfg.noise_params.items() for arg in ("--noise-param", f"{key}={value!r}")],
         "--jobs", str(jobs),
         "--out", str(cfg.out / "datasets" / scene),
     )  # fmt: skip

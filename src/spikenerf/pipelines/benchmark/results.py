@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from spikenerf.camera.modes import NOISES
+from spikenerf.camera.modes import NOISE_RANGES, NOISES
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError, is_finite
 from spikenerf.data.choices import COLORS
@@ -95,7 +95,7 @@ def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict])
     t1 = "\n\n".join(table1_markdown(cells, t1_variants, cfg.scenes, c, views) for c in cfg.colors)
     note = (
         f"{seed_note(seeds)} Test views: {cfg.test_views} per scene; 'trained on' counted from the datasets. "
-        f"{noise_note(cfg.noise)}"
+        f"{noise_note(cfg.noise, cfg.noise_params)}"
     )
     write_text_atomic(cfg.out / "table1.md", f"# Table I: comparison (test views)\n\n{note}\n\n{t1}\n")
     if any(v in ABLATION_VARIANTS for v in cfg.variants):
@@ -129,13 +129,14 @@ def write_all(cfg: plan.BenchmarkConfig, cells: Sequence[Cell], log: list[dict])
     write_text_atomic(cfg.out / RESULTS, json.dumps(results, indent=2) + "\n")
 
 
-def noise_note(noise: str) -> str:
-    """What spike camera the datasets were simulated with (``simulate --noise``)."""
+def noise_note(noise: str, params: dict | None = None) -> str:
+    """What spike camera the datasets were simulated with (``simulate --noise``, ``--noise-param``)."""
     if noise == "ideal":
         return "Spike streams: noise-free simulated camera (ideal)."
+    replaced = ", ".join(f"{key}={value:g}" for key, value in (params or {}).items())
     return (
         f"Spike streams: simulated camera with {noise} noise (shot noise, dark current, per-pixel gain and "
-        "threshold mismatch; docs/camera.md)."
+        "threshold mismatch; docs/camera.md)" + (f", the preset's {replaced}." if replaced else ".")
     )
 
 
@@ -255,6 +256,9 @@ CONFIG_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "device": ("a string", lambda x: isinstance(x, str)),
     "blur_views": ("a string", lambda x: isinstance(x, str)),
     "noise": (f"one of {', '.join(NOISES)}", lambda x: isinstance(x, str) and x in NOISES),
+    "noise_params": ("a mapping of realistic noise parameter names to numbers",
+                     lambda x: isinstance(x, dict) and all(k in NOISE_RANGES and (_number(v) or v == math.inf)
+                                                           for k, v in x.items())),
     "executor": (f"one of {', '.join(EXECUTORS)}", lambda x: isinstance(x, str) and x in EXECUTORS),
     "address": ("null or a string", lambda x: x is None or isinstance(x, str)),
     "extra_train_args": ("a list of strings",

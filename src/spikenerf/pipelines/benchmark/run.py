@@ -148,14 +148,17 @@ def dataset_mismatch(cfg: BenchmarkConfig, scene: str) -> InputError | None:
                 path=root,
                 param=param,
             )
-    if have["noise_params"]:  # (simulate --noise-param: benchmark has no such option)
-        replaced = ", ".join(f"{key}={value}" for key, value in have["noise_params"].items())
+    if (have["noise_params"] or {}) != cfg.noise_params:  # (simulate / benchmark --noise-param)
+
+        def said(params: dict | None) -> str:
+            return ", ".join(f"{key}={value}" for key, value in (params or {}).items()) or "none"
+
         return InputError(
-            f"noise: the dataset was simulated with replaced noise parameters ({replaced}), but the "
-            "benchmark simulates the realistic preset as it is and replaces none; delete the dataset to "
-            "re-simulate it",
+            f"noise_params: the dataset was simulated with replaced noise parameters "
+            f"{said(have['noise_params'])}, but the benchmark asks for {said(cfg.noise_params)}; pass those "
+            "or delete the dataset to re-simulate it",
             path=root,
-            param="noise",
+            param="noise_params",
         )
     if have["colors"] is not None and (lacking := [c for c in cfg.colors if c not in have["colors"]]):
         return InputError(

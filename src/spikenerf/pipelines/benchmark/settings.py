@@ -1,7 +1,8 @@
 """``OUT/benchmark.json``: the dataset and training settings a benchmark folder was started with.
 
 A resumed benchmark reuses its datasets and finished cells, so it must ask for what they were made with:
-a changed ``size``, ``frames``, ``seed``, ``test_views``, ``blur_views``, ``noise``, ``color`` (one the
+a changed ``size``, ``frames``, ``seed``, ``test_views``, ``blur_views``, ``noise``, ``noise_params``,
+``color`` (one the
 datasets lack), ``iters``, ``field_kind`` or extra train arguments is refused with one line naming the
 setting(s) (the CLI shows their flags). The file also holds the folder's ``nonce``, which keys the Ray
 workers' scratch copies (``ray_executor.scratch_root``).
@@ -45,11 +46,11 @@ UNREAD_DEFAULTS = ("batch_rays",)
 PREVIOUS_INTEGRAL: dict[str, int] = {"window": 11, "samples": 2, "batch": 2048}
 #: the settings (``BenchmarkConfig`` parameters, named in messages as they are; the CLI shows their flags)
 KEYS = (
-    "size", "frames", "seed", "test_views", "blur_views", "noise", "color", "iters", "field_kind",
-    "extra_train_args",
+    "size", "frames", "seed", "test_views", "blur_views", "noise", "noise_params", "color", "iters",
+    "field_kind", "extra_train_args",
 )  # fmt: skip
 #: settings added after folders were started, with the value those folders were made with
-ADDED_SETTINGS: dict[str, Any] = {"noise": "ideal"}
+ADDED_SETTINGS: dict[str, Any] = {"noise": "ideal", "noise_params": {}}
 #: how a message names a setting that is not a parameter
 LABELS = {"extra_train_args": "extra train arguments"}
 
