@@ -149,6 +149,10 @@ def test_benchmark_simulates_its_noise_params_and_refuses_a_dataset_with_others(
                           noise_params={"excess_carry": 0.0})  # fmt: skip
     simulate = dataset_command(cfg, "analytic-orbs")[3:]  # (after `python -m spikenerf`)
     assert simulate[simulate.index("--noise-param") :][:2] == ["--noise-param", "excess_carry=0.0"]
+    from fractions import Fraction  # (a number whose repr is no float, as numpy 2's np.float64(0.0))
+
+    other_number = BenchmarkConfig(**{**vars(cfg), "noise_params": {"excess_carry": Fraction(0)}})
+    assert dataset_command(other_number, "analytic-orbs")[3:] == simulate
     assert run_cli(capsys, *simulate, "--no-progress")[0] == 0
     assert dataset_mismatch(cfg, "analytic-orbs") is None  # simulated as the benchmark asks
     config = yaml.safe_load((cfg.out / "datasets" / "analytic-orbs" / "config.yaml").read_text())

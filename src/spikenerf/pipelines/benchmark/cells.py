@@ -167,7 +167,7 @@ def dataset_command(cfg: BenchmarkConfig, scene: str) -> list[str]:
         "simulate", "--scene", scene, "--width", str(cfg.size), "--height", str(cfg.size),
         "--frames", str(cfg.frames), "--color", color, "--seed", str(cfg.seed),
         "--test-views", str(cfg.test_views), "--blur-views", cfg.blur_views, "--noise", cfg.noise,
-        *[arg for key, value in cfg.noise_params.items() for arg in ("--noise-param", f"{key}={value!r}")],
+        *[arg for key, v in cfg.noise_params.items() for arg in ("--noise-param", f"{key}={float(v)!r}")],
         "--jobs", str(jobs),
         "--out", str(cfg.out / "datasets" / scene),
     )  # fmt: skip
