@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from spikenerf.cli import OUT_OF_MEMORY, SUBCOMMANDS, main
+from spikenerf.cli import OUT_OF_MEMORY, SUBCOMMANDS, Terminated, main
 from spikenerf.core.errors import InputError
 
 
@@ -77,6 +77,32 @@ def test_input_error_is_one_line_and_exit_2(monkeypatch, capsys) -> None:
         assert exit_.code == 2
     err = capsys.readouterr().err.strip()
     assert err == "spikenerf: error: x/transforms.json: expected 3 fields, found 2"
+
+
+@pytest.mark.parametrize(
+    ("raised", "said"),
+    [(InputError("frame 3 is truncated"), "spikenerf: error: frame 3 is truncated"),
+     (KeyboardInterrupt(), "spikenerf: aborted"), (Terminated(), "spikenerf: terminated")],
+)  # fmt: skip
+def test_an_error_inside_a_progress_bar_starts_a_line_of_its_own(monkeypatch, capsys, raised, said) -> None:
+    """The error line followed the text of the bar it interrupted (``render: 0%|… 0/6 [...]spikenerf: error:
+    …``), and the bar was drawn again after it."""
+    import click
+
+    import spikenerf.cli as cli_module
+    from spikenerf.core.progress import bar
+
+    @click.command()
+    def broken() -> None:
+        progress = bar(total=6, desc="render")  # a bar updated by hand: no loop closes it on the way out
+        progress.update(3)
+        raise raised
+
+    monkeypatch.setattr(cli_module.LazyGroup, "get_command", lambda self, ctx, name: broken)
+    with pytest.raises(SystemExit):
+        main(["broken"])
+    err = capsys.readouterr().err
+    assert err.endswith("\n" + said + "\n") and "3/6" in err.split("\n")[-3], repr(err)
 
 
 @pytest.mark.parametrize(("command", "hint"), [("render", "run the same command again"), ("info", None)])

@@ -106,6 +106,12 @@ def test_device_mps_is_accepted_where_torch_has_it(monkeypatch) -> None:
             resolve_device(bad)
 
 
+def test_a_cuda_index_is_named_where_torch_sees_no_cuda(monkeypatch) -> None:
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(InputError, match="device cuda:1 was asked for, but torch sees no CUDA device"):
+        resolve_device("cuda:1")
+
+
 def test_a_cuda_index_the_machine_lacks_is_named(monkeypatch) -> None:
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)

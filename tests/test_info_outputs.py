@@ -39,6 +39,21 @@ def test_info_summarises_pair_recon_and_frame_folders(capsys, tmp_path: Path) ->
     assert "(00003 to 100000)" in run_cli(capsys, "info", frames)[1]
 
 
+def test_info_counts_the_photograph_and_source_draws_of_a_pair_folder(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``recon-data --natural 600 --train-draws 800`` was summarised as "800 training" draws."""
+    import json
+
+    pairs = tmp_path / "pairs"
+    write_pairs(pairs, PairConfig(size=16, window=5, supersample=1), 2, 2, seed=0, progress=False)
+    manifest = json.loads((pairs / "manifest.json").read_text())
+    assert "draws: 2 training (1 shard file)" in run_cli(capsys, "info", pairs)[1]  # extra_draws 0 sources
+    manifest.update(natural_draws=3, extra_sources=["bricks", "shots.json"], extra_draws=5)
+    (pairs / "manifest.json").write_text(json.dumps(manifest))
+    code, out, err = run_cli(capsys, "info", pairs)
+    assert code == 0, err
+    assert "draws: 2 training + 3 from photographs + 5 from each of bricks, shots.json (1 shard file)" in out
+
+
 def test_reconstruct_warns_when_its_threshold_differs_from_the_recordings(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """``--threshold 2`` against a recorded φ of 1 was taken without a word (``info`` warns on ``--fps``)."""
     dat = write_recording(tmp_path / "rec" / "r.dat", 20, 8, 12)

@@ -217,6 +217,31 @@ class _FakeRay:
         self.down = True
 
 
+class _UnreachableRay(_FakeRay):
+    """A Ray stand-in whose cluster cannot be reached, as ``ray.init(address="auto")`` with none running."""
+
+    def init(self, **kw: object) -> None:
+        raise ConnectionError("Could not find any running Ray instance.")
+
+
+def test_an_unreachable_cluster_is_refused_before_anything_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It left OUT/benchmark.json behind, so the next call with other settings was refused as a resume."""
+    from spikenerf.pipelines.benchmark import ray_executor
+
+    monkeypatch.setattr(ray_executor, "require_ray", _UnreachableRay)
+    out = tmp_path / "bench"
+    with pytest.raises(SystemExit) as exit_:
+        main(["benchmark", "--scenes", "analytic-orbs", "--executor", "ray", "--address", "auto",
+              "--out", str(out)])  # fmt: skip
+    assert exit_.value.code == 2 and not out.exists()
+    assert capsys.readouterr().err.splitlines() == [
+        "spikenerf: error: --address: cannot reach a Ray cluster at 'auto' (Could not find any running Ray "
+        "instance.)"
+    ]
+
+
 @pytest.mark.parametrize(("kw", "param"), [({"device": "cuda"}, "device"), ({"ray_cpus": 4.0}, "ray_cpus")])
 def test_a_task_a_new_cluster_cannot_place_is_refused_not_waited_for(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, kw: dict, param: str

@@ -20,6 +20,7 @@ import click
 
 from spikenerf import __version__
 from spikenerf.core.errors import InputError, one_line
+from spikenerf.core.progress import close_bars
 
 #: subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -191,8 +192,7 @@ def flag_of(param: str, command: str | None = None) -> str | None:
 
 
 def _fail(message: str, code: int = 2) -> None:
-    from spikenerf.core.errors import one_line
-
+    close_bars()  # the error on a line of its own, not after an interrupted bar's text
     click.echo(f"spikenerf: error: {one_line(message)}", err=True)
     sys.exit(code)
 
@@ -271,11 +271,13 @@ def main(argv: list[str] | None = None) -> None:
         with _sigterm_unwinds():
             cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
     except Terminated:
+        close_bars()
         click.echo("spikenerf: terminated" + resume_hint(LazyGroup.invoked), err=True)
         sys.exit(143)
     except InputError as err:
         _fail(err.shown(lambda param: flag_of(param, LazyGroup.invoked)))
     except click.exceptions.Abort:
+        close_bars()
         click.echo("spikenerf: aborted" + resume_hint(LazyGroup.invoked), err=True)
         sys.exit(130)
     except click.UsageError as err:

@@ -32,7 +32,7 @@ def resolve_device(name: str = "auto") -> torch.device:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name.startswith("cuda") and not torch.cuda.is_available():
         raise InputError(
-            "device cuda was asked for, but torch sees no CUDA device (use auto or cpu)", param="device"
+            f"device {name} was asked for, but torch sees no CUDA device (use auto or cpu)", param="device"
         )
     if name == "mps":
         mps = getattr(torch.backends, "mps", None)

@@ -9,6 +9,7 @@ hides its bars alone.
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Iterable
 from typing import Any
 
@@ -28,3 +29,11 @@ def bar(iterable: Iterable[Any] | None = None, *, show: bool | None = True, **kw
 
     hidden = show is False or quiet()
     return tqdm(iterable, disable=True if hidden else None if show is None else False, **kwargs)
+
+
+def close_bars() -> None:
+    """Close every progress bar still open (as at its end: its last state stays on screen), so that the line
+    printed next, such as an error, starts a line of its own instead of following a bar's text."""
+    module = sys.modules.get("tqdm")  # no bar was ever made without it
+    for open_bar in list(getattr(getattr(module, "tqdm", None), "_instances", ())):
+        open_bar.close()

@@ -28,7 +28,7 @@ def describe_pairs(root: str | Path) -> str:
     lines = [
         f"recon-data pair folder: {config['size']}×{config['size']} pairs of a {config['window']}-step "
         f"window; colour {', '.join(map(str, modes))}; noise {', '.join(map(str, noises))}",
-        f"draws: {manifest.get('train_draws', '?')} training ({_files(shards['train'])}), "
+        f"draws: {manifest.get('train_draws', '?')} training{_added(manifest)} ({_files(shards['train'])}), "
         f"{manifest.get('val_draws', '?')} held-out ({_files(shards['val'])})",
     ]
     if scenes := manifest.get("val_scenes"):
@@ -74,6 +74,18 @@ def describe_recon(root: str | Path) -> str:
     if command := _json(root / "config.json").get("command"):
         lines.append(f"command: {command}")
     return "\n".join(lines)
+
+
+def _added(manifest: dict) -> str:
+    """`` + N from photographs`` and `` + N from each of SOURCES``: the train draws beyond the random ones
+    (``--natural``, ``--scene``/``--sequence``), "" when there are none."""
+    added = ""
+    if isinstance(natural := manifest.get("natural_draws"), int) and natural > 0:
+        added += f" + {natural} from photographs"
+    sources, each = manifest.get("extra_sources"), manifest.get("extra_draws")
+    if isinstance(sources, list) and sources and isinstance(each, int) and each > 0:
+        added += f" + {each} from each of {', '.join(map(str, sources))}"
+    return added
 
 
 def _files(count: int) -> str:

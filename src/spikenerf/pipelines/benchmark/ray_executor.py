@@ -56,8 +56,14 @@ class RayExecutor:
     """Every job a Ray task (see the module docstring)."""
 
     def check(self, cfg: Any) -> None:
-        """Without Ray: InputError with the one-line install hint."""
-        require_ray()
+        """Without Ray: InputError with the one-line install hint. A cluster named by ``address`` (or
+        ``$RAY_ADDRESS``) that cannot be reached: InputError naming ``address``, before anything is written
+        (the connection is a probe, closed again; :func:`run_jobs` connects when it has jobs to run)."""
+        ray = require_ray()
+        named = cfg.address if cfg.address is not None else os.environ.get("RAY_ADDRESS")
+        if named and named != "local" and not ray.is_initialized():
+            _connect(ray, cfg.address)
+            ray.shutdown()
 
     def processes(self, cfg: Any) -> int:
         """The task's CPUs (``ray_cpus``, at least 1)."""
