@@ -57,6 +57,19 @@ def test_atomic_path_leaves_nothing_on_error(tmp_path) -> None:
     assert target.read_text() == "done"
 
 
+def test_a_file_write_over_a_folder_is_refused_naming_it(tmp_path) -> None:
+    """A folder where a file goes: ``os.replace`` failed naming the temporary (``.out.txt.x1y2z3.tmp: Is a
+    directory``); the refusal names the file, and the folder and its contents stay."""
+    from spikenerf.core.errors import InputError
+
+    (tmp_path / "out.txt").mkdir()
+    (tmp_path / "out.txt" / "mine").write_text("mine")
+    with pytest.raises(InputError, match="is a folder, not a file") as err:
+        write_text_atomic(tmp_path / "out.txt", "done")
+    assert err.value.path == str(tmp_path / "out.txt")
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"] and (tmp_path / "out.txt" / "mine").is_file()
+
+
 def test_a_failed_write_removes_the_folders_it_created_and_keeps_the_others(tmp_path) -> None:
     (tmp_path / "kept").mkdir()
     (tmp_path / "kept" / "user.txt").write_text("mine")

@@ -136,6 +136,7 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
     _round_two(root)
     _round_three(root)
     _round_four(root)
+    _round_five(root)
     PWNED[0] = str(root / "PWNED")
     return root
 
@@ -153,6 +154,19 @@ def _round_four(root: Path) -> None:
     (root / "bad_render" / "render.json").write_text(json.dumps(record))
     shutil.copytree(root / "run", root / "line_curves_run")
     (root / "line_curves_run" / "curves.csv").write_text("garbage\n")
+
+
+def _round_five(root: Path) -> None:
+    """The hostile-input audit: folders where a run's files go, a dataset whose config.yaml says topdown."""
+    shutil.copytree(root / "run", root / "dir_metrics_run")
+    (root / "dir_metrics_run" / "metrics.json").mkdir()
+    shutil.copytree(root / "run", root / "dir_curves_run")
+    (root / "dir_curves_run" / "curves.csv").unlink()
+    (root / "dir_curves_run" / "curves.csv").mkdir()
+    shutil.copytree(root / "ds", root / "topdown_ds")
+    config = root / "topdown_ds" / "config.yaml"
+    config.write_text(config.read_text().replace("layout: spikecv", "layout: topdown"))
+    assert "layout: topdown" in config.read_text()
 
 
 def _round_three(root: Path) -> None:
@@ -582,6 +596,24 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-resume-curves-one-line", [*T, "--resume", "--out", f"{R}/line_curves_run"],
      "curves.csv: not a training curve table: no column 'iteration'"),
     ("info-curves-one-line", ["info", f"{R}/line_curves_run"], "curves.csv: not a training curve table"),
+    # the hostile-input audit: a folder where a file goes (named before any work, not its write's
+    # temporary after it), warnings that came before a refusal (two lines), a dataset's layout
+    ("eval-metrics-folder", ["eval", f"{R}/dir_metrics_run", "--device", "cpu", "--quiet"],
+     "metrics.json: RUN: is a folder, not a file"),
+    ("train-resume-curves-folder", [*T, "--iters", "3", "--resume", "--out", f"{R}/dir_curves_run"],
+     "curves.csv: is a folder, not a training curve table"),
+    ("info-curves-folder", ["info", f"{R}/dir_curves_run"], "curves.csv: is a folder"),
+    ("recon-threshold-nan-recorded", [*DAT, "--threshold", "nan", "--frame", "3", "--out", f"{R}/o.npy"],
+     "--threshold φ must be a positive number"),
+    ("recon-threshold-differs-frame-outside", [*DAT, "--threshold", "2", "--frame", "1000",
+                                               "--out", f"{R}/o.png"], "--frame: frame 1000 is outside"),
+    ("recon-layout-differs-frame-outside", [*DAT, "--layout", "topdown", "--frame", "1000",
+                                            "--out", f"{R}/o.png"], "--frame: frame 1000 is outside"),
+    ("info-fps-differs-raw-width-small", ["info", f"{R}/ds/spikes_gray.dat", "--fps", "1000", "--raw-width",
+                                          "8"], "--raw-width 8 is smaller"),
+    ("train-dataset-layout-topdown", ["train", f"{R}/topdown_ds", *TRAIN, "--out", f"{R}/o"],
+     "config.yaml: field 'layout': a dataset's spike files are stored in the spikecv layout"),
+    ("info-dataset-layout-topdown", ["info", f"{R}/topdown_ds"], "config.yaml: field 'layout'"),
 ]
 #: cases run while this process holds the writer lock of the sandbox folder named here
 LOCKED = {"locked-eval-link": "run", "locked-render": "run",

@@ -386,6 +386,21 @@ def test_report_refuses_a_bad_cell_of_another_call(
     assert not (out / "report.html").exists() and not (out / "figures").exists()
 
 
+def test_a_folder_in_place_of_the_report_is_one_line_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``OUT/report.html`` a folder: the error named the write's temporary (``.report.html.x.tmp: Is a
+    directory``); it names report.html, and the folder stays."""
+    out = _finished(tmp_path)
+    (out / "report.html").mkdir()
+    with pytest.raises(SystemExit) as exit_:
+        _cli("report", out, "--no-progress")
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1, err
+    assert err == f"spikenerf: error: {out / 'report.html'}: is a folder, not a file: not replacing it\n"
+    assert (out / "report.html").is_dir() and not list(out.glob(".report.html.*"))
+
+
 def test_report_takes_null_metrics_as_dashes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A null metric (eval writes null for one it cannot compute) is "–" in the tables, not an error."""
     from spikenerf.pipelines.benchmark.tables import per_scene_table

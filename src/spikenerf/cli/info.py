@@ -189,11 +189,13 @@ def command(
         return
     config = dat_recording(path, height, width, raw_width)
     height, width, raw_width = config.height, config.width, config.raw_width
-    layout = given_layout(path, layout, config)
+    read_as = given_layout(path, layout, config, warn=False)  # (its warning once the file is read)
     given_fps, fps = fps, fps if fps is not None else config.fps or 40000.0
     if not 0 < fps < math.inf:
         raise InputError(f"--fps must be a finite number > 0, found {fps}")
+    lines = describe_dat(path, height, width, read_as, raw_width, fps)  # (its refusals come alone)
+    given_layout(path, layout, config)
     if given_fps is not None and config.fps is not None and given_fps != config.fps:  # as --width/--height
         click.echo(f"spikenerf: warning: {path}: --fps {fps:g} differs from fps {config.fps:g} in "
                    f"{config.path}; using --fps {fps:g}", err=True)  # fmt: skip
-    click.echo("\n".join(describe_dat(path, height, width, layout, raw_width, fps)))
+    click.echo("\n".join(lines))

@@ -184,6 +184,7 @@ def command(
 ) -> None:
     from spikenerf.camera.io import count_frames, read_dat, resolve_frames
     from spikenerf.camera.reconstruct import reconstruct_frames
+    from spikenerf.camera.streams import check_threshold
     from spikenerf.cli.types import dat_recording, given_layout
     from spikenerf.core.progress import bar as progress_bar
     from spikenerf.data.reconstruction import reconstructor
@@ -201,14 +202,8 @@ def command(
         raise InputError(f"--color applies to --method learned only ({method} treats every pixel alike)")
     if method != "learned" and weights is not None:
         raise InputError(f"--weights applies to --method learned only ({method} has no network)")
-    recon = reconstructor(method, window, threshold, weights=weights, color=color)  # (φ checked)
-    layout = given_layout(spikes, layout, recording)
-    if recording.threshold is not None and threshold != recording.threshold:  # as info's --fps
-        click.echo(
-            f"spikenerf: warning: {spikes}: --threshold {threshold:g} differs from threshold "
-            f"{recording.threshold:g} in {recording.path}; using --threshold {threshold:g}",
-            err=True,
-        )
+    check_threshold(threshold)  # (TFP, TFI and TFSTP would check φ only when they reconstruct)
+    recon = reconstructor(method, window, threshold, weights=weights, color=color)
     if frame is not None and frame_range is not None:
         raise InputError("give either --frame I or --frames A:B, not both")
     if frame is not None and stride is not None:
@@ -283,6 +278,13 @@ def command(
     bar = progress_bar(
         total=len(frames), unit="frame", desc=f"{method} {spikes.name}", show=len(frames) >= 32 and None
     )
+    layout = given_layout(spikes, layout, recording)  # its warning and φ's after the checks: a refusal
+    if recording.threshold is not None and threshold != recording.threshold:  # is one line (as info's --fps)
+        click.echo(
+            f"spikenerf: warning: {spikes}: --threshold {threshold:g} differs from threshold "
+            f"{recording.threshold:g} in {recording.path}; using --threshold {threshold:g}",
+            err=True,
+        )
     with output_lock(out), bar:
         _clean_temps(out, kind)
         if kind == "png":

@@ -88,11 +88,11 @@ NOT_SPIKES = (".yaml", ".yml", ".json", ".pt", ".png", ".jpg", ".jpeg", ".exr", 
               ".html", ".ply", ".mp4", ".md")  # fmt: skip
 
 
-def given_layout(path: Path, layout: str | None, recording: Any) -> str:
-    """The row order to read ``path`` in: ``--layout`` where given (one warning line where it differs from
-    the layout its ``config.yaml`` records), else the recorded one, else ``spikecv``."""
+def given_layout(path: Path, layout: str | None, recording: Any, warn: bool = True) -> str:
+    """The row order to read ``path`` in: ``--layout`` where given (one warning line, with ``warn``, where it
+    differs from the layout its ``config.yaml`` records), else the recorded one, else ``spikecv``."""
     recorded = getattr(recording, "layout", None)
-    if layout is not None and recorded is not None and layout != recorded:
+    if warn and layout is not None and recorded is not None and layout != recorded:
         click.echo(
             f"spikenerf: warning: {path}: --layout {layout} differs from layout {recorded} in "
             f"{recording.path}; using --layout {layout}",

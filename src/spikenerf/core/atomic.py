@@ -10,6 +10,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 
 
@@ -38,6 +39,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             path.rename(old)
             tmp.rename(path)
             shutil.rmtree(old, ignore_errors=True)
+        elif path.is_dir() and not path.is_symlink():  # (os.replace would name the temporary)
+            raise InputError("is a folder, not a file: not replacing it", path=path)
         else:
             os.replace(tmp, path)
         done = True

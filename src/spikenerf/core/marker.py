@@ -307,9 +307,11 @@ def check_writable(path: str | Path, param: str = "out", file: bool = False) -> 
     one such as ``/proc`` or ``/sys`` does not. Checked before any size estimate, so that such a path is
     not blamed on the free disk space (a virtual file system reports none). A folder output that is a link
     is checked at its target (where ``lock_path`` puts the lock); a ``file`` output's link is replaced
-    itself, so only its parent folder's links are followed."""
+    itself, so only its parent folder's links are followed; a folder in its place is refused."""
     path = Path(path)
     path = _resolved(path.parent) / path.name if file else _resolved(path)
+    if file and path.is_dir() and not path.is_symlink():
+        raise InputError(f"{param}: is a folder, not a file: not replacing it", path=path, param=param)
     base = path.parent
     while not base.exists() and base != base.parent:
         base = base.parent

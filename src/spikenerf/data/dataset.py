@@ -374,4 +374,10 @@ def _load_config(root: Path, k: Intrinsics, fps: float) -> dict:
         raise InputError(
             f"field 'colors': expected a non-empty list of {'/'.join(MODES)}, found {colors!r}", path
         )
+    if config.get("layout", "spikecv") != "spikecv":  # (reconstruct and info of a .dat would read it so)
+        raise InputError(
+            f"field 'layout': a dataset's spike files are stored in the spikecv layout (rows bottom-up), "
+            f"found {config['layout']!r}",
+            path,
+        )
     return config

@@ -13,6 +13,7 @@ import torch
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.color import srgb_mse
 from spikenerf.core.csvtable import read_table
+from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.data.dataset import SpikeDataset
 from spikenerf.data.targets import ImageTargets
@@ -79,6 +80,9 @@ def read_curves(path: str | Path) -> list[dict[str, float]]:
     replacing it would lose what it holds.
     """
     path = Path(path)
+    aside = "move it aside to resume without the earlier curve points"
+    if path.is_dir():  # (not replaced by the next write either: refused before the work)
+        raise InputError(f"is a folder, not a training curve table ({aside})", path=path)
     if not path.is_file() or path.stat().st_size == 0:
         return []
 
@@ -94,5 +98,4 @@ def read_curves(path: str | Path) -> list[dict[str, float]]:
             **{k: float(r.get(k) or math.nan) for k in LOSS_COLUMNS},
         }
 
-    aside = "move it aside to resume without the earlier curve points"
     return read_table(path, "training curve table", header_problem, parse, aside)
