@@ -82,14 +82,17 @@ def test_the_left_out_samples_get_no_density_gradient(monkeypatch: pytest.Monkey
     """The density's gradient is exactly 0 behind the early stop (what lets the CPU kernel skip them): far
     more zeros than without it (where only transmittance underflow makes some)."""
     seen: list[torch.Tensor] = []
-    density = grid_module.GridField.density_norm
 
-    def spying(field, xyz):  # type: ignore[no-untyped-def]
-        sigma = density(field, xyz)
-        sigma.register_hook(lambda g: seen.append(g.clone()))
-        return sigma
+    def spy(density):  # type: ignore[no-untyped-def]
+        def spying(field, xyz, *args):  # type: ignore[no-untyped-def]
+            sigma = density(field, xyz, *args)
+            sigma.register_hook(lambda g: seen.append(g.clone()))
+            return sigma
 
-    monkeypatch.setattr(grid_module.GridField, "density_norm", spying)
+        return spying
+
+    for name in ("density_norm", "density_until"):  # (density_until: the lookup up to the stop, on a CPU)
+        monkeypatch.setattr(grid_module.GridField, name, spy(getattr(grid_module.GridField, name)))
     zeros = {}
     for eps in (0.0, 1e-2):
         model = _with(static._model(occupancy=False), early_stop=eps, distance_scale=40.0)

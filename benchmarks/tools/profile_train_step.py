@@ -29,6 +29,7 @@ from spikenerf.train.trainer import Trainer
 CATEGORIES = (
     ("vm_cpu_backward", "VM lookup backward (fused kernel)"),
     ("vm_cpu_forward", "VM lookup forward (fused kernel)"),
+    ("vm_cpu_until", "VM lookup forward (fused kernel)"),  # the density up to each ray's early stop
     ("grid_sampler_2d_backward", "grid_sample backward"),
     ("grid_sampler", "grid_sample forward"),
     ("embedding_bag", "gather (embedding_bag)"),

@@ -29,7 +29,7 @@ from spikenerf.fields.occupancy import OccupancyGrid
 from spikenerf.fields.row_buckets import bucketing, pad_to_bucket
 from spikenerf.fields.vm_build import cpu_has
 from spikenerf.fields.vm_gather import gather_vm
-from spikenerf.fields.vm_kernel import available, usable, vm_lookup
+from spikenerf.fields.vm_kernel import available, usable, vm_lookup, vm_sum_until
 from spikenerf.fields.vm_lattice import vm_lattice_sum
 from spikenerf.fields.vm_sample import sample_vm, vm_splits
 from spikenerf.fields.vm_triton import applies, triton_vm
@@ -127,6 +127,22 @@ class GridField(Field):
     def density_norm(self, xyz_norm: Tensor) -> Tensor:
         """Density per world unit (M,) at normalised points (M, 3)."""
         return self._density_of(self._vm_sum(self.density_planes, self.density_lines, xyz_norm))
+
+    def density_until(self, xyz_norm: Tensor, offsets: Tensor, deltas: Tensor, limit: float) -> Tensor:
+        """:meth:`density_norm` (M,) of samples packed ray after ray (normalised points (M, 3), ray i's at
+        ``offsets[i]:offsets[i + 1]`` of offsets (N + 1,), interval lengths ``deltas`` (M,)), where the fused
+        CPU kernel applies only up to each ray's early stop: a sample behind an optical depth ``Σ σ δ`` of
+        ``limit`` (and a margin, ``vm_kernel.UNTIL_MARGIN``) of the ray's earlier ones gets density 0, not
+        looked up (``vm_kernel.vm_sum_until``; ``render.volume.early_stop_mask`` with ``exp(−limit)`` leaves
+        such samples out). Elsewhere (another lookup, the kernel not built), and where ``train --compile``
+        replaced :meth:`density_norm`, every sample's density."""
+        cfg = self.config
+        compiled = "density_norm" in vars(self)
+        if compiled or cfg.lookup == "gather" or not usable(self.density_planes, xyz_norm):
+            return self.density_norm(xyz_norm)
+        raw = vm_sum_until(self.density_planes, self.density_lines, xyz_norm, offsets, deltas,
+                           cfg.density_shift, cfg.distance_scale, limit)  # fmt: skip
+        return self._density_of(raw)
 
     def _density_of(self, raw: Tensor) -> Tensor:
         """Density per world unit from the summed VM lookups (any shape)."""

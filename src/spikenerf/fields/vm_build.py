@@ -157,7 +157,8 @@ def _import_built(name: str, library: Path) -> Any:
         spec.loader.exec_module(module)
     except ImportError:
         return None
-    return module if hasattr(module, "forward") and hasattr(module, "backward") else None
+    names = ("forward", "forward_until", "backward", "march")
+    return module if all(hasattr(module, name) for name in names) else None
 
 
 def _build(cflags: list[str], ldflags: list[str]) -> Any:

@@ -4,8 +4,10 @@
 Forward ``P_m(x)·L_m(x)`` for the three axis pairs, per channel or (``summed``, the density) added up in the
 kernel; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into channels-last gradients, each thread owning a band
 of plane rows (no races, the same plane-gradient bits on any number of threads) and its own line-gradient
-buffer. Each loop prefetches the texels of the point 8 ahead. The build folder's name hashes this text
-(``vm_build._name``): any change to it builds anew.
+buffer. Each loop prefetches the texels of the point 8 ahead. Two loops of the grid's packed training render
+beside it: the density's lookup along each ray up to its early stop (``vm_kernel.vm_sum_until``) and the
+march (``render/march_cpu.py``). The build folder's name hashes this text (``vm_build._name``): any change to
+it builds anew.
 """
 
 SOURCE = r"""
@@ -13,6 +15,7 @@ SOURCE = r"""
 #include <ATen/Parallel.h>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 // planes (3, R, R, C), lines (3, R, C) channels last; xyz (M, 3) in [-1, 1]; align_corners=True.
@@ -81,6 +84,71 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
         }
       }
       if (summed) O[n] = total;
+    }
+  });
+  return out;
+}
+
+// vm_forward's summed value of one point x (3,): the sum of its 3·C products (the same operations in the
+// same order)
+static inline float point_sum(const float *P, const float *L, const float *x, int64_t r, int64_t c) {
+  float total = 0.f;
+  for (int k = 0; k < 3; ++k) {
+    int ic, ir, il; float ac, bc, ar, br, al, bl;
+    cell(x[MAT0[k]], r, ic, ac, bc); cell(x[MAT1[k]], r, ir, ar, br); cell(x[VEC[k]], r, il, al, bl);
+    const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
+    const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
+    const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
+    float acc = 0.f;
+#pragma omp simd reduction(+ : acc)
+    for (int64_t j = 0; j < c; ++j) acc += PLANE_J(j) * LINE_J(j);
+    total += acc;
+  }
+  return total;
+}
+
+// a lower bound of softplus(z) = log(1 + e^z) without exp or log1p (which cost as much as a lookup): the
+// largest of 0, z and its tangents at z = ±4, ±2, 0 (softplus is convex); at most 0.09 under it
+static inline float softplus_below(float z) {
+  static const float A[5] = {0.0900947678f, 0.365333855f, 0.693147181f, 0.365333855f, 0.0900947678f};
+  static const float B[5] = {0.0179862100f, 0.119202922f, 0.5f, 0.880797078f, 0.982013790f};
+  float b = z > 0.f ? z : 0.f;
+  for (int i = 0; i < 5; ++i) {
+    const float t = A[i] + B[i] * z;
+    b = t > b ? t : b;
+  }
+  return b;
+}
+
+// the density's summed lookup of packed samples, along each ray only up to its early stop: the samples of ray
+// i are offsets[i] … offsets[i + 1] − 1, in order; a sample is looked up while a lower bound of the optical
+// depth of the ray's earlier samples, Σ scale · softplus_below(raw + shift) · δ (the density is scale ·
+// softplus(raw + shift); each term clamped to 1e3, a NaN to 1e3, as packed_depth_before does), is at most
+// `limit`; the later ones get −inf (a density of 0). A ray's first PF samples are prefetched before its
+// loop. out (M,)
+torch::Tensor vm_forward_until(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, torch::Tensor offsets,
+                               torch::Tensor deltas, double shift, double scale, double limit) {
+  const int64_t m = xyz.size(0), n = offsets.size(0) - 1, r = planes.size(1), c = planes.size(3);
+  auto out = torch::empty({m}, xyz.options());
+  const float *P = planes.data_ptr<float>(), *L = lines.data_ptr<float>(), *X = xyz.data_ptr<float>();
+  const float *DELTA = deltas.data_ptr<float>();
+  const int64_t *OFF = offsets.data_ptr<int64_t>();
+  float *O = out.data_ptr<float>();
+  const float none = -std::numeric_limits<float>::infinity(), sh = (float)shift, sc = (float)scale;
+  at::parallel_for(0, n, 64, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) {
+      const int64_t hi = OFF[i + 1];
+      int64_t s = OFF[i];
+      for (int64_t q = s; q < std::min(hi, s + PF); ++q) prefetch_point(P, L, X + q * 3, r, c, 0, r);
+      double depth = 0.0;
+      for (; s < hi && depth <= limit; ++s) {
+        if (s + PF < hi) prefetch_point(P, L, X + (s + PF) * 3, r, c, 0, r);
+        const float raw = point_sum(P, L, X + s * 3, r, c);
+        O[s] = raw;
+        const float tau = sc * softplus_below(raw + sh) * DELTA[s];
+        depth += tau <= 1e3f ? tau : 1e3f;
+      }
+      for (; s < hi; ++s) O[s] = none;
     }
   });
   return out;
@@ -212,6 +280,66 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
   return {gp, nt == 1 ? gl[0] : gl.sum(0)};
 }
 
+// the grid renderer's packed march (render/march_cpu.py; GridModel._march): of ray i's counts[i] steps, those
+// whose start near + step·k lies before far and (occupancy) whose midpoint's cell is set, as
+// GridModel._kept tests them, in the same float32 operations in the same order (built without contraction:
+// each product and sum rounds as torch's separate kernels do, so the same steps are kept). o_n, d_n (N, 3),
+// near, far (N,) float32; counts (N,) int64; grid (G, G, G) bool. Returns ray and k (M,) int64, ray after
+// ray: chunks of rays fill their share of the candidate slots in parallel, then move up into place.
+std::vector<torch::Tensor> march(torch::Tensor o_n, torch::Tensor d_n, torch::Tensor near, torch::Tensor far,
+                                 torch::Tensor counts, torch::Tensor grid, double step, bool occupancy) {
+  const int64_t n = near.size(0), g = grid.size(0);
+  const float *O = o_n.data_ptr<float>(), *D = d_n.data_ptr<float>();
+  const float *NEAR = near.data_ptr<float>(), *FAR = far.data_ptr<float>();
+  const int64_t *COUNT = counts.data_ptr<int64_t>();
+  const bool *GRID = grid.data_ptr<bool>();
+  std::vector<int64_t> first(n + 1, 0);  // each ray's first candidate slot
+  for (int64_t i = 0; i < n; ++i) first[i + 1] = first[i] + std::max<int64_t>(COUNT[i], 0);
+  auto ray = torch::empty({first[n]}, counts.options()), kk = torch::empty({first[n]}, counts.options());
+  int64_t *RAY = ray.data_ptr<int64_t>(), *K = kk.data_ptr<int64_t>();
+  const int64_t chunks = std::min<int64_t>(n, 64), per = chunks ? (n + chunks - 1) / chunks : 0;
+  std::vector<int64_t> kept(chunks, 0);
+  const float s = (float)step, half = 0.5f * (float)g, top = (float)(g - 1);
+  at::parallel_for(0, chunks, 1, [&](int64_t cb, int64_t ce) {
+    for (int64_t c = cb; c < ce; ++c) {
+      const int64_t rb = std::min(n, c * per), re = std::min(n, rb + per);
+      int64_t *rw = RAY + first[rb], *kw = K + first[rb];
+      int64_t w = 0;
+      for (int64_t i = rb; i < re; ++i) {
+        const float nr = NEAR[i], fr = FAR[i];
+        const float *o = O + i * 3, *d = D + i * 3;
+        for (int64_t k = 0; k < COUNT[i]; ++k) {
+          const float ts = nr + s * (float)k;
+          if (!(ts < fr)) continue;
+          if (occupancy) {
+            const float left = fr - ts, tm = ts + 0.5f * (left > s ? s : left);  // clamp(max=step)
+            int64_t cell = 0;
+            for (int a = 0; a < 3; ++a) {
+              const float u = (o[a] + tm * d[a] + 1.0f) * half;
+              // as OccupancyGrid.cell_index: clamped, truncated (a NaN point: cell 0 of the axis)
+              const int64_t j = u > 0.f ? (int64_t)(u < top ? u : top) : 0;
+              cell = cell * g + j;
+            }
+            if (!GRID[cell]) continue;
+          }
+          rw[w] = i; kw[w] = k; ++w;
+        }
+      }
+      kept[c] = w;
+    }
+  });
+  int64_t total = 0;  // the chunks' kept slots moved up, in order, behind each other
+  for (int64_t c = 0; c < chunks; ++c) {
+    const int64_t from = first[std::min(n, c * per)];
+    if (from != total && kept[c]) {
+      std::memmove(RAY + total, RAY + from, kept[c] * sizeof(int64_t));
+      std::memmove(K + total, K + from, kept[c] * sizeof(int64_t));
+    }
+    total += kept[c];
+  }
+  return {ray.narrow(0, 0, total), kk.narrow(0, 0, total)};
+}
+
 // how many threads an at::parallel_for of this build spreads over (1 where it was built without OpenMP)
 int64_t parallel_threads(int64_t n) {
   std::vector<int> used(std::max<int64_t>(256, at::get_num_threads()), 0);
@@ -226,5 +354,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("parallel_threads", &parallel_threads);
   m.def("forward", &vm_forward);
   m.def("backward", &vm_backward);
+  m.def("forward_until", &vm_forward_until);
+  m.def("march", &march);
 }
 """

@@ -8,7 +8,9 @@ each thread owns a band of plane rows, balanced by a sample of the points' rows,
 the plane gradients have the same bits on any number of threads); the small line gradients are per-thread
 buffers, summed at the end.
 For the density (``summed``) it adds the products up itself, so that no (M, 3, C) tensor is written,
-summed by torch and, in the backward, expanded back into a contiguous copy.
+summed by torch and, in the backward, expanded back into a contiguous copy. A training render's density
+(:func:`vm_sum_until`) is looked up along each ray only up to its early stop: the samples behind it, about
+half of them late in training, have density 0 and no gradient either way.
 The lookups are random reads of a grid larger than the L2 cache, so each loop prefetches the texels of the
 point 8 ahead. Its C++ source is ``vm_cpu_source.py``; ``vm_build.py`` compiles it (cached; 20–90 s the first
 time on a machine) and loads it. Where that is not possible (no
@@ -22,11 +24,12 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from typing import Any
 
 import torch
 from torch import Tensor
 
-from spikenerf.core.tracing import constant_result
+from spikenerf.core.tracing import constant_result, custom_op
 from spikenerf.fields.vm_build import load
 from spikenerf.fields.vm_ops import channels_last, register_pair
 
@@ -104,3 +107,73 @@ def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
     if load() is None:
         raise RuntimeError("vm_lookup: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
     return _OP(*channels_last(planes, lines), xyz.contiguous(), summed)
+
+
+@custom_op("spikenerf::vm_cpu_until")
+def _until_op(
+    planes: Tensor, lines: Tensor, xyz: Tensor, offsets: Tensor, deltas: Tensor, shift: float, scale: float,
+    limit: float,
+) -> Tensor:  # fmt: skip
+    return load().forward_until(planes, lines, xyz, offsets, deltas, shift, scale, limit)
+
+
+@_until_op.register_fake
+def _(
+    planes: Tensor, lines: Tensor, xyz: Tensor, offsets: Tensor, deltas: Tensor, shift: float, scale: float,
+    limit: float,
+) -> Tensor:  # fmt: skip
+    return xyz.new_empty((xyz.shape[0],))
+
+
+def _until_setup(ctx: Any, inputs: tuple, output: Tensor) -> None:
+    ctx.save_for_backward(*inputs[:3])
+
+
+def _until_grad(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:
+    planes, lines, xyz = ctx.saved_tensors  # the summed lookup's backward: a sample left out has gradient 0
+    gp, gl = torch.ops.spikenerf.vm_cpu_backward(planes, lines, xyz, grad.contiguous())
+    return gp, gl, None, None, None, None, None, None
+
+
+_until_op.register_autograd(_until_grad, setup_context=_until_setup)
+
+#: looked up past ``limit`` by this much (relative and absolute): the kernel's bound of the optical depth
+#: rounds otherwise than ``render.volume.early_stop_mask``'s depth; with the margin every sample that the
+#: mask keeps is looked up
+UNTIL_MARGIN = 1e-4
+
+
+def vm_sum_until(
+    planes: Tensor, lines: Tensor, xyz: Tensor, offsets: Tensor, deltas: Tensor, shift: float, scale: float,
+    limit: float,
+) -> Tensor:  # fmt: skip
+    """:func:`vm_lookup` ``summed`` of samples packed ray after ray, each ray's only up to its early stop
+    (check :func:`usable` first).
+
+    Args:
+        planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3) the samples, ray after ray and in order along
+            each. offsets: (N + 1,) int64, ray i's samples at ``offsets[i]:offsets[i + 1]``
+            (``render.volume.ray_offsets``). deltas: (M,) their interval lengths.
+        shift, scale: the density ``scale · softplus(raw + shift)`` of a summed value ``raw``
+            (``GridField._density_of``). limit: the optical depth ``Σ σ δ`` of a ray's earlier samples past
+            which a sample is not looked up (by :data:`UNTIL_MARGIN` more, relative and absolute). The kernel
+            adds up a lower bound of each ``σ δ`` (softplus under its tangents: no exp or log1p per sample),
+            so it may look up a few samples more than needed, never fewer.
+    Returns:
+        (M,): the summed products where looked up (the values of :func:`vm_lookup`), −inf after (a density of
+        exactly 0, with gradient 0). Its gradient flows to the planes and lines as :func:`vm_lookup`'s.
+    """
+    if load() is None:
+        raise RuntimeError("vm_sum_until: the fused VM CPU kernel is unavailable (check usable first)")
+    m = xyz.shape[0]
+    if offsets.dim() != 1 or len(offsets) == 0 or int(offsets[-1]) != m or deltas.shape != (m,):
+        raise ValueError(
+            f"vm_sum_until: offsets must be (N + 1,) ending at the {m} samples and deltas (M,), found "
+            f"{tuple(offsets.shape)} and {tuple(deltas.shape)}"
+        )
+    stop = limit * (1.0 + UNTIL_MARGIN) + UNTIL_MARGIN
+    p, ln = channels_last(planes, lines)
+    args = (p, ln, xyz.contiguous(), offsets.long().contiguous(), deltas.float().contiguous())
+    if torch.compiler.is_compiling() or (torch.is_grad_enabled() and (p.requires_grad or ln.requires_grad)):
+        return _until_op(*args, float(shift), float(scale), float(stop))
+    return load().forward_until(*args, float(shift), float(scale), float(stop))  # no gradient: no dispatch

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
 from spikenerf.data.rays import ray_box_bounds
 from spikenerf.fields.grid import GridField
-from spikenerf.render import march_triton, volume_triton
+from spikenerf.render import march_cpu, march_triton, volume_triton
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.volume import (
     RenderOutput,
@@ -88,7 +90,8 @@ class GridModel(RadianceModel):
 
         Returns ray (M,) and step number k (M,) of each kept slot, int64, ray after ray: slot k of a ray
         covers ``[near + k·step, min(near + (k+1)·step, far))``. No padding: the work is the total number of
-        slots, not rays × the longest ray. The occupancy test uses the slot's midpoint.
+        slots, not rays × the longest ray. The occupancy test uses the slot's midpoint. On a CPU the fused
+        kernel's loop (``march_cpu.py``) keeps the same slots without laying out the candidates.
         """
         counts = self._counts(near, far, step)
         if self.marched(o_n):  # the kept steps only, tested where they are made
@@ -96,6 +99,8 @@ class GridModel(RadianceModel):
             kept = march_triton.kept_counts(o_n, d_n, near, far, counts, grid, step)
             ray, k, _ = march_triton.write(o_n, d_n, near, far, counts, grid, step, kept, int(kept.sum()))
             return ray, k
+        if march_cpu.applies(o_n, near):
+            return march_cpu.march(o_n, d_n, near, far, counts, self._grid(), step)
         total = int(counts.sum())
         ray = torch.repeat_interleave(
             torch.arange(len(counts), device=near.device), counts, output_size=total
@@ -181,9 +186,15 @@ class GridModel(RadianceModel):
         fused = self.fused(o_n)
         ray, k = self._march(o_n, d_n, near, far, step)
         t, deltas, xn = self._points(o_n, d_n, near, far, step, ray, k, perturb)
-        sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
         offsets = ray_offsets(ray, n)
-        if cfg.early_stop and len(ray) and torch.is_grad_enabled():  # on σ, so its gradient is exactly 0
+        stopping = bool(cfg.early_stop and len(ray) and torch.is_grad_enabled())
+        if stopping:  # the density looked up only up to each ray's stop where the CPU kernel applies
+            # (a threshold outside (0, 1): every sample, and early_stop_mask refuses it below)
+            limit = -math.log(cfg.early_stop) if 0.0 < cfg.early_stop < 1.0 else math.inf
+            sigma = field.density_until(xn, offsets, deltas, limit)
+        else:
+            sigma = field.density_norm(xn) if len(ray) else t.new_zeros(0)
+        if stopping:  # on σ, so its gradient is exactly 0
             stop = early_stop_mask(sigma, deltas, ray, n, cfg.early_stop, offsets, fused)
             sigma = torch.where(stop, sigma, 0.0)
         weights = packed_weights(sigma, deltas, ray, n, offsets, fused)
