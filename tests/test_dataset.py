@@ -162,7 +162,7 @@ def test_dataset_round_trip(tmp_path: Path) -> None:
 
 def test_read_pose_file(tmp_path: Path) -> None:
     _write(tmp_path / "ds", modes=("gray",))
-    poses = read_pose_file(tmp_path / "ds" / "transforms_test.json")
+    poses = read_pose_file(tmp_path / "ds" / "transforms_test.json", (16, 16))
     np.testing.assert_allclose(poses, novel_views(4.0, 2))
 
 

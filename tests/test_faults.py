@@ -167,6 +167,14 @@ def _round_five(root: Path) -> None:
     config = root / "topdown_ds" / "config.yaml"
     config.write_text(config.read_text().replace("layout: spikecv", "layout: topdown"))
     assert "layout: topdown" in config.read_text()
+    frames = json.loads((root / "ds" / "transforms_test.json").read_text())["frames"]
+    for name, cam in (("nan_fov", {"camera_angle_x": float("nan")}), ("text_fov", {"camera_angle_x": "wide"}),
+                      ("zero_fov", {"camera_angle_x": 0}), ("neg_fl", {"fl_x": -5.0})):  # fmt: skip
+        (root / f"{name}.json").write_text(json.dumps({**cam, "frames": frames}))  # (NaN: JSON's NaN)
+    for name, file in (("garbage_summary_run", "summary.json"), ("garbage_marker_run", ".spikenerf")):
+        shutil.copytree(root / "run", root / name)
+        (root / name / file).write_text("{garbage")
+    (root / "empty_dir").mkdir()
 
 
 def _round_three(root: Path) -> None:
@@ -614,6 +622,21 @@ CASES: list[tuple[str, list[str], str]] = [
     ("train-dataset-layout-topdown", ["train", f"{R}/topdown_ds", *TRAIN, "--out", f"{R}/o"],
      "config.yaml: field 'layout': a dataset's spike files are stored in the spikecv layout"),
     ("info-dataset-layout-topdown", ["info", f"{R}/topdown_ds"], "config.yaml: field 'layout'"),
+    # the input-handling audit: a window longer than the stream, an eval-views file's broken camera
+    ("recon-eval-window-longer", ["recon-eval", f"{R}/ds", "--window", "999999", "--methods", "tfp",
+                                  "--out", f"{R}/o"],
+     "spikes_gray.dat: --window 999999 is longer than the 40-frame stream"),
+    *[(f"sim-eval-views-{name}", [*SIM[:-3], "--no-progress", "--eval-views", f"{R}/{name}.json", "--out",
+                                   f"{R}/o"], f"{name}.json: field '{key}': expected a positive number")
+      for name, key in (("nan_fov", "camera_angle_x"), ("text_fov", "camera_angle_x"),
+                        ("zero_fov", "camera_angle_x"), ("neg_fl", "fl_x"))],
+    ("render-traj-nan-fov", ["render", f"{R}/run", "--trajectory", f"{R}/nan_fov.json", "--device", "cpu",
+                             "--out", f"{R}/o"], "nan_fov.json: field 'camera_angle_x': expected a positive"),
+    # ... a run's garbled summary.json or marker (reported as a garbled curves.csv is), an empty --resume
+    ("info-summary-garbage", ["info", f"{R}/garbage_summary_run"], "summary.json: malformed JSON"),
+    ("info-marker-garbage", ["info", f"{R}/garbage_marker_run"], ".spikenerf: a damaged folder marker"),
+    ("train-resume-empty-folder", [*T, "--resume", "--out", f"{R}/empty_dir"],
+     "empty_dir: --resume: no run in this empty folder to resume"),
 ]
 #: cases run while this process holds the writer lock of the sandbox folder named here
 LOCKED = {"locked-eval-link": "run", "locked-render": "run",

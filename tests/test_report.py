@@ -153,6 +153,37 @@ def test_a_failing_figure_becomes_a_note(bench: BenchmarkConfig, monkeypatch: py
     assert "<section id='curves'>" in page and len(data_uri_pngs(page)) == 3  # the scene's spike figures go
 
 
+def test_a_truncated_checkpoint_leaves_its_figure_out_in_one_warning_line(
+    bench: BenchmarkConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``report`` over a cell whose checkpoint.pt a crash cut short still writes the report; one warning line
+    names the file and the figure left out, and the page says that figure is not available."""
+    import dataclasses
+    import shutil
+
+    from spikenerf.pipelines.benchmark.results import write_all
+
+    done = tmp_path / "done"
+    shutil.copytree(bench.out, done)
+    cfg = dataclasses.replace(bench, out=done)
+    run = run_dir(cfg, SCENE, "gray", "nerf-gt")
+    write_all(cfg, [read_cell(run, SCENE, "gray", "nerf-gt")], [])  # type: ignore[list-item]
+    ckpt = run / "checkpoint.pt"
+    ckpt.write_bytes(ckpt.read_bytes()[:5000])
+    capsys.readouterr()
+    _cli("report", done, "--no-progress")
+    captured = capsys.readouterr()
+    assert captured.out.strip() == f"wrote {done / 'report.html'}"
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    start = "spikenerf: warning: report: the novel-spikes figure of analytic-orbs-gray is left out ("
+    assert lines[0].startswith(start) and f"{ckpt}: unreadable checkpoint" in lines[0], lines[0]
+    page = (done / "report.html").read_text(encoding="utf-8")
+    novel = page.split("<section id='novel-spikes'>")[1].split("</section>")[0]
+    assert "figure not available" in novel and "checkpoint.pt: unreadable checkpoint" in novel
+    assert "<img" not in novel and len(data_uri_pngs(page)) == 4  # the other figures are all there
+
+
 def test_raster_pixels_spread_over_rates() -> None:
     rates = np.array([1.0] * 90 + [0.0, 0.2, 0.4, 0.6, 0.8] + [1.0] * 5)
     picks = figures.raster_pixels(rates, 6)

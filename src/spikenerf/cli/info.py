@@ -150,8 +150,14 @@ def command(
                 path=path,
             )
         raise InputError("no such file or folder", path=path)
-    from spikenerf.core.marker import folder_kind
+    from spikenerf.core.marker import MARKER, folder_kind, marker_problem
 
+    if path.is_dir() and (problem := marker_problem(path)) is not None:  # (else known by its files, silently)
+        raise InputError(
+            f"a damaged folder marker: {problem} (spikenerf's record of the folders it wrote; delete it, and "
+            "the folder is known by its files, as one written before markers were)",
+            path=path / MARKER,
+        )
     if path.is_dir():
         dat_options = {"--height": height, "--width": width, "--layout": layout, "--raw-width": raw_width}
         given = [flag for flag, value in {**dat_options, "--fps": fps}.items() if value is not None]

@@ -234,7 +234,7 @@ def _scene_source(kw: dict, registry: Any) -> tuple[Any, dict]:
     if kw["eval_views"] is not None:  # read first: its poses are the test views the estimate counts
         from spikenerf.data.camera_path import read_pose_file
 
-        test_poses = read_pose_file(kw["eval_views"])
+        test_poses = read_pose_file(kw["eval_views"], (width, height))
         views = len(test_poses)
     _check_resources(kw, _size_params(kw), width, height, steps, views)
     trajectory = orbit(radius, elevation, turns, steps / fps, fps, center=center, elevation_sweep_deg=sweep)

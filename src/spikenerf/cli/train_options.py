@@ -237,7 +237,11 @@ OPTIONS = (
         help="Override any TrainConfig field (sections with dots: spike.lam, targets.window, "
         "field_config.X); values are YAML. Repeatable; applied after every other option.",
     ),
-    click.option("--resume", is_flag=True, help="Continue the run in --out from its checkpoint."),
+    click.option(
+        "--resume",
+        is_flag=True,
+        help="Continue the run in --out from its checkpoint (refused where --out is missing or empty).",
+    ),
     click.option(
         "--ignore-unused",
         is_flag=True,

@@ -76,6 +76,23 @@ def _marker(folder: Path) -> dict:
     return data if isinstance(data, dict) else {}
 
 
+def marker_problem(folder: str | Path) -> str | None:
+    """What is wrong with ``folder``'s marker, in words; None where it has none or one that reads back (an
+    object naming one of :data:`KINDS`, its ``files`` names). The guards take a damaged one for none."""
+    path = Path(folder) / MARKER
+    if not (path.exists() or path.is_symlink()):
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError) as err:
+        return f"unreadable ({type(err).__name__}: {err})"
+    if not isinstance(data, dict) or data.get("kind") not in KINDS:
+        return f"expected an object whose 'kind' is one of {', '.join(KINDS)}, found {data!r:.60}"
+    if not isinstance(files := data.get("files", []), list) or not all(isinstance(f, str) for f in files):
+        return f"field 'files': expected a list of file names, found {files!r:.40}"
+    return None
+
+
 def folder_kind(folder: str | Path) -> str | None:
     """The kind of a folder spikenerf wrote (from its marker, else its files), or None."""
     folder = Path(folder)

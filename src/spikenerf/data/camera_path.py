@@ -26,12 +26,19 @@ from spikenerf.scenes.transforms import (
 )
 
 
-def read_pose_file(path: str | Path) -> np.ndarray:
-    """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``)."""
+def read_pose_file(path: str | Path, size: tuple[int, int]) -> np.ndarray:
+    """Poses (N, 4, 4) float64 c2w from a NeRF-style transforms JSON (``frames[].transform_matrix``).
+
+    A camera the file gives is checked as a trajectory file's is (:func:`file_camera`, images of ``size`` =
+    (width, height) where it gives no ``w``/``h``), though the caller renders the poses with its own camera:
+    a NaN or negative ``camera_angle_x`` is a broken file, never passed over."""
     path = Path(path)
     if path.is_dir() and not (path / "transforms.json").is_file():
         raise InputError("is a folder, not a transforms JSON of poses", path=path)
-    return frame_poses(read_transforms(path, missing="pose file not found"), path)
+    meta = read_transforms(path, missing="pose file not found")
+    poses = frame_poses(meta, path)
+    file_camera(meta, path, size)
+    return poses
 
 
 #: the keys of a nerfstudio ``camera_path.json`` (``ns-render camera-path``; the viewer writes it) read here
@@ -75,17 +82,7 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
             "missing field 'camera_path' (a nerfstudio camera_path.json's list of cameras)", path
         )
     poses = frame_poses(meta, path)
-    cam = camera(meta, path)
-    k, given = None, [key for key in (*CAMERA_KEYS, *LENS_KEYS) if key in meta or key in cam]
-    if given and not ("fl_x" in cam or "camera_angle_x" in cam):
-        lensed = " (a file's lens is never paired with the dataset's focal length)"
-        lensed = lensed if any(key in LENS_KEYS for key in given) else ""
-        raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'{lensed}", path=path)
-    sized = [d for d in (meta, cam) if "w" in d or "h" in d]
-    if sized and sized[0] is meta and cam and not any(key in meta for key in ("fl_x", "camera_angle_x")):
-        raise InputError("fields 'w', 'h' belong beside the camera's 'fl_x' or 'camera_angle_x'", path=path)
-    if given:  # w/h given are the size
-        k = intrinsics(meta, path, None if sized else size)
+    k = file_camera(meta, path, size)
     bounds = None
     if "near" in meta or "far" in meta:
         near, far = number(meta, "near", path, positive=True), number(meta, "far", path, positive=True)
@@ -93,6 +90,23 @@ def read_camera_path(path: str | Path, size: tuple[int, int]) -> CameraPath:
             raise InputError(f"fields 'near', 'far': expected near < far, found {near}, {far}", path=path)
         bounds = (near, far)
     return CameraPath(poses, k, bounds)
+
+
+def file_camera(meta: dict, path: Path, size: tuple[int, int]) -> Intrinsics | None:
+    """The shared camera of a transforms JSON of poses (its top-level object ``meta``), None where it gives
+    none: ``camera_angle_x`` or ``fl_x`` [``fl_y``, ``cx``, ``cy``], its lens, and ``w`` and ``h`` together
+    beside them (else the images are ``size`` = (width, height)); every key checked as a dataset's are
+    (:func:`~spikenerf.scenes.transforms.intrinsics`), a lens or size without a focal length refused."""
+    cam = camera(meta, path)
+    given = [key for key in (*CAMERA_KEYS, *LENS_KEYS) if key in meta or key in cam]
+    if given and not ("fl_x" in cam or "camera_angle_x" in cam):
+        lensed = " (a file's lens is never paired with the dataset's focal length)"
+        lensed = lensed if any(key in LENS_KEYS for key in given) else ""
+        raise InputError(f"fields {given}: a camera needs 'camera_angle_x' or 'fl_x'{lensed}", path=path)
+    sized = [d for d in (meta, cam) if "w" in d or "h" in d]
+    if sized and sized[0] is meta and cam and not any(key in meta for key in ("fl_x", "camera_angle_x")):
+        raise InputError("fields 'w', 'h' belong beside the camera's 'fl_x' or 'camera_angle_x'", path=path)
+    return intrinsics(meta, path, None if sized else size) if given else None  # (w/h given: the size)
 
 
 def nerfstudio_path(meta: dict, path: Path) -> CameraPath:

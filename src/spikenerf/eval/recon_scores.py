@@ -127,8 +127,8 @@ def score_reconstructions(
         dataset_root: a dataset folder with ``gt/`` frames (simulated).
         methods: names of ``RECONS`` (tfp, tfi, tfstp, learned), a list or a comma-separated string.
         color: the stream to reconstruct (gray, rgb or bayer; one of the dataset's; None = its first).
-        window: TFP's window (odd; None = 41). TFI and TFSTP have none; learned uses the window it was
-            trained on.
+        window: TFP's window (odd, at most the stream's length; None = 41). TFI and TFSTP have none;
+            learned uses the window it was trained on.
         steps, count: which GT steps (see :func:`select_steps`); None = all.
         weights: learned: a weights file (None = the shipped one).
         lpips_backbone: ``alex``, ``vgg`` or None (skip LPIPS).
@@ -156,6 +156,11 @@ def score_reconstructions(
     indices = gt_indices(dataset)
     total = len(dataset.trajectory)
     keep = select_steps(indices, total, steps, count)
+    if window is not None and window > total:  # (as reconstruct: every window would be the whole stream)
+        path = root / spike_files(color)[0]
+        raise InputError(
+            f"window {window} is longer than the {total}-frame stream", path=path, param="window"
+        )
     backbone, reason = lpips_status(lpips_backbone, dataset.intrinsics.height, dataset.intrinsics.width)
     if reason and log and lpips_backbone is not None:
         log(f"spikenerf: warning: LPIPS not computed: {reason}")

@@ -5,21 +5,24 @@ ids): ``tables`` (Table I per colour, Table II), ``views`` (GT, each method and 
 ``spikes`` (raster of a few pixels, TFP next to its spike mask), ``curves`` (test PSNR against training time),
 ``novel-spikes`` (a predicted novel-view spike stream next to the one simulated from GT) and ``environment``
 (versions, hardware, and the command behind every figure). A missing piece (a cell without renders, LPIPS
-null, a figure that cannot be made) shows as "–" with a note; the report itself never fails on it. Every
-figure is also saved as a PNG under ``OUT/figures/``. The tables are made in ``report_tables.py``, the figures
-in ``report_figures.py`` (drawn by ``figures.py``); this module assembles and writes the page.
+null, a figure that cannot be made) shows as "–" with a note; the report itself never fails on it (a figure
+that cannot be made is also named in a warning line on stderr, once the report is written). Every figure is
+also saved as a PNG under ``OUT/figures/``. The tables are made in ``report_tables.py``, the figures in
+``report_figures.py`` (drawn by ``figures.py``); this module assembles and writes the page.
 """
 
 from __future__ import annotations
 
 import base64
 import json
+import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from spikenerf.core.atomic import write_bytes_atomic, write_text_atomic
+from spikenerf.core.errors import one_line
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.pipelines.benchmark.cells import BenchmarkConfig, cell_keys, environment
 from spikenerf.pipelines.benchmark.run import dataset_mismatch
@@ -133,13 +136,14 @@ def build_report(
     # the tables first: nothing is written (figures/ included) unless the whole page can be built
     body = [f"<section id='tables'>{tables_section(cfg, cells, local)}</section>"]
     made: dict[str, list[Fig]] = {k: [] for k in SECTIONS}
+    left_out = []  # a warning line per figure that cannot be made, said once the report is written
     for section, key, make in bar(jobs, desc="report figures", unit="fig", show=progress):
         try:
             figs = make()
-        except Exception as err:  # never crash the report: show what is missing and why
-            figs = [
-                Fig(f"{section}: {key}", None, note=f"– figure not available: {type(err).__name__}: {err}")
-            ]
+        except Exception as err:  # never crash the report: show what is missing and why, and say so
+            why = one_line(f"{type(err).__name__}: {err}")
+            figs = [Fig(f"{section}: {key}", None, note=f"– figure not available: {why}")]
+            left_out.append(f"spikenerf: warning: report: the {section} figure of {key} is left out ({why})")
         for i, fig in enumerate(figs):
             if fig.png is not None:  # each figure also as a PNG file, for READMEs and slides
                 fig.file = f"{FIGURES}/{section}-{key}{f'-{i + 1}' if len(figs) > 1 else ''}.png"
@@ -165,4 +169,6 @@ def build_report(
                 (cfg.out / FIGURES / name).unlink(missing_ok=True)
     path = cfg.out / REPORT
     write_text_atomic(path, page)
+    for line in left_out:  # (after the write: a report refused there says its one error line alone)
+        print(line, file=sys.stderr, flush=True)
     return path

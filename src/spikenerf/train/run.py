@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -58,16 +57,41 @@ def _db(value: float) -> str:
     return "n/a" if value != value else f"{value:.2f} dB"
 
 
-def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
-    """``out``'s ``summary.json`` when it reads back whole and reports ``iteration`` (else None)."""
-    try:
-        data = json.loads((out / SUMMARY).read_text())
-        summary = TrainSummary(**{k: math.nan if v is None else v for k, v in data.items()})
-    except (OSError, ValueError, TypeError, AttributeError, RecursionError):
+def read_summary(out: Path) -> TrainSummary | None:
+    """``out``'s ``summary.json`` (None where there is none); InputError naming it where it does not read
+    back whole: not a JSON object, a field missing, a value of another type or an int beyond a float (edited
+    in: ``info`` could not show it). ``info`` reports such a file; a resume writes it again."""
+    path = Path(out) / SUMMARY
+    if not (path.exists() or path.is_symlink()):
         return None
-    if not all(_SUMMARY_TYPES.get(str(f.type), _any)(getattr(summary, f.name)) for f in fields(summary)):
-        return None  # a value of another type, or an int beyond a float, edited in: `info` could not show it
-    return summary if summary.iteration == iteration else None
+    again = "delete it, or let `spikenerf train --resume` write it again"
+    if path.is_dir():
+        raise InputError(f"is a folder, not a training summary ({again})", path=path)
+    try:
+        data = read_mapping(path)
+    except InputError as err:
+        raise InputError(f"{err.message} ({again})", path=path) from None
+    known = {f.name for f in fields(TrainSummary)}  # (another version's fields beside them are not read)
+    if missing := [f.name for f in fields(TrainSummary) if f.default is MISSING and f.name not in data]:
+        raise InputError(f"not a training summary: missing field {missing[0]!r} ({again})", path=path)
+    summary = TrainSummary(**{k: math.nan if v is None else v for k, v in data.items() if k in known})
+    for f in fields(summary):
+        if not _SUMMARY_TYPES.get(str(f.type), _any)(value := getattr(summary, f.name)):
+            raise InputError(
+                f"field {f.name!r}: expected {_SUMMARY_WORDS.get(str(f.type), f.type)}, found {value!r:.40} "
+                f"({again})",
+                path=path,
+            )
+    return summary
+
+
+def stored_summary(out: Path, iteration: int) -> TrainSummary | None:
+    """``out``'s ``summary.json`` when it reads back whole (:func:`read_summary`) and reports ``iteration``
+    (else None: a resume writes it again)."""
+    try:
+        return _at(read_summary(out), iteration)
+    except InputError:
+        return None
 
 
 def _any(value: object) -> bool:
@@ -81,6 +105,7 @@ _SUMMARY_TYPES: dict[str, Callable[[object], bool]] = {
     "float": lambda v: isinstance(v, float) or is_finite(v),
     "str": lambda v: isinstance(v, str),
 }
+_SUMMARY_WORDS = {"int": "an integer", "float": "a number", "str": "text"}
 
 
 def load_run(
@@ -262,16 +287,17 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
         lines.append(_sensor_line(run_dir / SENSOR_MAP))
     if (held := read_record(run_dir)) is not None:
         lines.append(held_line(held, _imported(config)))
+    stored = read_summary(run_dir)  # (a garbled one is an InputError naming it, as a garbled curves.csv)
     if curves := read_curves(run_dir / CURVES):  # (a garbled one is an InputError naming it)
         last = curves[-1]
         train_psnr, test = last["train_psnr"], _db(last["test_psnr"])  # curves.csv rounds to 4 decimals
-        if (summary := stored_summary(run_dir, int(last["iteration"]))) is not None:  # as train printed
+        if (summary := _at(stored, int(last["iteration"]))) is not None:  # as train printed
             train_psnr, test = summary.train_psnr, summary.test_text()
         lines.append(
             f"last evaluation: iteration {int(last['iteration'])}, {last['seconds']:.0f} s of training, "
             f"train PSNR {_db(train_psnr)} (against its training targets), test PSNR {test}"
         )
-    elif done and (summary := stored_summary(run_dir, done)) is not None:  # curves.csv removed
+    elif done and (summary := _at(stored, done)) is not None:  # curves.csv removed
         lines.append(
             f"last evaluation: iteration {done}, {summary.seconds:.0f} s of training, train PSNR "
             f"{_db(summary.train_psnr)} (against its training targets), test PSNR "
@@ -281,6 +307,11 @@ def describe_run(run_dir: str | Path, metrics: MetricsLines | None = None) -> st
         if metrics is not None and (path := run_dir / name).exists():
             lines += metrics(path, done)
     return "\n".join(lines)
+
+
+def _at(summary: TrainSummary | None, iteration: int) -> TrainSummary | None:
+    """``summary`` where it reports ``iteration`` (a summary of an earlier finish is not this state's)."""
+    return summary if summary is not None and summary.iteration == iteration else None
 
 
 def _sensor_line(path: Path) -> str:

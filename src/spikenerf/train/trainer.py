@@ -293,9 +293,9 @@ def train(
 ) -> TrainSummary:
     """Train ``config`` into the run folder ``out`` (see :class:`Trainer`), holding its writer lock.
 
-    ``out`` must be new, empty or a run folder; ``resume`` needs it to exist. Temporaries that a killed
-    writer left in it are removed first. A folder this call created is removed again when the setup is
-    refused.
+    ``out`` must be new, empty or a run folder; ``resume`` needs a run folder (a missing or empty ``out``
+    holds no run to continue: refused, never a new run started silently). Temporaries that a killed writer
+    left in it are removed first. A folder this call created is removed again when the setup is refused.
 
     Args:
         config: the settings; ``config.dataset`` names the data folder (``config.yaml`` records its
@@ -314,8 +314,10 @@ def train(
     check_api_args(config, out, dataset)
     check_stop_after(stop_after)
     out = Path(out)
-    if resume and not out.is_dir():
-        raise InputError("resume: no run folder here to resume (start one without it)", out, param="resume")
+    state = fresh_state(out)
+    if resume and (not out.is_dir() or state == "empty"):  # nothing to continue (never a new run started)
+        where = "in this empty folder" if state == "empty" else "folder here"
+        raise InputError(f"resume: no run {where} to resume (start one without it)", out, param="resume")
     check_output(out, "run", overwrite=True)
     with output_lock(out):
         check_output(out, "run", overwrite=True)
