@@ -58,7 +58,7 @@ def test_the_cpu_march_keeps_the_torch_marchs_steps_in_order(
 ) -> None:
     model = static._model(occupancy)
     inputs = _marching(model, (40, 30))  # 1200 rays: the kernel's 64 chunks of rays, moved up into place
-    assert march_cpu.applies(inputs[0], inputs[2])
+    assert march_cpu.applies(*inputs[:4])
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
@@ -172,3 +172,34 @@ def test_where_the_kernel_is_not_used_every_sample_is_looked_up(monkeypatch: pyt
         assert torch.equal(field.density_until(xn, offsets, deltas, 1.0), every)
     with pytest.raises(ValueError, match="offsets"):
         vm_kernel.vm_sum_until(field.density_planes, field.density_lines, xn, offsets[:-1], deltas, 0, 1, 1)
+
+
+def test_the_cpu_march_leaves_a_float64_input_to_the_torch_march(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The torch march tests a float64 ``far`` (or direction) in float64; the kernel, all float32, would keep
+    other steps, so it applies only where all four inputs are float32."""
+    model = static._model(occupancy=True)
+    o_n, d_n, near, far, step = _marching(model, (40, 30))
+    far = far.double() + 1e-9  # between two float32 values
+    ray, k = model._march(o_n, d_n, near, far, step)
+    want_ray, want_k = _torch_march(model, (o_n, d_n, near, far, step), monkeypatch)
+    assert torch.equal(ray, want_ray) and torch.equal(k, want_k)
+    assert not march_cpu.applies(o_n, d_n, near, far) and not march_cpu.applies(o_n, d_n.double(), near, far)
+
+
+def test_the_kernels_refuse_inputs_they_would_read_or_write_outside_of() -> None:
+    """Offsets that do not start at 0 or that decrease (samples never written, or written out of bounds) and
+    march inputs of different lengths: an error, from the Python functions and the raw ops alike."""
+    gen = torch.Generator().manual_seed(5)
+    planes, lines = torch.randn(3, 4, 8, 8, generator=gen), torch.randn(3, 4, 8, 1, generator=gen)
+    xyz, deltas = torch.rand(10, 3, generator=gen) * 2 - 1, torch.full((10,), 0.01)
+    for offsets in ([3, 6, 10], [0, 8, 4, 10]):
+        with pytest.raises(ValueError, match="offsets"):
+            vm_kernel.vm_sum_until(planes, lines, xyz, torch.tensor(offsets), deltas, 0.0, 1.0, 5.0)
+    p, ln = torch.randn(3, 8, 8, 4, generator=gen), torch.randn(3, 8, 4, generator=gen)  # channels last
+    for offsets in ([0, 8, 4, 10], [0, 50_000_000, 10], [2, 10]):
+        with pytest.raises(RuntimeError, match="offsets"):
+            torch.ops.spikenerf.vm_cpu_until(p, ln, xyz, torch.tensor(offsets), deltas, 0.0, 1.0, 5.0)
+    o_n, d_n = torch.zeros(4, 3), torch.ones(4, 3)
+    near, far, counts = torch.zeros(5), torch.ones(5), torch.full((5,), 3)
+    with pytest.raises(RuntimeError, match="march"):
+        march_cpu.march(o_n, d_n, near, far, counts, None, 0.5)

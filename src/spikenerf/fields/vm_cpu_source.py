@@ -125,14 +125,21 @@ static inline float softplus_below(float z) {
 // depth of the ray's earlier samples, Σ scale · softplus_below(raw + shift) · δ (the density is scale ·
 // softplus(raw + shift); each term clamped to 1e3, a NaN to 1e3, as packed_depth_before does), is at most
 // `limit`; the later ones get −inf (a density of 0). A ray's first PF samples are prefetched before its
-// loop. out (M,)
+// loop. Offsets that do not run from 0 to M without decreasing are refused (they would read and write
+// outside the samples, or leave some unwritten). out (M,)
 torch::Tensor vm_forward_until(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, torch::Tensor offsets,
                                torch::Tensor deltas, double shift, double scale, double limit) {
+  TORCH_CHECK(xyz.dim() == 2 && xyz.size(1) == 3 && offsets.dim() == 1 && offsets.size(0) >= 1 &&
+                  deltas.numel() == xyz.size(0),
+              "forward_until: expected xyz (M, 3), offsets (N + 1,) and deltas (M,)");
   const int64_t m = xyz.size(0), n = offsets.size(0) - 1, r = planes.size(1), c = planes.size(3);
-  auto out = torch::empty({m}, xyz.options());
   const float *P = planes.data_ptr<float>(), *L = lines.data_ptr<float>(), *X = xyz.data_ptr<float>();
   const float *DELTA = deltas.data_ptr<float>();
   const int64_t *OFF = offsets.data_ptr<int64_t>();
+  bool ordered = OFF[0] == 0 && OFF[n] == m;
+  for (int64_t i = 0; i < n && ordered; ++i) ordered = OFF[i] <= OFF[i + 1];
+  TORCH_CHECK(ordered, "forward_until: offsets must run from 0 to the ", m, " samples without decreasing");
+  auto out = torch::empty({m}, xyz.options());
   float *O = out.data_ptr<float>();
   const float none = -std::numeric_limits<float>::infinity(), sh = (float)shift, sc = (float)scale;
   at::parallel_for(0, n, 64, [&](int64_t b, int64_t e) {
@@ -289,6 +296,9 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
 std::vector<torch::Tensor> march(torch::Tensor o_n, torch::Tensor d_n, torch::Tensor near, torch::Tensor far,
                                  torch::Tensor counts, torch::Tensor grid, double step, bool occupancy) {
   const int64_t n = near.size(0), g = grid.size(0);
+  TORCH_CHECK(o_n.numel() == 3 * n && d_n.numel() == 3 * n && far.numel() == n && counts.numel() == n &&
+                  grid.dim() == 3 && grid.numel() == g * g * g,
+              "march: expected o_n, d_n (N, 3), near, far, counts (N,) and grid (G, G, G)");
   const float *O = o_n.data_ptr<float>(), *D = d_n.data_ptr<float>();
   const float *NEAR = near.data_ptr<float>(), *FAR = far.data_ptr<float>();
   const int64_t *COUNT = counts.data_ptr<int64_t>();

@@ -162,6 +162,8 @@ def vm_sum_until(
     Returns:
         (M,): the summed products where looked up (the values of :func:`vm_lookup`), −inf after (a density of
         exactly 0, with gradient 0). Its gradient flows to the planes and lines as :func:`vm_lookup`'s.
+    Raises:
+        ValueError: ``offsets`` not (N + 1,), not from 0 to M or decreasing, or ``deltas`` not (M,).
     """
     if load() is None:
         raise RuntimeError("vm_sum_until: the fused VM CPU kernel is unavailable (check usable first)")
@@ -171,6 +173,8 @@ def vm_sum_until(
             f"vm_sum_until: offsets must be (N + 1,) ending at the {m} samples and deltas (M,), found "
             f"{tuple(offsets.shape)} and {tuple(deltas.shape)}"
         )
+    if int(offsets[0]) != 0 or bool((offsets[1:] < offsets[:-1]).any()):  # (the kernel would write outside)
+        raise ValueError("vm_sum_until: offsets must start at 0 and not decrease (render.volume.ray_offsets)")
     stop = limit * (1.0 + UNTIL_MARGIN) + UNTIL_MARGIN
     p, ln = channels_last(planes, lines)
     args = (p, ln, xyz.contiguous(), offsets.long().contiguous(), deltas.float().contiguous())

@@ -99,7 +99,7 @@ class GridModel(RadianceModel):
             kept = march_triton.kept_counts(o_n, d_n, near, far, counts, grid, step)
             ray, k, _ = march_triton.write(o_n, d_n, near, far, counts, grid, step, kept, int(kept.sum()))
             return ray, k
-        if march_cpu.applies(o_n, near):
+        if march_cpu.applies(o_n, d_n, near, far):
             return march_cpu.march(o_n, d_n, near, far, counts, self._grid(), step)
         total = int(counts.sum())
         ray = torch.repeat_interleave(

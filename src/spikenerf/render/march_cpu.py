@@ -20,13 +20,12 @@ from spikenerf.fields.vm_build import load
 from spikenerf.fields.vm_kernel import available
 
 
-def applies(o_n: Tensor, near: Tensor) -> bool:
-    """Whether :func:`march` runs for normalised origins ``o_n`` (N, 3) and ``near`` (N,): CPU float32
-    tensors, eager, and the fused kernel built."""
+def applies(o_n: Tensor, d_n: Tensor, near: Tensor, far: Tensor) -> bool:
+    """Whether :func:`march` runs for normalised origins and directions ``o_n``, ``d_n`` (N, 3) and ``near``,
+    ``far`` (N,): CPU float32 tensors, all four (the torch march tests a float64 one in float64), eager,
+    and the fused kernel built."""
     return (
-        o_n.device.type == "cpu"
-        and o_n.dtype == torch.float32
-        and near.dtype == torch.float32
+        all(x.device.type == "cpu" and x.dtype == torch.float32 for x in (o_n, d_n, near, far))
         and not torch.compiler.is_compiling()
         and available()
     )
