@@ -452,6 +452,30 @@ def test_pose_file_steps_must_fit_the_selection(capsys, recording, tmp_path, ste
     assert code == 2 and message in err and "p.json" in err and len(err.strip().splitlines()) == 1, err
 
 
+@pytest.mark.parametrize(
+    ("field", "hint"),
+    [
+        (False, "if the numbers ending the frame names are not spike steps, give each frame its 'step'"),
+        (True, "if the frames' 'step' values are not spike steps, correct them"),
+    ],
+)
+def test_short_pose_steps_hint_at_where_the_steps_came_from(capsys, recording, tmp_path, field, hint) -> None:
+    """Steps read from 'step' fields are not fixed by giving 'step' fields: the hint names their source."""
+    rec, _ = recording
+    frames = [
+        {
+            "file_path": f"frame_{s:05d}.png",
+            "transform_matrix": _truth(60)[s].tolist(),
+            **({"step": s} if field else {}),
+        }
+        for s in [1, 2, 3, 4]
+    ]
+    (tmp_path / "p.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": frames}))
+    code, _, err = run_cli(capsys, "import", rec, "--out", tmp_path / "ds", "--poses", tmp_path / "p.json")
+    assert code == 2 and "cover only 4 of the 40" in err and hint in err, err
+    assert (hint.startswith("if the numbers")) == ("give each frame its 'step'" in err), err
+
+
 def test_stale_colmap_work_is_not_published_with_other_poses(capsys, recording, tmp_path) -> None:
     rec, _ = recording
     model = tmp_path / "ds.partial" / "colmap" / "model"

@@ -127,14 +127,9 @@ def read_colmap_text(folder: Path) -> PoseSet:
     names = [r[9] for r in pose_rows]
     points = np.asarray(pts, np.float64).reshape(-1, 3)
     camera = _colmap_camera(cams[int(pose_rows[0][8])], folder / "cameras.txt")
-    return PoseSet(
-        poses,
-        steps_from_names(names, folder / "images.txt"),
-        camera,
-        points if len(points) else None,
-        None,
-        tuple(names),
-    )
+    steps = steps_from_names(names, folder / "images.txt")
+    points = points if len(points) else None
+    return PoseSet(poses, steps, camera, points, None, tuple(names), steps_named=steps is not None)
 
 
 #: parameters of each COLMAP camera model, by its id in ``cameras.bin`` (colmap/sensor/models.h; 12-17:

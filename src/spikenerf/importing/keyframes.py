@@ -101,7 +101,7 @@ def keyframe_poses(
         steps = np.round(np.linspace(0, n - 1, len(found.poses))).astype(np.int64)
     else:
         steps = found.steps + imported_offset(opts.poses) - first
-        _check_pose_steps(steps, n, first, opts.poses)
+        _check_pose_steps(steps, n, first, opts.poses, found.steps_named)
     return replace(found, steps=steps)
 
 
@@ -149,10 +149,10 @@ def colmap_poses(opts: ImportOptions, images: np.ndarray, key_steps: np.ndarray,
     )
 
 
-def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> None:
+def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str, named: bool) -> None:
     """InputError unless a pose file's steps (relative to the selection) lie in ``[0, n)`` and span more
     than half of it (frame numbers that are not spike steps, such as frame_00001.png, would hold the
-    rest)."""
+    rest); ``named``: the steps are the numbers ending the frames' names, not ``step`` fields."""
     lo, hi = int(steps.min()), int(steps.max())
     where = f"steps {lo + first}..{hi + first} of the poses"
     if lo < 0 or hi >= n:
@@ -164,10 +164,15 @@ def _check_pose_steps(steps: np.ndarray, n: int, first: int, source: str) -> Non
         )
     posed = f"frame_range {lo + first}:{hi + first + 1}"
     if hi - lo + 1 <= n / 2:
+        fix = (
+            "if the numbers ending the frame names are not spike steps, give each frame its 'step' (a "
+            "transforms.json field)"
+            if named
+            else "if the frames' 'step' values are not spike steps, correct them"
+        )
         raise InputError(
             f"{where} cover only {hi - lo + 1} of the {n} selected steps {first}..{first + n - 1}; the rest "
-            f"would keep a held pose: select the posed steps ({posed}), or, if the frame numbers are not "
-            "spike steps, give 'step' per frame",
+            f"would keep a held pose: select the posed steps ({posed}), or, {fix}",
             path=source,
             param="frame_range",
         )

@@ -24,7 +24,8 @@ class PoseSet:
     (radians) when the source gives only a field of view; depth_bounds (near, far) along the optical axes
     in the source's units (LLFF); note: how the poses were found when it matters (stored in config.yaml);
     focus (3,): the point every camera looks at when the source knows it (an orbit's centre); lens: the
-    lens distortion of a source without full intrinsics (a field of view and ``k1``…)."""
+    lens distortion of a source without full intrinsics (a field of view and ``k1``…); steps_named: the
+    steps are the numbers ending the frames' names (not ``step`` fields), for messages."""
 
     poses: np.ndarray
     steps: np.ndarray | None = None
@@ -37,6 +38,7 @@ class PoseSet:
     note: str = ""
     focus: np.ndarray | None = None
     lens: Distortion | None = None
+    steps_named: bool = False
 
 
 #: coordinates at or beyond this are absurd (NaN-free, but the unit-box fit of 1e308 overflows to inf)

@@ -50,7 +50,7 @@ def read_transforms_poses(path: Path) -> PoseSet:
     data = transforms.read_transforms(path)
     poses = check_poses(transforms.frame_poses(data, path), path)
     frames = data["frames"]
-    steps = None
+    steps, named = None, False
     if any("step" in f for f in frames):
         steps = np.array([_step_of(f, i, path) for i, f in enumerate(frames)], np.int64)
         _, first, counts = np.unique(steps, return_index=True, return_counts=True)
@@ -61,6 +61,7 @@ def read_transforms_poses(path: Path) -> PoseSet:
             raise InputError(message, path=path)
     elif all(isinstance(f.get("file_path"), str) for f in frames):
         steps = steps_from_names([f["file_path"] for f in frames], path)
+        named = steps is not None
     k, fov, cam = None, None, transforms.camera(data, path)
     if all(key in cam for key in ("fl_x", "w", "h")):
         k = transforms.intrinsics(data, path)
@@ -69,7 +70,7 @@ def read_transforms_poses(path: Path) -> PoseSet:
     box = transforms.scene_box(data, path)
     names = tuple(str(f.get("file_path", i)) for i, f in enumerate(frames))
     lens = transforms.lens(data, path) if k is None else None  # (else k holds it)
-    return PoseSet(poses, steps, k, None, box, names, fov, lens=lens)
+    return PoseSet(poses, steps, k, None, box, names, fov, lens=lens, steps_named=named)
 
 
 # ------------------------------------------------------------------------------------------------- LLFF
