@@ -169,7 +169,8 @@ def test_comma_list_keeps_known_names_and_words_the_error_through_the_caller() -
 
 
 def test_replace_dir_swaps_a_finished_folder_in(tmp_path) -> None:
-    from spikenerf.core.marker import mark, replace_dir
+    from spikenerf.core.marker import mark
+    from spikenerf.core.replacement import replace_dir
 
     out, work = tmp_path / "out", tmp_path / "work"
     out.mkdir()

@@ -531,7 +531,7 @@ def test_near_far_from_points_memory_is_bounded() -> None:
 
 def test_one_lock_per_folder_and_a_killed_swap_is_finished(capsys, recording, tmp_path) -> None:
     from spikenerf.core.lock import lock_path
-    from spikenerf.core.marker import retire
+    from spikenerf.core.replacement import retire
 
     (tmp_path / "d").mkdir()
     assert lock_path(tmp_path / "d" / ".." / "ds") == lock_path(tmp_path / "ds")

@@ -13,6 +13,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -259,6 +260,53 @@ def test_a_task_a_new_cluster_cannot_place_is_refused_not_waited_for(
         ray_executor.run_jobs(cfg, [job], [])
     assert err.value.params == (param,) and fake.down
     assert ray_executor._cluster_problem({"CPU": 4.0, "GPU": 1.0}, cfg) is None  # a cluster that can
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [(["--ray-cpus", "4"], "a task asks for --ray-cpus 4 CPUs, the Ray cluster has 2"),
+     (["--device", "cuda"], "the Ray cluster has no GPU for --device cuda")],
+)  # fmt: skip
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_task_the_cluster_cannot_place_is_refused_before_anything_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], args: list[str],
+    expected: str, existing: bool,
+) -> None:  # fmt: skip
+    """It left OUT/benchmark.json and its marker behind (the check ran once the settings were written)."""
+    from spikenerf.pipelines.benchmark import ray_executor
+
+    fake = _FakeRay()
+    monkeypatch.setattr(ray_executor, "require_ray", lambda: fake)
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    out = tmp_path / "bench"
+    if existing:
+        out.mkdir()
+    with pytest.raises(SystemExit) as exit_:
+        main(["benchmark", "--scenes", "analytic-orbs", "--executor", "ray", "--out", str(out), *args])
+    assert exit_.value.code == 2 and fake.down
+    assert (list(out.iterdir()) == []) if existing else not out.exists()
+    assert capsys.readouterr().err.splitlines() == [f"spikenerf: error: {expected}"]
+
+
+def test_a_named_cluster_that_cannot_place_a_task_yet_is_only_probed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An autoscaler may add the node a task needs: the check refuses only a local cluster started here
+    (docs/cluster.md), and reaches a named one without refusing; run_jobs warns there."""
+    from spikenerf.pipelines.benchmark import ray_executor
+
+    fake = _FakeRay()
+    monkeypatch.setattr(ray_executor, "require_ray", lambda: fake)
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    named = SimpleNamespace(address="auto", ray_cpus=4, device="cpu")
+    ray_executor.RayExecutor().check(named)  # no InputError: the cluster may grow
+    assert fake.down  # the probe's session is closed again
+    with pytest.raises(InputError, match="ray_cpus 4 CPUs, the Ray cluster has 2"):
+        ray_executor.RayExecutor().check(SimpleNamespace(address="local", ray_cpus=4, device="cpu"))
+    assert ray_executor._starts_local(None) and ray_executor._starts_local("local")
+    assert not ray_executor._starts_local("auto") and not ray_executor._starts_local("10.0.0.1:6379")
+    monkeypatch.setenv("RAY_ADDRESS", "10.0.0.1:6379")
+    assert not ray_executor._starts_local(None)
 
 
 @pytest.mark.parametrize(

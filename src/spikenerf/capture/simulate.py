@@ -28,8 +28,9 @@ from spikenerf.core.errors import InputError, is_integer
 from spikenerf.core.faults import failpoint
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_output, mark, replace_dir
+from spikenerf.core.marker import MARKER, check_output, mark
 from spikenerf.core.progress import bar as progress_bar
+from spikenerf.core.replacement import replace_dir
 from spikenerf.data.dataset import near_far, spike_files
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced
 from spikenerf.scenes.base import FrameSource

@@ -7,16 +7,13 @@ non-empty folder without the marker. Folders written before the marker existed a
 files, but only a marked folder whose files are exactly the ones its marker lists is ever replaced
 (``--overwrite``): a look-alike, a link, or a dataset holding the user's notes or a trained run is
 refused. The swapped-out ``.<name>.old`` of a replacement carries a ``retired`` marker, so a user's own
-``.<name>.old`` is never deleted or moved into place.
+``.<name>.old`` is never deleted or moved into place (the replacement: :mod:`spikenerf.core.replacement`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import shutil
-import sys
 import tempfile
 from pathlib import Path
 
@@ -55,7 +52,7 @@ def mark(folder: str | Path, kind: str, files: bool | list[str] = False) -> None
         raise ValueError(f"unknown folder kind {kind!r}")
     entry: dict = {"kind": kind}
     if files is not False:
-        before = _marker(Path(folder))  # a list extended from an older marker keeps its meaning
+        before = read_marker(Path(folder))  # a list extended from an older marker keeps its meaning
         entry["files"] = _inventory(Path(folder)) if files is True else sorted(files)
         # the list names empty folders too (older markers did not)
         entry["empty_dirs"] = files is True or before.get("empty_dirs", "files" not in before) is True
@@ -64,11 +61,12 @@ def mark(folder: str | Path, kind: str, files: bool | list[str] = False) -> None
 
 def listed(folder: str | Path) -> list[str]:
     """The files ``folder``'s marker lists as spikenerf's ([] when none)."""
-    files = _marker(Path(folder)).get("files")
+    files = read_marker(Path(folder)).get("files")
     return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
 
 
-def _marker(folder: Path) -> dict:
+def read_marker(folder: Path) -> dict:
+    """The object in ``folder``'s marker ({} where it has none, or one that does not read back as one)."""
     try:
         data = json.loads((folder / MARKER).read_text())
     except (OSError, ValueError, RecursionError):
@@ -98,7 +96,7 @@ def folder_kind(folder: str | Path) -> str | None:
     folder = Path(folder)
     if not folder.is_dir():
         return None
-    kind = _marker(folder).get("kind")
+    kind = read_marker(folder).get("kind")
     if kind in KINDS:
         return kind
     for kind, names in _LEGACY.items():
@@ -109,7 +107,7 @@ def folder_kind(folder: str | Path) -> str | None:
 
 def strangers(folder: Path) -> list[str]:
     """What ``folder`` holds beyond the files its marker lists (all of it when the marker lists none)."""
-    entry = _marker(folder)
+    entry = read_marker(folder)
     listed = entry.get("files")
     have = _inventory(folder)
     if entry.get("empty_dirs") is not True:  # a marker from before empty folders were listed
@@ -126,94 +124,7 @@ def old_path(out: Path) -> Path:
 
 def is_retired(old: Path) -> bool:
     """Whether ``old`` is a folder that a replacement of spikenerf swapped out (not the user's)."""
-    return old.is_dir() and not old.is_symlink() and _marker(old).get("retired") is True
-
-
-def retire(out: Path) -> Path:
-    """Swap the folder ``out`` out of the way (to :func:`old_path`, marked retired); returns that path.
-    A retired leftover there is deleted first; anything else there is an InputError, untouched."""
-    old = old_path(out)
-    if old.exists() or old.is_symlink():
-        if not is_retired(old):
-            raise InputError("is in the way of a replacement and spikenerf did not write it; move it", old)
-        _delete_retired(old)
-    write_text_atomic(out / MARKER, json.dumps({**_marker(out), "retired": True}) + "\n")
-    out.rename(old)
-    return old
-
-
-def recover_retired(out: Path) -> None:
-    """Finish a replacement killed between its renames (call it holding the lock): a retired ``.<out>.old``
-    is restored when ``out`` is missing, else deleted. A ``.<out>.old`` spikenerf did not retire is left."""
-    old = old_path(out)
-    if not is_retired(old):
-        return
-    if out.exists() or out.is_symlink():
-        _delete_retired(old)
-        return
-    entry = {k: v for k, v in _marker(old).items() if k != "retired"}
-    write_text_atomic(old / MARKER, json.dumps(entry) + "\n")
-    old.rename(out)
-
-
-def fresh_state(out: Path) -> str | None:
-    """What ``out`` is before a command writes into it in place: ``"absent"``, ``"empty"`` (a folder with
-    nothing in it, e.g. the user's own) or None (it holds something: not the command's to remove)."""
-    if not (out.exists() or out.is_symlink()):
-        return "absent"
-    if out.is_dir() and not out.is_symlink() and not any(out.iterdir()):
-        return "empty"
-    return None
-
-
-def discard_fresh(out: Path, state: str | None) -> None:
-    """Undo a failed command's writes into ``out``, which was ``state`` (:func:`fresh_state`) before it: an
-    absent folder is removed, an empty one emptied again (the user's folder stays); else nothing."""
-    if state == "absent":
-        shutil.rmtree(out, ignore_errors=True)
-    elif state == "empty" and out.is_dir():
-        for child in out.iterdir():
-            shutil.rmtree(child, ignore_errors=True) if child.is_dir() else child.unlink(missing_ok=True)
-
-
-def _delete_retired(old: Path) -> None:
-    """Delete a retired copy left by an earlier replacement; InputError naming it where a file in it cannot be
-    deleted (an immutable or read-only file: the user's to remove)."""
-    try:
-        shutil.rmtree(old)
-    except OSError as err:
-        raise InputError(
-            f"a copy an earlier replacement left cannot be deleted ({err.strerror or err}: "
-            f"{getattr(err, 'filename', '') or old}); delete it yourself",
-            path=old,
-        ) from err
-
-
-def replace_dir(work: Path, out: Path) -> None:
-    """Rename the finished ``work`` folder to ``out`` (an existing ``out`` is retired, then deleted); a
-    replacement killed between its renames is finished by :func:`recover_retired`."""
-    old = retire(out) if out.exists() or out.is_symlink() else None
-    work.rename(out)
-    if old is not None:
-        _remove_retired(old, out)
-
-
-def _remove_retired(old: Path, out: Path) -> None:
-    """Delete the retired ``old`` copy of ``out``, which is already in place: where a file in it cannot be
-    deleted (a read-only or immutable file), one warning line, and ``old`` keeps its retired marker so that
-    the next replacement deletes it (it is not the user's)."""
-    entry = _marker(old)
-    try:
-        shutil.rmtree(old)
-    except OSError as err:
-        if old.is_dir():
-            with contextlib.suppress(OSError):
-                write_text_atomic(old / MARKER, json.dumps(entry) + "\n")
-        print(
-            f"spikenerf: warning: {out} is in place, but the copy it replaced could not be deleted "
-            f"({err.strerror or err}: {getattr(err, 'filename', '') or old}); delete {old} yourself",
-            file=sys.stderr,
-        )
+    return old.is_dir() and not old.is_symlink() and read_marker(old).get("retired") is True
 
 
 def check_output(
@@ -282,7 +193,7 @@ def _check_container(path: Path, kind: str, param: str) -> None:
     output (:data:`HOLDS`: a run inside a dataset would make the dataset hold a stranger). Links and ``..``
     are resolved first: ``DS/../DS`` is DS itself, and a link into a dataset lies inside it."""
     for parent in _resolved(path).parents:
-        found = _marker(parent).get("kind") if owned(parent) else None
+        found = read_marker(parent).get("kind") if owned(parent) else None
         if found is None:
             continue
         if found in HOLDS and kind not in HOLDS[found]:
@@ -378,7 +289,7 @@ def check_file_output(path: str | Path, param: str = "out", overwrite: bool = Fa
     for parent in path.absolute().parents:
         _check_parent(parent, path, param)
     for parent in (_resolved(path.parent), *_resolved(path.parent).parents):
-        if (kind := _marker(parent).get("kind")) in KINDS:
+        if (kind := read_marker(parent).get("kind")) in KINDS:
             raise InputError(
                 f"{param}: lies inside a {kind} folder spikenerf wrote ({parent}); write it elsewhere",
                 path=path,
@@ -392,7 +303,7 @@ def check_file_output(path: str | Path, param: str = "out", overwrite: bool = Fa
 
 
 def _check_replaceable(path: Path, kind: str, param: str) -> None:
-    if _marker(path).get("kind") != kind or not isinstance(_marker(path).get("files"), list):
+    if read_marker(path).get("kind") != kind or not isinstance(read_marker(path).get("files"), list):
         raise InputError(
             f"{param}: looks like a {kind} folder but has no complete {MARKER} marker (not written whole by "
             "this spikenerf); refusing to replace it: delete it yourself or choose another",

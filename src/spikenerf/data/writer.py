@@ -19,7 +19,8 @@ from spikenerf.camera.io import encode_frames, read_dat
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
-from spikenerf.core.marker import folder_kind, mark, recover_retired
+from spikenerf.core.marker import folder_kind, mark
+from spikenerf.core.replacement import recover_retired
 from spikenerf.data.dataset import (
     BLUR_ARRAY,
     CONFIG,
@@ -223,7 +224,7 @@ def open_work(out: Path) -> tuple[Path, bool]:
 
 
 def recover_replaced(out: Path) -> None:
-    """Finish a :func:`~spikenerf.core.marker.replace_dir` that was killed between its renames (call it
+    """Finish a :func:`~spikenerf.core.replacement.replace_dir` that was killed between its renames (call it
     holding the lock): the swapped-out ``.<out>.old`` is restored when ``out`` is missing, else deleted;
-    only one spikenerf retired (``core/marker.py``), never the user's own ``.<out>.old``."""
+    only one spikenerf retired (``core/replacement.py``), never the user's own ``.<out>.old``."""
     recover_retired(out)

@@ -22,7 +22,8 @@ from spikenerf.camera.spikecv import recording_config, refuse_size_conflicts
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import MARKER, check_inputs_outside, check_output, mark, replace_dir
+from spikenerf.core.marker import MARKER, check_inputs_outside, check_output, mark
+from spikenerf.core.replacement import replace_dir
 from spikenerf.data.dataset import load_dataset, near_far
 from spikenerf.data.writer import DatasetWriter, open_work, recover_replaced, work_dir
 from spikenerf.importing.interpolation import per_step_poses

@@ -20,7 +20,8 @@ from spikenerf.core.atomic import clean_stale_temps, write_text_atomic
 from spikenerf.core.errors import InputError
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, discard_fresh, fresh_state, mark
+from spikenerf.core.marker import check_output, mark
+from spikenerf.core.replacement import discard_fresh, fresh_state
 from spikenerf.recon.natural import (
     NATURAL_HELDOUT,
     NATURAL_TRAIN,

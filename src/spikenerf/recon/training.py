@@ -24,8 +24,9 @@ from spikenerf.core.csvtable import read_table
 from spikenerf.core.errors import InputError, is_finite, is_integer, is_number
 from spikenerf.core.limits import check_resources
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, discard_fresh, fresh_state, mark, owned
+from spikenerf.core.marker import check_output, mark, owned
 from spikenerf.core.psnr import mse_to_psnr
+from spikenerf.core.replacement import discard_fresh, fresh_state
 from spikenerf.recon.config import ReconTrainConfig
 from spikenerf.recon.features import brightness_scale, feature_count
 from spikenerf.recon.net import NetConfig, ReconNet, read_torch, save_torch, save_weights

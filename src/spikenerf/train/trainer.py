@@ -23,7 +23,8 @@ from spikenerf.core.atomic import clean_stale_temps
 from spikenerf.core.device import resolve_device
 from spikenerf.core.errors import InputError
 from spikenerf.core.lock import output_lock
-from spikenerf.core.marker import check_output, discard_fresh, fresh_state, mark, owned
+from spikenerf.core.marker import check_output, mark, owned
+from spikenerf.core.replacement import discard_fresh, fresh_state
 from spikenerf.data.dataset import SpikeDataset, load_dataset
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.recon_cache import learned_targets_in

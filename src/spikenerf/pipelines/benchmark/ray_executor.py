@@ -56,14 +56,31 @@ class RayExecutor:
     """Every job a Ray task (see the module docstring)."""
 
     def check(self, cfg: Any) -> None:
-        """Without Ray: InputError with the one-line install hint. A cluster named by ``address`` (or
-        ``$RAY_ADDRESS``) that cannot be reached: InputError naming ``address``, before anything is written
-        (the connection is a probe, closed again; :func:`run_jobs` connects when it has jobs to run)."""
+        """Before anything is written: without Ray, InputError with the one-line install hint; a cluster
+        named by ``address`` (or ``$RAY_ADDRESS``) that cannot be reached, InputError naming ``address``; a
+        local cluster started here that cannot place a task (:func:`_cluster_problem`: a GPU it lacks, more
+        ``ray_cpus`` than it has), InputError naming ``device`` or ``ray_cpus``. The connection is a probe,
+        closed again (:func:`run_jobs` connects when it has jobs to run); a local cluster is started for it
+        only when the task asks for more than any machine has (a GPU, more than one CPU). A named cluster
+        (it may grow) and a Ray session this process has already started are left to :func:`run_jobs`,
+        which only warns."""
         ray = require_ray()
+        if ray.is_initialized():
+            return
         named = cfg.address if cfg.address is not None else os.environ.get("RAY_ADDRESS")
-        if named and named != "local" and not ray.is_initialized():
-            _connect(ray, cfg.address)
+        if named and named != "local":
+            _connect(ray, cfg.address)  # reachable? (an autoscaler may still add what a task needs)
             ray.shutdown()
+            return
+        if cfg.ray_cpus <= 1 and not cfg.device.startswith("cuda"):
+            return  # any local cluster places it
+        _connect(ray, cfg.address)
+        try:
+            problem = _cluster_problem(ray.cluster_resources(), cfg)
+        finally:
+            ray.shutdown()
+        if problem:
+            raise InputError(problem[1], param=problem[0])
 
     def processes(self, cfg: Any) -> int:
         """The task's CPUs (``ray_cpus``, at least 1)."""
@@ -168,6 +185,12 @@ def _connect(ray: Any, address: str | None) -> bool:
     return True
 
 
+def _starts_local(address: str | None) -> bool:
+    """Whether connecting with ``address`` starts a new local cluster (``local``, or none given and no
+    ``$RAY_ADDRESS``) rather than joining a named one, which an autoscaler may grow."""
+    return address == "local" or (address is None and not os.environ.get("RAY_ADDRESS"))
+
+
 def _cluster_problem(resources: dict[str, float], cfg: BenchmarkConfig) -> tuple[str, str] | None:
     """(parameter, message) when the cluster's ``resources`` cannot place a task of ``cfg`` now (Ray would
     wait until a node that can joins), else None."""
@@ -199,9 +222,9 @@ def run_jobs(
         for job in jobs:
             finished(job)
         return  # all finished before: no cluster needed
-    started = _connect(ray, cfg.address)
+    started = _connect(ray, cfg.address) and _starts_local(cfg.address)
     if problem := _cluster_problem(ray.cluster_resources(), cfg):
-        if started:  # a cluster started here never grows: its tasks would wait forever
+        if started:  # a local cluster started here never grows: its tasks would wait forever
             ray.shutdown()
             raise InputError(problem[1], param=problem[0])
         print(f"spikenerf: warning: {problem[1]} now; its cells wait until a node that has them joins",
