@@ -29,6 +29,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.core import tensor_checks
 from spikenerf.core.tracing import constant_result, custom_op
 from spikenerf.fields.vm_build import load
 from spikenerf.fields.vm_ops import channels_last, register_pair
@@ -168,13 +169,19 @@ def vm_sum_until(
     if load() is None:
         raise RuntimeError("vm_sum_until: the fused VM CPU kernel is unavailable (check usable first)")
     m = xyz.shape[0]
-    if offsets.dim() != 1 or len(offsets) == 0 or int(offsets[-1]) != m or deltas.shape != (m,):
+    if offsets.dim() != 1 or len(offsets) == 0 or deltas.shape != (m,):
         raise ValueError(
-            f"vm_sum_until: offsets must be (N + 1,) ending at the {m} samples and deltas (M,), found "
+            f"vm_sum_until: offsets must be (N + 1,) and deltas (M,) of the {m} samples, found "
             f"{tuple(offsets.shape)} and {tuple(deltas.shape)}"
         )
-    if int(offsets[0]) != 0 or bool((offsets[1:] < offsets[:-1]).any()):  # (the kernel would write outside)
-        raise ValueError("vm_sum_until: offsets must start at 0 and not decrease (render.volume.ray_offsets)")
+    # the values only where reading them is free (tensor_checks.readable); the kernel checks them as well
+    if tensor_checks.readable(offsets) and (
+        int(offsets[0]) != 0 or int(offsets[-1]) != m or bool((offsets[1:] < offsets[:-1]).any())
+    ):
+        raise ValueError(
+            f"vm_sum_until: offsets must run from 0 to the {m} samples and not decrease "
+            "(render.volume.ray_offsets)"
+        )
     stop = limit * (1.0 + UNTIL_MARGIN) + UNTIL_MARGIN
     p, ln = channels_last(planes, lines)
     args = (p, ln, xyz.contiguous(), offsets.long().contiguous(), deltas.float().contiguous())
