@@ -29,7 +29,6 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from spikenerf.core import tensor_checks
 from spikenerf.core.tracing import constant_result, custom_op
 from spikenerf.fields.vm_build import load
 from spikenerf.fields.vm_ops import channels_last, register_pair
@@ -164,7 +163,8 @@ def vm_sum_until(
         (M,): the summed products where looked up (the values of :func:`vm_lookup`), −inf after (a density of
         exactly 0, with gradient 0). Its gradient flows to the planes and lines as :func:`vm_lookup`'s.
     Raises:
-        ValueError: ``offsets`` not (N + 1,), not from 0 to M or decreasing, or ``deltas`` not (M,).
+        ValueError: ``offsets`` not (N + 1,) or ``deltas`` not (M,). RuntimeError (the kernel's check, which
+        reads no value back on the Python side): ``offsets`` not from 0 to M or decreasing.
     """
     if load() is None:
         raise RuntimeError("vm_sum_until: the fused VM CPU kernel is unavailable (check usable first)")
@@ -173,14 +173,6 @@ def vm_sum_until(
         raise ValueError(
             f"vm_sum_until: offsets must be (N + 1,) and deltas (M,) of the {m} samples, found "
             f"{tuple(offsets.shape)} and {tuple(deltas.shape)}"
-        )
-    # the values only where reading them is free (tensor_checks.readable); the kernel checks them as well
-    if tensor_checks.readable(offsets) and (
-        int(offsets[0]) != 0 or int(offsets[-1]) != m or bool((offsets[1:] < offsets[:-1]).any())
-    ):
-        raise ValueError(
-            f"vm_sum_until: offsets must run from 0 to the {m} samples and not decrease "
-            "(render.volume.ray_offsets)"
         )
     stop = limit * (1.0 + UNTIL_MARGIN) + UNTIL_MARGIN
     p, ln = channels_last(planes, lines)
