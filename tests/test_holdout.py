@@ -19,6 +19,7 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import load_dataset
 from spikenerf.data.holdout import HOLDOUT_FILE, Holdout, guard_radius, read_record
 from spikenerf.data.samplers import RaySampler, WindowSampler
+from spikenerf.data.targets import stream_targets
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
 from spikenerf.train.config import TrainConfig
@@ -229,3 +230,111 @@ def test_info_numbers_held_steps_of_a_ranged_import_as_info_of_the_dataset_does(
     )
     for imported in ({}, {"range": [0, 200]}):  # a simulated dataset, or an import from step 0
         assert held_line(held, imported) == "held out: steps 30 ± 40 (81 steps not trained on)"
+
+
+def _recon_method(dataset_dir: Path, recon: str, method: str = "spike-nerf"):  # type: ignore[no-untyped-def]
+    """A method held out at steps [20, 39] of the 60 with TFP window 5, mask n 2 and spike window 4:
+    a = 2, e = 2, r = 4 (bands 16..24 and 35..43; the checks read 18..22 and 37..41)."""
+    cfg = TrainConfig(dataset=str(dataset_dir), method=method, holdout=True, holdout_steps=2)
+    cfg.targets.recon, cfg.targets.window, cfg.targets.mask_n, cfg.spike.window = recon, 5, 2, 4
+    return make_method(cfg)
+
+
+def test_tfi_and_tfstp_targets_read_no_spike_a_check_reads(dataset_dir: Path) -> None:
+    """A TFI target outside the TFP-sized band read back or forward to the nearest spike, however far: at
+    step 6 of a pixel firing at 5 and 21 its interval reached the spike at 21, inside the check span of
+    step 20 (18..22), so moving that spike changed a trained target. With the hold-out the stream is cut
+    at the bands' edges before TFI or TFSTP reconstructs it: no trained target changes with any spike a
+    check reads (their masks read k±n, into the band but not to the check span), and the targets trained
+    on are the same steps as with TFP."""
+    dataset = load_dataset(dataset_dir)
+    stream = np.zeros((STEPS, 8, 8), np.uint8)
+    stream[[5, 21, 50], 0, 0] = 1
+    moved = stream.copy()
+    moved[[21, 19], 0, 0] = 0, 1  # the spike inside the check span moves
+    rng = np.random.default_rng(3)
+    stream[:, 1:] = moved[:, 1:] = rng.random((STEPS, 7, 8)) < 0.08  # other pixels, some dark
+    moved[18:23, 1:] = rng.random((5, 7, 8)) < 0.5  # and every spike the checks read changes
+    moved[37:42, 1:] = rng.random((5, 7, 8)) < 0.5
+    for recon in ("tfi", "tfstp"):
+        method = _recon_method(dataset_dir, recon)
+        hold = method.hold_out(dataset)
+        assert hold is not None and hold.steps.tolist() == [20, 39] and hold.radius == 4 and hold.reach == 2
+        assert hold.cut and hold.cuts().tolist() == [16, 25, 35, 44]
+        kept = hold.image_indices(torch.arange(STEPS), np.arange(STEPS))
+        assert set(kept.tolist()) == set(range(STEPS)) - set(range(16, 25)) - set(range(35, 44))
+        a, b = (method.image_targets(dataset, s).images[kept] for s in (stream, moved))
+        assert torch.equal(a, b), recon
+        # uncut (the reconstruction before the hold-out cut it): the target at step 6 read the spike at 21
+        whole = [stream_targets(dataset, "gray", recon, 5, True, 2, s).images[kept] for s in (stream, moved)]
+        assert not torch.equal(whole[0], whole[1]), recon
+        if recon == "tfi":
+            six = [
+                stream_targets(dataset, "gray", "tfi", 5, True, 2, s).images[6, 0, 0, 0]
+                for s in (stream, moved)
+            ]
+            assert float(six[0]) != float(six[1]) and float(a[6, 0, 0, 0]) == float(b[6, 0, 0, 0]) > 0
+        record = hold.record(np.arange(STEPS))
+        assert record["recon"] == recon and record["recon_cut"] is True and record["check_reach"] == 2
+
+
+def test_tfp_targets_and_kept_steps_are_unchanged_by_the_cut(dataset_dir: Path) -> None:
+    """TFP (and learned) read their window, which the band is sized for: their targets are not cut and the
+    steps trained on are the band's complement, as before."""
+    dataset = load_dataset(dataset_dir)
+    stream = (np.random.default_rng(5).random((STEPS, 8, 8)) < 0.1).astype(np.uint8)
+    method = _recon_method(dataset_dir, "tfp")
+    hold = method.hold_out(dataset)
+    assert hold is not None and not hold.cut and hold.record(np.arange(STEPS))["recon_cut"] is False
+    assert torch.equal(method.image_targets(dataset, stream).images,
+                       stream_targets(dataset, "gray", "tfp", 5, True, 2, stream).images)  # fmt: skip
+    kept = hold.image_indices(torch.arange(STEPS), np.arange(STEPS))
+    assert kept.tolist() == np.flatnonzero(~hold.band()).tolist()
+
+
+def test_the_check_of_a_cut_run_reconstructs_from_its_own_steps(dataset_dir: Path) -> None:
+    """eval's TFI or TFSTP image of a check step c of a run held out with the cut comes from steps
+    c−e..c+e alone (``check_reach``), not from the whole stream, whose dark pixels read trained steps."""
+    from spikenerf.camera.reconstruct import tfi
+    from spikenerf.eval.noref import step_reconstructions
+
+    dataset = load_dataset(dataset_dir)
+    cfg = TrainConfig(dataset=str(dataset_dir), method="spike-nerf")
+    cfg.targets.recon = "tfi"
+    spikes = np.asarray(dataset.spikes("gray"))
+    steps = np.array([20, 58])
+    cut = step_reconstructions(cfg, dataset, steps, reach=3)
+    assert cut is not None
+    np.testing.assert_array_equal(cut[0], tfi(spikes[17:24], dataset.threshold)[3])
+    np.testing.assert_array_equal(cut[1], tfi(spikes[55:60], dataset.threshold)[3])  # (clipped at the end)
+    whole = step_reconstructions(cfg, dataset, steps)
+    assert whole is not None
+    np.testing.assert_array_equal(whole[0], tfi(spikes, dataset.threshold)[20])
+
+
+def test_a_tfi_run_records_its_cut_and_eval_follows_it(dataset_dir: Path, tmp_path: Path, capsys) -> None:
+    run = tmp_path / "run"
+    args = ["--method", "spike-nerf", "--recon", "tfi", "--set", "targets.mask_n=2", "--window", 5,
+            "--holdout", "--holdout-steps", 2]  # fmt: skip
+    code, _, err = run_cli(capsys, "train", dataset_dir, *TRAIN, *args, "--out", run)
+    assert code == 0, err
+    record = read_record(run)
+    assert record is not None and record["radius"] == 4 and record["check_reach"] == 2
+    assert record["recon"] == "tfi" and record["recon_cut"] is True
+    code, _, err = run_cli(capsys, "eval", run, "--lpips", "none", "--spike-pixels", 8, "--quiet")
+    assert code == 0, err
+    nr = json.loads((run / "metrics.json").read_text())["no_reference"]
+    assert nr["target"] == "tfi (steps k±2 alone)" and nr["steps_trained_on"] is False
+
+
+@pytest.mark.parametrize(
+    ("extra", "problem"),
+    [
+        ({"recon_cut": "yes"}, "recon_cut: expected true or false"),
+        ({"check_reach": -1}, "check_reach: expected"),
+    ],
+)
+def test_a_damaged_cut_record_is_refused(tmp_path: Path, extra: dict, problem: str) -> None:
+    (tmp_path / HOLDOUT_FILE).write_text(json.dumps({"check_steps": [3], "radius": 2, **extra}))
+    with pytest.raises(InputError, match=problem):
+        read_record(tmp_path)

@@ -113,21 +113,28 @@ def test_cli_reconstruct_method_tfstp(capsys: pytest.CaptureFixture[str], tmp_pa
     assert not (tmp_path / "w.npy").exists()
 
 
-def test_the_state_reaches_past_a_holdout_band_and_the_docs_say_so() -> None:
-    """Spikes inside a held-out band change TFSTP targets beyond the default guard radius after it (the
-    state carries the history), a limit that docs/metrics.md states beside TFI's."""
-    from spikenerf.data.holdout import guard_radius
+def test_the_state_reaches_past_a_holdout_band_unless_the_hold_out_cuts_it() -> None:
+    """Spikes inside a held-out band change TFSTP targets of the whole stream beyond the default guard
+    radius after it (the state carries the history): the hold-out therefore reconstructs the stream cut at
+    the bands' edges, and docs/metrics.md says so beside TFI."""
+    from spikenerf.data.holdout import Holdout, guard_radius
+    from spikenerf.data.reconstruction import reconstruct_cut
 
     rng = np.random.default_rng(4)
     spikes = rng.random((400, 8, 8)) < 0.1
     changed = spikes.copy()
-    changed[150:170] = rng.random((20, 8, 8)) < 0.5  # a band's spikes (centre 160, radius 10)
+    changed[150:171] = rng.random((21, 8, 8)) < 0.5  # a band's spikes (centre 160, radius 10)
     after = 170 + guard_radius(41, 5, 1)  # a training target past the default band of a TFP window 41
     assert np.abs(tfstp(spikes)[after] - tfstp(changed)[after]).max() > 1e-3
     assert np.array_equal(tfi(spikes)[after + 40 :], tfi(changed)[after + 40 :])  # TFI forgets at a spike
+    hold = Holdout(np.array([160]), radius=10, total=400, source="test", recon="tfstp")
+    outside = ~hold.band()
+    for recon in ("tfstp", "tfi"):
+        cut = [reconstruct_cut(s, recon, 41, 1.0, hold.cuts())[outside] for s in (spikes, changed)]
+        np.testing.assert_array_equal(cut[0], cut[1])
     page = (Path(__file__).resolve().parents[1] / "docs" / "metrics.md").read_text(encoding="utf-8")
-    limits = " ".join(page.split("Limits:", 1)[1].split()[:120])
-    assert "`--recon tfstp`" in limits and "band" in limits
+    held = " ".join(page.split("**Held-out steps.**", 1)[1].split()[:400])
+    assert "`--recon tfstp`" in held and "cut" in held
 
 
 def test_an_index_list_is_one_scan_equal_to_the_whole_run() -> None:

@@ -5,7 +5,10 @@ The check steps are an imported dataset's test keyframes, else ``count`` evenly 
 (:func:`check_steps`, the one definition that ``train`` and ``eval`` share). With the hold-out on, training
 drops every image target whose step lies within ``radius`` steps of a check step and every spike window that
 overlaps such a band. The default radius (:func:`guard_radius`) makes the spikes that training reads disjoint
-from the spikes that the check of step c reads.
+from the spikes that the check of step c reads. TFI and TFSTP have no window (they read out to the
+neighbouring spikes, TFSTP from step 0): with the hold-out on, their training targets are reconstructed with
+the stream cut at the band edges (:meth:`Holdout.cuts`) and the check's image of step c from steps
+c−e..c+e alone (:func:`check_reach`), so both read only their own steps.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.camera.reconstruct import WINDOWLESS
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError
 
@@ -53,12 +57,19 @@ def check_steps(dataset: SpikeDataset, count: int) -> tuple[np.ndarray, str]:
     return np.unique(np.linspace(0, total - 1, n + 2)[1:-1].round().astype(np.int64)), "evenly spaced steps"
 
 
+def check_reach(recon_window: int, mask_n: int, spike_window: int) -> int:
+    """e: the check of step c reads spikes c−e..c+e, e = max(a, L//2) (a = max(TFP or learned half
+    window, mask n): its reconstruction and mask; and the L-step spike window centred on c). A TFI or
+    TFSTP image of c is made from those steps alone where the hold-out is on."""
+    return max(recon_window // 2, mask_n, spike_window // 2)
+
+
 def guard_radius(recon_window: int, mask_n: int, spike_window: int) -> int:
-    """The default band half-width r: a training target at step k reads spikes k−a..k+a (a = max(TFP
-    half window, mask n)); the check of step c reads c−e..c+e (e = max(a, L//2), its reconstruction, mask
-    and the L-step spike window centred on c). r = a + e keeps the two sets of spikes apart."""
-    a = max(recon_window // 2, mask_n)
-    return a + max(a, spike_window // 2)
+    """The default band half-width r: a training target at step k reads spikes k−a..k+a (a = max(TFP or
+    learned half window, mask n); a TFI or TFSTP one the stretch between bands that holds k, and its mask);
+    the check of step c reads c−e..c+e (:func:`check_reach`). r = a + e keeps the two sets of spikes
+    apart."""
+    return max(recon_window // 2, mask_n) + check_reach(recon_window, mask_n, spike_window)
 
 
 @dataclass(frozen=True)
@@ -67,13 +78,23 @@ class Holdout:
 
     Attributes:
         steps: (N,) int64 stream indices of the check steps. radius: r. total: T, steps in the stream.
-        source: where the steps come from (see :func:`check_steps`).
+        source: where the steps come from (see :func:`check_steps`). recon: the run's reconstruction (its
+        targets' and the check's). reach: e, the steps either side of a check step that the check reads
+        (:func:`check_reach`).
     """
 
     steps: np.ndarray
     radius: int
     total: int
     source: str
+    recon: str = "tfp"
+    reach: int = 0
+
+    @property
+    def cut(self) -> bool:
+        """Whether the reconstruction reads past any window (TFI, TFSTP): then training reconstructs the
+        stream cut at :meth:`cuts` and the check each step c from steps c−e..c+e alone."""
+        return self.recon in WINDOWLESS
 
     def band(self) -> np.ndarray:
         """(T,) bool: True at stream indices within ``radius`` of a check step."""
@@ -89,6 +110,11 @@ class Holdout:
             raise InputError("the hold-out needs the spike step of every image target", param="holdout")
         return torch.as_tensor(np.flatnonzero(keep), dtype=torch.int64)
 
+    def cuts(self) -> np.ndarray:
+        """(M,) int64 the stream indices where a band begins or ends (the first step in or past it): cut
+        there, no piece of the stream holds both a trained step and a banded one."""
+        return np.flatnonzero(np.diff(self.band())) + 1
+
     def window_starts(self, length: int) -> Tensor:
         """(S,) int64 first steps of the L-step windows ``[s, s + L)`` that overlap no band."""
         hit = np.concatenate([[0], np.cumsum(self.band())])
@@ -97,7 +123,8 @@ class Holdout:
 
     def record(self, stream_steps: np.ndarray) -> dict[str, Any]:
         """What ``RUN/holdout.json`` holds: check steps (indices and step numbers, from ``stream_steps`` (T,)
-        int64, the stream's step numbers), radius, source, band."""
+        int64, the stream's step numbers), radius, source, band; the reconstruction, whether it was cut
+        (:attr:`cut`) and the check's reach e."""
         return {
             "check_steps": [int(s) for s in self.steps],
             "step_numbers": [int(stream_steps[s]) for s in self.steps],
@@ -105,6 +132,9 @@ class Holdout:
             "source": self.source,
             "excluded_steps": int(self.band().sum()),
             "total_steps": self.total,
+            "recon": self.recon,
+            "recon_cut": self.cut,
+            "check_reach": self.reach,
         }
 
 
@@ -149,7 +179,10 @@ def read_record(run_dir: str | Path) -> dict[str, Any] | None:
                 f"malformed hold-out record ({key}: expected a list of integers ≥ 0, found {values!r:.60})",
                 path,
             )
-    for key in ("radius", "excluded_steps", "total_steps"):
+    if not isinstance(data.get("recon_cut", False), bool):
+        raise InputError(f"malformed hold-out record (recon_cut: expected true or false, found "
+                         f"{data['recon_cut']!r:.60})", path)  # fmt: skip
+    for key in ("radius", "excluded_steps", "total_steps", "check_reach"):
         if key in data and not _count(data[key]):
             raise InputError(
                 f"malformed hold-out record ({key}: expected an integer ≥ 0, found {data[key]!r:.60})", path
@@ -163,10 +196,13 @@ def _count(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and 0 <= value < 2**63
 
 
-def make_holdout(dataset: SpikeDataset, on: bool | None, count: int, radius: int) -> Holdout | None:
+def make_holdout(
+    dataset: SpikeDataset, on: bool | None, count: int, radius: int, recon: str = "tfp", reach: int = 0
+) -> Holdout | None:
     """The run's :class:`Holdout`, or None when it trains on every step (``on`` None: on for imported
-    datasets). ``count``: check steps of a dataset without imported test keyframes."""
+    datasets). ``count``: check steps of a dataset without imported test keyframes; ``recon``, ``reach``:
+    see :class:`Holdout`."""
     if not (is_imported(dataset) if on is None else on):
         return None
     steps, source = check_steps(dataset, count)
-    return Holdout(steps, radius, len(dataset.trajectory), source)
+    return Holdout(steps, radius, len(dataset.trajectory), source, recon, reach)

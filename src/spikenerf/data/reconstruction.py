@@ -12,12 +12,14 @@ One dispatch, :func:`reconstructor` (``tfp``, ``tfi``, ``tfstp``, ``learned``), 
   novel-view spike preview, the report's figures);
 * :func:`reconstruct_stream`: every step (or a slice) of an in-memory stream, the training targets; there the
   learned reconstruction of a whole stream is made on the training device and cached in the run folder
-  (:mod:`spikenerf.data.recon_cache`).
+  (:mod:`spikenerf.data.recon_cache`); :func:`reconstruct_cut` makes them from a stream cut into pieces
+  (a hold-out's bands: no image reads a spike across a cut).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from itertools import pairwise
 from typing import Literal, get_args
 
 import numpy as np
@@ -137,3 +139,18 @@ def reconstruct_stream(
     tfp_window = DEFAULT_WINDOW if window is None else window
     return reconstruct_frames(read, len(spikes), selected.start, selected.stop, recon, tfp_window, threshold,
                               selected.step)  # fmt: skip
+
+
+def reconstruct_cut(
+    spikes: np.ndarray, recon: str, window: int, threshold: float, cuts: np.ndarray
+) -> np.ndarray:
+    """Î of every step of a (T, ...) stream cut at the steps ``cuts`` (M,) (ascending, in 1..T−1): each
+    piece ``[cuts[i−1], cuts[i])`` reconstructed as a stream of its own (:func:`reconstruct_stream`), so no
+    image reads a spike across a cut (TFI's and TFSTP's stream-edge rules apply at the cuts, and TFSTP's
+    state starts afresh) → float32 (T, ...) linear."""
+    bounds = [0, *(int(c) for c in np.asarray(cuts).reshape(-1)), len(spikes)]
+    if any(b <= a for a, b in pairwise(bounds)):
+        raise InputError(f"cuts must ascend inside 1..{len(spikes) - 1}, found {bounds[1:-1]}", param="cuts")
+    return np.concatenate(
+        [reconstruct_stream(spikes[a:b], recon, window, threshold) for a, b in pairwise(bounds)]
+    )

@@ -44,7 +44,7 @@ from spikenerf.data.choices import Method as Method
 from spikenerf.data.choices import TrainColor as TrainColor
 from spikenerf.data.reconstruction import RECONS as RECONS
 from spikenerf.data.reconstruction import TargetRecon as TargetRecon
-from spikenerf.data.reconstruction import reconstruct_stream
+from spikenerf.data.reconstruction import reconstruct_cut, reconstruct_stream
 
 if TYPE_CHECKING:
     from spikenerf.data.dataset import PosedImages, SpikeDataset
@@ -119,13 +119,19 @@ def masked_reconstruction(
     threshold: float = 1.0,
     mask: bool = True,
     mask_n: int = 5,
+    cuts: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``M_k ⊙ Î_k`` (or ``Î_k`` when ``mask`` is False) for every step of a (T, ...) stream.
+    """``M_k ⊙ Î_k`` (or ``Î_k`` when ``mask`` is False) for every step of a (T, ...) stream; ``cuts``
+    (M,): ``Î`` of the stream cut there (:func:`~spikenerf.data.reconstruction.reconstruct_cut`; the mask
+    of the whole stream).
 
     Returns:
         float32 (T, ...) linear intensity; 0 where no spike fell in frames ``k-n..k+n``.
     """
-    images = reconstruct_stream(spikes, recon, window, threshold)
+    if cuts is None:
+        images = reconstruct_stream(spikes, recon, window, threshold)
+    else:
+        images = reconstruct_cut(spikes, recon, window, threshold, cuts)
     if mask:
         images = images * spike_masks(spikes, n=mask_n)
     return images.astype(np.float32)
@@ -239,6 +245,7 @@ def stream_targets(
     mask_n: int = 5,
     spikes: np.ndarray | None = None,
     window_poses: int = 1,
+    cuts: np.ndarray | None = None,
 ) -> ImageTargets:
     """``M_k ⊙ Î_k`` (``mask``) or ``Î_k`` at every step's pose: poses (T, 1, 4, 4), images (T, H, W, C);
     with ``window_poses`` S > 1 (``recon`` tfp only), poses (T, S, 4, 4) spread over each step's TFP
@@ -248,7 +255,9 @@ def stream_targets(
         dataset: a loaded dataset folder. color: gray | rgb. recon: tfp | tfi | tfstp | learned. window: TFP
         window (odd). mask: apply spike masks. mask_n: mask half window n (2n+1 frames). spikes: the stream if
         already loaded ((T, H, W) gray or (T, 3, H, W) rgb, T the trajectory's steps, H×W the dataset's;
-        checked, InputError naming ``spikes``). window_poses: poses per target (≥ 1).
+        checked, InputError naming ``spikes``). window_poses: poses per target (≥ 1). cuts: (M,) steps
+        where the stream is cut before it is reconstructed (None: not cut; a hold-out's bands'
+        edges, ``data.holdout.Holdout.cuts``).
     """
     if window_poses < 1:
         raise InputError(f"window_poses must be ≥ 1, found {window_poses}", param="window_poses")
@@ -259,7 +268,7 @@ def stream_targets(
         )
     stream = given_stream(dataset, color, spikes)
     try:
-        images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n)
+        images = masked_reconstruction(stream, recon, window, dataset.threshold, mask, mask_n, cuts)
     except InputError as err:  # (e.g. a window longer than the stream): named with the dataset
         if err.path is not None or getattr(dataset, "root", None) is None:
             raise

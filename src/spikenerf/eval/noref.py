@@ -20,7 +20,8 @@ steps) the model is scored against the recorded spike stream alone (docs/metrics
 
 A run trained with the hold-out (``train --holdout``, on by default for imported datasets) never saw the
 check steps: training drew no image target and no spike window within its guard band of them
-(:mod:`spikenerf.data.holdout`, recorded in ``RUN/holdout.json``). The checks then score those very steps and
+(:mod:`spikenerf.data.holdout`, recorded in ``RUN/holdout.json``; a TFI or TFSTP image of a check step is
+then made from the steps within its ``check_reach``). The checks then score those very steps and
 report ``steps_trained_on: false`` (and ``windows_in_guard: false`` where a spike window longer than the band,
 ``spike_window``, reaches steps that training saw); otherwise the run fitted them too (``true``) and the
 scores say how well the model explains the recording, not how well it generalises.
@@ -229,15 +230,26 @@ def score_step(
 
 
 def step_reconstructions(
-    config: TrainConfig, dataset: SpikeDataset, steps: np.ndarray
+    config: TrainConfig, dataset: SpikeDataset, steps: np.ndarray, reach: int | None = None
 ) -> list[np.ndarray] | None:
     """The run's TFI or TFSTP reconstruction of each check step (``steps`` (N,)), each (H, W) or (3, H, W),
     made in one call (TFSTP: one scan from frame 0 for all the steps, not one each); None for TFP and
-    learned, whose reconstruction of a step reads only its window (:func:`score_step` makes it)."""
+    learned, whose reconstruction of a step reads only its window (:func:`score_step` makes it).
+    ``reach`` e (a run held out with its reconstruction cut, ``holdout.json``'s ``check_reach``): that of
+    step c from steps c−e..c+e alone, as a stream of its own, so it reads no step that training read."""
     t = config.targets
     if t.recon not in WINDOWLESS:
         return None
     mode, total = stream_mode(config.color), len(dataset.trajectory)
+    if reach is not None:
+        out = []
+        for c in (int(s) for s in steps):
+            lo, hi = max(0, c - reach), min(total, c + reach + 1)
+            raw = np.asarray(dataset.spikes(mode, frames=slice(lo, hi)))
+            out.append(
+                reconstruct_stream(raw, t.recon, t.window, dataset.threshold, slice(c - lo, c - lo + 1))[0]
+            )
+        return out
     frames = np.unique(steps)
     images = frames_reconstructor(t.recon, t.window, dataset.threshold)(
         lambda a, b: np.asarray(dataset.spikes(mode, frames=slice(a, b))), total, frames
@@ -270,7 +282,9 @@ def noref_metrics(
     k = dataset.intrinsics
     small = min(k.height, k.width) < BLOCK
     rows, pixels = [], torch.zeros(0, 2)
-    images = step_reconstructions(config, dataset, steps) or [None] * len(steps)
+    cut = held is not None and held.get("recon_cut") is True and config.targets.recon in WINDOWLESS
+    reach = held.get("check_reach") if cut else None  # (a record from before the cut: the whole stream)
+    images = step_reconstructions(config, dataset, steps, reach) or [None] * len(steps)
     with torch.no_grad():
         for i, step in enumerate(progress(steps)):
             pixels = _sample_pixels(k.height, k.width, options.spike_pixels, options.seed + i)
@@ -284,7 +298,7 @@ def noref_metrics(
         "steps_trained_on": held is None,
         "guard_radius": radius,
         "windows_in_guard": None if held is None else windows_in_guard(steps, length, total, radius),
-        "target": f"{t.recon} (window {t.window})",
+        "target": f"{t.recon} (window {t.window})" if reach is None else f"{t.recon} (steps k±{reach} alone)",
         "mask": f"a spike in steps k-{t.mask_n}..k+{t.mask_n}",
         "spike_window": length,
         "spike_pixels": len(pixels),

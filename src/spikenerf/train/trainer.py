@@ -129,9 +129,9 @@ class Trainer:
         cache = self.out if learned_cache(self.method) else None
         if cache is not None:
             mark(self.out, "run")  # the cache is written into a marked run folder
+        holdout = self.method.hold_out(self.dataset)  # (first: TFI and TFSTP targets are cut at its bands)
         with learned_targets_in(cache, self.device, dataset_fingerprint(self.dataset)):
             self.method.build_targets(self.dataset)  # learned targets: on the training device, cached
-        holdout = self.method.hold_out(self.dataset)
         self.holdout = None if holdout is None else holdout.record(self.dataset.trajectory.steps)
         unheld = [f"--{k.replace('_', '-')}" for k in ("holdout_steps", "holdout_radius")
                   if getattr(self.config, k) != getattr(TrainConfig, k)]  # fmt: skip

@@ -12,7 +12,7 @@ from torch import Tensor
 
 from spikenerf.core.color import srgb_mse
 from spikenerf.data.dataset import SpikeDataset
-from spikenerf.data.holdout import Holdout, checked, guard_radius, make_holdout
+from spikenerf.data.holdout import Holdout, check_reach, checked, guard_radius, make_holdout
 from spikenerf.data.samplers import RaySampler
 from spikenerf.data.targets import ImageTargets, SpikeTargets, load_stream
 from spikenerf.render.base import RadianceModel
@@ -194,11 +194,13 @@ class TrainMethod:
 
     def hold_out(self, dataset: SpikeDataset) -> Holdout | None:
         """Decide the held-out check steps (``config.holdout``; None: trains on every step), which
-        :meth:`make_samplers` then never draws."""
+        :meth:`make_samplers` then never draws; call before :meth:`build_targets` (TFI and TFSTP targets
+        are cut at the bands' edges, ``Holdout.cuts``)."""
         c = self.config
         t, r = c.targets, c.holdout_radius
         radius = guard_radius(t.window, t.mask_n, c.spike.window) if r is None else r
-        self.holdout = make_holdout(dataset, c.holdout, c.holdout_steps, radius)
+        reach = check_reach(t.window, t.mask_n, c.spike.window)
+        self.holdout = make_holdout(dataset, c.holdout, c.holdout_steps, radius, t.recon, reach)
         self.stream_steps = np.asarray(dataset.trajectory.steps)
         return self.holdout
 

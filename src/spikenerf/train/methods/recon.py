@@ -38,9 +38,12 @@ class NerfRecon(TrainMethod):
         return [f"targets {t.recon}{window}{aware}"]
 
     def image_targets(self, dataset: SpikeDataset, stream: np.ndarray | None) -> ImageTargets:
-        t = self.config.targets
+        """``M_k ⊙ Î_k`` or ``Î_k`` at every step; with a hold-out, a TFI or TFSTP ``Î`` of the stream cut at
+        the bands' edges (each stretch its own stream: no trained step's image reads a banded spike)."""
+        t, held = self.config.targets, self.holdout
+        cuts = held.cuts() if held is not None and held.cut else None
         return stream_targets(dataset, self.config.color, t.recon, t.window, self.uses_mask, t.mask_n,
-                              stream, self.config.window_poses())  # fmt: skip
+                              stream, self.config.window_poses(), cuts)  # fmt: skip
 
 
 class SpikeNeRF(NerfRecon):
