@@ -405,6 +405,8 @@ def test_bad_input_exits_2_and_leaves_nothing(
         ("json", {"scene_box": "abc"}, "field 'scene_box'"),
         ("json", {"w": 0, "h": 8, "fl_x": 10, "fl_y": 10, "cx": 4, "cy": 4}, "field 'w'"),
         ("json", {"w": 8, "h": 8, "fl_x": -1, "fl_y": 10, "cx": 4, "cy": 4}, "field 'fl_x'"),
+        ("json", {"w": 8, "h": 8, "fl_x": 10, "camera_angle_x": float("nan")}, "field 'camera_angle_x'"),
+        ("json", {"fl_x": float("inf")}, "field 'fl_x'"),  # (no w, h: the focal length is not used)
         ("colmap", "1 PINHOLE abc", "malformed camera line"),
         ("colmap", "1 PINHOLE", "malformed camera line"),
         ("colmap", "1 PINHOLE 0 16 30 31 24 8", "must be > 0"),

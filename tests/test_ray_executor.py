@@ -95,6 +95,7 @@ def test_ray_gives_the_local_numbers_shared_and_shipped(
     assert scratch.is_relative_to(cluster) and (scratch / run / "metrics.json").is_file()
     config = (shipped / run / "config.yaml").read_text()
     assert str(shipped.resolve()) in config and str(scratch) not in config
+    assert str(scratch).encode() not in (shipped / run / "checkpoint.pt").read_bytes()  # (no path inside)
     assert WORKER.search((shipped / "logs" / "analytic-orbs-gray-spike-nerf.log").read_text())
 
 
@@ -286,6 +287,35 @@ def test_a_task_the_cluster_cannot_place_is_refused_before_anything_is_written(
     assert exit_.value.code == 2 and fake.down
     assert (list(out.iterdir()) == []) if existing else not out.exists()
     assert capsys.readouterr().err.splitlines() == [f"spikenerf: error: {expected}"]
+
+
+class _NoCpuRay(_FakeRay):
+    """A Ray stand-in whose cluster has no CPU: ``ray start --head --num-cpus 0`` (which an unset address
+    joins), or a container allowed under one CPU (Ray counts it as 0)."""
+
+    def cluster_resources(self) -> dict[str, float]:
+        return {"CPU": 0.0, "memory": 1e9}
+
+
+@pytest.mark.parametrize("args", [[], ["--ray-cpus", "0.5"]])
+def test_a_cluster_without_cpus_is_refused_before_anything_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    """The check probed the cluster only for more than one CPU (or a GPU): a task of one CPU on a cluster
+    of none was refused by run_jobs, once OUT/benchmark.json and the marker were written."""
+    from spikenerf.pipelines.benchmark import ray_executor
+
+    fake = _NoCpuRay()
+    monkeypatch.setattr(ray_executor, "require_ray", lambda: fake)
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    out = tmp_path / "bench"
+    with pytest.raises(SystemExit) as exit_:
+        main(["benchmark", "--scenes", "analytic-orbs", "--executor", "ray", "--out", str(out), *args])
+    assert exit_.value.code == 2 and fake.down and not out.exists()
+    cpus = args[-1] if args else "1"
+    assert capsys.readouterr().err.splitlines() == [
+        f"spikenerf: error: a task asks for --ray-cpus {cpus} CPUs, the Ray cluster has 0"
+    ]
 
 
 def test_a_named_cluster_that_cannot_place_a_task_yet_is_only_probed(

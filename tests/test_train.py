@@ -33,7 +33,7 @@ from spikenerf.data.targets import (
 from spikenerf.render import build_model, render_spike_window
 from spikenerf.scenes.analytic import AnalyticSource
 from spikenerf.scenes.trajectory import novel_views, orbit
-from spikenerf.train.checkpoint import CHECKPOINT
+from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
 from spikenerf.train.config import WINDOW_POSES, TrainConfig
 from spikenerf.train.config_file import load_config, load_run_config, save_config
 from spikenerf.train.evaluate import read_curves
@@ -461,6 +461,17 @@ def test_load_run_renders(dataset_dir: Path, dataset, tmp_path: Path) -> None:  
 
     img = render_image(model, ds.test.poses[0], ds.intrinsics, ds.near, ds.far).color
     assert img.shape == (16, 16, 1) and torch.isfinite(img).all()
+
+
+def test_the_checkpoint_holds_no_path_of_the_dataset(dataset_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """config.yaml names the dataset; the checkpoint kept the trainer's path too, in its binary, where
+    shipping a run (``benchmark --ray-ship-results``) or moving it could not rewrite it."""
+    run = tmp_path / "run"
+    train(_config(dataset_dir, method="nerf-gt"), run, dataset, progress=False, stop_after=3)
+    assert str(dataset_dir.resolve()) in (run / "config.yaml").read_text()
+    assert str(dataset_dir.resolve()).encode() not in (run / "checkpoint.pt").read_bytes()
+    assert load_checkpoint(run / "checkpoint.pt")["config"]["dataset"] == ""
+    assert train(_config(dataset_dir, method="nerf-gt"), run, resume=True, progress=False).iteration == 6
 
 
 #: a value other than the test config's for each method-specific key (``methods.METHOD_KEYS``)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -130,3 +131,34 @@ def test_an_absurd_camera_is_refused_naming_its_fields(tmp_path: Path, camera: d
         transforms.intrinsics(camera, path)
     assert str(err.value).startswith(f"{path}: fields") and "\n" not in str(err.value)
     assert transforms.intrinsics({"w": 16, "h": 16, "camera_angle_x": 1e-3}, path).fl_x > 16  # narrow: fine
+
+
+@pytest.mark.parametrize(
+    ("extra", "field"),
+    [
+        ({"camera_angle_x": math.nan}, "camera_angle_x"),  # beside fl_x, which alone would be enough
+        ({"camera_angle_x": math.inf}, "camera_angle_x"),
+        ({"camera_angle_x": 0.0}, "camera_angle_x"),
+        ({"camera_angle_x": 3.2}, "camera_angle_x"),
+        ({"fl_y": math.nan}, "fl_y"),
+        ({"cx": math.inf}, "cx"),
+        ({"cy": "4"}, "cy"),
+        ({"k1": math.nan}, "k1"),
+        ({"p2": -math.inf}, "p2"),
+        ({"w": math.nan}, "w"),
+        ({"h": -6}, "h"),
+    ],
+)
+def test_every_camera_field_given_is_checked_even_where_another_suffices(
+    tmp_path: Path, extra: dict, field: str
+) -> None:
+    """A damaged camera field is refused wherever it stands: a NaN ``camera_angle_x`` beside a valid
+    ``fl_x`` passed (the focal length was read, the angle never), as did any field of a pose file that
+    ``import`` does not use (``fl_x`` without ``w``/``h``, ``cx`` beside ``camera_angle_x``)."""
+    path = tmp_path / "t.json"
+    good = {"w": 8, "h": 6, "fl_x": 10.0, "frames": [{"transform_matrix": _pose()}]}
+    assert transforms.camera(good, path)["fl_x"] == 10.0
+    for meta in ({**good, **extra}, {"frames": [{"transform_matrix": _pose(), **good, **extra}]}):
+        with pytest.raises(InputError, match=rf"^{re.escape(str(path))}: field '{field}': expected ") as err:
+            transforms.camera(meta, path)
+        assert "\n" not in str(err.value)

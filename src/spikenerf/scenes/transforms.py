@@ -198,7 +198,8 @@ def rigid_poses(poses: object, param: str, one: bool = False) -> np.ndarray:
 def camera(meta: dict[str, Any], path: Path) -> dict[str, Any]:
     """The shared camera's keys (:data:`CAMERA_KEYS`, ``camera_model`` and the lens terms), read at the top
     level, else from the first frame; every frame that repeats a key must agree (per-frame cameras are not
-    supported); the model must be a perspective one or ``OPENCV_FISHEYE`` (:func:`lens` reads the terms)."""
+    supported); each number given must be valid (:func:`check_camera_values`); the model must be a
+    perspective one or ``OPENCV_FISHEYE`` (:func:`lens` reads the terms)."""
     listed = meta.get("frames")
     frames = [f for f in listed if isinstance(f, dict)] if isinstance(listed, list) else []
     source = meta if ("fl_x" in meta or "camera_angle_x" in meta or not frames) else frames[0]
@@ -206,6 +207,7 @@ def camera(meta: dict[str, Any], path: Path) -> dict[str, Any]:
     cam = {k: source[k] for k in keys if k in source}
     if source is not meta:  # (a lens given at the top level beside a per-frame focal length)
         cam.update({k: meta[k] for k in LENS_KEYS if k in meta and k not in cam})
+    check_camera_values(cam, path)  # (first: a NaN read per frame "differs" from itself)
     shared = {**dict.fromkeys(DISTORTION_KEYS, 0), "camera_model": "PINHOLE", **cam}  # (unset: a pinhole)
     for i, frame in enumerate(frames):
         for key in [k for k in keys if k in frame and k in shared and not _same(k, frame[k], shared[k])]:
@@ -220,6 +222,21 @@ def camera(meta: dict[str, Any], path: Path) -> dict[str, Any]:
             path,
         )
     return cam
+
+
+#: camera keys whose value must be a positive number (the others: a finite one; ``camera_angle_x`` also < π)
+POSITIVE_KEYS = ("camera_angle_x", "fl_x", "fl_y", "w", "h")
+
+
+def check_camera_values(cam: dict[str, Any], path: Path) -> None:
+    """InputError naming ``path`` and the key for any number of :func:`camera`'s keys that is given but not
+    valid (not finite; ``fl_x``, ``fl_y``, ``w``, ``h`` not positive; ``camera_angle_x`` not in (0, π)),
+    even where a reader would not use it (``camera_angle_x`` beside ``fl_x``): such a file is damaged."""
+    for key in (*CAMERA_KEYS, *DISTORTION_KEYS):
+        if key == "camera_angle_x" and key in cam:
+            field_of_view(cam, path)
+        elif key in cam:
+            number(cam, key, path, positive=key in POSITIVE_KEYS)
 
 
 def _same(key: str, a: object, b: object) -> bool:

@@ -252,7 +252,8 @@ class Trainer:
         )
 
     def checkpoint(self) -> None:
-        """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config)."""
+        """Write ``checkpoint.pt`` atomically (model, optimiser, iteration, RNG states, config without the
+        dataset folder, which ``config.yaml`` names)."""
         save_checkpoint(
             self.out / CHECKPOINT,
             {
@@ -266,7 +267,9 @@ class Trainer:
                 "optimizer": self.optimizer.state_dict(),
                 "scaler": self.scaler.state_dict(),  # {} unless --amp fp16
                 "rng": rng_state(self.samplers),
-                "config": self.config.to_dict(),
+                # config.yaml names the dataset folder (rewritten where a run is shipped or moved); a path
+                # kept in here would still name the machine and folder that trained it
+                "config": {**self.config.to_dict(), "dataset": ""},
                 "poses": None,  # replaced by the refinement's state when --refine-poses is on
                 **{name: learner.state_dict() for name, learner in self.learners.items()},
             },

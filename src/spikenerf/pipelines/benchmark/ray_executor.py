@@ -61,7 +61,8 @@ class RayExecutor:
         local cluster started here that cannot place a task (:func:`_cluster_problem`: a GPU it lacks, more
         ``ray_cpus`` than it has), InputError naming ``device`` or ``ray_cpus``. The connection is a probe,
         closed again (:func:`run_jobs` connects when it has jobs to run); a local cluster is started for it
-        only when the task asks for more than any machine has (a GPU, more than one CPU). A named cluster
+        (seconds) even for one CPU: it may have none (the head of ``ray start --num-cpus 0``, which an
+        unset ``address`` joins; a container allowed under one CPU, which Ray counts as 0). A named cluster
         (it may grow) and a Ray session this process has already started are left to :func:`run_jobs`,
         which only warns."""
         ray = require_ray()
@@ -72,8 +73,6 @@ class RayExecutor:
             _connect(ray, cfg.address)  # reachable? (an autoscaler may still add what a task needs)
             ray.shutdown()
             return
-        if cfg.ray_cpus <= 1 and not cfg.device.startswith("cuda"):
-            return  # any local cluster places it
         _connect(ray, cfg.address)
         try:
             problem = _cluster_problem(ray.cluster_resources(), cfg)
