@@ -26,10 +26,10 @@ from spikenerf.fields.base import Field
 from spikenerf.fields.encoding import encoded_size, positional_encoding
 from spikenerf.fields.grid_config import GridFieldConfig
 from spikenerf.fields.occupancy import OccupancyGrid
-from spikenerf.fields.row_buckets import bucketing, pad_to_bucket
+from spikenerf.fields.row_buckets import bucket_rows, bucketing, pad_rows
 from spikenerf.fields.vm_build import cpu_has
 from spikenerf.fields.vm_gather import gather_vm
-from spikenerf.fields.vm_kernel import available, usable, vm_lookup, vm_sum_until
+from spikenerf.fields.vm_kernel import available, usable, vm_lookup, vm_rows, vm_sum_until
 from spikenerf.fields.vm_lattice import vm_lattice_sum
 from spikenerf.fields.vm_sample import sample_vm, vm_splits
 from spikenerf.fields.vm_triton import applies, triton_vm
@@ -154,15 +154,26 @@ class GridField(Field):
         interpolation (``fields/vm_lattice.py``) instead of G³ lookups."""
         return self._density_of(vm_lattice_sum(self.density_planes, self.density_lines, coords))
 
-    def color_norm(self, xyz_norm: Tensor, dirs: Tensor) -> Tensor:
-        """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3)."""
-        feats = self._vm(self.app_planes, self.app_lines, xyz_norm)
+    def color_norm(self, xyz_norm: Tensor, dirs: Tensor, rays: Tensor | None = None) -> Tensor:
+        """Linear colour (M, C) in [0, 1] at normalised points (M, 3) seen along unit ``dirs`` (M, 3); or,
+        with ``rays`` (M,) int64, the ray of each point, along its ray's direction, of ``dirs`` (N, 3) one a
+        ray (the view encoding made once a ray and gathered: the same values, a fraction of the work)."""
         view = positional_encoding(dirs, self.config.view_freqs)
-        m = feats.shape[0]
-        feats = feats.reshape(m, -1)
+        if rays is not None:
+            view = view.index_select(0, rays)
+        m = xyz_norm.shape[0]
+        fused = self.config.lookup == "auto" and usable(self.app_planes, xyz_norm)  # the fused CPU kernel
+        feats = None if fused else self._vm(self.app_planes, self.app_lines, xyz_norm).reshape(m, -1)
         with _low_precision(xyz_norm.device, self.config.decoder_bf16):
             if bucketing(xyz_norm.device):  # bf16 on a CPU: rows padded to a bucket (fields/row_buckets.py)
-                feats, view = pad_to_bucket((feats, view), torch.bfloat16)
+                rows = bucket_rows(m)  # the kernel writes its bf16 rows itself (vm_kernel.vm_rows)
+                view = pad_rows(view, rows, torch.bfloat16)
+                if feats is None:
+                    feats = vm_rows(self.app_planes, self.app_lines, xyz_norm, rows)
+                else:
+                    feats = pad_rows(feats, rows, torch.bfloat16)
+            elif feats is None:  # (a custom op: autocast leaves its products in float32)
+                feats = vm_lookup(self.app_planes, self.app_lines, xyz_norm).reshape(m, -1)
             feats = self.basis(feats)
             logit = self.decoder(torch.cat([feats, view.to(feats.dtype)], dim=-1))
         return torch.sigmoid(logit[:m].float())

@@ -1,8 +1,9 @@
 """The C++ source of the fused CPU kernel for the VM lookup (``vm_kernel.py``), compiled on first use by
 ``vm_build.py``.
 
-Forward ``P_m(x)·L_m(x)`` for the three axis pairs, per channel or (``summed``, the density) added up in the
-kernel; backward the scatter of ``∂/∂P`` and ``∂/∂L`` into channels-last gradients, each thread owning a band
+Forward ``P_m(x)·L_m(x)`` for the three axis pairs, per channel (float32, or the bf16 decoder's padded rows:
+``vm_kernel.vm_rows``) or (``summed``, the density) added up in the kernel; backward the scatter of ``∂/∂P``
+and ``∂/∂L`` (from a float32 or bfloat16 gradient) into channels-last gradients, each thread owning a band
 of plane rows (no races, the same plane-gradient bits on any number of threads) and its own line-gradient
 buffer. Each loop prefetches the texels of the point 8 ahead. Two loops of the grid's packed training render
 beside it: the density's lookup along each ray up to its early stop (``vm_kernel.vm_sum_until``) and the
@@ -35,15 +36,26 @@ static inline void cell(float x, int r, int &i, float &a, float &b) {
   i = (int)fl; a = 1.f - f; b = f;
 }
 
+// the cells of a point's three coordinates: each is a plane column, a plane row and a line coordinate of
+// the three axis pairs, so cell() runs 3 times a point, not 9 (the same values)
+struct Cells { int i[3]; float a[3], b[3]; };
+static inline void point_cells(const float *x, int r, Cells &q) {
+  for (int d = 0; d < 3; ++d) cell(x[d], r, q.i[d], q.a[d], q.b[d]);
+}
+// axis pair k's plane column ic (weights ac, bc), plane row ir (ar, br) and line texel il (al, bl) from cells q
+#define PAIR_CELLS(q, k)                                                                                  \
+  const int ic = q.i[MAT0[k]], ir = q.i[MAT1[k]], il = q.i[VEC[k]];                                      \
+  const float ac = q.a[MAT0[k]], bc = q.b[MAT0[k]], ar = q.a[MAT1[k]], br = q.b[MAT1[k]], al = q.a[VEC[k]], \
+              bl = q.b[VEC[k]]
+
 // software prefetch of the texels point x will read (the lookups are random; the OoO window is too short)
 static const int64_t PF = 8;  // points ahead
 static inline void prefetch_point(const float *P, const float *L, const float *x, int64_t r, int64_t c,
                                   int64_t lo, int64_t hi) {
+  Cells q; point_cells(x, r, q);
   for (int k = 0; k < 3; ++k) {
-    int ic, ir, il; float a, b;
-    cell(x[MAT1[k]], r, ir, a, b);
+    const int ic = q.i[MAT0[k]], ir = q.i[MAT1[k]], il = q.i[VEC[k]];
     if (ir + 1 < lo || ir >= hi) continue;  // rows [lo, hi) only (the backward's band of a thread)
-    cell(x[MAT0[k]], r, ic, a, b); cell(x[VEC[k]], r, il, a, b);
     const char *p0 = (const char *)(P + ((k * r + ir) * r + ic) * c), *p1 = p0 + r * c * sizeof(float);
     for (int64_t o = 0; o < 2 * c * (int64_t)sizeof(float); o += 64) { __builtin_prefetch(p0 + o); __builtin_prefetch(p1 + o); }
     __builtin_prefetch(L + (k * r + il) * c);
@@ -55,21 +67,19 @@ static inline void prefetch_point(const float *P, const float *L, const float *x
 #define PLANE_J(j) (w00 * p00[j] + w01 * p01[j] + w10 * p10[j] + w11 * p11[j])
 #define LINE_J(j) (al * l0[j] + bl * l1[j])
 
-// summed = false: out (M, 3, C), the product per axis pair and channel; summed = true: out (M,), the sum of
-// those 3·C products (the density: no (M, 3, C) intermediate is written, read back or kept for backward)
-torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, bool summed) {
-  const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
-  auto out = summed ? torch::empty({m}, xyz.options()) : torch::empty({m, 3, c}, xyz.options());
-  const float *P = planes.data_ptr<float>(), *L = lines.data_ptr<float>(), *X = xyz.data_ptr<float>();
-  float *O = out.data_ptr<float>();
+// summed = false: O (M, 3, C), the product per axis pair and channel (of type T: float, or bfloat16 rounded
+// to nearest even as torch's conversion); summed = true: O (M,), the sum of those 3·C products (the density:
+// no (M, 3, C) intermediate is written, read back or kept for backward)
+template <typename T>
+static void forward_points(const float *P, const float *L, const float *X, T *O, int64_t m, int64_t r, int64_t c,
+                           bool summed) {
   at::parallel_for(0, m, 256, [&](int64_t b, int64_t e) {
     for (int64_t n = b; n < e; ++n) {
       if (n + PF < e) prefetch_point(P, L, X + (n + PF) * 3, r, c, 0, r);
       float total = 0.f;
+      Cells q; point_cells(X + n * 3, r, q);
       for (int k = 0; k < 3; ++k) {
-        int ic, ir, il; float ac, bc, ar, br, al, bl;
-        cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
-        cell(X[n * 3 + VEC[k]], r, il, al, bl);
+        PAIR_CELLS(q, k);
         const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
         const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
         const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
@@ -79,13 +89,32 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
           for (int64_t j = 0; j < c; ++j) acc += PLANE_J(j) * LINE_J(j);
           total += acc;
         } else {
-          float *o = O + (n * 3 + k) * c;
-          for (int64_t j = 0; j < c; ++j) o[j] = PLANE_J(j) * LINE_J(j);
+          T *o = O + (n * 3 + k) * c;
+          for (int64_t j = 0; j < c; ++j) o[j] = T(PLANE_J(j) * LINE_J(j));
         }
       }
-      if (summed) O[n] = total;
+      if (summed) O[n] = T(total);
     }
   });
+}
+
+torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, bool summed) {
+  const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
+  auto out = summed ? torch::empty({m}, xyz.options()) : torch::empty({m, 3, c}, xyz.options());
+  forward_points(planes.data_ptr<float>(), lines.data_ptr<float>(), xyz.data_ptr<float>(), out.data_ptr<float>(),
+                 m, r, c, summed);
+  return out;
+}
+
+// vm_forward's (M, 3, C) products as the first M of `rows` zero-padded bfloat16 rows (rows, 3·C): the grid
+// decoder's bf16 input (fields/row_buckets.py) without a float32 copy in between
+torch::Tensor vm_forward_rows(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, int64_t rows) {
+  const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
+  TORCH_CHECK(rows >= m, "forward_rows: ", rows, " rows cannot hold the ", m, " points");
+  auto out = torch::empty({rows, 3 * c}, xyz.options().dtype(torch::kBFloat16));
+  out.narrow(0, m, rows - m).zero_();
+  forward_points(planes.data_ptr<float>(), lines.data_ptr<float>(), xyz.data_ptr<float>(),
+                 out.data_ptr<at::BFloat16>(), m, r, c, false);
   return out;
 }
 
@@ -93,9 +122,9 @@ torch::Tensor vm_forward(torch::Tensor planes, torch::Tensor lines, torch::Tenso
 // same order)
 static inline float point_sum(const float *P, const float *L, const float *x, int64_t r, int64_t c) {
   float total = 0.f;
+  Cells q; point_cells(x, r, q);
   for (int k = 0; k < 3; ++k) {
-    int ic, ir, il; float ac, bc, ar, br, al, bl;
-    cell(x[MAT0[k]], r, ic, ac, bc); cell(x[MAT1[k]], r, ir, ar, br); cell(x[VEC[k]], r, il, al, bl);
+    PAIR_CELLS(q, k);
     const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
     const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
     const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
@@ -228,24 +257,31 @@ static std::vector<int64_t> row_bounds(const float *X, const float *G, bool summ
 }
 
 // one thread's share of the backward: every point's scatter into the plane rows [lo, hi) (all: 0, r)
-template <bool SUMMED>
+template <bool SUMMED, typename GT>
 static void scatter_band(const float *__restrict__ P, const float *__restrict__ L, const float *__restrict__ X,
-                         const float *__restrict__ G, float *__restrict__ GP, float *__restrict__ GL, int64_t m,
+                         const GT *__restrict__ G, float *__restrict__ GP, float *__restrict__ GL, int64_t m,
                          int64_t r, int64_t c, int64_t lo, int64_t hi) {
   const bool all = lo == 0 && hi == r;
+  std::vector<float> wide(std::is_same<GT, float>::value ? 0 : 3 * c);  // a bfloat16 point's gradient as float
   for (int64_t n = 0; n < m; ++n) {
-    if (SUMMED && G[n] == 0.0f) continue;  // e.g. behind a ray's early stop: nothing to scatter
+    if (SUMMED && (float)G[n] == 0.0f) continue;  // e.g. behind a ray's early stop: nothing to scatter
     if (n + PF < m) prefetch_point(P, L, X + (n + PF) * 3, r, c, lo, hi);
+    Cells q; point_cells(X + n * 3, r, q);
+    const float *gn = nullptr;  // the point's (3, C) gradient
+    if constexpr (std::is_same<GT, float>::value) {
+      gn = G + n * 3 * c;
+    } else if (!SUMMED) {
+      for (int64_t j = 0; j < 3 * c; ++j) wide[j] = (float)G[n * 3 * c + j];
+      gn = wide.data();
+    }
     for (int k = 0; k < 3; ++k) {
-      int ic, ir, il; float ac, bc, ar, br, al, bl;
-      cell(X[n * 3 + MAT1[k]], r, ir, ar, br);
+      PAIR_CELLS(q, k);
       const bool row0 = all || (ir >= lo && ir < hi), row1 = all || (ir + 1 >= lo && ir + 1 < hi);
       if (!row0 && !row1) continue;  // another thread's rows
-      cell(X[n * 3 + MAT0[k]], r, ic, ac, bc); cell(X[n * 3 + VEC[k]], r, il, al, bl);
       const int64_t o00 = ((k * r + ir) * r + ic) * c, o01 = o00 + c, o10 = o00 + r * c, o11 = o10 + c;
       const int64_t q0 = (k * r + il) * c, q1 = q0 + c;
       const float w00 = ar * ac, w01 = ar * bc, w10 = br * ac, w11 = br * bc;
-      const float *g = SUMMED ? G + n : G + (n * 3 + k) * c;
+      const float *g = SUMMED ? (const float *)G + n : gn + k * c;
       if (row0 && row1)
         scatter_pair<SUMMED, true>(c, P, L, GP, GL, o00, o01, o10, o11, q0, q1, w00, w01, w10, w11, al, bl, g,
                                    true, true, true);
@@ -262,14 +298,17 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
   // gradient goes to the thread that owns its row ir, into that thread's own (small) line buffer, summed at
   // the end. Each plane gradient element is summed in point order by one thread: the same bits on any
   // number of threads; the line gradients' sum order depends on the thread count.
-  // grad: (M, 3, C), or (M,) for a summed forward (one value for all 3·C products of a point).
+  // grad: (M, 3, C), or (M,) for a summed forward (one value for all 3·C products of a point); (M, 3, C)
+  // bfloat16 for vm_forward_rows (read as it is: its float values exactly).
   const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
-  const bool summed = grad.dim() == 1;
+  const bool summed = grad.dim() == 1, bf16 = grad.scalar_type() == torch::kBFloat16;
+  TORCH_CHECK(grad.is_contiguous() && (!bf16 || !summed), "backward: expected a contiguous grad, bf16 (M, 3, C)");
   const int64_t threads = std::min<int64_t>(64, at::get_num_threads());
   const int64_t nt = std::max<int64_t>(1, std::min<int64_t>({threads, (m + 4095) / 4096, r - 1}));
   auto gp = torch::empty({3, r, r, c}, planes.options()), gl = torch::zeros({nt, 3, r, c}, lines.options());
   const float *__restrict__ P = planes.data_ptr<float>(), *__restrict__ L = lines.data_ptr<float>();
-  const float *__restrict__ X = xyz.data_ptr<float>(), *__restrict__ G = grad.data_ptr<float>();
+  const float *__restrict__ X = xyz.data_ptr<float>(), *__restrict__ G = bf16 ? nullptr : grad.data_ptr<float>();
+  const at::BFloat16 *GB = bf16 ? grad.data_ptr<at::BFloat16>() : nullptr;
   float *__restrict__ GP = gp.data_ptr<float>();
   float *GL0 = gl.data_ptr<float>();
   const int64_t sl = 3 * r * c;
@@ -280,6 +319,8 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
       for (int k = 0; k < 3; ++k) std::fill(GP + (k * r + lo) * r * c, GP + (k * r + hi) * r * c, 0.0f);
       if (summed)
         scatter_band<true>(P, L, X, G, GP, GL0 + t * sl, m, r, c, lo, hi);
+      else if (bf16)
+        scatter_band<false>(P, L, X, GB, GP, GL0 + t * sl, m, r, c, lo, hi);
       else
         scatter_band<false>(P, L, X, G, GP, GL0 + t * sl, m, r, c, lo, hi);
     }
@@ -363,6 +404,7 @@ int64_t parallel_threads(int64_t n) {
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("parallel_threads", &parallel_threads);
   m.def("forward", &vm_forward);
+  m.def("forward_rows", &vm_forward_rows);
   m.def("backward", &vm_backward);
   m.def("forward_until", &vm_forward_until);
   m.def("march", &march);

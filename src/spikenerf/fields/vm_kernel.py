@@ -109,6 +109,39 @@ def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
     return _OP(*channels_last(planes, lines), xyz.contiguous(), summed)
 
 
+class _Rows(torch.autograd.Function):
+    """:func:`vm_rows` on the channels-last views (3, R, R, C) and (3, R, C): the kernel's ``forward_rows``,
+    and its ``backward`` reading the bfloat16 gradient."""
+
+    @staticmethod
+    def forward(ctx: Any, planes: Tensor, lines: Tensor, xyz: Tensor, rows: int) -> Tensor:  # type: ignore[override]
+        ctx.save_for_backward(planes, lines, xyz)
+        return load().forward_rows(planes, lines, xyz, rows)
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:  # type: ignore[override]
+        planes, lines, xyz = ctx.saved_tensors
+        m = xyz.shape[0]
+        gp, gl = load().backward(planes, lines, xyz, grad[:m].reshape(m, 3, planes.shape[-1]).contiguous())
+        return gp, gl, None, None
+
+
+def vm_rows(planes: Tensor, lines: Tensor, xyz: Tensor, rows: int) -> Tensor:
+    """:func:`vm_lookup`'s (M, 3, C) products as (rows, 3·C) bfloat16 rows, the first M the products (rounded
+    to nearest even, as ``Tensor.to``), the rest zeros: ``row_buckets.pad_rows`` of the lookup, written by
+    the kernel itself, whose backward reads the bfloat16 gradient (no float32 copy either way; the grid
+    decoder's bf16 input on a CPU). Eager only (``row_buckets.bucketing``); check :func:`usable` first.
+
+    Args:
+        planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3). rows: ≥ M.
+    Returns:
+        (rows, 3·C) bfloat16; its gradient goes to the planes and lines as :func:`vm_lookup`'s.
+    """
+    if load() is None:
+        raise RuntimeError("vm_rows: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
+    return _Rows.apply(*channels_last(planes, lines), xyz.contiguous(), rows)
+
+
 @custom_op("spikenerf::vm_cpu_until")
 def _until_op(
     planes: Tensor, lines: Tensor, xyz: Tensor, offsets: Tensor, deltas: Tensor, shift: float, scale: float,

@@ -200,7 +200,7 @@ class GridModel(RadianceModel):
         weights = packed_weights(sigma, deltas, ray, n, offsets, fused)
         app = (weights.detach() > cfg.weight_threshold).nonzero().squeeze(1)
         if len(app):
-            rgb = field.color_norm(xn.index_select(0, app), dirs.index_select(0, ray.index_select(0, app)))
+            rgb = field.color_norm(xn.index_select(0, app), dirs, ray.index_select(0, app))
         else:
             rgb = t.new_zeros(0, field.channels)
         color, depth, opacity = packed_composite(weights, ray, n, t, rgb, app, offsets=offsets, fused=fused)
