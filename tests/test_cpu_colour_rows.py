@@ -102,3 +102,23 @@ def test_a_view_encoded_once_a_ray_colours_as_one_encoded_at_every_point(
     torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-6)
     for g, w in zip(got_grads, want_grads, strict=True):
         torch.testing.assert_close(g, w, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("bf16", [False, True])
+@pytest.mark.parametrize("kernel", [False, True])
+def test_no_point_to_colour_is_an_empty_colour(
+    bf16: bool, kernel: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """0 points (a render whose every sample is culled) gave ``reshape(0, -1)``'s error: (0, C) instead, on
+    each lookup path, with and without the rays, and its backward runs."""
+    monkeypatch.setattr(grid_module, "cpu_has", lambda *flags: True)
+    field = smooth_field(replace(CFG, hidden=32, decoder_bf16=bf16))
+    xyz, dirs = torch.zeros(0, 3), torch.nn.functional.normalize(torch.randn(4, 3), dim=-1)
+    for rays in (None, torch.zeros(0, dtype=torch.int64)):
+        if kernel:
+            rgb = field.color_norm(xyz, dirs[:0] if rays is None else dirs, rays)
+        else:
+            with vm_kernel.suspended():
+                rgb = field.color_norm(xyz, dirs[:0] if rays is None else dirs, rays)
+        assert rgb.shape == (0, field.channels) and rgb.dtype == torch.float32
+        rgb.sum().backward()

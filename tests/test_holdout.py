@@ -338,3 +338,49 @@ def test_a_damaged_cut_record_is_refused(tmp_path: Path, extra: dict, problem: s
     (tmp_path / HOLDOUT_FILE).write_text(json.dumps({"check_steps": [3], "radius": 2, **extra}))
     with pytest.raises(InputError, match=problem):
         read_record(tmp_path)
+
+
+def test_a_tfi_run_from_before_the_cut_resumes_uncut_and_says_so(
+    dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A TFI run held out before the cut (its holdout.json has no ``recon_cut``) trained on targets of the
+    whole stream: a resume cut them halfway and rewrote the record as cut, so eval made the checks' images
+    from k±e alone and called the run's spikes disjoint though half its steps read the bands. It resumes on
+    the targets it began with, and its record says they were not cut (eval scores them as before)."""
+    from spikenerf.train.trainer import Trainer
+
+    run = tmp_path / "run"
+    cfg = TrainConfig(dataset=str(dataset_dir), method="spike-nerf", device="cpu", iters=4, holdout=True,
+                      holdout_steps=2, batch=32, eval_every=0, eval_views=1)  # fmt: skip
+    cfg.targets.recon, cfg.targets.window, cfg.targets.mask_n, cfg.spike.window = "tfi", 5, 2, 4
+    cfg.spike.warmup = 0
+    cfg.field_config = {"n_voxels_init": 512, "n_voxels_final": 512}
+    dataset = load_dataset(dataset_dir)
+    Trainer(cfg, run, dataset, progress=False).train(stop_after=2)
+    record = read_record(run)
+    assert record is not None and record["recon_cut"] is True
+    old = {k: v for k, v in record.items() if k not in ("recon", "recon_cut", "check_reach")}
+    (run / HOLDOUT_FILE).write_text(json.dumps(old))  # the record a run from before the cut wrote
+    capsys.readouterr()
+    resumed = Trainer(cfg, run, dataset, resume=True, progress=False)
+    assert "began with tfi targets of the whole stream" in capsys.readouterr().err
+    whole = stream_targets(dataset, "gray", "tfi", 5, True, 2).images
+    assert resumed.method.targets is not None and torch.equal(resumed.method.targets.images, whole)
+    assert resumed.holdout is not None and resumed.holdout["recon_cut"] is False
+    resumed.train()
+    record = read_record(run)
+    assert record is not None and record["recon_cut"] is False and record["check_steps"] == old["check_steps"]
+    # resumed again (its record now says false): still the whole stream's targets
+    later = Trainer(dataclasses.replace(cfg, iters=6), run, dataset, resume=True, progress=False)
+    assert later.method.targets is not None and torch.equal(later.method.targets.images, whole)
+    assert later.holdout is not None and later.holdout["recon_cut"] is False
+    # a run begun with the cut resumes cut
+    again = Trainer(dataclasses.replace(cfg, iters=6), run.parent / "new", dataset, progress=False)
+    again.train(stop_after=2)
+    capsys.readouterr()
+    cut = Trainer(dataclasses.replace(cfg, iters=6), run.parent / "new", dataset, resume=True, progress=False)
+    assert "whole stream" not in capsys.readouterr().err
+    assert cut.holdout is not None and cut.holdout["recon_cut"] is True
+    assert cut.method.targets is not None and again.method.targets is not None
+    assert torch.equal(cut.method.targets.images, again.method.targets.images)
+    assert not torch.equal(cut.method.targets.images, whole)

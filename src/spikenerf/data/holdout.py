@@ -80,7 +80,8 @@ class Holdout:
         steps: (N,) int64 stream indices of the check steps. radius: r. total: T, steps in the stream.
         source: where the steps come from (see :func:`check_steps`). recon: the run's reconstruction (its
         targets' and the check's). reach: e, the steps either side of a check step that the check reads
-        (:func:`check_reach`).
+        (:func:`check_reach`). whole: a resumed run that began before the cut (its record has no
+        ``recon_cut``): its TFI or TFSTP targets stay those of the whole stream, as it began.
     """
 
     steps: np.ndarray
@@ -89,12 +90,14 @@ class Holdout:
     source: str
     recon: str = "tfp"
     reach: int = 0
+    whole: bool = False
 
     @property
     def cut(self) -> bool:
-        """Whether the reconstruction reads past any window (TFI, TFSTP): then training reconstructs the
-        stream cut at :meth:`cuts` and the check each step c from steps c−e..c+e alone."""
-        return self.recon in WINDOWLESS
+        """Whether the reconstruction reads past any window (TFI, TFSTP) and the run is not :attr:`whole`:
+        then training reconstructs the stream cut at :meth:`cuts` and the check each step c from steps
+        c−e..c+e alone."""
+        return self.recon in WINDOWLESS and not self.whole
 
     def band(self) -> np.ndarray:
         """(T,) bool: True at stream indices within ``radius`` of a check step."""
@@ -197,12 +200,18 @@ def _count(value: object) -> bool:
 
 
 def make_holdout(
-    dataset: SpikeDataset, on: bool | None, count: int, radius: int, recon: str = "tfp", reach: int = 0
+    dataset: SpikeDataset,
+    on: bool | None,
+    count: int,
+    radius: int,
+    recon: str = "tfp",
+    reach: int = 0,
+    whole: bool = False,
 ) -> Holdout | None:
     """The run's :class:`Holdout`, or None when it trains on every step (``on`` None: on for imported
-    datasets). ``count``: check steps of a dataset without imported test keyframes; ``recon``, ``reach``:
-    see :class:`Holdout`."""
+    datasets). ``count``: check steps of a dataset without imported test keyframes; ``recon``, ``reach``,
+    ``whole``: see :class:`Holdout`."""
     if not (is_imported(dataset) if on is None else on):
         return None
     steps, source = check_steps(dataset, count)
-    return Holdout(steps, radius, len(dataset.trajectory), source, recon, reach)
+    return Holdout(steps, radius, len(dataset.trajectory), source, recon, reach, whole)

@@ -163,7 +163,8 @@ class GridField(Field):
             view = view.index_select(0, rays)
         m = xyz_norm.shape[0]
         fused = self.config.lookup == "auto" and usable(self.app_planes, xyz_norm)  # the fused CPU kernel
-        feats = None if fused else self._vm(self.app_planes, self.app_lines, xyz_norm).reshape(m, -1)
+        # (M, 3·C); flatten, not reshape(m, -1): 0 points give (0, 3·C), not an error
+        feats = None if fused else self._vm(self.app_planes, self.app_lines, xyz_norm).flatten(1)
         with _low_precision(xyz_norm.device, self.config.decoder_bf16):
             if bucketing(xyz_norm.device):  # bf16 on a CPU: rows padded to a bucket (fields/row_buckets.py)
                 rows = bucket_rows(m)  # the kernel writes its bf16 rows itself (vm_kernel.vm_rows)
@@ -173,7 +174,7 @@ class GridField(Field):
                 else:
                     feats = pad_rows(feats, rows, torch.bfloat16)
             elif feats is None:  # (a custom op: autocast leaves its products in float32)
-                feats = vm_lookup(self.app_planes, self.app_lines, xyz_norm).reshape(m, -1)
+                feats = vm_lookup(self.app_planes, self.app_lines, xyz_norm).flatten(1)
             feats = self.basis(feats)
             logit = self.decoder(torch.cat([feats, view.to(feats.dtype)], dim=-1))
         return torch.sigmoid(logit[:m].float())

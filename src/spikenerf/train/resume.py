@@ -9,7 +9,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from spikenerf.camera.reconstruct import WINDOWLESS
 from spikenerf.core.errors import InputError
+from spikenerf.data.holdout import read_record
 from spikenerf.fields.grid_config import KERNEL_OPTIONS
 from spikenerf.train.config import TrainConfig
 from spikenerf.train.config_file import load_run_config
@@ -94,6 +96,15 @@ def check_resume(
     chosen = {k: v for k, v in given.field_config.items() if k in RESUMABLE_FIELD}
     field = {**stored.field_config, **chosen}  # the stored choices stay unless given again
     return dataclasses.replace(stored, **{k: getattr(given, k) for k in resumable}, field_config=field)
+
+
+def began_uncut(run_dir: Path, recon: str) -> bool:
+    """Whether a resumed run's ``recon`` (TFI or TFSTP) targets were made from the whole stream: its hold-out
+    record does not say they were cut at the bands' edges (written before the cut: no ``recon_cut``; or by
+    such a run resumed: false). It goes on with them (cut halfway, the run would have trained on both, and
+    its record would claim the cut for all of it)."""
+    held = read_record(run_dir) if recon in WINDOWLESS else None
+    return held is not None and held.get("recon_cut") is not True
 
 
 def _leaf_changes(key: str, was: Any, now: Any) -> list[tuple[str, Any, Any]]:

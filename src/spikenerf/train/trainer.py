@@ -65,7 +65,7 @@ from spikenerf.train.preflight import (
     model_config,
     step_size,
 )
-from spikenerf.train.resume import check_resume, stored_and_given, with_kernels
+from spikenerf.train.resume import began_uncut, check_resume, stored_and_given, with_kernels
 from spikenerf.train.run import TrainSummary, check_resume_fits, dataset_fingerprint
 
 
@@ -129,7 +129,12 @@ class Trainer:
         cache = self.out if learned_cache(self.method) else None
         if cache is not None:
             mark(self.out, "run")  # the cache is written into a marked run folder
-        holdout = self.method.hold_out(self.dataset)  # (first: TFI and TFSTP targets are cut at its bands)
+        whole = ckpt is not None and began_uncut(self.out, self.config.targets.recon)
+        holdout = self.method.hold_out(self.dataset, whole)  # (first: TFI and TFSTP targets are cut at it)
+        if whole and holdout is not None:
+            recon = self.config.targets.recon
+            warn(f"this run began with {recon} targets of the whole stream, not cut at the hold-out's bands: "
+                 "it resumes so (eval scores its checks as such)")  # fmt: skip
         with learned_targets_in(cache, self.device, dataset_fingerprint(self.dataset)):
             self.method.build_targets(self.dataset)  # learned targets: on the training device, cached
         self.holdout = None if holdout is None else holdout.record(self.dataset.trajectory.steps)

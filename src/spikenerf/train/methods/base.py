@@ -192,15 +192,16 @@ class TrainMethod:
         them in its ``config.yaml``)."""
         return config
 
-    def hold_out(self, dataset: SpikeDataset) -> Holdout | None:
+    def hold_out(self, dataset: SpikeDataset, whole: bool = False) -> Holdout | None:
         """Decide the held-out check steps (``config.holdout``; None: trains on every step), which
         :meth:`make_samplers` then never draws; call before :meth:`build_targets` (TFI and TFSTP targets
-        are cut at the bands' edges, ``Holdout.cuts``)."""
+        are cut at the bands' edges, ``Holdout.cuts``, unless ``whole``: a resumed run that began with
+        targets of the whole stream)."""
         c = self.config
         t, r = c.targets, c.holdout_radius
         radius = guard_radius(t.window, t.mask_n, c.spike.window) if r is None else r
         reach = check_reach(t.window, t.mask_n, c.spike.window)
-        self.holdout = make_holdout(dataset, c.holdout, c.holdout_steps, radius, t.recon, reach)
+        self.holdout = make_holdout(dataset, c.holdout, c.holdout_steps, radius, t.recon, reach, whole)
         self.stream_steps = np.asarray(dataset.trajectory.steps)
         return self.holdout
 
