@@ -348,6 +348,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--batch", "1", "--integral-samples", "2"], "--batch"),
         (["--set", "integral.align=true", "--holdout"], "--holdout"),
         (["--set", "integral.prior=tfp"], "integral.prior"),
+        (["--set", "integral.weight=gamma"], "integral.weight"),
         (["--set", "integral.prior_weight=-1"], "integral.prior_weight"),
         (["--set", "integral.prior_weight=nan"], "integral.prior_weight"),
         (["--set", "integral.prior_rays=0"], "integral.prior_rays"),

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_number
 
 if TYPE_CHECKING:
     import torch
@@ -56,6 +56,29 @@ def srgb_encode(linear: Array) -> Array:
         )
     x = np.clip(linear, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 1e-12) ** (1 / 2.4) - 0.055)
+
+
+def srgb_slope(linear: Array, floor: float = 1 / 255) -> Array:
+    """The slope ``d srgb_encode / d linear`` at ``linear`` clamped to ``[floor, 1]`` (numpy or torch, no
+    gradient of its own): how much a linear error of each value moves its display value. It falls from 12.92
+    at ``linear ≤ 0.0031308`` to 0.44 at white; the floor keeps near-black values at a finite slope (11.1
+    at 1/255, the default), the cap at 1 keeps values above white at white's.
+
+    Args:
+        linear: (...) linear values. floor: the least value the slope is taken at, in (0, 1].
+    Returns:
+        (...) the slopes, > 0, of ``linear``'s shape (and dtype, where floating).
+    Raises:
+        InputError: ``floor`` not a number in (0, 1].
+    """
+    if not (is_number(floor) and 0 < floor <= 1):
+        raise InputError(f"floor must be a number in (0, 1], found {floor!r}", param="floor")
+    if is_tensor(linear):
+        torch_ = sys.modules["torch"]
+        x = linear.detach().clamp(float(floor), 1.0)
+        return torch_.where(x <= 0.0031308, torch_.full_like(x, 12.92), (1.055 / 2.4) * x ** (1 / 2.4 - 1))
+    x = np.clip(linear, floor, 1.0)
+    return np.where(x <= 0.0031308, 12.92, (1.055 / 2.4) * x ** (1 / 2.4 - 1))
 
 
 def srgb_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -31,6 +31,7 @@ from spikenerf.train.settings import (
     AmpMode,
     ExposurePoseConfig,
     LogKind,
+    LossWeight,
     PairMode,
     PoseRefineConfig,
     SpikeLossKind,
@@ -118,6 +119,9 @@ class IntegralConfig:
         samples: S steps rendered per estimate of a window's mean render (stratified over the window).
         groups: G independent estimates per window: 1 squared error; ≥ 2 the unbiased product form.
         band: count errors within the interval ``± φ / L`` of a noise-free pixel as 0.
+        weight: ``linear`` (the default): every ray's squared error alike, in linear intensity; ``srgb``:
+            each weighted by the squared sRGB slope at its detached render, normalised to mean 1, as test
+            PSNR weighs it (``train.losses.srgb_weights``; the windows' terms and the tracks').
         align: move each window onto spikes of its pixel (``CountTargets.align``: exact to the pixel's own
             light, not to ``± φ / L``), up to ``ALIGN_LONGEST`` times the longest length; needs holdout off.
         interpolate: add to each count the fraction of the next spike's light gathered by then, taken
@@ -151,6 +155,7 @@ class IntegralConfig:
     samples: int = INTEGRAL_SAMPLES
     groups: int = 1
     band: bool = False
+    weight: LossWeight = "linear"
     align: bool = False
     interpolate: bool = False
     interpolate_span: int = 0

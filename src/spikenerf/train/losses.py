@@ -18,11 +18,12 @@ import torch
 
 from spikenerf.camera.firing import fire
 from spikenerf.core import tensor_checks
+from spikenerf.core.color import srgb_slope
 from spikenerf.core.errors import InputError, is_number
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 from spikenerf.core.tensor_checks import check_threshold
+from spikenerf.train.settings import LOSS_WEIGHTS, LossWeight, PairMode
 from spikenerf.train.settings import SPIKE_LOSS_KINDS as SPIKE_LOSS_KINDS  # (defined there)
-from spikenerf.train.settings import PairMode
 from spikenerf.train.settings import SpikeLossKind as SpikeLossKind
 
 
@@ -78,7 +79,7 @@ def recorded_spikes(spikes: object, like: torch.Tensor) -> torch.Tensor:
 
 
 def window_mean_loss(
-    means: torch.Tensor, target: torch.Tensor, band: torch.Tensor | None = None
+    means: torch.Tensor, target: torch.Tensor, band: torch.Tensor | None = None, weight: LossWeight = "linear"
 ) -> torch.Tensor:
     """Spike-integral loss: rendered window means against the windows' spike-count means.
 
@@ -95,10 +96,16 @@ def window_mean_loss(
             count as 0 (the interval constraint of a noise-free pixel), beyond it by their distance to it.
             With G ≥ 2 this is biased: each estimate is cut to the band before the U-statistic, which then
             estimates ``(E cut(m − t))²``, not ``cut(E m − t)²`` (> 0 when ``E m`` lies inside the band).
+        weight: ``linear``: every ray and channel alike; ``srgb``: each (B, C) term times
+            :func:`srgb_weights` of the estimates' mean, a constant of the graph (not of the noisy target),
+            so a ray's loss is still least at its expected target. (With G ≥ 2 the weight, read from the
+            estimates, is correlated with them: the product form is then unbiased only to first order.)
     Returns:
         Scalar loss (linear intensity squared; may be slightly negative for G ≥ 2, never in expectation).
     """
     check_tensor(means, "means")
+    if weight not in LOSS_WEIGHTS:
+        raise InputError(f"weight must be one of {', '.join(LOSS_WEIGHTS)}, found {weight!r}", param="weight")
     target = torch.as_tensor(target, device=means.device)
     if means.dim() != 3 or target.shape != (means.shape[0], means.shape[2]):
         raise InputError(f"means must be (B, G, C) and target (B, C), found {tuple(means.shape)}, "
@@ -116,10 +123,38 @@ def window_mean_loss(
         width = band.to(d.dtype)[:, None]
         d = torch.sign(d) * torch.relu(d.abs() - width)
     g = means.shape[1]
+    if weight == "linear":
+        if g == 1:
+            return torch.mean(d**2)
+        total = d.sum(dim=1)
+        return torch.mean((total**2 - (d**2).sum(dim=1)) / (g * (g - 1)))
+    w = srgb_weights(means.mean(dim=1))
     if g == 1:
-        return torch.mean(d**2)
+        return torch.mean(w * d[:, 0] ** 2)
     total = d.sum(dim=1)
-    return torch.mean((total**2 - (d**2).sum(dim=1)) / (g * (g - 1)))
+    return torch.mean(w * (total**2 - (d**2).sum(dim=1)) / (g * (g - 1)))
+
+
+#: the least linear value :func:`srgb_weights` takes the slope at (one 8-bit display step above black)
+SRGB_WEIGHT_FLOOR = 1 / 255
+
+
+def srgb_weights(render: torch.Tensor) -> torch.Tensor:
+    """Per-term weights that make a linear squared error count as the sRGB metric counts it: the squared
+    slope of ``srgb_encode`` at the detached ``render`` (:func:`core.color.srgb_slope`, taken at no less
+    than :data:`SRGB_WEIGHT_FLOOR`: 11.1² at black, 1.2² at mid-grey 0.18, 0.44² at white), divided by
+    their mean so that the loss keeps the linear loss's scale (and the learning rate its meaning).
+
+    Args:
+        render: (B, C) linear renders (the window means' estimates).
+    Returns:
+        (B, C) weights ≥ 0 of mean 1 (NaN for an empty batch), in ``render``'s dtype, without gradient.
+    """
+    check_tensor(render, "render")
+    with torch.no_grad():
+        x = render.detach()
+        w = srgb_slope(x.to(torch.promote_types(x.dtype, torch.float32)), SRGB_WEIGHT_FLOOR) ** 2
+        return (w / w.mean()).to(render.dtype)
 
 
 def spike_prefix(intensity: torch.Tensor, spikes: torch.Tensor, threshold: float) -> torch.Tensor:

@@ -21,6 +21,10 @@ PairMode = Literal["all", "window"]
 #: the differentiable interval loss, or the paper's spike comparison (no gradient)
 SpikeLossKind = Literal["interval", "paper"]
 SPIKE_LOSS_KINDS: tuple[str, ...] = get_args(SpikeLossKind)
+#: how the spike-integral loss weighs each ray's squared error: ``linear`` alike, ``srgb`` by the squared
+#: sRGB slope at its detached render (:func:`spikenerf.train.losses.window_mean_loss`)
+LossWeight = Literal["linear", "srgb"]
+LOSS_WEIGHTS: tuple[str, ...] = get_args(LossWeight)
 
 #: each method in one line (``train --help``); its class is ``spikenerf.train.methods.METHOD_CLASSES[name]``
 METHOD_SUMMARIES: dict[str, str] = {

@@ -108,6 +108,7 @@ class SpikeIntegral(TrainMethod):
             out.append(f"learned per-pixel response ({rate})")
         out += [text for on, text in (
             (c.groups > 1, f"{c.groups} estimates a window (product form)"), (c.band, "noise band"),
+            (c.weight == "srgb", "errors weighted by the sRGB slope"),
             (c.align, "spike-aligned windows"),
             (c.interpolate, f"interpolated counts (span {c.interpolate_span or 'any'})"),
         ) if on]  # fmt: skip
@@ -257,12 +258,13 @@ class SpikeIntegral(TrainMethod):
         out = state.render_rays(poses, pixels.repeat_interleave(per, dim=0))
         shape = (-1, c.groups, c.samples, self.channels)
         means = self.sensed(out.color.view(shape), pixels.to(state.device), counts.threshold)
-        loss = window_mean_loss(means, target, band)
+        loss = window_mean_loss(means, target, band, c.weight)
         if out.coarse_color is not None:
             loss = loss + window_mean_loss(
                 self.sensed(out.coarse_color.view(shape), pixels.to(state.device), counts.threshold),
                 target,
                 band,
+                c.weight,
             )
         with torch.no_grad():
             mse = srgb_mse(means.mean(dim=1), target)
@@ -309,9 +311,9 @@ class SpikeIntegral(TrainMethod):
             # below opacity 0.5 lost 0.7 dB at 400×400 (docs/spike-integral.md)
             own = counts.still_mean(pixels, steps, c.track).to(state.device)
             target = torch.where(out.depth.detach()[:, None] > 0, target, own)
-        loss = window_mean_loss(out.color[:, None], target, None)
+        loss = window_mean_loss(out.color[:, None], target, None, c.weight)
         if out.coarse_color is not None:
-            loss = loss + window_mean_loss(out.coarse_color[:, None], target, None)
+            loss = loss + window_mean_loss(out.coarse_color[:, None], target, None, c.weight)
         with torch.no_grad():
             mse = srgb_mse(out.color, target)
         return Term(loss, mse, poses.shape[0], out.dropped_samples)
