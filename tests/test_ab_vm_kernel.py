@@ -8,13 +8,17 @@ from pathlib import Path
 import pytest
 
 from helpers import load_benchmark
-from spikenerf.fields import vm_build, vm_cpu_source
+from spikenerf.fields import vm_build
 
 TOOL = load_benchmark("tools/ab_vm_kernel")
 
 
 def test_the_kernel_source_is_read_from_the_file(tmp_path: Path) -> None:
-    assert TOOL.kernel_source(Path(vm_cpu_source.__file__)) == vm_cpu_source.SOURCE
+    cpp = Path(vm_build.__file__).with_name(vm_build.SOURCE_FILE)
+    assert TOOL.kernel_source(cpp) == vm_build.kernel_source() == cpp.read_text(encoding="utf-8")
+    module = tmp_path / "vm_cpu_source.py"  # a checkout from before the source was a .cpp file
+    module.write_text('"""The C++ source."""\n\nSOURCE = r"""\nint y;\n"""\n')
+    assert TOOL.kernel_source(module) == "\nint y;\n"
     older = tmp_path / "vm_kernel.py"  # a checkout from before the source had a module of its own
     older.write_text("_SOURCE = 'int x;'\n")
     assert TOOL.kernel_source(older) == "int x;"

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import spikenerf
-from spikenerf.camera.io import frame_bytes
+from spikenerf.camera.dat_codec import frame_bytes
 from spikenerf.camera.reconstruct import tfp
 from spikenerf.camera.simulation import simulate
 from spikenerf.core.color import rgb_to_gray

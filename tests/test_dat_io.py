@@ -12,15 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spikenerf.camera import io
-from spikenerf.camera.io import (
-    count_frames,
-    iter_dat,
-    read_dat,
-    read_dat_rgb,
-    resolve_frames,
-    write_dat,
-    write_dat_rgb,
-)
+from spikenerf.camera.frame_range import resolve_frames
+from spikenerf.camera.io import count_frames, iter_dat, read_dat, read_dat_rgb, write_dat, write_dat_rgb
 from spikenerf.core.errors import InputError
 
 

@@ -40,7 +40,7 @@ from spikenerf.pipelines.benchmark.settings import (
 from spikenerf.recon.net import load_weights, shipped_weights
 from spikenerf.recon.store import read_manifest
 from spikenerf.scenes.image_io import read_image
-from spikenerf.scenes.sequence import load_sequence
+from spikenerf.scenes.sequence_frames import load_sequence
 from spikenerf.train.checkpoint import load_checkpoint
 from spikenerf.train.config_file import apply_overrides, load_config
 from spikenerf.train.evaluate import read_curves

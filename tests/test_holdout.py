@@ -325,6 +325,14 @@ def test_a_tfi_run_records_its_cut_and_eval_follows_it(dataset_dir: Path, tmp_pa
     assert code == 0, err
     nr = json.loads((run / "metrics.json").read_text())["no_reference"]
     assert nr["target"] == "tfi (steps k±2 alone)" and nr["steps_trained_on"] is False
+    # a cut record without its check_reach: refused in one line naming the file (it was scored as an uncut
+    # run, the check images made from the whole stream, which training read), metrics.json left as it was
+    metrics = (run / "metrics.json").read_bytes()
+    (run / HOLDOUT_FILE).write_text(json.dumps({k: v for k, v in record.items() if k != "check_reach"}))
+    code, out, err = run_cli(capsys, "eval", run, "--lpips", "none", "--spike-pixels", 8, "--quiet")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert str(run / HOLDOUT_FILE) in err and "recon_cut is true but check_reach is missing" in err
+    assert (run / "metrics.json").read_bytes() == metrics
 
 
 @pytest.mark.parametrize(
@@ -332,12 +340,22 @@ def test_a_tfi_run_records_its_cut_and_eval_follows_it(dataset_dir: Path, tmp_pa
     [
         ({"recon_cut": "yes"}, "recon_cut: expected true or false"),
         ({"check_reach": -1}, "check_reach: expected"),
+        ({"recon": "tfi", "recon_cut": True}, "recon_cut is true but check_reach is missing"),
     ],
 )
 def test_a_damaged_cut_record_is_refused(tmp_path: Path, extra: dict, problem: str) -> None:
     (tmp_path / HOLDOUT_FILE).write_text(json.dumps({"check_steps": [3], "radius": 2, **extra}))
-    with pytest.raises(InputError, match=problem):
+    with pytest.raises(InputError, match=problem) as refused:
         read_record(tmp_path)
+    assert str(tmp_path / HOLDOUT_FILE) in str(refused.value)
+
+
+def test_an_uncut_record_needs_no_check_reach(tmp_path: Path) -> None:
+    """Records from before the cut (no ``recon_cut``) or of an uncut run (``recon_cut`` false) hold no
+    check_reach, and are read as they are (eval scores them on the whole stream, as they trained)."""
+    for extra in ({}, {"recon_cut": False}):
+        (tmp_path / HOLDOUT_FILE).write_text(json.dumps({"check_steps": [3], "radius": 2, **extra}))
+        assert read_record(tmp_path) == {"check_steps": [3], "radius": 2, **extra}
 
 
 def test_a_tfi_run_from_before_the_cut_resumes_uncut_and_says_so(

@@ -1,5 +1,6 @@
 """The wheel a user installs (``pip install .`` without ``-e``) holds every file of the package: the
-modules, the shipped reconstructor weights and their card, ``py.typed``; and the ``spikenerf`` command.
+modules, the fused CPU kernel's C++ source, the shipped reconstructor weights and their card, ``py.typed``;
+and the ``spikenerf`` command.
 The editable install of ``make`` and CI reads ``src/`` directly and would not notice a file left out."""
 
 from __future__ import annotations
@@ -57,4 +58,5 @@ def test_the_wheel_carries_every_package_file_and_the_command(tmp_path: Path) ->
     missing = sorted(_package_files() - names)
     assert not missing, f"the wheel leaves out {missing} (pyproject.toml [tool.setuptools.package-data])"
     assert "spikenerf/recon/weights/recon-v1.pt" in names
+    assert "spikenerf/fields/vm_cpu.cpp" in names  # the fused CPU kernel's C++ source (vm_build.py)
     assert "spikenerf = spikenerf.cli:main" in scripts

@@ -19,12 +19,9 @@ from spikenerf.core.png16 import decode_png16
 from spikenerf.scenes.distortion import Distortion
 from spikenerf.scenes.image_io import read_image, resample
 from spikenerf.scenes.poses import interpolate_poses, matrix_to_quaternion, quaternion_to_matrix, slerp
-from spikenerf.scenes.sequence import (
-    OPEN_END,
-    SequenceSource,
-    estimate_scene_box,
-    step_schedule,
-)
+from spikenerf.scenes.scene_box import estimate_scene_box
+from spikenerf.scenes.sequence import SequenceSource, step_schedule
+from spikenerf.scenes.sequence_frames import OPEN_END
 from spikenerf.scenes.trajectory import orbit
 
 N, SIZE, ANGLE = 6, 8, 0.6

@@ -14,7 +14,8 @@ import pytest
 from helpers import edit_json, run_cli
 from spikenerf.core.errors import InputError
 from spikenerf.scenes import transforms
-from spikenerf.scenes.sequence import SequenceSource, estimate_scene_box
+from spikenerf.scenes.scene_box import estimate_scene_box
+from spikenerf.scenes.sequence import SequenceSource
 from spikenerf.scenes.trajectory import orbit
 
 W, H, N = 32, 24, 4

@@ -3,12 +3,13 @@
 Usage (from the repository root)::
 
     git worktree add /tmp/before HEAD~1
-    .venv/bin/python -m benchmarks.tools.ab_vm_kernel /tmp/before/src/spikenerf/fields/vm_cpu_source.py \
-        src/spikenerf/fields/vm_cpu_source.py [--points 100000] [--resolution 200] [--repeats 60] \
+    .venv/bin/python -m benchmarks.tools.ab_vm_kernel /tmp/before/src/spikenerf/fields/vm_cpu.cpp \
+        src/spikenerf/fields/vm_cpu.cpp [--points 100000] [--resolution 200] [--repeats 60] \
         [--threads 1,2]
 
-Each file's C++ source (its ``SOURCE``; in an older checkout, whose source is in ``vm_kernel.py``, its
-``_SOURCE``) is built with this checkout's flags (``--before-cflags`` gives the
+Each file's C++ source (a ``vm_cpu.cpp``; in an older checkout the ``SOURCE`` string of its
+``vm_cpu_source.py``, or the ``_SOURCE`` of its ``vm_kernel.py``) is built with this checkout's flags
+(``--before-cflags`` gives the
 before build others: to measure a flag change, pass the same file twice) under a name of its own (the
 first build of a source takes about a minute, then it is cached), so both run in the same process on the
 same tensors: the density's form (16 channels, summed, a zero gradient at every third point, as early ray
@@ -38,8 +39,11 @@ from spikenerf.fields import vm_build
 
 
 def kernel_source(path: Path) -> str:
-    """The ``SOURCE`` string of a ``vm_cpu_source.py``, or the ``_SOURCE`` string of an older checkout's
-    ``vm_kernel.py`` (read, not imported: both would register one op)."""
+    """The text of a ``.cpp`` file; or, from an older checkout, the ``SOURCE`` string of a
+    ``vm_cpu_source.py`` or the ``_SOURCE`` string of a ``vm_kernel.py`` (read, not imported: both would
+    register one op)."""
+    if path.suffix == ".cpp":
+        return path.read_text(encoding="utf-8")
     for node in ast.parse(path.read_text()).body:
         names = {getattr(t, "id", "") for t in node.targets} if isinstance(node, ast.Assign) else set()
         if names & {"SOURCE", "_SOURCE"}:
@@ -86,7 +90,7 @@ def main() -> None:
     parser.add_argument(
         "before",
         type=Path,
-        help="a checkout's src/spikenerf/fields/vm_cpu_source.py (vm_kernel.py before it)",
+        help="a checkout's src/spikenerf/fields/vm_cpu.cpp (vm_cpu_source.py, then vm_kernel.py, before it)",
     )
     parser.add_argument("after", type=Path, help="another (this checkout's, say)")
     parser.add_argument("--points", type=int, default=100_000)

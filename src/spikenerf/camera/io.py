@@ -1,10 +1,7 @@
-"""SpikeCV ``.dat`` spike files: memory-mapped reading, atomic writing, frame counting and chunked streaming.
-
-Layout (SpikeCV, the ecosystem standard): no header; frames concatenated, ``H·W/8`` bytes each; pixel ``p`` of
-the row-major *stored* frame is bit ``p % 8`` (LSB first) of byte ``p // 8``; rows are stored bottom-up, so a
-reader flips them vertically. ``layout="topdown"`` (the Spike-NeRF paper code) stores rows top-down and is
-only used when asked for. Raw sps10 camera files store 416 columns per row, of which the trailing 16
-(columns 400–415) are not pixels; ``raw_width=416`` strips them (SpikeCV's ``with_head`` option).
+"""SpikeCV ``.dat`` spike files: memory-mapped reading, atomic writing, frame counting, chunked streaming, the
+three files of an RGB stream, and the tell-tale silent columns of a raw sps10 recording. The frame layout (a
+stored frame's bytes ↔ a frame of spikes) is :mod:`spikenerf.camera.dat_codec`; a frame selection's indices,
+:mod:`spikenerf.camera.frame_range`.
 """
 
 from __future__ import annotations
@@ -12,14 +9,24 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from spikenerf.camera.modes import LAYOUTS
+from spikenerf.camera.dat_codec import (
+    RAW_PADDING,
+    as_binary,
+    as_numpy,
+    check_layout,
+    decode_frames,
+    encode_frames,
+    frame_bytes,
+    stored_width,
+)
+from spikenerf.camera.frame_range import resolve_frames
 from spikenerf.core.atomic import atomic_path
 from spikenerf.core.color import is_tensor
-from spikenerf.core.errors import InputError, is_integer
+from spikenerf.core.errors import InputError
 
 if TYPE_CHECKING:
     import torch
@@ -28,34 +35,6 @@ if TYPE_CHECKING:
 RGB_SUFFIXES = ("r", "g", "b")
 #: frames decoded or encoded per block when streaming (bounds memory, keeps numpy calls large)
 CHUNK_FRAMES = 256
-
-
-def as_numpy(x: Any) -> np.ndarray:
-    """A numpy array (a torch tensor is detached and moved to the CPU; no copy when already there)."""
-    return x.detach().cpu().numpy() if is_tensor(x) else np.asarray(x)
-
-
-def frame_bytes(height: int, width: int, raw_width: int | None = None, path: str | Path | None = None) -> int:
-    """Bytes per stored frame, ``H·W_stored/8``; InputError when the sizes are bad or H·W % 8 != 0."""
-    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (height, width))
-    if not whole or height <= 0 or width <= 0:
-        raise InputError(
-            f"height and width must be positive integers, found {height!r}×{width!r}",
-            path=path,
-            param=("height", "width"),
-        )
-    stored = _stored_width(width, raw_width, path)
-    if (height * stored) % 8:
-        raise InputError(
-            f"H·W must be a multiple of 8 for a .dat file, found {height}×{stored} = {height * stored} "
-            f"(remainder {(height * stored) % 8})",
-            path=path,
-        )
-    return height * stored // 8
-
-
-#: the non-pixel columns at the end of each stored row of a raw sps10 recording (416 for a 400-pixel row)
-RAW_PADDING = 16
 
 
 def count_frames(path: str | Path, height: int, width: int, raw_width: int | None = None) -> int:
@@ -69,7 +48,7 @@ def count_frames(path: str | Path, height: int, width: int, raw_width: int | Non
         hint = f" — a raw sps10 file? pass raw_width {raw}" if explained else ""
         if not hint and size // fb:  # a capture cut short keeps its whole frames
             hint = f"; to read the whole frames of a capture cut short: truncate -s {size // fb * fb} a copy"
-        stored, whole = _stored_width(width, raw_width, path), size // fb
+        stored, whole = stored_width(width, raw_width, path), size // fb
         raise InputError(
             f"file size {size} bytes is not a multiple of the frame size {fb} bytes ({stored} pixels "
             f"wide, {height} high, / 8): {whole} whole frame{'' if whole == 1 else 's'} and a remainder of "
@@ -129,52 +108,6 @@ def stripped_columns_fire(
     return bool(head[:, :, width:].any())
 
 
-def resolve_frames(
-    frames: slice | int | None, total: int, path: str | Path | None = None, param: str = "frames"
-) -> range:
-    """A frame selection as a ``range`` of indices into a ``total``-frame stream, checked strictly.
-
-    ``None`` selects all frames; an int ``i`` selects ``i:i+1``; negative indices count from the end (as in
-    Python); unlike Python slicing, a start/stop outside ``[0, total]``, a non-positive step or an empty
-    selection is an InputError naming ``param`` (the caller's name for the selection).
-    """
-    if frames is None:
-        return range(total)
-    if isinstance(frames, (int, np.integer)) and not isinstance(frames, bool):
-        i = int(frames) + total if frames < 0 else int(frames)
-        if not 0 <= i < total:
-            raise InputError(
-                f"{param}: frame {frames} is outside the {total}-frame stream (valid 0..{total - 1}, or "
-                f"-{total}..-1 from the end)",
-                path,
-                param=param,
-            )
-        return range(i, i + 1)
-    if not isinstance(frames, slice):
-        raise InputError(
-            f"{param} must be a slice, an int or None, found {type(frames).__name__}", path=path, param=param
-        )
-    try:
-        step = 1 if frames.step is None else int(frames.step)
-        start = 0 if frames.start is None else int(frames.start)
-        stop = total if frames.stop is None else int(frames.stop)
-    except (TypeError, ValueError):
-        raise InputError(
-            f"{param}: a slice of integers expected, found {frames!r}", path=path, param=param
-        ) from None
-    if step <= 0:
-        raise InputError(f"{param}: frame step must be positive, found {step}", path=path, param=param)
-    start, stop = (start + total if start < 0 else start), (stop + total if stop < 0 else stop)
-    if not 0 <= start < stop <= total:
-        raise InputError(
-            f"{param}: frame range {frames.start}:{frames.stop} is empty or outside the {total}-frame stream "
-            f"(need 0 <= start < stop <= {total}, a negative index counting from the end: -{total} is 0)",
-            path=path,
-            param=param,
-        )
-    return range(start, stop, step)
-
-
 def read_dat(
     path: str | Path,
     height: int,
@@ -196,10 +129,10 @@ def read_dat(
         uint8 (T, H, W) of 0/1, C-contiguous, row 0 at the top of the image.
     """
     path = _existing_file(path)
-    _check_layout(layout, path)
+    check_layout(layout, path)
     total = count_frames(path, height, width, raw_width)
     selected = resolve_frames(frames, total, path)
-    stored = _stored_width(width, raw_width, path)
+    stored = stored_width(width, raw_width, path)
     if total == 0:
         return np.zeros((0, height, width), np.uint8)
     fb = frame_bytes(height, width, raw_width, path)
@@ -244,37 +177,6 @@ def iter_dat(
         yield start, read_dat(path, height, width, slice(start, stop), layout, raw_width)
 
 
-def decode_frames(
-    raw: np.ndarray, height: int, width: int, layout: str = "spikecv", raw_width: int | None = None
-) -> np.ndarray:
-    """Unpack stored frames (T, H·W_stored/8) uint8 into uint8 (T, H, W) 0/1 spikes (see module doc)."""
-    _check_layout(layout)
-    stored = width if raw_width is None else raw_width
-    n = raw.shape[0]
-    if stored % 8 == 0:
-        # Flip the packed rows (1/8 of the data), then unpack: flat when nothing is stripped (the fast path).
-        rows = raw.reshape(n, height, stored // 8)
-        if layout == "spikecv":
-            rows = np.ascontiguousarray(rows[:, ::-1])
-        if stored == width:
-            return np.unpackbits(rows.reshape(-1), bitorder="little").reshape(n, height, width)
-        return np.unpackbits(rows, axis=-1, count=width, bitorder="little")
-    bits = np.unpackbits(raw, axis=-1, bitorder="little").reshape(n, height, stored)[:, :, :width]
-    return np.ascontiguousarray(bits[:, ::-1] if layout == "spikecv" else bits)
-
-
-def encode_frames(spikes: np.ndarray, layout: str = "spikecv") -> np.ndarray:
-    """Pack uint8/bool (T, H, W) 0/1 spikes into stored frames uint8 (T, H·W/8) (see module doc)."""
-    _check_layout(layout)
-    n, height, width = spikes.shape
-    if layout == "spikecv" and width % 8 == 0:
-        # Pack flat (the fast path), then flip the packed rows (1/8 of the data).
-        packed = np.packbits(spikes.reshape(-1), bitorder="little").reshape(n, height, width // 8)
-        return np.ascontiguousarray(packed[:, ::-1]).reshape(n, -1)
-    frames = spikes[:, ::-1] if layout == "spikecv" else spikes
-    return np.packbits(frames.reshape(n, -1), axis=-1, bitorder="little")
-
-
 def write_dat(
     path: str | Path,
     spikes: np.ndarray | torch.Tensor | Iterable[np.ndarray | torch.Tensor],
@@ -290,12 +192,12 @@ def write_dat(
     Returns:
         The number of frames written.
     """
-    _check_layout(layout, path)
+    check_layout(layout, path)
     chunks = [spikes] if isinstance(spikes, np.ndarray) or is_tensor(spikes) else spikes
     written, shape = 0, None
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         for chunk in chunks:
-            arr = _as_binary(chunk, path)
+            arr = as_binary(chunk, path)
             if shape is None:
                 shape = arr.shape[1:]
                 frame_bytes(*shape, path=path)
@@ -344,8 +246,8 @@ def write_dat_rgb(
             path=prefix,
             param="spikes",
         )
-    _check_layout(layout, prefix)
-    arr = _as_binary(arr.reshape(-1, *arr.shape[2:]), prefix).reshape(arr.shape)  # checked whole, first
+    check_layout(layout, prefix)
+    arr = as_binary(arr.reshape(-1, *arr.shape[2:]), prefix).reshape(arr.shape)  # checked whole, first
     frame_bytes(*arr.shape[2:], path=prefix)
     paths = rgb_paths(prefix)
     with contextlib.ExitStack() as stack:
@@ -369,49 +271,6 @@ def read_dat_rgb(
     if len(set(counts)) != 1:
         raise InputError(f"the r, g, b files hold different frame counts {counts}", path=prefix)
     return np.stack([read_dat(p, height, width, frames, layout, raw_width) for p in paths], axis=1)
-
-
-def _as_binary(chunk: np.ndarray | torch.Tensor, path: str | Path) -> np.ndarray:
-    """A (T, H, W) chunk as a numpy bool/uint8 array; InputError on other shapes or non-0/1 values."""
-    arr = as_numpy(chunk)
-    if arr.ndim != 3:
-        hint = " (use write_dat_rgb for (T, 3, H, W) streams)" if arr.ndim == 4 else ""
-        raise InputError(f"spikes must be (T, H, W), found shape {arr.shape}{hint}", path=path)
-    if arr.dtype == np.bool_ or arr.size == 0:
-        return arr
-    if arr.dtype == np.uint8 and arr.max() <= 1:  # the common case, checked in one cheap pass
-        return arr
-    bad = (arr != 0) & (arr != 1)
-    if bad.any():
-        first = arr[np.unravel_index(np.argmax(bad), arr.shape)].item()  # 255, not np.uint8(255) (numpy 2)
-        raise InputError(
-            f"spikes must be binary (0/1 or bool), found {int(bad.sum())} other values (e.g. {first!r})",
-            path=path,
-        )
-    return arr.astype(np.uint8, copy=False)
-
-
-def _stored_width(width: int, raw_width: int | None, path: str | Path | None = None) -> int:
-    if raw_width is None:
-        return width
-    if not is_integer(raw_width):
-        raise InputError(
-            f"raw_width must be an integer (the stored row width) or None, found {raw_width!r}",
-            path=path,
-            param="raw_width",
-        )
-    if raw_width < width:
-        raise InputError(
-            f"raw_width {raw_width} is smaller than the image width {width}", path=path, param="raw_width"
-        )
-    return raw_width
-
-
-def _check_layout(layout: str, path: str | Path | None = None) -> None:
-    if layout not in LAYOUTS:
-        raise InputError(
-            f"layout must be one of {', '.join(LAYOUTS)}, found {layout!r}", path=path, param="layout"
-        )
 
 
 def _existing_file(path: str | Path) -> Path:

@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from spikenerf.camera.io import CHUNK_FRAMES, as_numpy, iter_dat
+from spikenerf.camera.dat_codec import as_numpy
+from spikenerf.camera.io import CHUNK_FRAMES, iter_dat
 from spikenerf.core.color import is_tensor
 from spikenerf.core.errors import InputError
 

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from spikenerf.camera.io import as_numpy, resolve_frames
+from spikenerf.camera.dat_codec import as_numpy
+from spikenerf.camera.frame_range import resolve_frames
 from spikenerf.core.color import is_tensor
 from spikenerf.core.errors import InputError, is_number
 

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spikenerf.camera.io import frame_bytes, iter_dat, write_dat
+from spikenerf.camera.dat_codec import frame_bytes
+from spikenerf.camera.io import iter_dat, write_dat
 from spikenerf.camera.spikecv import write_spikecv_config
 from spikenerf.core.errors import InputError
 

@@ -17,7 +17,8 @@ def describe_dat(
     path: Path, height: int, width: int, layout: str, raw_width: int | None, fps: float
 ) -> list[str]:
     """The summary lines of a ``.dat`` file: frames, duration, mean rate and per-pixel rate percentiles."""
-    from spikenerf.camera.io import count_frames, frame_bytes
+    from spikenerf.camera.dat_codec import frame_bytes
+    from spikenerf.camera.io import count_frames
     from spikenerf.camera.stats import dat_rate_summary
 
     frames = count_frames(path, height, width, raw_width)

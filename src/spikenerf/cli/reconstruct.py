@@ -182,7 +182,8 @@ def command(
     out: Path,
     overwrite: bool,
 ) -> None:
-    from spikenerf.camera.io import count_frames, read_dat, resolve_frames
+    from spikenerf.camera.frame_range import resolve_frames
+    from spikenerf.camera.io import count_frames, read_dat
     from spikenerf.camera.reconstruct import reconstruct_frames
     from spikenerf.camera.streams import check_threshold
     from spikenerf.cli.types import dat_recording, given_layout

@@ -110,7 +110,8 @@ def dat_recording(
     else one warning line for each (when the given size fits the file), and one when the
     file also reads as a raw sps10 recording (``camera.io.raw_width_guess``), or when the columns that
     ``raw_width`` strips fire (``camera.io.stripped_columns_fire``)."""
-    from spikenerf.camera.io import count_frames, frame_bytes, raw_width_guess, stripped_columns_fire
+    from spikenerf.camera.dat_codec import frame_bytes
+    from spikenerf.camera.io import count_frames, raw_width_guess, stripped_columns_fire
     from spikenerf.camera.spikecv import recording_config, refuse_size_conflicts, size_conflicts
 
     if path.suffix.lower() in NOT_SPIKES:

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from spikenerf.core.errors import InputError, is_number
+from spikenerf.core.errors import InputError, is_integer, is_number
 
 if TYPE_CHECKING:
     import torch
@@ -34,8 +34,18 @@ def rgb_to_gray(rgb: Array, channel_axis: int = 0) -> Array:
     Returns:
         The same shape with the colour axis removed.
     Raises:
-        InputError: the colour axis does not have 3 entries.
+        InputError: ``rgb`` not an array or tensor, ``channel_axis`` not one of its axes, or the colour axis
+            without 3 entries.
     """
+    if not hasattr(rgb, "shape") or not hasattr(rgb, "ndim"):
+        raise InputError(
+            f"rgb must be a numpy array or torch tensor, found {type(rgb).__name__}", param="rgb"
+        )
+    if not is_integer(channel_axis) or not -rgb.ndim <= channel_axis < rgb.ndim:
+        raise InputError(
+            f"channel_axis must be an axis of rgb's shape {tuple(rgb.shape)}, found {channel_axis!r}",
+            param="channel_axis",
+        )
     if rgb.shape[channel_axis] != 3:
         raise InputError(
             f"rgb must have 3 colour channels on axis {channel_axis}, found shape {tuple(rgb.shape)}",
@@ -83,8 +93,20 @@ def srgb_slope(linear: Array, floor: float = 1 / 255) -> Array:
 
 def srgb_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Mean squared difference () of the sRGB display values of two linear tensors of one shape (each clipped
-    to [0, 1] by :func:`srgb_encode`), in float32 or wider: what every PSNR of a training step reports."""
-    return ((srgb_encode(pred.float()) - srgb_encode(target.float())) ** 2).mean()
+    to [0, 1] by :func:`srgb_encode`), in float32 (float64 where either is): what every PSNR of a
+    training step reports.
+
+    Raises:
+        InputError: ``target`` not of ``pred``'s shape (an (N, 1) against (N,) broadcast to (N, N)).
+    """
+    if tuple(target.shape) != tuple(pred.shape):
+        raise InputError(
+            f"target must have the shape of pred, {tuple(pred.shape)}, found {tuple(target.shape)}",
+            param="target",
+        )
+    torch_ = sys.modules["torch"]  # float64 stays float64 (a gradcheck's); the rest is taken in float32
+    wide = torch_.float64 if torch_.float64 in (pred.dtype, target.dtype) else torch_.float32
+    return ((srgb_encode(pred.to(wide)) - srgb_encode(target.to(wide))) ** 2).mean()
 
 
 def display_uint8(display: np.ndarray) -> np.ndarray:

@@ -163,7 +163,8 @@ def write_record(run_dir: str | Path, record: dict[str, Any] | None) -> None:
 
 
 def read_record(run_dir: str | Path) -> dict[str, Any] | None:
-    """``RUN/holdout.json``, or None when the run trained on every step."""
+    """``RUN/holdout.json``, or None when the run trained on every step; an InputError naming the file when
+    it is malformed (a record whose reconstruction was cut, ``recon_cut`` true, holds ``check_reach``)."""
     path = Path(run_dir) / HOLDOUT_FILE
     if not path.is_file():
         return None
@@ -190,6 +191,12 @@ def read_record(run_dir: str | Path) -> dict[str, Any] | None:
             raise InputError(
                 f"malformed hold-out record ({key}: expected an integer ≥ 0, found {data[key]!r:.60})", path
             )
+    if data.get("recon_cut") is True and "check_reach" not in data:  # (eval would read the whole stream)
+        raise InputError(
+            "malformed hold-out record (recon_cut is true but check_reach is missing: the steps either side "
+            "of a check step that its reconstruction reads)",
+            path,
+        )
     return data
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from spikenerf.core.errors import InputError
 from spikenerf.scenes.trajectory import Intrinsics
 
 
@@ -31,7 +32,11 @@ def camera_directions(intrinsics: Intrinsics, pixels: Tensor, dtype: torch.dtype
         (``intrinsics.distortion``) the pixel centre's normalised coordinates are the distorted ones: they
         are undistorted (:meth:`~spikenerf.scenes.distortion.Distortion.undistort`, OpenCV's y down) first,
         so the ray is the one the lens bent onto that pixel.
+    Raises:
+        InputError: ``pixels`` not (N, 2).
     """
+    if pixels.dim() != 2 or pixels.shape[1] != 2:
+        raise InputError(f"pixels must be (N, 2) (x, y) pairs, found {tuple(pixels.shape)}", param="pixels")
     px = pixels.to(dtype)
     lens = intrinsics.distortion
     if lens is not None:
@@ -54,9 +59,20 @@ def pixel_rays(c2w: Tensor | np.ndarray, intrinsics: Intrinsics, pixels: Tensor)
         origins (N, 3) and unit directions (N, 3), in the dtype of ``c2w`` (float32 if it is not floating),
         also under ``--amp`` (autocast is off here: bfloat16 directions miss their pixel by up to 3 px at
         400×400).
+    Raises:
+        InputError: ``c2w`` not (4, 4) or (N, 4, 4) with the N of ``pixels``, or ``pixels`` not (N, 2).
     """
     pose = _as_tensor(c2w)
     pixels = torch.as_tensor(pixels, device=pose.device)
+    n = pixels.shape[0] if pixels.dim() else -1
+    if (
+        tuple(pose.shape[-2:]) != (4, 4)
+        or pose.dim() not in (2, 3)
+        or (pose.dim() == 3 and pose.shape[0] != n)
+    ):
+        raise InputError(
+            f"c2w must be (4, 4) or (N, 4, 4) for the N = {n} pixels, found {tuple(pose.shape)}", param="c2w"
+        )
     d_cam = camera_directions(intrinsics, pixels, pose.dtype)
     rot = pose[..., :3, :3]
     with torch.autocast(pose.device.type, enabled=False):

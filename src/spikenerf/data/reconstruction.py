@@ -24,7 +24,7 @@ from typing import Literal, get_args
 
 import numpy as np
 
-from spikenerf.camera.io import resolve_frames
+from spikenerf.camera.frame_range import resolve_frames
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, ReconMethod, reconstruct_at, reconstruct_frames
 from spikenerf.camera.streams import frame_indices
 from spikenerf.core.errors import InputError, check_choice

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from spikenerf.camera.io import encode_frames, read_dat
+from spikenerf.camera.dat_codec import encode_frames
+from spikenerf.camera.io import read_dat
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
 from spikenerf.core.atomic import write_text_atomic
 from spikenerf.core.errors import InputError

@@ -283,7 +283,8 @@ def noref_metrics(
     small = min(k.height, k.width) < BLOCK
     rows, pixels = [], torch.zeros(0, 2)
     cut = held is not None and held.get("recon_cut") is True and config.targets.recon in WINDOWLESS
-    reach = held.get("check_reach") if cut else None  # (a record from before the cut: the whole stream)
+    reach = held["check_reach"] if cut else None  # (no recon_cut: a record from before the cut, the whole
+    # stream; read_record refuses a cut record without check_reach)
     images = step_reconstructions(config, dataset, steps, reach) or [None] * len(steps)
     with torch.no_grad():
         for i, step in enumerate(progress(steps)):

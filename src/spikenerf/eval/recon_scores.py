@@ -29,7 +29,8 @@ import numpy as np
 import torch
 
 from spikenerf.camera.bayer import bayer_mosaic
-from spikenerf.camera.io import read_dat, resolve_frames
+from spikenerf.camera.frame_range import resolve_frames
+from spikenerf.camera.io import read_dat
 from spikenerf.camera.layout import to_camera_layout, to_channels_last
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW, check_window
 from spikenerf.core.atomic import atomic_path

@@ -1,17 +1,19 @@
-"""Building and loading the fused CPU kernel of ``vm_kernel.py`` (its C++ source: ``vm_cpu_source.py``).
+"""Building and loading the fused CPU kernel of ``vm_kernel.py`` (its C++ source: ``vm_cpu.cpp``, package
+data beside this module, read with ``importlib.resources``: :func:`kernel_source`).
 
 It is compiled with the system C++ compiler through ``torch.utils.cpp_extension`` (``-O3``, ``-march=native``
 on x86-64, ``-fopenmp`` on Linux so its loops use torch's threads; cached under ``~/.cache/torch_extensions``
 in a folder named by the source, the flags and the CPU's feature flags; 20–90 s the first time on a machine;
 a process that finds the module compiled imports it at once, and concurrent first builds are serialised by an
 ``flock`` that dies with its holder). :func:`load` returns the module, or None where that is not possible (no
-compiler, ``SPIKENERF_VM_KERNEL=0``): callers then use ``grid_sample``. Also :func:`cpu_has`, the CPU's
-feature flags.
+compiler, ``SPIKENERF_VM_KERNEL=0``, the source missing from the installation): callers then use
+``grid_sample``. Also :func:`cpu_has`, the CPU's feature flags.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import importlib.util
 import os
@@ -22,10 +24,9 @@ import sys
 import time
 import warnings
 from collections.abc import Iterator
+from importlib import resources
 from pathlib import Path
 from typing import Any
-
-from spikenerf.fields.vm_cpu_source import SOURCE
 
 try:
     import fcntl
@@ -34,6 +35,16 @@ except ImportError:  # pragma: no cover - not on Unix: no build lock
 
 _MODULE: Any = None
 _FAILED = False
+#: the kernel's C++ source, shipped in this package (``pyproject.toml`` package-data)
+SOURCE_FILE = "vm_cpu.cpp"
+
+
+@functools.cache
+def kernel_source() -> str:
+    """The C++ text of the kernel, :data:`SOURCE_FILE` beside this module, read once (OSError where the
+    installation lacks it). The build folder's name hashes this text (:func:`_name`): any change to it
+    builds anew."""
+    return resources.files(__package__).joinpath(SOURCE_FILE).read_text(encoding="utf-8")
 
 
 def _cflags() -> list[str]:
@@ -100,8 +111,12 @@ def cpu_has(*flags: str) -> bool:
 _CFLAGS = _cflags() if _CPU else ["-O3", "-ffp-contract=off"]
 
 
-def _name(cflags: list[str], ldflags: list[str], source: str = SOURCE, prefix: str = "spikenerf_vm_") -> str:
-    """One build folder per source, flags (the OpenMP library's path included) and CPU."""
+def _name(
+    cflags: list[str], ldflags: list[str], source: str | None = None, prefix: str = "spikenerf_vm_"
+) -> str:
+    """One build folder per source (default :func:`kernel_source`), flags (the OpenMP library's path
+    included) and CPU."""
+    source = kernel_source() if source is None else source
     return prefix + hashlib.sha256("\0".join([source, *cflags, *ldflags, _CPU]).encode()).hexdigest()[:12]
 
 
@@ -162,8 +177,8 @@ def _import_built(name: str, library: Path) -> Any:
 
 
 def _build(cflags: list[str], ldflags: list[str]) -> Any:
-    """Load the cached module, or compile it, with these extra flags; None when another process's build
-    held the build lock for :data:`BUILD_WAIT_S` seconds.
+    """Load the cached module, or compile it (:func:`kernel_source`), with these extra flags; None when
+    another process's build held the build lock for :data:`BUILD_WAIT_S` seconds.
 
     Under our own ``flock`` (:func:`_build_lock`): a compiled ``.so`` is imported at once, without torch's
     build machinery; otherwise torch's own ``lock`` file is removed first (no live spikenerf process can be
@@ -172,7 +187,8 @@ def _build(cflags: list[str], ldflags: list[str]) -> Any:
     """
     from torch.utils.cpp_extension import _get_build_directory, load_inline
 
-    name = _name(_CFLAGS + cflags, ldflags)
+    source = kernel_source()
+    name = _name(_CFLAGS + cflags, ldflags, source)
     build_dir = Path(_get_build_directory(name, verbose=False))
     with _build_lock(build_dir) as locked:
         if not locked:
@@ -192,7 +208,7 @@ def _build(cflags: list[str], ldflags: list[str]) -> Any:
         print("building the fused CPU kernel (once, ~1 min)…", file=sys.stderr, flush=True)
         _find_ninja()
         return load_inline(
-            name, cpp_sources=[SOURCE], extra_cflags=_CFLAGS + cflags, extra_ldflags=ldflags, with_cuda=False
+            name, cpp_sources=[source], extra_cflags=_CFLAGS + cflags, extra_ldflags=ldflags, with_cuda=False
         )
 
 
@@ -234,6 +250,16 @@ def load() -> Any:
     if _MODULE is not None or _FAILED:
         return _MODULE
     if os.environ.get("SPIKENERF_VM_KERNEL", "1") == "0":
+        _FAILED = True
+        return None
+    try:
+        kernel_source()
+    except OSError as err:  # a broken installation: grid_sample, as without a compiler
+        warnings.warn(
+            f"VM CPU kernel: its C++ source {SOURCE_FILE} is missing from the installation "
+            f"({type(err).__name__}): using grid_sample, which is slower on a CPU (reinstall spikenerf)",
+            stacklevel=2,
+        )
         _FAILED = True
         return None
     compiler = os.environ.get("CXX", "c++")

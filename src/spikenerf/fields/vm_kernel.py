@@ -12,7 +12,7 @@ summed by torch and, in the backward, expanded back into a contiguous copy. A tr
 (:func:`vm_sum_until`) is looked up along each ray only up to its early stop: the samples behind it, about
 half of them late in training, have density 0 and no gradient either way.
 The lookups are random reads of a grid larger than the L2 cache, so each loop prefetches the texels of the
-point 8 ahead. Its C++ source is ``vm_cpu_source.py``; ``vm_build.py`` compiles it (cached; 20–90 s the first
+point 8 ahead. Its C++ source is ``vm_cpu.cpp``; ``vm_build.py`` compiles it (cached; 20–90 s the first
 time on a machine) and loads it. Where that is not possible (no
 compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``, inside
 :func:`suspended`) callers fall back to ``grid_sample``; :func:`available` says which path is used.
@@ -29,9 +29,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.core.errors import InputError
 from spikenerf.core.tracing import constant_result, custom_op
 from spikenerf.fields.vm_build import load
-from spikenerf.fields.vm_ops import channels_last, register_pair
+from spikenerf.fields.vm_ops import channels_last, check_factors, register_pair
 
 
 def parallel_threads(n: int = 64) -> int:
@@ -102,10 +103,12 @@ def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
         (M, 3, C), the same values as :func:`spikenerf.fields.vm_sample.sample_vm` transposed; (M,) when
         ``summed``.
     Raises:
-        RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False).
+        RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False). InputError:
+            factors or points not of these shapes, or not float32 (:func:`~.vm_ops.check_factors`).
     """
     if load() is None:
         raise RuntimeError("vm_lookup: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
+    check_factors(planes, lines, xyz)
     return _OP(*channels_last(planes, lines), xyz.contiguous(), summed)
 
 
@@ -139,6 +142,7 @@ def vm_rows(planes: Tensor, lines: Tensor, xyz: Tensor, rows: int) -> Tensor:
     """
     if load() is None:
         raise RuntimeError("vm_rows: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
+    check_factors(planes, lines, xyz)
     return _Rows.apply(*channels_last(planes, lines), xyz.contiguous(), rows)
 
 
@@ -196,16 +200,19 @@ def vm_sum_until(
         (M,): the summed products where looked up (the values of :func:`vm_lookup`), −inf after (a density of
         exactly 0, with gradient 0). Its gradient flows to the planes and lines as :func:`vm_lookup`'s.
     Raises:
-        ValueError: ``offsets`` not (N + 1,) or ``deltas`` not (M,). RuntimeError (the kernel's check, which
-        reads no value back on the Python side): ``offsets`` not from 0 to M or decreasing.
+        InputError: factors or points as :func:`vm_lookup` refuses them, ``offsets`` not (N + 1,) or
+            ``deltas`` not (M,). RuntimeError (the kernel's check, which reads no value back on the Python
+            side): ``offsets`` not from 0 to M or decreasing.
     """
     if load() is None:
         raise RuntimeError("vm_sum_until: the fused VM CPU kernel is unavailable (check usable first)")
+    check_factors(planes, lines, xyz)
     m = xyz.shape[0]
     if offsets.dim() != 1 or len(offsets) == 0 or deltas.shape != (m,):
-        raise ValueError(
+        raise InputError(
             f"vm_sum_until: offsets must be (N + 1,) and deltas (M,) of the {m} samples, found "
-            f"{tuple(offsets.shape)} and {tuple(deltas.shape)}"
+            f"{tuple(offsets.shape)} and {tuple(deltas.shape)}",
+            param=("offsets", "deltas"),
         )
     stop = limit * (1.0 + UNTIL_MARGIN) + UNTIL_MARGIN
     p, ln = channels_last(planes, lines)

@@ -14,12 +14,29 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from spikenerf.core.errors import InputError
 from spikenerf.core.tracing import custom_op
 
 #: forward(planes (3, R, R, C), lines (3, R, C), xyz (M, 3), summed) → (M, 3, C), or (M,) when summed
 Forward = Callable[[Tensor, Tensor, Tensor, bool], Tensor]
 #: backward(planes, lines, xyz, grad (M, 3, C) or (M,)) → (∂/∂planes (3, R, R, C), ∂/∂lines (3, R, C))
 Backward = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
+
+
+def check_factors(planes: Tensor, lines: Tensor, xyz: Tensor) -> None:
+    """InputError naming the first bad argument unless planes are (3, C, R, R), lines (3, C, R, 1) of the
+    same C and R, points (M, 3), all float32: the kernels read them with these sizes and do not check them
+    (a (M, 2) ``xyz`` or a line of another length was read past its end). Sizes only: no sync."""
+    if planes.dim() != 4 or planes.shape[0] != 3 or planes.shape[2] != planes.shape[3]:
+        raise InputError(f"planes must be (3, C, R, R), found {tuple(planes.shape)}", param="planes")
+    want = (3, planes.shape[1], planes.shape[2], 1)
+    if tuple(lines.shape) != want:
+        raise InputError(f"lines must be (3, C, R, 1) = {want}, found {tuple(lines.shape)}", param="lines")
+    if xyz.dim() != 2 or xyz.shape[1] != 3:
+        raise InputError(f"xyz must be (M, 3) points, found {tuple(xyz.shape)}", param="xyz")
+    for name, x in (("planes", planes), ("lines", lines), ("xyz", xyz)):
+        if x.dtype != torch.float32:
+            raise InputError(f"{name} must be float32 for the fused kernels, found {x.dtype}", param=name)
 
 
 def channels_last(planes: Tensor, lines: Tensor) -> tuple[Tensor, Tensor]:

@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.core.tracing import constant_result
-from spikenerf.fields.vm_ops import channels_last, register_pair
+from spikenerf.fields.vm_ops import channels_last, check_factors, register_pair
 
 #: kernel → (points a program, warps a program): the fastest forward + backward of four shapes on an H200
 #: (2²⁰ points, R 300, C 16 and 24; ``benchmarks/tools/bench_lookup.py --triton-launch``, docs/performance.md)
@@ -116,9 +116,11 @@ def triton_vm(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
         ``summed``.
         Gradients flow to ``planes`` and ``lines``, not to ``xyz``.
     Raises:
-        RuntimeError: Triton cannot run here (:func:`applies` is False), naming why.
+        RuntimeError: Triton cannot run here (:func:`applies` is False), naming why. InputError: factors or
+            points not of these shapes, or not float32 (:func:`~.vm_ops.check_factors`).
     """
+    check_factors(planes, lines, xyz)
     if not applies(planes, xyz):
-        reason = why_not(planes.device) or "float32 factors and points without gradient are needed"
+        reason = why_not(planes.device) or "points without gradient are needed"
         raise RuntimeError(f"triton_vm: {reason}")
     return _OP(*channels_last(planes, lines), xyz.contiguous(), summed)

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from spikenerf import __version__
-from spikenerf.camera.io import count_frames, iter_dat, raw_width_guess, resolve_frames
+from spikenerf.camera.frame_range import resolve_frames
+from spikenerf.camera.io import count_frames, iter_dat, raw_width_guess
 from spikenerf.camera.spikecv import recording_config, refuse_size_conflicts
 from spikenerf.core.errors import InputError
 from spikenerf.core.faults import failpoint

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from spikenerf.camera.io import resolve_frames
+from spikenerf.camera.frame_range import resolve_frames
 from spikenerf.camera.modes import COLORS
 from spikenerf.camera.streams import check_threshold, flat_stream, spike_bytes
 from spikenerf.core.errors import InputError, check_choice

@@ -4,7 +4,7 @@ The torch march (``GridModel._march``) lays out every candidate step of every ra
 of the step counts), gathers each step's ray origin, direction, near and far, tests it against the ray's end
 and the occupancy grid, and compacts the kept ones: a dozen passes over arrays several times the size of
 the result (late in training about 2.5 candidates a kept step). The kernel (``march`` in
-``fields/vm_cpu_source.py``) walks each ray's steps and tests each where it is made, in the same float32
+``fields/vm_cpu.cpp``) walks each ray's steps and tests each where it is made, in the same float32
 operations in the same order (built without contraction), so it keeps the same steps in the same order
 (``tests/test_cpu_render_kernels.py``); only the result is stored. Where the kernel is not built
 (``SPIKENERF_VM_KERNEL=0``, no compiler), off the CPU, for other dtypes or inside a ``torch.compile`` trace

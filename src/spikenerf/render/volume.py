@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_finite, is_integer
 from spikenerf.render import volume_triton
 
 BACKGROUND = 1.0
@@ -55,8 +55,27 @@ class RenderOutput:
     dropped_colors: Tensor | None = None
 
 
+def _same_shapes(reference: str, tensors: dict[str, Tensor | None], dims: int | None = None) -> None:
+    """InputError naming the first of ``tensors`` whose shape differs from that of the one named
+    ``reference`` (a size check: no sync, a guard under ``torch.compile``), or, with ``dims``, naming
+    ``reference`` unless it has that many dimensions; None entries are skipped."""
+    shape = tuple(tensors[reference].shape)  # type: ignore[union-attr]
+    if dims is not None and len(shape) != dims:
+        raise InputError(f"{reference} must have {dims} dimension(s), found shape {shape}", param=reference)
+    for name, x in tensors.items():
+        if x is not None and tuple(x.shape) != shape:
+            raise InputError(
+                f"{name} must have the shape of {reference}, {shape}, found {tuple(x.shape)}", param=name
+            )
+
+
 def weights_from_density(sigma: Tensor, deltas: Tensor) -> Tensor:
-    """Compositing weights (N, S) from densities (N, S) per unit length and interval lengths (N, S) ≥ 0."""
+    """Compositing weights (N, S) from densities (N, S) per unit length and interval lengths (N, S) ≥ 0.
+
+    Raises:
+        InputError: ``deltas`` not of ``sigma``'s shape.
+    """
+    _same_shapes("sigma", {"sigma": sigma, "deltas": deltas})
     tau = sigma * deltas
     trans = torch.exp(-torch.cumsum(tau, dim=-1))
     trans = torch.cat([torch.ones_like(trans[..., :1]), trans[..., :-1]], dim=-1)
@@ -66,7 +85,19 @@ def weights_from_density(sigma: Tensor, deltas: Tensor) -> Tensor:
 def composite(
     weights: Tensor, colors: Tensor, t: Tensor, background: float = BACKGROUND
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """Colour (N, C), depth (N,), opacity (N,) from weights (N, S), colours (N, S, C), distances t (N, S)."""
+    """Colour (N, C), depth (N,), opacity (N,) from weights (N, S), colours (N, S, C), distances t (N, S).
+
+    Raises:
+        InputError: ``weights`` not (N, S), ``t`` not of its shape, ``colors`` not (N, S, C), or
+            ``background`` not a finite number.
+    """
+    _same_shapes("weights", {"weights": weights, "t": t}, dims=2)
+    if colors.dim() != 3 or tuple(colors.shape[:2]) != tuple(weights.shape):
+        raise InputError(
+            f"colors must be (N, S, C) with (N, S) = {tuple(weights.shape)}, found {tuple(colors.shape)}",
+            param="colors",
+        )
+    _check_background(background)
     opacity = weights.sum(dim=-1)
     color = (weights[..., None] * colors).sum(dim=-2) + (1.0 - opacity)[..., None] * background
     depth = (weights * t).sum(dim=-1) / opacity.clamp_min(1e-10)
@@ -96,6 +127,11 @@ def segment_sum(values: Tensor, ray: Tensor, offsets: Tensor, fused: bool = Fals
         (each ray's rows added in order by one thread: 3–4× faster than ``index_add``'s scatter with its
         gradient, the same sums); elsewhere ``index_add``.
     """
+    if values.dim() == 0 or values.shape[0] != ray.shape[0]:
+        raise InputError(
+            f"values must be (M, ...) with the M = {ray.shape[0]} rows of ray, found {tuple(values.shape)}",
+            param="values",
+        )
     if fused and values.dim() <= 2:
         return volume_triton.segment_sum(values, ray, offsets)
     if values.device.type == "cpu" and values.dtype in (torch.float32, torch.float64):
@@ -122,7 +158,10 @@ def packed_weights(
     Returns:
         (M,) weights ``Tᵢ (1 − exp(−σᵢ δᵢ))``; ``Tᵢ`` sums only the earlier samples of the same ray
         (:func:`packed_depth_before`).
+    Raises:
+        InputError: ``sigma`` not (M,), or ``deltas`` or ``ray`` not of its shape.
     """
+    _same_shapes("sigma", {"sigma": sigma, "deltas": deltas, "ray": ray}, dims=1)
     tau = sigma * deltas
     before = packed_depth_before(tau, ray, n_rays, offsets, fused)
     return torch.exp(-before).to(tau.dtype) * (1.0 - torch.exp(-tau))
@@ -144,7 +183,10 @@ def packed_depth_before(
         how much optical depth the rays before it had. The scan sees ``τ`` clamped to ≤ 1e3 (NaN → 1e3):
         ``exp(−1e3)`` is already 0, so no weight changes, and one infinite or NaN sample cannot make
         ``inf − inf`` for every later ray.
+    Raises:
+        InputError: ``tau`` not (M,), or ``ray`` not of its shape.
     """
+    _same_shapes("tau", {"tau": tau, "ray": ray}, dims=1)
     if offsets is None:
         offsets = ray_offsets(ray, n_rays)
     if fused:
@@ -207,7 +249,19 @@ def packed_composite(
             (``fused``: its Triton kernel).
     Returns:
         colour (N, C) composited over ``background``, depth (N,) (0 where empty), opacity (N,).
+    Raises:
+        InputError: ``weights`` not (M,), ``ray`` or ``t`` not of its shape, ``colors`` not (K, C) with K
+            the length of ``color_index`` (M without it), or ``background`` not a finite number.
     """
+    _same_shapes("weights", {"weights": weights, "ray": ray, "t": t}, dims=1)
+    rows = weights.shape[0] if color_index is None else color_index.shape[0]
+    if colors.dim() != 2 or colors.shape[0] != rows:
+        which = "weights" if color_index is None else "color_index"
+        raise InputError(
+            f"colors must be (K, C) with K = {rows}, the length of {which}, found {tuple(colors.shape)}",
+            param="colors",
+        )
+    _check_background(background)
     if offsets is None:
         offsets = ray_offsets(ray, n_rays)
     sums = segment_sum(torch.stack([weights, weights * t], dim=1), ray, offsets, fused)
@@ -222,6 +276,18 @@ def packed_composite(
     return color + (1.0 - opacity)[:, None] * background, depth, opacity
 
 
+def _check_count(n: object, name: str) -> None:
+    """InputError naming ``name`` unless ``n`` is an integer ≥ 1 (a number of samples per ray)."""
+    if not is_integer(n) or n < 1:  # type: ignore[operator]
+        raise InputError(f"{name} must be an integer ≥ 1 (samples per ray), found {n!r}", param=name)
+
+
+def _check_background(background: object) -> None:
+    """InputError naming ``background`` unless it is a finite number (a grey level; white is 1.0)."""
+    if not is_finite(background):
+        raise InputError(f"background must be a finite number, found {background!r}", param="background")
+
+
 def stratified_samples(near: Tensor, far: Tensor, n: int, perturb: bool) -> tuple[Tensor, Tensor]:
     """``n`` samples per ray in equal bins of [near, far]: one uniform draw per bin, or the bin centre.
 
@@ -229,7 +295,11 @@ def stratified_samples(near: Tensor, far: Tensor, n: int, perturb: bool) -> tupl
         near, far: (N,). perturb: random position in each bin (training) or its centre.
     Returns:
         t (N, n) sorted distances, and the bin edges (N, n + 1).
+    Raises:
+        InputError: ``n`` not an integer ≥ 1, ``near`` not (N,), or ``far`` not of its shape.
     """
+    _check_count(n, "n")
+    _same_shapes("near", {"near": near, "far": far}, dims=1)
     u = torch.linspace(0.0, 1.0, n + 1, device=near.device, dtype=near.dtype)
     edges = near[:, None] + (far - near)[:, None] * u
     offset = torch.rand_like(edges[:, :-1]) if perturb else torch.full_like(edges[:, :-1], 0.5)
@@ -237,7 +307,16 @@ def stratified_samples(near: Tensor, far: Tensor, n: int, perturb: bool) -> tupl
 
 
 def deltas_from_samples(t: Tensor, far: Tensor) -> Tensor:
-    """Interval lengths (N, S): ``t_{i+1} − t_i``, and ``far − t_last`` for the last sample (clamped ≥ 0)."""
+    """Interval lengths (N, S): ``t_{i+1} − t_i``, and ``far − t_last`` for the last sample (clamped ≥ 0).
+
+    Raises:
+        InputError: ``t`` not (N, S), or ``far`` not (N,).
+    """
+    if t.dim() != 2 or tuple(far.shape) != (t.shape[0],):
+        raise InputError(
+            f"t must be (N, S) and far (N,), found {tuple(t.shape)} and {tuple(far.shape)}",
+            param=("t", "far"),
+        )
     nxt = torch.cat([t[:, 1:], far[:, None].expand(-1, 1)], dim=-1)
     return (nxt - t).clamp_min(0.0)
 
@@ -250,7 +329,16 @@ def sample_pdf(edges: Tensor, weights: Tensor, n: int, perturb: bool) -> Tensor:
         n: samples per ray. perturb: uniform random quantiles, else evenly spaced quantiles in [0, 1].
     Returns:
         (N, n) distances inside [edges[:, 0], edges[:, -1]] (unsorted when ``perturb``).
+    Raises:
+        InputError: ``n`` not an integer ≥ 1, ``weights`` not (N, B), or ``edges`` not (N, B + 1).
     """
+    _check_count(n, "n")
+    if weights.dim() != 2 or tuple(edges.shape) != (weights.shape[0], weights.shape[1] + 1):
+        raise InputError(
+            f"edges must be (N, B + 1) for weights (N, B), found {tuple(edges.shape)} and "
+            f"{tuple(weights.shape)}",
+            param=("edges", "weights"),
+        )
     w = weights + 1e-5
     pdf = w / w.sum(dim=-1, keepdim=True)
     cdf = torch.cat([torch.zeros_like(pdf[:, :1]), torch.cumsum(pdf, dim=-1)], dim=-1).clamp_max(1.0)

@@ -20,7 +20,15 @@ def project_points(c2w, points, intrinsics: Intrinsics):  # type: ignore[no-unty
     ``[x, x + 1) × [y, y + 1)`` (its centre is ``x + 0.5``, as :func:`spikenerf.data.rays.camera_directions`
     casts it), through the lens of a distorted camera; depth > 0 in front of the camera, where u and v are
     meaningful. Torch tensors are projected with autocast off (under ``--amp bf16`` a third of the points
-    would land in another pixel)."""
+    would land in another pixel).
+
+    Raises:
+        InputError: ``points`` not (..., 3) or ``c2w`` not (..., 4, 4).
+    """
+    if points.ndim == 0 or points.shape[-1] != 3:
+        raise InputError(f"points must be (..., 3), found {tuple(points.shape)}", param="points")
+    if c2w.ndim < 2 or tuple(c2w.shape[-2:]) != (4, 4):
+        raise InputError(f"c2w must be (..., 4, 4) poses, found {tuple(c2w.shape)}", param="c2w")
     torch = sys.modules.get("torch")  # a tensor needs torch imported already; numpy ≥ 2 arrays have a
     if torch is not None and isinstance(points, torch.Tensor):  # ``device`` too (the string "cpu")
         with torch.autocast(points.device.type, enabled=False):

@@ -36,8 +36,11 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     Returns:
         Scalar mean over rays and channels.
     Raises:
-        InputError: ``target`` not of ``pred``'s shape (an (N, 1) against (N,) would broadcast to (N, N)).
+        InputError: ``pred`` not a tensor, or ``target`` (a tensor or array) not of ``pred``'s shape (an
+            (N, 1) against (N,) would broadcast to (N, N)).
     """
+    check_tensor(pred, "pred")
+    target = torch.as_tensor(target, device=pred.device)
     same_shape(pred, target, "target", "pred")
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
 
@@ -57,6 +60,15 @@ def check_tensor(x: object, name: str) -> None:
     """InputError naming ``name`` unless ``x`` is a torch tensor (a render, which the loss differentiates)."""
     if not isinstance(x, torch.Tensor):
         raise InputError(f"{name} must be a torch tensor, found {type(x).__name__}", param=name)
+
+
+def check_steps(intensity: object) -> None:
+    """InputError naming ``intensity`` unless it is a tensor (L, ...) with a step axis (not 0-d)."""
+    check_tensor(intensity, "intensity")
+    if intensity.dim() == 0:  # type: ignore[attr-defined]
+        raise InputError(
+            "intensity must be (L, ...) with a step axis first, found a 0-d tensor", param="intensity"
+        )
 
 
 def recorded_spikes(spikes: object, like: torch.Tensor) -> torch.Tensor:
@@ -104,12 +116,18 @@ def window_mean_loss(
         Scalar loss (linear intensity squared; may be slightly negative for G ≥ 2, never in expectation).
     """
     check_tensor(means, "means")
+    if not means.dtype.is_floating_point:
+        raise InputError(f"means must be floating-point renders, found {means.dtype}", param="means")
     if weight not in LOSS_WEIGHTS:
         raise InputError(f"weight must be one of {', '.join(LOSS_WEIGHTS)}, found {weight!r}", param="weight")
     target = torch.as_tensor(target, device=means.device)
     if means.dim() != 3 or target.shape != (means.shape[0], means.shape[2]):
         raise InputError(f"means must be (B, G, C) and target (B, C), found {tuple(means.shape)}, "
                          f"{tuple(target.shape)}", param=("means", "target"))  # fmt: skip
+    if means.shape[1] == 0:
+        raise InputError(
+            "means must hold at least one estimate per window (G ≥ 1), found G = 0", param="means"
+        )
     if band is not None:
         band = torch.as_tensor(band, device=means.device)
         if band.shape != (means.shape[0], 1):
@@ -169,7 +187,7 @@ def spike_prefix(intensity: torch.Tensor, spikes: torch.Tensor, threshold: float
     Raises:
         InputError: ``spikes`` not of ``intensity``'s shape, or ``threshold`` not a finite number > 0.
     """
-    check_tensor(intensity, "intensity")
+    check_steps(intensity)
     spikes = recorded_spikes(spikes, intensity)  # (a numpy stream, as read_dat gives)
     same_shape(intensity, spikes, "spikes", "intensity")
     check_threshold(threshold)
@@ -200,7 +218,7 @@ def spike_interval_violation(
         violation: (P, ...) ≥ 0, in intensity units; length: (P,) steps ``b − a`` of each pair;
         valid: (P, ...) bool, whether the pair's bounds apply.
     """
-    check_tensor(intensity, "intensity")
+    check_steps(intensity)
     if max_intensity is not None and not (is_number(max_intensity) and max_intensity > 0):
         raise InputError(
             f"max_intensity must be None or a number > 0, found {max_intensity!r}", param="max_intensity"
@@ -278,7 +296,9 @@ def paper_spike_loss(
     Returns:
         Scalar tensor with ``requires_grad=False``.
     """
-    check_tensor(intensity, "intensity")
+    check_steps(intensity)
+    if intensity.shape[0] == 0:
+        raise InputError("intensity must hold at least one step, found L = 0", param="intensity")
     spikes = recorded_spikes(spikes, intensity)
     same_shape(intensity, spikes, "spikes", "intensity")
     check_threshold(threshold)

@@ -32,7 +32,15 @@ REFINED_POSES = "refined_poses.json"
 
 def so3_exp(omega: Tensor) -> Tensor:
     """Rodrigues: axis-angle vectors (..., 3) → rotation matrices (..., 3, 3); exact identity at 0 and a
-    Taylor expansion near it (smooth gradients there)."""
+    Taylor expansion near it (smooth gradients there).
+
+    Raises:
+        InputError: ``omega`` not (..., 3).
+    """
+    if omega.dim() == 0 or omega.shape[-1] != 3:
+        raise InputError(
+            f"omega must be (..., 3) axis-angle vectors, found {tuple(omega.shape)}", param="omega"
+        )
     theta2 = (omega * omega).sum(-1, keepdim=True)[..., None]  # (..., 1, 1)
     small = theta2 < 1e-8
     theta = torch.sqrt(torch.where(small, torch.ones_like(theta2), theta2))
@@ -46,7 +54,13 @@ def so3_exp(omega: Tensor) -> Tensor:
 
 
 def se3_exp(xi: Tensor) -> Tensor:
-    """so(3) × R³ log coordinates (..., 6) = (ω, ρ) → rigid transforms (..., 4, 4) ``[exp(ω) | ρ]``."""
+    """so(3) × R³ log coordinates (..., 6) = (ω, ρ) → rigid transforms (..., 4, 4) ``[exp(ω) | ρ]``.
+
+    Raises:
+        InputError: ``xi`` not (..., 6).
+    """
+    if xi.dim() == 0 or xi.shape[-1] != 6:
+        raise InputError(f"xi must be (..., 6) = (ω, ρ) vectors, found {tuple(xi.shape)}", param="xi")
     out = torch.zeros(*xi.shape[:-1], 4, 4, dtype=xi.dtype, device=xi.device)
     out[..., :3, :3] = so3_exp(xi[..., :3])
     out[..., :3, 3] = xi[..., 3:]

@@ -1,17 +1,9 @@
-"""The C++ source of the fused CPU kernel for the VM lookup (``vm_kernel.py``), compiled on first use by
-``vm_build.py``.
+// The fused CPU kernel of the VM lookup (fields/vm_kernel.py): forward P_m(x)·L_m(x) per axis pair and channel
+// (float32, the bf16 decoder's padded rows, or summed: the density), backward the scatter into channels-last
+// gradients (each thread owns a band of plane rows: the same bits on any number of threads), the density's
+// lookup up to each ray's early stop, and the packed march (render/march_cpu.py). Compiled on first use by
+// fields/vm_build.py, whose build folder's name hashes this file's text: any change to it builds anew.
 
-Forward ``P_m(x)·L_m(x)`` for the three axis pairs, per channel (float32, or the bf16 decoder's padded rows:
-``vm_kernel.vm_rows``) or (``summed``, the density) added up in the kernel; backward the scatter of ``∂/∂P``
-and ``∂/∂L`` (from a float32 or bfloat16 gradient) into channels-last gradients, each thread owning a band
-of plane rows (no races, the same plane-gradient bits on any number of threads) and its own line-gradient
-buffer. Each loop prefetches the texels of the point 8 ahead. Two loops of the grid's packed training render
-beside it: the density's lookup along each ray up to its early stop (``vm_kernel.vm_sum_until``) and the
-march (``render/march_cpu.py``). The build folder's name hashes this text (``vm_build._name``): any change to
-it builds anew.
-"""
-
-SOURCE = r"""
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 #include <algorithm>
@@ -409,4 +401,3 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward_until", &vm_forward_until);
   m.def("march", &march);
 }
-"""

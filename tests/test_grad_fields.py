@@ -1,0 +1,165 @@
+"""The fields' differentiable pieces, kornia style: the positional encoding, the reference VM lookup
+(``sample_vm``) and the custom autograd functions over it: the fused CPU kernel's ``torch.library`` ops
+(``vm_lookup``, ``vm_sum_until``), its ``autograd.Function`` (``vm_rows``) and the Triton ops
+(``triton_vm``). The kernels are float32 only (bfloat16 rows for ``vm_rows``), so they are compared with the
+float64 eager reference, forward and backward, to a tolerance (float32: 1e-5; bfloat16: 1e-2 relative);
+``sample_vm`` and the encoding pass ``gradcheck`` in float64. (``gather_vm``, ``vm_lattice_sum`` and
+``total_variation`` have theirs in ``test_vm_gather.py``, ``test_vm_lattice.py`` and ``test_fields.py``.)"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+import torch
+
+from spikenerf.core.errors import InputError
+from spikenerf.fields import vm_kernel, vm_triton
+from spikenerf.fields.encoding import encoded_size, positional_encoding
+from spikenerf.fields.vm_sample import sample_vm
+
+D = torch.float64
+
+
+def _factors(
+    seed: int = 0, channels: int = 3, res: int = 5
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """float64 planes (3, C, R, R), lines (3, C, R, 1) and 12 points (12, 3), some outside [−1, 1]."""
+    gen = torch.Generator().manual_seed(seed)
+    planes = torch.randn(3, channels, res, res, generator=gen, dtype=D)
+    lines = torch.randn(3, channels, res, 1, generator=gen, dtype=D)
+    xyz = torch.rand(12, 3, generator=gen, dtype=D) * 2.2 - 1.1
+    return planes, lines, xyz
+
+
+def test_encoding_smoke_and_gradcheck() -> None:
+    x = torch.rand(4, 3, dtype=D, requires_grad=True)
+    out = positional_encoding(x, 3)
+    assert out.shape == (4, encoded_size(3, 3)) and torch.equal(out[:, :3], x)
+    assert positional_encoding(x, 0, include_input=False).shape == (4, 0)
+    assert positional_encoding(torch.zeros(0, 3), 2).shape == (0, encoded_size(3, 2))
+    assert torch.autograd.gradcheck(lambda v: positional_encoding(v, 3), (x,))
+
+
+REFUSALS: list[tuple[str, Callable[[], object], str]] = [
+    ("encoding octaves", lambda: positional_encoding(torch.zeros(2, 3), -1), "n_freqs"),
+    # 2.5 octaves made three, wider than encoded_size said
+    ("encoding fraction", lambda: positional_encoding(torch.zeros(2, 3), 2.5), "n_freqs"),  # type: ignore[arg-type]
+    ("encoding 0-d", lambda: positional_encoding(torch.tensor(1.0), 2), "x"),
+]
+
+
+@pytest.mark.parametrize(("case", "call", "param"), REFUSALS, ids=[r[0] for r in REFUSALS])
+def test_encoding_refusals_name_the_parameter(case: str, call: Callable[[], object], param: str) -> None:
+    with pytest.raises(InputError, match=param) as err:
+        call()
+    assert param in err.value.params
+
+
+def test_gradcheck_reference_lookup_in_factors_and_points() -> None:
+    """``grid_sample`` in float64: the reference every kernel equals (points too: pose refinement)."""
+    planes, lines, xyz = (t.requires_grad_() for t in _factors(1, channels=2, res=4))
+    xyz = (xyz.detach() * 0.8).requires_grad_()  # inside, off the texel edges' kinks
+    assert torch.autograd.gradcheck(sample_vm, (planes, lines, xyz))
+
+
+def _kernel_or_skip() -> None:
+    if not vm_kernel.available():
+        pytest.skip("no C++ compiler for the fused VM kernel")
+
+
+def _against_float64(
+    lookup: Callable, summed: bool, seed: int, atol: float = 1e-5, rtol: float = 1e-5
+) -> None:
+    """``lookup(planes, lines, xyz)`` in float32 against ``sample_vm`` in float64: values, and the planes'
+    and lines' gradients of a random output gradient."""
+    p64, l64, xyz = _factors(seed)
+    p64.requires_grad_(), l64.requires_grad_()
+    p32, l32 = (t.detach().float().requires_grad_() for t in (p64, l64))
+    ref = sample_vm(p64, l64, xyz).permute(2, 0, 1)  # (M, 3, C)
+    ref = ref.sum(dim=(1, 2)) if summed else ref
+    out = lookup(p32, l32, xyz.float())
+    assert out.shape == ref.shape and torch.allclose(out.double(), ref, atol=atol, rtol=rtol)
+    grad = torch.randn(ref.shape, generator=torch.Generator().manual_seed(seed + 100), dtype=D)
+    expect = torch.autograd.grad(ref, (p64, l64), grad)
+    got = torch.autograd.grad(out, (p32, l32), grad.to(out.dtype))
+    for a, b in zip(got, expect, strict=True):
+        assert torch.allclose(a.double(), b, atol=atol * 10, rtol=rtol * 10)
+
+
+@pytest.mark.parametrize("summed", [False, True])
+def test_cpu_custom_op_matches_the_float64_reference(summed: bool) -> None:
+    _kernel_or_skip()
+    _against_float64(lambda p, ln, x: vm_kernel.vm_lookup(p, ln, x, summed), summed, seed=2)
+
+
+def test_cpu_stopping_op_without_a_stop_matches_the_float64_reference() -> None:
+    _kernel_or_skip()
+    offsets, deltas = torch.tensor([0, 5, 5, 12]), torch.full((12,), 0.1)
+    _against_float64(
+        lambda p, ln, x: vm_kernel.vm_sum_until(p, ln, x, offsets, deltas, 0.0, 1.0, float("inf")),
+        True,
+        seed=3,
+    )
+
+
+def test_cpu_autograd_function_rows_match_the_float64_reference_to_bfloat16() -> None:
+    """``vm_rows`` writes bfloat16 rows and reads a bfloat16 gradient: 8 bits of mantissa, 1e-2 relative."""
+    _kernel_or_skip()
+
+    def rows(p: torch.Tensor, ln: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        out = vm_kernel.vm_rows(p, ln, x, 16)
+        assert out.dtype == torch.bfloat16 and out[12:].eq(0).all()
+        return out[:12].view(12, 3, -1)
+
+    _against_float64(rows, False, seed=4, atol=2e-2, rtol=1e-2)
+
+
+@pytest.mark.parametrize("summed", [False, True])
+def test_triton_custom_op_matches_the_float64_reference(summed: bool) -> None:
+    if not vm_triton.applies(torch.zeros(1), torch.zeros(1)):
+        pytest.skip("Triton does not run here")
+    _against_float64(lambda p, ln, x: vm_triton.triton_vm(p, ln, x, summed), summed, seed=5)
+
+
+def _bad_factors() -> list[tuple[str, dict[str, torch.Tensor], str]]:
+    p, ln, x = (t.float() for t in _factors(6))
+    return [
+        ("points (M, 2)", {"xyz": x[:, :2].contiguous()}, "xyz"),  # read past the points' end before
+        ("line length", {"lines": torch.zeros(3, 3, 7, 1)}, "lines"),
+        ("line channels", {"lines": torch.zeros(3, 2, 5, 1)}, "lines"),
+        ("two planes", {"planes": p[:2], "lines": ln[:2]}, "planes"),
+        ("float64 planes", {"planes": p.double()}, "planes"),
+    ]
+
+
+@pytest.mark.parametrize("case", range(5), ids=[c[0] for c in _bad_factors()])
+def test_the_kernels_refuse_factors_they_would_misread(case: int) -> None:
+    """The C++ and Triton kernels index by the sizes they assume: a bad shape was read out of bounds."""
+    _, change, param = _bad_factors()[case]
+    p, ln, x = (t.float() for t in _factors(6))
+    args = {"planes": p, "lines": ln, "xyz": x, **change}
+    calls = []
+    if vm_kernel.available():
+        calls += [
+            lambda: vm_kernel.vm_lookup(args["planes"], args["lines"], args["xyz"]),
+            lambda: vm_kernel.vm_rows(args["planes"], args["lines"], args["xyz"], 16),
+            lambda: vm_kernel.vm_sum_until(
+                args["planes"],
+                args["lines"],
+                args["xyz"],
+                torch.tensor([0, 12]),
+                torch.ones(12),
+                0.0,
+                1.0,
+                1.0,
+            ),
+        ]
+    if vm_triton.applies(torch.zeros(1), torch.zeros(1)):
+        calls.append(lambda: vm_triton.triton_vm(args["planes"], args["lines"], args["xyz"]))
+    if not calls:
+        pytest.skip("neither kernel runs here")
+    for call in calls:
+        with pytest.raises(InputError, match=param) as err:
+            call()
+        assert param in err.value.params
