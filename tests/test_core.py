@@ -86,14 +86,20 @@ def test_a_failed_write_removes_the_folders_it_created_and_keeps_the_others(tmp_
 
 
 def test_an_interrupt_right_after_the_temporary_is_made_leaves_nothing(tmp_path, monkeypatch) -> None:
-    import spikenerf.core.atomic as atomic
+    """The temporary is named first and made by the writer, so an interrupt finds it wherever it lands
+    (``mkstemp`` made its file before its name came back: a Ctrl-C in between left it)."""
+    import tempfile
 
-    def interrupted(fd: int) -> None:
+    real = tempfile.mkstemp
+
+    def interrupted(*args, **kwargs):  # type: ignore[no-untyped-def]
+        real(*args, **kwargs)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(atomic.os, "close", interrupted)
-    with pytest.raises(KeyboardInterrupt), atomic_path(tmp_path / "out.txt"):
-        pass
+    monkeypatch.setattr(tempfile, "mkstemp", interrupted)
+    with pytest.raises(KeyboardInterrupt), atomic_path(tmp_path / "out.txt") as tmp:
+        tmp.write_text("half")
+        raise KeyboardInterrupt
     monkeypatch.undo()
     assert list(tmp_path.iterdir()) == []
 

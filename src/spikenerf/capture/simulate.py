@@ -241,7 +241,7 @@ def _simulate_locked(
         write_raw_recording(
             work / spike_files("gray")[0], k.height, k.width, traj.fps, work / RAW_DIR, options.raw_width
         )
-    mark(work, "dataset", files=True)
+    mark(work, "dataset", files=True, leaving=CACHE)  # (the cache stays until the list is written)
     failpoint("simulate.publish")
     shutil.rmtree(cache)
     replace_dir(work, out)

@@ -7,11 +7,13 @@ Each subcommand lives in ``spikenerf.cli.<name>`` as a click command named ``com
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import os
 import signal
 import sys
 import threading
+import traceback
 import warnings
 from collections.abc import Iterator
 from typing import Any
@@ -223,6 +225,27 @@ def _sigterm_unwinds() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def _unwound_quietly(err: BaseException) -> None:
+    """Free what an interruption (``err``, and the exceptions it was raised from) unwound through, now and
+    with finalisers' complaints muted: a library object whose ``__init__`` the interrupt cut short may fail
+    in its ``__del__`` (imageio's PNG writer, stopped before its first attribute was set), which Python would
+    print as a traceback after the one line. The frames still running (``main``'s) are left alone."""
+    hook = sys.unraisablehook
+    sys.unraisablehook = lambda unraisable: None
+    try:
+        chain, seen = [err], set()
+        while chain:
+            exc = chain.pop()
+            if exc is None or id(exc) in seen:
+                continue
+            seen.add(id(exc))
+            traceback.clear_frames(exc.__traceback__)
+            chain += [exc.__cause__, exc.__context__]
+        gc.collect()
+    finally:
+        sys.unraisablehook = hook
+
+
 OUT_OF_MEMORY = "out of memory: lower the sizes (frames, width, height, batch, grid size)"
 
 
@@ -270,13 +293,15 @@ def main(argv: list[str] | None = None) -> None:
         warnings.showwarning = _warning_line
         with _sigterm_unwinds():
             cli.main(args=argv, prog_name="spikenerf", standalone_mode=False)
-    except Terminated:
+    except Terminated as err:
+        _unwound_quietly(err)
         close_bars()
         click.echo("spikenerf: terminated" + resume_hint(LazyGroup.invoked), err=True)
         sys.exit(143)
     except InputError as err:
         _fail(err.shown(lambda param: flag_of(param, LazyGroup.invoked)))
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as err:
+        _unwound_quietly(err)
         close_bars()
         click.echo("spikenerf: aborted" + resume_hint(LazyGroup.invoked), err=True)
         sys.exit(130)

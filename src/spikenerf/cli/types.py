@@ -5,6 +5,7 @@ stays quick)."""
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -61,7 +62,9 @@ def device_option(default: str = "auto", help: str = "") -> Callable[..., Any]:
 
 class OutPath(click.Path):
     """``--out``: a path (``Path``), refused when empty (an empty string read as ``.``, the current folder,
-    and was reported as such)."""
+    and was reported as such). ``.`` or a path ending in ``..`` becomes the real path of the folder it
+    names: what is made beside an output (``OUT.partial``, ``.OUT.old``, ``.OUT.lock``) is named after the
+    folder's own name, and ``..``'s would land inside it."""
 
     def __init__(self) -> None:
         super().__init__(path_type=Path)
@@ -69,7 +72,10 @@ class OutPath(click.Path):
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, str) and not value.strip():
             self.fail("the path is empty: give a folder or file name", param, ctx)
-        return super().convert(value, param, ctx)
+        path = super().convert(value, param, ctx)
+        if isinstance(path, Path) and path.name in ("", ".."):
+            path = Path(os.path.realpath(path))
+        return path
 
 
 def frame_size_options(function: Callable[..., Any]) -> Callable[..., Any]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import secrets
 import shutil
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -24,20 +24,22 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path = Path(path)
     created = missing_folders(path.parent)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp: Path | None = None
+    # named, not created: the caller makes it, so an interrupt at any point finds ``tmp`` set and removes
+    # it (mkstemp's file, made before its name is returned, was left by a Ctrl-C that landed in between)
+    tmp: Path | None = _fresh(path, ".tmp")
     done = False
-    try:  # (an interrupt right after mkstemp still removes its file)
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        tmp = Path(tmp_name)
-        os.close(fd)
-        tmp.unlink()
+    try:
         yield tmp
         failpoint(f"write:{path.name}")
         if tmp.is_dir() and path.is_dir():  # swapped out under a fresh name: never a user's .NAME.old
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old.tmp", dir=path.parent))
-            old.rmdir()
-            path.rename(old)
-            tmp.rename(path)
+            old = _fresh(path, ".old.tmp")
+            try:
+                path.rename(old)
+                tmp.rename(path)
+            except BaseException:  # (an interrupt between the renames): the previous folder goes back
+                if old.is_dir() and not (path.exists() or path.is_symlink()):
+                    old.rename(path)
+                raise
             shutil.rmtree(old, ignore_errors=True)
         elif path.is_dir() and not path.is_symlink():  # (os.replace would name the temporary)
             raise InputError("is a folder, not a file: not replacing it", path=path)
@@ -53,6 +55,16 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             tmp.unlink()
         if not done:
             remove_empty(created)
+
+
+def _fresh(path: Path, suffix: str) -> Path:
+    """A free name ``.NAME.XXXXXXXX<suffix>`` beside ``path`` (eight random characters, as ``mkstemp``'s:
+    :data:`TEMP_NAME` matches it), not created."""
+    while True:
+        token = "".join(secrets.choice("abcdefghijklmnopqrstuvwxyz0123456789_") for _ in range(8))
+        fresh = path.parent / f".{path.name}.{token}{suffix}"
+        if not (fresh.exists() or fresh.is_symlink()):
+            return fresh
 
 
 def missing_folders(folder: Path) -> list[Path]:

@@ -45,15 +45,19 @@ def _inventory(folder: Path) -> list[str]:
     return sorted(f for f in found if f != MARKER)
 
 
-def mark(folder: str | Path, kind: str, files: bool | list[str] = False) -> None:
+def mark(folder: str | Path, kind: str, files: bool | list[str] = False, leaving: str | None = None) -> None:
     """Write the marker of ``kind`` into ``folder`` (created if needed); ``files``: also list every file in
-    it (True: a finished folder that may later be replaced whole) or these (the files a command wrote)."""
+    it (True: a finished folder that may later be replaced whole; ``leaving``: but not those in this
+    subfolder, which the command deletes before it publishes the folder) or these (the files a command
+    wrote)."""
     if kind not in KINDS:
         raise ValueError(f"unknown folder kind {kind!r}")
     entry: dict = {"kind": kind}
     if files is not False:
         before = read_marker(Path(folder))  # a list extended from an older marker keeps its meaning
         entry["files"] = _inventory(Path(folder)) if files is True else sorted(files)
+        if leaving is not None:
+            entry["files"] = [f for f in entry["files"] if not f.startswith(f"{leaving}/")]
         # the list names empty folders too (older markers did not)
         entry["empty_dirs"] = files is True or before.get("empty_dirs", "files" not in before) is True
     write_text_atomic(Path(folder) / MARKER, json.dumps(entry) + "\n")
@@ -143,6 +147,8 @@ def check_output(
     for parent in path.absolute().parents:
         _check_parent(parent, path, param)
     _check_container(path, kind, param)
+    if replace:
+        _check_replace_target(path, param)
     if replace and path.is_symlink():
         raise InputError(
             f"{param}: is a symbolic link; spikenerf replaces an output folder whole and will not replace "
@@ -220,6 +226,27 @@ def check_inputs_outside(out: str | Path, inputs: list[str | Path | None], param
                 path=out,
                 param=param,
             )
+
+
+def _check_replace_target(path: Path, param: str) -> None:
+    """InputError when a folder that is replaced whole cannot be: a path without a name of its own (``.``, or
+    one ending in ``..``: its work folder and retired copy, named after it, would land inside it; the CLI
+    gives the folder's real path instead), or the current folder or one holding it (the replacement would
+    swap it out from under the shell, and the retired copy the shell stands in is then deleted)."""
+    if path.name in ("", ".."):
+        raise InputError(f"{param}: give the folder by its name, not as {path}", path=path, param=param)
+    try:
+        cwd = Path.cwd()
+    except OSError:  # the current folder was deleted: it is not this one
+        return
+    where = _resolved(path)
+    if where.is_dir() and (where == cwd or where in cwd.parents):
+        raise InputError(
+            f"{param}: is the current folder or holds it; spikenerf replaces an output folder whole (it is "
+            "moved away, then deleted): run the command from outside it",
+            path=path,
+            param=param,
+        )
 
 
 def _check_parent(parent: Path, path: Path, param: str) -> None:

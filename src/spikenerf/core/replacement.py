@@ -29,8 +29,14 @@ def retire(out: Path) -> Path:
         if not is_retired(old):
             raise InputError("is in the way of a replacement and spikenerf did not write it; move it", old)
         _delete_retired(old)
-    write_text_atomic(out / MARKER, json.dumps({**read_marker(out), "retired": True}) + "\n")
-    out.rename(old)
+    entry = read_marker(out)
+    write_text_atomic(out / MARKER, json.dumps({**entry, "retired": True}) + "\n")
+    try:
+        out.rename(old)
+    except BaseException:  # (a folder in use, another file system…): it stays in place, so not retired
+        if out.is_dir() and not old.exists():
+            write_text_atomic(out / MARKER, json.dumps(entry) + "\n")
+        raise
     return old
 
 
