@@ -2,13 +2,14 @@
 
 - docs/cli.md matches the commands' --help, and documents every subcommand and every field option;
 - every relative link in README.md, CHANGELOG.md and docs/ (lab notes included) resolves, to the file and to
-  the heading its #anchor names;
+  the heading its #anchor names, and so does every `docs/PAGE.md#anchor` written out as text;
 - no user page (README.md, docs/*.md; not docs/lab/ or CHANGELOG.md) is over 400 lines, speaks of the
   lab's sessions or machine load ("stop 12", "the idle box", "load average 5") or links docs/lab/ on its
   first screen;
 - docs/index.md lists every user page;
 - a newcomer's path: the commands of docs/getting-started.md run, in order, in an empty folder, and print
-  what the page shows; and the README's Python example runs.
+  what the page shows; so does docs/reconstruction.md's recon-eval example; and the README's Python example
+  runs.
 """
 
 from __future__ import annotations
@@ -89,6 +90,13 @@ def _links(page: Path) -> list[str]:
     return _links_in(page.read_text())
 
 
+def _plain_references(text: str) -> list[str]:
+    """The ``docs/PAGE.md`` and ``docs/PAGE.md#anchor`` mentions written out as text, outside links (paths
+    from the repository root: a reader follows them too)."""
+    unlinked = re.sub(r"\]\([^)]*\)", "]", text)
+    return re.findall(r"(?<![\w/.-])(docs/(?:[\w-]+/)*[\w-]+\.md(?:#[\w-]+)?)", unlinked)
+
+
 def test_cli_reference_is_current() -> None:
     committed = (DOCS / "cli.md").read_text()
     assert committed == cli_reference(), "regenerate: python -m spikenerf.cli.reference > docs/cli.md"
@@ -131,6 +139,12 @@ def test_relative_links_and_anchors_resolve() -> None:
                 broken.append(f"{page.relative_to(ROOT)}: {target} (no such file)")
             elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
                 broken.append(f"{page.relative_to(ROOT)}: {target} (no such heading)")
+        for mention in _plain_references(page.read_text()):
+            path, _, anchor = mention.partition("#")
+            if not (ROOT / path).is_file():
+                broken.append(f"{page.relative_to(ROOT)}: {mention} (no such file)")
+            elif anchor and anchor not in _anchors(ROOT / path):
+                broken.append(f"{page.relative_to(ROOT)}: {mention} (no such heading)")
     assert not broken, "broken links:\n" + "\n".join(broken)
 
 
@@ -142,6 +156,9 @@ def test_the_link_check_sees_a_broken_anchor() -> None:
         "test-time-pose-optimisation---test-pose-opt-n"
     )
     assert "where-we-differ-from-the-paper" in _anchors(DOCS / "method.md")
+    assert _plain_references("see docs/metrics.md#psnr, [a](docs/b.md#c) or `docs/lab/x.md`") == [
+        "docs/metrics.md#psnr", "docs/lab/x.md"
+    ]  # fmt: skip
     assert "no-such-heading" not in _anchors(DOCS / "method.md")
 
 
@@ -214,9 +231,9 @@ def test_the_index_lists_every_user_page() -> None:
     assert not missing, f"docs/index.md does not list {missing}"
 
 
-def _getting_started_blocks() -> list[tuple[list[str], list[str]]]:
-    """(commands, the output shown after them) for each marked block of getting-started.md."""
-    text = (DOCS / "getting-started.md").read_text()
+def _marked_blocks(page: str = "getting-started.md") -> list[tuple[list[str], list[str]]]:
+    """(commands, the output shown after them) for each block of a docs page marked with RUN_MARK."""
+    text = (DOCS / page).read_text()
     found = []
     for block in text.split(RUN_MARK)[1:]:
         code = block.split("```bash\n", 1)[1].split("```", 1)[0]
@@ -229,9 +246,25 @@ def _getting_started_blocks() -> list[tuple[list[str], list[str]]]:
     return found
 
 
+def _run_spikenerf(command: str, cwd: Path, env: dict[str, str]) -> str:
+    """Run one ``spikenerf ...`` line of a page in ``cwd``; what it printed (it must exit 0)."""
+    argv = shlex.split(command)
+    assert argv[0] == "spikenerf", command
+    done = subprocess.run(
+        [sys.executable, "-m", "spikenerf", *argv[1:]],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, f"{command}\n{(done.stdout + done.stderr)[-2000:]}"
+    return done.stdout + done.stderr
+
+
 def test_getting_started_commands_run_in_order(tmp_path: Path) -> None:
     """A newcomer's path: simulate → reconstruct → train → eval → render, at a tiny size (TINY)."""
-    blocks = _getting_started_blocks()
+    blocks = _marked_blocks()
     assert [c.split()[1] for commands, _ in blocks for c in commands] == [
         "simulate", "info", "reconstruct", "train", "eval", "render", "info"
     ]  # fmt: skip
@@ -241,18 +274,7 @@ def test_getting_started_commands_run_in_order(tmp_path: Path) -> None:
         for command in commands:
             for full, tiny in TINY.items():
                 command = command.replace(full, tiny)
-            argv = shlex.split(command)
-            assert argv[0] == "spikenerf", command
-            done = subprocess.run(
-                [sys.executable, "-m", "spikenerf", *argv[1:]],
-                cwd=tmp_path,
-                env=env,
-                capture_output=True,
-                text=True,
-                timeout=300,
-            )
-            assert done.returncode == 0, f"{command}\n{(done.stdout + done.stderr)[-2000:]}"
-            printed += done.stdout + done.stderr
+            printed += _run_spikenerf(command, tmp_path, env)
         for line in shown:
             if line.strip() != "...":  # the shown output up to its first number must be printed
                 stem = re.split(r"\d", line, maxsplit=1)[0]
@@ -260,6 +282,27 @@ def test_getting_started_commands_run_in_order(tmp_path: Path) -> None:
     assert (tmp_path / "orbs" / "spikes_gray.dat").is_file() and (tmp_path / "tfp.png").is_file()
     assert (tmp_path / "run" / "metrics.json").is_file()
     assert (tmp_path / "render" / "spikes_gray.dat").is_file()
+
+
+def test_the_recon_eval_table_of_the_reconstruction_page(tmp_path: Path) -> None:
+    """docs/reconstruction.md's `recon-eval` example runs as shown and prints its table: every row's method
+    and window, and its scores within a rounding of the spikes (numpy versions differ in a few spikes)."""
+    [(commands, shown)] = _marked_blocks("reconstruction.md")
+    assert [c.split()[3] for c in commands] == ["simulate", "recon-eval"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    printed = "".join(_run_spikenerf(command, tmp_path, env) for command in commands)
+    lines = [line.replace("not computed", "n/a").split() for line in printed.splitlines()]
+    assert shown[0] in printed and shown[-1] in printed, printed  # the caption and the files written
+    assert shown[1].split() in lines, printed  # the column heads
+    rows = {cells[0]: cells for cells in lines if cells[:1] in (["tfp"], ["tfi"], ["tfstp"], ["learned"])}
+    assert len(rows) == len(shown) - 3, printed
+    for row in shown[2:-1]:
+        want, got = row.split(), rows.get(row.split()[0], [])
+        assert got[:2] == want[:2], (row, printed)  # method and window
+        assert abs(float(got[2]) - float(want[2])) < 0.3 and abs(float(got[3]) - float(want[3])) < 0.01, got
+        if got[4] != "n/a":  # LPIPS needs the lpips extra
+            assert abs(float(got[4]) - float(want[4])) < 0.01, (row, got)
+    assert all((tmp_path / "scores48" / name).is_file() for name in ("scores.json", "scores.csv"))
 
 
 def test_readme_python_example_runs(tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
