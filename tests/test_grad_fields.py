@@ -163,3 +163,13 @@ def test_the_kernels_refuse_factors_they_would_misread(case: int) -> None:
         with pytest.raises(InputError, match=param) as err:
             call()
         assert param in err.value.params
+
+
+@pytest.mark.parametrize("rows", [11, 16.0])
+def test_rows_fewer_than_the_points_or_not_an_integer_are_refused_by_name(rows: object) -> None:
+    """The kernel's own check (fewer rows than points) was a RuntimeError naming no parameter."""
+    _kernel_or_skip()
+    p, ln, x = (t.float() for t in _factors(7))
+    with pytest.raises(InputError, match="rows must be an integer ≥ the 12 points") as err:
+        vm_kernel.vm_rows(p, ln, x, rows)  # type: ignore[arg-type]
+    assert "rows" in err.value.params

@@ -11,6 +11,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -54,6 +55,31 @@ def test_ctrl_c_inside_a_librarys_constructor_is_still_one_line(tmp_path: Path) 
     assert done.returncode == 130
     assert done.stderr.split() == ["spikenerf:", "aborted"], done.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.dat"]
+
+
+#: Ctrl-C after the command has printed its result, while Python shuts down (an atexit handler runs)
+LATE = """
+import atexit, os, signal, sys
+atexit.register(lambda: os.kill(os.getpid(), signal.SIGINT))
+sys.argv = ["spikenerf", "simulate", "--list-scenes"]
+from spikenerf.cli import main
+main()
+"""
+
+
+def test_ctrl_c_while_python_shuts_down_ends_by_the_signal_without_a_line() -> None:
+    """It printed "Exception ignored in atexit callback" and a KeyboardInterrupt traceback, and exited 0."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    done = subprocess.run([sys.executable, "-c", LATE], env=env, capture_output=True, text=True)
+    assert done.returncode == -signal.SIGINT, (done.returncode, done.stderr)
+    assert done.stderr == "" and "analytic-orbs" in done.stdout  # (flushed before the signal ends it)
+
+
+def test_an_in_process_call_keeps_the_callers_ctrl_c_handler(capsys) -> None:  # type: ignore[no-untyped-def]
+    before = signal.getsignal(signal.SIGINT)
+    main(["simulate", "--list-scenes"])
+    assert "analytic-orbs" in capsys.readouterr().out
+    assert signal.getsignal(signal.SIGINT) is before is not signal.SIG_DFL
 
 
 def test_an_interrupt_between_a_folder_swaps_renames_keeps_the_previous_folder(

@@ -193,6 +193,17 @@ def flag_of(param: str, command: str | None = None) -> str | None:
     return None
 
 
+def _late_interrupts_end_quietly() -> None:
+    """The command is over: its output is flushed, and a Ctrl-C from now on, while Python shuts down (atexit
+    handlers, module teardown), ends the process by the signal as by default (the shell shows 130), not with
+    a KeyboardInterrupt traceback after the command's last line (or an "Exception ignored" one and exit 0)."""
+    for stream in (sys.stdout, sys.stderr):  # (the signal ends the process without flushing its buffers)
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            stream.flush()
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _fail(message: str, code: int = 2) -> None:
     close_bars()  # the error on a line of its own, not after an interrupted bar's text
     click.echo(f"spikenerf: error: {one_line(message)}", err=True)
@@ -286,7 +297,9 @@ def _warning_line(message: Warning | str, category: type[Warning], filename: str
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the group; bad input (InputError, a usage error, a path the system refuses,
     an allocation that fails) → one line on stderr, exit code 2. Ctrl-C → "aborted", exit 130; SIGTERM →
-    "terminated", exit 143, after the same unwinding (locks released). Python warnings print as one line."""
+    "terminated", exit 143, after the same unwinding (locks released). Python warnings print as one line.
+    Called without ``argv`` (the process's entry), a Ctrl-C after the command ends the process by the
+    signal, without a line (:func:`_late_interrupts_end_quietly`)."""
     shown = warnings.showwarning
     use_huge_pages()
     try:
@@ -333,3 +346,5 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(err.exit_code)
     finally:  # (in-process callers, such as the tests, keep their own)
         warnings.showwarning = shown
+        if argv is None:  # the process's own entry (the console script, ``python -m spikenerf``)
+            _late_interrupts_end_quietly()

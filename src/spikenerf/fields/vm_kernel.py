@@ -29,7 +29,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 from spikenerf.core.tracing import constant_result, custom_op
 from spikenerf.fields.vm_build import load
 from spikenerf.fields.vm_ops import channels_last, check_factors, register_pair
@@ -139,10 +139,15 @@ def vm_rows(planes: Tensor, lines: Tensor, xyz: Tensor, rows: int) -> Tensor:
         planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3). rows: ≥ M.
     Returns:
         (rows, 3·C) bfloat16; its gradient goes to the planes and lines as :func:`vm_lookup`'s.
+    Raises:
+        RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False). InputError:
+            factors or points as :func:`vm_lookup` refuses them, or ``rows`` not an integer ≥ M.
     """
     if load() is None:
         raise RuntimeError("vm_rows: the fused VM CPU kernel is unavailable (check vm_kernel.usable first)")
     check_factors(planes, lines, xyz)
+    if not is_integer(rows) or rows < xyz.shape[0]:  # (the kernel's own check said neither which nor why)
+        raise InputError(f"rows must be an integer ≥ the {xyz.shape[0]} points, found {rows!r}", param="rows")
     return _Rows.apply(*channels_last(planes, lines), xyz.contiguous(), rows)
 
 
