@@ -34,6 +34,26 @@ def run_cli(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str
     return code, out, err
 
 
+def assert_refused(call: Callable[[], object], param: str) -> None:
+    """``call()`` raises an InputError whose message and ``params`` name ``param`` (a refusal test)."""
+    from spikenerf.core.errors import InputError
+
+    with pytest.raises(InputError, match=param) as err:
+        call()
+    assert param in err.value.params
+
+
+def refusal_test(cases: list[tuple[str, Callable[[], object], str]]) -> Callable[..., None]:
+    """A test over ``cases`` (name, call, parameter): each call is refused naming its parameter
+    (:func:`assert_refused`). Bind it to a ``test_…`` name in a test module for pytest to collect it."""
+
+    @pytest.mark.parametrize(("call", "param"), [c[1:] for c in cases], ids=[c[0] for c in cases])
+    def test(call: Callable[[], object], param: str) -> None:
+        assert_refused(call, param)
+
+    return test
+
+
 def edit_json(path: Path, change: Callable[[dict], object]) -> Path:
     """``change(meta)`` applied in place to the JSON object of ``path``, written back; returns ``path``."""
     meta = json.loads(path.read_text())

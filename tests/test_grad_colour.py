@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import refusal_test
 from spikenerf.core import color as C
-from spikenerf.core.errors import InputError
 from spikenerf.core.psnr import mse_to_psnr
 from spikenerf.eval import metrics as M
 
@@ -71,13 +71,7 @@ REFUSALS: list[tuple[str, Callable[[], object], str]] = [
 ]
 
 
-@pytest.mark.parametrize(("case", "call", "param"), REFUSALS, ids=[r[0] for r in REFUSALS])
-def test_bad_inputs_are_refused_naming_the_parameter(
-    case: str, call: Callable[[], object], param: str
-) -> None:
-    with pytest.raises(InputError, match=param) as err:
-        call()
-    assert param in err.value.params
+test_bad_inputs_are_refused_naming_the_parameter = refusal_test(REFUSALS)
 
 
 def test_gradcheck_colour() -> None:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from spikenerf.core.errors import InputError
+from helpers import refusal_test
 from spikenerf.train import losses as L
 
 D = torch.float64
@@ -89,13 +89,7 @@ REFUSALS: list[tuple[str, Callable[[], object], str]] = [
 ]
 
 
-@pytest.mark.parametrize(("case", "call", "param"), REFUSALS, ids=[r[0] for r in REFUSALS])
-def test_bad_inputs_are_refused_naming_the_parameter(
-    case: str, call: Callable[[], object], param: str
-) -> None:
-    with pytest.raises(InputError, match=param) as err:
-        call()
-    assert param in err.value.params
+test_bad_inputs_are_refused_naming_the_parameter = refusal_test(REFUSALS)
 
 
 def test_a_nan_render_shows_as_a_nan_loss() -> None:

@@ -10,7 +10,7 @@ from collections.abc import Callable
 import pytest
 import torch
 
-from spikenerf.core.errors import InputError
+from helpers import refusal_test
 from spikenerf.render import volume as V
 from spikenerf.render import volume_triton
 
@@ -107,13 +107,7 @@ REFUSALS: list[tuple[str, Callable[[], object], str]] = [
 ]
 
 
-@pytest.mark.parametrize(("case", "call", "param"), REFUSALS, ids=[r[0] for r in REFUSALS])
-def test_bad_inputs_are_refused_naming_the_parameter(
-    case: str, call: Callable[[], object], param: str
-) -> None:
-    with pytest.raises(InputError, match=param) as err:
-        call()
-    assert param in err.value.params
+test_bad_inputs_are_refused_naming_the_parameter = refusal_test(REFUSALS)
 
 
 def test_nan_and_inf_densities_stay_inside_their_own_ray() -> None:
