@@ -85,23 +85,25 @@ def test_a_failed_write_removes_the_folders_it_created_and_keeps_the_others(tmp_
     assert (tmp_path / "new" / "deep" / "out.txt").read_text() == "done"
 
 
-def test_an_interrupt_right_after_the_temporary_is_made_leaves_nothing(tmp_path, monkeypatch) -> None:
-    """The temporary is named first and made by the writer, so an interrupt finds it wherever it lands
-    (``mkstemp`` made its file before its name came back: a Ctrl-C in between left it)."""
-    import tempfile
+@pytest.mark.parametrize("where", ["in the block", "before the replace"])
+def test_an_interrupt_right_after_the_temporary_is_made_leaves_nothing(tmp_path, monkeypatch, where) -> None:
+    """The temporary is named first and made by the writer, so an interrupt finds it wherever it lands:
+    inside the ``with`` block, or once the temporary is complete and not yet in place (``write:NAME``)."""
+    import spikenerf.core.atomic as atomic
 
-    real = tempfile.mkstemp
-
-    def interrupted(*args, **kwargs):  # type: ignore[no-untyped-def]
-        real(*args, **kwargs)
+    def interrupted(name: str) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(tempfile, "mkstemp", interrupted)
+    if where == "before the replace":
+        monkeypatch.setattr(atomic, "failpoint", interrupted)
+    (tmp_path / "out.txt").write_text("previous")
     with pytest.raises(KeyboardInterrupt), atomic_path(tmp_path / "out.txt") as tmp:
         tmp.write_text("half")
-        raise KeyboardInterrupt
+        if where == "in the block":
+            raise KeyboardInterrupt
     monkeypatch.undo()
-    assert list(tmp_path.iterdir()) == []
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+    assert (tmp_path / "out.txt").read_text() == "previous"
 
 
 def test_resolve_device() -> None:
