@@ -653,3 +653,19 @@ def test_counts_on_a_device_keep_their_phases_and_usable_steps() -> None:
     assert moved.threshold == counts.threshold and torch.equal(moved.poses, counts.poses)
     pixels, steps = torch.tensor([[1, 0], [3, 0]]), torch.tensor([10, 20])
     assert torch.equal(moved.still_mean(pixels, steps, 4), counts.still_mean(pixels, steps, 4))
+
+
+def test_refinement_with_the_hold_out_warns_that_held_out_poses_stay_unrefined(
+    dataset_dir: Path,
+    dataset,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # type: ignore[no-untyped-def]
+    """spike-integral's windows never reach the hold-out's bands, so refinement leaves the poses there as
+    recorded while eval scores those steps: one warning line, and none without the hold-out."""
+    for holdout in (False, True):
+        cfg = test_train._config(dataset_dir, method="spike-integral")
+        cfg.poses.refine, cfg.holdout, cfg.holdout_steps, cfg.holdout_radius = True, holdout, 1, 2
+        Trainer(cfg, tmp_path / f"run{holdout}", dataset, progress=False)
+        err = capsys.readouterr().err
+        assert ("poses there stay unrefined" in err) == holdout, err
