@@ -8,6 +8,7 @@ import os
 import re
 from collections.abc import Callable, Collection, Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 #: longest message an InputError keeps (foreign library errors can run to pages)
 MAX_MESSAGE = 400
@@ -97,6 +98,17 @@ def is_finite(value: object) -> bool:
         return is_number(value) and math.isfinite(value)  # type: ignore[arg-type]
     except OverflowError:
         return False
+
+
+def same_shape(reference: Any, other: Any, name: str, reference_name: str) -> None:
+    """InputError naming ``name`` unless array or tensor ``other`` has ``reference``'s shape (a check of sizes
+    only: no sync, and a guard under ``torch.compile``)."""
+    if tuple(other.shape) != tuple(reference.shape):
+        raise InputError(
+            f"{name} must have the shape of {reference_name}, {tuple(reference.shape)}, found "
+            f"{tuple(other.shape)}",
+            param=name,
+        )
 
 
 def as_path(value: object, param: str) -> Path:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError, is_finite, is_integer
+from spikenerf.core.errors import InputError, is_finite, is_integer, same_shape
 from spikenerf.render import volume_triton
 
 BACKGROUND = 1.0
@@ -57,16 +57,16 @@ class RenderOutput:
 
 def _same_shapes(reference: str, tensors: dict[str, Tensor | None], dims: int | None = None) -> None:
     """InputError naming the first of ``tensors`` whose shape differs from that of the one named
-    ``reference`` (a size check: no sync, a guard under ``torch.compile``), or, with ``dims``, naming
-    ``reference`` unless it has that many dimensions; None entries are skipped."""
-    shape = tuple(tensors[reference].shape)  # type: ignore[union-attr]
-    if dims is not None and len(shape) != dims:
+    ``reference`` (:func:`~spikenerf.core.errors.same_shape`), or, with ``dims``, naming ``reference``
+    unless it has that many dimensions; None entries are skipped."""
+    ref = tensors[reference]
+    assert ref is not None  # (the reference is always given)
+    if dims is not None and ref.dim() != dims:
+        shape = tuple(ref.shape)
         raise InputError(f"{reference} must have {dims} dimension(s), found shape {shape}", param=reference)
     for name, x in tensors.items():
-        if x is not None and tuple(x.shape) != shape:
-            raise InputError(
-                f"{name} must have the shape of {reference}, {shape}, found {tuple(x.shape)}", param=name
-            )
+        if x is not None:
+            same_shape(ref, x, name, reference)
 
 
 def weights_from_density(sigma: Tensor, deltas: Tensor) -> Tensor:

@@ -19,7 +19,7 @@ import torch
 from spikenerf.camera.firing import fire
 from spikenerf.core import tensor_checks
 from spikenerf.core.color import srgb_slope
-from spikenerf.core.errors import InputError, is_number
+from spikenerf.core.errors import InputError, is_number, same_shape
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 from spikenerf.core.tensor_checks import check_threshold
 from spikenerf.train.settings import LOSS_WEIGHTS, LossWeight, PairMode
@@ -43,17 +43,6 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     target = torch.as_tensor(target, device=pred.device)
     same_shape(pred, target, "target", "pred")
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
-
-
-def same_shape(reference: torch.Tensor, other: torch.Tensor, name: str, reference_name: str) -> None:
-    """InputError naming ``name`` unless ``other`` has ``reference``'s shape (a check of sizes only: no
-    sync, and a guard under ``torch.compile``)."""
-    if tuple(other.shape) != tuple(reference.shape):
-        raise InputError(
-            f"{name} must have the shape of {reference_name}, {tuple(reference.shape)}, found "
-            f"{tuple(other.shape)}",
-            param=name,
-        )
 
 
 def check_tensor(x: object, name: str) -> None:
