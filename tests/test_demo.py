@@ -90,6 +90,21 @@ def test_presets_and_train_args() -> None:
     assert "--quiet" not in args  # training shows its progress bar
 
 
+def test_the_demos_records_name_its_folder_absolutely(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The default ``--out demo_out`` (relative) was recorded as ``demo_out/datasets/...`` in the commands of
+    results.json, the dataset's config.yaml and the report: wrong read from any other folder."""
+    from spikenerf.pipelines.benchmark.cells import dataset_command
+
+    monkeypatch.chdir(tmp_path)
+    cfg = benchmark_config(DemoConfig(quick=True))
+    assert cfg.out == tmp_path / "demo_out"
+    command = dataset_command(cfg, cfg.scenes[0])
+    assert command[command.index("--out") + 1] == str(tmp_path / "demo_out" / "datasets" / cfg.scenes[0])
+    assert benchmark_config(DemoConfig(out=Path("d/x/.."))).out == tmp_path / "d"
+
+
 @pytest.mark.parametrize("size", ["4", "8", "10"])  # below SSIM's window (no cell could be tabulated); not ×4
 def test_bad_size_is_one_line_exit_2(tmp_path: Path, size: str) -> None:
     command = [sys.executable, "-m", "spikenerf", "demo", "--out", str(tmp_path / "d"), "--size", size]

@@ -45,8 +45,13 @@ def test_smoke() -> None:
 def test_empty_and_nan_inputs() -> None:
     assert C.srgb_encode(torch.zeros(0)).shape == (0,) and C.rgb_to_gray(torch.zeros(3, 0)).shape == (0,)
     assert C.srgb_encode(torch.tensor([float("nan")])).isnan().all()  # passed on, not clipped to a value
-    assert C.srgb_mse(torch.zeros(0), torch.zeros(0)).isnan()  # the mean of nothing
     assert math.isnan(mse_to_psnr(-1.0)) and mse_to_psnr(torch.tensor([-1.0, float("nan")])).isnan().all()
+
+
+def test_a_batch_of_no_images_scores_empty_not_nan() -> None:
+    """N = 0 images is no image to score: empty results (only images without pixels are refused)."""
+    a = torch.zeros(0, 3, 4, 4)
+    assert M.psnr(a, a).shape == (0,) and M.mse(a, a).shape == (0,)
 
 
 REFUSALS: list[tuple[str, Callable[[], object], str]] = [
@@ -57,6 +62,9 @@ REFUSALS: list[tuple[str, Callable[[], object], str]] = [
     ("slope floor", lambda: C.srgb_slope(torch.zeros(2), floor=0.0), "floor"),
     # (3,) against (2, 3) broadcast to a wrong MSE before
     ("srgb mse shape", lambda: C.srgb_mse(torch.zeros(3), torch.zeros(2, 3)), "target"),
+    # an empty batch: the mean of nothing (NaN before, a train PSNR of NaN)
+    ("srgb mse no rays", lambda: C.srgb_mse(torch.zeros(0, 3), torch.zeros(0, 3)), "pred"),
+    ("srgb mse no values", lambda: C.srgb_mse(torch.zeros(0), torch.zeros(0)), "pred"),
     ("psnr range 0", lambda: mse_to_psnr(0.1, 0.0), "data_range"),  # (a "math domain error" before)
     ("psnr range -1", lambda: mse_to_psnr(torch.tensor(0.1), -1.0), "data_range"),  # (10 dB before)
     (
@@ -68,6 +76,8 @@ REFUSALS: list[tuple[str, Callable[[], object], str]] = [
     ("psnr integers", lambda: M.psnr(torch.zeros(3, 2, 2, dtype=torch.uint8), torch.zeros(3, 2, 2)), "a"),
     ("psnr mask", lambda: M.psnr(torch.zeros(3, 2, 2), torch.zeros(3, 2, 2), mask=torch.ones(2, 2)), "mask"),
     ("ssim size", lambda: M.ssim(torch.zeros(3, 8, 8), torch.zeros(3, 8, 8)), "a"),
+    ("psnr no pixels", lambda: M.psnr(torch.zeros(3, 0, 4), torch.zeros(3, 0, 4)), "a"),  # (NaN before)
+    ("mse no channels", lambda: M.mse(torch.zeros(2, 0, 4, 4), torch.zeros(2, 0, 4, 4)), "a"),
 ]
 
 

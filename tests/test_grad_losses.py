@@ -46,12 +46,17 @@ def test_smoke() -> None:
 
 
 def test_a_window_of_one_step_or_no_pixels_gives_zero_not_nan() -> None:
-    for shape in ((1, 2, 1), (4, 0, 1)):
+    """The interval loss's defined empty value: a window that constrains nothing (no pixel, or no pair whose
+    bounds apply) is 0 with a gradient of zeros, so the step trains on its other terms."""
+    for shape, max_intensity in (((1, 2, 1), 1.0), ((4, 0, 1), 1.0), ((3, 2, 1), None)):
         x = torch.zeros(shape, requires_grad=True)
-        loss = L.spike_interval_loss(x, torch.zeros(shape, dtype=torch.bool), 1.0)
-        assert loss == 0
+        spikes = torch.ones(shape, dtype=torch.bool)  # (all fired: with max_intensity None no pair applies)
+        loss = L.spike_interval_loss(
+            x, spikes if max_intensity is None else ~spikes, 1.0, "all", max_intensity
+        )
+        assert loss == 0 and loss.requires_grad
         loss.backward()
-        assert torch.isfinite(x.grad).all()
+        assert x.grad is not None and x.grad.shape == shape and x.grad.eq(0).all()
 
 
 _z = torch.zeros
@@ -59,6 +64,13 @@ _z = torch.zeros
 REFUSALS: list[tuple[str, Callable[[], object], str]] = [
     ("recon pred array", lambda: L.recon_loss(np.zeros((2, 3)), _z(2, 3)), "pred"),  # type: ignore[arg-type]
     ("recon target shape", lambda: L.recon_loss(_z(2, 3), _z(2, 1)), "target"),
+    # empty batches: the mean of nothing was a NaN loss (a training step always draws rays and windows)
+    ("recon no rays", lambda: L.recon_loss(_z(0, 3), _z(0, 3)), "pred"),
+    ("recon no channels", lambda: L.recon_loss(_z(2, 0), _z(2, 0)), "pred"),
+    ("window no windows", lambda: L.window_mean_loss(_z(0, 2, 3), _z(0, 3)), "means"),
+    ("window no windows srgb", lambda: L.window_mean_loss(_z(0, 1, 3), _z(0, 3), weight="srgb"), "means"),
+    ("window no channels", lambda: L.window_mean_loss(_z(2, 1, 0), _z(2, 0)), "means"),
+    ("paper no pixels", lambda: L.paper_spike_loss(_z(3, 0, 1), _z(3, 0, 1), 1.0, _z(0, 1)), "intensity"),
     ("prefix 0-d", lambda: L.spike_prefix(torch.tensor(1.0), torch.tensor(1.0), 1.0), "intensity"),
     ("prefix spikes shape", lambda: L.spike_prefix(_z(3, 2, 1), _z(3, 2), 1.0), "spikes"),
     ("prefix threshold", lambda: L.spike_prefix(_z(3, 2, 1), _z(3, 2, 1), 0.0), "threshold"),
@@ -90,6 +102,11 @@ REFUSALS: list[tuple[str, Callable[[], object], str]] = [
 
 
 test_bad_inputs_are_refused_naming_the_parameter = refusal_test(REFUSALS)
+
+
+def test_srgb_weights_of_an_empty_batch_are_empty() -> None:
+    """Defined empty value: no render, no weight (not a NaN mean leaking into a loss)."""
+    assert L.srgb_weights(torch.zeros(0, 3)).shape == (0, 3)
 
 
 def test_a_nan_render_shows_as_a_nan_loss() -> None:

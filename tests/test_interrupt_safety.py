@@ -171,3 +171,51 @@ def test_a_simulated_datasets_marker_lists_only_the_files_it_holds(dataset: Path
     assert listed and all((dataset / name).exists() for name in listed), [
         n for n in listed if not (dataset / n).exists()
     ][:3]
+
+
+#: the smallest benchmark (a 16 px dataset of 40 steps, one cell of 2 iterations, no renders: ~15 s)
+BENCH = ["--quiet", "--threads", "1", "benchmark", "--scenes", "analytic-orbs", "--methods", "nerf-gt",
+         "--color", "gray", "--size", "16", "--frames", "40", "--iters", "2", "--test-views", "1",
+         "--no-render", "--device", "cpu", "--set", "batch=64", "--out"]  # fmt: skip
+
+
+def test_a_benchmarks_records_name_its_folder_from_any_folder(capsys, tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``--out .`` and ``--out X/..`` stand for the real path (``OutPath``), and a plain relative ``--out b``
+    is made absolute too: it recorded ``b``, ``b/datasets/...`` and ``b/runs/...`` in results.json's config
+    and commands, the dataset's config.yaml and the report's commands, wrong read from any other folder."""
+    from helpers import run_cli
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert run_cli(capsys, *BENCH, "b")[0] == 0
+    out = work / "b"
+
+    def recorded() -> tuple[dict, list[str]]:
+        results = json.loads((out / "results.json").read_text())
+        commands = [
+            *results["commands"]["datasets"].values(),
+            *results["commands"]["cells"]["analytic-orbs/gray/nerf-gt"],
+        ]
+        return results, [arg for command in commands for arg in command if "/" in arg]
+
+    results, paths = recorded()
+    assert results["config"]["out"] == str(out)
+    assert len(paths) == 4 and all(p.startswith(f"{out}/") for p in paths), paths  # simulate, train, eval
+    assert (
+        f"--out {out}/datasets/analytic-orbs"
+        in (out / "datasets" / "analytic-orbs" / "config.yaml").read_text()
+    )
+    assert " b/" not in (out / "report.html").read_text()
+    # resumed from other folders, through `..` and `.`: the same folder and records, nothing run again
+    for where, given in ((tmp_path, "work/b/runs/.."), (out, ".")):
+        monkeypatch.chdir(where)
+        assert run_cli(capsys, *BENCH, given)[0] == 0
+        results, again = recorded()
+        assert (
+            results["config"]["out"] == str(out) and again == paths and results["commands"]["this_run"] == []
+        )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["work"] and sorted(
+        p.name for p in work.iterdir()
+    ) == ["b"]

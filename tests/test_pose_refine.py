@@ -131,6 +131,26 @@ def test_corrections_are_blended_between_keyframes_and_held_beyond() -> None:
     assert torch.allclose(c[:, 0, 3], torch.tensor([1.0, 1.0, 2.0, 3.0, 3.0]))
 
 
+def test_unreached_keyframes_take_the_blend_of_the_nearest_reached_ones() -> None:
+    refiner = PoseRefiner(np.array([0, 10, 20, 30, 40]))
+    refiner.correction(np.r_[0:11, 30:41])  # a training step (gradients on) reads keyframes 0, 10, 30, 40
+    assert refiner.reached.tolist() == [True, True, False, True, True]
+    refiner.xi.data[1, 0], refiner.xi.data[3, 0] = 0.1, 0.3
+    with torch.no_grad():  # outside training key 20 is halfway between keys 10 and 30; step 15 a quarter
+        angle = torch.atan2(*refiner.correction(np.array([10, 15, 20, 25, 30]))[:, [2, 1], 1].T)
+    assert torch.allclose(angle, torch.tensor([0.1, 0.15, 0.2, 0.25, 0.3]), atol=1e-6)
+    state = refiner.state_dict()
+    again = PoseRefiner(refiner.key_steps)
+    again.load_state_dict(state)
+    assert again.reached.tolist() == refiner.reached.tolist()
+    only = PoseRefiner(refiner.key_steps)
+    only.correction(np.array([10]))  # one reached keyframe: every other one holds its correction
+    only.xi.data[1] = 0.2
+    assert torch.equal(only.filled_xi(), torch.full((5, 6), 0.2))
+    with pytest.raises(InputError, match="mark 5 keyframes, the dataset has 3"):
+        PoseRefiner(np.array([0, 10, 20])).set_extra_state(state["_extra_state"])
+
+
 # -------------------------------------------------------------------------------------------- recovery
 def test_refinement_recovers_a_known_pose_error(data_dir: Path, dataset, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     truth = dataset.trajectory.poses

@@ -97,12 +97,17 @@ def srgb_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     training step reports.
 
     Raises:
-        InputError: ``target`` not of ``pred``'s shape (an (N, 1) against (N,) broadcast to (N, N)).
+        InputError: ``target`` not of ``pred``'s shape (an (N, 1) against (N,) broadcast to (N, N)), or
+            ``pred`` empty (the mean of nothing is NaN; a shape check, no host sync).
     """
     if tuple(target.shape) != tuple(pred.shape):
         raise InputError(
             f"target must have the shape of pred, {tuple(pred.shape)}, found {tuple(target.shape)}",
             param="target",
+        )
+    if pred.numel() == 0:
+        raise InputError(
+            f"pred must hold at least one value, found the empty shape {tuple(pred.shape)}", param="pred"
         )
     torch_ = sys.modules["torch"]  # float64 stays float64 (a gradcheck's); the rest is taken in float32
     wide = torch_.float64 if torch_.float64 in (pred.dtype, target.dtype) else torch_.float32

@@ -36,7 +36,9 @@ def _batched(
     Raises:
         InputError: naming ``a``/``b`` for shapes that differ or are not (N,C,H,W)/(C,H,W), or (given a
             ``data_range``) an integer image scored on the range 1 (8-bit values 0..255 as 0..1 gave a
-            PSNR of −21.8 dB); naming ``data_range`` unless it is None or a finite number > 0.
+            PSNR of −21.8 dB), or images without pixels (C, H or W = 0: a mean of nothing, NaN); naming
+            ``data_range`` unless it is None or a finite number > 0. A batch of no images (N = 0) is allowed:
+            its results are empty.
     """
     if data_range is not None and not (is_finite(data_range) and data_range > 0):
         raise InputError(f"data_range must be a finite number > 0, found {data_range!r}", param="data_range")
@@ -47,6 +49,10 @@ def _batched(
     if a.ndim not in (3, 4):
         raise InputError(
             f"a and b must be (N,C,H,W) or (C,H,W) images, found shape {tuple(a.shape)}", param=("a", "b")
+        )
+    if a.shape[-3:].numel() == 0:
+        raise InputError(
+            f"a and b must hold pixels (C, H, W ≥ 1), found shape {tuple(a.shape)}", param=("a", "b")
         )
     for name, x in (("a", a), ("b", b)):
         if data_range == 1 and not x.dtype.is_floating_point and x.dtype != torch.bool:

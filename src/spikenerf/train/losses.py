@@ -36,12 +36,14 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     Returns:
         Scalar mean over rays and channels.
     Raises:
-        InputError: ``pred`` not a tensor, or ``target`` (a tensor or array) not of ``pred``'s shape (an
-            (N, 1) against (N,) would broadcast to (N, N)).
+        InputError: ``pred`` not a tensor or empty (N = 0 or C = 0: the mean of nothing is NaN; a training
+            step always draws rays), or ``target`` (a tensor or array) not of ``pred``'s shape (an (N, 1)
+            against (N,) would broadcast to (N, N)).
     """
     check_tensor(pred, "pred")
     target = torch.as_tensor(target, device=pred.device)
     same_shape(pred, target, "target", "pred")
+    check_nonempty(pred, "pred", "ray")
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
 
 
@@ -49,6 +51,16 @@ def check_tensor(x: object, name: str) -> None:
     """InputError naming ``name`` unless ``x`` is a torch tensor (a render, which the loss differentiates)."""
     if not isinstance(x, torch.Tensor):
         raise InputError(f"{name} must be a torch tensor, found {type(x).__name__}", param=name)
+
+
+def check_nonempty(x: torch.Tensor, name: str, what: str) -> None:
+    """InputError naming ``name`` where ``x`` holds no element (a loss's mean over it would be NaN). Reads
+    the shape only: no host sync, and a compiled step still traces."""
+    if x.numel() == 0:
+        raise InputError(
+            f"{name} must hold at least one {what} and channel, found the empty shape {tuple(x.shape)}",
+            param=name,
+        )
 
 
 def check_steps(intensity: object) -> None:
@@ -103,6 +115,10 @@ def window_mean_loss(
             estimates, is correlated with them: the product form is then unbiased only to first order.)
     Returns:
         Scalar loss (linear intensity squared; may be slightly negative for G ≥ 2, never in expectation).
+    Raises:
+        InputError: naming ``means`` where it is not floating-point, holds no estimate (G = 0) or no window
+            (B = 0 or C = 0: the mean of nothing is NaN; a training step always draws windows); naming
+            ``target``, ``band`` or ``weight`` where those are not as above.
     """
     check_tensor(means, "means")
     if not means.dtype.is_floating_point:
@@ -117,6 +133,7 @@ def window_mean_loss(
         raise InputError(
             "means must hold at least one estimate per window (G ≥ 1), found G = 0", param="means"
         )
+    check_nonempty(means, "means", "window")
     if band is not None:
         band = torch.as_tensor(band, device=means.device)
         if band.shape != (means.shape[0], 1):
@@ -155,7 +172,7 @@ def srgb_weights(render: torch.Tensor) -> torch.Tensor:
     Args:
         render: (B, C) linear renders (the window means' estimates).
     Returns:
-        (B, C) weights ≥ 0 of mean 1 (NaN for an empty batch), in ``render``'s dtype, without gradient.
+        (B, C) weights ≥ 0 of mean 1 (empty for an empty batch), in ``render``'s dtype, without gradient.
     """
     check_tensor(render, "render")
     with torch.no_grad():
@@ -256,7 +273,8 @@ def spike_interval_loss(
         spikes: (L, N, C) recorded spikes of the same pixels and steps.
         threshold: φ. pairs: ``"all"`` or ``"window"``. max_intensity: see :func:`spike_interval_violation`.
     Returns:
-        Scalar loss (dimensionless).
+        Scalar loss (dimensionless); 0, with a gradient of zeros, where no pair's bounds apply or the window
+        holds no pixel (N = 0): a step whose window constrains nothing keeps training on its other terms.
     """
     violation, length, valid = spike_interval_violation(intensity, spikes, threshold, pairs, max_intensity)
     scale = (threshold * length).reshape(-1, *([1] * (violation.dim() - 1)))
@@ -284,10 +302,14 @@ def paper_spike_loss(
         threshold: φ. start_accumulator: (N, C) start state in [0, φ). warmup: steps to discard (< L).
     Returns:
         Scalar tensor with ``requires_grad=False``.
+    Raises:
+        InputError: naming ``intensity`` where it holds no step (L = 0) or no pixel (N = 0 or C = 0: the
+            mean of nothing is NaN), ``spikes``, ``threshold`` or ``start_accumulator`` where not as above.
     """
     check_steps(intensity)
     if intensity.shape[0] == 0:
         raise InputError("intensity must hold at least one step, found L = 0", param="intensity")
+    check_nonempty(intensity, "intensity", "pixel")
     spikes = recorded_spikes(spikes, intensity)
     same_shape(intensity, spikes, "spikes", "intensity")
     check_threshold(threshold)

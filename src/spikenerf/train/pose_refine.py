@@ -108,19 +108,74 @@ def pose_lr(config: Any, iteration: int, iters: int, warmup: int) -> float:
 
 
 class PoseRefiner(torch.nn.Module):
-    """Corrections ``xi`` (N, 6) of keyframes at ``key_steps`` (N,) and their per-step interpolation."""
+    """Corrections ``xi`` (N, 6) of keyframes at ``key_steps`` (N,) and their per-step interpolation.
+
+    A keyframe that no training step has read yet (``reached`` False: with the hold-out, one whose
+    neighbourhood lies inside a held-out band) has no gradient and keeps its zero correction. Outside
+    training its correction is the blend of the nearest reached keyframes either side (held beyond the
+    first and last), so that a held-out step follows the drift of the path around it."""
 
     def __init__(self, key_steps: np.ndarray) -> None:
         super().__init__()
         self.key_steps = np.asarray(key_steps, np.int64)
         self.xi = torch.nn.Parameter(torch.zeros(len(self.key_steps), 6))
+        self.reached = np.zeros(len(self.key_steps), bool)  # (N,) read by a step that tracked gradients
+
+    def get_extra_state(self) -> Tensor:
+        """``reached`` as a (N,) bool tensor (a checkpoint's pose state holds tensors only)."""
+        return torch.as_tensor(self.reached.copy())
+
+    def set_extra_state(self, state: Any) -> None:
+        reached = np.asarray(torch.as_tensor(state).cpu(), bool).reshape(-1)
+        if len(reached) != len(self.key_steps):
+            raise InputError(
+                f"the checkpoint's pose corrections mark {len(reached)} keyframes, the dataset has "
+                f"{len(self.key_steps)}",
+                param="poses",
+            )
+        self.reached = reached
+
+    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
+        """As ``torch.nn.Module``'s; a checkpoint written before ``reached`` was kept counts a keyframe as
+        reached where its correction moved from zero (Adam leaves an unread one at exactly 0)."""
+        if "_extra_state" not in state_dict and "xi" in state_dict:
+            moved = torch.as_tensor(state_dict["xi"]).ne(0).any(-1).cpu()
+            state_dict = {**state_dict, "_extra_state": moved}
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
+
+    def filled_xi(self) -> Tensor:
+        """``xi`` (N, 6) with each unreached keyframe's row the blend of the nearest reached ones, by step;
+        ``xi`` itself while every keyframe or none is reached."""
+        known = np.flatnonzero(self.reached)
+        if len(known) in (0, len(self.reached)):
+            return self.xi
+        if len(known) == 1:
+            lo = hi = np.zeros(len(self.reached), np.int64)
+            t = np.zeros(len(self.reached))
+        else:
+            lo, hi, t = key_brackets(self.key_steps[known], self.key_steps)
+        w = torch.as_tensor(np.clip(t, 0.0, 1.0), dtype=self.xi.dtype, device=self.xi.device)[:, None]
+        lo_t, hi_t = (torch.as_tensor(known[i], device=self.xi.device) for i in (lo, hi))
+        blend = (1 - w) * self.xi[lo_t] + w * self.xi[hi_t]
+        own = torch.as_tensor(self.reached, device=self.xi.device)[:, None]
+        return torch.where(own, self.xi, blend)
 
     def correction(self, steps: Tensor | np.ndarray) -> Tensor:
-        """Rigid corrections (N, 4, 4) at spike ``steps`` (N,) (linear blend of the neighbours' ``xi``)."""
+        """Rigid corrections (N, 4, 4) at spike ``steps`` (N,) (linear blend of the neighbours' ``xi``).
+
+        A call that tracks gradients is a training step: it marks the keyframes it reads (nonzero weight)
+        as reached. Any other call reads :meth:`filled_xi`."""
         lo, hi, t = key_brackets(self.key_steps, np.asarray(torch.as_tensor(steps).cpu(), np.int64))
-        w = torch.as_tensor(np.clip(t, 0.0, 1.0), dtype=self.xi.dtype, device=self.xi.device)[:, None]
+        t = np.clip(t, 0.0, 1.0)
+        if torch.is_grad_enabled():
+            self.reached[lo[t < 1]] = True
+            self.reached[hi[t > 0]] = True
+            xi = self.xi
+        else:
+            xi = self.filled_xi()
+        w = torch.as_tensor(t, dtype=self.xi.dtype, device=self.xi.device)[:, None]
         lo_t, hi_t = (torch.as_tensor(i, device=self.xi.device) for i in (lo, hi))
-        return se3_exp((1 - w) * self.xi[lo_t] + w * self.xi[hi_t])
+        return se3_exp((1 - w) * xi[lo_t] + w * xi[hi_t])
 
     def forward(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
         """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,)."""
@@ -201,13 +256,15 @@ class PoseRefinement(PoseLearner):
         idx = np.searchsorted(self._traj_steps, keys)
         given = self._traj_poses[idx]
         refined = self.refiner(given, keys).cpu().double().numpy()
-        xi = self.refiner.xi.detach().cpu().double().numpy()
+        xi = self.refiner.filled_xi().detach().cpu().double().numpy()
+        reached = self.refiner.reached
         frames = [
             {
                 "step": int(s),
                 "omega": xi[i, :3].tolist(),
                 "rho": xi[i, 3:].tolist(),
                 "rotation_deg": float(np.degrees(np.linalg.norm(xi[i, :3]))),
+                "trained": bool(reached[i]),
                 "given_matrix": given[i].double().tolist(),
                 "transform_matrix": refined[i].tolist(),
             }
@@ -215,7 +272,8 @@ class PoseRefinement(PoseLearner):
         ]
         doc = {
             "convention": "c2w' = c2w · [exp(omega) | rho]; omega in radians, rho in scene units along the "
-            "camera axes; steps between keyframes blend the neighbours' (omega, rho) linearly",
+            "camera axes; steps between keyframes blend the neighbours' (omega, rho) linearly; a keyframe "
+            "no training step read (trained false) takes the blend of the nearest trained ones",
             "keyframes": frames,
         }
         write_text_atomic(out / REFINED_POSES, json.dumps(doc, indent=1) + "\n")

@@ -173,11 +173,6 @@ class Trainer:
         self.pose_refine = pose_refinement(
             self.config, self.dataset, self.model, self.device, self.method.targets
         )
-        windowless = self.method.targets is None  # (spike-integral: stream windows only, none in a band)
-        if self.pose_refine is not None and holdout is not None and windowless and ckpt is None:
-            warn("--refine-poses with the hold-out: spike-integral's windows never reach the held-out "
-                 "bands, so the poses there stay unrefined and eval scores those steps at them; "
-                 "--method spike-nerf avoids it (docs/real-data.md)")  # fmt: skip
         #: parameters with their own optimisers (poses, the method's own), by checkpoint key
         self.learners = {
             name: learner

@@ -52,7 +52,10 @@ class BenchmarkConfig:
     ``executor`` names an entry of :data:`~spikenerf.pipelines.benchmark.executor.EXECUTORS`: ``"ray"`` runs
     the steps as Ray tasks instead (:mod:`spikenerf.pipelines.benchmark.ray_executor`, which uses the
     ``address`` … ``ray_cpus`` fields). ``keep_going``: the local executor runs every job even when one
-    fails and lists the failures at the end (the Ray executor always does).
+    fails and lists the failures at the end (the Ray executor always does). ``out`` is kept absolute (a
+    relative one is taken from the current folder): the commands that ``results.json``, the datasets'
+    ``config.yaml`` and the report record name their paths under it, and must name the same folders when
+    read from another one.
     """
 
     scenes: list[str]
@@ -79,6 +82,9 @@ class BenchmarkConfig:
     ship_results: bool = False
     ray_cpus: float = 1.0
     keep_going: bool = False
+
+    def __post_init__(self) -> None:
+        self.out = Path(os.path.abspath(self.out))
 
 
 class CellKey(NamedTuple):
