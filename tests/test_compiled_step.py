@@ -15,6 +15,7 @@ import traceback
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from torch._dynamo.utils import counters
@@ -315,6 +316,26 @@ def test_a_failing_compiled_step_trains_eagerly_with_one_warning(
     assert losses == eager_losses  # the eager step, with the random stream of a run without --compile
     state = trainer.model.state_dict()
     assert all(torch.equal(state[k], v) for k, v in eager.items())
+
+
+def test_with_pose_refinement_the_compiled_step_trains_eagerly_and_marks_as_eager(
+    dataset_dir: Path, dataset, tmp_path: Path, capsys, aot_eager: None
+) -> None:  # type: ignore[no-untyped-def]
+    """The refiner reads its steps on the host and marks the keyframes a step reads (host state, for the
+    hold-out's fill): the compiled static step cannot trace that, so it trains eagerly after one warning,
+    with the eager run's marks and corrections (the hold-out on: a keyframe stays unmarked)."""
+    runs = []
+    for compile in (False, True):
+        cfg = _config(dataset_dir, "spike-integral", compile)
+        cfg.iters, cfg.eval_every, cfg.ckpt_every = 3, 0, 3
+        cfg.poses.refine, cfg.poses.warmup_iters, cfg.poses.lr = True, 0, 1e-2
+        cfg.holdout, cfg.holdout_steps, cfg.holdout_radius = True, 1, 30
+        runs.append(_run(cfg, tmp_path / f"run{compile}", dataset)[0].pose_refine.refiner)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(lines) == 1 and lines[0].startswith(WARNING), lines
+    eager, compiled = runs
+    assert not eager.reached.all() and np.array_equal(eager.reached, compiled.reached)
+    assert torch.equal(eager.xi, compiled.xi) and eager.xi.abs().max() > 0
 
 
 def test_a_backward_that_fails_to_compile_trains_on_eagerly_with_one_warning(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from spikenerf.train.config import TrainConfig
 from spikenerf.train.pose_refine import (
     REFINED_POSES,
     PoseRefiner,
+    evaluating,
     keyframes_of,
     pose_refinement,
     refined_dataset,
@@ -136,7 +138,7 @@ def test_unreached_keyframes_take_the_blend_of_the_nearest_reached_ones() -> Non
     refiner.correction(np.r_[0:11, 30:41])  # a training step (gradients on) reads keyframes 0, 10, 30, 40
     assert refiner.reached.tolist() == [True, True, False, True, True]
     refiner.xi.data[1, 0], refiner.xi.data[3, 0] = 0.1, 0.3
-    with torch.no_grad():  # outside training key 20 is halfway between keys 10 and 30; step 15 a quarter
+    with evaluating(refiner):  # evaluated, key 20 is halfway between keys 10 and 30; step 15 a quarter
         angle = torch.atan2(*refiner.correction(np.array([10, 15, 20, 25, 30]))[:, [2, 1], 1].T)
     assert torch.allclose(angle, torch.tensor([0.1, 0.15, 0.2, 0.25, 0.3]), atol=1e-6)
     state = refiner.state_dict()
@@ -149,6 +151,64 @@ def test_unreached_keyframes_take_the_blend_of_the_nearest_reached_ones() -> Non
     assert torch.equal(only.filled_xi(), torch.full((5, 6), 0.2))
     with pytest.raises(InputError, match="mark 5 keyframes, the dataset has 3"):
         PoseRefiner(np.array([0, 10, 20])).set_extra_state(state["_extra_state"])
+    for marks in (state["_extra_state"].float(), state["_extra_state"][:, None]):  # (0.5 read as True before)
+        with pytest.raises(InputError, match=r"marks must be a \(N,\) bool tensor"):
+            again.set_extra_state(marks)
+    with pytest.raises(InputError, match=r"are \(4, 6\), the dataset's 5 keyframes need \(5, 6\)"):
+        again.load_state_dict({"xi": torch.zeros(4, 6)})  # (torch's multi-line RuntimeError before)
+
+
+def test_only_a_training_step_marks_and_only_evaluation_fills() -> None:
+    """The mode says what a call is, not the gradient switch alone: a training-mode call without gradients
+    (spike-integral's track projection inside a step) reads the corrections as learned, as before the
+    marks existed (training unchanged), and an evaluation-mode call with gradients on (a pose fitted
+    through the refiner, a render with gradients) marks nothing and reads the filled corrections."""
+    refiner = PoseRefiner(np.array([0, 10, 20, 30, 40]))
+    refiner.correction(np.r_[0:11, 30:41])
+    refiner.xi.data[1, 3], refiner.xi.data[3, 3] = 0.1, 0.3
+    with torch.no_grad():  # inside a training step: key 20 keeps its own (zero) correction
+        assert refiner.correction(np.array([20]))[0, 0, 3] == 0
+    refiner.eval()
+    shift = refiner.correction(np.array([20]))[0, 0, 3]  # gradients on
+    assert shift.requires_grad and float(shift) == pytest.approx(0.2)
+    assert refiner.reached.tolist() == [True, True, False, True, True]
+    shift.backward()  # the blend reaches the trained neighbours
+    assert refiner.xi.grad is not None and refiner.xi.grad[[1, 3], 3].tolist() == [0.5, 0.5]
+    refiner.train()
+    with evaluating(refiner):
+        assert not refiner.training
+    assert refiner.training
+
+
+def test_a_checkpoint_with_misshapen_pose_state_is_one_line_exit_2(
+    data_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """eval on a tampered checkpoint: keyframe marks of another length, dtype or shape, corrections of
+    another shape or an unknown entry are one line, exit 2, no metrics.json (a float mark was read as
+    trained where nonzero, a misshapen ``xi`` was torch's traceback)."""
+    run = tmp_path / "run"
+    code, _, err = run_cli(capsys, "--quiet", "train", data_dir, "--method", "nerf-gt", "--refine-poses",
+                           "--iters", "1", "--device", "cpu", "--set", "batch=32", "--out", run)  # fmt: skip
+    assert code == 0, err
+    marks = torch.load(run / "checkpoint.pt", weights_only=True)["poses"]["refiner"]["_extra_state"]
+    n = len(marks)
+    cases = {
+        "short": ({"_extra_state": marks[:-1]}, f"marks are a ({n - 1},) torch.bool tensor, not ({n},) bool"),
+        "float": ({"_extra_state": marks.float() / 2}, f"({n},) torch.float32 tensor, not ({n},) bool"),
+        "2-d": ({"_extra_state": marks[:, None]}, f"marks are a ({n}, 1) torch.bool tensor"),
+        "xi": ({"xi": torch.zeros(n, 5)}, "its corrections 'xi' are not (K, 6) floats"),
+        "both": ({"xi": torch.zeros(3, 6), "_extra_state": marks[:3]}, f"are (3, 6), the dataset's {n}"),
+        "extra": ({"bias": torch.zeros(1)}, "unknown entries ['bias']"),
+    }
+    for name, (change, message) in cases.items():
+        tampered = tmp_path / name
+        shutil.copytree(run, tampered)
+        ckpt = torch.load(tampered / "checkpoint.pt", weights_only=True)
+        ckpt["poses"]["refiner"].update(change)
+        torch.save(ckpt, tampered / "checkpoint.pt")
+        code, _, err = run_cli(capsys, "--quiet", "eval", tampered, "--lpips", "none", "--device", "cpu")
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1, (name, err)
+        assert not (tampered / "metrics.json").exists()
 
 
 # -------------------------------------------------------------------------------------------- recovery

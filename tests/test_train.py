@@ -618,6 +618,12 @@ def test_train_warns_in_one_line_of_each_flag_its_method_does_not_use(
             f"--recon does not change how --method {method} trains; it only sets the reconstruction eval's"
         )
         assert code == 0 and [n.startswith(recon) for n in called[-1][1]] == ([True] if said else [])
+    for method, said in (("spike-integral", True), ("spike-nerf", False)):  # spike-integral: eval's S only
+        code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / f"p-{method}", "--method",
+                             method, "--window-poses", 2)  # fmt: skip
+        poses = f"--window-poses does not change how --method {method} trains; it only sets how many renders"
+        assert code == 0 and called[-1][0].targets.window_poses == 2
+        assert [n.startswith(poses) for n in called[-1][1]] == ([True] if said else [])
     for recon, said in (("tfi", True), ("tfp", False)):  # TFI's targets have no window
         code, _, _ = run_cli(capsys, "train", dataset_dir, "--out", tmp_path / recon, "--method",
                              "nerf-recon", "--recon", recon, "--window", "21")  # fmt: skip

@@ -112,13 +112,14 @@ def _unused(method: str, given: set[str], overrides: tuple[str, ...], recon: str
             f"{keys['targets.window']} does not change --recon {recon}'s targets ({recon.upper()} has no "
             "window); it only sets the hold-out guard band"
         )
+    sets = {
+        "targets.recon": "the reconstruction eval's no-reference checks compare renders with",
+        "targets.window_poses": "how many renders eval averages over each TFP keyframe's window (an imported "
+        "dataset's test views and the no-reference checks)",
+    }
     notes += [
         f"{keys[key]} does not change how --method {method} trains; it only sets "
-        + (
-            "the reconstruction eval's no-reference checks compare renders with"
-            if key == "targets.recon"
-            else "eval's no-reference checks and the hold-out guard band"
-        )
+        + sets.get(key, "eval's no-reference checks and the hold-out guard band")
         for key in checks_only
     ]
     return notes

@@ -100,7 +100,8 @@ OPTIONS = (
         type=int,
         default=None,
         help="Poses per TFP target, spread over its window and averaged (nerf-recon, spike-nerf; "
-        "1 = the paper's; > 1 = window-aware targets, --recon tfp) "
+        "1 = the paper's; > 1 = window-aware targets, --recon tfp; spike-integral: only eval's renders "
+        "per TFP keyframe) "
         f"[default: {WINDOW_POSES} with --recon tfp, else 1].",
     ),
     click.option(

@@ -159,7 +159,10 @@ def check_schema(data: dict[str, Any], path: str | Path) -> None:
     if (poses := data.get("poses")) is not None:  # the pose refinement's state (--refine-poses)
         ok = isinstance(poses, dict) and isinstance(poses.get("refiner"), dict)
         ok = ok and all(isinstance(k, str) and torch.is_tensor(v) for k, v in poses["refiner"].items())
-        if not ok or (problem := _tensor_problem(*poses["refiner"].values())):
+        problem = (
+            _tensor_problem(*poses["refiner"].values()) or _refiner_problem(poses["refiner"]) if ok else None
+        )
+        if not ok or problem:
             raise bad(f"entry 'poses' is not a pose refinement's state ({problem if ok else 'its layout'})")
     if data.get("dataset") is not None and not _is_fingerprint(data["dataset"]):  # (older ones: none)
         raise bad("entry 'dataset' is not a dataset fingerprint (plain values, a 2×3 finite box)")
@@ -173,6 +176,19 @@ def _tensor_problem(*tensors: torch.Tensor) -> str | None:
             return f"holds complex values ({tensor.dtype})"
         if tensor.is_floating_point() and tensor.numel() and not bool(torch.isfinite(tensor).all()):
             return "holds NaN or inf values"
+    return None
+
+
+def _refiner_problem(state: dict[str, torch.Tensor]) -> str | None:
+    """What is wrong with a pose refiner's stored tensors (a phrase), or None: the corrections ``xi`` (K, 6)
+    floating and the keyframe marks ``_extra_state`` (K,) bool (absent from older checkpoints)."""
+    if unknown := sorted(set(state) - {"xi", "_extra_state"}):
+        return f"unknown entries {unknown}"
+    xi, marks = state.get("xi"), state.get("_extra_state")
+    if xi is None or not (xi.is_floating_point() and xi.dim() == 2 and xi.shape[1] == 6):
+        return "its corrections 'xi' are not (K, 6) floats" if xi is not None else "no corrections 'xi'"
+    if marks is not None and not (marks.dtype == torch.bool and tuple(marks.shape) == (len(xi),)):
+        return f"its keyframe marks are a {tuple(marks.shape)} {marks.dtype} tensor, not ({len(xi)},) bool"
     return None
 
 

@@ -11,8 +11,10 @@ a coarse-to-fine schedule fitted to the grid field (see :func:`pose_lr`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -111,9 +113,13 @@ class PoseRefiner(torch.nn.Module):
     """Corrections ``xi`` (N, 6) of keyframes at ``key_steps`` (N,) and their per-step interpolation.
 
     A keyframe that no training step has read yet (``reached`` False: with the hold-out, one whose
-    neighbourhood lies inside a held-out band) has no gradient and keeps its zero correction. Outside
-    training its correction is the blend of the nearest reached keyframes either side (held beyond the
-    first and last), so that a held-out step follows the drift of the path around it."""
+    neighbourhood lies inside a held-out band) has no gradient and keeps its zero correction. In training
+    mode (``train()``, a new module's) a call reads ``xi`` as learned, and a call that tracks gradients (a
+    training step) marks the keyframes it reads with a nonzero weight. In evaluation mode (``eval()``, or
+    :func:`evaluating`: eval, render, the trainer's test views, ``refined_poses.json``) a call marks nothing
+    and reads :meth:`filled_xi`: an unreached keyframe's correction is the blend of the nearest reached
+    keyframes either side (held beyond the first and last), so that a held-out step follows the drift of
+    the path around it."""
 
     def __init__(self, key_steps: np.ndarray) -> None:
         super().__init__()
@@ -126,21 +132,45 @@ class PoseRefiner(torch.nn.Module):
         return torch.as_tensor(self.reached.copy())
 
     def set_extra_state(self, state: Any) -> None:
-        reached = np.asarray(torch.as_tensor(state).cpu(), bool).reshape(-1)
-        if len(reached) != len(self.key_steps):
+        """``reached`` from :meth:`get_extra_state`'s (N,) bool tensor.
+
+        Raises:
+            InputError: ``state`` not a (N,) bool tensor of this refiner's N keyframes.
+        """
+        if not (torch.is_tensor(state) and state.dtype == torch.bool and state.dim() == 1):
+            found = (
+                f"a {tuple(state.shape)} {state.dtype}" if torch.is_tensor(state) else type(state).__name__
+            )
             raise InputError(
-                f"the checkpoint's pose corrections mark {len(reached)} keyframes, the dataset has "
+                f"the checkpoint's pose keyframe marks must be a (N,) bool tensor, found {found}",
+                param="poses",
+            )
+        if len(state) != len(self.key_steps):
+            raise InputError(
+                f"the checkpoint's pose corrections mark {len(state)} keyframes, the dataset has "
                 f"{len(self.key_steps)}",
                 param="poses",
             )
-        self.reached = reached
+        self.reached = state.cpu().numpy().copy()
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
         """As ``torch.nn.Module``'s; a checkpoint written before ``reached`` was kept counts a keyframe as
-        reached where its correction moved from zero (Adam leaves an unread one at exactly 0)."""
-        if "_extra_state" not in state_dict and "xi" in state_dict:
-            moved = torch.as_tensor(state_dict["xi"]).ne(0).any(-1).cpu()
-            state_dict = {**state_dict, "_extra_state": moved}
+        reached where its correction moved from zero (Adam leaves an unread one at exactly 0).
+
+        Raises:
+            InputError: ``xi`` missing or not (N, 6) for this refiner's N keyframes, or the marks not
+                (N,) bool (the checkpoint of another dataset's keyframes, or a damaged one).
+        """
+        xi = state_dict.get("xi")
+        if not (torch.is_tensor(xi) and tuple(xi.shape) == tuple(self.xi.shape)):
+            found = f"{tuple(xi.shape)}" if torch.is_tensor(xi) else "missing"
+            raise InputError(
+                f"the checkpoint's pose corrections are {found}, the dataset's {len(self.key_steps)} "
+                f"keyframes need ({len(self.key_steps)}, 6)",
+                param="poses",
+            )
+        if "_extra_state" not in state_dict:
+            state_dict = {**state_dict, "_extra_state": xi.ne(0).any(-1).cpu()}
         return super().load_state_dict(state_dict, strict=strict, assign=assign)
 
     def filled_xi(self) -> Tensor:
@@ -163,16 +193,15 @@ class PoseRefiner(torch.nn.Module):
     def correction(self, steps: Tensor | np.ndarray) -> Tensor:
         """Rigid corrections (N, 4, 4) at spike ``steps`` (N,) (linear blend of the neighbours' ``xi``).
 
-        A call that tracks gradients is a training step: it marks the keyframes it reads (nonzero weight)
-        as reached. Any other call reads :meth:`filled_xi`."""
+        In training mode: ``xi`` as learned, and a call that tracks gradients (a training step) marks the
+        keyframes it reads (nonzero weight) as reached; a call without them (spike-integral's track
+        projection) marks nothing. In evaluation mode: :meth:`filled_xi`, marking nothing."""
         lo, hi, t = key_brackets(self.key_steps, np.asarray(torch.as_tensor(steps).cpu(), np.int64))
         t = np.clip(t, 0.0, 1.0)
-        if torch.is_grad_enabled():
+        if self.training and torch.is_grad_enabled():
             self.reached[lo[t < 1]] = True
             self.reached[hi[t > 0]] = True
-            xi = self.xi
-        else:
-            xi = self.filled_xi()
+        xi = self.xi if self.training else self.filled_xi()
         w = torch.as_tensor(t, dtype=self.xi.dtype, device=self.xi.device)[:, None]
         lo_t, hi_t = (torch.as_tensor(i, device=self.xi.device) for i in (lo, hi))
         return se3_exp((1 - w) * xi[lo_t] + w * xi[hi_t])
@@ -180,6 +209,18 @@ class PoseRefiner(torch.nn.Module):
     def forward(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
         """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,)."""
         return corrected(poses, lambda: self.correction(steps), self.xi)
+
+
+@contextlib.contextmanager
+def evaluating(refiner: PoseRefiner) -> Iterator[PoseRefiner]:
+    """``refiner`` in evaluation mode inside the block (:class:`PoseRefiner`: the filled corrections, no
+    marks), its own mode again after it."""
+    was = refiner.training
+    refiner.eval()
+    try:
+        yield refiner
+    finally:
+        refiner.train(was)
 
 
 def corrected(poses: Tensor, correction: Any, like: Tensor) -> Tensor:
@@ -255,7 +296,8 @@ class PoseRefinement(PoseLearner):
         keys = self.refiner.key_steps
         idx = np.searchsorted(self._traj_steps, keys)
         given = self._traj_poses[idx]
-        refined = self.refiner(given, keys).cpu().double().numpy()
+        with evaluating(self.refiner):
+            refined = self.refiner(given, keys).cpu().double().numpy()
         xi = self.refiner.filled_xi().detach().cpu().double().numpy()
         reached = self.refiner.reached
         frames = [
@@ -316,9 +358,16 @@ def on_path_poses(refiner: PoseRefiner, trajectory: Any, poses: Tensor | np.ndar
     dist = (poses[:, None] - path[None]).abs().flatten(2).amax(-1)  # (V, T)
     best = dist.argmin(1)
     on_path = dist.gather(1, best[:, None])[:, 0] < 1e-5
-    with torch.no_grad():
+    with torch.no_grad(), evaluating(refiner):
         refined = refiner(poses, np.asarray(trajectory.steps)[best.numpy()]).cpu()
     return torch.where(on_path[:, None, None], refined, poses)
+
+
+def run_refiner(state: dict[str, Any], config: Any, dataset: Any) -> PoseRefiner:
+    """The refiner a run learned (its checkpoint's ``poses`` ``state``), in evaluation mode."""
+    refiner = PoseRefiner(keyframes_of(dataset, config.poses.keyframe_every))
+    refiner.load_state_dict(state["refiner"])
+    return refiner.eval()
 
 
 def refined_views(checkpoint: dict[str, Any], config: Any, dataset: Any, views: Any) -> Any:
@@ -327,8 +376,7 @@ def refined_views(checkpoint: dict[str, Any], config: Any, dataset: Any, views: 
     state = checkpoint.get("poses")
     if not state or len(views.poses) == 0:
         return views
-    refiner = PoseRefiner(keyframes_of(dataset, config.poses.keyframe_every))
-    refiner.load_state_dict(state["refiner"])
+    refiner = run_refiner(state, config, dataset)
     return dataclasses.replace(views, poses=on_path_poses(refiner, dataset.trajectory, views.poses).numpy())
 
 
@@ -338,8 +386,7 @@ def refined_dataset(checkpoint: dict[str, Any], config: Any, dataset: Any) -> An
     state = checkpoint.get("poses")
     if not state:
         return dataset
-    refiner = PoseRefiner(keyframes_of(dataset, config.poses.keyframe_every))
-    refiner.load_state_dict(state["refiner"])
+    refiner = run_refiner(state, config, dataset)
     traj = dataset.trajectory
     with torch.no_grad():
         poses = refiner(torch.as_tensor(np.asarray(traj.poses), dtype=torch.float32), np.asarray(traj.steps))

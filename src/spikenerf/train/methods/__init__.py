@@ -101,13 +101,16 @@ def unused_keys(method: str, keys: Iterable[str]) -> list[str]:
 def check_only_keys(method: str, keys: Iterable[str]) -> list[str]:
     """The keys among ``keys`` that do not change how ``method`` trains, in the given order: the
     :data:`WINDOW_KEYS` it does not train with (they still set eval's no-reference checks and the hold-out
-    guard band), and ``targets.recon`` where it does not read it (it still sets the reconstruction that
-    eval's no-reference checks compare renders with)."""
+    guard band), ``targets.recon`` where it does not read it (it still sets the reconstruction that
+    eval's no-reference checks compare renders with), and its :attr:`TrainMethod.scores_with` (they set only
+    how eval scores its renders)."""
     cls = method_class(method)
     return [
         k
         for k in keys
-        if (k in WINDOW_KEYS and k not in cls.trains_with) or (k == "targets.recon" and k not in cls.reads)
+        if (k in WINDOW_KEYS and k not in cls.trains_with)
+        or (k == "targets.recon" and k not in cls.reads)
+        or k in cls.scores_with
     ]
 
 

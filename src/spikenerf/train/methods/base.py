@@ -115,6 +115,8 @@ class TrainMethod:
         reads: the :data:`METHOD_KEYS` it reads (:func:`unused_keys`).
         trains_with: the :data:`WINDOW_KEYS` that shape its training (:func:`check_only_keys`); the others
             set only eval's no-reference checks and the hold-out guard band.
+        scores_with: keys of :attr:`reads` that set only how ``eval`` scores its renders, not its training
+            (:func:`check_only_keys`; spike-integral's ``targets.window_poses``).
         learner_key: the checkpoint key of its :meth:`learner`'s state.
     """
 
@@ -126,6 +128,7 @@ class TrainMethod:
     learns_poses: ClassVar[bool] = False
     reads: ClassVar[tuple[str, ...]] = ()
     trains_with: ClassVar[tuple[str, ...]] = ()
+    scores_with: ClassVar[tuple[str, ...]] = ()
     learner_key: ClassVar[str] = "exposure_poses"
 
     @classmethod

@@ -71,6 +71,7 @@ class SpikeIntegral(TrainMethod):
     name, uses_stream = "spike-integral", True
     #: targets.recon: only "tfp" (checked); targets.window_poses: eval's TFP keyframes (its window_poses())
     reads = ("targets.recon", "targets.window_poses", "integral.")
+    scores_with = ("targets.window_poses",)  # eval's renders per TFP keyframe; its windows have their own
     default_batch = INTEGRAL_WINDOWS * INTEGRAL_SAMPLES
     learner_key = "sensor_response"  # integral.pixel_gain's map
 
