@@ -103,8 +103,21 @@ def test_hold_out_is_on_for_imported_datasets_only(dataset_dir: Path) -> None:
     on = make_method(dataclasses.replace(cfg, holdout=True)).hold_out(dataset)
     assert on is not None and on.steps.tolist() == [15, 30, 44] and on.source == "evenly spaced steps"
     assert make_method(dataclasses.replace(cfg, holdout=False)).hold_out(_imported(dataset, [20])) is None
-    default = make_method(TrainConfig(dataset=str(dataset_dir))).hold_out(_imported(dataset, [20]))
-    assert default is not None and default.radius == 40
+    # the default band: a + e = 40 for image targets (TFP window 41, mask n 5, spike window 16); e = 20 for
+    # spike-integral, whose count windows never overlap a band (its learned prior's images need a + e)
+    radii = {}
+    for method, prior in (("spike-integral", "none"), ("spike-integral", "learned"), ("spike-nerf", "none")):
+        cfg = TrainConfig(dataset=str(dataset_dir), method=method)
+        cfg.integral.prior = prior
+        default = make_method(cfg).hold_out(_imported(dataset, [20]))
+        radii[method, prior] = default.radius if default is not None else None
+    assert radii == {
+        ("spike-integral", "none"): 20,
+        ("spike-integral", "learned"): 40,
+        ("spike-nerf", "none"): 40,
+    }
+    began = make_method(TrainConfig(dataset=str(dataset_dir))).hold_out(_imported(dataset, [20]), began=40)
+    assert began is not None and began.radius == 40  # a resumed run keeps the band it recorded
 
 
 def test_train_records_the_held_out_steps_and_eval_reads_them(
@@ -206,6 +219,27 @@ def test_a_run_from_before_the_hold_out_resumes_without_one(dataset_dir: Path, t
                       progress=False)  # fmt: skip
     assert resumed.holdout is None and resumed.config.holdout is False
     assert not (tmp_path / "run" / HOLDOUT_FILE).exists()
+
+
+def test_a_resumed_run_keeps_the_band_it_recorded(dataset_dir: Path, tmp_path: Path) -> None:
+    """A spike-integral run begun when its default band was a + e resumes with that band, not with today's
+    default e: a band that narrowed halfway would train on steps its record and eval call held out."""
+    from spikenerf.train.trainer import Trainer
+
+    run = tmp_path / "run"
+    cfg = TrainConfig(dataset=str(dataset_dir), device="cpu", iters=4, holdout=True, holdout_steps=1,
+                      batch=32, eval_every=0, eval_views=1)  # fmt: skip
+    cfg.integral.lengths = [4]
+    cfg.targets.window, cfg.targets.mask_n, cfg.spike.window = 9, 2, 4  # a = e = 4
+    cfg.field_config = {"n_voxels_init": 512, "n_voxels_final": 512}
+    dataset = load_dataset(dataset_dir)
+    Trainer(cfg, run, dataset, progress=False).train(stop_after=2)
+    record = read_record(run)
+    assert record is not None and record["radius"] == record["check_reach"] == 4
+    (run / HOLDOUT_FILE).write_text(json.dumps({**record, "radius": 8}))  # an older run's default band
+    resumed = Trainer(cfg, run, dataset, resume=True, progress=False)
+    assert resumed.holdout is not None and resumed.holdout["radius"] == 8
+    assert resumed.method.holdout is not None and resumed.method.holdout.radius == 8
 
 
 def test_a_hand_edited_imported_section_is_one_input_error(dataset_dir: Path) -> None:

@@ -165,8 +165,9 @@ OPTIONS = (
         "--holdout-radius",
         type=int,
         default=None,
-        help="Guard band half-width in steps [default: TFP half window + max(it, spike window / 2), "
-        "e.g. 40].",
+        help="Guard band half-width in steps [default: the check's reach max(TFP half window, spike window "
+        "/ 2), e.g. 20, for spike-integral; that plus the TFP half window, e.g. 40, with image targets; "
+        "a resumed run keeps its own].",
     ),
     click.option(
         "--eval-every", type=int, default=_D.eval_every, show_default=True, help="0 = only at the end."

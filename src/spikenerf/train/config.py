@@ -273,8 +273,9 @@ class TrainConfig:
         holdout: hold the check steps of ``eval``'s no-reference checks out of training (None: on for
             imported datasets, off for simulated ones; ``spikenerf.data.holdout``).
         holdout_steps: check steps (evenly spaced) on a dataset without imported test keyframes.
-        holdout_radius: guard band half-width r in steps around each check step (None:
-            ``data.holdout.guard_radius`` of the TFP window, mask n and spike window).
+        holdout_radius: guard band half-width r in steps around each check step (None: the method's
+            ``guard()``: ``data.holdout.guard_radius`` of the TFP window, mask n and spike window, or for
+            spike-integral without image targets the check's reach alone; a resumed run keeps its own).
     """
 
     BOUNDS: ClassVar[dict[str, Bound]] = {

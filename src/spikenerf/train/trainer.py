@@ -26,6 +26,7 @@ from spikenerf.core.lock import output_lock
 from spikenerf.core.marker import check_output, mark, owned
 from spikenerf.core.replacement import discard_fresh, fresh_state
 from spikenerf.data.dataset import SpikeDataset, load_dataset
+from spikenerf.data.holdout import read_record
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.recon_cache import learned_targets_in
 from spikenerf.data.targets import eval_view_targets
@@ -130,7 +131,8 @@ class Trainer:
         if cache is not None:
             mark(self.out, "run")  # the cache is written into a marked run folder
         whole = ckpt is not None and began_uncut(self.out, self.config.targets.recon)
-        holdout = self.method.hold_out(self.dataset, whole)  # (first: TFI and TFSTP targets are cut at it)
+        began = (read_record(self.out) or {}).get("radius") if ckpt is not None else None  # (its bands)
+        holdout = self.method.hold_out(self.dataset, whole, began)  # (first: TFI, TFSTP targets cut at it)
         if whole and holdout is not None:
             recon = self.config.targets.recon
             warn(f"this run began with {recon} targets of the whole stream, not cut at the hold-out's bands: "

@@ -195,14 +195,23 @@ class TrainMethod:
         them in its ``config.yaml``)."""
         return config
 
-    def hold_out(self, dataset: SpikeDataset, whole: bool = False) -> Holdout | None:
+    def guard(self) -> int:
+        """The default guard band half-width r (``holdout_radius`` None): :func:`guard_radius`, the reach
+        of an image target plus the check's."""
+        t = self.config.targets
+        return guard_radius(t.window, t.mask_n, self.config.spike.window)
+
+    def hold_out(
+        self, dataset: SpikeDataset, whole: bool = False, began: int | None = None
+    ) -> Holdout | None:
         """Decide the held-out check steps (``config.holdout``; None: trains on every step), which
         :meth:`make_samplers` then never draws; call before :meth:`build_targets` (TFI and TFSTP targets
         are cut at the bands' edges, ``Holdout.cuts``, unless ``whole``: a resumed run that began with
-        targets of the whole stream)."""
+        targets of the whole stream). The band half-width is ``holdout_radius``, else ``began`` (a resumed
+        run's recorded one), else :meth:`guard`."""
         c = self.config
         t, r = c.targets, c.holdout_radius
-        radius = guard_radius(t.window, t.mask_n, c.spike.window) if r is None else r
+        radius = r if r is not None else began if began is not None else self.guard()
         reach = check_reach(t.window, t.mask_n, c.spike.window)
         self.holdout = make_holdout(dataset, c.holdout, c.holdout_steps, radius, t.recon, reach, whole)
         self.stream_steps = np.asarray(dataset.trajectory.steps)

@@ -15,7 +15,7 @@ from torch import Tensor
 from spikenerf.core.color import srgb_mse
 from spikenerf.core.errors import InputError
 from spikenerf.data.dataset import SpikeDataset
-from spikenerf.data.holdout import checked
+from spikenerf.data.holdout import check_reach, checked
 from spikenerf.data.integral import CountTargets, WindowTargetSampler, count_targets
 from spikenerf.data.rays import pixel_rays
 from spikenerf.data.targets import load_stream, stream_targets
@@ -143,6 +143,16 @@ class SpikeIntegral(TrainMethod):
     @property
     def uses_learned(self) -> bool:
         return self.config.integral.prior == "learned"
+
+    def guard(self) -> int:
+        """e, the check's reach, alone (the learned prior's image targets need :func:`guard_radius`'s
+        a + e): a count window that overlaps a band is never drawn and a track skips the bands' steps, so
+        no spike training reads lies within e of a check step (interpolated phases and aligned windows,
+        which read past a window, are refused with the hold-out)."""
+        if self.uses_learned:
+            return super().guard()
+        t = self.config.targets
+        return check_reach(t.window, t.mask_n, self.config.spike.window)
 
     def build_targets(self, dataset: SpikeDataset) -> None:
         stream = load_stream(dataset, self.config.color)
