@@ -171,6 +171,23 @@ def test_render_orbit_with_spikes(run_dir: Path, tmp_path: Path, capsys: pytest.
     assert "unfinished (no render.json)" in _cli_output(capsys, "info", out)
 
 
+def test_info_marks_a_render_of_an_earlier_iteration_stale(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A render made before ``train --resume`` continued its run is marked in ``info`` of the render folder,
+    as an older metrics.json is in ``info`` of the run."""
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run)  # (the module's run stays at 5 iterations)
+    _cli("render", run, "--trajectory", "test", "--device", "cpu", "--quiet", "--out", run / "render")
+    assert f"run: {run.resolve()} at iteration 5\n" in _cli_output(capsys, "info", run / "render")
+    dataset = yaml.safe_load((run / "config.yaml").read_text())["dataset"]
+    _cli("train", dataset, "--iters", 6, "--device", "cpu", "--quiet", "--out", run, "--resume")
+    summary = _cli_output(capsys, "info", run / "render")
+    assert f"run: {run.resolve()} at iteration 5 [the run is now at iteration 6: render again]\n" in summary
+    (run / "checkpoint.pt").write_bytes(b"damaged")  # unreadable: the render is still described, unmarked
+    assert f"run: {run.resolve()} at iteration 5\n" in _cli_output(capsys, "info", run / "render")
+
+
 @pytest.mark.parametrize("kind", ["spiral", "interpolate"])
 def test_render_generated_paths(
     kind: str, run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -283,6 +283,21 @@ def _refused(capsys, *args: object) -> str:  # type: ignore[no-untyped-def]
     return err.strip()
 
 
+def test_export_writes_into_its_run_folder_as_render_does(run_dir: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``export RUN --out RUN/cloud.ply`` is written (a run holds no .ply of its own, and no command replaces
+    or empties a run folder), as ``render RUN --out RUN/render`` is; the run stays as it was."""
+    out = run_dir / "cloud.ply"
+    before = sorted(p.name for p in run_dir.iterdir())
+    try:
+        code, said, err = run_cli(capsys, "export", run_dir, "--device", "cpu", "--quiet", "--out", out)
+        assert code == 0 and said.startswith(f"wrote {out}: ") and not err, err
+        assert len(read_ply(out).points) > 0
+        assert sorted(p.name for p in run_dir.iterdir()) == sorted([*before, "cloud.ply"])  # no lock left
+        assert "iterations: 5 of 5" in run_cli(capsys, "info", run_dir)[1]  # still the run it was
+    finally:
+        out.unlink(missing_ok=True)  # (the module's run, as the other tests find it)
+
+
 def test_bad_input_exits_2_in_one_line_and_writes_nothing(
     run_dir: Path, tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
 ) -> None:  # type: ignore[no-untyped-def]
@@ -300,8 +315,9 @@ def test_bad_input_exits_2_in_one_line_and_writes_nothing(
         capsys, run_dir, "--orbit-frames", 3, "--out", out
     )
     assert "expected a .ply file" in _refused(capsys, run_dir, "--out", tmp_path / "x.obj")
-    assert "lies inside a run folder" in _refused(
-        capsys, run_dir, "--device", "cpu", "--out", run_dir / "a.ply"
+    dataset = run_dir.parent / "ds"  # a file among a dataset's is a stranger its --overwrite refuses
+    assert "lies inside a dataset folder" in _refused(
+        capsys, run_dir, "--device", "cpu", "--out", dataset / "a.ply"
     )
     err = _refused(capsys, run_dir, "--kind", "mesh", "--device", "cpu", "--density-level", 1e9, "--out", out)
     assert "--density-level 1e+09 lies outside the density's range" in err
@@ -313,7 +329,7 @@ def test_bad_input_exits_2_in_one_line_and_writes_nothing(
     monkeypatch.setitem(sys.modules, "skimage.measure", None)  # import → ImportError: the extra is missing
     assert _refused(capsys, run_dir, "--kind", "mesh", "--out", out) == f"spikenerf: error: --{INSTALL_HINT}"
     monkeypatch.undo()
-    assert not out.exists() and not (run_dir / "a.ply").exists()
+    assert not out.exists() and not (dataset / "a.ply").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "away.json",
         "unfinished",

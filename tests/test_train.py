@@ -654,7 +654,8 @@ def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None
     args += ["--batch", "32", "--eval-every", "0", "--device", "cpu", "--quiet"]
     args += [f"--field-option={k}={v}" for k, v in _TINY_MLP.items()] + ["--out", str(out)]
     main(args)
-    assert "trained 2 iterations" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "trained 2 iterations" in said.out and "resuming" not in said.err  # a fresh run says no such line
     assert load_config(out / "config.yaml").method == "nerf-recon"
     assert load_config(out / "config.yaml").field_config == _TINY_MLP
     bad_runs = [
@@ -674,7 +675,9 @@ def test_cli_train_and_errors(dataset_dir: Path, tmp_path: Path, capsys) -> None
     assert capsys.readouterr().err.strip().endswith("run: is a run folder, not a dataset folder")
     main([*args[:-2], "--iters", "3", "--out", str(out), "--resume"])  # extends the run by one iteration
     assert torch.load(out / CHECKPOINT, weights_only=True)["iteration"] == 3
-    capsys.readouterr()
+    said = capsys.readouterr()  # where it resumes, first (the last line counts the whole run: 3 iterations)
+    assert said.err.startswith(f"spikenerf: resuming {out} at iteration 2 of 3 (checkpoint written 20")
+    assert " s of training)\n" in said.err and "trained 3 iterations" in said.out
     main(["info", str(out)])
     info = capsys.readouterr().out
     assert "method: nerf-recon" in info and "iterations: 3 of 3" in info and "field: mlp" in info

@@ -89,6 +89,8 @@ def describe_render(folder: Path) -> list[str]:
         if done is None
         else f" at iteration {done}" + (f" of {planned}" if planned not in (None, done) else "")
     )
+    if done is not None and (now := _run_iteration(info.get("run"))) is not None and now > done:
+        of += f" [the run is now at iteration {now}: render again]"  # (as info marks an older metrics.json)
     views = info.get("views")
     fmt = {"camera_path": " (a nerfstudio camera path)"}.get(str(info.get("trajectory_kind")), "")
     lines = [
@@ -114,6 +116,22 @@ def describe_render(folder: Path) -> list[str]:
         except InputError as err:  # the size came from the record: say so
             raise InputError(f"{err.message} (size {width}×{height} from {RECORD})", path=err.path) from None
     return lines
+
+
+def _run_iteration(run: str | None) -> int | None:
+    """The iteration of the checkpoint in the run folder ``run`` (a render's record names it); None where it
+    is gone or unreadable (``info`` of the render still describes it; ``info RUN`` names the problem)."""
+    from spikenerf.core.marker import folder_kind
+
+    if not run or folder_kind(run) != "run":
+        return None
+    from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+
+    try:
+        iteration = load_checkpoint(Path(run) / CHECKPOINT).get("iteration")
+    except InputError:
+        return None
+    return iteration if isinstance(iteration, int) and not isinstance(iteration, bool) else None
 
 
 @click.command(

@@ -306,17 +306,23 @@ def _unwritable(folder: Path) -> str | None:
     return None
 
 
-def check_file_output(path: str | Path, param: str = "out", overwrite: bool = False) -> None:
+def check_file_output(
+    path: str | Path, param: str = "out", overwrite: bool = False, within: tuple[str, ...] = ()
+) -> None:
     """InputError unless ``path`` may receive a single output file: its parents must be folders, none of
     them marked as one that spikenerf wrote (a dataset, a run, a frame folder…: a file added there would be
-    a stranger in it, or replace one of its own), the folder must take new files (:func:`check_writable`),
-    and an existing file is replaced only with ``overwrite``. (Unmarked look-alikes, :data:`_LEGACY`, are
-    not refused: a user's folder may hold a ``manifest.json``.)"""
+    a stranger in it, or replace one of its own) unless the nearest marked one is of a kind in ``within``
+    (``export`` into a run, whose own files are never .ply and which no command replaces or empties), the
+    folder must take new files (:func:`check_writable`), and an existing file is replaced only with
+    ``overwrite``. (Unmarked look-alikes, :data:`_LEGACY`, are not refused: a user's folder may hold a
+    ``manifest.json``.)"""
     path = Path(path)
     for parent in path.absolute().parents:
         _check_parent(parent, path, param)
     for parent in (_resolved(path.parent), *_resolved(path.parent).parents):
-        if (kind := read_marker(parent).get("kind")) in KINDS:
+        if (kind := read_marker(parent).get("kind")) in within:
+            break
+        if kind in KINDS:
             raise InputError(
                 f"{param}: lies inside a {kind} folder spikenerf wrote ({parent}); write it elsewhere",
                 path=path,

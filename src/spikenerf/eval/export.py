@@ -207,7 +207,7 @@ def export_run(
         require_marching_cubes()  # before any work
         check_memory(float(resolution) ** 3 * LATTICE_BYTES, "resolution")
     out = Path(out)
-    check_file_output(out, "out", overwrite)
+    check_file_output(out, "out", overwrite, within=("run",))  # (RUN/cloud.ply, as RUN/render)
     with output_lock(out), output_lock(run_dir, "RUN"):  # no train may write the run meanwhile
         model, config, dataset, ckpt = open_run(run_dir, dataset_root, device, train_images=False)
         chunk = inference_chunk(model, chunk)

@@ -103,6 +103,11 @@ def step_scalars(
     return out
 
 
+def tell(message: str) -> None:
+    """One note on stderr (``spikenerf: ...``): what a command does, not a warning."""
+    print(f"spikenerf: {message}", file=sys.stderr)
+
+
 def warn(message: str) -> None:
     """One warning line on stderr (``spikenerf: warning: ...``)."""
     print(f"spikenerf: warning: {message}", file=sys.stderr)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from datetime import datetime
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -50,7 +51,7 @@ from spikenerf.train.config import TrainConfig
 from spikenerf.train.config_file import CONFIG_FILE
 from spikenerf.train.device import batch_bytes, keep_targets_on_device
 from spikenerf.train.evaluate import CURVES, evaluate_views, read_curves
-from spikenerf.train.logger import RunningMeans, warn
+from spikenerf.train.logger import RunningMeans, tell, warn
 from spikenerf.train.loop import train_steps
 from spikenerf.train.methods import make_method, method_class
 from spikenerf.train.optimizer import lr_final_ratio, make_optimizer
@@ -195,6 +196,7 @@ class Trainer:
         self.curves: list[dict[str, float]] = []
         self.final_ratio = lr_final_ratio(self.config, self.model)
         self.scaler = torch.amp.GradScaler(self.device.type, enabled=self.config.amp == "fp16")
+        self.resumed = ckpt is not None  # (train() says where it resumes)
         if ckpt is not None:
             check_optimizer_fits(self.optimizer, ckpt["optimizer"], ckpt_path)  # (a misfit one crashes)
             try:
@@ -340,6 +342,20 @@ def train(
         except Exception:  # refused or failed setting up (e.g. after caching learned targets): nothing stays
             discard_fresh(out, state)
             raise
+        if trainer.resumed:
+            tell(resume_line(trainer))
         for note in notes:
             warn(note)
         return trainer.train(stop_after)
+
+
+def resume_line(trainer: Trainer) -> str:
+    """Where a resumed run continues: ``resuming RUN at iteration 60 of 70 (checkpoint written
+    2026-01-02T03:04:05+00:00, after 12.3 s of training)``; train's last line counts the whole run."""
+    done, iters = trainer.iteration, trainer.config.iters
+    written = datetime.fromtimestamp((trainer.out / CHECKPOINT).stat().st_mtime).astimezone()
+    left = "" if done < iters else ": it has finished, nothing left to train"
+    return (
+        f"resuming {trainer.out} at iteration {done} of {iters} (checkpoint written "
+        f"{written.isoformat(timespec='seconds')}, after {trainer.elapsed:.1f} s of training){left}"
+    )
