@@ -184,9 +184,7 @@ class PoseRefiner(torch.nn.Module):
             t = np.zeros(len(self.reached))
         else:
             lo, hi, t = key_brackets(self.key_steps[known], self.key_steps)
-        w = torch.as_tensor(np.clip(t, 0.0, 1.0), dtype=self.xi.dtype, device=self.xi.device)[:, None]
-        lo_t, hi_t = (torch.as_tensor(known[i], device=self.xi.device) for i in (lo, hi))
-        blend = (1 - w) * self.xi[lo_t] + w * self.xi[hi_t]
+        blend = blended(self.xi[torch.as_tensor(known, device=self.xi.device)], lo, hi, t)
         own = torch.as_tensor(self.reached, device=self.xi.device)[:, None]
         return torch.where(own, self.xi, blend)
 
@@ -201,14 +199,19 @@ class PoseRefiner(torch.nn.Module):
         if self.training and torch.is_grad_enabled():
             self.reached[lo[t < 1]] = True
             self.reached[hi[t > 0]] = True
-        xi = self.xi if self.training else self.filled_xi()
-        w = torch.as_tensor(t, dtype=self.xi.dtype, device=self.xi.device)[:, None]
-        lo_t, hi_t = (torch.as_tensor(i, device=self.xi.device) for i in (lo, hi))
-        return se3_exp((1 - w) * xi[lo_t] + w * xi[hi_t])
+        return se3_exp(blended(self.xi if self.training else self.filled_xi(), lo, hi, t))
 
     def forward(self, poses: Tensor, steps: Tensor | np.ndarray) -> Tensor:
         """Corrected camera-to-world poses (N, 4, 4) of ``poses`` (N, 4, 4) at ``steps`` (N,)."""
         return corrected(poses, lambda: self.correction(steps), self.xi)
+
+
+def blended(rows: Tensor, lo: np.ndarray, hi: np.ndarray, t: np.ndarray) -> Tensor:
+    """``(1 − w) rows[lo] + w rows[hi]`` (M, 6) of keyframe ``rows`` (K, 6) at brackets ``lo``, ``hi`` (M,)
+    and fractions ``t`` (M,), ``w`` = ``t`` clipped to [0, 1] (held beyond the end keyframes)."""
+    w = torch.as_tensor(np.clip(t, 0.0, 1.0), dtype=rows.dtype, device=rows.device)[:, None]
+    lo_t, hi_t = (torch.as_tensor(i, device=rows.device) for i in (lo, hi))
+    return (1 - w) * rows[lo_t] + w * rows[hi_t]
 
 
 @contextlib.contextmanager
