@@ -125,13 +125,12 @@ def _run_iteration(run: str | None) -> int | None:
 
     if not run or folder_kind(run) != "run":
         return None
-    from spikenerf.train.checkpoint import CHECKPOINT, load_checkpoint
+    from spikenerf.train.run import run_iteration
 
     try:
-        iteration = load_checkpoint(Path(run) / CHECKPOINT).get("iteration")
-    except InputError:
+        return run_iteration(run)
+    except InputError:  # (the checkpoint's schema check makes ``iteration`` an int)
         return None
-    return iteration if isinstance(iteration, int) and not isinstance(iteration, bool) else None
 
 
 @click.command(
