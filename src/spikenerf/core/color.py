@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from spikenerf.core.errors import InputError, is_integer, is_number
+from spikenerf.core.errors import InputError, is_integer, is_number, nonempty
 
 if TYPE_CHECKING:
     import torch
@@ -105,10 +105,7 @@ def srgb_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
             f"target must have the shape of pred, {tuple(pred.shape)}, found {tuple(target.shape)}",
             param="target",
         )
-    if pred.numel() == 0:
-        raise InputError(
-            f"pred must hold at least one value, found the empty shape {tuple(pred.shape)}", param="pred"
-        )
+    nonempty(pred, "pred")
     torch_ = sys.modules["torch"]  # float64 stays float64 (a gradcheck's); the rest is taken in float32
     wide = torch_.float64 if torch_.float64 in (pred.dtype, target.dtype) else torch_.float32
     return ((srgb_encode(pred.to(wide)) - srgb_encode(target.to(wide))) ** 2).mean()

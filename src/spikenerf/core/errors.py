@@ -111,6 +111,15 @@ def same_shape(reference: Any, other: Any, name: str, reference_name: str) -> No
         )
 
 
+def nonempty(x: Any, name: str, what: str = "value") -> None:
+    """InputError naming ``name`` where array or tensor ``x`` holds no element (a mean over it would be NaN);
+    ``what`` names one element in the message. Reads the shape only: no sync, and a compiled step traces."""
+    if math.prod(x.shape) == 0:
+        raise InputError(
+            f"{name} must hold at least one {what}, found the empty shape {tuple(x.shape)}", param=name
+        )
+
+
 def as_path(value: object, param: str) -> Path:
     """``value`` (a str or path-like, not empty) as a ``Path``; else InputError naming ``param``
     (``Path(None)`` is a TypeError deep in pathlib, and ``Path("")`` the current folder)."""

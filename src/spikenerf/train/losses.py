@@ -19,7 +19,7 @@ import torch
 from spikenerf.camera.firing import fire
 from spikenerf.core import tensor_checks
 from spikenerf.core.color import srgb_slope
-from spikenerf.core.errors import InputError, is_number, same_shape
+from spikenerf.core.errors import InputError, is_number, nonempty, same_shape
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 from spikenerf.core.tensor_checks import check_threshold
 from spikenerf.train.settings import LOSS_WEIGHTS, LossWeight, PairMode
@@ -43,7 +43,7 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     check_tensor(pred, "pred")
     target = torch.as_tensor(target, device=pred.device)
     same_shape(pred, target, "target", "pred")
-    check_nonempty(pred, "pred", "ray")
+    nonempty(pred, "pred", "ray and channel")
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
 
 
@@ -51,16 +51,6 @@ def check_tensor(x: object, name: str) -> None:
     """InputError naming ``name`` unless ``x`` is a torch tensor (a render, which the loss differentiates)."""
     if not isinstance(x, torch.Tensor):
         raise InputError(f"{name} must be a torch tensor, found {type(x).__name__}", param=name)
-
-
-def check_nonempty(x: torch.Tensor, name: str, what: str) -> None:
-    """InputError naming ``name`` where ``x`` holds no element (a loss's mean over it would be NaN). Reads
-    the shape only: no host sync, and a compiled step still traces."""
-    if x.numel() == 0:
-        raise InputError(
-            f"{name} must hold at least one {what} and channel, found the empty shape {tuple(x.shape)}",
-            param=name,
-        )
 
 
 def check_steps(intensity: object) -> None:
@@ -133,7 +123,7 @@ def window_mean_loss(
         raise InputError(
             "means must hold at least one estimate per window (G ≥ 1), found G = 0", param="means"
         )
-    check_nonempty(means, "means", "window")
+    nonempty(means, "means", "window and channel")
     if band is not None:
         band = torch.as_tensor(band, device=means.device)
         if band.shape != (means.shape[0], 1):
@@ -309,7 +299,7 @@ def paper_spike_loss(
     check_steps(intensity)
     if intensity.shape[0] == 0:
         raise InputError("intensity must hold at least one step, found L = 0", param="intensity")
-    check_nonempty(intensity, "intensity", "pixel")
+    nonempty(intensity, "intensity", "pixel and channel")
     spikes = recorded_spikes(spikes, intensity)
     same_shape(intensity, spikes, "spikes", "intensity")
     check_threshold(threshold)
