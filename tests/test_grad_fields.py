@@ -1,10 +1,12 @@
 """The fields' differentiable pieces, kornia style: the positional encoding, the reference VM lookup
 (``sample_vm``) and the custom autograd functions over it: the fused CPU kernel's ``torch.library`` ops
 (``vm_lookup``, ``vm_sum_until``), its ``autograd.Function`` (``vm_rows``) and the Triton ops
-(``triton_vm``). The kernels are float32 only (bfloat16 rows for ``vm_rows``), so they are compared with the
-float64 eager reference, forward and backward, to a tolerance (float32: 1e-5; bfloat16: 1e-2 relative);
-``sample_vm`` and the encoding pass ``gradcheck`` in float64. (``gather_vm``, ``vm_lattice_sum`` and
-``total_variation`` have theirs in ``test_vm_gather.py``, ``test_vm_lattice.py`` and ``test_fields.py``.)"""
+(``triton_vm``). The CPU kernel's gradients include the points' (pose refinement moves them); the
+Triton ops give none. The kernels are float32 only (bfloat16 rows for ``vm_rows``), so they are
+compared with the float64 eager reference, forward and backward, to a tolerance (float32: 1e-5; bfloat16:
+1e-2 relative); ``sample_vm`` and the encoding pass ``gradcheck`` in float64. (``gather_vm``,
+``vm_lattice_sum`` and ``total_variation`` have theirs in ``test_vm_gather.py``, ``test_vm_lattice.py``
+and ``test_fields.py``.)"""
 
 from __future__ import annotations
 
@@ -69,20 +71,21 @@ def _kernel_or_skip() -> None:
 
 
 def _against_float64(
-    lookup: Callable, summed: bool, seed: int, atol: float = 1e-5, rtol: float = 1e-5
+    lookup: Callable, summed: bool, seed: int, atol: float = 1e-5, rtol: float = 1e-5, points: bool = True
 ) -> None:
-    """``lookup(planes, lines, xyz)`` in float32 against ``sample_vm`` in float64: values, and the planes'
-    and lines' gradients of a random output gradient."""
-    p64, l64, xyz = _factors(seed)
-    p64.requires_grad_(), l64.requires_grad_()
-    p32, l32 = (t.detach().float().requires_grad_() for t in (p64, l64))
-    ref = sample_vm(p64, l64, xyz).permute(2, 0, 1)  # (M, 3, C)
+    """``lookup(planes, lines, xyz)`` in float32 against ``sample_vm`` in float64: values, and the planes',
+    lines' and (``points``: pose refinement's case) the points' gradients of a random output gradient."""
+    p64, l64, x64 = _factors(seed)
+    p64.requires_grad_(), l64.requires_grad_(), x64.requires_grad_(points)
+    p32, l32, x32 = (t.detach().float().requires_grad_(t.requires_grad) for t in (p64, l64, x64))
+    ref = sample_vm(p64, l64, x64).permute(2, 0, 1)  # (M, 3, C)
     ref = ref.sum(dim=(1, 2)) if summed else ref
-    out = lookup(p32, l32, xyz.float())
+    out = lookup(p32, l32, x32)
     assert out.shape == ref.shape and torch.allclose(out.double(), ref, atol=atol, rtol=rtol)
     grad = torch.randn(ref.shape, generator=torch.Generator().manual_seed(seed + 100), dtype=D)
-    expect = torch.autograd.grad(ref, (p64, l64), grad)
-    got = torch.autograd.grad(out, (p32, l32), grad.to(out.dtype))
+    wanted = (p64, l64, x64) if points else (p64, l64)
+    expect = torch.autograd.grad(ref, wanted, grad)
+    got = torch.autograd.grad(out, (p32, l32, x32) if points else (p32, l32), grad.to(out.dtype))
     for a, b in zip(got, expect, strict=True):
         assert torch.allclose(a.double(), b, atol=atol * 10, rtol=rtol * 10)
 
@@ -119,7 +122,7 @@ def test_cpu_autograd_function_rows_match_the_float64_reference_to_bfloat16() ->
 def test_triton_custom_op_matches_the_float64_reference(summed: bool) -> None:
     if not vm_triton.applies(torch.zeros(1), torch.zeros(1)):
         pytest.skip("Triton does not run here")
-    _against_float64(lambda p, ln, x: vm_triton.triton_vm(p, ln, x, summed), summed, seed=5)
+    _against_float64(lambda p, ln, x: vm_triton.triton_vm(p, ln, x, summed), summed, seed=5, points=False)
 
 
 def _bad_factors() -> list[tuple[str, dict[str, torch.Tensor], str]]:

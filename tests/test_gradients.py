@@ -145,7 +145,13 @@ def test_fused_vm_kernel_matches_grid_sample_forward_and_backward() -> None:
         strict=True,
     ):
         assert torch.allclose(a, b, atol=1e-4)
-    assert not vm_kernel.usable(planes, xyz.clone().requires_grad_())  # point gradients: grid_sample
+    # points that want a gradient (pose refinement) take the kernel too, and get grid_sample's gradient
+    assert vm_kernel.usable(planes, xyz.clone().requires_grad_())
+    inner = xyz[8:].clone().requires_grad_()  # off the box's edges, where grid_sample's slope is one-sided
+    grad = torch.randn(inner.shape[0], 3, planes.shape[1], generator=gen)
+    expect = torch.autograd.grad(sample_vm(planes, lines, inner).permute(2, 0, 1), inner, grad)[0]
+    got = torch.autograd.grad(vm_kernel.vm_lookup(planes, lines, inner), inner, grad)[0]
+    assert torch.allclose(got, expect, atol=1e-3, rtol=1e-4)
 
 
 def test_the_summed_fused_lookup_is_the_sum_of_the_products_forward_and_backward() -> None:
@@ -221,6 +227,8 @@ def test_the_fused_kernels_custom_ops_pass_opcheck_and_compile_as_one_graph() ->
     xyz = torch.rand(50, 3, generator=gen) * 2.2 - 1.1
     for summed in (False, True):
         torch.library.opcheck(torch.ops.spikenerf.vm_cpu_forward.default, (p, ln, xyz, summed))
+        points = xyz.clone().requires_grad_()  # pose refinement's case: the point backward op too
+        torch.library.opcheck(torch.ops.spikenerf.vm_cpu_forward.default, (p, ln, points, summed))
 
     field = GridField(1, torch.tensor([[-1.0, -1, -1], [1, 1, 1]]))
     dirs = torch.nn.functional.normalize(torch.randn(300, 3, generator=gen), dim=-1)
@@ -255,6 +263,70 @@ def test_fused_vm_kernel_nan_point_gives_nan_not_a_crash() -> None:
     assert torch.equal(out.isnan(), ref.isnan())
     assert torch.allclose(out, ref, atol=1e-5, equal_nan=True)
     out.sum().backward()  # no crash in the scatter either
+    points = xyz.clone().requires_grad_()
+    got = torch.autograd.grad(vm_kernel.vm_lookup(planes, lines, points).sum(), points)[0]
+    expect = torch.autograd.grad(sample_vm(planes, lines, points).sum(), points)[0]
+    bad = expect.isnan().any(dim=1)  # NaN in the points' gradient at the same points (grid_sample gives a
+    assert torch.equal(got.isnan().any(dim=1), bad)  # NaN coordinate's own component 0, the kernel NaN)
+    assert torch.allclose(got[~bad], expect[~bad], atol=1e-4)
+
+
+def test_the_grid_fields_point_gradients_take_the_kernel_and_equal_grid_sample(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Pose refinement moves the sample points: density and colour (the bf16 rows where the CPU has them)
+    give the points grid_sample's gradient through the kernel, eager and compiled. Before, a point that
+    wanted a gradient sent every lookup to grid_sample (7× slower steps on an imported recording)."""
+    from spikenerf.fields import grid as grid_module
+
+    vm_kernel = _kernel_or_skip()
+    gen = torch.Generator().manual_seed(8)
+    field = grid_module.GridField(1, torch.tensor([[-1.0, -1, -1], [1, 1, 1]]))
+    with torch.no_grad():
+        for factor in (field.density_planes, field.density_lines, field.app_planes, field.app_lines):
+            factor.normal_(generator=gen)
+    dirs = torch.nn.functional.normalize(torch.randn(400, 3, generator=gen), dim=-1)
+    x = torch.rand(400, 3, generator=gen) * 1.9 - 0.95
+    calls: list[bool] = []
+    rows = grid_module.vm_rows
+    monkeypatch.setattr(grid_module, "vm_rows", lambda *a: calls.append(True) or rows(*a))
+    monkeypatch.setattr(grid_module, "sample_vm", None)  # the kernel must serve every lookup
+
+    def point_grad(fn):  # type: ignore[no-untyped-def]
+        points = x.clone().requires_grad_()
+        value = fn(points, dirs)
+        return value, torch.autograd.grad(value, points)[0]
+
+    def both(points: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        return field.density_norm(points).sum() + field.color_norm(points, d).square().sum()
+
+    fused, fused_grad = point_grad(both)
+    assert bool(calls) == grid_module.native_bf16(x.device)  # the bf16 rows where this CPU has bf16
+    torch._dynamo.reset()
+    compiled, compiled_grad = point_grad(torch.compile(both, backend="aot_eager", fullgraph=True))
+    torch._dynamo.reset()
+    monkeypatch.undo()
+    with vm_kernel.suspended():
+        plain, plain_grad = point_grad(both)
+    bf16 = 2e-2 if grid_module.native_bf16(x.device) else 1e-4  # the colour decoder's bf16 rows
+    for value, grad in ((fused, fused_grad), (compiled, compiled_grad)):
+        torch.testing.assert_close(value, plain, rtol=bf16, atol=bf16)
+        torch.testing.assert_close(grad, plain_grad, rtol=bf16, atol=bf16 * plain_grad.abs().max().item())
+
+
+def test_a_kernel_pair_without_a_point_backward_refuses_points_that_want_one() -> None:
+    """(The Triton pair's case: its gradient for the points would be None, silently 0.)"""
+    from spikenerf.core.errors import InputError
+    from spikenerf.fields.vm_ops import register_pair
+
+    call = register_pair(
+        "test_no_points",
+        lambda p, ln, x, summed: x.new_zeros((x.shape[0],) if summed else (x.shape[0], 3, p.shape[-1])),
+        lambda p, ln, x, g: (torch.zeros_like(p), torch.zeros_like(ln)),
+    )
+    p, ln = torch.zeros(3, 4, 4, 2, requires_grad=True), torch.zeros(3, 4, 2, requires_grad=True)
+    assert call(p, ln, torch.zeros(5, 3), False).shape == (5, 3, 2)
+    with pytest.raises(InputError, match="no gradient for the points") as err:
+        call(p, ln, torch.zeros(5, 3, requires_grad=True), True)
+    assert err.value.params == ("xyz",)
 
 
 def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:

@@ -1,8 +1,9 @@
 // The fused CPU kernel of the VM lookup (fields/vm_kernel.py): forward P_m(x)·L_m(x) per axis pair and channel
 // (float32, the bf16 decoder's padded rows, or summed: the density), backward the scatter into channels-last
-// gradients (each thread owns a band of plane rows: the same bits on any number of threads), the density's
-// lookup up to each ray's early stop, and the packed march (render/march_cpu.py). Compiled on first use by
-// fields/vm_build.py, whose build folder's name hashes this file's text: any change to it builds anew.
+// gradients (each thread owns a band of plane rows: the same bits on any number of threads) and the points'
+// gradient (pose refinement), the density's lookup up to each ray's early stop, and the packed march
+// (render/march_cpu.py). Compiled on first use by fields/vm_build.py, whose build folder's name hashes this
+// file's text: any change to it builds anew.
 
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
@@ -320,6 +321,78 @@ std::vector<torch::Tensor> vm_backward(torch::Tensor planes, torch::Tensor lines
   return {gp, nt == 1 ? gl[0] : gl.sum(0)};
 }
 
+// the slopes of cell()'s weights a, b along x (one texel's weight rises where the other falls; 0 where both
+// texels lie outside, NaN for a NaN/inf coordinate): grid_sample's gradient for its grid, zeros padding
+static inline void cell_slope(float x, int r, float &da, float &db) {
+  const float s = 0.5f * (r - 1), u = (x + 1.f) * s;
+  if (!std::isfinite(u)) { da = db = std::numeric_limits<float>::quiet_NaN(); return; }
+  const float fl = std::floor(u);
+  if (fl < -1.f || fl > (float)(r - 1)) { da = db = 0.f; return; }
+  if (fl == -1.f) { da = s; db = 0.f; return; }
+  if (fl == (float)(r - 1)) { da = 0.f; db = -s; return; }
+  da = -s; db = s;
+}
+
+// the gradient for the points (M, 3) of sum_n,k,j G[n,k,j] P_kj(x_n) L_kj(x_n) (G (M, 3, C) float or
+// bfloat16, or (M,) for a summed forward): per point and axis pair, the slope of the plane's bilinear value
+// along its column and row coordinates times the line's value, and the line's slope times the plane's value.
+// Each point is its own: parallel over points, no scatter, the same bits on any number of threads.
+template <bool SUMMED, typename GT>
+static void point_grads(const float *__restrict__ P, const float *__restrict__ L, const float *__restrict__ X,
+                        const GT *__restrict__ G, float *__restrict__ GX, int64_t m, int64_t r, int64_t c) {
+  at::parallel_for(0, m, 256, [&](int64_t b, int64_t e) {
+    std::vector<float> wide(SUMMED ? 1 : 3 * c);
+    for (int64_t n = b; n < e; ++n) {
+      float gx[3] = {0.f, 0.f, 0.f};
+      if (SUMMED && (float)G[n] == 0.0f) {  // e.g. behind a ray's early stop: no gradient
+        std::copy(gx, gx + 3, GX + n * 3);
+        continue;
+      }
+      if (n + PF < e) prefetch_point(P, L, X + (n + PF) * 3, r, c, 0, r);
+      for (int64_t j = 0; j < (SUMMED ? 1 : 3 * c); ++j) wide[j] = (float)G[SUMMED ? n : n * 3 * c + j];
+      Cells q; point_cells(X + n * 3, r, q);
+      float da[3], db[3];
+      for (int d = 0; d < 3; ++d) cell_slope(X[n * 3 + d], r, da[d], db[d]);
+      for (int k = 0; k < 3; ++k) {
+        PAIR_CELLS(q, k);
+        const float dac = da[MAT0[k]], dbc = db[MAT0[k]], dar = da[MAT1[k]], dbr = db[MAT1[k]];
+        const float dal = da[VEC[k]], dbl = db[VEC[k]];
+        const float *p00 = P + ((k * r + ir) * r + ic) * c, *p01 = p00 + c, *p10 = p00 + r * c, *p11 = p10 + c;
+        const float *l0 = L + (k * r + il) * c, *l1 = l0 + c;
+        const float *g = wide.data() + (SUMMED ? 0 : k * c);
+        float sc = 0.f, sr = 0.f, sl = 0.f;
+        for (int64_t j = 0; j < c; ++j) {
+          const float gj = g[SUMMED ? 0 : j];
+          const float top = ac * p00[j] + bc * p01[j], bottom = ac * p10[j] + bc * p11[j];
+          const float lv = gj * LINE_J(j), pv = gj * (ar * top + br * bottom);
+          sc += lv * (ar * (dac * p00[j] + dbc * p01[j]) + br * (dac * p10[j] + dbc * p11[j]));
+          sr += lv * (dar * top + dbr * bottom);
+          sl += pv * (dal * l0[j] + dbl * l1[j]);
+        }
+        gx[MAT0[k]] += sc; gx[MAT1[k]] += sr; gx[VEC[k]] += sl;
+      }
+      std::copy(gx, gx + 3, GX + n * 3);
+    }
+  });
+}
+
+// vm_backward's gradient for the points instead of the factors (pose refinement moves the points): (M, 3)
+torch::Tensor vm_point_backward(torch::Tensor planes, torch::Tensor lines, torch::Tensor xyz, torch::Tensor grad) {
+  const int64_t m = xyz.size(0), r = planes.size(1), c = planes.size(3);
+  const bool summed = grad.dim() == 1, bf16 = grad.scalar_type() == torch::kBFloat16;
+  TORCH_CHECK(grad.is_contiguous() && (!bf16 || !summed), "point_backward: expected a contiguous grad, bf16 (M, 3, C)");
+  auto gx = torch::empty({m, 3}, xyz.options());
+  const float *P = planes.data_ptr<float>(), *L = lines.data_ptr<float>(), *X = xyz.data_ptr<float>();
+  float *GX = gx.data_ptr<float>();
+  if (summed)
+    point_grads<true>(P, L, X, grad.data_ptr<float>(), GX, m, r, c);
+  else if (bf16)
+    point_grads<false>(P, L, X, grad.data_ptr<at::BFloat16>(), GX, m, r, c);
+  else
+    point_grads<false>(P, L, X, grad.data_ptr<float>(), GX, m, r, c);
+  return gx;
+}
+
 // the grid renderer's packed march (render/march_cpu.py; GridModel._march): of ray i's counts[i] steps, those
 // whose start near + step·k lies before far and (occupancy) whose midpoint's cell is set, as
 // GridModel._kept tests them, in the same float32 operations in the same order (built without contraction:
@@ -398,6 +471,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &vm_forward);
   m.def("forward_rows", &vm_forward_rows);
   m.def("backward", &vm_backward);
+  m.def("point_backward", &vm_point_backward);
   m.def("forward_until", &vm_forward_until);
   m.def("march", &march);
 }

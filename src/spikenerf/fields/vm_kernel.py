@@ -14,8 +14,10 @@ half of them late in training, have density 0 and no gradient either way.
 The lookups are random reads of a grid larger than the L2 cache, so each loop prefetches the texels of the
 point 8 ahead. Its C++ source is ``vm_cpu.cpp``; ``vm_build.py`` compiles it (cached; 20–90 s the first
 time on a machine) and loads it. Where that is not possible (no
-compiler, a CUDA tensor, float64, gradients wanted for the points, ``SPIKENERF_VM_KERNEL=0``, inside
-:func:`suspended`) callers fall back to ``grid_sample``; :func:`available` says which path is used.
+compiler, a CUDA tensor, float64, ``SPIKENERF_VM_KERNEL=0``, inside :func:`suspended`) callers fall back
+to ``grid_sample``; :func:`available` says which path is used. Points that want a gradient (pose refinement
+moves them) get it from the kernel too (``point_backward``: one pass over the points, each its own; before,
+such a step fell back to ``grid_sample``, 7× slower on an imported recording).
 The forward and the backward are ``torch.library`` custom ops, so ``torch.compile(fullgraph=True)`` keeps them
 in its graph (``train --compile`` on a CPU; before, the compiled step fell back to ``grid_sample``).
 """
@@ -70,14 +72,12 @@ def suspended() -> Iterator[None]:
 
 
 def usable(planes: Tensor, xyz: Tensor) -> bool:
-    """The kernel applies: not :func:`suspended`, CPU float32 tensors, no gradient wanted for the points, and
-    it builds."""
+    """The kernel applies: not :func:`suspended`, CPU float32 tensors, and it builds."""
     return (
         not _SUSPENDED
         and planes.device.type == "cpu"
         and planes.dtype == torch.float32
         and xyz.dtype == torch.float32
-        and not xyz.requires_grad
         and available()
     )
 
@@ -87,8 +87,15 @@ def _backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple
     return gp, gl
 
 
-#: ``spikenerf::vm_cpu_forward`` (and ``_backward``): the kernel as custom ops, so compiled graphs keep it
-_OP = register_pair("vm_cpu", lambda p, ln, x, summed: load().forward(p, ln, x, summed), _backward)
+def _point_backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> Tensor:
+    return load().point_backward(planes, lines, xyz, grad)  # (M, 3)
+
+
+#: ``spikenerf::vm_cpu_forward`` (``_backward``, ``_point_backward``): the kernel as custom ops, so compiled
+#: graphs keep it
+_OP = register_pair(
+    "vm_cpu", lambda p, ln, x, summed: load().forward(p, ln, x, summed), _backward, _point_backward
+)
 
 
 def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) -> Tensor:
@@ -101,7 +108,7 @@ def vm_lookup(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
             no (M, 3, C) tensor is written forward or materialised for the backward).
     Returns:
         (M, 3, C), the same values as :func:`spikenerf.fields.vm_sample.sample_vm` transposed; (M,) when
-        ``summed``.
+        ``summed``. Its gradient goes to the planes, the lines and, where they want one, the points.
     Raises:
         RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False). InputError:
             factors or points not of these shapes, or not float32 (:func:`~.vm_ops.check_factors`).
@@ -122,11 +129,13 @@ class _Rows(torch.autograd.Function):
         return load().forward_rows(planes, lines, xyz, rows)
 
     @staticmethod
-    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:  # type: ignore[override]
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, Tensor | None, None]:  # type: ignore[override]
         planes, lines, xyz = ctx.saved_tensors
         m = xyz.shape[0]
-        gp, gl = load().backward(planes, lines, xyz, grad[:m].reshape(m, 3, planes.shape[-1]).contiguous())
-        return gp, gl, None, None
+        grad = grad[:m].reshape(m, 3, planes.shape[-1]).contiguous()
+        gp, gl = load().backward(planes, lines, xyz, grad)
+        gx = load().point_backward(planes, lines, xyz, grad) if ctx.needs_input_grad[2] else None
+        return gp, gl, gx, None
 
 
 def vm_rows(planes: Tensor, lines: Tensor, xyz: Tensor, rows: int) -> Tensor:
@@ -138,7 +147,7 @@ def vm_rows(planes: Tensor, lines: Tensor, xyz: Tensor, rows: int) -> Tensor:
     Args:
         planes: (3, C, R, R). lines: (3, C, R, 1). xyz: (M, 3). rows: ≥ M.
     Returns:
-        (rows, 3·C) bfloat16; its gradient goes to the planes and lines as :func:`vm_lookup`'s.
+        (rows, 3·C) bfloat16; its gradient goes to the planes, lines and points as :func:`vm_lookup`'s.
     Raises:
         RuntimeError: the kernel cannot be built or is disabled (:func:`usable` is False). InputError:
             factors or points as :func:`vm_lookup` refuses them, or ``rows`` not an integer ≥ M.
@@ -173,8 +182,12 @@ def _until_setup(ctx: Any, inputs: tuple, output: Tensor) -> None:
 
 def _until_grad(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:
     planes, lines, xyz = ctx.saved_tensors  # the summed lookup's backward: a sample left out has gradient 0
-    gp, gl = torch.ops.spikenerf.vm_cpu_backward(planes, lines, xyz, grad.contiguous())
-    return gp, gl, None, None, None, None, None, None
+    grad = grad.contiguous()
+    gp, gl = torch.ops.spikenerf.vm_cpu_backward(planes, lines, xyz, grad)
+    gx = None
+    if ctx.needs_input_grad[2]:
+        gx = torch.ops.spikenerf.vm_cpu_point_backward(planes, lines, xyz, grad)
+    return gp, gl, gx, None, None, None, None, None
 
 
 _until_op.register_autograd(_until_grad, setup_context=_until_setup)
@@ -203,7 +216,8 @@ def vm_sum_until(
             so it may look up a few samples more than needed, never fewer.
     Returns:
         (M,): the summed products where looked up (the values of :func:`vm_lookup`), −inf after (a density of
-        exactly 0, with gradient 0). Its gradient flows to the planes and lines as :func:`vm_lookup`'s.
+        exactly 0, with gradient 0). Its gradient flows to the planes, lines and points as
+        :func:`vm_lookup`'s.
     Raises:
         InputError: factors or points as :func:`vm_lookup` refuses them, ``offsets`` not (N + 1,) or
             ``deltas`` not (M,). RuntimeError (the kernel's check, which reads no value back on the Python
@@ -222,6 +236,7 @@ def vm_sum_until(
     stop = limit * (1.0 + UNTIL_MARGIN) + UNTIL_MARGIN
     p, ln = channels_last(planes, lines)
     args = (p, ln, xyz.contiguous(), offsets.long().contiguous(), deltas.float().contiguous())
-    if torch.compiler.is_compiling() or (torch.is_grad_enabled() and (p.requires_grad or ln.requires_grad)):
+    wants = p.requires_grad or ln.requires_grad or xyz.requires_grad
+    if torch.compiler.is_compiling() or (torch.is_grad_enabled() and wants):
         return _until_op(*args, float(shift), float(scale), float(stop))
     return load().forward_until(*args, float(shift), float(scale), float(stop))  # no gradient: no dispatch

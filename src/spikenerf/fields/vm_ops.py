@@ -3,7 +3,9 @@
 
 Each pair is a forward op and a backward op over channels-last factors, with fake implementations (shapes
 only) and an autograd formula, so that ``torch.compile(fullgraph=True)`` keeps them in its graph as opaque
-calls (a bare C++ or Triton launch would break the graph). No gradient for the points.
+calls (a bare C++ or Triton launch would break the graph). A pair registered with a point backward (the CPU
+kernel's) also gives the points their gradient (pose refinement moves them); one without refuses points
+that want one.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from spikenerf.core.tracing import custom_op
 Forward = Callable[[Tensor, Tensor, Tensor, bool], Tensor]
 #: backward(planes, lines, xyz, grad (M, 3, C) or (M,)) → (∂/∂planes (3, R, R, C), ∂/∂lines (3, R, C))
 Backward = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
+#: point_backward(planes, lines, xyz, grad (M, 3, C) or (M,)) → ∂/∂xyz (M, 3)
+PointBackward = Callable[[Tensor, Tensor, Tensor, Tensor], Tensor]
 
 
 def check_factors(planes: Tensor, lines: Tensor, xyz: Tensor) -> None:
@@ -45,12 +49,19 @@ def channels_last(planes: Tensor, lines: Tensor) -> tuple[Tensor, Tensor]:
     return planes.permute(0, 2, 3, 1).contiguous(), lines[..., 0].permute(0, 2, 1).contiguous()
 
 
-def register_pair(name: str, forward: Forward, backward: Backward) -> Any:
+def register_pair(
+    name: str, forward: Forward, backward: Backward, point_backward: PointBackward | None = None
+) -> Any:
     """Register ``spikenerf::{name}_forward`` and ``spikenerf::{name}_backward`` calling ``forward`` and
-    ``backward`` (which must return new tensors); returns a function of the forward's arguments that calls
-    the forward op (``.default`` overload; its gradient goes to the planes and lines) when a trace or a
-    gradient needs it, and ``forward`` itself otherwise (renders without gradient: no dispatch, and no
-    import of Dynamo, which a custom op's first call costs, 2–3 s)."""
+    ``backward`` (which must return new tensors), and ``spikenerf::{name}_point_backward`` where
+    ``point_backward`` is given; returns a function of the forward's arguments that calls the forward op
+    (``.default`` overload; its gradient goes to the planes and lines, and to the points where they want one
+    and ``point_backward`` is given) when a trace or a gradient needs it, and ``forward`` itself otherwise
+    (renders without gradient: no dispatch, and no import of Dynamo, which a custom op's first call costs,
+    2–3 s).
+
+    Raises (from the returned function): InputError, points that want a gradient without ``point_backward``.
+    """
 
     @custom_op(f"spikenerf::{name}_forward")
     def forward_op(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
@@ -69,21 +80,37 @@ def register_pair(name: str, forward: Forward, backward: Backward) -> Any:
     def _(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple[Tensor, Tensor]:
         return torch.empty_like(planes), torch.empty_like(lines)
 
+    point_op = None
+    if point_backward is not None:
+
+        @custom_op(f"spikenerf::{name}_point_backward")
+        def point_op(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> Tensor:
+            return point_backward(planes, lines, xyz, grad)
+
+        @point_op.register_fake
+        def _(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> Tensor:
+            return torch.empty_like(xyz)
+
     def setup_context(ctx: Any, inputs: tuple, output: Tensor) -> None:
         planes, lines, xyz, _ = inputs
         ctx.save_for_backward(planes, lines, xyz)
 
-    def grad_of(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, None, None]:
+    def grad_of(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, Tensor | None, None]:
         planes, lines, xyz = ctx.saved_tensors
-        gp, gl = backward_op(planes, lines, xyz, grad.contiguous())
-        return gp, gl, None, None
+        grad = grad.contiguous()
+        gp, gl = backward_op(planes, lines, xyz, grad)
+        gx = point_op(planes, lines, xyz, grad) if point_op is not None and ctx.needs_input_grad[2] else None
+        return gp, gl, gx, None
 
     forward_op.register_autograd(grad_of, setup_context=setup_context)
     op = getattr(torch.ops.spikenerf, f"{name}_forward").default
 
     def call(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool) -> Tensor:
+        points = torch.is_grad_enabled() and xyz.requires_grad
+        if points and point_op is None:  # (its gradient would be None: silently wrong)
+            raise InputError(f"{name}: no gradient for the points xyz; use grid_sample", param="xyz")
         if torch.compiler.is_compiling() or (
-            torch.is_grad_enabled() and (planes.requires_grad or lines.requires_grad)
+            torch.is_grad_enabled() and (planes.requires_grad or lines.requires_grad or points)
         ):
             return op(planes, lines, xyz, summed)
         return forward(planes, lines, xyz, summed)  # no graph, no gradient: the kernel without the dispatch
