@@ -27,6 +27,8 @@ from spikenerf.train.trainer import Trainer
 
 #: op-name fragments → category (first match wins; everything else is "other tensor ops")
 CATEGORIES = (
+    ("vm_cpu_point_backward", "VM lookup points' gradient (fused kernel)"),  # pose refinement's samples
+    ("_RowsBackward", "VM lookup backward (fused kernel)"),  # the bf16 rows' (both gradients)
     ("vm_cpu_backward", "VM lookup backward (fused kernel)"),
     ("vm_cpu_forward", "VM lookup forward (fused kernel)"),
     ("vm_cpu_until", "VM lookup forward (fused kernel)"),  # the density up to each ray's early stop
