@@ -1,12 +1,11 @@
 """The fields' differentiable pieces, kornia style: the positional encoding, the reference VM lookup
 (``sample_vm``) and the custom autograd functions over it: the fused CPU kernel's ``torch.library`` ops
 (``vm_lookup``, ``vm_sum_until``), its ``autograd.Function`` (``vm_rows``) and the Triton ops
-(``triton_vm``). The CPU kernel's gradients include the points' (pose refinement moves them); the
-Triton ops give none. The kernels are float32 only (bfloat16 rows for ``vm_rows``), so they are
-compared with the float64 eager reference, forward and backward, to a tolerance (float32: 1e-5; bfloat16:
-1e-2 relative); ``sample_vm`` and the encoding pass ``gradcheck`` in float64. (``gather_vm``,
-``vm_lattice_sum`` and ``total_variation`` have theirs in ``test_vm_gather.py``, ``test_vm_lattice.py``
-and ``test_fields.py``.)"""
+(``triton_vm``). Their gradients include the points' (pose refinement moves them). The kernels are float32
+only (bfloat16 rows for ``vm_rows``), so they are compared with the float64 eager reference, forward and
+backward, to a tolerance (float32: 1e-5; bfloat16: 1e-2 relative); ``sample_vm`` and the encoding pass
+``gradcheck`` in float64. (``gather_vm``, ``vm_lattice_sum`` and ``total_variation`` have theirs in
+``test_vm_gather.py``, ``test_vm_lattice.py`` and ``test_fields.py``.)"""
 
 from __future__ import annotations
 
@@ -122,7 +121,7 @@ def test_cpu_autograd_function_rows_match_the_float64_reference_to_bfloat16() ->
 def test_triton_custom_op_matches_the_float64_reference(summed: bool) -> None:
     if not vm_triton.applies(torch.zeros(1), torch.zeros(1)):
         pytest.skip("Triton does not run here")
-    _against_float64(lambda p, ln, x: vm_triton.triton_vm(p, ln, x, summed), summed, seed=5, points=False)
+    _against_float64(lambda p, ln, x: vm_triton.triton_vm(p, ln, x, summed), summed, seed=5)
 
 
 def _bad_factors() -> list[tuple[str, dict[str, torch.Tensor], str]]:

@@ -55,7 +55,7 @@ def _grads(out: torch.Tensor, weights: torch.Tensor, inputs: list[torch.Tensor])
 @pytest.mark.parametrize("channels", [5, 16])
 def test_values_and_gradients_equal_grid_sample_inside_and_outside_the_grid(channels: int) -> None:
     planes, lines = _factors(c=channels)
-    xyz = _points()
+    xyz = _points().requires_grad_()  # the points' gradient too (pose refinement moves them)
     expected = sample_vm(planes, lines, xyz).permute(2, 0, 1)
     got = triton_vm(planes, lines, xyz)
     assert got.shape == (len(xyz), 3, channels)
@@ -63,23 +63,23 @@ def test_values_and_gradients_equal_grid_sample_inside_and_outside_the_grid(chan
     outside = (xyz.abs() > 1 + 2 / 6).all(dim=1)  # more than a texel (2 / (R − 1)) outside
     assert outside.any() and got[outside].abs().max() == 0  # zeros padding
     weights = torch.randn_like(got)
-    for g, e in zip(_grads(got, weights, [planes, lines]), _grads(expected, weights, [planes, lines]),
-                    strict=True):  # fmt: skip
+    inputs = [planes, lines, xyz]
+    for g, e in zip(_grads(got, weights, inputs), _grads(expected, weights, inputs), strict=True):
         assert g.stride() == e.stride() or g.is_contiguous(memory_format=torch.channels_last)
         torch.testing.assert_close(g, e, atol=1e-4, rtol=1e-4)
 
 
 def test_the_summed_lookup_equals_the_sum_and_skips_zero_gradients() -> None:
     planes, lines = _factors(c=6)
-    xyz = _points(200, 1.1)
+    xyz = _points(200, 1.1).requires_grad_()
     expected = sample_vm(planes, lines, xyz).sum(dim=(0, 1))
     got = triton_vm(planes, lines, xyz, summed=True)
     assert got.shape == (len(xyz),)
     torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
     weights = torch.randn(len(xyz), device=DEVICE)
     weights[::3] = 0  # points behind an early stop: their (zero) gradient adds nothing either way
-    for g, e in zip(_grads(got, weights, [planes, lines]), _grads(expected, weights, [planes, lines]),
-                    strict=True):  # fmt: skip
+    inputs = [planes, lines, xyz]
+    for g, e in zip(_grads(got, weights, inputs), _grads(expected, weights, inputs), strict=True):
         torch.testing.assert_close(g, e, atol=1e-4, rtol=1e-4)
 
 
@@ -88,22 +88,24 @@ def test_other_launch_shapes_give_the_same_values_and_gradients(
     launch: tuple[int, int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     planes, lines = _factors(c=6)
-    xyz = _points(300)  # not a multiple of either block: a part-filled last program
+    xyz = _points(300).requires_grad_()  # not a multiple of either block: a part-filled last program
     weights = torch.randn(len(xyz), 3, 6, device=DEVICE)
     expected = triton_vm(planes, lines, xyz)
-    expected_grads = _grads(expected, weights, [planes, lines])
-    monkeypatch.setattr(vm_triton, "LAUNCH", {"forward": launch, "backward": launch})
+    expected_grads = _grads(expected, weights, [planes, lines, xyz])
+    monkeypatch.setattr(vm_triton, "LAUNCH", {"forward": launch, "backward": launch, "point": launch})
     got = triton_vm(planes, lines, xyz)
     torch.testing.assert_close(got, expected, atol=1e-6, rtol=1e-6)
-    for g, e in zip(_grads(got, weights, [planes, lines]), expected_grads, strict=True):
+    for g, e in zip(_grads(got, weights, [planes, lines, xyz]), expected_grads, strict=True):
         torch.testing.assert_close(g, e, atol=1e-5, rtol=1e-5)
 
 
 def test_a_nan_point_gives_nan_and_no_points_give_empty_results() -> None:
     planes, lines = _factors()
-    xyz = torch.tensor([[0.1, float("nan"), 0.2], [0.1, 0.2, 0.3]], device=DEVICE)
+    xyz = torch.tensor([[0.1, float("nan"), 0.2], [0.1, 0.2, 0.3]], device=DEVICE, requires_grad=True)
     got = triton_vm(planes, lines, xyz, summed=True)
     assert got[0].isnan() and got[1].isfinite()
+    point_grad = torch.autograd.grad(got.sum(), xyz)[0]
+    assert point_grad[0].isnan().any() and point_grad[1].isfinite().all()
     none = torch.zeros(0, 3, device=DEVICE)
     assert triton_vm(planes, lines, none).shape == (0, 3, 5)
     empty = triton_vm(planes, lines, none, summed=True)
@@ -113,14 +115,16 @@ def test_a_nan_point_gives_nan_and_no_points_give_empty_results() -> None:
 def test_the_grid_field_with_lookup_triton_gives_its_default_lookups_values_and_gradients() -> None:
     config = GridFieldConfig(n_voxels_init=9**3, n_voxels_final=9**3, decoder_bf16=False)
     field = GridField(3, BOX, config).to(DEVICE)
-    xyz = _points(100, 1.0)
+    xyz = _points(100, 1.0).requires_grad_()  # pose refinement's points: their gradient too
     dirs = torch.nn.functional.normalize(torch.randn(104, 3), dim=-1).to(DEVICE)
 
     def run() -> tuple[torch.Tensor, ...]:
         field.zero_grad()
+        xyz.grad = None
         sigma, rgb = field.density_norm(xyz), field.color_norm(xyz, dirs)
         (sigma.sum() + rgb.square().sum()).backward()
-        return sigma.detach(), rgb.detach(), field.density_planes.grad.clone(), field.app_lines.grad.clone()
+        grads = field.density_planes.grad.clone(), field.app_lines.grad.clone(), xyz.grad.clone()
+        return sigma.detach(), rgb.detach(), *grads
 
     default = run()
     field.config = dataclasses.replace(config, lookup="triton")
@@ -139,6 +143,7 @@ def test_the_custom_ops_pass_opcheck_and_compile_as_one_graph() -> None:
     )
     for summed in (False, True):
         torch.library.opcheck(op, (p.requires_grad_(True), ln.requires_grad_(True), xyz, summed))
+        torch.library.opcheck(op, (p, ln, xyz.clone().requires_grad_(True), summed))  # the point kernel
 
     def density(planes: torch.Tensor, lines: torch.Tensor, xyz: torch.Tensor) -> torch.Tensor:
         return torch.nn.functional.softplus(triton_vm(planes, lines, xyz, summed=True) - 1)
@@ -156,7 +161,7 @@ def test_the_custom_ops_pass_opcheck_and_compile_as_one_graph() -> None:
 def test_where_the_kernels_cannot_run_they_are_refused_naming_why(monkeypatch: pytest.MonkeyPatch) -> None:
     planes, lines = _factors()
     planes, lines = planes.cpu(), lines.cpu()
-    assert not applies(planes, _points(3).cpu().requires_grad_(True))  # point gradients: grid_sample's
+    assert applies(planes, _points(3).cpu().requires_grad_(True))  # the interpreter; points' gradient too
     monkeypatch.setenv("TRITON_INTERPRET", "0")
     assert not applies(planes, _points(3).cpu())
     with pytest.raises(RuntimeError, match="need a CUDA device, not cpu"):
@@ -228,9 +233,10 @@ def test_the_kernels_compile_for_an_h100_without_spilling(tmp_path: Path) -> Non
                           cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
-    rows = re.findall(r"^\| (forward|backward) \| (\d+)( summed)? \| (\d+) \| (\d+) \| (\d+) \| (\d+) \|$",
-                      proc.stdout, flags=re.M)  # fmt: skip
-    assert len(rows) == 4, proc.stdout
+    numbers = r"\| (\d+) \| (\d+) \| (\d+) \| (\d+) \| \d+ × \d+ \|$"
+    row = r"^\| (forward|backward|point) \| (\d+)( summed)? " + numbers
+    rows = re.findall(row, proc.stdout, flags=re.M)
+    assert len(rows) == 6, proc.stdout  # each kernel as vm_triton.LAUNCH launches it
     for kernel, channels, _, registers, stack, local, _ in rows:
         assert int(stack) == int(local) == 0, f"{kernel} C={channels}: registers spill\n{proc.stdout}"
         assert 0 < int(registers) <= 255

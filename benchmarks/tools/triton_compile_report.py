@@ -2,17 +2,18 @@
 
 Usage (from the repository root; ``triton`` installed, ``TRITON_INTERPRET`` unset)::
 
-    .venv/bin/python -m benchmarks.tools.triton_compile_report [--arch 90] [--warps 4] [--block 64]
+    .venv/bin/python -m benchmarks.tools.triton_compile_report [--arch 90] [--warps W] [--block B]
         [--channels 16,24] [--kernels vm,volume,march]
 
-Each kernel of ``fields/vm_triton_kernels.py`` (forward, backward) is compiled by Triton's own compiler and
-the bundled ``ptxas`` to a cubin for ``sm_<arch>`` (90: H100/H200), summed for 16 channels (the density)
-and per channel for the others (24: the appearance), with float32 pointers 16-byte aligned as torch
-allocates them. Printed per variant: registers a thread, stack and local bytes (spilled registers; 0 is
-wanted) and shared memory, from ``cuobjdump -res-usage``. A compile error fails the run (exit 1). What the
-GPU then does with them (speed) is ``bench_lookup``'s to measure. ``--kernels volume`` (in the default
-list) compiles the compositing kernels of ``render/volume_triton_kernels.py`` too, as
-``volume_triton.LAUNCH`` launches them (its own block and warps; segment sums of 2 and 3 columns: the
+Each kernel of ``fields/vm_triton_kernels.py`` (forward, backward, point: the points' gradient) is compiled
+by Triton's own compiler and the bundled ``ptxas`` to a cubin for ``sm_<arch>`` (90: H100/H200), with the
+points and warps a program that ``vm_triton.LAUNCH`` launches it with (or ``--block``, ``--warps``), summed
+for 16 channels (the density) and per channel for the others (24: the appearance), with float32 pointers
+16-byte aligned as torch allocates them. Printed per variant: registers a thread, stack and local bytes
+(spilled registers; 0 is wanted) and shared memory, from ``cuobjdump -res-usage``. A compile error fails the
+run (exit 1). What the GPU then does with them (speed) is ``bench_lookup``'s to measure. ``--kernels
+volume`` (in the default list) compiles the compositing kernels of ``render/volume_triton_kernels.py`` too,
+as ``volume_triton.LAUNCH`` launches them (its own block and warps; segment sums of 2 and 3 columns: the
 renderer's opacity and depth, and its colours), and ``--kernels march`` (also in the default list) the march
 kernels of ``render/march_triton_kernels.py`` as ``march_triton.LAUNCH`` launches them.
 """
@@ -28,9 +29,10 @@ import tempfile
 from pathlib import Path
 
 
-def compile_variants(arch: int, warps: int, block: int, channels: list[int]) -> list[dict]:
-    """One row per (kernel, channel count): its name, summed, channels and the resource usage fields
-    (``REG``, ``STACK``, ``LOCAL``, ``SHARED``) as ints."""
+def compile_variants(arch: int, warps: int | None, block: int | None, channels: list[int]) -> list[dict]:
+    """One row per (kernel, channel count): its name, summed, channels, block, warps (``None``: the
+    kernel's ``vm_triton.LAUNCH``) and the resource usage fields (``REG``, ``STACK``, ``LOCAL``,
+    ``SHARED``) as ints."""
     if os.environ.get("TRITON_INTERPRET", "0") == "1":
         raise SystemExit("triton_compile_report: unset TRITON_INTERPRET (the interpreter does not compile)")
     import triton
@@ -38,18 +40,24 @@ def compile_variants(arch: int, warps: int, block: int, channels: list[int]) -> 
     from triton.compiler import ASTSource
 
     from spikenerf.fields import vm_triton_kernels as kernels
+    from spikenerf.fields.vm_triton import LAUNCH
 
     tools = Path(triton.__file__).parent / "backends" / "nvidia" / "bin"
     aligned = [["tt.divisibility", 16]]
-    pointers = {"forward": ["P", "L", "X", "OUT"], "backward": ["P", "L", "X", "G", "GP", "GL"]}
+    pointers = {
+        "forward": ["P", "L", "X", "OUT"],
+        "backward": ["P", "L", "X", "G", "GP", "GL"],
+        "point": ["P", "L", "X", "G", "GX"],  # the points' gradient (pose refinement)
+    }
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, ptrs in pointers.items():
             kernel = getattr(kernels, f"{name}_kernel")
             names = kernel.arg_names
+            block_k, warps_k = block or LAUNCH[name][0], warps or LAUNCH[name][1]
             for c in channels:
                 summed = c == 16
-                values = {"channels": c, "SUMMED": summed, "BLOCK": block, "CP": triton.next_power_of_2(c)}
+                values = {"channels": c, "SUMMED": summed, "BLOCK": block_k, "CP": triton.next_power_of_2(c)}
                 declared = {names[i] for i in kernel.constexprs}  # as the kernel declares them
                 consts = {k: v for k, v in values.items() if k in declared}
                 signature = {
@@ -60,7 +68,7 @@ def compile_variants(arch: int, warps: int, block: int, channels: list[int]) -> 
                     attrs[(names.index("channels"),)] = aligned
                 source = ASTSource(fn=kernel, signature=signature, constexprs=consts, attrs=attrs)
                 done = triton.compile(
-                    source, target=GPUTarget("cuda", arch, 32), options={"num_warps": warps}
+                    source, target=GPUTarget("cuda", arch, 32), options={"num_warps": warps_k}
                 )
                 cubin = Path(tmp) / f"{name}{c}.cubin"
                 cubin.write_bytes(done.asm["cubin"])
@@ -72,6 +80,8 @@ def compile_variants(arch: int, warps: int, block: int, channels: list[int]) -> 
                         "kernel": name,
                         "summed": summed,
                         "channels": c,
+                        "block": block_k,
+                        "warps": warps_k,
                         **{k: int(v) for k, v in fields.items()},
                     }
                 )
@@ -151,8 +161,10 @@ def _usage(kernel, types: dict[str, str], consts: dict, arch: int, warps: int, d
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arch", type=int, default=90, help="compute capability × 10 (90: H100/H200)")
-    parser.add_argument("--warps", type=int, default=4)
-    parser.add_argument("--block", type=int, default=64, help="points per program (vm_triton.LAUNCH)")
+    parser.add_argument("--warps", type=int, help="warps a program (default: each kernel's vm_triton.LAUNCH)")
+    parser.add_argument(
+        "--block", type=int, help="points a program (default: each kernel's vm_triton.LAUNCH)"
+    )
     parser.add_argument("--channels", default="16,24")
     parser.add_argument(
         "--kernels", default="vm,volume,march", help="vm (the lookups), volume (compositing), march"
@@ -161,12 +173,13 @@ def main() -> None:
     which = set(args.kernels.split(","))
     if "vm" in which:
         rows = compile_variants(args.arch, args.warps, args.block, [int(c) for c in args.channels.split(",")])
-        print(f"sm_{args.arch}, {args.warps} warps, {args.block} points a program")
-        print("| kernel | channels | registers | stack B | local B (spills) | shared B |")
-        print("|---|---:|---:|---:|---:|---:|")
+        print(f"sm_{args.arch}, points and warps a program as each row says")
+        print("| kernel | channels | registers | stack B | local B (spills) | shared B | points × warps |")
+        print("|---|---:|---:|---:|---:|---:|---|")
         for r in rows:
             label = f"{r['channels']}{' summed' if r['summed'] else ''}"
-            print(f"| {r['kernel']} | {label} | {r['REG']} | {r['STACK']} | {r['LOCAL']} | {r['SHARED']} |")
+            usage = f"{r['REG']} | {r['STACK']} | {r['LOCAL']} | {r['SHARED']}"
+            print(f"| {r['kernel']} | {label} | {usage} | {r['block']} × {r['warps']} |")
     if "volume" in which:
         rows = [(r["kernel"], str(r["columns"]), r) for r in compile_volume(args.arch)]
         _table(

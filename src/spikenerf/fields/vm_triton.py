@@ -10,8 +10,9 @@ into the four plane texels and two line texels with atomic adds (one buffer, no 
 whose (summed) gradient is 0, such as those behind a ray's early stop, add nothing.
 
 Both kernels are ``torch.library`` custom ops with a fake implementation and an autograd formula, so
-``torch.compile(fullgraph=True)`` keeps them in one graph as opaque calls. No gradient for the points (pose
-refinement falls back to ``grid_sample``). Where Triton runs (``triton`` importable and a CUDA tensor, or
+``torch.compile(fullgraph=True)`` keeps them in one graph as opaque calls. Points that want a gradient (pose
+refinement moves them) get it from a third kernel, one block of points a program, no atomics (its launch
+shape is the backward's, not tuned on a GPU). Where Triton runs (``triton`` importable and a CUDA tensor, or
 ``TRITON_INTERPRET=1`` with CPU tensors, which the tests use) is :func:`applies`. On an H200 a forward and
 backward is 5–7× ``grid_sample``'s (docs/performance.md, "Factor lookups for the GPU").
 """
@@ -29,8 +30,9 @@ from spikenerf.core.tracing import constant_result
 from spikenerf.fields.vm_ops import channels_last, check_factors, register_pair
 
 #: kernel → (points a program, warps a program): the fastest forward + backward of four shapes on an H200
-#: (2²⁰ points, R 300, C 16 and 24; ``benchmarks/tools/bench_lookup.py --triton-launch``, docs/performance.md)
-LAUNCH: dict[str, tuple[int, int]] = {"forward": (32, 4), "backward": (32, 4)}
+#: (2²⁰ points, R 300, C 16 and 24; ``benchmarks/tools/bench_lookup.py --triton-launch``,
+#: docs/performance.md); the points' gradient ("point") takes the backward's, untimed
+LAUNCH: dict[str, tuple[int, int]] = {"forward": (32, 4), "backward": (32, 4), "point": (32, 4)}
 
 
 @constant_result  # a host query: fixed per process, traced as a constant
@@ -47,15 +49,9 @@ def interpreted() -> bool:
 
 def applies(planes: Tensor, xyz: Tensor) -> bool:
     """The kernels can run here: Triton installed, float32 factors and points on CUDA (on the CPU under the
-    interpreter), no gradient wanted for the points."""
+    interpreter)."""
     on = planes.device.type == "cuda" or (planes.device.type == "cpu" and interpreted())
-    return (
-        on
-        and planes.dtype == torch.float32
-        and xyz.dtype == torch.float32
-        and not xyz.requires_grad
-        and installed()
-    )
+    return on and planes.dtype == torch.float32 and xyz.dtype == torch.float32 and installed()
 
 
 def why_not(device: torch.device) -> str:
@@ -72,10 +68,10 @@ def _launch(kernel_name: str, planes: Tensor, *args: Tensor, summed: bool) -> No
     and the kernels module (which Triton compiles, or interprets, on first use)."""
     import triton
 
-    from spikenerf.fields.vm_triton_kernels import backward_kernel, forward_kernel
+    from spikenerf.fields.vm_triton_kernels import backward_kernel, forward_kernel, point_kernel
 
     m, c = args[1].shape[0], planes.shape[-1]
-    kernel = {"forward": forward_kernel, "backward": backward_kernel}[kernel_name]
+    kernel = {"forward": forward_kernel, "backward": backward_kernel, "point": point_kernel}[kernel_name]
     block, warps = LAUNCH[kernel_name]
     on = torch.cuda.device(planes.device) if planes.is_cuda else contextlib.nullcontext()
     with on:  # Triton launches on the current device, not the tensors'
@@ -100,8 +96,16 @@ def _backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> tuple
     return gp, gl
 
 
-#: ``spikenerf::vm_triton_forward`` (and ``_backward``): the kernels as custom ops, opaque to torch.compile
-_OP = register_pair("vm_triton", _forward, _backward)
+def _point_backward(planes: Tensor, lines: Tensor, xyz: Tensor, grad: Tensor) -> Tensor:
+    gx = torch.empty_like(xyz)
+    if xyz.shape[0]:
+        _launch("point", planes, lines, xyz, grad, gx, summed=grad.dim() == 1)
+    return gx
+
+
+#: ``spikenerf::vm_triton_forward`` (``_backward``, ``_point_backward``): the kernels as custom ops, opaque
+#: to torch.compile
+_OP = register_pair("vm_triton", _forward, _backward, _point_backward)
 
 
 def triton_vm(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) -> Tensor:
@@ -113,14 +117,13 @@ def triton_vm(planes: Tensor, lines: Tensor, xyz: Tensor, summed: bool = False) 
         summed: return the sum over axis pairs and channels instead (the density), computed in the kernel.
     Returns:
         (M, 3, C), the values of :func:`spikenerf.fields.vm_sample.sample_vm` transposed; (M,) when
-        ``summed``.
-        Gradients flow to ``planes`` and ``lines``, not to ``xyz``.
+        ``summed``. Gradients flow to ``planes``, ``lines`` and, where it wants one, ``xyz``.
     Raises:
         RuntimeError: Triton cannot run here (:func:`applies` is False), naming why. InputError: factors or
             points not of these shapes, or not float32 (:func:`~.vm_ops.check_factors`).
     """
     check_factors(planes, lines, xyz)
     if not applies(planes, xyz):
-        reason = why_not(planes.device) or "points without gradient are needed"
+        reason = why_not(planes.device) or "float32 factors and points are needed"
         raise RuntimeError(f"triton_vm: {reason}")
     return _OP(*channels_last(planes, lines), xyz.contiguous(), summed)

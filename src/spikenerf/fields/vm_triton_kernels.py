@@ -35,18 +35,36 @@ def corner(coord, size):
 
 
 @triton.jit
-def pair(k, u, v, z, size, channels):
-    # plane k's four texel offsets and weights at (u ↔ w, v ↔ h), line k's two at z (per point)
-    c0, c1, wc0, wc1 = corner(u, size)
-    r0, r1, wr0, wr1 = corner(v, size)
-    l0, l1, wl0, wl1 = corner(z, size)
+def slopes(coord, size):
+    # the slopes along coord of corner()'s two weights: ∓(size − 1)/2 for a texel inside the grid, 0 for
+    # one outside, NaN for a NaN/inf coordinate (grid_sample's gradient for its grid, zeros padding)
+    u = (coord + 1.0) * 0.5 * (size - 1)
+    finite = (u == u) & (tl.abs(u) < float("inf"))
+    low = tl.floor(tl.minimum(tl.maximum(tl.where(finite, u, 0.0), -2.0), size + 1.0)).to(tl.int64)
+    s = 0.5 * (size - 1)
+    d_lo = tl.where((low >= 0) & (low < size), -s, 0.0)
+    d_hi = tl.where((low + 1 >= 0) & (low + 1 < size), s, 0.0)
+    return tl.where(finite, d_lo, float("nan")), tl.where(finite, d_hi, float("nan"))
+
+
+@triton.jit
+def texels(k, c0, c1, r0, r1, l0, l1, size, channels):
+    # plane k's four texel offsets (rows r0, r1; columns c0, c1) and line k's two (l0, l1)
     base = k * size
     o00 = ((base + r0) * size + c0) * channels
     o01 = ((base + r0) * size + c1) * channels
     o10 = ((base + r1) * size + c0) * channels
     o11 = ((base + r1) * size + c1) * channels
-    q0 = (base + l0) * channels
-    q1 = (base + l1) * channels
+    return o00, o01, o10, o11, (base + l0) * channels, (base + l1) * channels
+
+
+@triton.jit
+def pair(k, u, v, z, size, channels):
+    # plane k's four texel offsets and weights at (u ↔ w, v ↔ h), line k's two at z (per point)
+    c0, c1, wc0, wc1 = corner(u, size)
+    r0, r1, wr0, wr1 = corner(v, size)
+    l0, l1, wl0, wl1 = corner(z, size)
+    o00, o01, o10, o11, q0, q1 = texels(k, c0, c1, r0, r1, l0, l1, size, channels)
     return o00, o01, o10, o11, wr0 * wc0, wr0 * wc1, wr1 * wc0, wr1 * wc1, q0, q1, wl0, wl1
 
 
@@ -120,3 +138,65 @@ def backward_kernel(P, L, X, G, GP, GL, M, size, channels: tl.constexpr, SUMMED:
         tl.atomic_add(GP + o11[:, None] + cols, w11[:, None] * gp, mask=mask, sem="relaxed")
         tl.atomic_add(GL + q0[:, None] + cols, wl0[:, None] * gl, mask=mask, sem="relaxed")
         tl.atomic_add(GL + q1[:, None] + cols, wl1[:, None] * gl, mask=mask, sem="relaxed")
+
+
+@triton.jit
+def point_kernel(P, L, X, G, GX, M, size, channels: tl.constexpr, SUMMED: tl.constexpr,
+                 BLOCK: tl.constexpr, CP: tl.constexpr):  # fmt: skip
+    # the points' gradient (M, 3) of Σ G·P_k(x)·L_k(x): per axis pair, the plane's bilinear slope along its
+    # two coordinates times the line's value, and the line's slope times the plane's value (no atomics:
+    # each point is its own)
+    n = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
+    live = n < M
+    ch = tl.arange(0, CP)
+    if SUMMED:
+        g_point = tl.load(G + n, mask=live, other=0.0)
+    mask = live[:, None] & (ch < channels)[None, :]
+    gx0 = tl.zeros([BLOCK], dtype=tl.float32)
+    gx1 = tl.zeros([BLOCK], dtype=tl.float32)
+    gx2 = tl.zeros([BLOCK], dtype=tl.float32)
+    for k in tl.static_range(3):
+        u, v, z = axes(X, n, live, k)
+        c0, c1, wc0, wc1 = corner(u, size)
+        r0, r1, wr0, wr1 = corner(v, size)
+        l0, l1, wl0, wl1 = corner(z, size)
+        dc0, dc1 = slopes(u, size)
+        dr0, dr1 = slopes(v, size)
+        dl0, dl1 = slopes(z, size)
+        o00, o01, o10, o11, q0, q1 = texels(k, c0, c1, r0, r1, l0, l1, size, channels)
+        if SUMMED:
+            g = g_point[:, None] + tl.zeros([BLOCK, CP], dtype=tl.float32)
+        else:
+            g = tl.load(G + (n * 3 + k)[:, None] * channels + ch[None, :], mask=mask, other=0.0)
+        # one pair of texel rows at a time (fewer live tiles: no register spill at 24 channels)
+        e0 = tl.load(L + q0[:, None] + ch[None, :], mask=mask, other=0.0)
+        e1 = tl.load(L + q1[:, None] + ch[None, :], mask=mask, other=0.0)
+        gl = g * (wl0[:, None] * e0 + wl1[:, None] * e1)  # gradient × line value
+        g_dl = g * (dl0[:, None] * e0 + dl1[:, None] * e1)  # gradient × line slope
+        p0 = tl.load(P + o00[:, None] + ch[None, :], mask=mask, other=0.0)
+        p1 = tl.load(P + o01[:, None] + ch[None, :], mask=mask, other=0.0)
+        top = wc0[:, None] * p0 + wc1[:, None] * p1
+        d_top = dc0[:, None] * p0 + dc1[:, None] * p1
+        p0 = tl.load(P + o10[:, None] + ch[None, :], mask=mask, other=0.0)
+        p1 = tl.load(P + o11[:, None] + ch[None, :], mask=mask, other=0.0)
+        bottom = wc0[:, None] * p0 + wc1[:, None] * p1
+        d_bottom = dc0[:, None] * p0 + dc1[:, None] * p1
+        du = tl.sum(gl * (wr0[:, None] * d_top + wr1[:, None] * d_bottom), axis=1)
+        dv = tl.sum(gl * (dr0[:, None] * top + dr1[:, None] * bottom), axis=1)
+        dz = tl.sum(g_dl * (wr0[:, None] * top + wr1[:, None] * bottom), axis=1)
+        # axis pair k reads u = coord[k // 2], v = coord[k + 1 − k // 2], z = coord[2 − k] (axes())
+        if k == 0:
+            gx0 += du
+            gx1 += dv
+            gx2 += dz
+        elif k == 1:
+            gx0 += du
+            gx2 += dv
+            gx1 += dz
+        else:
+            gx1 += du
+            gx2 += dv
+            gx0 += dz
+    tl.store(GX + n * 3, gx0, mask=live)
+    tl.store(GX + n * 3 + 1, gx1, mask=live)
+    tl.store(GX + n * 3 + 2, gx2, mask=live)
