@@ -113,23 +113,39 @@ def forward_kernel(P, L, X, OUT, M, size, channels: tl.constexpr, SUMMED: tl.con
 
 
 @triton.jit
-def backward_kernel(P, L, X, G, GP, GL, M, size, channels: tl.constexpr, SUMMED: tl.constexpr,
-                    BLOCK: tl.constexpr, CP: tl.constexpr):  # fmt: skip
+def gradient_block(G, M, SUMMED: tl.constexpr, BLOCK: tl.constexpr, CP: tl.constexpr):
+    # a backward program's points n (BLOCK,), which of them exist (live), the channels (CP,) and, when
+    # SUMMED, each point's one gradient (BLOCK,) (zeros otherwise)
     n = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     live = n < M
-    ch = tl.arange(0, CP)
+    g_point = tl.zeros([BLOCK], dtype=tl.float32)
     if SUMMED:
         g_point = tl.load(G + n, mask=live, other=0.0)
+    return n, live, tl.arange(0, CP), g_point
+
+
+@triton.jit
+def gradient_rows(G, g_point, n, k, ch, mask, channels: tl.constexpr, SUMMED: tl.constexpr,
+                  BLOCK: tl.constexpr, CP: tl.constexpr):  # fmt: skip
+    # axis pair k's gradient rows (BLOCK, CP): the point's one gradient in every channel when SUMMED
+    g = g_point[:, None] + tl.zeros([BLOCK, CP], dtype=tl.float32)
+    if not SUMMED:
+        g = tl.load(G + (n * 3 + k)[:, None] * channels + ch[None, :], mask=mask, other=0.0)
+    return g
+
+
+@triton.jit
+def backward_kernel(P, L, X, G, GP, GL, M, size, channels: tl.constexpr, SUMMED: tl.constexpr,
+                    BLOCK: tl.constexpr, CP: tl.constexpr):  # fmt: skip
+    n, live, ch, g_point = gradient_block(G, M, SUMMED, BLOCK, CP)
+    if SUMMED:
         live = live & (g_point != 0.0)  # e.g. behind a ray's early stop: nothing to add
     mask = live[:, None] & (ch < channels)[None, :]
     for k in tl.static_range(3):
         u, v, z = axes(X, n, live, k)
         o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1 = pair(k, u, v, z, size, channels)
         pv, lv = values(P, L, o00, o01, o10, o11, w00, w01, w10, w11, q0, q1, wl0, wl1, ch, mask)
-        if SUMMED:
-            g = g_point[:, None] + tl.zeros([BLOCK, CP], dtype=tl.float32)
-        else:
-            g = tl.load(G + (n * 3 + k)[:, None] * channels + ch[None, :], mask=mask, other=0.0)
+        g = gradient_rows(G, g_point, n, k, ch, mask, channels, SUMMED, BLOCK, CP)
         gp, gl = g * lv, g * pv
         cols = ch[None, :]
         tl.atomic_add(GP + o00[:, None] + cols, w00[:, None] * gp, mask=mask, sem="relaxed")
@@ -146,11 +162,7 @@ def point_kernel(P, L, X, G, GX, M, size, channels: tl.constexpr, SUMMED: tl.con
     # the points' gradient (M, 3) of Σ G·P_k(x)·L_k(x): per axis pair, the plane's bilinear slope along its
     # two coordinates times the line's value, and the line's slope times the plane's value (no atomics:
     # each point is its own)
-    n = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
-    live = n < M
-    ch = tl.arange(0, CP)
-    if SUMMED:
-        g_point = tl.load(G + n, mask=live, other=0.0)
+    n, live, ch, g_point = gradient_block(G, M, SUMMED, BLOCK, CP)
     mask = live[:, None] & (ch < channels)[None, :]
     gx0 = tl.zeros([BLOCK], dtype=tl.float32)
     gx1 = tl.zeros([BLOCK], dtype=tl.float32)
@@ -164,10 +176,7 @@ def point_kernel(P, L, X, G, GX, M, size, channels: tl.constexpr, SUMMED: tl.con
         dr0, dr1 = slopes(v, size)
         dl0, dl1 = slopes(z, size)
         o00, o01, o10, o11, q0, q1 = texels(k, c0, c1, r0, r1, l0, l1, size, channels)
-        if SUMMED:
-            g = g_point[:, None] + tl.zeros([BLOCK, CP], dtype=tl.float32)
-        else:
-            g = tl.load(G + (n * 3 + k)[:, None] * channels + ch[None, :], mask=mask, other=0.0)
+        g = gradient_rows(G, g_point, n, k, ch, mask, channels, SUMMED, BLOCK, CP)
         # one pair of texel rows at a time (fewer live tiles: no register spill at 24 channels)
         e0 = tl.load(L + q0[:, None] + ch[None, :], mask=mask, other=0.0)
         e1 = tl.load(L + q1[:, None] + ch[None, :], mask=mask, other=0.0)
