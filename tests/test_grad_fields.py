@@ -175,3 +175,100 @@ def test_rows_fewer_than_the_points_or_not_an_integer_are_refused_by_name(rows: 
     with pytest.raises(InputError, match="rows must be an integer ≥ the 12 points") as err:
         vm_kernel.vm_rows(p, ln, x, rows)  # type: ignore[arg-type]
     assert "rows" in err.value.params
+
+
+class _Counting:
+    """The built kernel module, counting calls of its ``backward`` (the factors') and ``point_backward``."""
+
+    def __init__(self, module: object) -> None:
+        self.module, self.calls = module, {"backward": 0, "point_backward": 0}
+
+    def __getattr__(self, name: str) -> object:
+        if name in self.calls:
+            self.calls[name] += 1
+        return getattr(self.module, name)
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["eager", "aot_eager"])
+def test_the_cpu_kernels_backward_passes_run_only_for_the_inputs_that_want_a_gradient(
+    compiled: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``ctx.needs_input_grad`` in the ops' backward (``torch.library`` and ``autograd.Function``), eager and
+    traced by AOTAutograd: points without a gradient (no pose refinement) cost no point pass, and frozen
+    factors (``eval``'s test-time pose fit: only the points want a gradient) no scatter into the factors'
+    gradients, which were thrown away; the points get grid_sample's gradient either way."""
+    _kernel_or_skip()
+    counting = _Counting(vm_kernel.load())
+    monkeypatch.setattr(vm_kernel, "load", lambda: counting)
+    offsets, deltas = torch.tensor([0, 5, 5, 12]), torch.full((12,), 0.1)
+    lookups: dict[str, Callable] = {
+        "lookup": lambda p, ln, x: vm_kernel.vm_lookup(p, ln, x).square().sum(),
+        "summed": lambda p, ln, x: vm_kernel.vm_lookup(p, ln, x, True).square().sum(),
+        "until": lambda p, ln, x: (
+            vm_kernel.vm_sum_until(p, ln, x, offsets, deltas, 0.0, 1.0, 1e9).square().sum()
+        ),
+        "rows": lambda p, ln, x: vm_kernel.vm_rows(p, ln, x, 16).float().square().sum(),
+    }
+    p64, l64, x64 = _factors(9)
+    for name, lookup in lookups.items():
+        fn = torch.compile(lookup, backend="aot_eager", fullgraph=name != "rows") if compiled else lookup
+        for factors, points in ((True, False), (True, True), (False, True)):
+            torch._dynamo.reset()
+            p32, l32 = (t.float().requires_grad_(factors) for t in (p64, l64))
+            x32 = x64.float().requires_grad_(points)
+            before = dict(counting.calls)
+            wanted = [t for t in (p32, l32, x32) if t.requires_grad]
+            grads = torch.autograd.grad(fn(p32, l32, x32), wanted)
+            ran = {k: counting.calls[k] - before[k] for k in before}
+            assert ran == {"backward": int(factors), "point_backward": int(points)}, (name, factors, points)
+            if points:  # the value's gradient for the points: 2·v·∂v/∂x of grid_sample's
+                x_ref = x64.clone().requires_grad_()
+                ref = sample_vm(p64, l64, x_ref).permute(2, 0, 1)
+                ref = ref.sum(dim=(1, 2)) if name in ("summed", "until") else ref
+                expect = torch.autograd.grad(ref.square().sum(), x_ref)[0]
+                tol = 3e-2 if name == "rows" else 1e-4
+                torch.testing.assert_close(
+                    grads[-1].double(), expect, rtol=tol, atol=tol * expect.abs().max()
+                )
+
+
+def _lookups() -> list[Callable]:
+    found = [vm_kernel.vm_lookup] if vm_kernel.available() else []
+    if vm_triton.applies(torch.zeros(1), torch.zeros(1)):
+        found.append(vm_triton.triton_vm)
+    if not found:
+        pytest.skip("neither kernel runs here")
+    return found
+
+
+@pytest.mark.parametrize("res", [2, 5])
+@pytest.mark.parametrize("summed", [False, True])
+def test_the_points_gradient_on_texel_knots_the_grids_edges_and_beyond_equals_grid_sample(
+    res: int, summed: bool
+) -> None:
+    """grid_sample's slope is one-sided where a coordinate lies on a texel (the cell above it) and 0 where
+    both texels lie outside: every combination of coordinates on knots, at ±1, within a texel outside the
+    grid (one texel inside) and beyond, exactly representable, on 2 texels (one cell) and 5, both kernels."""
+    half = 0.5 * (res - 1)
+    cells = [-2.5, -2, -1, -0.5, 0, 0.25, res - 2, res - 1, res - 0.75, res, res + 1.5]
+    coords = sorted({u / half - 1 for u in cells})
+    points = torch.cartesian_prod(*[torch.tensor(coords, dtype=D)] * 3)
+    planes, lines, _ = _factors(10, channels=3, res=res)
+    x64 = points.clone().requires_grad_()
+    ref = sample_vm(planes, lines, x64).permute(2, 0, 1)
+    ref = ref.sum(dim=(1, 2)) if summed else ref
+    grad = torch.randn(ref.shape, generator=torch.Generator().manual_seed(11), dtype=D)
+    expect = torch.autograd.grad(ref, x64, grad)[0]
+    for lookup in _lookups():
+        x32 = points.float().requires_grad_()
+        got = torch.autograd.grad(lookup(planes.float(), lines.float(), x32, summed), x32, grad.float())[0]
+        torch.testing.assert_close(got.double(), expect, rtol=1e-5, atol=1e-5, msg=lookup.__name__)
+
+
+@pytest.mark.parametrize("summed", [False, True])
+def test_no_points_that_want_a_gradient_get_an_empty_one(summed: bool) -> None:
+    planes, lines, _ = (t.float() for t in _factors(12))
+    for lookup in _lookups():
+        none = torch.zeros(0, 3, requires_grad=True)
+        out = lookup(planes, lines, none, summed)
+        assert torch.autograd.grad(out.sum(), none)[0].shape == (0, 3)

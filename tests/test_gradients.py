@@ -229,6 +229,8 @@ def test_the_fused_kernels_custom_ops_pass_opcheck_and_compile_as_one_graph() ->
         torch.library.opcheck(torch.ops.spikenerf.vm_cpu_forward.default, (p, ln, xyz, summed))
         points = xyz.clone().requires_grad_()  # pose refinement's case: the point backward op too
         torch.library.opcheck(torch.ops.spikenerf.vm_cpu_forward.default, (p, ln, points, summed))
+        frozen = p.detach(), ln.detach(), points  # eval's pose fit: only the points want a gradient
+        torch.library.opcheck(torch.ops.spikenerf.vm_cpu_forward.default, (*frozen, summed))
 
     field = GridField(1, torch.tensor([[-1.0, -1, -1], [1, 1, 1]]))
     dirs = torch.nn.functional.normalize(torch.randn(300, 3, generator=gen), dim=-1)
@@ -274,7 +276,7 @@ def test_fused_vm_kernel_nan_point_gives_nan_not_a_crash() -> None:
 def test_the_grid_fields_point_gradients_take_the_kernel_and_equal_grid_sample(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """Pose refinement moves the sample points: density and colour (the bf16 rows where the CPU has them)
     give the points grid_sample's gradient through the kernel, eager and compiled. Before, a point that
-    wanted a gradient sent every lookup to grid_sample (7× slower steps on an imported recording)."""
+    wanted a gradient sent every lookup to grid_sample (about 3× slower steps on an imported recording)."""
     from spikenerf.fields import grid as grid_module
 
     vm_kernel = _kernel_or_skip()
@@ -355,9 +357,9 @@ def test_fused_vm_kernel_multithread_backward_matches_grid_sample() -> None:
 def test_fused_vm_kernel_backward_has_the_same_plane_gradient_on_any_number_of_threads(summed: bool) -> None:
     """The backward gives each thread a band of plane rows: every plane gradient element is summed in point
     order by one thread, so 1, 2 and 3 threads give the same bits (the line gradients, summed over the
-    threads' buffers, agree to rounding), and ``grid_sample``'s gradients, with points crowded into a few
-    rows, points on texel rows (band edges) and outside the grid, and, for the density, a zero gradient at
-    every third point."""
+    threads' buffers, agree to rounding; the points' gradient, each point's own, the same bits too), and
+    ``grid_sample``'s gradients, with points crowded into a few rows, points on texel rows (band edges) and
+    outside the grid, and, for the density, a zero gradient at every third point."""
     from spikenerf.fields.vm_sample import sample_vm
 
     vm_kernel = _kernel_or_skip()
@@ -377,18 +379,24 @@ def test_fused_vm_kernel_backward_has_the_same_plane_gradient_on_any_number_of_t
     if summed:
         grad[::3] = 0.0
     want = torch.autograd.grad(ref, (planes, lines), grad)
+    points = xyz.clone().requires_grad_()  # the points' gradient (pose refinement): each point its own
+    ref_points = sample_vm(planes, lines, points).permute(2, 0, 1)
+    ref_points = ref_points.sum(dim=(1, 2)) if summed else ref_points
+    want_points = torch.autograd.grad(ref_points, points, grad)[0]
     threads, got = torch.get_num_threads(), {}
     try:
         for n in (1, 2, 3):
             torch.set_num_threads(n)
-            out = vm_kernel.vm_lookup(planes, lines, xyz, summed=summed)
-            got[n] = torch.autograd.grad(out, (planes, lines), grad)
+            out = vm_kernel.vm_lookup(planes, lines, points, summed=summed)
+            got[n] = torch.autograd.grad(out, (planes, lines, points), grad)
     finally:
         torch.set_num_threads(threads)
     for n in (2, 3):
         assert torch.equal(got[n][0], got[1][0]), f"plane gradient on {n} threads"
         assert torch.allclose(got[n][1], got[1][1], rtol=1e-5, atol=1e-4)
-    assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got[1], want, strict=True))
+        assert torch.equal(got[n][2], got[1][2]), f"points' gradient on {n} threads"
+    assert all(torch.allclose(a, b, rtol=1e-4, atol=1e-3) for a, b in zip(got[1][:2], want, strict=True))
+    torch.testing.assert_close(got[1][2], want_points, rtol=1e-4, atol=1e-3)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="built with OpenMP on Linux only")

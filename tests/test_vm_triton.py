@@ -144,6 +144,8 @@ def test_the_custom_ops_pass_opcheck_and_compile_as_one_graph() -> None:
     for summed in (False, True):
         torch.library.opcheck(op, (p.requires_grad_(True), ln.requires_grad_(True), xyz, summed))
         torch.library.opcheck(op, (p, ln, xyz.clone().requires_grad_(True), summed))  # the point kernel
+        frozen = p.detach(), ln.detach(), xyz.clone().requires_grad_(True)  # only the points' gradient
+        torch.library.opcheck(op, (*frozen, summed))
 
     def density(planes: torch.Tensor, lines: torch.Tensor, xyz: torch.Tensor) -> torch.Tensor:
         return torch.nn.functional.softplus(triton_vm(planes, lines, xyz, summed=True) - 1)

@@ -17,7 +17,7 @@ time on a machine) and loads it. Where that is not possible (no
 compiler, a CUDA tensor, float64, ``SPIKENERF_VM_KERNEL=0``, inside :func:`suspended`) callers fall back
 to ``grid_sample``; :func:`available` says which path is used. Points that want a gradient (pose refinement
 moves them) get it from the kernel too (``point_backward``: one pass over the points, each its own; before,
-such a step fell back to ``grid_sample``, 7× slower on an imported recording).
+such a step fell back to ``grid_sample``: about 3× slower on the real-data demo path, docs/performance.md).
 The forward and the backward are ``torch.library`` custom ops, so ``torch.compile(fullgraph=True)`` keeps them
 in its graph (``train --compile`` on a CPU; before, the compiled step fell back to ``grid_sample``).
 """
@@ -129,12 +129,15 @@ class _Rows(torch.autograd.Function):
         return load().forward_rows(planes, lines, xyz, rows)
 
     @staticmethod
-    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, Tensor | None, None]:  # type: ignore[override]
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
         planes, lines, xyz = ctx.saved_tensors
         m = xyz.shape[0]
         grad = grad[:m].reshape(m, 3, planes.shape[-1]).contiguous()
-        gp, gl = load().backward(planes, lines, xyz, grad)
-        gx = load().point_backward(planes, lines, xyz, grad) if ctx.needs_input_grad[2] else None
+        gp = gl = gx = None
+        if ctx.needs_input_grad[0] or ctx.needs_input_grad[1]:  # (frozen factors, eval's pose fit: none)
+            gp, gl = load().backward(planes, lines, xyz, grad)
+        if ctx.needs_input_grad[2]:
+            gx = load().point_backward(planes, lines, xyz, grad)
         return gp, gl, gx, None
 
 
@@ -183,8 +186,9 @@ def _until_setup(ctx: Any, inputs: tuple, output: Tensor) -> None:
 def _until_grad(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:
     planes, lines, xyz = ctx.saved_tensors  # the summed lookup's backward: a sample left out has gradient 0
     grad = grad.contiguous()
-    gp, gl = torch.ops.spikenerf.vm_cpu_backward(planes, lines, xyz, grad)
-    gx = None
+    gp = gl = gx = None
+    if ctx.needs_input_grad[0] or ctx.needs_input_grad[1]:  # (frozen factors, eval's pose fit: none)
+        gp, gl = torch.ops.spikenerf.vm_cpu_backward(planes, lines, xyz, grad)
     if ctx.needs_input_grad[2]:
         gx = torch.ops.spikenerf.vm_cpu_point_backward(planes, lines, xyz, grad)
     return gp, gl, gx, None, None, None, None, None

@@ -95,11 +95,14 @@ def register_pair(
         planes, lines, xyz, _ = inputs
         ctx.save_for_backward(planes, lines, xyz)
 
-    def grad_of(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, Tensor | None, None]:
+    def grad_of(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, Tensor | None, None]:
         planes, lines, xyz = ctx.saved_tensors
         grad = grad.contiguous()
-        gp, gl = backward_op(planes, lines, xyz, grad)
-        gx = point_op(planes, lines, xyz, grad) if point_op is not None and ctx.needs_input_grad[2] else None
+        gp = gl = gx = None
+        if ctx.needs_input_grad[0] or ctx.needs_input_grad[1]:  # (frozen factors, eval's pose fit: none)
+            gp, gl = backward_op(planes, lines, xyz, grad)
+        if point_op is not None and ctx.needs_input_grad[2]:
+            gx = point_op(planes, lines, xyz, grad)
         return gp, gl, gx, None
 
     forward_op.register_autograd(grad_of, setup_context=setup_context)
