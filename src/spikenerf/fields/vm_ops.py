@@ -3,8 +3,8 @@
 
 Each pair is a forward op and a backward op over channels-last factors, with fake implementations (shapes
 only) and an autograd formula, so that ``torch.compile(fullgraph=True)`` keeps them in its graph as opaque
-calls (a bare C++ or Triton launch would break the graph). A pair registered with a point backward (the CPU
-kernel's) also gives the points their gradient (pose refinement moves them); one without refuses points
+calls (a bare C++ or Triton launch would break the graph). A pair registered with a point backward (both
+kernels' are) also gives the points their gradient (pose refinement moves them); one without refuses points
 that want one.
 """
 

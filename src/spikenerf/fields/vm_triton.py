@@ -9,7 +9,7 @@ for the density, so no (M, 3, C) tensor is written), and in the backward add eac
 into the four plane texels and two line texels with atomic adds (one buffer, no per-thread copies). Points
 whose (summed) gradient is 0, such as those behind a ray's early stop, add nothing.
 
-Both kernels are ``torch.library`` custom ops with a fake implementation and an autograd formula, so
+The kernels are ``torch.library`` custom ops with a fake implementation and an autograd formula, so
 ``torch.compile(fullgraph=True)`` keeps them in one graph as opaque calls. Points that want a gradient (pose
 refinement moves them) get it from a third kernel, one block of points a program, no atomics (its launch
 shape is the backward's, not tuned on a GPU). Where Triton runs (``triton`` importable and a CUDA tensor, or
