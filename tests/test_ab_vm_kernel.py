@@ -49,3 +49,34 @@ def test_before_cflags_replace_the_checkouts_flags_of_the_before_build(monkeypat
     (before_name, before), (after_name, after) = seen
     assert before == ["-O2", *vm_build._OPENMP_CFLAGS] and after == vm_build._CFLAGS + vm_build._OPENMP_CFLAGS
     assert before_name != after_name  # cached apart: the name hashes the flags
+
+
+class _Kernel:
+    """A stand-in for a built kernel module (no compiler needed): zero outputs of the kernel's shapes."""
+
+    def forward(self, planes, lines, xyz, summed):  # type: ignore[no-untyped-def]
+        return xyz.new_zeros((len(xyz),) if summed else (len(xyz), 3, planes.shape[-1]))
+
+    def backward(self, planes, lines, xyz, grad):  # type: ignore[no-untyped-def]
+        return planes.new_zeros(planes.shape), lines.new_zeros(lines.shape)
+
+
+class _PointKernel(_Kernel):
+    def point_backward(self, planes, lines, xyz, grad):  # type: ignore[no-untyped-def]
+        return xyz.new_zeros(xyz.shape)
+
+
+@pytest.mark.parametrize("before_has_points", [False, True])
+def test_the_points_gradient_is_timed_only_where_both_builds_have_it(
+    before_has_points: bool, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    kernels = {"before": _PointKernel() if before_has_points else _Kernel(), "after": _PointKernel()}
+    monkeypatch.setattr(TOOL, "kernel_source", lambda path: str(path))
+    monkeypatch.setattr(TOOL, "build", lambda source, tag, cflags=None: kernels[tag])
+    argv = ["ab_vm_kernel", "a.cpp", "b.cpp", "--points", "256", "--resolution", "8", "--repeats", "2"]
+    monkeypatch.setattr("sys.argv", [*argv, "--threads", "1"])
+    TOOL.main()
+    out = capsys.readouterr().out
+    assert out.count("| backward, 1 thread(s)") == 2 and out.count("| forward, 1 thread(s)") == 2
+    assert out.count("| points' gradient, 1 thread(s)") == (2 if before_has_points else 0)
+    assert out.count("largest difference (output, gradients) | 0.0e+00") == 2

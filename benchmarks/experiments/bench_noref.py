@@ -4,10 +4,10 @@ Run: ``.venv/bin/python -m benchmarks.experiments.bench_noref --out /tmp/bench-n
 steps in ``--out`` are reused). ``simulate --noise realistic --raw-width W+16`` writes a raw recording with a
 SpikeCV ``config.yaml`` and no poses; it is imported with ``--poses orbit``: with the true orbit (30°, the
 reference) and with each wrong elevation of ``--wrong-elevation`` (a misregistered trajectory). ``--method``
-(spike-nerf) trains on each for the same iterations, once per seed of ``--seeds``, then ``spikenerf eval``
-reports the no-reference checks at the same check steps (the imported test keyframes). Training holds those
-steps out (the default for imported datasets; ``--no-holdout`` trains on them, as before the hold-out
-existed); the script prints the held-out steps and stops if the checks scored other steps.
+(spike-integral, train's default) trains on each for the same iterations, once per seed of ``--seeds``, then
+``spikenerf eval`` reports the no-reference checks at the same check steps (the imported test keyframes).
+Training holds those steps out (the default for imported datasets; ``--no-holdout`` trains on them, as before
+the hold-out existed); the script prints the held-out steps and stops if the checks scored other steps.
 
 Printed per wrong elevation: each metric's mean ± std over the (seed, check step) pairs for both pose sets,
 the ratio wrong / true, the paired difference (same seed, same step) with its 95% t interval over those
@@ -82,7 +82,7 @@ def main() -> None:
     p.add_argument("--height", type=int, default=64)
     p.add_argument("--frames", type=int, default=400)
     p.add_argument("--iters", type=int, default=300)
-    p.add_argument("--method", default="spike-nerf")
+    p.add_argument("--method", default="spike-integral", help="train's default; the first tables: spike-nerf")
     p.add_argument("--seeds", type=int, default=1, help="training seeds 0..N-1 per pose set")
     p.add_argument("--wrong-elevation", type=float, nargs="+", default=[36.0], help="degrees; truth 30")
     p.add_argument("--no-holdout", action="store_true", help="train on the check steps (the old setup)")

@@ -14,10 +14,11 @@ before build others: to measure a flag change, pass the same file twice) under a
 first build of a source takes about a minute, then it is cached), so both run in the same process on the
 same tensors: the density's form (16 channels, summed, a zero gradient at every third point, as early ray
 termination leaves them) and the appearance's (24 channels, (M, 3, C) out). Points lie along random rays,
-64 samples a cell apart (``bench_lookup.ray_points``). For each thread count and form: ``--repeats``
-backward calls of each build, alternating which goes first, after 3 untimed; then as many forward calls.
-Printed: the median ms of each, the median of the per-call ratios before / after (above 1: after is faster)
-with its quartiles, and the largest difference of the outputs and gradients.
+64 samples a cell apart (``bench_lookup.ray_points``). For each thread count and form: ``--repeats`` backward
+calls of each build, alternating which goes first, after 3 untimed; then as many forward calls. The points'
+gradient (``point_backward``) too where both sources have it. Printed: the median ms of each, the median of
+the per-call ratios before / after (above 1: after is faster) with its quartiles, and the largest difference
+of the outputs and gradients.
 """
 
 from __future__ import annotations
@@ -126,8 +127,12 @@ def main() -> None:
             report(f"backward, {form}", timed(back, args.repeats))
             report(f"forward, {form}", timed(fwd, args.repeats))
             outs = {t: [fwd[t](), *back[t]()] for t in modules}
+            if all(hasattr(m, "point_backward") for m in modules.values()):  # (a kernel from stop 68 on)
+                point = {t: partial(m.point_backward, planes, lines, xyz, grad) for t, m in modules.items()}
+                report(f"points' gradient, {form}", timed(point, args.repeats))
+                outs = {t: [*outs[t], point[t]()] for t in modules}
             diff = max((a - b).abs().max().item() for a, b in zip(outs["before"], outs["after"], strict=True))
-            print(f"|   largest difference (output, plane and line gradients) | {diff:.1e} | | |")
+            print(f"|   largest difference (output, gradients) | {diff:.1e} | | |")
 
 
 if __name__ == "__main__":
