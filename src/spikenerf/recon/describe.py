@@ -9,7 +9,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 from spikenerf.recon.store import MANIFEST, SPLITS, read_manifest
 
 
@@ -60,8 +60,16 @@ def describe_recon(root: str | Path) -> str:
             f"curves: iteration {last.get('iteration', '?')}, train L1 {last.get('train_l1', '?')}{held}"
         )
     weights = root / "weights.pt"
-    if weights.is_file():
-        summary = _json(root / "weights.json") if (root / "weights.json").is_file() else {}
+    summary = _json(root / "weights.json") if weights.is_file() else {}
+    done = summary.get("config", {}).get("iters") if isinstance(summary.get("config"), dict) else None
+    if weights.is_file() and is_integer(done) and is_integer(got["iters"]) and done < got["iters"]:
+        # a finished run resumed with more --iters and stopped before its end: its weights.pt is the
+        # earlier run's, not this one's
+        lines.append(
+            f"unfinished: continued to {got['iters']} iterations; run its command again to resume from its "
+            f"last checkpoint (weights.pt is the earlier run's, of {done} iterations)"
+        )
+    elif weights.is_file():
         if "val_psnr_learned" in summary:
             learned, tfp = summary["val_psnr_learned"], summary.get("val_psnr_tfp")
             lines.append(
