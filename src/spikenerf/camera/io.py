@@ -26,7 +26,7 @@ from spikenerf.camera.dat_codec import (
 from spikenerf.camera.frame_range import resolve_frames
 from spikenerf.core.atomic import atomic_path
 from spikenerf.core.color import is_tensor
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, as_path
 
 if TYPE_CHECKING:
     import torch
@@ -192,6 +192,7 @@ def write_dat(
     Returns:
         The number of frames written.
     """
+    path = as_path(path, "path")  # (None was a TypeError deep in pathlib)
     check_layout(layout, path)
     chunks = [spikes] if isinstance(spikes, np.ndarray) or is_tensor(spikes) else spikes
     written, shape = 0, None

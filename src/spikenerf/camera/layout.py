@@ -17,6 +17,7 @@ from typing import TypeVar
 
 import numpy as np
 
+from spikenerf.core.color import is_tensor
 from spikenerf.core.errors import InputError
 
 Array = TypeVar("Array")
@@ -32,6 +33,15 @@ def _movedim(x: Array, source: int, destination: int) -> Array:
     return x.movedim(source, destination)  # type: ignore[attr-defined]
 
 
+def _check_array(x: object, name: str) -> None:
+    """InputError naming ``name`` unless ``x`` is a numpy array or a torch tensor (a string or a list has no
+    axes to move: an AttributeError before)."""
+    if not (isinstance(x, np.ndarray) or is_tensor(x)):
+        raise InputError(
+            f"{name} must be a numpy array or a torch tensor, found {type(x).__name__}", param=name
+        )
+
+
 def to_channels_last(x: Array, frame: bool = False, name: str = "spikes") -> Array:
     """Camera layout → channels last, as a view.
 
@@ -41,13 +51,14 @@ def to_channels_last(x: Array, frame: bool = False, name: str = "spikes") -> Arr
     Returns:
         (T, H, W, 1) or (T, H, W, 3); one step: (H, W, 1) or (H, W, 3).
     """
+    _check_array(x, name)
     ndim, gray = len(x.shape), 2 if frame else 3  # type: ignore[attr-defined]
     if ndim == gray:
         return x[..., None]  # type: ignore[index]
     if ndim == gray + 1 and x.shape[-3] == 3:  # type: ignore[attr-defined]
         return _movedim(x, -3, -1)
     want = "(H, W) or (3, H, W)" if frame else "(T, H, W) or (T, 3, H, W)"
-    raise InputError(f"{name} must be {want}, found shape {tuple(x.shape)}")  # type: ignore[attr-defined]
+    raise InputError(f"{name} must be {want}, found shape {tuple(x.shape)}", param=name)  # type: ignore[attr-defined]
 
 
 def to_camera_layout(x: Array, frame: bool = False, name: str = "spikes") -> Array:
@@ -59,8 +70,9 @@ def to_camera_layout(x: Array, frame: bool = False, name: str = "spikes") -> Arr
     Returns:
         (T, H, W) or (T, 3, H, W); one step: (H, W) or (3, H, W).
     """
+    _check_array(x, name)
     shape = tuple(x.shape)  # type: ignore[attr-defined]
     if len(shape) == (3 if frame else 4) and shape[-1] in (1, 3):
         return x[..., 0] if shape[-1] == 1 else _movedim(x, -1, -3)  # type: ignore[index]
     want = "(H, W, C)" if frame else "(T, H, W, C)"
-    raise InputError(f"{name} must be {want} with C = 1 or 3, found shape {shape}")
+    raise InputError(f"{name} must be {want} with C = 1 or 3, found shape {shape}", param=name)

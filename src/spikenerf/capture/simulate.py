@@ -191,6 +191,13 @@ def simulate_dataset(
     if not is_integer(jobs) or jobs < 1:
         raise InputError(f"jobs must be an integer ≥ 1, found {jobs!r}", param="jobs")
     check_options(options)
+    missing = [key for key in ("trajectory", "intrinsics", "scene_box") if not hasattr(source, key)]
+    if missing:  # (None, or another object, was an AttributeError here)
+        raise InputError(
+            f"source must be a scene source (make_scene_source(...)), found {type(source).__name__} "
+            f"without {', '.join(missing)}",
+            param="source",
+        )
     check_trajectory(source.trajectory, "source.trajectory")  # before any frame is rendered
     test = np.asarray(getattr(source, "test_poses", np.zeros((0, 4, 4))), dtype=np.float64).reshape(-1, 4, 4)
     check_bounds_of(np.concatenate([source.trajectory.poses, test]), np.asarray(source.scene_box, float))

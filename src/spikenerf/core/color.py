@@ -64,7 +64,11 @@ def srgb_encode(linear: Array) -> Array:
         return sys.modules["torch"].where(
             x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055
         )
-    x = np.clip(linear, 0.0, 1.0)
+    x = np.asarray(linear)
+    if not (np.issubdtype(x.dtype, np.number) or x.dtype == bool):  # (a string, None: numpy's ufunc error)
+        found = f"{type(linear).__name__} of {x.dtype}"
+        raise InputError(f"linear must be numbers (an array or a tensor), found {found}", param="linear")
+    x = np.clip(x, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 1e-12) ** (1 / 2.4) - 0.055)
 
 

@@ -32,3 +32,15 @@ def check_threshold(threshold: float | torch.Tensor) -> None:
     number = is_number(threshold)
     if not (number and math.isfinite(threshold) and threshold > 0):
         raise InputError(f"threshold φ must be a finite number > 0, found {threshold!r}", param="threshold")
+
+
+def as_tensor_arg(x: object, name: str, device: torch.device | str | None = None) -> torch.Tensor:
+    """``torch.as_tensor(x, device=device)``, or an InputError naming ``name`` where ``x`` is no array of
+    numbers (a string, a ragged list, None: torch's own TypeError or ValueError named no parameter)."""
+    try:
+        return torch.as_tensor(x, device=device)
+    except (TypeError, ValueError, RuntimeError) as err:
+        found = f"{type(x).__name__} {x!r:.40}"
+        raise InputError(
+            f"{name} must be an array or tensor of numbers, found {found} ({err})", param=name
+        ) from None

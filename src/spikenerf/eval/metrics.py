@@ -15,6 +15,7 @@ import torch.nn.functional as F
 
 from spikenerf.core.errors import InputError, is_finite
 from spikenerf.core.psnr import mse_to_psnr
+from spikenerf.core.tensor_checks import as_tensor_arg
 
 
 @dataclass(frozen=True)
@@ -42,7 +43,7 @@ def _batched(
     """
     if data_range is not None and not (is_finite(data_range) and data_range > 0):
         raise InputError(f"data_range must be a finite number > 0, found {data_range!r}", param="data_range")
-    a, b = torch.as_tensor(a), torch.as_tensor(b)
+    a, b = as_tensor_arg(a, "a"), as_tensor_arg(b, "b")
     if a.shape != b.shape:
         shapes = f"{tuple(a.shape)} vs {tuple(b.shape)}"
         raise InputError(f"a and b: image shapes differ: {shapes}", param=("a", "b"))
@@ -83,6 +84,7 @@ def masked_mean(x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
 def _mask_batched(mask: torch.Tensor | None, shape: torch.Size) -> torch.Tensor | None:
     if mask is None:
         return None
+    mask = as_tensor_arg(mask, "mask")  # (a numpy mask, as the images may be)
     mask = mask[None] if mask.ndim == 3 else mask
     if mask.shape != shape:
         raise InputError(
@@ -176,6 +178,8 @@ def ssim(
     Returns:
         (N,) or () float64 in [-1, 1]; 1 for identical images (NaN where the mask leaves nothing).
     """
+    if not isinstance(config, SSIMConfig):
+        raise InputError(f"config must be an SSIMConfig, found {type(config).__name__}", param="config")
     a, b, single = _batched(a, b, config.data_range)
     m = _mask_batched(mask, a.shape)
     if m is not None:

@@ -7,7 +7,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 
 
 def dilate(occupied: Tensor, radius: int) -> Tensor:
@@ -39,6 +39,8 @@ class OccupancyGrid(nn.Module):
     """
 
     def __init__(self, resolution: int) -> None:
+        if not is_integer(resolution) or resolution < 1:  # (0 made an empty grid, -2 a torch error)
+            raise InputError(f"resolution must be an integer ≥ 1, found {resolution!r}", param="resolution")
         super().__init__()
         self.register_buffer("grid", torch.ones(resolution, resolution, resolution, dtype=torch.bool))
         self.register_buffer("bounds", torch.tensor([[-1.0] * 3, [1.0] * 3]))

@@ -14,7 +14,7 @@ from typing import Any
 from torch import Tensor
 
 from spikenerf.core.config import check_config, from_mapping
-from spikenerf.core.errors import InputError
+from spikenerf.core.errors import InputError, is_integer
 from spikenerf.fields.base import Field
 from spikenerf.fields.grid import GridField
 from spikenerf.fields.grid_config import GridFieldConfig
@@ -70,7 +70,7 @@ FIELD_REGISTRY: dict[str, FieldEntry] = {
 def field_entry(kind: str) -> FieldEntry:
     """The registry entry of ``kind`` (InputError for an unknown one)."""
     if kind not in FIELD_REGISTRY:
-        raise InputError(f"field kind must be one of {', '.join(FIELD_REGISTRY)}, got {kind!r}")
+        raise InputError(f"field kind must be one of {', '.join(FIELD_REGISTRY)}, got {kind!r}", param="kind")
     return FIELD_REGISTRY[kind]
 
 
@@ -111,7 +111,7 @@ def field_memory(kind: str, config: Any) -> tuple[float, float, float]:
 def build_field(kind: str, channels: int, scene_box: Tensor, config: Any = None) -> Field:
     """A field of ``kind`` (a :data:`FIELD_REGISTRY` key: "grid" | "mlp") with ``channels`` (1 gray, 3 rgb)
     over ``scene_box`` (2, 3)."""
-    if channels not in (1, 3):
-        raise InputError(f"channels must be 1 (gray) or 3 (rgb), got {channels}")
+    if not is_integer(channels) or channels not in (1, 3):  # (True == 1: a TypeError deep in nn.Linear)
+        raise InputError(f"channels must be 1 (gray) or 3 (rgb), got {channels!r}", param="channels")
     cfg = field_config(kind, config)
     return FIELD_REGISTRY[kind].field(channels, scene_box, cfg)  # type: ignore[call-arg]

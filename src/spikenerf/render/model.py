@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from spikenerf.core.errors import InputError, is_number
+from spikenerf.core.errors import InputError, is_integer, is_number
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
 from spikenerf.fields.registry import FIELD_REGISTRY, build_field
 from spikenerf.render.base import RadianceModel
@@ -33,7 +34,14 @@ def build_model(
         scene_box: (2, 3) world bounds (min, max) of the content.
         config: None (defaults), a ``GridFieldConfig`` / ``MLPFieldConfig``, or a dict of their fields.
     """
-    field = build_field(kind, channels, torch.as_tensor(np.asarray(scene_box), dtype=torch.float32), config)
+    try:
+        box = torch.as_tensor(np.asarray(scene_box), dtype=torch.float32)
+    except (TypeError, ValueError) as err:  # (a string or a ragged list: numpy's or torch's words alone)
+        found = f"{type(scene_box).__name__} {scene_box!r:.40}"
+        raise InputError(
+            f"scene_box must be (2, 3) numbers, found {found} ({err})", param="scene_box"
+        ) from None
+    field = build_field(kind, channels, box, config)
     return MODELS[kind](field)  # type: ignore[call-arg]
 
 
@@ -53,7 +61,23 @@ def model_from_hparams(hparams: dict[str, Any], state_dict: dict[str, Tensor] | 
 def ray_bounds(
     model: RadianceModel, origins: Tensor, dirs: Tensor, near: float | None = None, far: float | None = None
 ) -> tuple[Tensor, Tensor]:
-    """near/far (N,) of rays inside the model's scene box, optionally narrowed to scalar ``[near, far]``."""
+    """near/far (N,) of rays inside the model's scene box, optionally narrowed to scalar ``[near, far]``.
+
+    Raises:
+        InputError: naming ``origins``/``dirs`` unless they are tensors (N, 3) of one shape, or ``near``/
+            ``far`` unless None or a finite number (a NaN bound gave NaN bounds) with ``near < far``.
+            Shapes and Python numbers only: no device sync, and a compiled training step keeps its one graph.
+    """
+    for name, rays in (("origins", origins), ("dirs", dirs)):
+        if not isinstance(rays, Tensor) or rays.dim() != 2 or rays.shape[1] != 3:
+            found = f"{type(rays).__name__} of shape {tuple(getattr(rays, 'shape', ()))}"
+            raise InputError(f"{name} must be a tensor (N, 3), found {found}", param=name)
+    if tuple(dirs.shape) != tuple(origins.shape):
+        raise InputError(
+            f"dirs must have the shape of origins, {tuple(origins.shape)}, found {tuple(dirs.shape)}",
+            param="dirs",
+        )
+    check_bounds(near, far)  # (a NaN bound gave NaN bounds; near ≥ far every ray empty, a white image)
     lo, hi = ray_box_bounds(origins, dirs, model.scene_box)
     if near is not None:
         lo = lo.clamp_min(near)
@@ -69,7 +93,16 @@ def render_rays_chunked(
 ) -> RenderOutput:  # fmt: skip
     """Deterministic render of many rays in chunks of ``chunk`` rays: a :class:`RenderOutput` with colour
     (N, C), depth (N,), opacity (N,) float32 and the summed ``num_samples`` (no per-sample weights).
-    ``precision``: fp32, or fp16/bf16 autocast (:mod:`spikenerf.render.inference`)."""
+    ``precision``: fp32, or fp16/bf16 autocast (:mod:`spikenerf.render.inference`). ``chunk``: an integer
+    ≥ 1 (InputError naming it otherwise: 0 was a ValueError of range(), a negative one of torch.cat)."""
+    if not is_integer(chunk) or chunk < 1:
+        raise InputError(
+            f"chunk must be an integer ≥ 1 (rays per render call), found {chunk!r}", param="chunk"
+        )
+    n = origins.shape[0]
+    if n == 0:  # no ray: empty outputs (torch.cat of no parts failed)
+        empty = torch.zeros(0, device=model.device)
+        return RenderOutput(empty.new_zeros(0, model.channels), empty, empty.clone(), num_samples=0)
     parts = []
     for i in range(0, origins.shape[0], chunk):
         with render_autocast(model.device, precision):
@@ -111,14 +144,31 @@ def check_poses(poses: Tensor | np.ndarray, param: str, one: bool = False) -> No
         raise InputError(f"{param} holds a NaN or an infinity", param=param)
 
 
+def check_model(model: object) -> None:
+    """InputError naming ``model`` unless it is a :class:`RadianceModel` (``build_model``, or
+    ``model_from_hparams`` of a checkpoint; None was an AttributeError deep in the renderer)."""
+    if not isinstance(model, RadianceModel):
+        found = type(model).__name__
+        raise InputError(f"model must be a RadianceModel (build_model(...)), found {found}", param="model")
+
+
+def check_intrinsics(intrinsics: object) -> None:
+    """InputError naming ``intrinsics`` unless it is an :class:`Intrinsics` (None or a dict was an
+    AttributeError deep in the ray builder)."""
+    if not isinstance(intrinsics, Intrinsics):
+        found = type(intrinsics).__name__
+        raise InputError(
+            f"intrinsics must be an Intrinsics (scenes.Intrinsics), found {found}", param="intrinsics"
+        )
+
+
 def check_bounds(near: float | None, far: float | None) -> None:
     """InputError naming ``near``/``far`` unless each is None or a finite number and ``near < far`` when
     both are given (``chunk`` is checked by :func:`spikenerf.render.inference.inference_chunk`)."""
     for name, value in (("near", near), ("far", far)):
         if value is None:
             continue
-        number = is_number(value)
-        if not number or not np.isfinite(value):
+        if not is_number(value) or not math.isfinite(value):  # (math, not numpy: it runs in a compiled step)
             raise InputError(f"{name} must be None or a finite number, found {value!r}", param=name)
     if near is not None and far is not None and not near < far:
         raise InputError(
@@ -149,8 +199,10 @@ def render_image(
     Raises:
         InputError: naming ``c2w``, ``near``/``far`` or ``chunk``.
     """
+    check_model(model)
     check_poses(c2w, "c2w", one=True)
     check_bounds(near, far)
+    check_intrinsics(intrinsics)
     chunk = inference_chunk(model, chunk)
     pose = as_poses(c2w, model.device)
     origins, dirs = image_rays(pose, intrinsics)

@@ -25,7 +25,14 @@ from spikenerf.core.errors import InputError
 from spikenerf.data.rays import as_poses, pixel_rays
 from spikenerf.render.base import RadianceModel
 from spikenerf.render.inference import inference_chunk
-from spikenerf.render.model import check_bounds, check_poses, ray_bounds, render_image
+from spikenerf.render.model import (
+    check_bounds,
+    check_intrinsics,
+    check_model,
+    check_poses,
+    ray_bounds,
+    render_image,
+)
 from spikenerf.scenes.trajectory import Intrinsics
 
 
@@ -53,7 +60,22 @@ def fire_sequence(intensity: Tensor, start: Tensor, threshold: float | Tensor = 
     Returns:
         spikes (L, ...) bool and accumulators (L, ...) after each step (same float ops as the camera, so
         bit-identical to calling ``fire`` in a loop).
+    Raises:
+        InputError: naming ``start`` unless it is a tensor of one step's shape (``intensity.shape[1:]``, or
+            broadcastable to it), ``intensity`` unless it has a step axis, or ``threshold`` unless a finite
+            number > 0 (a NaN or zero φ fired no spike or one every step, without a word).
     """
+    if not hasattr(intensity, "shape") or len(intensity.shape) == 0:
+        raise InputError("intensity must be (L, ...) with a step axis first", param="intensity")
+    step = tuple(intensity.shape[1:])
+    if (
+        not isinstance(start, Tensor)
+        or len(start.shape) > len(step)
+        or any(a not in (1, b) for a, b in zip(reversed(tuple(start.shape)), reversed(step), strict=False))
+    ):
+        found = tuple(start.shape) if isinstance(start, Tensor) else type(start).__name__
+        raise InputError(f"start must be a tensor of one step's shape {step}, found {found}", param="start")
+    tensor_checks.check_threshold(threshold)
     spikes, accs = [], []
     acc = start
     for k in range(intensity.shape[0]):
@@ -91,8 +113,13 @@ def render_spike_window(
         ``render_rays`` call (keep L·N within a training batch).
     """
     device = model.device
+    shape = tuple(getattr(poses, "shape", ()))  # (the shape only: this runs in a compiled training step)
+    if len(shape) != 3 or shape[1:] != (4, 4):  # (one (4, 4) pose was a RuntimeError of expand)
+        hint = " (one pose? pass poses[None])" if shape == (4, 4) else ""
+        raise InputError(f"poses must be (L, 4, 4) camera-to-world, found shape {shape}{hint}", param="poses")
+    check_intrinsics(intrinsics)  # (near and far: ray_bounds)
     pose = as_poses(poses, device)
-    pixels = torch.as_tensor(pixels, device=device)
+    pixels = tensor_checks.as_tensor_arg(pixels, "pixels", device)
     check_window_args(pixels, start_accumulator, intrinsics, model.channels)
     tensor_checks.check_threshold(threshold)
     n_steps, n_pix = pose.shape[0], pixels.shape[0]
@@ -108,7 +135,7 @@ def render_spike_window(
 def check_window_args(pixels: Tensor, start: Tensor, intrinsics: Intrinsics, channels: int) -> None:
     """InputError naming ``pixels`` unless they are (N, 2) integers inside the image (the range only where
     :func:`~spikenerf.core.tensor_checks.readable`), or ``start_accumulator`` unless it is a tensor (N, C)
-    (an (N,) or (N, 1) broadcast against C channels without a word)."""
+    (an (N,) or (N, 1) broadcast against C channels without a word), finite where readable."""
     if (
         pixels.dim() != 2
         or pixels.shape[1] != 2
@@ -135,6 +162,8 @@ def check_window_args(pixels: Tensor, start: Tensor, intrinsics: Intrinsics, cha
         raise InputError(
             f"start_accumulator must be a tensor {want} (N, C), found {found}", param="start_accumulator"
         )
+    if tensor_checks.readable(start) and not bool(torch.isfinite(start).all()):  # (a NaN start fired nothing)
+        raise InputError("start_accumulator holds a NaN or an infinity", param="start_accumulator")
 
 
 def random_start(
@@ -165,9 +194,11 @@ def iter_spike_states(
     start (None → seed 0). ``chunk``: rays per render call, 0 = automatic. The arguments are checked when
     this is called (InputError naming the parameter), not at the first step.
     """
+    check_model(model)
     check_poses(poses, "poses")
     check_threshold(threshold)
     check_bounds(near, far)
+    check_intrinsics(intrinsics)
     h, w, c = intrinsics.height, intrinsics.width, model.channels
     if start_accumulator is None or (
         isinstance(start_accumulator, (int, np.integer)) and not isinstance(start_accumulator, bool)

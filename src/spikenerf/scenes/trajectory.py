@@ -55,8 +55,18 @@ class Intrinsics:
 
     @classmethod
     def from_fov(cls, width: int, height: int, camera_angle_x: float) -> Intrinsics:
-        """Square pixels from the horizontal field of view ``camera_angle_x`` (radians)."""
-        focal = 0.5 * width / math.tan(0.5 * camera_angle_x)
+        """Square pixels from the horizontal field of view ``camera_angle_x`` (radians, in (0, π)).
+
+        Raises:
+            InputError: naming ``camera_angle_x`` outside (0, π) (0 was a ZeroDivisionError, π a focal
+                length of 5e-16), or ``width``/``height`` as the constructor does.
+        """
+        if not (is_finite(camera_angle_x) and 0 < camera_angle_x < math.pi):
+            raise InputError(
+                f"camera_angle_x must be a field of view in (0, π) radians, found {camera_angle_x!r}",
+                param="camera_angle_x",
+            )
+        focal = 0.5 * width / math.tan(0.5 * camera_angle_x) if is_number(width) else 1.0  # (width: below)
         return cls(width, height, focal, focal, width / 2.0, height / 2.0)
 
     @property

@@ -19,7 +19,7 @@ import torch
 from spikenerf.camera.firing import fire
 from spikenerf.core import tensor_checks
 from spikenerf.core.color import srgb_slope
-from spikenerf.core.errors import InputError, is_number, nonempty, same_shape
+from spikenerf.core.errors import InputError, is_integer, is_number, nonempty, same_shape
 from spikenerf.core.psnr import mse_to_psnr as mse_to_psnr  # re-exported for the trainer
 from spikenerf.core.tensor_checks import check_threshold
 from spikenerf.train.settings import LOSS_WEIGHTS, LossWeight, PairMode
@@ -41,7 +41,9 @@ def recon_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
             against (N,) would broadcast to (N, N)).
     """
     check_tensor(pred, "pred")
-    target = torch.as_tensor(target, device=pred.device)
+    if not pred.dtype.is_floating_point:  # (an integer mean is a RuntimeError deep in torch)
+        raise InputError(f"pred must be floating-point renders, found {pred.dtype}", param="pred")
+    target = tensor_checks.as_tensor_arg(target, "target", pred.device)
     same_shape(pred, target, "target", "pred")
     nonempty(pred, "pred", "ray and channel")
     return torch.mean((pred - target.to(pred.dtype)) ** 2)
@@ -66,7 +68,7 @@ def recorded_spikes(spikes: object, like: torch.Tensor) -> torch.Tensor:
     """``spikes`` (a tensor or array, as ``read_dat`` gives) on ``like``'s device, as spikes: bool as they
     are, integers as ``!= 0`` (0/255 frames are spikes, as for TFP), floats as they are, which must be 0.0
     or 1.0 (an InputError naming ``spikes`` where they can be read: ``tensor_checks.readable``)."""
-    s = torch.as_tensor(spikes)
+    s = tensor_checks.as_tensor_arg(spikes, "spikes")
     if s.dtype.is_floating_point or s.dtype.is_complex:
         if tensor_checks.readable(s):
             odd = (s != 0) & (s != 1)
@@ -115,7 +117,7 @@ def window_mean_loss(
         raise InputError(f"means must be floating-point renders, found {means.dtype}", param="means")
     if weight not in LOSS_WEIGHTS:
         raise InputError(f"weight must be one of {', '.join(LOSS_WEIGHTS)}, found {weight!r}", param="weight")
-    target = torch.as_tensor(target, device=means.device)
+    target = tensor_checks.as_tensor_arg(target, "target", means.device)
     if means.dim() != 3 or target.shape != (means.shape[0], means.shape[2]):
         raise InputError(f"means must be (B, G, C) and target (B, C), found {tuple(means.shape)}, "
                          f"{tuple(target.shape)}", param=("means", "target"))  # fmt: skip
@@ -125,7 +127,7 @@ def window_mean_loss(
         )
     nonempty(means, "means", "window and channel")
     if band is not None:
-        band = torch.as_tensor(band, device=means.device)
+        band = tensor_checks.as_tensor_arg(band, "band", means.device)
         if band.shape != (means.shape[0], 1):
             raise InputError(
                 f"band must be (B, 1) = {(means.shape[0], 1)}, found {tuple(band.shape)}", param="band"
@@ -303,12 +305,16 @@ def paper_spike_loss(
     spikes = recorded_spikes(spikes, intensity)
     same_shape(intensity, spikes, "spikes", "intensity")
     check_threshold(threshold)
-    acc = torch.as_tensor(start_accumulator, device=intensity.device)
+    if not is_integer(warmup) or warmup < 0:  # (a float or a string failed deep in a slice or a max())
+        raise InputError(f"warmup must be an integer ≥ 0 (steps), found {warmup!r}", param="warmup")
+    acc = tensor_checks.as_tensor_arg(start_accumulator, "start_accumulator", intensity.device)
     if tuple(acc.shape) != tuple(intensity.shape[1:]):  # (N,) against (N, C) broadcast silently
         raise InputError(
             f"start_accumulator must be (N, C) = {tuple(intensity.shape[1:])}, found {tuple(acc.shape)}",
             param="start_accumulator",
         )
+    if tensor_checks.readable(acc) and not bool(torch.isfinite(acc).all()):  # (a NaN start fired nothing)
+        raise InputError("start_accumulator holds a NaN or an infinity", param="start_accumulator")
     with torch.no_grad():
         acc = acc.detach().to(intensity.dtype)
         fired = []
