@@ -10,6 +10,7 @@ import torch
 from torch import Tensor
 
 from spikenerf.core.errors import InputError, is_integer, is_number
+from spikenerf.core.tensor_checks import as_tensor_arg
 from spikenerf.data.rays import as_poses, image_rays, ray_box_bounds
 from spikenerf.fields.registry import FIELD_REGISTRY, build_field
 from spikenerf.render.base import RadianceModel
@@ -34,13 +35,7 @@ def build_model(
         scene_box: (2, 3) world bounds (min, max) of the content.
         config: None (defaults), a ``GridFieldConfig`` / ``MLPFieldConfig``, or a dict of their fields.
     """
-    try:
-        box = torch.as_tensor(np.asarray(scene_box), dtype=torch.float32)
-    except (TypeError, ValueError) as err:  # (a string or a ragged list: numpy's or torch's words alone)
-        found = f"{type(scene_box).__name__} {scene_box!r:.40}"
-        raise InputError(
-            f"scene_box must be (2, 3) numbers, found {found} ({err})", param="scene_box"
-        ) from None
+    box = as_tensor_arg(scene_box, "scene_box").to(torch.float32)  # (a string or a ragged list: named)
     field = build_field(kind, channels, box, config)
     return MODELS[kind](field)  # type: ignore[call-arg]
 
